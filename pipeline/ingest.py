@@ -1,0 +1,417 @@
+"""Ingest one raw export: metadata, channel mapping, unit conversion, validation, Parquet.
+
+``raw file -> RawExport (reader) -> resolved metadata -> column map -> converted, validated
+record batches -> samples Parquet`` (written under a temporary name, then renamed), and a
+:class:`IngestResult` with the ``runs`` row or the one-line reason the file is quarantined.
+
+Data is streamed batch by batch, so memory stays bounded whatever the file size.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import re
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from pipeline.layout import ConfigError, RawTree
+from pipeline.readers import RawColumn, ReaderError, read_export
+from schemas.channels import CHANNELS, canonical_name, sanitise_name
+from schemas.kinds import (KINDS, META_KEYS, REQUIRED_METADATA, coerce_value, missing_channels,
+                           missing_metadata, samples_schema)
+from schemas.units import P_ATM_DEFAULT_PA, QUANTITIES, accepted_symbols, lookup_unit
+
+#: Bump when ingest output changes for the same input; part of every samples file's key.
+INGEST_VERSION = "1"
+
+
+class IngestError(Exception):
+    """A raw file that cannot be used; the message is the quarantine's one line."""
+
+
+@dataclass
+class ColumnMap:
+    """How one raw column becomes one samples column."""
+
+    key: str
+    column: str
+    channel: str | None
+    raw_name: str
+    raw_unit: str | None
+    unit: str | None          # unit of the stored values
+    scale: float = 1.0        # rig.toml scale
+    offset: float = 0.0       # rig.toml offset
+    si_scale: float = 1.0     # unit conversion (see schemas.units.Unit.to_si)
+    absolute: bool = False    # absolute pressure: subtract p_atm
+    si_divisor: float | None = None
+    numeric: bool = True
+
+    def describe(self) -> dict:
+        return {"column": self.column, "channel": self.channel, "raw_name": self.raw_name,
+                "raw_unit": self.raw_unit, "unit": self.unit}
+
+
+@dataclass
+class IngestResult:
+    """What ingesting one file produced: a runs row, or an error."""
+
+    source_path: str
+    campaign: str | None = None
+    run: dict | None = None
+    channels: list[dict] = field(default_factory=list)
+    error: str | None = None
+
+
+def sha256_file(path: Path, chunk: int = 1 << 22) -> str:
+    """SHA-256 of a file, read in chunks. [hex]"""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        while block := fh.read(chunk):
+            h.update(block)
+    return h.hexdigest()
+
+
+# -- metadata ------------------------------------------------------------------------------
+def parse_started_at(value) -> str:
+    """ISO 8601 text (or datetime) -> ISO 8601 in UTC; local time without offset is UTC."""
+    if isinstance(value, datetime):
+        dt = value
+    else:
+        text = str(value).strip()
+        try:
+            dt = datetime.fromisoformat(text.replace(" ", "T", 1) if "T" not in text and " " in text else text)
+        except ValueError:
+            raise IngestError(f"`started_at` is not ISO 8601: {text!r}") from None
+    if dt.tzinfo is None:
+        dt = dt.replace(tzinfo=timezone.utc)
+    return dt.astimezone(timezone.utc).isoformat()
+
+
+def normalise_keys(meta: dict) -> dict:
+    """Known keys matched case-insensitively onto their canonical spelling; others kept."""
+    known = {k.casefold(): k for k in META_KEYS}
+    out = {}
+    for k, v in meta.items():
+        key = known.get(str(k).strip().casefold(), str(k).strip())
+        out[key] = v
+    return out
+
+
+def resolve_metadata(rig: dict, embedded: dict, manifest: dict, campaign: str, path: Path) -> dict:
+    """Merge the three metadata sources (manifest > embedded > rig.toml), type and check them."""
+    meta = {**normalise_keys(rig), **normalise_keys(embedded), **normalise_keys(manifest)}
+    meta = {k: v for k, v in meta.items() if not (isinstance(v, str) and v.strip() == "")}
+    meta.setdefault("run_id", f"{campaign}/{path.stem}")
+    for k, spec in META_KEYS.items():
+        if spec.default is not None and k not in meta and (k == "p_atm_pa" or _kind_uses(meta.get("kind"), k)):
+            meta[k] = spec.default
+    try:
+        meta = {k: coerce_value(k, v) for k, v in meta.items()}
+    except ValueError as exc:
+        raise IngestError(f"metadata {exc}") from None
+    if meta.get("kind") is None:
+        raise IngestError("missing metadata `kind` (one of " + ", ".join(KINDS) + ")")
+    if "started_at" in meta:
+        meta["started_at"] = parse_started_at(meta["started_at"])
+    for k, v in list(meta.items()):
+        meta[k] = _jsonable(v)
+    return meta
+
+
+def _kind_uses(kind, key) -> bool:
+    spec = KINDS.get(kind) if isinstance(kind, str) else None
+    return spec is not None and (key in spec.metadata or (kind == "spring" and key == "stroke_mm")
+                                 or (kind == "identification" and key == "id_sample_rate_hz"))
+
+
+def _jsonable(v):
+    if isinstance(v, (np.generic,)):
+        v = v.item()
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    if isinstance(v, (str, int, float, bool)) or v is None:
+        return v
+    if isinstance(v, datetime):
+        return v.isoformat()
+    if isinstance(v, (list, tuple)):
+        return [_jsonable(x) for x in v]
+    if isinstance(v, dict):
+        return {str(k): _jsonable(x) for k, x in v.items()}
+    if isinstance(v, np.ndarray):
+        return _jsonable(v.tolist())
+    return str(v)
+
+
+# -- columns -------------------------------------------------------------------------------
+def _rig_entry(col: RawColumn, channels_cfg: dict) -> dict | None:
+    for key in (col.name, f"{col.name}[{col.unit}]" if col.unit else None, str(col.index), col.key):
+        if key is not None and key in channels_cfg:
+            entry = channels_cfg[key]
+            return entry if isinstance(entry, dict) else {"channel": str(entry)}
+    return None
+
+
+def map_columns(columns: list[RawColumn], channels_cfg: dict) -> list[ColumnMap]:
+    """Map raw columns onto canonical channels (rig.toml ``[channels]`` first, then names)."""
+    maps: list[ColumnMap] = []
+    seen: dict[str, str] = {}
+    for col in columns:
+        entry = _rig_entry(col, channels_cfg or {})
+        name = col.name
+        unit_text = col.unit
+        scale, offset = 1.0, 0.0
+        if entry is not None:
+            name = str(entry.get("channel", name))
+            unit_text = entry.get("unit", unit_text)
+            try:
+                scale = float(entry.get("scale", 1.0))
+                offset = float(entry.get("offset", 0.0))
+            except (TypeError, ValueError):
+                raise IngestError(f"rig.toml scale/offset of column `{col.name}` is not a number") from None
+        channel = canonical_name(name)
+        label = f"`{col.name}`" if col.name == str(col.index) or not col.name else f"`{col.name}` (column {col.index})"
+        if channel is None:
+            column = sanitise_name(name)
+            maps.append(ColumnMap(col.key, column, None, col.name, col.unit, unit_text, scale, offset,
+                                  numeric=col.dtype != "string"))
+        else:
+            quantity = CHANNELS[channel].quantity
+            if unit_text is None or str(unit_text).strip() == "":
+                raise IngestError(f"no unit for channel `{channel}` in column {label} "
+                                  f"(accepted: {', '.join(accepted_symbols(quantity))})")
+            unit = lookup_unit(unit_text)
+            if unit is None or unit.quantity != quantity:
+                raise IngestError(f"unit `{unit_text}` not accepted for `{channel}` "
+                                  f"(accepted: {', '.join(accepted_symbols(quantity))})")
+            column = CHANNELS[channel].column
+            maps.append(ColumnMap(col.key, column, channel, col.name, unit_text, CHANNELS[channel].si_unit,
+                                  scale, offset, unit.scale, unit.absolute, unit.divisor))
+        if column in seen:
+            raise IngestError(f"channel `{channel or column}` appears twice (`{seen[column]}` and `{col.name}`)")
+        seen[column] = col.name
+    return maps
+
+
+# -- data ----------------------------------------------------------------------------------
+def _float_values(batch: pa.RecordBatch, m: ColumnMap, row0: int) -> np.ndarray:
+    arr = batch.column(m.key)
+    if not pa.types.is_floating(arr.type):
+        try:
+            arr = arr.cast(pa.float64())
+        except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
+            bad = _first_non_number(arr)
+            raise IngestError(f"value {bad[1]!r} in channel `{m.channel or m.column}` at row {row0 + bad[0] + 1} "
+                              "is not a number") from None
+    values = arr.to_numpy(zero_copy_only=False)
+    if values.dtype != np.float64:
+        values = values.astype(np.float64)
+    return values
+
+
+def _first_non_number(arr):
+    for i, v in enumerate(arr.to_pylist()):
+        if v is None:
+            continue
+        try:
+            float(v)
+        except (TypeError, ValueError):
+            return i, v
+    return 0, None
+
+
+def convert_batch(batch: pa.RecordBatch, maps: list[ColumnMap], schema: pa.Schema, run_id: str,
+                  p_atm_pa: float, row0: int) -> pa.Table:
+    """Raw record batch -> samples table in SI (gauge pressures), in ``schema`` order."""
+    n = batch.num_rows
+    arrays = {"run_id": pa.DictionaryArray.from_arrays(pa.array(np.zeros(n, dtype=np.int32)), pa.array([run_id]))}
+    for m in maps:
+        if not m.numeric:
+            arr = batch.column(m.key)
+            arrays[m.column] = arr if pa.types.is_string(arr.type) else arr.cast(pa.string())
+            continue
+        v = _float_values(batch, m, row0)
+        if m.scale != 1.0 or m.offset != 0.0:
+            v = v * m.scale + m.offset
+        if m.si_divisor:
+            v = v / m.si_divisor
+        elif m.si_scale != 1.0:
+            v = v * m.si_scale
+        if m.absolute:
+            v = v - p_atm_pa
+        arrays[m.column] = pa.array(v, type=pa.float64())
+    return pa.Table.from_arrays([arrays[f.name] for f in schema], schema=schema)
+
+
+class _TimeCheck:
+    """Streaming checks of the time channel: present, finite, never backwards; rate and span."""
+
+    def __init__(self):
+        self.last = None
+        self.first = None
+        self.n = 0
+        self.repeats = 0
+        self.dt_sample: np.ndarray | None = None
+
+    def update(self, t: np.ndarray) -> None:
+        if t.size == 0:
+            return
+        bad = np.flatnonzero(~np.isfinite(t))
+        if bad.size:
+            raise IngestError(f"time is missing at row {self.n + bad[0] + 1}")
+        if self.first is None:
+            self.first = float(t[0])
+        prev = np.concatenate(([self.last], t)) if self.last is not None else t
+        dt = np.diff(prev)
+        back = np.flatnonzero(dt < 0)
+        if back.size:
+            row = self.n + back[0] + (1 if self.last is not None else 2)
+            raise IngestError(f"time goes backwards at row {row} ({prev[back[0]]:.6g} s -> {prev[back[0] + 1]:.6g} s)")
+        self.repeats += int(np.count_nonzero(dt == 0))
+        if self.dt_sample is None and dt.size >= 1:
+            self.dt_sample = dt[: 100_000]
+        self.last = float(t[-1])
+        self.n += t.size
+
+    @property
+    def sample_rate_hz(self) -> float | None:
+        if self.dt_sample is None:
+            return None
+        pos = self.dt_sample[self.dt_sample > 0]
+        if pos.size == 0:
+            return None
+        return float(1.0 / np.median(pos))
+
+
+def safe_file_name(run_id: str) -> str:
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", run_id).strip("._")[:80] or "run"
+
+
+def ingest_key(sha: str, meta: dict, maps: list[ColumnMap]) -> str:
+    """Content key of a samples file: source bytes, metadata, column map and code version."""
+    blob = json.dumps({"sha": sha, "meta": meta, "maps": [m.__dict__ for m in maps], "v": INGEST_VERSION},
+                      sort_keys=True, default=str)
+    return hashlib.sha256(blob.encode()).hexdigest()
+
+
+def ingest_file(tree: RawTree, path: Path, warehouse: Path, reuse: bool = True) -> IngestResult:
+    """Ingest one raw file into ``warehouse/samples/``; never raises for bad input.
+
+    Parameters
+    ----------
+    tree : RawTree
+        The raw tree (rig.toml and manifests).
+    path : Path
+        The raw file.
+    warehouse : Path
+        Warehouse folder; the samples file goes to
+        ``samples/kind=<kind>/campaign=<campaign>/<run>-<key>.parquet``.
+    reuse : bool
+        Keep an existing samples file with the same content key instead of writing it again.
+
+    Returns
+    -------
+    IngestResult
+        With ``run`` set, or ``error`` set to the one-line quarantine reason.
+    """
+    rel = tree.rel(path)
+    result = IngestResult(source_path=rel, campaign=tree.campaign(path))
+    try:
+        run, channels = _ingest(tree, Path(path), Path(warehouse), rel, result.campaign, reuse)
+        result.run, result.channels = run, channels
+    except (IngestError, ReaderError, ConfigError) as exc:
+        result.error = _one_line(str(exc))
+    except (OSError, pa.ArrowException, ValueError, KeyError, IndexError, TypeError) as exc:
+        # A reader or library tripped over malformed input: still one line, never a crash.
+        result.error = _one_line(f"cannot read file: {type(exc).__name__}: {exc}")
+    return result
+
+
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split())[:500]
+
+
+def _ingest(tree: RawTree, path: Path, warehouse: Path, rel: str, campaign: str | None, reuse: bool):
+    if campaign is None:
+        raise IngestError("file is not in a campaign folder (raw/<campaign>/...)")
+    sha = sha256_file(path)
+    rig = tree.rig_config(path)
+    manifest = tree.manifest_metadata(path)
+    hints = {**normalise_keys(rig["metadata"]), **normalise_keys(manifest)}
+    export = read_export(path, rig["read"], hints)
+    meta = resolve_metadata(rig["metadata"], export.metadata, manifest, campaign, path)
+    kind = meta["kind"]
+    maps = map_columns(export.columns, rig["channels"])
+    present = {m.channel for m in maps if m.channel}
+    gaps = missing_channels(kind, present)
+    if gaps:
+        raise IngestError(f"missing channel {', '.join(f'`{c}`' for c in gaps)} (kind {kind} needs "
+                          + " or ".join(", ".join(s) for s in KINDS[kind].channel_sets) + ")")
+    miss = missing_metadata(kind, meta, present)
+    if miss:
+        raise IngestError(f"missing metadata {', '.join(f'`{k}`' for k in miss)} (kind {kind})")
+    if KINDS[kind].chambers and meta.get("chamber") not in KINDS[kind].chambers:
+        raise IngestError(f"metadata `chamber` must be one of {', '.join(KINDS[kind].chambers)} "
+                          f"for kind {kind}, got {meta.get('chamber')!r}")
+    p_atm = float(meta.get("p_atm_pa", P_ATM_DEFAULT_PA))
+    extra = [(m.column, m.unit, pa.float64() if m.numeric else pa.string()) for m in maps if m.channel is None]
+    schema = samples_schema(sorted(present), extra)
+    key = ingest_key(sha, meta, maps)
+    run_id = str(meta["run_id"])
+    rel_out = Path("samples") / f"kind={kind}" / f"campaign={campaign}" / f"{safe_file_name(run_id)}-{key[:16]}.parquet"
+    out = warehouse / rel_out
+    warnings = list(export.warnings)
+    run = {
+        "run_id": run_id, "kind": kind, "campaign": campaign, "rig": meta.get("rig"),
+        "started_at": meta.get("started_at"), "source_path": rel, "source_sha256": sha,
+        "format": export.format, "samples_path": rel_out.as_posix(), "params": meta,
+    }
+    if reuse and out.exists():
+        cached = read_run_record(out)
+        if cached is not None:
+            return cached["run"], cached["channels"]
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
+    check = _TimeCheck()
+    empty = {m.column: True for m in maps if m.numeric}
+    try:
+        with pq.ParquetWriter(tmp, schema) as writer:
+            for batch in export.batches():
+                if batch.num_rows == 0:
+                    continue
+                table = convert_batch(batch, maps, schema, run_id, p_atm, check.n)
+                check.update(table.column("t_s").to_numpy())
+                for col in [c for c, e in empty.items() if e]:
+                    if table.column(col).null_count < table.num_rows and not np.all(np.isnan(table.column(col).to_numpy())):
+                        empty[col] = False
+                writer.write_table(table)
+            if check.n == 0:
+                raise IngestError("no data rows")
+            if check.repeats:
+                warnings.append(f"time repeats at {check.repeats} rows")
+            warnings += [f"channel `{c}` is empty" for c, e in empty.items() if e]
+            run.update(n_samples=check.n, sample_rate_hz=check.sample_rate_hz,
+                       duration_s=(check.last - check.first), warnings=warnings)
+            channels = [dict(run_id=run_id, **m.describe()) for m in maps]
+            writer.add_key_value_metadata({"pneubench": json.dumps({"run": run, "channels": channels}, sort_keys=True)})
+        os.replace(tmp, out)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return run, channels
+
+
+def read_run_record(path: Path) -> dict | None:
+    """The runs row and channel list stored in a samples file's footer, or None."""
+    try:
+        meta = pq.read_metadata(path).metadata or {}
+    except (OSError, pa.ArrowException):
+        return None
+    blob = meta.get(b"pneubench")
+    return json.loads(blob) if blob else None

@@ -1,0 +1,37 @@
+"""Readers, one module per format. Each exposes ``read_<format>(path, read, hints) -> RawExport``.
+
+``read`` is the ``[read]`` table of the applicable ``rig.toml``; ``hints`` is the metadata known
+before the file is opened (manifest row over ``rig.toml`` defaults), e.g. the TDMS ``group``.
+"""
+from __future__ import annotations
+
+import importlib
+from pathlib import Path
+
+from pipeline.readers.base import RawColumn, RawExport, ReaderError, split_name_unit
+
+#: File extension -> "module:function" of its reader.
+READERS = {
+    ".csv": "pipeline.readers.csv:read_csv",
+    ".txt": "pipeline.readers.csv:read_csv",
+    ".lvm": "pipeline.readers.lvm:read_lvm",
+    ".tdms": "pipeline.readers.tdms:read_tdms",
+    ".mat": "pipeline.readers.mat:read_mat",
+}
+
+
+def reader_for(path: str | Path):
+    """The reader function for a file, chosen by its extension (case-insensitive)."""
+    target = READERS.get(Path(path).suffix.lower())
+    if target is None:
+        raise ReaderError(f"no reader for extension {Path(path).suffix!r}")
+    module, func = target.split(":")
+    return getattr(importlib.import_module(module), func)
+
+
+def read_export(path: str | Path, read: dict | None = None, hints: dict | None = None) -> RawExport:
+    """Open any supported export with the reader its extension names."""
+    return reader_for(path)(Path(path), read or {}, hints or {})
+
+
+__all__ = ["READERS", "RawColumn", "RawExport", "ReaderError", "read_export", "reader_for", "split_name_unit"]

@@ -1,0 +1,110 @@
+"""What every reader returns, and the helpers readers share.
+
+A reader turns one raw export into a :class:`RawExport`: the file's own column names and
+units, its embedded metadata, and a *lazy* stream of Arrow record batches of raw values. It
+does no unit conversion and no validation beyond its format; mapping raw columns onto
+canonical channels, converting units and validating the kind is the ingest's job
+(:mod:`pipeline.ingest`), the same for every format.
+"""
+from __future__ import annotations
+
+import re
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pyarrow as pa
+
+
+class ReaderError(Exception):
+    """The file cannot be read: its message is one line saying what is wrong and where."""
+
+
+@dataclass
+class RawColumn:
+    """A data column of an export, as the export names it.
+
+    Attributes
+    ----------
+    key : str
+        Name of the column in the reader's record batches (unique within the export).
+    name : str
+        Channel name as written in the export (header text without the unit).
+    unit : str or None
+        Unit text as written in the export; None when the export gives none.
+    index : int
+        1-based position of the column in the file, as ``rig.toml`` addresses headerless files.
+    dtype : str
+        ``"float"`` (default) or ``"string"`` for a column of text; a canonical channel is
+        always read as numbers.
+    """
+
+    key: str
+    name: str
+    unit: str | None
+    index: int
+    dtype: str = "float"
+
+
+@dataclass
+class RawExport:
+    """One raw export opened by a reader.
+
+    ``batches()`` opens the data and yields record batches whose columns are the
+    ``RawColumn.key`` of :attr:`columns` (a column may be missing from the batches only if
+    the reader documents it). Readers synthesise a time column ``t`` (unit ``s``) when the
+    format gives time implicitly (LVM ``Delta_X``, TDMS waveform properties).
+    """
+
+    format: str
+    columns: list[RawColumn]
+    metadata: dict = field(default_factory=dict)
+    batches: Callable[[], Iterator[pa.RecordBatch]] = lambda: iter(())
+    warnings: list[str] = field(default_factory=list)
+
+
+_NAME_UNIT = re.compile(r"^\s*(?P<name>.*?)\s*[\[(](?P<unit>[^\[\]]*)[\])]\s*$")
+
+
+def split_name_unit(header: str) -> tuple[str, str | None]:
+    """Split a ``name[unit]`` header into name and unit (unit None when there is none).
+
+    ``"p_a[bar(a)]"`` -> ``("p_a", "bar(a)")``; ``"x [mm]"`` -> ``("x", "mm")``;
+    ``"comment"`` -> ``("comment", None)``.
+    """
+    text = header.strip().strip('"').strip("'").strip()
+    if text.endswith("]") and "[" in text:
+        i = text.index("[")
+        return text[:i].strip(), text[i + 1:-1].strip() or None
+    m = _NAME_UNIT.match(text)
+    if m and m.group("name"):
+        return m.group("name"), m.group("unit").strip() or None
+    return text, None
+
+
+def decode_text(data: bytes) -> tuple[str, str]:
+    """Decode bytes as UTF-8 (with or without BOM), else Latin-1. Returns (text, encoding)."""
+    if data.startswith(b"\xef\xbb\xbf"):
+        return data[3:].decode("utf-8", errors="replace"), "utf-8-sig"
+    try:
+        return data.decode("utf-8"), "utf-8"
+    except UnicodeDecodeError as exc:
+        # A multi-byte character cut by the end of the buffer is still UTF-8.
+        if exc.start >= len(data) - 3:
+            try:
+                return data[: exc.start].decode("utf-8"), "utf-8"
+            except UnicodeDecodeError:
+                pass
+        return data.decode("latin-1"), "latin-1"
+
+
+def parse_key_value(line: str, seps: str = ":=") -> tuple[str, str] | None:
+    """``"key: value"`` or ``"key=value"`` -> ``(key, value)``; None when it is not one."""
+    positions = [line.find(s) for s in seps if line.find(s) > 0]
+    if not positions:
+        return None
+    i = min(positions)
+    key, value = line[:i].strip(), line[i + 1:].strip()
+    if not key or len(key) > 64:
+        return None
+    return key, value

@@ -1,0 +1,40 @@
+"""The command line: exit codes of the spec and read-only queries."""
+import json
+
+from click.testing import CliRunner
+
+from pipeline.cli import main
+from tests.conftest import STEP_META
+
+T = [0.0, 0.1, 0.2]
+
+
+def test_rebuild_exit_codes_and_query_formats(raw, warehouse):
+    runner = CliRunner()
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    res = runner.invoke(main, ["rebuild", "--raw", str(raw.root), "--warehouse", str(warehouse), "--jobs", "1"])
+    assert res.exit_code == 0, res.output
+    raw.csv("c/bad.csv", STEP_META, {"t[s]": T})
+    res = runner.invoke(main, ["rebuild", "--raw", str(raw.root), "--warehouse", str(warehouse), "--jobs", "1"])
+    assert res.exit_code == 1
+    assert "quarantined c/bad.csv: missing channel `x`, `x_ref`" in res.output
+    res = runner.invoke(main, ["query", "SELECT run_id, n_samples FROM runs", "--warehouse", str(warehouse),
+                               "--format", "json"])
+    assert json.loads(res.output) == [{"run_id": "c/a", "n_samples": 3}]
+    res = runner.invoke(main, ["query", "SELECT run_id FROM runs", "--warehouse", str(warehouse), "--format", "csv"])
+    assert res.output.splitlines() == ["run_id", "c/a"]
+
+
+def test_usage_errors_exit_2(tmp_path):
+    runner = CliRunner()
+    assert runner.invoke(main, ["rebuild", "--raw", str(tmp_path / "nope")]).exit_code == 2
+    assert runner.invoke(main, ["rebuild", "--jobs", "0"]).exit_code == 2
+    assert runner.invoke(main, ["query", "SELECT 1", "--warehouse", str(tmp_path)]).exit_code == 2
+
+
+def test_query_is_read_only(raw, warehouse):
+    runner = CliRunner()
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    runner.invoke(main, ["rebuild", "--raw", str(raw.root), "--warehouse", str(warehouse), "--jobs", "1"])
+    res = runner.invoke(main, ["query", "DELETE FROM runs", "--warehouse", str(warehouse)])
+    assert res.exit_code != 0 and "read-only" in res.output

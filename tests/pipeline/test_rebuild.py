@@ -1,0 +1,88 @@
+"""The rebuild end to end: runs, quarantine, views, exit codes, and the previous warehouse kept on failure."""
+import duckdb
+import pytest
+
+from pipeline.rebuild import EXIT_OK, EXIT_QUARANTINED, RebuildError, rebuild
+from tests.conftest import STEP_META
+
+T = [0.0, 0.1, 0.2, 0.3]
+
+
+def q(warehouse, sql):
+    con = duckdb.connect(str(warehouse / "pneubench.duckdb"), read_only=True)
+    try:
+        return con.execute(sql).fetchall()
+    finally:
+        con.close()
+
+
+def test_rebuild_builds_runs_views_and_quarantine(raw, warehouse):
+    raw.csv("c1/a.csv", STEP_META, {"t[s]": T, "x[mm]": [0, 1, 2, 3], "x_ref[mm]": [3] * 4})
+    raw.csv("c1/b.csv", {**STEP_META, "extra": "yes"}, {"t[s]": T, "x[mm]": T, "x_ref[mm]": T, "temp[degC]": T})
+    raw.csv("c2/bad.csv", STEP_META, {"t[s]": T, "x[furlong]": T, "x_ref[mm]": T})
+    raw.write("c1/README.md", "notes, not a run")
+    summary = rebuild(raw.root, warehouse, jobs=2)
+    assert summary.exit_code == EXIT_QUARANTINED
+    assert q(warehouse, "SELECT run_id, kind, campaign, n_samples FROM runs ORDER BY run_id") == [
+        ("c1/a", "step", "c1", 4), ("c1/b", "step", "c1", 4)]
+    assert q(warehouse, "SELECT source_path FROM quarantine") == [("c2/bad.csv",)]
+    # the view unifies runs with different channels by name
+    rows = q(warehouse, "SELECT run_id, x_m, temp FROM samples_step ORDER BY run_id, t_s")
+    assert rows[3] == ("c1/a", pytest.approx(0.003), None)
+    assert rows[4][2] == 0.0
+    assert q(warehouse, "SELECT count(*) FROM samples_durability") == [(0,)]
+    assert q(warehouse, "SELECT json_extract_string(params, '$.extra') FROM runs WHERE run_id = 'c1/b'") == [("yes",)]
+
+
+def test_duplicate_run_id_is_quarantined_first_path_wins(raw, warehouse):
+    raw.csv("c/a.csv", {**STEP_META, "run_id": "r7"}, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    raw.csv("c/b/c.csv", {**STEP_META, "run_id": "r7"}, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    summary = rebuild(raw.root, warehouse, jobs=1)
+    assert [p.error for p in summary.quarantine] == ["duplicate run_id `r7`, already used by `c/a.csv`"]
+
+
+def test_manifest_entries_outside_raw_or_missing_are_quarantined(raw, warehouse):
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    raw.write("c/manifest.csv", "file,notes\na.csv,fine\n../../etc/passwd,evil\nnope.csv,gone\n")
+    summary = rebuild(raw.root, warehouse, jobs=1)
+    errors = {(p.source_path, p.line, p.error) for p in summary.quarantine}
+    assert ("c/manifest.csv", 3, "entry `../../etc/passwd` points outside raw/") in errors
+    assert ("c/manifest.csv", 4, "entry `nope.csv`: no such file") in errors
+    assert q(warehouse, "SELECT json_extract_string(params, '$.notes') FROM runs") == [("fine",)]
+
+
+def test_clean_tree_exits_zero(raw, warehouse):
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    assert rebuild(raw.root, warehouse, jobs=1).exit_code == EXIT_OK
+
+
+def test_failed_stage_keeps_previous_warehouse(raw, warehouse, monkeypatch):
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    rebuild(raw.root, warehouse, jobs=1)
+    raw.csv("c/b.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+
+    class Boom:
+        NAME = "boom"
+
+        @staticmethod
+        def run(ctx):
+            raise RuntimeError("analysis bug")
+
+    import pipeline.stages as st
+    monkeypatch.setattr(st, "discover", lambda: [Boom])
+    with pytest.raises(RebuildError, match="stage boom failed"):
+        rebuild(raw.root, warehouse, jobs=1)
+    assert q(warehouse, "SELECT run_id FROM runs") == [("c/a",)]
+    assert not [p for p in warehouse.iterdir() if ".tmp" in p.name]
+
+
+def test_rebuild_is_deterministic(raw, tmp_path):
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[mm]": [0, 1, 2, 3], "x_ref[mm]": [3] * 4})
+    a = rebuild(raw.root, tmp_path / "w1", jobs=1)
+    b = rebuild(raw.root, tmp_path / "w2", jobs=2)
+    ra = q(tmp_path / "w1", "SELECT * EXCLUDE (samples_path) FROM runs")
+    rb = q(tmp_path / "w2", "SELECT * EXCLUDE (samples_path) FROM runs")
+    assert ra == rb
+    fa = (tmp_path / "w1" / q(tmp_path / "w1", "SELECT samples_path FROM runs")[0][0]).read_bytes()
+    fb = (tmp_path / "w2" / q(tmp_path / "w2", "SELECT samples_path FROM runs")[0][0]).read_bytes()
+    assert fa == fb
