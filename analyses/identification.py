@@ -1,0 +1,388 @@
+"""PLPA third-order model identified from closed-loop data (seed 000, section 2.3, Eqs. 10 and 14).
+
+The plant is
+
+    X(s) / U(s) = k wn^2 / (s (s^2 + 2 zeta wn s + wn^2))                      (Eq. 10)
+
+stabilised during the test by a proportional controller ``u = kp (x_ref - x) + u_d`` that runs
+at the logging rate (5 kHz, continuous for the plant). The persistent excitation ``u_d`` and the
+reference ``x_ref`` are the external inputs; the closed loop from ``u_d`` to ``x`` is Eq. 14.
+
+Identification here is *output error*: the continuous closed loop is discretised exactly with a
+zero-order hold on the external inputs at the identification rate, simulated from the measured
+``u_d`` and ``x_ref``, and ``wn``, ``zeta``, ``k`` and the initial state are fitted with
+:func:`scipy.optimize.least_squares` (bounded, scaled) to the measured position.
+
+Decimation to the identification rate (default 50 Hz):
+
+* the output ``x`` goes through a zero-phase FIR anti-alias filter (:func:`scipy.signal.decimate`,
+  in stages of at most 10) and is sampled on the identification grid;
+* the inputs ``u_d`` and ``x_ref`` are averaged over each identification interval
+  (integrate-and-dump, a boxcar anti-alias filter). That is exactly the input a zero-order hold
+  model assumes; when the excitation is itself held on a grid (the bench's ``u_d`` is held for
+  0.02 s) the identification grid is aligned with its switching instants, which makes the
+  discretisation exact.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import optimize, signal
+
+__all__ = ["plpa_plant_ss", "plpa_closed_loop_ss", "simulate_closed_loop", "decimate_for_identification",
+           "fit_percent", "IdentificationResult", "identify_third_order", "plot_identification"]
+
+
+def plpa_plant_ss(wn: float, zeta: float, k: float):
+    """State space of the PLPA plant, Eq. 10, with state ``[x, x', x'']``.
+
+    Parameters
+    ----------
+    wn : float
+        Natural frequency. [rad/s]
+    zeta : float
+        Damping ratio. [-]
+    k : float
+        Velocity gain ``k_lin``. [m/(V s)]
+
+    Returns
+    -------
+    A, B, C, D : ndarray
+        Continuous-time matrices; input the valve command ``u`` [V], output the position ``x`` [m].
+    """
+    A = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.0, -wn * wn, -2.0 * zeta * wn]])
+    B = np.array([[0.0], [0.0], [k * wn * wn]])
+    C = np.array([[1.0, 0.0, 0.0]])
+    D = np.zeros((1, 1))
+    return A, B, C, D
+
+
+def plpa_closed_loop_ss(wn: float, zeta: float, k: float, kp: float):
+    """The plant under ``u = kp (x_ref - x) + u_d`` (Eq. 14), inputs ``[u_d, x_ref]``.
+
+    Parameters
+    ----------
+    wn, zeta, k : float
+        Plant parameters. [rad/s], [-], [m/(V s)]
+    kp : float
+        Proportional gain of the stabilising controller. [V/m]
+
+    Returns
+    -------
+    A, B, C, D : ndarray
+        Continuous closed loop; inputs ``u_d`` [V] and ``x_ref`` [m], output ``x`` [m].
+    """
+    A, B, C, _ = plpa_plant_ss(wn, zeta, k)
+    Acl = A - kp * B @ C
+    Bcl = np.hstack([B, kp * B])
+    return Acl, Bcl, C, np.zeros((1, 2))
+
+
+def _discrete_closed_loop(wn, zeta, k, kp, dt):
+    """ZOH discretisation; returns (a, b_ud, b_xref, Ad, C) with transfer-function coefficients."""
+    Acl, Bcl, C, D = plpa_closed_loop_ss(wn, zeta, k, kp)
+    Ad, Bd, Cd, _, _ = signal.cont2discrete((Acl, Bcl, C, D), dt, method="zoh")
+    # characteristic polynomial of Ad and numerators C adj(zI - Ad) Bd (no feed-through)
+    a = np.real(np.poly(Ad))
+    nums = []
+    for j in range(Bd.shape[1]):
+        b, _ = signal.ss2tf(Ad, Bd[:, [j]], Cd, np.zeros((1, 1)))
+        nums.append(np.real(b[0]))
+    return a, nums[0], nums[1], Ad, Cd
+
+
+def simulate_closed_loop(wn: float, zeta: float, k: float, kp: float, u_d, x_ref, dt: float,
+                         x0=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """Position of the closed loop driven by held inputs (exact zero-order-hold discretisation).
+
+    Parameters
+    ----------
+    wn, zeta, k : float
+        Plant parameters. [rad/s], [-], [m/(V s)]
+    kp : float
+        Controller gain. [V/m]
+    u_d : array_like
+        Excitation, held over each interval ``[i dt, (i+1) dt)``. [V]
+    x_ref : array_like
+        Reference, held likewise. [m]
+    dt : float
+        Sample time. [s]
+    x0 : sequence of 3 float
+        Initial state ``[x, x', x'']``. [m], [m/s], [m/s2]
+
+    Returns
+    -------
+    ndarray
+        Position at ``i dt``, ``i = 0 .. len(u_d) - 1``. [m]
+    """
+    u_d = np.asarray(u_d, dtype=float)
+    x_ref = np.broadcast_to(np.asarray(x_ref, dtype=float), u_d.shape)
+    a, b1, b2, Ad, C = _discrete_closed_loop(wn, zeta, k, kp, dt)
+    return _response(a, b1, b2, Ad, C, u_d, x_ref) + _free_basis(a, Ad, C, len(u_d)) @ np.asarray(x0, float)
+
+
+def _response(a, b1, b2, Ad, C, u_d, x_ref):
+    return signal.lfilter(b1, a, u_d) + signal.lfilter(b2, a, x_ref)
+
+
+def _free_basis(a, Ad, C, n):
+    """Columns: output of the unforced loop from each unit initial state (``C Ad^i e_j``)."""
+    first = np.vstack([C @ np.linalg.matrix_power(Ad, i) for i in range(3)])  # (3, 3): y0..y2 per state
+    impulse = np.zeros(n)
+    impulse[0] = 1.0
+    cols = []
+    for j in range(3):
+        y = first[:, j]
+        num = np.convolve(a, y)[:3]  # y = num / a  =>  num = a * y (first three terms)
+        cols.append(signal.lfilter(num, a, impulse))
+    return np.column_stack(cols)
+
+
+def fit_percent(y, y_model) -> float:
+    """``fit_pct`` of warehouse.md: ``100 (1 - ||y - y_model|| / ||y - mean(y)||)``. [%]"""
+    y = np.asarray(y, float)
+    y_model = np.asarray(y_model, float)
+    den = np.linalg.norm(y - y.mean())
+    if den == 0:
+        return float("nan")
+    return float(100.0 * (1.0 - np.linalg.norm(y - y_model) / den))
+
+
+def _hold_phase(u: np.ndarray, q: int) -> int:
+    """Index offset (0..q-1) of the switching instants of a held signal, 0 if it is not held."""
+    change = np.flatnonzero(np.abs(np.diff(u)) > 1e-12 * max(1.0, float(np.max(np.abs(u))))) + 1
+    if len(change) < 3 or len(change) > 0.5 * len(u):
+        return 0
+    counts = np.bincount(change % q, minlength=q)
+    best = int(np.argmax(counts))
+    return best if counts[best] >= 0.6 * len(change) else 0
+
+
+def decimate_for_identification(t, x, u_d, x_ref, rate_hz: float = 50.0):
+    """Bring 5 kHz logs to the identification rate with anti-alias filtering.
+
+    Parameters
+    ----------
+    t : array_like
+        Time, uniformly sampled. [s]
+    x : array_like
+        Position (output). [m]
+    u_d : array_like
+        Excitation (input). [V]
+    x_ref : array_like
+        Reference (input). [m]
+    rate_hz : float
+        Identification rate. [Hz]
+
+    Returns
+    -------
+    dict
+        ``t_s``, ``x_m`` (zero-phase FIR anti-aliased, sampled at the start of each interval),
+        ``u_d_v`` and ``x_ref_m`` (interval means, the zero-order-hold input), ``dt_s``
+        (the identification sample time actually used: an integer decimation factor).
+    """
+    t = np.asarray(t, float)
+    x = np.asarray(x, float)
+    u_d = np.asarray(u_d, float)
+    x_ref = np.asarray(x_ref, float)
+    dt_log = float(np.median(np.diff(t)))
+    q = max(1, int(round(1.0 / (rate_hz * dt_log))))
+    off = _hold_phase(u_d, q) if q > 1 else 0
+    n_blocks = (len(t) - off) // q
+    end = off + n_blocks * q
+    xs = x
+    factors = _factors(q)
+    for f in factors:
+        if f > 1:
+            # what signal.decimate(ftype="fir", zero_phase=True) does, with the ends padded by a
+            # line instead of zeros (the position is far from zero: no start-up transient)
+            b = signal.firwin(20 * f + 1, 1.0 / f, window="hamming")
+            xs = signal.resample_poly(xs, 1, f, window=b, padtype="line")
+    # xs[i] is the filtered x at t[i*q]; keep the grid starting at ``off``
+    x_dec = _interp_grid(xs, q, off, n_blocks, x)
+    ud = u_d[off:end].reshape(n_blocks, q).mean(axis=1)
+    xr = x_ref[off:end].reshape(n_blocks, q).mean(axis=1)
+    return {"t_s": t[off:end:q][:n_blocks], "x_m": x_dec, "u_d_v": ud, "x_ref_m": xr, "dt_s": q * dt_log}
+
+
+def _factors(q: int) -> list[int]:
+    """Split a decimation factor into stages of at most 10 (scipy advises <= 13 per call)."""
+    out, rest = [], q
+    for f in (10, 8, 5, 4, 3, 2):
+        while rest % f == 0 and rest > 1:
+            out.append(f)
+            rest //= f
+    while rest > 1:  # a prime factor > 10: one stage with it
+        out.append(rest)
+        rest = 1
+    return out or [1]
+
+
+def _interp_grid(xs, q, off, n_blocks, x):
+    """The filtered output at indices ``off + i q`` (xs holds it at ``i q``)."""
+    if off == 0:
+        return np.asarray(xs[:n_blocks], float)
+    grid = np.arange(len(xs)) * q
+    want = off + np.arange(n_blocks) * q
+    return np.interp(want, grid, xs)
+
+
+@dataclass
+class IdentificationResult:
+    """Outcome of :func:`identify_third_order`; NaNs and ``message`` when not identifiable."""
+
+    wn_rad_s: float = float("nan")
+    zeta: float = float("nan")
+    k_lin_m_v_s: float = float("nan")
+    fit_pct: float = float("nan")
+    x0: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
+    dt_s: float = float("nan")
+    t_s: np.ndarray = field(default_factory=lambda: np.empty(0))
+    x_m: np.ndarray = field(default_factory=lambda: np.empty(0))
+    x_model_m: np.ndarray = field(default_factory=lambda: np.empty(0))
+    u_d_v: np.ndarray = field(default_factory=lambda: np.empty(0))
+    message: str = ""
+
+    @property
+    def ok(self) -> bool:
+        return bool(np.isfinite(self.wn_rad_s))
+
+
+WN_BOUNDS = (0.3, 1000.0)
+ZETA_BOUNDS = (0.01, 10.0)
+K_BOUNDS = (1e-4, 1e3)
+
+
+def identify_third_order(t, x, u_d, x_ref, kp: float, rate_hz: float = 50.0,
+                         min_samples: int = 100) -> IdentificationResult:
+    """Identify ``wn``, ``zeta``, ``k`` of Eq. 10 from a closed-loop run by output error.
+
+    Parameters
+    ----------
+    t : array_like
+        Time at the logging rate. [s]
+    x : array_like
+        Measured position. [m]
+    u_d : array_like
+        Measured excitation added to the valve command. [V]
+    x_ref : array_like
+        Measured position reference. [m]
+    kp : float
+        Gain of the stabilising controller (run metadata ``kp_v_m``). [V/m]
+    rate_hz : float
+        Identification rate (``id_sample_rate_hz``). [Hz]
+    min_samples : int
+        Fewest identification-rate samples accepted.
+
+    Returns
+    -------
+    IdentificationResult
+        Parameters, ``fit_pct`` (warehouse.md) on the identification-rate data, the decimated
+        data and the simulated model output. When the run cannot be identified (too short, no
+        excitation, no convergence) the parameters are NaN and ``message`` says why.
+    """
+    t = np.asarray(t, float)
+    if len(t) < 2 or not np.all(np.isfinite(t)):
+        return IdentificationResult(message="too short or invalid time")
+    if not (kp is not None and np.isfinite(kp) and kp > 0):
+        return IdentificationResult(message=f"controller gain kp_v_m = {kp!r} is not a positive number")
+    data = [np.asarray(v, float) for v in (x, u_d, x_ref)]
+    if any(not np.all(np.isfinite(v)) for v in data):
+        return IdentificationResult(message="non-finite samples in x, u_d or x_ref")
+    dec = decimate_for_identification(t, *data, rate_hz=rate_hz)
+    y, ud, xr, dt = dec["x_m"], dec["u_d_v"], dec["x_ref_m"], dec["dt_s"]
+    base = dict(dt_s=dt, t_s=dec["t_s"], x_m=y, u_d_v=ud)
+    if len(y) < min_samples:
+        return IdentificationResult(message=f"too short: {len(y)} samples at {1 / dt:.0f} Hz "
+                                    f"(need {min_samples})", **base)
+    if np.std(ud) < 1e-9 or np.std(y) < 1e-12:
+        return IdentificationResult(message="no excitation: u_d or x is constant", **base)
+
+    n = len(y)
+    y_scale = float(np.std(y)) or 1.0
+
+    def forced_and_basis(p):
+        a, b1, b2, Ad, C = _discrete_closed_loop(p[0], p[1], p[2], kp, dt)
+        return _response(a, b1, b2, Ad, C, ud, xr), _free_basis(a, Ad, C, n)
+
+    def projected_cost(p):
+        """Residual norm with the initial state solved by linear least squares."""
+        if kp * p[2] >= 2 * p[1] * p[0]:  # unstable closed loop (Routh): not a candidate
+            return np.inf, None
+        forced, basis = forced_and_basis(p)
+        x0, *_ = np.linalg.lstsq(basis, y - forced, rcond=None)
+        r = y - forced - basis @ x0
+        return float(r @ r), x0
+
+    # coarse grid for a seed (the initial state projected out), then a joint bounded fit
+    best = (np.inf, None, None)
+    for wn in np.geomspace(1.0, 200.0, 14):
+        for zeta in (0.1, 0.25, 0.5, 0.8, 1.3, 2.5):
+            for k in np.geomspace(0.02, 50.0, 12):
+                cost, x0 = projected_cost((wn, zeta, k))
+                if cost < best[0]:
+                    best = (cost, np.array([wn, zeta, k]), x0)
+    if best[1] is None:
+        return IdentificationResult(message="no stable model fits the data", **base)
+    p0 = np.concatenate([best[1], best[2]])
+    x_sc = np.array([1.0, 1.0, 1.0]) * np.abs(best[1])
+    x0_sc = np.maximum(np.abs(best[2]), [y_scale, y_scale * 10, y_scale * 100])
+    lo = np.array([WN_BOUNDS[0], ZETA_BOUNDS[0], K_BOUNDS[0], -np.inf, -np.inf, -np.inf])
+    hi = np.array([WN_BOUNDS[1], ZETA_BOUNDS[1], K_BOUNDS[1], np.inf, np.inf, np.inf])
+    p0 = np.clip(p0, lo + 1e-12, hi - 1e-12)
+
+    def residuals(p):
+        forced, basis = forced_and_basis(p)
+        r = (forced + basis @ p[3:] - y) / y_scale
+        if not np.all(np.isfinite(r)):
+            return np.full(n, 1e6)
+        return r
+
+    try:
+        sol = optimize.least_squares(residuals, p0, bounds=(lo, hi), x_scale=np.concatenate([x_sc, x0_sc]),
+                                     method="trf", xtol=1e-10, ftol=1e-10, max_nfev=400)
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        return IdentificationResult(message=f"fit failed: {exc}", **base)
+    p = sol.x
+    forced, basis = forced_and_basis(p)
+    y_model = forced + basis @ p[3:]
+    fit = fit_percent(y, y_model)
+    msg = "" if sol.success else f"least_squares: {sol.message}"
+    return IdentificationResult(wn_rad_s=float(p[0]), zeta=float(p[1]), k_lin_m_v_s=float(p[2]), fit_pct=fit,
+                                x0=p[3:].copy(), x_model_m=y_model, message=msg, **base)
+
+
+def plot_identification(result: IdentificationResult, title: str = ""):
+    """Measured vs model position at the identification rate, and the excitation.
+
+    Parameters
+    ----------
+    result : IdentificationResult
+    title : str
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(9, 5.5))
+    ax1, ax2 = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [2.2, 1]})
+    t = result.t_s - (result.t_s[0] if len(result.t_s) else 0.0)
+    ax1.plot(t, result.x_m * 1e3, color="0.2", lw=1.2, label="measured (anti-aliased, decimated)")
+    if len(result.x_model_m):
+        ax1.plot(t, result.x_model_m * 1e3, color="tab:red", lw=1.0, ls="--",
+                 label=f"model: wn={result.wn_rad_s:.2f} rad/s, zeta={result.zeta:.3f}, "
+                       f"k={result.k_lin_m_v_s:.3f} m/(V s); fit {result.fit_pct:.1f} %")
+    ax1.set_ylabel("position x [mm]")
+    ax1.legend(loc="upper right", fontsize=8)
+    ax1.grid(alpha=0.3)
+    ax2.step(t, result.u_d_v, where="post", color="tab:blue", lw=0.8)
+    ax2.set_ylabel("u_d [V]")
+    ax2.set_xlabel(f"time [s] (identification rate {1 / result.dt_s:.0f} Hz)" if np.isfinite(result.dt_s)
+                   else "time [s]")
+    ax2.grid(alpha=0.3)
+    fig.suptitle(title or "PLPA identification: measured vs output-error model (Eq. 14)")
+    fig.tight_layout()
+    return fig
