@@ -1,0 +1,324 @@
+"""Leakage between the chambers of the PLPA (seed 000, section 3.1, Figs. 9 and 10).
+
+A leakage run pressurises one chamber in steps (0 to 6 bar, 1 bar apart) with the carriage
+blocked and the other chamber open, and logs the supply pressure and the leakage flow. This
+module finds the steady part of each pressure step (a *plateau*), averages pressure and leak
+over it, and summarises a roller setting by its *seal envelope*: the highest tested pressure up
+to which the leak stays below a threshold.
+
+Plateau detection (:func:`find_pressure_plateaus`)
+-------------------------------------------------
+1. The pressure noise ``sigma`` is estimated from the first differences (robust MAD), so the
+   detector needs no sensor setting.
+2. The run is cut into blocks of ``block_s`` seconds; a block is *flat* when the straight line
+   fitted to its pressure changes by less than ``flat_tol_bar`` over the block and its residual
+   scatter is close to the noise (no step inside the block).
+3. Consecutive flat blocks whose means agree within ``level_tol_bar`` form a plateau; a plateau
+   shorter than ``min_duration_s`` is dropped.
+4. Transients are excluded: the first ``settle_s`` seconds of a plateau are dropped (the leak
+   flow lags the pressure), then leading blocks whose leak differs from the plateau's settled
+   (second half) leak by more than the noise allows are dropped too.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from schemas.units import kg_s_to_l_min_anr
+
+#: Default leak threshold of the seal envelope. [l/min ANR]
+LEAK_THRESHOLD_L_MIN = 0.05
+#: Maximum roller spring force of the rig (seed 000). [N]
+SPRING_FORCE_MAX_N = 1300.0
+#: Columns that identify a roller setting in a leakage map.
+SETTING_COLUMNS = ("hose_id", "chamber", "adjustment", "z_rollers_mm", "spring_force_n")
+
+_BAR = 1e5
+
+
+def _noise_sigma(y: np.ndarray) -> float:
+    """Robust white-noise sigma from first differences (MAD / 0.6745 / sqrt 2)."""
+    d = np.diff(y)
+    if d.size < 2:
+        return 0.0
+    mad = np.median(np.abs(d - np.median(d)))
+    return float(mad / 0.6745 / np.sqrt(2.0))
+
+
+def find_pressure_plateaus(t_s, p_pa, q=None, *, block_s: float = 0.1, flat_tol_bar: float = 0.02,
+                           level_tol_bar: float = 0.05, min_duration_s: float = 0.5,
+                           settle_s: float = 0.2) -> list[tuple[int, int]]:
+    """Steady parts of a stepped pressure record.
+
+    Parameters
+    ----------
+    t_s : array_like
+        Time [s], increasing.
+    p_pa : array_like
+        Pressure of the pressurised chamber [Pa] (gauge).
+    q : array_like, optional
+        Leakage flow (any unit); when given, leading blocks of a plateau where the flow has not
+        settled are dropped as well.
+    block_s : float
+        Block length of the flatness test [s].
+    flat_tol_bar : float
+        Largest pressure change across a flat block (line fit) [bar].
+    level_tol_bar : float
+        Largest difference between the means of neighbouring blocks of one plateau [bar].
+    min_duration_s : float
+        Shortest plateau kept, after trimming [s].
+    settle_s : float
+        Time dropped at the start of every plateau (valve and flow transients) [s].
+
+    Returns
+    -------
+    list of (start, stop)
+        Sample index ranges ``[start, stop)`` of the plateaus, in time order.
+    """
+    t = np.asarray(t_s, dtype=float)
+    p = np.asarray(p_pa, dtype=float) / _BAR
+    n = t.size
+    if n < 4:
+        return []
+    dt = float(np.median(np.diff(t)))
+    if not np.isfinite(dt) or dt <= 0:
+        return []
+    k = max(4, int(round(block_s / dt)))
+    nb = n // k
+    if nb < 1:
+        return []
+    sigma = _noise_sigma(p)
+    # block statistics: mean, slope change across the block, residual scatter
+    tb = t[: nb * k].reshape(nb, k)
+    pb = p[: nb * k].reshape(nb, k)
+    tc = tb - tb.mean(axis=1, keepdims=True)
+    pm = pb.mean(axis=1)
+    slope = (tc * (pb - pm[:, None])).sum(axis=1) / np.maximum((tc**2).sum(axis=1), 1e-300)
+    change = np.abs(slope) * (tb[:, -1] - tb[:, 0])
+    resid = pb - pm[:, None] - slope[:, None] * tc
+    scatter = resid.std(axis=1)
+    # a block with a step inside has a large residual scatter even after the line fit
+    flat = (change <= flat_tol_bar + 4 * sigma / np.sqrt(k)) & (scatter <= 2.0 * sigma + 0.25 * flat_tol_bar)
+    groups: list[list[int]] = []
+    for b in range(nb):
+        if not flat[b]:
+            continue
+        if groups and groups[-1][-1] == b - 1 and abs(pm[b] - pm[groups[-1][-1]]) <= level_tol_bar:
+            groups[-1].append(b)
+        else:
+            groups.append([b])
+    qa = None if q is None else np.asarray(q, dtype=float)
+    q_sigma = 0.0 if qa is None else _noise_sigma(qa)
+    out = []
+    for g in groups:
+        start, stop = g[0] * k, (g[-1] + 1) * k
+        start = int(np.searchsorted(t, t[start] + settle_s))
+        if qa is not None and stop - start > 2 * k:
+            start = _trim_unsettled(qa, start, stop, k, q_sigma)
+        if stop - start < 2 or t[stop - 1] - t[start] < min_duration_s:
+            continue
+        out.append((start, stop))
+    return out
+
+
+def _trim_unsettled(q: np.ndarray, start: int, stop: int, k: int, sigma: float) -> int:
+    """Drop leading blocks whose flow is off the settled (second-half) flow of the plateau."""
+    mid = (start + stop) // 2
+    settled = q[mid:stop]
+    ref = float(np.median(settled))
+    spread = max(sigma, float(np.std(settled)))
+    tol = 4.0 * spread / np.sqrt(k) + 0.01 * abs(ref)
+    i = start
+    while i + k <= mid:
+        if abs(float(np.mean(q[i:i + k])) - ref) <= tol:
+            break
+        i += k
+    return i
+
+
+def leakage_plateaus(t_s, p_pa, q_leak_kg_s, **kwargs) -> pd.DataFrame:
+    """One row per pressure plateau of a leakage run: mean pressure and mean leak.
+
+    Parameters
+    ----------
+    t_s : array_like
+        Time [s].
+    p_pa : array_like
+        Pressure of the pressurised chamber, gauge [Pa].
+    q_leak_kg_s : array_like
+        Leakage mass flow [kg/s].
+    **kwargs
+        Passed to :func:`find_pressure_plateaus`.
+
+    Returns
+    -------
+    DataFrame
+        ``plateau`` (0, 1, ...), ``t_start_s``, ``t_end_s``, ``n_samples``, ``pressure_bar``
+        (mean, gauge), ``leak_l_min`` (mean, l/min ANR), ``leak_std_l_min`` (sample scatter).
+    """
+    t = np.asarray(t_s, dtype=float)
+    p = np.asarray(p_pa, dtype=float)
+    q = np.asarray(q_leak_kg_s, dtype=float)
+    ok = np.isfinite(t) & np.isfinite(p) & np.isfinite(q)
+    t, p, q = t[ok], p[ok], q[ok]
+    rows = []
+    for i, (a, b) in enumerate(find_pressure_plateaus(t, p, q, **kwargs)):
+        ql = kg_s_to_l_min_anr(q[a:b])
+        rows.append({"plateau": i, "t_start_s": float(t[a]), "t_end_s": float(t[b - 1]), "n_samples": b - a,
+                     "pressure_bar": float(np.mean(p[a:b]) / _BAR), "leak_l_min": float(np.mean(ql)),
+                     "leak_std_l_min": float(np.std(ql))})
+    return pd.DataFrame(rows, columns=["plateau", "t_start_s", "t_end_s", "n_samples", "pressure_bar",
+                                       "leak_l_min", "leak_std_l_min"])
+
+
+def leakage_power_law(p_bar, c_l_min_bar15: float, p_seal_bar: float):
+    """Leak model of physics.md: no leak below the seal pressure, ``c (p - p_seal)^1.5`` above.
+
+    Parameters
+    ----------
+    p_bar : array_like
+        Gauge pressure [bar].
+    c_l_min_bar15 : float
+        Leak coefficient [l/min / bar^1.5].
+    p_seal_bar : float
+        Seal pressure [bar].
+
+    Returns
+    -------
+    ndarray
+        Leak [l/min ANR].
+    """
+    return c_l_min_bar15 * np.clip(np.asarray(p_bar, dtype=float) - p_seal_bar, 0.0, None) ** 1.5
+
+
+def seal_envelope(leakage_map: pd.DataFrame, threshold_l_min: float = LEAK_THRESHOLD_L_MIN,
+                  by=SETTING_COLUMNS, pressure_step_bar: float = 0.1,
+                  spring_force_max_n: float = SPRING_FORCE_MAX_N) -> pd.DataFrame:
+    """The highest tested pressure up to which a setting stays sealed.
+
+    Plateaus are grouped by setting (``by``) and by their tested (nominal) pressure, the measured
+    mean pressure rounded to ``pressure_step_bar``; plateaus at the same nominal pressure (repeat
+    runs) are averaged. Walking up from the lowest tested pressure, the setting is *sealed* while
+    the leak stays below ``threshold_l_min``; ``sealed_up_to_bar`` is the last such pressure.
+
+    Parameters
+    ----------
+    leakage_map : DataFrame
+        Rows of the ``leakage_map`` table (``pressure_bar``, ``leak_l_min`` and the ``by`` columns).
+    threshold_l_min : float
+        Leak that counts as a leak [l/min ANR].
+    by : sequence of str
+        Columns identifying a setting.
+    pressure_step_bar : float
+        Resolution of the nominal (tested) pressure [bar].
+    spring_force_max_n : float
+        Maximum spring force, for ``spring_force_pct`` [N].
+
+    Returns
+    -------
+    DataFrame
+        One row per setting: the ``by`` columns, ``spring_force_pct``, ``threshold_l_min``,
+        ``sealed_up_to_bar`` (NULL when already leaking at the lowest tested pressure),
+        ``first_leak_bar`` (lowest tested pressure above threshold; NULL if none),
+        ``max_tested_bar``, ``sealed_at_max`` (True when no tested pressure leaks),
+        ``max_leak_l_min``, ``n_pressures``.
+    """
+    by = [c for c in by if c in leakage_map.columns]
+    cols = list(by) + ["spring_force_pct", "threshold_l_min", "sealed_up_to_bar", "first_leak_bar",
+                       "max_tested_bar", "sealed_at_max", "max_leak_l_min", "n_pressures"]
+    df = leakage_map.dropna(subset=["pressure_bar", "leak_l_min"])
+    if df.empty:
+        return pd.DataFrame(columns=cols)
+    df = df.assign(_nominal=(df["pressure_bar"] / pressure_step_bar).round() * pressure_step_bar)
+    rows = []
+    for key, g in df.groupby(by, dropna=False, sort=True):
+        key = key if isinstance(key, tuple) else (key,)
+        levels = g.groupby("_nominal")["leak_l_min"].mean().sort_index()
+        leaking = levels.to_numpy() >= threshold_l_min
+        first = int(np.argmax(leaking)) if leaking.any() else None
+        sealed_up_to = None
+        if first is None:
+            sealed_up_to = float(levels.index[-1])
+        elif first > 0:
+            sealed_up_to = float(levels.index[first - 1])
+        row = dict(zip(by, key))
+        force = row.get("spring_force_n")
+        row.update({
+            "spring_force_pct": (100.0 * force / spring_force_max_n) if force is not None and pd.notna(force) else None,
+            "threshold_l_min": float(threshold_l_min),
+            "sealed_up_to_bar": sealed_up_to,
+            "first_leak_bar": None if first is None else float(levels.index[first]),
+            "max_tested_bar": float(levels.index[-1]),
+            "sealed_at_max": first is None,
+            "max_leak_l_min": float(levels.max()),
+            "n_pressures": int(len(levels)),
+        })
+        rows.append(row)
+    return pd.DataFrame(rows, columns=cols)
+
+
+def _setting_label(adjustment: str, value: float, spring_force_max_n: float) -> str:
+    if adjustment == "distance":
+        return f"z = {value:.1f} mm"
+    return f"F = {value:.0f} N ({100 * value / spring_force_max_n:.0f} %)"
+
+
+def plot_leakage_map(leakage_map: pd.DataFrame, adjustment: str, threshold_l_min: float | None = LEAK_THRESHOLD_L_MIN,
+                     pressure_step_bar: float = 0.1, spring_force_max_n: float = SPRING_FORCE_MAX_N):
+    """Leak vs pressure like Figs. 9 (``distance``) and 10 (``force``) of seed 000.
+
+    One panel per chamber (A, B); one curve per roller distance or spring force (repeat runs and
+    hoses of a setting averaged per tested pressure).
+
+    Parameters
+    ----------
+    leakage_map : DataFrame
+        Rows of the ``leakage_map`` table.
+    adjustment : {"distance", "force"}
+        Which settings to plot.
+    threshold_l_min : float, optional
+        Draws the seal-envelope threshold [l/min ANR].
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    from matplotlib.figure import Figure
+
+    setting = "z_rollers_mm" if adjustment == "distance" else "spring_force_n"
+    df = leakage_map[(leakage_map["adjustment"] == adjustment)].dropna(subset=["pressure_bar", "leak_l_min", setting])
+    fig = Figure(figsize=(10, 4.2))
+    axes = fig.subplots(1, 2, sharey=True)
+    values = sorted(df[setting].unique())
+    cmap = __import__("matplotlib").colormaps["viridis"]
+    for ax, chamber, letter in zip(axes, ("A", "B"), "ab"):
+        d = df[df["chamber"] == chamber]
+        for i, v in enumerate(values):
+            g = d[d[setting] == v]
+            if g.empty:
+                continue
+            nominal = (g["pressure_bar"] / pressure_step_bar).round() * pressure_step_bar
+            curve = g.groupby(nominal).agg(p=("pressure_bar", "mean"), q=("leak_l_min", "mean")).sort_values("p")
+            ax.plot(curve["p"], curve["q"], marker="o", ms=4, color=cmap(i / max(1, len(values) - 1) * 0.9),
+                    label=_setting_label(adjustment, v, spring_force_max_n))
+        if threshold_l_min is not None:
+            ax.axhline(threshold_l_min, color="0.5", lw=0.8, ls="--", label=f"threshold {threshold_l_min:g} l/min")
+        ax.set_title(f"({letter}) chamber {chamber}")
+        ax.set_xlabel("pressure (gauge) [bar]")
+        ax.grid(True, alpha=0.3)
+        if d.empty:
+            ax.text(0.5, 0.5, "no runs", transform=ax.transAxes, ha="center", color="0.5")
+    axes[0].set_ylabel("leak [l/min ANR]")
+    handles, labels = axes[0].get_legend_handles_labels()
+    if not handles:
+        handles, labels = axes[1].get_legend_handles_labels()
+    if handles:
+        fig.legend(handles, labels, loc="center right", fontsize=8, frameon=False)
+    title = "roller distance" if adjustment == "distance" else "spring force"
+    fig.suptitle(f"Leakage with {title} adjustment")
+    fig.subplots_adjust(left=0.07, right=0.8, bottom=0.13, top=0.85, wspace=0.08)
+    return fig
+
+
+__all__ = ["find_pressure_plateaus", "leakage_plateaus", "leakage_power_law", "seal_envelope",
+           "plot_leakage_map", "LEAK_THRESHOLD_L_MIN", "SPRING_FORCE_MAX_N", "SETTING_COLUMNS"]
