@@ -1,0 +1,321 @@
+"""TDMS exports (LabVIEW / DAQmx) via npTDMS, streamed.
+
+* Root (file) properties are the run metadata (timestamps become ISO 8601 text in UTC, the
+  TDMS time base).
+* Channels come from the group named by the ``group`` key, or from the only group. The key
+  is looked up in ``hints`` (manifest row over ``rig.toml`` defaults) first, then in the root
+  properties. Several groups and no key, or a key naming a missing group: :class:`ReaderError`.
+* A channel's unit is its ``unit_string`` property (a ``name[unit]`` channel name is the
+  fallback when the property is missing or empty).
+* Time: a channel named ``t`` if there is one; otherwise a column ``t`` [s] is synthesised from
+  the waveform properties ``wf_start_offset + i * wf_increment`` of the first channel that has
+  them. The waveform ``wf_start_time`` becomes the embedded ``started_at`` unless the root
+  properties give one (LabVIEW's "no time" value, the 1904 epoch, is ignored).
+* DAQmx raw data is scaled by npTDMS with the scaling properties stored in the file.
+* A truncated final segment (the bench crashed while logging) is read up to the last sample
+  that is complete in every channel; the export carries a warning (it reaches
+  ``runs.warnings``). Channels of unequal length in an intact file are an error.
+* Non-numeric channels: strings are kept as string columns; timestamp channels are kept as
+  string columns of ISO 8601 UTC text, except a timestamp channel named ``t``, which becomes
+  seconds since its first value. Channels of other types (complex numbers, ...) are skipped
+  with a warning. A channel with no data at all is kept as an empty (all-null) column.
+
+Data is streamed: :meth:`nptdms.TdmsFile.open` reads the segment metadata only, and batches of
+:data:`BATCH_ROWS` rows are read per channel with ``channel.read_data(offset, length)``, so
+memory stays bounded by the batch size plus one raw-data chunk of the file (LabVIEW and DAQmx
+write a chunk per loop iteration or buffer: small).
+"""
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+
+from pipeline.readers.base import RawColumn, RawExport, ReaderError, split_name_unit
+
+FORMAT = "tdms"
+EXTENSIONS = (".tdms",)
+
+#: Rows per record batch.
+BATCH_ROWS = 1 << 19
+
+#: LabVIEW's timestamp zero (1904-01-01T00:00:00 UTC): a waveform without a start time.
+_TDMS_EPOCH = np.datetime64("1904-01-01T00:00:00", "us")
+
+
+@dataclass
+class _Source:
+    """How one output column is read: ``read(offset, length) -> pa.Array``."""
+
+    key: str
+    read: Callable[[int, int], pa.Array]
+
+
+def read_tdms(path: str | Path, read: dict | None = None, hints: dict | None = None) -> RawExport:
+    """Open a TDMS export.
+
+    Parameters
+    ----------
+    path : path-like
+        The export.
+    read : dict, optional
+        The ``[read]`` table of ``rig.toml``; unused (TDMS is self-describing).
+    hints : dict, optional
+        Metadata known before the file is opened (manifest row over ``rig.toml`` defaults);
+        ``group`` names the group to read.
+
+    Returns
+    -------
+    RawExport
+        Columns in the group's channel order (``index`` is the 1-based position in the group),
+        then a synthesised ``t`` when time comes from waveform properties.
+    """
+    path = Path(path)
+    with _open(path) as tdms:
+        plan = _plan(tdms, hints or {})
+    columns, metadata, warnings, n_rows, group_name = plan
+
+    def batches() -> Iterator[pa.RecordBatch]:
+        with _open(path) as tdms:
+            group = tdms[group_name]
+            sources = [_source(group, c) for c in columns]
+            try:
+                for start in range(0, n_rows, BATCH_ROWS):
+                    length = min(BATCH_ROWS, n_rows - start)
+                    arrays = [s.read(start, length) for s in sources]
+                    yield pa.RecordBatch.from_arrays(arrays, names=[s.key for s in sources])
+            except ReaderError:
+                raise
+            except Exception as exc:  # noqa: BLE001 - npTDMS raises many kinds on malformed data
+                raise ReaderError(f"cannot read TDMS data: {_first_line(exc)}") from None
+
+    return RawExport(format=FORMAT, columns=[c.raw for c in columns], metadata=metadata,
+                     batches=batches, warnings=warnings)
+
+
+# -- opening and planning ------------------------------------------------------------------
+class _open:
+    """``TdmsFile.open`` with npTDMS' own log warnings silenced and errors as ReaderError."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self.tdms = None
+
+    def __enter__(self):
+        from nptdms import TdmsFile
+
+        log = logging.getLogger("nptdms")
+        level = log.level
+        log.setLevel(logging.ERROR)  # truncation is reported by us, as a run warning
+        try:
+            self.tdms = TdmsFile.open(self.path)
+        except FileNotFoundError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - npTDMS raises many kinds on malformed input
+            raise ReaderError(f"not a readable TDMS file: {_first_line(exc)}") from None
+        finally:
+            log.setLevel(level)
+        return self.tdms
+
+    def __exit__(self, *exc):
+        if self.tdms is not None:
+            self.tdms.close()
+        return False
+
+
+@dataclass
+class _Col:
+    raw: RawColumn
+    kind: str             # "number", "string", "timestamp", "elapsed" (timestamp t), "wf_time", "empty"
+    channel: str | None   # TDMS channel name (None for the synthesised time)
+    t0: object = None     # elapsed: first timestamp; wf_time: (offset, increment)
+
+
+def _plan(tdms, hints: dict):
+    root = dict(tdms.properties)
+    metadata = {str(k): _plain(v) for k, v in root.items()}
+    group = _select_group(tdms, hints, metadata)
+    warnings: list[str] = []
+    cols: list[_Col] = []
+    lengths: dict[str, int] = {}
+    time_channel = None
+    wf = None
+    first_time = None
+    for index, ch in enumerate(group.channels(), start=1):
+        name = ch.name
+        unit = _text(ch.properties.get("unit_string"))
+        if unit is None:
+            name, unit = split_name_unit(ch.name) if ch.name.rstrip().endswith("]") else (ch.name, None)
+        key = f"c{index}"
+        n = len(ch)
+        dtype = np.dtype(ch.dtype) if ch.dtype is not None else np.dtype(object)
+        is_t = name.strip().casefold() == "t"
+        if n == 0:
+            kind = "empty"
+        elif np.issubdtype(dtype, np.datetime64):
+            kind = "elapsed" if is_t else "timestamp"
+        elif dtype == np.dtype(object) or dtype.kind in "US":
+            kind = "string"
+        elif dtype.kind in "biuf":
+            kind = "number"
+        else:
+            warnings.append(f"TDMS channel `{ch.name}` of type {dtype} skipped (not numbers, text or timestamps)")
+            continue
+        t0 = None
+        if kind == "elapsed":
+            t0 = ch.read_data(0, 1)[0]
+            unit = "s"
+            first_time = _plain(t0)
+        raw = RawColumn(key=key, name=name, unit=unit, index=index,
+                        dtype="string" if kind in ("string", "timestamp") else "float")
+        cols.append(_Col(raw, kind, ch.name, t0))
+        if n:
+            lengths[ch.name] = n
+        if is_t:
+            time_channel = ch.name
+        if wf is None and "wf_increment" in ch.properties and n:
+            wf = ch.properties
+    if not cols:
+        raise ReaderError(f"TDMS group `{group.name}` has no channels")
+    if not lengths:
+        raise ReaderError(f"TDMS group `{group.name}` has no data")
+
+    # Rows: every channel as long as the others; a crash may cut the last segment short.
+    n_rows = min(lengths.values())
+    truncated = _truncated(tdms)
+    if len(set(lengths.values())) > 1 and not truncated:
+        shown = ", ".join(f"`{k}` {v}" for k, v in lengths.items())
+        raise ReaderError(f"TDMS channels of group `{group.name}` have different lengths ({shown})")
+    if truncated:
+        dropped = sum(lengths.values()) - n_rows * len(lengths)
+        warnings.append(f"TDMS file truncated (final segment incomplete): ingested the first {n_rows} "
+                        f"complete samples, dropped {dropped} trailing values")
+
+    # Time: a channel `t` wins; else waveform timing.
+    if time_channel is None and wf is not None:
+        inc = _number(wf.get("wf_increment"))
+        off = _number(wf.get("wf_start_offset", 0.0))
+        if inc is None or not inc > 0:
+            raise ReaderError(f"TDMS waveform property wf_increment is not a positive number: {wf.get('wf_increment')!r}")
+        cols.append(_Col(RawColumn(key="t", name="t", unit="s", index=len(cols) + 1), "wf_time", None,
+                         (off or 0.0, inc)))
+    if wf is not None and not any(k.strip().casefold() == "started_at" for k in metadata):
+        start = wf.get("wf_start_time")
+        if isinstance(start, np.datetime64) and start.astype("datetime64[us]") != _TDMS_EPOCH:
+            metadata["started_at"] = _plain(start)
+    if first_time is not None and not any(k.strip().casefold() == "started_at" for k in metadata):
+        metadata["started_at"] = first_time
+    return cols, metadata, warnings, n_rows, group.name
+
+
+def _select_group(tdms, hints: dict, root: dict):
+    groups = tdms.groups()
+    names = [g.name for g in groups]
+    wanted = _lookup(hints, "group")
+    if wanted is None:
+        wanted = _lookup(root, "group")
+    shown = ", ".join(f"`{n}`" for n in names)
+    if wanted is not None:
+        wanted = str(wanted)
+        for g in groups:
+            if g.name == wanted:
+                return g
+        folded = [g for g in groups if g.name.strip().casefold() == wanted.strip().casefold()]
+        if len(folded) == 1:
+            return folded[0]
+        raise ReaderError(f"TDMS group `{wanted}` (the `group` key) not found; the file has {shown or 'no groups'}")
+    if not groups:
+        raise ReaderError("TDMS file has no groups (no channels)")
+    if len(groups) > 1:
+        raise ReaderError(f"TDMS file has several groups ({shown}); set the `group` key "
+                          "(manifest.csv, rig.toml or a root property) to the one to read")
+    return groups[0]
+
+
+def _truncated(tdms) -> bool:
+    """Whether the file ends with an incomplete segment (or bytes npTDMS could not use)."""
+    try:
+        if tdms.file_status.incomplete_final_segment:
+            return True
+    except Exception:  # noqa: BLE001 - file_status is informational
+        pass
+    reader = getattr(tdms, "_reader", None)
+    segments = getattr(reader, "_segments", None)
+    size = getattr(reader, "_data_file_size", None)
+    if segments and size:
+        return segments[-1].next_segment_pos < size  # a final segment whose lead-in was cut
+    return False
+
+
+# -- reading -------------------------------------------------------------------------------
+def _source(group, col: _Col) -> _Source:
+    key = col.raw.key
+    if col.kind == "wf_time":
+        off, inc = col.t0
+        return _Source(key, lambda s, n: pa.array(off + np.arange(s, s + n, dtype=np.float64) * inc))
+    if col.kind == "empty":
+        typ = pa.string() if col.raw.dtype == "string" else pa.float64()
+        return _Source(key, lambda s, n: pa.nulls(n, type=typ))
+    ch = group[col.channel]
+    if col.kind == "number":
+        def read_number(s, n):
+            v = ch.read_data(s, n)
+            return pa.array(v if v.dtype.kind == "f" else v.astype(np.float64))
+        return _Source(key, read_number)
+    if col.kind == "elapsed":
+        t0 = col.t0
+        return _Source(key, lambda s, n: pa.array((ch.read_data(s, n) - t0) / np.timedelta64(1, "s")))
+    if col.kind == "timestamp":
+        return _Source(key, lambda s, n: pa.array(
+            [None if np.isnat(x) else _iso(x) for x in ch.read_data(s, n)], type=pa.string()))
+    return _Source(key, lambda s, n: pa.array([None if x is None else str(x) for x in ch.read_data(s, n)],
+                                              type=pa.string()))
+
+
+# -- values --------------------------------------------------------------------------------
+def _iso(value: np.datetime64) -> str:
+    return np.datetime_as_string(value.astype("datetime64[us]"), unit="us") + "+00:00"
+
+
+def _plain(value):
+    """A property value as plain Python (timestamps -> ISO 8601 UTC text)."""
+    if isinstance(value, np.datetime64):
+        return None if np.isnat(value) else _iso(value)
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, bytes):
+        return value.decode("latin-1")
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def _text(value) -> str | None:
+    if value is None:
+        return None
+    text = str(value).strip()
+    return text or None
+
+
+def _number(value) -> float | None:
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return None
+
+
+def _lookup(meta: dict, key: str):
+    for k, v in meta.items():
+        if str(k).strip().casefold() == key and v is not None and str(v).strip() != "":
+            return v
+    return None
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return (text[0] if text else type(exc).__name__)[:200]
