@@ -1,0 +1,569 @@
+"""PLA as a pneumatic spring: polytropic chamber plus Coulomb and structural damping (seed 001).
+
+A closed pressurised chamber (``rear`` or ``front``) under a harmonic rod displacement
+``d = D sin(2 pi f t)`` (+ = extension), stroke ``C`` (test at mid-stroke). physics.md, Eqs. 3-9:
+
+    P = P0 ((C/2) / (C/2 + s d))^n                       s = +1 rear, -1 front
+    F = (P - Pa) Ae + s_f [sign(d') eps (P - Pa) + delta d' / (2 pi f)]
+                                                          s_f = -1 rear, +1 front
+
+``P`` and ``P0`` are absolute, ``Pa`` ambient. The dissipative terms always widen the loop with the
+upper branch on compression. ``P0`` is read from each run (the pressure at mid-stroke, ``d = 0``).
+
+Parameters ``n``, ``Ae``, ``eps``, ``delta`` are fitted per chamber over all that chamber's runs by
+nonlinear least squares, seeded as section 3.2 of the paper describes: ``Ae`` from force over
+gauge pressure at rest position, ``n`` from the elastic part alone, ``delta`` from the loop area
+``U = pi delta D^2`` of the lowest-pressure tests, ``eps`` last from what structural damping does
+not explain in the small-amplitude tests. The objective weights each run by its force range and
+length, so it minimises the sum of squared per-test NRMSE (Table 3's measure).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import optimize, signal
+
+__all__ = ["P_ATM_PA", "PRESSURE_SIGN", "FORCE_SIGN", "spring_pressure", "spring_force", "read_p0",
+           "rod_velocity", "loop_energy", "SpringRun", "prepare_spring_run", "SpringFit", "fit_spring_chamber",
+           "spring_nrmse", "nrmse_percent", "plot_spring_loops", "plot_loop_energy"]
+
+P_ATM_PA = 101325.0
+#: ``s`` of the polytropic pressure: +1 rear (extension enlarges it), -1 front.
+PRESSURE_SIGN = {"rear": 1.0, "front": -1.0}
+#: ``s_f`` of the dissipative terms: -1 rear, +1 front.
+FORCE_SIGN = {"rear": -1.0, "front": 1.0}
+
+
+def _chamber(chamber: str) -> str:
+    c = str(chamber).strip().lower()
+    if c not in PRESSURE_SIGN:
+        raise ValueError(f"chamber must be 'front' or 'rear', got {chamber!r}")
+    return c
+
+
+def spring_pressure(d, p0_abs, n: float, chamber: str, stroke_m: float = 0.040):
+    """Polytropic chamber pressure, Eqs. 3-5.
+
+    Parameters
+    ----------
+    d : array_like
+        Rod displacement from mid-stroke (+ = extension). [m]
+    p0_abs : float or array_like
+        Absolute pressure at mid-stroke. [Pa]
+    n : float
+        Polytropic index. [-]
+    chamber : {'rear', 'front'}
+    stroke_m : float
+        Stroke ``C``. [m]
+
+    Returns
+    -------
+    ndarray
+        Absolute chamber pressure. [Pa]
+    """
+    s = PRESSURE_SIGN[_chamber(chamber)]
+    half = 0.5 * stroke_m
+    return np.asarray(p0_abs) * (half / (half + s * np.asarray(d, float))) ** n
+
+
+def spring_force(d, d_dot, p0_abs, frequency_hz, n: float, ae: float, eps: float, delta: float, chamber: str,
+                 stroke_m: float = 0.040, p_atm: float = P_ATM_PA):
+    """Force of the PLA as a pneumatic spring, Eq. 9 with the signs of physics.md.
+
+    Parameters
+    ----------
+    d : array_like
+        Rod displacement (+ = extension). [m]
+    d_dot : array_like
+        Rod velocity. [m/s]
+    p0_abs : float or array_like
+        Absolute pressure at mid-stroke. [Pa]
+    frequency_hz : float or array_like
+        Excitation frequency ``f``. [Hz]
+    n : float
+        Polytropic index. [-]
+    ae : float
+        Effective area. [m2]
+    eps : float
+        Coulomb friction parameter. [m2]
+    delta : float
+        Structural damping parameter. [N/m]
+    chamber : {'rear', 'front'}
+    stroke_m : float
+        Stroke. [m]
+    p_atm : float
+        Ambient pressure. [Pa]
+
+    Returns
+    -------
+    ndarray
+        Force. [N]
+    """
+    sf = FORCE_SIGN[_chamber(chamber)]
+    pg = spring_pressure(d, p0_abs, n, chamber, stroke_m) - p_atm
+    v = np.asarray(d_dot, float)
+    return pg * ae + sf * (np.sign(v) * eps * pg + delta * v / (2 * np.pi * np.asarray(frequency_hz)))
+
+
+def nrmse_percent(measured, model) -> float:
+    """``100 RMS(measured - model) / (max(measured) - min(measured))`` (warehouse.md). [%]"""
+    y = np.asarray(measured, float)
+    rng = float(np.max(y) - np.min(y)) if len(y) else 0.0
+    if rng == 0:
+        return float("nan")
+    return float(100 * np.sqrt(np.mean((y - np.asarray(model, float)) ** 2)) / rng)
+
+
+def _zero_crossings(d):
+    """Fractional indices where ``d`` crosses zero, and the direction (+1 up, -1 down)."""
+    d = np.asarray(d, float)
+    s = np.signbit(d)
+    i = np.flatnonzero(s[:-1] != s[1:])
+    frac = d[i] / (d[i] - d[i + 1])
+    return i + frac, np.where(d[i + 1] > d[i], 1.0, -1.0)
+
+
+def read_p0(d, p_gauge, p_atm: float = P_ATM_PA) -> float:
+    """Absolute pressure at mid-stroke: the measured pressure where ``d`` crosses zero.
+
+    Parameters
+    ----------
+    d : array_like
+        Rod displacement. [m]
+    p_gauge : array_like
+        Measured chamber pressure, gauge. [Pa]
+    p_atm : float
+        Ambient pressure of the run. [Pa]
+
+    Returns
+    -------
+    float
+        Median over the crossings of the interpolated pressure, plus ``p_atm``; NaN if ``d``
+        never crosses zero. [Pa]
+    """
+    idx, _ = _zero_crossings(d)
+    if len(idx) == 0:
+        return float("nan")
+    p = np.interp(idx, np.arange(len(p_gauge)), np.asarray(p_gauge, float))
+    return float(np.median(p) + p_atm)
+
+
+def rod_velocity(t, d, frequency_hz: float | None = None):
+    """Rod velocity by a Savitzky-Golay derivative (cubic, about 1/20 of a period wide).
+
+    Parameters
+    ----------
+    t : array_like
+        Time, uniform. [s]
+    d : array_like
+        Displacement. [m]
+    frequency_hz : float, optional
+        Excitation frequency; sets the window. [Hz]
+
+    Returns
+    -------
+    ndarray
+        Velocity. [m/s]
+    """
+    t = np.asarray(t, float)
+    d = np.asarray(d, float)
+    dt = float(np.median(np.diff(t)))
+    if frequency_hz and np.isfinite(frequency_hz) and frequency_hz > 0:
+        w = int(round(1.0 / (20 * frequency_hz * dt)))
+    else:
+        w = 11
+    w = max(5, w | 1)
+    if len(d) <= w:
+        return np.gradient(d, t)
+    return signal.savgol_filter(d, w, 3, deriv=1, delta=dt)
+
+
+def loop_energy(d, f, chamber: str) -> tuple[float, int]:
+    """Energy dissipated per cycle: the area of the force-displacement loop.
+
+    Over the whole cycles between the first and the last upward zero crossing of ``d``:
+    ``s_f * (closed integral of F dd) / cycles`` (positive when the loop is traversed as the
+    model says, upper branch on compression).
+
+    Parameters
+    ----------
+    d : array_like
+        Displacement. [m]
+    f : array_like
+        Force. [N]
+    chamber : {'rear', 'front'}
+
+    Returns
+    -------
+    (float, int)
+        Energy per cycle [J] (NaN without a whole cycle) and the number of cycles.
+    """
+    sf = FORCE_SIGN[_chamber(chamber)]
+    idx, direction = _zero_crossings(d)
+    ups = np.ceil(idx[direction > 0]).astype(int)
+    if len(ups) < 2:
+        return float("nan"), 0
+    a, b = ups[0], ups[-1]
+    d = np.asarray(d, float)[a:b + 1]
+    f = np.asarray(f, float)[a:b + 1]
+    work = float(np.sum(0.5 * (f[1:] + f[:-1]) * np.diff(d)))
+    cycles = len(ups) - 1
+    return sf * work / cycles, cycles
+
+
+@dataclass
+class SpringRun:
+    """A spring run ready for fitting (SI)."""
+
+    run_id: str
+    chamber: str
+    p0_abs: float
+    amplitude_m: float
+    frequency_hz: float
+    t: np.ndarray
+    d: np.ndarray
+    v: np.ndarray
+    f: np.ndarray
+    p_gauge: np.ndarray
+    stroke_m: float = 0.040
+    p_atm: float = P_ATM_PA
+    static_force_n: float = float("nan")
+    loop_energy_j: float = float("nan")
+    cycles: int = 0
+    message: str = ""
+
+    @property
+    def ok(self) -> bool:
+        return not self.message
+
+
+def prepare_spring_run(run_id: str, t, d, f, p_gauge, chamber: str, frequency_hz: float | None = None,
+                       amplitude_m: float | None = None, stroke_m: float = 0.040,
+                       p_atm: float = P_ATM_PA) -> SpringRun:
+    """Read P0, velocity, static force and loop energy of one run.
+
+    Parameters
+    ----------
+    run_id : str
+    t : array_like
+        Time. [s]
+    d : array_like
+        Rod displacement. [m]
+    f : array_like
+        Force. [N]
+    p_gauge : array_like
+        Chamber pressure, gauge. [Pa]
+    chamber : {'rear', 'front'}
+    frequency_hz : float, optional
+        Excitation frequency (metadata); estimated from the zero crossings when missing. [Hz]
+    amplitude_m : float, optional
+        Displacement amplitude (metadata); half the peak-to-peak of ``d`` when missing. [m]
+    stroke_m : float
+        Stroke. [m]
+    p_atm : float
+        Ambient pressure. [Pa]
+
+    Returns
+    -------
+    SpringRun
+        ``message`` is non-empty when the run cannot be used (too short, no motion, no whole
+        cycle).
+    """
+    chamber = _chamber(chamber)
+    arrays = [np.asarray(a, float) for a in (t, d, f, p_gauge)]
+    t, d, f, p = arrays
+    keep = np.all([np.isfinite(a) for a in arrays], axis=0)
+    t, d, f, p = t[keep], d[keep], f[keep], p[keep]
+    nan = float("nan")
+    empty = SpringRun(run_id, chamber, nan, amplitude_m or nan, frequency_hz or nan, t, d, np.zeros_like(d), f, p,
+                      stroke_m, p_atm)
+    if len(t) < 20:
+        empty.message = f"too short ({len(t)} samples)"
+        return empty
+    if np.ptp(d) < 1e-6:
+        empty.message = "no displacement"
+        return empty
+    idx, direction = _zero_crossings(d)
+    if np.sum(direction > 0) < 2:
+        empty.message = "less than one whole cycle of displacement around mid-stroke"
+        return empty
+    if not frequency_hz or not np.isfinite(frequency_hz):
+        ups = idx[direction > 0]
+        frequency_hz = float((len(ups) - 1) / (np.interp(ups[-1], np.arange(len(t)), t)
+                                               - np.interp(ups[0], np.arange(len(t)), t)))
+    if not amplitude_m or not np.isfinite(amplitude_m):
+        amplitude_m = 0.5 * float(np.ptp(d))
+    p0 = read_p0(d, p, p_atm)
+    v = rod_velocity(t, d, frequency_hz)
+    fx = np.interp(idx, np.arange(len(f)), f)
+    # at mid-stroke the dissipative terms flip with the direction: the mean of the upward and
+    # downward crossings is the static force
+    static = 0.5 * (np.mean(fx[direction > 0]) + np.mean(fx[direction < 0])) if np.any(direction < 0) else nan
+    energy, cycles = loop_energy(d, f, chamber)
+    return SpringRun(run_id, chamber, p0, float(amplitude_m), float(frequency_hz), t, d, v, f, p, stroke_m, p_atm,
+                     float(static), energy, cycles)
+
+
+@dataclass
+class SpringFit:
+    """Fitted parameters of one chamber, the seeds, and per-run NRMSE."""
+
+    chamber: str
+    n_polytropic: float = float("nan")
+    ae_m2: float = float("nan")
+    epsilon_m2: float = float("nan")
+    delta_n_m: float = float("nan")
+    n_tests: int = 0
+    seeds: dict = field(default_factory=dict)
+    nrmse_pct: dict = field(default_factory=dict)
+    message: str = ""
+
+    @property
+    def params(self) -> tuple[float, float, float, float]:
+        return self.n_polytropic, self.ae_m2, self.epsilon_m2, self.delta_n_m
+
+    @property
+    def ok(self) -> bool:
+        return bool(np.isfinite(self.n_polytropic))
+
+
+class _Stack:
+    """All runs of a chamber as flat arrays, for a vectorised residual and Jacobian."""
+
+    def __init__(self, runs: list[SpringRun], max_samples_per_run: int | None):
+        ds, vs, fs, p0s, fqs, ws = [], [], [], [], [], []
+        for r in runs:
+            step = max(1, int(np.ceil(len(r.d) / max_samples_per_run))) if max_samples_per_run else 1
+            sl = slice(None, None, step)
+            m = len(r.d[sl])
+            ds.append(r.d[sl])
+            vs.append(r.v[sl])
+            fs.append(r.f[sl])
+            p0s.append(np.full(m, r.p0_abs))
+            fqs.append(np.full(m, r.frequency_hz))
+            ws.append(np.full(m, 1.0 / (np.ptp(r.f) * np.sqrt(m))))
+        self.d, self.v, self.f = np.concatenate(ds), np.concatenate(vs), np.concatenate(fs)
+        self.p0, self.freq, self.w = np.concatenate(p0s), np.concatenate(fqs), np.concatenate(ws)
+        self.sgn = np.sign(self.v)
+        self.vf = self.v / (2 * np.pi * self.freq)
+        r0 = runs[0]
+        half = 0.5 * r0.stroke_m
+        self.log_ratio = np.log(half / (half + PRESSURE_SIGN[r0.chamber] * self.d))
+        self.pa = np.concatenate([np.full(len(x), r.p_atm) for x, r in zip(ds, runs)])
+        self.sf = FORCE_SIGN[r0.chamber]
+
+    def pressure(self, n):
+        return self.p0 * np.exp(n * self.log_ratio)
+
+    def residual(self, x):
+        n, ae, eps, delta = x
+        pg = self.pressure(n) - self.pa
+        model = pg * ae + self.sf * (self.sgn * eps * pg + delta * self.vf)
+        return (model - self.f) * self.w
+
+    def jacobian(self, x):
+        n, ae, eps, delta = x
+        p = self.pressure(n)
+        pg = p - self.pa
+        j = np.empty((len(self.d), 4))
+        j[:, 0] = p * self.log_ratio * (ae + self.sf * self.sgn * eps)
+        j[:, 1] = pg
+        j[:, 2] = self.sf * self.sgn * pg
+        j[:, 3] = self.sf * self.vf
+        return j * self.w[:, None]
+
+
+def _seed(runs: list[SpringRun]) -> dict:
+    """Seeds as in section 3.2 of the paper."""
+    chamber = runs[0].chamber
+    # Ae: static force over gauge pressure at mid-stroke
+    ratios = [r.static_force_n / (r.p0_abs - r.p_atm) for r in runs
+              if np.isfinite(r.static_force_n) and r.p0_abs - r.p_atm > 1e3]
+    ae = float(np.median(ratios)) if ratios else 1e-3
+    # n: the force-displacement curve with the elastic term only (Ae fixed at its seed)
+    stack = _Stack(runs, 2000)
+
+    def elastic(nv):
+        pg = stack.pressure(nv[0]) - stack.pa
+        return (pg * ae - stack.f) * stack.w
+
+    n = float(optimize.least_squares(elastic, [1.2], bounds=([0.5], [2.5])).x[0])
+    # delta: loop area of the lowest-pressure tests, U = pi delta D^2
+    good = [r for r in runs if np.isfinite(r.loop_energy_j)]
+    if good:
+        pmin = min(r.p0_abs for r in good)
+        low = [r for r in good if r.p0_abs <= pmin + 0.25e5]
+        delta = float(np.median([r.loop_energy_j / (np.pi * r.amplitude_m ** 2) for r in low]))
+    else:
+        delta = 1e3
+    delta = max(delta, 1.0)
+    # eps last: the loop area structural damping leaves, in the small-amplitude tests, over
+    # the integral of (P - Pa)|dd| of the elastic model
+    eps_vals = []
+    if good:
+        amin = min(r.amplitude_m for r in good)
+        for r in (r for r in good if r.amplitude_m <= amin * 1.05):
+            pg = spring_pressure(r.d, r.p0_abs, n, chamber, r.stroke_m) - r.p_atm
+            idx, direction = _zero_crossings(r.d)
+            ups = np.ceil(idx[direction > 0]).astype(int)
+            a, b = ups[0], ups[-1]
+            travel_work = float(np.sum(np.abs(np.diff(r.d[a:b + 1])) * 0.5 * (pg[a:b] + pg[a + 1:b + 1])))
+            travel_work /= max(1, len(ups) - 1)
+            if travel_work > 0:
+                eps_vals.append((r.loop_energy_j - np.pi * delta * r.amplitude_m ** 2) / travel_work)
+    eps = float(np.median(eps_vals)) if eps_vals else 1e-5
+    eps = max(eps, 1e-7)
+    return {"n_polytropic": n, "ae_m2": ae, "epsilon_m2": eps, "delta_n_m": delta}
+
+
+def fit_spring_chamber(runs: list[SpringRun], max_samples_per_run: int | None = 4000) -> SpringFit:
+    """Fit ``n``, ``Ae``, ``eps``, ``delta`` over all usable runs of one chamber.
+
+    Parameters
+    ----------
+    runs : list of SpringRun
+        Runs of one chamber (from :func:`prepare_spring_run`); unusable ones are skipped.
+    max_samples_per_run : int, optional
+        Longer runs are thinned (every k-th sample) for the fit; NRMSE uses every sample.
+
+    Returns
+    -------
+    SpringFit
+        Parameters (NaN with ``message`` when no run is usable), the seeds and the NRMSE of every
+        usable run [%].
+    """
+    usable = sorted((r for r in runs if r.ok), key=lambda r: r.run_id)
+    chamber = runs[0].chamber if runs else ""
+    if not usable:
+        return SpringFit(chamber, message="no usable run")
+    chamber = usable[0].chamber
+    seeds = _seed(usable)
+    stack = _Stack(usable, max_samples_per_run)
+    x0 = np.array([seeds[k] for k in ("n_polytropic", "ae_m2", "epsilon_m2", "delta_n_m")])
+    lo = np.array([0.5, 1e-6, 0.0, 0.0])
+    hi = np.array([2.5, 1.0, 1e-2, 1e7])
+    x0 = np.clip(x0, lo, hi)
+    scale = np.maximum(np.abs(x0), [0.1, 1e-5, 1e-7, 10.0])
+    sol = optimize.least_squares(stack.residual, x0, jac=stack.jacobian, bounds=(lo, hi), x_scale=scale,
+                                 method="trf", xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=200)
+    fit = SpringFit(chamber, *map(float, sol.x), n_tests=len(usable), seeds=seeds,
+                    message="" if sol.success else f"least_squares: {sol.message}")
+    fit.nrmse_pct = {r.run_id: spring_nrmse(r, fit) for r in usable}
+    return fit
+
+
+def spring_model_force(run: SpringRun, fit: SpringFit):
+    """The fitted model's force over a run's samples. [N]"""
+    return spring_force(run.d, run.v, run.p0_abs, run.frequency_hz, *fit.params, run.chamber, run.stroke_m, run.p_atm)
+
+
+def spring_nrmse(run: SpringRun, fit: SpringFit) -> float:
+    """NRMSE of the fitted model over one run's force (Table 3). [%]"""
+    return nrmse_percent(run.f, spring_model_force(run, fit))
+
+
+def model_loop_energy(run: SpringRun, fit: SpringFit) -> float:
+    """Loop area of the fitted model over the run's displacement. [J]"""
+    return loop_energy(run.d, spring_model_force(run, fit), run.chamber)[0]
+
+
+#: The tests of the paper's Figs. 8-13: (P0 [bar abs], D [mm], f [Hz]).
+PAPER_FIGURE_TESTS = ((2, 5, 1), (5, 5, 1), (3, 3, 1), (3, 7, 1), (3, 5, 0.5), (3, 5, 2))
+
+
+def _closest(runs, p0_bar, d_mm, f_hz):
+    def dist(r):
+        return (abs(r.p0_abs / 1e5 - p0_bar) / 1.0 + abs(r.amplitude_m * 1e3 - d_mm) / 2.0
+                + abs(np.log(r.frequency_hz / f_hz)))
+    return min(runs, key=dist) if runs else None
+
+
+def plot_spring_loops(runs: list[SpringRun], fit: SpringFit, cases=PAPER_FIGURE_TESTS, title: str = ""):
+    """Measured and model force-displacement loops, like Figs. 8-13 of seed 001.
+
+    Parameters
+    ----------
+    runs : list of SpringRun
+        Runs of one chamber.
+    fit : SpringFit
+    cases : sequence of (P0 [bar abs], D [mm], f [Hz])
+        The tests to show; the closest available run is used for each.
+    title : str
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(12, 7))
+    axes = fig.subplots(2, 3).ravel()
+    usable = [r for r in runs if r.ok]
+    shown = set()
+    for ax, (p0, dmm, fhz) in zip(axes, cases):
+        r = _closest(usable, p0, dmm, fhz)
+        if r is None or r.run_id in shown:
+            ax.set_visible(False)
+            continue
+        shown.add(r.run_id)
+        ax.plot(r.d * 1e3, r.f, color="0.15", lw=1.2, label="experimental")
+        if fit.ok:
+            ax.plot(r.d * 1e3, spring_model_force(r, fit), color="tab:red", lw=1.0, ls="--", label="model")
+            err = f", NRMSE {spring_nrmse(r, fit):.2f} %"
+        else:
+            err = ""
+        ax.set_title(f"P0={r.p0_abs / 1e5:.2f} bar abs, D={r.amplitude_m * 1e3:.0f} mm, "
+                     f"f={r.frequency_hz:g} Hz{err}", fontsize=8)
+        ax.set_xlabel("displacement [mm]")
+        ax.set_ylabel("force [N]")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.suptitle(title or f"PLA {fit.chamber} chamber: force-displacement loops, experiment vs model "
+                 f"(n={fit.n_polytropic:.3f}, Ae={fit.ae_m2 * 1e3:.3f}e-3 m2, eps={fit.epsilon_m2 * 1e5:.3f}e-5 m2, "
+                 f"delta={fit.delta_n_m / 1e3:.3f}e3 N/m)", fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+def plot_loop_energy(table, fits: dict | None = None, title: str = ""):
+    """Loop energy vs amplitude and vs frequency (the paper's case for structural damping).
+
+    Parameters
+    ----------
+    table : DataFrame
+        Columns ``chamber``, ``p0_bar_abs``, ``amplitude_mm``, ``frequency_hz``, ``loop_energy_j``
+        (and optionally ``model_loop_energy_j``).
+    fits : dict of str to SpringFit, optional
+        When given, the structural part ``pi delta D^2`` is drawn.
+    title : str
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(11, 4.5))
+    ax1, ax2 = fig.subplots(1, 2)
+    colors = {"rear": "tab:blue", "front": "tab:orange"}
+    for chamber, grp in table.groupby("chamber"):
+        c = colors.get(chamber, None)
+        ax1.scatter(grp["amplitude_mm"], grp["loop_energy_j"], s=14, color=c, alpha=0.7, label=f"{chamber}")
+        ax2.scatter(grp["frequency_hz"], grp["loop_energy_j"], s=14, color=c, alpha=0.7, label=f"{chamber}")
+        if fits and chamber in fits and fits[chamber].ok:
+            dd = np.linspace(0, max(1.0, grp["amplitude_mm"].max()) * 1.05, 50)
+            ax1.plot(dd, np.pi * fits[chamber].delta_n_m * (dd * 1e-3) ** 2, color=c, lw=1,
+                     label=f"{chamber}: pi delta D^2 (structural part)")
+    ax1.set_xlabel("displacement amplitude D [mm]")
+    ax1.set_ylabel("loop energy per cycle [J]")
+    ax1.set_title("vs amplitude (all P0 and f)", fontsize=9)
+    ax2.set_xlabel("frequency f [Hz]")
+    ax2.set_ylabel("loop energy per cycle [J]")
+    ax2.set_title("vs frequency (all P0 and D): no viscous trend", fontsize=9)
+    for ax in (ax1, ax2):
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.suptitle(title or "PLA spring: energy dissipated per cycle (loop area)")
+    fig.tight_layout()
+    return fig

@@ -1,0 +1,227 @@
+"""Closed-loop position steps of the PLPA (seed 000, section 4, Fig. 15).
+
+A step run logs the carriage position ``x`` and its reference ``x_ref``. Every jump of ``x_ref``
+starts a step that lasts until the next jump (or the end of the run). Per step:
+
+* overshoot: largest excursion beyond the new reference, in the direction of the step, in % of
+  the step;
+* settling time: from the jump to the last instant the error is outside the 2 % band;
+* rise time: from the first crossing of 10 % of the step to the first crossing of 90 %;
+* steady-state error: new reference minus the mean position over the last 10 % of the step.
+
+Crossing instants are interpolated linearly between samples. The position is first smoothed by
+a zero-phase low-pass filter well above the loop's bandwidth, so that sensor noise does not move
+the last exit from the 2 % band.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+from scipy import signal
+
+__all__ = ["find_steps", "step_metrics", "step_response_metrics", "plot_step_errors"]
+
+
+def find_steps(t, x_ref, min_step: float = 1e-4, min_duration_s: float = 0.0) -> list[tuple[int, int, float, float]]:
+    """Jumps of the reference.
+
+    Parameters
+    ----------
+    t : array_like
+        Time. [s]
+    x_ref : array_like
+        Reference. [m]
+    min_step : float
+        Smallest jump that counts as a step. [m]
+    min_duration_s : float
+        Shortest step kept (a plateau shorter than this is not a step). [s]
+
+    Returns
+    -------
+    list of (i_start, i_end, ref_before, ref_after)
+        ``i_start`` is the first sample at the new reference, ``i_end`` one past the last sample
+        of the step.
+    """
+    t = np.asarray(t, float)
+    r = np.asarray(x_ref, float)
+    if len(r) < 2:
+        return []
+    jumps = np.flatnonzero(np.abs(np.diff(r)) > min_step) + 1
+    # a ramped reference (several consecutive small changes) is merged into one jump
+    out = []
+    bounds = list(jumps) + [len(r)]
+    for j, i0 in enumerate(jumps):
+        i1 = bounds[j + 1]
+        before = r[i0 - 1]
+        after = float(np.median(r[i0:i1]))
+        if abs(after - before) <= min_step or t[i1 - 1] - t[i0] < min_duration_s:
+            continue
+        out.append((int(i0), int(i1), float(before), after))
+    return out
+
+
+def _crossing(t, y, level, start=0):
+    """First time at or after index ``start`` when ``y`` reaches ``level`` from below (interpolated)."""
+    above = np.flatnonzero(y[start:] >= level)
+    if len(above) == 0:
+        return float("nan")
+    i = start + int(above[0])
+    if i == 0 or y[i - 1] >= level:
+        return float(t[i])
+    f = (level - y[i - 1]) / (y[i] - y[i - 1])
+    return float(t[i - 1] + f * (t[i] - t[i - 1]))
+
+
+@dataclass
+class StepMetrics:
+    """Metrics of one step (NaN when not defined)."""
+
+    t_step_s: float
+    step_mm: float
+    overshoot_pct: float
+    settling_time_s: float
+    rise_time_s: float
+    steady_state_error_mm: float
+    settled: bool
+
+
+def step_metrics(t, x, t_step: float, ref_before: float, ref_after: float, band: float = 0.02,
+                 x_before: float | None = None) -> StepMetrics:
+    """Overshoot, 2 % settling time, 10-90 % rise time and steady-state error of one step.
+
+    Parameters
+    ----------
+    t : array_like
+        Time from the jump on (``t[0]`` may equal ``t_step``). [s]
+    x : array_like
+        Position over the step. [m]
+    t_step : float
+        Time of the jump. [s]
+    ref_before, ref_after : float
+        Reference before and after the jump. [m]
+    band : float
+        Settling band, fraction of the step. [-]
+    x_before : float, optional
+        Position when the step starts (default ``ref_before``): the 10 % and 90 % levels are
+        measured from the reference, as in Fig. 15 (error in % of the step).
+
+    Returns
+    -------
+    StepMetrics
+    """
+    t = np.asarray(t, float)
+    x = np.asarray(x, float)
+    step = ref_after - ref_before
+    nan = float("nan")
+    if len(t) < 3 or step == 0:
+        return StepMetrics(t_step, step * 1e3, nan, nan, nan, nan, False)
+    s = np.sign(step)
+    base = ref_before if x_before is None else x_before
+    y = s * (x - base) / abs(step)            # 0 at the start, 1 at the new reference
+    target = s * (ref_after - base) / abs(step)
+    overshoot = max(0.0, float(np.max(y) - target)) * 100.0
+    t10 = _crossing(t, y, 0.1 * target)
+    t90 = _crossing(t, y, 0.9 * target, start=max(0, int(np.searchsorted(t, t10))) if np.isfinite(t10) else 0)
+    rise = t90 - t10
+    err = np.abs(y - target)
+    outside = np.flatnonzero(err > band)
+    n_tail = max(3, len(t) // 10)
+    settled = len(outside) == 0 or outside[-1] < len(t) - n_tail
+    if len(outside) == 0:
+        settling = max(0.0, float(t[0] - t_step))
+    elif outside[-1] == len(t) - 1:
+        settling = nan
+    else:
+        i = int(outside[-1])
+        # interpolate the instant the error re-enters the band
+        e0, e1 = err[i] - band, err[i + 1] - band
+        f = e0 / (e0 - e1) if e0 != e1 else 0.0
+        settling = float(t[i] + f * (t[i + 1] - t[i]) - t_step)
+    sse = float(ref_after - np.mean(x[-n_tail:]))
+    return StepMetrics(t_step, step * 1e3, overshoot, settling, rise, sse * 1e3, bool(settled))
+
+
+def _smooth(t, x, cutoff_hz):
+    fs = 1.0 / float(np.median(np.diff(t)))
+    if not np.isfinite(cutoff_hz) or cutoff_hz >= 0.4 * fs or len(x) < 16:
+        return x
+    sos = signal.butter(2, cutoff_hz, fs=fs, output="sos")
+    return signal.sosfiltfilt(sos, x, padtype="constant" if len(x) < 30 else "odd",
+                              padlen=min(len(x) - 1, 3 * int(fs / cutoff_hz)))
+
+
+def step_response_metrics(t, x, x_ref, smooth: bool = True, min_step: float = 1e-4) -> pd.DataFrame:
+    """Metrics of every step of a step run.
+
+    Parameters
+    ----------
+    t : array_like
+        Time. [s]
+    x : array_like
+        Position. [m]
+    x_ref : array_like
+        Reference. [m]
+    smooth : bool
+        Low-pass the position (zero phase) at ten times the inverse rise time before measuring.
+    min_step : float
+        Smallest reference jump that counts as a step. [m]
+
+    Returns
+    -------
+    DataFrame
+        One row per step: ``t_step_s``, ``step_mm``, ``overshoot_pct``, ``settling_time_s``,
+        ``rise_time_s``, ``steady_state_error_mm``, ``settled``, ``i_start``, ``i_end``.
+        Empty when the reference never jumps.
+    """
+    t = np.asarray(t, float)
+    x = np.asarray(x, float)
+    cols = ["t_step_s", "step_mm", "overshoot_pct", "settling_time_s", "rise_time_s",
+            "steady_state_error_mm", "settled", "i_start", "i_end"]
+    rows = []
+    for i0, i1, before, after in find_steps(t, x_ref, min_step=min_step):
+        # the jump happened between samples i0-1 and i0: take the earlier one (the controller
+        # at the logging rate reacts from the first sample of the new reference)
+        t_step = float(t[i0])
+        seg_t, seg_x = t[i0:i1], x[i0:i1]
+        m = step_metrics(seg_t, seg_x, t_step, before, after)
+        if smooth and np.isfinite(m.rise_time_s) and m.rise_time_s > 0 and len(seg_t) > 16:
+            # filter over the whole run (no edge effect at the jump), then cut the step out
+            xs = _smooth(t, x, 10.0 / m.rise_time_s)[i0:i1]
+            m = step_metrics(seg_t, xs, t_step, before, after)
+        rows.append({**m.__dict__, "i_start": i0, "i_end": i1})
+    return pd.DataFrame(rows, columns=cols)
+
+
+def plot_step_errors(steps: list[dict], title: str = ""):
+    """Error in % of the step vs time since the step, like Fig. 15 of seed 000.
+
+    Parameters
+    ----------
+    steps : list of dict
+        Each with ``t`` [s since the step], ``error_pct`` (``100 (x_ref - x) / step``) and a
+        ``label``.
+    title : str
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(8, 4.5))
+    ax = fig.subplots()
+    for s in steps:
+        ax.plot(s["t"], s["error_pct"], lw=1.0, label=s.get("label", ""))
+    ax.axhspan(-2, 2, color="tab:green", alpha=0.12, label="2 % band")
+    ax.axhline(0, color="0.3", lw=0.6)
+    ax.set_xlabel("time since the step [s]")
+    ax.set_ylabel("error [% of the step]")
+    ax.set_ylim(-10, 105)
+    ax.grid(alpha=0.3)
+    if steps:
+        ax.legend(fontsize=7, loc="upper right", ncol=1 + len(steps) // 8)
+    ax.set_title(title or "Closed-loop steps: error in % of the step (seed 000, Fig. 15)")
+    fig.tight_layout()
+    return fig
