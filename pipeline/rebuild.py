@@ -1,5 +1,17 @@
 """The rebuild: ingest raw/, run the analysis stages, swap in a new warehouse.
 
+Incremental (``pipeline/state.py``): a run file whose content, applicable metadata and ingest
+code are unchanged is not read again; a stage whose inputs are unchanged is not run again (its
+cached outputs are reused). ``full=True`` rebuilds everything. Either way the result is the same.
+
+Atomic: everything the new database refers to is written first into immutable,
+content-addressed files (``samples/.../<run>-<key>.parquet``, ``stages/<stage>/<key>/``); then the
+database is built under a temporary name and swapped in with one ``os.replace``. A reader opening
+``pneubench.duckdb`` sees the previous complete warehouse or the new one. Files of the previous
+generation are kept (a reader may still be using them); older ones are collected. The incremental
+state lives inside the database, so it always matches the data it describes. ``kill -9`` at any
+point leaves the previous warehouse as it was; the next rebuild removes the debris.
+
 Exit codes (warehouse.md): 0 everything used; 1 warehouse built, some inputs quarantined;
 2 usage error; anything else: failed, the previous warehouse untouched (3 failed, 4 another
 rebuild holds the lock).
@@ -7,26 +19,38 @@ rebuild holds the lock).
 from __future__ import annotations
 
 import fcntl
+import json
 import logging
 import os
 import shutil
+import signal
 import time
-from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from datetime import datetime, timezone
 from pathlib import Path
 
 import pandas as pd
 
 from pipeline import stages as stage_registry
-from pipeline.ingest import IngestResult, ingest_file
+from pipeline.executors import Executor, LocalExecutor, make_executor
+from pipeline.ingest import IngestResult, ingest_file, sha256_file
 from pipeline.layout import Problem, RawTree, discover_runs
 from pipeline.progress import Progress
-from pipeline.warehouse import DB_NAME, build_database, connect_readonly, runs_frame, swap_in
+from pipeline.state import (FilePlan, FileRecord, PreviousState, StageRecord, frame_hash, ingest_code_version,
+                            load_previous, logbook_hash, plan_runs, record_for, side_records, stage_code_version,
+                            stage_input_key)
+from pipeline.warehouse import DB_NAME, build_database, runs_frame, swap_in
 
 log = logging.getLogger("pneubench")
 
 EXIT_OK, EXIT_QUARANTINED, EXIT_USAGE, EXIT_FAILED, EXIT_LOCKED = 0, 1, 2, 3, 4
+
+#: Test hook: ``PNEUBENCH_CRASH_AT=<point>`` kills the rebuild with SIGKILL at that point.
+CRASH_POINTS = ("after_ingest", "after_stages", "before_swap", "after_swap")
+
+#: Rows of ``rebuild_log`` carried from one warehouse to the next.
+HISTORY_ROWS = 200
 
 
 class RebuildError(Exception):
@@ -48,18 +72,37 @@ class RebuildSummary:
     quarantine: list[Problem] = field(default_factory=list)
     seconds: float = 0.0
     tables: dict[str, int] = field(default_factory=dict)
+    generation: str = ""
+    mode: str = "incremental"
+    n_new: int = 0
+    n_changed: int = 0
+    n_deleted: int = 0
+    n_unchanged: int = 0
+    stages_run: list[str] = field(default_factory=list)
+    stages_reused: list[str] = field(default_factory=list)
+    report: Path | None = None
 
     @property
     def exit_code(self) -> int:
         return EXIT_QUARANTINED if self.quarantine else EXIT_OK
 
 
+def _crash_point(name: str) -> None:
+    """Test-only: die by SIGKILL here when ``PNEUBENCH_CRASH_AT`` names this point."""
+    if os.environ.get("PNEUBENCH_CRASH_AT") == name:
+        os.kill(os.getpid(), signal.SIGKILL)
+
+
 @contextmanager
 def warehouse_lock(warehouse: Path, wait_s: float = 0.0):
-    """Hold the warehouse's rebuild lock; a second rebuild waits ``wait_s`` then gives up."""
+    """Hold the warehouse's rebuild lock; a second rebuild waits ``wait_s`` then gives up.
+
+    ``flock`` on ``.rebuild.lock``: the kernel releases it when the holder dies, even by
+    ``kill -9`` (worker processes are started by a fork server and do not inherit it).
+    """
     lock_path = Path(warehouse) / ".rebuild.lock"
     fh = open(lock_path, "a+")
-    deadline = time.monotonic() + wait_s
+    deadline = time.monotonic() + max(0.0, wait_s)
     while True:
         try:
             fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -69,9 +112,10 @@ def warehouse_lock(warehouse: Path, wait_s: float = 0.0):
                 fh.seek(0)
                 holder = fh.read().strip() or "unknown"
                 fh.close()
-                raise RebuildError(f"another rebuild is running on {warehouse} (pid {holder}); "
-                                   "try again when it has finished", EXIT_LOCKED) from None
-            time.sleep(0.2)
+                waited = f" after waiting {wait_s:g} s" if wait_s > 0 else ""
+                raise RebuildError(f"another rebuild is running on {warehouse} (pid {holder}){waited}; "
+                                   "try again when it has finished, or use --wait SECONDS", EXIT_LOCKED) from None
+            time.sleep(0.1)
     try:
         fh.seek(0)
         fh.truncate()
@@ -83,33 +127,100 @@ def warehouse_lock(warehouse: Path, wait_s: float = 0.0):
         fh.close()
 
 
-_TREES: dict[str, RawTree] = {}
+# -- ingest ------------------------------------------------------------------------------------
+_TREES: dict[tuple[str, str], RawTree] = {}
+
+
+def _tree(raw: str, token: str) -> RawTree:
+    """One parsed raw tree per (raw folder, rebuild) in each worker process."""
+    tree = _TREES.get((raw, token))
+    if tree is None:
+        _TREES.clear()
+        tree = _TREES[(raw, token)] = RawTree(Path(raw))
+    return tree
 
 
 def _ingest_one(args) -> IngestResult:
     raw, path, warehouse, reuse = args
-    tree = _TREES.get(raw)
-    if tree is None:
-        tree = _TREES[raw] = RawTree(Path(raw))
-    return ingest_file(tree, Path(path), Path(warehouse), reuse=reuse)
+    return ingest_file(_tree(raw, "ingest_all"), Path(path), Path(warehouse), reuse=reuse)
 
 
 def ingest_all(raw: Path, files: list[Path], warehouse: Path, jobs: int, progress: Progress,
-               reuse: bool = True) -> list[IngestResult]:
-    """Ingest files in parallel (``jobs`` processes); results in the order of ``files``."""
+               reuse: bool = True, executor: Executor | None = None) -> list[IngestResult]:
+    """Ingest files (no incremental state); results in the order of ``files``."""
     args = [(str(raw), str(p), str(warehouse), reuse) for p in files]
-    out: list[IngestResult] = []
-    with progress.task("ingest", len(args)) as task:
-        if jobs <= 1 or len(args) <= 1:
-            for a in args:
-                out.append(_ingest_one(a))
-                task.advance()
+    if executor is not None:
+        return executor.map(_ingest_one, args, "ingest", progress)
+    with LocalExecutor(jobs) as ex:
+        return ex.map(_ingest_one, args, "ingest", progress)
+
+
+def _ingest_task(args) -> dict:
+    """Worker task: hash a run file; reuse its previous record when its content is unchanged,
+    else ingest it. Returns ``{"sha", "reused", "result"}``."""
+    raw, token, path, warehouse, reuse, prev = args
+    path = Path(path)
+    tree = _tree(raw, token)
+    try:
+        sha = sha256_file(path)
+    except OSError as exc:
+        res = IngestResult(source_path=tree.rel(path), campaign=tree.campaign(path),
+                           error=f"cannot read file: {type(exc).__name__}: {exc}")
+        return {"sha": None, "reused": False, "result": res}
+    if prev is not None and prev["sha"] == sha:
+        return {"sha": sha, "reused": True, "result": None}
+    res = ingest_file(tree, path, Path(warehouse), reuse=reuse)
+    if res.run is not None:
+        sha = res.run.get("source_sha256", sha)
+    return {"sha": sha, "reused": False, "result": res}
+
+
+def _result_from_record(rec: FileRecord, tree: RawTree, path: Path) -> IngestResult:
+    res = IngestResult(source_path=rec.source_path, campaign=tree.campaign(path))
+    if rec.result is not None:
+        res.run, res.channels = rec.result["run"], rec.result["channels"]
+    else:
+        res.error = rec.error
+    return res
+
+
+def ingest_incremental(tree: RawTree, plans: list[FilePlan], warehouse: Path, executor: Executor,
+                       progress: Progress, code_version: str, full: bool, token: str
+                       ) -> tuple[list[IngestResult], list[FileRecord]]:
+    """Ingest what the plans say; reuse the previous records of unchanged files."""
+    results: dict[str, IngestResult] = {}
+    records: dict[str, FileRecord] = {}
+    todo = []
+    for p in plans:
+        if p.status == "unchanged":
+            results[p.rel] = _result_from_record(p.previous, tree, p.path)
+            rec = p.previous
+            records[p.rel] = rec
         else:
-            with ProcessPoolExecutor(max_workers=jobs) as pool:
-                for res in pool.map(_ingest_one, args, chunksize=1):
-                    out.append(res)
-                    task.advance()
-    return out
+            prev = None
+            if p.previous is not None and p.status == "check" and p.reason == "content":
+                # only the stat changed: a file with the same bytes keeps its record
+                prev = {"sha": p.previous.source_sha256}
+            todo.append((p, (str(tree.root), token, str(p.path), str(warehouse), not full, prev)))
+    if todo:
+        progress.message(f"ingest: {len(todo)} of {len(plans)} run files to read")
+    outs = executor.map(_ingest_task, [a for _, a in todo], "ingest", progress)
+    now = time.time()
+    for (p, _), out in zip(todo, outs):
+        if out["reused"]:
+            p.status = "unchanged"
+            results[p.rel] = _result_from_record(p.previous, tree, p.path)
+            old = p.previous
+            records[p.rel] = record_for(p, out["sha"], code_version, old.result, old.error, now)
+            continue
+        res: IngestResult = out["result"]
+        if p.status == "check":
+            p.status = "changed"
+        results[p.rel] = res
+        result = {"run": res.run, "channels": res.channels} if res.run is not None else None
+        records[p.rel] = record_for(p, out["sha"], code_version, result, res.error, now)
+    order = [p.rel for p in plans]
+    return [results[r] for r in order], [records[r] for r in order]
 
 
 def deduplicate(results: list[IngestResult]) -> tuple[list[dict], list[dict], list[Problem]]:
@@ -130,19 +241,222 @@ def deduplicate(results: list[IngestResult]) -> tuple[list[dict], list[dict], li
     return runs, channels, problems
 
 
+# -- stages ------------------------------------------------------------------------------------
+class _TrackedResults(dict):
+    """``ctx.results`` that remembers which earlier tables a stage looked at."""
+
+    def __init__(self, *a, **kw):
+        super().__init__(*a, **kw)
+        self.read: set[str] = set()
+
+    def __getitem__(self, k):
+        self.read.add(k)
+        return super().__getitem__(k)
+
+    def get(self, k, default=None):
+        self.read.add(k)
+        return super().get(k, default)
+
+    def __contains__(self, k):
+        self.read.add(k)
+        return super().__contains__(k)
+
+    def _all(self):
+        self.read.update(super().keys())
+
+    def keys(self):
+        self._all()
+        return super().keys()
+
+    def values(self):
+        self._all()
+        return super().values()
+
+    def items(self):
+        self._all()
+        return super().items()
+
+    def __iter__(self):
+        self._all()
+        return super().__iter__()
+
+
+class _TrackedContext(stage_registry.StageContext):
+    """A StageContext that remembers which kinds of runs a stage read (for its cache key)."""
+
+    @property
+    def runs(self):
+        if not self.__dict__.get("_inside", 0):
+            self.__dict__["all_runs_read"] = True
+        return self.__dict__["_runs"]
+
+    @runs.setter
+    def runs(self, value):
+        self.__dict__["_runs"] = value
+
+    @contextmanager
+    def _internal(self):
+        self.__dict__["_inside"] = self.__dict__.get("_inside", 0) + 1
+        try:
+            yield
+        finally:
+            self.__dict__["_inside"] -= 1
+
+    @property
+    def kinds_read(self) -> set[str]:
+        return self.__dict__.setdefault("_kinds_read", set())
+
+    def runs_of(self, *kinds):
+        self.kinds_read.update(kinds)
+        with self._internal():
+            return super().runs_of(*kinds)
+
+    def samples_file(self, run_id):
+        with self._internal():
+            return super().samples_file(run_id)
+
+
+def _reads_logbooks(mod) -> bool:
+    return bool(getattr(mod, "READS_LOGBOOKS", False)) or "durability" in tuple(getattr(mod, "KINDS", ()))
+
+
+@dataclass
+class StageResults:
+    tables: dict[str, pd.DataFrame] = field(default_factory=dict)
+    figures: list[dict] = field(default_factory=list)
+    problems: list[Problem] = field(default_factory=list)
+    warnings: dict[str, list[str]] = field(default_factory=dict)
+    records: list[StageRecord] = field(default_factory=list)
+    ran: list[str] = field(default_factory=list)
+    reused: list[str] = field(default_factory=list)
+
+
+def _save_stage_folder(warehouse: Path, name: str, folder_key: str, out: stage_registry.StageOutput) -> tuple[str, bool]:
+    """Write a stage's outputs to ``stages/<name>/<key>/`` (temp folder, then one rename).
+
+    Returns (folder relative to the warehouse, whether the tables could be cached).
+    """
+    import matplotlib.pyplot as plt
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    rel = f"stages/{name}/{folder_key}"
+    final = warehouse / rel
+    tmp = warehouse / "stages" / f".tmp-{name}-{folder_key}-{os.getpid()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    (tmp / "tables").mkdir(parents=True)
+    (tmp / "figures").mkdir()
+    cacheable = True
+    for table, df in out.tables.items():
+        try:
+            pq.write_table(pa.Table.from_pandas(df.reset_index(drop=True), preserve_index=False),
+                           tmp / "tables" / f"{table}.parquet")
+        except (pa.ArrowException, TypeError, ValueError):
+            cacheable = False
+    figures = {}
+    for fname, fig in sorted(out.figures.items()):
+        file = f"{fname}.png"
+        fig.savefig(tmp / "figures" / file, dpi=110, metadata={"Software": None})
+        plt.close(fig)
+        figures[fname] = {"file": file, "caption": out.captions.get(fname, "")}
+    meta = {"tables": sorted(out.tables), "figures": figures, "cacheable": cacheable,
+            "problems": [{"source_path": p.source_path, "error": p.error, "line": p.line, "stage": p.stage}
+                         for p in out.problems],
+            "warnings": {k: list(v) for k, v in sorted(out.warnings.items())}}
+    (tmp / "output.json").write_text(json.dumps(meta, sort_keys=True, default=str))
+    final.parent.mkdir(parents=True, exist_ok=True)
+    if final.exists():  # same inputs, same outputs: keep the folder a live warehouse may use
+        shutil.rmtree(tmp, ignore_errors=True)
+        if cacheable:
+            return rel, True
+        shutil.rmtree(final)  # pragma: no cover - only for stages whose tables cannot be stored
+    os.replace(tmp, final)
+    return rel, cacheable
+
+
+def _load_stage_folder(warehouse: Path, rel: str, stage: str, fresh: stage_registry.StageOutput | None = None):
+    """(tables, figure rows, problems, warnings) of a stage folder."""
+    folder = warehouse / rel
+    meta = json.loads((folder / "output.json").read_text())
+    tables = {}
+    for t in meta["tables"]:
+        f = folder / "tables" / f"{t}.parquet"
+        tables[t] = pd.read_parquet(f) if f.is_file() and meta.get("cacheable", True) else fresh.tables[t]
+    figures = [{"stage": stage, "name": n, "path": f"{rel}/figures/{v['file']}", "caption": v["caption"]}
+               for n, v in sorted(meta["figures"].items())]
+    problems = [Problem(p["source_path"], p["error"], p["line"], p.get("stage") or stage) for p in meta["problems"]]
+    return tables, figures, problems, meta["warnings"]
+
+
+def run_stages_cached(ctx_args: dict, runs: list[dict], prev: PreviousState, warehouse: Path, full: bool,
+                      logbooks: str, progress: Progress) -> StageResults:
+    """Run every stage in order, or reuse its cached outputs when its inputs are unchanged."""
+    import hashlib
+
+    res = StageResults()
+    mods = stage_registry.discover()
+    with progress.task("stages", len(mods)) as task:
+        for mod in mods:
+            t0 = time.monotonic()
+            name = mod.NAME
+            code = stage_code_version(getattr(mod, "__file__", None) or name)
+            declared = set(getattr(mod, "KINDS", ()) or ())
+            logb = logbooks if _reads_logbooks(mod) else None
+            old = prev.stages.get(name)
+            hit = None
+            if not full and old is not None:
+                key = stage_input_key(name, code, runs, declared | set(old.kinds_read), old.all_runs_read, logb)
+                if (key == old.input_key and (warehouse / old.folder / "output.json").is_file()
+                        and all(frame_hash(res.tables.get(t)) == h for t, h in old.results_read.items())):
+                    hit = old
+            if hit is not None:
+                record = hit
+                tables, figures, problems, warnings = _load_stage_folder(warehouse, hit.folder, name)
+                res.reused.append(name)
+                how = "reused"
+            else:
+                results = _TrackedResults(res.tables)
+                ctx = _TrackedContext(**ctx_args)
+                ctx.results = results
+                try:
+                    out = mod.run(ctx)
+                except Exception as exc:  # a bug in an analysis: fail, keep the previous warehouse
+                    raise RebuildError(f"stage {name} failed: {type(exc).__name__}: {exc}") from exc
+                kinds = declared | ctx.kinds_read
+                all_runs = bool(ctx.__dict__.get("all_runs_read"))
+                read = {t: frame_hash(res.tables.get(t)) for t in sorted(results.read)}
+                key = stage_input_key(name, code, runs, kinds, all_runs, logb)
+                folder_key = hashlib.sha256(json.dumps([key, read], sort_keys=True).encode()).hexdigest()[:20]
+                rel, cacheable = _save_stage_folder(warehouse, name, folder_key, out)
+                record = StageRecord(name, key if cacheable else "uncacheable", rel, sorted(kinds), all_runs, read)
+                tables, figures, problems, warnings = _load_stage_folder(warehouse, rel, name, out)
+                res.ran.append(name)
+                how = "ran"
+            res.records.append(record)
+            for t, df in tables.items():
+                res.tables[t] = df if t not in res.tables else pd.concat([res.tables[t], df], ignore_index=True)
+            res.figures += figures
+            res.problems += problems
+            for rid, ws in warnings.items():
+                res.warnings.setdefault(rid, []).extend(ws)
+            progress.message(f"stage {name} {how}: " + ", ".join(f"{k} {len(v)} rows" for k, v in tables.items())
+                             + f" ({time.monotonic() - t0:.1f} s)")
+            task.advance()
+    return res
+
+
 def run_stages(ctx: stage_registry.StageContext, progress: Progress):
-    """Run every analysis stage in order; returns (tables, figures, captions, problems, warnings)."""
+    """Run every stage in order without any cache; returns (tables, figures, captions, problems, warnings)."""
     tables: dict[str, pd.DataFrame] = {}
     figures: dict[tuple[str, str], object] = {}
     captions: dict[tuple[str, str], str] = {}
     problems: list[Problem] = []
     warnings: dict[str, list[str]] = {}
     for mod in stage_registry.discover():
-        t0 = time.monotonic()
         ctx.results = tables
         try:
             out = mod.run(ctx)
-        except Exception as exc:  # a bug in an analysis: fail, keep the previous warehouse
+        except Exception as exc:
             raise RebuildError(f"stage {mod.NAME} failed: {type(exc).__name__}: {exc}") from exc
         for name, df in out.tables.items():
             tables[name] = df if name not in tables else pd.concat([tables[name], df], ignore_index=True)
@@ -153,60 +467,115 @@ def run_stages(ctx: stage_registry.StageContext, progress: Progress):
         problems += out.problems
         for rid, ws in out.warnings.items():
             warnings.setdefault(rid, []).extend(ws)
-        progress.message(f"stage {mod.NAME}: " + ", ".join(f"{k} {len(v)} rows" for k, v in out.tables.items())
-                         + f" ({time.monotonic() - t0:.1f} s)")
     return tables, figures, captions, problems, warnings
 
 
-def save_figures(figures: dict, captions: dict, folder: Path) -> pd.DataFrame:
-    """Save matplotlib figures as PNG under ``folder/<stage>/<name>.png``; the figures table."""
-    import matplotlib.pyplot as plt
+# -- findings against the previous warehouse -----------------------------------------------------
+def compare_findings(findings: pd.DataFrame, previous: dict[str, bool | None], had_previous: bool) -> pd.DataFrame:
+    """Add ``previous_holds`` and ``change`` (overturned, now holds, ...) to the findings table."""
+    if findings is None or findings.empty:
+        return findings
+    df = findings.copy()
+    prev_holds, change = [], []
+    for fid, holds in zip(df["finding_id"], df["holds"]):
+        holds = None if pd.isna(holds) else bool(holds)
+        before = previous.get(fid) if fid in previous else None
+        before = None if before is None or pd.isna(before) else bool(before)
+        prev_holds.append(before)
+        if not had_previous or fid not in previous:
+            change.append(None)
+        elif before is True and holds is False:
+            change.append("overturned")
+        elif before is False and holds is True:
+            change.append("now holds")
+        elif before is None and holds is not None:
+            change.append("new data")
+        elif before is not None and holds is None:
+            change.append("no longer checkable")
+        else:
+            change.append(None)
+    df["previous_holds"] = pd.array(prev_holds, dtype="boolean")
+    df["change"] = pd.array(change, dtype="string")
+    return df
 
-    rows = []
-    for (stage, name), fig in sorted(figures.items(), key=lambda kv: kv[0]):
-        path = folder / stage / f"{name}.png"
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(path, dpi=110, metadata={"Software": None})
-        plt.close(fig)
-        rows.append({"stage": stage, "name": name, "path": f"figures/{stage}/{name}.png",
-                     "caption": captions.get((stage, name), "")})
-    return pd.DataFrame(rows, columns=["stage", "name", "path", "caption"])
 
-
-def _previous_samples(warehouse: Path) -> set[str]:
-    try:
-        con = connect_readonly(warehouse)
-    except Exception:
-        return set()
-    try:
-        return {r[0] for r in con.execute("SELECT samples_path FROM runs").fetchall() if r[0]}
-    except Exception:
-        return set()
-    finally:
-        con.close()
-
-
-def _collect_garbage(warehouse: Path, keep: set[str]) -> None:
-    """Delete samples files neither the new nor the previous warehouse uses, and stale temps."""
-    samples = warehouse / "samples"
-    if not samples.is_dir():
-        return
-    for f in samples.rglob("*"):
-        if not f.is_file():
-            continue
-        rel = f.relative_to(warehouse).as_posix()
-        if rel not in keep:
+# -- garbage ---------------------------------------------------------------------------------------
+def clean_debris(warehouse: Path) -> None:
+    """Remove what a killed rebuild left behind (temp databases, temp stage folders)."""
+    for f in warehouse.glob(f".{DB_NAME}.tmp-*"):
+        f.unlink(missing_ok=True)
+    stages = warehouse / "stages"
+    if stages.is_dir():
+        for d in stages.glob(".tmp-*"):
+            shutil.rmtree(d, ignore_errors=True)
+    report = warehouse / "report"
+    if report.is_dir():
+        for f in report.glob(".*.tmp*"):
             f.unlink(missing_ok=True)
-    for d in sorted((d for d in samples.rglob("*") if d.is_dir()), key=lambda d: len(d.parts), reverse=True):
-        try:
-            d.rmdir()
-        except OSError:
-            pass
+
+
+def collect_garbage(warehouse: Path, keep_samples: set[str], keep_stages: set[str]) -> None:
+    """Delete samples files and stage folders that neither the new nor the previous warehouse uses."""
+    samples = warehouse / "samples"
+    if samples.is_dir():
+        for f in samples.rglob("*"):
+            if f.is_file() and f.relative_to(warehouse).as_posix() not in keep_samples:
+                f.unlink(missing_ok=True)
+        for d in sorted((d for d in samples.rglob("*") if d.is_dir()), key=lambda d: len(d.parts), reverse=True):
+            try:
+                d.rmdir()
+            except OSError:
+                pass
+    stages = warehouse / "stages"
+    if stages.is_dir():
+        for d in stages.glob("*/*"):
+            if d.is_dir() and d.relative_to(warehouse).as_posix() not in keep_stages:
+                shutil.rmtree(d, ignore_errors=True)
+        for d in stages.iterdir():
+            if d.is_dir() and not d.name.startswith("."):
+                try:
+                    d.rmdir()
+                except OSError:
+                    pass
+    legacy = warehouse / "figures"  # figures of the first layout (before generations)
+    if legacy.is_dir() and not any(p.startswith("figures/") for p in keep_stages):
+        shutil.rmtree(legacy, ignore_errors=True)
+
+
+# -- the rebuild -----------------------------------------------------------------------------------
+def _generation() -> str:
+    return datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%S.%fZ") + f"-{os.getpid()}"
+
+
+def _inputs_table(plans: list[FilePlan], side_changes: list[dict], prev: PreviousState, seen: set[str],
+                  problems: list[Problem], results: list[IngestResult]) -> pd.DataFrame:
+    errors: dict[str, list[str]] = {}
+    for p in problems:
+        errors.setdefault(p.source_path, []).append(f"line {p.line}: {p.error}" if p.line else p.error)
+    by_path = {r.source_path: r for r in results}
+    rows = []
+    for p in plans:
+        r = by_path.get(p.rel)
+        run = r.run if r is not None else None
+        rows.append({"source_path": p.rel, "role": "run", "status": p.status,
+                     "reason": (p.reason or None) if p.status == "changed" else None,
+                     "run_id": run["run_id"] if run else None, "kind": run["kind"] if run else None})
+    rows += side_changes
+    for rel, rec in sorted(prev.files.items()):
+        if rel not in seen:
+            run = (rec.result or {}).get("run") or {}
+            rows.append({"source_path": rel, "role": rec.role, "status": "deleted", "reason": None,
+                         "run_id": run.get("run_id"), "kind": run.get("kind")})
+    df = pd.DataFrame(rows, columns=["source_path", "role", "status", "reason", "run_id", "kind"])
+    df["quarantined"] = [p in errors and s != "deleted" for p, s in zip(df["source_path"], df["status"])]
+    df["error"] = [" | ".join(errors[p]) if q else None for p, q in zip(df["source_path"], df["quarantined"])]
+    return df.sort_values("source_path", kind="stable").reset_index(drop=True)
 
 
 def rebuild(raw: str | Path, warehouse: str | Path, jobs: int | None = None, full: bool = False,
-            progress: Progress | None = None, lock_wait_s: float = 0.0) -> RebuildSummary:
-    """Ingest ``raw``, run the analyses and swap in a new warehouse.
+            progress: Progress | None = None, lock_wait_s: float = 0.0, executor: str = "local",
+            scheduler: str | None = None, report: bool = True) -> RebuildSummary:
+    """Ingest ``raw``, run the analyses and swap in a new warehouse (incrementally).
 
     Parameters
     ----------
@@ -217,9 +586,17 @@ def rebuild(raw: str | Path, warehouse: str | Path, jobs: int | None = None, ful
     jobs : int, optional
         Worker processes; default all cores.
     full : bool
-        Re-ingest every file even when its samples file is up to date.
+        Re-ingest every file and re-run every stage, ignoring the incremental state.
     progress : Progress, optional
         Where progress goes (silent by default).
+    lock_wait_s : float
+        How long to wait for another rebuild of the same warehouse to finish [s].
+    executor : {"local", "dask"}
+        Where per-file ingest and per-run analyses run.
+    scheduler : str, optional
+        Dask scheduler address (``tcp://host:8786``); without one a local cluster is started.
+    report : bool
+        Write the morning report ``report/index.html``.
 
     Returns
     -------
@@ -231,71 +608,112 @@ def rebuild(raw: str | Path, warehouse: str | Path, jobs: int | None = None, ful
         When the rebuild fails; the previous warehouse is left as it was.
     """
     t0 = time.monotonic()
+    started_at = datetime.now(timezone.utc)
     progress = progress or Progress()
     raw, warehouse = Path(raw), Path(warehouse)
     if not raw.is_dir():
         raise RebuildError(f"raw folder {raw} does not exist", EXIT_USAGE)
     jobs = jobs or os.cpu_count() or 1
     warehouse.mkdir(parents=True, exist_ok=True)
-    summary = RebuildSummary(raw=raw, warehouse=warehouse)
+    generation = _generation()
+    summary = RebuildSummary(raw=raw, warehouse=warehouse, generation=generation,
+                             mode="full" if full else "incremental")
     with warehouse_lock(warehouse, lock_wait_s):
+        clean_debris(warehouse)
+        prev = load_previous(warehouse)
         tree = RawTree(raw)
         tree.scan_rigs()
         tree.scan_manifests()
         files = discover_runs(tree.root)
         summary.n_files = len(files)
-        progress.message(f"rebuild: {len(files)} run files under {raw}")
-        results = ingest_all(tree.root, files, warehouse, jobs, progress, reuse=not full)
-        runs, channels, problems = deduplicate(results)
-        problems = tree.problems + problems
-        runs_df = runs_frame(runs)
-        ctx = stage_registry.StageContext(raw=tree.root, warehouse=warehouse, runs=runs_df.assign(
-            params=[r["params"] for r in runs]) if runs else runs_df, jobs=jobs, progress=progress)
-        tables, figures, captions, stage_problems, stage_warnings = run_stages(ctx, progress)
-        problems += stage_problems
-        if stage_warnings and not runs_df.empty:
-            runs_df["warnings"] = [list(w) + stage_warnings.get(rid, [])
+        code = ingest_code_version()
+        plans = plan_runs(tree, files, prev, code, warehouse, full)
+        side, side_changes = side_records(tree, prev)
+        n_quick = sum(p.status == "unchanged" for p in plans)
+        progress.message(f"rebuild {generation} ({summary.mode}): {len(files)} run files under {raw}, "
+                         f"{n_quick} unchanged at a glance")
+        try:
+            ex = make_executor(executor, jobs, scheduler)
+        except Exception as exc:
+            raise RebuildError(f"cannot start the {executor} executor: {type(exc).__name__}: {exc}") from exc
+        with ex:
+            results, records = ingest_incremental(tree, plans, warehouse, ex, progress, code, full, generation)
+            _crash_point("after_ingest")
+            runs, channels, problems = deduplicate(results)
+            problems = tree.problems + problems
+            runs_df = runs_frame(runs)
+            ctx_args = dict(raw=tree.root, warehouse=warehouse,
+                            runs=runs_df.assign(params=[r["params"] for r in runs]) if runs else runs_df,
+                            jobs=jobs, progress=progress, mapper=ex.mapper(progress))
+            staged = run_stages_cached(ctx_args, runs, prev, warehouse, full, logbook_hash(side), progress)
+        _crash_point("after_stages")
+        problems += staged.problems
+        if staged.warnings and not runs_df.empty:
+            runs_df["warnings"] = [list(w) + staged.warnings.get(rid, [])
                                    for rid, w in zip(runs_df["run_id"], runs_df["warnings"])]
-        fig_tmp = warehouse / f".figures.tmp-{os.getpid()}"
-        shutil.rmtree(fig_tmp, ignore_errors=True)
-        figures_df = save_figures(figures, captions, fig_tmp)
         quarantine = pd.DataFrame([{"source_path": p.source_path, "error": p.error, "line": p.line,
                                     "campaign": p.source_path.split("/")[0] if "/" in p.source_path else None,
                                     "stage": p.stage} for p in problems],
                                   columns=["source_path", "error", "line", "campaign", "stage"])
-        all_tables = {"runs": runs_df, "quarantine": quarantine, "channels": pd.DataFrame(channels),
-                      "figures": figures_df, **tables}
-        previous = _previous_samples(warehouse)
+        stage_tables = dict(staged.tables)
+        if "findings" in stage_tables:
+            stage_tables["findings"] = compare_findings(stage_tables["findings"], prev.findings,
+                                                        prev.generation is not None)
+        seen = {p.rel for p in plans} | {r.source_path for r in side}
+        inputs = _inputs_table(plans, side_changes, prev, seen, problems, results)
+        summary.n_new = int(((inputs["status"] == "new") & (inputs["role"] == "run")).sum())
+        summary.n_changed = int(((inputs["status"] == "changed") & (inputs["role"] == "run")).sum())
+        summary.n_deleted = int(((inputs["status"] == "deleted") & (inputs["role"] == "run")).sum())
+        summary.n_unchanged = int(((inputs["status"] == "unchanged") & (inputs["role"] == "run")).sum())
+        summary.n_runs = len(runs)
+        summary.quarantine = problems
+        summary.stages_run, summary.stages_reused = staged.ran, staged.reused
+        log_row = pd.DataFrame([{
+            "generation": generation, "started_at": started_at, "finished_at": datetime.now(timezone.utc),
+            "duration_s": time.monotonic() - t0, "mode": summary.mode, "executor": ex.name,
+            "n_files": len(files), "n_runs": len(runs), "n_new": summary.n_new, "n_changed": summary.n_changed,
+            "n_deleted": summary.n_deleted, "n_unchanged": summary.n_unchanged, "n_quarantined": len(problems),
+            "stages_run": staged.ran, "stages_reused": staged.reused, "exit_code": summary.exit_code}])
+        history = log_row
+        if prev.history is not None and not prev.history.empty:
+            history = pd.concat([prev.history.tail(HISTORY_ROWS - 1), log_row], ignore_index=True)
+        all_tables = {
+            "runs": runs_df, "quarantine": quarantine, "channels": pd.DataFrame(channels),
+            "figures": pd.DataFrame(staged.figures, columns=["stage", "name", "path", "caption"]),
+            **stage_tables,
+            "rebuild_log": history, "rebuild_inputs": inputs,
+            "ingest_state": pd.DataFrame([r.as_row() for r in records + side]),
+            "stage_cache": pd.DataFrame([r.as_row() for r in staged.records]),
+        }
         tmp_db = warehouse / f".{DB_NAME}.tmp-{os.getpid()}"
+        progress.message(f"warehouse: writing {len(all_tables)} tables")
         try:
             build_database(tmp_db, warehouse, all_tables, runs_df)
-            swap_figures(fig_tmp, warehouse / "figures")
+            _crash_point("before_swap")
             swap_in(tmp_db, warehouse / DB_NAME)
         except Exception as exc:
             tmp_db.unlink(missing_ok=True)
-            shutil.rmtree(fig_tmp, ignore_errors=True)
+            Path(f"{tmp_db}.wal").unlink(missing_ok=True)
             if isinstance(exc, RebuildError):
                 raise
             raise RebuildError(f"could not write the warehouse: {type(exc).__name__}: {exc}") from exc
-        _collect_garbage(warehouse, previous | set(runs_df.get("samples_path", [])))
-        summary.n_runs = len(runs)
-        summary.quarantine = problems
+        _crash_point("after_swap")
+        collect_garbage(warehouse, prev.samples | set(runs_df.get("samples_path", [])),
+                        prev.stage_folders | {r.folder for r in staged.records})
         summary.tables = {k: len(v) for k, v in all_tables.items()}
+        if report:
+            from pipeline.report import write_report
+            try:
+                summary.report = write_report(warehouse)
+                progress.message(f"report: {summary.report}")
+            except Exception as exc:  # the warehouse is in place; say so, and fail loudly
+                log.exception("report failed")
+                progress.message(f"report: FAILED: {type(exc).__name__}: {exc}")
     summary.seconds = time.monotonic() - t0
     for p in problems:
         where = f"{p.source_path}:{p.line}" if p.line else p.source_path
         progress.message(f"quarantined {where}: {p.error}")
-    progress.message(f"rebuild: {summary.n_runs} runs, {len(problems)} quarantined, {summary.seconds:.1f} s")
+    progress.message(f"rebuild: {summary.n_runs} runs ({summary.n_new} new, {summary.n_changed} changed, "
+                     f"{summary.n_deleted} deleted, {summary.n_unchanged} unchanged), {len(problems)} quarantined, "
+                     f"stages run: {', '.join(staged.ran) or 'none'}, {summary.seconds:.1f} s")
     return summary
-
-
-def swap_figures(new: Path, final: Path) -> None:
-    """Put a new figures folder in place of the old one (two renames; old removed after)."""
-    old = final.with_name(f".{final.name}.old-{os.getpid()}")
-    if final.exists():
-        os.replace(final, old)
-    if new.exists():
-        os.replace(new, final)
-    else:
-        final.mkdir(parents=True, exist_ok=True)
-    shutil.rmtree(old, ignore_errors=True)

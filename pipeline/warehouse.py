@@ -87,6 +87,8 @@ def build_database(path: Path, warehouse: Path, tables: dict[str, pd.DataFrame],
         for _name, sql in ddl_statements():
             con.execute(sql)
         for table, df in tables.items():
+            if df is None or len(df.columns) == 0:
+                continue
             if table not in {r[0] for r in con.execute("SELECT table_name FROM duckdb_tables()").fetchall()}:
                 con.register("_frame", df)
                 con.execute(f'CREATE TABLE "{table}" AS SELECT * FROM _frame')

@@ -1,0 +1,259 @@
+"""The morning report: ``warehouse/report/index.html``, one self-contained static page.
+
+Built from the warehouse database alone (read-only), so ``pneubench report`` can rebuild it at
+any time. Order: findings that new data overturned (if any), the findings, the last rebuild
+(new, changed, deleted and quarantined inputs with their reasons), hose life and service life,
+then every analysis figure with its key table. Figures are embedded as base64 PNG, the style
+is inline and there is no script: the file opens from disk anywhere. Every piece of text is
+escaped (``html.escape``): run metadata, file names and quarantine reasons come from raw/.
+"""
+from __future__ import annotations
+
+import base64
+import html
+import math
+import os
+from datetime import datetime
+from pathlib import Path
+
+from pipeline.warehouse import connect_readonly
+
+MAX_ROWS = 30          # rows of a key table shown
+MAX_INPUT_ROWS = 300   # rows of the changed-inputs list shown
+
+CSS = """
+body{font-family:system-ui,-apple-system,"Segoe UI",Roboto,sans-serif;margin:0 auto;max-width:1200px;padding:0 20px 40px;color:#1d2330}
+h1{font-size:1.6em;margin:20px 0 4px}h2{border-bottom:2px solid #d8dce4;padding-bottom:4px;margin-top:34px}
+h3{margin:22px 0 6px}.meta{color:#5b6475;font-size:.92em}
+table{border-collapse:collapse;margin:8px 0 14px;font-size:.88em}th,td{border:1px solid #d8dce4;padding:3px 8px;text-align:left;vertical-align:top}
+th{background:#f1f3f7}td.num{text-align:right;font-variant-numeric:tabular-nums}
+.ok{background:#e3f5e6;color:#16632a;font-weight:600}.bad{background:#fde4e4;color:#9b1c1c;font-weight:600}
+.nodata{background:#eef0f3;color:#5b6475}.alert{border:2px solid #c62828;background:#fff3f3;padding:10px 16px;margin:16px 0}
+.cards{display:flex;gap:12px;flex-wrap:wrap}.card{border:1px solid #d8dce4;border-radius:6px;padding:8px 14px;min-width:110px}
+.card b{display:block;font-size:1.5em}figure{margin:14px 0}figure img{max-width:100%;border:1px solid #d8dce4}
+figcaption{color:#3a4252;font-size:.92em;margin-top:4px}.more{color:#5b6475;font-style:italic}
+"""
+
+
+def esc(value) -> str:
+    """Any value as escaped HTML text."""
+    return html.escape("" if value is None else str(value), quote=True)
+
+
+def fmt(value) -> str:
+    """A cell: numbers with 4 significant digits, NULL as an em dash; escaped."""
+    if value is None:
+        return "—"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, float):
+        if math.isnan(value):
+            return "—"
+        return esc(f"{value:.4g}")
+    if isinstance(value, datetime):
+        return esc(value.strftime("%Y-%m-%d %H:%M:%S %Z").strip())
+    if isinstance(value, (list, tuple)):
+        return esc(", ".join(str(v) for v in value))
+    return esc(value)
+
+
+def html_table(columns: list[str], rows: list[tuple], max_rows: int = MAX_ROWS, total: int | None = None) -> str:
+    if not rows:
+        return '<p class="more">no rows</p>'
+    head = "".join(f"<th>{esc(c)}</th>" for c in columns)
+    body = []
+    for r in rows[:max_rows]:
+        cells = "".join(f'<td class="num">{fmt(v)}</td>' if isinstance(v, (int, float)) and not isinstance(v, bool)
+                        else f"<td>{fmt(v)}</td>" for v in r)
+        body.append(f"<tr>{cells}</tr>")
+    total = len(rows) if total is None else total
+    more = f'<p class="more">{total - max_rows} more rows: query the warehouse</p>' if total > max_rows else ""
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>{more}"
+
+
+class _DB:
+    def __init__(self, con):
+        self.con = con
+        self.tables = {r[0] for r in con.execute(
+            "SELECT table_name FROM duckdb_tables() UNION SELECT view_name FROM duckdb_views() "
+            "WHERE NOT internal").fetchall()}
+
+    def has(self, table: str) -> bool:
+        return table in self.tables
+
+    def rows(self, sql: str, params=None) -> tuple[list[str], list[tuple]]:
+        cur = self.con.execute(sql, params or [])
+        return [d[0] for d in cur.description], cur.fetchall()
+
+    def count(self, table: str) -> int:
+        return self.con.execute(f'SELECT count(*) FROM "{table}"').fetchone()[0] if self.has(table) else 0
+
+
+def _holds_cell(holds) -> str:
+    if holds is None:
+        return '<td class="nodata">no data</td>'
+    return '<td class="ok">holds</td>' if holds else '<td class="bad">does not hold</td>'
+
+
+def _findings_section(db: _DB) -> tuple[str, str]:
+    """(alert box for changed findings, findings section)."""
+    if not db.has("findings") or db.count("findings") == 0:
+        return "", '<section id="findings"><h2>Findings</h2><p class="nodata">no findings table: no data yet</p></section>'
+    cols, rows = db.rows("SELECT finding_id, statement, measured, uncertainty, unit, criterion, holds, n, p_value, "
+                         "detail, change, previous_holds FROM findings ORDER BY ord, finding_id")
+    alert = ""
+    changed = [r for r in rows if r[10] in ("overturned", "now holds", "no longer checkable")]
+    if changed:
+        items = "".join(f"<li><b>{esc(r[10])}</b>: {esc(r[1])} (measured {fmt(r[2])} {esc(r[4] or '')})</li>"
+                        for r in changed)
+        alert = (f'<div class="alert" id="overturned"><h2 style="margin-top:0">New data changed '
+                 f'{len(changed)} finding{"s" if len(changed) != 1 else ""}</h2><ul>{items}</ul></div>')
+    body = []
+    for (fid, statement, measured, unc, unit, criterion, holds, n, p, detail, change, _prev) in rows:
+        value = "—" if measured is None else fmt(measured) + (f" ± {fmt(unc)}" if unc is not None else "")
+        body.append(f"<tr><td><b>{esc(statement)}</b><br><span class=\"meta\">{esc(fid)}</span></td>"
+                    f'<td class="num">{value} {esc(unit or "")}</td><td>{esc(criterion)}</td>{_holds_cell(holds)}'
+                    f'<td class="num">{fmt(n)}</td><td class="num">{fmt(p)}</td>'
+                    f"<td>{esc(detail)}{'<br><b>' + esc(change) + '</b>' if change else ''}</td></tr>")
+    n_hold = sum(1 for r in rows if r[6] is True)
+    n_fail = sum(1 for r in rows if r[6] is False)
+    n_none = sum(1 for r in rows if r[6] is None)
+    section = (f'<section id="findings"><h2>Findings of the two papers on the latest data</h2>'
+               f'<p class="meta">{n_hold} hold, {n_fail} do not hold, {n_none} without data.</p>'
+               "<table><thead><tr><th>finding</th><th>measured ± std. uncertainty</th><th>holds when</th>"
+               "<th>result</th><th>n</th><th>p</th><th>how</th></tr></thead><tbody>"
+               + "".join(body) + "</tbody></table></section>")
+    return alert, section
+
+
+def _rebuild_section(db: _DB) -> str:
+    out = ['<section id="rebuild"><h2>Last rebuild</h2>']
+    if db.has("rebuild_log") and db.count("rebuild_log"):
+        cols, rows = db.rows("SELECT generation, finished_at, duration_s, mode, executor, n_files, n_runs, n_new, "
+                             "n_changed, n_deleted, n_unchanged, n_quarantined, stages_run, stages_reused "
+                             "FROM rebuild_log ORDER BY finished_at DESC LIMIT 1")
+        r = dict(zip(cols, rows[0]))
+        out.append(f'<p class="meta">generation {esc(r["generation"])}, finished {fmt(r["finished_at"])}, '
+                   f'{fmt(r["duration_s"])} s, {esc(r["mode"])} rebuild on the {esc(r["executor"])} executor; '
+                   f'stages run: {fmt(r["stages_run"]) or "none"}; reused: {fmt(r["stages_reused"]) or "none"}</p>')
+        cards = [("run files", r["n_files"]), ("runs", r["n_runs"]), ("new", r["n_new"]), ("changed", r["n_changed"]),
+                 ("deleted", r["n_deleted"]), ("unchanged", r["n_unchanged"]), ("quarantined", r["n_quarantined"])]
+        out.append('<div class="cards">' + "".join(f'<div class="card"><b>{fmt(v)}</b>{esc(k)}</div>'
+                                                   for k, v in cards) + "</div>")
+    if db.has("rebuild_inputs"):
+        n = db.con.execute("SELECT count(*) FROM rebuild_inputs WHERE status <> 'unchanged'").fetchone()[0]
+        cols, rows = db.rows("SELECT status, role, source_path, reason, run_id, kind FROM rebuild_inputs "
+                             "WHERE status <> 'unchanged' ORDER BY status, source_path")
+        out.append(f"<h3>New, changed and deleted inputs ({n})</h3>")
+        out.append(html_table(cols, rows, MAX_INPUT_ROWS, n) if rows else '<p class="meta">nothing changed</p>')
+    n_q = db.count("quarantine")
+    out.append(f"<h3>Quarantined inputs ({n_q})</h3>")
+    if n_q:
+        cols, rows = db.rows("SELECT source_path, line, stage, error FROM quarantine ORDER BY source_path, line")
+        out.append(html_table(cols, rows, MAX_INPUT_ROWS, n_q))
+    else:
+        out.append('<p class="meta">none: every input was used</p>')
+    out.append("</section>")
+    return "".join(out)
+
+
+def _table_block(db: _DB, table: str, title: str | None = None) -> str:
+    if not db.has(table):
+        return ""
+    n = db.count(table)
+    cols, rows = db.rows(f'SELECT * FROM "{table}" LIMIT {MAX_ROWS}')
+    return f"<h3>{esc(title or table)} <span class=\"meta\">({n} rows)</span></h3>" + html_table(cols, rows, MAX_ROWS, n)
+
+
+def _img(warehouse: Path, rel: str) -> str:
+    path = (warehouse / rel).resolve()
+    if warehouse.resolve() not in path.parents or not path.is_file():
+        return '<p class="nodata">figure file missing</p>'
+    data = base64.b64encode(path.read_bytes()).decode("ascii")
+    return f'<img alt="{esc(Path(rel).stem)}" src="data:image/png;base64,{data}">'
+
+
+def _stage_tables() -> dict[str, tuple[list[str], dict]]:
+    """Per stage: its TABLES and optional KEY_TABLES (figure name -> table)."""
+    try:
+        from pipeline import stages
+        return {m.NAME: (list(getattr(m, "TABLES", ())), dict(getattr(m, "KEY_TABLES", {}) or {}))
+                for m in stages.discover()}
+    except Exception:
+        return {}
+
+
+def _key_table(fig: str, stage: str, stage_tables: dict, db: _DB) -> str | None:
+    tables, keys = stage_tables.get(stage, ([], {}))
+    if fig in keys:
+        return keys[fig]
+    for t in sorted(tables, key=len, reverse=True):
+        if t in fig or fig in t:
+            return t
+    return next((t for t in tables if db.has(t)), None)
+
+
+def _figures_section(db: _DB, warehouse: Path) -> str:
+    out = ['<section id="analyses"><h2>Analyses</h2>']
+    if not db.has("figures") or db.count("figures") == 0:
+        out.append('<p class="nodata">no figures</p>')
+    else:
+        stage_tables = _stage_tables()
+        cols, rows = db.rows("SELECT stage, name, path, caption FROM figures ORDER BY stage, name")
+        shown: set[str] = {"hose_life", "service_life", "findings"}
+        current = None
+        for stage, name, path, caption in rows:
+            if stage != current:
+                out.append(f"<h3>{esc(stage)}</h3>")
+                current = stage
+            out.append(f'<figure>{_img(warehouse, path)}<figcaption><b>{esc(name)}</b>'
+                       f'{": " + esc(caption) if caption else ""}</figcaption></figure>')
+            key = _key_table(name, stage, stage_tables, db)
+            if key and key not in shown:
+                shown.add(key)
+                out.append(_table_block(db, key, f"{key} (key table of {name})"))
+    out.append("</section>")
+    return "".join(out)
+
+
+def render_report(warehouse: str | Path) -> str:
+    """The report of the warehouse as one HTML string."""
+    warehouse = Path(warehouse)
+    con = connect_readonly(warehouse)
+    try:
+        db = _DB(con)
+        alert, findings = _findings_section(db)
+        generation = ""
+        if db.has("rebuild_log") and db.count("rebuild_log"):
+            generation = db.con.execute("SELECT generation FROM rebuild_log ORDER BY finished_at DESC LIMIT 1").fetchone()[0]
+        hoses = ('<section id="hoses"><h2>Hose life and service life</h2>'
+                 + (_table_block(db, "service_life", "Service life per hose type and adjustment") or "")
+                 + (_table_block(db, "hose_life", "Hose life") or "")
+                 + ("" if db.has("service_life") or db.has("hose_life") else '<p class="nodata">no data</p>')
+                 + "</section>")
+        parts = [
+            "<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
+            '<meta name="viewport" content="width=device-width, initial-scale=1">',
+            "<title>pneubench morning report</title>",
+            f"<style>{CSS}</style></head><body>",
+            "<h1>pneubench morning report</h1>",
+            f'<p class="meta">warehouse {esc(warehouse.resolve())}, generation {esc(generation)}</p>',
+            alert, findings, _rebuild_section(db), hoses, _figures_section(db, warehouse),
+            "</body></html>",
+        ]
+        return "\n".join(p for p in parts if p)
+    finally:
+        con.close()
+
+
+def write_report(warehouse: str | Path) -> Path:
+    """Write ``report/index.html`` (temp file, then an atomic rename). Returns its path."""
+    warehouse = Path(warehouse)
+    text = render_report(warehouse)
+    folder = warehouse / "report"
+    folder.mkdir(parents=True, exist_ok=True)
+    final = folder / "index.html"
+    tmp = folder / f".index.html.tmp-{os.getpid()}"
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, final)
+    return final

@@ -1,0 +1,297 @@
+"""Incremental state of the rebuild: what each raw file and each analysis stage was built from.
+
+The state lives *inside* the warehouse database (tables ``ingest_state`` and ``stage_cache``,
+DDL in ``schemas/ddl/96_rebuild.sql``), so it is swapped in atomically with the data it
+describes: after a crash the state and the warehouse still agree.
+
+Raw files
+    One record per input file under raw/: its stat fingerprint ``(size, mtime_ns, inode)``, the
+    SHA-256 of its content, a hash of the metadata that applies to it from outside the file
+    (the merged ``rig.toml`` and its ``manifest.csv`` rows) and the code version of ingest.
+    A run file is *unchanged* when all of these match the previous record; its runs row (or
+    its quarantine reason) is then taken from the record and the file is not read at all. When
+    only the stat fingerprint differs the file is hashed (a ``touch`` re-ingests nothing).
+Stages
+    A stage's outputs are cached in an immutable folder ``stages/<name>/<key>/`` keyed by a
+    hash of the stage's code, the runs of every kind it reads, the hose logbooks (for stages
+    that read them) and the content of the earlier stages' tables it read. It re-runs when any
+    of them changed.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import time
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+
+import pandas as pd
+
+from pipeline.ingest import INGEST_VERSION, sha256_file
+from pipeline.layout import ConfigError, RawTree, is_run_file
+
+#: Raw files that are not runs but change what the runs mean (their changes are reported).
+SIDE_FILES = {"manifest.csv": "manifest", "rig.toml": "rig", "hoses.csv": "logbook"}
+
+#: A file modified this recently is hashed again next time (mtime granularity, "racy" files).
+RACY_S = 2.0
+
+_ROOT = Path(__file__).resolve().parent.parent
+
+
+def _hash_sources(paths: list[Path]) -> str:
+    h = hashlib.sha256()
+    for p in sorted(paths):
+        h.update(p.relative_to(_ROOT).as_posix().encode())
+        try:
+            h.update(p.read_bytes())
+        except OSError:
+            pass
+    return h.hexdigest()[:16]
+
+
+@lru_cache(maxsize=1)
+def ingest_code_version() -> str:
+    """Version of everything that turns a raw file into a runs row and samples Parquet.
+
+    ``INGEST_VERSION`` plus a hash of the schemas, readers, layout and ingest source, so that a
+    code change re-reads the files it may affect.
+    """
+    files = [*_ROOT.glob("schemas/*.py"), *_ROOT.glob("pipeline/readers/*.py"),
+             _ROOT / "pipeline" / "ingest.py", _ROOT / "pipeline" / "layout.py"]
+    return f"{INGEST_VERSION}-{_hash_sources([f for f in files if f.is_file()])}"
+
+
+@lru_cache(maxsize=None)
+def stage_code_version(module_file: str) -> str:
+    """Version of a stage: its module, the stage framework and every ``analyses`` module."""
+    files = [Path(module_file), _ROOT / "pipeline" / "stages" / "__init__.py", *_ROOT.glob("analyses/**/*.py")]
+    return _hash_sources([f for f in files if f.is_file()])
+
+
+def stat_key(st: os.stat_result) -> tuple[int, int, int]:
+    return int(st.st_size), int(st.st_mtime_ns), int(st.st_ino)
+
+
+def metadata_hash(tree: RawTree, path: Path) -> str:
+    """Hash of the metadata that applies to a run from outside the file (rig.toml, manifests)."""
+    try:
+        blob = {"rig": tree.rig_config(path), "manifest": tree.manifest_metadata(path)}
+    except ConfigError as exc:
+        blob = {"error": str(exc)}
+    return hashlib.sha256(json.dumps(blob, sort_keys=True, default=str).encode()).hexdigest()[:32]
+
+
+@dataclass
+class FileRecord:
+    """The state of one raw input file."""
+
+    source_path: str
+    role: str                      # run, manifest, rig, logbook
+    size_bytes: int
+    mtime_ns: int
+    inode: int
+    source_sha256: str | None
+    meta_hash: str | None = None
+    code_version: str | None = None
+    result: dict | None = None     # {"run": runs row, "channels": [...]} for an ingested run
+    error: str | None = None       # quarantine reason for a run file that could not be used
+
+    def as_row(self) -> dict:
+        return {"source_path": self.source_path, "role": self.role, "size_bytes": self.size_bytes,
+                "mtime_ns": self.mtime_ns, "inode": self.inode, "source_sha256": self.source_sha256,
+                "meta_hash": self.meta_hash, "code_version": self.code_version,
+                "result": json.dumps(self.result, sort_keys=True) if self.result is not None else None,
+                "error": self.error}
+
+
+@dataclass
+class StageRecord:
+    """A stage's cached outputs from the previous rebuild."""
+
+    stage: str
+    input_key: str
+    folder: str
+    kinds_read: list[str] = field(default_factory=list)
+    all_runs_read: bool = False
+    results_read: dict[str, str] = field(default_factory=dict)
+
+    def as_row(self) -> dict:
+        return {"stage": self.stage, "input_key": self.input_key, "folder": self.folder,
+                "kinds_read": sorted(self.kinds_read), "all_runs_read": self.all_runs_read,
+                "results_read": json.dumps(self.results_read, sort_keys=True)}
+
+
+@dataclass
+class PreviousState:
+    """What the live warehouse was built from (empty when there is none)."""
+
+    files: dict[str, FileRecord] = field(default_factory=dict)
+    stages: dict[str, StageRecord] = field(default_factory=dict)
+    samples: set[str] = field(default_factory=set)
+    stage_folders: set[str] = field(default_factory=set)
+    findings: dict[str, bool | None] = field(default_factory=dict)
+    generation: str | None = None
+    history: pd.DataFrame | None = None
+
+
+def load_previous(warehouse: Path) -> PreviousState:
+    """Read the state of the live warehouse; an unreadable or missing one gives an empty state."""
+    from pipeline.warehouse import connect_readonly
+
+    prev = PreviousState()
+    try:
+        con = connect_readonly(warehouse)
+    except Exception:
+        return prev
+    try:
+        tables = {r[0] for r in con.execute("SELECT table_name FROM duckdb_tables()").fetchall()}
+        if "runs" in tables:
+            prev.samples = {r[0] for r in con.execute("SELECT samples_path FROM runs").fetchall() if r[0]}
+        if "ingest_state" in tables:
+            for row in con.execute("SELECT source_path, role, size_bytes, mtime_ns, inode, source_sha256, "
+                                   "meta_hash, code_version, result, error FROM ingest_state").fetchall():
+                rec = FileRecord(*row[:8], result=json.loads(row[8]) if row[8] else None, error=row[9])
+                prev.files[rec.source_path] = rec
+        if "stage_cache" in tables:
+            for stage, key, folder, kinds, all_runs, results in con.execute(
+                    "SELECT stage, input_key, folder, kinds_read, all_runs_read, results_read FROM stage_cache").fetchall():
+                prev.stages[stage] = StageRecord(stage, key, folder, list(kinds or []), bool(all_runs),
+                                                 json.loads(results) if results else {})
+                prev.stage_folders.add(folder)
+        if "findings" in tables:
+            prev.findings = dict(con.execute("SELECT finding_id, holds FROM findings").fetchall())
+        if "rebuild_log" in tables:
+            prev.history = con.sql("SELECT * FROM rebuild_log").to_arrow_table().to_pandas()
+            if not prev.history.empty:
+                prev.generation = str(prev.history.sort_values("finished_at")["generation"].iloc[-1])
+    except Exception:
+        # A warehouse from an older version: no usable state, everything is rebuilt.
+        return PreviousState(samples=prev.samples)
+    finally:
+        con.close()
+    return prev
+
+
+# -- planning the ingest ---------------------------------------------------------------------
+@dataclass
+class FilePlan:
+    """What to do with one run file."""
+
+    path: Path
+    rel: str
+    stat: tuple[int, int, int]
+    meta_hash: str
+    status: str                    # new, changed, unchanged (decided), or "check" (hash it)
+    reason: str = ""               # content, metadata, code, full
+    previous: FileRecord | None = None
+
+
+def plan_runs(tree: RawTree, files: list[Path], prev: PreviousState, code_version: str,
+              warehouse: Path, full: bool = False) -> list[FilePlan]:
+    """Decide per run file: unchanged (reuse its record), or to be hashed / ingested.
+
+    Cheap: one ``stat`` per file and the metadata hash (rig.toml and manifests are parsed once
+    per folder); no file is opened here.
+    """
+    plans = []
+    for path in files:
+        rel = tree.rel(path)
+        st = stat_key(path.stat())
+        mh = metadata_hash(tree, path)
+        old = prev.files.get(rel)
+        if old is None or old.role != "run":
+            plans.append(FilePlan(path, rel, st, mh, "new", "", old))
+            continue
+        if full:
+            plans.append(FilePlan(path, rel, st, mh, "check", "full", old))
+            continue
+        same_stat = (old.size_bytes, old.mtime_ns, old.inode) == st
+        same_ctx = old.meta_hash == mh and old.code_version == code_version
+        samples_ok = old.result is None or (warehouse / old.result["run"]["samples_path"]).is_file()
+        if same_stat and same_ctx and samples_ok:
+            plans.append(FilePlan(path, rel, st, mh, "unchanged", "", old))
+        else:
+            reason = ("metadata" if old.meta_hash != mh else "code" if old.code_version != code_version
+                      else "samples" if not samples_ok else "content")
+            plans.append(FilePlan(path, rel, st, mh, "check", reason, old))
+    return plans
+
+
+def record_for(plan: FilePlan, sha: str, code_version: str, result: dict | None, error: str | None,
+               now: float | None = None) -> FileRecord:
+    """The new state record of a run file (a racy mtime is stored as -1: hash it next time)."""
+    size, mtime_ns, inode = plan.stat
+    now = time.time() if now is None else now
+    if now - mtime_ns / 1e9 < RACY_S:
+        mtime_ns = -1
+    return FileRecord(plan.rel, "run", size, mtime_ns, inode, sha, plan.meta_hash, code_version, result, error)
+
+
+def side_files(tree: RawTree) -> list[Path]:
+    """manifest.csv, rig.toml and hoses.csv files of the raw tree (hidden folders skipped)."""
+    out = []
+    for p in tree.root.rglob("*"):
+        rel = p.relative_to(tree.root)
+        if any(part.startswith(".") for part in rel.parts[:-1]):
+            continue
+        if p.name.lower() in SIDE_FILES and p.is_file() and not is_run_file(p):
+            out.append(p)
+    return sorted(out, key=lambda p: p.relative_to(tree.root).as_posix())
+
+
+def side_records(tree: RawTree, prev: PreviousState) -> tuple[list[FileRecord], list[dict]]:
+    """State records of the side files and their change rows (new / changed / unchanged)."""
+    records, changes = [], []
+    now = time.time()
+    for p in side_files(tree):
+        rel = tree.rel(p)
+        st = stat_key(p.stat())
+        old = prev.files.get(rel)
+        if old is not None and (old.size_bytes, old.mtime_ns, old.inode) == st:
+            sha = old.source_sha256
+        else:
+            sha = sha256_file(p)
+        mtime = st[1] if now - st[1] / 1e9 >= RACY_S else -1
+        records.append(FileRecord(rel, SIDE_FILES[p.name.lower()], st[0], mtime, st[2], sha))
+        status = "new" if old is None else ("unchanged" if old.source_sha256 == sha else "changed")
+        changes.append({"source_path": rel, "role": SIDE_FILES[p.name.lower()], "status": status,
+                        "reason": "content" if status == "changed" else None})
+    return records, changes
+
+
+def logbook_hash(records: list[FileRecord]) -> str:
+    """Hash of every hose logbook's path and content."""
+    blob = sorted((r.source_path, r.source_sha256) for r in records if r.role == "logbook")
+    return hashlib.sha256(json.dumps(blob).encode()).hexdigest()[:32]
+
+
+# -- stage keys -------------------------------------------------------------------------------
+def runs_fingerprint(runs: list[dict], kinds: set[str] | None) -> str:
+    """Hash of the runs rows of some kinds (all kinds when ``kinds`` is None)."""
+    h = hashlib.sha256()
+    for r in sorted(runs, key=lambda r: r["run_id"]):
+        if kinds is None or r["kind"] in kinds:
+            h.update(json.dumps(r, sort_keys=True, default=str).encode())
+    return h.hexdigest()[:32]
+
+
+def frame_hash(df: pd.DataFrame | None) -> str:
+    """Content hash of a DataFrame (columns, types and values)."""
+    if df is None:
+        return "absent"
+    h = hashlib.sha256(json.dumps([[str(c), str(t)] for c, t in df.dtypes.items()]).encode())
+    try:
+        h.update(pd.util.hash_pandas_object(df, index=False).to_numpy().tobytes())
+    except TypeError:
+        h.update(df.to_json(orient="split", index=False, default_handler=str).encode())
+    return h.hexdigest()[:32]
+
+
+def stage_input_key(name: str, code: str, runs: list[dict], kinds: set[str], all_runs: bool,
+                    logbooks: str | None) -> str:
+    blob = {"stage": name, "code": code, "runs": runs_fingerprint(runs, None if all_runs else kinds),
+            "kinds": sorted(kinds), "all": all_runs, "logbooks": logbooks}
+    return hashlib.sha256(json.dumps(blob, sort_keys=True).encode()).hexdigest()[:32]

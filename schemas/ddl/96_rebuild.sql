@@ -1,0 +1,64 @@
+-- The rebuild itself: what the warehouse was built from and what changed in the last rebuild
+-- (pipeline/rebuild.py, pipeline/state.py). Built inside the same database file, so it is
+-- swapped in atomically with the data it describes.
+
+-- One row per rebuild (this one last; earlier rows carried over from the previous warehouse).
+CREATE TABLE rebuild_log (
+    generation      VARCHAR NOT NULL,     -- id of the rebuild (UTC time + pid)
+    started_at      TIMESTAMPTZ,
+    finished_at     TIMESTAMPTZ,
+    duration_s      DOUBLE,
+    mode            VARCHAR,              -- incremental / full
+    executor        VARCHAR,              -- local / dask
+    n_files         BIGINT,               -- run files under raw/
+    n_runs          BIGINT,
+    n_new           BIGINT,
+    n_changed       BIGINT,
+    n_deleted       BIGINT,
+    n_unchanged     BIGINT,
+    n_quarantined   BIGINT,               -- rows of `quarantine`
+    stages_run      VARCHAR[],            -- stages that ran
+    stages_reused   VARCHAR[],            -- stages whose cached outputs were reused
+    exit_code       INTEGER
+);
+
+-- One row per input of the last rebuild (run files, manifests, rig.toml, hose logbooks),
+-- including the inputs that were deleted since the previous rebuild.
+CREATE TABLE rebuild_inputs (
+    source_path     VARCHAR NOT NULL,     -- relative to raw/
+    role            VARCHAR,              -- run / manifest / rig / logbook
+    status          VARCHAR NOT NULL,     -- new / changed / deleted / unchanged
+    reason          VARCHAR,              -- changed because of: content / metadata / code / full
+    quarantined     BOOLEAN,
+    error           VARCHAR,              -- quarantine reason(s), one line
+    run_id          VARCHAR,
+    kind            VARCHAR
+);
+
+-- What changed in the last rebuild: new, changed, deleted and quarantined inputs.
+CREATE VIEW rebuild_changes AS
+    SELECT * FROM rebuild_inputs WHERE status <> 'unchanged' OR quarantined ORDER BY status, source_path;
+
+-- Incremental state: one record per raw input (pipeline/state.py).
+CREATE TABLE ingest_state (
+    source_path     VARCHAR NOT NULL,
+    role            VARCHAR,
+    size_bytes      BIGINT,
+    mtime_ns        BIGINT,               -- -1: modified during the rebuild, hash it next time
+    inode           BIGINT,
+    source_sha256   VARCHAR,
+    meta_hash       VARCHAR,              -- rig.toml + manifest metadata that applies
+    code_version    VARCHAR,              -- ingest code + schema version
+    result          JSON,                 -- runs row and channels of an ingested run
+    error           VARCHAR               -- quarantine reason of a run file
+);
+
+-- Incremental state: the cached outputs of every analysis stage (stages/<name>/<key>/).
+CREATE TABLE stage_cache (
+    stage           VARCHAR NOT NULL,
+    input_key       VARCHAR NOT NULL,
+    folder          VARCHAR NOT NULL,     -- relative to the warehouse
+    kinds_read      VARCHAR[],
+    all_runs_read   BOOLEAN,
+    results_read    JSON                  -- earlier tables read -> content hash
+);
