@@ -7,7 +7,8 @@ starts a step that lasts until the next jump (or the end of the run). Per step:
   the step;
 * settling time: from the jump to the last instant the error is outside the 2 % band;
 * rise time: from the first crossing of 10 % of the step to the first crossing of 90 %;
-* steady-state error: new reference minus the mean position over the last 10 % of the step.
+* steady-state error: new reference minus the mean position over the last 10 % of the step,
+  signed in the direction of the step (positive: short of the reference, negative: beyond it).
 
 Crossing instants are interpolated linearly between samples. The position is first smoothed by
 a zero-phase low-pass filter well above the loop's bandwidth, so that sensor noise does not move
@@ -139,7 +140,7 @@ def step_metrics(t, x, t_step: float, ref_before: float, ref_after: float, band:
         e0, e1 = err[i] - band, err[i + 1] - band
         f = e0 / (e0 - e1) if e0 != e1 else 0.0
         settling = float(t[i] + f * (t[i + 1] - t[i]) - t_step)
-    sse = float(ref_after - np.mean(x[-n_tail:]))
+    sse = float(s * (ref_after - np.mean(x[-n_tail:])))
     return StepMetrics(t_step, step * 1e3, overshoot, settling, rise, sse * 1e3, bool(settled))
 
 
