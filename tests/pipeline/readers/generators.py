@@ -1,0 +1,210 @@
+"""Small-file generators for the CSV, LVM and MAT reader tests (no binaries committed).
+
+* :func:`lvm_bytes` writes an LVM file the way LabVIEW's *Write To Measurement File* lays it
+  out (file header, per-segment headers whose fields sit under their columns, the ``X_Value``
+  / names / ``Comment`` column row, an empty X field per row when ``X_Columns = No``).
+* :func:`mat_v5` saves with :func:`scipy.io.savemat` (v5; ``compress=True`` is the v7 layout).
+* :func:`mat_v73` writes the HDF5 layout MATLAB uses for ``-v7.3`` (512-byte user block with
+  the MATLAB text header, ``MATLAB_class`` attributes, arrays stored transposed, char arrays as
+  uint16, structs as groups).
+* :func:`mat_v5_with_object` writes a v5 file holding an MCOS object (a ``timetable``) as MATLAB
+  does: an ``mxOPAQUE_CLASS`` matrix with the variable name, type system ``MCOS``, class name
+  and the uint32 object reference ``[0xDD000000, 2, 1, 1, 1, 1]``, plus plain variables.
+"""
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+
+# -- LVM -----------------------------------------------------------------------------------
+@dataclass
+class LvmSegment:
+    """One call of Write To Measurement File: channels (name -> values) and their header."""
+
+    channels: dict[str, list]
+    units: dict[str, str] = field(default_factory=dict)
+    x0: float = 0.0
+    dt: float = 0.001
+    x: list | None = None                 # explicit X values (X_Columns One / Multi)
+    x_multi: dict[str, list] | None = None  # per-channel X values (X_Columns Multi)
+    x_unit: str | None = None
+    comments: dict[int, str] = field(default_factory=dict)   # row -> comment
+    samples: int | None = None            # header's Samples (default: number of values)
+    header: bool = True                   # False: rows appended without a new segment header
+
+
+def _num(v, decimal: str) -> str:
+    if v is None or (isinstance(v, float) and np.isnan(v)):
+        return ""
+    text = repr(float(v))
+    return text.replace(".", ",") if decimal == "," else text
+
+
+def lvm_bytes(segments: list[LvmSegment], *, x_columns: str = "No", separator: str = "Tab", decimal: str = ".",
+              description: str | None = None, date: str = "2026/01/02", time: str = "03:04:05.25",
+              time_pref: str = "Relative", multi_headings: str = "Yes", encoding: str = "utf-8",
+              eol: str = "\r\n") -> bytes:
+    """An LVM file as LabVIEW writes it."""
+    sep = "\t" if separator == "Tab" else ","
+    lines = [f"LabVIEW Measurement{sep}", f"Writer_Version{sep}2", f"Reader_Version{sep}2",
+             f"Separator{sep}{separator}", f"Decimal_Separator{sep}{decimal}", f"Multi_Headings{sep}{multi_headings}",
+             f"X_Columns{sep}{x_columns}", f"Time_Pref{sep}{time_pref}", f"Operator{sep}bench"]
+    if description is not None:
+        lines.append(f'Description{sep}"{description}"' if "\n" in description else f"Description{sep}{description}")
+    lines += [f"Date{sep}{date}", f"Time{sep}{time}", f"***End_of_Header***{sep}", sep]
+    for seg in segments:
+        names = list(seg.channels)
+        n = max(len(v) for v in seg.channels.values())
+        if x_columns == "Multi":
+            cols = []
+            for name in names:
+                cols += ["X_Value", name]
+        else:
+            cols = ["X_Value", *names]
+        cols.append("Comment")
+
+        def per_channel(tag: str, value_of) -> str:
+            cells = [tag]
+            for c in cols[1:-1]:
+                cells.append("" if c == "X_Value" else value_of(c))
+            return sep.join(cells) + sep
+
+        if seg.header:
+            lines.append(f"Channels{sep}{len(names)}" + sep * (len(cols) - 2))
+            lines.append(per_channel("Samples", lambda c: str(seg.samples if seg.samples is not None else
+                                                              sum(v is not None for v in seg.channels[c]))))
+            lines.append(per_channel("Date", lambda c: date))
+            lines.append(per_channel("Time", lambda c: time))
+            if seg.units:
+                lines.append(per_channel("Y_Unit_Label", lambda c: seg.units.get(c, "")))
+            if seg.x_unit:
+                lines.append(per_channel("X_Unit_Label", lambda c: seg.x_unit))
+            lines.append(per_channel("X_Dimension", lambda c: "Time"))
+            lines.append(per_channel("X0", lambda c: _num(seg.x0, decimal)))
+            lines.append(per_channel("Delta_X", lambda c: _num(seg.dt, decimal)))
+            lines.append(f"***End_of_Header***{sep}" + sep * (len(cols) - 2))
+            lines.append(sep.join(cols))
+        for i in range(n):
+            if x_columns == "No":
+                cells = [""]
+            elif x_columns == "One":
+                cells = [_num(seg.x[i] if seg.x is not None else seg.x0 + i * seg.dt, decimal)]
+            else:
+                cells = []
+            for name in names:
+                v = seg.channels[name][i] if i < len(seg.channels[name]) else None
+                if x_columns == "Multi":
+                    xs = (seg.x_multi or {}).get(name)
+                    cells.append(_num(xs[i] if xs is not None else seg.x0 + i * seg.dt, decimal))
+                cells.append(_num(v, decimal))
+            if i in seg.comments:
+                cells.append(seg.comments[i])
+            lines.append(sep.join(cells))
+        lines.append(sep if seg is not segments[-1] else "")
+    return eol.join(lines).encode(encoding)
+
+
+# -- MAT -----------------------------------------------------------------------------------
+def mat_v5(path: Path, variables: dict, compress: bool = False, oned_as: str = "column") -> Path:
+    """A MAT v5 file (``compress=True``: the zlib-compressed v7 layout) via scipy."""
+    from scipy.io import savemat
+
+    savemat(path, variables, do_compression=compress, oned_as=oned_as)
+    return path
+
+
+_V73_HEADER = (b"MATLAB 7.3 MAT-file, Platform: GLNXA64, Created on: Fri Jan  2 03:04:05 2026 "
+               b"HDF5 schema 1.00 .")
+
+
+def mat_v73(path: Path, variables: dict, objects: dict[str, str] | None = None) -> Path:
+    """A MAT v7.3 (HDF5) file laid out as MATLAB writes it.
+
+    ``variables``: name -> numpy array / number / str / dict (struct). ``objects``: name ->
+    MATLAB class of an object variable (e.g. ``{"tt": "timetable"}``), stored as MATLAB stores
+    MCOS objects (uint32 reference with ``MATLAB_object_decode = 3``).
+    """
+    import h5py
+
+    def put(parent, name, value):
+        if isinstance(value, dict):
+            g = parent.create_group(name)
+            g.attrs["MATLAB_class"] = np.bytes_("struct")
+            for k, v in value.items():
+                put(g, k, v)
+            return
+        if isinstance(value, str):
+            data = np.array([ord(ch) for ch in value], dtype=np.uint16).reshape(-1, 1)
+            ds = parent.create_dataset(name, data=data)
+            ds.attrs["MATLAB_class"] = np.bytes_("char")
+            ds.attrs["MATLAB_int_decode"] = np.int32(2)
+            return
+        arr = np.asarray(value)
+        if arr.ndim == 0:
+            arr = arr.reshape(1, 1)
+        elif arr.ndim == 1:
+            arr = arr.reshape(-1, 1)        # MATLAB N x 1 column, stored transposed: (1, N)
+        cls = {"f": "double", "i": "int32", "u": "uint32", "b": "logical"}[arr.dtype.kind]
+        if arr.dtype == np.float32:
+            cls = "single"
+        elif arr.dtype.kind in "iu":
+            cls = f"{'u' if arr.dtype.kind == 'u' else ''}int{arr.dtype.itemsize * 8}"
+        data = arr.T.astype(np.uint8) if arr.dtype.kind == "b" else arr.T
+        ds = parent.create_dataset(name, data=data)
+        ds.attrs["MATLAB_class"] = np.bytes_(cls)
+        if arr.dtype.kind == "b":
+            ds.attrs["MATLAB_int_decode"] = np.int32(1)
+
+    with h5py.File(path, "w", userblock_size=512) as f:
+        for name, value in variables.items():
+            put(f, name, value)
+        for name, cls in (objects or {}).items():
+            ds = f.create_dataset(name, data=np.array([[0xDD000000, 2, 1, 1, 1, 1]], dtype=np.uint32))
+            ds.attrs["MATLAB_class"] = np.bytes_(cls)
+            ds.attrs["MATLAB_object_decode"] = np.int32(3)
+    header = _V73_HEADER.ljust(116, b" ") + b"\0" * 8 + struct.pack("<H", 0x0200) + b"IM"
+    with open(path, "r+b") as fh:
+        fh.write(header)
+    return path
+
+
+def _tag(mtype: int, data: bytes) -> bytes:
+    return struct.pack("<II", mtype, len(data)) + data + b"\0" * ((-len(data)) % 8)
+
+
+def _int8(text: str) -> bytes:
+    return _tag(1, text.encode("ascii"))
+
+
+def _v5_header() -> bytes:
+    text = b"MATLAB 5.0 MAT-file, Platform: GLNXA64, Created on: Fri Jan  2 03:04:05 2026"
+    return text.ljust(116, b" ") + b"\0" * 8 + struct.pack("<H", 0x0100) + b"IM"
+
+
+def _v5_double(name: str, values) -> bytes:
+    arr = np.asarray(values, dtype="<f8").reshape(-1)
+    flags = _tag(6, struct.pack("<II", 6, 0))            # mxDOUBLE_CLASS
+    dims = _tag(5, struct.pack("<2i", arr.size, 1))
+    return _tag(14, flags + dims + _int8(name) + _tag(9, arr.tobytes()))
+
+
+def _v5_opaque(name: str, classname: str) -> bytes:
+    flags = _tag(6, struct.pack("<II", 17, 0))           # mxOPAQUE_CLASS
+    ref = np.array([0xDD000000, 2, 1, 1, 1, 1], dtype="<u4")
+    meta = _tag(14, _tag(6, struct.pack("<II", 13, 0)) + _tag(5, struct.pack("<2i", 6, 1)) + _int8("")
+                + _tag(6, ref.tobytes()))               # mxUINT32_CLASS 6 x 1
+    return _tag(14, flags + _int8(name) + _int8("MCOS") + _int8(classname) + meta)
+
+
+def mat_v5_with_object(path: Path, name: str = "tt", classname: str = "timetable",
+                       plain: dict[str, list] | None = None) -> Path:
+    """A v5 MAT file holding a MATLAB object (MCOS, e.g. a timetable) and plain vectors."""
+    body = _v5_opaque(name, classname)
+    for k, v in (plain or {}).items():
+        body += _v5_double(k, v)
+    path.write_bytes(_v5_header() + body)
+    return path
