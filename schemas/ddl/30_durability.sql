@@ -1,24 +1,64 @@
--- Durability and hose service life.
+-- Durability and hose service life (pipeline/stages/durability.py, analyses/durability.py,
+-- analyses/service_life.py, pipeline/logbook.py). Contract columns first (warehouse.md), then ours.
 
+-- One row per durability run. Distance = sum of stroke lengths between turning points found
+-- with a reversal deadband (deadband_mm); strokes are one-way travels (a cycle is two).
 CREATE TABLE durability_runs (
     run_id            VARCHAR NOT NULL,
     hose_id           VARCHAR,
-    distance_km       DOUBLE,
+    distance_km       DOUBLE,              -- NULL when the run could not be analysed (see runs.warnings)
     strokes           BIGINT,
-    duration_h        DOUBLE
+    duration_h        DOUBLE,
+    campaign          VARCHAR,
+    started_at        TIMESTAMPTZ,
+    n_samples         BIGINT,
+    mean_speed_m_s    DOUBLE,              -- distance / duration
+    mean_stroke_mm    DOUBLE,
+    dp_friction_bar   DOUBLE,              -- mean over strokes of direction * mean(p_a - p_b)
+    friction_n        DOUBLE,              -- dp_friction_bar * hose_area_m2, when the run gives the area
+    deadband_mm       DOUBLE               -- reversal deadband used
 );
 
+-- One row per stroke of a durability run: the trend of friction and speed over a hose's life.
+CREATE TABLE durability_strokes (
+    run_id            VARCHAR NOT NULL,
+    hose_id           VARCHAR,
+    stroke            BIGINT,              -- 0-based index in the run
+    direction         INTEGER,             -- +1 toward +x, -1 toward -x
+    t_start_s         DOUBLE,              -- turning point the stroke starts from (run time)
+    t_end_s           DOUBLE,
+    length_mm         DOUBLE,
+    mean_speed_m_s    DOUBLE,              -- length / (t_end - t_start)
+    dp_mean_bar       DOUBLE,              -- mean of p_a - p_b over the stroke
+    dp_friction_bar   DOUBLE,              -- direction * dp_mean_bar: friction indicator
+    friction_n        DOUBLE,              -- dp_friction_bar * hose_area_m2 (NULL without the area)
+    n_samples         BIGINT
+);
+
+-- One row per hose of the merged logbooks (and per hose named by runs but in no logbook).
 CREATE TABLE hose_life (
     hose_id           VARCHAR NOT NULL,
     hose_type         VARCHAR,
     adjustment        VARCHAR,
-    distance_km       DOUBLE,
-    strokes           BIGINT,
+    distance_km       DOUBLE,              -- runs if any cover the hose, else odometer, else 0 (running) / NULL
+    strokes           BIGINT,              -- NULL without analysed runs
     status            VARCHAR,             -- failed / removed / running
     failure_mode      VARCHAR,
-    n_runs            BIGINT
+    n_runs            BIGINT,
+    z_rollers_mm      DOUBLE,
+    spring_force_n    DOUBLE,
+    runs_km           DOUBLE,              -- distance of its durability runs (NULL without runs)
+    odometer_km       DOUBLE,              -- distance_km of its latest failed/removed logbook event
+    distance_source   VARCHAR,             -- runs / odometer / none
+    installed_at      TIMESTAMPTZ,         -- first installation
+    ended_at          TIMESTAMPTZ,         -- failed/removed time, NULL while running
+    n_installations   BIGINT,              -- > 1 when reinstalled (life continues)
+    campaigns         VARCHAR[],           -- campaigns whose logbooks mention it
+    wall_thickness_mm DOUBLE,              -- last inspection
+    warnings          VARCHAR[]            -- e.g. runs and odometer disagree by more than 2 %
 );
 
+-- One row per (hose_type, adjustment).
 CREATE TABLE service_life (
     hose_type         VARCHAR,
     adjustment        VARCHAR,
@@ -29,5 +69,51 @@ CREATE TABLE service_life (
     b10_km            DOUBLE,
     b10_lower_km      DOUBLE,
     b10_upper_km      DOUBLE,
-    confidence        DOUBLE
+    confidence        DOUBLE,
+    n_suspended       BIGINT,              -- removed + running hoses
+    b10_method        VARCHAR,             -- how the bounds were computed
+    loglik            DOUBLE               -- log-likelihood at the Weibull MLE
+);
+
+-- Kaplan-Meier survival per (hose_type, adjustment): one row per distinct hose distance.
+CREATE TABLE hose_survival (
+    hose_type         VARCHAR,
+    adjustment        VARCHAR,
+    distance_km       DOUBLE,
+    n_at_risk         BIGINT,
+    n_failed          BIGINT,
+    n_censored        BIGINT,
+    survival          DOUBLE,              -- just after distance_km
+    std_err           DOUBLE               -- Greenwood
+);
+
+-- Per hose type: do force-set and distance-set hoses differ? Likelihood-ratio test of one common
+-- Weibull against one per setting (chi-square, df = 2). NULL when a setting has < 2 failures.
+CREATE TABLE service_life_test (
+    hose_type         VARCHAR,
+    n_force           BIGINT,
+    n_failed_force    BIGINT,
+    n_distance        BIGINT,
+    n_failed_distance BIGINT,
+    shape_force       DOUBLE,
+    scale_force_km    DOUBLE,
+    shape_distance    DOUBLE,
+    scale_distance_km DOUBLE,
+    lr                DOUBLE,
+    df                BIGINT,
+    p_value           DOUBLE
+);
+
+-- Leakage plateaus (leakage_map) of runs naming a hose, placed at the hose's distance when the
+-- leakage run started (durability runs of that hose that started before it).
+CREATE TABLE hose_leak_growth (
+    hose_id           VARCHAR NOT NULL,
+    run_id            VARCHAR NOT NULL,
+    started_at        TIMESTAMPTZ,
+    distance_km       DOUBLE,
+    adjustment        VARCHAR,
+    chamber           VARCHAR,
+    pressure_bar      DOUBLE,
+    leak_l_min        DOUBLE,
+    hose_status       VARCHAR
 );

@@ -1,0 +1,278 @@
+"""Durability and hose service life (issue #6).
+
+Per durability run (streamed from its samples Parquet in batches, bounded memory, in parallel
+through ``ctx.map``): distance, strokes, duration and a per-stroke summary
+(:mod:`analyses.durability`). The hose logbooks (every ``hoses.csv`` under raw/, merged across
+campaigns, :mod:`pipeline.logbook`) joined with those runs give ``hose_life``; per (hose_type,
+adjustment) a censored Weibull with B10 and likelihood-ratio bounds (``service_life``), Kaplan-
+Meier curves (``hose_survival``) and, per hose type, the likelihood-ratio test of force-set
+against distance-set rollers (``service_life_test``). Leakage runs naming a hose are placed at the
+hose's distance at the time of the run (``hose_leak_growth``), from the ``leakage_map`` rows of
+the PLPA characterisation stage (no plateau detection here; none without that table).
+
+Tables: ``durability_runs``, ``durability_strokes``, ``hose_life``, ``service_life``,
+``hose_survival``, ``service_life_test``, ``hose_leak_growth``. Figures: Weibull probability
+plot, Kaplan-Meier curves, leak vs distance, distance per hose.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+import pyarrow.parquet as pq
+
+from analyses.durability import DEADBAND_M, StrokeCounter
+from analyses.service_life import (b10, kaplan_meier, plot_hose_distances, plot_kaplan_meier, plot_leak_growth,
+                                   plot_weibull_probability, weibull_fit, weibull_lr_test)
+from pipeline.logbook import hose_distance_at, hose_life, match_runs, merge_logbooks, read_logbooks
+from pipeline.stages import StageContext, StageOutput
+
+NAME = "durability"
+ORDER = 30
+KINDS = ("durability", "leakage")
+READS_LOGBOOKS = True
+TABLES = ("durability_runs", "durability_strokes", "hose_life", "service_life", "hose_survival",
+          "service_life_test", "hose_leak_growth")
+
+CONFIDENCE = 0.90
+BATCH_ROWS = 1 << 20
+COLUMNS = ("t_s", "x_m", "p_a_pa", "p_b_pa")
+PA_PER_BAR = 1e5
+
+RUN_COLUMNS = ["run_id", "hose_id", "distance_km", "strokes", "duration_h", "campaign", "started_at", "n_samples",
+               "mean_speed_m_s", "mean_stroke_mm", "dp_friction_bar", "friction_n", "deadband_mm"]
+STROKE_COLUMNS = ["run_id", "hose_id", "stroke", "direction", "t_start_s", "t_end_s", "length_mm", "mean_speed_m_s",
+                  "dp_mean_bar", "dp_friction_bar", "friction_n", "n_samples"]
+SERVICE_COLUMNS = ["hose_type", "adjustment", "n_hoses", "n_failed", "weibull_shape", "weibull_scale_km", "b10_km",
+                   "b10_lower_km", "b10_upper_km", "confidence", "n_suspended", "b10_method", "loglik"]
+SURVIVAL_COLUMNS = ["hose_type", "adjustment", "distance_km", "n_at_risk", "n_failed", "n_censored", "survival",
+                    "std_err"]
+TEST_COLUMNS = ["hose_type", "n_force", "n_failed_force", "n_distance", "n_failed_distance", "shape_force",
+                "scale_force_km", "shape_distance", "scale_distance_km", "lr", "df", "p_value"]
+LEAK_COLUMNS = ["hose_id", "run_id", "started_at", "distance_km", "adjustment", "chamber", "pressure_bar",
+                "leak_l_min", "hose_status"]
+
+
+def analyse_run(path: str) -> dict:
+    """Stream one durability run's samples file and count its strokes (module level: picklable).
+
+    Returns a dict with ``distance_m``, ``strokes``, ``duration_s``, ``n_samples`` and
+    ``stroke_table``, or ``error`` (one line) when the run cannot be analysed.
+    """
+    try:
+        pf = pq.ParquetFile(path)
+        names = set(pf.schema_arrow.names)
+        if "t_s" not in names or "x_m" not in names:
+            return {"error": "no t_s/x_m columns in the samples"}
+        cols = [c for c in COLUMNS if c in names]
+        have_dp = "p_a_pa" in names and "p_b_pa" in names
+        sc = StrokeCounter(DEADBAND_M)
+        for batch in pf.iter_batches(batch_size=BATCH_ROWS, columns=cols):
+            get = lambda c: batch.column(c).to_numpy(zero_copy_only=False)  # noqa: E731
+            dp = get("p_a_pa") - get("p_b_pa") if have_dp else None
+            sc.update(get("t_s"), get("x_m"), dp)
+        s = sc.finish()
+        if s.n_samples < 2:
+            return {"error": "fewer than two usable samples"}
+        return {"distance_m": s.distance_m, "strokes": s.strokes, "duration_s": s.duration_s,
+                "n_samples": s.n_samples, "stroke_table": s.stroke_table}
+    except Exception as exc:  # a run that cannot be analysed gives NULLs and a warning
+        return {"error": f"{type(exc).__name__}: {exc}".splitlines()[0]}
+
+
+def _param(params, key):
+    if isinstance(params, dict):
+        v = params.get(key)
+        return None if v is None or (isinstance(v, float) and math.isnan(v)) else v
+    return None
+
+
+def _float(v):
+    try:
+        f = float(v)
+    except (TypeError, ValueError):
+        return None
+    return f if math.isfinite(f) else None
+
+
+def durability_runs(ctx: StageContext, out: StageOutput) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """``durability_runs`` and ``durability_strokes`` for every durability run."""
+    runs = ctx.runs_of("durability")
+    if runs.empty:
+        return pd.DataFrame(columns=RUN_COLUMNS), pd.DataFrame(columns=STROKE_COLUMNS)
+    paths = [str(ctx.samples_file(rid)) for rid in runs["run_id"]]
+    results = ctx.map(analyse_run, paths, label="durability runs")
+    rows, strokes = [], []
+    for run, res in zip(runs.to_dict("records"), results):
+        rid, params = run["run_id"], run.get("params")
+        hose = _param(params, "hose_id")
+        hose = None if hose is None else str(hose)
+        area = _float(_param(params, "hose_area_m2"))
+        row = {"run_id": rid, "hose_id": hose, "campaign": run.get("campaign"), "started_at": run.get("started_at"),
+               "deadband_mm": DEADBAND_M * 1e3}
+        if "error" in res:
+            out.warn(rid, f"durability: cannot analyse the run ({res['error']}); distance and strokes NULL")
+            rows.append(row)
+            continue
+        st = res["stroke_table"]
+        dist_m, dur_s = res["distance_m"], res["duration_s"]
+        fric_bar = float(np.nanmean(st["dp_friction_pa"])) / PA_PER_BAR if len(st) and st["dp_friction_pa"].notna().any() else None
+        row.update(distance_km=dist_m / 1e3, strokes=int(res["strokes"]), duration_h=dur_s / 3600.0,
+                   n_samples=int(res["n_samples"]), mean_speed_m_s=dist_m / dur_s if dur_s > 0 else None,
+                   mean_stroke_mm=1e3 * dist_m / res["strokes"] if res["strokes"] else None,
+                   dp_friction_bar=fric_bar, friction_n=fric_bar * PA_PER_BAR * area if fric_bar is not None and area else None)
+        if res["strokes"] == 0:
+            out.warn(rid, "durability: the carriage never moved more than the deadband "
+                          f"({DEADBAND_M * 1e3:g} mm); distance 0")
+        rows.append(row)
+        if len(st):
+            strokes.append(pd.DataFrame({
+                "run_id": rid, "hose_id": hose, "stroke": st["stroke"].to_numpy(), "direction": st["direction"].to_numpy(),
+                "t_start_s": st["t_start_s"].to_numpy(), "t_end_s": st["t_end_s"].to_numpy(),
+                "length_mm": st["length_m"].to_numpy() * 1e3, "mean_speed_m_s": st["mean_speed_m_s"].to_numpy(),
+                "dp_mean_bar": st["dp_mean_pa"].to_numpy() / PA_PER_BAR,
+                "dp_friction_bar": st["dp_friction_pa"].to_numpy() / PA_PER_BAR,
+                "friction_n": st["dp_friction_pa"].to_numpy() * area if area else np.nan,
+                "n_samples": st["n_samples"].to_numpy()}))
+    runs_df = pd.DataFrame(rows, columns=RUN_COLUMNS)
+    runs_df["strokes"] = runs_df["strokes"].astype("Int64")
+    runs_df["n_samples"] = runs_df["n_samples"].astype("Int64")
+    runs_df["started_at"] = pd.to_datetime(runs_df["started_at"], utc=True)
+    strokes_df = pd.concat(strokes, ignore_index=True) if strokes else pd.DataFrame(columns=STROKE_COLUMNS)
+    return runs_df, strokes_df
+
+
+def _groups(life: pd.DataFrame, keys):
+    """(key tuple, lives [km], failed flags) per group of hoses with a known positive distance."""
+    usable = life[pd.to_numeric(life["distance_km"], errors="coerce") > 0]
+    for key, g in usable.groupby(list(keys), dropna=False, sort=True):
+        key = tuple(None if (isinstance(k, float) and math.isnan(k)) else k for k in key)
+        yield key, g["distance_km"].to_numpy(float), (g["status"] == "failed").to_numpy()
+
+
+def service_life(life: pd.DataFrame, confidence: float = CONFIDENCE) -> pd.DataFrame:
+    """One ``service_life`` row per (hose_type, adjustment): Weibull, B10 and its LR bounds."""
+    rows = []
+    for (htype, adj), x, failed in _groups(life, ("hose_type", "adjustment")):
+        r = b10(x, failed, confidence)
+        rows.append({"hose_type": htype, "adjustment": adj, "n_hoses": len(x), "n_failed": int(failed.sum()),
+                     "n_suspended": int((~failed).sum()), "weibull_shape": r["shape"],
+                     "weibull_scale_km": r["scale"], "b10_km": r["b10"], "b10_lower_km": r["b10_lower"],
+                     "b10_upper_km": r["b10_upper"], "confidence": confidence,
+                     "b10_method": "likelihood ratio (profile likelihood), two-sided", "loglik": r["loglik"]})
+    df = pd.DataFrame(rows, columns=SERVICE_COLUMNS)
+    for c in ("weibull_shape", "weibull_scale_km", "b10_km", "b10_lower_km", "b10_upper_km", "loglik"):
+        df[c] = pd.to_numeric(df[c]).astype("float64")  # NaN -> NULL in the warehouse
+    return df
+
+
+def hose_survival(life: pd.DataFrame) -> pd.DataFrame:
+    """Kaplan-Meier survival per (hose_type, adjustment)."""
+    frames = []
+    for (htype, adj), x, failed in _groups(life, ("hose_type", "adjustment")):
+        km = kaplan_meier(x, failed).rename(columns={"life": "distance_km"})
+        km.insert(0, "adjustment", adj)
+        km.insert(0, "hose_type", htype)
+        frames.append(km)
+    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=SURVIVAL_COLUMNS)
+
+
+def service_life_test(life: pd.DataFrame) -> pd.DataFrame:
+    """Per hose type with both settings: LR test of force-set vs distance-set Weibull lives."""
+    groups: dict = {}
+    for (htype, adj), x, failed in _groups(life, ("hose_type", "adjustment")):
+        if adj in ("force", "distance"):
+            groups.setdefault(htype, {})[adj] = (x, failed)
+    rows = []
+    for htype in sorted(groups, key=lambda k: (k is None, k or "")):
+        g = groups[htype]
+        if set(g) != {"force", "distance"}:
+            continue
+        test = weibull_lr_test(g)
+        ff, fd = weibull_fit(*g["force"]), weibull_fit(*g["distance"])
+        rows.append({"hose_type": htype, "n_force": len(g["force"][0]), "n_failed_force": int(g["force"][1].sum()),
+                     "n_distance": len(g["distance"][0]), "n_failed_distance": int(g["distance"][1].sum()),
+                     "shape_force": ff.shape, "scale_force_km": ff.scale, "shape_distance": fd.shape,
+                     "scale_distance_km": fd.scale, "lr": test["lr"], "df": test["df"], "p_value": test["p_value"]})
+    return pd.DataFrame(rows, columns=TEST_COLUMNS)
+
+
+def leak_growth(ctx: StageContext, life: pd.DataFrame, runs_df: pd.DataFrame, matched: pd.Series) -> pd.DataFrame:
+    """Leakage plateaus of runs naming a hose, at that hose's distance when the run started."""
+    leak = ctx.results.get("leakage_map")
+    if leak is None or len(leak) == 0 or "hose_id" not in leak:
+        return pd.DataFrame(columns=LEAK_COLUMNS)
+    leak = leak[leak["hose_id"].notna() & (leak["hose_id"].astype(str) != "")]
+    if leak.empty:
+        return pd.DataFrame(columns=LEAK_COLUMNS)
+    lruns = ctx.runs_of("leakage")
+    started = dict(zip(lruns["run_id"], pd.to_datetime(lruns["started_at"], utc=True))) if len(lruns) else {}
+    mine = runs_df.assign(_hose=matched.values) if len(runs_df) else runs_df.assign(_hose=[])
+    status = dict(zip(life["hose_id"], life["status"]))
+    adj_of = dict(zip(life["hose_id"], life["adjustment"]))
+    rows = []
+    for r in leak.to_dict("records"):
+        hid = str(r["hose_id"])
+        when = started.get(r["run_id"])
+        if when is None or pd.isna(when):
+            continue
+        dist = hose_distance_at(mine[mine["_hose"] == hid], when) if len(mine) else 0.0
+        rows.append({"hose_id": hid, "run_id": r["run_id"], "started_at": when, "distance_km": dist,
+                     "adjustment": r.get("adjustment") or adj_of.get(hid), "chamber": r.get("chamber"),
+                     "pressure_bar": r.get("pressure_bar"), "leak_l_min": r.get("leak_l_min"),
+                     "hose_status": status.get(hid)})
+    df = pd.DataFrame(rows, columns=LEAK_COLUMNS)
+    df["started_at"] = pd.to_datetime(df["started_at"], utc=True)
+    return df.sort_values(["hose_id", "distance_km", "run_id", "chamber", "pressure_bar"], ignore_index=True)
+
+
+def _leak_plot_points(df: pd.DataFrame) -> pd.DataFrame:
+    """One point per (hose, run): the leak at the highest pressure level each hose was tested at."""
+    d = df.dropna(subset=["leak_l_min", "pressure_bar"]).copy()
+    if d.empty:
+        return d
+    d["_p"] = d["pressure_bar"].round(0)
+    top = d.groupby("hose_id")["_p"].transform("max")
+    d = d[d["_p"] == top]
+    return d.groupby(["hose_id", "run_id"], as_index=False).agg(
+        distance_km=("distance_km", "first"), leak_l_min=("leak_l_min", "mean"), adjustment=("adjustment", "first"),
+        pressure_bar=("pressure_bar", "mean"))
+
+
+def run(ctx: StageContext) -> StageOutput:
+    out = StageOutput()
+    runs_df, strokes_df = durability_runs(ctx, out)
+    events, problems = read_logbooks(ctx.raw)
+    hoses, merge_problems = merge_logbooks(events)
+    out.problems += problems + merge_problems
+    life, run_warnings = hose_life(hoses, runs_df)
+    for rid, ws in run_warnings.items():
+        for w in ws:
+            out.warn(rid, f"durability: {w}")
+    matched, _ = match_runs(hoses, runs_df) if len(runs_df) else (pd.Series([], dtype=object), {})
+    out.tables["durability_runs"] = runs_df
+    out.tables["durability_strokes"] = strokes_df
+    out.tables["hose_life"] = life
+    out.tables["service_life"] = service_life(life)
+    out.tables["hose_survival"] = hose_survival(life)
+    out.tables["service_life_test"] = service_life_test(life)
+    growth = leak_growth(ctx, life, runs_df, matched)
+    out.tables["hose_leak_growth"] = growth
+
+    groups = {f"{t or '?'} / {a or '?'}": (x, f) for (t, a), x, f in _groups(life, ("hose_type", "adjustment"))}
+    if groups:
+        out.figures["weibull_probability"] = plot_weibull_probability(groups)
+        out.captions["weibull_probability"] = ("Weibull probability plot of hose life per hose type / roller "
+                                               "adjustment; | marks suspensions (removed or running hoses).")
+        out.figures["kaplan_meier"] = plot_kaplan_meier(groups)
+        out.captions["kaplan_meier"] = "Kaplan-Meier survival of hoses vs distance, force- vs distance-set rollers."
+    if len(life):
+        out.figures["hose_distance"] = plot_hose_distances(life)
+        out.captions["hose_distance"] = "Distance per hose, coloured by status (failed / removed / running)."
+    pts = _leak_plot_points(growth) if len(growth) else growth
+    if len(pts):
+        out.figures["leak_growth"] = plot_leak_growth(pts)
+        out.captions["leak_growth"] = ("Leak vs hose distance at the time of each leakage run (highest pressure "
+                                       "level per hose): the wall-thinning signature.")
+    return out
