@@ -294,7 +294,7 @@ def force_rate_slope(breakaway: pd.DataFrame, direction: str | None = None, conf
     out = {"estimate": None, "ci_low": None, "ci_high": None, "n": int(len(df)), "p_value": None}
     if df.empty or df["force_rate_n_s"].nunique() < 2:
         return out
-    groups = pd.factorize(list(zip(df["direction"], df["backpressure_bar"])), sort=True)[0]
+    groups = df.groupby(["direction", "backpressure_bar"], sort=True).ngroup().to_numpy()
     ng = groups.max() + 1
     X = np.zeros((len(df), ng + 1))
     X[np.arange(len(df)), groups] = 1.0

@@ -496,7 +496,7 @@ def plot_viscous(points: pd.DataFrame, fits: pd.DataFrame | None = None):
     ax.axhline(0, color="0.6", lw=0.6)
     ax.axvline(0, color="0.6", lw=0.6)
     ax.set_xlabel("velocity [m/s]")
-    ax.set_ylabel("friction force (p_A - p_B) A [N]")
+    ax.set_ylabel("friction force (drive force at constant v) [N]")
     ax.set_title("Viscous friction at different backpressures (lines: Coulomb + viscous fits)")
     ax.grid(True, alpha=0.3)
     if bps:
@@ -538,7 +538,7 @@ def plot_near_zero(points: pd.DataFrame, transition: pd.DataFrame | None = None,
     ax.axhline(0, color="0.6", lw=0.6)
     ax.axvline(0, color="0.6", lw=0.6)
     ax.set_xlabel("velocity [mm/s]")
-    ax.set_ylabel("friction force (p_A - p_B) A [N]")
+    ax.set_ylabel("friction force (drive force at constant v) [N]")
     ax.set_title("Friction around zero velocity")
     ax.grid(True, alpha=0.3)
     if bps:

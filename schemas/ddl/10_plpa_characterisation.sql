@@ -1,4 +1,5 @@
 -- PLPA characterisation: leakage maps, static breakaway, viscous friction (seed 000, section 3).
+-- Contract tables (warehouse.md) first; columns after the contract ones are extras of this project.
 
 CREATE TABLE leakage_map (
     run_id          VARCHAR NOT NULL,
@@ -8,7 +9,12 @@ CREATE TABLE leakage_map (
     z_rollers_mm    DOUBLE,
     spring_force_n  DOUBLE,
     pressure_bar    DOUBLE,               -- plateau mean, gauge
-    leak_l_min      DOUBLE                -- plateau mean, l/min ANR
+    leak_l_min      DOUBLE,               -- plateau mean, l/min ANR
+    plateau         BIGINT,               -- 0, 1, ... in time order within the run
+    t_start_s       DOUBLE,               -- steady part used (transients excluded)
+    t_end_s         DOUBLE,
+    n_samples       BIGINT,
+    leak_std_l_min  DOUBLE                -- sample scatter of the leak over the plateau
 );
 
 CREATE TABLE breakaway (
@@ -16,7 +22,9 @@ CREATE TABLE breakaway (
     direction         VARCHAR,            -- P / N
     backpressure_bar  DOUBLE,
     force_rate_n_s    DOUBLE,
-    breakaway_force_n DOUBLE              -- NULL when the carriage never moved
+    breakaway_force_n DOUBLE,             -- magnitude; NULL when the carriage never moved
+    onset_t_s         DOUBLE,             -- detected motion onset (last sample before breakaway)
+    measured_rate_n_s DOUBLE              -- slope of the drive force before the onset
 );
 
 CREATE TABLE breakaway_summary (
@@ -32,14 +40,73 @@ CREATE TABLE viscous_points (
     run_id            VARCHAR NOT NULL,
     backpressure_bar  DOUBLE,
     velocity_m_s      DOUBLE,             -- signed
-    friction_n        DOUBLE              -- signed
+    friction_n        DOUBLE,             -- signed
+    direction         VARCHAR,            -- P (v > 0) / N (v < 0)
+    pass_index        BIGINT,
+    t_start_s         DOUBLE,
+    t_end_s           DOUBLE,
+    n_samples         BIGINT,
+    friction_std_n    DOUBLE,
+    accel_m_s2        DOUBLE,             -- residual acceleration over the pass (diagnostic)
+    force_source      VARCHAR             -- 'f' (load cell) or 'pressures' ((p_a - p_b) A)
 );
 
 CREATE TABLE viscous_fits (
     backpressure_bar  DOUBLE,
     direction         VARCHAR,            -- P / N
-    coulomb_n         DOUBLE,
+    coulomb_n         DOUBLE,             -- magnitude for both directions
     viscous_n_s_m     DOUBLE,
     nrmse_pct         DOUBLE,
-    n_points          BIGINT
+    n_points          BIGINT,
+    coulomb_se_n      DOUBLE,
+    viscous_se_n_s_m  DOUBLE,
+    min_speed_m_s     DOUBLE              -- slower points left out of the fit
+);
+
+-- Seal envelope per roller setting: highest tested pressure with leak below threshold.
+CREATE TABLE seal_envelope (
+    hose_id           VARCHAR,
+    chamber           VARCHAR,
+    adjustment        VARCHAR,
+    z_rollers_mm      DOUBLE,
+    spring_force_n    DOUBLE,
+    spring_force_pct  DOUBLE,             -- of 1300 N
+    threshold_l_min   DOUBLE,
+    sealed_up_to_bar  DOUBLE,             -- NULL: leaking from the lowest tested pressure
+    first_leak_bar    DOUBLE,             -- NULL: no tested pressure leaks
+    max_tested_bar    DOUBLE,
+    sealed_at_max     BOOLEAN,
+    max_leak_l_min    DOUBLE,
+    n_pressures       BIGINT
+);
+
+-- Section 3.2.1 findings as numbers: backpressure_ratio (0 bar / >= 1 bar) and
+-- force_rate_slope [N per N/s], per direction P, N and all.
+CREATE TABLE breakaway_findings (
+    finding           VARCHAR,
+    direction         VARCHAR,
+    estimate          DOUBLE,
+    ci_low            DOUBLE,
+    ci_high           DOUBLE,
+    confidence        DOUBLE,
+    p_value           DOUBLE,
+    n                 BIGINT,
+    unit              VARCHAR,
+    significant       BOOLEAN
+);
+
+-- Near-zero friction per backpressure: tanh transition velocity and the Stribeck test.
+CREATE TABLE viscous_transition (
+    backpressure_bar          DOUBLE,
+    coulomb_n                 DOUBLE,
+    viscous_n_s_m             DOUBLE,
+    transition_velocity_mm_s  DOUBLE,
+    transition_ci_low_mm_s    DOUBLE,
+    transition_ci_high_mm_s   DOUBLE,
+    nrmse_pct                 DOUBLE,
+    n_points                  BIGINT,
+    stribeck_amplitude_n      DOUBLE,
+    stribeck_velocity_mm_s    DOUBLE,
+    stribeck_p_value          DOUBLE,
+    stribeck_dip              BOOLEAN
 );

@@ -1,0 +1,210 @@
+"""Stage: PLPA characterisation (seed 000, section 3): leakage maps, static breakaway, viscous friction.
+
+Tables (``schemas/ddl/10_plpa_characterisation.sql``):
+
+- ``leakage_map``: one row per pressure plateau of a leakage run (+ plateau timing and scatter);
+- ``seal_envelope``: per roller setting, the highest tested pressure with leak below threshold;
+- ``breakaway``: one row per breakaway run (force NULL when the carriage never moved);
+- ``breakaway_summary``: mean and std per (direction, backpressure, force rate);
+- ``breakaway_findings``: the backpressure ratio and the force-rate slope with their CIs;
+- ``viscous_points``: one row per constant-velocity pass;
+- ``viscous_fits``: Coulomb + viscous per (backpressure, direction);
+- ``viscous_transition``: near-zero tanh transition velocity and Stribeck test per backpressure.
+
+A run that cannot be analysed gives no plateau / pass rows (leakage, viscous) or a NULL force
+(breakaway), and a warning on the run; never an exception.
+"""
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pandas as pd
+import pyarrow.parquet as pq
+
+from analyses import breakaway as bk
+from analyses import leakage as lk
+from analyses import viscous_friction as vf
+from pipeline.stages import StageContext, StageOutput
+
+NAME = "plpa_characterisation"
+ORDER = 10
+KINDS = ("leakage", "breakaway", "viscous")
+TABLES = ("leakage_map", "seal_envelope", "breakaway", "breakaway_summary", "breakaway_findings",
+          "viscous_points", "viscous_fits", "viscous_transition")
+
+#: Seal-envelope leak threshold; a run or rig.toml may not override it (it is a lab-wide choice). [l/min ANR]
+LEAK_THRESHOLD_L_MIN = lk.LEAK_THRESHOLD_L_MIN
+#: Confidence level of the breakaway findings.
+CONFIDENCE = 0.95
+
+LEAKAGE_COLS = ["run_id", "hose_id", "chamber", "adjustment", "z_rollers_mm", "spring_force_n", "pressure_bar",
+                "leak_l_min", "plateau", "t_start_s", "t_end_s", "n_samples", "leak_std_l_min"]
+BREAKAWAY_COLS = ["run_id", "direction", "backpressure_bar", "force_rate_n_s", "breakaway_force_n", "onset_t_s",
+                  "measured_rate_n_s"]
+VISCOUS_COLS = ["run_id", "backpressure_bar", "velocity_m_s", "friction_n", "direction", "pass_index",
+                "t_start_s", "t_end_s", "n_samples", "friction_std_n", "accel_m_s2", "force_source"]
+
+
+def _num(value):
+    """A metadata value as float, or None."""
+    try:
+        out = float(value)
+    except (TypeError, ValueError):
+        return None
+    return out if math.isfinite(out) else None
+
+
+def _read(path: str, columns=None) -> pd.DataFrame:
+    table = pq.read_table(path)
+    if "run_id" in table.column_names:
+        table = table.drop(["run_id"])
+    if columns is not None:
+        table = table.select([c for c in columns if c in table.column_names])
+    return table.to_pandas()
+
+
+def analyse_run(item: tuple) -> dict:
+    """Analyse one run (module level, picklable, for ``ctx.map``).
+
+    Parameters
+    ----------
+    item : tuple
+        ``(kind, run_id, samples_path, params)``.
+
+    Returns
+    -------
+    dict
+        ``kind``, ``run_id``, ``rows`` (rows for the kind's table), ``warnings`` (list of str).
+    """
+    kind, run_id, path, params = item
+    try:
+        if kind == "leakage":
+            rows, warns = _leakage(run_id, path, params)
+        elif kind == "breakaway":
+            rows, warns = _breakaway(run_id, path, params)
+        else:
+            rows, warns = _viscous(run_id, path, params)
+    except Exception as exc:  # an unforeseen input: NULLs and a warning, never a failed rebuild
+        rows = [{"run_id": run_id, "direction": params.get("direction"),
+                 "backpressure_bar": _num(params.get("backpressure_bar")),
+                 "force_rate_n_s": _num(params.get("force_rate_n_s")), "breakaway_force_n": None}] \
+            if kind == "breakaway" else []
+        warns = [f"{NAME}: {kind} analysis failed: {type(exc).__name__}: {exc}"]
+    return {"kind": kind, "run_id": run_id, "rows": rows, "warnings": warns}
+
+
+def _leakage(run_id, path, params):
+    df = _read(path, ["t_s", "p_supply_pa", "q_leak_kg_s"])
+    if not {"t_s", "p_supply_pa", "q_leak_kg_s"} <= set(df.columns):
+        return [], [f"{NAME}: leakage run lacks p_supply or q_leak; no plateaus"]
+    plat = lk.leakage_plateaus(df["t_s"], df["p_supply_pa"], df["q_leak_kg_s"])
+    if plat.empty:
+        return [], [f"{NAME}: no steady pressure plateau found in the leakage run"]
+    setting = {"run_id": run_id, "hose_id": params.get("hose_id"), "chamber": params.get("chamber"),
+               "adjustment": params.get("adjustment"), "z_rollers_mm": _num(params.get("z_rollers_mm")),
+               "spring_force_n": _num(params.get("spring_force_n"))}
+    return [{**setting, **r} for r in plat.to_dict("records")], []
+
+
+def _breakaway(run_id, path, params):
+    row = {"run_id": run_id, "direction": params.get("direction"),
+           "backpressure_bar": _num(params.get("backpressure_bar")),
+           "force_rate_n_s": _num(params.get("force_rate_n_s")), "breakaway_force_n": None,
+           "onset_t_s": None, "measured_rate_n_s": None}
+    area = _num(params.get("hose_area_m2"))
+    if row["direction"] not in ("P", "N"):
+        return [row], [f"{NAME}: breakaway run without direction P/N; no breakaway force"]
+    if area is None or area <= 0:
+        return [row], [f"{NAME}: breakaway run without a valid hose_area_m2; no breakaway force"]
+    df = _read(path, ["t_s", "x_m", "p_a_pa", "p_b_pa"])
+    if not {"t_s", "x_m", "p_a_pa", "p_b_pa"} <= set(df.columns):
+        return [row], [f"{NAME}: breakaway run lacks x, p_a or p_b; no breakaway force"]
+    res = bk.breakaway_force(df["t_s"], df["x_m"], df["p_a_pa"], df["p_b_pa"], area, row["direction"])
+    row.update({k: res[k] for k in ("breakaway_force_n", "onset_t_s", "measured_rate_n_s")})
+    return [row], ([f"{NAME}: {res['warning']}"] if res["warning"] else [])
+
+
+def _viscous(run_id, path, params):
+    df = _read(path, ["t_s", "x_m", "p_a_pa", "p_b_pa", "f_n"])
+    if not {"t_s", "x_m"} <= set(df.columns):
+        return [], [f"{NAME}: viscous run lacks t or x; no passes"]
+    try:
+        force = vf.friction_from_run(df, _num(params.get("hose_area_m2")))
+    except ValueError as exc:
+        return [], [f"{NAME}: viscous run: {exc}; no passes"]
+    source = "f" if "f_n" in df.columns and df["f_n"].notna().any() else "pressures"
+    pts = vf.viscous_points(df["t_s"], df["x_m"], force)
+    if pts.empty:
+        return [], [f"{NAME}: no constant-velocity pass found in the viscous run"]
+    bp = _num(params.get("backpressure_bar"))
+    return [{"run_id": run_id, "backpressure_bar": bp, "force_source": source, **r}
+            for r in pts.to_dict("records")], []
+
+
+def _frame(rows: list[dict], cols: list[str]) -> pd.DataFrame:
+    df = pd.DataFrame(rows, columns=cols)
+    for c in ("n_samples", "plateau", "pass_index"):
+        if c in df.columns:
+            df[c] = df[c].astype("Int64")
+    return df
+
+
+def _params(value) -> dict:
+    if isinstance(value, dict):
+        return value
+    if isinstance(value, str):
+        try:
+            return json.loads(value)
+        except ValueError:
+            return {}
+    return {}
+
+
+def run(ctx: StageContext) -> StageOutput:
+    """Analyse every leakage, breakaway and viscous run; tables and Figs. 9, 10, 12, 13, 14."""
+    out = StageOutput()
+    runs = ctx.runs_of(*KINDS)
+    items = []
+    if not runs.empty:
+        for r in runs.itertuples(index=False):
+            items.append((r.kind, r.run_id, str(ctx.samples_file(r.run_id)), _params(r.params)))
+    results = ctx.map(analyse_run, items, label=NAME) if items else []
+    rows = {k: [] for k in KINDS}
+    for res in results:
+        rows[res["kind"]] += res["rows"]
+        for w in res["warnings"]:
+            out.warn(res["run_id"], w)
+
+    leak = _frame(rows["leakage"], LEAKAGE_COLS)
+    env = lk.seal_envelope(leak, LEAK_THRESHOLD_L_MIN)
+    brk = _frame(rows["breakaway"], BREAKAWAY_COLS)
+    summ = bk.breakaway_summary(brk)
+    findings = bk.breakaway_findings(brk, CONFIDENCE)
+    pts = _frame(rows["viscous"], VISCOUS_COLS)
+    fits = vf.viscous_fits(pts)
+    trans = vf.viscous_transition(pts)
+    out.tables = {"leakage_map": leak, "seal_envelope": env, "breakaway": brk, "breakaway_summary": summ,
+                  "breakaway_findings": findings, "viscous_points": pts, "viscous_fits": fits,
+                  "viscous_transition": trans}
+
+    for adj, name, fig_no in (("distance", "leakage_distance", 9), ("force", "leakage_force", 10)):
+        if not leak.empty and (leak["adjustment"] == adj).any():
+            out.figures[name] = lk.plot_leakage_map(leak, adj, LEAK_THRESHOLD_L_MIN)
+            out.captions[name] = (f"Leak vs pressure with {adj} adjustment, one curve per setting, one panel "
+                                  f"per chamber (seed 000, Fig. {fig_no}); dashed: seal threshold "
+                                  f"{LEAK_THRESHOLD_L_MIN:g} l/min ANR.")
+    if brk["breakaway_force_n"].notna().any():
+        out.figures["breakaway"] = bk.plot_breakaway(brk)
+        out.captions["breakaway"] = ("Breakaway force vs backpressure, one series per force rate, directions P "
+                                     "and N (seed 000, Fig. 12); mean +/- std.")
+    if not pts.empty:
+        out.figures["viscous"] = vf.plot_viscous(pts, fits)
+        out.captions["viscous"] = ("Friction vs velocity per backpressure with Coulomb + viscous fits "
+                                   "(seed 000, Fig. 13).")
+        if (pts["velocity_m_s"].abs() <= vf.NEAR_ZERO_MAX_M_S).any():
+            out.figures["viscous_near_zero"] = vf.plot_near_zero(pts, trans)
+            out.captions["viscous_near_zero"] = ("Friction around zero velocity with the tanh fit "
+                                                 "(seed 000, Fig. 14).")
+    return out
