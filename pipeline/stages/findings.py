@@ -1,0 +1,371 @@
+"""Stage: the conclusions of the two seed papers, checked on the lab's latest data.
+
+One row per finding in the ``findings`` table (``schemas/ddl/95_findings.sql``): the measured
+value, its standard uncertainty, the criterion, and whether it holds (NULL and "no data" when
+nothing measures it). The numbers come from the tables of the earlier stages (``ctx.results``):
+their own statistics are reused (``breakaway_findings``, ``seal_envelope``,
+``viscous_transition``, the standard errors of ``viscous_fits``); only when such a table is
+missing is it derived here from the contract tables with the same ``analyses`` functions.
+
+The rebuild adds ``previous_holds`` and ``change`` by comparing with the previous warehouse; the
+morning report puts an overturned finding first.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+from pipeline.stages import StageContext, StageOutput
+
+NAME = "findings"
+ORDER = 90
+KINDS: tuple[str, ...] = ()
+TABLES = ("findings",)
+
+PLPA = "PLPA: Carneiro et al., Information 11(2):76, 2020"
+PLA = "PLA: Palomares et al., Mechatronics 45, 2017"
+
+#: Spring force of the PLPA rollers at 100 % [N] (physics.md).
+SPRING_FORCE_MAX_N = 1300.0
+#: "About twice": the 0 bar / >= 1 bar breakaway ratio must lie in this band.
+RATIO_BAND = (1.5, 2.5)
+#: Significance level of the "no effect" tests.
+ALPHA = 0.05
+#: An effect smaller than this fraction of the quantity counts as none, whatever the p-value.
+NEGLIGIBLE = 0.10
+#: Spring-test NRMSE bound of Table 3 of seed 001 [%].
+NRMSE_MAX_PCT = 2.5
+#: Tolerance on a tested (plateau) pressure [bar].
+PRESSURE_TOL_BAR = 0.25
+
+COLUMNS = ["finding_id", "ord", "paper", "statement", "measured", "uncertainty", "unit", "criterion", "holds",
+           "n", "p_value", "detail", "source_tables"]
+
+
+def _f(x):
+    """A finite float or None."""
+    try:
+        x = float(x)
+    except (TypeError, ValueError):
+        return None
+    return x if math.isfinite(x) else None
+
+
+def _table(ctx: StageContext, name: str) -> pd.DataFrame | None:
+    df = ctx.results.get(name)
+    return df if df is not None and not df.empty else None
+
+
+def _row(fid, statement, paper, unit, criterion, source, measured=None, uncertainty=None, holds=None, n=0,
+         p_value=None, detail="no data") -> dict:
+    return {"finding_id": fid, "paper": paper, "statement": statement, "measured": _f(measured),
+            "uncertainty": _f(uncertainty), "unit": unit, "criterion": criterion,
+            "holds": None if holds is None else bool(holds), "n": int(n or 0), "p_value": _f(p_value),
+            "detail": detail, "source_tables": source}
+
+
+# -- breakaway (seed 000, section 3.2.1) -------------------------------------------------------------
+def _breakaway_stat(ctx: StageContext, finding: str) -> tuple[dict | None, str]:
+    """The ``all``-directions row of ``breakaway_findings`` (or the same statistic from ``breakaway``)."""
+    bf = _table(ctx, "breakaway_findings")
+    if bf is not None and "finding" in bf.columns:
+        sel = bf[(bf["finding"] == finding) & (bf["direction"].astype(str) == "all")]
+        if not sel.empty:
+            return sel.iloc[0].to_dict(), "breakaway_findings"
+    events = _table(ctx, "breakaway")
+    if events is None:
+        return None, "breakaway"
+    from analyses import breakaway as bk
+    func = bk.backpressure_ratio if finding == "backpressure_ratio" else bk.force_rate_slope
+    r = func(events, None, 0.95)
+    return {**r, "confidence": 0.95}, "breakaway"
+
+
+def _std_from_ci(r: dict, log: bool = False) -> float | None:
+    lo, hi, est, conf = _f(r.get("ci_low")), _f(r.get("ci_high")), _f(r.get("estimate")), _f(r.get("confidence"))
+    if lo is None or hi is None or est is None:
+        return None
+    z = stats.norm.ppf(0.5 + (conf or 0.95) / 2)
+    if log and lo > 0 and hi > 0:
+        return est * (math.log(hi) - math.log(lo)) / (2 * z)
+    return (hi - lo) / (2 * z)
+
+
+def breakaway_ratio(ctx: StageContext) -> dict:
+    lo, hi = RATIO_BAND
+    args = ("breakaway_0bar_twice", "Breakaway force at 0 bar backpressure is about twice that at >= 1 bar",
+            PLPA, "1", f"ratio of means within {lo:g}-{hi:g}")
+    r, source = _breakaway_stat(ctx, "backpressure_ratio")
+    if r is None or _f(r.get("estimate")) is None:
+        return _row(*args, source)
+    est = _f(r["estimate"])
+    ci = (f"{100 * (_f(r.get('confidence')) or 0.95):.0f} % CI {_f(r.get('ci_low')):.3g}-{_f(r.get('ci_high')):.3g}"
+          if _f(r.get("ci_low")) is not None else "no CI")
+    return _row(*args, source, est, _std_from_ci(r, log=True), lo <= est <= hi, r.get("n"), r.get("p_value"),
+                f"mean breakaway force at 0 bar / mean at >= 1 bar, both directions; {ci}")
+
+
+def breakaway_rate(ctx: StageContext) -> dict:
+    args = ("breakaway_rate_no_effect", "The force rate has no effect on the breakaway force", PLPA, "N/(N/s)",
+            f"slope not significant (p >= {ALPHA:g}) or its effect over the tested rates < "
+            f"{100 * NEGLIGIBLE:.0f} % of the mean force")
+    r, source = _breakaway_stat(ctx, "force_rate_slope")
+    if r is None or _f(r.get("estimate")) is None:
+        return _row(*args, source)
+    slope, p = _f(r["estimate"]), _f(r.get("p_value"))
+    events = _table(ctx, "breakaway")
+    effect_ok, extra = False, ""
+    if events is not None:
+        ev = events.dropna(subset=["breakaway_force_n", "force_rate_n_s"])
+        if not ev.empty:
+            span = float(ev["force_rate_n_s"].max() - ev["force_rate_n_s"].min())
+            mean = float(ev["breakaway_force_n"].abs().mean())
+            effect = abs(slope) * span
+            effect_ok = mean > 0 and effect < NEGLIGIBLE * mean
+            extra = f"; effect over {span:g} N/s of rate: {effect:.3g} N vs mean force {mean:.3g} N"
+    holds = (p is not None and p >= ALPHA) or effect_ok
+    return _row(*args, source, slope, _std_from_ci(r), holds, r.get("n"), p,
+                "common slope of breakaway force on force rate, one intercept per direction and backpressure"
+                + extra)
+
+
+# -- leakage (seed 000, section 3.1) -------------------------------------------------------------------
+def leak_free(ctx: StageContext, pct: float, up_to_bar: float) -> dict:
+    from analyses.leakage import LEAK_THRESHOLD_L_MIN as threshold
+
+    args = (f"no_leak_{int(pct)}pct_{int(up_to_bar)}bar",
+            f"No leak up to {up_to_bar:g} bar with the rollers set to >= {pct:g} % spring force", PLPA, "l/min",
+            f"largest plateau leak up to {up_to_bar:g} bar below {threshold:g} l/min (ANR)")
+    lm = _table(ctx, "leakage_map")
+    if lm is None or "spring_force_n" not in lm.columns:
+        return _row(*args, "leakage_map")
+    force = pd.to_numeric(lm["spring_force_n"], errors="coerce")
+    adj = lm["adjustment"].astype(str) if "adjustment" in lm.columns else pd.Series("force", index=lm.index)
+    sel = lm[(adj == "force") & (force >= pct / 100 * SPRING_FORCE_MAX_N - 1.0)].dropna(subset=["pressure_bar", "leak_l_min"])
+    if sel.empty:
+        return _row(*args, "leakage_map", detail=f"no data: no leakage run at >= {pct:g} % spring force")
+    if sel["pressure_bar"].max() < up_to_bar - PRESSURE_TOL_BAR:
+        return _row(*args, "leakage_map", n=len(sel),
+                    detail=f"no data: runs at >= {pct:g} % spring force were tested only up to "
+                           f"{sel['pressure_bar'].max():.2f} bar")
+    low = sel[sel["pressure_bar"] <= up_to_bar + PRESSURE_TOL_BAR]
+    i = low["leak_l_min"].idxmax()
+    worst = low.loc[i]
+    unc = _f(worst.get("leak_std_l_min")) if "leak_std_l_min" in low.columns else None
+    detail = (f"{len(low)} plateaus of {low['run_id'].nunique()} runs; worst {worst['leak_l_min']:.3g} l/min at "
+              f"{worst['pressure_bar']:.2f} bar ({worst['spring_force_n']:g} N, run {worst['run_id']})")
+    env = _table(ctx, "seal_envelope")
+    source = "leakage_map"
+    if env is not None and "spring_force_pct" in env.columns:
+        e = env[pd.to_numeric(env["spring_force_pct"], errors="coerce") >= pct - 0.1]
+        if not e.empty:
+            sealed = pd.to_numeric(e["sealed_up_to_bar"], errors="coerce").fillna(0.0)
+            detail += f"; seal envelope: sealed up to >= {sealed.min():.2f} bar in every such setting"
+            source = "leakage_map, seal_envelope"
+    return _row(*args, source, worst["leak_l_min"], unc, float(worst["leak_l_min"]) < threshold, len(low),
+                None, detail)
+
+
+# -- viscous friction (seed 000, section 3.2.2) ------------------------------------------------------------
+def viscous_backpressure(ctx: StageContext) -> dict:
+    args = ("viscous_independent_of_backpressure_1_3bar",
+            "Viscous friction does not depend on the backpressure between 1 and 3 bar", PLPA, "%",
+            f"viscous coefficients homogeneous (chi-square p >= {ALPHA:g}) or spread < {100 * NEGLIGIBLE:.0f} % "
+            "of their mean")
+    vf = _table(ctx, "viscous_fits")
+    if vf is None:
+        return _row(*args, "viscous_fits")
+    bp = pd.to_numeric(vf["backpressure_bar"], errors="coerce")
+    sel = vf[(bp >= 1 - 0.05) & (bp <= 3 + 0.05)].dropna(subset=["viscous_n_s_m"])
+    if sel["backpressure_bar"].nunique() < 2:
+        return _row(*args, "viscous_fits", n=len(sel),
+                    detail="no data: fewer than two backpressures between 1 and 3 bar")
+    spreads, uncs, chi2, dof, parts = [], [], 0.0, 0, []
+    has_se = "viscous_se_n_s_m" in sel.columns and sel["viscous_se_n_s_m"].notna().all()
+    for d, g in sel.groupby("direction", sort=True):
+        k = g["viscous_n_s_m"].to_numpy(float)
+        if k.size < 2:
+            continue
+        mean = float(np.mean(k))
+        spreads.append(100 * (k.max() - k.min()) / abs(mean))
+        if has_se:
+            se = g["viscous_se_n_s_m"].to_numpy(float)
+            w = 1 / np.maximum(se, 1e-12) ** 2
+            kw = float(np.sum(w * k) / np.sum(w))
+            chi2 += float(np.sum(w * (k - kw) ** 2))
+            dof += k.size - 1
+            uncs.append(100 * math.sqrt(se[np.argmax(k)] ** 2 + se[np.argmin(k)] ** 2) / abs(mean))
+        else:
+            uncs.append(100 * float(np.std(k, ddof=1)) / abs(mean))
+        parts.append(f"{d}: {', '.join(f'{v:.3g}' for v in k)} N s/m")
+    if not spreads:
+        return _row(*args, "viscous_fits", n=len(sel), detail="no data: one backpressure per direction")
+    i = int(np.argmax(spreads))
+    p = float(stats.chi2.sf(chi2, dof)) if has_se and dof > 0 else None
+    holds = (p is not None and p >= ALPHA) or spreads[i] < 100 * NEGLIGIBLE
+    return _row(*args, "viscous_fits", spreads[i], uncs[i], holds, int(sel["n_points"].sum()) if "n_points" in sel else len(sel),
+                p, "largest spread (max - min) / mean of the viscous coefficient across 1-3 bar, per direction; "
+                + "; ".join(parts))
+
+
+def stribeck(ctx: StageContext) -> dict:
+    args = ("no_stribeck_dip", "No Stribeck dip: friction falls steeply but monotonically near zero velocity", PLPA,
+            "N", "no backpressure shows a significant Stribeck term")
+    vt = _table(ctx, "viscous_transition")
+    source = "viscous_transition"
+    if vt is None:
+        pts = _table(ctx, "viscous_points")
+        if pts is None:
+            return _row(*args, "viscous_transition")
+        from analyses import viscous_friction as vfr
+        vt = vfr.viscous_transition(pts)
+        source = "viscous_points"
+        if vt.empty:
+            return _row(*args, source, detail="no data: no near-zero velocity passes on both sides of zero")
+    vt = vt.dropna(subset=["stribeck_dip"])
+    if vt.empty:
+        return _row(*args, source, detail="no data: too few near-zero velocity points for the test")
+    amp = pd.to_numeric(vt["stribeck_amplitude_n"], errors="coerce")
+    i = amp.idxmax()
+    dips = vt[vt["stribeck_dip"].astype(bool)]
+    p = pd.to_numeric(vt["stribeck_p_value"], errors="coerce").min()
+    detail = (f"largest fitted Stribeck amplitude {amp[i]:.3g} N at {vt.loc[i, 'backpressure_bar']:g} bar; "
+              f"{len(dips)} of {len(vt)} backpressures with a significant dip")
+    return _row(*args, source, amp[i], None, dips.empty, int(pd.to_numeric(vt["n_points"], errors="coerce").sum()),
+                p, detail)
+
+
+# -- PLA spring model (seed 001, Table 3) -----------------------------------------------------------------
+def spring_nrmse(ctx: StageContext) -> dict:
+    args = ("spring_nrmse_below_2_5pct", "The polytropic spring model fits every spring test with NRMSE below 2.5 %",
+            PLA, "%", f"largest NRMSE of the spring tests < {NRMSE_MAX_PCT:g} %")
+    st = _table(ctx, "spring_tests")
+    if st is None:
+        return _row(*args, "spring_tests")
+    v = pd.to_numeric(st["nrmse_pct"], errors="coerce").dropna()
+    if v.empty:
+        return _row(*args, "spring_tests", detail="no data: no spring test could be fitted")
+    above = int((v >= NRMSE_MAX_PCT).sum())
+    return _row(*args, "spring_tests", v.max(), None, above == 0, len(v), None,
+                f"{above} of {len(v)} tests at or above {NRMSE_MAX_PCT:g} %; median {v.median():.3g} %, "
+                f"range {v.min():.3g}-{v.max():.3g} %")
+
+
+# -- hose durability (seed 000's hypothesis) ------------------------------------------------------------------
+def _life_groups(hl: pd.DataFrame, hose_type=None) -> dict:
+    if hose_type is not None and "hose_type" in hl.columns:
+        hl = hl[hl["hose_type"].astype(str) == str(hose_type)]
+    groups = {}
+    for adj in ("force", "distance"):
+        g = hl[(hl["adjustment"].astype(str) == adj)].dropna(subset=["distance_km"])
+        groups[adj] = (g["distance_km"].to_numpy(float), (g["status"].astype(str) == "failed").to_numpy())
+    return groups
+
+
+def force_outlives_distance(ctx: StageContext) -> dict:
+    args = ("force_set_hoses_outlive_distance_set",
+            "Hoses with force-set rollers outlive hoses with distance-set rollers", PLPA, "1",
+            f"Weibull characteristic life force / distance > 1 and the lives differ (LR test p < {ALPHA:g}), "
+            "in every hose type tested both ways")
+    from analyses import service_life as sl
+
+    hl = _table(ctx, "hose_life")
+    test = _table(ctx, "service_life_test")
+    if test is not None and {"scale_force_km", "scale_distance_km", "p_value"} <= set(test.columns):
+        t = test.dropna(subset=["scale_force_km", "scale_distance_km"])
+        t = t[(t["scale_force_km"] > 0) & (t["scale_distance_km"] > 0)]
+        if not t.empty:
+            ratios = (t["scale_force_km"] / t["scale_distance_km"]).to_numpy(float)
+            i = int(np.argmin(ratios))
+            worst = t.iloc[i]
+            unc = None
+            if hl is not None and "adjustment" in hl.columns:
+                groups = _life_groups(hl, worst.get("hose_type"))
+                fits = {k: sl.weibull_fit(*v) for k, v in groups.items()}
+                if all(f.ok for f in fits.values()):
+                    unc = _ratio_uncertainty(groups, fits, ratios[i])
+            p = pd.to_numeric(t["p_value"], errors="coerce")
+            holds = bool((ratios > 1).all() and p.notna().all() and (p < ALPHA).all())
+            n = int(t[["n_force", "n_distance"]].to_numpy().sum()) if {"n_force", "n_distance"} <= set(t.columns) else 0
+            detail = "; ".join(
+                f"{r.get('hose_type')}: scale {r['scale_force_km']:.3g} km (force, {r.get('n_failed_force')}/"
+                f"{r.get('n_force')} failed) vs {r['scale_distance_km']:.3g} km (distance, "
+                f"{r.get('n_failed_distance')}/{r.get('n_distance')} failed), LR p = {_f(r['p_value']) or float('nan'):.3g}"
+                for _, r in t.iterrows())
+            return _row(*args, "service_life_test, hose_life", ratios[i], unc, holds, n, p.max(), detail)
+    if hl is None or "adjustment" not in hl.columns:
+        return _row(*args, "service_life_test, hose_life")
+    groups = _life_groups(hl)
+    n = sum(len(v[0]) for v in groups.values())
+    fails = {k: int(v[1].sum()) for k, v in groups.items()}
+    if min(fails.values()) < 2:
+        return _row(*args, "hose_life", n=n, detail=f"no data: fewer than two failures in a group "
+                                                     f"(force {fails['force']}, distance {fails['distance']})")
+    fits = {k: sl.weibull_fit(*v) for k, v in groups.items()}
+    if not all(f.ok for f in fits.values()):
+        return _row(*args, "hose_life", n=n, detail="no data: the Weibull fit did not converge")
+    ratio = fits["force"].scale / fits["distance"].scale
+    p = _f(sl.weibull_lr_test(groups).get("p_value"))
+    detail = (f"all hose types pooled: scale {fits['force'].scale:.3g} km (force, {fits['force'].n_failed}/"
+              f"{fits['force'].n} failed) vs {fits['distance'].scale:.3g} km (distance, {fits['distance'].n_failed}/"
+              f"{fits['distance'].n} failed)")
+    return _row(*args, "hose_life", ratio, _ratio_uncertainty(groups, fits, ratio),
+                ratio > 1 and p is not None and p < ALPHA, n, p, detail)
+
+
+def _ratio_uncertainty(groups, fits, ratio) -> float | None:
+    """Standard uncertainty of the scale ratio (delta method, observed information of each fit)."""
+    from analyses import service_life as sl
+
+    var = 0.0
+    for k, (x, f) in groups.items():
+        fit = fits[k]
+        lk, ls = math.log(fit.shape), math.log(fit.scale)
+        h = 1e-3
+
+        def ll(a, b):
+            return sl.weibull_loglik(math.exp(a), math.exp(b), x, f)
+
+        try:
+            f0 = ll(lk, ls)
+            haa = (ll(lk + h, ls) - 2 * f0 + ll(lk - h, ls)) / h**2
+            hbb = (ll(lk, ls + h) - 2 * f0 + ll(lk, ls - h)) / h**2
+            hab = (ll(lk + h, ls + h) - ll(lk + h, ls - h) - ll(lk - h, ls + h) + ll(lk - h, ls - h)) / (4 * h**2)
+            cov = np.linalg.inv(-np.array([[haa, hab], [hab, hbb]]))
+        except (np.linalg.LinAlgError, ValueError, OverflowError):
+            return None
+        if not np.isfinite(cov[1, 1]) or cov[1, 1] <= 0:
+            return None
+        var += float(cov[1, 1])
+    return ratio * math.sqrt(var)
+
+
+CHECKS = (
+    breakaway_ratio,
+    breakaway_rate,
+    lambda ctx: leak_free(ctx, 33, 5),
+    lambda ctx: leak_free(ctx, 66, 6),
+    viscous_backpressure,
+    stribeck,
+    spring_nrmse,
+    force_outlives_distance,
+)
+
+
+def run(ctx: StageContext) -> StageOutput:
+    rows = []
+    for i, check in enumerate(CHECKS):
+        try:
+            row = check(ctx)
+        except Exception as exc:  # a finding that cannot be computed is "no data", never a crash
+            row = _row(f"check_{i}", "(finding could not be computed)", "", "", "", "",
+                       detail=f"no data: {type(exc).__name__}: {exc}")
+        row["ord"] = i + 1
+        rows.append(row)
+    df = pd.DataFrame(rows, columns=COLUMNS)
+    df["holds"] = df["holds"].astype("boolean")
+    df["n"] = df["n"].astype("int64")
+    return StageOutput(tables={"findings": df})
