@@ -1,11 +1,16 @@
 -- Models: PLPA identification and step response (seed 000), PLA spring and pressure dynamics (seed 001).
+-- Filled by pipeline/stages/models.py. The first columns of each contract table are those of
+-- warehouse.md; the others are extras.
 
 CREATE TABLE identification (
     run_id            VARCHAR NOT NULL,
     wn_rad_s          DOUBLE,
     zeta              DOUBLE,
     k_lin_m_v_s       DOUBLE,
-    fit_pct           DOUBLE
+    fit_pct           DOUBLE,
+    kp_v_m            DOUBLE,              -- gain of the stabilising P controller (metadata)
+    id_sample_rate_hz DOUBLE,              -- rate the model was identified at
+    n_samples_id      BIGINT               -- samples at that rate
 );
 
 CREATE TABLE step_response (
@@ -14,7 +19,9 @@ CREATE TABLE step_response (
     overshoot_pct          DOUBLE,
     settling_time_s        DOUBLE,         -- 2 % band
     rise_time_s            DOUBLE,         -- 10-90 %
-    steady_state_error_mm  DOUBLE
+    steady_state_error_mm  DOUBLE,         -- signed in the step direction (+: short of the reference)
+    t_step_s               DOUBLE,         -- time of the reference jump in the run
+    settled                BOOLEAN         -- inside the 2 % band over the last 10 % of the step
 );
 
 CREATE TABLE spring_fits (
@@ -23,16 +30,35 @@ CREATE TABLE spring_fits (
     ae_m2             DOUBLE,
     epsilon_m2        DOUBLE,
     delta_n_m         DOUBLE,
-    n_tests           BIGINT
+    n_tests           BIGINT,
+    max_nrmse_pct     DOUBLE,              -- worst spring_tests.nrmse_pct of the chamber
+    seed_n_polytropic DOUBLE,              -- seeds of the fit (section 3.2 of seed 001)
+    seed_ae_m2        DOUBLE,
+    seed_epsilon_m2   DOUBLE,
+    seed_delta_n_m    DOUBLE
 );
 
 CREATE TABLE spring_tests (
     run_id            VARCHAR NOT NULL,
     chamber           VARCHAR,
-    p0_bar_abs        DOUBLE,
+    p0_bar_abs        DOUBLE,              -- read from the run: pressure at mid-stroke
     amplitude_mm      DOUBLE,
     frequency_hz      DOUBLE,
     nrmse_pct         DOUBLE
+);
+
+-- Energy dissipated per cycle (loop area) of each spring run: the paper's evidence for
+-- structural damping (grows with D^2) and against viscous damping (flat in f).
+CREATE TABLE spring_loop_energy (
+    run_id              VARCHAR NOT NULL,
+    chamber             VARCHAR,
+    p0_bar_abs          DOUBLE,
+    amplitude_mm        DOUBLE,
+    frequency_hz        DOUBLE,
+    n_cycles            BIGINT,
+    loop_energy_j       DOUBLE,            -- measured
+    model_loop_energy_j DOUBLE,            -- fitted model over the same displacement
+    structural_energy_j DOUBLE             -- pi delta D^2 of the fit
 );
 
 CREATE TABLE pressure_dynamics (
@@ -42,4 +68,15 @@ CREATE TABLE pressure_dynamics (
     zeta              DOUBLE,
     nrmse_pct         DOUBLE,
     n_steps           BIGINT
+);
+
+-- One row per set-point step of a pressure_step run, with the NRMSE of its (chamber, direction) fit.
+CREATE TABLE pressure_steps (
+    run_id            VARCHAR NOT NULL,
+    chamber           VARCHAR,
+    direction         VARCHAR,             -- charge / discharge
+    t_step_s          DOUBLE,
+    p_from_bar        DOUBLE,              -- set-point before the step, gauge
+    p_to_bar          DOUBLE,              -- set-point after the step, gauge
+    nrmse_pct         DOUBLE               -- over this step's own pressure range
 );

@@ -1,0 +1,359 @@
+"""Stage: models and their NRMSE (issue #5).
+
+PLPA (seed 000): third-order identification from closed-loop runs (section 2.3, Eqs. 10 and 14,
+Table 2) and closed-loop step metrics (section 4, Fig. 15). PLA (seed 001): pneumatic spring
+model per chamber (Eqs. 3-9, Tables 1 and 3, Figs. 8-13) and chamber pressure dynamics (Eq. 11,
+Table 2).
+
+Tables (``schemas/ddl/20_models.sql``): ``identification``, ``step_response``, ``spring_fits``,
+``spring_tests``, ``spring_loop_energy``, ``pressure_dynamics``, ``pressure_steps``.
+
+Per-run work (reading samples, decimation, fits of one run) goes through ``ctx.map`` with the
+module-level :func:`analyse_run`; the per-chamber fits (spring, pressure) through ``ctx.map`` too.
+A run that cannot be analysed gives NULLs and a warning on the run, never an exception.
+"""
+from __future__ import annotations
+
+import json
+import math
+import re
+
+import numpy as np
+import pandas as pd
+import pyarrow.parquet as pq
+
+from analyses import identification as ident
+from analyses import pla_spring as spring
+from analyses import pressure_dynamics as pdyn
+from analyses import step_response as stepr
+from pipeline.stages import StageContext, StageOutput
+
+NAME = "models"
+ORDER = 20
+KINDS = ("identification", "step", "spring", "pressure_step")
+TABLES = ("identification", "step_response", "spring_fits", "spring_tests", "spring_loop_energy",
+          "pressure_dynamics", "pressure_steps")
+
+#: Identification runs drawn one figure each, at most (sorted by run_id).
+MAX_ID_FIGURES = 6
+#: Steps drawn in the Fig. 15-like figure, at most.
+MAX_STEP_CURVES = 12
+
+ID_COLS = ["run_id", "wn_rad_s", "zeta", "k_lin_m_v_s", "fit_pct", "kp_v_m", "id_sample_rate_hz", "n_samples_id"]
+STEP_COLS = ["run_id", "step_mm", "overshoot_pct", "settling_time_s", "rise_time_s", "steady_state_error_mm",
+             "t_step_s", "settled"]
+FIT_COLS = ["chamber", "n_polytropic", "ae_m2", "epsilon_m2", "delta_n_m", "n_tests", "max_nrmse_pct",
+            "seed_n_polytropic", "seed_ae_m2", "seed_epsilon_m2", "seed_delta_n_m"]
+TEST_COLS = ["run_id", "chamber", "p0_bar_abs", "amplitude_mm", "frequency_hz", "nrmse_pct"]
+ENERGY_COLS = ["run_id", "chamber", "p0_bar_abs", "amplitude_mm", "frequency_hz", "n_cycles", "loop_energy_j",
+               "model_loop_energy_j", "structural_energy_j"]
+PD_COLS = ["chamber", "direction", "wn_rad_s", "zeta", "nrmse_pct", "n_steps"]
+PSTEP_COLS = ["run_id", "chamber", "direction", "t_step_s", "p_from_bar", "p_to_bar", "nrmse_pct"]
+
+
+def _num(value, default=None):
+    """A metadata value as a finite float, else ``default``."""
+    try:
+        out = float(value)
+    except (TypeError, ValueError):
+        return default
+    return out if math.isfinite(out) else default
+
+
+def _params(value) -> dict:
+    if isinstance(value, dict):
+        return value
+    if isinstance(value, str):
+        try:
+            return json.loads(value)
+        except ValueError:
+            return {}
+    return {}
+
+
+def _read(path: str, columns: list[str]) -> pd.DataFrame:
+    table = pq.read_table(path)
+    return table.select([c for c in columns if c in table.column_names]).to_pandas()
+
+
+def _missing(df: pd.DataFrame, cols) -> list[str]:
+    return [c for c in cols if c not in df.columns or df[c].isna().all()]
+
+
+def _nan(v):
+    return None if v is None or (isinstance(v, float) and not math.isfinite(v)) else v
+
+
+# -- per run -----------------------------------------------------------------------------------
+
+def analyse_run(item: tuple) -> dict:
+    """Analyse one run (module level, picklable, for ``ctx.map``).
+
+    Parameters
+    ----------
+    item : tuple
+        ``(kind, run_id, samples_path, params)``.
+
+    Returns
+    -------
+    dict
+        ``kind``, ``run_id``, ``rows`` (for the kind's per-run table), ``warnings`` (list of str) and
+        ``extra`` (figure data, prepared spring run or pressure steps).
+    """
+    kind, run_id, path, params = item
+    try:
+        fn = {"identification": _identification, "step": _step, "spring": _spring,
+              "pressure_step": _pressure_step}[kind]
+        rows, warns, extra = fn(run_id, path, params)
+    except Exception as exc:  # an unforeseen input: NULLs and a warning, never a failed rebuild
+        rows = [{"run_id": run_id}] if kind in ("identification", "step", "spring") else []
+        if kind == "spring":
+            rows[0]["chamber"] = params.get("chamber")
+        warns, extra = [f"{NAME}: {kind} analysis failed: {type(exc).__name__}: {exc}"], None
+    return {"kind": kind, "run_id": run_id, "rows": rows, "warnings": warns, "extra": extra}
+
+
+def _identification(run_id, path, params):
+    kp = _num(params.get("kp_v_m"))
+    rate = _num(params.get("id_sample_rate_hz"), 50.0)
+    row = {"run_id": run_id, "wn_rad_s": None, "zeta": None, "k_lin_m_v_s": None, "fit_pct": None,
+           "kp_v_m": kp, "id_sample_rate_hz": rate, "n_samples_id": None}
+    df = _read(path, ["t_s", "x_m", "u_d_v", "x_ref_m"])
+    miss = _missing(df, ["t_s", "x_m", "u_d_v", "x_ref_m"])
+    if miss:
+        return [row], [f"{NAME}: identification run lacks {', '.join(miss)}; not identified"], None
+    if kp is None or kp <= 0:
+        return [row], [f"{NAME}: identification run without a positive kp_v_m; not identified"], None
+    df = df.dropna()
+    res = ident.identify_third_order(df["t_s"].to_numpy(), df["x_m"].to_numpy(), df["u_d_v"].to_numpy(),
+                                     df["x_ref_m"].to_numpy(), kp, rate)
+    row["n_samples_id"] = len(res.x_m)
+    if not res.ok:
+        return [row], [f"{NAME}: identification: {res.message}; not identified"], None
+    row.update(wn_rad_s=res.wn_rad_s, zeta=res.zeta, k_lin_m_v_s=res.k_lin_m_v_s, fit_pct=_nan(res.fit_pct),
+               id_sample_rate_hz=1.0 / res.dt_s)
+    warns = [f"{NAME}: identification: {res.message}"] if res.message else []
+    return [row], warns, res
+
+
+def _step(run_id, path, params):
+    null = {"run_id": run_id, **{c: None for c in STEP_COLS[1:]}}
+    df = _read(path, ["t_s", "x_m", "x_ref_m"])
+    miss = _missing(df, ["t_s", "x_m", "x_ref_m"])
+    if miss:
+        return [null], [f"{NAME}: step run lacks {', '.join(miss)}; no step metrics"], None
+    df = df.dropna()
+    if len(df) < 10:
+        return [null], [f"{NAME}: step run too short ({len(df)} samples); no step metrics"], None
+    t, x, r = (df[c].to_numpy() for c in ("t_s", "x_m", "x_ref_m"))
+    m = stepr.step_response_metrics(t, x, r)
+    if m.empty:
+        return [null], [f"{NAME}: no step of the reference found; no step metrics"], None
+    rows, curves, warns = [], [], []
+    for s in m.itertuples(index=False):
+        rows.append({"run_id": run_id, "step_mm": s.step_mm, "overshoot_pct": _nan(s.overshoot_pct),
+                     "settling_time_s": _nan(s.settling_time_s), "rise_time_s": _nan(s.rise_time_s),
+                     "steady_state_error_mm": _nan(s.steady_state_error_mm), "t_step_s": s.t_step_s,
+                     "settled": bool(s.settled)})
+        if not s.settled:
+            warns.append(f"{NAME}: step at t={s.t_step_s:g} s did not settle in the 2 % band")
+        seg = slice(s.i_start, s.i_end)
+        stride = max(1, (s.i_end - s.i_start) // 3000)
+        ref = r[s.i_start]
+        step_m = s.step_mm / 1e3
+        curves.append({"t": (t[seg] - s.t_step_s)[::stride], "error_pct": (100 * (ref - x[seg]) / step_m)[::stride],
+                       "label": f"{run_id} @ {s.t_step_s:g} s ({s.step_mm:+g} mm)"})
+    return rows, warns, curves
+
+
+def _spring(run_id, path, params):
+    chamber = str(params.get("chamber") or "").strip().lower()
+    null = {"run_id": run_id, "chamber": chamber or None, "p0_bar_abs": None,
+            "amplitude_mm": _num(params.get("amplitude_mm")), "frequency_hz": _num(params.get("frequency_hz")),
+            "nrmse_pct": None}
+    if chamber not in spring.PRESSURE_SIGN:
+        return [null], [f"{NAME}: spring run chamber must be front or rear, got {chamber or 'none'}; not fitted"], None
+    df = _read(path, ["t_s", "d_m", "f_n", "p_pa"])
+    miss = _missing(df, ["t_s", "d_m", "f_n", "p_pa"])
+    if miss:
+        return [null], [f"{NAME}: spring run lacks {', '.join(miss)}; not fitted"], None
+    amp = _num(params.get("amplitude_mm"))
+    run = spring.prepare_spring_run(run_id, df["t_s"].to_numpy(), df["d_m"].to_numpy(), df["f_n"].to_numpy(),
+                                    df["p_pa"].to_numpy(), chamber, _num(params.get("frequency_hz")),
+                                    amp / 1e3 if amp else None, _num(params.get("stroke_mm"), 40.0) / 1e3,
+                                    _num(params.get("p_atm_pa"), spring.P_ATM_PA))
+    null["p0_bar_abs"] = _nan(run.p0_abs / 1e5) if np.isfinite(run.p0_abs) else None
+    if not run.ok:
+        return [null], [f"{NAME}: spring run: {run.message}; not fitted"], None
+    null.update(amplitude_mm=run.amplitude_m * 1e3, frequency_hz=run.frequency_hz)
+    return [null], [], run
+
+
+def _pressure_step(run_id, path, params):
+    chamber = str(params.get("chamber") or "").strip().lower() or None
+    df = _read(path, ["t_s", "p_pa", "p_ref_pa"])
+    miss = _missing(df, ["t_s", "p_pa", "p_ref_pa"])
+    if miss:
+        return [], [f"{NAME}: pressure_step run lacks {', '.join(miss)}; no steps"], None
+    df = df.dropna()
+    steps = pdyn.split_pressure_steps(df["t_s"].to_numpy(), df["p_pa"].to_numpy(), df["p_ref_pa"].to_numpy(),
+                                      run_id, chamber or "")
+    if not steps:
+        return [], [f"{NAME}: no set-point step found in the pressure_step run"], None
+    if chamber is None:
+        return [], [f"{NAME}: pressure_step run without chamber; its steps are not fitted"], None
+    return [], [], steps
+
+
+# -- per chamber ----------------------------------------------------------------------------
+
+def fit_spring_item(item: tuple) -> spring.SpringFit:
+    """``(chamber, runs)`` -> :class:`analyses.pla_spring.SpringFit` (for ``ctx.map``)."""
+    chamber, runs = item
+    try:
+        return spring.fit_spring_chamber(runs)
+    except Exception as exc:  # never fail the rebuild on a fit
+        return spring.SpringFit(chamber, message=f"fit failed: {type(exc).__name__}: {exc}")
+
+
+def fit_pressure_item(item: tuple) -> pdyn.PressureFit:
+    """``(chamber, direction, steps)`` -> :class:`analyses.pressure_dynamics.PressureFit`."""
+    chamber, direction, steps = item
+    try:
+        return pdyn.fit_pressure_dynamics(steps, chamber, direction)
+    except Exception as exc:
+        return pdyn.PressureFit(chamber, direction, n_steps=len(steps),
+                                message=f"fit failed: {type(exc).__name__}: {exc}")
+
+
+def _slug(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9]+", "_", text).strip("_")[:80]
+
+
+def _frame(rows, cols, ints=(), bools=()) -> pd.DataFrame:
+    df = pd.DataFrame(rows, columns=cols)
+    for c in ints:
+        df[c] = df[c].astype("Int64")
+    for c in bools:
+        df[c] = df[c].astype("boolean")
+    for c in cols:
+        if c not in ints and c not in bools and c not in ("run_id", "chamber", "direction"):
+            df[c] = pd.to_numeric(df[c], errors="coerce").astype("float64")
+    return df
+
+
+def run(ctx: StageContext) -> StageOutput:
+    """Identification, step metrics, spring fits and pressure dynamics of every run of KINDS."""
+    out = StageOutput()
+    runs = ctx.runs_of(*KINDS)
+    items = [(r.kind, r.run_id, str(ctx.samples_file(r.run_id)), _params(r.params))
+             for r in runs.itertuples(index=False)] if not runs.empty else []
+    results = ctx.map(analyse_run, items, label=NAME) if items else []
+    by_kind: dict[str, list[dict]] = {k: [] for k in KINDS}
+    for res in results:
+        by_kind[res["kind"]].append(res)
+        for w in res["warnings"]:
+            out.warn(res["run_id"], w)
+
+    _identification_outputs(out, by_kind["identification"])
+    _step_outputs(out, by_kind["step"])
+    _spring_outputs(ctx, out, by_kind["spring"])
+    _pressure_outputs(ctx, out, by_kind["pressure_step"])
+    return out
+
+
+def _identification_outputs(out, results):
+    rows = [row for r in results for row in r["rows"]]
+    out.tables["identification"] = _frame(rows, ID_COLS, ints=("n_samples_id",))
+    fitted = [r for r in results if r["extra"] is not None]
+    for r in fitted[:MAX_ID_FIGURES]:
+        name = f"identification_{_slug(r['run_id'])}"
+        out.figures[name] = ident.plot_identification(r["extra"], title=f"{r['run_id']}: measured vs model (Eq. 14)")
+        out.captions[name] = (f"Identification run {r['run_id']}: position at the identification rate, measured "
+                              "(anti-aliased, decimated) and simulated by the output-error model from the measured "
+                              "u_d and x_ref (seed 000, section 2.3).")
+
+
+def _step_outputs(out, results):
+    rows = [row for r in results for row in r["rows"]]
+    out.tables["step_response"] = _frame(rows, STEP_COLS, bools=("settled",))
+    curves = [c for r in results if r["extra"] for c in r["extra"]][:MAX_STEP_CURVES]
+    if curves:
+        out.figures["step_errors"] = stepr.plot_step_errors(curves)
+        out.captions["step_errors"] = ("Closed-loop steps: error in % of the step vs time since the step, with the 2 % "
+                                       "band (seed 000, Fig. 15).")
+
+
+def _spring_outputs(ctx, out, results):
+    rows = {r["run_id"]: dict(r["rows"][0]) for r in results if r["rows"]}
+    prepared = [r["extra"] for r in results if r["extra"] is not None]
+    chambers = sorted({p.chamber for p in prepared})
+    groups = [(c, sorted((p for p in prepared if p.chamber == c), key=lambda p: p.run_id)) for c in chambers]
+    fits = dict(zip(chambers, ctx.map(fit_spring_item, groups, label=f"{NAME}: spring fits"))) if groups else {}
+    fit_rows, energy = [], []
+    for chamber, group in groups:
+        fit = fits[chamber]
+        if not fit.ok:
+            for p in group:
+                out.warn(p.run_id, f"{NAME}: spring fit of the {chamber} chamber failed: {fit.message}")
+        elif fit.message:
+            for p in group:
+                out.warn(p.run_id, f"{NAME}: spring fit of the {chamber} chamber: {fit.message}")
+        seeds = fit.seeds or {}
+        nr = [v for v in fit.nrmse_pct.values() if np.isfinite(v)]
+        fit_rows.append({"chamber": chamber, "n_polytropic": fit.n_polytropic, "ae_m2": fit.ae_m2,
+                         "epsilon_m2": fit.epsilon_m2, "delta_n_m": fit.delta_n_m, "n_tests": fit.n_tests,
+                         "max_nrmse_pct": max(nr) if nr else None,
+                         **{f"seed_{k}": seeds.get(k) for k in ("n_polytropic", "ae_m2", "epsilon_m2", "delta_n_m")}})
+        for p in group:
+            rows[p.run_id]["nrmse_pct"] = _nan(fit.nrmse_pct.get(p.run_id))
+            model_u = spring.model_loop_energy(p, fit) if fit.ok else float("nan")
+            energy.append({"run_id": p.run_id, "chamber": chamber, "p0_bar_abs": p.p0_abs / 1e5,
+                           "amplitude_mm": p.amplitude_m * 1e3, "frequency_hz": p.frequency_hz,
+                           "n_cycles": p.cycles, "loop_energy_j": _nan(p.loop_energy_j),
+                           "model_loop_energy_j": _nan(model_u),
+                           "structural_energy_j": _nan(math.pi * fit.delta_n_m * p.amplitude_m ** 2)})
+    out.tables["spring_fits"] = _frame(fit_rows, FIT_COLS, ints=("n_tests",))
+    out.tables["spring_tests"] = _frame([rows[k] for k in sorted(rows)], TEST_COLS)
+    out.tables["spring_loop_energy"] = _frame(energy, ENERGY_COLS, ints=("n_cycles",))
+    for chamber, group in groups:
+        fit = fits[chamber]
+        if fit.ok:
+            name = f"spring_loops_{chamber}"
+            out.figures[name] = spring.plot_spring_loops(group, fit)
+            out.captions[name] = (f"PLA {chamber} chamber: force-displacement loops, experimental vs fitted model, "
+                                  "for the tests of seed 001 Figs. 8-13 (closest available runs).")
+    if energy:
+        out.figures["spring_loop_energy"] = spring.plot_loop_energy(out.tables["spring_loop_energy"], fits)
+        out.captions["spring_loop_energy"] = ("Energy dissipated per cycle (loop area) vs displacement amplitude and "
+                                              "vs frequency; lines: structural part pi delta D^2 of the fits.")
+
+
+def _pressure_outputs(ctx, out, results):
+    steps = [s for r in results if r["extra"] for s in r["extra"]]
+    chambers = sorted({s.chamber for s in steps})
+    groups = [(c, d, [s for s in steps if s.chamber == c and s.direction == d])
+              for c in chambers for d in ("charge", "discharge")]
+    fits = ctx.map(fit_pressure_item, [g for g in groups if g[2]], label=f"{NAME}: pressure fits") if steps else []
+    fit_by = {(f.chamber, f.direction): f for f in fits}
+    rows, step_rows = [], []
+    for c, d, group in groups:
+        f = fit_by.get((c, d)) or pdyn.PressureFit(c, d, message="no steps")
+        if group and not f.ok:
+            for rid in sorted({s.run_id for s in group}):
+                out.warn(rid, f"{NAME}: pressure dynamics fit ({c}, {d}) failed: {f.message}")
+        rows.append({"chamber": c, "direction": d, "wn_rad_s": f.wn_rad_s, "zeta": f.zeta,
+                     "nrmse_pct": _nan(f.nrmse_pct), "n_steps": len(group)})
+        for s, nr in zip(group, f.step_nrmse_pct or [None] * len(group)):
+            step_rows.append({"run_id": s.run_id, "chamber": c, "direction": d, "t_step_s": s.t_step_s,
+                              "p_from_bar": s.p_ref_before_pa / 1e5, "p_to_bar": s.p_ref_pa / 1e5,
+                              "nrmse_pct": _nan(nr)})
+    out.tables["pressure_dynamics"] = _frame(rows, PD_COLS, ints=("n_steps",))
+    out.tables["pressure_steps"] = _frame(sorted(step_rows, key=lambda r: (r["run_id"], r["t_step_s"])), PSTEP_COLS)
+    for c in chambers:
+        cf = {d: fit_by[(c, d)] for d in ("charge", "discharge") if (c, d) in fit_by}
+        if any(f.ok for f in cf.values()):
+            name = f"pressure_steps_{c}"
+            out.figures[name] = pdyn.plot_pressure_steps([s for s in steps if s.chamber == c], cf)
+            out.captions[name] = (f"PLA {c} chamber: pressure after set-point steps, measured vs the second-order "
+                                  "model of Eq. 11 (seed 001, Fig. 14, Table 2).")
