@@ -29,18 +29,26 @@ def main():
 @click.option("--jobs", type=click.IntRange(min=1), default=None, help="Worker processes (default: all cores).")
 @click.option("--full", is_flag=True, help="Re-ingest and re-analyse everything.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress output (errors still go to stderr).")
-def rebuild(raw, warehouse, jobs, full, quiet):
+@click.option("--executor", type=click.Choice(["local", "dask"]), default="local", show_default=True,
+              help="Where per-file ingest and per-run analyses run.")
+@click.option("--scheduler", metavar="ADDR", default=None,
+              help="Dask scheduler address (tcp://host:8786); without it --executor dask starts a local cluster.")
+@click.option("--wait", "wait_s", type=click.FloatRange(min=0), default=0, show_default=True, metavar="SECONDS",
+              help="Wait this long for another rebuild of the same warehouse to finish (else exit 4).")
+@click.option("--no-report", is_flag=True, help="Do not write the morning report (warehouse/report/index.html).")
+def rebuild(raw, warehouse, jobs, full, quiet, executor, scheduler, wait_s, no_report):
     """Ingest new or changed raw files, re-run analyses, swap in the new warehouse.
 
     Exit 0: everything used; 1: warehouse built, some inputs quarantined; 2: usage error;
-    3 or more: failed, previous warehouse untouched.
+    3 or more: failed, previous warehouse untouched (4: another rebuild is running).
     """
     from pipeline.rebuild import RebuildError, rebuild as do_rebuild
 
     if not raw.is_dir():
         raise click.UsageError(f"raw folder {raw} does not exist")
     try:
-        summary = do_rebuild(raw, warehouse, jobs=jobs, full=full, progress=for_stream(sys.stderr, quiet))
+        summary = do_rebuild(raw, warehouse, jobs=jobs, full=full, progress=for_stream(sys.stderr, quiet),
+                             lock_wait_s=wait_s, executor=executor, scheduler=scheduler, report=not no_report)
     except RebuildError as exc:
         click.echo(f"pneubench rebuild: {exc}", err=True)
         sys.exit(exc.exit_code)
@@ -66,3 +74,43 @@ def query(sql, warehouse, fmt):
         click.echo(f"pneubench query: {str(exc).splitlines()[0]}", err=True)
         sys.exit(3)
     click.echo(format_rows(columns, rows, fmt))
+
+
+@main.command()
+@click.option("--raw", type=click.Path(file_okay=False, path_type=Path), envvar="PNEUBENCH_RAW",
+              default="raw", show_default=True, help=RAW_HELP)
+@click.option("--warehouse", type=click.Path(file_okay=False, path_type=Path), envvar="PNEUBENCH_WAREHOUSE",
+              default="warehouse", show_default=True, help=WH_HELP)
+@click.option("--at", "at", default="02:30", show_default=True, metavar="HH:MM", help="Time of the nightly run.")
+@click.option("--workdir", type=click.Path(file_okay=False, path_type=Path), default=".", show_default=True,
+              help="Working directory of the job.")
+@click.option("--log", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Log file (default <warehouse>/logs/rebuild.log).")
+@click.option("--user", default=None, help="User the systemd service runs as.")
+@click.option("--wait", "wait_s", type=click.IntRange(min=0), default=900, show_default=True, metavar="SECONDS",
+              help="How long a run waits for the previous one to finish.")
+@click.option("--format", "fmt", type=click.Choice(["all", "cron", "service", "timer"]), default="all",
+              show_default=True, help="What to print.")
+def schedule(raw, warehouse, at, workdir, log, user, wait_s, fmt):
+    """Print a crontab line and a systemd service + timer for the nightly rebuild."""
+    from pipeline.schedule import Schedule, render
+
+    try:
+        s = Schedule(raw=raw, warehouse=warehouse, workdir=workdir, at=at, log=log, user=user, wait_s=wait_s)
+    except ValueError as exc:
+        raise click.UsageError(str(exc)) from None
+    click.echo(render(s, fmt))
+
+
+@main.command()
+@click.option("--warehouse", type=click.Path(file_okay=False, path_type=Path), envvar="PNEUBENCH_WAREHOUSE",
+              default="warehouse", show_default=True, help=WH_HELP)
+def report(warehouse):
+    """Write the morning report (warehouse/report/index.html) from the warehouse again."""
+    from pipeline.report import write_report
+
+    try:
+        path = write_report(warehouse)
+    except FileNotFoundError as exc:
+        raise click.UsageError(str(exc)) from None
+    click.echo(str(path))
