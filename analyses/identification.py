@@ -195,15 +195,29 @@ def decimate_for_identification(t, x, u_d, x_ref, rate_hz: float = 50.0):
     factors = _factors(q)
     for f in factors:
         if f > 1:
-            # what signal.decimate(ftype="fir", zero_phase=True) does, with the ends padded by a
-            # line instead of zeros (the position is far from zero: no start-up transient)
-            b = signal.firwin(20 * f + 1, 1.0 / f, window="hamming")
-            xs = signal.resample_poly(xs, 1, f, window=b, padtype="line")
+            xs = _fir_decimate(xs, f)
     # xs[i] is the filtered x at t[i*q]; keep the grid starting at ``off``
     x_dec = _interp_grid(xs, q, off, n_blocks, x)
     ud = u_d[off:end].reshape(n_blocks, q).mean(axis=1)
     xr = x_ref[off:end].reshape(n_blocks, q).mean(axis=1)
     return {"t_s": t[off:end:q][:n_blocks], "x_m": x_dec, "u_d_v": ud, "x_ref_m": xr, "dt_s": q * dt_log}
+
+
+def _fir_decimate(x: np.ndarray, q: int) -> np.ndarray:
+    """``signal.decimate(x, q, ftype="fir", zero_phase=True)`` with odd-reflection padding.
+
+    The ends are extended by point reflection (value and slope continue), as ``filtfilt``
+    does, instead of zeros: the position is far from zero and must not start with a transient.
+    Output ``i`` is the filtered signal at input ``i q``.
+    """
+    b = signal.firwin(20 * q + 1, 1.0 / q, window="hamming")
+    npad = int(np.ceil(len(b) / q)) * q
+    npad = min(npad, (len(x) - 1) // q * q) if len(x) > q else 0
+    if npad > 0:
+        x = np.concatenate([2 * x[0] - x[npad:0:-1], x, 2 * x[-1] - x[-2:-npad - 2:-1]])
+    y = signal.resample_poly(x, 1, q, window=b)
+    n_out = -(-(len(x) - 2 * npad) // q)
+    return y[npad // q: npad // q + n_out]
 
 
 def _factors(q: int) -> list[int]:
