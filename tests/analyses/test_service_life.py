@@ -1,0 +1,131 @@
+"""Hose service life: censored Weibull MLE (checked on Nelson's fans), B10 bounds, Kaplan-Meier, LR test."""
+import math
+
+import numpy as np
+import pytest
+from matplotlib.figure import Figure
+from scipy import stats
+
+from analyses.service_life import (_profile_quantile_loglik, b10, kaplan_meier, plot_hose_distances,
+                                   plot_kaplan_meier, plot_leak_growth, plot_weibull_probability, weibull_fit,
+                                   weibull_loglik, weibull_lr_test, weibull_quantile_bounds)
+
+# Nelson (1982, Applied Life Data Analysis, p. 318): 70 diesel-engine fans, hours; 0 = failure,
+# 1 = censored, as listed in the SAS/QC PROC RELIABILITY "Getting Started" example, whose Weibull
+# MLE on hours/1000 is shape 1.0584, scale 26.2968.
+FANS = """
+450 0 460 1 1150 0 1150 0 1560 1 1600 0 1660 1 1850 1 1850 1 1850 1 1850 1 1850 1 2030 1 2030 1
+2030 1 2070 0 2070 0 2080 0 2200 1 3000 1 3000 1 3000 1 3000 1 3100 0 3200 1 3450 0 3750 1 3750 1
+4150 1 4150 1 4150 1 4150 1 4300 1 4300 1 4300 1 4300 1 4600 0 4850 1 4850 1 4850 1 4850 1 5000 1
+5000 1 5000 1 6100 1 6100 0 6100 1 6100 1 6300 1 6450 1 6450 1 6700 1 7450 1 7800 1 7800 1 8100 1
+8100 1 8200 1 8500 1 8500 1 8500 1 8750 1 8750 0 8750 1 9400 1 9900 1 10100 1 10100 1 10100 1 11500 1
+"""
+
+
+def fans():
+    v = np.array(FANS.split(), float).reshape(-1, 2)
+    return v[:, 0] / 1000.0, v[:, 1] == 0
+
+
+def test_fan_data_as_published():
+    life, failed = fans()
+    assert len(life) == 70 and failed.sum() == 12
+
+
+def test_weibull_on_nelson_fans_matches_sas_to_four_significant_figures():
+    fit = weibull_fit(*fans())
+    sig4 = lambda v: float(f"{v:.4g}")  # noqa: E731
+    assert sig4(fit.shape) == sig4(1.0584) and abs(fit.shape - 1.0584) < 5e-5
+    assert sig4(fit.scale) == sig4(26.2968) and abs(fit.scale - 26.2968) < 5e-4
+    assert (fit.n, fit.n_failed) == (70, 12)
+    # the same likelihood as scipy's CensoredData
+    life, failed = fans()
+    data = stats.CensoredData.right_censored(life, ~failed)
+    assert fit.loglik == pytest.approx(-stats.weibull_min.nnlf((fit.shape, 0, fit.scale), data), rel=1e-10)
+
+
+def test_b10_is_the_ten_percent_quantile_with_bracketing_lr_bounds():
+    life, failed = fans()
+    r = b10(life, failed, confidence=0.90)
+    assert r["b10"] == pytest.approx(r["scale"] * (-math.log(0.9)) ** (1 / r["shape"]))
+    assert r["b10_lower"] < r["b10"] < r["b10_upper"]
+    # likelihood-ratio bounds: the profile deviance equals chi2(0.90, 1) at each bound
+    fit = weibull_fit(life, failed)
+    crit = stats.chi2.ppf(0.90, 1)
+    for bound in (r["b10_lower"], r["b10_upper"]):
+        dev = 2 * (fit.loglik - _profile_quantile_loglik(bound, 0.10, life, failed, fit.shape))
+        assert dev == pytest.approx(crit, abs=1e-4)
+    wide = weibull_quantile_bounds(fit, life, failed, 0.10, 0.99)
+    assert wide[1] < r["b10_lower"] and wide[2] > r["b10_upper"]
+
+
+def test_fewer_than_two_failures_give_nan():
+    for failed in ([True, False, False, False], [False, False, False, False]):
+        r = b10([10.0, 20.0, 30.0, 40.0], failed)
+        assert all(math.isnan(r[k]) for k in ("shape", "scale", "b10", "b10_lower", "b10_upper"))
+        assert r["n"] == 4 and r["n_failed"] == sum(failed)
+
+
+def test_weibull_recovers_simulated_parameters_with_censoring():
+    rng = np.random.default_rng(42)
+    life = 90.0 * rng.weibull(2.4, 400)
+    stop = rng.uniform(20, 200, 400)                 # random removals
+    failed = life <= stop
+    fit = weibull_fit(np.minimum(life, stop), failed)
+    assert fit.shape == pytest.approx(2.4, rel=0.1)
+    assert fit.scale == pytest.approx(90.0, rel=0.05)
+    # and the MLE is a maximum
+    for dk, ds in ((0.02, 0), (-0.02, 0), (0, 0.5), (0, -0.5)):
+        assert weibull_loglik(fit.shape + dk, fit.scale + ds, np.minimum(life, stop), failed) < fit.loglik
+
+
+def test_kaplan_meier_hand_checked():
+    km = kaplan_meier([1, 2, 2, 3, 4], [True, False, True, True, False])
+    assert km["life"].tolist() == [1, 2, 3, 4]
+    assert km["n_at_risk"].tolist() == [5, 4, 2, 1]
+    assert km["n_failed"].tolist() == [1, 1, 1, 0]
+    assert km["n_censored"].tolist() == [0, 1, 0, 1]
+    assert km["survival"].to_numpy() == pytest.approx([0.8, 0.6, 0.3, 0.3])
+    # Greenwood at the first step: S * sqrt(d / (n (n - d)))
+    assert km["std_err"].iloc[0] == pytest.approx(0.8 * math.sqrt(1 / (5 * 4)))
+
+
+def test_kaplan_meier_without_censoring_is_the_empirical_survival():
+    km = kaplan_meier([3, 1, 2, 4], [True] * 4)
+    assert km["survival"].to_numpy() == pytest.approx([0.75, 0.5, 0.25, 0.0])
+
+
+def test_lr_test_tells_different_groups_apart():
+    rng = np.random.default_rng(7)
+    force = 90.0 * rng.weibull(2.4, 40)
+    dist = 40.0 * rng.weibull(1.8, 40)
+    same = 40.0 * rng.weibull(1.8, 40)
+    stop = 150.0
+    g = lambda x: (np.minimum(x, stop), x <= stop)  # noqa: E731
+    differ = weibull_lr_test({"force": g(force), "distance": g(dist)})
+    assert differ["df"] == 2 and differ["p_value"] < 1e-4
+    assert differ["lr"] == pytest.approx(2 * (differ["loglik_separate"] - differ["loglik_pooled"]))
+    alike = weibull_lr_test({"a": g(same), "b": g(dist)})
+    assert alike["p_value"] > 0.05
+    one = weibull_lr_test({"force": ([10.0, 20.0, 30.0], [True, False, False]), "distance": g(dist)})
+    assert math.isnan(one["p_value"])
+
+
+def test_figures_mark_suspensions():
+    life, failed = fans()
+    fig = plot_weibull_probability({"fans": (life, failed)}, unit="1000 h")
+    assert isinstance(fig, Figure)
+    ax = fig.axes[0]
+    labels = [ln.get_label() for ln in ax.get_lines()]
+    assert "fans: suspensions (58)" in labels
+    sus = next(ln for ln in ax.get_lines() if ln.get_label() == "fans: suspensions (58)")
+    assert len(sus.get_xdata()) == 58
+    fig = plot_kaplan_meier({"force": (life, failed), "distance": (life / 2, failed)})
+    assert len(fig.axes[0].get_lines()) == 4            # a step curve and censoring marks per group
+    import pandas as pd
+    fig = plot_hose_distances(pd.DataFrame({"hose_id": ["a", "b"], "distance_km": [1.0, 2.0],
+                                            "status": ["failed", "running"], "adjustment": ["force", "distance"]}))
+    assert [p.get_height() for p in fig.axes[0].patches] == [2.0, 1.0]
+    fig = plot_leak_growth(pd.DataFrame({"hose_id": ["a", "a"], "distance_km": [0.0, 5.0], "leak_l_min": [0.1, 0.9],
+                                         "adjustment": ["distance"] * 2, "pressure_bar": [6.0, 6.0]}))
+    assert fig.axes[0].get_lines()[0].get_ydata().tolist() == [0.1, 0.9]
