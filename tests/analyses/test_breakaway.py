@@ -1,0 +1,149 @@
+"""Breakaway: motion onset on hand-built encoder records, force and sign convention, findings, and
+recovery of the simulator's breakaway forces."""
+import numpy as np
+import pandas as pd
+import pytest
+
+from analyses.breakaway import (backpressure_ratio, breakaway_findings, breakaway_force, breakaway_summary,
+                                detect_motion_onset, drive_force, force_rate_slope, plot_breakaway)
+
+RES = 5e-6
+DT = 1e-3
+
+
+def _record(counts, x0=0.1):
+    counts = np.asarray(counts, dtype=float)
+    return np.arange(counts.size) * DT, x0 + counts * RES
+
+
+def test_onset_walks_back_to_the_first_departure_from_the_baseline():
+    # 300 ms at rest, a short creep dither (1 count for 5 ms), then gross motion
+    counts = [0] * 300 + [1, 0, 1, 1, 1] + [1] * 5 + [2, 3, 5, 8, 12, 17, 23, 30] + [30 + 8 * i for i in range(60)]
+    t, x = _record(counts)
+    # gross threshold (> 4 counts) first crossed at index 312; back along the rise and the short
+    # creep flat to the last sample at the baseline, index 301
+    assert detect_motion_onset(t, x, "P") == 301
+    assert detect_motion_onset(t, x, None) == 301
+
+
+def test_onset_stops_at_a_long_creep_level():
+    # creep holds 1 count for 200 ms (> flat_s = 0.1 s): the onset is the end of that flat stretch
+    counts = [0] * 300 + [1] * 200 + [2, 4, 7, 11] + [11 + 6 * i for i in range(60)]
+    t, x = _record(counts)
+    assert detect_motion_onset(t, x, "P") == 499
+
+
+def test_glitches_and_creep_are_not_motion_and_direction_matters():
+    counts = [0] * 300 + [9] + [0] * 300 + [1, 2, 2, 1, 2] * 40    # one-sample spike, 2-count creep
+    t, x = _record(counts)
+    assert detect_motion_onset(t, x, "P") is None
+    # motion toward -x is not a P breakaway, but is an N one
+    counts = [0] * 300 + [-i for i in range(200)]
+    t, x = _record(counts)
+    assert detect_motion_onset(t, x, "P") is None
+    assert detect_motion_onset(t, x, "N") == 300
+
+
+def test_force_at_onset_and_sign_convention_hand_checked():
+    area = 4.9e-4
+    t = np.arange(0, 6.0, DT)
+    ramp = np.clip(t - 1.0, 0, None) * 2.0                          # 2 N/s from t = 1 s
+    bp = 1e5
+    onset = 4.0                                                     # F = 6 N at 4 s
+    move = np.where(t > onset, np.floor((t - onset) / DT) * 2, 0)   # 2 counts per ms once moving
+    # P: A ramps above the backpressure in B, carriage toward +x
+    res = breakaway_force(t, 0.2 + move * RES, bp + ramp / area, np.full_like(t, bp), area, "P")
+    assert res["breakaway_force_n"] == pytest.approx(6.0, abs=0.01)
+    assert res["onset_t_s"] == pytest.approx(onset, abs=2 * DT)
+    assert res["measured_rate_n_s"] == pytest.approx(2.0, rel=1e-6)
+    assert res["warning"] is None
+    # N: B ramps, carriage toward -x; the breakaway force is still a positive magnitude
+    res = breakaway_force(t, 0.2 - move * RES, np.full_like(t, bp), bp + ramp / area, area, "N")
+    assert res["breakaway_force_n"] == pytest.approx(6.0, abs=0.01)
+    assert drive_force([2e5], [1e5], area)[0] == pytest.approx(49.0)
+
+
+def test_never_moving_run_gives_none_and_a_warning():
+    t = np.arange(0, 3.0, DT)
+    p = 1e5 + t * 1e4
+    res = breakaway_force(t, np.full_like(t, 0.25), p, np.zeros_like(t), 4.9e-4, "P")
+    assert res["breakaway_force_n"] is None
+    assert "never moved" in res["warning"]
+    res = breakaway_force(t[:2], [0.1, 0.1], [0, 0], [0, 0], 4.9e-4, "N")
+    assert res["breakaway_force_n"] is None
+
+
+def _events():
+    rows = []
+    resid = [0.2, -0.2, 0.1, -0.1]
+    for d in "PN":
+        for bp, base in ((0.0, 10.0), (1.0, 5.0), (2.0, 5.0)):
+            for i, rate in enumerate((0.25, 1.0, 2.0, 4.0)):
+                for k in range(2):
+                    rows.append({"run_id": f"{d}{bp}{rate}{k}", "direction": d, "backpressure_bar": bp,
+                                 "force_rate_n_s": rate,
+                                 "breakaway_force_n": base + 0.1 * rate + resid[i] * (1 if k else -1)})
+    rows.append({"run_id": "never", "direction": "P", "backpressure_bar": 0.0, "force_rate_n_s": 1.0,
+                 "breakaway_force_n": None})
+    return pd.DataFrame(rows)
+
+
+def test_summary_hand_checked():
+    s = breakaway_summary(_events())
+    assert len(s) == 24 and s["n"].eq(2).all()          # the never-moving event is not counted
+    row = s[(s["direction"] == "P") & (s["backpressure_bar"] == 1.0) & (s["force_rate_n_s"] == 0.25)].iloc[0]
+    vals = _events().query("direction == 'P' and backpressure_bar == 1.0 and force_rate_n_s == 0.25")
+    assert sorted(vals["breakaway_force_n"]) == pytest.approx([4.825, 5.225])   # 5 + 0.025 -/+ 0.2
+    assert row["mean_force_n"] == pytest.approx(5.025)
+    assert row["std_force_n"] == pytest.approx(0.4 / np.sqrt(2))
+
+
+def test_findings_ratio_and_slope():
+    ev = _events()
+    r = backpressure_ratio(ev)
+    m0 = ev.loc[ev.backpressure_bar == 0, "breakaway_force_n"].mean()
+    m1 = ev.loc[ev.backpressure_bar >= 1, "breakaway_force_n"].mean()
+    assert r["estimate"] == pytest.approx(m0 / m1)
+    assert r["ci_low"] < m0 / m1 < r["ci_high"] and r["ci_high"] - r["ci_low"] < 0.2
+    s = force_rate_slope(ev)
+    # built with a common slope of 0.1 N per N/s and residuals that cancel at every rate
+    assert s["estimate"] == pytest.approx(0.1, abs=1e-9)
+    assert s["ci_low"] < 0.1 < s["ci_high"] and s["p_value"] < 0.05
+    f = breakaway_findings(ev)
+    assert set(zip(f["finding"], f["direction"])) == {(a, b) for a in ("backpressure_ratio", "force_rate_slope")
+                                                       for b in ("P", "N", "all")}
+    assert f.loc[(f.finding == "force_rate_slope") & (f.direction == "all"), "significant"].item() is True
+
+
+def test_findings_without_data_are_null_not_errors():
+    f = breakaway_findings(pd.DataFrame(columns=["direction", "backpressure_bar", "force_rate_n_s",
+                                                 "breakaway_force_n"]))
+    assert f["estimate"].isna().all()
+
+
+def test_recovers_simulated_breakaway_forces_and_findings():
+    from pipeline.simulator.plpa import simulate_breakaway
+
+    rows, errors = [], []
+    seed = 100
+    for d in "PN":
+        for bp in (0.0, 1.0, 3.0):
+            for rate in (0.25, 1.0, 4.0):
+                for _ in range(2):
+                    seed += 1
+                    run = simulate_breakaway(d, bp, rate, rng=seed)
+                    x = run.data
+                    res = breakaway_force(x["t_s"], x["x_m"], x["p_a_pa"], x["p_b_pa"], 4.9e-4, d)
+                    errors.append(res["breakaway_force_n"] - run.truth["breakaway_force_n"])
+                    rows.append({"direction": d, "backpressure_bar": bp, "force_rate_n_s": rate,
+                                 "breakaway_force_n": res["breakaway_force_n"]})
+    assert np.max(np.abs(errors)) < 0.5
+    ev = pd.DataFrame(rows)
+    r = backpressure_ratio(ev)
+    assert r["ci_low"] < 2.0 < r["ci_high"]                      # 10 N / 5 N
+    s = force_rate_slope(ev)
+    assert s["ci_low"] < 0.0 < s["ci_high"]                      # no rate effect
+    fig = plot_breakaway(ev)
+    assert [a.get_title()[:11] for a in fig.axes] == ["direction P", "direction N"]
+    assert "[N]" in fig.axes[0].get_ylabel() and "[bar]" in fig.axes[0].get_xlabel()
+    assert [t.get_text() for t in fig.legends[0].get_texts()] == ["0.25 N/s", "1 N/s", "4 N/s"]

@@ -1,0 +1,125 @@
+"""Leakage plateaus, seal envelope and Figs. 9/10: hand-checked cases and recovery from simulated runs."""
+import numpy as np
+import pandas as pd
+import pytest
+
+from analyses.leakage import (find_pressure_plateaus, leakage_plateaus, leakage_power_law, plot_leakage_map,
+                              seal_envelope)
+from schemas.units import L_MIN_M3_S, RHO_ANR_KG_M3
+
+KG_S_PER_L_MIN = L_MIN_M3_S * RHO_ANR_KG_M3
+
+
+def _staircase():
+    """10 Hz, 0 bar for 2 s, a 0.3 s ramp, 1 bar to 6 s; the leak overshoots for 0.5 s after the ramp."""
+    t = np.round(np.arange(60) * 0.1, 10)
+    p = np.where(t < 2.0, 0.0, np.where(t < 2.3, (t - 2.0) / 0.3, 1.0)) * 1e5
+    q = np.where(t < 2.3, 0.0, np.where(t < 2.8, 3.0, 1.0)) * KG_S_PER_L_MIN
+    return t, p, q
+
+
+def test_hand_checked_plateaus_exclude_ramp_and_unsettled_leak():
+    t, p, q = _staircase()
+    got = leakage_plateaus(t, p, q, block_s=0.5, settle_s=0.2, min_duration_s=0.5)
+    assert len(got) == 2
+    first, second = got.iloc[0], got.iloc[1]
+    assert first["t_start_s"] == pytest.approx(0.2) and first["t_end_s"] == pytest.approx(1.9)
+    assert first["pressure_bar"] == 0.0 and first["leak_l_min"] == pytest.approx(0.0)
+    # the ramp block (2.0-2.4) is not flat; 2.5 + 0.2 settle = 2.7, then the 3 l/min block is dropped
+    assert second["t_start_s"] >= 2.8
+    assert second["t_end_s"] == pytest.approx(5.9)
+    assert second["pressure_bar"] == pytest.approx(1.0)
+    assert second["leak_l_min"] == pytest.approx(1.0)
+
+
+def test_short_plateau_and_empty_input_give_nothing():
+    t = np.arange(5) * 0.1
+    assert find_pressure_plateaus(t, np.zeros(5)) == []
+    assert leakage_plateaus([], [], []).empty
+
+
+def test_power_law_is_zero_below_seal_pressure():
+    q = leakage_power_law([0.0, 3.0, 4.0, 7.0], 2.0, 3.0)
+    assert q.tolist() == [0.0, 0.0, 2.0, 2.0 * 4.0**1.5]
+
+
+def _map(rows):
+    return pd.DataFrame(rows, columns=["run_id", "hose_id", "chamber", "adjustment", "z_rollers_mm",
+                                       "spring_force_n", "pressure_bar", "leak_l_min"])
+
+
+def test_seal_envelope_hand_checked():
+    rows = []
+    for p, q in zip(range(5), [0.0, 0.0, 0.01, 0.2, 1.0]):       # sealed to 2, leaks from 3
+        rows.append(("r1", None, "A", "force", None, 429.0, p + 0.004, q))
+    for p in range(7):                                          # never leaks
+        rows.append(("r2", None, "A", "force", None, 858.0, p - 0.003, 0.0))
+    for p, q in zip(range(3), [0.3, 0.4, 0.5]):                 # leaks from the start
+        rows.append(("r3", None, "B", "distance", 6.0, None, float(p), q))
+    for p, q in zip(range(3), [0.0, 0.1, 0.0]):                 # "stays below": first leak ends it
+        rows.append(("r4", None, "B", "distance", 3.0, None, float(p), q))
+    env = seal_envelope(_map(rows)).set_index(["chamber", "adjustment", "z_rollers_mm", "spring_force_n"])
+    r1 = env.loc[("A", "force", np.nan, 429.0)]
+    assert (r1["sealed_up_to_bar"], r1["first_leak_bar"], r1["sealed_at_max"]) == (2.0, 3.0, False)
+    assert r1["spring_force_pct"] == pytest.approx(33.0)
+    r2 = env.loc[("A", "force", np.nan, 858.0)]
+    assert (r2["sealed_up_to_bar"], r2["sealed_at_max"], r2["max_tested_bar"]) == (6.0, True, 6.0)
+    assert pd.isna(r2["first_leak_bar"])
+    r3 = env.loc[("B", "distance", 6.0, np.nan)]
+    assert pd.isna(r3["sealed_up_to_bar"]) and r3["first_leak_bar"] == 0.0
+    assert env.loc[("B", "distance", 3.0, np.nan)]["sealed_up_to_bar"] == 0.0
+    # the threshold is configurable
+    loose = seal_envelope(_map(rows), threshold_l_min=0.5)
+    assert loose.loc[loose["spring_force_n"] == 429.0, "sealed_up_to_bar"].item() == 3.0
+
+
+def test_repeat_runs_of_a_setting_are_averaged_per_tested_pressure():
+    rows = [("a", None, "A", "force", None, 429.0, 5.0, 0.04), ("b", None, "A", "force", None, 429.0, 5.02, 0.08)]
+    env = seal_envelope(_map(rows))
+    assert env["first_leak_bar"].item() == 5.0 and env["max_leak_l_min"].item() == pytest.approx(0.06)
+
+
+@pytest.mark.parametrize("chamber, adjustment, z, force, seed", [
+    ("A", "distance", 3.0, None, 1), ("B", "distance", 4.5, None, 2), ("A", "distance", 6.0, None, 3),
+    ("B", "force", None, 429.0, 4), ("A", "force", None, 858.0, 5)])
+def test_recovers_simulated_leak_per_plateau(chamber, adjustment, z, force, seed):
+    from pipeline.simulator.plpa import simulate_leakage
+
+    run = simulate_leakage(chamber, adjustment, z, force, rng=seed)
+    d = run.data
+    got = leakage_plateaus(d["t_s"], d["p_supply_pa"], d["q_leak_kg_s"])
+    truth = pd.DataFrame(run.truth["plateaus"])
+    assert len(got) == len(truth) == 7
+    err = np.abs(got["leak_l_min"].to_numpy() - truth["leak_l_min"].to_numpy())
+    assert np.all((err <= 0.05) | (err <= 0.05 * truth["leak_l_min"].to_numpy()))
+    assert np.allclose(got["pressure_bar"], truth["pressure_bar"], atol=0.02)
+    # steady part only: each plateau lies inside its set-point window, after the valve transient
+    assert np.all(got["t_start_s"].to_numpy() >= truth["t_start_s"].to_numpy() + 0.2)
+    assert np.all(got["t_end_s"].to_numpy() < truth["t_end_s"].to_numpy())
+
+
+def test_simulated_force_settings_give_the_papers_conclusions():
+    from pipeline.simulator.plpa import FORCE_SETTINGS_N, simulate_leakage
+
+    maps = []
+    for i, force in enumerate(FORCE_SETTINGS_N):
+        run = simulate_leakage("A", "force", None, force, rng=10 + i)
+        d = run.data
+        m = leakage_plateaus(d["t_s"], d["p_supply_pa"], d["q_leak_kg_s"])
+        maps.append(m.assign(run_id=f"r{i}", hose_id=None, chamber="A", adjustment="force", z_rollers_mm=None,
+                             spring_force_n=force))
+    env = seal_envelope(pd.concat(maps, ignore_index=True)).sort_values("spring_force_n")
+    assert env["sealed_up_to_bar"].tolist() == [5.0, 6.0, 6.0]       # >= 33 %: 5 bar; >= 66 %: 6 bar
+    assert env["sealed_at_max"].tolist() == [False, True, True]
+
+
+def test_figure_has_one_panel_per_chamber_and_one_curve_per_setting():
+    rows = [("r", None, ch, "distance", z, None, float(p), max(0.0, p - 8 + z)) for ch in "AB"
+            for z in (3.0, 4.5, 6.0) for p in range(7)]
+    fig = plot_leakage_map(_map(rows), "distance")
+    a, b = fig.axes
+    assert a.get_title() == "(a) chamber A" and b.get_title() == "(b) chamber B"
+    assert "[bar]" in a.get_xlabel() and "[l/min ANR]" in a.get_ylabel()
+    assert len([ln for ln in a.get_lines() if ln.get_marker() == "o"]) == 3
+    labels = [t.get_text() for t in fig.legends[0].get_texts()]
+    assert labels[:3] == ["z = 3.0 mm", "z = 4.5 mm", "z = 6.0 mm"]
