@@ -1,0 +1,131 @@
+"""Viscous friction: pass detection and fits on hand-built cases, recovery of the simulator's truth."""
+import numpy as np
+import pandas as pd
+import pytest
+
+from analyses.viscous_friction import (coulomb_viscous, find_constant_velocity_passes, fit_coulomb_viscous,
+                                       fit_tanh_viscous, friction_from_run, nrmse_pct, plot_near_zero,
+                                       plot_viscous, stribeck_test, tanh_viscous, viscous_fits, viscous_points,
+                                       viscous_transition)
+
+
+def _trapezoid(v=0.1, acc=1.0, cruise_s=2.0, rest_s=1.0, fs=1000.0):
+    """Rest, accelerate, cruise at v, decelerate, rest (exact positions); the cruise window."""
+    ta = v / acc
+    t = np.arange(0, 2 * rest_s + 2 * ta + cruise_s, 1 / fs)
+    t1, t2, t3 = rest_s, rest_s + ta, rest_s + ta + cruise_s
+    x = np.select([t < t1, t < t2, t < t3, t < t3 + ta],
+                  [0.0, 0.5 * acc * (t - t1) ** 2, 0.5 * acc * ta**2 + v * (t - t2),
+                   0.5 * acc * ta**2 + v * cruise_s + v * (t - t3) - 0.5 * acc * (t - t3) ** 2],
+                  v * ta + v * cruise_s)
+    return t, x, (t2, t3)
+
+
+def test_one_pass_inside_the_cruise_hand_checked():
+    t, x, (c0, c1) = _trapezoid()
+    passes = find_constant_velocity_passes(t, 0.3 + x)
+    assert len(passes) == 1
+    a, b = passes[0]
+    assert c0 <= t[a] and t[b - 1] <= c1 and t[b - 1] - t[a] > 0.8 * (c1 - c0)
+    force = np.where((t >= c0) & (t <= c1), 5.0, 99.0)      # anything off the cruise would show
+    pts = viscous_points(t, 0.3 + x, force)
+    assert pts["velocity_m_s"].item() == pytest.approx(0.1, rel=1e-9)
+    assert pts["friction_n"].item() == 5.0
+    assert pts["direction"].item() == "P"
+    # backwards: a negative pass with negative friction
+    pts = viscous_points(t, 0.3 - x, -force)
+    assert pts["velocity_m_s"].item() == pytest.approx(-0.1, rel=1e-9)
+    assert (pts["friction_n"].item(), pts["direction"].item()) == (-5.0, "N")
+
+
+def test_rest_and_pure_acceleration_are_not_passes():
+    t = np.arange(0, 3, 1e-3)
+    assert find_constant_velocity_passes(t, np.full_like(t, 0.2)) == []
+    assert find_constant_velocity_passes(t, 0.2 + 0.5 * 0.2 * t**2) == []
+
+
+def test_nrmse_hand_checked():
+    assert nrmse_pct([0, 1, 2, 3], [0, 1, 2, 4]) == pytest.approx(100 * 0.5 / 3)
+    assert np.isnan(nrmse_pct([1, 1], [1, 1]))
+
+
+def test_coulomb_viscous_fit_exact_and_slow_points_left_out():
+    v = np.array([0.05, 0.1, 0.2, 0.4, 0.001])
+    f = coulomb_viscous(v, 3.0, 25.0)
+    f[-1] = 0.5                                           # in the tanh transition: not used
+    r = fit_coulomb_viscous(v, f)
+    assert (r["coulomb_n"], r["viscous_n_s_m"]) == (pytest.approx(3.0), pytest.approx(25.0))
+    assert r["n_points"] == 4 and r["nrmse_pct"] == pytest.approx(0.0, abs=1e-9)
+    r = fit_coulomb_viscous(-v, -f)                       # N: the Coulomb level is a magnitude too
+    assert (r["coulomb_n"], r["viscous_n_s_m"]) == (pytest.approx(3.0), pytest.approx(25.0))
+    assert fit_coulomb_viscous([0.1, 0.1], [5, 5])["coulomb_n"] is None
+
+
+def test_tanh_fit_and_stribeck_test():
+    v = np.array([0.3, 0.5, 0.8, 1, 1.5, 2, 3, 4, 5, 7]) * 1e-3
+    v = np.concatenate([v, -v])
+    rng = np.random.default_rng(3)
+    f = tanh_viscous(v, 3.0, 25.0, 0.5e-3) + rng.normal(0, 0.01, v.size)
+    r = fit_tanh_viscous(v, f)
+    assert r["transition_m_s"] == pytest.approx(0.5e-3, rel=0.05)
+    assert r["transition_ci_low_m_s"] < 0.5e-3 < r["transition_ci_high_m_s"]
+    assert r["coulomb_n"] == pytest.approx(3.0, rel=0.02)
+    assert stribeck_test(v, f)["stribeck_dip"] is False
+    # with a Stribeck dip: friction 1.5 N higher at low speed, decaying over 2 mm/s
+    dip = np.tanh(v / 0.3e-3) * (3.0 + 1.5 * np.exp(-(v / 2e-3) ** 2)) + 25.0 * v + rng.normal(0, 0.01, v.size)
+    s = stribeck_test(v, dip)
+    assert s["stribeck_dip"] is True and s["stribeck_amplitude_n"] > 0.5
+
+
+def test_friction_from_run_prefers_the_force_channel():
+    df = pd.DataFrame({"p_a_pa": [2e5], "p_b_pa": [1e5], "f_n": [7.0]})
+    assert friction_from_run(df, 4.9e-4)[0] == 7.0
+    assert friction_from_run(df.drop(columns="f_n"), 4.9e-4)[0] == pytest.approx(49.0)
+    with pytest.raises(ValueError):
+        friction_from_run(df.drop(columns="f_n"), None)
+
+
+def _points(run, bp):
+    pts = viscous_points(run.data["t_s"], run.data["x_m"], friction_from_run(run.data, 4.9e-4))
+    return pts.assign(backpressure_bar=bp)
+
+
+@pytest.mark.parametrize("bp, force_channel, seed", [(0.0, False, 1), (1.0, False, 2), (2.0, True, 3)])
+def test_recovers_simulated_passes_and_fits(bp, force_channel, seed):
+    from pipeline.simulator.plpa import simulate_viscous
+
+    run = simulate_viscous(bp, use_force_channel=force_channel, rng=seed)
+    pts = _points(run, bp)
+    truth = pd.DataFrame(run.truth["passes"])
+    assert len(pts) == len(truth)
+    assert np.allclose(pts["velocity_m_s"], truth["velocity_m_s"], rtol=0.01)
+    err = np.abs(pts["friction_n"].to_numpy() - truth["friction_n"].to_numpy())
+    assert np.all((err <= 0.3) | (err <= 0.03 * truth["friction_n"].abs().to_numpy()))
+    fits = viscous_fits(pts)
+    assert list(fits["direction"]) == ["P", "N"]
+    for _, r in fits.iterrows():
+        assert r["coulomb_n"] == pytest.approx(run.truth["fc_n"], rel=0.15)
+        assert r["viscous_n_s_m"] == pytest.approx(run.truth["ka_n_s_m"], rel=0.05)
+        assert 0 < r["nrmse_pct"] < 2
+
+
+def test_recovers_simulated_near_zero_transition_without_stribeck_dip():
+    from pipeline.simulator.plpa import NEAR_ZERO_SPEEDS_M_S, simulate_viscous
+
+    run = simulate_viscous(0.0, NEAR_ZERO_SPEEDS_M_S, rng=7)
+    pts = _points(run, 0.0)
+    truth = pd.DataFrame(run.truth["passes"])
+    assert len(pts) == len(truth)
+    err = np.abs(pts["friction_n"].to_numpy() - truth["friction_n"].to_numpy())
+    assert np.all((err <= 0.3) | (err <= 0.03 * truth["friction_n"].abs().to_numpy()))
+    tr = viscous_transition(pts)
+    assert len(tr) == 1
+    row = tr.iloc[0]
+    assert row["transition_velocity_mm_s"] == pytest.approx(1e3 * run.truth["vs_m_s"], rel=0.1)
+    assert row["coulomb_n"] == pytest.approx(run.truth["fc_n"], rel=0.15)
+    assert row["stribeck_dip"] is False or row["stribeck_dip"] == False  # noqa: E712  (numpy bool)
+    fig = plot_near_zero(pts, tr)
+    ax = fig.axes[0]
+    assert ax.get_xlabel() == "velocity [mm/s]" and "[N]" in ax.get_ylabel()
+    fig = plot_viscous(pts, viscous_fits(pts))
+    assert fig.axes[0].get_xlabel() == "velocity [m/s]"
