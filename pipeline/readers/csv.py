@@ -12,6 +12,7 @@ parsing); whitespace-separated files go through pandas' C parser in chunks.
 """
 from __future__ import annotations
 
+import csv as _csv
 import re
 from collections.abc import Iterator
 from pathlib import Path
@@ -20,6 +21,7 @@ import pyarrow as pa
 import pyarrow.csv as pacsv
 
 from pipeline.readers.base import RawColumn, RawExport, ReaderError, decode_text, parse_key_value, split_name_unit
+from schemas.channels import canonical_name
 
 FORMAT = "csv"
 EXTENSIONS = (".csv", ".txt")
@@ -31,6 +33,9 @@ BLOCK_BYTES = 1 << 23
 
 _DELIMITERS = {",": ",", ";": ";", "\t": "\t", "tab": "\t", "\\t": "\t", "whitespace": "whitespace", " ": "whitespace"}
 _DECIMAL_COMMA = re.compile(r"^[+-]?\d+,\d+([eE][+-]?\d+)?$")
+# Line breaks as the CSV parsers see them (str.splitlines also breaks at \x85, \x0c, ...,
+# which a Latin-1 file may contain inside a line).
+_LINE_BREAK = re.compile(r"\r\n|\r|\n")
 
 
 def _head_lines(path: Path) -> tuple[list[str], str, bool]:
@@ -38,7 +43,9 @@ def _head_lines(path: Path) -> tuple[list[str], str, bool]:
         data = fh.read(HEAD_BYTES)
         complete = len(data) < HEAD_BYTES
     text, encoding = decode_text(data)
-    lines = text.splitlines()
+    lines = _LINE_BREAK.split(text)
+    if lines and lines[-1] == "":
+        lines.pop()
     if not complete and lines:
         lines = lines[:-1]  # the last line may be cut
     return lines, encoding, complete
@@ -46,7 +53,8 @@ def _head_lines(path: Path) -> tuple[list[str], str, bool]:
 
 def _detect_delimiter(header: str, samples: list[str]) -> str:
     best, best_score = ",", -1
-    for cand in (",", ";", "\t"):
+    # On a tie ";" and tab win: with them a "," is a decimal comma ("0;1,5").
+    for cand in ("\t", ";", ","):
         n = header.count(cand)
         if n == 0:
             continue
@@ -106,7 +114,11 @@ def read_csv(path: str | Path, read: dict | None = None, hints: dict | None = No
     header_line = lines[i] if has_header else None
     data_start = i + 1 if has_header else i
     samples = [ln for ln in lines[data_start:data_start + 20] if ln.strip()]
-    delimiter = _DELIMITERS[delim_opt] if delim_opt is not None else _detect_delimiter(header_line or samples[0] if samples else "", samples)
+    if delim_opt is not None:
+        delimiter = _DELIMITERS[delim_opt]
+    else:
+        delimiter = _detect_delimiter(header_line if header_line is not None else (samples[0] if samples else ""),
+                                      samples)
     decimal = read.get("decimal") or _detect_decimal(delimiter, samples)
     if decimal not in (".", ","):
         raise ReaderError(f"rig.toml decimal {decimal!r} is not '.' or ','")
@@ -114,12 +126,17 @@ def read_csv(path: str | Path, read: dict | None = None, hints: dict | None = No
         raise ReaderError("decimal comma with a comma delimiter cannot be parsed")
 
     def split(line: str) -> list[str]:
-        return line.split() if delimiter == "whitespace" else line.split(delimiter)
+        if delimiter == "whitespace":
+            return line.split()
+        return next(_csv.reader([line], delimiter=delimiter), [])   # honours quoted fields
 
+    width = max((len(split(s)) for s in samples), default=0)
     if has_header:
         names = [h.strip() for h in split(header_line)]
+        # Rows that end with a delimiter the header does not have: extra, unnamed columns.
+        if width > len(names) and all(not f.strip() for row in map(split, samples) for f in row[len(names):]):
+            names += [""] * (width - len(names))
     else:
-        width = max((len(split(s)) for s in samples), default=0)
         names = [str(k + 1) for k in range(width)]
     if not names or all(not n for n in names):
         raise ReaderError("empty header row")
@@ -133,14 +150,22 @@ def read_csv(path: str | Path, read: dict | None = None, hints: dict | None = No
             continue  # trailing delimiter: an unnamed, empty column
         name, unit = split_name_unit(header) if has_header else (header, None)
         values = [row[k].strip() for row in map(split, samples) if k < len(row) and row[k].strip()]
-        dtype = "float" if all(_is_number(v, decimal) for v in values) else "string"
+        # A canonical channel is always numbers: a bad value is then reported with its line.
+        numeric = canonical_name(name) is not None or all(_is_number(v, decimal) for v in values)
+        dtype = "float" if numeric else "string"
         columns.append(RawColumn(key=key, name=name, unit=unit, index=k + 1, dtype=dtype))
     # Physical lines before the first data row (comment lines, skipped rows, header).
     lines_before = data_start
 
     def batches() -> Iterator[pa.RecordBatch]:
         if delimiter == "whitespace":
-            yield from _whitespace_batches(path, keys, columns, lines_before, encoding, decimal)
+            try:
+                yield from _whitespace_batches(path, keys, columns, lines_before, encoding, decimal)
+            except ReaderError:
+                found = _find_bad_line(path, encoding, lines_before, split, decimal, columns, len(keys))
+                if found:
+                    raise ReaderError(found) from None
+                raise
             return
         ropts = pacsv.ReadOptions(skip_rows=lines_before, column_names=keys, block_size=BLOCK_BYTES,
                                   encoding="utf8" if encoding.startswith("utf-8") else encoding)
@@ -154,7 +179,8 @@ def read_csv(path: str | Path, read: dict | None = None, hints: dict | None = No
             for batch in reader:
                 yield batch
         except pa.ArrowInvalid as exc:
-            raise ReaderError(_explain_arrow_error(str(exc), lines_before)) from None
+            found = _find_bad_line(path, encoding, lines_before, split, decimal, columns, len(keys))
+            raise ReaderError(found or _explain_arrow_error(str(exc), lines_before)) from None
 
     return RawExport(format=FORMAT, columns=columns, metadata=metadata, batches=batches)
 
@@ -184,6 +210,33 @@ def _is_number(text: str, decimal: str) -> bool:
         return True
     except ValueError:
         return False
+
+
+def _find_bad_line(path, encoding, lines_before, split, decimal, columns, width) -> str | None:
+    """Scan the data for the first row the parser refused: a bad number or a wrong field count.
+
+    Only run after a parse error, so the normal path stays fast. Returns the one-line message
+    naming the (1-based, physical) line, or None when nothing is found.
+    """
+    floats = [c for c in columns if c.dtype == "float"]
+    enc = "utf-8-sig" if encoding.startswith("utf-8") else encoding
+    with open(path, encoding=enc, errors="replace", newline=None) as fh:
+        for lineno, line in enumerate(fh, start=1):
+            if lineno <= lines_before:
+                continue
+            line = line.rstrip("\n")
+            if not line.strip():
+                continue
+            fields = split(line)
+            if len(fields) > width:
+                return f"line {lineno}: {len(fields)} fields where the header has {width}: {line[:60]!r}"
+            for c in floats:
+                k = c.index - 1
+                if k < len(fields):
+                    v = fields[k].strip()
+                    if v and not _is_number(v, decimal):
+                        return f"line {lineno}: value {v!r} in column `{c.name}` is not a number"
+    return None
 
 
 def _explain_arrow_error(message: str, lines_before: int) -> str:
