@@ -5,7 +5,8 @@ starts a step that lasts until the next jump (or the end of the run). Per step:
 
 * overshoot: largest excursion beyond the new reference, in the direction of the step, in % of
   the step;
-* settling time: from the jump to the last instant the error is outside the 2 % band;
+* settling time: from the jump to the last instant the error is outside the 2 % band (NaN when
+  the error leaves the band during the last 10 % of the step: not shown to have settled);
 * rise time: from the first crossing of 10 % of the step to the first crossing of 90 %;
 * steady-state error: new reference minus the mean position over the last 10 % of the step,
   signed in the direction of the step (positive: short of the reference, negative: beyond it).
@@ -132,7 +133,7 @@ def step_metrics(t, x, t_step: float, ref_before: float, ref_after: float, band:
     settled = len(outside) == 0 or outside[-1] < len(t) - n_tail
     if len(outside) == 0:
         settling = max(0.0, float(t[0] - t_step))
-    elif outside[-1] == len(t) - 1:
+    elif not settled:  # still outside the band in the last 10 % of the step: not settled
         settling = nan
     else:
         i = int(outside[-1])

@@ -1,0 +1,87 @@
+"""Closed-loop step metrics: hand-checked shapes, then the simulator's noise-free truth."""
+import numpy as np
+import pytest
+from matplotlib.figure import Figure
+
+from analyses.step_response import find_steps, plot_step_errors, step_metrics, step_response_metrics
+from pipeline.simulator.plpa import simulate_step
+
+
+def _piecewise(t, knots):
+    """Linear interpolation through (time, value) knots."""
+    kt, kv = zip(*knots)
+    return np.interp(t, kt, kv)
+
+
+def test_hand_checked_piecewise_linear_step():
+    # a 10 mm step at t = 0: ramp to 11 mm at 1 s (10 % overshoot), back to 10 mm at 2 s, flat after
+    t = np.arange(0, 6, 0.001)
+    x = _piecewise(t, [(0, 0), (1, 0.011), (2, 0.010), (6, 0.010)])
+    m = step_metrics(t, x, 0.0, 0.0, 0.010)
+    assert m.step_mm == pytest.approx(10.0)
+    assert m.overshoot_pct == pytest.approx(10.0, abs=1e-6)
+    # 10 % at 1/11 s, 90 % at 9/11 s
+    assert m.rise_time_s == pytest.approx(8 / 11, abs=1e-6)
+    # leaves the 2 % band (10.2 mm) for the last time at 1 + 0.8 s
+    assert m.settling_time_s == pytest.approx(1.8, abs=1e-6)
+    assert m.steady_state_error_mm == pytest.approx(0.0, abs=1e-9)
+    assert m.settled
+
+
+def test_downward_step_and_signed_steady_state_error():
+    t = np.arange(0, 4, 0.001)
+    # from 20 mm to 10 mm, ends 0.1 mm short of the reference (at 10.1 mm): no overshoot
+    x = _piecewise(t, [(0, 0.020), (1, 0.0101), (4, 0.0101)])
+    m = step_metrics(t, x, 0.0, 0.020, 0.010)
+    assert m.step_mm == pytest.approx(-10.0)
+    assert m.overshoot_pct == 0.0
+    assert m.rise_time_s == pytest.approx(0.8 / 0.99, abs=1e-6)
+    assert m.steady_state_error_mm == pytest.approx(0.1, abs=1e-9)   # positive: short of the reference
+    assert m.settling_time_s == pytest.approx((10 - 0.2) / 10 / 0.99 * 1.0 - 0.0, rel=1e-3)
+
+
+def test_never_settling_step_has_nan_settling_time():
+    t = np.arange(0, 2, 0.001)
+    x = 0.01 * (1 - np.exp(-t / 0.3)) + 0.001 * np.sin(2 * np.pi * 3 * t)   # oscillates +-10 % forever
+    m = step_metrics(t, x, 0.0, 0.0, 0.01)
+    assert np.isnan(m.settling_time_s) and not m.settled
+
+
+def test_find_steps_and_no_step():
+    t = np.arange(0, 3, 0.01)
+    r = np.where(t < 1, 0.2, np.where(t < 2, 0.22, 0.2))
+    assert find_steps(t, r) == [(100, 200, 0.2, 0.22), (200, 300, 0.22, 0.2)]
+    assert step_response_metrics(t, r, np.full_like(t, 0.2)).empty
+
+
+def test_metrics_equal_the_simulators_noise_free_truth():
+    run = simulate_step(0)
+    d = run.data
+    got = step_response_metrics(d["t_s"], d["x_m"], d["x_ref_m"])
+    truth = run.truth["steps"]
+    assert len(got) == len(truth) == 2
+    for g, tr in zip(got.itertuples(), truth):
+        assert g.t_step_s == pytest.approx(tr["t_step_s"])
+        assert g.step_mm == pytest.approx(tr["step_mm"])
+        assert g.overshoot_pct == pytest.approx(tr["overshoot_pct"], abs=1.0)
+        assert g.settling_time_s == pytest.approx(tr["settling_time_s"], rel=0.10)
+        assert g.rise_time_s == pytest.approx(tr["rise_time_s"], rel=0.10)
+        assert g.steady_state_error_mm == pytest.approx(tr["steady_state_error_mm"], abs=0.05)
+
+
+def test_metrics_survive_extra_position_noise():
+    run = simulate_step(0)
+    d = run.data
+    noisy = d["x_m"] + np.random.default_rng(1).normal(0, 30e-6, len(d))   # 30 um, 6 encoder counts
+    got = step_response_metrics(d["t_s"], noisy, d["x_ref_m"])
+    for g, tr in zip(got.itertuples(), run.truth["steps"]):
+        assert g.overshoot_pct == pytest.approx(tr["overshoot_pct"], abs=1.0)
+        assert g.settling_time_s == pytest.approx(tr["settling_time_s"], rel=0.10)
+        assert g.rise_time_s == pytest.approx(tr["rise_time_s"], rel=0.10)
+
+
+def test_figure_is_error_in_percent_of_the_step():
+    t = np.linspace(0, 5, 100)
+    fig = plot_step_errors([{"t": t, "error_pct": 100 * np.exp(-t), "label": "a"}])
+    assert isinstance(fig, Figure)
+    np.testing.assert_allclose(fig.axes[0].get_lines()[0].get_ydata(), 100 * np.exp(-t))
