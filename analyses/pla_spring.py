@@ -139,14 +139,21 @@ def read_p0(d, p_gauge, p_atm: float = P_ATM_PA) -> float:
     Returns
     -------
     float
-        Median over the crossings of the interpolated pressure, plus ``p_atm``; NaN if ``d``
-        never crosses zero. [Pa]
+        Pressure at ``d = 0`` plus ``p_atm``: the intercept of a quadratic in ``d`` fitted to the
+        samples within 20 % of the amplitude around mid-stroke (every pass through mid-stroke
+        contributes, which averages the sensor noise), or the median of the pressure interpolated
+        at the zero crossings when there are too few such samples; NaN if ``d`` never crosses
+        zero. [Pa]
     """
+    d = np.asarray(d, float)
+    p = np.asarray(p_gauge, float)
     idx, _ = _zero_crossings(d)
     if len(idx) == 0:
         return float("nan")
-    p = np.interp(idx, np.arange(len(p_gauge)), np.asarray(p_gauge, float))
-    return float(np.median(p) + p_atm)
+    near = np.abs(d) <= 0.2 * np.max(np.abs(d))
+    if np.count_nonzero(near) >= 20 and np.ptp(d[near]) > 0:
+        return float(np.polynomial.polynomial.polyfit(d[near], p[near], 2)[0] + p_atm)
+    return float(np.median(np.interp(idx, np.arange(len(p)), p)) + p_atm)
 
 
 def rod_velocity(t, d, frequency_hz: float | None = None):
