@@ -391,11 +391,11 @@ def _row_shift(lvm: _Lvm, line: str) -> int:
 
 
 def _has_comment(lvm: _Lvm, text: str, col: int) -> bool:
-    """Whether any data line of ``text`` (up to the next header) has a comment at ``col``."""
+    """Whether any data line of ``text`` (all segments in it) has a comment at ``col``."""
     shift = None
     for line in text.split("\n"):
         if _TAG_LINE.match(line):
-            break
+            continue
         line = line.rstrip("\r")
         if not line.strip().strip(lvm.sep).strip():
             continue

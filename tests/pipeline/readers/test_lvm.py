@@ -105,6 +105,11 @@ def test_lvm_comment_column(tmp_path):
     assert table(ex).column("comment").to_pylist() == ["valve open", None, "note 2"]
 
 
+def test_lvm_comment_only_in_a_later_segment_is_kept(tmp_path):
+    ex = open_lvm(tmp_path, lvm_bytes([seg(n=2), seg(n=2, comments={1: "late"})], x_columns="No"))
+    assert table(ex).column("comment").to_pylist() == [None, None, None, "late"]
+
+
 def test_lvm_empty_comment_column_is_dropped(tmp_path):
     ex = open_lvm(tmp_path, lvm_bytes([seg(n=3)], x_columns="One"))
     assert [c.name for c in ex.columns] == ["t", "x", "p_a"]
