@@ -382,13 +382,13 @@ def plot_weibull_probability(groups: dict, unit: str = "km"):
         if fit.ok:
             xs = np.geomspace(max(life.min() / 3, 1e-9), life.max() * 3, 100)
             ax.plot(xs, fit.shape * np.log(xs / fit.scale), "-", color=color, lw=1)
+    if all_x:
+        x = np.concatenate(all_x)
+        ax.set_xlim(x.min() / 2, x.max() * 2)
     ax.set_xscale("log")
     ax.set_yticks(lin(ticks), [f"{100 * t:g}" for t in ticks])
     ax.axhline(sus_y + 0.2, color="grey", lw=0.5)
     ax.set_ylim(sus_y - 0.2, lin(ticks[-1]) + 0.2)
-    if all_x:
-        x = np.concatenate(all_x)
-        ax.set_xlim(x.min() / 2, x.max() * 2)
     ax.set_xlabel(f"life [{unit}]")
     ax.set_ylabel("fraction failed [%] (Weibull scale)")
     ax.set_title("Weibull probability plot (| = suspension)")
@@ -474,7 +474,7 @@ def plot_hose_distances(hoses: pd.DataFrame):
     fig, ax = _figure((max(6.0, 0.3 * len(h) + 2), 4.5))
     pos = np.arange(len(h))
     ax.bar(pos, h["distance_km"].fillna(0.0), color=[colors.get(s, "grey") for s in h["status"]])
-    labels = [f"{hid}" + (f"\n{adj[0]}" if isinstance(adj, str) and adj else "")
+    labels = [f"{hid}" + (f" ({adj[0]})" if isinstance(adj, str) and adj else "")
               for hid, adj in zip(h["hose_id"], h["adjustment"] if "adjustment" in h else [None] * len(h))]
     ax.set_xticks(pos, labels, rotation=90, fontsize="x-small")
     from matplotlib.patches import Patch
