@@ -97,6 +97,23 @@ def _decode(data: bytes, prefer: str | None = None) -> tuple[str, str]:
     return data.decode("latin-1"), "latin-1"
 
 
+# Candidates for a header line: a line break followed by a letter (fast: literal prefix).
+_TAG_CANDIDATE = re.compile(r"\n[A-Za-z_*]")
+
+
+def _next_tag_line(buf: str, pos: int) -> int:
+    """Offset of the first header line at or after ``pos`` (``pos`` starts a line), else len(buf)."""
+    if _TAG_LINE.match(buf, pos):
+        return pos
+    while True:
+        m = _TAG_CANDIDATE.search(buf, pos)
+        if m is None:
+            return len(buf)
+        if _TAG_LINE.match(buf, m.start() + 1):
+            return m.start() + 1
+        pos = m.start() + 1
+
+
 class _Scanner:
     """Line / block access to a text file read in chunks of whole lines."""
 
@@ -165,8 +182,7 @@ class _Scanner:
         while self.pos >= len(self.buf):
             if not self._fill():
                 return None
-        m = _TAG_LINE.search(self.buf, self.pos)
-        end = m.start() if m else len(self.buf)
+        end = _next_tag_line(self.buf, self.pos)
         text = self.buf[self.pos:end]
         start = self.lineno
         self.lineno += text.count("\n")
@@ -550,7 +566,8 @@ def _stream(lvm: _Lvm, sc: _Scanner, first: _Segment, columns: list[RawColumn], 
             break
 
 
-_BLANK_LINES = {"\t": re.compile(r"(?m)^[\t \r]*\n"), ",": re.compile(r"(?m)^[, \r]*\n")}
+# Lines of separators only, each matched from the line break before it (literal prefix: fast).
+_BLANK_LINES = {"\t": re.compile(r"\n[\t \r]*(?=\n)"), ",": re.compile(r"\n[, \r]*(?=\n)")}
 
 
 def _parse_block(lvm: _Lvm, st: _SegState, text: str, line0: int, columns: list[RawColumn], own_t: bool,
@@ -559,7 +576,7 @@ def _parse_block(lvm: _Lvm, st: _SegState, text: str, line0: int, columns: list[
 
     seg = st.seg
     # Lines of separators only (LabVIEW writes one between segments) are not samples.
-    clean = _BLANK_LINES[lvm.sep].sub("", text)
+    clean = _BLANK_LINES[lvm.sep].sub("", "\n" + text)[1:]
     if not clean.strip():
         return None
     if st.shift is None:
