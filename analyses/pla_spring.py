@@ -189,9 +189,9 @@ def rod_velocity(t, d, frequency_hz: float | None = None):
 def loop_energy(d, f, chamber: str) -> tuple[float, int]:
     """Energy dissipated per cycle: the area of the force-displacement loop.
 
-    Over the whole cycles between the first and the last upward zero crossing of ``d``:
-    ``s_f * (closed integral of F dd) / cycles`` (positive when the loop is traversed as the
-    model says, upper branch on compression).
+    Over the whole cycles between the first and the last zero crossing of ``d`` in one direction
+    (upward or downward, whichever spans more cycles): ``s_f * (closed integral of F dd) / cycles``
+    (positive when the loop is traversed as the model says, upper branch on compression).
 
     Parameters
     ----------
@@ -207,16 +207,25 @@ def loop_energy(d, f, chamber: str) -> tuple[float, int]:
         Energy per cycle [J] (NaN without a whole cycle) and the number of cycles.
     """
     sf = FORCE_SIGN[_chamber(chamber)]
-    idx, direction = _zero_crossings(d)
-    ups = np.ceil(idx[direction > 0]).astype(int)
-    if len(ups) < 2:
+    span = _cycle_span(d)
+    if span is None:
         return float("nan"), 0
-    a, b = ups[0], ups[-1]
+    a, b, cycles = span
     d = np.asarray(d, float)[a:b + 1]
     f = np.asarray(f, float)[a:b + 1]
     work = float(np.sum(0.5 * (f[1:] + f[:-1]) * np.diff(d)))
-    cycles = len(ups) - 1
     return sf * work / cycles, cycles
+
+
+def _cycle_span(d):
+    """(first index, last index, cycles) of the whole cycles of ``d``, or None without one."""
+    idx, direction = _zero_crossings(d)
+    best = None
+    for sense in (1.0, -1.0):
+        at = np.ceil(idx[direction == sense]).astype(int)
+        if len(at) >= 2 and (best is None or len(at) - 1 > best[2]):
+            best = (int(at[0]), int(at[-1]), len(at) - 1)
+    return best
 
 
 @dataclass
@@ -292,13 +301,13 @@ def prepare_spring_run(run_id: str, t, d, f, p_gauge, chamber: str, frequency_hz
         empty.message = "no displacement"
         return empty
     idx, direction = _zero_crossings(d)
-    if np.sum(direction > 0) < 2:
-        empty.message = "less than one whole cycle of displacement around mid-stroke"
+    if len(idx) < 2:
+        empty.message = "the displacement does not pass mid-stroke both ways"
         return empty
     if not frequency_hz or not np.isfinite(frequency_hz):
-        ups = idx[direction > 0]
-        frequency_hz = float((len(ups) - 1) / (np.interp(ups[-1], np.arange(len(t)), t)
-                                               - np.interp(ups[0], np.arange(len(t)), t)))
+        # crossings are half a period apart
+        tc = np.interp(idx, np.arange(len(t)), t)
+        frequency_hz = float((len(idx) - 1) / (2 * (tc[-1] - tc[0])))
     if not amplitude_m or not np.isfinite(amplitude_m):
         amplitude_m = 0.5 * float(np.ptp(d))
     p0 = read_p0(d, p, p_atm)
@@ -306,7 +315,7 @@ def prepare_spring_run(run_id: str, t, d, f, p_gauge, chamber: str, frequency_hz
     fx = np.interp(idx, np.arange(len(f)), f)
     # at mid-stroke the dissipative terms flip with the direction: the mean of the upward and
     # downward crossings is the static force
-    static = 0.5 * (np.mean(fx[direction > 0]) + np.mean(fx[direction < 0])) if np.any(direction < 0) else nan
+    static = 0.5 * (np.mean(fx[direction > 0]) + np.mean(fx[direction < 0])) if (np.any(direction < 0) and np.any(direction > 0)) else nan
     energy, cycles = loop_energy(d, f, chamber)
     return SpringRun(run_id, chamber, p0, float(amplitude_m), float(frequency_hz), t, d, v, f, p, stroke_m, p_atm,
                      float(static), energy, cycles)
@@ -412,11 +421,9 @@ def _seed(runs: list[SpringRun]) -> dict:
         amin = min(r.amplitude_m for r in good)
         for r in (r for r in good if r.amplitude_m <= amin * 1.05):
             pg = spring_pressure(r.d, r.p0_abs, n, chamber, r.stroke_m) - r.p_atm
-            idx, direction = _zero_crossings(r.d)
-            ups = np.ceil(idx[direction > 0]).astype(int)
-            a, b = ups[0], ups[-1]
+            a, b, cycles = _cycle_span(r.d)
             travel_work = float(np.sum(np.abs(np.diff(r.d[a:b + 1])) * 0.5 * (pg[a:b] + pg[a + 1:b + 1])))
-            travel_work /= max(1, len(ups) - 1)
+            travel_work /= cycles
             if travel_work > 0:
                 eps_vals.append((r.loop_energy_j - np.pi * delta * r.amplitude_m ** 2) / travel_work)
     eps = float(np.median(eps_vals)) if eps_vals else 1e-5

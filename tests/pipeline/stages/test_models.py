@@ -1,0 +1,188 @@
+"""Stage models end to end: simulated identification, step, spring and pressure-step runs written as
+bench exports (mm, bar, bar(a), kN, mV...), rebuilt into a warehouse whose tables must recover the
+simulator's truth; runs that cannot be fitted give NULLs and a warning."""
+import itertools
+
+import duckdb
+import numpy as np
+import pandas as pd
+import pytest
+
+from pipeline.rebuild import rebuild
+from pipeline.simulator import (simulate_identification, simulate_pressure_step, simulate_spring,
+                                simulate_step)
+from pipeline.simulator.writers import default_columns, write_csv
+from pipeline.stages import models as stage
+
+START = "2025-03-03T08:00:00"
+UNITS = {"x": "mm", "x_ref": "mm", "d": "mm", "f": "kN", "u": "V", "u_d": "mV", "p": "bar", "p_ref": "bar"}
+
+
+def _write(raw, name, run, units=None):
+    meta = {**{k: v for k, v in run.metadata.items() if v is not None}, "run_id": f"sim/{name}", "started_at": START}
+    write_csv(raw / "sim" / f"{name}.csv", run.data, default_columns(run.data.columns, {**UNITS, **(units or {})}),
+              meta, delimiter=";" if len(name) % 2 else ",")
+
+
+SPRING_TESTS = [(p0, amp, f) for (p0, amp), f in zip(itertools.product((2.0, 3.0, 4.0, 5.0), (3.0, 5.0, 7.0)),
+                                                     itertools.cycle((0.5, 1.0, 2.0, 4.0, 1.5)))]
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory):
+    root = tmp_path_factory.mktemp("models")
+    raw, wh = root / "raw", root / "warehouse"
+    truth = {}
+
+    def add(name, run, units=None):
+        _write(raw, name, run, units)
+        truth[f"sim/{name}"] = run.truth
+
+    add("ident", simulate_identification(11, duration_s=20.0))
+    flat = simulate_identification(12, duration_s=5.0)
+    flat.data["u_d_v"] = 0.0
+    flat.data["x_m"] = flat.data["x_ref_m"]
+    add("ident_flat", flat)                                    # no excitation
+    add("step", simulate_step(0))
+    nostep = simulate_step(0, steps_mm=(0.0,), hold_s=2.0)
+    add("step_none", nostep)                                   # the reference never jumps
+    for chamber in ("rear", "front"):
+        for i, (p0, amp, f) in enumerate(SPRING_TESTS):
+            units = {"p": "bar(a)"} if chamber == "front" else None
+            add(f"spring_{chamber}_{i:02d}", simulate_spring(chamber, p0, amp, f, rng=100 + i, cycles=2.0), units)
+        add(f"pstep_{chamber}", simulate_pressure_step(chamber, rng=7))
+    still = simulate_spring("rear", 3.0, 5.0, 1.0, rng=1)
+    still.data["d_m"] = 0.0
+    add("spring_still", still)                                  # the rod never moves
+    summary = rebuild(raw, wh, jobs=2, report=False)
+    return wh, truth, summary
+
+
+def q(wh, sql):
+    con = duckdb.connect(str(wh / "pneubench.duckdb"), read_only=True)
+    try:
+        return con.execute(sql).df()
+    finally:
+        con.close()
+
+
+def _warnings(wh, run_id):
+    return list(q(wh, f"SELECT warnings FROM runs WHERE run_id = '{run_id}'")["warnings"].iloc[0])
+
+
+def test_nothing_quarantined(built):
+    wh, truth, summary = built
+    assert [p.error for p in summary.quarantine] == []
+    assert len(q(wh, "SELECT * FROM runs")) == len(truth)
+
+
+def test_identification_recovers_table2_and_flags_the_flat_run(built):
+    wh, truth, _ = built
+    t = q(wh, "SELECT * FROM identification ORDER BY run_id").set_index("run_id")
+    good, tr = t.loc["sim/ident"], truth["sim/ident"]
+    assert good["wn_rad_s"] == pytest.approx(tr["wn_rad_s"], rel=0.05)
+    assert good["zeta"] == pytest.approx(tr["zeta"], rel=0.05)
+    assert good["k_lin_m_v_s"] == pytest.approx(tr["k_lin_m_v_s"], rel=0.05)
+    assert good["fit_pct"] >= 90
+    assert good["id_sample_rate_hz"] == pytest.approx(50.0)
+    assert good["n_samples_id"] == 1000
+    flat = t.loc["sim/ident_flat"]
+    assert flat[["wn_rad_s", "zeta", "k_lin_m_v_s", "fit_pct"]].isna().all()
+    assert any("no excitation" in w for w in _warnings(wh, "sim/ident_flat"))
+
+
+def test_step_response_matches_noise_free_truth(built):
+    wh, truth, _ = built
+    s = q(wh, "SELECT * FROM step_response WHERE run_id = 'sim/step' ORDER BY t_step_s")
+    tr = truth["sim/step"]["steps"]
+    assert s["step_mm"].tolist() == pytest.approx([20.0, -20.0])
+    for (_, g), t in zip(s.iterrows(), tr):
+        assert g["overshoot_pct"] == pytest.approx(t["overshoot_pct"], abs=1.0)
+        assert g["settling_time_s"] == pytest.approx(t["settling_time_s"], rel=0.10)
+        assert g["rise_time_s"] == pytest.approx(t["rise_time_s"], rel=0.10)
+    none = q(wh, "SELECT * FROM step_response WHERE run_id = 'sim/step_none'")
+    assert len(none) == 1 and none[["step_mm", "overshoot_pct", "settling_time_s"]].isna().all(axis=None)
+    assert any("no step" in w for w in _warnings(wh, "sim/step_none"))
+
+
+def test_spring_fits_recover_table1(built):
+    wh, truth, _ = built
+    fits = q(wh, "SELECT * FROM spring_fits ORDER BY chamber").set_index("chamber")
+    assert list(fits.index) == ["front", "rear"]
+    for chamber in ("front", "rear"):
+        f, tr = fits.loc[chamber], truth[f"sim/spring_{chamber}_00"]
+        assert f["n_tests"] == len(SPRING_TESTS)
+        assert f["n_polytropic"] == pytest.approx(tr["n"], rel=0.02)
+        assert f["ae_m2"] == pytest.approx(tr["Ae"], rel=0.02)
+        assert f["epsilon_m2"] == pytest.approx(tr["eps"], rel=0.10)
+        assert f["delta_n_m"] == pytest.approx(tr["delta"], rel=0.10)
+        assert f["max_nrmse_pct"] < 2.5
+
+
+def test_spring_tests_have_p0_from_the_run_and_nrmse_below_the_papers_bound(built):
+    wh, truth, _ = built
+    t = q(wh, "SELECT * FROM spring_tests ORDER BY run_id").set_index("run_id")
+    assert len(t) == 2 * len(SPRING_TESTS) + 1
+    fitted = t.drop(index="sim/spring_still")
+    for rid, row in fitted.iterrows():
+        assert row["p0_bar_abs"] == pytest.approx(truth[rid]["p0_bar_abs"], abs=0.01), rid
+        assert row["amplitude_mm"] == pytest.approx(truth[rid]["amplitude_mm"])
+        assert row["frequency_hz"] == pytest.approx(truth[rid]["frequency_hz"])
+        assert row["chamber"] == truth[rid]["chamber"]
+    assert (fitted["nrmse_pct"] < 2.5).all() and (fitted["nrmse_pct"] > 0).all()
+    assert pd.isna(t.loc["sim/spring_still", "nrmse_pct"])
+    assert any("no displacement" in w for w in _warnings(wh, "sim/spring_still"))
+
+
+def test_spring_loop_energy(built):
+    wh, truth, _ = built
+    e = q(wh, "SELECT * FROM spring_loop_energy ORDER BY run_id")
+    assert len(e) == 2 * len(SPRING_TESTS)
+    assert (e["n_cycles"] >= 1).all()
+    np.testing.assert_allclose(e["model_loop_energy_j"], e["loop_energy_j"], rtol=0.08)
+    # structural part pi delta D^2 is most of the loop at the lowest pressure
+    low = e[e["p0_bar_abs"] < 2.5]
+    assert ((low["structural_energy_j"] / low["loop_energy_j"]).between(0.6, 1.0)).all()
+
+
+def test_pressure_dynamics_recover_table2(built):
+    wh, truth, _ = built
+    pdy = q(wh, "SELECT * FROM pressure_dynamics ORDER BY chamber, direction")
+    assert pdy[["chamber", "direction"]].values.tolist() == [["front", "charge"], ["front", "discharge"],
+                                                              ["rear", "charge"], ["rear", "discharge"]]
+    tr = truth["sim/pstep_rear"]
+    for _, r in pdy.iterrows():
+        assert r["wn_rad_s"] == pytest.approx(tr["wn_rad_s"], rel=0.05)
+        assert r["zeta"] == pytest.approx(tr[f"xi_{r['direction']}"], rel=0.05)
+        assert r["nrmse_pct"] < 1.0
+        assert r["n_steps"] == 3
+    steps = q(wh, "SELECT * FROM pressure_steps WHERE run_id = 'sim/pstep_front' ORDER BY t_step_s")
+    expect = truth["sim/pstep_front"]["steps"]
+    assert steps["direction"].tolist() == [s["direction"] for s in expect]
+    assert steps["p_to_bar"].tolist() == pytest.approx([s["p_to_pa"] / 1e5 for s in expect])
+
+
+def test_figures_are_written(built):
+    wh, _, _ = built
+    figs = q(wh, "SELECT name, path FROM figures WHERE stage = 'models' ORDER BY name")
+    assert figs["name"].tolist() == ["identification_sim_ident", "pressure_steps_front", "pressure_steps_rear",
+                                     "spring_loop_energy", "spring_loops_front", "spring_loops_rear", "step_errors"]
+    for p in figs["path"]:
+        assert (wh / p).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_unreadable_or_incomplete_runs_warn_instead_of_raising(tmp_path):
+    missing = str(tmp_path / "missing.parquet")
+    for kind in ("identification", "step", "spring"):
+        out = stage.analyse_run((kind, "x/1", missing, {"chamber": "rear", "kp_v_m": 5.0}))
+        assert out["rows"][0]["run_id"] == "x/1" and "analysis failed" in out["warnings"][0]
+    out = stage.analyse_run(("pressure_step", "x/2", missing, {"chamber": "rear"}))
+    assert out["rows"] == [] and out["warnings"]
+    # a parquet without the needed channels
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    path = tmp_path / "t.parquet"
+    pq.write_table(pa.table({"t_s": np.arange(10.0), "x_m": np.zeros(10)}), path)
+    out = stage.analyse_run(("identification", "x/3", str(path), {"kp_v_m": 5.0}))
+    assert out["rows"][0]["wn_rad_s"] is None and "lacks u_d_v, x_ref_m" in out["warnings"][0]
