@@ -381,8 +381,8 @@ def _ingest(tree: RawTree, path: Path, warehouse: Path, rel: str, campaign: str 
     check = _TimeCheck()
     empty = {m.column: True for m in maps if m.numeric}
     try:
-        with pq.ParquetWriter(tmp, schema) as writer:
-            for batch in export.batches():
+        with pq.ParquetWriter(tmp, schema, **parquet_options(schema)) as writer:
+            for batch in prefetch(export.batches()):
                 if batch.num_rows == 0:
                     continue
                 table = convert_batch(batch, maps, schema, run_id, p_atm, check.n)
@@ -405,6 +405,68 @@ def _ingest(tree: RawTree, path: Path, warehouse: Path, rel: str, campaign: str 
         if tmp.exists():
             tmp.unlink()
     return run, channels
+
+
+def parquet_options(schema: pa.Schema) -> dict:
+    """Parquet writer options for a samples file.
+
+    Floats are written BYTE_STREAM_SPLIT + zstd level 1 (about twice as fast as the default
+    dictionary + snappy, and smaller); dictionary encoding only for ``run_id`` and text columns,
+    where it pays. See ``benchmarks/bench_ingest.py``.
+    """
+    floats = [f.name for f in schema if pa.types.is_floating(f.type)]
+    return {"use_dictionary": [f.name for f in schema if not pa.types.is_floating(f.type)],
+            "use_byte_stream_split": floats or False, "compression": "zstd", "compression_level": 1}
+
+
+def prefetch(batches, depth: int = 2):
+    """Iterate ``batches`` in a background thread, ``depth`` batches ahead (bounded memory).
+
+    Parsing the next batch (pyarrow's CSV reader, npTDMS reads: both release the GIL) overlaps
+    with converting and writing the current one. Exceptions reach the caller unchanged.
+    """
+    import queue
+    import threading
+
+    q: queue.Queue = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+    done = object()
+
+    def put(item) -> bool:
+        while not stop.is_set():
+            try:
+                q.put(item, timeout=0.1)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def work():
+        try:
+            for batch in batches:
+                if not put(batch):
+                    return
+            put(done)
+        except BaseException as exc:  # noqa: BLE001 - handed to the consumer
+            put(exc)
+        finally:
+            close = getattr(batches, "close", None)
+            if close is not None and stop.is_set():
+                close()
+
+    thread = threading.Thread(target=work, name="ingest-prefetch", daemon=True)
+    thread.start()
+    try:
+        while True:
+            item = q.get()
+            if item is done:
+                return
+            if isinstance(item, BaseException):
+                raise item
+            yield item
+    finally:
+        stop.set()
+        thread.join()
 
 
 def read_run_record(path: Path) -> dict | None:

@@ -7,8 +7,9 @@
 * Files without a header are described by ``rig.toml`` (``header = false``; columns are then
   addressed by their 1-based index); ``skip_rows`` drops lines before the header / data.
 
-Data is streamed with pyarrow's incremental CSV reader (bounded memory, multi-threaded
-parsing); whitespace-separated files go through pandas' C parser in chunks.
+Data is streamed in blocks of lines parsed by pyarrow in parallel threads (bounded memory;
+files with lone ``\r`` line ends or not in UTF-8 use pyarrow's incremental reader);
+whitespace-separated files go through pandas' C parser in chunks.
 """
 from __future__ import annotations
 
@@ -175,6 +176,10 @@ def read_csv(path: str | Path, read: dict | None = None, hints: dict | None = No
                                                    for c in columns},
                                      strings_can_be_null=True)
         try:
+            start = _data_offset(path, lines_before) if encoding.startswith("utf-8") else None
+            if start is not None:  # the common case: parse blocks of lines in parallel
+                yield from _parallel_batches(path, start, keys, popts, copts)
+                return
             reader = pacsv.open_csv(path, read_options=ropts, parse_options=popts, convert_options=copts)
             for batch in reader:
                 yield batch
@@ -183,6 +188,64 @@ def read_csv(path: str | Path, read: dict | None = None, hints: dict | None = No
             raise ReaderError(found or _explain_arrow_error(str(exc), lines_before)) from None
 
     return RawExport(format=FORMAT, columns=columns, metadata=metadata, batches=batches)
+
+
+def _data_offset(path: Path, lines_before: int) -> int | None:
+    """Byte offset of the first data line, or None when blocks cannot be cut at ``\\n`` safely
+    (lines ending in a lone ``\\r``)."""
+    with open(path, "rb") as fh:
+        head = fh.read(HEAD_BYTES)
+        if b"\r" in head.replace(b"\r\n", b""):
+            return None
+        fh.seek(0)
+        for _ in range(lines_before):
+            if not fh.readline():
+                break
+        offset = fh.tell()
+    return 3 if offset == 0 and head.startswith(b"\xef\xbb\xbf") else offset
+
+
+def _parallel_batches(path: Path, start: int, keys: list[str], popts, copts) -> Iterator[pa.RecordBatch]:
+    """Parse the data from byte ``start`` in blocks of about :data:`BLOCK_BYTES` cut at line ends,
+    one block per worker thread (pyarrow releases the GIL), yielded in file order.
+
+    Memory stays bounded: at most ``workers + 1`` blocks are read ahead.
+    """
+    import os
+    from concurrent.futures import ThreadPoolExecutor
+
+    workers = max(1, min(4, os.cpu_count() or 1))
+
+    def parse(block: bytes) -> pa.Table:
+        ropts = pacsv.ReadOptions(column_names=keys, use_threads=False, block_size=len(block) + 1)
+        return pacsv.read_csv(pa.BufferReader(block), read_options=ropts, parse_options=popts, convert_options=copts)
+
+    def blocks() -> Iterator[bytes]:
+        with open(path, "rb") as fh:
+            fh.seek(start)
+            rest = b""
+            while data := fh.read(BLOCK_BYTES):
+                data = rest + data if rest else data
+                cut = data.rfind(b"\n") + 1
+                if cut == 0:
+                    rest = data
+                    continue
+                rest = data[cut:]
+                yield data[:cut]
+            if rest.strip():
+                yield rest
+
+    pool = ThreadPoolExecutor(workers, thread_name_prefix="csv-parse")
+    try:
+        pending = []
+        for block in blocks():
+            pending.append(pool.submit(parse, block))
+            if len(pending) > workers:
+                yield from pending.pop(0).result().to_batches()
+        for fut in pending:
+            yield from fut.result().to_batches()
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _whitespace_batches(path, keys, columns, lines_before, encoding, decimal) -> Iterator[pa.RecordBatch]:
