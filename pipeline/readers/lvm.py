@@ -47,6 +47,7 @@ What the reader makes of it:
   description does not give it (LabVIEW writes local time without offset: read as UTC).
 * **Encoding**: UTF-8 when it decodes, else Latin-1 (Windows LabVIEW writes the ANSI code
   page), so Latin-1 bytes in labels and units are read.
+* Special blocks (``***Start_Special***`` ... ``***End_Special***``) are skipped.
 * A ``.lvm`` without a ``LabVIEW Measurement`` header (LabVIEW's "no headers" option) is plain
   delimited text: it is read by the CSV reader and described by ``rig.toml``.
 
@@ -82,6 +83,7 @@ _SEPARATORS = {"tab": "\t", "comma": ","}
 # A line that starts a header (a tag such as "Channels"), not data: data lines start with a
 # number, a separator (X_Columns = No) or NaN / Inf.
 _TAG_LINE = re.compile(r"^(?![+-]?(?:nan|inf(?:inity)?)(?:[\t,;\r\n]|$))[A-Za-z_*]", re.M | re.I)
+_SPECIAL = "***Start_Special***"
 _COMMENT_NAME = "comment"
 _X_NAME = "X_Value"
 
@@ -205,6 +207,17 @@ class _Segment:
         return values[col].strip() if col < len(values) else ""
 
 
+def _skip_special(sc: "_Scanner") -> None:
+    """Skip a special block (``***Start_Special***`` ... ``***End_Special***``)."""
+    start = sc.lineno - 1
+    while True:
+        line = sc.readline()
+        if line is None:
+            raise ReaderError(f"line {start}: special block without ***End_Special***")
+        if line.startswith("***End_Special***"):
+            return
+
+
 def _split(line: str, sep: str) -> list[str]:
     return line.split(sep)
 
@@ -217,13 +230,6 @@ def _to_float(text: str, decimal: str) -> float | None:
         return float(text.replace(",", ".") if decimal == "," else text)
     except ValueError:
         return None
-
-
-def _strip_trailing(fields: list[str]) -> list[str]:
-    out = list(fields)
-    while out and not out[-1].strip():
-        out.pop()
-    return out
 
 
 def _parse_description(text: str) -> dict[str, str]:
@@ -276,6 +282,9 @@ class _Lvm:
                 raise ReaderError(f"file header has no {_END} line")
             if line.startswith(_END):
                 break
+            if line.startswith(_SPECIAL):
+                _skip_special(sc)
+                continue
             parts = re.split(r"[\t,]", line, maxsplit=1)
             tag = parts[0].strip()
             value = parts[1] if len(parts) > 1 else ""
@@ -329,6 +338,10 @@ class _Lvm:
             if tag.startswith(_END):
                 sc.readline()
                 in_header = False
+                continue
+            if tag.startswith(_SPECIAL):
+                sc.readline()
+                _skip_special(sc)
                 continue
             if not _TAG_LINE.match(line):
                 if not fields:
@@ -458,10 +471,8 @@ def read_lvm(path: str | Path, read: dict | None = None, hints: dict | None = No
         if seg is None:
             raise ReaderError("no column row (X_Value ...) after the file header")
         head_text = sc.buf[sc.pos:]
-        whole = sc.eof and not sc.rest
-        if not whole:
-            # The first chunk may end before the file does: look at it only.
-            whole = sc.bytes_read >= path.stat().st_size and not sc.rest
+        # Whether the whole file is in hand (then an empty Comment column can be dropped).
+        whole = not sc.rest and (sc.eof or sc.bytes_read >= path.stat().st_size)
     finally:
         sc.close()
 

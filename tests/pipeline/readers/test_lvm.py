@@ -196,6 +196,16 @@ def test_lvm_rows_without_the_leading_x_field(tmp_path):
     assert table(ex).column("comment").to_pylist() == ["hi", None]
 
 
+def test_lvm_special_blocks_are_skipped(tmp_path):
+    special = b"***Start_Special***\r\nanything\tgoes 1.0\r\n3\t4\r\n***End_Special***\r\n"
+    data = lvm_bytes([seg(n=2), seg(n=2)], x_columns="No", description=STEP)
+    data = data.replace(b"Date\t", special + b"Date\t", 1)            # in the file header
+    data = data.replace(b"\r\n\t\r\nChannels", b"\r\n" + special + b"Channels")   # between segments
+    ex = open_lvm(tmp_path, data)
+    assert ex.metadata["kind"] == "step"
+    assert col(ex, "x") == [0.0, 1.0, 0.0, 1.0]
+
+
 def test_lvm_bad_value_names_the_line(tmp_path):
     data = lvm_bytes([seg(n=3)], x_columns="No").replace(b"\t2.5", b"\toops")
     ex = open_lvm(tmp_path, data)
