@@ -561,20 +561,26 @@ def plot_loop_energy(table, fits: dict | None = None, title: str = ""):
     fig = Figure(figsize=(11, 4.5))
     ax1, ax2 = fig.subplots(1, 2)
     colors = {"rear": "tab:blue", "front": "tab:orange"}
+    markers = {3.0: "o", 5.0: "s", 7.0: "^"}
     for chamber, grp in table.groupby("chamber"):
         c = colors.get(chamber, None)
         ax1.scatter(grp["amplitude_mm"], grp["loop_energy_j"], s=14, color=c, alpha=0.7, label=f"{chamber}")
-        ax2.scatter(grp["frequency_hz"], grp["loop_energy_j"], s=14, color=c, alpha=0.7, label=f"{chamber}")
         if fits and chamber in fits and fits[chamber].ok:
             dd = np.linspace(0, max(1.0, grp["amplitude_mm"].max()) * 1.05, 50)
             ax1.plot(dd, np.pi * fits[chamber].delta_n_m * (dd * 1e-3) ** 2, color=c, lw=1,
                      label=f"{chamber}: pi delta D^2 (structural part)")
+        # vs frequency: mean over P0 per amplitude, one line per (chamber, D)
+        for amp, g in grp.groupby(grp["amplitude_mm"].round(1)):
+            m = g.groupby("frequency_hz")["loop_energy_j"].mean()
+            ax2.plot(m.index, m.values, color=c, marker=markers.get(float(amp), "D"), ms=4, lw=1,
+                     label=f"{chamber}, D={amp:g} mm")
     ax1.set_xlabel("displacement amplitude D [mm]")
     ax1.set_ylabel("loop energy per cycle [J]")
-    ax1.set_title("vs amplitude (all P0 and f)", fontsize=9)
+    ax1.set_title("vs amplitude (every test); lines: pi delta D^2", fontsize=9)
     ax2.set_xlabel("frequency f [Hz]")
-    ax2.set_ylabel("loop energy per cycle [J]")
-    ax2.set_title("vs frequency (all P0 and D): no viscous trend", fontsize=9)
+    ax2.set_ylabel("loop energy per cycle [J], mean over P0")
+    ax2.set_title("vs frequency (viscous damping would rise with f)", fontsize=9)
+    ax2.set_ylim(bottom=0)
     for ax in (ax1, ax2):
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
