@@ -113,28 +113,48 @@ class StrokeCounter:
         self.db = float(deadband_m)
         self._phase = 0          # 0 unknown, +1 toward +x, -1 toward -x
         self._n = 0              # global samples seen
-        self._cdp = 0.0          # sum of dp over every sample seen
+        self._cdp = 0.0          # sum of finite dp over every sample seen
+        self._cnt = 0            # finite dp samples seen
         self._t0 = np.nan
         self._t_last = np.nan
-        # records: (value [m], time [s], cumulative dp before the sample, global index)
+        # records: [value [m], time [s], global index, cumulative dp before the sample,
+        # cumulative finite-dp count before the sample]; the last two are filled at the end of
+        # the chunk the sample belongs to (one ``reduceat`` pass over the chunk, no cumsum)
         self._lo = self._hi = None      # unknown phase: running min / max
         self._ext = None                # running extreme of the current phase
         self._start = None              # turning point the current stroke started from
-        self._strokes: list[tuple] = []
+        self._strokes: list[tuple] = []  # (start record, end record)
         self._window = 4 * self._MIN_WINDOW
 
     # -- internals ------------------------------------------------------------------------------
-    def _emit(self, end: tuple) -> None:
-        s = self._start
-        n = end[3] - s[3]
-        dt = end[1] - s[1]
-        length = abs(end[0] - s[0])
-        direction = 1 if end[0] > s[0] else -1
-        dp_mean = (end[2] - s[2]) / n if n > 0 else np.nan
-        self._strokes.append((direction, s[1], end[1], s[0], end[0], length,
-                              length / dt if dt > 0 else np.nan, dp_mean, direction * dp_mean, n))
+    def _emit(self, end: list) -> None:
+        self._strokes.append((self._start, end))
+        n = end[2] - self._start[2]
         if n > 0:
             self._window = int(min(self._MAX_WINDOW, max(self._MIN_WINDOW, 1.5 * n)))
+
+    def _resolve(self, pending: list, dp) -> None:
+        """Fill the cumulative dp sums / counts of this chunk's records; advance the totals."""
+        if dp is None:
+            for r in pending:
+                r[3], r[4] = np.nan, 0
+            return
+        n = len(dp)
+        idx = np.fromiter((r[2] for r in pending), dtype=np.intp, count=len(pending)) - self._n
+        starts = np.unique(np.append(idx, 0))
+        part = np.add.reduceat(dp, starts)
+        if np.isnan(part).any():  # missing pressure samples: sum the finite ones, count them
+            ok = np.isfinite(dp)
+            part = np.add.reduceat(np.where(ok, dp, 0.0), starts)
+            cnt = np.add.reduceat(ok.astype(np.int64), starts)
+        else:
+            cnt = np.diff(np.append(starts, n))
+        csum = self._cdp + np.concatenate(([0.0], np.cumsum(part)))
+        ccnt = self._cnt + np.concatenate(([0], np.cumsum(cnt)))
+        k = np.searchsorted(starts, idx)
+        for r, c, m in zip(pending, csum[k].tolist(), ccnt[k].tolist()):
+            r[3], r[4] = c, m
+        self._cdp, self._cnt = float(csum[-1]), int(ccnt[-1])
 
     def update(self, t, x, dp=None) -> None:
         """Feed the next chunk of the run.
@@ -150,26 +170,25 @@ class StrokeCounter:
         """
         t = np.asarray(t, dtype=np.float64)
         x = np.asarray(x, dtype=np.float64)
-        dp = np.full(len(x), np.nan) if dp is None else np.asarray(dp, dtype=np.float64)
+        dp = None if dp is None else np.asarray(dp, dtype=np.float64)
         ok = np.isfinite(t) & np.isfinite(x)
         if not ok.all():
-            t, x, dp = t[ok], x[ok], dp[ok]
+            t, x = t[ok], x[ok]
+            dp = None if dp is None else dp[ok]
         n = len(x)
         if n == 0:
             return
         if np.isnan(self._t0):
             self._t0 = float(t[0])
         self._t_last = float(t[-1])
-        dp = np.where(np.isfinite(dp), dp, np.nan)
-        csum = np.empty(n + 1)
-        csum[0] = 0.0
-        np.cumsum(dp, out=csum[1:])
-        csum += self._cdp
         g0 = self._n
         db = self.db
+        pending: list = []
 
         def rec(i):
-            return (float(x[i]), float(t[i]), float(csum[i]), g0 + i)
+            r = [float(x[i]), float(t[i]), g0 + i, None, None]
+            pending.append(r)
+            return r
 
         i = 0
         if self._phase == 0:
@@ -235,16 +254,25 @@ class StrokeCounter:
             else:
                 i = j
                 self._window = min(self._MAX_WINDOW, 2 * self._window)
+        self._resolve(pending, dp)
         self._n += n
-        self._cdp = float(csum[-1])
 
     def finish(self) -> DurabilitySummary:
         """Close the last stroke (at the last extreme reached) and summarise the run."""
-        if self._phase != 0 and self._ext is not None and self._ext[3] > self._start[3]:
+        if self._phase != 0 and self._ext is not None and self._ext[2] > self._start[2]:
             self._emit(self._ext)
             self._phase = 0
             self._ext = None
-        table = pd.DataFrame(self._strokes, columns=STROKE_COLUMNS[1:])
+        rows = []
+        for s, e in self._strokes:
+            n, dt = e[2] - s[2], e[1] - s[1]
+            length = abs(e[0] - s[0])
+            direction = 1 if e[0] > s[0] else -1
+            k = e[4] - s[4]
+            dp_mean = (e[3] - s[3]) / k if k > 0 else np.nan
+            rows.append((direction, s[1], e[1], s[0], e[0], length, length / dt if dt > 0 else np.nan,
+                         dp_mean, direction * dp_mean, n))
+        table = pd.DataFrame(rows, columns=STROKE_COLUMNS[1:])
         table.insert(0, "stroke", np.arange(len(table), dtype=np.int64))
         table["direction"] = table["direction"].astype(np.int64)
         table["n_samples"] = table["n_samples"].astype(np.int64)

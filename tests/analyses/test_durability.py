@@ -133,3 +133,13 @@ def test_invalid_deadband():
 def test_empty_run():
     s = durability_summary([], [])
     assert s.strokes == 0 and s.distance_m == 0.0 and np.isnan(s.duration_s)
+
+
+def test_missing_pressure_samples_are_left_out_of_the_stroke_means():
+    x = np.array([0, 1, 2, 3, 2, 1, 0], float) * 1e-3
+    t = np.arange(len(x), dtype=float)
+    p_a = np.array([1.0, np.nan, 3.0, -1.0, -3.0, np.nan, 0.0])
+    st = durability_summary(t, x, p_a, np.zeros_like(p_a), deadband_m=1e-4, chunk=2).stroke_table
+    assert st["dp_mean_pa"].tolist() == [2.0, -2.0]          # (1 + 3) / 2 and (-1 - 3) / 2
+    assert st["n_samples"].tolist() == [3, 3]
+    assert durability_summary(t, x).stroke_table["dp_mean_pa"].isna().all()
