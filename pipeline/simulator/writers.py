@@ -1,0 +1,259 @@
+"""Writers: a run's SI samples as a bench export (CSV/TXT, LVM, TDMS, MAT), per bench-exports.md.
+
+Every writer takes the samples as one DataFrame or an iterable of DataFrames (chunks, for
+GB-scale runs) whose columns are warehouse column names in SI (``p_a_pa``, ``x_m`` ...), a list of
+:class:`ColumnOut` saying under which raw name and unit each column is exported, and the run
+metadata to embed (``None``: nothing embedded, the manifest carries it). Values are converted
+from SI to the raw unit with the exact inverse of :meth:`schemas.units.Unit.to_si` and written
+with the shortest text that round-trips, so ingest gives back the SI values to float precision.
+"""
+from __future__ import annotations
+
+import io
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.csv as pacsv
+
+from schemas.channels import CHANNELS
+from schemas.units import P_ATM_DEFAULT_PA, lookup_unit
+
+
+@dataclass(frozen=True)
+class ColumnOut:
+    """How one samples column is exported: ``column`` (warehouse name) as ``name[unit]``."""
+
+    column: str
+    name: str
+    unit: str
+
+
+def default_columns(columns: Iterable[str], units: dict[str, str] | None = None,
+                    names: dict[str, str] | None = None) -> list[ColumnOut]:
+    """Export columns under their canonical channel names; ``units``/``names`` by channel override."""
+    by_column = {c.column: c for c in CHANNELS.values()}
+    out = []
+    for col in columns:
+        ch = by_column[col]
+        out.append(ColumnOut(col, (names or {}).get(ch.name, ch.name), (units or {}).get(ch.name, ch.si_unit)))
+    return out
+
+
+def si_to_raw(values, unit: str, p_atm_pa: float = P_ATM_DEFAULT_PA) -> np.ndarray:
+    """The exact inverse of ``Unit.to_si``: SI (gauge) values in the raw ``unit``."""
+    u = lookup_unit(unit)
+    if u is None:
+        raise ValueError(f"unit {unit!r} is not an accepted unit")
+    v = np.asarray(values, dtype=float)
+    if u.absolute:
+        v = v + p_atm_pa
+    div = u.divisor
+    if div:
+        return v * div
+    return v / u.scale if u.scale != 1.0 else v
+
+
+def _frames(data) -> Iterator[pd.DataFrame]:
+    if isinstance(data, pd.DataFrame):
+        yield data
+    else:
+        yield from data
+
+
+def _raw_table(frame: pd.DataFrame, columns: list[ColumnOut], p_atm_pa: float) -> pa.Table:
+    return pa.table({f"c{i}": si_to_raw(frame[c.column].to_numpy(), c.unit, p_atm_pa) for i, c in enumerate(columns)})
+
+
+def _text_block(table: pa.Table, delimiter: str, decimal: str = ".") -> bytes:
+    buf = io.BytesIO()
+    pacsv.write_csv(table, buf, write_options=pacsv.WriteOptions(include_header=False, delimiter=delimiter,
+                                                                  quoting_style="none"))
+    data = buf.getvalue()
+    if decimal == ",":
+        data = data.replace(b".", b",")
+    return data
+
+
+def _meta_text(value) -> str:
+    if isinstance(value, float) and value.is_integer() and abs(value) < 1e15:
+        return repr(value)
+    return str(value)
+
+
+def write_csv(path, data, columns: list[ColumnOut], metadata: dict | None = None, *, delimiter: str = ",",
+              decimal: str = ".", header: bool = True, p_atm_pa: float = P_ATM_DEFAULT_PA,
+              newline: str = "\n") -> Path:
+    """CSV / TXT: ``# key: value`` metadata lines, a ``name[unit]`` header row, data.
+
+    ``decimal=","`` needs ``delimiter`` ``;`` or tab (European spreadsheet export).
+    ``header=False`` writes data only (``rig.toml`` must describe the columns).
+    """
+    if decimal == "," and delimiter == ",":
+        raise ValueError("a decimal comma needs ';' or tab as delimiter")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "wb") as fh:
+        head = []
+        if metadata:
+            head += [f"# {k}: {_meta_text(v)}" for k, v in metadata.items()]
+        if header:
+            head.append(delimiter.join(f"{c.name}[{c.unit}]" for c in columns))
+        if head:
+            fh.write((newline.join(head) + newline).encode("utf-8"))
+        for frame in _frames(data):
+            block = _text_block(_raw_table(frame, columns, p_atm_pa), delimiter, decimal)
+            if newline != "\n":
+                block = block.replace(b"\n", newline.encode())
+            fh.write(block)
+    return path
+
+
+def _lvm_number(v: float) -> str:
+    return f"{v:.16E}".replace("E+00", "E+0").replace("E-00", "E-0")
+
+
+def write_lvm(path, data, columns: list[ColumnOut], metadata: dict | None = None, *, x_columns: str = "One",
+              segments: int = 1, p_atm_pa: float = P_ATM_DEFAULT_PA, date: str = "2025/03/03",
+              time: str = "08:00:00.000000", fs_hz: float | None = None) -> Path:
+    """LVM as LabVIEW's *Write To Measurement File* writes it (tab separated, ``.`` decimal).
+
+    The file header's ``Description`` carries the metadata as ``key=value`` pairs joined by
+    ``;``. ``x_columns="One"`` writes the time column ``X_Value`` (needs a ``t_s`` column, not in
+    ``columns``); ``"No"`` leaves the X field of every row empty, as LabVIEW does (time from
+    ``X0`` + k ``Delta_X``; give ``fs_hz``).
+    ``segments`` splits the samples into that many segments, each with its own header.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    frame = pd.concat(list(_frames(data)), ignore_index=True)
+    n = len(frame)
+    t = frame["t_s"].to_numpy()
+    dt = (1.0 / fs_hz) if fs_hz else (float(np.round(1.0 / np.median(np.diff(t)), 6)) ** -1 if n > 1 else 1.0)
+    nch = len(columns)
+    lines = ["LabVIEW Measurement\t", "Writer_Version\t2", "Reader_Version\t2", "Separator\tTab",
+             "Decimal_Separator\t.", "Multi_Headings\tNo", f"X_Columns\t{x_columns}", "Time_Pref\tRelative",
+             f"Operator\t{(metadata or {}).get('operator', 'lab')}", f"Date\t{date}", f"Time\t{time}"]
+    if metadata:
+        lines.append("Description\t" + ";".join(f"{k}={_meta_text(v)}" for k, v in metadata.items()))
+    lines += ["***End_of_Header***", "\t"]
+    bounds = np.linspace(0, n, segments + 1).round().astype(int)
+    with open(path, "wb") as fh:
+        fh.write(("\r\n".join(lines) + "\r\n").encode("utf-8"))
+        for s in range(segments):
+            a, b = int(bounds[s]), int(bounds[s + 1])
+            part = frame.iloc[a:b]
+            x0 = float(t[a]) if b > a else 0.0
+            rep = lambda v: "\t".join([v] * nch)  # noqa: E731
+            seg = [f"Channels\t{nch}\t", "Samples\t" + rep(str(b - a)), "Date\t" + rep(date), "Time\t" + rep(time),
+                   "Y_Unit_Label\t" + "\t".join(c.unit for c in columns), "X_Dimension\t" + rep("Time"),
+                   "X_Unit_Label\t" + rep("s"), "X0\t" + rep(_lvm_number(x0)), "Delta_X\t" + rep(repr(dt)),
+                   "***End_of_Header***"]
+            names = "\t".join(c.name for c in columns)
+            seg.append("X_Value\t" + names + "\tComment")
+            fh.write(("\r\n".join(seg) + "\r\n").encode("utf-8"))
+            table = _raw_table(part, columns, p_atm_pa)
+            if x_columns == "One":
+                table = pa.table([pa.array(part["t_s"].to_numpy())] + table.columns,
+                                 names=["t"] + table.column_names)
+                fh.write(_text_block(table, "\t").replace(b"\n", b"\r\n"))
+            else:  # LabVIEW leaves the X field of every data row empty
+                block = _text_block(table, "\t")
+                if block:
+                    fh.write(b"\t" + block[:-1].replace(b"\n", b"\r\n\t") + b"\r\n")
+            if s + 1 < segments:
+                fh.write(b"\r\n")
+    return path
+
+
+def _tdms_value(v):
+    if isinstance(v, (bool, np.bool_)):
+        return str(bool(v))
+    if isinstance(v, (int, np.integer)):
+        return float(v)
+    return v
+
+
+def write_tdms(path, data, columns: list[ColumnOut], metadata: dict | None = None, *, group: str = "Data",
+               waveform: bool = False, fs_hz: float | None = None, extra_group: str | None = None,
+               p_atm_pa: float = P_ATM_DEFAULT_PA) -> Path:
+    """TDMS with nptdms: metadata as root properties, ``unit_string`` per channel.
+
+    ``waveform=True`` writes no time channel: ``wf_increment`` = 1/fs and ``wf_start_offset`` = 0
+    carry the timing. Each chunk of ``data`` becomes one TDMS segment (bounded memory).
+    ``extra_group`` adds a second group (a settings log) before the data group; the metadata
+    then needs ``group`` naming the data group.
+    """
+    from nptdms import ChannelObject, GroupObject, RootObject, TdmsWriter
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    first = True
+    with TdmsWriter(str(path)) as writer:
+        for frame in _frames(data):
+            objs = []
+            if first:
+                objs.append(RootObject(properties={k: _tdms_value(v) for k, v in (metadata or {}).items()}))
+                if extra_group:
+                    objs.append(GroupObject(extra_group, properties={"description": "valve settings"}))
+                    objs.append(ChannelObject(extra_group, "valve_gain", np.array([1.0, 1.0]),
+                                              properties={"unit_string": "V"}))
+                objs.append(GroupObject(group, properties={}))
+            if not waveform:
+                props = {"unit_string": "s"} if first else {}
+                objs.append(ChannelObject(group, "t", frame["t_s"].to_numpy(), properties=props))
+            for c in columns:
+                props = {}
+                if first:
+                    props = {"unit_string": c.unit}
+                    if waveform:
+                        props.update(wf_increment=1.0 / fs_hz, wf_start_offset=0.0, wf_samples=len(frame))
+                objs.append(ChannelObject(group, c.name, si_to_raw(frame[c.column].to_numpy(), c.unit, p_atm_pa),
+                                          properties=props))
+            writer.write_segment(objs)
+            first = False
+    return path
+
+
+def write_mat(path, data, columns: list[ColumnOut], metadata: dict | None = None, *, scalars: bool = False,
+              p_atm_pa: float = P_ATM_DEFAULT_PA, include_time: bool = True) -> Path:
+    """MAT v5 (scipy.io.savemat): one N x 1 double per channel, ``meta`` and ``units`` structs.
+
+    ``scalars=True`` stores numeric metadata as top-level scalars instead of ``meta`` fields.
+    """
+    from scipy.io import savemat
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    frame = pd.concat(list(_frames(data)), ignore_index=True)
+    out: dict = {}
+    units: dict = {}
+    if include_time:
+        out["t"] = frame["t_s"].to_numpy().reshape(-1, 1)
+        units["t"] = "s"
+    for c in columns:
+        out[c.name] = si_to_raw(frame[c.column].to_numpy(), c.unit, p_atm_pa).reshape(-1, 1)
+        units[c.name] = c.unit
+    meta = {}
+    for k, v in (metadata or {}).items():
+        if scalars and isinstance(v, (int, float)) and not isinstance(v, bool):
+            out[k] = float(v)
+        else:
+            meta[k] = v
+    if meta:
+        out["meta"] = meta
+    out["units"] = units
+    buf = io.BytesIO()
+    savemat(buf, out, do_compression=True, oned_as="column")
+    blob = bytearray(buf.getvalue())
+    # The v5 header's 116 text bytes carry the creation time: fix them so output is reproducible.
+    text = b"MATLAB 5.0 MAT-file, Platform: pneubench simulator"
+    blob[:116] = text.ljust(116, b" ")
+    path.write_bytes(bytes(blob))
+    return path
+
+
+WRITERS = {"csv": write_csv, "txt": write_csv, "lvm": write_lvm, "tdms": write_tdms, "mat": write_mat}
