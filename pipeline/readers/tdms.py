@@ -23,7 +23,9 @@
 Data is streamed: :meth:`nptdms.TdmsFile.open` reads the segment metadata only, and batches of
 :data:`BATCH_ROWS` rows are read per channel with ``channel.read_data(offset, length)``, so
 memory stays bounded by the batch size plus one raw-data chunk of the file (LabVIEW and DAQmx
-write a chunk per loop iteration or buffer: small).
+write a chunk per loop iteration or buffer: small). npTDMS reads whole chunks, so a file written
+as one huge chunk is read in batches as large as that chunk (memory of the order of the chunk,
+but each chunk read once).
 """
 from __future__ import annotations
 
@@ -78,6 +80,8 @@ def read_tdms(path: str | Path, read: dict | None = None, hints: dict | None = N
     path = Path(path)
     with _open(path) as tdms:
         plan = _plan(tdms, hints or {})
+        # npTDMS reads whole raw-data chunks: never re-read a big chunk once per batch.
+        rows_per_batch = max(BATCH_ROWS, _largest_chunk(tdms))
     columns, metadata, warnings, n_rows, group_name = plan
 
     def batches() -> Iterator[pa.RecordBatch]:
@@ -85,8 +89,8 @@ def read_tdms(path: str | Path, read: dict | None = None, hints: dict | None = N
             group = tdms[group_name]
             sources = [_source(group, c) for c in columns]
             try:
-                for start in range(0, n_rows, BATCH_ROWS):
-                    length = min(BATCH_ROWS, n_rows - start)
+                for start in range(0, n_rows, rows_per_batch):
+                    length = min(rows_per_batch, n_rows - start)
                     arrays = [s.read(start, length) for s in sources]
                     yield pa.RecordBatch.from_arrays(arrays, names=[s.key for s in sources])
             except ReaderError:
@@ -250,6 +254,15 @@ def _truncated(tdms) -> bool:
     if segments and size:
         return segments[-1].next_segment_pos < size  # a final segment whose lead-in was cut
     return False
+
+
+def _largest_chunk(tdms) -> int:
+    """Most values of one channel in one raw-data chunk (0 when npTDMS does not tell)."""
+    try:
+        return max((int(obj.number_values) for seg in tdms._reader._segments
+                    for obj in seg.ordered_objects if obj.has_data), default=0)
+    except (AttributeError, TypeError, ValueError):  # npTDMS internals changed: keep BATCH_ROWS
+        return 0
 
 
 # -- reading -------------------------------------------------------------------------------

@@ -333,7 +333,7 @@ def test_tdms_interleaved_data(raw, warehouse):
 def test_tdms_multiple_segments(raw, warehouse, monkeypatch):
     """Segments of a logging loop are concatenated; batches cross segment boundaries."""
     monkeypatch.setattr(tdms_reader, "BATCH_ROWS", 7)
-    write_tdms(raw.root / "c/a.tdms", STEP, {"Data": step_channels()}, segments=4)
+    write_tdms(raw.root / "c/a.tdms", STEP, {"Data": step_channels()}, segments=10)  # 5 rows each
     export = read_tdms(raw.root / "c/a.tdms", {}, {})
     sizes = [b.num_rows for b in export.batches()]
     assert sizes == [7] * 7 + [1]
@@ -342,6 +342,13 @@ def test_tdms_multiple_segments(raw, warehouse, monkeypatch):
     assert table.column("t_s").to_pylist() == T.tolist()
     assert table.column("x_m").to_pylist() == si(X_MM, "mm")
     assert res.run["n_samples"] == N and res.run["warnings"] == []
+
+
+def test_tdms_one_big_chunk_is_read_once_not_per_batch(raw, monkeypatch):
+    """npTDMS reads whole chunks: a chunk larger than a batch sets the batch size."""
+    monkeypatch.setattr(tdms_reader, "BATCH_ROWS", 7)
+    write_tdms(raw.root / "c/a.tdms", STEP, {"Data": step_channels()}, segments=2)  # 25 rows each
+    assert [b.num_rows for b in read_tdms(raw.root / "c/a.tdms", {}, {}).batches()] == [25, 25]
 
 
 def test_tdms_truncated_final_segment_warns(raw, warehouse):
