@@ -239,10 +239,13 @@ def _iso(dt: datetime) -> str:
 
 
 def generate(plan: RunPlan, seed: int) -> SimRun:
-    """The SimRun of a plan, samples in memory (durability: all chunks concatenated)."""
+    """The SimRun of a plan as exported: the columns its file carries, in memory.
+
+    ``data`` is what ingest must give back for the file (durability: all chunks concatenated).
+    """
     frames, meta, truth = _frames(plan, seed)
     data = frames if isinstance(frames, pd.DataFrame) else pd.concat(list(frames), ignore_index=True)
-    return SimRun(data, meta, truth)
+    return SimRun(data[["t_s"] + _channels_of(plan)], meta, truth)
 
 
 def _frames(plan: RunPlan, seed: int, chunk_rows: int = 2_000_000):
