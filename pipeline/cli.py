@@ -114,3 +114,51 @@ def report(warehouse):
     except FileNotFoundError as exc:
         raise click.UsageError(str(exc)) from None
     click.echo(str(path))
+
+
+@main.command()
+@click.argument("out_dir", type=click.Path(file_okay=False, path_type=Path))
+@click.option("--seed", type=int, default=1, show_default=True, help="Same seed, same bytes.")
+@click.option("--profile", type=click.Choice(["demo", "full", "mini"]), default="demo", show_default=True,
+              help="demo: small files, about a minute with rebuild; full: realistic sizes (GB); mini: for tests.")
+@click.option("--runs", type=click.IntRange(min=1), default=None,
+              help="Total runs: pads the characterisation matrices with repetitions (1,000+ run campaigns).")
+@click.option("--jobs", type=click.IntRange(min=1), default=None, help="Worker processes (default: up to 4).")
+@click.option("--quiet", "-q", is_flag=True, help="No progress output.")
+def simulate(out_dir, seed, profile, runs, jobs, quiet):
+    """Write a synthetic campaign (every kind, every format, hoses.csv, truth.json) into OUT_DIR.
+
+    OUT_DIR holds campaign folders: ingest it with `pneubench rebuild --raw OUT_DIR`.
+    """
+    from pipeline.simulator.campaign import simulate_campaign
+
+    s = simulate_campaign(out_dir, seed=seed, profile=profile, runs=runs, jobs=jobs,
+                          progress=for_stream(sys.stderr, quiet))
+    kinds = ", ".join(f"{k} {n}" for k, n in sorted(s.by_kind.items()))
+    click.echo(f"simulate: {s.n_runs} runs ({kinds}), {s.n_files} files, {s.bytes / 1e6:.1f} MB in {out_dir}; "
+               f"ground truth in {Path(out_dir) / 'truth.json'}")
+
+
+@main.command()
+@click.option("--raw", type=click.Path(file_okay=False, path_type=Path), envvar="PNEUBENCH_RAW",
+              default="raw", show_default=True, help=RAW_HELP)
+@click.option("--warehouse", type=click.Path(file_okay=False, path_type=Path), envvar="PNEUBENCH_WAREHOUSE",
+              default="warehouse", show_default=True, help=WH_HELP)
+@click.option("--jobs", type=click.IntRange(min=1), default=None, help="Worker processes (default: all cores).")
+@click.option("--quiet", "-q", is_flag=True, help="No progress output.")
+def demo(raw, warehouse, jobs, quiet):
+    """Simulate RAW/demo (seed 1, demo profile) if absent, then rebuild RAW into the warehouse."""
+    from pipeline.rebuild import RebuildError, rebuild as do_rebuild
+    from pipeline.simulator.campaign import simulate_demo
+
+    progress = for_stream(sys.stderr, quiet)
+    made = simulate_demo(raw, jobs=jobs, progress=progress)
+    click.echo(f"demo: {'simulated' if made else 'kept the existing'} {raw / 'demo'}", err=True)
+    try:
+        summary = do_rebuild(raw, warehouse, jobs=jobs, progress=progress)
+    except RebuildError as exc:
+        click.echo(f"pneubench demo: {exc}", err=True)
+        sys.exit(exc.exit_code)
+    click.echo(f"demo: {summary.n_runs} runs in {warehouse / 'pneubench.duckdb'}, {len(summary.quarantine)} "
+               f"quarantined; try: pneubench query \"SELECT * FROM service_life\"")
+    sys.exit(summary.exit_code)

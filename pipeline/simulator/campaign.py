@@ -54,6 +54,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from pipeline.progress import Progress
 from pipeline.simulator import durability as dur
 from pipeline.simulator import pla, plpa
 from pipeline.simulator.base import HOSE_AREA_M2, P_ATM_PA, SimRun, jsonable
@@ -674,28 +675,29 @@ def simulate_campaign(out_dir, seed: int = 1, profile: str = "demo", runs: int |
         Total number of runs (pads or trims the characterisation matrices).
     jobs : int, optional
         Worker processes (default: CPU count, at most 4). Output does not depend on it.
-    progress : callable(done, total), optional
+    progress : pipeline.progress.Progress, optional
+        Where progress goes (silent by default).
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     prof = PROFILES[profile]
     plans, planner = plan_campaign(seed, prof, runs)
     jobs = jobs or min(4, os.cpu_count() or 1)
+    progress = progress or Progress()
     records: list[dict] = [None] * len(plans)  # type: ignore[list-item]
     # biggest first so the pool stays busy
     order = sorted(range(len(plans)), key=lambda i: (plans[i].kind != "durability", i))
-    if jobs > 1 and len(plans) > 1:
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
-            futures = {i: pool.submit(write_run, out, plans[i], seed, prof.chunk_rows) for i in order}
-            for done, i in enumerate(order, 1):
-                records[i] = futures[i].result()
-                if progress:
-                    progress(done, len(plans))
-    else:
-        for done, i in enumerate(order, 1):
-            records[i] = write_run(out, plans[i], seed, prof.chunk_rows)
-            if progress:
-                progress(done, len(plans))
+    with progress.task("simulate", len(plans)) as task:
+        if jobs > 1 and len(plans) > 1:
+            with ProcessPoolExecutor(max_workers=jobs) as pool:
+                futures = {i: pool.submit(write_run, out, plans[i], seed, prof.chunk_rows) for i in order}
+                for i in order:
+                    records[i] = futures[i].result()
+                    task.advance()
+        else:
+            for i in order:
+                records[i] = write_run(out, plans[i], seed, prof.chunk_rows)
+                task.advance()
     # rig.toml, manifests, logbooks
     for rel, text in RIG_TOMLS.items():
         (out / rel).parent.mkdir(parents=True, exist_ok=True)
@@ -748,3 +750,23 @@ def parameters() -> dict:
                        "seal_wear_bar_km": dur.SEAL_WEAR_BAR_KM, "wall_new_mm": dur.WALL_NEW_MM,
                        "wall_wear_mm_km": dur.WALL_WEAR_MM_KM},
     })
+
+
+def simulate_demo(raw, seed: int = 1, jobs: int | None = None, progress=None, profile: str = "demo") -> bool:
+    """Simulate ``raw/demo`` (demo profile) unless it exists; returns whether it was written.
+
+    The campaign is written to a hidden folder first and renamed into place, so an interrupted
+    run never leaves a half-written ``raw/demo`` (hidden folders are not read by rebuild).
+    """
+    raw = Path(raw)
+    target = raw / "demo"
+    if target.exists():
+        return False
+    tmp = raw / f".demo-{os.getpid()}.partial"
+    if tmp.exists():
+        import shutil
+
+        shutil.rmtree(tmp)
+    simulate_campaign(tmp, seed=seed, profile=profile, jobs=jobs, progress=progress)
+    os.replace(tmp, target)
+    return True

@@ -1,0 +1,41 @@
+"""`pneubench simulate` and the demo's simulate step."""
+import json
+
+from click.testing import CliRunner
+
+from pipeline.cli import main
+from pipeline.simulator.campaign import simulate_demo
+
+
+def test_simulate_command_writes_campaign_and_truth(tmp_path):
+    out = tmp_path / "sim"
+    res = CliRunner().invoke(main, ["simulate", str(out), "--seed", "2", "--profile", "mini", "--jobs", "1", "-q"])
+    assert res.exit_code == 0, res.output
+    assert "runs" in res.output and "truth.json" in res.output
+    truth = json.loads((out / "truth.json").read_text())
+    assert truth["seed"] == 2 and truth["profile"] == "mini"
+    for rec in truth["runs"].values():
+        assert (out / rec["file"]).is_file()
+
+
+def test_simulate_runs_pads_to_the_requested_count(tmp_path):
+    out = tmp_path / "sim"
+    res = CliRunner().invoke(main, ["simulate", str(out), "--profile", "mini", "--runs", "60", "--jobs", "2", "-q"])
+    assert res.exit_code == 0, res.output
+    truth = json.loads((out / "truth.json").read_text())
+    assert len(truth["runs"]) == 60
+
+
+def test_simulate_rejects_unknown_profile(tmp_path):
+    res = CliRunner().invoke(main, ["simulate", str(tmp_path / "x"), "--profile", "huge"])
+    assert res.exit_code == 2
+
+
+def test_demo_simulates_only_when_absent(tmp_path):
+    raw = tmp_path / "raw"
+    assert simulate_demo(raw, jobs=1, profile="mini") is True
+    marker = raw / "demo" / "truth.json"
+    before = marker.stat().st_mtime_ns
+    assert simulate_demo(raw, jobs=1, profile="mini") is False
+    assert marker.stat().st_mtime_ns == before
+    assert not [p for p in raw.iterdir() if p.name.startswith(".")]
