@@ -393,7 +393,7 @@ def plot_weibull_probability(groups: dict, unit: str = "km"):
     ax.set_ylabel("fraction failed [%] (Weibull scale)")
     ax.set_title("Weibull probability plot (| = suspension)")
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize="small", loc="upper left")
+    ax.legend(fontsize="small", loc="lower right")
     return fig
 
 

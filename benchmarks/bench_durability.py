@@ -7,7 +7,7 @@ One command::
     python -m benchmarks.bench_durability --hours 0.5       # a quick look
 
 It writes a full-profile durability run (the simulator's stroke plan: 0.5 m strokes at 0.5 m/s,
-5 um encoder, pressure noise) as a warehouse samples Parquet under ``benchmarks/_data/``
+5 um encoder, pressure noise; plus 3 um position jitter before quantisation, ``--jitter-um``) as a warehouse samples Parquet under ``benchmarks/_data/``
 (git-ignored; reused when present), generated chunk by chunk. Then each approach runs in its own
 subprocess so that its peak RSS is its own (``ru_maxrss`` of the child via ``os.wait4``, minus
 the child's RSS after imports):
@@ -40,15 +40,20 @@ def _plan(hours: float, fs: float):
     return stroke_plan(duration_s=hours * 3600.0, fs_hz=fs)
 
 
-def make_run(hours: float, fs: float) -> tuple[Path, dict]:
-    """The benchmark run's samples file (written once) and its truth."""
+def make_run(hours: float, fs: float, jitter_um: float = 3.0) -> tuple[Path, dict]:
+    """The benchmark run's samples file (written once) and its truth.
+
+    ``jitter_um``: Gaussian position noise added before the 5 um quantisation (the simulator's
+    encoder is noise-free), so that the naive ``sum |dx|`` shows what noise does to it.
+    """
+    import numpy as np
     import pyarrow as pa
     import pyarrow.parquet as pq
 
     from pipeline.simulator.durability import iter_durability_chunks
 
     plan = _plan(hours, fs)
-    path = DATA / f"durability_{hours:g}h_{fs:g}hz.parquet"
+    path = DATA / f"durability_{hours:g}h_{fs:g}hz_{jitter_um:g}um.parquet"
     truth = {"distance_m": plan.distance_m, "strokes": plan.strokes, "n_samples": plan.n_samples}
     if path.is_file() and pq.ParquetFile(path).metadata.num_rows == plan.n_samples:
         return path, truth
@@ -56,7 +61,10 @@ def make_run(hours: float, fs: float) -> tuple[Path, dict]:
     tmp = path.with_suffix(".tmp")
     writer = None
     t0 = time.perf_counter()
+    rng = np.random.default_rng(2)
     for chunk in iter_durability_chunks(plan, rng=1, chunk_rows=1_000_000):
+        if jitter_um > 0:
+            chunk["x_m"] = np.round((chunk["x_m"] + rng.normal(0.0, jitter_um * 1e-6, len(chunk))) / 5e-6) * 5e-6
         table = pa.Table.from_pandas(chunk, preserve_index=False)
         if writer is None:
             writer = pq.ParquetWriter(tmp, table.schema)
@@ -133,15 +141,17 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--hours", type=float, default=4.0, help="run length [h] (default 4)")
     ap.add_argument("--fs", type=float, default=1000.0, help="sample rate [Hz] (default 1000)")
+    ap.add_argument("--jitter-um", type=float, default=3.0,
+                    help="position noise before the 5 um quantisation [um] (default 3)")
     ap.add_argument("--repeat", type=int, default=3, help="runs per approach; the best time is kept")
     ap.add_argument("--worker", nargs=2, metavar=("APPROACH", "PATH"), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.worker:
         print(json.dumps(worker(*args.worker)))
         return 0
-    path, truth = make_run(args.hours, args.fs)
+    path, truth = make_run(args.hours, args.fs, args.jitter_um)
     print(f"durability run: {args.hours:g} h at {args.fs:g} Hz, {truth['n_samples']:,} samples, "
-          f"{truth['strokes']:,} strokes, {truth['distance_m'] / 1e3:.3f} km true, "
+          f"{truth['strokes']:,} strokes, {truth['distance_m'] / 1e3:.3f} km true, {args.jitter_um:g} um jitter, "
           f"{path.stat().st_size / 1e6:.0f} MB Parquet")
     results = {}
     for approach in ("stream", "core", "pandas"):

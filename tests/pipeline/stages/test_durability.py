@@ -216,3 +216,44 @@ def test_rebuild_fills_tables_and_views(raw, warehouse):
         assert {r[0] for r in q("SELECT name FROM figures WHERE stage = 'durability'")} >= {"hose_distance"}
     finally:
         con.close()
+
+
+def test_simulated_campaigns_hose_life_matches_truth(tmp_path, monkeypatch):
+    """The simulator's campaign writer (hoses.csv in two campaigns, odometer-only hoses, a hose that
+    spans both campaigns, TDMS/CSV/... durability runs): every hose's status, run count, distance,
+    strokes and campaigns as the simulator drew them. Only this stage runs (others are not under test)."""
+    import json
+
+    from pipeline import stages as registry
+    from pipeline.rebuild import rebuild
+    from pipeline.simulator.campaign import simulate_campaign
+
+    raw = tmp_path / "raw"
+    simulate_campaign(raw, seed=5, profile="mini")
+    truth = json.loads((raw / "truth.json").read_text())
+    monkeypatch.setattr(registry, "discover", lambda: [stage])
+    summary = rebuild(raw, tmp_path / "wh", jobs=1)
+    assert not [p for p in summary.quarantine if p.stage == "logbook"]
+    con = duckdb.connect(str(tmp_path / "wh" / "pneubench.duckdb"), read_only=True)
+    try:
+        cur = con.execute("SELECT * FROM hose_life")
+        cols = [d[0] for d in cur.description]
+        life = {r[0]: dict(zip(cols, r)) for r in cur.fetchall()}
+        runs = {r[0]: {"distance_km": r[1], "strokes": r[2]}
+                for r in con.execute("SELECT run_id, distance_km, strokes FROM durability_runs").fetchall()}
+    finally:
+        con.close()
+    assert sorted(life) == sorted(truth["hoses"])
+    for hid, t in truth["hoses"].items():
+        row = life[hid]
+        assert (row["status"], row["n_runs"]) == (t["status"], t["n_runs"]), hid
+        assert row["distance_km"] == pytest.approx(t["distance_km"], rel=0.005), hid
+        assert sorted(row["campaigns"]) == sorted(t["campaigns"]), hid
+        if t["strokes"] is not None:
+            assert row["strokes"] == t["strokes"], hid
+        assert row["failure_mode"] == t["failure_mode"], hid
+    durability = {rid: r["truth"] for rid, r in truth["runs"].items() if r["kind"] == "durability"}
+    assert sorted(runs) == sorted(durability)
+    for rid, t in durability.items():
+        assert runs[rid]["distance_km"] == pytest.approx(t["distance_km"], rel=0.005), rid
+        assert runs[rid]["strokes"] == t["strokes"], rid
