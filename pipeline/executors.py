@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import time
 from collections.abc import Callable, Iterable
 from concurrent.futures import ProcessPoolExecutor
 
@@ -55,6 +56,50 @@ class Executor:
         return False
 
 
+def _watch_parent(pid: int, every_s: float = 0.2) -> None:
+    """Worker initializer: exit as soon as the rebuild process ``pid`` is gone (even by kill -9).
+
+    A worker blocked on its task queue would otherwise live on, holding the rebuild's stdout,
+    stderr and any file it had open.
+    """
+    import threading
+
+    def alive() -> bool:
+        try:
+            os.kill(pid, 0)
+        except (ProcessLookupError, PermissionError):
+            return False
+        try:  # a killed parent not yet reaped by its own parent is a zombie: dead for us
+            with open(f"/proc/{pid}/stat", "rb") as fh:
+                return fh.read().rsplit(b")", 1)[1].split()[0] not in (b"Z", b"X")
+        except (OSError, IndexError):
+            return True
+
+    def watch():
+        while True:
+            time.sleep(every_s)
+            if not alive():
+                os._exit(70)
+
+    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
+
+
+def preload_modules() -> list[str]:
+    """Modules the fork server imports once, so each worker starts warm (readers, stages, analyses)."""
+    import pkgutil
+
+    mods = ["numpy", "pandas", "pyarrow.parquet", "scipy.optimize", "scipy.signal", "scipy.stats",
+            "matplotlib.pyplot", "pipeline.ingest"]
+    try:
+        from pipeline import readers, stages
+
+        mods += [f"pipeline.readers.{m.name}" for m in pkgutil.iter_modules(readers.__path__)]
+        mods += [f"pipeline.stages.{m.name}" for m in pkgutil.iter_modules(stages.__path__) if not m.name.startswith("_")]
+    except ImportError:  # pragma: no cover
+        pass
+    return mods
+
+
 class LocalExecutor(Executor):
     """A pool of ``jobs`` worker processes on this machine (serial when ``jobs`` is 1)."""
 
@@ -67,8 +112,9 @@ class LocalExecutor(Executor):
     def _get_pool(self) -> ProcessPoolExecutor:
         if self._pool is None:
             ctx = multiprocessing.get_context("forkserver")
-            ctx.set_forkserver_preload(["pipeline.ingest", "pipeline.stages", "pandas", "pyarrow.parquet"])
-            self._pool = ProcessPoolExecutor(max_workers=self.jobs, mp_context=ctx)
+            ctx.set_forkserver_preload(preload_modules())
+            self._pool = ProcessPoolExecutor(max_workers=self.jobs, mp_context=ctx, initializer=_watch_parent,
+                                             initargs=(os.getpid(),))
         return self._pool
 
     def map(self, func, items, label="", progress=None):

@@ -286,7 +286,7 @@ def frame_hash(df: pd.DataFrame | None) -> str:
     try:
         h.update(pd.util.hash_pandas_object(df, index=False).to_numpy().tobytes())
     except TypeError:
-        h.update(df.to_json(orient="split", index=False, default_handler=str).encode())
+        h.update(df.to_json(orient="split", index=False, date_format="iso", default_handler=str).encode())
     return h.hexdigest()[:32]
 
 

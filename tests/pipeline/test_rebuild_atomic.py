@@ -1,0 +1,155 @@
+"""Atomic and safe: readers during a rebuild, kill -9 at several points, concurrent rebuilds."""
+import json
+import os
+import random
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import duckdb
+import pytest
+
+from pipeline.rebuild import EXIT_LOCKED, rebuild, warehouse_lock
+from tests.conftest import STEP_META
+
+T = [0.0, 0.1, 0.2, 0.3]
+CLI = [sys.executable, "-c", "from pipeline.cli import main; main()"]
+
+
+def step(raw, rel, n=4):
+    t = [0.1 * i for i in range(n)]
+    return raw.csv(rel, STEP_META, {"t[s]": t, "x[mm]": t, "x_ref[mm]": [3] * n})
+
+
+def state(warehouse):
+    """(run ids, samples rows) of the live warehouse; the samples view must agree with runs."""
+    con = duckdb.connect(str(warehouse / "pneubench.duckdb"), read_only=True)
+    try:
+        runs = [r[0] for r in con.execute("SELECT run_id FROM runs ORDER BY run_id").fetchall()]
+        expected = con.execute("SELECT coalesce(sum(n_samples), 0) FROM runs WHERE kind = 'step'").fetchone()[0]
+        got = con.execute("SELECT count(*) FROM samples_step").fetchone()[0]
+        assert got == expected, (got, expected)
+        con.execute("SELECT count(*) FROM findings").fetchone()
+        return tuple(runs), got
+    finally:
+        con.close()
+
+
+def cli_rebuild(raw, warehouse, *args, env=None):
+    return subprocess.run([*CLI, "rebuild", "--raw", str(raw), "--warehouse", str(warehouse), "--jobs", "2", *args],
+                          capture_output=True, text=True, env={**os.environ, **(env or {})}, timeout=300)
+
+
+def debris(warehouse):
+    return [p.name for p in warehouse.iterdir() if ".tmp" in p.name]
+
+
+@pytest.mark.parametrize("point", ["after_ingest", "after_stages", "before_swap", "after_swap"])
+def test_kill_9_leaves_a_complete_warehouse_and_the_next_rebuild_completes(raw, warehouse, point):
+    step(raw, "c/a.csv")
+    rebuild(raw.root, warehouse, jobs=1)
+    before = state(warehouse)
+    step(raw, "c/b.csv", n=6)
+    step(raw, "c/c.csv", n=5)
+    res = cli_rebuild(raw.root, warehouse, env={"PNEUBENCH_CRASH_AT": point})
+    assert res.returncode == -signal.SIGKILL, res.stderr
+    after = state(warehouse)
+    if point == "after_swap":
+        assert after == (("c/a", "c/b", "c/c"), 15)  # the new warehouse was already complete
+    else:
+        assert after == before  # the previous warehouse, untouched
+    # the lock died with the process (workers do not inherit it): the next rebuild runs at once
+    s = rebuild(raw.root, warehouse, jobs=2)
+    assert s.exit_code == 0
+    assert state(warehouse) == (("c/a", "c/b", "c/c"), 15)
+    assert debris(warehouse) == []
+    assert not list((warehouse / "stages").glob(".tmp-*"))
+    assert (warehouse / "report" / "index.html").is_file()
+
+
+def test_kill_9_at_random_moments(raw, warehouse):
+    for i in range(6):
+        step(raw, f"c/r{i}.csv", n=50)
+    rebuild(raw.root, warehouse, jobs=1)
+    good = {state(warehouse)}
+    rng = random.Random(7)
+    for k in range(3):
+        step(raw, f"c/new{k}.csv", n=10 + k)
+        p = subprocess.Popen([*CLI, "rebuild", "--raw", str(raw.root), "--warehouse", str(warehouse), "--jobs", "2"],
+                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        time.sleep(rng.uniform(0.5, 3.0))
+        p.send_signal(signal.SIGKILL)
+        p.wait()
+        now = state(warehouse)  # readable and self-consistent, whichever generation it is
+        good.add(now)
+    final = rebuild(raw.root, warehouse, jobs=1)
+    assert final.exit_code == 0
+    runs, _ = state(warehouse)
+    assert len(runs) == 9
+
+
+HAMMER = textwrap.dedent("""
+    import json, sys, time, duckdb
+    db, stop, out = sys.argv[1], sys.argv[2], sys.argv[3]
+    seen, errors, n = [], [], 0
+    import os
+    while not os.path.exists(stop):
+        try:
+            con = duckdb.connect(db, read_only=True)
+            try:
+                runs = con.execute("SELECT count(*), coalesce(sum(n_samples), 0) FROM runs").fetchone()
+                view = con.execute("SELECT count(*) FROM samples_step").fetchone()[0]
+                gen = con.execute("SELECT max(generation) FROM rebuild_log").fetchone()[0]
+                seen.append([runs[0], int(runs[1]), view, gen])
+            finally:
+                con.close()
+        except Exception as exc:
+            errors.append(f"{type(exc).__name__}: {exc}")
+        n += 1
+    json.dump({"seen": seen, "errors": errors, "n": n}, open(out, "w"))
+""")
+
+
+def test_a_reader_hammering_the_warehouse_sees_old_or_new_never_a_mix(raw, warehouse, tmp_path):
+    step(raw, "c/a.csv")
+    rebuild(raw.root, warehouse, jobs=1)
+    stop, out = tmp_path / "stop", tmp_path / "seen.json"
+    reader = subprocess.Popen([sys.executable, "-c", HAMMER, str(warehouse / "pneubench.duckdb"), str(stop), str(out)])
+    try:
+        time.sleep(1.0)
+        for i in range(5):
+            step(raw, f"c/b{i}.csv", n=5 + i)
+            if i == 3:
+                (raw.root / "c/a.csv").unlink()
+            rebuild(raw.root, warehouse, jobs=1)
+    finally:
+        stop.touch()
+        reader.wait(timeout=60)
+    result = json.loads(out.read_text())
+    assert result["errors"] == []
+    assert len(result["seen"]) >= 10
+    for n_runs, n_samples, view_rows, gen in result["seen"]:
+        assert view_rows == n_samples  # the samples of exactly the runs of that generation
+    # all six generations were complete states: runs count grows 1, 2, 3, 4, 4 (a deleted), 5
+    allowed = {(1, 4), (2, 9), (3, 15), (4, 22), (4, 26), (5, 35)}
+    assert {(r[0], r[1]) for r in result["seen"]} <= allowed
+
+
+def test_second_rebuild_exits_4_with_a_clear_message_or_waits(raw, warehouse):
+    step(raw, "c/a.csv")
+    warehouse.mkdir(parents=True)
+    with warehouse_lock(warehouse):
+        res = cli_rebuild(raw.root, warehouse)
+    assert res.returncode == EXIT_LOCKED
+    assert "another rebuild is running" in res.stderr and "--wait" in res.stderr
+    assert not (warehouse / "pneubench.duckdb").exists()
+    # two at once, both willing to wait: both complete, one after the other
+    procs = [subprocess.Popen([*CLI, "rebuild", "--raw", str(raw.root), "--warehouse", str(warehouse),
+                               "--jobs", "1", "--wait", "120"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                              text=True) for _ in range(2)]
+    codes = [p.wait(timeout=300) for p in procs]
+    assert codes == [0, 0], [p.stderr.read() for p in procs]
+    assert state(warehouse) == (("c/a",), 4)
+    assert debris(warehouse) == []

@@ -1,0 +1,217 @@
+"""Incremental rebuilds: unchanged files are not read, changes and deletions land, stages re-run
+only when their inputs changed, and the result equals a full rebuild table by table."""
+import os
+import time
+
+import duckdb
+import pandas as pd
+import pytest
+
+import pipeline.rebuild as rb
+from pipeline.rebuild import rebuild
+from pipeline.stages import StageOutput
+from tests.conftest import STEP_META
+
+T = [0.0, 0.1, 0.2, 0.3]
+REBUILD_ONLY = {"rebuild_log", "rebuild_inputs", "ingest_state", "stage_cache"}
+BREAK = {"kind": "breakaway", "started_at": "2026-01-02T03:04:05", "rig": "plpa-1", "direction": "P",
+         "backpressure_bar": 0, "force_rate_n_s": 1, "hose_area_m2": 4.9e-4}
+
+
+def age(root, seconds=3600):
+    """Move every file's mtime into the past (a file written this second is 'racy': always hashed)."""
+    past = time.time() - seconds
+    for p in root.rglob("*"):
+        if p.is_file():
+            os.utime(p, (past, past))
+
+
+def step(raw, rel, scale=1.0, **meta):
+    return raw.csv(rel, {**STEP_META, **meta}, {"t[s]": T, "x[mm]": [v * scale for v in (0, 1, 2, 3)],
+                                                "x_ref[mm]": [3] * 4})
+
+
+def dump(warehouse):
+    con = duckdb.connect(str(warehouse / "pneubench.duckdb"), read_only=True)
+    try:
+        names = [r[0] for r in con.execute("SELECT table_name FROM duckdb_tables() UNION ALL "
+                                           "SELECT view_name FROM duckdb_views() WHERE NOT internal").fetchall()]
+        out = {}
+        for t in sorted(set(names) - REBUILD_ONLY - {"rebuild_changes"}):
+            cols = [c for c in (r[0] for r in con.execute(f'DESCRIBE "{t}"').fetchall())
+                    if c not in ("previous_holds", "change")]
+            sel = ", ".join(f'"{c}"' for c in cols)
+            out[t] = con.execute(f'SELECT {sel} FROM "{t}" ORDER BY ALL').fetchall()
+        return out
+    finally:
+        con.close()
+
+
+def q(warehouse, sql):
+    con = duckdb.connect(str(warehouse / "pneubench.duckdb"), read_only=True)
+    try:
+        return con.execute(sql).fetchall()
+    finally:
+        con.close()
+
+
+@pytest.fixture
+def counting(monkeypatch):
+    """Count files read (hashed or ingested) in this process (jobs=1 runs everything here)."""
+    seen = {"sha": [], "ingest": []}
+    real_sha, real_ingest = rb.sha256_file, rb.ingest_file
+    monkeypatch.setattr(rb, "sha256_file", lambda p, *a, **k: seen["sha"].append(p.name) or real_sha(p, *a, **k))
+    monkeypatch.setattr(rb, "ingest_file", lambda t, p, *a, **k: seen["ingest"].append(p.name) or real_ingest(t, p, *a, **k))
+    return seen
+
+
+def test_noop_rebuild_reads_no_file_and_reruns_no_stage(raw, warehouse, counting):
+    for i in range(3):
+        step(raw, f"c/a{i}.csv")
+    age(raw.root)
+    first = rebuild(raw.root, warehouse, jobs=1)
+    assert sorted(counting["ingest"]) == ["a0.csv", "a1.csv", "a2.csv"]
+    assert first.n_new == 3 and first.stages_run
+    counting["sha"].clear(), counting["ingest"].clear()
+    second = rebuild(raw.root, warehouse, jobs=1)
+    assert counting == {"sha": [], "ingest": []}
+    assert (second.n_new, second.n_changed, second.n_deleted, second.n_unchanged) == (0, 0, 0, 3)
+    assert second.stages_run == [] and set(second.stages_reused) == set(first.stages_run)
+    assert q(warehouse, "SELECT count(*) FROM rebuild_log") == [(2,)]
+    assert q(warehouse, "SELECT count(*) FROM rebuild_changes") == [(0,)]
+
+
+def test_touch_hashes_but_does_not_reingest(raw, warehouse, counting):
+    step(raw, "c/a.csv")
+    age(raw.root)
+    rebuild(raw.root, warehouse, jobs=1)
+    counting["sha"].clear(), counting["ingest"].clear()
+    os.utime(raw.root / "c/a.csv", None)  # new mtime, same bytes
+    s = rebuild(raw.root, warehouse, jobs=1)
+    assert counting["sha"] == ["a.csv"] and counting["ingest"] == []
+    assert s.n_unchanged == 1
+
+
+def test_changes_deletions_and_metadata_changes(raw, warehouse, counting):
+    step(raw, "c/a.csv")
+    step(raw, "c/b.csv")
+    step(raw, "c/sub/c.csv")
+    step(raw, "d/e.csv")
+    age(raw.root)
+    rebuild(raw.root, warehouse, jobs=1)
+    counting["ingest"].clear()
+    step(raw, "c/b.csv", scale=2.0)                                   # content changed
+    (raw.root / "d/e.csv").unlink()                                   # deleted
+    raw.write("c/sub/manifest.csv", "file,operator\nc.csv,ana\n")     # metadata of c changed
+    step(raw, "c/new.csv")                                            # new
+    age(raw.root)
+    s = rebuild(raw.root, warehouse, jobs=1)
+    assert sorted(counting["ingest"]) == ["b.csv", "c.csv", "new.csv"]
+    assert (s.n_new, s.n_changed, s.n_deleted, s.n_unchanged) == (1, 2, 1, 1)
+    changes = {r[0]: r[1:] for r in q(warehouse, "SELECT source_path, status, reason FROM rebuild_changes")}
+    assert changes == {"c/b.csv": ("changed", "content"), "c/sub/c.csv": ("changed", "metadata"),
+                       "d/e.csv": ("deleted", None), "c/new.csv": ("new", None),
+                       "c/sub/manifest.csv": ("new", None)}
+    assert q(warehouse, "SELECT run_id FROM runs ORDER BY run_id") == [("c/a",), ("c/b",), ("c/c",), ("c/new",)]
+    assert q(warehouse, "SELECT json_extract_string(params, '$.operator') FROM runs WHERE run_id = 'c/c'") == [("ana",)]
+    assert q(warehouse, "SELECT max(x_m) FROM samples_step WHERE run_id = 'c/b'") == [(pytest.approx(0.006),)]
+    assert q(warehouse, "SELECT count(*) FROM samples_step WHERE run_id = 'd/e'") == [(0,)]
+    # the deleted run's samples file is kept one generation (old readers), then collected
+    rebuild(raw.root, warehouse, jobs=1)
+    files = {p.name for p in (warehouse / "samples").rglob("*.parquet")}
+    assert not any(f.startswith("d_e-") for f in files)
+
+
+def test_rig_toml_change_reingests_the_files_below_it(raw, warehouse, counting):
+    step(raw, "c/x/a.csv")
+    step(raw, "c/y/b.csv")
+    age(raw.root)
+    rebuild(raw.root, warehouse, jobs=1)
+    counting["ingest"].clear()
+    raw.write("c/x/rig.toml", '[metadata]\nrig = "plpa-2"\n')
+    s = rebuild(raw.root, warehouse, jobs=1)
+    assert counting["ingest"] == ["a.csv"] and s.n_changed == 1
+    # the embedded `rig` is stronger than rig.toml: same value, but the file was re-read
+
+
+def test_quarantined_file_stays_quarantined_without_being_read(raw, warehouse, counting):
+    raw.csv("c/bad.csv", STEP_META, {"t[s]": T, "x[furlong]": T, "x_ref[mm]": T})
+    age(raw.root)
+    a = rebuild(raw.root, warehouse, jobs=1)
+    counting["ingest"].clear()
+    b = rebuild(raw.root, warehouse, jobs=1)
+    assert counting["ingest"] == [] and b.exit_code == a.exit_code == 1
+    assert [p.error for p in b.quarantine] == [p.error for p in a.quarantine]
+    assert q(warehouse, "SELECT source_path, quarantined FROM rebuild_changes") == [("c/bad.csv", True)]
+
+
+class CountingStage:
+    """A stage reading step runs and the earlier tables; counts its runs."""
+    NAME, ORDER, KINDS, TABLES = "zz_count", 95, ("step",), ("zz_count",)
+    calls = 0
+
+    @classmethod
+    def run(cls, ctx):
+        cls.calls += 1
+        n = len(ctx.runs_of("step"))
+        return StageOutput(tables={"zz_count": pd.DataFrame({"n_step_runs": [n]})})
+
+
+def test_stage_reruns_only_when_its_kinds_change(raw, warehouse, monkeypatch):
+    import pipeline.stages as st
+    real = st.discover
+    monkeypatch.setattr(st, "discover", lambda: [*real(), CountingStage])
+    step(raw, "c/a.csv")
+    raw.csv("c/b.csv", BREAK, {"t[s]": T, "p_a[bar]": T, "p_b[bar]": T, "x[mm]": T})
+    age(raw.root)
+    CountingStage.calls = 0
+    rebuild(raw.root, warehouse, jobs=1)
+    rebuild(raw.root, warehouse, jobs=1)
+    assert CountingStage.calls == 1
+    raw.csv("c/b.csv", BREAK, {"t[s]": T, "p_a[bar]": [1, 2, 3, 4], "p_b[bar]": T, "x[mm]": T})  # other kind
+    s = rebuild(raw.root, warehouse, jobs=1)
+    assert CountingStage.calls == 1 and "zz_count" in s.stages_reused
+    assert "plpa_characterisation" in s.stages_run
+    step(raw, "c/c.csv")
+    rebuild(raw.root, warehouse, jobs=1)
+    assert CountingStage.calls == 2
+    assert q(warehouse, "SELECT n_step_runs FROM zz_count") == [(2,)]
+    rebuild(raw.root, warehouse, jobs=1, full=True)
+    assert CountingStage.calls == 3
+
+
+def test_logbook_change_reruns_durability_only(raw, warehouse):
+    step(raw, "c/a.csv")
+    raw.write("c/hoses.csv", "hose_id,event,at,hose_type,adjustment,spring_force_n\n"
+                             "H1,installed,2026-01-01T00:00:00,FLEXIGOM AIR,force,858\n")
+    age(raw.root)
+    rebuild(raw.root, warehouse, jobs=1)
+    raw.write("c/hoses.csv", "hose_id,event,at,hose_type,adjustment,spring_force_n,failure_mode,distance_km\n"
+                             "H1,installed,2026-01-01T00:00:00,FLEXIGOM AIR,force,858,,\n"
+                             "H1,failed,2026-02-01T00:00:00,,,,rupture,80\n")
+    s = rebuild(raw.root, warehouse, jobs=1)
+    assert "durability" in s.stages_run and "plpa_characterisation" in s.stages_reused
+    assert q(warehouse, "SELECT status FROM rebuild_changes WHERE source_path = 'c/hoses.csv'") == [("changed",)]
+    assert q(warehouse, "SELECT hose_id, status FROM hose_life") == [("H1", "failed")]
+
+
+def test_incremental_equals_full_table_by_table(raw, tmp_path):
+    inc, full = tmp_path / "inc", tmp_path / "full"
+    for i in range(4):
+        step(raw, f"c/a{i}.csv", scale=1 + i)
+    raw.csv("c/b.csv", BREAK, {"t[s]": T, "p_a[bar]": T, "p_b[bar]": T, "x[mm]": T})
+    raw.csv("c/bad.csv", STEP_META, {"t[s]": T, "x[furlong]": T, "x_ref[mm]": T})
+    age(raw.root)
+    rebuild(raw.root, inc, jobs=1)
+    step(raw, "c/a1.csv", scale=7.0)
+    (raw.root / "c/a2.csv").unlink()
+    raw.write("c/manifest.csv", "file,notes\na0.csv,<b>bold</b>\n")
+    step(raw, "d/z.csv")
+    age(raw.root)
+    rebuild(raw.root, inc, jobs=2)
+    rebuild(raw.root, full, jobs=2, full=True)
+    a, b = dump(inc), dump(full)
+    assert set(a) == set(b)
+    for table in a:
+        assert a[table] == b[table], table
+    assert len(a["runs"]) == 5 and len(a["quarantine"]) == 1
