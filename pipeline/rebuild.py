@@ -389,7 +389,7 @@ def _load_stage_folder(warehouse: Path, rel: str, stage: str, fresh: stage_regis
 
 
 def run_stages_cached(ctx_args: dict, runs: list[dict], prev: PreviousState, warehouse: Path, full: bool,
-                      logbooks: str, progress: Progress) -> StageResults:
+                      logbooks: str, progress: Progress, generation: str = "") -> StageResults:
     """Run every stage in order, or reuse its cached outputs when its inputs are unchanged."""
     import hashlib
 
@@ -426,7 +426,10 @@ def run_stages_cached(ctx_args: dict, runs: list[dict], prev: PreviousState, war
                 all_runs = bool(ctx.__dict__.get("all_runs_read"))
                 read = {t: frame_hash(res.tables.get(t)) for t in sorted(results.read)}
                 key = stage_input_key(name, code, runs, kinds, all_runs, logb)
-                folder_key = hashlib.sha256(json.dumps([key, read], sort_keys=True).encode()).hexdigest()[:20]
+                # --full writes a fresh folder (never trusts an existing one); incremental runs reuse
+                # a folder with the same inputs (stages are deterministic)
+                salt = generation if full else ""
+                folder_key = hashlib.sha256(json.dumps([key, read, salt], sort_keys=True).encode()).hexdigest()[:20]
                 rel, cacheable = _save_stage_folder(warehouse, name, folder_key, out)
                 record = StageRecord(name, key if cacheable else "uncacheable", rel, sorted(kinds), all_runs, read)
                 tables, figures, problems, warnings = _load_stage_folder(warehouse, rel, name, out)
@@ -645,7 +648,8 @@ def rebuild(raw: str | Path, warehouse: str | Path, jobs: int | None = None, ful
             ctx_args = dict(raw=tree.root, warehouse=warehouse,
                             runs=runs_df.assign(params=[r["params"] for r in runs]) if runs else runs_df,
                             jobs=jobs, progress=progress, mapper=ex.mapper(progress))
-            staged = run_stages_cached(ctx_args, runs, prev, warehouse, full, logbook_hash(side), progress)
+            staged = run_stages_cached(ctx_args, runs, prev, warehouse, full, logbook_hash(side), progress,
+                                       generation)
         _crash_point("after_stages")
         problems += staged.problems
         if staged.warnings and not runs_df.empty:

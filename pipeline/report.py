@@ -68,7 +68,8 @@ def html_table(columns: list[str], rows: list[tuple], max_rows: int = MAX_ROWS, 
         body.append(f"<tr>{cells}</tr>")
     total = len(rows) if total is None else total
     more = f'<p class="more">{total - max_rows} more rows: query the warehouse</p>' if total > max_rows else ""
-    return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>{more}"
+    return (f'<div style="overflow-x:auto"><table><thead><tr>{head}</tr></thead><tbody>{"".join(body)}</tbody>'
+            f"</table></div>{more}")
 
 
 class _DB:
@@ -89,6 +90,10 @@ class _DB:
         return self.con.execute(f'SELECT count(*) FROM "{table}"').fetchone()[0] if self.has(table) else 0
 
 
+def _unit(unit) -> str:
+    return "" if unit in (None, "1") else esc(unit)
+
+
 def _holds_cell(holds) -> str:
     if holds is None:
         return '<td class="nodata">no data</td>'
@@ -104,7 +109,7 @@ def _findings_section(db: _DB) -> tuple[str, str]:
     alert = ""
     changed = [r for r in rows if r[10] in ("overturned", "now holds", "no longer checkable")]
     if changed:
-        items = "".join(f"<li><b>{esc(r[10])}</b>: {esc(r[1])} (measured {fmt(r[2])} {esc(r[4] or '')})</li>"
+        items = "".join(f"<li><b>{esc(r[10])}</b>: {esc(r[1])} (measured {fmt(r[2])} {_unit(r[4])})</li>"
                         for r in changed)
         alert = (f'<div class="alert" id="overturned"><h2 style="margin-top:0">New data changed '
                  f'{len(changed)} finding{"s" if len(changed) != 1 else ""}</h2><ul>{items}</ul></div>')
@@ -112,7 +117,7 @@ def _findings_section(db: _DB) -> tuple[str, str]:
     for (fid, statement, measured, unc, unit, criterion, holds, n, p, detail, change, _prev) in rows:
         value = "—" if measured is None else fmt(measured) + (f" ± {fmt(unc)}" if unc is not None else "")
         body.append(f"<tr><td><b>{esc(statement)}</b><br><span class=\"meta\">{esc(fid)}</span></td>"
-                    f'<td class="num">{value} {esc(unit or "")}</td><td>{esc(criterion)}</td>{_holds_cell(holds)}'
+                    f'<td class="num">{value} {_unit(unit)}</td><td>{esc(criterion)}</td>{_holds_cell(holds)}'
                     f'<td class="num">{fmt(n)}</td><td class="num">{fmt(p)}</td>'
                     f"<td>{esc(detail)}{'<br><b>' + esc(change) + '</b>' if change else ''}</td></tr>")
     n_hold = sum(1 for r in rows if r[6] is True)

@@ -39,7 +39,7 @@ def dump(warehouse):
         out = {}
         for t in sorted(set(names) - REBUILD_ONLY - {"rebuild_changes"}):
             cols = [c for c in (r[0] for r in con.execute(f'DESCRIBE "{t}"').fetchall())
-                    if c not in ("previous_holds", "change")]
+                    if c not in ("previous_holds", "change") and (t, c) != ("figures", "path")]
             sel = ", ".join(f'"{c}"' for c in cols)
             out[t] = con.execute(f'SELECT {sel} FROM "{t}" ORDER BY ALL').fetchall()
         return out

@@ -1,0 +1,108 @@
+"""The morning report: content and order, escaping, and a real headless Chromium rendering it."""
+import os
+import re
+import shutil
+import subprocess
+import tempfile
+
+import matplotlib
+import pandas as pd
+import pytest
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+import pipeline.stages as st  # noqa: E402
+from pipeline.rebuild import rebuild  # noqa: E402
+from pipeline.stages import StageOutput  # noqa: E402
+from pipeline.stages import findings as fs  # noqa: E402
+from tests.conftest import STEP_META  # noqa: E402
+
+EVIL = '<script>alert("pwned")</script>'
+
+
+class PictureStage:
+    """A stage with a figure and its key table, whose text comes from raw metadata."""
+    NAME, ORDER, KINDS, TABLES = "zz_pictures", 80, ("step",), ("zz_curve",)
+    KEY_TABLES = {"curve": "zz_curve"}
+
+    @staticmethod
+    def run(ctx):
+        runs = ctx.runs_of("step")
+        fig, ax = plt.subplots(figsize=(6, 3))
+        ax.plot([0, 1, 2, 3], [0, 1, 4, 9], "o-", color="tab:red", lw=4)
+        ax.set_title("a curve")
+        table = pd.DataFrame({"run_id": runs["run_id"], "value_mm": range(len(runs))})
+        return StageOutput(tables={"zz_curve": table}, figures={"curve": fig},
+                           captions={"curve": f"caption from {EVIL}"})
+
+
+def flip(holds):
+    def check(ctx):
+        return fs._row("breakaway_0bar_twice", "Breakaway at 0 bar is about twice that at >= 1 bar", fs.PLPA, "1",
+                       "ratio 1.5-2.5", "breakaway", 2.0 if holds else 1.0, 0.05, holds, 30, None, "test")
+    return check
+
+
+@pytest.fixture
+def built(raw, warehouse, monkeypatch):
+    real = st.discover
+    monkeypatch.setattr(st, "discover", lambda: [*real(), PictureStage])
+    for i in range(2):
+        raw.csv(f"c/s{i}.csv", {**STEP_META, "run_id": f"{EVIL}{i}"}, {"t[s]": [0, 0.1], "x[mm]": [0, 1],
+                                                                          "x_ref[mm]": [1, 1]})
+    raw.csv("c/bad.csv", {**STEP_META, "notes": EVIL}, {"t[s]": [0, 1], "x[furlong]": [0, 1], "x_ref[mm]": [0, 1]})
+    raw.write("c/hoses.csv", "hose_id,event,at,hose_type,adjustment,spring_force_n\n"
+                             f"H1,installed,2026-01-01T00:00:00,{EVIL.replace(',', ' ')},force,858\n")
+    monkeypatch.setattr(fs, "CHECKS", (flip(True),))
+    rebuild(raw.root, warehouse, jobs=1)
+    monkeypatch.setattr(fs, "CHECKS", (flip(False),))
+    s = rebuild(raw.root, warehouse, jobs=1, full=True)
+    return s
+
+
+def test_report_order_escaping_and_self_containment(built, warehouse):
+    html = (warehouse / "report" / "index.html").read_text()
+    assert built.report == warehouse / "report" / "index.html"
+    # the overturned finding comes first, then findings, rebuild, hoses, analyses
+    order = [html.index(k) for k in ('id="overturned"', 'id="findings"', 'id="rebuild"', 'id="hoses"', 'id="analyses"')]
+    assert order == sorted(order)
+    assert "<b>overturned</b>: Breakaway at 0 bar" in html
+    # quarantine reason, key table, caption and the hose logbook are all there, escaped
+    assert "c/bad.csv" in html and "not accepted for `x`" in html
+    assert "<script" not in html.lower() and "&lt;script&gt;alert(&quot;pwned&quot;)&lt;/script&gt;" in html
+    assert "zz_curve (key table of curve)" in html
+    # self-contained: figures inline, nothing fetched
+    assert re.search(r'<img alt="curve" src="data:image/png;base64,[A-Za-z0-9+/=]{1000,}">', html)
+    assert not re.search(r'(src|href)="(?!data:)', html)
+
+
+def chromium():
+    return shutil.which("chromium") or shutil.which("chromium-browser") or shutil.which("google-chrome")
+
+
+@pytest.mark.skipif(chromium() is None, reason="Debian's chromium is not installed (.ci/run installs it)")
+def test_report_in_headless_chromium(built, warehouse, tmp_path):
+    shot = tmp_path / "report.png"
+    profile = tempfile.mkdtemp(prefix="chromium-")
+    try:
+        res = subprocess.run(
+            [chromium(), "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+             "--disable-background-networking", "--disable-component-update", "--disable-sync",
+             "--disable-dev-shm-usage", f"--user-data-dir={profile}", "--enable-logging=stderr", "--v=0",
+             f"--screenshot={shot}", "--window-size=1280,2400", (warehouse / "report" / "index.html").resolve().as_uri()],
+            capture_output=True, text=True, timeout=120)
+    finally:
+        shutil.rmtree(profile, ignore_errors=True)
+    assert shot.is_file(), res.stderr[-2000:]
+    console = [line for line in res.stderr.splitlines() if "CONSOLE" in line]
+    assert console == []
+    if os.environ.get("PNEUBENCH_KEEP_SCREENSHOT"):
+        shutil.copy(shot, os.environ["PNEUBENCH_KEEP_SCREENSHOT"])
+    img = plt.imread(shot)
+    assert img.shape[:2] == (2400, 1280)
+    # the page is not blank, and the embedded figure's thick red curve is on it
+    rgb = img[..., :3]
+    assert rgb.std() > 0.05
+    red = (rgb[..., 0] > 0.7) & (rgb[..., 1] < 0.35) & (rgb[..., 2] < 0.35)
+    assert red.sum() > 500
