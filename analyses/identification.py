@@ -381,14 +381,18 @@ def plot_identification(result: IdentificationResult, title: str = ""):
     """
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(9, 5.5))
-    ax1, ax2 = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [2.2, 1]})
+    fig = Figure(figsize=(9, 7))
+    ax1, ax_r, ax2 = fig.subplots(3, 1, sharex=True, gridspec_kw={"height_ratios": [2.2, 1, 1]})
     t = result.t_s - (result.t_s[0] if len(result.t_s) else 0.0)
     ax1.plot(t, result.x_m * 1e3, color="0.2", lw=1.2, label="measured (anti-aliased, decimated)")
     if len(result.x_model_m):
         ax1.plot(t, result.x_model_m * 1e3, color="tab:red", lw=1.0, ls="--",
                  label=f"model: wn={result.wn_rad_s:.2f} rad/s, zeta={result.zeta:.3f}, "
                        f"k={result.k_lin_m_v_s:.3f} m/(V s); fit {result.fit_pct:.1f} %")
+        ax_r.plot(t, (result.x_m - result.x_model_m) * 1e3, color="tab:red", lw=0.8)
+    ax_r.axhline(0, color="0.3", lw=0.6)
+    ax_r.set_ylabel("measured - model [mm]")
+    ax_r.grid(alpha=0.3)
     ax1.set_ylabel("position x [mm]")
     ax1.legend(loc="upper right", fontsize=8)
     ax1.grid(alpha=0.3)
