@@ -331,9 +331,9 @@ def identify_third_order(t, x, u_d, x_ref, kp: float, rate_hz: float = 50.0,
 
     # coarse grid for a seed (the initial state projected out), then a joint bounded fit
     best = (np.inf, None, None)
-    for wn in np.geomspace(1.0, 200.0, 10):
-        for zeta in (0.15, 0.35, 0.7, 1.2, 2.5):
-            for k in np.geomspace(0.02, 50.0, 9):
+    for wn in np.geomspace(1.0, 200.0, 8):
+        for zeta in (0.2, 0.45, 0.9, 2.0):
+            for k in np.geomspace(0.02, 50.0, 7):
                 cost, x0 = projected_cost((wn, zeta, k))
                 if cost < best[0]:
                     best = (cost, np.array([wn, zeta, k]), x0)

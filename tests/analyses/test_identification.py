@@ -80,7 +80,7 @@ def test_decimation_removes_content_above_the_new_nyquist():
 @pytest.mark.parametrize("plant,seed", [({}, 1), (dict(wn=30.0, zeta=0.3, k=1.5, kp_v_m=3.0), 2),
                                         (dict(wn=8.0, zeta=0.9, k=0.4, kp_v_m=10.0), 3)])
 def test_recovers_the_simulators_plant(plant, seed):
-    run = simulate_identification(seed, **plant)
+    run = simulate_identification(seed, duration_s=20.0, **plant)
     d, truth = run.data, run.truth
     res = identify_third_order(d["t_s"], d["x_m"], d["u_d_v"], d["x_ref_m"], run.metadata["kp_v_m"],
                                run.metadata["id_sample_rate_hz"])
@@ -93,7 +93,7 @@ def test_recovers_the_simulators_plant(plant, seed):
 
 
 def test_recovers_the_plant_with_extra_sensor_noise():
-    run = simulate_identification(7)
+    run = simulate_identification(7, duration_s=20.0)
     d = run.data
     x = d["x_m"] + np.random.default_rng(0).normal(0, 1e-3, len(d))   # 1 mm white noise at 5 kHz
     res = identify_third_order(d["t_s"], x, d["u_d_v"], d["x_ref_m"], 5.0, 50.0)
