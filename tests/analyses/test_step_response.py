@@ -54,8 +54,13 @@ def test_find_steps_and_no_step():
     assert step_response_metrics(t, r, np.full_like(t, 0.2)).empty
 
 
-def test_metrics_equal_the_simulators_noise_free_truth():
-    run = simulate_step(0)
+@pytest.fixture(scope="module")
+def sim_step():
+    return simulate_step(0)
+
+
+def test_metrics_equal_the_simulators_noise_free_truth(sim_step):
+    run = sim_step
     d = run.data
     got = step_response_metrics(d["t_s"], d["x_m"], d["x_ref_m"])
     truth = run.truth["steps"]
@@ -69,8 +74,8 @@ def test_metrics_equal_the_simulators_noise_free_truth():
         assert g.steady_state_error_mm == pytest.approx(tr["steady_state_error_mm"], abs=0.05)
 
 
-def test_metrics_survive_extra_position_noise():
-    run = simulate_step(0)
+def test_metrics_survive_extra_position_noise(sim_step):
+    run = sim_step
     d = run.data
     noisy = d["x_m"] + np.random.default_rng(1).normal(0, 30e-6, len(d))   # 30 um, 6 encoder counts
     got = step_response_metrics(d["t_s"], noisy, d["x_ref_m"])
