@@ -13,6 +13,18 @@ the PLPA characterisation stage (no plateau detection here; none without that ta
 Tables: ``durability_runs``, ``durability_strokes``, ``hose_life``, ``service_life``,
 ``hose_survival``, ``service_life_test``, ``hose_leak_growth``. Figures: Weibull probability
 plot, Kaplan-Meier curves, leak vs distance, distance per hose.
+
+Decisions
+---------
+* How runs are matched to hoses, reinstallation, odometer vs runs (2 % warning, in
+  ``hose_life.warnings``) and which logbook rows are quarantined: see :mod:`pipeline.logbook`.
+* Service life, KM and the LR test use hoses with a known, positive distance: a running hose
+  that has not moved yet, or a failed/removed hose without runs or odometer reading (it carries
+  a warning in ``hose_life``), is left out; ``n_hoses`` counts the hoses used.
+* A durability run that cannot be read gives a ``durability_runs`` row with NULL distance and
+  strokes and a run warning; its hose's life then lacks that run (warned in ``hose_life``).
+* Samples are read in 131k-row Arrow batches (``pre_buffer=False``): memory stays at about one
+  decoded row group whatever the run's length.
 """
 from __future__ import annotations
 
