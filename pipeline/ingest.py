@@ -343,8 +343,7 @@ def _ingest(tree: RawTree, path: Path, warehouse: Path, rel: str, campaign: str 
     sha = sha256_file(path)
     rig = tree.rig_config(path)
     manifest = tree.manifest_metadata(path)
-    hints = {**normalise_keys(rig["metadata"]), **normalise_keys(manifest)}
-    export = read_export(path, rig["read"], hints)
+    export = _open_export(path, rig, manifest)
     meta = resolve_metadata(rig["metadata"], export.metadata, manifest, campaign, path)
     kind = meta["kind"]
     maps = map_columns(export.columns, rig["channels"])
@@ -366,7 +365,7 @@ def _ingest(tree: RawTree, path: Path, warehouse: Path, rel: str, campaign: str 
     run_id = str(meta["run_id"])
     rel_out = Path("samples") / f"kind={kind}" / f"campaign={campaign}" / f"{safe_file_name(run_id)}-{key[:16]}.parquet"
     out = warehouse / rel_out
-    warnings = list(export.warnings)
+    warnings: list[str] = []  # ingest's own; the reader's are taken after its data is read
     run = {
         "run_id": run_id, "kind": kind, "campaign": campaign, "rig": meta.get("rig"),
         "started_at": meta.get("started_at"), "source_path": rel, "source_sha256": sha,
@@ -397,7 +396,7 @@ def _ingest(tree: RawTree, path: Path, warehouse: Path, rel: str, campaign: str 
                 warnings.append(f"time repeats at {check.repeats} rows")
             warnings += [f"channel `{c}` is empty" for c, e in empty.items() if e]
             run.update(n_samples=check.n, sample_rate_hz=check.sample_rate_hz,
-                       duration_s=(check.last - check.first), warnings=warnings)
+                       duration_s=(check.last - check.first), warnings=list(export.warnings) + warnings)
             channels = [dict(run_id=run_id, **m.describe()) for m in maps]
             writer.add_key_value_metadata({"pneubench": json.dumps({"run": run, "channels": channels}, sort_keys=True)})
         os.replace(tmp, out)
@@ -467,6 +466,23 @@ def prefetch(batches, depth: int = 2):
     finally:
         stop.set()
         thread.join()
+
+
+def _open_export(path: Path, rig: dict, manifest: dict):
+    """Open the export with hints in metadata precedence: manifest > file > rig.toml.
+
+    A reader sees the manifest's keys first, so a key embedded in the file (e.g. a TDMS root
+    property ``group``) beats a rig.toml default; only when that fails and rig.toml would add
+    hints is the file opened again with them.
+    """
+    strong = normalise_keys(manifest)
+    weak = {**normalise_keys(rig["metadata"]), **strong}
+    try:
+        return read_export(path, rig["read"], strong)
+    except ReaderError:
+        if weak == strong:
+            raise
+    return read_export(path, rig["read"], weak)
 
 
 def read_run_record(path: Path) -> dict | None:

@@ -181,3 +181,44 @@ def test_raw_files_are_never_modified(raw, warehouse):
     before = (p.read_bytes(), p.stat().st_mtime_ns)
     ingest(raw, "c/a.csv", warehouse)
     assert (p.read_bytes(), p.stat().st_mtime_ns) == before
+
+
+def test_tdms_root_group_beats_rig_toml_group(raw, warehouse):
+    """Precedence manifest > file > rig.toml also holds for the hints a reader uses."""
+    import numpy as np
+    from nptdms import ChannelObject, RootObject, TdmsWriter
+
+    path = raw.root / "c" / "two_groups.tdms"
+    path.parent.mkdir(parents=True)
+    raw.write("c/rig.toml", '[metadata]\ngroup = "wrong"\n')
+    root = RootObject({"kind": "step", "started_at": "2026-01-01T00:00:00", "rig": "r", "group": "right"})
+    chans = []
+    for group, value in (("wrong", 1.0), ("right", 2.0)):
+        for name in ("t", "x", "x_ref"):
+            data = np.arange(3.0) if name == "t" else np.full(3, value)
+            chans.append(ChannelObject(group, name, data, properties={"unit_string": "s" if name == "t" else "m"}))
+    with TdmsWriter(str(path)) as w:
+        w.write_segment([root] + chans)
+    res = ingest(raw, "c/two_groups.tdms", warehouse)
+    assert res.error is None, res.error
+    assert pq.read_table(warehouse / res.run["samples_path"]).column("x_m").to_pylist() == [2.0, 2.0, 2.0]
+
+
+def test_reader_warnings_raised_while_reading_data_reach_the_run(raw, warehouse, monkeypatch):
+    import pipeline.ingest as ingest_mod
+
+    real = ingest_mod.read_export
+
+    def reader_that_warns_late(path, read, hints):
+        export = real(path, read, hints)
+        inner = export.batches
+
+        def batches():
+            yield from inner()
+            export.warnings.append("file cut short after the last batch")
+        export.batches = batches
+        return export
+
+    monkeypatch.setattr(ingest_mod, "read_export", reader_that_warns_late)
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    assert ingest(raw, "c/a.csv", warehouse).run["warnings"] == ["file cut short after the last batch"]
