@@ -32,8 +32,9 @@ keeps the logbook's kilometres realistic (Weibull lives of tens of km) while log
 runs at 5 Hz with 1 m strokes at 1 m/s and 0.25 s dwells: every turn is still sampled, so
 distance and stroke counts are exact, at about 40 samples per 100 m instead of 8,000. Older
 hoses carry odometer readings only (no runs), as bench-exports.md allows.
-``full`` logs durability at 1 kHz in runs of 4 h (about 14 M samples, ~0.5 GB TDMS / ~1 GB CSV
-per run), breakaway with 3 repetitions at 1 kHz, identification 60 s at 5 kHz.
+``full`` logs durability at 1 kHz in runs of about 8 h (10 km of 0.5 m strokes: about 29 M samples,
+~0.7 GB TDMS / ~1 GB CSV per run, written in 2 M-row chunks), breakaway with 3 repetitions at
+1 kHz, identification 60 s at 5 kHz.
 ``mini`` is for tests: one run per kind and format variant, tiny durability.
 ``runs=N`` pads the characterisation matrices with further repetitions (new seeds) to reach N
 runs in total, for campaigns of 1,000+ runs; a smaller N keeps the first N runs (interleaved
@@ -47,7 +48,7 @@ import json
 import math
 import os
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from datetime import datetime, timedelta
 from pathlib import Path
 
@@ -102,7 +103,7 @@ PROFILES = {
     "full": Profile("full", leak_fs_hz=200.0, leak_plateau_s=8.0, breakaway_fs_hz=1000.0, breakaway_reps=3,
                     viscous_fs_hz=1000.0, identification_runs=5, identification_s=60.0, step_runs=6,
                     spring_fs_hz=1000.0, pressure_step_runs=3, dur_fs_hz=1000.0, dur_stroke_m=0.5,
-                    dur_speed_m_s=0.5, dur_accel_m_s2=2.0, dur_dwell_s=0.2, dur_run_km=5.0, logged_hoses=4,
+                    dur_speed_m_s=0.5, dur_accel_m_s2=2.0, dur_dwell_s=0.2, dur_run_km=10.0, logged_hoses=4,
                     odometer_hoses=20, stop_km={"distance": 20.0, "force": 15.0}, check_every=1,
                     check_fs_hz=100.0, check_plateau_s=6.0),
     "mini": Profile("mini", leak_fs_hz=20.0, leak_plateau_s=2.0, breakaway_fs_hz=100.0, viscous_fs_hz=200.0,
@@ -318,7 +319,7 @@ def write_run(out_dir: Path, plan: RunPlan, seed: int, chunk_rows: int = 2_000_0
         if v.get("headerless"):
             _write_headerless_step(path, frames)
         else:
-            write_csv(path, _with_time(frames), [ColumnOut("t_s", "t", "s")] + _variant_columns(cols, v),
+            write_csv(path, frames, [ColumnOut("t_s", "t", "s")] + _variant_columns(cols, v),
                       embedded or None, **opts)
     elif v["fmt"] == "lvm":
         write_lvm(path, frames, _variant_columns(cols, v), embedded or None, fs_hz=fs,
@@ -336,10 +337,6 @@ def write_run(out_dir: Path, plan: RunPlan, seed: int, chunk_rows: int = 2_000_0
     if manifest_row is not None:
         record["manifest_row"] = manifest_row
     return record
-
-
-def _with_time(frames):
-    return frames
 
 
 def _write_headerless_step(path: Path, frames) -> None:
@@ -428,7 +425,7 @@ class _Planner:
     def step(self, n: int | None = None, rep0: int = 0):
         for i in range(rep0, rep0 + (n or self.p.step_runs)):
             self.add("plpa-2025", "step", "step", f"step-{i + 1:02d}", "step",
-                     dict(fs_hz=self.p.step_fs_hz), minutes=5)
+                     dict(fs_hz=self.p.step_fs_hz, x0_m=0.15 + 0.05 * (i % 4)), minutes=5)
 
     # PLA -----------------------------------------------------------------------------------
     def spring(self, rep: int = 0):
