@@ -53,6 +53,7 @@ META_KEYS: dict[str, MetaKey] = {
         MetaKey("amplitude_mm", "float", "Harmonic displacement amplitude. [mm]"),
         MetaKey("frequency_hz", "float", "Harmonic displacement frequency. [Hz]"),
         MetaKey("stroke_mm", "float", "PLA stroke. [mm]", default=40.0),
+        MetaKey("p0_bar_abs", "float", "Initial absolute chamber pressure of a spring test. [bar]"),
         MetaKey("group", "str", "TDMS group holding the channels."),
     )
 }

@@ -50,3 +50,7 @@ def test_sanitised_names_never_shadow_canonical_columns():
     assert sanitise_name("kind") == "x_kind"
     assert sanitise_name("3rd") == "c_3rd"
     assert COLUMN["q_leak"] == "q_leak_kg_s"
+
+
+def test_p0_bar_abs_is_typed_whatever_the_source():
+    assert coerce_value("p0_bar_abs", "3,0") == 3.0
