@@ -622,97 +622,109 @@ def rebuild(raw: str | Path, warehouse: str | Path, jobs: int | None = None, ful
     summary = RebuildSummary(raw=raw, warehouse=warehouse, generation=generation,
                              mode="full" if full else "incremental")
     with warehouse_lock(warehouse, lock_wait_s):
-        clean_debris(warehouse)
-        prev = load_previous(warehouse)
-        tree = RawTree(raw)
-        tree.scan_rigs()
-        tree.scan_manifests()
-        files = discover_runs(tree.root)
-        summary.n_files = len(files)
-        code = ingest_code_version()
-        plans = plan_runs(tree, files, prev, code, warehouse, full)
-        side, side_changes = side_records(tree, prev)
-        n_quick = sum(p.status == "unchanged" for p in plans)
-        progress.message(f"rebuild {generation} ({summary.mode}): {len(files)} run files under {raw}, "
-                         f"{n_quick} unchanged at a glance")
         try:
-            ex = make_executor(executor, jobs, scheduler)
-        except Exception as exc:
-            raise RebuildError(f"cannot start the {executor} executor: {type(exc).__name__}: {exc}") from exc
-        with ex:
-            results, records = ingest_incremental(tree, plans, warehouse, ex, progress, code, full, generation)
-            _crash_point("after_ingest")
-            runs, channels, problems = deduplicate(results)
-            problems = tree.problems + problems
-            runs_df = runs_frame(runs)
-            ctx_args = dict(raw=tree.root, warehouse=warehouse,
-                            runs=runs_df.assign(params=[r["params"] for r in runs]) if runs else runs_df,
-                            jobs=jobs, progress=progress, mapper=ex.mapper(progress))
-            staged = run_stages_cached(ctx_args, runs, prev, warehouse, full, logbook_hash(side), progress,
-                                       generation)
-        _crash_point("after_stages")
-        problems += staged.problems
-        if staged.warnings and not runs_df.empty:
-            runs_df["warnings"] = [list(w) + staged.warnings.get(rid, [])
-                                   for rid, w in zip(runs_df["run_id"], runs_df["warnings"])]
-        quarantine = pd.DataFrame([{"source_path": p.source_path, "error": p.error, "line": p.line,
-                                    "campaign": p.source_path.split("/")[0] if "/" in p.source_path else None,
-                                    "stage": p.stage} for p in problems],
-                                  columns=["source_path", "error", "line", "campaign", "stage"])
-        stage_tables = dict(staged.tables)
-        if "findings" in stage_tables:
-            stage_tables["findings"] = compare_findings(stage_tables["findings"], prev.findings,
-                                                        prev.generation is not None)
-        seen = {p.rel for p in plans} | {r.source_path for r in side}
-        inputs = _inputs_table(plans, side_changes, prev, seen, problems, results)
-        summary.n_new = int(((inputs["status"] == "new") & (inputs["role"] == "run")).sum())
-        summary.n_changed = int(((inputs["status"] == "changed") & (inputs["role"] == "run")).sum())
-        summary.n_deleted = int(((inputs["status"] == "deleted") & (inputs["role"] == "run")).sum())
-        summary.n_unchanged = int(((inputs["status"] == "unchanged") & (inputs["role"] == "run")).sum())
-        summary.n_runs = len(runs)
-        summary.quarantine = problems
-        summary.stages_run, summary.stages_reused = staged.ran, staged.reused
-        log_row = pd.DataFrame([{
-            "generation": generation, "started_at": started_at, "finished_at": datetime.now(timezone.utc),
-            "duration_s": time.monotonic() - t0, "mode": summary.mode, "executor": ex.name,
-            "n_files": len(files), "n_runs": len(runs), "n_new": summary.n_new, "n_changed": summary.n_changed,
-            "n_deleted": summary.n_deleted, "n_unchanged": summary.n_unchanged, "n_quarantined": len(problems),
-            "stages_run": staged.ran, "stages_reused": staged.reused, "exit_code": summary.exit_code}])
-        history = log_row
-        if prev.history is not None and not prev.history.empty:
-            history = pd.concat([prev.history.tail(HISTORY_ROWS - 1), log_row], ignore_index=True)
-        all_tables = {
-            "runs": runs_df, "quarantine": quarantine, "channels": pd.DataFrame(channels),
-            "figures": pd.DataFrame(staged.figures, columns=["stage", "name", "path", "caption"]),
-            **stage_tables,
-            "rebuild_log": history, "rebuild_inputs": inputs,
-            "ingest_state": pd.DataFrame([r.as_row() for r in records + side]),
-            "stage_cache": pd.DataFrame([r.as_row() for r in staged.records]),
-        }
-        tmp_db = warehouse / f".{DB_NAME}.tmp-{os.getpid()}"
-        progress.message(f"warehouse: writing {len(all_tables)} tables")
+            return _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, report,
+                                   generation, summary, started_at, t0)
+        except RebuildError:
+            raise
+        except Exception as exc:  # anything unexpected: exit 3, never 1 (= "quarantined")
+            log.exception("rebuild failed")
+            raise RebuildError(f"rebuild failed: {type(exc).__name__}: {exc}") from exc
+
+
+def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, report, generation, summary,
+                    started_at, t0) -> RebuildSummary:
+    clean_debris(warehouse)
+    prev = load_previous(warehouse)
+    tree = RawTree(raw)
+    tree.scan_rigs()
+    tree.scan_manifests()
+    files = discover_runs(tree.root)
+    summary.n_files = len(files)
+    code = ingest_code_version()
+    plans = plan_runs(tree, files, prev, code, warehouse, full)
+    side, side_changes = side_records(tree, prev)
+    n_quick = sum(p.status == "unchanged" for p in plans)
+    progress.message(f"rebuild {generation} ({summary.mode}): {len(files)} run files under {raw}, "
+                     f"{n_quick} unchanged at a glance")
+    try:
+        ex = make_executor(executor, jobs, scheduler)
+    except Exception as exc:
+        raise RebuildError(f"cannot start the {executor} executor: {type(exc).__name__}: {exc}") from exc
+    with ex:
+        results, records = ingest_incremental(tree, plans, warehouse, ex, progress, code, full, generation)
+        _crash_point("after_ingest")
+        runs, channels, problems = deduplicate(results)
+        problems = tree.problems + problems
+        runs_df = runs_frame(runs)
+        ctx_args = dict(raw=tree.root, warehouse=warehouse,
+                        runs=runs_df.assign(params=[r["params"] for r in runs]) if runs else runs_df,
+                        jobs=jobs, progress=progress, mapper=ex.mapper(progress))
+        staged = run_stages_cached(ctx_args, runs, prev, warehouse, full, logbook_hash(side), progress,
+                                   generation)
+    _crash_point("after_stages")
+    problems += staged.problems
+    if staged.warnings and not runs_df.empty:
+        runs_df["warnings"] = [list(w) + staged.warnings.get(rid, [])
+                               for rid, w in zip(runs_df["run_id"], runs_df["warnings"])]
+    quarantine = pd.DataFrame([{"source_path": p.source_path, "error": p.error, "line": p.line,
+                                "campaign": p.source_path.split("/")[0] if "/" in p.source_path else None,
+                                "stage": p.stage} for p in problems],
+                              columns=["source_path", "error", "line", "campaign", "stage"])
+    stage_tables = dict(staged.tables)
+    if "findings" in stage_tables:
+        stage_tables["findings"] = compare_findings(stage_tables["findings"], prev.findings,
+                                                    prev.generation is not None)
+    seen = {p.rel for p in plans} | {r.source_path for r in side}
+    inputs = _inputs_table(plans, side_changes, prev, seen, problems, results)
+    summary.n_new = int(((inputs["status"] == "new") & (inputs["role"] == "run")).sum())
+    summary.n_changed = int(((inputs["status"] == "changed") & (inputs["role"] == "run")).sum())
+    summary.n_deleted = int(((inputs["status"] == "deleted") & (inputs["role"] == "run")).sum())
+    summary.n_unchanged = int(((inputs["status"] == "unchanged") & (inputs["role"] == "run")).sum())
+    summary.n_runs = len(runs)
+    summary.quarantine = problems
+    summary.stages_run, summary.stages_reused = staged.ran, staged.reused
+    log_row = pd.DataFrame([{
+        "generation": generation, "started_at": started_at, "finished_at": datetime.now(timezone.utc),
+        "duration_s": time.monotonic() - t0, "mode": summary.mode, "executor": ex.name,
+        "n_files": len(files), "n_runs": len(runs), "n_new": summary.n_new, "n_changed": summary.n_changed,
+        "n_deleted": summary.n_deleted, "n_unchanged": summary.n_unchanged, "n_quarantined": len(problems),
+        "stages_run": staged.ran, "stages_reused": staged.reused, "exit_code": summary.exit_code}])
+    history = log_row
+    if prev.history is not None and not prev.history.empty:
+        history = pd.concat([prev.history.tail(HISTORY_ROWS - 1), log_row], ignore_index=True)
+    all_tables = {
+        "runs": runs_df, "quarantine": quarantine, "channels": pd.DataFrame(channels),
+        "figures": pd.DataFrame(staged.figures, columns=["stage", "name", "path", "caption"]),
+        **stage_tables,
+        "rebuild_log": history, "rebuild_inputs": inputs,
+        "ingest_state": pd.DataFrame([r.as_row() for r in records + side]),
+        "stage_cache": pd.DataFrame([r.as_row() for r in staged.records]),
+    }
+    tmp_db = warehouse / f".{DB_NAME}.tmp-{os.getpid()}"
+    progress.message(f"warehouse: writing {len(all_tables)} tables")
+    try:
+        build_database(tmp_db, warehouse, all_tables, runs_df)
+        _crash_point("before_swap")
+        swap_in(tmp_db, warehouse / DB_NAME)
+    except Exception as exc:
+        tmp_db.unlink(missing_ok=True)
+        Path(f"{tmp_db}.wal").unlink(missing_ok=True)
+        if isinstance(exc, RebuildError):
+            raise
+        raise RebuildError(f"could not write the warehouse: {type(exc).__name__}: {exc}") from exc
+    _crash_point("after_swap")
+    collect_garbage(warehouse, prev.samples | set(runs_df.get("samples_path", [])),
+                    prev.stage_folders | {r.folder for r in staged.records})
+    summary.tables = {k: len(v) for k, v in all_tables.items()}
+    if report:
+        from pipeline.report import write_report
         try:
-            build_database(tmp_db, warehouse, all_tables, runs_df)
-            _crash_point("before_swap")
-            swap_in(tmp_db, warehouse / DB_NAME)
-        except Exception as exc:
-            tmp_db.unlink(missing_ok=True)
-            Path(f"{tmp_db}.wal").unlink(missing_ok=True)
-            if isinstance(exc, RebuildError):
-                raise
-            raise RebuildError(f"could not write the warehouse: {type(exc).__name__}: {exc}") from exc
-        _crash_point("after_swap")
-        collect_garbage(warehouse, prev.samples | set(runs_df.get("samples_path", [])),
-                        prev.stage_folders | {r.folder for r in staged.records})
-        summary.tables = {k: len(v) for k, v in all_tables.items()}
-        if report:
-            from pipeline.report import write_report
-            try:
-                summary.report = write_report(warehouse)
-                progress.message(f"report: {summary.report}")
-            except Exception as exc:  # the warehouse is in place; say so, and fail loudly
-                log.exception("report failed")
-                progress.message(f"report: FAILED: {type(exc).__name__}: {exc}")
+            summary.report = write_report(warehouse)
+            progress.message(f"report: {summary.report}")
+        except Exception as exc:  # the warehouse is in place; say so, and fail loudly
+            log.exception("report failed")
+            progress.message(f"report: FAILED: {type(exc).__name__}: {exc}")
     summary.seconds = time.monotonic() - t0
     for p in problems:
         where = f"{p.source_path}:{p.line}" if p.line else p.source_path
