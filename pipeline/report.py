@@ -19,6 +19,7 @@ from pathlib import Path
 from pipeline.warehouse import connect_readonly
 
 MAX_ROWS = 30          # rows of a key table shown
+FOLD_INPUT_ROWS = 20   # longer lists of changed inputs start folded
 MAX_INPUT_ROWS = 300   # rows of the changed-inputs list shown
 
 CSS = """
@@ -145,12 +146,6 @@ def _rebuild_section(db: _DB) -> str:
                  ("deleted", r["n_deleted"]), ("unchanged", r["n_unchanged"]), ("quarantined", r["n_quarantined"])]
         out.append('<div class="cards">' + "".join(f'<div class="card"><b>{fmt(v)}</b>{esc(k)}</div>'
                                                    for k, v in cards) + "</div>")
-    if db.has("rebuild_inputs"):
-        n = db.con.execute("SELECT count(*) FROM rebuild_inputs WHERE status <> 'unchanged'").fetchone()[0]
-        cols, rows = db.rows("SELECT status, role, source_path, reason, run_id, kind FROM rebuild_inputs "
-                             "WHERE status <> 'unchanged' ORDER BY status, source_path")
-        out.append(f"<h3>New, changed and deleted inputs ({n})</h3>")
-        out.append(html_table(cols, rows, MAX_INPUT_ROWS, n) if rows else '<p class="meta">nothing changed</p>')
     n_q = db.count("quarantine")
     out.append(f"<h3>Quarantined inputs ({n_q})</h3>")
     if n_q:
@@ -158,6 +153,18 @@ def _rebuild_section(db: _DB) -> str:
         out.append(html_table(cols, rows, MAX_INPUT_ROWS, n_q))
     else:
         out.append('<p class="meta">none: every input was used</p>')
+    if db.has("rebuild_inputs"):
+        n = db.con.execute("SELECT count(*) FROM rebuild_inputs WHERE status <> 'unchanged'").fetchone()[0]
+        per = db.con.execute("SELECT status, count(*) FROM rebuild_inputs WHERE status <> 'unchanged' "
+                             "GROUP BY status ORDER BY status").fetchall()
+        cols, rows = db.rows("SELECT status, role, source_path, reason, run_id, kind FROM rebuild_inputs "
+                             "WHERE status <> 'unchanged' ORDER BY status, source_path")
+        counts = ", ".join(f"{c} {esc(st)}" for st, c in per) or "nothing changed"
+        # A long list (the first build of a campaign) is folded so the results stay in view.
+        opened = " open" if n <= FOLD_INPUT_ROWS else ""
+        out.append(f"<details{opened}><summary><b>New, changed and deleted inputs ({n})</b>: {counts}</summary>")
+        out.append(html_table(cols, rows, MAX_INPUT_ROWS, n) if rows else '<p class="meta">nothing changed</p>')
+        out.append("</details>")
     out.append("</section>")
     return "".join(out)
 

@@ -106,3 +106,18 @@ def test_report_in_headless_chromium(built, warehouse, tmp_path):
     assert rgb.std() > 0.05
     red = (rgb[..., 0] > 0.7) & (rgb[..., 1] < 0.35) & (rgb[..., 2] < 0.35)
     assert red.sum() > 500
+
+
+def test_long_input_lists_are_folded_and_quarantine_comes_first(raw, warehouse):
+    from pipeline.report import FOLD_INPUT_ROWS, render_report
+
+    for i in range(FOLD_INPUT_ROWS + 1):
+        raw.csv(f"c/s{i:02d}.csv", STEP_META, {"t[s]": [0, 0.1], "x[mm]": [0, 1], "x_ref[mm]": [1, 1]})
+    raw.csv("c/bad.csv", STEP_META, {"t[s]": [0, 1]})
+    rebuild(raw.root, warehouse, jobs=1)
+    page = render_report(warehouse)
+    assert f"<details><summary><b>New, changed and deleted inputs ({FOLD_INPUT_ROWS + 2})</b>" in page
+    assert page.index("Quarantined inputs (1)") < page.index("New, changed and deleted inputs")
+    (raw.root / "c" / "s00.csv").unlink()
+    rebuild(raw.root, warehouse, jobs=1)
+    assert "<details open><summary><b>New, changed and deleted inputs (1)</b>: 1 deleted" in render_report(warehouse)
