@@ -1,0 +1,43 @@
+"""Every benchmark in one command: ``python -m benchmarks [--quick]``.
+
+Each benchmark measures its baseline in the same run and prints ratios; this only runs them one
+after the other (each in its own process, so peak memory figures stay per benchmark).
+``--quick`` uses small sizes for a look in a few minutes; without it the sizes are the issues'
+(1 GB exports, 4 h durability at 1 kHz, a 1,000-run campaign).
+"""
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+
+BENCHMARKS = {
+    "ingest": (["--size-mb", "1000"], ["--size-mb", "100"]),
+    "durability": (["--hours", "4"], ["--hours", "0.5", "--repeat", "1"]),
+    "spring_fit": ([], []),
+    "rebuild": (["--runs", "1000"], ["--runs", "150"]),
+}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m benchmarks", description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="small sizes (minutes instead of ~15 min)")
+    ap.add_argument("names", nargs="*", metavar="NAME", help=f"which to run: {', '.join(BENCHMARKS)} (default: all)")
+    args = ap.parse_args(argv)
+    unknown = [n for n in args.names if n not in BENCHMARKS]
+    if unknown:
+        ap.error(f"unknown benchmark {', '.join(unknown)} (choose from {', '.join(BENCHMARKS)})")
+    failed = []
+    for name in args.names or BENCHMARKS:
+        full, quick = BENCHMARKS[name]
+        cmd = [sys.executable, "-m", f"benchmarks.bench_{name}", *(quick if args.quick else full)]
+        print(f"\n=== {name}: {' '.join(cmd[1:])}", flush=True)
+        if subprocess.call(cmd) != 0:
+            failed.append(name)
+    if failed:
+        print(f"\nfailed: {', '.join(failed)}", file=sys.stderr)
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
