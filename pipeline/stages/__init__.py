@@ -96,10 +96,7 @@ class StageContext:
 
     def samples(self, run_id: str, columns: list[str] | None = None) -> pd.DataFrame:
         """A run's samples as a DataFrame in SI (``t_s``, ``p_a_pa``, ...), without ``run_id``."""
-        table = pq.read_table(self.samples_file(run_id), columns=columns)
-        if columns is None:
-            table = table.drop(["run_id"])
-        return table.to_pandas()
+        return read_samples(self.samples_file(run_id), columns)
 
     def map(self, func: Callable, items: Iterable, label: str = "") -> list:
         """``[func(item) for item in items]`` in parallel (processes, or the configured executor).
@@ -121,6 +118,17 @@ class StageContext:
                         out.append(res)
                         task.advance()
         return out
+
+
+def read_samples(path: str | Path, columns: list[str] | None = None) -> pd.DataFrame:
+    """A samples Parquet file as a DataFrame in SI, without ``run_id``.
+
+    Only the requested ``columns`` that the run has are read (a run without an optional
+    channel simply lacks that column); ``None`` reads every channel.
+    """
+    have = pq.read_schema(path).names
+    wanted = [c for c in have if c != "run_id"] if columns is None else [c for c in columns if c in have]
+    return pq.read_table(path, columns=wanted).to_pandas()
 
 
 def discover() -> list[ModuleType]:

@@ -20,13 +20,12 @@ import re
 
 import numpy as np
 import pandas as pd
-import pyarrow.parquet as pq
 
 from analyses import identification as ident
 from analyses import pla_spring as spring
 from analyses import pressure_dynamics as pdyn
 from analyses import step_response as stepr
-from pipeline.stages import StageContext, StageOutput
+from pipeline.stages import StageContext, StageOutput, read_samples
 
 NAME = "models"
 ORDER = 20
@@ -71,11 +70,6 @@ def _params(value) -> dict:
     return {}
 
 
-def _read(path: str, columns: list[str]) -> pd.DataFrame:
-    table = pq.read_table(path)
-    return table.select([c for c in columns if c in table.column_names]).to_pandas()
-
-
 def _missing(df: pd.DataFrame, cols) -> list[str]:
     return [c for c in cols if c not in df.columns or df[c].isna().all()]
 
@@ -118,7 +112,7 @@ def _identification(run_id, path, params):
     rate = _num(params.get("id_sample_rate_hz"), 50.0)
     row = {"run_id": run_id, "wn_rad_s": None, "zeta": None, "k_lin_m_v_s": None, "fit_pct": None,
            "kp_v_m": kp, "id_sample_rate_hz": rate, "n_samples_id": None}
-    df = _read(path, ["t_s", "x_m", "u_d_v", "x_ref_m"])
+    df = read_samples(path, ["t_s", "x_m", "u_d_v", "x_ref_m"])
     miss = _missing(df, ["t_s", "x_m", "u_d_v", "x_ref_m"])
     if miss:
         return [row], [f"{NAME}: identification run lacks {', '.join(miss)}; not identified"], None
@@ -138,7 +132,7 @@ def _identification(run_id, path, params):
 
 def _step(run_id, path, params):
     null = {"run_id": run_id, **{c: None for c in STEP_COLS[1:]}}
-    df = _read(path, ["t_s", "x_m", "x_ref_m"])
+    df = read_samples(path, ["t_s", "x_m", "x_ref_m"])
     miss = _missing(df, ["t_s", "x_m", "x_ref_m"])
     if miss:
         return [null], [f"{NAME}: step run lacks {', '.join(miss)}; no step metrics"], None
@@ -173,7 +167,7 @@ def _spring(run_id, path, params):
             "nrmse_pct": None}
     if chamber not in spring.PRESSURE_SIGN:
         return [null], [f"{NAME}: spring run chamber must be front or rear, got {chamber or 'none'}; not fitted"], None
-    df = _read(path, ["t_s", "d_m", "f_n", "p_pa"])
+    df = read_samples(path, ["t_s", "d_m", "f_n", "p_pa"])
     miss = _missing(df, ["t_s", "d_m", "f_n", "p_pa"])
     if miss:
         return [null], [f"{NAME}: spring run lacks {', '.join(miss)}; not fitted"], None
@@ -191,7 +185,7 @@ def _spring(run_id, path, params):
 
 def _pressure_step(run_id, path, params):
     chamber = str(params.get("chamber") or "").strip().lower() or None
-    df = _read(path, ["t_s", "p_pa", "p_ref_pa"])
+    df = read_samples(path, ["t_s", "p_pa", "p_ref_pa"])
     miss = _missing(df, ["t_s", "p_pa", "p_ref_pa"])
     if miss:
         return [], [f"{NAME}: pressure_step run lacks {', '.join(miss)}; no steps"], None
