@@ -46,3 +46,15 @@ def warehouse(tmp_path) -> Path:
 
 
 STEP_META = {"kind": "step", "started_at": "2026-01-02T03:04:05", "rig": "plpa-1"}
+
+
+def query(warehouse: Path, sql: str, frame: bool = False):
+    """Rows (or a DataFrame with ``frame=True``) of read-only SQL on a built warehouse."""
+    import duckdb
+
+    con = duckdb.connect(str(Path(warehouse) / "pneubench.duckdb"), read_only=True)
+    try:
+        cur = con.execute(sql)
+        return cur.df() if frame else cur.fetchall()
+    finally:
+        con.close()

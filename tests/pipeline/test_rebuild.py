@@ -1,19 +1,13 @@
 """The rebuild end to end: runs, quarantine, views, exit codes, and the previous warehouse kept on failure."""
-import duckdb
 import pytest
 
 from pipeline.rebuild import EXIT_OK, EXIT_QUARANTINED, RebuildError, rebuild
-from tests.conftest import STEP_META
+from tests.conftest import STEP_META, query
 
 T = [0.0, 0.1, 0.2, 0.3]
 
 
-def q(warehouse, sql):
-    con = duckdb.connect(str(warehouse / "pneubench.duckdb"), read_only=True)
-    try:
-        return con.execute(sql).fetchall()
-    finally:
-        con.close()
+q = query
 
 
 def test_rebuild_builds_runs_views_and_quarantine(raw, warehouse):
@@ -78,8 +72,8 @@ def test_failed_stage_keeps_previous_warehouse(raw, warehouse, monkeypatch):
 
 def test_rebuild_is_deterministic(raw, tmp_path):
     raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[mm]": [0, 1, 2, 3], "x_ref[mm]": [3] * 4})
-    a = rebuild(raw.root, tmp_path / "w1", jobs=1)
-    b = rebuild(raw.root, tmp_path / "w2", jobs=2)
+    rebuild(raw.root, tmp_path / "w1", jobs=1)
+    rebuild(raw.root, tmp_path / "w2", jobs=2)
     ra = q(tmp_path / "w1", "SELECT * EXCLUDE (samples_path) FROM runs")
     rb = q(tmp_path / "w2", "SELECT * EXCLUDE (samples_path) FROM runs")
     assert ra == rb

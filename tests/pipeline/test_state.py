@@ -10,7 +10,7 @@ import pytest
 import pipeline.rebuild as rb
 from pipeline.rebuild import rebuild
 from pipeline.stages import StageOutput
-from tests.conftest import STEP_META
+from tests.conftest import STEP_META, query
 
 T = [0.0, 0.1, 0.2, 0.3]
 REBUILD_ONLY = {"rebuild_log", "rebuild_inputs", "ingest_state", "stage_cache"}
@@ -47,12 +47,7 @@ def dump(warehouse):
         con.close()
 
 
-def q(warehouse, sql):
-    con = duckdb.connect(str(warehouse / "pneubench.duckdb"), read_only=True)
-    try:
-        return con.execute(sql).fetchall()
-    finally:
-        con.close()
+q = query
 
 
 @pytest.fixture

@@ -3,12 +3,12 @@ bench exports (mm, bar, bar(a), kN, mV...), rebuilt into a warehouse whose table
 simulator's truth; runs that cannot be fitted give NULLs and a warning."""
 import itertools
 
-import duckdb
 import numpy as np
 import pandas as pd
 import pytest
 
 from pipeline.rebuild import rebuild
+from tests.conftest import query
 from pipeline.simulator import (simulate_identification, simulate_pressure_step, simulate_spring,
                                 simulate_step)
 from pipeline.simulator.writers import default_columns, write_csv
@@ -58,12 +58,8 @@ def built(tmp_path_factory):
     return wh, truth, summary
 
 
-def q(wh, sql):
-    con = duckdb.connect(str(wh / "pneubench.duckdb"), read_only=True)
-    try:
-        return con.execute(sql).df()
-    finally:
-        con.close()
+def q(warehouse, sql):
+    return query(warehouse, sql, frame=True)
 
 
 def _warnings(wh, run_id):
