@@ -13,6 +13,14 @@ from pipeline.progress import for_stream
 RAW_HELP = "Raw tree (default ./raw, or $PNEUBENCH_RAW)."
 WH_HELP = "Warehouse folder (default ./warehouse, or $PNEUBENCH_WAREHOUSE)."
 
+# Options several commands share, defined once.
+raw_option = click.option("--raw", type=click.Path(file_okay=False, path_type=Path), envvar="PNEUBENCH_RAW",
+                          default="raw", show_default=True, help=RAW_HELP)
+warehouse_option = click.option("--warehouse", type=click.Path(file_okay=False, path_type=Path),
+                                envvar="PNEUBENCH_WAREHOUSE", default="warehouse", show_default=True, help=WH_HELP)
+jobs_option = click.option("--jobs", type=click.IntRange(min=1), default=None,
+                           help="Worker processes (default: all cores).")
+
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="pneubench")
@@ -22,11 +30,9 @@ def main():
 
 
 @main.command()
-@click.option("--raw", type=click.Path(file_okay=False, path_type=Path), envvar="PNEUBENCH_RAW",
-              default="raw", show_default=True, help=RAW_HELP)
-@click.option("--warehouse", type=click.Path(file_okay=False, path_type=Path), envvar="PNEUBENCH_WAREHOUSE",
-              default="warehouse", show_default=True, help=WH_HELP)
-@click.option("--jobs", type=click.IntRange(min=1), default=None, help="Worker processes (default: all cores).")
+@raw_option
+@warehouse_option
+@jobs_option
 @click.option("--full", is_flag=True, help="Re-ingest and re-analyse everything.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress output (errors still go to stderr).")
 @click.option("--executor", type=click.Choice(["local", "dask"]), default="local", show_default=True,
@@ -57,8 +63,7 @@ def rebuild(raw, warehouse, jobs, full, quiet, executor, scheduler, wait_s, no_r
 
 @main.command()
 @click.argument("sql")
-@click.option("--warehouse", type=click.Path(file_okay=False, path_type=Path), envvar="PNEUBENCH_WAREHOUSE",
-              default="warehouse", show_default=True, help=WH_HELP)
+@warehouse_option
 @click.option("--format", "fmt", type=click.Choice(["table", "csv", "json"]), default="table", show_default=True)
 def query(sql, warehouse, fmt):
     """Run read-only SQL on the warehouse, e.g. pneubench query "SELECT * FROM runs"."""
@@ -77,10 +82,8 @@ def query(sql, warehouse, fmt):
 
 
 @main.command()
-@click.option("--raw", type=click.Path(file_okay=False, path_type=Path), envvar="PNEUBENCH_RAW",
-              default="raw", show_default=True, help=RAW_HELP)
-@click.option("--warehouse", type=click.Path(file_okay=False, path_type=Path), envvar="PNEUBENCH_WAREHOUSE",
-              default="warehouse", show_default=True, help=WH_HELP)
+@raw_option
+@warehouse_option
 @click.option("--at", "at", default="02:30", show_default=True, metavar="HH:MM", help="Time of the nightly run.")
 @click.option("--workdir", type=click.Path(file_okay=False, path_type=Path), default=".", show_default=True,
               help="Working directory of the job.")
@@ -103,8 +106,7 @@ def schedule(raw, warehouse, at, workdir, log, user, wait_s, fmt):
 
 
 @main.command()
-@click.option("--warehouse", type=click.Path(file_okay=False, path_type=Path), envvar="PNEUBENCH_WAREHOUSE",
-              default="warehouse", show_default=True, help=WH_HELP)
+@warehouse_option
 def report(warehouse):
     """Write the morning report (warehouse/report/index.html) from the warehouse again."""
     from pipeline.report import write_report
@@ -140,11 +142,9 @@ def simulate(out_dir, seed, profile, runs, jobs, quiet):
 
 
 @main.command()
-@click.option("--raw", type=click.Path(file_okay=False, path_type=Path), envvar="PNEUBENCH_RAW",
-              default="raw", show_default=True, help=RAW_HELP)
-@click.option("--warehouse", type=click.Path(file_okay=False, path_type=Path), envvar="PNEUBENCH_WAREHOUSE",
-              default="warehouse", show_default=True, help=WH_HELP)
-@click.option("--jobs", type=click.IntRange(min=1), default=None, help="Worker processes (default: all cores).")
+@raw_option
+@warehouse_option
+@jobs_option
 @click.option("--quiet", "-q", is_flag=True, help="No progress output.")
 def demo(raw, warehouse, jobs, quiet):
     """Simulate RAW/demo (seed 1, demo profile) if absent, then rebuild RAW into the warehouse."""
