@@ -370,13 +370,18 @@ def plot_breakaway(breakaway: pd.DataFrame):
         ax.set_title(f"direction {d} ({'A drives toward +x' if d == 'P' else 'B drives toward -x'})")
         ax.set_xlabel("backpressure (gauge) [bar]")
         ax.grid(True, alpha=0.3)
-        ax.set_ylim(bottom=0)
+        if not summ.empty:
+            top = float((summ["mean_force_n"] + summ["std_force_n"].fillna(0.0)).max())
+            ax.set_ylim(0, 1.15 * top if top > 0 else 1.0)
         if s.empty:
             ax.text(0.5, 0.5, "no runs", transform=ax.transAxes, ha="center", color="0.5")
     axes[0].set_ylabel("breakaway force |(p_A - p_B) A| [N]")
-    handles, labels = axes[0].get_legend_handles_labels()
-    if not handles:
-        handles, labels = axes[1].get_legend_handles_labels()
+    legend: dict = {}
+    for ax in axes:  # rates from both panels, each once, in rate order
+        for h, lab in zip(*ax.get_legend_handles_labels()):
+            legend.setdefault(lab, h)
+    labels = [f"{r:g} N/s" for r in rates if f"{r:g} N/s" in legend]
+    handles = [legend[lab] for lab in labels]
     if handles:
         fig.legend(handles, labels, title="force rate", loc="center right", fontsize=8, frameon=False)
     fig.suptitle("Static friction: influence of force rate and backpressure (mean +/- std)")

@@ -309,9 +309,13 @@ def plot_leakage_map(leakage_map: pd.DataFrame, adjustment: str, threshold_l_min
         if d.empty:
             ax.text(0.5, 0.5, "no runs", transform=ax.transAxes, ha="center", color="0.5")
     axes[0].set_ylabel("leak [l/min ANR]")
-    handles, labels = axes[0].get_legend_handles_labels()
-    if not handles:
-        handles, labels = axes[1].get_legend_handles_labels()
+    legend: dict = {}
+    for ax in axes:  # settings from both panels, each once, in setting order (threshold last)
+        for h, lab in zip(*ax.get_legend_handles_labels()):
+            legend.setdefault(lab, h)
+    order = [_setting_label(adjustment, v, spring_force_max_n) for v in values]
+    labels = [lab for lab in order if lab in legend] + [lab for lab in legend if lab not in order]
+    handles = [legend[lab] for lab in labels]
     if handles:
         fig.legend(handles, labels, loc="center right", fontsize=8, frameon=False)
     title = "roller distance" if adjustment == "distance" else "spring force"

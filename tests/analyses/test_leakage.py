@@ -123,3 +123,11 @@ def test_figure_has_one_panel_per_chamber_and_one_curve_per_setting():
     assert len([ln for ln in a.get_lines() if ln.get_marker() == "o"]) == 3
     labels = [t.get_text() for t in fig.legends[0].get_texts()]
     assert labels[:3] == ["z = 3.0 mm", "z = 4.5 mm", "z = 6.0 mm"]
+
+
+def test_legend_lists_settings_of_both_panels():
+    rows = [("r", None, "A", "force", None, 858.0, float(p), 0.0) for p in range(7)]
+    rows += [("s", None, "B", "force", None, 429.0, float(p), max(0.0, p - 5.0)) for p in range(7)]
+    fig = plot_leakage_map(_map(rows), "force")
+    labels = [t.get_text() for t in fig.legends[0].get_texts()]
+    assert labels == ["F = 429 N (33 %)", "F = 858 N (66 %)", "threshold 0.05 l/min"]

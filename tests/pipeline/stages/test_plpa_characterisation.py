@@ -192,3 +192,18 @@ def test_unreadable_run_gives_a_warning_not_an_exception(tmp_path):
     assert "analysis failed" in out["warnings"][0]
     out = stage.analyse_run(("viscous", "x/2", str(tmp_path / "missing.parquet"), {}))
     assert out["rows"] == [] and out["warnings"]
+
+
+def test_stage_is_deterministic_and_matches_the_warehouse(built):
+    from pipeline.stages import StageContext
+
+    wh, _, _ = built
+    runs = q(wh, "SELECT * FROM runs")
+    ctx = StageContext(raw=wh.parent / "raw", warehouse=wh, runs=runs, jobs=1)
+    first, second = stage.run(ctx), stage.run(ctx)
+    for name in ("leakage_map", "breakaway", "viscous_points", "viscous_fits", "breakaway_findings"):
+        pd.testing.assert_frame_equal(first.tables[name], second.tables[name])
+    stored = q(wh, "SELECT run_id, breakaway_force_n FROM breakaway ORDER BY run_id")
+    mine = first.tables["breakaway"].sort_values("run_id")
+    assert np.allclose(stored["breakaway_force_n"].astype(float), mine["breakaway_force_n"].astype(float),
+                       equal_nan=True)
