@@ -1,5 +1,5 @@
 """Stage plpa_characterisation end to end: simulated runs written as CSV (bar/mm/l/min, decimal
-comma), TDMS and MAT, rebuilt into a warehouse whose tables must recover the simulator's truth."""
+comma), TDMS, MAT and LVM (simulator writer, absolute bar), rebuilt into a warehouse whose tables must recover the simulator's truth."""
 from pathlib import Path
 
 import duckdb
@@ -57,7 +57,17 @@ def write_mat(path: Path, run, run_id):
     savemat(str(path), variables, oned_as="column")
 
 
-WRITERS = [write_csv, write_tdms, write_mat]
+def write_lvm(path: Path, run, run_id):
+    """LVM through the simulator's own writer, pressures as absolute bar, position in mm."""
+    from pipeline.simulator.writers import default_columns, write_lvm as sim_write_lvm
+
+    cols = default_columns([c for c in run.data if c != "t_s"], units={"p_a": "bar(a)", "p_b": "bar(a)",
+                                                                          "p_supply": "bar(a)", "x": "mm"})
+    sim_write_lvm(path, run.data, cols, _meta(run, run_id))
+
+
+WRITERS = [write_csv, write_tdms, write_mat, write_lvm]
+EXT = {write_csv: "csv", write_tdms: "tdms", write_mat: "mat", write_lvm: "lvm"}
 
 
 @pytest.fixture(scope="module")
@@ -73,8 +83,8 @@ def built(tmp_path_factory):
     def add(run, name):
         nonlocal k
         run_id = f"sim/{name}"
-        writer = WRITERS[k % 3]
-        ext = {write_csv: "csv", write_tdms: "tdms", write_mat: "mat"}[writer]
+        writer = WRITERS[k % len(WRITERS)]
+        ext = EXT[writer]
         if writer is write_csv:
             writer(raw / "sim" / f"{name}.{ext}", run, run_id, decimal_comma=bool(k % 2))
         else:
@@ -114,7 +124,7 @@ def test_every_format_ingested_and_nothing_quarantined(built):
     assert [p.error for p in summary.quarantine] == []
     runs = q(wh, "SELECT run_id, format FROM runs")
     assert set(runs["run_id"]) == set(truth)
-    assert set(runs["format"]) >= {"csv", "tdms", "mat"}
+    assert set(runs["format"]) >= {"csv", "tdms", "mat", "lvm"}
 
 
 def test_leakage_map_recovers_leak_per_plateau(built):
