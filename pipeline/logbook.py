@@ -434,7 +434,7 @@ def hose_life(hoses: pd.DataFrame, runs: pd.DataFrame) -> tuple[pd.DataFrame, di
     out["strokes"] = out["strokes"].astype("Int64")
     out["n_runs"] = out["n_runs"].astype("int64")
     for col in ("installed_at", "ended_at"):
-        out[col] = pd.to_datetime(out[col], utc=True)
+        out[col] = pd.to_datetime(out[col], utc=True, format="ISO8601")
     return out, run_warn
 
 

@@ -110,7 +110,7 @@ def runs_frame(runs: list[dict]) -> pd.DataFrame:
     df = pd.DataFrame(runs, columns=cols)
     if not df.empty:
         df["params"] = df["params"].map(lambda p: json.dumps(p, sort_keys=True))
-        df["started_at"] = pd.to_datetime(df["started_at"], utc=True)
+        df["started_at"] = pd.to_datetime(df["started_at"], utc=True, format="ISO8601")
         df["warnings"] = df["warnings"].map(lambda w: list(w or []))
     return df
 

@@ -150,7 +150,7 @@ def durability_runs(ctx: StageContext, out: StageOutput) -> tuple[pd.DataFrame, 
     runs_df = pd.DataFrame(rows, columns=RUN_COLUMNS)
     runs_df["strokes"] = runs_df["strokes"].astype("Int64")
     runs_df["n_samples"] = runs_df["n_samples"].astype("Int64")
-    runs_df["started_at"] = pd.to_datetime(runs_df["started_at"], utc=True)
+    runs_df["started_at"] = pd.to_datetime(runs_df["started_at"], utc=True, format="ISO8601")
     strokes_df = pd.concat(strokes, ignore_index=True) if strokes else pd.DataFrame(columns=STROKE_COLUMNS)
     return runs_df, strokes_df
 
@@ -219,7 +219,7 @@ def leak_growth(ctx: StageContext, life: pd.DataFrame, runs_df: pd.DataFrame, ma
     if leak.empty:
         return pd.DataFrame(columns=LEAK_COLUMNS)
     lruns = ctx.runs_of("leakage")
-    started = dict(zip(lruns["run_id"], pd.to_datetime(lruns["started_at"], utc=True))) if len(lruns) else {}
+    started = dict(zip(lruns["run_id"], pd.to_datetime(lruns["started_at"], utc=True, format="ISO8601"))) if len(lruns) else {}
     mine = runs_df.assign(_hose=matched.values) if len(runs_df) else runs_df.assign(_hose=[])
     status = dict(zip(life["hose_id"], life["status"]))
     adj_of = dict(zip(life["hose_id"], life["adjustment"]))
@@ -235,7 +235,7 @@ def leak_growth(ctx: StageContext, life: pd.DataFrame, runs_df: pd.DataFrame, ma
                      "pressure_bar": r.get("pressure_bar"), "leak_l_min": r.get("leak_l_min"),
                      "hose_status": status.get(hid)})
     df = pd.DataFrame(rows, columns=LEAK_COLUMNS)
-    df["started_at"] = pd.to_datetime(df["started_at"], utc=True)
+    df["started_at"] = pd.to_datetime(df["started_at"], utc=True, format="ISO8601")
     return df.sort_values(["hose_id", "distance_km", "run_id", "chamber", "pressure_bar"], ignore_index=True)
 
 
