@@ -146,10 +146,18 @@ def normalise_unit_text(text: str | None) -> str:
 def lookup_unit(text: str | None) -> Unit | None:
     """The accepted :class:`Unit` spelled ``text``, or None if it is not accepted.
 
-    Exact spellings win; a case-insensitive spelling is accepted when it names one unit only.
+    Exact spellings win; a case-insensitive spelling is accepted when it names one unit only
+    and keeps the case of an ``m`` / ``M`` prefix or symbol (``KPA`` is kPa, ``L/MIN`` is l/min,
+    but ``mPa``, ``MV``, ``Mm`` and ``Ms`` are refused: milli and mega differ by case alone).
     """
     sym = normalise_unit_text(text)
-    return UNITS.get(sym) or _FOLDED.get(sym.casefold())
+    unit = UNITS.get(sym)
+    if unit is not None:
+        return unit
+    unit = _FOLDED.get(sym.casefold())
+    if unit is not None and (sym[:1] in "mM" or unit.symbol[:1] in "mM") and sym[:1] != unit.symbol[:1]:
+        return None
+    return unit
 
 
 def accepted_symbols(quantity: str) -> list[str]:

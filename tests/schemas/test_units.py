@@ -36,6 +36,11 @@ def test_unit_spelling_tolerance_and_refusals():
     assert lookup_unit("[bar]").symbol == "bar"
     assert lookup_unit("KPA").symbol == "kPa"
     assert lookup_unit("L/min").symbol == "l/min"
+    assert lookup_unit("MPA").symbol == "MPa"
+    assert lookup_unit("BAR(A)").symbol == "bar(a)"
+    # milli and mega differ by case alone: a wrong case there is refused, not guessed
+    for wrong in ("mPa", "MV", "Mm", "Ms", "Mbar", "M", "MS"):
+        assert lookup_unit(wrong) is None, wrong
     assert lookup_unit("furlong") is None
     assert lookup_unit("") is None
     assert "bar(a)" in accepted_symbols("pressure")
