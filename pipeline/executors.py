@@ -20,6 +20,7 @@ import os
 import time
 from collections.abc import Callable, Iterable
 from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 
 from pipeline.progress import Progress
 
@@ -31,7 +32,10 @@ class Executor:
 
     name = "serial"
 
-    def map(self, func: Callable, items: Iterable, label: str = "", progress: Progress | None = None) -> list:
+    def map(self, func: Callable, items: Iterable, label: str = "", progress: Progress | None = None,
+            on_crash: Callable | None = None) -> list:
+        """``func`` over ``items``, results in item order. ``on_crash(item, reason)`` stands in for
+        the result of an item whose worker process died (executors with worker processes)."""
         items = list(items)
         progress = progress or Progress()
         out = []
@@ -117,18 +121,46 @@ class LocalExecutor(Executor):
                                              initargs=(os.getpid(),))
         return self._pool
 
-    def map(self, func, items, label="", progress=None):
+    def map(self, func, items, label="", progress=None, on_crash: Callable | None = None):
+        """``func`` over ``items`` in worker processes, results in item order.
+
+        A worker that dies (a segfault in a C library reading a corrupt file) breaks the pool.
+        With ``on_crash`` the items not finished then are run again, each in a process of its
+        own, and an item whose process dies again gets ``on_crash(item, reason)`` as its result;
+        without it the :class:`~concurrent.futures.process.BrokenProcessPool` error is raised.
+        """
         items = list(items)
-        if self.jobs <= 1 or len(items) <= 1:
+        if (self.jobs <= 1 or len(items) <= 1) and on_crash is None:
             return super().map(func, items, label, progress)
         progress = progress or Progress()
         out = []
         chunk = max(1, min(16, len(items) // (self.jobs * 8)))
         with progress.task(label or getattr(func, "__name__", "work"), len(items)) as task:
-            for res in self._get_pool().map(func, items, chunksize=chunk):
-                out.append(res)
-                task.advance()
+            try:
+                for res in self._get_pool().map(func, items, chunksize=chunk):
+                    out.append(res)
+                    task.advance()
+            except BrokenProcessPool:
+                if on_crash is None:
+                    raise
+                self._pool = None  # broken: the next map starts a new one
+                progress.message(f"{label or 'work'}: a worker process died; running the "
+                                 f"{len(items) - len(out)} unfinished items one process each")
+                for item in items[len(out):]:
+                    out.append(self._isolated(func, item, on_crash))
+                    task.advance()
         return out
+
+    def _isolated(self, func, item, on_crash: Callable):
+        """Run one item in a fresh single-worker pool; ``on_crash`` if that worker dies."""
+        ctx = multiprocessing.get_context("forkserver")
+        with ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=_watch_parent,
+                                 initargs=(os.getpid(),)) as pool:
+            try:
+                return pool.submit(func, item).result()
+            except BrokenProcessPool:
+                return on_crash(item, "the worker process reading it died (a crash in a C library, "
+                                      "or killed for memory)")
 
     def close(self) -> None:
         if self._pool is not None:
@@ -169,8 +201,8 @@ class DaskExecutor(Executor):
             self.client = Client(self._cluster)
         self.address = address or self.client.scheduler.address
 
-    def map(self, func, items, label="", progress=None):
-        from distributed import as_completed
+    def map(self, func, items, label="", progress=None, on_crash: Callable | None = None):
+        from distributed import KilledWorker, as_completed
 
         items = list(items)
         progress = progress or Progress()
@@ -181,7 +213,14 @@ class DaskExecutor(Executor):
         out: list = [None] * len(items)
         with progress.task(label or getattr(func, "__name__", "work"), len(items)) as task:
             for fut in as_completed(futures):
-                out[index[fut.key]] = fut.result()  # re-raises a task's exception here
+                i = index[fut.key]
+                try:
+                    out[i] = fut.result()  # re-raises a task's exception here
+                except KilledWorker:  # the task killed every worker that tried it
+                    if on_crash is None:
+                        raise
+                    out[i] = on_crash(items[i], "the worker processes reading it died (a crash in a C "
+                                                "library, or killed for memory)")
                 task.advance()
         return out
 

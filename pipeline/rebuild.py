@@ -33,9 +33,10 @@ from pathlib import Path
 import pandas as pd
 
 from pipeline import stages as stage_registry
-from pipeline.executors import Executor, LocalExecutor, make_executor
+from pipeline.executors import Executor, make_executor
 from pipeline.ingest import IngestResult, ingest_file, sha256_file
 from pipeline.layout import Problem, RawTree, discover_runs
+from pipeline.readers import READERS
 from pipeline.progress import Progress
 from pipeline.state import (FilePlan, FileRecord, PreviousState, StageRecord, frame_hash, ingest_code_version,
                             load_previous, logbook_hash, plan_runs, record_for, side_records, stage_code_version,
@@ -87,10 +88,10 @@ class RebuildSummary:
         return EXIT_QUARANTINED if self.quarantine else EXIT_OK
 
 
-def _crash_point(name: str) -> None:
-    """Test-only: die by SIGKILL here when ``PNEUBENCH_CRASH_AT`` names this point."""
+def _crash_point(name: str, sig: int = signal.SIGKILL) -> None:
+    """Test-only: die by ``sig`` here when ``PNEUBENCH_CRASH_AT`` names this point."""
     if os.environ.get("PNEUBENCH_CRASH_AT") == name:
-        os.kill(os.getpid(), signal.SIGKILL)
+        os.kill(os.getpid(), sig)
 
 
 @contextmanager
@@ -101,7 +102,10 @@ def warehouse_lock(warehouse: Path, wait_s: float = 0.0):
     ``kill -9`` (worker processes are started by a fork server and do not inherit it).
     """
     lock_path = Path(warehouse) / ".rebuild.lock"
-    fh = open(lock_path, "a+")
+    try:
+        fh = open(lock_path, "a+")
+    except OSError as exc:
+        raise RebuildError(f"cannot open the rebuild lock {lock_path}: {exc.strerror or exc}") from None
     deadline = time.monotonic() + max(0.0, wait_s)
     while True:
         try:
@@ -140,21 +144,6 @@ def _tree(raw: str, token: str) -> RawTree:
     return tree
 
 
-def _ingest_one(args) -> IngestResult:
-    raw, path, warehouse, reuse = args
-    return ingest_file(_tree(raw, "ingest_all"), Path(path), Path(warehouse), reuse=reuse)
-
-
-def ingest_all(raw: Path, files: list[Path], warehouse: Path, jobs: int, progress: Progress,
-               reuse: bool = True, executor: Executor | None = None) -> list[IngestResult]:
-    """Ingest files (no incremental state); results in the order of ``files``."""
-    args = [(str(raw), str(p), str(warehouse), reuse) for p in files]
-    if executor is not None:
-        return executor.map(_ingest_one, args, "ingest", progress)
-    with LocalExecutor(jobs) as ex:
-        return ex.map(_ingest_one, args, "ingest", progress)
-
-
 def _ingest_task(args) -> dict:
     """Worker task: hash a run file; reuse its previous record when its content is unchanged,
     else ingest it. Returns ``{"sha", "reused", "result"}``."""
@@ -169,10 +158,20 @@ def _ingest_task(args) -> dict:
         return {"sha": None, "reused": False, "result": res}
     if prev is not None and prev["sha"] == sha:
         return {"sha": sha, "reused": True, "result": None}
+    _crash_point(f"ingest:{tree.rel(path)}", signal.SIGSEGV)  # a reader crashing in C code
     res = ingest_file(tree, path, Path(warehouse), reuse=reuse)
     if res.run is not None:
         sha = res.run.get("source_sha256", sha)
     return {"sha": sha, "reused": False, "result": res}
+
+
+def _ingest_crashed(args, reason: str) -> dict:
+    """Result of an ingest task whose worker process died: the file is quarantined."""
+    raw, token, path, warehouse, reuse, prev = args
+    tree = _tree(raw, token)
+    res = IngestResult(source_path=tree.rel(Path(path)), campaign=tree.campaign(Path(path)),
+                       error=f"cannot read file: {reason}")
+    return {"sha": None, "reused": False, "result": res}
 
 
 def _result_from_record(rec: FileRecord, tree: RawTree, path: Path) -> IngestResult:
@@ -204,7 +203,7 @@ def ingest_incremental(tree: RawTree, plans: list[FilePlan], warehouse: Path, ex
             todo.append((p, (str(tree.root), token, str(p.path), str(warehouse), not full, prev)))
     if todo:
         progress.message(f"ingest: {len(todo)} of {len(plans)} run files to read")
-    outs = executor.map(_ingest_task, [a for _, a in todo], "ingest", progress)
+    outs = executor.map(_ingest_task, [a for _, a in todo], "ingest", progress, on_crash=_ingest_crashed)
     now = time.time()
     for (p, _), out in zip(todo, outs):
         if out["reused"]:
@@ -617,7 +616,10 @@ def rebuild(raw: str | Path, warehouse: str | Path, jobs: int | None = None, ful
     if not raw.is_dir():
         raise RebuildError(f"raw folder {raw} does not exist", EXIT_USAGE)
     jobs = jobs or os.cpu_count() or 1
-    warehouse.mkdir(parents=True, exist_ok=True)
+    try:
+        warehouse.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise RebuildError(f"cannot create warehouse folder {warehouse}: {exc.strerror or exc}") from None
     generation = _generation()
     summary = RebuildSummary(raw=raw, warehouse=warehouse, generation=generation,
                              mode="full" if full else "incremental")
@@ -639,8 +641,13 @@ def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, r
     tree = RawTree(raw)
     tree.scan_rigs()
     tree.scan_manifests()
-    files = discover_runs(tree.root)
+    ignored: list[Path] = []
+    files = discover_runs(tree.root, ignored)
     summary.n_files = len(files)
+    if ignored:
+        names = ", ".join(tree.rel(p) for p in ignored[:5]) + (", ..." if len(ignored) > 5 else "")
+        progress.message(f"ignored {len(ignored)} file(s) that are not bench exports "
+                         f"({', '.join(sorted(READERS))}): {names}")
     code = ingest_code_version()
     plans = plan_runs(tree, files, prev, code, warehouse, full)
     side, side_changes = side_records(tree, prev)

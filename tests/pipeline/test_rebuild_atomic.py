@@ -153,3 +153,21 @@ def test_second_rebuild_exits_4_with_a_clear_message_or_waits(raw, warehouse):
     assert codes == [0, 0], [p.stderr.read() for p in procs]
     assert state(warehouse) == (("c/a",), 4)
     assert debris(warehouse) == []
+
+
+def test_a_worker_crash_quarantines_that_file_and_the_rest_ingests(raw, warehouse):
+    # a segfault in a C library (scipy's loadmat on a corrupt MAT file did this) kills the
+    # worker process; the file is quarantined, the other files ingest, the rebuild exits 1
+    for name in "abcdef":
+        step(raw, f"c/{name}.csv")
+    res = cli_rebuild(raw.root, warehouse, env={"PNEUBENCH_CRASH_AT": "ingest:c/c.csv"})
+    assert res.returncode == 1, res.stderr
+    con = duckdb.connect(str(warehouse / "pneubench.duckdb"), read_only=True)
+    try:
+        assert con.execute("SELECT source_path, error FROM quarantine").fetchall() == [
+            ("c/c.csv", "cannot read file: the worker process reading it died (a crash in a C library, "
+                        "or killed for memory)")]
+        assert [r[0] for r in con.execute("SELECT run_id FROM runs ORDER BY 1").fetchall()] == [
+            "c/a", "c/b", "c/d", "c/e", "c/f"]
+    finally:
+        con.close()
