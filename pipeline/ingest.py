@@ -24,9 +24,9 @@ import pyarrow.parquet as pq
 from pipeline.layout import ConfigError, RawTree
 from pipeline.readers import RawColumn, ReaderError, read_export
 from schemas.channels import CHANNELS, canonical_name, sanitise_name
-from schemas.kinds import (KINDS, META_KEYS, REQUIRED_METADATA, coerce_value, missing_channels,
+from schemas.kinds import (KINDS, META_KEYS, coerce_value, missing_channels,
                            missing_metadata, samples_schema)
-from schemas.units import P_ATM_DEFAULT_PA, QUANTITIES, accepted_symbols, lookup_unit
+from schemas.units import P_ATM_DEFAULT_PA, accepted_symbols, lookup_unit
 
 #: Bump when ingest output changes for the same input; part of every samples file's key.
 INGEST_VERSION = "1"
@@ -179,6 +179,9 @@ def map_columns(columns: list[RawColumn], channels_cfg: dict) -> list[ColumnMap]
         label = f"`{col.name}`" if col.name == str(col.index) or not col.name else f"`{col.name}` (column {col.index})"
         if channel is None:
             column = sanitise_name(name)
+            base, k = column, 2
+            while column in seen:  # "Foo Bar" and "foo-bar" both sanitise to foo_bar: keep both
+                column, k = f"{base}_{k}", k + 1
             maps.append(ColumnMap(col.key, column, None, col.name, col.unit, unit_text, scale, offset,
                                   numeric=col.dtype != "string"))
         else:
@@ -327,8 +330,9 @@ def ingest_file(tree: RawTree, path: Path, warehouse: Path, reuse: bool = True) 
         result.run, result.channels = run, channels
     except (IngestError, ReaderError, ConfigError) as exc:
         result.error = _one_line(str(exc))
-    except (OSError, pa.ArrowException, ValueError, KeyError, IndexError, TypeError) as exc:
-        # A reader or library tripped over malformed input: still one line, never a crash.
+    except Exception as exc:  # noqa: BLE001
+        # A reader or library (scipy, h5py, npTDMS, pyarrow) tripped over malformed input:
+        # still one line, never a crash of the rebuild.
         result.error = _one_line(f"cannot read file: {type(exc).__name__}: {exc}")
     return result
 

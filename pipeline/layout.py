@@ -35,16 +35,23 @@ class Problem:
 
 def is_run_file(path: Path) -> bool:
     """Whether a file under raw/ is a run export (not a manifest, logbook, config or dotfile)."""
+    return not is_known_non_run(path) and path.suffix.lower() in READERS
+
+
+def is_known_non_run(path: Path) -> bool:
+    """Files the contract names as not runs: manifests, logbooks, rig.toml, TDMS indexes,
+    dotfiles and READMEs."""
     name = path.name
-    if name.startswith(".") or name.upper().startswith("README") or name.lower() in NOT_RUNS:
-        return False
-    if name.lower().endswith(".tdms_index"):
-        return False
-    return path.suffix.lower() in READERS
+    return (name.startswith(".") or name.upper().startswith("README") or name.lower() in NOT_RUNS
+            or name.lower().endswith(".tdms_index"))
 
 
-def discover_runs(raw: Path) -> list[Path]:
-    """Every run file under ``raw`` (hidden folders skipped), sorted by relative path."""
+def discover_runs(raw: Path, ignored: list[Path] | None = None) -> list[Path]:
+    """Every run file under ``raw`` (hidden folders skipped), sorted by relative path.
+
+    Files that are neither runs nor :func:`is_known_non_run` (a spreadsheet, a photo) are
+    appended to ``ignored`` when a list is given, so the caller can say so.
+    """
     out = []
     for p in raw.rglob("*"):
         rel = p.relative_to(raw)
@@ -52,6 +59,10 @@ def discover_runs(raw: Path) -> list[Path]:
             continue
         if p.is_file() and is_run_file(p):
             out.append(p)
+        elif ignored is not None and p.is_file() and not is_known_non_run(p):
+            ignored.append(p)
+    if ignored is not None:
+        ignored.sort(key=lambda p: p.relative_to(raw).as_posix())
     return sorted(out, key=lambda p: p.relative_to(raw).as_posix())
 
 
@@ -161,6 +172,10 @@ class RawTree:
                     target = (folder / name).resolve()
                     if target != self.root and self.root not in target.parents:
                         self.problems.append(Problem(rel_manifest, f"entry `{name}` points outside raw/", line))
+                        continue
+                    if folder != target.parent and folder not in target.parents:
+                        self.problems.append(Problem(rel_manifest, f"entry `{name}` is not in the manifest's folder "
+                                                     "or below (a manifest applies only there)", line))
                         continue
                     if not target.is_file():
                         self.problems.append(Problem(rel_manifest, f"entry `{name}`: no such file", line))

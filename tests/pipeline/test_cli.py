@@ -38,3 +38,11 @@ def test_query_is_read_only(raw, warehouse):
     runner.invoke(main, ["rebuild", "--raw", str(raw.root), "--warehouse", str(warehouse), "--jobs", "1"])
     res = runner.invoke(main, ["query", "DELETE FROM runs", "--warehouse", str(warehouse)])
     assert res.exit_code != 0 and "read-only" in res.output
+
+
+def test_rebuild_into_an_unusable_warehouse_folder_fails_with_3(raw, tmp_path):
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    (tmp_path / "afile").write_text("not a folder")
+    res = CliRunner().invoke(main, ["rebuild", "--raw", str(raw.root), "--warehouse", str(tmp_path / "afile" / "wh")])
+    assert res.exit_code == 3
+    assert "cannot create warehouse folder" in res.output and "Not a directory" in res.output

@@ -222,3 +222,47 @@ def test_reader_warnings_raised_while_reading_data_reach_the_run(raw, warehouse,
     monkeypatch.setattr(ingest_mod, "read_export", reader_that_warns_late)
     raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
     assert ingest(raw, "c/a.csv", warehouse).run["warnings"] == ["file cut short after the last batch"]
+
+
+def test_q_unit_with_milli_mega_case_swapped(raw, warehouse):
+    # `mPa` is not an accepted unit; folding it onto MPa would store values 1e9 too large
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[Mm]": T, "x_ref[m]": T})
+    assert "unit `Mm` not accepted for `x`" in quarantine(raw, warehouse)
+
+
+def test_q_reader_crash_is_one_line_naming_the_error(raw, warehouse, monkeypatch):
+    # a library raising something unexpected on a corrupt file (h5py raises RuntimeError)
+    import pipeline.ingest as ingest_mod
+
+    def corrupt(*a, **k):
+        raise RuntimeError("Link iteration failed (actual len exceeds EOA)\nsecond line")
+
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    monkeypatch.setattr(ingest_mod, "read_export", corrupt)
+    err = quarantine(raw, warehouse)
+    assert err == "cannot read file: RuntimeError: Link iteration failed (actual len exceeds EOA) second line"
+
+
+def test_non_canonical_names_that_sanitise_alike_are_both_kept(raw, warehouse):
+    raw.write("c/a.csv", "# kind: step\n# started_at: 2026-01-01\n# rig: r\n"
+                         "t[s],x[m],x_ref[m],Foo Bar[V],foo-bar[V]\n0,0,0,1,2\n1,0,0,3,4\n")
+    res = ingest(raw, "c/a.csv", warehouse)
+    assert res.error is None
+    table = pq.read_table(warehouse / res.run["samples_path"])
+    assert table.column("foo_bar").to_pylist() == [1.0, 3.0]
+    assert table.column("foo_bar_2").to_pylist() == [2.0, 4.0]
+    assert [(c["column"], c["raw_name"]) for c in res.channels if c["column"].startswith("foo")] == [
+        ("foo_bar", "Foo Bar"), ("foo_bar_2", "foo-bar")]
+
+
+def test_flow_round_trip_anr_and_normal_litres(raw, warehouse):
+    # 60 l/min ANR = 1e-3 m3/s * 1.185 kg/m3; 60 Nl/min (DIN 1343) = 1e-3 m3/s * 1.293 kg/m3
+    meta = {**STEP_META, "kind": "leakage", "chamber": "A", "adjustment": "distance", "z_rollers_mm": 4}
+    raw.csv("c/anr.csv", meta, {"t[s]": [0, 1], "p_supply[bar]": [1, 2], "q_leak[l/min]": [0, 60]})
+    raw.csv("c/din.csv", meta, {"t[s]": [0, 1], "p_supply[bar]": [1, 2], "q_leak[Nl/min]": [0, 60]})
+    for rel, rho in (("c/anr.csv", 1.185), ("c/din.csv", 1.293)):
+        res = ingest(raw, rel, warehouse)
+        assert res.error is None, res.error
+        q = pq.read_table(warehouse / res.run["samples_path"]).column("q_leak_kg_s").to_pylist()
+        assert q[0] == 0.0
+        assert q[1] == pytest.approx(1e-3 * rho, rel=1e-12)

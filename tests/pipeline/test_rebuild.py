@@ -80,3 +80,59 @@ def test_rebuild_is_deterministic(raw, tmp_path):
     fa = (tmp_path / "w1" / q(tmp_path / "w1", "SELECT samples_path FROM runs")[0][0]).read_bytes()
     fb = (tmp_path / "w2" / q(tmp_path / "w2", "SELECT samples_path FROM runs")[0][0]).read_bytes()
     assert fa == fb
+
+
+def test_runs_with_and_without_fractional_seconds_build_together(raw, warehouse):
+    # LVM headers give fractional seconds, CSV exports often none: one warehouse holds both
+    raw.csv("c/a.csv", {**STEP_META, "started_at": "2026-01-02T03:04:05"}, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    raw.csv("c/b.csv", {**STEP_META, "started_at": "2026-01-02T03:04:05.5"}, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    assert rebuild(raw.root, warehouse, jobs=1).exit_code == EXIT_OK
+    rows = q(warehouse, "SELECT run_id, epoch_ms(started_at) FROM runs ORDER BY run_id")
+    assert [r[1] - rows[0][1] for r in rows] == [0, 500]
+
+
+def test_manifest_rows_that_cannot_apply_are_quarantined_with_their_line(raw, warehouse):
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    raw.csv("d/z.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    raw.write("c/manifest.csv", "file,notes\na.csv,first\n,orphan\n../d/z.csv,elsewhere\na.csv,second\n")
+    raw.write("d/manifest.csv", "name,notes\nz.csv,no file column\n")
+    summary = rebuild(raw.root, warehouse, jobs=1)
+    errors = {(p.source_path, p.line, p.error) for p in summary.quarantine}
+    assert errors == {
+        ("c/manifest.csv", 3, "row has no `file`"),
+        ("c/manifest.csv", 4, "entry `../d/z.csv` is not in the manifest's folder or below "
+                              "(a manifest applies only there)"),
+        ("c/manifest.csv", 5, "entry `a.csv` is listed twice; the later row is used"),
+        ("d/manifest.csv", None, "no `file` column in the header"),
+    }
+    assert q(warehouse, "SELECT run_id, json_extract_string(params, '$.notes') FROM runs ORDER BY 1") == [
+        ("c/a", "second"), ("d/z", None)]
+
+
+def test_rig_toml_problems_are_quarantined(raw, warehouse):
+    raw.write("c/rig.toml", '[reading]\ndelimiter = ","\n')
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    raw.write("d/rig.toml", '[channels."x"]\nchannel = "x"\nunit = "mm"\nscale = "ten"\n')
+    raw.csv("d/b.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    summary = rebuild(raw.root, warehouse, jobs=1)
+    errors = {(p.source_path, p.error) for p in summary.quarantine}
+    msg = "unknown or malformed table(s) reading (expected [read], [channels], [metadata])"
+    assert ("c/rig.toml", msg) in errors
+    assert ("c/a.csv", f"cannot use c/rig.toml: {msg}") in errors
+    assert ("d/b.csv", "rig.toml scale/offset of column `x` is not a number") in errors
+    assert q(warehouse, "SELECT count(*) FROM runs") == [(0,)]
+
+
+def test_files_that_are_not_runs_are_skipped(raw, warehouse):
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    for name in ("c/a.tdms_index", "c/.hidden.csv", "c/.git/x.csv", "c/README.txt", "c/readme.md",
+                 "c/hoses.csv", "c/rig.toml", "c/manifest.csv"):
+        raw.write(name, "file\n" if name.endswith("manifest.csv") else "")
+    raw.write("c/hoses.csv", "hose_id,event,at,hose_type,adjustment,z_rollers_mm\n"
+                             "H1,installed,2026-01-01T00:00:00,X,distance,4\n")
+    raw.write("c/photo.jpg", b"\xff\xd8\xff")
+    summary = rebuild(raw.root, warehouse, jobs=1)
+    assert summary.exit_code == EXIT_OK, [p.error for p in summary.quarantine]
+    assert summary.n_files == 1
+    assert q(warehouse, "SELECT source_path FROM runs") == [("c/a.csv",)]
+
