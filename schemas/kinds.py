@@ -6,7 +6,7 @@ the docs all read it from here.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import pyarrow as pa
 
