@@ -301,8 +301,12 @@ class _Lvm:
             if tag:
                 self.header[tag] = value
         if self.header.get("Separator", "").strip(", ").lower() == "comma":
-            # Comma files pad header lines with commas; a decimal comma cannot occur in them.
+            # Comma files pad header lines with commas. LabVIEW always writes a Decimal_Separator,
+            # so a value that starts with a comma is a decimal comma (refused below), not padding.
+            decimal_comma = self.header.get("Decimal_Separator", "").startswith(",")
             self.header = {k: (v if k == "Description" else v.rstrip(", ")) for k, v in self.header.items()}
+            if decimal_comma:
+                self.header["Decimal_Separator"] = ","
         sep = self.header.get("Separator", "Tab").strip().lower()
         if sep not in _SEPARATORS:
             raise ReaderError(f"Separator {self.header.get('Separator')!r} is not Tab or Comma")

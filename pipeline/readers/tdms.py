@@ -331,4 +331,7 @@ def _lookup(meta: dict, key: str):
 
 def _first_line(exc: BaseException) -> str:
     text = str(exc).strip().splitlines()
-    return (text[0] if text else type(exc).__name__)[:200]
+    line = text[0] if text else ""
+    if not any(c.isalpha() for c in line):  # KeyError(119) says "119": name the error instead
+        line = f"{type(exc).__name__}({line}) in npTDMS: an unknown data type or corrupt metadata"
+    return line[:200]

@@ -266,3 +266,20 @@ def test_flow_round_trip_anr_and_normal_litres(raw, warehouse):
         q = pq.read_table(warehouse / res.run["samples_path"]).column("q_leak_kg_s").to_pylist()
         assert q[0] == 0.0
         assert q[1] == pytest.approx(1e-3 * rho, rel=1e-12)
+
+
+BREAKAWAY = {**STEP_META, "kind": "breakaway", "direction": "P", "backpressure_bar": 0, "force_rate_n_s": 1,
+             "hose_area_m2": 4.9e-4}
+
+
+@pytest.mark.parametrize("text", ["nan", "inf", "-Infinity"])
+def test_q_non_finite_number_in_metadata(raw, warehouse, text):
+    raw.csv("c/a.csv", {**BREAKAWAY, "hose_area_m2": text}, {"t[s]": T, "p_a[bar]": T, "p_b[bar]": T, "x[m]": T})
+    assert quarantine(raw, warehouse) == f"metadata `hose_area_m2` must be a finite number, got {text!r}"
+
+
+def test_q_non_finite_number_in_rig_toml_metadata(raw, warehouse):
+    raw.write("c/rig.toml", "[metadata]\nhose_area_m2 = nan\n")          # a TOML float, not text
+    meta = {k: v for k, v in BREAKAWAY.items() if k != "hose_area_m2"}
+    raw.csv("c/a.csv", meta, {"t[s]": T, "p_a[bar]": T, "p_b[bar]": T, "x[m]": T})
+    assert quarantine(raw, warehouse) == "metadata `hose_area_m2` must be a finite number, got nan"

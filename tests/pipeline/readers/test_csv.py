@@ -199,3 +199,17 @@ def test_csv_rig_toml_renames_a_named_channel(raw, warehouse):
                          "t[s],x[mm],Druck A,p_b[bar]\n0,1,2,3\n")
     res, out = ingest(raw, "c/a.csv", warehouse)
     assert out.column("p_a_pa").to_pylist() == [200000.0]
+
+
+# -- refusals, one scenario each -------------------------------------------------------------
+def test_csv_empty_file_is_refused(tmp_path):
+    with pytest.raises(ReaderError, match=r"^no header or data rows$"):
+        open_csv(tmp_path, b"")
+
+
+def test_csv_file_of_metadata_lines_only_is_quarantined(raw, warehouse):
+    raw.write("c/a.csv", META + "# notes: bench stopped before the header was written\n\n")
+    with pytest.raises(ReaderError, match=r"^no header or data rows$"):
+        read_export(raw.root / "c/a.csv")
+    res = ingest_file(RawTree(raw.root), raw.root / "c/a.csv", warehouse)
+    assert res.run is None and res.error == "no header or data rows"

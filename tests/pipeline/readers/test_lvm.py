@@ -283,3 +283,53 @@ def test_lvm_unit_outside_the_table_is_quarantined(raw, warehouse):
     raw.write("c/manifest.csv", "file,kind\na.lvm,durability\n")
     res = ingest_file(RawTree(raw.root), raw.root / "c/a.lvm", warehouse)
     assert "unit `furlong` not accepted for `x`" in res.error
+
+
+# -- refusals of the file header, one scenario each ------------------------------------------
+def test_lvm_unknown_separator_is_refused(tmp_path):
+    data = lvm_bytes([seg()], x_columns="No").replace(b"Separator\tTab", b"Separator\tSemicolon", 1)
+    with pytest.raises(ReaderError, match=r"^Separator 'Semicolon' is not Tab or Comma$"):
+        open_lvm(tmp_path, data)
+
+
+def test_lvm_unknown_decimal_separator_is_refused(tmp_path):
+    data = lvm_bytes([seg()], x_columns="No").replace(b"Decimal_Separator\t.", b"Decimal_Separator\t;", 1)
+    with pytest.raises(ReaderError, match=r"^Decimal_Separator ';' is not '\.' or ','$"):
+        open_lvm(tmp_path, data)
+
+
+def test_lvm_decimal_comma_with_comma_separator_is_refused(tmp_path):
+    s = LvmSegment({"x": [1.5, 2.5], "p_a": [0.5, 1.0]}, units={"x": "mm", "p_a": "bar"}, dt=1.0)
+    data = lvm_bytes([s], x_columns="One", separator="Comma", decimal=",")
+    assert b"Decimal_Separator,,\r\n" in data and b"\r\n0,0,1,5,0,5\r\n" in data   # ambiguous rows
+    # Today the file opens and reads x = [0.0, 0.0], p_a = [1.0, 2.0] (fields shifted by the decimal commas).
+    with pytest.raises(ReaderError, match=r"^Decimal_Separator ',' with Separator Comma cannot be parsed$"):
+        table(open_lvm(tmp_path, data))
+
+
+def test_lvm_unknown_x_columns_is_refused(tmp_path):
+    data = lvm_bytes([seg()], x_columns="No").replace(b"X_Columns\tNo", b"X_Columns\tSome", 1)
+    with pytest.raises(ReaderError, match=r"^X_Columns 'Some' is not No, One or Multi$"):
+        open_lvm(tmp_path, data)
+
+
+def test_lvm_second_file_header_in_the_middle_is_refused_naming_the_line(tmp_path):
+    # Two exports concatenated (copy /b a.lvm + b.lvm): 26 lines, a blank line, then line 28.
+    one = lvm_bytes([seg(n=2)], x_columns="No", description=STEP)
+    assert one.count(b"\r\n") == 26
+    ex = open_lvm(tmp_path, one + b"\r\n" + one)
+    with pytest.raises(ReaderError, match=r"^line 28: a second file header \(files concatenated\?\)$"):
+        table(ex)
+
+
+@pytest.mark.parametrize("segment, line", [(1, 23), (2, 36)], ids=["first-segment", "later-segment"])
+def test_lvm_segment_header_without_column_row_is_refused_naming_the_line(tmp_path, segment, line):
+    data = lvm_bytes([seg(n=2), seg(n=2)], x_columns="No")
+    start = -1
+    for _ in range(segment):                           # drop the X_Value ... Comment row of that segment
+        start = data.index(b"X_Value", start + 1)
+    data = data[:start] + data[data.index(b"\r\n", start) + 2:]
+    assert data.split(b"\r\n")[line - 2].startswith(b"***End_of_Header***")   # line = first data row
+    message = rf"^line {line}: segment header of segment {segment} has no column row$"
+    with pytest.raises(ReaderError, match=message):
+        table(open_lvm(tmp_path, data))

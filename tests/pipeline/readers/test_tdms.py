@@ -138,15 +138,22 @@ class Segment:
 
 # -- scenarios -----------------------------------------------------------------------------
 def test_tdms_value_exact_round_trip(raw, warehouse):
-    p_a = np.linspace(1.0, 6.0, N)  # bar(a)
+    """Expected SI values worked out by hand (not with schemas.units): exact in float64."""
+    chans = {"t": ([0.0, 2e-4, 4e-4, 6e-4], "s"),
+             "x": ([0.0, 12.5, -2.5, 20.0], "mm"),
+             "x_ref": ([20.0, 20.0, 0.5, 0.0], "mm"),
+             "p_a": ([1.0, 1.5, 2.25, 6.0], "bar(a)"),      # absolute, p_atm_pa = 100000
+             "p_b": ([0.0, 1.5, 0.25, 10.0], "bar")}        # gauge
     write_tdms(raw.root / "c/a.tdms", {**STEP, "p_atm_pa": 100000.0},
-               {"Data": step_channels(p_a=(p_a, {"unit_string": "bar(a)"}))})
+               {"Data": {k: (np.array(v), {"unit_string": u}) for k, (v, u) in chans.items()}})
     res = ingest(raw, "c/a.tdms", warehouse)
     table = samples(res, warehouse)
-    assert table.column("t_s").to_pylist() == T.tolist()
-    assert table.column("x_m").to_pylist() == si(X_MM, "mm")
-    assert table.column("p_a_pa").to_pylist() == si(p_a, "bar(a)", 100000.0)
-    assert res.run["format"] == "tdms" and res.run["n_samples"] == N
+    assert table.column("t_s").to_pylist() == [0.0, 0.0002, 0.0004, 0.0006]
+    assert table.column("x_m").to_pylist() == [0.0, 0.0125, -0.0025, 0.02]
+    assert table.column("x_ref_m").to_pylist() == [0.02, 0.02, 0.0005, 0.0]
+    assert table.column("p_a_pa").to_pylist() == [0.0, 50000.0, 125000.0, 500000.0]
+    assert table.column("p_b_pa").to_pylist() == [0.0, 150000.0, 25000.0, 1000000.0]
+    assert res.run["format"] == "tdms" and res.run["n_samples"] == 4
     assert res.run["sample_rate_hz"] == pytest.approx(5000.0)
     assert res.run["warnings"] == []
 
@@ -436,3 +443,48 @@ def test_tdms_without_time_is_missing_channel_t(raw, warehouse):
     write_tdms(raw.root / "c/a.tdms", STEP, {"Data": {"x": (X_MM, {"unit_string": "mm"}),
                                                       "x_ref": (XREF_MM, {"unit_string": "mm"})}})
     assert "missing channel `t`" in quarantined(raw, "c/a.tdms", warehouse)
+
+
+# -- refusals, one scenario each -------------------------------------------------------------
+@pytest.mark.parametrize("increment, shown", [(0.0, "0.0"), (-0.001, "-0.001"), (float("nan"), "nan")],
+                         ids=["zero", "negative", "nan"])
+def test_tdms_waveform_increment_not_positive_is_quarantined(raw, warehouse, increment, shown):
+    wf = {"unit_string": "mm", "wf_increment": increment, "wf_start_offset": 0.0}
+    write_tdms(raw.root / "c/a.tdms", STEP, {"Data": {"x": (X_MM, wf), "x_ref": (XREF_MM, wf)}})
+    assert quarantined(raw, "c/a.tdms", warehouse) == (
+        f"TDMS waveform property wf_increment is not a positive number: {shown}")
+
+
+def test_tdms_other_file_named_tdms_is_quarantined_with_what_it_starts_with(raw, warehouse):
+    raw.write("c/a.tdms", b"PK\x03\x04" + b"\0" * 60)          # a zip archive renamed .tdms
+    assert quarantined(raw, "c/a.tdms", warehouse) == (
+        "not a readable TDMS file: Segment does not start with b'TDSm', but with b'PK\\x03\\x04'")
+
+
+def test_tdms_file_cut_inside_its_first_lead_in(raw, warehouse):
+    """The bench crashed right after creating the file: nothing but 8 bytes of a lead-in."""
+    raw.write("c/a.tdms", Segment().root(STEP).bytes(b"")[:8])
+    assert quarantined(raw, "c/a.tdms", warehouse) == "TDMS file has no groups (no channels)"
+
+
+def test_tdms_string_channel_with_corrupt_offsets_cannot_be_read(raw, warehouse):
+    """Metadata intact, raw data garbled: npTDMS fails while reading, after the file opened."""
+    seg = Segment().root(TIMESERIES).group("g").channel("g", "t", "f64", 2, {"unit_string": "s"})
+    path = _string("/'g'/'s'")
+    index = struct.pack("<IIIQQ", 28, _TYPES["str"], 1, 2, 16)   # 2 strings, 16 bytes of raw data
+    seg.objects.append(path + index + struct.pack("<I", 0))
+    t = struct.pack("<2d", 0.0, 0.1)
+    data = t + struct.pack("<II", 999_999, 5) + b"abcdefgh"      # first end offset far past the data
+    raw.write("c/a.tdms", seg.bytes(data))
+    read_export(raw.root / "c/a.tdms")                            # opens: the failure is in the data
+    assert quarantined(raw, "c/a.tdms", warehouse) == (
+        "cannot read TDMS data: read length must be non-negative or -1")
+
+
+def test_tdms_unknown_daqmx_raw_type_says_what_is_wrong(raw, warehouse):
+    seg = (Segment(("meta", "raw", "new_obj_list", "daqmx")).root(TIMESERIES).group("g")
+           .daqmx_channel("g", "x", 4, 0x77, 0, 2, {"unit_string": "V"}))
+    raw.write("c/a.tdms", seg.bytes(b"\0" * 8))
+    error = quarantined(raw, "c/a.tdms", warehouse)
+    assert error.startswith("not a readable TDMS file: ")
+    assert "KeyError" in error or "DAQmx" in error or "data type" in error, error
