@@ -124,14 +124,15 @@ class LocalExecutor(Executor):
     def map(self, func, items, label="", progress=None, on_crash: Callable | None = None):
         """``func`` over ``items`` in worker processes, results in item order.
 
-        A worker that dies (a segfault in a C library reading a corrupt file) breaks the pool.
+        With ``jobs`` 1 everything runs in this process. Otherwise a worker that dies (a segfault
+        in a C library reading a corrupt file) breaks the pool.
         With ``on_crash`` the items not finished then are run again, each in a process of its
         own, and an item whose process dies again gets ``on_crash(item, reason)`` as its result;
         without it the :class:`~concurrent.futures.process.BrokenProcessPool` error is raised.
         """
         items = list(items)
-        if (self.jobs <= 1 or len(items) <= 1) and on_crash is None:
-            return super().map(func, items, label, progress)
+        if self.jobs <= 1 or (len(items) <= 1 and on_crash is None):
+            return super().map(func, items, label, progress)  # in this process: no isolation
         progress = progress or Progress()
         out = []
         chunk = max(1, min(16, len(items) // (self.jobs * 8)))
