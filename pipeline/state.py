@@ -64,14 +64,51 @@ def ingest_code_version() -> str:
     return f"{INGEST_VERSION}-{_hash_sources([f for f in files if f.is_file()])}"
 
 
+#: Top-level packages of this project: a stage's version covers what it imports from them.
+_PROJECT_PACKAGES = ("pipeline", "analyses", "schemas")
+
+
+def project_imports(module_file: Path) -> set[Path]:
+    """Source files of this project that ``module_file`` imports, transitively (read with
+    ``ast``, nothing is imported), the file itself included."""
+    import ast
+
+    seen: set[Path] = set()
+    todo = [Path(module_file).resolve()]
+    while todo:
+        f = todo.pop()
+        if f in seen or not f.is_file():
+            continue
+        seen.add(f)
+        for node in ast.walk(ast.parse(f.read_text(encoding="utf-8"), str(f))):
+            names = []
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                names = [node.module] + [f"{node.module}.{a.name}" for a in node.names]
+            for name in names:
+                if name.split(".")[0] not in _PROJECT_PACKAGES:
+                    continue
+                base = _ROOT.joinpath(*name.split("."))
+                for cand in (base.with_suffix(".py"), base / "__init__.py"):
+                    if cand.is_file():
+                        todo.append(cand.resolve())
+    return seen
+
+
 @lru_cache(maxsize=None)
 def stage_code_version(module_file: str) -> str:
-    """Version of a stage: its module, the stage framework and every ``analyses`` module."""
-    files = [Path(module_file), _ROOT / "pipeline" / "stages" / "__init__.py", *_ROOT.glob("analyses/**/*.py")]
-    return _hash_sources([f for f in files if f.is_file()])
+    """Version of a stage: its module, the stage framework, every ``analyses`` module and
+    every project module any of them imports (e.g. ``pipeline.logbook``, ``schemas.units``)."""
+    roots = [Path(module_file), _ROOT / "pipeline" / "stages" / "__init__.py", *_ROOT.glob("analyses/**/*.py")]
+    files = set().union(*(project_imports(f) for f in roots if f.is_file()))
+    return _hash_sources(sorted(files))
 
 
 def stat_key(st: os.stat_result) -> tuple[int, int, int]:
+    """``(size, mtime_ns, inode)``, the fingerprint git and rsync trust too: bytes rewritten in
+    place at the same size with the old mtime put back are not noticed (``--full`` hashes
+    every file)."""
     return int(st.st_size), int(st.st_mtime_ns), int(st.st_ino)
 
 

@@ -210,3 +210,29 @@ def test_incremental_equals_full_table_by_table(raw, tmp_path):
     for table in a:
         assert a[table] == b[table], table
     assert len(a["runs"]) == 5 and len(a["quarantine"]) == 1
+
+
+def test_a_stage_version_covers_the_project_modules_it_imports():
+    # the durability stage reads hose logbooks through pipeline.logbook: a change there must
+    # re-run it (incremental == full), as must a unit change under an analysis (schemas.units)
+    from pipeline.state import _ROOT, project_imports
+
+    files = {f.relative_to(_ROOT).as_posix() for f in project_imports(_ROOT / "pipeline/stages/durability.py")}
+    assert {"pipeline/stages/durability.py", "pipeline/logbook.py", "analyses/service_life.py",
+            "analyses/durability.py"} <= files
+    files = {f.relative_to(_ROOT).as_posix() for f in project_imports(_ROOT / "analyses/leakage.py")}
+    assert "schemas/units.py" in files
+    assert not any(f.startswith(("numpy", "pandas")) for f in files)
+
+
+def test_project_imports_follows_imports_transitively(tmp_path, monkeypatch):
+    import pipeline.state as state
+
+    (tmp_path / "pipeline").mkdir()
+    (tmp_path / "pipeline" / "a.py").write_text("import numpy\nfrom pipeline.b import thing\n")
+    (tmp_path / "pipeline" / "b.py").write_text("from pipeline import c\nthing = 1\n")
+    (tmp_path / "pipeline" / "c.py").write_text("x = 1\n")
+    (tmp_path / "pipeline" / "d.py").write_text("x = 2\n")
+    monkeypatch.setattr(state, "_ROOT", tmp_path)
+    got = {f.name for f in state.project_imports(tmp_path / "pipeline" / "a.py")}
+    assert got == {"a.py", "b.py", "c.py"}
