@@ -35,10 +35,15 @@ Generators and their truth keys
     columns t_s, x_m, p_a_pa, p_b_pa. Truth: distance_m, distance_km, strokes (one-way moves),
     duration_s, stroke_m, speed_m_s, accel_m_s2, dwell_s, n_samples. For GB-scale runs:
     ``stroke_plan(...)`` + ``iter_durability_chunks(plan, rng)``.
+``simulate_timeseries(rng, duration_s, fs_hz, supply, ...)``
+    kind ``timeseries`` (ambient / supply logger): columns t_s, (p_supply_pa,) and the
+    non-canonical temperature [degC], rel_humidity [%]. Truth: fs_hz, duration_s, n_samples,
+    temperature_c, drift_c_h, humidity_pct, units, supply cycle, channels (mean, min, max).
 
 Campaigns (every kind, every format, hoses.csv, manifest, rig.toml, truth.json):
 :func:`pipeline.simulator.campaign.simulate_campaign`.
 """
+from pipeline.simulator.ambient import simulate_timeseries
 from pipeline.simulator.base import SimRun
 from pipeline.simulator.durability import (WEIBULL_LIFE, iter_durability_chunks, simulate_durability,
                                            stroke_plan, worn_seal_pressure_bar)
@@ -49,4 +54,4 @@ from pipeline.simulator.plpa import (NEAR_ZERO_SPEEDS_M_S, VISCOUS_SPEEDS_M_S, s
 __all__ = ["SimRun", "simulate_leakage", "simulate_breakaway", "simulate_viscous", "simulate_identification",
            "simulate_step", "simulate_spring", "simulate_pressure_step", "simulate_durability", "stroke_plan",
            "iter_durability_chunks", "worn_seal_pressure_bar", "WEIBULL_LIFE", "NEAR_ZERO_SPEEDS_M_S",
-           "VISCOUS_SPEEDS_M_S"]
+           "VISCOUS_SPEEDS_M_S", "simulate_timeseries"]

@@ -2,7 +2,8 @@
 
 ``simulate_campaign(out_dir, seed, profile, runs)`` writes, under ``out_dir``::
 
-    plpa-2025/       PLPA characterisation: leakage, breakaway, viscous, identification, step
+    plpa-2025/       PLPA characterisation: leakage, breakaway, viscous, identification, step,
+                     and the ambient / supply logger (kind ``timeseries``)
     pla-2016/        PLA: the 120 spring tests and pressure steps
     durability-2025/ hose logbook (older hoses with odometer readings only, logged hoses),
                      durability runs and leakage checks of the logged hoses
@@ -19,15 +20,18 @@ defaults under both), a ``;`` + decimal-comma CSV with kPa and Nl/min, absolute 
 (``bara``, ``bar(a)``), LVM with two segments and LVM with waveform timing (no X column), TDMS
 with waveform timing and TDMS with two groups, MAT with a ``meta`` struct or numeric scalars,
 a headerless whitespace text export described by ``rig.toml`` (encoder counts scaled there),
-and CSV columns renamed by ``rig.toml``.
+CSV columns renamed by ``rig.toml``, and non-canonical channels kept with their units (the
+logger's ``temperature[degC]`` and ``rel_humidity[%]``, in CSV beside ``p_supply[bar]`` and in
+TDMS with waveform timing, where ``t`` is the only canonical channel).
 
 Output is byte-identical for a seed: each run draws from its own generator seeded with
 ``(seed, index)``, dates are fixed, files are written in a fixed order of content.
 
 Profiles
 --------
-``demo`` keeps the papers' matrices (leakage all settings and chambers, breakaway 5 x 5 x 2,
-viscous 0-3 bar + near-zero + load-cell runs, 120 spring tests ...) at modest sample rates, and
+``demo`` keeps the papers' matrices (leakage all settings and chambers, breakaway 5 x 5 x 2 with
+2 repetitions, viscous 0-3 bar + near-zero + load-cell runs, 120 spring tests ...) at modest
+sample rates, two 30 min ambient logger runs at 1 Hz, and
 keeps the logbook's kilometres realistic (Weibull lives of tens of km) while logging durability
 runs at 5 Hz with 1 m strokes at 1 m/s and 0.25 s dwells: every turn is still sampled, so
 distance and stroke counts are exact, at about 40 samples per 100 m instead of 8,000. Older
@@ -35,7 +39,7 @@ hoses carry odometer readings only (no runs), as bench-exports.md allows.
 ``full`` logs durability at 1 kHz in runs of about 8 h (10 km of 0.5 m strokes: about 29 M samples,
 ~0.7 GB TDMS / ~1 GB CSV per run, written in 2 M-row chunks), breakaway with 3 repetitions at
 1 kHz, identification 60 s at 5 kHz.
-``mini`` is for tests: one run per kind and format variant, tiny durability.
+``mini`` is for tests: one run per kind and format variant, tiny durability, 1 min logger runs.
 ``runs=N`` pads the characterisation matrices with further repetitions (new seeds) to reach N
 runs in total, for campaigns of 1,000+ runs; a smaller N keeps the first N runs (interleaved
 across kinds, durability hoses first).
@@ -56,8 +60,8 @@ import numpy as np
 import pandas as pd
 
 from pipeline.progress import Progress
+from pipeline.simulator import ambient, pla, plpa
 from pipeline.simulator import durability as dur
-from pipeline.simulator import pla, plpa
 from pipeline.simulator.base import HOSE_AREA_M2, P_ATM_PA, SimRun, jsonable
 from pipeline.simulator.writers import ColumnOut, default_columns, write_csv, write_lvm, write_mat, write_tdms
 
@@ -72,7 +76,7 @@ class Profile:
     leak_fs_hz: float = 50.0
     leak_plateau_s: float = 4.0
     breakaway_fs_hz: float = 200.0
-    breakaway_reps: int = 1
+    breakaway_reps: int = 2              # repetitions of the 5 x 5 x 2 matrix (mean +/- std)
     viscous_fs_hz: float = 500.0
     identification_runs: int = 2
     identification_s: float = 20.0
@@ -94,6 +98,9 @@ class Profile:
     check_every: int = 2                 # leakage check after every n runs
     check_fs_hz: float = 20.0
     check_plateau_s: float = 3.0
+    log_runs: int = 2                    # ambient / supply logger (kind timeseries)
+    log_fs_hz: float = 1.0
+    log_s: float = 1800.0
     limit_per_variant: int | None = None  # mini: runs per kind and format variant
     chunk_rows: int = 2_000_000
 
@@ -110,7 +117,7 @@ PROFILES = {
                     identification_runs=2, identification_s=2.0, step_runs=3, step_fs_hz=200.0,
                     spring_fs_hz=200.0, spring_cycles=1.5, dur_run_km=0.6, logged_hoses=2, odometer_hoses=3,
                     stop_km={"distance": 1.0, "force": 1.0}, odometer_stop_km=150.0, check_every=1,
-                    check_fs_hz=10.0, check_plateau_s=1.0, limit_per_variant=1),
+                    check_fs_hz=10.0, check_plateau_s=1.0, log_s=60.0, limit_per_variant=1),
 }
 
 # -- format variants ---------------------------------------------------------------------------
@@ -171,6 +178,13 @@ VARIANTS: dict[str, list[dict]] = {
              opts=dict(waveform=True)),
         dict(fmt="csv", folder="runs", units={"x": "mm", "p_a": "bar", "p_b": "bar"}, embed=True),
     ],
+    "timeseries": [
+        dict(fmt="csv", folder="ambient", units={"p_supply": "bar", "temperature": "degC", "rel_humidity": "%"},
+             embed=True, channels=["p_supply_pa", "temperature", "rel_humidity"]),
+        dict(fmt="tdms", folder="ambient", units={"temperature": "degC", "rel_humidity": "%"}, embed=False,
+             names={"temperature": "Temperature", "rel_humidity": "Rel. Humidity"},
+             channels=["temperature", "rel_humidity"], opts=dict(waveform=True)),
+    ],
     "leakage_check": [
         dict(fmt="csv", folder="leakage-checks", units={"p_supply": "bar", "q_leak": "l/min"}, embed=True),
         dict(fmt="tdms", folder="leakage-checks", units={"p_supply": "bar", "q_leak": "l/min"}, embed=False,
@@ -227,7 +241,7 @@ class RunPlan:
 GENERATORS = {
     "leakage": plpa.simulate_leakage, "breakaway": plpa.simulate_breakaway, "viscous": plpa.simulate_viscous,
     "identification": plpa.simulate_identification, "step": plpa.simulate_step, "spring": pla.simulate_spring,
-    "pressure_step": pla.simulate_pressure_step,
+    "pressure_step": pla.simulate_pressure_step, "timeseries": ambient.simulate_timeseries,
 }
 
 
@@ -287,6 +301,8 @@ def _channels_of(plan: RunPlan) -> list[str]:
         return ["p_pa", "p_ref_pa"]
     if k == "durability":
         return ["x_m", "p_a_pa", "p_b_pa"]
+    if k == "timeseries":
+        return list(plan.variant["channels"])
     raise KeyError(k)
 
 
@@ -445,6 +461,17 @@ class _Planner:
                 self.add("pla-2016", "pressure_step", "pressure_step", f"pstep-{chamber}-{i + 1:02d}",
                          "pressure_step", dict(chamber=chamber), minutes=5)
 
+    # ambient / supply logger ---------------------------------------------------------------
+    def timeseries(self):
+        """Logger runs at 07:30 on successive campaign days (the variant decides the channels)."""
+        p = self.p
+        for i in range(p.log_runs):
+            v = self.variant("timeseries", i)
+            when = CAMPAIGN_START["plpa-2025"] - timedelta(minutes=30) + timedelta(days=i)
+            self.add("plpa-2025", "timeseries", "timeseries", f"ambient-{i + 1:02d}", "timeseries",
+                     dict(duration_s=p.log_s, fs_hz=p.log_fs_hz, supply="p_supply_pa" in v["channels"],
+                          temperature_c=round(20.5 + 0.5 * i, 2)), variant=v, when=when)
+
     # durability ----------------------------------------------------------------------------
     def durability(self):
         p = self.p
@@ -594,6 +621,7 @@ def plan_campaign(seed: int = 1, profile: str | Profile = "demo", runs: int | No
     pl.step()
     pl.spring()
     pl.pressure_step()
+    pl.timeseries()
     if prof.limit_per_variant:
         keep, seen = [], {}
         for plan in pl.plans:

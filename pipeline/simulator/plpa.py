@@ -392,10 +392,18 @@ def _pid_loop(n, fs_hz, x_ref, x0, pid, wn, zeta, k, quantised: bool):
 
 
 def step_metrics(t, x, t_step: float, x_from: float, x_to: float, t_end: float) -> dict:
-    """Overshoot [%], 2 % settling time [s], 10-90 % rise time [s], steady-state error [mm]."""
+    """Overshoot [%], 2 % settling time [s], 10-90 % rise time [s], steady-state error [mm].
+
+    A reference that does not move (``x_to == x_from``) or a window ``[t_step, t_end)`` without
+    samples has no response to measure: every metric is NaN (None in truth.json), as
+    :func:`analyses.step_response.step_metrics` reports a zero step.
+    """
     m = (t >= t_step) & (t < t_end)
     tt, xx = t[m] - t_step, x[m]
     step = x_to - x_from
+    if step == 0 or not tt.size:
+        nan = float("nan")
+        return {"overshoot_pct": nan, "settling_time_s": nan, "rise_time_s": nan, "steady_state_error_mm": nan}
     y = (xx - x_from) / step
     overshoot = max(0.0, float(y.max() - 1.0) * 100.0)
     out = np.flatnonzero(np.abs(y - 1.0) > 0.02)

@@ -6,6 +6,8 @@ GB-scale runs) whose columns are warehouse column names in SI (``p_a_pa``, ``x_m
 metadata to embed (``None``: nothing embedded, the manifest carries it). Values are converted
 from SI to the raw unit with the exact inverse of :meth:`schemas.units.Unit.to_si` and written
 with the shortest text that round-trips, so ingest gives back the SI values to float precision.
+Columns that are not canonical (e.g. ``temperature`` in degC) are written as they are: ingest
+keeps them unconverted under their sanitised names, with their unit recorded.
 """
 from __future__ import annotations
 
@@ -32,14 +34,26 @@ class ColumnOut:
     unit: str
 
 
+_BY_COLUMN = {c.column: c for c in CHANNELS.values()}
+
+
 def default_columns(columns: Iterable[str], units: dict[str, str] | None = None,
                     names: dict[str, str] | None = None) -> list[ColumnOut]:
-    """Export columns under their canonical channel names; ``units``/``names`` by channel override."""
-    by_column = {c.column: c for c in CHANNELS.values()}
+    """Export columns under their canonical channel names; ``units``/``names`` by channel override.
+
+    A column that is no canonical channel's (e.g. ``temperature``) is its own channel name and
+    needs its unit in ``units``; its values are exported unconverted.
+    """
+    units, names = units or {}, names or {}
     out = []
     for col in columns:
-        ch = by_column[col]
-        out.append(ColumnOut(col, (names or {}).get(ch.name, ch.name), (units or {}).get(ch.name, ch.si_unit)))
+        ch = _BY_COLUMN.get(col)
+        if ch is None:
+            if col not in units:
+                raise ValueError(f"column {col!r} is not canonical: give its unit in `units`")
+            out.append(ColumnOut(col, names.get(col, col), units[col]))
+        else:
+            out.append(ColumnOut(col, names.get(ch.name, ch.name), units.get(ch.name, ch.si_unit)))
     return out
 
 
@@ -57,6 +71,13 @@ def si_to_raw(values, unit: str, p_atm_pa: float = P_ATM_DEFAULT_PA) -> np.ndarr
     return v / u.scale if u.scale != 1.0 else v
 
 
+def _raw_values(frame: pd.DataFrame, c: ColumnOut, p_atm_pa: float) -> np.ndarray:
+    """A column's values in its raw unit (non-canonical columns: as they are)."""
+    if c.column not in _BY_COLUMN:
+        return np.asarray(frame[c.column].to_numpy(), dtype=float)
+    return si_to_raw(frame[c.column].to_numpy(), c.unit, p_atm_pa)
+
+
 def _frames(data) -> Iterator[pd.DataFrame]:
     if isinstance(data, pd.DataFrame):
         yield data
@@ -65,7 +86,7 @@ def _frames(data) -> Iterator[pd.DataFrame]:
 
 
 def _raw_table(frame: pd.DataFrame, columns: list[ColumnOut], p_atm_pa: float) -> pa.Table:
-    return pa.table({f"c{i}": si_to_raw(frame[c.column].to_numpy(), c.unit, p_atm_pa) for i, c in enumerate(columns)})
+    return pa.table({f"c{i}": _raw_values(frame, c, p_atm_pa) for i, c in enumerate(columns)})
 
 
 def _text_block(table: pa.Table, delimiter: str, decimal: str = ".") -> bytes:
@@ -211,8 +232,7 @@ def write_tdms(path, data, columns: list[ColumnOut], metadata: dict | None = Non
                     props = {"unit_string": c.unit}
                     if waveform:
                         props.update(wf_increment=1.0 / fs_hz, wf_start_offset=0.0, wf_samples=len(frame))
-                objs.append(ChannelObject(group, c.name, si_to_raw(frame[c.column].to_numpy(), c.unit, p_atm_pa),
-                                          properties=props))
+                objs.append(ChannelObject(group, c.name, _raw_values(frame, c, p_atm_pa), properties=props))
             writer.write_segment(objs)
             first = False
     return path
@@ -235,7 +255,7 @@ def write_mat(path, data, columns: list[ColumnOut], metadata: dict | None = None
         out["t"] = frame["t_s"].to_numpy().reshape(-1, 1)
         units["t"] = "s"
     for c in columns:
-        out[c.name] = si_to_raw(frame[c.column].to_numpy(), c.unit, p_atm_pa).reshape(-1, 1)
+        out[c.name] = _raw_values(frame, c, p_atm_pa).reshape(-1, 1)
         units[c.name] = c.unit
     meta = {}
     for k, v in (metadata or {}).items():

@@ -109,10 +109,16 @@ def test_demo_plan_has_the_papers_matrices_and_every_format():
         by_kind.setdefault(p.kind, set()).add(p.fmt)
     assert all(len(f) >= 2 for f in by_kind.values()), by_kind
     assert set(by_kind) == {"leakage", "breakaway", "viscous", "identification", "step", "spring",
-                            "pressure_step", "durability"}
+                            "pressure_step", "durability", "timeseries"}
     char_leak = [p for p in plans if p.group == "leakage"]
     assert len(char_leak) == 2 * (7 + 3)                        # both chambers, all settings
-    assert len([p for p in plans if p.kind == "breakaway"]) == 5 * 5 * 2
+    brk = [p for p in plans if p.kind == "breakaway"]
+    assert len(brk) == 5 * 5 * 2 * 2                              # two repetitions of the matrix
+    cells: dict[tuple, int] = {}
+    for p in brk:
+        key = (p.kwargs["direction"], p.kwargs["backpressure_bar"], p.kwargs["force_rate_n_s"])
+        cells[key] = cells.get(key, 0) + 1
+    assert len(cells) == 50 and set(cells.values()) == {2}       # every cell has a mean +/- std
     assert len([p for p in plans if p.kind == "spring"]) == 120
     near = [p for p in plans if p.kind == "viscous" and "nearzero" in p.run_id]
     assert near and max(abs(v) for v in near[0].kwargs["speeds_m_s"]) == pytest.approx(7e-3)
@@ -144,3 +150,45 @@ def test_lab_format_mix_and_logbook(built):
     truth = json.loads((raw / "truth.json").read_text())
     assert set(truth["runs"]) == {p.run_id for p in MINI_PLANS}
     assert truth["parameters"]["durability"]["weibull_life"]["force"] == {"shape": 2.4, "scale_km": 90.0}
+
+
+TIMESERIES = [p for p in MINI_PLANS if p.kind == "timeseries"]
+
+
+def test_timeseries_logger_keeps_non_canonical_channels_with_their_units(built):
+    """The ambient logger (kind timeseries, no analysis): both runs catalogued and queryable in
+    samples_timeseries, temperature [degC] and rel_humidity [%] kept unconverted with their units,
+    p_supply converted from bar, and the samples are what truth.json says was logged."""
+    raw, wh, summary, runs = built
+    assert {p.fmt for p in TIMESERIES} == {"csv", "tdms"}
+    truth = json.loads((raw / "truth.json").read_text())["runs"]
+    con = duckdb.connect(str(wh / "pneubench.duckdb"), read_only=True)
+    try:
+        cols = {r[0] for r in con.execute("DESCRIBE samples_timeseries").fetchall()}
+        counts = dict(con.execute("SELECT run_id, count(*) FROM samples_timeseries GROUP BY run_id").fetchall())
+    finally:
+        con.close()
+    assert {"run_id", "t_s", "p_supply_pa", "temperature", "rel_humidity"} <= cols
+    for plan in TIMESERIES:
+        if _reader_missing(plan.fmt):
+            continue
+        rec = truth[plan.run_id]
+        assert rec["kind"] == "timeseries" and rec["file"] == plan.rel_path
+        t = rec["truth"]
+        assert counts[plan.run_id] == t["n_samples"] == round(t["duration_s"] * t["fs_hz"])
+        table = pq.read_table(wh / runs[plan.run_id][0])
+        units = {f.name: (f.metadata or {}).get(b"unit", b"").decode() for f in table.schema}
+        assert units["temperature"] == "degC" and units["rel_humidity"] == "%"
+        meant = generate(plan, SEED).data
+        for col, stats in t["channels"].items():
+            got = table.column(col).to_numpy()
+            if col == "p_supply_pa":                               # bar -> Pa: float precision
+                np.testing.assert_allclose(got, meant[col].to_numpy(), rtol=1e-12)
+            else:                                                 # not converted: exact
+                np.testing.assert_array_equal(got, meant[col].to_numpy())
+            assert (got.min(), got.max()) == pytest.approx((stats["min"], stats["max"]), rel=1e-12)
+            assert got.mean() == pytest.approx(stats["mean"], rel=1e-12)
+        assert abs(float(np.mean(table.column("temperature").to_numpy())) - t["temperature_c"]) < 0.5
+        if "p_supply_pa" in t["channels"]:
+            p = table.column("p_supply_pa").to_numpy() / 1e5
+            assert t["supply_low_bar"] - 0.05 < p.min() and p.max() < t["supply_high_bar"] + 0.05

@@ -5,7 +5,7 @@ import pytest
 from pipeline.simulator import (NEAR_ZERO_SPEEDS_M_S, simulate_breakaway, simulate_identification,
                                 simulate_leakage, simulate_step, simulate_viscous)
 from pipeline.simulator.base import HOSE_AREA_M2
-from pipeline.simulator.plpa import plant_zoh, seal_pressure_bar
+from pipeline.simulator.plpa import plant_zoh, seal_pressure_bar, step_metrics
 from schemas.units import kg_s_to_l_min_anr
 
 
@@ -104,3 +104,22 @@ def test_step_metrics_match_paper():
     d = run.data
     end = (d.t_s >= 10.5) & (d.t_s < 11.0)
     assert np.abs(d.x_m[end] - d.x_ref_m[end]).max() <= 10e-6
+
+
+def test_step_metrics_of_a_reference_that_never_jumps_are_nan_without_warnings():
+    """A zero step (0/0 when normalising by the step) or an empty window has nothing to measure."""
+    import math
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        run = simulate_step(0, steps_mm=(0.0,), hold_s=2.0)
+        (s,) = run.truth["steps"]
+        t = np.arange(10) * 0.1
+        empty = step_metrics(t, np.zeros(10), 5.0, 0.0, 0.02, 6.0)       # no sample in [5, 6) s
+    for met in (s, empty):
+        for key in ("overshoot_pct", "settling_time_s", "rise_time_s", "steady_state_error_mm"):
+            assert math.isnan(met[key]), key
+    assert s["step_mm"] == 0.0
+    good = step_metrics(t, np.minimum(t, 0.5) * 0.04, 0.0, 0.0, 0.02, 1.0)   # ramp to 20 mm at 0.5 s
+    assert good["overshoot_pct"] == 0.0 and good["steady_state_error_mm"] == pytest.approx(0.0)
