@@ -79,30 +79,51 @@ def name_pct(t: _Task) -> str:
 
 
 class BarProgress(LogProgress):
-    """A one-line bar redrawn in place on a terminal."""
+    """A one-line bar redrawn in place on a terminal.
+
+    Messages are printed above the bar (the bar line is cleared first and drawn again after);
+    a task started inside another shows as ``outer 2/4 > inner [###...]``, and a finished task
+    leaves one line behind.
+    """
 
     width = 30
+    _CLEAR = "\r\x1b[K"
+
+    def __init__(self, stream=None):
+        super().__init__(stream)
+        self._active: list[_Task] = []
+
+    def message(self, text: str) -> None:
+        self.stream.write(f"{self._CLEAR}{text}\n")
+        self._redraw()
 
     @contextmanager
     def task(self, name: str, total: int):
         t = _Task(self, name, total)
+        self._active.append(t)
         try:
             yield t
         finally:
+            self._active.remove(t)
             if total:
-                self._draw(t, final=True)
+                self.stream.write(f"{self._CLEAR}{self._line(t, final=True)}\n")
+            self._redraw()
 
     def _update(self, t: _Task) -> None:
-        self._draw(t)
+        self._redraw()
 
-    def _draw(self, t: _Task, final: bool = False) -> None:
+    def _redraw(self) -> None:
+        if self._active:
+            self.stream.write(f"{self._CLEAR}{self._line(self._active[-1])}")
+        self.stream.flush()
+
+    def _line(self, t: _Task, final: bool = False) -> str:
         frac = t.done / t.total if t.total else 1.0
         filled = int(self.width * frac)
         elapsed = time.monotonic() - t.started
-        eta = f" eta {elapsed / frac - elapsed:4.0f} s" if 0 < frac < 1 else f" {elapsed:5.1f} s"
-        line = f"\r{t.name:<12} [{'#' * filled}{'.' * (self.width - filled)}] {t.done}/{t.total}{eta}"
-        self.stream.write(line + ("\n" if final else ""))
-        self.stream.flush()
+        eta = f" eta {elapsed / frac - elapsed:4.0f} s" if 0 < frac < 1 and not final else f" {elapsed:5.1f} s"
+        outer = "".join(f"{o.name} {o.done}/{o.total} > " for o in self._active if o is not t and not final)
+        return f"{outer}{t.name:<12} [{'#' * filled}{'.' * (self.width - filled)}] {t.done}/{t.total}{eta}"
 
 
 def for_stream(stream=None, quiet: bool = False) -> Progress:
