@@ -75,14 +75,25 @@ def crontab_line(s: Schedule) -> str:
     """
     cmd = " ".join(shlex.quote(c) for c in s.command())
     log = shlex.quote(str(s.log))
-    return (f"# {s.name}: nightly pneubench rebuild at {s.hour:02d}:{s.minute:02d} (install: crontab -e"
-            f"{' as ' + s.user if s.user else ''})\n"
-            f"{s.minute} {s.hour} * * * cd {shlex.quote(str(s.workdir))} && mkdir -p {shlex.quote(str(s.log.parent))}"
+    line = (f"{s.minute} {s.hour} * * * cd {shlex.quote(str(s.workdir))} && mkdir -p {shlex.quote(str(s.log.parent))}"
             f" && {cmd} >> {log} 2>&1 || echo \"{s.name} failed with exit code $? (see {s.log})\"")
+    return (f"# {s.name}: nightly pneubench rebuild at {s.hour:02d}:{s.minute:02d} (install: crontab -e"
+            f"{' as ' + s.user if s.user else ''})\n" + line.replace("%", "\\%"))  # cron: bare % = newline
+
+
+def _sd_quote(value) -> str:
+    """One systemd unit-file word: ``%`` doubled (a specifier otherwise); double-quoted with
+    ``\\`` and ``"`` escaped when it has blanks, quotes or ``;``, so a path with spaces stays one
+    argument."""
+    text = str(value).replace("%", "%%")
+    if text and not any(c.isspace() or c in "\"'\\;" for c in text):
+        return text
+    text = text.replace("\\", "\\\\").replace('"', '\\"')
+    return f'"{text}"'
 
 
 def systemd_service(s: Schedule) -> str:
-    cmd = " ".join(shlex.quote(c) for c in s.command())
+    cmd = " ".join(_sd_quote(c) for c in s.command())
     user = f"User={s.user}\n" if s.user else ""
     return f"""# /etc/systemd/system/{s.name}.service
 [Unit]
@@ -92,16 +103,16 @@ Wants=network-online.target
 
 [Service]
 Type=oneshot
-{user}WorkingDirectory={s.workdir}
-Environment=PNEUBENCH_RAW={s.raw}
-Environment=PNEUBENCH_WAREHOUSE={s.warehouse}
-ExecStartPre=/bin/mkdir -p {s.log.parent}
+{user}WorkingDirectory={str(s.workdir).replace("%", "%%")}
+Environment={_sd_quote(f"PNEUBENCH_RAW={s.raw}")}
+Environment={_sd_quote(f"PNEUBENCH_WAREHOUSE={s.warehouse}")}
+ExecStartPre=/bin/mkdir -p {_sd_quote(s.log.parent)}
 ExecStart={cmd}
 # exit 1 = warehouse built, some inputs quarantined (see the morning report): not a failure.
 # Remove the next line to be alerted (OnFailure=, systemctl --failed) on quarantined inputs too.
 SuccessExitStatus=1
-StandardOutput=append:{s.log}
-StandardError=append:{s.log}
+StandardOutput=append:{str(s.log).replace("%", "%%")}
+StandardError=append:{str(s.log).replace("%", "%%")}
 Nice=10
 IOSchedulingClass=best-effort
 IOSchedulingPriority=7

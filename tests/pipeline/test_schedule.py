@@ -65,3 +65,24 @@ def test_cli_prints_all_three(tmp_path):
     res = CliRunner().invoke(main, ["schedule", "--at", "7pm"])
     assert res.exit_code == 2
     assert render(Schedule(raw="r", warehouse="w", workdir=".", executable="x"), "timer").startswith("# /etc/systemd")
+
+
+def test_paths_with_spaces_and_percent_stay_one_argument(tmp_path):
+    base = tmp_path / "lab data 100%"
+    s = Schedule(raw=base / "raw", warehouse=base / "wh", workdir=base, at="02:30",
+                 executable="/opt/pb/bin/pneubench", user=None)
+    svc = configparser.ConfigParser(strict=False, interpolation=None)
+    svc.optionxform = str
+    svc.read_string(systemd_service(s))
+    sv = svc["Service"]
+
+    def words(value):  # systemd splits like a shell with double quotes; %% is a literal %
+        return [w.replace("%%", "%") for w in shlex.split(value)]
+
+    envs = [words(v) for k, v in svc.items("Service") if k == "Environment"] or [words(sv["Environment"])]
+    assert [f"PNEUBENCH_WAREHOUSE={base / 'wh'}"] in envs
+    assert words(sv["ExecStartPre"]) == ["/bin/mkdir", "-p", str(base / "wh" / "logs")]
+    assert words(sv["ExecStart"])[:4] == ["/opt/pb/bin/pneubench", "rebuild", "--raw", str(base / "raw")]
+    assert sv["WorkingDirectory"] == str(base).replace("%", "%%")
+    cron = crontab_line(s).splitlines()[-1]
+    assert "%" not in cron.replace("\\%", "")  # cron turns a bare % into a newline
