@@ -51,6 +51,8 @@ def rebuild(raw, warehouse, jobs, full, quiet, executor, scheduler, wait_s, no_r
 
     if not raw.is_dir():
         raise click.UsageError(f"raw folder {raw} does not exist")
+    if scheduler and executor != "dask":
+        raise click.UsageError("--scheduler goes with --executor dask")
     try:
         summary = do_rebuild(raw, warehouse, jobs=jobs, full=full, progress=for_stream(sys.stderr, quiet),
                              lock_wait_s=wait_s, executor=executor, scheduler=scheduler, report=not no_report)

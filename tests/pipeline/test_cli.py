@@ -29,6 +29,8 @@ def test_usage_errors_exit_2(tmp_path):
     runner = CliRunner()
     assert runner.invoke(main, ["rebuild", "--raw", str(tmp_path / "nope")]).exit_code == 2
     assert runner.invoke(main, ["rebuild", "--jobs", "0"]).exit_code == 2
+    res = runner.invoke(main, ["rebuild", "--raw", str(tmp_path), "--scheduler", "tcp://127.0.0.1:1"])
+    assert res.exit_code == 2 and "--scheduler goes with --executor dask" in res.output
     assert runner.invoke(main, ["query", "SELECT 1", "--warehouse", str(tmp_path)]).exit_code == 2
 
 

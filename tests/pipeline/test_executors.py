@@ -19,9 +19,18 @@ def boom(x):
     return x
 
 
-def dump(warehouse, tables=("runs", "channels", "quarantine", "step_response", "findings")):
+#: Tables that describe the rebuild itself (times, generation, executor), not its results.
+REBUILD_ONLY = {"rebuild_log", "rebuild_inputs", "rebuild_changes", "ingest_state", "stage_cache", "figures"}
+
+
+def dump(warehouse):
+    """Every result table and view of a warehouse, rows sorted."""
     con = duckdb.connect(str(warehouse / "pneubench.duckdb"), read_only=True)
     try:
+        tables = sorted({r[0] for r in con.execute("SELECT table_name FROM duckdb_tables() UNION ALL SELECT "
+                                                   "view_name FROM duckdb_views() WHERE NOT internal").fetchall()}
+                        - REBUILD_ONLY)
+        assert {"runs", "channels", "quarantine", "step_response", "findings"} <= set(tables)
         out = {t: con.execute(f'SELECT * FROM "{t}" ORDER BY ALL').fetchall() for t in tables}
         out["samples"] = con.execute("SELECT * FROM samples_step ORDER BY ALL").fetchall()
         out["rebuild_log.executor"] = con.execute("SELECT executor FROM rebuild_log").fetchall()
