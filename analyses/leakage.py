@@ -6,6 +6,17 @@ module finds the steady part of each pressure step (a *plateau*), averages press
 over it, and summarises a roller setting by its *seal envelope*: the highest tested pressure up
 to which the leak stays below a threshold.
 
+Characterisation runs and hose checks (:func:`characterisation_rows`)
+--------------------------------------------------------------------
+A leakage run that names a ``hose_id`` is a *check on that hose* (e.g. a durability hose after
+some kilometres of wear); a run naming no hose is a *characterisation run* of the roller
+setting. A worn hose leaks far more than the setting does, so the per-setting results (the
+curves of Figs. 9/10 and the seal envelope) use the characterisation runs of a setting only.
+A setting that has no characterisation run at all falls back to its hose checks, and says so
+(``runs_used = 'hose_checks'``, a dashed curve marked "hose checks"), so no tested setting
+silently disappears. Hose checks stay in the plateau table with their ``hose_id`` for the
+leak-growth analysis of the durability stage.
+
 Plateau detection (:func:`find_pressure_plateaus`)
 -------------------------------------------------
 1. The pressure noise ``sigma`` is estimated from the first differences (robust MAD), so the
@@ -31,7 +42,9 @@ LEAK_THRESHOLD_L_MIN = 0.05
 #: Maximum roller spring force of the rig (seed 000). [N]
 SPRING_FORCE_MAX_N = 1300.0
 #: Columns that identify a roller setting in a leakage map.
-SETTING_COLUMNS = ("hose_id", "chamber", "adjustment", "z_rollers_mm", "spring_force_n")
+SETTING_COLUMNS = ("chamber", "adjustment", "z_rollers_mm", "spring_force_n")
+#: ``runs_used`` values: what the rows of a setting's curve / envelope come from.
+RUNS_CHARACTERISATION, RUNS_HOSE_CHECKS, RUNS_MIXED = "characterisation", "hose_checks", "mixed"
 
 _BAR = 1e5
 
@@ -191,15 +204,71 @@ def leakage_power_law(p_bar, c_l_min_bar15: float, p_seal_bar: float):
     return c_l_min_bar15 * np.clip(np.asarray(p_bar, dtype=float) - p_seal_bar, 0.0, None) ** 1.5
 
 
+def is_hose_check(leakage_map: pd.DataFrame) -> pd.Series:
+    """True for rows of runs that name a hose (``hose_id`` not NULL and not empty): hose checks.
+
+    Parameters
+    ----------
+    leakage_map : DataFrame
+        Rows of the ``leakage_map`` table; without a ``hose_id`` column no row is a hose check.
+
+    Returns
+    -------
+    Series of bool
+    """
+    if "hose_id" not in leakage_map.columns:
+        return pd.Series(False, index=leakage_map.index)
+    h = leakage_map["hose_id"]
+    return h.notna() & (h.astype(str) != "")
+
+
+def characterisation_rows(leakage_map: pd.DataFrame, by=SETTING_COLUMNS) -> pd.DataFrame:
+    """The rows that characterise each setting: its characterisation runs, else its hose checks.
+
+    Rule (module docstring): per setting (``by``), the rows of runs naming no hose are used and
+    the setting's hose checks are left out; a setting with no characterisation run at all keeps
+    its hose-check rows (all of them, averaged later like repeat runs) and is marked as such.
+
+    Parameters
+    ----------
+    leakage_map : DataFrame
+        Rows of the ``leakage_map`` table.
+    by : sequence of str
+        Columns identifying a setting.
+
+    Returns
+    -------
+    DataFrame
+        The selected rows (original index) with a column ``runs_used``: ``'characterisation'`` or
+        ``'hose_checks'`` (the fallback).
+    """
+    by = [c for c in by if c in leakage_map.columns]
+    check = is_hose_check(leakage_map)
+    if leakage_map.empty:
+        return leakage_map.assign(runs_used=pd.Series(dtype=object))
+    if by:
+        has_char = (~check).groupby([leakage_map[c] for c in by], dropna=False).transform("any")
+    else:
+        has_char = pd.Series(bool((~check).any()), index=leakage_map.index)
+    keep = ~check | ~has_char.astype(bool)
+    out = leakage_map[keep]
+    return out.assign(runs_used=np.where(check[keep], RUNS_HOSE_CHECKS, RUNS_CHARACTERISATION))
+
+
 def seal_envelope(leakage_map: pd.DataFrame, threshold_l_min: float = LEAK_THRESHOLD_L_MIN,
                   by=SETTING_COLUMNS, pressure_step_bar: float = 0.1,
-                  spring_force_max_n: float = SPRING_FORCE_MAX_N) -> pd.DataFrame:
+                  spring_force_max_n: float = SPRING_FORCE_MAX_N,
+                  characterisation_only: bool = True) -> pd.DataFrame:
     """The highest tested pressure up to which a setting stays sealed.
 
+    Only characterisation runs count (:func:`characterisation_rows`): hose checks of a setting
+    are left out, unless the setting has nothing else (``runs_used = 'hose_checks'``).
     Plateaus are grouped by setting (``by``) and by their tested (nominal) pressure, the measured
     mean pressure rounded to ``pressure_step_bar``; plateaus at the same nominal pressure (repeat
     runs) are averaged. Walking up from the lowest tested pressure, the setting is *sealed* while
     the leak stays below ``threshold_l_min``; ``sealed_up_to_bar`` is the last such pressure.
+    The warehouse macro ``seal_envelope_at(threshold)`` (``schemas/ddl``) computes the same table
+    in SQL for any threshold.
 
     Parameters
     ----------
@@ -213,6 +282,9 @@ def seal_envelope(leakage_map: pd.DataFrame, threshold_l_min: float = LEAK_THRES
         Resolution of the nominal (tested) pressure [bar].
     spring_force_max_n : float
         Maximum spring force, for ``spring_force_pct`` [N].
+    characterisation_only : bool
+        Apply the characterisation-run rule (default). False uses every row given, e.g. with
+        ``by`` including ``hose_id`` for one envelope per hose.
 
     Returns
     -------
@@ -221,14 +293,18 @@ def seal_envelope(leakage_map: pd.DataFrame, threshold_l_min: float = LEAK_THRES
         ``sealed_up_to_bar`` (NULL when already leaking at the lowest tested pressure),
         ``first_leak_bar`` (lowest tested pressure above threshold; NULL if none),
         ``max_tested_bar``, ``sealed_at_max`` (True when no tested pressure leaks),
-        ``max_leak_l_min``, ``n_pressures``.
+        ``max_leak_l_min``, ``n_pressures``, ``runs_used`` (``characterisation``,
+        ``hose_checks`` or, with ``characterisation_only=False``, ``mixed``), ``n_runs``.
     """
     by = [c for c in by if c in leakage_map.columns]
     cols = list(by) + ["spring_force_pct", "threshold_l_min", "sealed_up_to_bar", "first_leak_bar",
-                       "max_tested_bar", "sealed_at_max", "max_leak_l_min", "n_pressures"]
+                       "max_tested_bar", "sealed_at_max", "max_leak_l_min", "n_pressures", "runs_used", "n_runs"]
     df = leakage_map.dropna(subset=["pressure_bar", "leak_l_min"])
+    if characterisation_only:
+        df = characterisation_rows(df, by)
     if df.empty:
         return pd.DataFrame(columns=cols)
+    df = df.assign(_check=is_hose_check(df))
     df = df.assign(_nominal=(df["pressure_bar"] / pressure_step_bar).round() * pressure_step_bar)
     rows = []
     for key, g in df.groupby(by, dropna=False, sort=True):
@@ -252,9 +328,15 @@ def seal_envelope(leakage_map: pd.DataFrame, threshold_l_min: float = LEAK_THRES
             "sealed_at_max": first is None,
             "max_leak_l_min": float(levels.max()),
             "n_pressures": int(len(levels)),
+            "runs_used": (RUNS_HOSE_CHECKS if g["_check"].all() else
+                          RUNS_CHARACTERISATION if not g["_check"].any() else RUNS_MIXED),
+            "n_runs": int(g["run_id"].nunique()) if "run_id" in g.columns else None,
         })
         rows.append(row)
     return pd.DataFrame(rows, columns=cols)
+
+
+_MARKERS = ("o", "s", "^", "D", "v", "P", "X", "<", ">")
 
 
 def _setting_label(adjustment: str, value: float, spring_force_max_n: float) -> str:
@@ -267,8 +349,11 @@ def plot_leakage_map(leakage_map: pd.DataFrame, adjustment: str, threshold_l_min
                      pressure_step_bar: float = 0.1, spring_force_max_n: float = SPRING_FORCE_MAX_N):
     """Leak vs pressure like Figs. 9 (``distance``) and 10 (``force``) of seed 000.
 
-    One panel per chamber (A, B); one curve per roller distance or spring force (repeat runs and
-    hoses of a setting averaged per tested pressure).
+    One panel per chamber (A, B); one curve per roller distance or spring force, from the
+    characterisation runs of the setting (:func:`characterisation_rows`; repeat runs averaged per
+    tested pressure), each with its own hollow marker so that sealed settings stay visible on the
+    zero line. Hose checks are left out; a setting with only hose checks is drawn from them as a
+    dashed curve labelled "(hose checks)".
 
     Parameters
     ----------
@@ -278,6 +363,10 @@ def plot_leakage_map(leakage_map: pd.DataFrame, adjustment: str, threshold_l_min
         Which settings to plot.
     threshold_l_min : float, optional
         Draws the seal-envelope threshold [l/min ANR].
+    pressure_step_bar : float
+        Resolution of the nominal (tested) pressure [bar].
+    spring_force_max_n : float
+        Maximum spring force, for the labels [N].
 
     Returns
     -------
@@ -287,22 +376,32 @@ def plot_leakage_map(leakage_map: pd.DataFrame, adjustment: str, threshold_l_min
 
     setting = "z_rollers_mm" if adjustment == "distance" else "spring_force_n"
     df = leakage_map[(leakage_map["adjustment"] == adjustment)].dropna(subset=["pressure_bar", "leak_l_min", setting])
+    df = characterisation_rows(df)
     fig = Figure(figsize=(10, 4.2))
     axes = fig.subplots(1, 2, sharey=True)
     values = sorted(df[setting].unique())
     cmap = __import__("matplotlib").colormaps["viridis"]
+    order = []
+    for v in values:
+        lab = _setting_label(adjustment, v, spring_force_max_n)
+        order += [lab, f"{lab} (hose checks)"]
     for ax, chamber, letter in zip(axes, ("A", "B"), "ab"):
         d = df[df["chamber"] == chamber]
         for i, v in enumerate(values):
             g = d[d[setting] == v]
             if g.empty:
                 continue
+            checks = bool((g["runs_used"] == RUNS_HOSE_CHECKS).all())
+            label = _setting_label(adjustment, v, spring_force_max_n) + (" (hose checks)" if checks else "")
             nominal = (g["pressure_bar"] / pressure_step_bar).round() * pressure_step_bar
             curve = g.groupby(nominal).agg(p=("pressure_bar", "mean"), q=("leak_l_min", "mean")).sort_values("p")
-            ax.plot(curve["p"], curve["q"], marker="o", ms=4, color=cmap(i / max(1, len(values) - 1) * 0.9),
-                    label=_setting_label(adjustment, v, spring_force_max_n))
+            # sealed settings share the zero line: a hollow marker of its own (growing in size) per
+            # setting keeps each of them visible there
+            ax.plot(curve["p"], curve["q"], marker=_MARKERS[i % len(_MARKERS)], ms=4 + 0.9 * (i % len(_MARKERS)),
+                    mfc="none", mew=1.2, lw=1.3, ls="--" if checks else "-",
+                    color=cmap(i / max(1, len(values) - 1) * 0.9), label=label)
         if threshold_l_min is not None:
-            ax.axhline(threshold_l_min, color="0.5", lw=0.8, ls="--", label=f"threshold {threshold_l_min:g} l/min")
+            ax.axhline(threshold_l_min, color="0.5", lw=0.8, ls=":", label=f"threshold {threshold_l_min:g} l/min")
         ax.set_title(f"({letter}) chamber {chamber}")
         ax.set_xlabel("pressure (gauge) [bar]")
         ax.grid(True, alpha=0.3)
@@ -313,7 +412,6 @@ def plot_leakage_map(leakage_map: pd.DataFrame, adjustment: str, threshold_l_min
     for ax in axes:  # settings from both panels, each once, in setting order (threshold last)
         for h, lab in zip(*ax.get_legend_handles_labels()):
             legend.setdefault(lab, h)
-    order = [_setting_label(adjustment, v, spring_force_max_n) for v in values]
     labels = [lab for lab in order if lab in legend] + [lab for lab in legend if lab not in order]
     handles = [legend[lab] for lab in labels]
     if handles:
@@ -324,5 +422,6 @@ def plot_leakage_map(leakage_map: pd.DataFrame, adjustment: str, threshold_l_min
     return fig
 
 
-__all__ = ["find_pressure_plateaus", "leakage_plateaus", "leakage_power_law", "seal_envelope",
-           "plot_leakage_map", "LEAK_THRESHOLD_L_MIN", "SPRING_FORCE_MAX_N", "SETTING_COLUMNS"]
+__all__ = ["find_pressure_plateaus", "leakage_plateaus", "leakage_power_law", "is_hose_check",
+           "characterisation_rows", "seal_envelope", "plot_leakage_map", "RUNS_CHARACTERISATION", "RUNS_HOSE_CHECKS",
+           "RUNS_MIXED", "LEAK_THRESHOLD_L_MIN", "SPRING_FORCE_MAX_N", "SETTING_COLUMNS"]

@@ -3,7 +3,11 @@
 Tables (``schemas/ddl/10_plpa_characterisation.sql``):
 
 - ``leakage_map``: one row per pressure plateau of a leakage run (+ plateau timing and scatter);
-- ``seal_envelope``: per roller setting, the highest tested pressure with leak below threshold;
+- ``seal_envelope``: per roller setting, the highest tested pressure with leak below threshold,
+  from the setting's characterisation runs (a leakage run naming a ``hose_id`` is a check on that
+  hose: it stays in ``leakage_map`` for the durability stage but is left out of the envelope and
+  of Figs. 9/10, unless the setting has nothing else; see ``analyses.leakage``). The macro
+  ``seal_envelope_at(threshold)`` gives the same table at another threshold;
 - ``breakaway``: one row per breakaway run (force NULL when the carriage never moved);
 - ``breakaway_summary``: mean and std per (direction, backpressure, force rate);
 - ``breakaway_findings``: the backpressure ratio and the force-rate slope with their CIs;
@@ -192,9 +196,13 @@ def run(ctx: StageContext) -> StageOutput:
     for adj, name, fig_no in (("distance", "leakage_distance", 9), ("force", "leakage_force", 10)):
         if not leak.empty and (leak["adjustment"] == adj).any():
             out.figures[name] = lk.plot_leakage_map(leak, adj, LEAK_THRESHOLD_L_MIN)
-            out.captions[name] = (f"Leak vs pressure with {adj} adjustment, one curve per setting, one panel "
-                                  f"per chamber (seed 000, Fig. {fig_no}); dashed: seal threshold "
-                                  f"{LEAK_THRESHOLD_L_MIN:g} l/min ANR.")
+            sub = env[env["adjustment"] == adj]
+            fallback = bool((sub["runs_used"] == lk.RUNS_HOSE_CHECKS).any())
+            out.captions[name] = (f"Leak vs pressure with {adj} adjustment, one curve per setting from its "
+                                  f"characterisation runs (hose checks left out), one panel per chamber "
+                                  f"(seed 000, Fig. {fig_no}); dotted: seal threshold {LEAK_THRESHOLD_L_MIN:g} "
+                                  f"l/min ANR" + ("; dashed, hollow: settings with only hose-check runs."
+                                                  if fallback else "."))
     if brk["breakaway_force_n"].notna().any():
         out.figures["breakaway"] = bk.plot_breakaway(brk)
         out.captions["breakaway"] = ("Breakaway force vs backpressure, one series per force rate, directions P "

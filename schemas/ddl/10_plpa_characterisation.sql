@@ -63,9 +63,10 @@ CREATE TABLE viscous_fits (
     min_speed_m_s     DOUBLE              -- slower points left out of the fit
 );
 
--- Seal envelope per roller setting: highest tested pressure with leak below threshold.
+-- Seal envelope per roller setting: highest tested pressure with leak below threshold, from the
+-- setting's characterisation runs (runs naming no hose_id); a setting with only hose checks
+-- (runs naming a hose_id) falls back to them (runs_used = 'hose_checks'). analyses/leakage.py.
 CREATE TABLE seal_envelope (
-    hose_id           VARCHAR,
     chamber           VARCHAR,
     adjustment        VARCHAR,
     z_rollers_mm      DOUBLE,
@@ -77,7 +78,9 @@ CREATE TABLE seal_envelope (
     max_tested_bar    DOUBLE,
     sealed_at_max     BOOLEAN,
     max_leak_l_min    DOUBLE,
-    n_pressures       BIGINT
+    n_pressures       BIGINT,
+    runs_used         VARCHAR,            -- characterisation / hose_checks (no characterisation run)
+    n_runs            BIGINT
 );
 
 -- Section 3.2.1 findings as numbers: backpressure_ratio (0 bar / >= 1 bar) and
@@ -110,3 +113,47 @@ CREATE TABLE viscous_transition (
     stribeck_p_value          DOUBLE,
     stribeck_dip              BOOLEAN
 );
+
+-- The seal envelope at any leak threshold [l/min ANR], computed from leakage_map like the
+-- seal_envelope table (same columns, same characterisation-run rule, same 0.1 bar nominal
+-- pressures, repeat runs averaged per nominal pressure):
+--     SELECT * FROM seal_envelope_at(0.1);
+-- Created after leakage_map; macros are bound when called, so it sees the loaded data.
+CREATE MACRO seal_envelope_at(leak_threshold) AS TABLE
+WITH m AS (
+    SELECT run_id, chamber, adjustment, z_rollers_mm, spring_force_n, leak_l_min,
+           CAST(leak_threshold AS DOUBLE) AS threshold_l_min,
+           round_even(pressure_bar / 0.1::DOUBLE, 0) * 0.1::DOUBLE AS nominal_bar,
+           coalesce(hose_id, '') <> '' AS hose_check
+    FROM leakage_map
+    WHERE pressure_bar IS NOT NULL AND leak_l_min IS NOT NULL AND NOT isnan(pressure_bar) AND NOT isnan(leak_l_min)
+),
+used AS (   -- characterisation runs; hose checks only for a setting that has nothing else
+    SELECT * FROM m
+    QUALIFY NOT hose_check
+         OR bool_and(hose_check) OVER (PARTITION BY chamber, adjustment, z_rollers_mm, spring_force_n)
+),
+levels AS ( -- leak per tested (nominal) pressure, repeat runs averaged
+    SELECT *, avg(leak_l_min) OVER (PARTITION BY chamber, adjustment, z_rollers_mm, spring_force_n, nominal_bar)
+              AS level_leak_l_min
+    FROM used
+),
+first AS (
+    SELECT *, min(CASE WHEN level_leak_l_min >= threshold_l_min THEN nominal_bar END)
+              OVER (PARTITION BY chamber, adjustment, z_rollers_mm, spring_force_n) AS first_leak_bar
+    FROM levels
+)
+SELECT chamber, adjustment, z_rollers_mm, spring_force_n,
+       100.0::DOUBLE * spring_force_n / 1300.0::DOUBLE AS spring_force_pct,
+       any_value(threshold_l_min) AS threshold_l_min,
+       max(CASE WHEN first_leak_bar IS NULL OR nominal_bar < first_leak_bar THEN nominal_bar END) AS sealed_up_to_bar,
+       any_value(first_leak_bar) AS first_leak_bar,
+       max(nominal_bar) AS max_tested_bar,
+       any_value(first_leak_bar) IS NULL AS sealed_at_max,
+       max(level_leak_l_min) AS max_leak_l_min,
+       count(DISTINCT nominal_bar) AS n_pressures,
+       CASE WHEN bool_and(hose_check) THEN 'hose_checks' ELSE 'characterisation' END AS runs_used,
+       count(DISTINCT run_id) AS n_runs
+FROM first
+GROUP BY chamber, adjustment, z_rollers_mm, spring_force_n
+ORDER BY chamber, adjustment, z_rollers_mm, spring_force_n;

@@ -3,8 +3,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from analyses.leakage import (find_pressure_plateaus, leakage_plateaus, leakage_power_law, plot_leakage_map,
-                              seal_envelope)
+from analyses.leakage import (characterisation_rows, find_pressure_plateaus, is_hose_check, leakage_plateaus,
+                              leakage_power_law, plot_leakage_map, seal_envelope)
 from schemas.units import L_MIN_M3_S, RHO_ANR_KG_M3
 
 KG_S_PER_L_MIN = L_MIN_M3_S * RHO_ANR_KG_M3
@@ -113,6 +113,11 @@ def test_simulated_force_settings_give_the_papers_conclusions():
     assert env["sealed_at_max"].tolist() == [False, True, True]
 
 
+def _curves(ax):
+    """The setting curves of a panel (the threshold line has no marker)."""
+    return [ln for ln in ax.get_lines() if ln.get_marker() not in (None, "None", "")]
+
+
 def test_figure_has_one_panel_per_chamber_and_one_curve_per_setting():
     rows = [("r", None, ch, "distance", z, None, float(p), max(0.0, p - 8 + z)) for ch in "AB"
             for z in (3.0, 4.5, 6.0) for p in range(7)]
@@ -120,7 +125,9 @@ def test_figure_has_one_panel_per_chamber_and_one_curve_per_setting():
     a, b = fig.axes
     assert a.get_title() == "(a) chamber A" and b.get_title() == "(b) chamber B"
     assert "[bar]" in a.get_xlabel() and "[l/min ANR]" in a.get_ylabel()
-    assert len([ln for ln in a.get_lines() if ln.get_marker() == "o"]) == 3
+    curves = _curves(a)
+    assert len(curves) == 3 and len({ln.get_marker() for ln in curves}) == 3      # each visible on the zero line
+    assert all(ln.get_markerfacecolor() == "none" for ln in curves)
     labels = [t.get_text() for t in fig.legends[0].get_texts()]
     assert labels[:3] == ["z = 3.0 mm", "z = 4.5 mm", "z = 6.0 mm"]
 
@@ -131,3 +138,69 @@ def test_legend_lists_settings_of_both_panels():
     fig = plot_leakage_map(_map(rows), "force")
     labels = [t.get_text() for t in fig.legends[0].get_texts()]
     assert labels == ["F = 429 N (33 %)", "F = 858 N (66 %)", "threshold 0.05 l/min"]
+
+
+def _with_worn_check(extra=()):
+    """z = 4.0 mm in chamber A: a sealed characterisation run and a worn-hose check leaking from 3 bar."""
+    rows = [("char", None, "A", "distance", 4.0, None, float(p), 0.0) for p in range(7)]
+    rows += [("durability-2026/check-H104-00", "H104", "A", "distance", 4.0, None, float(p),
+              [0.0, 0.0, 0.0, 0.2, 0.5, 1.0, 1.8][p]) for p in range(7)]
+    return _map(rows + list(extra))
+
+
+def test_hose_check_does_not_change_the_setting_envelope():
+    both = _with_worn_check()
+    char_only = both[both["hose_id"].isna()]
+    env = seal_envelope(both)
+    assert len(env) == 1 and "hose_id" not in env.columns
+    r = env.iloc[0]
+    # averaged with the worn hose it would leak from 3 bar (0.1 l/min) and peak at 0.9 l/min
+    assert (r["sealed_up_to_bar"], r["sealed_at_max"], r["max_leak_l_min"]) == (6.0, True, 0.0)
+    assert (r["runs_used"], r["n_runs"]) == ("characterisation", 1)
+    pd.testing.assert_frame_equal(env, seal_envelope(char_only))
+    # without the rule the check would count (the per-hose envelope stays available)
+    mixed = seal_envelope(both, characterisation_only=False).iloc[0]
+    assert (mixed["first_leak_bar"], mixed["max_leak_l_min"], mixed["runs_used"]) == (3.0, 0.9, "mixed")
+    per_hose = seal_envelope(both, by=("hose_id", "chamber", "adjustment", "z_rollers_mm"),
+                             characterisation_only=False).set_index("hose_id")
+    assert per_hose.loc["H104", "sealed_up_to_bar"] == 2.0
+
+
+def test_setting_with_only_hose_checks_falls_back_to_them():
+    only = [("check-H1-00", "H1", "B", "force", None, 429.0, float(p), [0.0, 0.0, 0.3][p]) for p in range(3)]
+    only += [("check-H2-00", "H2", "B", "force", None, 429.0, float(p), [0.0, 0.1, 0.5][p]) for p in range(3)]
+    rows = _with_worn_check(only)
+    sel = characterisation_rows(rows)
+    assert sorted(sel["run_id"].unique()) == ["char", "check-H1-00", "check-H2-00"]
+    env = seal_envelope(rows).set_index("chamber")
+    b = env.loc["B"]
+    # levels 0, 0.05, 0.4: 0.05 >= threshold, so sealed up to 0 bar, first leak at 1 bar
+    assert (b["sealed_up_to_bar"], b["first_leak_bar"], b["runs_used"], b["n_runs"]) == (0.0, 1.0, "hose_checks", 2)
+    assert b["max_leak_l_min"] == pytest.approx(0.4)
+    assert env.loc["A", "runs_used"] == "characterisation"
+
+
+def test_empty_hose_id_is_a_characterisation_run():
+    rows = _map([("r", "", "A", "force", None, 858.0, 1.0, 0.0), ("c", "H9", "A", "force", None, 858.0, 1.0, 0.4)])
+    assert is_hose_check(rows).tolist() == [False, True]
+    assert seal_envelope(rows)["max_leak_l_min"].item() == 0.0
+
+
+def test_figure_curve_ignores_worn_hose_checks():
+    fig = plot_leakage_map(_with_worn_check(), "distance")
+    a, b = fig.axes
+    (line,) = _curves(a)
+    assert line.get_ydata().tolist() == [0.0] * 7 and line.get_linestyle() == "-"
+    assert [t.get_text() for t in fig.legends[0].get_texts()][0] == "z = 4.0 mm"
+
+
+def test_figure_marks_a_setting_with_only_hose_checks():
+    rows = [("c", "H7", "B", "distance", 5.0, None, float(p), 0.1 * p) for p in range(7)]
+    rows += [("r", None, "A", "distance", 5.0, None, float(p), 0.0) for p in range(7)]
+    fig = plot_leakage_map(_map(rows), "distance")
+    a, b = fig.axes
+    (la,), (lb,) = _curves(a), _curves(b)
+    assert la.get_linestyle() == "-" and lb.get_linestyle() == "--"
+    assert lb.get_ydata() == pytest.approx([0.1 * p for p in range(7)])
+    labels = [t.get_text() for t in fig.legends[0].get_texts()]
+    assert labels[:2] == ["z = 5.0 mm", "z = 5.0 mm (hose checks)"]

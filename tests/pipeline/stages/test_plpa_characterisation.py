@@ -94,7 +94,11 @@ def built(tmp_path_factory):
 
     for i, (adj, z, f) in enumerate([("distance", 3.0, None), ("distance", 6.0, None), ("force", None, 429.0),
                                      ("force", None, 858.0)]):
-        add(simulate_leakage("A" if i % 2 else "B", adj, z, f, rng=i, hose_id="H1"), f"leak{i}")
+        add(simulate_leakage("A" if i % 2 else "B", adj, z, f, rng=i), f"leak{i}")
+    # a check on a worn hose at the setting of leak3 (A, 858 N): leaks from 2 bar; and a setting
+    # (B, 1300 N) tested only by a hose check
+    add(simulate_leakage("A", "force", None, 858.0, rng=7, hose_id="H1", p_seal_bar=2.0), "check-H1-00")
+    add(simulate_leakage("B", "force", None, 1300.0, rng=8, hose_id="H2", p_seal_bar=4.0), "check-H2-00")
     seed = 50
     for d in "PN":
         for bp in (0.0, 1.0, 2.0):
@@ -136,10 +140,81 @@ def test_leakage_map_recovers_leak_per_plateau(built):
         err = np.abs(g["leak_l_min"].to_numpy() - tr["leak_l_min"].to_numpy())
         assert np.all((err <= 0.05) | (err <= 0.05 * tr["leak_l_min"].to_numpy())), run_id
         assert np.allclose(g["pressure_bar"], tr["pressure_bar"], atol=0.02)
-        assert (g["hose_id"] == "H1").all()
-    env = q(wh, "SELECT spring_force_pct, sealed_up_to_bar FROM seal_envelope WHERE adjustment = 'force' "
-                "ORDER BY spring_force_n")
-    assert env.values.tolist() == [[33.0, 5.0], [66.0, 6.0]]   # the paper's conclusions, a query away
+        hose = {"sim/check-H1-00": "H1", "sim/check-H2-00": "H2"}.get(run_id)
+        assert (g["hose_id"] == hose).all() if hose else g["hose_id"].isna().all()
+    env = q(wh, "SELECT chamber, spring_force_pct, sealed_up_to_bar, runs_used, n_runs FROM seal_envelope "
+                "WHERE adjustment = 'force' ORDER BY spring_force_n")
+    # the paper's conclusions, a query away; the worn hose H1 (leaking from 2 bar at 66 %) is
+    # not the 66 % setting; the 100 % setting in chamber B has only H2's check (sealed to 4 bar)
+    assert env.values.tolist() == [["B", 33.0, 5.0, "characterisation", 1], ["A", 66.0, 6.0, "characterisation", 1],
+                                   ["B", 100.0, 4.0, "hose_checks", 1]]
+
+
+def test_hose_checks_stay_in_leakage_map_and_feed_the_leak_growth(built):
+    wh, _, _ = built
+    lm = q(wh, "SELECT coalesce(hose_id, '-') AS hose, count(*) AS n, max(leak_l_min) AS worst FROM leakage_map "
+               "GROUP BY ALL ORDER BY ALL")
+    assert lm["hose"].tolist() == ["-", "H1", "H2"] and lm["n"].tolist() == [28, 7, 7]
+    lm = lm.set_index("hose")
+    assert lm.loc["H1", "worst"] > 1.0                       # the worn hose leaks ...
+    env = q(wh, "SELECT max_leak_l_min FROM seal_envelope WHERE spring_force_n = 858")
+    assert env["max_leak_l_min"].item() < 0.05               # ... its setting does not
+    growth = q(wh, "SELECT hose_id, count(*) AS n FROM hose_leak_growth GROUP BY ALL ORDER BY ALL")
+    assert growth.values.tolist() == [["H1", 7], ["H2", 7]]
+
+
+def _table(wh, sql):
+    return q(wh, sql).sort_values(["chamber", "adjustment", "z_rollers_mm", "spring_force_n"], ignore_index=True)
+
+
+def test_seal_envelope_macro_at_the_default_threshold_is_the_table(built):
+    from pipeline.warehouse import table_columns
+
+    wh, _, _ = built
+    con = duckdb.connect(str(wh / "pneubench.duckdb"), read_only=True)
+    try:
+        cols = table_columns(con, "seal_envelope")
+        macro_cols = [d[0] for d in con.execute("SELECT * FROM seal_envelope_at(0.05) LIMIT 0").description]
+    finally:
+        con.close()
+    assert macro_cols == cols
+    table, macro = _table(wh, "SELECT * FROM seal_envelope"), _table(wh, "SELECT * FROM seal_envelope_at(0.05)")
+    assert len(table) == 5
+    pd.testing.assert_frame_equal(macro, table, check_dtype=False)
+
+
+def test_seal_envelope_macro_hand_checked_at_another_threshold():
+    from analyses.leakage import seal_envelope
+    from schemas import ddl_statements
+
+    rows = pd.DataFrame(
+        [("c1", None, "A", "force", None, 429.0, p + 0.01, q) for p, q in zip(range(4), [0.0, 0.06, 0.12, 0.3])]
+        + [("c2", None, "A", "force", None, 429.0, p - 0.01, q) for p, q in zip(range(4), [0.0, 0.08, 0.2, 0.5])]
+        + [("w", "H5", "A", "force", None, 429.0, float(p), 5.0) for p in range(4)]        # worn hose: ignored
+        + [("h", "H6", "B", "distance", 5.0, None, float(p), q) for p, q in zip(range(3), [0.2, 0.3, 0.4])],
+        columns=["run_id", "hose_id", "chamber", "adjustment", "z_rollers_mm", "spring_force_n", "pressure_bar",
+                 "leak_l_min"])
+    con = duckdb.connect()
+    try:
+        for _name, sql in ddl_statements():
+            con.execute(sql)
+        con.register("_rows", rows)
+        con.execute("INSERT INTO leakage_map BY NAME SELECT * FROM _rows")
+        got = con.execute("SELECT * FROM seal_envelope_at(0.1) ORDER BY chamber").df()
+    finally:
+        con.close()
+    # A, 429 N: levels (c1 + c2) / 2 = 0, 0.07, 0.16, 0.4 -> sealed up to 1 bar, first leak at 2 bar
+    a = got.iloc[0]
+    assert (a["sealed_up_to_bar"], a["first_leak_bar"], a["max_tested_bar"], a["sealed_at_max"]) == (1.0, 2.0, 3.0, False)
+    assert (a["max_leak_l_min"], a["n_pressures"], a["runs_used"], a["n_runs"]) == (pytest.approx(0.4), 4,
+                                                                                     "characterisation", 2)
+    assert (a["spring_force_pct"], a["threshold_l_min"]) == (pytest.approx(33.0), 0.1)
+    # B, 5 mm: only a hose check, leaking from the lowest pressure
+    b = got.iloc[1]
+    assert pd.isna(b["sealed_up_to_bar"]) and (b["first_leak_bar"], b["runs_used"]) == (0.0, "hose_checks")
+    # and the same as the analysis function at that threshold
+    mine = seal_envelope(rows, threshold_l_min=0.1)
+    pd.testing.assert_frame_equal(got, mine[got.columns], check_dtype=False)
 
 
 def test_breakaway_recovered_and_never_moving_run_is_null_with_warning(built):
