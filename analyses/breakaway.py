@@ -23,7 +23,14 @@ away, so a single count of motion is not evidence of breakaway. The detector
 3. walks back from there along the monotone rise to the *first departure*: the last sample at
    which the position was still at its pre-motion level. The walk stops where the position was
    not rising (a count back, i.e. creep dither), where it had been flat for longer than
-   ``flat_s`` (the creep level before breakaway), or at the baseline.
+   ``flat_s`` (the creep level before breakaway), or at the baseline. Within a flat stretch a
+   lone sample one count off the level (encoder dither) does not end the stretch.
+
+Limits: pre-sliding creep must stay below the gross-motion threshold (``threshold_counts`` = 4
+counts = 20 um by default); creep of 20 um or more is taken for the breakaway itself and the
+onset comes too early (tested: creep of 2 counts = 10 um with dither and pressure noise is
+found to the sample). A creep level of one count that dithers down to the baseline looks like
+the baseline: the onset can then be up to ``flat_s`` early.
 
 The breakaway force is then read at that instant from a straight line fitted to the force over
 the ``fit_s`` seconds before it (the force is a ramp), which averages out the pressure noise
@@ -115,17 +122,20 @@ def detect_motion_onset(t_s, x_m, direction: str | None = None, *, resolution_m:
     j = i_c
     flat_since = None
     while j > 0:
-        prev, cur = d[j - 1], d[j]
+        prev = d[j - 1]
         if prev <= half:  # back at the baseline: j - 1 is the last sample there
             return int(j - 1)
-        if prev > cur + half:  # a count back (creep dither): j is the pre-motion level
-            return int(j)
-        if abs(prev - cur) <= half:  # flat
+        level = d[j] if flat_since is None else d[flat_since]
+        dither = (flat_since is not None and j >= 2 and abs(prev - level) <= resolution_m + half
+                  and abs(d[j - 2] - level) <= half)
+        if abs(prev - level) <= half or dither:  # flat (a lone sample one count off is encoder dither)
             if flat_since is None:
                 flat_since = j
             if t[flat_since] - t[j - 1] > flat_s:  # the creep level held before breakaway
                 return int(flat_since)
-        else:
+        elif prev > level + half:  # back above the level: the pre-motion level ends here
+            return int(j if flat_since is None else flat_since)
+        else:  # lower: still on the rise
             flat_since = None
         j -= 1
     return 0

@@ -44,6 +44,40 @@ def test_glitches_and_creep_are_not_motion_and_direction_matters():
     assert detect_motion_onset(t, x, "N") == 300
 
 
+def test_creep_of_two_counts_with_dither_and_pressure_noise_hand_checked():
+    """2 N/s from t = 1 s; creep of 1 count at 2 s and 2 counts (10 um) at 3 s with lone dither
+    samples (3 counts at 3.95 s, 1 count at 3.5 s and 3.97 s); breakaway at 4 s (F = 6 N), then
+    2 counts per ms; 300 Pa noise on each pressure.
+
+    By hand: gross motion (> 4 counts) first at 4.002 s (6 counts); the walk back passes 4.001 s
+    (4 counts) to 4.000 s, then along the 2-count level through the lone dither samples; that
+    level is held for more than flat_s = 0.1 s, so the onset is 4.000 s, the last sample at the
+    creep level. (Stopping at the 3-count dither would put it 50 ms early, 0.1 N low.)
+    """
+    area = 4.9e-4
+    rng = np.random.default_rng(7)
+    t = np.round(np.arange(0, 5.0, DT), 9)
+    counts = np.where(t >= 3.0, 2, np.where(t >= 2.0, 1, 0)).astype(float)
+    for at, c in ((3.5, 1), (3.95, 3), (3.97, 1)):
+        counts[int(round(at / DT))] = c
+    counts = np.where(t > 4.0, 2 + 2 * np.round((t - 4.0) / DT), counts)
+    x = 0.2 + counts * RES
+    assert detect_motion_onset(t, x, "P") == 4000
+    force = np.clip(t - 1.0, 0, None) * 2.0
+    bp = 1e5
+    p_a = bp + force / area + rng.normal(0, 300.0, t.size)
+    p_b = bp + rng.normal(0, 300.0, t.size)
+    res = breakaway_force(t, x, p_a, p_b, area, "P")
+    assert res["onset_t_s"] == pytest.approx(4.0, abs=1e-9)
+    # line fit over 250 samples of 0.2 N noise: a few hundredths of a newton
+    assert res["breakaway_force_n"] == pytest.approx(6.0, abs=0.05)
+    assert res["measured_rate_n_s"] == pytest.approx(2.0, rel=0.1)
+    # N: the mirror image
+    res = breakaway_force(t, 0.2 - counts * RES, p_b, p_a, area, "N")
+    assert res["onset_t_s"] == pytest.approx(4.0, abs=1e-9)
+    assert res["breakaway_force_n"] == pytest.approx(6.0, abs=0.05)
+
+
 def test_force_at_onset_and_sign_convention_hand_checked():
     area = 4.9e-4
     t = np.arange(0, 6.0, DT)
