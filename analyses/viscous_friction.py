@@ -464,25 +464,42 @@ def viscous_transition(points: pd.DataFrame, near_zero_max_m_s: float = NEAR_ZER
     return pd.DataFrame(rows, columns=cols)
 
 
+#: Marker and fit line style per backpressure series (in backpressure order), so that series with
+#: the same friction (e.g. 1, 2 and 3 bar) stay visible on top of each other.
+SERIES_MARKERS = ("o", "s", "^", "D", "v", "P", "X", "<", ">")
+SERIES_LINESTYLES = ("-", "--", ":", "-.")
+
+
+def _series_style(i: int, n: int) -> dict:
+    import matplotlib
+
+    return {"color": matplotlib.colormaps["viridis"](0.85 * i / max(1, n - 1)),
+            "marker": SERIES_MARKERS[i % len(SERIES_MARKERS)], "ls": SERIES_LINESTYLES[i % len(SERIES_LINESTYLES)],
+            "ms": 5 + 1.5 * (i % 4)}
+
+
 def plot_viscous(points: pd.DataFrame, fits: pd.DataFrame | None = None):
     """Friction vs velocity per backpressure, like Fig. 13 of seed 000 (with the fitted lines).
+
+    Every backpressure has its own hollow marker (growing in size) and fit line style, so series
+    with the same friction remain visible where they overlap.
 
     Returns
     -------
     matplotlib.figure.Figure
     """
-    import matplotlib
     from matplotlib.figure import Figure
+    from matplotlib.lines import Line2D
 
     fig = Figure(figsize=(7.5, 5))
     ax = fig.subplots()
     df = points.dropna(subset=["velocity_m_s", "friction_n", "backpressure_bar"])
     bps = sorted(df["backpressure_bar"].unique())
-    cmap = matplotlib.colormaps["viridis"]
+    handles = []
     for i, bp in enumerate(bps):
-        color = cmap(0.85 * i / max(1, len(bps) - 1))
+        st = _series_style(i, len(bps))
         g = df[df["backpressure_bar"] == bp]
-        ax.plot(g["velocity_m_s"], g["friction_n"], "o", ms=4, color=color, alpha=0.8, label=f"BP = {bp:g} bar")
+        fitted = False
         if fits is not None and not fits.empty:
             for _, r in fits[(fits["backpressure_bar"] == bp)].iterrows():
                 if r["coulomb_n"] is None or pd.isna(r["coulomb_n"]):
@@ -492,15 +509,20 @@ def plot_viscous(points: pd.DataFrame, fits: pd.DataFrame | None = None):
                     continue
                 vmax = g.loc[sel, "velocity_m_s"].abs().max()
                 vv = np.linspace(r["min_speed_m_s"], vmax, 50) * (1 if r["direction"] == "P" else -1)
-                ax.plot(vv, coulomb_viscous(vv, r["coulomb_n"], r["viscous_n_s_m"]), "-", lw=1, color=color)
+                ax.plot(vv, coulomb_viscous(vv, r["coulomb_n"], r["viscous_n_s_m"]), ls=st["ls"], lw=1.2,
+                        color=st["color"], zorder=2)
+                fitted = True
+        marker = {"marker": st["marker"], "ms": st["ms"], "mfc": "none", "mew": 1.3, "color": st["color"]}
+        ax.plot(g["velocity_m_s"], g["friction_n"], ls="none", zorder=3, label=f"BP = {bp:g} bar", **marker)
+        handles.append(Line2D([], [], ls=st["ls"] if fitted else "none", lw=1.2, label=f"BP = {bp:g} bar", **marker))
     ax.axhline(0, color="0.6", lw=0.6)
     ax.axvline(0, color="0.6", lw=0.6)
     ax.set_xlabel("velocity [m/s]")
     ax.set_ylabel("friction force (drive force at constant v) [N]")
     ax.set_title("Viscous friction at different backpressures (lines: Coulomb + viscous fits)")
     ax.grid(True, alpha=0.3)
-    if bps:
-        ax.legend(fontsize=8, loc="upper left")
+    if bps:  # the upper-left quadrant (v < 0, F > 0) holds no data
+        ax.legend(handles=handles, fontsize=8, loc="upper left", handlelength=3)
     fig.tight_layout()
     return fig
 

@@ -21,7 +21,32 @@ def _trapezoid(v=0.1, acc=1.0, cruise_s=2.0, rest_s=1.0, fs=1000.0):
     return t, x, (t2, t3)
 
 
-def test_one_pass_inside_the_cruise_hand_checked():
+def test_pass_samples_hand_checked():
+    """100 Hz, 5 um counts: 10 samples at rest, increments 1, 2, 3 counts, 44 x 4 counts, 3, 2, 1, rest.
+
+    By hand (docstring criteria), stroke = samples 9..59 (local k = 0..50, first move 9 -> 10),
+    duration 0.5 s, travel 188 counts, v_m = 1.88 mm/s. Window w = max(0.12 * 0.5 s,
+    20 counts / v_m = 0.053 s, 5 dt) = 0.06 s, so h = 3 samples. Velocity over [k-3, k+3]:
+    4 counts/sample for k = 6..44; 3, 3.5, 3.83 at k = 3, 4, 5 (and 3.83, 3.5, 3 at k = 45, 46, 47).
+    Centre k is steady when the windows [k-6, k] and [k, k+6] (vc at k-3, k+3) agree within
+    0.02 |v| + 3 counts / 6 samples (about 0.58 counts/sample): k = 6 (3 vs 4) is not, k = 7
+    (3.5 vs 4) is, ..., k = 43 is, k = 44 (4 vs 3) is not. Pass: k = 7..43 -> samples [16, 53),
+    0.36 s >= 3 w and 144 counts >= 20: kept. Velocity 4 counts / 10 ms = 2 mm/s exactly.
+    """
+    d = [1, 2, 3] + [4] * 44 + [3, 2, 1]
+    counts = np.concatenate([np.zeros(10), np.cumsum(d), np.full(10, sum(d))])
+    t = np.arange(counts.size) * 0.01
+    x = 0.3 + counts * 5e-6
+    assert find_constant_velocity_passes(t, x, window_fraction=0.12) == [(16, 53)]
+    assert find_constant_velocity_passes(t, 0.6 - x, window_fraction=0.12) == [(16, 53)]
+    force = np.where((np.arange(t.size) >= 16) & (np.arange(t.size) < 53), 5.0, 99.0)
+    pts = viscous_points(t, x, force, window_fraction=0.12)
+    assert (pts["t_start_s"].item(), pts["t_end_s"].item()) == (pytest.approx(0.16), pytest.approx(0.52))
+    assert (pts["n_samples"].item(), pts["friction_n"].item()) == (37, 5.0)
+    assert pts["velocity_m_s"].item() == pytest.approx(2e-3, rel=1e-9)
+
+
+def test_one_pass_inside_the_cruise_of_a_trapezoid():
     t, x, (c0, c1) = _trapezoid()
     passes = find_constant_velocity_passes(t, 0.3 + x)
     assert len(passes) == 1
@@ -129,3 +154,31 @@ def test_recovers_simulated_near_zero_transition_without_stribeck_dip():
     assert ax.get_xlabel() == "velocity [mm/s]" and "[N]" in ax.get_ylabel()
     fig = plot_viscous(pts, viscous_fits(pts))
     assert fig.axes[0].get_xlabel() == "velocity [m/s]"
+
+
+def test_fig13_series_with_identical_friction_stay_distinguishable():
+    # 1, 2 and 3 bar with the same friction: the points coincide, so each series needs its own
+    # hollow marker (and fit line style) to be seen under the others
+    v = np.array([-0.4, -0.2, -0.05, 0.05, 0.2, 0.4])
+    rows = [{"backpressure_bar": bp, "velocity_m_s": vv,
+             "friction_n": float(coulomb_viscous(vv, 3.5 if bp else 3.0, 28.0))}
+            for bp in (0.0, 1.0, 2.0, 3.0) for vv in v]
+    pts = pd.DataFrame(rows).assign(direction=lambda d: np.where(d["velocity_m_s"] > 0, "P", "N"))
+    fig = plot_viscous(pts, viscous_fits(pts))
+    ax = fig.axes[0]
+    series = [ln for ln in ax.get_lines() if ln.get_linestyle() == "None"]
+    assert [ln.get_label() for ln in series] == [f"BP = {bp:g} bar" for bp in (0, 1, 2, 3)]
+    assert len({ln.get_marker() for ln in series}) == 4
+    assert all(ln.get_markerfacecolor() == "none" for ln in series)
+    fit_styles = {ln.get_linestyle() for ln in ax.get_lines()
+                  if ln.get_linestyle() != "None" and len(ln.get_xdata()) == 50}
+    assert len(fit_styles) == 4
+    legend = ax.get_legend()
+    assert [t.get_text() for t in legend.get_texts()] == [ln.get_label() for ln in series]
+    # the legend sits in the empty quadrant (v < 0, F > 0): no data point inside its box
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    FigureCanvasAgg(fig).draw()
+    box = legend.get_window_extent()
+    xy = ax.transData.transform(pts[["velocity_m_s", "friction_n"]].to_numpy())
+    assert not any(box.contains(x, y) for x, y in xy)
