@@ -342,6 +342,10 @@ def _figure(size=(7.0, 4.5)):
 def plot_weibull_probability(groups: dict, unit: str = "km"):
     """Weibull probability plot: failures at their plotting positions, suspensions as ticks.
 
+    Suspensions are drawn as ``|`` ticks in a strip below the lowest plotted failure, one row per
+    group (so that equal lives of two groups do not hide each other); fitted lines stop at the
+    strip. The legend is placed below the axes, where it covers no data.
+
     Parameters
     ----------
     groups : dict of str to (life, failed)
@@ -353,16 +357,20 @@ def plot_weibull_probability(groups: dict, unit: str = "km"):
     -------
     matplotlib.figure.Figure
     """
-    fig, ax = _figure()
+    fig, ax = _figure(size=(7.0, 5.5))
     ticks = [0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.3, 0.5, 0.632, 0.8, 0.9, 0.95, 0.99]
     lin = lambda F: np.log(-np.log1p(-np.asarray(F, float)))  # noqa: E731
     all_x = []
     lowest = lin(ticks[0])
-    for name in groups:
+    names = [name for name in sorted(groups) if len(_as_arrays(*groups[name])[0])]
+    for name in names:
         pp = weibull_plotting_positions(*_as_arrays(*groups[name]))
         if len(pp):
             lowest = min(lowest, float(lin(pp["F"].min())))
-    sus_y = lowest - 0.35
+    strip_top = lowest - 0.3          # separator between the probability scale and the strip
+    with_sus = [name for name in names if (~_as_arrays(*groups[name])[1]).any()]
+    row = {name: strip_top - 0.4 * (j + 1) for j, name in enumerate(with_sus)}
+    strip_bottom = strip_top - 0.4 * (len(with_sus) + 1) if with_sus else strip_top
     for i, name in enumerate(sorted(groups)):
         life, failed = _as_arrays(*groups[name])
         if len(life) == 0:
@@ -377,23 +385,29 @@ def plot_weibull_probability(groups: dict, unit: str = "km"):
         ax.plot(pp["life"], lin(pp["F"]), "o", color=color, label=label)
         sus = life[~failed]
         if len(sus):
-            ax.plot(sus, np.full(len(sus), sus_y), marker="|", ls="none", ms=14, color=color,
-                    label=f"{name}: suspensions ({len(sus)})")
+            ax.plot(sus, np.full(len(sus), row[name]), marker="|", ls="none", ms=16, mew=2.5, color=color,
+                    label=f"{name}: suspensions ({len(sus)})", gid="suspensions")
         if fit.ok:
             xs = np.geomspace(max(life.min() / 3, 1e-9), life.max() * 3, 100)
-            ax.plot(xs, fit.shape * np.log(xs / fit.scale), "-", color=color, lw=1)
+            ys = fit.shape * np.log(xs / fit.scale)
+            ax.plot(xs, np.where(ys >= strip_top, ys, np.nan), "-", color=color, lw=1)
     if all_x:
         x = np.concatenate(all_x)
         ax.set_xlim(x.min() / 2, x.max() * 2)
     ax.set_xscale("log")
     ax.set_yticks(lin(ticks), [f"{100 * t:g}" for t in ticks])
-    ax.axhline(sus_y + 0.2, color="grey", lw=0.5)
-    ax.set_ylim(sus_y - 0.2, lin(ticks[-1]) + 0.2)
+    ax.set_ylim(min(strip_bottom, strip_top - 0.2), lin(ticks[-1]) + 0.2)
+    if with_sus:
+        ax.axhline(strip_top, color="grey", lw=0.8)
+        ax.axhspan(strip_bottom, strip_top, color="0.93", zorder=0)
+        ax.text(0.005, strip_top - 0.05, "suspensions", transform=ax.get_yaxis_transform(), ha="left", va="top",
+                fontsize="x-small", color="0.35")
     ax.set_xlabel(f"life [{unit}]")
     ax.set_ylabel("fraction failed [%] (Weibull scale)")
     ax.set_title("Weibull probability plot (| = suspension)")
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize="small", loc="lower right")
+    if ax.get_legend_handles_labels()[0]:
+        fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", fontsize="small", ncols=1)
     return fig
 
 
@@ -428,6 +442,10 @@ def plot_kaplan_meier(groups: dict, unit: str = "km"):
 def plot_leak_growth(df: pd.DataFrame):
     """Leak versus hose distance, one line per hose (and chamber / pressure).
 
+    Each hose has its own colour and (hollow) marker shape; lines are dashed for distance-set
+    rollers, slightly transparent and thinner for each further hose, so that a series lying on
+    another stays visible. The legend is outside the axes.
+
     Parameters
     ----------
     df : DataFrame
@@ -438,12 +456,17 @@ def plot_leak_growth(df: pd.DataFrame):
     -------
     matplotlib.figure.Figure
     """
-    fig, ax = _figure()
+    fig, ax = _figure(size=(8.0, 4.5))
     styles = {"force": "-", "distance": "--"}
+    markers = ["o", "s", "^", "D", "v", "P", "X", "<", ">", "*"]
     for i, (hose, g) in enumerate(df.groupby("hose_id", sort=True)):
         g = g.sort_values("distance_km")
         adj = g["adjustment"].iloc[0] if "adjustment" in g else None
-        ax.plot(g["distance_km"], g["leak_l_min"], marker="o", ls=styles.get(adj, "-"), color=f"C{i % 10}",
+        # hollow markers of a shape per hose, translucent lines getting thinner hose by hose: a
+        # series lying on an earlier one still shows as a coloured edge and its own markers
+        ax.plot(g["distance_km"], g["leak_l_min"], marker=markers[i % len(markers)], ms=9 - 0.4 * min(i, 5),
+                mfc="none", mew=1.6, ls=styles.get(adj, "-"), lw=max(0.9, 2.6 - 0.3 * i), alpha=0.75,
+                color=f"C{i % 10}",
                 label=f"{hose}" + (f" ({adj})" if isinstance(adj, str) else ""))
     ax.set_xlabel("hose distance at the leakage run [km]")
     ax.set_ylabel("leak [l/min ANR]")
@@ -453,7 +476,7 @@ def plot_leak_growth(df: pd.DataFrame):
     ax.set_title(title + " (dashed: distance-set rollers)")
     ax.grid(True, alpha=0.3)
     if len(df):
-        ax.legend(fontsize="x-small", ncol=2)
+        fig.legend(*ax.get_legend_handles_labels(), loc="outside right upper", fontsize="small")
     return fig
 
 

@@ -129,3 +129,53 @@ def test_figures_mark_suspensions():
     fig = plot_leak_growth(pd.DataFrame({"hose_id": ["a", "a"], "distance_km": [0.0, 5.0], "leak_l_min": [0.1, 0.9],
                                          "adjustment": ["distance"] * 2, "pressure_bar": [6.0, 6.0]}))
     assert fig.axes[0].get_lines()[0].get_ydata().tolist() == [0.1, 0.9]
+
+
+def _drawn(fig):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    FigureCanvasAgg(fig)
+    fig.canvas.draw()
+    return fig.canvas.get_renderer()
+
+
+def test_weibull_legend_leaves_the_suspensions_and_failures_visible():
+    life, failed = fans()
+    fig = plot_weibull_probability({"force": (life, failed), "distance": (life * 2, failed)}, unit="1000 h")
+    ax = fig.axes[0]
+    renderer = _drawn(fig)
+    legends = fig.legends + ([ax.get_legend()] if ax.get_legend() else [])
+    assert len(legends) == 1
+    box = legends[0].get_window_extent(renderer)
+    sus = [ln for ln in ax.get_lines() if ln.get_label().endswith("suspensions (58)")]
+    assert len(sus) == 2
+    for ln in sus:
+        assert not box.overlaps(ln.get_window_extent(renderer))
+    # every point drawn (failures and suspension ticks) lies inside the axes and outside the legend
+    axes_box = ax.get_window_extent(renderer)
+    for ln in ax.get_lines():
+        if ln.get_marker() in ("o", "|"):
+            for x, y in ax.transData.transform(np.column_stack([ln.get_xdata(), ln.get_ydata()])):
+                assert axes_box.contains(x, y) and not box.contains(x, y)
+    # one row per group: equal lives of two groups do not hide each other
+    assert len({float(ln.get_ydata()[0]) for ln in sus}) == 2
+    assert all(len(set(map(float, ln.get_ydata()))) == 1 for ln in sus)
+
+
+def test_leak_growth_keeps_a_series_lying_on_another_visible():
+    import pandas as pd
+
+    same = {"distance_km": [0.0, 14.0], "leak_l_min": [1.4, 1.55], "adjustment": ["force"] * 2,
+            "pressure_bar": [6.0, 6.0]}
+    df = pd.concat([pd.DataFrame({"hose_id": h, **same}) for h in ("H102", "H106")], ignore_index=True)
+    fig = plot_leak_growth(df)
+    ax = fig.axes[0]
+    first, second = ax.get_lines()
+    assert first.get_marker() != second.get_marker()            # own marker shape per hose
+    assert first.get_markerfacecolor() == "none" == second.get_markerfacecolor()   # hollow: see through
+    assert first.get_linewidth() > second.get_linewidth()       # the earlier line shows as an edge
+    assert second.get_alpha() < 1
+    renderer = _drawn(fig)
+    legend = (fig.legends + [ax.get_legend()])[0]
+    assert [t.get_text() for t in legend.get_texts()] == ["H102 (force)", "H106 (force)"]
+    assert not legend.get_window_extent(renderer).overlaps(ax.get_window_extent(renderer))
