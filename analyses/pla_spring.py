@@ -555,10 +555,11 @@ def plot_loop_energy(table, fits: dict | None = None, title: str = ""):
     Returns
     -------
     matplotlib.figure.Figure
+        Two panels; each legend sits below its panel, where it covers no data.
     """
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(11, 4.5))
+    fig = Figure(figsize=(11, 5.5), layout="constrained")
     ax1, ax2 = fig.subplots(1, 2)
     colors = {"rear": "tab:blue", "front": "tab:orange"}
     markers = {3.0: "o", 5.0: "s", 7.0: "^"}
@@ -583,7 +584,8 @@ def plot_loop_energy(table, fits: dict | None = None, title: str = ""):
     ax2.set_ylim(bottom=0)
     for ax in (ax1, ax2):
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
+        if ax.get_legend_handles_labels()[0]:
+            # below the panel (constrained layout makes room): off the curves whatever the data
+            ax.legend(fontsize=7, ncols=2, loc="upper center", bbox_to_anchor=(0.5, -0.13))
     fig.suptitle(title or "PLA spring: energy dissipated per cycle (loop area)")
-    fig.tight_layout()
     return fig

@@ -150,4 +150,16 @@ def test_figures():
                           "amplitude_mm": [r.amplitude_m * 1e3 for r in runs],
                           "frequency_hz": [r.frequency_hz for r in runs],
                           "loop_energy_j": [r.loop_energy_j for r in runs]})
-    assert isinstance(plot_loop_energy(table, {"front": fit}), Figure)
+    fig = plot_loop_energy(table, {"front": fit})
+    assert isinstance(fig, Figure)
+    # each legend sits off its panel, so it hides no curve (the D = 7 mm lines at 2.5-4 Hz were)
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    FigureCanvasAgg(fig).draw()
+    renderer = fig.canvas.get_renderer()
+    for ax in fig.axes:
+        legend = ax.get_legend()
+        assert legend is not None and legend.get_texts()
+        box = legend.get_window_extent(renderer)
+        assert not box.overlaps(ax.get_window_extent(renderer))
+        assert all(not box.overlaps(other.get_window_extent(renderer)) for other in fig.axes)
