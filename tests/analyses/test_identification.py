@@ -98,6 +98,41 @@ def test_recovers_the_simulators_plant(plant, seed):
     assert len(res.x_m) == pytest.approx(truth["duration_s"] * 50, abs=2)
 
 
+def _velocity(x, i, fs):
+    """Central difference of the encoder position over 10 ms around sample(s) ``i``. [m/s]"""
+    half = int(round(0.005 * fs))
+    return (x[i + half] - x[i - half]) / (2 * half / fs)
+
+
+def _cut_mid_motion(run, search_s=(3.0, 4.0), off_grid=37):
+    """The run from a sample where the carriage moves fastest (and off the u_d hold grid)."""
+    d, fs = run.data, run.truth["fs_hz"]
+    x = d["x_m"].to_numpy()
+    cand = np.arange(int(search_s[0] * fs), int(search_s[1] * fs))
+    k = int(cand[np.argmax(np.abs(_velocity(x, cand, fs)))]) + off_grid
+    return d.iloc[k:].reset_index(drop=True), x, k
+
+
+@pytest.mark.parametrize("plant,seed", [({}, 11), (dict(wn=30.0, zeta=0.3, k=1.5, kp_v_m=3.0), 12)])
+def test_recovers_the_plant_from_a_run_cut_mid_motion(plant, seed):
+    # the log starts while the carriage moves: the initial state is not rest and is fitted
+    run = simulate_identification(seed, duration_s=17.0, **plant)
+    cut, x, k = _cut_mid_motion(run)
+    fs, truth = run.truth["fs_hz"], run.truth
+    assert abs(_velocity(x, k, fs)) > 0.2                    # precondition: well away from rest
+    res = identify_third_order(cut["t_s"], cut["x_m"], cut["u_d_v"], cut["x_ref_m"], truth["kp_v_m"],
+                               run.metadata["id_sample_rate_hz"])
+    assert res.ok, res.message
+    assert res.wn_rad_s == pytest.approx(truth["wn_rad_s"], rel=0.05)
+    assert res.zeta == pytest.approx(truth["zeta"], rel=0.05)
+    assert res.k_lin_m_v_s == pytest.approx(truth["k_lin_m_v_s"], rel=0.05)
+    assert res.fit_pct >= 90
+    # the fitted initial velocity is the carriage's at the first identification instant
+    j = k + int(round((res.t_s[0] - cut["t_s"][0]) * fs))
+    assert res.x0[1] == pytest.approx(_velocity(x, j, fs), rel=0.05)
+    assert abs(res.x0[1]) > 0.1
+
+
 def test_recovers_the_plant_with_extra_sensor_noise():
     run = simulate_identification(7, duration_s=20.0)
     d = run.data
