@@ -1,6 +1,7 @@
 """Stage models end to end: simulated identification, step, spring and pressure-step runs written as
 bench exports (mm, bar, bar(a), kN, mV...), rebuilt into a warehouse whose tables must recover the
-simulator's truth; runs that cannot be fitted give NULLs and a warning."""
+simulator's truth; runs that cannot be fitted (no excitation, no step, a still rod, a pressure run
+whose set-point never steps) give NULLs and a warning."""
 import itertools
 
 import numpy as np
@@ -51,6 +52,7 @@ def built(tmp_path_factory):
             units = {"p": "bar(a)"} if chamber == "front" else None
             add(f"spring_{chamber}_{i:02d}", simulate_spring(chamber, p0, amp, f, rng=100 + i, cycles=2.0), units)
         add(f"pstep_{chamber}", simulate_pressure_step(chamber, rng=7))
+    add("pstep_flat", simulate_pressure_step("rear", rng=8, levels_bar=(3.0,), hold_s=3.0))   # p_ref never moves
     still = simulate_spring("rear", 3.0, 5.0, 1.0, rng=1)
     still.data["d_m"] = 0.0
     add("spring_still", still)                                  # the rod never moves
@@ -156,6 +158,20 @@ def test_pressure_dynamics_recover_table2(built):
     expect = truth["sim/pstep_front"]["steps"]
     assert steps["direction"].tolist() == [s["direction"] for s in expect]
     assert steps["p_to_bar"].tolist() == pytest.approx([s["p_to_pa"] / 1e5 for s in expect])
+
+
+def test_pressure_step_run_without_a_step_gives_nulls_and_a_warning(built):
+    wh, _, summary = built
+    # the rebuild went through (stage run, nothing quarantined) and the run is in the warehouse
+    assert "models" in summary.stages_run and summary.exit_code == 0
+    got = q(wh, "SELECT r.run_id, s.direction, s.t_step_s, s.nrmse_pct FROM runs r "
+                "LEFT JOIN pressure_steps s USING (run_id) WHERE r.run_id = 'sim/pstep_flat'")
+    assert len(got) == 1 and got[["direction", "t_step_s", "nrmse_pct"]].isna().all(axis=None)
+    assert any("no set-point step" in w for w in _warnings(wh, "sim/pstep_flat"))
+    # and it does not enter the rear chamber's fit (the good run's 3 steps per direction)
+    rear = q(wh, "SELECT n_steps FROM pressure_dynamics WHERE chamber = 'rear'")
+    assert rear["n_steps"].tolist() == [3, 3]
+    assert not any("no set-point step" in w for w in _warnings(wh, "sim/pstep_rear"))
 
 
 def test_figures_are_written(built):
