@@ -2,7 +2,7 @@
 
 One command::
 
-    python -m benchmarks.bench_durability                  # 4 h at 1 kHz (14.4 M samples)
+    python -m benchmarks.bench_durability                  # a full-profile run: 10 km, ~8 h at 1 kHz (29 M samples)
     python -m benchmarks.bench_durability --hours 8 --fs 5000   # a 5 kHz logger
     python -m benchmarks.bench_durability --hours 0.5       # a quick look
 
@@ -34,15 +34,25 @@ from pathlib import Path
 DATA = Path(__file__).resolve().parent / "_data"
 
 
-def _plan(hours: float, fs: float):
+def full_profile_km() -> float:
+    """Distance of one durability run of the simulator's ``full`` profile [km] (10 km, ~8 h)."""
+    from pipeline.simulator.campaign import PROFILES
+
+    return PROFILES["full"].dur_run_km
+
+
+def _plan(hours: float | None, fs: float, km: float | None = None):
     from pipeline.simulator.durability import stroke_plan
 
+    if km is not None:
+        return stroke_plan(distance_m=km * 1e3, fs_hz=fs)
     return stroke_plan(duration_s=hours * 3600.0, fs_hz=fs)
 
 
-def make_run(hours: float, fs: float, jitter_um: float = 3.0) -> tuple[Path, dict]:
+def make_run(hours: float | None, fs: float, jitter_um: float = 3.0, km: float | None = None) -> tuple[Path, dict]:
     """The benchmark run's samples file (written once) and its truth.
 
+    ``km`` (whole strokes covering that distance) takes precedence over ``hours``.
     ``jitter_um``: Gaussian position noise added before the 5 um quantisation (the simulator's
     encoder is noise-free), so that the naive ``sum |dx|`` shows what noise does to it.
     """
@@ -52,8 +62,9 @@ def make_run(hours: float, fs: float, jitter_um: float = 3.0) -> tuple[Path, dic
 
     from pipeline.simulator.durability import iter_durability_chunks
 
-    plan = _plan(hours, fs)
-    path = DATA / f"durability_{hours:g}h_{fs:g}hz_{jitter_um:g}um.parquet"
+    plan = _plan(hours, fs, km)
+    size = f"{km:g}km" if km is not None else f"{hours:g}h"
+    path = DATA / f"durability_{size}_{fs:g}hz_{jitter_um:g}um.parquet"
     truth = {"distance_m": plan.distance_m, "strokes": plan.strokes, "n_samples": plan.n_samples}
     if path.is_file() and pq.ParquetFile(path).metadata.num_rows == plan.n_samples:
         return path, truth
@@ -139,7 +150,11 @@ def run_child(approach: str, path: Path) -> dict:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--hours", type=float, default=4.0, help="run length [h] (default 4)")
+    ap.add_argument("--hours", type=float, default=None,
+                    help="run length [h] (default: a full-profile run, see --km)")
+    ap.add_argument("--km", type=float, default=None,
+                    help="run length as distance [km] (default without --hours: the full profile's "
+                         "10 km run, ~8.06 h, 29 M samples at 1 kHz)")
     ap.add_argument("--fs", type=float, default=1000.0, help="sample rate [Hz] (default 1000)")
     ap.add_argument("--jitter-um", type=float, default=3.0,
                     help="position noise before the 5 um quantisation [um] (default 3)")
@@ -149,8 +164,10 @@ def main(argv=None) -> int:
     if args.worker:
         print(json.dumps(worker(*args.worker)))
         return 0
-    path, truth = make_run(args.hours, args.fs, args.jitter_um)
-    print(f"durability run: {args.hours:g} h at {args.fs:g} Hz, {truth['n_samples']:,} samples, "
+    km = args.km if args.km is not None or args.hours is not None else full_profile_km()
+    path, truth = make_run(args.hours, args.fs, args.jitter_um, km)
+    hours = (truth["n_samples"] - 1) / args.fs / 3600.0
+    print(f"durability run: {hours:.2f} h at {args.fs:g} Hz, {truth['n_samples']:,} samples, "
           f"{truth['strokes']:,} strokes, {truth['distance_m'] / 1e3:.3f} km true, {args.jitter_um:g} um jitter, "
           f"{path.stat().st_size / 1e6:.0f} MB Parquet")
     results = {}
