@@ -45,7 +45,8 @@ def rebuild(raw, warehouse, jobs, full, quiet, executor, scheduler, wait_s, no_r
     """Ingest new or changed raw files, re-run analyses, swap in the new warehouse.
 
     Exit 0: everything used; 1: warehouse built, some inputs quarantined; 2: usage error;
-    3 or more: failed, previous warehouse untouched (4: another rebuild is running).
+    3 or 4: failed, previous warehouse untouched (4: another rebuild is running); 5: the new
+    warehouse is in place but its morning report failed (report/index.html says so).
     """
     from pipeline.rebuild import RebuildError, rebuild as do_rebuild
 

@@ -14,7 +14,8 @@ point leaves the previous warehouse as it was; the next rebuild removes the debr
 
 Exit codes (warehouse.md): 0 everything used; 1 warehouse built, some inputs quarantined;
 2 usage error; anything else: failed, the previous warehouse untouched (3 failed, 4 another
-rebuild holds the lock).
+rebuild holds the lock), except 5: the new warehouse was swapped in but its morning report failed
+(``report/index.html`` then says so instead of showing the previous report).
 """
 from __future__ import annotations
 
@@ -473,31 +474,52 @@ def run_stages(ctx: stage_registry.StageContext, progress: Progress):
 
 
 # -- findings against the previous warehouse -----------------------------------------------------
-def compare_findings(findings: pd.DataFrame, previous: dict[str, bool | None], had_previous: bool) -> pd.DataFrame:
-    """Add ``previous_holds`` and ``change`` (overturned, now holds, ...) to the findings table."""
+def compare_findings(findings: pd.DataFrame, previous: dict[str, bool | None], had_previous: bool,
+                     previous_changes: dict[str, tuple] | None = None, now: datetime | None = None) -> pd.DataFrame:
+    """Add ``previous_holds``, ``change`` (overturned, now holds, ...) and ``changed_at`` to the findings.
+
+    ``change`` / ``changed_at`` are sticky: when ``holds`` differs from the previous warehouse they
+    are the new change and ``now`` (the rebuild's start); while ``holds`` stays the same they are
+    carried over from the previous warehouse (``previous_changes``: {finding_id: (change,
+    changed_at)}), so a second rebuild in the same night does not clear an overturned finding.
+    """
     if findings is None or findings.empty:
         return findings
+    now = now or datetime.now(timezone.utc)
+    previous_changes = previous_changes or {}
     df = findings.copy()
-    prev_holds, change = [], []
+    prev_holds, change, changed_at = [], [], []
     for fid, holds in zip(df["finding_id"], df["holds"]):
         holds = None if pd.isna(holds) else bool(holds)
         before = previous.get(fid) if fid in previous else None
         before = None if before is None or pd.isna(before) else bool(before)
         prev_holds.append(before)
         if not had_previous or fid not in previous:
-            change.append(None)
+            new = None
         elif before is True and holds is False:
-            change.append("overturned")
+            new = "overturned"
         elif before is False and holds is True:
-            change.append("now holds")
+            new = "now holds"
         elif before is None and holds is not None:
-            change.append("new data")
+            new = "new data"
         elif before is not None and holds is None:
-            change.append("no longer checkable")
+            new = "no longer checkable"
+        else:
+            new = None
+        if new is not None:
+            change.append(new)
+            changed_at.append(now)
+        elif had_previous and fid in previous:  # holds unchanged: keep the last change and its time
+            ch, at = previous_changes.get(fid, (None, None))
+            ok = ch is not None and at is not None and not pd.isna(ch) and not pd.isna(at)
+            change.append(ch if ok else None)
+            changed_at.append(at if ok else None)
         else:
             change.append(None)
+            changed_at.append(None)
     df["previous_holds"] = pd.array(prev_holds, dtype="boolean")
     df["change"] = pd.array(change, dtype="string")
+    df["changed_at"] = pd.to_datetime(pd.Series(changed_at, index=df.index, dtype=object), utc=True)
     return df
 
 
@@ -607,7 +629,12 @@ def rebuild(raw: str | Path, warehouse: str | Path, jobs: int | None = None, ful
     Raises
     ------
     RebuildError
-        When the rebuild fails; the previous warehouse is left as it was.
+        When the rebuild fails; the previous warehouse is left as it was. Except with
+        ``exit_code`` 5 (``pipeline.report.EXIT_REPORT_FAILED``): the new warehouse is in place
+        (``.summary`` says what was built) but the report could not be rendered;
+        ``report/index.html`` is then a page saying so for this generation, never the previous
+        report. Not 0 or 1, or cron and systemd would count a stale report as success; not 3,
+        which promises the previous warehouse.
     """
     t0 = time.monotonic()
     started_at = datetime.now(timezone.utc)
@@ -681,7 +708,7 @@ def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, r
     stage_tables = dict(staged.tables)
     if "findings" in stage_tables:
         stage_tables["findings"] = compare_findings(stage_tables["findings"], prev.findings,
-                                                    prev.generation is not None)
+                                                    prev.generation is not None, prev.finding_changes, started_at)
     seen = {p.rel for p in plans} | {r.source_path for r in side}
     inputs = _inputs_table(plans, side_changes, prev, seen, problems, results)
     summary.n_new = int(((inputs["status"] == "new") & (inputs["role"] == "run")).sum())
@@ -724,14 +751,20 @@ def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, r
     collect_garbage(warehouse, prev.samples | set(runs_df.get("samples_path", [])),
                     prev.stage_folders | {r.folder for r in staged.records})
     summary.tables = {k: len(v) for k, v in all_tables.items()}
+    report_error = None
     if report:
-        from pipeline.report import write_report
+        from pipeline.report import EXIT_REPORT_FAILED, ReportError, write_report
         try:
-            summary.report = write_report(warehouse)
+            summary.report = write_report(warehouse, generation=generation)
             progress.message(f"report: {summary.report}")
-        except Exception as exc:  # the warehouse is in place; say so, and fail loudly
-            log.exception("report failed")
-            progress.message(f"report: FAILED: {type(exc).__name__}: {exc}")
+        except Exception as exc:  # the warehouse is in place; the page says the report failed
+            report_error = exc if isinstance(exc, ReportError) else ReportError(
+                " ".join(f"{type(exc).__name__}: {exc}".split()), None)
+            log.error("report failed for generation %s: %s", generation, report_error.error, exc_info=exc)
+            summary.report = report_error.page
+            progress.message(f"report: FAILED for generation {generation}: {report_error.error}; "
+                             + (f"{report_error.page} says so" if report_error.page
+                                else "no report page could be written"))
     summary.seconds = time.monotonic() - t0
     for p in problems:
         where = f"{p.source_path}:{p.line}" if p.line else p.source_path
@@ -739,4 +772,9 @@ def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, r
     progress.message(f"rebuild: {summary.n_runs} runs ({summary.n_new} new, {summary.n_changed} changed, "
                      f"{summary.n_deleted} deleted, {summary.n_unchanged} unchanged), {len(problems)} quarantined, "
                      f"stages run: {', '.join(staged.ran) or 'none'}, {summary.seconds:.1f} s")
+    if report_error is not None:  # exit 5: the new warehouse is live, the report is not (see rebuild())
+        err = RebuildError(f"warehouse generation {generation} is in place, but its report failed: "
+                           f"{report_error.error}", EXIT_REPORT_FAILED)
+        err.summary = summary
+        raise err from report_error
     return summary

@@ -1,11 +1,16 @@
 """The morning report: ``warehouse/report/index.html``, one self-contained static page.
 
 Built from the warehouse database alone (read-only), so ``pneubench report`` can rebuild it at
-any time. Order: findings that new data overturned (if any), the findings, the last rebuild
+any time. Order: findings whose result changed in the last 24 hours (``findings.changed_at``;
+an overturned one stays there through further rebuilds that night), the findings, the last rebuild
 (new, changed, deleted and quarantined inputs with their reasons), hose life and service life,
 then every analysis figure with its key table. Figures are embedded as base64 PNG, the style
 is inline and there is no script: the file opens from disk anywhere. Every piece of text is
 escaped (``html.escape``): run metadata, file names and quarantine reasons come from raw/.
+
+The report is never silently stale: when rendering fails, ``write_report`` replaces
+``index.html`` with a short page saying that the report of this generation failed, with the
+error, and raises :class:`ReportError`; the rebuild then exits with ``EXIT_REPORT_FAILED``.
 """
 from __future__ import annotations
 
@@ -13,14 +18,38 @@ import base64
 import html
 import math
 import os
-from datetime import datetime
+from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
-from pipeline.warehouse import connect_readonly
+from pipeline.warehouse import DB_NAME, connect_readonly
 
 MAX_ROWS = 30          # rows of a key table shown
 FOLD_INPUT_ROWS = 20   # longer lists of changed inputs start folded
 MAX_INPUT_ROWS = 300   # rows of the changed-inputs list shown
+#: Findings whose result changed this recently are listed first, in the alert box.
+CHANGE_WINDOW = timedelta(hours=24)
+#: Changes shown in the alert box (``new data`` is only noted in the findings table).
+ALERT_CHANGES = ("overturned", "now holds", "no longer checkable")
+
+#: Exit code of a rebuild whose warehouse was swapped in but whose report failed: not 0 or 1
+#: (cron and systemd would count a stale or missing report as success), not 3 (which promises
+#: the previous warehouse untouched).
+EXIT_REPORT_FAILED = 5
+
+
+class ReportError(Exception):
+    """The report could not be rendered. ``error``: one line; ``page``: the failure page written
+    in place of ``index.html`` (None when even that failed, after removing the stale one)."""
+
+    def __init__(self, error: str, page: Path | None):
+        super().__init__(error)
+        self.error = error
+        self.page = page
+
+
+def _now() -> datetime:
+    """The report's clock (tests replace it)."""
+    return datetime.now(timezone.utc)
 
 CSS = """
 body{font-family:system-ui,-apple-system,"Segoe UI",Roboto,sans-serif;margin:0 auto;max-width:1200px;padding:0 20px 40px;color:#1d2330}
@@ -87,6 +116,9 @@ class _DB:
         cur = self.con.execute(sql, params or [])
         return [d[0] for d in cur.description], cur.fetchall()
 
+    def columns(self, table: str) -> list[str]:
+        return [r[0] for r in self.con.execute(f'DESCRIBE "{table}"').fetchall()] if self.has(table) else []
+
     def count(self, table: str) -> int:
         return self.con.execute(f'SELECT count(*) FROM "{table}"').fetchone()[0] if self.has(table) else 0
 
@@ -101,26 +133,41 @@ def _holds_cell(holds) -> str:
     return '<td class="ok">holds</td>' if holds else '<td class="bad">does not hold</td>'
 
 
-def _findings_section(db: _DB) -> tuple[str, str]:
-    """(alert box for changed findings, findings section)."""
+def _when(at) -> str:
+    return fmt(at.astimezone(timezone.utc).replace(microsecond=0)) if isinstance(at, datetime) else "—"
+
+
+def _change_note(change, at) -> str:
+    if not change:
+        return ""
+    return f"<br><b>{esc(change)}</b>" + (f" {_when(at)}" if at is not None else "")
+
+
+def _findings_section(db: _DB, now: datetime) -> tuple[str, str]:
+    """(first section: findings whose result changed in the last 24 hours, findings section)."""
+    since = now - CHANGE_WINDOW
+    window = (f"in the last {CHANGE_WINDOW.total_seconds() / 3600:g} hours "
+              f"(since {since.astimezone(timezone.utc):%Y-%m-%d %H:%M} UTC)")
     if not db.has("findings") or db.count("findings") == 0:
         return "", '<section id="findings"><h2>Findings</h2><p class="nodata">no findings table: no data yet</p></section>'
+    changed_at = "changed_at" if "changed_at" in db.columns("findings") else "NULL::TIMESTAMPTZ"
     cols, rows = db.rows("SELECT finding_id, statement, measured, uncertainty, unit, criterion, holds, n, p_value, "
-                         "detail, change, previous_holds FROM findings ORDER BY ord, finding_id")
-    alert = ""
-    changed = [r for r in rows if r[10] in ("overturned", "now holds", "no longer checkable")]
+                         f"detail, change, previous_holds, {changed_at} FROM findings ORDER BY ord, finding_id")
+    changed = [r for r in rows if r[10] in ALERT_CHANGES and r[12] is not None and r[12] >= since]
     if changed:
-        items = "".join(f"<li><b>{esc(r[10])}</b>: {esc(r[1])} (measured {fmt(r[2])} {_unit(r[4])})</li>"
-                        for r in changed)
+        items = "".join(f"<li><b>{esc(r[10])}</b>: {esc(r[1])} (measured {fmt(r[2])}{' ' + _unit(r[4]) if _unit(r[4]) else ''}; "
+                        f"changed {_when(r[12])})</li>" for r in changed)
         alert = (f'<div class="alert" id="overturned"><h2 style="margin-top:0">New data changed '
-                 f'{len(changed)} finding{"s" if len(changed) != 1 else ""}</h2><ul>{items}</ul></div>')
+                 f'{len(changed)} finding{"s" if len(changed) != 1 else ""} {esc(window)}</h2><ul>{items}</ul></div>')
+    else:
+        alert = f'<p class="meta" id="changes">No finding changed its result {esc(window)}.</p>'
     body = []
-    for (fid, statement, measured, unc, unit, criterion, holds, n, p, detail, change, _prev) in rows:
+    for (fid, statement, measured, unc, unit, criterion, holds, n, p, detail, change, _prev, at) in rows:
         value = "—" if measured is None else fmt(measured) + (f" ± {fmt(unc)}" if unc is not None else "")
         body.append(f"<tr><td><b>{esc(statement)}</b><br><span class=\"meta\">{esc(fid)}</span></td>"
                     f'<td class="num">{value} {_unit(unit)}</td><td>{esc(criterion)}</td>{_holds_cell(holds)}'
                     f'<td class="num">{fmt(n)}</td><td class="num">{fmt(p)}</td>'
-                    f"<td>{esc(detail)}{'<br><b>' + esc(change) + '</b>' if change else ''}</td></tr>")
+                    f"<td>{esc(detail)}{_change_note(change, at)}</td></tr>")
     n_hold = sum(1 for r in rows if r[6] is True)
     n_fail = sum(1 for r in rows if r[6] is False)
     n_none = sum(1 for r in rows if r[6] is None)
@@ -228,16 +275,15 @@ def _figures_section(db: _DB, warehouse: Path) -> str:
     return "".join(out)
 
 
-def render_report(warehouse: str | Path) -> str:
-    """The report of the warehouse as one HTML string."""
+def render_report(warehouse: str | Path, now: datetime | None = None) -> str:
+    """The report of the warehouse as one HTML string (``now``: the clock for "last 24 hours")."""
     warehouse = Path(warehouse)
+    now = now or _now()
     con = connect_readonly(warehouse)
     try:
         db = _DB(con)
-        alert, findings = _findings_section(db)
-        generation = ""
-        if db.has("rebuild_log") and db.count("rebuild_log"):
-            generation = db.con.execute("SELECT generation FROM rebuild_log ORDER BY finished_at DESC LIMIT 1").fetchone()[0]
+        alert, findings = _findings_section(db, now)
+        generation = _generation(db)
         hoses = ('<section id="hoses"><h2>Hose life and service life</h2>'
                  + (_table_block(db, "service_life", "Service life per hose type and adjustment") or "")
                  + (_table_block(db, "hose_life", "Hose life") or "")
@@ -258,14 +304,84 @@ def render_report(warehouse: str | Path) -> str:
         con.close()
 
 
-def write_report(warehouse: str | Path) -> Path:
-    """Write ``report/index.html`` (temp file, then an atomic rename). Returns its path."""
-    warehouse = Path(warehouse)
-    text = render_report(warehouse)
-    folder = warehouse / "report"
+def _generation(db: _DB) -> str:
+    if db.has("rebuild_log") and db.count("rebuild_log"):
+        return db.con.execute("SELECT generation FROM rebuild_log ORDER BY finished_at DESC LIMIT 1").fetchone()[0]
+    return ""
+
+
+def failure_page(warehouse: str | Path, generation: str | None, error: str, now: datetime | None = None) -> str:
+    """A minimal self-contained page: the report of ``generation`` failed with ``error``."""
+    now = now or _now()
+    gen = esc(generation) if generation else "(unknown)"
+    return "\n".join([
+        "<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
+        '<meta name="viewport" content="width=device-width, initial-scale=1">',
+        "<title>pneubench morning report: FAILED</title>", f"<style>{CSS}</style></head><body>",
+        "<h1>pneubench morning report: FAILED</h1>",
+        f'<div class="alert" id="report-failed"><h2 style="margin-top:0">The report for generation {gen} '
+        f"could not be written</h2><p><code>{esc(error)}</code></p>"
+        f"<p>The warehouse itself is in place and can be queried as usual (<code>pneubench query</code>); "
+        f"only this page could not be rendered. This is not yesterday's report: none is shown rather than a "
+        f"stale one. Details in <code>logs/rebuild.log</code>; try again with <code>pneubench report</code>.</p>"
+        "</div>",
+        f'<p class="meta">warehouse {esc(Path(warehouse).resolve())}, generation {gen}, '
+        f"failed {esc(f'{now.astimezone(timezone.utc):%Y-%m-%d %H:%M:%S} UTC')}</p>",
+        "</body></html>"])
+
+
+def _write_atomic(folder: Path, text: str) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     final = folder / "index.html"
     tmp = folder / f".index.html.tmp-{os.getpid()}"
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, final)
+    try:
+        tmp.write_text(text, encoding="utf-8")
+        os.replace(tmp, final)
+    finally:
+        tmp.unlink(missing_ok=True)
     return final
+
+
+def write_report(warehouse: str | Path, generation: str | None = None, now: datetime | None = None) -> Path:
+    """Write ``report/index.html`` (temp file, then an atomic rename). Returns its path.
+
+    Raises
+    ------
+    FileNotFoundError
+        When there is no warehouse (nothing is written).
+    ReportError
+        When the report could not be rendered or written. ``index.html`` is then replaced by
+        :func:`failure_page` for ``generation`` (read from ``rebuild_log`` when not given), or
+        removed if even that cannot be written: never the previous report left in place.
+    """
+    warehouse = Path(warehouse)
+    folder = warehouse / "report"
+    try:
+        return _write_atomic(folder, render_report(warehouse, now))
+    except Exception as exc:
+        if isinstance(exc, FileNotFoundError) and not (warehouse / DB_NAME).is_file():
+            raise  # no warehouse at all: nothing to report on
+        original = exc
+    cause = _one_line_error(original)
+    if generation is None:
+        try:
+            con = connect_readonly(warehouse)
+            try:
+                generation = _generation(_DB(con))
+            finally:
+                con.close()
+        except Exception:
+            generation = None
+    try:
+        page = _write_atomic(folder, failure_page(warehouse, generation, cause, now))
+    except Exception:
+        page = None
+        try:
+            (folder / "index.html").unlink(missing_ok=True)
+        except OSError:
+            pass
+    raise ReportError(cause, page) from original
+
+
+def _one_line_error(exc: BaseException) -> str:
+    return " ".join(f"{type(exc).__name__}: {exc}".split())

@@ -170,6 +170,8 @@ class PreviousState:
     samples: set[str] = field(default_factory=set)
     stage_folders: set[str] = field(default_factory=set)
     findings: dict[str, bool | None] = field(default_factory=dict)
+    #: finding_id -> (change, changed_at) of the previous warehouse (sticky alerts)
+    finding_changes: dict[str, tuple] = field(default_factory=dict)
     generation: str | None = None
     history: pd.DataFrame | None = None
 
@@ -200,6 +202,10 @@ def load_previous(warehouse: Path) -> PreviousState:
                 prev.stage_folders.add(folder)
         if "findings" in tables:
             prev.findings = dict(con.execute("SELECT finding_id, holds FROM findings").fetchall())
+            cols = {r[0] for r in con.execute("DESCRIBE findings").fetchall()}
+            if {"change", "changed_at"} <= cols:
+                prev.finding_changes = {fid: (ch, at) for fid, ch, at in con.execute(
+                    "SELECT finding_id, change, changed_at FROM findings").fetchall()}
         if "rebuild_log" in tables:
             prev.history = con.sql("SELECT * FROM rebuild_log").to_arrow_table().to_pandas()
             if not prev.history.empty:

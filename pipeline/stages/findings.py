@@ -7,12 +7,14 @@ their own statistics are reused (``breakaway_findings``, ``seal_envelope``,
 ``viscous_transition``, the standard errors of ``viscous_fits``); only when such a table is
 missing is it derived here from the contract tables with the same ``analyses`` functions.
 
-The rebuild adds ``previous_holds`` and ``change`` by comparing with the previous warehouse; the
-morning report puts an overturned finding first.
+The rebuild adds ``previous_holds``, ``change`` and ``changed_at`` by comparing with the previous
+warehouse (``change`` / ``changed_at`` stay while ``holds`` stays the same); the morning report
+puts a finding whose result changed in the last 24 hours first.
 """
 from __future__ import annotations
 
 import math
+from typing import Callable
 
 import numpy as np
 import pandas as pd
@@ -40,6 +42,8 @@ NEGLIGIBLE = 0.10
 NRMSE_MAX_PCT = 2.5
 #: Tolerance on a tested (plateau) pressure [bar].
 PRESSURE_TOL_BAR = 0.25
+#: Stribeck velocities tried by ``analyses.viscous_friction.stribeck_test`` (its Bonferroni factor).
+STRIBECK_GRID = 6
 
 COLUMNS = ["finding_id", "ord", "paper", "statement", "measured", "uncertainty", "unit", "criterion", "holds",
            "n", "p_value", "detail", "source_tables"]
@@ -135,6 +139,7 @@ def breakaway_rate(ctx: StageContext) -> dict:
 # -- leakage (seed 000, section 3.1) -------------------------------------------------------------------
 def leak_free(ctx: StageContext, pct: float, up_to_bar: float) -> dict:
     from analyses.leakage import LEAK_THRESHOLD_L_MIN as threshold
+    from analyses.leakage import characterisation_rows
 
     args = (f"no_leak_{int(pct)}pct_{int(up_to_bar)}bar",
             f"No leak up to {up_to_bar:g} bar with the rollers set to >= {pct:g} % spring force", PLPA, "l/min",
@@ -142,6 +147,7 @@ def leak_free(ctx: StageContext, pct: float, up_to_bar: float) -> dict:
     lm = _table(ctx, "leakage_map")
     if lm is None or "spring_force_n" not in lm.columns:
         return _row(*args, "leakage_map")
+    lm = characterisation_rows(lm)  # the paper's claim is about the setting, not about worn hoses
     force = pd.to_numeric(lm["spring_force_n"], errors="coerce")
     adj = lm["adjustment"].astype(str) if "adjustment" in lm.columns else pd.Series("force", index=lm.index)
     sel = lm[(adj == "force") & (force >= pct / 100 * SPRING_FORCE_MAX_N - 1.0)].dropna(subset=["pressure_bar", "leak_l_min"])
@@ -211,6 +217,43 @@ def viscous_backpressure(ctx: StageContext) -> dict:
                 + "; ".join(parts))
 
 
+def _stribeck_se(ctx: StageContext, row: pd.Series) -> tuple[float | None, str]:
+    """Standard error of the fitted Stribeck amplitude of one ``viscous_transition`` row [N], and how.
+
+    In order: a standard-error column of the table, if it has one; else the least-squares
+    covariance of the same fit, repeated on the near-zero ``viscous_points`` of that backpressure
+    at the table's ``v_st`` (used only when it gives back the table's amplitude); else the
+    standard error implied by the F test (one extra parameter: F = (amplitude / SE)^2), from the
+    Bonferroni-corrected p-value when it is below 1.
+    """
+    from analyses import viscous_friction as vfr
+
+    for col in ("stribeck_amplitude_se_n", "stribeck_se_n"):
+        if _f(row.get(col)) is not None:
+            return _f(row[col]), f"uncertainty: {col} of viscous_transition"
+    amp, bp, vst_mm = _f(row.get("stribeck_amplitude_n")), _f(row.get("backpressure_bar")), \
+        _f(row.get("stribeck_velocity_mm_s"))
+    pts = _table(ctx, "viscous_points")
+    if pts is not None and amp is not None and bp is not None and vst_mm:
+        g = pts.dropna(subset=["velocity_m_s", "friction_n", "backpressure_bar"])
+        g = g[(g["velocity_m_s"].abs() <= vfr.NEAR_ZERO_MAX_M_S) & (g["backpressure_bar"].astype(float) == bp)]
+        v, f = g["velocity_m_s"].to_numpy(float), g["friction_n"].to_numpy(float)
+        fit = vfr._fit_tanh(v, f, stribeck_v=vst_mm / 1e3) if v.size >= 5 else None
+        if fit is not None and fit[2] is not None:
+            params, _rss, cov = fit
+            se = _f(math.sqrt(cov[3, 3])) if cov[3, 3] >= 0 else None
+            if se is not None and abs(params[3] - amp) <= 1e-6 * max(1.0, abs(amp)) + 0.05 * se:
+                return se, (f"uncertainty: standard error of the fitted amplitude (least-squares covariance "
+                            f"of the Stribeck fit at v_st = {vst_mm:.3g} mm/s, {v.size} near-zero points)")
+    p, n = _f(row.get("stribeck_p_value")), _f(row.get("n_points"))
+    if amp is not None and p is not None and n is not None and 0 < p < 1 and n - 4 >= 1:
+        fstat = float(stats.f.isf(p / STRIBECK_GRID, 1, n - 4))
+        if fstat > 0:
+            return abs(amp) / math.sqrt(fstat), ("uncertainty: standard error implied by the F test "
+                                                 "(|amplitude| / sqrt(F), F from the corrected p-value)")
+    return None, "uncertainty: not available (no near-zero points, F test not invertible)"
+
+
 def stribeck(ctx: StageContext) -> dict:
     args = ("no_stribeck_dip", "No Stribeck dip: friction falls steeply but monotonically near zero velocity", PLPA,
             "N", "no backpressure shows a significant Stribeck term")
@@ -232,13 +275,41 @@ def stribeck(ctx: StageContext) -> dict:
     i = amp.idxmax()
     dips = vt[vt["stribeck_dip"].astype(bool)]
     p = pd.to_numeric(vt["stribeck_p_value"], errors="coerce").min()
+    se, how = _stribeck_se(ctx, vt.loc[i])
     detail = (f"largest fitted Stribeck amplitude {amp[i]:.3g} N at {vt.loc[i, 'backpressure_bar']:g} bar; "
-              f"{len(dips)} of {len(vt)} backpressures with a significant dip")
-    return _row(*args, source, amp[i], None, dips.empty, int(pd.to_numeric(vt["n_points"], errors="coerce").sum()),
+              f"{len(dips)} of {len(vt)} backpressures with a significant dip; {how}")
+    return _row(*args, source, amp[i], se, dips.empty, int(pd.to_numeric(vt["n_points"], errors="coerce").sum()),
                 p, detail)
 
 
 # -- PLA spring model (seed 001, Table 3) -----------------------------------------------------------------
+def bootstrap_se_of_max(values) -> float | None:
+    """Standard deviation of the bootstrap distribution of the maximum, computed exactly.
+
+    A resample of ``n`` values drawn with replacement has its maximum at or below the k-th
+    smallest value with probability ``(k / n) ** n``; no random resampling is needed.
+
+    Parameters
+    ----------
+    values : array_like
+        The observed values (NaN ignored).
+
+    Returns
+    -------
+    float or None
+        The standard error [same unit], None with fewer than two values.
+    """
+    x = np.sort(np.asarray(values, dtype=float))
+    x = x[np.isfinite(x)]
+    n = x.size
+    if n < 2:
+        return None
+    cdf = (np.arange(1, n + 1) / n) ** n
+    pmf = np.diff(cdf, prepend=0.0)
+    mean = float(pmf @ x)
+    return math.sqrt(max(float(pmf @ (x - mean) ** 2), 0.0))
+
+
 def spring_nrmse(ctx: StageContext) -> dict:
     args = ("spring_nrmse_below_2_5pct", "The polytropic spring model fits every spring test with NRMSE below 2.5 %",
             PLA, "%", f"largest NRMSE of the spring tests < {NRMSE_MAX_PCT:g} %")
@@ -249,9 +320,12 @@ def spring_nrmse(ctx: StageContext) -> dict:
     if v.empty:
         return _row(*args, "spring_tests", detail="no data: no spring test could be fitted")
     above = int((v >= NRMSE_MAX_PCT).sum())
-    return _row(*args, "spring_tests", v.max(), None, above == 0, len(v), None,
+    se = bootstrap_se_of_max(v)
+    how = ("uncertainty: bootstrap standard error of the largest NRMSE over the tests (exact, resampling the tests)"
+           if se is not None else "uncertainty: not available from one test")
+    return _row(*args, "spring_tests", v.max(), se, above == 0, len(v), None,
                 f"{above} of {len(v)} tests at or above {NRMSE_MAX_PCT:g} %; median {v.median():.3g} %, "
-                f"range {v.min():.3g}-{v.max():.3g} %")
+                f"range {v.min():.3g}-{v.max():.3g} %; {how}")
 
 
 # -- hose durability (seed 000's hypothesis) ------------------------------------------------------------------
@@ -343,26 +417,40 @@ def _ratio_uncertainty(groups, fits, ratio) -> float | None:
     return ratio * math.sqrt(var)
 
 
-CHECKS = (
-    breakaway_ratio,
-    breakaway_rate,
-    lambda ctx: leak_free(ctx, 33, 5),
-    lambda ctx: leak_free(ctx, 66, 6),
-    viscous_backpressure,
-    stribeck,
-    spring_nrmse,
-    force_outlives_distance,
+#: The checks, each with the finding_id it declares: a check that raises still gives a row under
+#: its own id (holds NULL, the error in detail), so a change of its result stays trackable.
+CHECKS: tuple[tuple[str, Callable[[StageContext], dict]], ...] = (
+    ("breakaway_0bar_twice", breakaway_ratio),
+    ("breakaway_rate_no_effect", breakaway_rate),
+    ("no_leak_33pct_5bar", lambda ctx: leak_free(ctx, 33, 5)),
+    ("no_leak_66pct_6bar", lambda ctx: leak_free(ctx, 66, 6)),
+    ("viscous_independent_of_backpressure_1_3bar", viscous_backpressure),
+    ("no_stribeck_dip", stribeck),
+    ("spring_nrmse_below_2_5pct", spring_nrmse),
+    ("force_set_hoses_outlive_distance_set", force_outlives_distance),
 )
+
+
+def _failed_row(finding_id: str, check, exc: Exception) -> dict:
+    """The row of a check that raised: its statement (from its no-data row), holds NULL, the error."""
+    error = " ".join(f"{type(exc).__name__}: {exc}".split())
+    try:
+        row = check(StageContext(raw=None, warehouse=None, runs=pd.DataFrame(), results={}))
+    except Exception:
+        row = _row(finding_id, "(finding could not be computed)", "", "", "", "")
+    return {**_row(finding_id, row["statement"], row["paper"], row["unit"], row["criterion"], row["source_tables"]),
+            "detail": f"could not be computed: {error}"}
 
 
 def run(ctx: StageContext) -> StageOutput:
     rows = []
-    for i, check in enumerate(CHECKS):
+    for i, (finding_id, check) in enumerate(CHECKS):
         try:
             row = check(ctx)
-        except Exception as exc:  # a finding that cannot be computed is "no data", never a crash
-            row = _row(f"check_{i}", "(finding could not be computed)", "", "", "", "",
-                       detail=f"no data: {type(exc).__name__}: {exc}")
+            if row["finding_id"] != finding_id:
+                raise ValueError(f"check returned finding_id {row['finding_id']!r}, declared {finding_id!r}")
+        except Exception as exc:  # a finding that cannot be computed is NULL with the error, never a crash
+            row = _failed_row(finding_id, check, exc)
         row["ord"] = i + 1
         rows.append(row)
     df = pd.DataFrame(rows, columns=COLUMNS)

@@ -16,5 +16,9 @@ CREATE TABLE findings (
     detail          VARCHAR,              -- how it was computed / "no data"
     source_tables   VARCHAR,              -- warehouse tables the value comes from
     previous_holds  BOOLEAN,              -- `holds` in the previous warehouse (rebuild fills it)
-    change          VARCHAR               -- overturned / now holds / new data / no longer checkable / NULL
+    change          VARCHAR,              -- the last change of `holds`: overturned / now holds / new data /
+                                          -- no longer checkable, kept from rebuild to rebuild while `holds`
+                                          -- stays the same (NULL: unchanged since first checked)
+    changed_at      TIMESTAMPTZ           -- start of the rebuild that saw that change (NULL with change),
+                                          -- the report alerts on changes of the last 24 hours
 );

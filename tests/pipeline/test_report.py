@@ -54,9 +54,9 @@ def built(raw, warehouse, monkeypatch):
     raw.csv("c/bad.csv", {**STEP_META, "notes": EVIL}, {"t[s]": [0, 1], "x[furlong]": [0, 1], "x_ref[mm]": [0, 1]})
     raw.write("c/hoses.csv", "hose_id,event,at,hose_type,adjustment,spring_force_n\n"
                              f"H1,installed,2026-01-01T00:00:00,{EVIL.replace(',', ' ')},force,858\n")
-    monkeypatch.setattr(fs, "CHECKS", (flip(True),))
+    monkeypatch.setattr(fs, "CHECKS", (("breakaway_0bar_twice", flip(True)),))
     rebuild(raw.root, warehouse, jobs=1)
-    monkeypatch.setattr(fs, "CHECKS", (flip(False),))
+    monkeypatch.setattr(fs, "CHECKS", (("breakaway_0bar_twice", flip(False)),))
     s = rebuild(raw.root, warehouse, jobs=1, full=True)
     return s
 
@@ -121,3 +121,86 @@ def test_long_input_lists_are_folded_and_quarantine_comes_first(raw, warehouse):
     (raw.root / "c" / "s00.csv").unlink()
     rebuild(raw.root, warehouse, jobs=1)
     assert "<details open><summary><b>New, changed and deleted inputs (1)</b>: 1 deleted" in render_report(warehouse)
+
+
+def test_an_overturned_finding_stays_first_for_24_hours(built, raw, warehouse, monkeypatch):
+    import pipeline.report as rp
+    from tests.conftest import query
+
+    changed_at = query(warehouse, "SELECT change, changed_at FROM findings")
+    assert changed_at[0][0] == "overturned" and changed_at[0][1] is not None
+    at = changed_at[0][1]
+    # a second rebuild the same night (nothing changed): the alert and the time of the change stay
+    s = rebuild(raw.root, warehouse, jobs=1)
+    assert s.generation != built.generation
+    assert query(warehouse, "SELECT holds, previous_holds, change, changed_at FROM findings") == [
+        (False, False, "overturned", at)]
+    html = (warehouse / "report" / "index.html").read_text()
+    assert 'id="overturned"' in html and "<b>overturned</b>: Breakaway at 0 bar" in html
+    assert "in the last 24 hours" in html
+    # 23 h later it is still news, 25 h later it is not (the finding still says when it changed)
+    monkeypatch.setattr(rp, "_now", lambda: at + rp.timedelta(hours=23))
+    assert 'id="overturned"' in rp.render_report(warehouse)
+    monkeypatch.setattr(rp, "_now", lambda: at + rp.timedelta(hours=25))
+    rebuild(raw.root, warehouse, jobs=1)
+    html = (warehouse / "report" / "index.html").read_text()
+    assert 'id="overturned"' not in html
+    assert 'id="changes">No finding changed its result in the last 24 hours' in html
+    assert query(warehouse, "SELECT change, changed_at FROM findings") == [("overturned", at)]
+    # it holds again: a new change, at the new rebuild's time, back in the alert box
+    monkeypatch.setattr(fs, "CHECKS", (("breakaway_0bar_twice", flip(True)),))
+    monkeypatch.setattr(rp, "_now", lambda: rp.datetime.now(rp.timezone.utc))
+    rebuild(raw.root, warehouse, jobs=1, full=True)  # full: the stage cache does not see CHECKS
+    (change, later), = query(warehouse, "SELECT change, changed_at FROM findings")
+    assert change == "now holds" and later > at
+    assert "<b>now holds</b>: Breakaway at 0 bar" in (warehouse / "report" / "index.html").read_text()
+
+
+def test_a_failed_report_replaces_the_page_and_never_leaves_yesterdays(built, raw, warehouse, monkeypatch):
+    import pipeline.report as rp
+    from pipeline.rebuild import RebuildError
+    from tests.conftest import query
+
+    page = warehouse / "report" / "index.html"
+    assert 'id="findings"' in page.read_text()
+
+    def broken(*a, **k):
+        raise ValueError("renderer broke\non two lines")
+
+    monkeypatch.setattr(rp, "render_report", broken)
+    with pytest.raises(RebuildError) as err:
+        rebuild(raw.root, warehouse, jobs=1)
+    gen = err.value.summary.generation
+    assert err.value.exit_code == rp.EXIT_REPORT_FAILED == 5
+    assert f"warehouse generation {gen} is in place" in str(err.value)
+    # the new warehouse is live
+    assert query(warehouse, "SELECT generation FROM rebuild_log ORDER BY finished_at DESC LIMIT 1") == [(gen,)]
+    html = page.read_text()
+    assert 'id="findings"' not in html and "Breakaway" not in html  # not the previous report
+    assert 'id="report-failed"' in html and f"report for generation {gen} could not be written" in html
+    assert "ValueError: renderer broke on two lines" in html and "warehouse itself is in place" in html
+    assert not re.search(r'(src|href)="', html) and "<script" not in html
+    assert not [p for p in page.parent.iterdir() if ".tmp" in p.name]
+    # `pneubench report` after the fix writes the real report again
+    monkeypatch.undo()
+    assert 'id="findings"' in rp.write_report(warehouse).read_text()
+
+
+def test_when_not_even_the_failure_page_can_be_written_the_stale_page_is_removed(built, warehouse, monkeypatch):
+    import pipeline.report as rp
+
+    page = warehouse / "report" / "index.html"
+    monkeypatch.setattr(rp, "render_report", lambda *a, **k: 1 / 0)
+    monkeypatch.setattr(rp, "failure_page", lambda *a, **k: 1 / 0)
+    with pytest.raises(rp.ReportError) as err:
+        rp.write_report(warehouse)
+    assert err.value.page is None and err.value.error == "ZeroDivisionError: division by zero"
+    assert not page.exists()
+
+
+def test_no_warehouse_is_not_a_report_failure(tmp_path):
+    from pipeline.report import write_report
+
+    with pytest.raises(FileNotFoundError):
+        write_report(tmp_path / "none")
+    assert not (tmp_path / "none" / "report").exists()

@@ -97,6 +97,20 @@ def test_leakage_findings():
     assert pd.isna(f["no_leak_33pct_5bar"]["holds"]) and "tested only up to" in f["no_leak_33pct_5bar"]["detail"]
 
 
+def test_leakage_findings_judge_the_setting_not_worn_hoses():
+    # a leak check on a worn hose at 33 % force leaks at 5 bar; the characterisation runs of the
+    # same setting do not: the paper's claim is about the setting, so the finding still holds
+    lm = leakage()
+    worn = lm[lm["spring_force_n"] == 429.0].assign(run_id="check-H7", hose_id="H7", leak_l_min=1.5)
+    f = by_id(ctx_with(leakage_map=pd.concat([lm.assign(hose_id=None), worn], ignore_index=True)))
+    assert bool(f["no_leak_33pct_5bar"]["holds"])
+    assert "check-H7" not in f["no_leak_33pct_5bar"]["detail"]
+    # with hose checks only for that setting they are all there is: then they count
+    f = by_id(ctx_with(leakage_map=pd.concat([lm[lm["spring_force_n"] != 429.0].assign(hose_id=None), worn],
+                                             ignore_index=True)))
+    assert not bool(f["no_leak_33pct_5bar"]["holds"])
+
+
 def test_viscous_and_stribeck_and_spring():
     fits = pd.DataFrame({"backpressure_bar": [0, 0, 1, 1, 2, 2, 3, 3], "direction": list("PN") * 4,
                          "coulomb_n": 3.5, "viscous_n_s_m": [25, 25, 28.1, 27.9, 27.8, 28.2, 28.0, 28.1],
@@ -133,3 +147,109 @@ def test_compare_findings_marks_overturned():
     row = out.set_index("finding_id").loc["breakaway_0bar_twice"]
     assert row["change"] == "overturned" and bool(row["previous_holds"])
     assert pd.isna(out.set_index("finding_id").loc["no_stribeck_dip", "change"])
+
+
+def test_every_check_declares_the_id_it_returns():
+    declared = [fid for fid, _ in fs.CHECKS]
+    assert list(by_id(ctx_with())) == declared and len(set(declared)) == len(declared)
+
+
+def test_a_check_that_raises_keeps_its_own_id_with_null_and_the_error(monkeypatch):
+    def broken(ctx):
+        if ctx.results:
+            raise ZeroDivisionError("float division\nby zero")
+        return fs.spring_nrmse(ctx)  # its no-data row still gives the statement
+
+    def hopeless(ctx):
+        raise KeyError("x")
+
+    checks = dict(fs.CHECKS)
+    checks["spring_nrmse_below_2_5pct"] = broken
+    checks["no_stribeck_dip"] = hopeless
+    monkeypatch.setattr(fs, "CHECKS", tuple(checks.items()))
+    f = by_id(ctx_with(spring_tests=pd.DataFrame({"run_id": ["a"], "nrmse_pct": [1.0]})))
+    assert list(f) == [fid for fid, _ in fs.CHECKS]  # no check_<i>
+    row = f["spring_nrmse_below_2_5pct"]
+    assert pd.isna(row["holds"]) and row["measured"] is None and row["ord"] == 7
+    assert row["detail"] == "could not be computed: ZeroDivisionError: float division by zero"
+    assert row["statement"].startswith("The polytropic spring model") and row["paper"] == fs.PLA
+    row = f["no_stribeck_dip"]
+    assert pd.isna(row["holds"]) and row["detail"] == "could not be computed: KeyError: 'x'"
+    # a check returning another id than it declares is caught the same way
+    checks["no_stribeck_dip"] = fs.spring_nrmse
+    monkeypatch.setattr(fs, "CHECKS", tuple(checks.items()))
+    assert "declared 'no_stribeck_dip'" in by_id(ctx_with())["no_stribeck_dip"]["detail"]
+
+
+def test_an_overturn_of_a_failing_check_is_tracked():
+    df = fs.run(ctx_with()).tables["findings"]
+    out = compare_findings(df, {"no_stribeck_dip": True}, had_previous=True, previous_changes={})
+    assert out.set_index("finding_id").loc["no_stribeck_dip", "change"] == "no longer checkable"
+
+
+def test_spring_uncertainty_is_the_exact_bootstrap_se_of_the_max():
+    import itertools
+
+    x = [1.16, 2.0, 2.39]
+    maxima = [max(c) for c in itertools.product(x, repeat=3)]  # all 27 equally likely resamples
+    assert fs.bootstrap_se_of_max(x) == pytest.approx(np.std(maxima))
+    assert fs.bootstrap_se_of_max([1.0, 1.0, 1.0]) == 0.0 and fs.bootstrap_se_of_max([2.0]) is None
+    row = by_id(ctx_with(spring_tests=pd.DataFrame({"run_id": list("abc"), "nrmse_pct": x})))["spring_nrmse_below_2_5pct"]
+    assert row["uncertainty"] == pytest.approx(np.std(maxima)) and "bootstrap standard error" in row["detail"]
+    one = by_id(ctx_with(spring_tests=pd.DataFrame({"run_id": ["a"], "nrmse_pct": [1.0]})))
+    assert one["spring_nrmse_below_2_5pct"]["uncertainty"] is None
+
+
+def near_zero_points(stribeck_n, seed, n=60, noise_n=0.15):
+    from analyses import viscous_friction as vfr
+
+    rng = np.random.default_rng(seed)
+    v = np.concatenate([np.geomspace(2e-4, 9e-3, n // 2), -np.geomspace(2e-4, 9e-3, n // 2)])
+    f = np.tanh(v / 3e-4) * (3.0 + stribeck_n * np.exp(-(v / 1e-3) ** 2)) + 28.0 * v + rng.normal(0, noise_n, v.size)
+    pts = pd.DataFrame({"run_id": "r", "backpressure_bar": 1.0, "velocity_m_s": v, "friction_n": f})
+    return pts, vfr.viscous_transition(pts)
+
+
+def test_stribeck_uncertainty_is_the_standard_error_of_the_fitted_amplitude():
+    # a dip of 1.5 N is recovered within its standard error; the error is about right (repeat runs)
+    estimates, ses = [], []
+    for seed in range(12):
+        pts, trans = near_zero_points(1.5, seed)
+        row = by_id(ctx_with(viscous_points=pts, viscous_transition=trans))["no_stribeck_dip"]
+        assert "least-squares covariance" in row["detail"]
+        estimates.append(row["measured"])
+        ses.append(row["uncertainty"])
+    assert np.mean(ses) > 0
+    assert abs(np.mean(estimates) - 1.5) < 3 * np.mean(ses) / np.sqrt(len(ses))
+    assert 0.5 < np.std(estimates, ddof=1) / np.mean(ses) < 2.0
+    # with the table alone it is implied by the F test: |A| / sqrt(F), F from the corrected p
+    trans = pd.DataFrame({"backpressure_bar": [0.0], "stribeck_amplitude_n": [0.02], "stribeck_p_value": [0.6],
+                          "stribeck_dip": [False], "n_points": [40]})
+    row = by_id(ctx_with(viscous_transition=trans))["no_stribeck_dip"]
+    from scipy import stats
+    assert row["uncertainty"] == pytest.approx(0.02 / np.sqrt(stats.f.isf(0.6 / 6, 1, 36)))
+    assert "F test" in row["detail"]
+    trans["stribeck_p_value"] = 1.0  # capped by the correction: cannot be inverted
+    row = by_id(ctx_with(viscous_transition=trans))["no_stribeck_dip"]
+    assert row["uncertainty"] is None and "not available" in row["detail"]
+
+
+def test_compare_findings_keeps_the_last_change_while_holds_stays():
+    from datetime import datetime, timezone
+
+    t1, t2 = datetime(2026, 3, 1, 2, 30, tzinfo=timezone.utc), datetime(2026, 3, 1, 9, 0, tzinfo=timezone.utc)
+    df = fs.run(ctx_with(breakaway=breakaway_events(f0=5.0, f1=5.0))).tables["findings"]
+    first = compare_findings(df, {"breakaway_0bar_twice": True}, True, now=t1, previous_changes={}).set_index("finding_id")
+    assert first.loc["breakaway_0bar_twice", "change"] == "overturned"
+    assert first.loc["breakaway_0bar_twice", "changed_at"] == t1
+    # the same result again: kept, with its time; never an invented change for the others
+    prev = {k: (None if pd.isna(v) else bool(v)) for k, v in first["holds"].items()}
+    changes = {k: (r["change"], r["changed_at"]) for k, r in first.iterrows()}
+    second = compare_findings(df, prev, True, now=t2, previous_changes=changes).set_index("finding_id")
+    assert second.loc["breakaway_0bar_twice", "change"] == "overturned"
+    assert second.loc["breakaway_0bar_twice", "changed_at"] == t1
+    assert not bool(second.loc["breakaway_0bar_twice", "previous_holds"])
+    assert second.drop("breakaway_0bar_twice")["change"].isna().all()
+    assert second.drop("breakaway_0bar_twice")["changed_at"].isna().all()
+    # no previous warehouse: nothing changed
+    assert compare_findings(df, {}, False, now=t2)["changed_at"].isna().all()
