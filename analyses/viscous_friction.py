@@ -363,7 +363,8 @@ def stribeck_test(v_m_s, friction_n, alpha: float = 0.01, n_grid: int = 6) -> di
     Returns
     -------
     dict
-        ``stribeck_amplitude_n`` (Fst at the best v_st), ``stribeck_velocity_m_s``,
+        ``stribeck_amplitude_n`` (Fst at the best v_st), ``stribeck_amplitude_se_n`` (its
+        standard error from the least-squares covariance), ``stribeck_velocity_m_s``,
         ``stribeck_p_value`` (Bonferroni-corrected), ``stribeck_dip`` (bool), or None values when
         there are too few points.
     """
@@ -371,8 +372,8 @@ def stribeck_test(v_m_s, friction_n, alpha: float = 0.01, n_grid: int = 6) -> di
     f = np.asarray(friction_n, dtype=float)
     m = np.isfinite(v) & np.isfinite(f)
     v, f = v[m], f[m]
-    out = {"stribeck_amplitude_n": None, "stribeck_velocity_m_s": None, "stribeck_p_value": None,
-           "stribeck_dip": None}
+    out = {"stribeck_amplitude_n": None, "stribeck_amplitude_se_n": None, "stribeck_velocity_m_s": None,
+           "stribeck_p_value": None, "stribeck_dip": None}
     if v.size < 7 or np.all(v > 0) or np.all(v < 0):
         return out
     base = _fit_tanh(v, f)
@@ -388,13 +389,15 @@ def stribeck_test(v_m_s, friction_n, alpha: float = 0.01, n_grid: int = 6) -> di
             best = (vst, r)
     if best is None:
         return out
-    vst, (p, rss1, _cov) = best
+    vst, (p, rss1, cov) = best
     dof = v.size - 4
     if dof < 1 or rss1 <= 0:
         return out
     fstat = max(rss0 - rss1, 0.0) / (rss1 / dof)
     pval = min(1.0, float(stats.f.sf(fstat, 1, dof)) * n_grid)
-    out.update({"stribeck_amplitude_n": float(p[3]), "stribeck_velocity_m_s": float(vst), "stribeck_p_value": pval,
+    se = float(np.sqrt(cov[3, 3])) if cov is not None and np.isfinite(cov[3, 3]) and cov[3, 3] >= 0 else None
+    out.update({"stribeck_amplitude_n": float(p[3]), "stribeck_amplitude_se_n": se,
+                "stribeck_velocity_m_s": float(vst), "stribeck_p_value": pval,
                 "stribeck_dip": bool(p[3] > 0 and pval < alpha)})
     return out
 
@@ -438,12 +441,12 @@ def viscous_transition(points: pd.DataFrame, near_zero_max_m_s: float = NEAR_ZER
     DataFrame
         ``backpressure_bar``, ``coulomb_n``, ``viscous_n_s_m``, ``transition_velocity_mm_s``,
         ``transition_ci_low_mm_s``, ``transition_ci_high_mm_s``, ``nrmse_pct``, ``n_points``,
-        ``stribeck_amplitude_n``, ``stribeck_velocity_mm_s``, ``stribeck_p_value``,
-        ``stribeck_dip``.
+        ``stribeck_amplitude_n``, ``stribeck_amplitude_se_n``, ``stribeck_velocity_mm_s``,
+        ``stribeck_p_value``, ``stribeck_dip``.
     """
     cols = ["backpressure_bar", "coulomb_n", "viscous_n_s_m", "transition_velocity_mm_s", "transition_ci_low_mm_s",
-            "transition_ci_high_mm_s", "nrmse_pct", "n_points", "stribeck_amplitude_n", "stribeck_velocity_mm_s",
-            "stribeck_p_value", "stribeck_dip"]
+            "transition_ci_high_mm_s", "nrmse_pct", "n_points", "stribeck_amplitude_n", "stribeck_amplitude_se_n",
+            "stribeck_velocity_mm_s", "stribeck_p_value", "stribeck_dip"]
     df = points.dropna(subset=["velocity_m_s", "friction_n", "backpressure_bar"])
     df = df[df["velocity_m_s"].abs() <= near_zero_max_m_s]
     rows = []
@@ -459,6 +462,7 @@ def viscous_transition(points: pd.DataFrame, near_zero_max_m_s: float = NEAR_ZER
                      "transition_ci_low_mm_s": mm(r["transition_ci_low_m_s"]),
                      "transition_ci_high_mm_s": mm(r["transition_ci_high_m_s"]), "nrmse_pct": r["nrmse_pct"],
                      "n_points": r["n_points"], "stribeck_amplitude_n": s["stribeck_amplitude_n"],
+                     "stribeck_amplitude_se_n": s["stribeck_amplitude_se_n"],
                      "stribeck_velocity_mm_s": mm(s["stribeck_velocity_m_s"]),
                      "stribeck_p_value": s["stribeck_p_value"], "stribeck_dip": s["stribeck_dip"]})
     return pd.DataFrame(rows, columns=cols)

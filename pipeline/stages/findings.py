@@ -42,8 +42,6 @@ NEGLIGIBLE = 0.10
 NRMSE_MAX_PCT = 2.5
 #: Tolerance on a tested (plateau) pressure [bar].
 PRESSURE_TOL_BAR = 0.25
-#: Stribeck velocities tried by ``analyses.viscous_friction.stribeck_test`` (its Bonferroni factor).
-STRIBECK_GRID = 6
 
 COLUMNS = ["finding_id", "ord", "paper", "statement", "measured", "uncertainty", "unit", "criterion", "holds",
            "n", "p_value", "detail", "source_tables"]
@@ -217,41 +215,13 @@ def viscous_backpressure(ctx: StageContext) -> dict:
                 + "; ".join(parts))
 
 
-def _stribeck_se(ctx: StageContext, row: pd.Series) -> tuple[float | None, str]:
-    """Standard error of the fitted Stribeck amplitude of one ``viscous_transition`` row [N], and how.
-
-    In order: a standard-error column of the table, if it has one; else the least-squares
-    covariance of the same fit, repeated on the near-zero ``viscous_points`` of that backpressure
-    at the table's ``v_st`` (used only when it gives back the table's amplitude); else the
-    standard error implied by the F test (one extra parameter: F = (amplitude / SE)^2), from the
-    Bonferroni-corrected p-value when it is below 1.
-    """
-    from analyses import viscous_friction as vfr
-
-    for col in ("stribeck_amplitude_se_n", "stribeck_se_n"):
-        if _f(row.get(col)) is not None:
-            return _f(row[col]), f"uncertainty: {col} of viscous_transition"
-    amp, bp, vst_mm = _f(row.get("stribeck_amplitude_n")), _f(row.get("backpressure_bar")), \
-        _f(row.get("stribeck_velocity_mm_s"))
-    pts = _table(ctx, "viscous_points")
-    if pts is not None and amp is not None and bp is not None and vst_mm:
-        g = pts.dropna(subset=["velocity_m_s", "friction_n", "backpressure_bar"])
-        g = g[(g["velocity_m_s"].abs() <= vfr.NEAR_ZERO_MAX_M_S) & (g["backpressure_bar"].astype(float) == bp)]
-        v, f = g["velocity_m_s"].to_numpy(float), g["friction_n"].to_numpy(float)
-        fit = vfr._fit_tanh(v, f, stribeck_v=vst_mm / 1e3) if v.size >= 5 else None
-        if fit is not None and fit[2] is not None:
-            params, _rss, cov = fit
-            se = _f(math.sqrt(cov[3, 3])) if cov[3, 3] >= 0 else None
-            if se is not None and abs(params[3] - amp) <= 1e-6 * max(1.0, abs(amp)) + 0.05 * se:
-                return se, (f"uncertainty: standard error of the fitted amplitude (least-squares covariance "
-                            f"of the Stribeck fit at v_st = {vst_mm:.3g} mm/s, {v.size} near-zero points)")
-    p, n = _f(row.get("stribeck_p_value")), _f(row.get("n_points"))
-    if amp is not None and p is not None and n is not None and 0 < p < 1 and n - 4 >= 1:
-        fstat = float(stats.f.isf(p / STRIBECK_GRID, 1, n - 4))
-        if fstat > 0:
-            return abs(amp) / math.sqrt(fstat), ("uncertainty: standard error implied by the F test "
-                                                 "(|amplitude| / sqrt(F), F from the corrected p-value)")
-    return None, "uncertainty: not available (no near-zero points, F test not invertible)"
+def _stribeck_se(row: pd.Series) -> tuple[float | None, str]:
+    """Standard error of the fitted Stribeck amplitude of one ``viscous_transition`` row [N], and how."""
+    se = _f(row.get("stribeck_amplitude_se_n"))
+    if se is not None:
+        return se, ("uncertainty: standard error of the fitted amplitude (least-squares covariance of the "
+                    f"Stribeck fit at v_st = {_f(row.get('stribeck_velocity_mm_s')) or float('nan'):.3g} mm/s)")
+    return None, "uncertainty: not available (the fit gave no covariance)"
 
 
 def stribeck(ctx: StageContext) -> dict:
@@ -275,7 +245,7 @@ def stribeck(ctx: StageContext) -> dict:
     i = amp.idxmax()
     dips = vt[vt["stribeck_dip"].astype(bool)]
     p = pd.to_numeric(vt["stribeck_p_value"], errors="coerce").min()
-    se, how = _stribeck_se(ctx, vt.loc[i])
+    se, how = _stribeck_se(vt.loc[i])
     detail = (f"largest fitted Stribeck amplitude {amp[i]:.3g} N at {vt.loc[i, 'backpressure_bar']:g} bar; "
               f"{len(dips)} of {len(vt)} backpressures with a significant dip; {how}")
     return _row(*args, source, amp[i], se, dips.empty, int(pd.to_numeric(vt["n_points"], errors="coerce").sum()),

@@ -109,6 +109,7 @@ CREATE TABLE viscous_transition (
     nrmse_pct                 DOUBLE,
     n_points                  BIGINT,
     stribeck_amplitude_n      DOUBLE,
+    stribeck_amplitude_se_n   DOUBLE,               -- standard error (least-squares covariance)
     stribeck_velocity_mm_s    DOUBLE,
     stribeck_p_value          DOUBLE,
     stribeck_dip              BOOLEAN

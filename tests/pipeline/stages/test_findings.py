@@ -222,15 +222,9 @@ def test_stribeck_uncertainty_is_the_standard_error_of_the_fitted_amplitude():
     assert np.mean(ses) > 0
     assert abs(np.mean(estimates) - 1.5) < 3 * np.mean(ses) / np.sqrt(len(ses))
     assert 0.5 < np.std(estimates, ddof=1) / np.mean(ses) < 2.0
-    # with the table alone it is implied by the F test: |A| / sqrt(F), F from the corrected p
-    trans = pd.DataFrame({"backpressure_bar": [0.0], "stribeck_amplitude_n": [0.02], "stribeck_p_value": [0.6],
-                          "stribeck_dip": [False], "n_points": [40]})
-    row = by_id(ctx_with(viscous_transition=trans))["no_stribeck_dip"]
-    from scipy import stats
-    assert row["uncertainty"] == pytest.approx(0.02 / np.sqrt(stats.f.isf(0.6 / 6, 1, 36)))
-    assert "F test" in row["detail"]
-    trans["stribeck_p_value"] = 1.0  # capped by the correction: cannot be inverted
-    row = by_id(ctx_with(viscous_transition=trans))["no_stribeck_dip"]
+    # the analysis table carries it; a table without it gives no uncertainty, not a guess
+    assert trans["stribeck_amplitude_se_n"].notna().all()
+    row = by_id(ctx_with(viscous_transition=trans.drop(columns="stribeck_amplitude_se_n")))["no_stribeck_dip"]
     assert row["uncertainty"] is None and "not available" in row["detail"]
 
 
