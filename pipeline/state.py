@@ -22,6 +22,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import time
 from dataclasses import dataclass, field
 from functools import lru_cache
@@ -68,11 +69,33 @@ def ingest_code_version() -> str:
 _PROJECT_PACKAGES = ("pipeline", "analyses", "schemas")
 
 
-def project_imports(module_file: Path) -> set[Path]:
-    """Source files of this project that ``module_file`` imports, transitively (read with
-    ``ast``, nothing is imported), the file itself included."""
-    import ast
+_IMPORT = re.compile(r"^[ \t]*(?:from[ \t]+([\w.]+)[ \t]+import[ \t]+(\([^)]*\)|[^\n#]*)|import[ \t]+([^\n#]*))",
+                     re.MULTILINE)
 
+
+@lru_cache(maxsize=None)
+def _direct_imports(module_file: Path) -> tuple[Path, ...]:
+    """Project source files a file imports (at any indentation: lazy imports count too)."""
+    out = []
+    for m in _IMPORT.finditer(module_file.read_text(encoding="utf-8")):
+        if m.group(1):
+            if m.group(1).startswith("."):
+                continue
+            names = [m.group(1)] + [f"{m.group(1)}.{n.split()[0]}" for n in m.group(2).strip("()").split(",")
+                                    if n.strip()]
+        else:
+            names = [n.split()[0] for n in m.group(3).split(",") if n.strip()]
+        for name in names:
+            if name.split(".")[0] not in _PROJECT_PACKAGES:
+                continue
+            base = _ROOT.joinpath(*name.split("."))
+            out += [c.resolve() for c in (base.with_suffix(".py"), base / "__init__.py") if c.is_file()]
+    return tuple(out)
+
+
+def project_imports(module_file: Path) -> set[Path]:
+    """Source files of this project that ``module_file`` imports, transitively (read as text,
+    nothing is imported), the file itself included."""
     seen: set[Path] = set()
     todo = [Path(module_file).resolve()]
     while todo:
@@ -80,19 +103,7 @@ def project_imports(module_file: Path) -> set[Path]:
         if f in seen or not f.is_file():
             continue
         seen.add(f)
-        for node in ast.walk(ast.parse(f.read_text(encoding="utf-8"), str(f))):
-            names = []
-            if isinstance(node, ast.Import):
-                names = [a.name for a in node.names]
-            elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-                names = [node.module] + [f"{node.module}.{a.name}" for a in node.names]
-            for name in names:
-                if name.split(".")[0] not in _PROJECT_PACKAGES:
-                    continue
-                base = _ROOT.joinpath(*name.split("."))
-                for cand in (base.with_suffix(".py"), base / "__init__.py"):
-                    if cand.is_file():
-                        todo.append(cand.resolve())
+        todo += _direct_imports(f)
     return seen
 
 
