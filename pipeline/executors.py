@@ -131,7 +131,7 @@ class LocalExecutor(Executor):
         without it the :class:`~concurrent.futures.process.BrokenProcessPool` error is raised.
         """
         items = list(items)
-        if self.jobs <= 1 or (len(items) <= 1 and on_crash is None):
+        if not items or self.jobs <= 1 or (len(items) == 1 and on_crash is None):
             return super().map(func, items, label, progress)  # in this process: no isolation
         progress = progress or Progress()
         out = []

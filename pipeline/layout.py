@@ -86,12 +86,21 @@ class RawTree:
     problems: list[Problem] = field(default_factory=list)
     _rigs: dict = field(default_factory=dict)
     _manifests: dict = field(default_factory=dict)
+    _real: dict = field(default_factory=dict)
+    _chains: dict = field(default_factory=dict)
 
     def __post_init__(self):
         self.root = Path(self.root).resolve()
 
+    def real(self, path: Path) -> Path:
+        """``path.resolve()``, cached (a rebuild asks for every file's several times)."""
+        key = str(path)
+        if key not in self._real:
+            self._real[key] = Path(path).resolve()
+        return self._real[key]
+
     def rel(self, path: Path) -> str:
-        return Path(path).resolve().relative_to(self.root).as_posix()
+        return self.real(path).relative_to(self.root).as_posix()
 
     def campaign(self, path: Path) -> str | None:
         parts = Path(self.rel(path)).parts
@@ -99,12 +108,14 @@ class RawTree:
 
     def _folders(self, path: Path) -> list[Path]:
         """Folders from raw/ down to the file's folder."""
-        folder = Path(path).resolve().parent
-        chain = [folder]
-        while folder != self.root and self.root in folder.parents:
-            folder = folder.parent
-            chain.append(folder)
-        return list(reversed(chain))
+        folder = self.real(path).parent
+        if folder not in self._chains:
+            chain, f = [folder], folder
+            while f != self.root and self.root in f.parents:
+                f = f.parent
+                chain.append(f)
+            self._chains[folder] = list(reversed(chain))
+        return self._chains[folder]
 
     # -- rig.toml ---------------------------------------------------------------------------
     def _rig_file(self, folder: Path) -> dict:
@@ -191,7 +202,7 @@ class RawTree:
 
     def manifest_metadata(self, path: Path) -> dict:
         """Metadata the manifests give for a run (nearer manifests override farther ones)."""
-        key = Path(path).resolve().as_posix()
+        key = self.real(path).as_posix()
         meta: dict = {}
         for folder in self._folders(path):
             meta.update(self._manifest(folder).get(key, {}))
