@@ -83,6 +83,15 @@ def test_decimation_removes_content_above_the_new_nyquist():
     np.testing.assert_allclose(dec["x_m"][inner], 0.01 * np.sin(2 * np.pi * dec["t_s"][inner]), atol=2e-4)
 
 
+def assert_recovered(res, truth):
+    """The issue's bar: wn, zeta and k within 5 % of the simulator's truth, fit_pct >= 90."""
+    assert res.ok, res.message
+    assert res.wn_rad_s == pytest.approx(truth["wn_rad_s"], rel=0.05)
+    assert res.zeta == pytest.approx(truth["zeta"], rel=0.05)
+    assert res.k_lin_m_v_s == pytest.approx(truth["k_lin_m_v_s"], rel=0.05)
+    assert res.fit_pct >= 90
+
+
 @pytest.mark.parametrize("plant,seed", [({}, 1), (dict(wn=30.0, zeta=0.3, k=1.5, kp_v_m=3.0), 2),
                                         (dict(wn=8.0, zeta=0.9, k=0.4, kp_v_m=10.0), 3)])
 def test_recovers_the_simulators_plant(plant, seed):
@@ -90,11 +99,7 @@ def test_recovers_the_simulators_plant(plant, seed):
     d, truth = run.data, run.truth
     res = identify_third_order(d["t_s"], d["x_m"], d["u_d_v"], d["x_ref_m"], run.metadata["kp_v_m"],
                                run.metadata["id_sample_rate_hz"])
-    assert res.ok, res.message
-    assert res.wn_rad_s == pytest.approx(truth["wn_rad_s"], rel=0.05)
-    assert res.zeta == pytest.approx(truth["zeta"], rel=0.05)
-    assert res.k_lin_m_v_s == pytest.approx(truth["k_lin_m_v_s"], rel=0.05)
-    assert res.fit_pct >= 90
+    assert_recovered(res, truth)
     assert len(res.x_m) == pytest.approx(truth["duration_s"] * 50, abs=2)
 
 
@@ -122,11 +127,7 @@ def test_recovers_the_plant_from_a_run_cut_mid_motion(plant, seed):
     assert abs(_velocity(x, k, fs)) > 0.2                    # precondition: well away from rest
     res = identify_third_order(cut["t_s"], cut["x_m"], cut["u_d_v"], cut["x_ref_m"], truth["kp_v_m"],
                                run.metadata["id_sample_rate_hz"])
-    assert res.ok, res.message
-    assert res.wn_rad_s == pytest.approx(truth["wn_rad_s"], rel=0.05)
-    assert res.zeta == pytest.approx(truth["zeta"], rel=0.05)
-    assert res.k_lin_m_v_s == pytest.approx(truth["k_lin_m_v_s"], rel=0.05)
-    assert res.fit_pct >= 90
+    assert_recovered(res, truth)
     # the fitted initial velocity is the carriage's at the first identification instant
     j = k + int(round((res.t_s[0] - cut["t_s"][0]) * fs))
     assert res.x0[1] == pytest.approx(_velocity(x, j, fs), rel=0.05)
