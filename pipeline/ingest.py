@@ -303,7 +303,8 @@ def ingest_key(sha: str, meta: dict, maps: list[ColumnMap]) -> str:
     return hashlib.sha256(blob.encode()).hexdigest()
 
 
-def ingest_file(tree: RawTree, path: Path, warehouse: Path, reuse: bool = True) -> IngestResult:
+def ingest_file(tree: RawTree, path: Path, warehouse: Path, reuse: bool = True,
+                sha256: str | None = None) -> IngestResult:
     """Ingest one raw file into ``warehouse/samples/``; never raises for bad input.
 
     Parameters
@@ -317,6 +318,9 @@ def ingest_file(tree: RawTree, path: Path, warehouse: Path, reuse: bool = True) 
         ``samples/kind=<kind>/campaign=<campaign>/<run>-<key>.parquet``.
     reuse : bool
         Keep an existing samples file with the same content key instead of writing it again.
+    sha256 : str, optional
+        The file's SHA-256 when the caller has just computed it (the rebuild hashes every
+        changed file first): it is not read twice.
 
     Returns
     -------
@@ -326,7 +330,7 @@ def ingest_file(tree: RawTree, path: Path, warehouse: Path, reuse: bool = True) 
     rel = tree.rel(path)
     result = IngestResult(source_path=rel, campaign=tree.campaign(path))
     try:
-        run, channels = _ingest(tree, Path(path), Path(warehouse), rel, result.campaign, reuse)
+        run, channels = _ingest(tree, Path(path), Path(warehouse), rel, result.campaign, reuse, sha256)
         result.run, result.channels = run, channels
     except (IngestError, ReaderError, ConfigError) as exc:
         result.error = _one_line(str(exc))
@@ -341,10 +345,11 @@ def _one_line(text: str) -> str:
     return " ".join(str(text).split())[:500]
 
 
-def _ingest(tree: RawTree, path: Path, warehouse: Path, rel: str, campaign: str | None, reuse: bool):
+def _ingest(tree: RawTree, path: Path, warehouse: Path, rel: str, campaign: str | None, reuse: bool,
+            sha: str | None = None):
     if campaign is None:
         raise IngestError("file is not in a campaign folder (raw/<campaign>/...)")
-    sha = sha256_file(path)
+    sha = sha or sha256_file(path)
     rig = tree.rig_config(path)
     manifest = tree.manifest_metadata(path)
     export = _open_export(path, rig, manifest)

@@ -160,7 +160,7 @@ def _ingest_task(args) -> dict:
     if prev is not None and prev["sha"] == sha:
         return {"sha": sha, "reused": True, "result": None}
     _crash_point(f"ingest:{tree.rel(path)}", signal.SIGSEGV)  # a reader crashing in C code
-    res = ingest_file(tree, path, Path(warehouse), reuse=reuse)
+    res = ingest_file(tree, path, Path(warehouse), reuse=reuse, sha256=sha)
     if res.run is not None:
         sha = res.run.get("source_sha256", sha)
     return {"sha": sha, "reused": False, "result": res}

@@ -236,3 +236,17 @@ def test_project_imports_follows_imports_transitively(tmp_path, monkeypatch):
     monkeypatch.setattr(state, "_ROOT", tmp_path)
     got = {f.name for f in state.project_imports(tmp_path / "pipeline" / "a.py")}
     assert got == {"a.py", "b.py", "c.py"}
+
+
+def test_a_new_file_is_hashed_once(raw, warehouse, monkeypatch):
+    # the rebuild hashes a new or changed file to decide; ingest reuses that hash
+    import pipeline.ingest as ing
+
+    calls = []
+    real = ing.sha256_file
+    for mod in (rb, ing):
+        monkeypatch.setattr(mod, "sha256_file", lambda p, *a, **k: calls.append(p.name) or real(p, *a, **k))
+    step(raw, "c/a.csv")
+    rebuild(raw.root, warehouse, jobs=1)
+    assert calls.count("a.csv") == 1
+    assert q(warehouse, "SELECT source_sha256 FROM runs") == [(real(raw.root / "c" / "a.csv"),)]
