@@ -69,13 +69,43 @@ class IngestResult:
     error: str | None = None
 
 
-def sha256_file(path: Path, chunk: int = 1 << 22) -> str:
-    """SHA-256 of a file, read in chunks. [hex]"""
+def sha256_file(path: Path, chunk: int = 1 << 22, stop=None) -> str | None:
+    """SHA-256 of a file, read in chunks. [hex] (None when the ``stop`` event was set.)"""
     h = hashlib.sha256()
     with open(path, "rb") as fh:
         while block := fh.read(chunk):
+            if stop is not None and stop.is_set():
+                return None
             h.update(block)
     return h.hexdigest()
+
+
+class _BackgroundHash:
+    """SHA-256 of a file computed in a thread while the file is parsed (hashlib releases the
+    GIL): a new file is read for its hash and for its data at the same time."""
+
+    def __init__(self, path: Path):
+        import threading
+
+        self._stop = threading.Event()
+        self._out: dict = {}
+        self._thread = threading.Thread(target=self._run, args=(path,), name="ingest-sha256", daemon=True)
+        self._thread.start()
+
+    def _run(self, path):
+        try:
+            self._out["sha"] = sha256_file(path, stop=self._stop)
+        except BaseException as exc:  # noqa: BLE001 - re-raised by result()
+            self._out["error"] = exc
+
+    def result(self) -> str:
+        self._thread.join()
+        if "error" in self._out:
+            raise self._out["error"]
+        return self._out["sha"]
+
+    def cancel(self) -> None:
+        self._stop.set()
 
 
 # -- metadata ------------------------------------------------------------------------------
@@ -349,7 +379,15 @@ def _ingest(tree: RawTree, path: Path, warehouse: Path, rel: str, campaign: str 
             sha: str | None = None):
     if campaign is None:
         raise IngestError("file is not in a campaign folder (raw/<campaign>/...)")
-    sha = sha or sha256_file(path)
+    hashing = None if sha else _BackgroundHash(path)
+    try:
+        return _ingest_hashed(tree, path, warehouse, rel, campaign, reuse, sha, hashing)
+    finally:
+        if hashing is not None:
+            hashing.cancel()
+
+
+def _ingest_hashed(tree, path, warehouse, rel, campaign, reuse, sha, hashing):
     rig = tree.rig_config(path)
     manifest = tree.manifest_metadata(path)
     export = _open_export(path, rig, manifest)
@@ -370,22 +408,25 @@ def _ingest(tree: RawTree, path: Path, warehouse: Path, rel: str, campaign: str 
     p_atm = float(meta.get("p_atm_pa", P_ATM_DEFAULT_PA))
     extra = [(m.column, m.unit, pa.float64() if m.numeric else pa.string()) for m in maps if m.channel is None]
     schema = samples_schema(sorted(present), extra)
-    key = ingest_key(sha, meta, maps)
     run_id = str(meta["run_id"])
-    rel_out = Path("samples") / f"kind={kind}" / f"campaign={campaign}" / f"{safe_file_name(run_id)}-{key[:16]}.parquet"
-    out = warehouse / rel_out
+    folder = Path("samples") / f"kind={kind}" / f"campaign={campaign}"
+
+    def samples_path(sha: str) -> Path:
+        return folder / f"{safe_file_name(run_id)}-{ingest_key(sha, meta, maps)[:16]}.parquet"
+
+    rel_out = samples_path(sha) if sha else None
     warnings: list[str] = []  # ingest's own; the reader's are taken after its data is read
     run = {
         "run_id": run_id, "kind": kind, "campaign": campaign, "rig": meta.get("rig"),
         "started_at": meta.get("started_at"), "source_path": rel, "source_sha256": sha,
-        "format": export.format, "samples_path": rel_out.as_posix(), "params": meta,
+        "format": export.format, "samples_path": rel_out.as_posix() if rel_out else None, "params": meta,
     }
-    if reuse and out.exists():
-        cached = read_run_record(out)
+    if reuse and rel_out is not None and (warehouse / rel_out).exists():
+        cached = read_run_record(warehouse / rel_out)
         if cached is not None:
             return cached["run"], cached["channels"]
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
+    (warehouse / folder).mkdir(parents=True, exist_ok=True)
+    tmp = warehouse / folder / f".{safe_file_name(run_id)}.{os.getpid()}.tmp"
     check = _TimeCheck()
     empty = {m.column: True for m in maps if m.numeric}
     try:
@@ -407,8 +448,12 @@ def _ingest(tree: RawTree, path: Path, warehouse: Path, rel: str, campaign: str 
             run.update(n_samples=check.n, sample_rate_hz=check.sample_rate_hz,
                        duration_s=(check.last - check.first), warnings=list(export.warnings) + warnings)
             channels = [dict(run_id=run_id, **m.describe()) for m in maps]
+            if rel_out is None:  # hashed while parsing: the name and the record need it now
+                sha = hashing.result()
+                rel_out = samples_path(sha)
+                run.update(source_sha256=sha, samples_path=rel_out.as_posix())
             writer.add_key_value_metadata({"pneubench": json.dumps({"run": run, "channels": channels}, sort_keys=True)})
-        os.replace(tmp, out)
+        os.replace(tmp, warehouse / rel_out)
     finally:
         if tmp.exists():
             tmp.unlink()

@@ -146,19 +146,22 @@ def _tree(raw: str, token: str) -> RawTree:
 
 
 def _ingest_task(args) -> dict:
-    """Worker task: hash a run file; reuse its previous record when its content is unchanged,
-    else ingest it. Returns ``{"sha", "reused", "result"}``."""
+    """Worker task: a file whose stat alone changed is hashed and keeps its previous record when
+    its bytes are the same; any other file is ingested. Returns ``{"sha", "reused", "result"}``."""
     raw, token, path, warehouse, reuse, prev = args
     path = Path(path)
     tree = _tree(raw, token)
-    try:
-        sha = sha256_file(path)
-    except OSError as exc:
-        res = IngestResult(source_path=tree.rel(path), campaign=tree.campaign(path),
-                           error=f"cannot read file: {type(exc).__name__}: {exc}")
-        return {"sha": None, "reused": False, "result": res}
-    if prev is not None and prev["sha"] == sha:
-        return {"sha": sha, "reused": True, "result": None}
+    sha = None
+    if prev is not None:  # only the stat changed: the same bytes keep their record
+        try:
+            sha = sha256_file(path)
+        except OSError as exc:
+            res = IngestResult(source_path=tree.rel(path), campaign=tree.campaign(path),
+                               error=f"cannot read file: {type(exc).__name__}: {exc}")
+            return {"sha": None, "reused": False, "result": res}
+        if prev["sha"] == sha:
+            return {"sha": sha, "reused": True, "result": None}
+    # else ingest hashes the file while it parses it (a quarantined file may keep no hash)
     _crash_point(f"ingest:{tree.rel(path)}", signal.SIGSEGV)  # a reader crashing in C code
     res = ingest_file(tree, path, Path(warehouse), reuse=reuse, sha256=sha)
     if res.run is not None:

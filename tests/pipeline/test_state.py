@@ -239,7 +239,7 @@ def test_project_imports_follows_imports_transitively(tmp_path, monkeypatch):
 
 
 def test_a_new_file_is_hashed_once(raw, warehouse, monkeypatch):
-    # the rebuild hashes a new or changed file to decide; ingest reuses that hash
+    # a new file is hashed by ingest while it parses it; a touched one by the rebuild, to decide
     import pipeline.ingest as ing
 
     calls = []
@@ -247,6 +247,13 @@ def test_a_new_file_is_hashed_once(raw, warehouse, monkeypatch):
     for mod in (rb, ing):
         monkeypatch.setattr(mod, "sha256_file", lambda p, *a, **k: calls.append(p.name) or real(p, *a, **k))
     step(raw, "c/a.csv")
+    rebuild(raw.root, warehouse, jobs=1)
+    assert calls.count("a.csv") == 1
+    assert q(warehouse, "SELECT source_sha256 FROM runs") == [(real(raw.root / "c" / "a.csv"),)]
+    # touched with other bytes: the rebuild hashes it to decide and ingest reuses that hash
+    calls.clear()
+    age(raw.root)
+    step(raw, "c/a.csv", scale=2.0)
     rebuild(raw.root, warehouse, jobs=1)
     assert calls.count("a.csv") == 1
     assert q(warehouse, "SELECT source_sha256 FROM runs") == [(real(raw.root / "c" / "a.csv"),)]
