@@ -161,11 +161,16 @@ def _ingest_task(args) -> dict:
             return {"sha": None, "reused": False, "result": res}
         if prev["sha"] == sha:
             return {"sha": sha, "reused": True, "result": None}
-    # else ingest hashes the file while it parses it (a quarantined file may keep no hash)
+    # else ingest hashes the file while it parses it
     _crash_point(f"ingest:{tree.rel(path)}", signal.SIGSEGV)  # a reader crashing in C code
     res = ingest_file(tree, path, Path(warehouse), reuse=reuse, sha256=sha)
     if res.run is not None:
         sha = res.run.get("source_sha256", sha)
+    elif sha is None:  # quarantined before its hash was done: record it, or the next rebuild re-reads it
+        try:
+            sha = sha256_file(path)
+        except OSError:
+            pass
     return {"sha": sha, "reused": False, "result": res}
 
 
