@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
-from scipy import stats
+import scipy  # its submodules load on first use: a rebuild that reuses every stage never pays for them
 
 #: Encoder resolution of the PLPA bench (seed 000). [m]
 ENCODER_RESOLUTION_M = 5e-6
@@ -279,10 +279,10 @@ def backpressure_ratio(breakaway: pd.DataFrame, direction: str | None = None, co
     v1 = hi.var(ddof=1) / (hi.size * m1**2)
     se = np.sqrt(v0 + v1)
     dof = (v0 + v1) ** 2 / (v0**2 / (lo.size - 1) + v1**2 / (hi.size - 1)) if se > 0 else np.inf
-    q = stats.t.ppf(0.5 + confidence / 2, dof)
+    q = scipy.stats.t.ppf(0.5 + confidence / 2, dof)
     r = m0 / m1
     out.update({"estimate": float(r), "ci_low": float(r * np.exp(-q * se)), "ci_high": float(r * np.exp(q * se)),
-                "p_value": float(stats.ttest_ind(lo, hi, equal_var=False).pvalue)})
+                "p_value": float(scipy.stats.ttest_ind(lo, hi, equal_var=False).pvalue)})
     return out
 
 
@@ -319,8 +319,8 @@ def force_rate_slope(breakaway: pd.DataFrame, direction: str | None = None, conf
     cov = s2 * np.linalg.pinv(X.T @ X)
     se = float(np.sqrt(cov[ng, ng]))
     b = float(beta[ng])
-    q = stats.t.ppf(0.5 + confidence / 2, dof)
-    p = float(2 * stats.t.sf(abs(b) / se, dof)) if se > 0 else (0.0 if b != 0 else 1.0)
+    q = scipy.stats.t.ppf(0.5 + confidence / 2, dof)
+    p = float(2 * scipy.stats.t.sf(abs(b) / se, dof)) if se > 0 else (0.0 if b != 0 else 1.0)
     out.update({"estimate": b, "ci_low": b - q * se, "ci_high": b + q * se, "p_value": p})
     return out
 

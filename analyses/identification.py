@@ -28,7 +28,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import optimize, signal
+import scipy  # its submodules load on first use: a rebuild that reuses every stage never pays for them
 
 __all__ = ["plpa_plant_ss", "plpa_closed_loop_ss", "simulate_closed_loop", "decimate_for_identification",
            "fit_percent", "IdentificationResult", "identify_third_order", "plot_identification"]
@@ -82,12 +82,12 @@ def plpa_closed_loop_ss(wn: float, zeta: float, k: float, kp: float):
 def _discrete_closed_loop(wn, zeta, k, kp, dt):
     """ZOH discretisation; returns (a, b_ud, b_xref, Ad, C) with transfer-function coefficients."""
     Acl, Bcl, C, D = plpa_closed_loop_ss(wn, zeta, k, kp)
-    Ad, Bd, Cd, _, _ = signal.cont2discrete((Acl, Bcl, C, D), dt, method="zoh")
+    Ad, Bd, Cd, _, _ = scipy.signal.cont2discrete((Acl, Bcl, C, D), dt, method="zoh")
     # characteristic polynomial of Ad and numerators C adj(zI - Ad) Bd (no feed-through)
     a = np.real(np.poly(Ad))
     nums = []
     for j in range(Bd.shape[1]):
-        b, _ = signal.ss2tf(Ad, Bd[:, [j]], Cd, np.zeros((1, 1)))
+        b, _ = scipy.signal.ss2tf(Ad, Bd[:, [j]], Cd, np.zeros((1, 1)))
         nums.append(np.real(b[0]))
     return a, nums[0], nums[1], Ad, Cd
 
@@ -123,7 +123,7 @@ def simulate_closed_loop(wn: float, zeta: float, k: float, kp: float, u_d, x_ref
 
 
 def _response(a, b1, b2, Ad, C, u_d, x_ref):
-    return signal.lfilter(b1, a, u_d) + signal.lfilter(b2, a, x_ref)
+    return scipy.signal.lfilter(b1, a, u_d) + scipy.signal.lfilter(b2, a, x_ref)
 
 
 def _free_basis(a, Ad, C, n):
@@ -135,7 +135,7 @@ def _free_basis(a, Ad, C, n):
     for j in range(3):
         y = first[:, j]
         num = np.convolve(a, y)[:3]  # y = num / a  =>  num = a * y (first three terms)
-        cols.append(signal.lfilter(num, a, impulse))
+        cols.append(scipy.signal.lfilter(num, a, impulse))
     return np.column_stack(cols)
 
 
@@ -210,12 +210,12 @@ def _fir_decimate(x: np.ndarray, q: int) -> np.ndarray:
     does, instead of zeros: the position is far from zero and must not start with a transient.
     Output ``i`` is the filtered signal at input ``i q``.
     """
-    b = signal.firwin(20 * q + 1, 1.0 / q, window="hamming")
+    b = scipy.signal.firwin(20 * q + 1, 1.0 / q, window="hamming")
     npad = int(np.ceil(len(b) / q)) * q
     npad = min(npad, (len(x) - 1) // q * q) if len(x) > q else 0
     if npad > 0:
         x = np.concatenate([2 * x[0] - x[npad:0:-1], x, 2 * x[-1] - x[-2:-npad - 2:-1]])
-    y = signal.resample_poly(x, 1, q, window=b)
+    y = scipy.signal.resample_poly(x, 1, q, window=b)
     n_out = -(-(len(x) - 2 * npad) // q)
     return y[npad // q: npad // q + n_out]
 
@@ -354,7 +354,7 @@ def identify_third_order(t, x, u_d, x_ref, kp: float, rate_hz: float = 50.0,
         return r
 
     try:
-        sol = optimize.least_squares(residuals, p0, bounds=(lo, hi), x_scale=np.concatenate([x_sc, x0_sc]),
+        sol = scipy.optimize.least_squares(residuals, p0, bounds=(lo, hi), x_scale=np.concatenate([x_sc, x0_sc]),
                                      method="trf", xtol=1e-10, ftol=1e-10, max_nfev=400)
     except (ValueError, np.linalg.LinAlgError) as exc:
         return IdentificationResult(message=f"fit failed: {exc}", **base)

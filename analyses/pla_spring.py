@@ -22,7 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import optimize, signal
+import scipy  # its submodules load on first use: a rebuild that reuses every stage never pays for them
 
 __all__ = ["P_ATM_PA", "PRESSURE_SIGN", "FORCE_SIGN", "spring_pressure", "spring_force", "read_p0",
            "rod_velocity", "loop_energy", "SpringRun", "prepare_spring_run", "SpringFit", "fit_spring_chamber",
@@ -183,7 +183,7 @@ def rod_velocity(t, d, frequency_hz: float | None = None):
     w = max(5, w | 1)
     if len(d) <= w:
         return np.gradient(d, t)
-    return signal.savgol_filter(d, w, 3, deriv=1, delta=dt)
+    return scipy.signal.savgol_filter(d, w, 3, deriv=1, delta=dt)
 
 
 def loop_energy(d, f, chamber: str) -> tuple[float, int]:
@@ -404,7 +404,7 @@ def _seed(runs: list[SpringRun]) -> dict:
         pg = stack.pressure(nv[0]) - stack.pa
         return (pg * ae - stack.f) * stack.w
 
-    n = float(optimize.least_squares(elastic, [1.2], bounds=([0.5], [2.5])).x[0])
+    n = float(scipy.optimize.least_squares(elastic, [1.2], bounds=([0.5], [2.5])).x[0])
     # delta: loop area of the lowest-pressure tests, U = pi delta D^2
     good = [r for r in runs if np.isfinite(r.loop_energy_j)]
     if good:
@@ -459,7 +459,7 @@ def fit_spring_chamber(runs: list[SpringRun], max_samples_per_run: int | None = 
     hi = np.array([2.5, 1.0, 1e-2, 1e7])
     x0 = np.clip(x0, lo, hi)
     scale = np.maximum(np.abs(x0), [0.1, 1e-5, 1e-7, 10.0])
-    sol = optimize.least_squares(stack.residual, x0, jac=stack.jacobian, bounds=(lo, hi), x_scale=scale,
+    sol = scipy.optimize.least_squares(stack.residual, x0, jac=stack.jacobian, bounds=(lo, hi), x_scale=scale,
                                  method="trf", xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=200)
     fit = SpringFit(chamber, *map(float, sol.x), n_tests=len(usable), seeds=seeds,
                     message="" if sol.success else f"least_squares: {sol.message}")

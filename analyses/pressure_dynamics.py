@@ -16,7 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import optimize
+import scipy  # its submodules load on first use: a rebuild that reuses every stage never pays for them
 
 __all__ = ["second_order_step", "PressureStep", "split_pressure_steps", "PressureFit", "fit_pressure_dynamics",
            "plot_pressure_steps"]
@@ -174,7 +174,7 @@ def fit_pressure_dynamics(steps: list[PressureStep], chamber: str = "", directio
             c = float(np.sum(res((wn, zeta)) ** 2))
             if c < best[0]:
                 best = (c, np.array([wn, zeta]))
-    sol = optimize.least_squares(res, best[1], bounds=([0.1, 0.02], [1e5, 50.0]), x_scale=best[1],
+    sol = scipy.optimize.least_squares(res, best[1], bounds=([0.1, 0.02], [1e5, 50.0]), x_scale=best[1],
                                  xtol=1e-10, ftol=1e-10)
     wn, zeta = map(float, sol.x)
     model = _model(steps, wn, zeta)

@@ -46,7 +46,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
-from scipy import optimize, stats
+import scipy  # its submodules load on first use: a rebuild that reuses every stage never pays for them
 
 _NAN = float("nan")
 
@@ -131,7 +131,7 @@ def _profile_mle(x: np.ndarray, f: np.ndarray) -> tuple[float, float]:
     lo, hi = math.log(1e-3), math.log(1e3)
     if score(lo) > 0 or score(hi) < 0:
         raise ValueError("no finite Weibull MLE for these data")
-    k = math.exp(optimize.brentq(score, lo, hi, xtol=1e-14, rtol=1e-14))
+    k = math.exp(scipy.optimize.brentq(score, lo, hi, xtol=1e-14, rtol=1e-14))
     scale = s * ((y ** k).sum() / r) ** (1.0 / k)
     return k, scale
 
@@ -161,10 +161,10 @@ def weibull_fit(life, failed) -> WeibullFit:
     except (ValueError, FloatingPointError):
         return nan
     best = (k0, s0, weibull_loglik(k0, s0, x, f))
-    data = stats.CensoredData.right_censored(x, ~f)
+    data = scipy.stats.CensoredData.right_censored(x, ~f)
     try:
         with np.errstate(all="ignore"):
-            k1, _, s1 = stats.weibull_min.fit(data, k0, floc=0, scale=s0)
+            k1, _, s1 = scipy.stats.weibull_min.fit(data, k0, floc=0, scale=s0)
         ll1 = weibull_loglik(k1, s1, x, f)
         if math.isfinite(ll1) and ll1 > best[2]:
             best = (float(k1), float(s1), ll1)
@@ -182,7 +182,7 @@ def _profile_quantile_loglik(b: float, p: float, x, f, shape_hint: float) -> flo
         return -weibull_loglik(k, b / c ** (1.0 / k), x, f)
 
     centre = math.log(shape_hint)
-    res = optimize.minimize_scalar(neg, bounds=(centre - 4.0, centre + 4.0), method="bounded",
+    res = scipy.optimize.minimize_scalar(neg, bounds=(centre - 4.0, centre + 4.0), method="bounded",
                                    options={"xatol": 1e-9})
     return -float(res.fun)
 
@@ -211,7 +211,7 @@ def weibull_quantile_bounds(fit: WeibullFit, life, failed, p: float = 0.10,
         return _NAN, _NAN, _NAN
     x, f = _as_arrays(life, failed)
     est = fit.quantile(p)
-    crit = float(stats.chi2.ppf(confidence, 1))
+    crit = float(scipy.stats.chi2.ppf(confidence, 1))
 
     def g(logb):
         return 2.0 * (fit.loglik - _profile_quantile_loglik(math.exp(logb), p, x, f, fit.shape)) - crit
@@ -225,7 +225,7 @@ def weibull_quantile_bounds(fit: WeibullFit, life, failed, p: float = 0.10,
             b = math.log(est) + sign * step
             if g(b) > 0:
                 lo, hi = sorted((a, b))
-                bound = math.exp(optimize.brentq(g, lo, hi, xtol=1e-12))
+                bound = math.exp(scipy.optimize.brentq(g, lo, hi, xtol=1e-12))
                 break
             a, step = b, step * 2.0
         out.append(bound)
@@ -274,7 +274,7 @@ def weibull_lr_test(groups: dict) -> dict:
         return out
     sep = sum(ft.loglik for ft in fits)
     lr = max(0.0, 2.0 * (sep - pooled.loglik))
-    out.update(lr=lr, p_value=float(stats.chi2.sf(lr, out["df"])), loglik_pooled=pooled.loglik,
+    out.update(lr=lr, p_value=float(scipy.stats.chi2.sf(lr, out["df"])), loglik_pooled=pooled.loglik,
                loglik_separate=sep)
     return out
 

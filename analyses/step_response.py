@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
-from scipy import signal
+import scipy  # its submodules load on first use: a rebuild that reuses every stage never pays for them
 
 __all__ = ["find_steps", "step_metrics", "step_response_metrics", "plot_step_errors"]
 
@@ -149,8 +149,8 @@ def _smooth(t, x, cutoff_hz):
     fs = 1.0 / float(np.median(np.diff(t)))
     if not np.isfinite(cutoff_hz) or cutoff_hz >= 0.4 * fs or len(x) < 16:
         return x
-    sos = signal.butter(2, cutoff_hz, fs=fs, output="sos")
-    return signal.sosfiltfilt(sos, x, padtype="constant" if len(x) < 30 else "odd",
+    sos = scipy.signal.butter(2, cutoff_hz, fs=fs, output="sos")
+    return scipy.signal.sosfiltfilt(sos, x, padtype="constant" if len(x) < 30 else "odd",
                               padlen=min(len(x) - 1, 3 * int(fs / cutoff_hz)))
 
 

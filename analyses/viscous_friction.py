@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
-from scipy import optimize, stats
+import scipy  # its submodules load on first use: a rebuild that reuses every stage never pays for them
 
 from analyses.breakaway import ENCODER_RESOLUTION_M, drive_force
 
@@ -299,7 +299,7 @@ def fit_tanh_viscous(v_m_s, friction_n, confidence: float = 0.95) -> dict:
         return out
     p, rss, cov = res
     dof = v.size - 3
-    q = stats.t.ppf(0.5 + confidence / 2, dof)
+    q = scipy.stats.t.ppf(0.5 + confidence / 2, dof)
     se_log = float(np.sqrt(cov[2, 2])) if cov is not None and np.isfinite(cov[2, 2]) else float("nan")
     vs = float(np.exp(p[2]))
     out.update({"coulomb_n": float(p[0]), "viscous_n_s_m": float(p[1]), "transition_m_s": vs,
@@ -329,7 +329,7 @@ def _fit_tanh(v, f, stribeck_v: float | None = None):
         lb = [-np.inf, -np.inf, np.log(lo)] + ([-np.inf] if stribeck_v is not None else [])
         ub = [np.inf, np.inf, np.log(hi)] + ([np.inf] if stribeck_v is not None else [])
         try:
-            r = optimize.least_squares(lambda p: model(p) - f, x0, bounds=(lb, ub), method="trf", x_scale="jac")
+            r = scipy.optimize.least_squares(lambda p: model(p) - f, x0, bounds=(lb, ub), method="trf", x_scale="jac")
         except (ValueError, np.linalg.LinAlgError):
             continue
         rss = float(r.fun @ r.fun)
@@ -394,7 +394,7 @@ def stribeck_test(v_m_s, friction_n, alpha: float = 0.01, n_grid: int = 6) -> di
     if dof < 1 or rss1 <= 0:
         return out
     fstat = max(rss0 - rss1, 0.0) / (rss1 / dof)
-    pval = min(1.0, float(stats.f.sf(fstat, 1, dof)) * n_grid)
+    pval = min(1.0, float(scipy.stats.f.sf(fstat, 1, dof)) * n_grid)
     se = float(np.sqrt(cov[3, 3])) if cov is not None and np.isfinite(cov[3, 3]) and cov[3, 3] >= 0 else None
     out.update({"stribeck_amplitude_n": float(p[3]), "stribeck_amplitude_se_n": se,
                 "stribeck_velocity_m_s": float(vst), "stribeck_p_value": pval,

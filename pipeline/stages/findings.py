@@ -18,7 +18,7 @@ from typing import Callable
 
 import numpy as np
 import pandas as pd
-from scipy import stats
+import scipy  # its submodules load on first use: a rebuild that reuses every stage never pays for them
 
 from pipeline.stages import StageContext, StageOutput
 
@@ -90,7 +90,7 @@ def _std_from_ci(r: dict, log: bool = False) -> float | None:
     lo, hi, est, conf = _f(r.get("ci_low")), _f(r.get("ci_high")), _f(r.get("estimate")), _f(r.get("confidence"))
     if lo is None or hi is None or est is None:
         return None
-    z = stats.norm.ppf(0.5 + (conf or 0.95) / 2)
+    z = scipy.stats.norm.ppf(0.5 + (conf or 0.95) / 2)
     if log and lo > 0 and hi > 0:
         return est * (math.log(hi) - math.log(lo)) / (2 * z)
     return (hi - lo) / (2 * z)
@@ -208,7 +208,7 @@ def viscous_backpressure(ctx: StageContext) -> dict:
     if not spreads:
         return _row(*args, "viscous_fits", n=len(sel), detail="no data: one backpressure per direction")
     i = int(np.argmax(spreads))
-    p = float(stats.chi2.sf(chi2, dof)) if has_se and dof > 0 else None
+    p = float(scipy.stats.chi2.sf(chi2, dof)) if has_se and dof > 0 else None
     holds = (p is not None and p >= ALPHA) or spreads[i] < 100 * NEGLIGIBLE
     return _row(*args, "viscous_fits", spreads[i], uncs[i], holds, int(sel["n_points"].sum()) if "n_points" in sel else len(sel),
                 p, "largest spread (max - min) / mean of the viscous coefficient across 1-3 bar, per direction; "

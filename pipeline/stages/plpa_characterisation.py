@@ -23,7 +23,6 @@ from __future__ import annotations
 import json
 import math
 
-import numpy as np
 import pandas as pd
 import pyarrow.parquet as pq
 
