@@ -45,8 +45,8 @@ def rebuild(raw, warehouse, jobs, full, quiet, executor, scheduler, wait_s, no_r
     """Ingest new or changed raw files, re-run analyses, swap in the new warehouse.
 
     Exit 0: everything used; 1: warehouse built, some inputs quarantined; 2: usage error;
-    3 or 4: failed, previous warehouse untouched (4: another rebuild is running); 5: the new
-    warehouse is in place but its morning report failed (report/index.html says so).
+    3 or more: failed (also when the morning report cannot be rendered), previous warehouse and
+    report untouched (4: another rebuild is running).
     """
     from pipeline.rebuild import RebuildError, rebuild as do_rebuild
 
@@ -111,12 +111,15 @@ def schedule(raw, warehouse, at, workdir, log, user, wait_s, fmt):
 @warehouse_option
 def report(warehouse):
     """Write the morning report (warehouse/report/index.html) from the warehouse again."""
-    from pipeline.report import write_report
+    from pipeline.report import ReportError, write_report
 
     try:
         path = write_report(warehouse)
     except FileNotFoundError as exc:
         raise click.UsageError(str(exc)) from None
+    except ReportError as exc:
+        click.echo(f"pneubench report: failed: {exc.error}" + (f"; {exc.page} says so" if exc.page else ""), err=True)
+        sys.exit(3)
     click.echo(str(path))
 
 

@@ -14,8 +14,9 @@ point leaves the previous warehouse as it was; the next rebuild removes the debr
 
 Exit codes (warehouse.md): 0 everything used; 1 warehouse built, some inputs quarantined;
 2 usage error; anything else: failed, the previous warehouse untouched (3 failed, 4 another
-rebuild holds the lock), except 5: the new warehouse was swapped in but its morning report failed
-(``report/index.html`` then says so instead of showing the previous report).
+rebuild holds the lock). The morning report is rendered from the new database before the swap,
+so a report that cannot be rendered is a failure too (3), with the previous warehouse and its
+report kept: the two always agree.
 """
 from __future__ import annotations
 
@@ -637,12 +638,8 @@ def rebuild(raw: str | Path, warehouse: str | Path, jobs: int | None = None, ful
     Raises
     ------
     RebuildError
-        When the rebuild fails; the previous warehouse is left as it was. Except with
-        ``exit_code`` 5 (``pipeline.report.EXIT_REPORT_FAILED``): the new warehouse is in place
-        (``.summary`` says what was built) but the report could not be rendered;
-        ``report/index.html`` is then a page saying so for this generation, never the previous
-        report. Not 0 or 1, or cron and systemd would count a stale report as success; not 3,
-        which promises the previous warehouse.
+        When the rebuild fails (also when its report cannot be rendered); the previous
+        warehouse and its report are left as they were.
     """
     t0 = time.monotonic()
     started_at = datetime.now(timezone.utc)
@@ -745,8 +742,17 @@ def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, r
     }
     tmp_db = warehouse / f".{DB_NAME}.tmp-{os.getpid()}"
     progress.message(f"warehouse: writing {len(all_tables)} tables")
+    page = None
     try:
         build_database(tmp_db, warehouse, all_tables, runs_df)
+        if report:  # from the new database, before the swap: a failure keeps warehouse and report as they were
+            from pipeline.report import render_report
+            try:
+                page = render_report(warehouse, database=tmp_db)
+            except Exception as exc:
+                log.exception("report failed")
+                raise RebuildError(f"the morning report could not be rendered: {type(exc).__name__}: "
+                                   f"{' '.join(str(exc).split())}; the previous warehouse and report are kept") from exc
         _crash_point("before_swap")
         swap_in(tmp_db, warehouse / DB_NAME)
     except Exception as exc:
@@ -759,20 +765,15 @@ def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, r
     collect_garbage(warehouse, prev.samples | set(runs_df.get("samples_path", [])),
                     prev.stage_folders | {r.folder for r in staged.records})
     summary.tables = {k: len(v) for k, v in all_tables.items()}
-    report_error = None
-    if report:
-        from pipeline.report import EXIT_REPORT_FAILED, ReportError, write_report
+    if page is not None:
+        from pipeline.report import write_page
         try:
-            summary.report = write_report(warehouse, generation=generation)
+            summary.report = write_page(warehouse, page)
             progress.message(f"report: {summary.report}")
-        except Exception as exc:  # the warehouse is in place; the page says the report failed
-            report_error = exc if isinstance(exc, ReportError) else ReportError(
-                " ".join(f"{type(exc).__name__}: {exc}".split()), None)
-            log.error("report failed for generation %s: %s", generation, report_error.error, exc_info=exc)
-            summary.report = report_error.page
-            progress.message(f"report: FAILED for generation {generation}: {report_error.error}; "
-                             + (f"{report_error.page} says so" if report_error.page
-                                else "no report page could be written"))
+        except OSError as exc:  # the warehouse is in; never leave the previous report beside it
+            log.error("report could not be written: %s", exc)
+            progress.message(f"report: could not be written: {exc}")
+            (warehouse / "report" / "index.html").unlink(missing_ok=True)
     summary.seconds = time.monotonic() - t0
     for p in problems:
         where = f"{p.source_path}:{p.line}" if p.line else p.source_path
@@ -780,9 +781,4 @@ def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, r
     progress.message(f"rebuild: {summary.n_runs} runs ({summary.n_new} new, {summary.n_changed} changed, "
                      f"{summary.n_deleted} deleted, {summary.n_unchanged} unchanged), {len(problems)} quarantined, "
                      f"stages run: {', '.join(staged.ran) or 'none'}, {summary.seconds:.1f} s")
-    if report_error is not None:  # exit 5: the new warehouse is live, the report is not (see rebuild())
-        err = RebuildError(f"warehouse generation {generation} is in place, but its report failed: "
-                           f"{report_error.error}", EXIT_REPORT_FAILED)
-        err.summary = summary
-        raise err from report_error
     return summary

@@ -8,9 +8,10 @@ then every analysis figure with its key table. Figures are embedded as base64 PN
 is inline and there is no script: the file opens from disk anywhere. Every piece of text is
 escaped (``html.escape``): run metadata, file names and quarantine reasons come from raw/.
 
-The report is never silently stale: when rendering fails, ``write_report`` replaces
-``index.html`` with a short page saying that the report of this generation failed, with the
-error, and raises :class:`ReportError`; the rebuild then exits with ``EXIT_REPORT_FAILED``.
+The report is never silently stale. The rebuild renders it from the new database before the
+swap, so a report that cannot be rendered fails the rebuild (exit 3): the previous warehouse
+and its report stay, and they agree. ``pneubench report`` (``write_report``) replaces a page it
+cannot render with a short page saying so, with the error, and raises :class:`ReportError`.
 """
 from __future__ import annotations
 
@@ -20,6 +21,8 @@ import math
 import os
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
+
+import duckdb
 
 from pipeline.warehouse import DB_NAME, connect_readonly
 
@@ -31,10 +34,6 @@ CHANGE_WINDOW = timedelta(hours=24)
 #: Changes shown in the alert box (``new data`` is only noted in the findings table).
 ALERT_CHANGES = ("overturned", "now holds", "no longer checkable")
 
-#: Exit code of a rebuild whose warehouse was swapped in but whose report failed: not 0 or 1
-#: (cron and systemd would count a stale or missing report as success), not 3 (which promises
-#: the previous warehouse untouched).
-EXIT_REPORT_FAILED = 5
 
 
 class ReportError(Exception):
@@ -275,11 +274,19 @@ def _figures_section(db: _DB, warehouse: Path) -> str:
     return "".join(out)
 
 
-def render_report(warehouse: str | Path, now: datetime | None = None) -> str:
-    """The report of the warehouse as one HTML string (``now``: the clock for "last 24 hours")."""
+def render_report(warehouse: str | Path, now: datetime | None = None, database: str | Path | None = None) -> str:
+    """The report of the warehouse as one HTML string (``now``: the clock for "last 24 hours").
+
+    ``database``: the DuckDB file to read instead of the warehouse's live one (the rebuild
+    renders the report from the new database before swapping it in).
+    """
     warehouse = Path(warehouse)
     now = now or _now()
-    con = connect_readonly(warehouse)
+    if database is None:
+        con = connect_readonly(warehouse)
+    else:
+        con = duckdb.connect(str(database), read_only=True)
+        con.execute("SET TimeZone = 'UTC'")
     try:
         db = _DB(con)
         alert, findings = _findings_section(db, now)
@@ -328,6 +335,11 @@ def failure_page(warehouse: str | Path, generation: str | None, error: str, now:
         f'<p class="meta">warehouse {esc(Path(warehouse).resolve())}, generation {gen}, '
         f"failed {esc(f'{now.astimezone(timezone.utc):%Y-%m-%d %H:%M:%S} UTC')}</p>",
         "</body></html>"])
+
+
+def write_page(warehouse: str | Path, text: str) -> Path:
+    """Write ``text`` as ``report/index.html`` (temp file, then an atomic rename)."""
+    return _write_atomic(Path(warehouse) / "report", text)
 
 
 def _write_atomic(folder: Path, text: str) -> Path:

@@ -138,7 +138,8 @@ def test_files_that_are_not_runs_are_skipped(raw, warehouse):
 
 
 
-def test_a_failed_report_exits_5_with_the_new_warehouse_in_place(raw, warehouse, monkeypatch):
+def test_a_report_that_cannot_be_rendered_fails_the_rebuild_and_keeps_warehouse_and_report(raw, warehouse,
+                                                                                          monkeypatch):
     from click.testing import CliRunner
 
     import pipeline.report as rp
@@ -147,13 +148,16 @@ def test_a_failed_report_exits_5_with_the_new_warehouse_in_place(raw, warehouse,
     raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
     args = ["rebuild", "--raw", str(raw.root), "--warehouse", str(warehouse), "--jobs", "1"]
     assert CliRunner().invoke(main, args).exit_code == EXIT_OK
+    page = (warehouse / "report" / "index.html").read_text()
     raw.csv("c/b.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
     monkeypatch.setattr(rp, "render_report", lambda *a, **k: {}["missing table"])
     res = CliRunner().invoke(main, args)
-    assert res.exit_code == 5, res.output
-    assert "report: FAILED for generation" in res.output and "KeyError: 'missing table'" in res.output
-    assert "is in place, but its report failed" in res.output
-    assert q(warehouse, "SELECT run_id FROM runs ORDER BY 1") == [("c/a",), ("c/b",)]
-    assert "could not be written" in (warehouse / "report" / "index.html").read_text()
-    # without a report nothing can fail: the exit code is the warehouse's
+    assert res.exit_code == 3, res.output
+    assert "the morning report could not be rendered: KeyError: 'missing table'" in res.output
+    # the previous warehouse and its report, which agree with each other
+    assert q(warehouse, "SELECT run_id FROM runs ORDER BY 1") == [("c/a",)]
+    assert (warehouse / "report" / "index.html").read_text() == page
+    assert not [p for p in warehouse.iterdir() if ".tmp" in p.name]
+    # without a report nothing can fail: the new warehouse goes in
     assert CliRunner().invoke(main, [*args, "--no-report"]).exit_code == EXIT_OK
+    assert q(warehouse, "SELECT run_id FROM runs ORDER BY 1") == [("c/a",), ("c/b",)]

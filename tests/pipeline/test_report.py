@@ -156,32 +156,29 @@ def test_an_overturned_finding_stays_first_for_24_hours(built, raw, warehouse, m
     assert "<b>now holds</b>: Breakaway at 0 bar" in (warehouse / "report" / "index.html").read_text()
 
 
-def test_a_failed_report_replaces_the_page_and_never_leaves_yesterdays(built, raw, warehouse, monkeypatch):
+def test_pneubench_report_replaces_a_page_it_cannot_render_and_never_leaves_yesterdays(built, warehouse,
+                                                                                      monkeypatch):
     import pipeline.report as rp
-    from pipeline.rebuild import RebuildError
     from tests.conftest import query
 
     page = warehouse / "report" / "index.html"
     assert 'id="findings"' in page.read_text()
+    (gen,), = query(warehouse, "SELECT generation FROM rebuild_log ORDER BY finished_at DESC LIMIT 1")
 
     def broken(*a, **k):
         raise ValueError("renderer broke\non two lines")
 
     monkeypatch.setattr(rp, "render_report", broken)
-    with pytest.raises(RebuildError) as err:
-        rebuild(raw.root, warehouse, jobs=1)
-    gen = err.value.summary.generation
-    assert err.value.exit_code == rp.EXIT_REPORT_FAILED == 5
-    assert f"warehouse generation {gen} is in place" in str(err.value)
-    # the new warehouse is live
-    assert query(warehouse, "SELECT generation FROM rebuild_log ORDER BY finished_at DESC LIMIT 1") == [(gen,)]
+    with pytest.raises(rp.ReportError) as err:
+        rp.write_report(warehouse)
+    assert err.value.error == "ValueError: renderer broke on two lines"
     html = page.read_text()
     assert 'id="findings"' not in html and "Breakaway" not in html  # not the previous report
     assert 'id="report-failed"' in html and f"report for generation {gen} could not be written" in html
     assert "ValueError: renderer broke on two lines" in html and "warehouse itself is in place" in html
     assert not re.search(r'(src|href)="', html) and "<script" not in html
     assert not [p for p in page.parent.iterdir() if ".tmp" in p.name]
-    # `pneubench report` after the fix writes the real report again
+    # after the fix the real report again
     monkeypatch.undo()
     assert 'id="findings"' in rp.write_report(warehouse).read_text()
 
@@ -204,3 +201,15 @@ def test_no_warehouse_is_not_a_report_failure(tmp_path):
     with pytest.raises(FileNotFoundError):
         write_report(tmp_path / "none")
     assert not (tmp_path / "none" / "report").exists()
+
+
+def test_pneubench_report_command_exits_3_when_the_page_cannot_be_rendered(built, warehouse, monkeypatch):
+    from click.testing import CliRunner
+
+    import pipeline.report as rp
+    from pipeline.cli import main
+
+    monkeypatch.setattr(rp, "render_report", lambda *a, **k: 1 / 0)
+    res = CliRunner().invoke(main, ["report", "--warehouse", str(warehouse)])
+    assert res.exit_code == 3
+    assert "pneubench report: failed: ZeroDivisionError: division by zero" in res.output
