@@ -12,6 +12,7 @@ import hashlib
 import json
 import math
 import os
+import uuid
 import re
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -327,8 +328,11 @@ def safe_file_name(run_id: str) -> str:
 
 
 def ingest_key(sha: str, meta: dict, maps: list[ColumnMap]) -> str:
-    """Content key of a samples file: source bytes, metadata, column map and code version."""
-    blob = json.dumps({"sha": sha, "meta": meta, "maps": [m.__dict__ for m in maps], "v": INGEST_VERSION},
+    """Content key of a samples file: source bytes, metadata, column map and the ingest code's
+    version (its source hash), so output of changed code never lands on a live file's name."""
+    from pipeline.state import ingest_code_version  # state imports this module
+
+    blob = json.dumps({"sha": sha, "meta": meta, "maps": [m.__dict__ for m in maps], "v": ingest_code_version()},
                       sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()
 
@@ -426,7 +430,7 @@ def _ingest_hashed(tree, path, warehouse, rel, campaign, reuse, sha, hashing):
         if cached is not None:
             return cached["run"], cached["channels"]
     (warehouse / folder).mkdir(parents=True, exist_ok=True)
-    tmp = warehouse / folder / f".{safe_file_name(run_id)}.{os.getpid()}.tmp"
+    tmp = warehouse / folder / f".{safe_file_name(run_id)}.{os.getpid()}.{uuid.uuid4().hex[:12]}.tmp"
     check = _TimeCheck()
     empty = {m.column: True for m in maps if m.numeric}
     try:
