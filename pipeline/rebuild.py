@@ -153,6 +153,10 @@ def _ingest_task(args) -> dict:
     path = Path(path)
     tree = _tree(raw, token)
     sha = None
+    try:
+        before = os.stat(path)
+    except OSError:
+        before = None
     if prev is not None:  # only the stat changed: the same bytes keep their record
         try:
             sha = sha256_file(path)
@@ -172,6 +176,13 @@ def _ingest_task(args) -> dict:
             sha = sha256_file(path)
         except OSError:
             pass
+    try:
+        after = os.stat(path)
+    except OSError:
+        after = None
+    if before is None or after is None or (before.st_size, before.st_mtime_ns) != (after.st_size, after.st_mtime_ns):
+        # written to while read: the hash and the samples may be of different bytes; look again next time
+        return {"sha": None, "reused": False, "result": res, "retry": True}
     return {"sha": sha, "reused": False, "result": res}
 
 
@@ -181,7 +192,7 @@ def _ingest_crashed(args, reason: str) -> dict:
     tree = _tree(raw, token)
     res = IngestResult(source_path=tree.rel(Path(path)), campaign=tree.campaign(Path(path)),
                        error=f"cannot read file: {reason}")
-    return {"sha": None, "reused": False, "result": res}
+    return {"sha": None, "reused": False, "result": res, "retry": True}  # retried next rebuild (OOM kill?)
 
 
 def _result_from_record(rec: FileRecord, tree: RawTree, path: Path) -> IngestResult:
@@ -227,7 +238,7 @@ def ingest_incremental(tree: RawTree, plans: list[FilePlan], warehouse: Path, ex
             p.status = "changed"
         results[p.rel] = res
         result = {"run": res.run, "channels": res.channels} if res.run is not None else None
-        records[p.rel] = record_for(p, out["sha"], code_version, result, res.error, now)
+        records[p.rel] = record_for(p, out["sha"], code_version, result, res.error, now, retry=out.get("retry", False))
     order = [p.rel for p in plans]
     return [results[r] for r in order], [records[r] for r in order]
 

@@ -274,12 +274,13 @@ def plan_runs(tree: RawTree, files: list[Path], prev: PreviousState, code_versio
     return plans
 
 
-def record_for(plan: FilePlan, sha: str, code_version: str, result: dict | None, error: str | None,
-               now: float | None = None) -> FileRecord:
-    """The new state record of a run file (a racy mtime is stored as -1: hash it next time)."""
+def record_for(plan: FilePlan, sha: str | None, code_version: str, result: dict | None, error: str | None,
+               now: float | None = None, retry: bool = False) -> FileRecord:
+    """The new state record of a run file. A racy mtime, or ``retry`` (the file changed while
+    it was read, or its reader crashed), is stored as -1: the next rebuild looks at it again."""
     size, mtime_ns, inode = plan.stat
     now = time.time() if now is None else now
-    if now - mtime_ns / 1e9 < RACY_S:
+    if retry or now - mtime_ns / 1e9 < RACY_S:
         mtime_ns = -1
     return FileRecord(plan.rel, "run", size, mtime_ns, inode, sha, plan.meta_hash, code_version, result, error)
 

@@ -171,3 +171,7 @@ def test_a_worker_crash_quarantines_that_file_and_the_rest_ingests(raw, warehous
             "c/a", "c/b", "c/d", "c/e", "c/f"]
     finally:
         con.close()
+    # a crash may be passing (killed for memory): the next rebuild tries the file again
+    res = cli_rebuild(raw.root, warehouse)
+    assert res.returncode == 0, res.stderr
+    assert state(warehouse)[0] == ("c/a", "c/b", "c/c", "c/d", "c/e", "c/f")

@@ -257,3 +257,23 @@ def test_a_new_file_is_hashed_once(raw, warehouse, monkeypatch):
     rebuild(raw.root, warehouse, jobs=1)
     assert calls.count("a.csv") == 1
     assert q(warehouse, "SELECT source_sha256 FROM runs") == [(real(raw.root / "c" / "a.csv"),)]
+
+
+def test_a_file_written_while_it_is_read_is_read_again_next_time(raw, warehouse, monkeypatch):
+    # its hash and its samples may be of different bytes: the record says "look again"
+    step(raw, "c/a.csv")
+    age(raw.root)
+    real = rb.ingest_file
+
+    def ingest_while_the_bench_writes(tree, path, *a, **k):
+        res = real(tree, path, *a, **k)
+        step(raw, "c/a.csv", scale=2.0)  # the DAQ rewrites the file meanwhile
+        return res
+
+    monkeypatch.setattr(rb, "ingest_file", ingest_while_the_bench_writes)
+    rebuild(raw.root, warehouse, jobs=1)
+    monkeypatch.undo()
+    assert q(warehouse, "SELECT mtime_ns, source_sha256 FROM ingest_state WHERE role = 'run'") == [(-1, None)]
+    second = rebuild(raw.root, warehouse, jobs=1)
+    assert second.n_changed == 1
+    assert q(warehouse, "SELECT max(x_m) FROM samples_step") == [(pytest.approx(0.006),)]
