@@ -81,11 +81,13 @@ def crontab_line(s: Schedule) -> str:
             f"{' as ' + s.user if s.user else ''})\n" + line.replace("%", "\\%"))  # cron: bare % = newline
 
 
-def _sd_quote(value) -> str:
-    """One systemd unit-file word: ``%`` doubled (a specifier otherwise); double-quoted with
-    ``\\`` and ``"`` escaped when it has blanks, quotes or ``;``, so a path with spaces stays one
-    argument."""
+def _sd_quote(value, exec_line: bool = True) -> str:
+    """One systemd unit-file word: ``%`` doubled (a specifier otherwise), and ``$`` in ``Exec*=``
+    lines (a variable there; ``Environment=`` does not expand it); double-quoted with ``\\`` and
+    ``"`` escaped when it has blanks, quotes or ``;``, so a path with spaces stays one argument."""
     text = str(value).replace("%", "%%")
+    if exec_line:
+        text = text.replace("$", "$$")
     if text and not any(c.isspace() or c in "\"'\\;" for c in text):
         return text
     text = text.replace("\\", "\\\\").replace('"', '\\"')
@@ -104,8 +106,8 @@ Wants=network-online.target
 [Service]
 Type=oneshot
 {user}WorkingDirectory={str(s.workdir).replace("%", "%%")}
-Environment={_sd_quote(f"PNEUBENCH_RAW={s.raw}")}
-Environment={_sd_quote(f"PNEUBENCH_WAREHOUSE={s.warehouse}")}
+Environment={_sd_quote(f"PNEUBENCH_RAW={s.raw}", exec_line=False)}
+Environment={_sd_quote(f"PNEUBENCH_WAREHOUSE={s.warehouse}", exec_line=False)}
 ExecStartPre=/bin/mkdir -p {_sd_quote(s.log.parent)}
 ExecStart={cmd}
 # exit 1 = warehouse built, some inputs quarantined (see the morning report): not a failure.

@@ -68,7 +68,7 @@ def test_cli_prints_all_three(tmp_path):
 
 
 def test_paths_with_spaces_and_percent_stay_one_argument(tmp_path):
-    base = tmp_path / "lab data 100%"
+    base = tmp_path / "lab data 100% $HOME"
     s = Schedule(raw=base / "raw", warehouse=base / "wh", workdir=base, at="02:30",
                  executable="/opt/pb/bin/pneubench", user=None)
     svc = configparser.ConfigParser(strict=False, interpolation=None)
@@ -76,10 +76,12 @@ def test_paths_with_spaces_and_percent_stay_one_argument(tmp_path):
     svc.read_string(systemd_service(s))
     sv = svc["Service"]
 
-    def words(value):  # systemd splits like a shell with double quotes; %% is a literal %
-        return [w.replace("%%", "%") for w in shlex.split(value)]
+    def words(value, exec_line=True):  # split like a shell with double quotes; %% is %, and $$ is $ in Exec
+        return [w.replace("%%", "%").replace("$$", "$") if exec_line else w.replace("%%", "%")
+                for w in shlex.split(value, posix=True)]
 
-    envs = [words(v) for k, v in svc.items("Service") if k == "Environment"] or [words(sv["Environment"])]
+    envs = [words(v, exec_line=False) for k, v in svc.items("Service") if k == "Environment"] or [
+        words(sv["Environment"], exec_line=False)]
     assert [f"PNEUBENCH_WAREHOUSE={base / 'wh'}"] in envs
     assert words(sv["ExecStartPre"]) == ["/bin/mkdir", "-p", str(base / "wh" / "logs")]
     assert words(sv["ExecStart"])[:4] == ["/opt/pb/bin/pneubench", "rebuild", "--raw", str(base / "raw")]
