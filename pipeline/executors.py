@@ -25,6 +25,8 @@ from concurrent.futures.process import BrokenProcessPool
 from pipeline.progress import Progress
 
 EXECUTORS = ("local", "dask")
+#: What ``on_crash`` is told when the worker process running an item died.
+CRASH_REASON = "the worker process reading it died (a crash in a C library, or killed for memory)"
 
 
 class Executor:
@@ -160,8 +162,7 @@ class LocalExecutor(Executor):
             try:
                 return pool.submit(func, item).result()
             except BrokenProcessPool:
-                return on_crash(item, "the worker process reading it died (a crash in a C library, "
-                                      "or killed for memory)")
+                return on_crash(item, CRASH_REASON)
 
     def close(self) -> None:
         if self._pool is not None:
@@ -220,8 +221,7 @@ class DaskExecutor(Executor):
                 except KilledWorker:  # the task killed every worker that tried it
                     if on_crash is None:
                         raise
-                    out[i] = on_crash(items[i], "the worker processes reading it died (a crash in a C "
-                                                "library, or killed for memory)")
+                    out[i] = on_crash(items[i], CRASH_REASON)
                 task.advance()
         return out
 

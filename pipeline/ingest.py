@@ -68,6 +68,8 @@ class IngestResult:
     run: dict | None = None
     channels: list[dict] = field(default_factory=list)
     error: str | None = None
+    #: the error may pass (the file could not be opened or read): look at the file again next time
+    transient: bool = False
 
 
 def sha256_file(path: Path, chunk: int = 1 << 22, stop=None) -> str | None:
@@ -327,18 +329,20 @@ def safe_file_name(run_id: str) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "_", run_id).strip("._")[:80] or "run"
 
 
-def ingest_key(sha: str, meta: dict, maps: list[ColumnMap]) -> str:
+def ingest_key(sha: str, meta: dict, maps: list[ColumnMap], code_version: str | None = None) -> str:
     """Content key of a samples file: source bytes, metadata, column map and the ingest code's
-    version (its source hash), so output of changed code never lands on a live file's name."""
-    from pipeline.state import ingest_code_version  # state imports this module
-
-    blob = json.dumps({"sha": sha, "meta": meta, "maps": [m.__dict__ for m in maps], "v": ingest_code_version()},
+    version (its source hash; the rebuild passes the one it computed, so every worker agrees),
+    so output of changed code never lands on a live file's name."""
+    if code_version is None:
+        from pipeline.state import ingest_code_version  # state imports this module
+        code_version = ingest_code_version()
+    blob = json.dumps({"sha": sha, "meta": meta, "maps": [m.__dict__ for m in maps], "v": code_version},
                       sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()
 
 
 def ingest_file(tree: RawTree, path: Path, warehouse: Path, reuse: bool = True,
-                sha256: str | None = None) -> IngestResult:
+                sha256: str | None = None, code_version: str | None = None) -> IngestResult:
     """Ingest one raw file into ``warehouse/samples/``; never raises for bad input.
 
     Parameters
@@ -355,6 +359,8 @@ def ingest_file(tree: RawTree, path: Path, warehouse: Path, reuse: bool = True,
     sha256 : str, optional
         The file's SHA-256 when the caller has just computed it (the rebuild hashes every
         changed file first): it is not read twice.
+    code_version : str, optional
+        The ingest code's version for the samples file name (default: computed here).
 
     Returns
     -------
@@ -364,7 +370,7 @@ def ingest_file(tree: RawTree, path: Path, warehouse: Path, reuse: bool = True,
     rel = tree.rel(path)
     result = IngestResult(source_path=rel, campaign=tree.campaign(path))
     try:
-        run, channels = _ingest(tree, Path(path), Path(warehouse), rel, result.campaign, reuse, sha256)
+        run, channels = _ingest(tree, Path(path), Path(warehouse), rel, result.campaign, reuse, sha256, code_version)
         result.run, result.channels = run, channels
     except (IngestError, ReaderError, ConfigError) as exc:
         result.error = _one_line(str(exc))
@@ -372,6 +378,7 @@ def ingest_file(tree: RawTree, path: Path, warehouse: Path, reuse: bool = True,
         # A reader or library (scipy, h5py, npTDMS, pyarrow) tripped over malformed input:
         # still one line, never a crash of the rebuild.
         result.error = _one_line(f"cannot read file: {type(exc).__name__}: {exc}")
+        result.transient = isinstance(exc, OSError) and not isinstance(exc, pa.ArrowException)
     return result
 
 
@@ -380,18 +387,18 @@ def _one_line(text: str) -> str:
 
 
 def _ingest(tree: RawTree, path: Path, warehouse: Path, rel: str, campaign: str | None, reuse: bool,
-            sha: str | None = None):
+            sha: str | None = None, code_version: str | None = None):
     if campaign is None:
         raise IngestError("file is not in a campaign folder (raw/<campaign>/...)")
     hashing = None if sha else _BackgroundHash(path)
     try:
-        return _ingest_hashed(tree, path, warehouse, rel, campaign, reuse, sha, hashing)
+        return _ingest_hashed(tree, path, warehouse, rel, campaign, reuse, sha, hashing, code_version)
     finally:
         if hashing is not None:
             hashing.cancel()
 
 
-def _ingest_hashed(tree, path, warehouse, rel, campaign, reuse, sha, hashing):
+def _ingest_hashed(tree, path, warehouse, rel, campaign, reuse, sha, hashing, code_version):
     rig = tree.rig_config(path)
     manifest = tree.manifest_metadata(path)
     export = _open_export(path, rig, manifest)
@@ -416,7 +423,7 @@ def _ingest_hashed(tree, path, warehouse, rel, campaign, reuse, sha, hashing):
     folder = Path("samples") / f"kind={kind}" / f"campaign={campaign}"
 
     def samples_path(sha: str) -> Path:
-        return folder / f"{safe_file_name(run_id)}-{ingest_key(sha, meta, maps)[:16]}.parquet"
+        return folder / f"{safe_file_name(run_id)}-{ingest_key(sha, meta, maps, code_version)[:16]}.parquet"
 
     rel_out = samples_path(sha) if sha else None
     warnings: list[str] = []  # ingest's own; the reader's are taken after its data is read

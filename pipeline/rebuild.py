@@ -35,7 +35,7 @@ from pathlib import Path
 import pandas as pd
 
 from pipeline import stages as stage_registry
-from pipeline.executors import Executor, make_executor
+from pipeline.executors import CRASH_REASON, Executor, make_executor
 from pipeline.ingest import IngestResult, ingest_file, sha256_file
 from pipeline.layout import Problem, RawTree, discover_runs
 from pipeline.readers import READERS
@@ -149,10 +149,12 @@ def _tree(raw: str, token: str) -> RawTree:
 def _ingest_task(args) -> dict:
     """Worker task: a file whose stat alone changed is hashed and keeps its previous record when
     its bytes are the same; any other file is ingested. Returns ``{"sha", "reused", "result"}``."""
-    raw, token, path, warehouse, reuse, prev = args
+    raw, token, path, warehouse, reuse, prev, code = args
     path = Path(path)
     tree = _tree(raw, token)
     sha = None
+    if prev is not None and prev["sha"] is None:
+        reuse = False  # its last read was not trustworthy: a samples file named by its hash may be stale
     try:
         before = os.stat(path)
     except OSError:
@@ -168,7 +170,7 @@ def _ingest_task(args) -> dict:
             return {"sha": sha, "reused": True, "result": None}
     # else ingest hashes the file while it parses it
     _crash_point(f"ingest:{tree.rel(path)}", signal.SIGSEGV)  # a reader crashing in C code
-    res = ingest_file(tree, path, Path(warehouse), reuse=reuse, sha256=sha)
+    res = ingest_file(tree, path, Path(warehouse), reuse=reuse, sha256=sha, code_version=code)
     if res.run is not None:
         sha = res.run.get("source_sha256", sha)
     elif sha is None:  # quarantined before its hash was done: record it, or the next rebuild re-reads it
@@ -183,16 +185,28 @@ def _ingest_task(args) -> dict:
     if before is None or after is None or (before.st_size, before.st_mtime_ns) != (after.st_size, after.st_mtime_ns):
         # written to while read: the hash and the samples may be of different bytes; look again next time
         return {"sha": None, "reused": False, "result": res, "retry": True}
+    if res.transient:  # could not open or read it (permissions, a share away): read it again next time
+        return {"sha": None, "reused": False, "result": res, "retry": True}
     return {"sha": sha, "reused": False, "result": res}
 
 
 def _ingest_crashed(args, reason: str) -> dict:
-    """Result of an ingest task whose worker process died: the file is quarantined."""
-    raw, token, path, warehouse, reuse, prev = args
+    """Result of an ingest task whose worker process died: the file is quarantined.
+
+    A first crash may pass (killed for memory): the next rebuild tries the file once more. A file
+    that crashed its reader twice is hashed here (hashing cannot crash) and stays quarantined
+    until its bytes change.
+    """
+    raw, token, path, warehouse, reuse, prev, code = args
     tree = _tree(raw, token)
     res = IngestResult(source_path=tree.rel(Path(path)), campaign=tree.campaign(Path(path)),
                        error=f"cannot read file: {reason}")
-    return {"sha": None, "reused": False, "result": res, "retry": True}  # retried next rebuild (OOM kill?)
+    if prev is not None and prev.get("crashed"):
+        try:
+            return {"sha": sha256_file(Path(path)), "reused": False, "result": res}
+        except OSError:
+            pass
+    return {"sha": None, "reused": False, "result": res, "retry": True}
 
 
 def _result_from_record(rec: FileRecord, tree: RawTree, path: Path) -> IngestResult:
@@ -220,8 +234,9 @@ def ingest_incremental(tree: RawTree, plans: list[FilePlan], warehouse: Path, ex
             prev = None
             if p.previous is not None and p.status == "check" and p.reason == "content":
                 # only the stat changed: a file with the same bytes keeps its record
-                prev = {"sha": p.previous.source_sha256}
-            todo.append((p, (str(tree.root), token, str(p.path), str(warehouse), not full, prev)))
+                prev = {"sha": p.previous.source_sha256,
+                        "crashed": (p.previous.error or "").startswith(f"cannot read file: {CRASH_REASON}")}
+            todo.append((p, (str(tree.root), token, str(p.path), str(warehouse), not full, prev, code_version)))
     if todo:
         progress.message(f"ingest: {len(todo)} of {len(plans)} run files to read")
     outs = executor.map(_ingest_task, [a for _, a in todo], "ingest", progress, on_crash=_ingest_crashed)
@@ -753,38 +768,36 @@ def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, r
     }
     tmp_db = warehouse / f".{DB_NAME}.tmp-{os.getpid()}"
     progress.message(f"warehouse: writing {len(all_tables)} tables")
-    page = None
+    page = None  # the morning report, staged beside index.html: rendered from the new database
     try:
         build_database(tmp_db, warehouse, all_tables, runs_df)
-        if report:  # from the new database, before the swap: a failure keeps warehouse and report as they were
-            from pipeline.report import render_report
+        if report:  # before the swap: a failure keeps the previous warehouse and its report
+            from pipeline.report import render_report, stage_page
             try:
-                page = render_report(warehouse, database=tmp_db)
+                page = stage_page(warehouse, render_report(warehouse, database=tmp_db))
             except Exception as exc:
                 log.exception("report failed")
-                raise RebuildError(f"the morning report could not be rendered: {type(exc).__name__}: "
+                raise RebuildError(f"the morning report could not be written: {type(exc).__name__}: "
                                    f"{' '.join(str(exc).split())}; the previous warehouse and report are kept") from exc
         _crash_point("before_swap")
         swap_in(tmp_db, warehouse / DB_NAME)
     except Exception as exc:
         tmp_db.unlink(missing_ok=True)
         Path(f"{tmp_db}.wal").unlink(missing_ok=True)
+        if page is not None:
+            page.unlink(missing_ok=True)
         if isinstance(exc, RebuildError):
             raise
         raise RebuildError(f"could not write the warehouse: {type(exc).__name__}: {exc}") from exc
+    if page is not None:  # straight after the swap: the report follows the warehouse it describes
+        from pipeline.report import publish_page
+        summary.report = publish_page(page)
     _crash_point("after_swap")
     collect_garbage(warehouse, prev.samples | set(runs_df.get("samples_path", [])),
                     prev.stage_folders | {r.folder for r in staged.records})
     summary.tables = {k: len(v) for k, v in all_tables.items()}
-    if page is not None:
-        from pipeline.report import write_page
-        try:
-            summary.report = write_page(warehouse, page)
-            progress.message(f"report: {summary.report}")
-        except OSError as exc:  # the warehouse is in; never leave the previous report beside it
-            log.error("report could not be written: %s", exc)
-            progress.message(f"report: could not be written: {exc}")
-            (warehouse / "report" / "index.html").unlink(missing_ok=True)
+    if summary.report is not None:
+        progress.message(f"report: {summary.report}")
     summary.seconds = time.monotonic() - t0
     for p in problems:
         where = f"{p.source_path}:{p.line}" if p.line else p.source_path

@@ -337,9 +337,26 @@ def failure_page(warehouse: str | Path, generation: str | None, error: str, now:
         "</body></html>"])
 
 
-def write_page(warehouse: str | Path, text: str) -> Path:
-    """Write ``text`` as ``report/index.html`` (temp file, then an atomic rename)."""
-    return _write_atomic(Path(warehouse) / "report", text)
+def stage_page(warehouse: str | Path, text: str) -> Path:
+    """Write ``text`` beside ``report/index.html`` under a temporary name; :func:`publish_page`
+    renames it into place. The rebuild stages the page before its database swap and publishes
+    it right after, so a full disk fails the rebuild instead of leaving no report."""
+    folder = Path(warehouse) / "report"
+    folder.mkdir(parents=True, exist_ok=True)
+    tmp = folder / f".index.html.tmp-{os.getpid()}"
+    try:
+        tmp.write_text(text, encoding="utf-8")
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return tmp
+
+
+def publish_page(staged: Path) -> Path:
+    """Rename a :func:`stage_page` file to ``index.html`` (atomic). Returns the page's path."""
+    final = staged.parent / "index.html"
+    os.replace(staged, final)
+    return final
 
 
 def _write_atomic(folder: Path, text: str) -> Path:

@@ -153,7 +153,7 @@ def test_a_report_that_cannot_be_rendered_fails_the_rebuild_and_keeps_warehouse_
     monkeypatch.setattr(rp, "render_report", lambda *a, **k: {}["missing table"])
     res = CliRunner().invoke(main, args)
     assert res.exit_code == 3, res.output
-    assert "the morning report could not be rendered: KeyError: 'missing table'" in res.output
+    assert "the morning report could not be written: KeyError: 'missing table'" in res.output
     # the previous warehouse and its report, which agree with each other
     assert q(warehouse, "SELECT run_id FROM runs ORDER BY 1") == [("c/a",)]
     assert (warehouse / "report" / "index.html").read_text() == page

@@ -60,6 +60,13 @@ def test_kill_9_leaves_a_complete_warehouse_and_the_next_rebuild_completes(raw, 
         assert after == (("c/a", "c/b", "c/c"), 15)  # the new warehouse was already complete
     else:
         assert after == before  # the previous warehouse, untouched
+    # the report describes the live warehouse, whichever it is
+    con = duckdb.connect(str(warehouse / "pneubench.duckdb"), read_only=True)
+    try:
+        live = con.execute("SELECT generation FROM rebuild_log ORDER BY finished_at DESC LIMIT 1").fetchone()[0]
+    finally:
+        con.close()
+    assert f"generation {live}" in (warehouse / "report" / "index.html").read_text()
     # the lock died with the process (workers do not inherit it): the next rebuild runs at once
     s = rebuild(raw.root, warehouse, jobs=2)
     assert s.exit_code == 0
@@ -171,7 +178,23 @@ def test_a_worker_crash_quarantines_that_file_and_the_rest_ingests(raw, warehous
             "c/a", "c/b", "c/d", "c/e", "c/f"]
     finally:
         con.close()
-    # a crash may be passing (killed for memory): the next rebuild tries the file again
+    # a crash may pass (killed for memory): the next rebuild tries the file once more ...
     res = cli_rebuild(raw.root, warehouse)
     assert res.returncode == 0, res.stderr
     assert state(warehouse)[0] == ("c/a", "c/b", "c/c", "c/d", "c/e", "c/f")
+
+
+def test_a_file_that_crashes_its_reader_twice_is_not_read_every_night(raw, warehouse):
+    for name in "abc":
+        step(raw, f"c/{name}.csv")
+    crash = {"PNEUBENCH_CRASH_AT": "ingest:c/c.csv"}
+    assert cli_rebuild(raw.root, warehouse, env=crash).returncode == 1   # first crash: retried next time
+    assert cli_rebuild(raw.root, warehouse, env=crash).returncode == 1   # second crash: hashed, kept
+    res = cli_rebuild(raw.root, warehouse, "--jobs", "2", env=crash)
+    assert res.returncode == 1
+    assert "1 of 3 run files to read" not in res.stderr and "0 changed" in res.stderr
+    con = duckdb.connect(str(warehouse / "pneubench.duckdb"), read_only=True)
+    try:
+        assert con.execute("SELECT source_path FROM quarantine").fetchall() == [("c/c.csv",)]
+    finally:
+        con.close()

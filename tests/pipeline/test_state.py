@@ -277,3 +277,42 @@ def test_a_file_written_while_it_is_read_is_read_again_next_time(raw, warehouse,
     second = rebuild(raw.root, warehouse, jobs=1)
     assert second.n_changed == 1
     assert q(warehouse, "SELECT max(x_m) FROM samples_step") == [(pytest.approx(0.006),)]
+
+
+def test_a_retried_file_is_read_again_not_taken_from_a_samples_file_of_the_same_name(raw, warehouse, monkeypatch):
+    # the racy read's samples may carry the new bytes' name with the old bytes' data: the
+    # re-check must not reuse them
+    step(raw, "c/a.csv")
+    age(raw.root)
+    real = rb.ingest_file
+    seen = []
+
+    def ingest_while_the_bench_writes(tree, path, *a, **k):
+        seen.append(k.get("reuse"))
+        res = real(tree, path, *a, **k)
+        if len(seen) == 1:
+            step(raw, "c/a.csv", scale=2.0)
+        return res
+
+    monkeypatch.setattr(rb, "ingest_file", ingest_while_the_bench_writes)
+    rebuild(raw.root, warehouse, jobs=1)
+    rebuild(raw.root, warehouse, jobs=1)
+    assert seen == [True, False]
+
+
+def test_a_file_that_cannot_be_opened_is_tried_again_next_time(raw, warehouse, monkeypatch):
+    import pipeline.ingest as ing
+
+    step(raw, "c/a.csv")
+    age(raw.root)
+    real = ing.read_export
+
+    def locked(*a, **k):
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(ing, "read_export", locked)
+    first = rebuild(raw.root, warehouse, jobs=1)
+    assert [p.error for p in first.quarantine] == ["cannot read file: PermissionError: [Errno 13] Permission denied"]
+    monkeypatch.setattr(ing, "read_export", real)  # chmod fixed it: the stat did not change
+    second = rebuild(raw.root, warehouse, jobs=1)
+    assert second.quarantine == [] and q(warehouse, "SELECT count(*) FROM runs") == [(1,)]
