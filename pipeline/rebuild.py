@@ -146,47 +146,48 @@ def _tree(raw: str, token: str) -> RawTree:
     return tree
 
 
+def _stat_or_none(path: Path) -> tuple[int, int] | None:
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return st.st_size, st.st_mtime_ns
+
+
 def _ingest_task(args) -> dict:
     """Worker task: a file whose stat alone changed is hashed and keeps its previous record when
-    its bytes are the same; any other file is ingested. Returns ``{"sha", "reused", "result"}``."""
+    its bytes are the same; any other file is ingested (and hashed while it is parsed).
+
+    Returns ``{"sha", "reused", "result"}``, with ``"retry": True`` when the next rebuild must
+    look at the file again: it was written to while read (its hash and samples may be of
+    different bytes) or could not be opened (permissions, a share away).
+    """
     raw, token, path, warehouse, reuse, prev, code = args
-    path = Path(path)
-    tree = _tree(raw, token)
+    path, tree = Path(path), _tree(raw, token)
+    before = _stat_or_none(path)
     sha = None
-    if prev is not None and prev["sha"] is None:
-        reuse = False  # its last read was not trustworthy: a samples file named by its hash may be stale
-    try:
-        before = os.stat(path)
-    except OSError:
-        before = None
     if prev is not None:  # only the stat changed: the same bytes keep their record
+        if prev["sha"] is None:
+            reuse = False  # its last read was not trustworthy: a samples file named by its hash may be stale
         try:
             sha = sha256_file(path)
         except OSError as exc:
             res = IngestResult(source_path=tree.rel(path), campaign=tree.campaign(path),
-                               error=f"cannot read file: {type(exc).__name__}: {exc}")
-            return {"sha": None, "reused": False, "result": res}
+                               error=f"cannot read file: {type(exc).__name__}: {exc}", transient=True)
+            return {"sha": None, "reused": False, "result": res, "retry": True}
         if prev["sha"] == sha:
             return {"sha": sha, "reused": True, "result": None}
-    # else ingest hashes the file while it parses it
     _crash_point(f"ingest:{tree.rel(path)}", signal.SIGSEGV)  # a reader crashing in C code
     res = ingest_file(tree, path, Path(warehouse), reuse=reuse, sha256=sha, code_version=code)
+    if res.transient or before is None or _stat_or_none(path) != before:
+        return {"sha": None, "reused": False, "result": res, "retry": True}
     if res.run is not None:
-        sha = res.run.get("source_sha256", sha)
+        sha = res.run["source_sha256"]
     elif sha is None:  # quarantined before its hash was done: record it, or the next rebuild re-reads it
         try:
             sha = sha256_file(path)
         except OSError:
             pass
-    try:
-        after = os.stat(path)
-    except OSError:
-        after = None
-    if before is None or after is None or (before.st_size, before.st_mtime_ns) != (after.st_size, after.st_mtime_ns):
-        # written to while read: the hash and the samples may be of different bytes; look again next time
-        return {"sha": None, "reused": False, "result": res, "retry": True}
-    if res.transient:  # could not open or read it (permissions, a share away): read it again next time
-        return {"sha": None, "reused": False, "result": res, "retry": True}
     return {"sha": sha, "reused": False, "result": res}
 
 
