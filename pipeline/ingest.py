@@ -12,8 +12,8 @@ import hashlib
 import json
 import math
 import os
-import uuid
 import re
+import uuid
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path

@@ -184,7 +184,7 @@ class RawTree:
                     if target != self.root and self.root not in target.parents:
                         self.problems.append(Problem(rel_manifest, f"entry `{name}` points outside raw/", line))
                         continue
-                    if folder != target.parent and folder not in target.parents:
+                    if folder not in target.parents:
                         self.problems.append(Problem(rel_manifest, f"entry `{name}` is not in the manifest's folder "
                                                      "or below (a manifest applies only there)", line))
                         continue

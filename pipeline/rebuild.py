@@ -146,6 +146,14 @@ def _tree(raw: str, token: str) -> RawTree:
     return tree
 
 
+#: The quarantine reason of a file whose reader's worker process died.
+CRASHED = f"cannot read file: {CRASH_REASON}"
+
+
+def _unreadable(tree: RawTree, path: Path, error: str, transient: bool = False) -> IngestResult:
+    return IngestResult(source_path=tree.rel(path), campaign=tree.campaign(path), error=error, transient=transient)
+
+
 def _stat_or_none(path: Path) -> tuple[int, int] | None:
     try:
         st = os.stat(path)
@@ -172,8 +180,7 @@ def _ingest_task(args) -> dict:
         try:
             sha = sha256_file(path)
         except OSError as exc:
-            res = IngestResult(source_path=tree.rel(path), campaign=tree.campaign(path),
-                               error=f"cannot read file: {type(exc).__name__}: {exc}", transient=True)
+            res = _unreadable(tree, path, f"cannot read file: {type(exc).__name__}: {exc}", transient=True)
             return {"sha": None, "reused": False, "result": res, "retry": True}
         if prev["sha"] == sha:
             return {"sha": sha, "reused": True, "result": None}
@@ -199,9 +206,7 @@ def _ingest_crashed(args, reason: str) -> dict:
     until its bytes change.
     """
     raw, token, path, warehouse, reuse, prev, code = args
-    tree = _tree(raw, token)
-    res = IngestResult(source_path=tree.rel(Path(path)), campaign=tree.campaign(Path(path)),
-                       error=f"cannot read file: {reason}")
+    res = _unreadable(_tree(raw, token), Path(path), f"cannot read file: {reason}")
     if prev is not None and prev.get("crashed"):
         try:
             return {"sha": sha256_file(Path(path)), "reused": False, "result": res}
@@ -236,7 +241,7 @@ def ingest_incremental(tree: RawTree, plans: list[FilePlan], warehouse: Path, ex
             if p.previous is not None and p.status == "check" and p.reason == "content":
                 # only the stat changed: a file with the same bytes keeps its record
                 prev = {"sha": p.previous.source_sha256,
-                        "crashed": (p.previous.error or "").startswith(f"cannot read file: {CRASH_REASON}")}
+                        "crashed": p.previous.error == CRASHED}
             todo.append((p, (str(tree.root), token, str(p.path), str(warehouse), not full, prev, code_version)))
     if todo:
         progress.message(f"ingest: {len(todo)} of {len(plans)} run files to read")
