@@ -1,0 +1,416 @@
+"""What the data can tell: sensor resolution and noise, and quality gates on fitted results.
+
+Every analysis shares two questions, answered here once:
+
+1. *How fine is this signal?* A channel is described by its quantisation step (``resolution``)
+   and the standard deviation of its noise (``noise``), both in the channel's SI unit. They are
+   read from run metadata when the rig states them (ingest stores ``sensor_<channel>_resolution``
+   and ``sensor_<channel>_noise`` in a run's params, in SI) and estimated from the record
+   otherwise (:func:`describe_sensor`). Detection thresholds (motion, passes, strokes, plateaus,
+   steps, onsets) are multiples of :meth:`Sensor.floor`, the smallest change the sensor can
+   tell from its own noise, never constants tuned to one bench.
+
+2. *Can this fit be believed?* A fitted result is reported only when the design separates its
+   parameters (full rank, a bounded condition number, standard errors smaller than the values
+   they qualify), no parameter sits at an optimiser bound, the model follows the data (NRMSE
+   within the model's stated limit, or residuals at the noise level), there are enough points,
+   and the values are physically possible. Otherwise the parameters are NULL and a one-line
+   ``note`` says why (:class:`Gate`).
+
+Nothing here imports the pipeline: usable from a notebook.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+#: Normal-consistency factor of the median absolute deviation.
+_MAD_TO_SIGMA = 1.4826
+#: At most this many differences are examined to estimate a quantisation step or noise
+#: (a long record is subsampled in contiguous blocks; the estimate does not need more).
+_MAX_DIFFS = 200_000
+#: A condition number above this (columns scaled to unit norm) means the design cannot
+#: separate its parameters in float64 arithmetic, whatever the noise. [-]
+COND_MAX = 1e8
+
+
+# -- sensors --------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Sensor:
+    """Resolution and noise of one channel, in the channel's SI unit.
+
+    Attributes
+    ----------
+    resolution : float
+        Quantisation step; 0 for a signal that is not visibly quantised. [SI unit of the channel]
+    noise : float
+        Standard deviation of the noise. [SI unit of the channel]
+    source : str
+        Where the values came from: ``"metadata"``, ``"estimated"`` or ``"metadata+estimated"``.
+    """
+
+    resolution: float
+    noise: float
+    source: str = "estimated"
+
+    def floor(self) -> float:
+        """Smallest change the sensor tells apart from itself: ``max(resolution, noise)``.
+
+        Returns 0 only for an ideal (noise-free, unquantised) signal.
+        """
+        return float(max(self.resolution, self.noise))
+
+    def threshold(self, n_sigma: float = 4.0) -> float:
+        """A detection threshold: ``max(resolution, n_sigma * noise)``.
+
+        A single sample of Gaussian noise exceeds 4 sigma about once in 16,000 samples; callers
+        that test many samples at once use a run of samples or a larger ``n_sigma``.
+        """
+        return float(max(self.resolution, n_sigma * self.noise))
+
+    def describe(self) -> str:
+        """One line for result rows: ``resolution 5e-06, noise 1.2e-06 (metadata+estimated)``."""
+        return f"resolution {self.resolution:.3g}, noise {self.noise:.3g} ({self.source})"
+
+
+def _diff_sample(values) -> np.ndarray:
+    """First differences of a record, at most :data:`_MAX_DIFFS` of them, finite only."""
+    y = np.asarray(values, dtype=float)
+    y = y[np.isfinite(y)]
+    if y.size > _MAX_DIFFS + 1:
+        # contiguous blocks spread over the record: differences stay between neighbours
+        n_blocks = 20
+        block = _MAX_DIFFS // n_blocks
+        starts = np.linspace(0, y.size - block - 1, n_blocks).astype(int)
+        return np.concatenate([np.diff(y[s:s + block + 1]) for s in starts])
+    return np.diff(y)
+
+
+def quantisation_step(values, rel_tol: float = 0.02) -> float:
+    """Quantisation step of a record from the lattice of its differences.
+
+    A quantised signal only ever changes by integer multiples of its step ``q``. The step is
+    the smallest non-zero absolute difference of which at least 99 % of the non-zero
+    differences are integer multiples within ``rel_tol`` (the eight smallest are tried).
+
+    Parameters
+    ----------
+    values : array-like
+        The record. [any unit]
+    rel_tol : float
+        Tolerance on "integer multiple", as a fraction of the step. [-]
+
+    Returns
+    -------
+    float
+        The step [unit of ``values``], or 0 when the record is not visibly quantised (noise
+        finer than the ADC, a continuous sensor) or never changes.
+    """
+    d = np.abs(_diff_sample(values))
+    span = float(np.max(np.abs(np.asarray(values, dtype=float)[np.isfinite(values)]), initial=0.0))
+    nz = d[d > max(span, 1e-300) * 1e-12]  # float round-off of unit conversion is not a change
+    if nz.size < 10:
+        return 0.0
+    # candidates: the smallest distinct differences, smallest first; a spurious one (a lone
+    # rounding step) puts the others off its lattice and is passed over
+    candidates = np.unique(np.round(nz / nz.min(), 6))[:8] * nz.min()
+    for q in candidates:
+        k = nz / q
+        on_lattice = np.abs(k - np.round(k)) <= rel_tol
+        if np.mean(on_lattice) >= 0.99 and np.median(k) <= 1e4:
+            kr = np.round(k[on_lattice])  # refine: the least-squares step over the lattice points
+            return float(np.sum(nz[on_lattice] * kr) / np.sum(kr * kr))
+    return 0.0
+
+
+def noise_std(values) -> float:
+    """Standard deviation of the white noise on a record, from its second differences.
+
+    For white noise of standard deviation ``s`` on a smooth signal, the second difference has
+    standard deviation ``sqrt(6) s``; the median absolute deviation makes the estimate robust
+    to steps, reversals and other rare large changes.
+
+    Parameters
+    ----------
+    values : array-like
+        The record, sampled uniformly. [any unit]
+
+    Returns
+    -------
+    float
+        The noise [unit of ``values``]; 0 for a record too short or without noise.
+    """
+    d1 = _diff_sample(values)
+    if d1.size < 8:
+        return 0.0
+    d2 = np.diff(d1)
+    mad = float(np.median(np.abs(d2 - np.median(d2))))
+    return _MAD_TO_SIGMA * mad / np.sqrt(6.0)
+
+
+def describe_sensor(values, resolution: float | None = None, noise: float | None = None) -> Sensor:
+    """A channel's :class:`Sensor`: stated values where given, estimates from ``values`` otherwise.
+
+    Parameters
+    ----------
+    values : array-like
+        The record (may be empty when both values are stated). [SI]
+    resolution, noise : float, optional
+        Stated by the rig (metadata). [SI]
+    """
+    stated = [v is not None and np.isfinite(v) for v in (resolution, noise)]
+    res = float(resolution) if stated[0] else quantisation_step(values)
+    sig = float(noise) if stated[1] else noise_std(values)
+    if not stated[1] and res > 0:
+        # on a quantised record the difference estimator sees quantisation, not noise: a
+        # record whose second differences are mostly zero has noise below half a step
+        sig = min(sig, res / np.sqrt(12.0)) if sig < res else sig
+    source = "metadata" if all(stated) else ("estimated" if not any(stated) else "metadata+estimated")
+    return Sensor(resolution=res, noise=float(sig), source=source)
+
+
+def sensor_from_params(params: dict | None, channel: str, values=()) -> Sensor:
+    """The :class:`Sensor` of a run's channel from its params (``sensor_<channel>_resolution`` /
+    ``sensor_<channel>_noise``, SI, as ingest stores them), estimated from ``values`` where absent.
+    """
+    params = params or {}
+
+    def num(key):
+        v = params.get(f"sensor_{channel}_{key}")
+        try:
+            v = float(v)
+        except (TypeError, ValueError):
+            return None
+        return v if np.isfinite(v) and v >= 0 else None
+
+    return describe_sensor(values, resolution=num("resolution"), noise=num("noise"))
+
+
+# -- fit quality ----------------------------------------------------------------------------
+def nrmse_pct(measured, model) -> float:
+    """``100 * RMS(measured - model) / (max(measured) - min(measured))`` (warehouse.md).
+
+    Returns NaN when the measured values have no range.
+    """
+    y = np.asarray(measured, dtype=float)
+    m = np.asarray(model, dtype=float)
+    span = float(np.max(y) - np.min(y)) if y.size else 0.0
+    if span <= 0:
+        return float("nan")
+    return float(100.0 * np.sqrt(np.mean((y - m) ** 2)) / span)
+
+
+def scaled_condition(X) -> float:
+    """Condition number of a design matrix with its columns scaled to unit norm.
+
+    Column scaling removes the effect of units (a column in m/s beside one in N); what is left
+    measures how nearly one column is a combination of the others. ``inf`` for a zero column or
+    a rank-deficient design.
+    """
+    X = np.asarray(X, dtype=float)
+    if X.ndim != 2 or X.shape[0] < X.shape[1] or X.shape[1] == 0:
+        return float("inf")
+    norms = np.linalg.norm(X, axis=0)
+    if np.any(norms == 0) or not np.all(np.isfinite(norms)):
+        return float("inf")
+    s = np.linalg.svd(X / norms, compute_uv=False)
+    return float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
+
+
+@dataclass
+class LinearFit:
+    """Ordinary least squares ``y = X beta`` with standard errors and the design's conditioning.
+
+    Attributes
+    ----------
+    beta, se : numpy.ndarray
+        Estimates and their standard errors (NaN when the design is rank-deficient).
+    cond : float
+        :func:`scaled_condition` of ``X``.
+    rank : int
+        Numerical rank of ``X``.
+    sigma : float
+        Residual standard deviation (``dof`` degrees of freedom).
+    fitted : numpy.ndarray
+        ``X beta``.
+    """
+
+    beta: np.ndarray
+    se: np.ndarray
+    cond: float
+    rank: int
+    sigma: float
+    dof: int
+    fitted: np.ndarray
+
+
+def linear_lstsq(X, y) -> LinearFit:
+    """Least squares with standard errors from ``sigma^2 (X'X)^-1`` and the design's condition."""
+    X = np.asarray(X, dtype=float)
+    y = np.asarray(y, dtype=float)
+    n, p = X.shape
+    beta, _, rank, _ = np.linalg.lstsq(X, y, rcond=None)
+    fitted = X @ beta
+    dof = n - p
+    sigma = float(np.sqrt(np.sum((y - fitted) ** 2) / dof)) if dof > 0 else float("nan")
+    cond = scaled_condition(X)
+    se = np.full(p, np.nan)
+    if rank == p and dof > 0 and np.isfinite(cond):
+        try:
+            cov = sigma ** 2 * np.linalg.inv(X.T @ X)
+            se = np.sqrt(np.clip(np.diag(cov), 0, None))
+        except np.linalg.LinAlgError:
+            pass
+    return LinearFit(beta=beta, se=se, cond=cond, rank=int(rank), sigma=sigma, dof=dof, fitted=fitted)
+
+
+def jacobian_se(jac, residuals, n_params: int | None = None) -> tuple[np.ndarray, float]:
+    """Standard errors of a nonlinear least-squares solution from its Jacobian at the optimum.
+
+    Returns ``(se, cond)``: ``se`` NaN where the Jacobian is singular; ``cond`` the scaled
+    condition number of the Jacobian (as :func:`scaled_condition`).
+    """
+    J = np.asarray(jac, dtype=float)
+    r = np.asarray(residuals, dtype=float)
+    p = J.shape[1] if n_params is None else n_params
+    dof = r.size - p
+    cond = scaled_condition(J)
+    se = np.full(p, np.nan)
+    if dof > 0 and np.isfinite(cond):
+        s2 = float(np.sum(r ** 2) / dof)
+        try:
+            se = np.sqrt(np.clip(np.diag(s2 * np.linalg.inv(J.T @ J)), 0, None))
+        except np.linalg.LinAlgError:
+            pass
+    return se, cond
+
+
+def at_bound(value: float, lo: float, hi: float, rtol: float = 1e-3) -> bool:
+    """Whether ``value`` sits at (within ``rtol`` of the range of) the bound ``lo`` or ``hi``.
+
+    Bounds spanning more than two decades of positive values are compared in log space, so a
+    bound of 1e5 is not "reached" by 1e3.
+    """
+    if not np.isfinite(value):
+        return True
+    if lo > 0 and np.isfinite(hi) and hi / lo > 100:
+        v, a, b = np.log(max(value, 1e-300)), np.log(lo), np.log(hi)
+    else:
+        v, a, b = value, lo, hi
+    span = (b - a) if np.isfinite(a) and np.isfinite(b) else max(abs(v), 1.0)
+    tol = rtol * span
+    return bool((np.isfinite(a) and v <= a + tol) or (np.isfinite(b) and v >= b - tol))
+
+
+@dataclass
+class Gate:
+    """Collects the reasons a fitted result cannot be believed; the first one is its ``note``.
+
+    Use one per result row::
+
+        g = Gate()
+        g.enough_points(n, 5)
+        g.identifiable(fit, names=("coulomb_n", "viscous_n_s_m"))
+        g.within_bounds(sol.x, lo, hi, names)
+        g.follows_data(nrmse, limit_pct=5.0)
+        g.physical("coulomb_n", fc, lo=0)
+        row = g.apply(row, fields=("coulomb_n", "viscous_n_s_m"))
+
+    Every check returns ``self`` and only records a reason; :meth:`apply` sets the fields to
+    None and the row's ``note`` when there is one.
+    """
+
+    reasons: list[str] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return not self.reasons
+
+    @property
+    def note(self) -> str | None:
+        return self.reasons[0] if self.reasons else None
+
+    def fail(self, reason: str) -> "Gate":
+        self.reasons.append(reason)
+        return self
+
+    def enough_points(self, n: int, minimum: int, what: str = "points") -> "Gate":
+        if n < minimum:
+            self.fail(f"too few {what}: {n} < {minimum}")
+        return self
+
+    def identifiable(self, fit: LinearFit | None = None, *, cond: float | None = None, rank: int | None = None,
+                     n_params: int | None = None, beta=None, se=None, names=(), max_rel_se: float = 0.5,
+                     check: tuple[str, ...] | None = None) -> "Gate":
+        """The design separates the parameters: full rank, condition under :data:`COND_MAX`,
+        and for the parameters in ``check`` (default: all) a standard error under
+        ``max_rel_se`` of the value (the value is distinguishable from zero at about 2 sigma).
+        """
+        if fit is not None:
+            cond, rank, beta, se = fit.cond, fit.rank, fit.beta, fit.se
+            n_params = len(fit.beta)
+        if rank is not None and n_params is not None and rank < n_params:
+            return self.fail(f"design is rank-deficient (rank {rank} < {n_params} parameters): "
+                             "the data cannot separate them")
+        if cond is not None and not (cond < COND_MAX):
+            return self.fail(f"design is ill-conditioned (condition number {cond:.2g}): "
+                             "the data cannot separate the parameters")
+        if beta is not None and se is not None:
+            names = list(names) or [f"parameter {i}" for i in range(len(beta))]
+            for name, b, s in zip(names, beta, se):
+                if check is not None and name not in check:
+                    continue
+                if not np.isfinite(s) or abs(s) > max_rel_se * abs(b):
+                    return self.fail(f"{name} not identifiable from the data "
+                                     f"(estimate {b:.3g} +- {s:.2g})")
+        return self
+
+    def within_bounds(self, x, lo, hi, names=(), rtol: float = 1e-3) -> "Gate":
+        """No parameter at an optimiser bound (:func:`at_bound`)."""
+        x = np.atleast_1d(np.asarray(x, dtype=float))
+        lo = np.broadcast_to(np.asarray(lo, dtype=float), x.shape)
+        hi = np.broadcast_to(np.asarray(hi, dtype=float), x.shape)
+        names = list(names) or [f"parameter {i}" for i in range(x.size)]
+        for name, v, a, b in zip(names, x, lo, hi):
+            if at_bound(float(v), float(a), float(b), rtol):
+                side = "lower" if abs(v - a) <= abs(v - b) else "upper"
+                return self.fail(f"{name} ran to the optimiser's {side} bound ({v:.3g})")
+        return self
+
+    def follows_data(self, nrmse: float, limit_pct: float, *, rms: float | None = None,
+                     noise: float | None = None, n_sigma: float = 3.0) -> "Gate":
+        """The model follows the data: NRMSE within the model's stated limit, or (when the
+        noise is known) residuals within ``n_sigma`` times the noise."""
+        if not np.isfinite(nrmse):
+            return self.fail("fit quality undefined (the data have no range)")
+        if nrmse > limit_pct:
+            if rms is not None and noise is not None and noise > 0 and rms <= n_sigma * noise:
+                return self
+            return self.fail(f"model misses the data (NRMSE {nrmse:.2g} % > {limit_pct:g} %)")
+        return self
+
+    def physical(self, name: str, value, lo: float = -np.inf, hi: float = np.inf) -> "Gate":
+        """The value is physically possible (finite and within ``[lo, hi]``)."""
+        if value is None or not np.isfinite(value):
+            return self.fail(f"{name} is not finite")
+        if value < lo or value > hi:
+            return self.fail(f"{name} = {value:.3g} is physically impossible "
+                             f"(must be in [{lo:g}, {hi:g}])")
+        return self
+
+    def apply(self, row: dict, fields, note_key: str = "note") -> dict:
+        """``row`` with ``fields`` set to None and ``note_key`` set when a check failed."""
+        out = dict(row)
+        if self.reasons:
+            for f in fields:
+                out[f] = None
+            prior = out.get(note_key)
+            out[note_key] = self.note if not prior else f"{prior}; {self.note}"
+        else:
+            out.setdefault(note_key, None)
+        return out
+
+
+__all__ = ["COND_MAX", "Gate", "LinearFit", "Sensor", "at_bound", "describe_sensor", "jacobian_se", "linear_lstsq",
+           "noise_std", "nrmse_pct", "quantisation_step", "scaled_condition", "sensor_from_params"]

@@ -1,0 +1,114 @@
+"""analyses.quality: sensor description from data and metadata; quality gates on fits."""
+import numpy as np
+import pytest
+
+from analyses.quality import (Gate, at_bound, describe_sensor, linear_lstsq, noise_std, nrmse_pct,
+                              quantisation_step, scaled_condition, sensor_from_params)
+
+
+def _motion(n=20_000, fs=1000.0):
+    t = np.arange(n) / fs
+    return t, 0.05 * np.sin(2 * np.pi * 0.3 * t)
+
+
+@pytest.mark.parametrize("step", [1e-6, 5e-6, 50e-6])
+def test_quantisation_step_recovered_from_encoder(step):
+    _, x = _motion()
+    xq = np.round(x / step) * step + 0.0123  # an offset does not matter
+    assert quantisation_step(xq) == pytest.approx(step, rel=1e-6)
+
+
+def test_quantisation_step_in_mm_converted_to_m():
+    _, x = _motion()
+    mm = np.round(x * 1e3 / 0.005) * 0.005  # 5 um counts logged in mm
+    assert quantisation_step(mm * 1e-3) == pytest.approx(5e-6, rel=1e-6)
+
+
+def test_analog_sensor_is_not_quantised_and_its_noise_is_measured():
+    rng = np.random.default_rng(3)
+    _, x = _motion()
+    noisy = x + rng.normal(0, 20e-6, x.size)
+    assert quantisation_step(noisy) == 0.0
+    assert noise_std(noisy) == pytest.approx(20e-6, rel=0.05)
+
+
+def test_noise_estimate_ignores_steps():
+    rng = np.random.default_rng(4)
+    y = np.repeat([0.0, 5000.0, 10000.0, 2000.0], 2000) + rng.normal(0, 300.0, 8000)
+    assert noise_std(y) == pytest.approx(300.0, rel=0.06)
+
+
+def test_describe_sensor_prefers_metadata_and_says_so():
+    rng = np.random.default_rng(5)
+    _, x = _motion()
+    noisy = x + rng.normal(0, 10e-6, x.size)
+    s = describe_sensor(noisy, resolution=1e-6)
+    assert s.resolution == 1e-6 and s.noise == pytest.approx(10e-6, rel=0.05)
+    assert s.source == "metadata+estimated"
+    assert s.floor() == pytest.approx(s.noise)
+    assert describe_sensor([], resolution=5e-6, noise=0.0).source == "metadata"
+
+
+def test_quantised_noise_free_encoder_has_noise_below_half_a_step():
+    _, x = _motion()
+    s = describe_sensor(np.round(x / 5e-6) * 5e-6)
+    assert s.resolution == pytest.approx(5e-6, rel=1e-6)
+    assert s.noise <= 5e-6 / np.sqrt(12) + 1e-12
+    assert s.floor() == pytest.approx(5e-6, rel=1e-6)
+
+
+def test_sensor_from_params_reads_ingest_keys():
+    s = sensor_from_params({"sensor_x_resolution": 5e-5, "sensor_x_noise": "2e-5"}, "x")
+    assert (s.resolution, s.noise, s.source) == (5e-5, 2e-5, "metadata")
+    bad = sensor_from_params({"sensor_x_resolution": "junk"}, "x", np.round(_motion()[1] / 1e-6) * 1e-6)
+    assert bad.source == "estimated" and bad.resolution == pytest.approx(1e-6, rel=1e-6)
+
+
+def test_nrmse_hand_checked():
+    assert nrmse_pct([0, 1, 2, 3], [0, 1, 2, 4]) == pytest.approx(100 * 0.5 / 3)
+    assert np.isnan(nrmse_pct([1, 1], [1, 1]))
+
+
+def test_one_speed_level_cannot_separate_coulomb_from_viscous():
+    v = np.full(200, 0.12) + np.random.default_rng(1).normal(0, 1e-9, 200)
+    f = 3.0 + 25 * v
+    fit = linear_lstsq(np.column_stack([np.ones_like(v), v]), f)
+    g = Gate().identifiable(fit, names=("coulomb_n", "viscous_n_s_m"))
+    assert not g.ok and ("ill-conditioned" in g.note or "rank" in g.note or "not identifiable" in g.note)
+    row = g.apply({"coulomb_n": fit.beta[0], "viscous_n_s_m": fit.beta[1]}, ("coulomb_n", "viscous_n_s_m"))
+    assert row["coulomb_n"] is None and row["viscous_n_s_m"] is None and row["note"]
+
+
+def test_two_speed_levels_identify_both_with_standard_errors():
+    rng = np.random.default_rng(2)
+    v = np.repeat([0.05, 0.3], 50)
+    f = 3.0 + 25 * v + rng.normal(0, 0.1, v.size)
+    fit = linear_lstsq(np.column_stack([np.ones_like(v), v]), f)
+    assert Gate().identifiable(fit).ok
+    assert fit.beta == pytest.approx([3.0, 25.0], abs=0.2)
+    assert fit.se[0] == pytest.approx(0.1 * np.sqrt(1 / 50 + 0.175 ** 2 / (100 * 0.125 ** 2)), rel=0.3)
+
+
+def test_scaled_condition_is_unit_free():
+    v = np.linspace(0.01, 0.5, 50)
+    X = np.column_stack([np.ones_like(v), v])
+    assert scaled_condition(X) == pytest.approx(scaled_condition(X * [1.0, 1e6]), rel=1e-9)
+    assert scaled_condition(np.column_stack([v, 2 * v])) > 1e12
+
+
+@pytest.mark.parametrize("value,lo,hi,expected", [
+    (50.0, 0.02, 50.0, True), (0.02, 0.02, 50.0, True), (1.0, 0.02, 50.0, False),
+    (1e3, 0.1, 1e5, False), (99990.0, 0.1, 1e5, True), (0.5, 0.0, 1.0, False), (float("nan"), 0, 1, True)])
+def test_at_bound(value, lo, hi, expected):
+    assert at_bound(value, lo, hi) is expected
+
+
+def test_gate_bound_nrmse_physical_and_points():
+    assert "upper bound" in Gate().within_bounds([52.0, 50.0], [0.1, 0.02], [1e5, 50.0], ("wn", "zeta")).note
+    assert Gate().within_bounds([52.0, 0.7], [0.1, 0.02], [1e5, 50.0]).ok
+    assert "misses the data" in Gate().follows_data(8.0, 2.5).note
+    assert Gate().follows_data(8.0, 2.5, rms=0.9, noise=0.5).ok  # residuals at the noise level
+    assert "physically impossible" in Gate().physical("coulomb_n", -203429.0, lo=0).note
+    assert "too few points: 2 < 5" == Gate().enough_points(2, 5).note
+    g = Gate().physical("mass_kg", 2.0, lo=0)
+    assert g.ok and g.apply({"mass_kg": 2.0}, ("mass_kg",)) == {"mass_kg": 2.0, "note": None}
