@@ -66,7 +66,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from pipeline.readers.base import RawColumn, RawExport, ReaderError
+from pipeline.readers.base import MAX_CHANNELS, RawColumn, RawExport, ReaderError
 from schemas.channels import canonical_name
 
 FORMAT = "lvm"
@@ -361,6 +361,9 @@ class _Lvm:
         names = [n.strip() for n in names]
         while names and not names[-1]:
             names.pop()
+        if len(names) > MAX_CHANNELS:
+            raise ReaderError(f"line {line}: the column row has {len(names)} columns: more than the limit of "
+                              f"{MAX_CHANNELS} channels per file")
         seg = _Segment(number, line, fields, names)
         for i, name in enumerate(names):
             if i == len(names) - 1 and name.casefold() == _COMMENT_NAME and i > 0:

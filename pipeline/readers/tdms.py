@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from pipeline.readers.base import RawColumn, RawExport, ReaderError, split_name_unit
+from pipeline.readers.base import RawColumn, RawExport, ReaderError, check_channel_count, split_name_unit
 
 FORMAT = "tdms"
 EXTENSIONS = (".tdms",)
@@ -113,6 +113,7 @@ class _open:
     def __enter__(self):
         from nptdms import TdmsFile
 
+        _check_lead_in(self.path)
         log = logging.getLogger("nptdms")
         level = log.level
         log.setLevel(logging.ERROR)  # truncation is reported by us, as a run warning
@@ -130,6 +131,27 @@ class _open:
         if self.tdms is not None:
             self.tdms.close()
         return False
+
+
+#: Bytes of a TDMS segment lead-in: tag, ToC mask, version, next segment offset, raw data offset.
+_LEAD_IN = 28
+_VERSIONS = (4712, 4713)
+
+
+def _check_lead_in(path: Path) -> None:
+    """Refuse, in one line, a file that does not start with a TDMS lead-in."""
+    with open(path, "rb") as fh:
+        lead = fh.read(_LEAD_IN)
+    if not lead:
+        raise ReaderError("not a TDMS file (empty file)")
+    if lead[:4] != b"TDSm":
+        raise ReaderError(f"not a TDMS file (no TDSm lead-in; starts with {lead[:8]!r})")
+    if len(lead) < _LEAD_IN:
+        raise ReaderError(f"TDMS file cut inside its first lead-in ({len(lead)} of {_LEAD_IN} bytes): no data")
+    order = "<" if not int.from_bytes(lead[4:8], "little") & (1 << 6) else ">"   # kTocBigEndian
+    version = int.from_bytes(lead[8:12], "little" if order == "<" else "big")
+    if version not in _VERSIONS:
+        raise ReaderError(f"not a TDMS file (lead-in version {version}, expected 4712 or 4713)")
 
 
 @dataclass
@@ -150,6 +172,7 @@ def _plan(tdms, hints: dict):
     time_channel = None
     wf = None
     first_time = None
+    check_channel_count(len(group.channels()), f"channels in TDMS group `{group.name}`")
     for index, ch in enumerate(group.channels(), start=1):
         name = ch.name
         unit = _text(ch.properties.get("unit_string"))
