@@ -29,8 +29,11 @@ but each chunk read once).
 """
 from __future__ import annotations
 
+import io
 import logging
 import math
+import os
+import struct
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -103,12 +106,37 @@ def read_tdms(path: str | Path, read: dict | None = None, hints: dict | None = N
 
 
 # -- opening and planning ------------------------------------------------------------------
+class _BoundedReader(io.BufferedReader):
+    """A buffered file whose ``read(n)`` never asks for more than the bytes left in the file.
+
+    npTDMS reads a string property with ``file.read(length)`` where ``length`` is the (maybe
+    corrupt) 32-bit length written before it, and a buffered read allocates ``length`` bytes
+    before it finds the file too short: a few flipped bits would ask for 4 GB.
+    """
+
+    def __init__(self, path: Path):
+        super().__init__(io.FileIO(path, "rb"))
+        self._size = os.fstat(self.fileno()).st_size
+
+    def read(self, size: int | None = -1) -> bytes:
+        if size is not None and size > 0:
+            size = max(0, min(size, self._size - self.tell()))
+            if size == 0:
+                return b""
+        return super().read(size)
+
+
 class _open:
-    """``TdmsFile.open`` with npTDMS' own log warnings silenced and errors as ReaderError."""
+    """``TdmsFile.open`` with npTDMS' own log warnings silenced and errors as ReaderError.
+
+    npTDMS is handed a :class:`_BoundedReader` (so a ``.tdms_index`` beside the file is not
+    used: the metadata are read from the data file itself, which is what the rebuild hashed).
+    """
 
     def __init__(self, path: Path):
         self.path = path
         self.tdms = None
+        self.fh = None
 
     def __enter__(self):
         from nptdms import TdmsFile
@@ -117,11 +145,14 @@ class _open:
         log = logging.getLogger("nptdms")
         level = log.level
         log.setLevel(logging.ERROR)  # truncation is reported by us, as a run warning
+        self.fh = _BoundedReader(self.path)
         try:
-            self.tdms = TdmsFile.open(self.path)
-        except FileNotFoundError:
-            raise
+            self.tdms = TdmsFile.open(self.fh)
         except Exception as exc:  # noqa: BLE001 - npTDMS raises many kinds on malformed input
+            self.fh.close()
+            if isinstance(exc, struct.error):   # a length or count points past the end of the file
+                raise ReaderError("not a readable TDMS file: its metadata is corrupt or cut short (a field runs "
+                                  "past the end of the file)") from None
             raise ReaderError(f"not a readable TDMS file: {_first_line(exc)}") from None
         finally:
             log.setLevel(level)
@@ -130,6 +161,8 @@ class _open:
     def __exit__(self, *exc):
         if self.tdms is not None:
             self.tdms.close()
+        if self.fh is not None:
+            self.fh.close()
         return False
 
 

@@ -40,8 +40,11 @@ from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
-#: Address-space limit of a child process [B].
-MEMORY_LIMIT = 1 << 30
+#: Address-space limit of a child process [B]. About 0.65 GiB of it is the interpreter with
+#: numpy, pyarrow, pandas, scipy, h5py and npTDMS mapped (with ``MALLOC_ARENA_MAX=2`` and
+#: pyarrow's system allocator, set for the child; glibc's default arenas alone reserve 64 MiB
+#: per thread), so one mutant may allocate about 0.85 GiB.
+MEMORY_LIMIT = 3 << 29
 #: Seconds one mutant may take before it counts as a hang [s].
 TIMEOUT_S = 20.0
 #: Where failing mutants are saved.
@@ -237,7 +240,7 @@ def child_main() -> None:
 
 class _Child:
     def __init__(self, raw: Path, warehouse: Path):
-        env = {**os.environ, "PYTHONPATH": str(_ROOT)}
+        env = {**os.environ, "PYTHONPATH": str(_ROOT), "MALLOC_ARENA_MAX": "2", "ARROW_DEFAULT_MEMORY_POOL": "system"}
         self.proc = subprocess.Popen([sys.executable, "-m", "tests.fuzz", "--child", str(raw), str(warehouse)],
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
                                      cwd=_ROOT, env=env, text=True, bufsize=1)
