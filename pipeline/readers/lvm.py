@@ -555,7 +555,8 @@ def _stream(lvm: _Lvm, sc: _Scanner, first: _Segment, columns: list[RawColumn], 
         if names == first_names:
             order = list(seg.channel_cols)
         elif sorted(names) == sorted(first_names) and len(set(names)) == len(names):
-            order = [seg.channel_cols[names.index(n)] for n in first_names]
+            where = dict(zip(names, seg.channel_cols))        # one pass, not names.index per channel
+            order = [where[n] for n in first_names]
         else:
             raise ReaderError(f"line {seg.line}: segment {number} has channels {names} where segment 1 has "
                               f"{first_names}")

@@ -82,10 +82,10 @@ def read_tdms(path: str | Path, read: dict | None = None, hints: dict | None = N
     """
     path = Path(path)
     with _open(path) as tdms:
-        plan = _plan(tdms, hints or {})
+        plan = _plan(tdms, hints or {}, path.stat().st_size)
+        columns, metadata, warnings, n_rows, group_name = plan
         # npTDMS reads whole raw-data chunks: never re-read a big chunk once per batch.
-        rows_per_batch = max(BATCH_ROWS, _largest_chunk(tdms))
-    columns, metadata, warnings, n_rows, group_name = plan
+        rows_per_batch = max(1, min(n_rows, max(BATCH_ROWS, _largest_chunk(tdms))))
 
     def batches() -> Iterator[pa.RecordBatch]:
         with _open(path) as tdms:
@@ -195,7 +195,7 @@ class _Col:
     t0: object = None     # elapsed: first timestamp; wf_time: (offset, increment)
 
 
-def _plan(tdms, hints: dict):
+def _plan(tdms, hints: dict, file_size: int):
     root = dict(tdms.properties)
     metadata = {str(k): _plain(v) for k, v in root.items()}
     group = _select_group(tdms, hints, metadata)
@@ -213,6 +213,9 @@ def _plan(tdms, hints: dict):
             name, unit = split_name_unit(ch.name) if ch.name.rstrip().endswith("]") else (ch.name, None)
         key = f"c{index}"
         n = len(ch)
+        if n > file_size:   # every value takes at least one byte of the file
+            raise ReaderError(f"TDMS channel `{ch.name}` declares {n} values in a file of {file_size} bytes "
+                              "(corrupt metadata)")
         dtype = np.dtype(ch.dtype) if ch.dtype is not None else np.dtype(object)
         is_t = name.strip().casefold() == "t"
         if n == 0:

@@ -239,19 +239,20 @@ def child_main() -> None:
 
 
 class _Child:
-    def __init__(self, raw: Path, warehouse: Path):
+    def __init__(self, raw: Path, warehouse: Path, argv: list[str] | None = None):
         env = {**os.environ, "PYTHONPATH": str(_ROOT), "MALLOC_ARENA_MAX": "2", "ARROW_DEFAULT_MEMORY_POOL": "system"}
-        self.proc = subprocess.Popen([sys.executable, "-m", "tests.fuzz", "--child", str(raw), str(warehouse)],
+        argv = argv or [sys.executable, "-m", "tests.fuzz", "--child", str(raw), str(warehouse)]
+        self.proc = subprocess.Popen(argv,
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
                                      cwd=_ROOT, env=env, text=True, bufsize=1)
-        if self._line(60.0) is None:
+        if not self._line(60.0):
             raise RuntimeError("fuzz child did not start")
 
     def _line(self, timeout: float) -> str | None:
         ready, _, _ = select.select([self.proc.stdout], [], [], timeout)
         if not ready:
-            return None
-        return self.proc.stdout.readline() or None
+            return None                          # timeout
+        return self.proc.stdout.readline()       # "" at EOF: the child is gone
 
     def ask(self, path: Path, timeout: float) -> tuple[str, str | None]:
         """(outcome, reason) of one mutant."""
@@ -261,9 +262,9 @@ class _Child:
         except BrokenPipeError:
             return self.died()
         line = self._line(timeout)
+        if line == "" or (line is None and self.proc.poll() is not None):
+            return self.died()
         if line is None:
-            if self.proc.poll() is not None:
-                return self.died()
             self.kill()
             return "hang", f"no answer within {timeout:g} s"
         out = json.loads(line)

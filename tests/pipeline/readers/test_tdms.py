@@ -508,3 +508,22 @@ def test_tdms_group_with_more_channels_than_the_limit_is_refused(raw, warehouse)
     write_tdms(raw.root / "c/a.tdms", STEP, {"Data": chans})
     assert quarantined(raw, "c/a.tdms", warehouse) == (
         f"{n} channels in TDMS group `Data`: more than the limit of {MAX_CHANNELS} channels per file")
+
+
+def test_tdms_string_length_beyond_the_file_is_refused_without_allocating_it(raw, warehouse):
+    """A corrupt 32-bit length before an object path: npTDMS reads ``length`` bytes."""
+    seg = Segment().root(STEP)
+    seg.objects.append(struct.pack("<I", 0xFFFFFFF0) + b"/'Data'")
+    raw.write("c/a.tdms", seg.bytes(b""))
+    assert quarantined(raw, "c/a.tdms", warehouse) == (
+        "not a readable TDMS file: its metadata is corrupt or cut short (a field runs past the end of the file)")
+
+
+def test_tdms_bounded_reader_never_asks_for_more_than_the_file_holds(tmp_path):
+    """A plain buffered read(1 TiB) allocates 1 TiB first (MemoryError); the bounded one returns the rest."""
+    path = tmp_path / "a.tdms"
+    path.write_bytes(b"TDSm" + bytes(60))
+    with tdms_reader._BoundedReader(path) as fh:
+        fh.seek(60)
+        assert fh.read(1 << 40) == bytes(4)
+        assert fh.read(1 << 40) == b""
