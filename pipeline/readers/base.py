@@ -35,6 +35,11 @@ INFLATE_FLOOR_BYTES = 64 << 20
 INFLATE_CEILING_BYTES = 4 << 30
 
 
+#: Longest line a text reader holds while looking for its end [B]: 4,096 channels of 25
+#: characters are 100 KB; a longer "line" is binary data or a file without line breaks.
+MAX_LINE_BYTES = 16 << 20
+
+
 def check_channel_count(n: int, what: str = "columns") -> None:
     """Refuse an export with more than :data:`MAX_CHANNELS` channels (one-line ReaderError)."""
     if n > MAX_CHANNELS:

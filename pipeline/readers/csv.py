@@ -21,8 +21,8 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.csv as pacsv
 
-from pipeline.readers.base import (RawColumn, RawExport, ReaderError, check_channel_count, decode_text,
-                                   parse_key_value, split_name_unit)
+from pipeline.readers.base import (MAX_LINE_BYTES, RawColumn, RawExport, ReaderError, check_channel_count,
+                                   decode_text, parse_key_value, split_name_unit)
 from schemas.channels import canonical_name
 
 FORMAT = "csv"
@@ -232,6 +232,9 @@ def _parallel_batches(path: Path, start: int, keys: list[str], popts, copts) -> 
                 data = rest + data if rest else data
                 cut = data.rfind(b"\n") + 1
                 if cut == 0:
+                    if len(data) > MAX_LINE_BYTES:
+                        raise ReaderError(f"a line longer than {MAX_LINE_BYTES >> 20} MiB (no line break from byte "
+                                          f"{fh.tell() - len(data)}): not delimited text")
                     rest = data
                     continue
                 rest = data[cut:]

@@ -66,7 +66,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from pipeline.readers.base import MAX_CHANNELS, RawColumn, RawExport, ReaderError
+from pipeline.readers.base import MAX_CHANNELS, MAX_LINE_BYTES, RawColumn, RawExport, ReaderError
 from schemas.channels import canonical_name
 
 FORMAT = "lvm"
@@ -146,6 +146,9 @@ class _Scanner:
                 data = self.rest + data
                 cut = data.rfind(b"\n")
                 if cut < 0:
+                    if len(data) > MAX_LINE_BYTES:
+                        raise ReaderError(f"a line longer than {MAX_LINE_BYTES >> 20} MiB (no line break from byte "
+                                          f"{self.bytes_read - len(data)}): not an LVM text file")
                     self.rest = data
                     continue
                 data, self.rest = data[: cut + 1], data[cut + 1:]

@@ -232,3 +232,13 @@ def test_csv_header_at_the_limit_is_read(tmp_path):
     text = "t[s]," + ",".join(["a"] * (MAX_CHANNELS - 1)) + "\n" + ",".join(["1"] * MAX_CHANNELS) + "\n"
     ex = open_csv(tmp_path, text)
     assert len(ex.columns) == MAX_CHANNELS and ex.columns[-1].key == f"c{MAX_CHANNELS}"
+
+
+def test_csv_line_without_end_longer_than_the_limit_is_refused(tmp_path):
+    """25 MiB without a line break after the header: refused, not held whole and re-copied."""
+    from pipeline.readers.base import MAX_LINE_BYTES
+
+    ex = open_csv(tmp_path, b"t[s],x[mm]\n0,1\n" + b"1" * (MAX_LINE_BYTES + (9 << 20)))
+    with pytest.raises(ReaderError, match=r"^a line longer than 16 MiB \(no line break from byte 15\): "
+                                          r"not delimited text$"):
+        list(ex.batches())
