@@ -111,7 +111,9 @@ class _Collect:
 
 # -- v5 / v7: the element structure, checked before scipy allocates anything ---------------
 _MI_MATRIX, _MI_COMPRESSED, _MI_INT32, _MI_UINT32 = 14, 15, 5, 6
-_MX_CELL, _MX_STRUCT, _MX_OBJECT, _MX_SPARSE, _MX_OPAQUE = 1, 2, 3, 5, 17
+_MX_CELL, _MX_STRUCT, _MX_OBJECT, _MX_CHAR, _MX_SPARSE, _MX_OPAQUE = 1, 2, 3, 4, 5, 17
+_NUMERIC = set(range(6, 16))                 # double, single, int8 ... uint64
+_CLASSES = {1, 2, 3, 4, 5, 16, 17} | _NUMERIC
 #: Deepest nesting of arrays (cells in cells, struct fields) read.
 MAX_DEPTH = 64
 #: Most arrays (variables, cells, struct fields) in one file: each becomes a Python object.
@@ -208,37 +210,46 @@ class _V5Walk:
         self.order = order
         self.arrays = 0
 
-    def tag(self, src: _Source, end: int) -> tuple[int, int, bool]:
-        """``(type, nbytes, small)`` of the next element inside ``[src.pos, end)``."""
+    def tag(self, src: _Source, end: int) -> tuple[int, int, bytes | None]:
+        """``(type, nbytes, data)`` of the next element inside ``[src.pos, end)``; ``data`` is the
+        content of a small data element (None for a normal element, whose content follows)."""
         if end - src.pos < 8:
             raise _Bad("an element tag is cut short")
-        w1, w2 = struct.unpack(self.order + "II", src.read(8))
+        raw = src.read(8)
+        w1, w2 = struct.unpack(self.order + "II", raw)
         if w1 >> 16:                                     # small data element: 4 bytes of data inside
             size = w1 >> 16
             if size > 4:
                 raise _Bad(f"a small data element claims {size} bytes (at most 4)")
-            return w1 & 0xFFFF, size, True
+            return w1 & 0xFFFF, size, raw[4:4 + size]
         if w2 > end - src.pos:
             raise _Bad(f"an element declares {w2} bytes where its container has {end - src.pos} left")
-        return w1, w2, False
+        return w1, w2, None
 
-    def elements(self, src: _Source, end: int, depth: int) -> None:
-        """The elements of a container's content up to ``end`` (nested arrays walked too)."""
+    def elements(self, src: _Source, end: int, depth: int) -> list[tuple[int, int, bytes | None]]:
+        """The elements of a container's content up to ``end`` (nested arrays walked too):
+        ``(type, nbytes, data)`` each, ``data`` kept for elements of at most 8 bytes."""
+        out = []
         while end - src.pos >= 8:
-            mtype, size, small = self.tag(src, end)
-            if small:
-                continue
-            if mtype == _MI_MATRIX:
-                self.matrix(src, size, depth + 1)
-            elif mtype == _MI_COMPRESSED:
-                raise _Bad("compressed data inside an array")
-            else:
-                src.skip(size)
-            src.skip(min((-size) % 8, end - src.pos))
+            mtype, size, data = self.tag(src, end)
+            if data is None:
+                if mtype == _MI_MATRIX:
+                    self.matrix(src, size, depth + 1)
+                elif mtype == _MI_COMPRESSED:
+                    raise _Bad("compressed data inside an array")
+                elif size <= 8:
+                    data = src.read(size)
+                else:
+                    src.skip(size)
+                src.skip(min((-size) % 8, end - src.pos))
+            out.append((mtype, size, data))
         src.skip(end - src.pos)
+        return out
 
     def matrix(self, src: _Source, size: int, depth: int) -> None:
-        """One miMATRIX element's content: flags, dimensions, name, data or nested arrays."""
+        """One miMATRIX element's content: flags, dimensions, name, data or nested arrays, as
+        many as the class and flags say (scipy reads what they say, past the array's end, and
+        crashes on some such files: a complex flag without an imaginary part is a segfault)."""
         self.arrays += 1
         if self.arrays > MAX_ARRAYS:
             raise _Bad(f"more than {MAX_ARRAYS} arrays (variables, cells, struct fields)")
@@ -247,13 +258,17 @@ class _V5Walk:
         if size == 0:
             return                                        # an empty cell / field
         end = src.pos + size
-        mtype, n, small = self.tag(src, end)
-        if mtype != _MI_UINT32 or n != 8 or small:
+        mtype, n, data = self.tag(src, end)
+        if mtype != _MI_UINT32 or n != 8 or data is not None:
             raise _Bad("an array does not start with its flags")
-        cls = struct.unpack(self.order + "II", src.read(8))[0] & 0xFF
+        flags = struct.unpack(self.order + "II", src.read(8))[0]
+        cls, complex_ = flags & 0xFF, bool(flags & 0x0800)
+        if cls not in _CLASSES:
+            raise _Bad(f"unknown array class {cls}")
+        count = 1
         if cls != _MX_OPAQUE:
-            mtype, n, small = self.tag(src, end)
-            if mtype != _MI_INT32 or small or n < 8 or n % 4:
+            mtype, n, data = self.tag(src, end)
+            if mtype != _MI_INT32 or data is not None or n < 8 or n % 4:
                 raise _Bad("an array has no dimensions")
             if n > 4 * MAX_DEPTH:
                 raise _Bad(f"an array has {n // 4} dimensions")
@@ -267,7 +282,36 @@ class _V5Walk:
             per = 8 if cls in (_MX_CELL, _MX_STRUCT, _MX_OBJECT) else 1
             if cls != _MX_SPARSE and count * per > size:
                 raise _Bad(f"an array declares {' x '.join(map(str, dims))} elements in {size} bytes")
-        self.elements(src, end, depth)
+        parts = self.elements(src, end, depth)
+        self._check_parts(cls, complex_, count, parts)
+
+    def _check_parts(self, cls: int, complex_: bool, count: int, parts: list) -> None:
+        """The elements after the dimensions are the ones the class and flags announce."""
+        kinds = [t for t, _, _ in parts]
+        if cls in _NUMERIC or cls == _MX_CHAR:
+            want = 2 + (complex_ and cls != _MX_CHAR)     # name, real part (, imaginary part)
+            if len(parts) != want or _MI_MATRIX in kinds:
+                raise _Bad(f"a {'complex ' if complex_ else ''}numeric array has {len(parts) - 1} data "
+                           f"elements (expected {want - 1})")
+        elif cls == _MX_SPARSE:
+            if len(parts) < 4 + complex_ or _MI_MATRIX in kinds:
+                raise _Bad("a sparse array lacks its indices or values")
+        elif cls == _MX_CELL:
+            if len(parts) != 1 + count or any(t != _MI_MATRIX for t in kinds[1:]):
+                raise _Bad(f"a cell array of {count} cells holds {kinds[1:].count(_MI_MATRIX)} arrays")
+        elif cls in (_MX_STRUCT, _MX_OBJECT):
+            head = 3 if cls == _MX_STRUCT else 4           # name, (class name,) field name length, names
+            if len(parts) < head or parts[head - 2][2] is None:
+                raise _Bad("a struct has no field names")
+            length = struct.unpack(self.order + "i", parts[head - 2][2].ljust(4, b"\0"))[0]
+            if length <= 0:
+                raise _Bad(f"a struct has field names of length {length}")
+            fields = parts[head - 1][1] // length
+            if len(parts) != head + count * fields or any(t != _MI_MATRIX for t in kinds[head:]):
+                raise _Bad(f"a struct of {count} x {fields} fields holds {kinds[head:].count(_MI_MATRIX)} arrays")
+        else:                                              # function handle, opaque object
+            if _MI_MATRIX not in kinds:
+                raise _Bad("a function handle / object holds no array")
 
 
 def check_v5(path: Path) -> None:
@@ -306,7 +350,7 @@ def check_v5(path: Path) -> None:
                 else:
                     inner = 1 << 62
                     t, n, small = walk.tag(src, inner)
-                    if t != _MI_MATRIX or small:
+                    if t != _MI_MATRIX or small is not None:
                         raise _Bad(f"compressed element holds type {t}, not an array")
                     walk.matrix(src, n, 1)
             except _Bomb:

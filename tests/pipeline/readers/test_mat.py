@@ -299,3 +299,30 @@ def test_mat_v73_external_link_is_not_followed(tmp_path):
     ex = read_export(path)
     assert [c.name for c in ex.columns] == ["t"]
     assert "variable `x` (an HDF5 link) ignored" in ex.warnings
+
+
+def test_mat_complex_flag_without_imaginary_part_is_refused_before_scipy(tmp_path):
+    """scipy reads an imaginary part past the array's end and segfaults (found by tests/fuzz)."""
+    flags = v5_tag(6, struct.pack("<II", 6 | 0x0800, 0))               # mxDOUBLE_CLASS, complex
+    body = flags + v5_tag(5, struct.pack("<2i", 2, 1)) + v5_tag(1, b"z") + v5_tag(9, struct.pack("<2d", 1.0, 2.0))
+    path = mat_v5_elements(tmp_path / "a.mat", v5_tag(14, body) + v5_double("t", [0.0, 1.0]))
+    with pytest.raises(ReaderError, match=r"^not a readable MAT file: variable at byte 128: a complex numeric "
+                                          r"array has 1 data elements \(expected 2\)$"):
+        read_export(path)
+
+
+def test_mat_struct_with_fewer_fields_than_announced_is_refused(tmp_path):
+    flags = v5_tag(6, struct.pack("<II", 2, 0))                         # mxSTRUCT_CLASS 1 x 1
+    names = v5_tag(1, b"a".ljust(8, b"\0") + b"b".ljust(8, b"\0"))       # two fields of 8 characters
+    body = (flags + v5_tag(5, struct.pack("<2i", 1, 1)) + v5_tag(1, b"meta")
+            + struct.pack("<HHi", 5, 4, 8) + names + v5_double("", [1.0, 2.0]))
+    path = mat_v5_elements(tmp_path / "a.mat", v5_tag(14, body) + v5_double("t", [0.0, 1.0]))
+    with pytest.raises(ReaderError, match=r"a struct of 1 x 2 fields holds 1 arrays$"):
+        read_export(path)
+
+
+def test_mat_legit_complex_and_struct_variables_pass_the_walk(tmp_path):
+    path = mat_v5(tmp_path / "a.mat", basic(z=np.array([1 + 2j, 3 - 4j]), cells=np.array([[1.0], "ab"], dtype=object),
+                                            s={"a": 1.0, "b": {"c": "deep"}}), compress=True)
+    mat_module.check_v5(path)
+    assert [c.name for c in read_export(path).columns] == ["t", "x"]
