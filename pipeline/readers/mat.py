@@ -113,6 +113,8 @@ class _Collect:
 _MI_MATRIX, _MI_COMPRESSED, _MI_INT32, _MI_UINT32 = 14, 15, 5, 6
 _MX_CELL, _MX_STRUCT, _MX_OBJECT, _MX_CHAR, _MX_SPARSE, _MX_OPAQUE = 1, 2, 3, 4, 5, 17
 _NUMERIC = set(range(6, 16))                 # double, single, int8 ... uint64
+#: miINT8 ... miUINT32, miSINGLE, miDOUBLE, miINT64, miUINT64, miUTF8, miUTF16, miUTF32.
+_DATA_TYPES = {1, 2, 3, 4, 5, 6, 7, 9, 12, 13, 16, 17, 18}
 _CLASSES = {1, 2, 3, 4, 5, 16, 17} | _NUMERIC
 #: Deepest nesting of arrays (cells in cells, struct fields) read.
 MAX_DEPTH = 64
@@ -221,7 +223,11 @@ class _V5Walk:
             size = w1 >> 16
             if size > 4:
                 raise _Bad(f"a small data element claims {size} bytes (at most 4)")
+            if w1 & 0xFFFF not in _DATA_TYPES:
+                raise _Bad(f"unknown data type {w1 & 0xFFFF}")
             return w1 & 0xFFFF, size, raw[4:4 + size]
+        if w1 not in _DATA_TYPES and w1 not in (_MI_MATRIX, _MI_COMPRESSED):
+            raise _Bad(f"unknown data type {w1}")      # scipy segfaults on some (found by tests/fuzz)
         if w2 > end - src.pos:
             raise _Bad(f"an element declares {w2} bytes where its container has {end - src.pos} left")
         return w1, w2, None
@@ -288,6 +294,8 @@ class _V5Walk:
     def _check_parts(self, cls: int, complex_: bool, count: int, parts: list) -> None:
         """The elements after the dimensions are the ones the class and flags announce."""
         kinds = [t for t, _, _ in parts]
+        if not parts or kinds[0] != 1:
+            raise _Bad("an array has no name (miINT8)")
         if cls in _NUMERIC or cls == _MX_CHAR:
             want = 2 + (complex_ and cls != _MX_CHAR)     # name, real part (, imaginary part)
             if len(parts) != want or _MI_MATRIX in kinds:

@@ -187,7 +187,7 @@ class Mutant:
 
 def mutant(seeds: dict[str, bytes], seed: int, index: int) -> Mutant:
     """Mutant ``index`` of run ``seed``: depends on these two numbers (and the seeds) only."""
-    r = random.Random(f"{seed}:{index}")
+    r = random.Random(f"{seed}:{index}:{','.join(sorted(seeds))}")
     names = sorted(seeds)
     name = names[r.randrange(len(names))]
     d = bytearray(seeds[name])
@@ -309,13 +309,18 @@ class Report:
         return "\n".join(lines)
 
 
-def run(n: int, seed: int, save: bool = True, timeout: float = TIMEOUT_S, log=None) -> Report:
-    """Run ``n`` mutants of run ``seed`` (one child process, restarted after a crash or hang)."""
+def run(n: int, seed: int, save: bool = True, timeout: float = TIMEOUT_S, log=None, only: str | None = None) -> Report:
+    """Run ``n`` mutants of run ``seed`` (one child process, restarted after a crash or hang);
+    ``only``: mutate only the seeds whose file name contains this text (e.g. ``"v5"``)."""
     start = time.monotonic()
     report = Report()
     with tempfile.TemporaryDirectory(prefix="pneubench-fuzz-") as tmp:
         tmp = Path(tmp)
         seeds = make_seeds(tmp / "seeds")
+        if only:
+            seeds = {k: v for k, v in seeds.items() if only in k}
+            if not seeds:
+                raise ValueError(f"no seed file name contains {only!r}")
         raw, warehouse = tmp / "raw", tmp / "warehouse"
         (raw / "fuzz").mkdir(parents=True)
         child = None

@@ -24,6 +24,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--mutants", type=int, default=2000)
     parser.add_argument("--seed", type=int, default=7)
     parser.add_argument("--timeout", type=float, default=TIMEOUT_S, help="seconds per mutant")
+    parser.add_argument("--only", help="mutate only the seeds whose name contains this (e.g. v5, tdms, csv)")
     parser.add_argument("--reasons", action="store_true", help="also count quarantine reasons by shape")
     parser.add_argument("--replay", type=Path, help="ingest one saved mutant again")
     args = parser.parse_args(argv)
@@ -31,7 +32,8 @@ def main(argv: list[str] | None = None) -> int:
         outcome, reason = replay(args.replay, args.timeout)
         print(f"{outcome}: {reason}")
         return int(outcome in FINDINGS)
-    report = run(args.mutants, args.seed, timeout=args.timeout, log=lambda s: print(s, file=sys.stderr, flush=True))
+    report = run(args.mutants, args.seed, timeout=args.timeout, only=args.only,
+                 log=lambda s: print(s, file=sys.stderr, flush=True))
     print(report.summary())
     if args.reasons:
         for shape, n in report.reasons.most_common(40):

@@ -326,3 +326,12 @@ def test_mat_legit_complex_and_struct_variables_pass_the_walk(tmp_path):
                                             s={"a": 1.0, "b": {"c": "deep"}}), compress=True)
     mat_module.check_v5(path)
     assert [c.name for c in read_export(path).columns] == ["t", "x"]
+
+
+@pytest.mark.parametrize("mtype", [0, 8, 10, 11, 0x2C09], ids=["zero", "8", "10", "11", "garbage"])
+def test_mat_unknown_data_type_is_refused_before_scipy(tmp_path, mtype):
+    """scipy crashes (or loops) on some unknown data types (found by tests/fuzz, seed 7)."""
+    head = v5_tag(6, struct.pack("<II", 6, 0)) + v5_tag(5, struct.pack("<2i", 2, 1)) + v5_tag(1, b"x")
+    path = mat_v5_elements(tmp_path / "a.mat", v5_tag(14, head + v5_tag(mtype, struct.pack("<2d", 1.0, 2.0))))
+    with pytest.raises(ReaderError, match=rf"^not a readable MAT file: variable at byte 128: unknown data type {mtype}$"):
+        read_export(path)
