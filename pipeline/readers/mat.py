@@ -18,6 +18,13 @@
   and structs as groups; ``#refs#`` / ``#subsystem#`` are MATLAB's bookkeeping. Channels are
   read in slices, so a large v7.3 file streams in bounded memory; v5/v7 files are loaded whole
   by scipy (the format has no partial reads) and then yielded in batches.
+* Untrusted bytes: before scipy sees a v5/v7 file, :func:`check_v5` walks its elements
+  (compressed ones inflated in 1 MiB steps and dropped) and refuses a file that inflates to more
+  than :func:`pipeline.readers.base.inflate_cap` of its size (a decompression bomb), declares
+  sizes or dimensions its bytes cannot hold, nests arrays too deep, uses unknown data types or
+  arrays that lack the parts their class announces (scipy allocates what a file declares and
+  crashes on some malformed arrays). v7.3 datasets are checked the same way (shape x item
+  size against the cap) before they are read, and HDF5 links are never followed.
 """
 from __future__ import annotations
 

@@ -26,6 +26,11 @@ memory stays bounded by the batch size plus one raw-data chunk of the file (LabV
 write a chunk per loop iteration or buffer: small). npTDMS reads whole chunks, so a file written
 as one huge chunk is read in batches as large as that chunk (memory of the order of the chunk,
 but each chunk read once).
+
+Untrusted bytes: a file must start with a TDMS lead-in (``TDSm``, version 4712 or 4713); npTDMS
+reads through :class:`_BoundedReader` (no read past the end of the file, whatever length a
+corrupt field gives), a ``.tdms_index`` beside the file is not used, and a channel may not
+declare more values than the file has bytes.
 """
 from __future__ import annotations
 
