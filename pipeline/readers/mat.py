@@ -138,7 +138,7 @@ class _Bad(Exception):
 class _Source:
     """The bytes of one top-level element's content, read sequentially: straight from the file,
     or inflated step by step (at most :data:`_INFLATE_STEP` at a time) with every inflated byte
-    counted against ``budget``."""
+    counted against ``budget``. Skipped bytes are dropped as they come: memory stays at a step."""
 
     def __init__(self, fh, nbytes: int, compressed: bool, budget: list[int]):
         self.fh, self.left, self.compressed, self.budget = fh, nbytes, compressed, budget
@@ -147,65 +147,61 @@ class _Source:
         self.z = zlib.decompressobj() if compressed else None
         self.tail = b""
 
-    def _more(self) -> bool:
-        """Append the next piece of content to ``buf``; False at its end."""
+    def _piece(self) -> bytes:
+        """The next piece of content (b"" at its end)."""
         if not self.compressed:
-            if self.left <= 0:
-                return False
-            data = self.fh.read(min(self.left, _INFLATE_STEP))
-            if not data:
-                return False
+            data = self.fh.read(min(self.left, _INFLATE_STEP)) if self.left > 0 else b""
             self.left -= len(data)
-            self.buf += data
-            return True
+            return data
         while True:
             if not self.tail:
                 if self.left <= 0 or self.z.eof:
-                    return False
-                self.tail = self.fh.read(min(self.left, 1 << 16))
+                    return b""
+                self.tail = self.fh.read(min(self.left, 1 << 18))
                 if not self.tail:
-                    return False
+                    return b""
                 self.left -= len(self.tail)
             try:
                 out = self.z.decompress(self.tail, _INFLATE_STEP)
             except zlib.error as exc:
                 raise _Bad(f"compressed data is corrupt ({exc})") from None
-            self.tail = self.z.unconsumed_tail
-            if self.z.eof:
-                self.tail = b""
+            self.tail = b"" if self.z.eof else self.z.unconsumed_tail
             if out:
                 self.budget[0] -= len(out)
                 if self.budget[0] < 0:
                     raise _Bomb()
-                self.buf += out
-                return True
+                return out
 
     def read(self, n: int) -> bytes:
         while len(self.buf) < n:
-            if not self._more():
+            piece = self._piece()
+            if not piece:
                 raise _Bad("an element ends early")
+            self.buf += piece
         out, self.buf = self.buf[:n], self.buf[n:]
         self.pos += n
         return out
 
     def skip(self, n: int) -> None:
-        if not self.compressed and n > len(self.buf):
-            n -= len(self.buf)
-            self.pos += len(self.buf)
-            self.buf = b""
+        k = min(n, len(self.buf))
+        self.buf, self.pos, n = self.buf[k:], self.pos + k, n - k
+        if n and not self.compressed:
             if n > self.left:
                 raise _Bad("an element ends early")
             self.fh.seek(n, 1)
             self.left -= n
             self.pos += n
             return
-        while n > 0:
-            if not self.buf and not self._more():
+        while n:
+            piece = self._piece()
+            if not piece:
                 raise _Bad("an element ends early")
-            k = min(n, len(self.buf))
-            self.buf = self.buf[k:]
-            self.pos += k
-            n -= k
+            if len(piece) > n:
+                self.buf = piece[n:]
+                self.pos += n
+                return
+            self.pos += len(piece)
+            n -= len(piece)
 
 
 class _Bomb(Exception):
