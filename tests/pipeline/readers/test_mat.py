@@ -333,5 +333,6 @@ def test_mat_unknown_data_type_is_refused_before_scipy(tmp_path, mtype):
     """scipy crashes (or loops) on some unknown data types (found by tests/fuzz, seed 7)."""
     head = v5_tag(6, struct.pack("<II", 6, 0)) + v5_tag(5, struct.pack("<2i", 2, 1)) + v5_tag(1, b"x")
     path = mat_v5_elements(tmp_path / "a.mat", v5_tag(14, head + v5_tag(mtype, struct.pack("<2d", 1.0, 2.0))))
-    with pytest.raises(ReaderError, match=rf"^not a readable MAT file: variable at byte 128: unknown data type {mtype}$"):
+    with pytest.raises(ReaderError, match=rf"^not a readable MAT file: variable at byte 128: "
+                                          rf"unknown data type {mtype}$"):
         read_export(path)

@@ -430,7 +430,8 @@ def test_tdms_channel_without_data_is_an_empty_column(raw, warehouse):
 
 def test_tdms_not_a_tdms_file(raw, warehouse):
     raw.write("c/a.tdms", b"this is not TDMS at all, just text that a bench wrote\n" * 3)
-    assert quarantined(raw, "c/a.tdms", warehouse).startswith("not a TDMS file (no TDSm lead-in; starts with b'this is ")
+    reason = quarantined(raw, "c/a.tdms", warehouse)
+    assert reason.startswith("not a TDMS file (no TDSm lead-in; starts with b'this is ")
 
 
 def test_tdms_empty_file_is_not_a_tdms_file(raw, warehouse):
