@@ -124,7 +124,7 @@ class _BoundedReader(io.BufferedReader):
         self._size = os.fstat(self.fileno()).st_size
 
     def read(self, size: int | None = -1) -> bytes:
-        if size is not None and size > 0:
+        if size is not None and size > 1 << 16:          # small reads cannot allocate much: no tell()
             size = max(0, min(size, self._size - self.tell()))
             if size == 0:
                 return b""
