@@ -24,6 +24,7 @@ import pyarrow.parquet as pq
 
 from pipeline.layout import ConfigError, RawTree
 from pipeline.readers import RawColumn, ReaderError, read_export
+from pipeline.readers.base import MAX_CHANNELS
 from schemas.channels import CHANNELS, canonical_name, sanitise_name
 from schemas.kinds import (KINDS, META_KEYS, coerce_value, missing_channels,
                            missing_metadata, samples_schema)
@@ -192,9 +193,16 @@ def _rig_entry(col: RawColumn, channels_cfg: dict) -> dict | None:
 
 
 def map_columns(columns: list[RawColumn], channels_cfg: dict) -> list[ColumnMap]:
-    """Map raw columns onto canonical channels (rig.toml ``[channels]`` first, then names)."""
+    """Map raw columns onto canonical channels (rig.toml ``[channels]`` first, then names).
+
+    Linear in the number of columns (a dict of names taken and, per sanitised name, the next
+    free suffix); more than :data:`pipeline.readers.base.MAX_CHANNELS` columns are refused.
+    """
+    if len(columns) > MAX_CHANNELS:
+        raise IngestError(f"{len(columns)} columns: more than the limit of {MAX_CHANNELS} channels per file")
     maps: list[ColumnMap] = []
     seen: dict[str, str] = {}
+    next_suffix: dict[str, int] = {}   # sanitised name -> next suffix to try
     for col in columns:
         entry = _rig_entry(col, channels_cfg or {})
         name = col.name
@@ -212,9 +220,10 @@ def map_columns(columns: list[RawColumn], channels_cfg: dict) -> list[ColumnMap]
         label = f"`{col.name}`" if col.name == str(col.index) or not col.name else f"`{col.name}` (column {col.index})"
         if channel is None:
             column = sanitise_name(name)
-            base, k = column, 2
+            base, k = column, next_suffix.get(column, 2)
             while column in seen:  # "Foo Bar" and "foo-bar" both sanitise to foo_bar: keep both
                 column, k = f"{base}_{k}", k + 1
+            next_suffix[base] = k
             maps.append(ColumnMap(col.key, column, None, col.name, col.unit, unit_text, scale, offset,
                                   numeric=col.dtype != "string"))
         else:

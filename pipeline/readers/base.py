@@ -19,6 +19,44 @@ class ReaderError(Exception):
     """The file cannot be read: its message is one line saying what is wrong and where."""
 
 
+# -- resource limits (what a reader may ask of a worker) ------------------------------------
+#: Most channels (data columns) one export may have. A bench logs tens of channels; a file
+#: with thousands of columns is malformed or hostile and is refused before any per-column work.
+MAX_CHANNELS = 4096
+
+#: Decompressed (or declared, for sparse / chunked storage) data may be this many times the
+#: file's size ...
+MAX_INFLATE_RATIO = 100
+#: ... or up to this many bytes whatever the ratio (a small file of constant channels
+#: compresses very well) [B] ...
+INFLATE_FLOOR_BYTES = 64 << 20
+#: ... and never more than this many bytes, however large the file (MAT v5 is loaded whole by
+#: scipy, so this bounds a worker's memory for one file) [B].
+INFLATE_CEILING_BYTES = 4 << 30
+
+
+#: Longest line a text reader holds while looking for its end [B]: 4,096 channels of 25
+#: characters are 100 KB; a longer "line" is binary data or a file without line breaks.
+MAX_LINE_BYTES = 16 << 20
+
+
+def check_channel_count(n: int, what: str = "columns") -> None:
+    """Refuse an export with more than :data:`MAX_CHANNELS` channels (one-line ReaderError)."""
+    if n > MAX_CHANNELS:
+        raise ReaderError(f"{n} {what}: more than the limit of {MAX_CHANNELS} channels per file")
+
+
+def inflate_cap(file_size: int) -> int:
+    """Most bytes a reader may decompress / allocate for the data of a file of ``file_size``
+    bytes: ``min(ceiling, max(floor, ratio * file_size))`` (see the constants above). [B]"""
+    return int(min(INFLATE_CEILING_BYTES, max(INFLATE_FLOOR_BYTES, MAX_INFLATE_RATIO * int(file_size))))
+
+
+def mib(n: int) -> str:
+    """Bytes as text in MiB for messages (``"12.5 MiB"``)."""
+    return f"{n / (1 << 20):.1f} MiB"
+
+
 @dataclass
 class RawColumn:
     """A data column of an export, as the export names it.

@@ -21,7 +21,8 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.csv as pacsv
 
-from pipeline.readers.base import RawColumn, RawExport, ReaderError, decode_text, parse_key_value, split_name_unit
+from pipeline.readers.base import (MAX_LINE_BYTES, RawColumn, RawExport, ReaderError, check_channel_count,
+                                   decode_text, parse_key_value, split_name_unit)
 from schemas.channels import canonical_name
 
 FORMAT = "csv"
@@ -131,11 +132,14 @@ def read_csv(path: str | Path, read: dict | None = None, hints: dict | None = No
             return line.split()
         return next(_csv.reader([line], delimiter=delimiter), [])   # honours quoted fields
 
-    width = max((len(split(s)) for s in samples), default=0)
+    rows = [split(s) for s in samples]     # split once: header parsing stays linear in the width
+    width = max((len(r) for r in rows), default=0)
+    check_channel_count(width, "columns in the first data rows")
     if has_header:
         names = [h.strip() for h in split(header_line)]
+        check_channel_count(len(names), "columns in the header")
         # Rows that end with a delimiter the header does not have: extra, unnamed columns.
-        if width > len(names) and all(not f.strip() for row in map(split, samples) for f in row[len(names):]):
+        if width > len(names) and all(not f.strip() for row in rows for f in row[len(names):]):
             names += [""] * (width - len(names))
     else:
         names = [str(k + 1) for k in range(width)]
@@ -150,7 +154,7 @@ def read_csv(path: str | Path, read: dict | None = None, hints: dict | None = No
         if has_header and not header:
             continue  # trailing delimiter: an unnamed, empty column
         name, unit = split_name_unit(header) if has_header else (header, None)
-        values = [row[k].strip() for row in map(split, samples) if k < len(row) and row[k].strip()]
+        values = [row[k].strip() for row in rows if k < len(row) and row[k].strip()]
         # A canonical channel is always numbers: a bad value is then reported with its line.
         numeric = canonical_name(name) is not None or all(_is_number(v, decimal) for v in values)
         dtype = "float" if numeric else "string"
@@ -228,6 +232,9 @@ def _parallel_batches(path: Path, start: int, keys: list[str], popts, copts) -> 
                 data = rest + data if rest else data
                 cut = data.rfind(b"\n") + 1
                 if cut == 0:
+                    if len(data) > MAX_LINE_BYTES:
+                        raise ReaderError(f"a line longer than {MAX_LINE_BYTES >> 20} MiB (no line break from byte "
+                                          f"{fh.tell() - len(data)}): not delimited text")
                     rest = data
                     continue
                 rest = data[cut:]

@@ -66,7 +66,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from pipeline.readers.base import RawColumn, RawExport, ReaderError
+from pipeline.readers.base import MAX_CHANNELS, MAX_LINE_BYTES, RawColumn, RawExport, ReaderError
 from schemas.channels import canonical_name
 
 FORMAT = "lvm"
@@ -146,6 +146,9 @@ class _Scanner:
                 data = self.rest + data
                 cut = data.rfind(b"\n")
                 if cut < 0:
+                    if len(data) > MAX_LINE_BYTES:
+                        raise ReaderError(f"a line longer than {MAX_LINE_BYTES >> 20} MiB (no line break from byte "
+                                          f"{self.bytes_read - len(data)}): not an LVM text file")
                     self.rest = data
                     continue
                 data, self.rest = data[: cut + 1], data[cut + 1:]
@@ -361,6 +364,9 @@ class _Lvm:
         names = [n.strip() for n in names]
         while names and not names[-1]:
             names.pop()
+        if len(names) > MAX_CHANNELS:
+            raise ReaderError(f"line {line}: the column row has {len(names)} columns: more than the limit of "
+                              f"{MAX_CHANNELS} channels per file")
         seg = _Segment(number, line, fields, names)
         for i, name in enumerate(names):
             if i == len(names) - 1 and name.casefold() == _COMMENT_NAME and i > 0:
@@ -552,7 +558,8 @@ def _stream(lvm: _Lvm, sc: _Scanner, first: _Segment, columns: list[RawColumn], 
         if names == first_names:
             order = list(seg.channel_cols)
         elif sorted(names) == sorted(first_names) and len(set(names)) == len(names):
-            order = [seg.channel_cols[names.index(n)] for n in first_names]
+            where = dict(zip(names, seg.channel_cols))        # one pass, not names.index per channel
+            order = [where[n] for n in first_names]
         else:
             raise ReaderError(f"line {seg.line}: segment {number} has channels {names} where segment 1 has "
                               f"{first_names}")

@@ -26,11 +26,19 @@ memory stays bounded by the batch size plus one raw-data chunk of the file (LabV
 write a chunk per loop iteration or buffer: small). npTDMS reads whole chunks, so a file written
 as one huge chunk is read in batches as large as that chunk (memory of the order of the chunk,
 but each chunk read once).
+
+Untrusted bytes: a file must start with a TDMS lead-in (``TDSm``, version 4712 or 4713); npTDMS
+reads through :class:`_BoundedReader` (no read past the end of the file, whatever length a
+corrupt field gives), a ``.tdms_index`` beside the file is not used, and a channel may not
+declare more values than the file has bytes.
 """
 from __future__ import annotations
 
+import io
 import logging
 import math
+import os
+import struct
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,7 +46,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from pipeline.readers.base import RawColumn, RawExport, ReaderError, split_name_unit
+from pipeline.readers.base import RawColumn, RawExport, ReaderError, check_channel_count, split_name_unit
 
 FORMAT = "tdms"
 EXTENSIONS = (".tdms",)
@@ -79,10 +87,10 @@ def read_tdms(path: str | Path, read: dict | None = None, hints: dict | None = N
     """
     path = Path(path)
     with _open(path) as tdms:
-        plan = _plan(tdms, hints or {})
+        plan = _plan(tdms, hints or {}, path.stat().st_size)
+        columns, metadata, warnings, n_rows, group_name = plan
         # npTDMS reads whole raw-data chunks: never re-read a big chunk once per batch.
-        rows_per_batch = max(BATCH_ROWS, _largest_chunk(tdms))
-    columns, metadata, warnings, n_rows, group_name = plan
+        rows_per_batch = max(1, min(n_rows, max(BATCH_ROWS, _largest_chunk(tdms))))
 
     def batches() -> Iterator[pa.RecordBatch]:
         with _open(path) as tdms:
@@ -103,24 +111,53 @@ def read_tdms(path: str | Path, read: dict | None = None, hints: dict | None = N
 
 
 # -- opening and planning ------------------------------------------------------------------
+class _BoundedReader(io.BufferedReader):
+    """A buffered file whose ``read(n)`` never asks for more than the bytes left in the file.
+
+    npTDMS reads a string property with ``file.read(length)`` where ``length`` is the (maybe
+    corrupt) 32-bit length written before it, and a buffered read allocates ``length`` bytes
+    before it finds the file too short: a few flipped bits would ask for 4 GB.
+    """
+
+    def __init__(self, path: Path):
+        super().__init__(io.FileIO(path, "rb"))
+        self._size = os.fstat(self.fileno()).st_size
+
+    def read(self, size: int | None = -1) -> bytes:
+        if size is not None and size > 1 << 16:          # small reads cannot allocate much: no tell()
+            size = max(0, min(size, self._size - self.tell()))
+            if size == 0:
+                return b""
+        return super().read(size)
+
+
 class _open:
-    """``TdmsFile.open`` with npTDMS' own log warnings silenced and errors as ReaderError."""
+    """``TdmsFile.open`` with npTDMS' own log warnings silenced and errors as ReaderError.
+
+    npTDMS is handed a :class:`_BoundedReader` (so a ``.tdms_index`` beside the file is not
+    used: the metadata are read from the data file itself, which is what the rebuild hashed).
+    """
 
     def __init__(self, path: Path):
         self.path = path
         self.tdms = None
+        self.fh = None
 
     def __enter__(self):
         from nptdms import TdmsFile
 
+        _check_lead_in(self.path)
         log = logging.getLogger("nptdms")
         level = log.level
         log.setLevel(logging.ERROR)  # truncation is reported by us, as a run warning
+        self.fh = _BoundedReader(self.path)
         try:
-            self.tdms = TdmsFile.open(self.path)
-        except FileNotFoundError:
-            raise
+            self.tdms = TdmsFile.open(self.fh)
         except Exception as exc:  # noqa: BLE001 - npTDMS raises many kinds on malformed input
+            self.fh.close()
+            if isinstance(exc, struct.error):   # a length or count points past the end of the file
+                raise ReaderError("not a readable TDMS file: its metadata is corrupt or cut short (a field runs "
+                                  "past the end of the file)") from None
             raise ReaderError(f"not a readable TDMS file: {_first_line(exc)}") from None
         finally:
             log.setLevel(level)
@@ -129,7 +166,30 @@ class _open:
     def __exit__(self, *exc):
         if self.tdms is not None:
             self.tdms.close()
+        if self.fh is not None:
+            self.fh.close()
         return False
+
+
+#: Bytes of a TDMS segment lead-in: tag, ToC mask, version, next segment offset, raw data offset.
+_LEAD_IN = 28
+_VERSIONS = (4712, 4713)
+
+
+def _check_lead_in(path: Path) -> None:
+    """Refuse, in one line, a file that does not start with a TDMS lead-in."""
+    with open(path, "rb") as fh:
+        lead = fh.read(_LEAD_IN)
+    if not lead:
+        raise ReaderError("not a TDMS file (empty file)")
+    if lead[:4] != b"TDSm":
+        raise ReaderError(f"not a TDMS file (no TDSm lead-in; starts with {lead[:8]!r})")
+    if len(lead) < _LEAD_IN:
+        raise ReaderError(f"TDMS file cut inside its first lead-in ({len(lead)} of {_LEAD_IN} bytes): no data")
+    order = "<" if not int.from_bytes(lead[4:8], "little") & (1 << 6) else ">"   # kTocBigEndian
+    version = int.from_bytes(lead[8:12], "little" if order == "<" else "big")
+    if version not in _VERSIONS:
+        raise ReaderError(f"not a TDMS file (lead-in version {version}, expected 4712 or 4713)")
 
 
 @dataclass
@@ -140,7 +200,7 @@ class _Col:
     t0: object = None     # elapsed: first timestamp; wf_time: (offset, increment)
 
 
-def _plan(tdms, hints: dict):
+def _plan(tdms, hints: dict, file_size: int):
     root = dict(tdms.properties)
     metadata = {str(k): _plain(v) for k, v in root.items()}
     group = _select_group(tdms, hints, metadata)
@@ -150,6 +210,7 @@ def _plan(tdms, hints: dict):
     time_channel = None
     wf = None
     first_time = None
+    check_channel_count(len(group.channels()), f"channels in TDMS group `{group.name}`")
     for index, ch in enumerate(group.channels(), start=1):
         name = ch.name
         unit = _text(ch.properties.get("unit_string"))
@@ -157,6 +218,9 @@ def _plan(tdms, hints: dict):
             name, unit = split_name_unit(ch.name) if ch.name.rstrip().endswith("]") else (ch.name, None)
         key = f"c{index}"
         n = len(ch)
+        if n > file_size:   # every value takes at least one byte of the file
+            raise ReaderError(f"TDMS channel `{ch.name}` declares {n} values in a file of {file_size} bytes "
+                              "(corrupt metadata)")
         dtype = np.dtype(ch.dtype) if ch.dtype is not None else np.dtype(object)
         is_t = name.strip().casefold() == "t"
         if n == 0:

@@ -208,3 +208,48 @@ def mat_v5_with_object(path: Path, name: str = "tt", classname: str = "timetable
         body += _v5_double(k, v)
     path.write_bytes(_v5_header() + body)
     return path
+
+
+def mat_v5_compressed_zeros(path: Path, name: str = "x", n_bytes: int = 256 << 20,
+                            dims: tuple[int, int] | None = None) -> Path:
+    """A v7 (compressed) MAT file holding one double vector of ``n_bytes`` of zeros: zlib packs
+    zeros about 1000:1, so a few hundred KB inflate to ``n_bytes`` (a decompression bomb).
+    ``dims`` overrides the declared dimensions (default: ``n_bytes // 8`` x 1). The zeros are
+    compressed a MiB at a time, never held in memory."""
+    import zlib
+
+    n = n_bytes // 8
+    dims = dims or (n, 1)
+    flags = _tag(6, struct.pack("<II", 6, 0))            # mxDOUBLE_CLASS
+    head = flags + _tag(5, struct.pack("<2i", *dims)) + _int8(name)
+    data_tag = struct.pack("<II", 9, n * 8)              # miDOUBLE, then the zeros
+    matrix_tag = struct.pack("<II", 14, len(head) + 8 + n * 8)
+    z = zlib.compressobj(1)
+    parts = [z.compress(matrix_tag + head + data_tag)]
+    chunk = bytes(1 << 20)
+    left = n * 8
+    while left:
+        k = min(left, len(chunk))
+        parts.append(z.compress(chunk[:k]))
+        left -= k
+    parts.append(z.flush())
+    blob = b"".join(parts)
+    path.write_bytes(_v5_header() + struct.pack("<II", 15, len(blob)) + blob)
+    return path
+
+
+def mat_v5_elements(path: Path, body: bytes) -> Path:
+    """A v5 MAT file: the 128-byte header, then ``body`` (hand-built elements, see :func:`v5_tag`)."""
+    path.write_bytes(_v5_header() + body)
+    return path
+
+
+def v5_tag(mtype: int, data: bytes, nbytes: int | None = None) -> bytes:
+    """One v5 data element (tag + data, padded to 8 bytes); ``nbytes`` overrides the declared size."""
+    pad = b"\0" * ((-len(data)) % 8)
+    return struct.pack("<II", mtype, len(data) if nbytes is None else nbytes) + data + pad
+
+
+def v5_double(name: str, values) -> bytes:
+    """A miMATRIX element: a double N x 1 vector."""
+    return _v5_double(name, values)

@@ -213,3 +213,32 @@ def test_csv_file_of_metadata_lines_only_is_quarantined(raw, warehouse):
         read_export(raw.root / "c/a.csv")
     res = ingest_file(RawTree(raw.root), raw.root / "c/a.csv", warehouse)
     assert res.run is None and res.error == "no header or data rows"
+
+
+# -- resource limits -------------------------------------------------------------------------
+def test_csv_header_with_more_columns_than_the_limit_is_refused(tmp_path):
+    """32,000 columns all named `a` (a 64 KB header): one line naming the count and the limit."""
+    from pipeline.readers.base import MAX_CHANNELS
+
+    text = ",".join(["a"] * 32_000) + "\n" + ",".join(["1"] * 32_000) + "\n"
+    with pytest.raises(ReaderError) as exc:
+        open_csv(tmp_path, text)
+    assert str(exc.value) == f"32000 columns in the header: more than the limit of {MAX_CHANNELS} channels per file"
+
+
+def test_csv_header_at_the_limit_is_read(tmp_path):
+    from pipeline.readers.base import MAX_CHANNELS
+
+    text = "t[s]," + ",".join(["a"] * (MAX_CHANNELS - 1)) + "\n" + ",".join(["1"] * MAX_CHANNELS) + "\n"
+    ex = open_csv(tmp_path, text)
+    assert len(ex.columns) == MAX_CHANNELS and ex.columns[-1].key == f"c{MAX_CHANNELS}"
+
+
+def test_csv_line_without_end_longer_than_the_limit_is_refused(tmp_path):
+    """25 MiB without a line break after the header: refused, not held whole and re-copied."""
+    from pipeline.readers.base import MAX_LINE_BYTES
+
+    ex = open_csv(tmp_path, b"t[s],x[mm]\n0,1\n" + b"1" * (MAX_LINE_BYTES + (9 << 20)))
+    with pytest.raises(ReaderError, match=r"^a line longer than 16 MiB \(no line break from byte 15\): "
+                                          r"not delimited text$"):
+        list(ex.batches())

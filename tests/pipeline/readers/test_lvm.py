@@ -333,3 +333,24 @@ def test_lvm_segment_header_without_column_row_is_refused_naming_the_line(tmp_pa
     message = rf"^line {line}: segment header of segment {segment} has no column row$"
     with pytest.raises(ReaderError, match=message):
         table(open_lvm(tmp_path, data))
+
+
+# -- resource limits -------------------------------------------------------------------------
+def test_lvm_column_row_with_more_columns_than_the_limit_is_refused(tmp_path):
+    from pipeline.readers.base import MAX_CHANNELS
+
+    channels = {f"ch{i}": [0.0, 1.0] for i in range(MAX_CHANNELS + 1)}
+    data = lvm_bytes([LvmSegment(channels)], x_columns="No")
+    with pytest.raises(ReaderError, match=rf"column row has {MAX_CHANNELS + 3} columns: more than the limit of "
+                                          rf"{MAX_CHANNELS} channels per file"):
+        open_lvm(tmp_path, data)
+
+
+def test_lvm_line_without_end_longer_than_the_limit_is_refused(tmp_path):
+    from pipeline.readers.base import MAX_LINE_BYTES
+
+    data = lvm_bytes([seg(n=2)], x_columns="No") + b"\r\n" + b"1" * (MAX_LINE_BYTES + (9 << 20))
+    ex = open_lvm(tmp_path, data)
+    with pytest.raises(ReaderError, match=r"^a line longer than 16 MiB \(no line break from byte \d+\): "
+                                          r"not an LVM text file$"):
+        table(ex)

@@ -430,7 +430,18 @@ def test_tdms_channel_without_data_is_an_empty_column(raw, warehouse):
 
 def test_tdms_not_a_tdms_file(raw, warehouse):
     raw.write("c/a.tdms", b"this is not TDMS at all, just text that a bench wrote\n" * 3)
-    assert "not a readable TDMS file" in quarantined(raw, "c/a.tdms", warehouse)
+    reason = quarantined(raw, "c/a.tdms", warehouse)
+    assert reason.startswith("not a TDMS file (no TDSm lead-in; starts with b'this is ")
+
+
+def test_tdms_empty_file_is_not_a_tdms_file(raw, warehouse):
+    raw.write("c/a.tdms", b"")
+    assert "not a TDMS file (empty file)" in quarantined(raw, "c/a.tdms", warehouse)
+
+
+def test_tdms_lead_in_with_unknown_version_is_not_a_tdms_file(raw, warehouse):
+    raw.write("c/a.tdms", b"TDSm" + struct.pack("<IIqq", 0x0E, 9999, 0, 0) + b"\xff" * 60)
+    assert quarantined(raw, "c/a.tdms", warehouse) == "not a TDMS file (lead-in version 9999, expected 4712 or 4713)"
 
 
 def test_tdms_group_without_channels(raw, warehouse):
@@ -458,13 +469,13 @@ def test_tdms_waveform_increment_not_positive_is_quarantined(raw, warehouse, inc
 def test_tdms_other_file_named_tdms_is_quarantined_with_what_it_starts_with(raw, warehouse):
     raw.write("c/a.tdms", b"PK\x03\x04" + b"\0" * 60)          # a zip archive renamed .tdms
     assert quarantined(raw, "c/a.tdms", warehouse) == (
-        "not a readable TDMS file: Segment does not start with b'TDSm', but with b'PK\\x03\\x04'")
+        "not a TDMS file (no TDSm lead-in; starts with b'PK\\x03\\x04\\x00\\x00\\x00\\x00')")
 
 
 def test_tdms_file_cut_inside_its_first_lead_in(raw, warehouse):
     """The bench crashed right after creating the file: nothing but 8 bytes of a lead-in."""
     raw.write("c/a.tdms", Segment().root(STEP).bytes(b"")[:8])
-    assert quarantined(raw, "c/a.tdms", warehouse) == "TDMS file has no groups (no channels)"
+    assert quarantined(raw, "c/a.tdms", warehouse) == "TDMS file cut inside its first lead-in (8 of 28 bytes): no data"
 
 
 def test_tdms_string_channel_with_corrupt_offsets_cannot_be_read(raw, warehouse):
@@ -488,3 +499,32 @@ def test_tdms_unknown_daqmx_raw_type_says_what_is_wrong(raw, warehouse):
     error = quarantined(raw, "c/a.tdms", warehouse)
     assert error.startswith("not a readable TDMS file: ")
     assert "KeyError" in error or "DAQmx" in error or "data type" in error, error
+
+
+def test_tdms_group_with_more_channels_than_the_limit_is_refused(raw, warehouse):
+    from pipeline.readers.base import MAX_CHANNELS
+
+    n = MAX_CHANNELS + 1
+    chans = {f"c{i}": (np.array([0.0, 1.0]), {"unit_string": "V"}) for i in range(n)}
+    write_tdms(raw.root / "c/a.tdms", STEP, {"Data": chans})
+    assert quarantined(raw, "c/a.tdms", warehouse) == (
+        f"{n} channels in TDMS group `Data`: more than the limit of {MAX_CHANNELS} channels per file")
+
+
+def test_tdms_string_length_beyond_the_file_is_refused_without_allocating_it(raw, warehouse):
+    """A corrupt 32-bit length before an object path: npTDMS reads ``length`` bytes."""
+    seg = Segment().root(STEP)
+    seg.objects.append(struct.pack("<I", 0xFFFFFFF0) + b"/'Data'")
+    raw.write("c/a.tdms", seg.bytes(b""))
+    assert quarantined(raw, "c/a.tdms", warehouse) == (
+        "not a readable TDMS file: its metadata is corrupt or cut short (a field runs past the end of the file)")
+
+
+def test_tdms_bounded_reader_never_asks_for_more_than_the_file_holds(tmp_path):
+    """A plain buffered read(1 TiB) allocates 1 TiB first (MemoryError); the bounded one returns the rest."""
+    path = tmp_path / "a.tdms"
+    path.write_bytes(b"TDSm" + bytes(60))
+    with tdms_reader._BoundedReader(path) as fh:
+        fh.seek(60)
+        assert fh.read(1 << 40) == bytes(4)
+        assert fh.read(1 << 40) == b""
