@@ -25,6 +25,7 @@ from analyses import identification as ident
 from analyses import pla_spring as spring
 from analyses import pressure_dynamics as pdyn
 from analyses import step_response as stepr
+from analyses.quality import sensor_from_params
 from pipeline.stages import StageContext, StageOutput, read_samples
 
 NAME = "models"
@@ -33,6 +34,8 @@ KINDS = ("identification", "step", "spring", "pressure_step")
 TABLES = ("identification", "step_response", "spring_fits", "spring_tests", "spring_loop_energy",
           "pressure_dynamics", "pressure_steps")
 
+#: Text columns of the tables (the others are numbers).
+TEXT_COLS = ("run_id", "chamber", "direction", "model", "note")
 #: Identification runs drawn one figure each, at most (sorted by run_id).
 MAX_ID_FIGURES = 6
 #: Steps drawn in the Fig. 15-like figure, at most.
@@ -46,8 +49,9 @@ FIT_COLS = ["chamber", "n_polytropic", "ae_m2", "epsilon_m2", "delta_n_m", "n_te
 TEST_COLS = ["run_id", "chamber", "p0_bar_abs", "amplitude_mm", "frequency_hz", "nrmse_pct"]
 ENERGY_COLS = ["run_id", "chamber", "p0_bar_abs", "amplitude_mm", "frequency_hz", "n_cycles", "loop_energy_j",
                "model_loop_energy_j", "structural_energy_j"]
-PD_COLS = ["chamber", "direction", "wn_rad_s", "zeta", "nrmse_pct", "n_steps"]
-PSTEP_COLS = ["run_id", "chamber", "direction", "t_step_s", "p_from_bar", "p_to_bar", "nrmse_pct"]
+PD_COLS = ["chamber", "direction", "wn_rad_s", "zeta", "nrmse_pct", "n_steps", "tau_s", "model", "note"]
+PSTEP_COLS = ["run_id", "chamber", "direction", "t_step_s", "p_from_bar", "p_to_bar", "nrmse_pct", "p_start_bar",
+              "note"]
 
 
 def _num(value, default=None):
@@ -190,8 +194,10 @@ def _pressure_step(run_id, path, params):
     if miss:
         return [], [f"{NAME}: pressure_step run lacks {', '.join(miss)}; no steps"], None
     df = df.dropna()
-    steps = pdyn.split_pressure_steps(df["t_s"].to_numpy(), df["p_pa"].to_numpy(), df["p_ref_pa"].to_numpy(),
-                                      run_id, chamber or "")
+    p, p_ref = df["p_pa"].to_numpy(), df["p_ref_pa"].to_numpy()
+    steps = pdyn.split_pressure_steps(df["t_s"].to_numpy(), p, p_ref, run_id, chamber or "",
+                                      ref_sensor=sensor_from_params(params, "p_ref", p_ref),
+                                      p_sensor=sensor_from_params(params, "p", p))
     if not steps:
         return [], [f"{NAME}: no set-point step found in the pressure_step run"], None
     if chamber is None:
@@ -231,7 +237,7 @@ def _frame(rows, cols, ints=(), bools=()) -> pd.DataFrame:
     for c in bools:
         df[c] = df[c].astype("boolean")
     for c in cols:
-        if c not in ints and c not in bools and c not in ("run_id", "chamber", "direction"):
+        if c not in ints and c not in bools and c not in TEXT_COLS:
             df[c] = pd.to_numeric(df[c], errors="coerce").astype("float64")
     return df
 
@@ -335,13 +341,15 @@ def _pressure_outputs(ctx, out, results):
         f = fit_by.get((c, d)) or pdyn.PressureFit(c, d, message="no steps")
         if group and not f.ok:
             for rid in sorted({s.run_id for s in group}):
-                out.warn(rid, f"{NAME}: pressure dynamics fit ({c}, {d}) failed: {f.message}")
-        rows.append({"chamber": c, "direction": d, "wn_rad_s": f.wn_rad_s, "zeta": f.zeta,
-                     "nrmse_pct": _nan(f.nrmse_pct), "n_steps": len(group)})
+                out.warn(rid, f"{NAME}: pressure dynamics ({c}, {d}) not reported: {f.note or f.message}")
+        rows.append({"chamber": c, "direction": d, "wn_rad_s": _nan(f.wn_rad_s), "zeta": _nan(f.zeta),
+                     "nrmse_pct": _nan(f.nrmse_pct), "n_steps": f.n_steps, "tau_s": _nan(f.tau_s),
+                     "model": f.model, "note": f.note})
         for s, nr in zip(group, f.step_nrmse_pct or [None] * len(group)):
+            note = s.note or (None if f.ok else f"the ({c}, {d}) fit is not reported")
             step_rows.append({"run_id": s.run_id, "chamber": c, "direction": d, "t_step_s": s.t_step_s,
                               "p_from_bar": s.p_ref_before_pa / 1e5, "p_to_bar": s.p_ref_pa / 1e5,
-                              "nrmse_pct": _nan(nr)})
+                              "nrmse_pct": _nan(nr), "p_start_bar": s.p_start_pa / 1e5, "note": note})
     out.tables["pressure_dynamics"] = _frame(rows, PD_COLS, ints=("n_steps",))
     out.tables["pressure_steps"] = _frame(sorted(step_rows, key=lambda r: (r["run_id"], r["t_step_s"])), PSTEP_COLS)
     for c in chambers:
@@ -349,5 +357,6 @@ def _pressure_outputs(ctx, out, results):
         if any(f.ok for f in cf.values()):
             name = f"pressure_steps_{c}"
             out.figures[name] = pdyn.plot_pressure_steps([s for s in steps if s.chamber == c], cf)
-            out.captions[name] = (f"PLA {c} chamber: pressure after set-point steps, measured vs the second-order "
-                                  "model of Eq. 11 (seed 001, Fig. 14, Table 2).")
+            out.captions[name] = (f"PLA {c} chamber: pressure (bar gauge) after set-point steps, measured vs the "
+                                  "model chosen per direction by BIC: first order or the second order of Eq. 11 "
+                                  "(seed 001, Fig. 14, Table 2). Grey: steps too small for the pressure sensor.")

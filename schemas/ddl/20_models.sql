@@ -61,22 +61,31 @@ CREATE TABLE spring_loop_energy (
     structural_energy_j DOUBLE             -- pi delta D^2 of the fit
 );
 
+-- Per (chamber, direction): first order (tau_s) or second order (wn_rad_s, zeta; Eq. 11), the
+-- one with the lower BIC among the fits that pass the quality gates (the second order by > 6).
+-- The other model's columns are NULL; all are NULL with a note when neither passes.
 CREATE TABLE pressure_dynamics (
     chamber           VARCHAR,
     direction         VARCHAR,             -- charge / discharge
-    wn_rad_s          DOUBLE,
-    zeta              DOUBLE,
-    nrmse_pct         DOUBLE,
-    n_steps           BIGINT
+    wn_rad_s          DOUBLE,              -- second order only
+    zeta              DOUBLE,              -- second order only; never at an optimiser bound
+    nrmse_pct         DOUBLE,              -- of the chosen model over the fitted steps' pressure
+    n_steps           BIGINT,              -- steps fitted (large enough for the pressure sensor)
+    tau_s             DOUBLE,              -- first order only: time constant
+    model             VARCHAR,             -- first_order / second_order; NULL when none is reported
+    note              VARCHAR              -- NULL when sound, else why the parameters are NULL
 );
 
 -- One row per set-point step of a pressure_step run, with the NRMSE of its (chamber, direction) fit.
+-- Pressures in bar GAUGE (as the pressure_steps figure's axis).
 CREATE TABLE pressure_steps (
     run_id            VARCHAR NOT NULL,
     chamber           VARCHAR,
     direction         VARCHAR,             -- charge / discharge
     t_step_s          DOUBLE,
-    p_from_bar        DOUBLE,              -- set-point before the step, gauge
-    p_to_bar          DOUBLE,              -- set-point after the step, gauge
-    nrmse_pct         DOUBLE               -- over this step's own pressure range
+    p_from_bar        DOUBLE,              -- set-point before the step, bar gauge
+    p_to_bar          DOUBLE,              -- set-point after the step, bar gauge
+    nrmse_pct         DOUBLE,              -- over this step's own pressure range; NULL when not fitted
+    p_start_bar       DOUBLE,              -- measured pressure at the step, bar gauge
+    note              VARCHAR              -- why the step is not fitted (under the pressure sensor floor) or NULL
 );
