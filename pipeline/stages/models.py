@@ -41,7 +41,8 @@ MAX_ID_FIGURES = 6
 #: Steps drawn in the Fig. 15-like figure, at most.
 MAX_STEP_CURVES = 12
 
-ID_COLS = ["run_id", "wn_rad_s", "zeta", "k_lin_m_v_s", "fit_pct", "kp_v_m", "id_sample_rate_hz", "n_samples_id"]
+ID_COLS = ["run_id", "wn_rad_s", "zeta", "k_lin_m_v_s", "fit_pct", "kp_v_m", "id_sample_rate_hz", "n_samples_id",
+           "note"]
 STEP_COLS = ["run_id", "step_mm", "overshoot_pct", "settling_time_s", "rise_time_s", "steady_state_error_mm",
              "t_step_s", "settled"]
 FIT_COLS = ["chamber", "n_polytropic", "ae_m2", "epsilon_m2", "delta_n_m", "n_tests", "max_nrmse_pct",
@@ -115,19 +116,24 @@ def _identification(run_id, path, params):
     kp = _num(params.get("kp_v_m"))
     rate = _num(params.get("id_sample_rate_hz"), 50.0)
     row = {"run_id": run_id, "wn_rad_s": None, "zeta": None, "k_lin_m_v_s": None, "fit_pct": None,
-           "kp_v_m": kp, "id_sample_rate_hz": rate, "n_samples_id": None}
+           "kp_v_m": kp, "id_sample_rate_hz": rate, "n_samples_id": None, "note": None}
     df = read_samples(path, ["t_s", "x_m", "u_d_v", "x_ref_m"])
     miss = _missing(df, ["t_s", "x_m", "u_d_v", "x_ref_m"])
     if miss:
+        row["note"] = f"lacks {', '.join(miss)}"
         return [row], [f"{NAME}: identification run lacks {', '.join(miss)}; not identified"], None
     if kp is None or kp <= 0:
+        row["note"] = "no positive kp_v_m"
         return [row], [f"{NAME}: identification run without a positive kp_v_m; not identified"], None
     df = df.dropna()
-    res = ident.identify_third_order(df["t_s"].to_numpy(), df["x_m"].to_numpy(), df["u_d_v"].to_numpy(),
-                                     df["x_ref_m"].to_numpy(), kp, rate)
+    x, ud = df["x_m"].to_numpy(), df["u_d_v"].to_numpy()
+    res = ident.identify_third_order(df["t_s"].to_numpy(), x, ud, df["x_ref_m"].to_numpy(), kp, rate,
+                                     x_sensor=sensor_from_params(params, "x", x),
+                                     ud_sensor=sensor_from_params(params, "u_d", ud))
     row["n_samples_id"] = len(res.x_m)
     if not res.ok:
-        return [row], [f"{NAME}: identification: {res.message}; not identified"], None
+        row.update(note=res.note or res.message, fit_pct=_nan(res.fit_pct))
+        return [row], [f"{NAME}: identification: {res.note or res.message}; not identified"], None
     row.update(wn_rad_s=res.wn_rad_s, zeta=res.zeta, k_lin_m_v_s=res.k_lin_m_v_s, fit_pct=_nan(res.fit_pct),
                id_sample_rate_hz=1.0 / res.dt_s)
     warns = [f"{NAME}: identification: {res.message}"] if res.message else []

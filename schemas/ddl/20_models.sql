@@ -10,7 +10,9 @@ CREATE TABLE identification (
     fit_pct           DOUBLE,
     kp_v_m            DOUBLE,              -- gain of the stabilising P controller (metadata)
     id_sample_rate_hz DOUBLE,              -- rate the model was identified at
-    n_samples_id      BIGINT               -- samples at that rate
+    n_samples_id      BIGINT,              -- samples at that rate
+    note              VARCHAR              -- NULL when sound, else why wn/zeta/k are NULL (no excitation,
+                                           -- a parameter at a bound, not identifiable, fit_pct too low)
 );
 
 CREATE TABLE step_response (

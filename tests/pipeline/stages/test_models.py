@@ -86,6 +86,7 @@ def test_identification_recovers_table2_and_flags_the_flat_run(built):
     assert good["n_samples_id"] == 1000
     flat = t.loc["sim/ident_flat"]
     assert flat[["wn_rad_s", "zeta", "k_lin_m_v_s", "fit_pct"]].isna().all()
+    assert "no excitation" in flat["note"] and pd.isna(good["note"])
     assert any("no excitation" in w for w in _warnings(wh, "sim/ident_flat"))
 
 
