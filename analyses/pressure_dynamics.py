@@ -39,7 +39,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy  # its submodules load on first use: a rebuild that reuses every stage never pays for them
 
-from analyses.quality import Gate, Sensor, describe_sensor, jacobian_se, nrmse_pct
+from analyses.quality import (Gate, Sensor, describe_sensor, jacobian_se, nrmse_pct, setpoint_jumps,
+                              setpoint_thresholds)
 
 __all__ = ["second_order_step", "first_order_step", "PressureStep", "step_threshold", "split_pressure_steps",
            "PressureFit", "fit_pressure_dynamics", "plot_pressure_steps", "NRMSE_LIMIT_PCT", "STEP_SNR_MIN",
@@ -143,55 +144,22 @@ class PressureStep:
 
 
 def step_threshold(p_ref, sensor: Sensor | None = None) -> tuple[float, float]:
-    """Smallest set-point jump and level change that count as a step.
+    """Smallest set-point jump and level change that count as a step: one count of the
+    set-point's resolution and ``N_SIGMA_REF`` noise sigmas (:func:`analyses.quality.setpoint_thresholds`).
 
     Parameters
     ----------
     p_ref : array_like
         Set-point record. [Pa]
     sensor : Sensor, optional
-        The set-point's resolution and noise (run metadata, :func:`analyses.quality.sensor_from_params`);
-        estimated from ``p_ref`` when absent.
+        The set-point's resolution and noise (run metadata); estimated from ``p_ref`` when absent.
 
     Returns
     -------
     (jump, level) : tuple of float
-        A sample-to-sample change must exceed ``jump`` (just under one count of the resolution,
-        and ``N_SIGMA_REF`` sigmas of a difference, ``sqrt(2)`` times the noise) and the new level
-        must differ from the old by more than ``level`` (the count and ``N_SIGMA_REF`` sigmas).
-        A set-point with neither noise nor resolution gets 1e-9 of its magnitude (float
-        round-off is not a step). [Pa]
+        [Pa]
     """
-    r = np.asarray(p_ref, float)
-    r = r[np.isfinite(r)]
-    if sensor is None:
-        sensor = describe_sensor(r)
-    tiny = 1e-9 * max(float(np.max(np.abs(r), initial=0.0)), 1e-300)
-    count = 0.999 * sensor.resolution   # a quantised set-point changes by whole counts
-    jump = max(count, N_SIGMA_REF * np.sqrt(2.0) * sensor.noise, tiny)
-    level = max(count, N_SIGMA_REF * sensor.noise, tiny)
-    return float(jump), float(level)
-
-
-def _merge_jumps(r: np.ndarray, jumps: list[int], level_thr: float, min_points: int) -> list[int]:
-    """Drop jumps that do not make a plateau: a plateau shorter than ``min_points`` joins the next
-    one (a glitch, the inner samples of a ramp: the step starts where the change starts), then
-    jumps that do not change the level are dropped, the smallest first."""
-    jumps = list(jumps)
-    while jumps:
-        bounds = [0] + jumps + [len(r)]
-        short = [k for k in range(1, len(bounds) - 1) if bounds[k + 1] - bounds[k] < min_points]
-        if short:
-            k = short[0]
-            del jumps[k if k < len(jumps) else k - 1]   # the jump ending it (the last: the one starting it)
-            continue
-        med = np.array([np.median(r[a:b]) for a, b in zip(bounds[:-1], bounds[1:])])
-        change = np.abs(np.diff(med))
-        k = int(np.argmin(change))
-        if change[k] > level_thr:
-            break
-        del jumps[k]   # the smallest non-change first: its plateaus merge, then look again
-    return jumps
+    return setpoint_thresholds(p_ref, sensor, N_SIGMA_REF)
 
 
 def split_pressure_steps(t, p, p_ref, run_id: str = "", chamber: str = "", min_step_pa: float | None = None,
@@ -237,7 +205,7 @@ def split_pressure_steps(t, p, p_ref, run_id: str = "", chamber: str = "", min_s
         jump_thr = level_thr = float(min_step_pa)
     if p_sensor is None:
         p_sensor = describe_sensor(p)
-    jumps = _merge_jumps(r, list(np.flatnonzero(np.abs(np.diff(r)) > jump_thr) + 1), level_thr, min_points)
+    jumps = setpoint_jumps(r, jump_thr, level_thr, min_points)
     bounds = jumps + [len(r)]
     floor = p_sensor.floor()
     out = []

@@ -187,6 +187,73 @@ def sensor_from_params(params: dict | None, channel: str, values=()) -> Sensor:
     return describe_sensor(values, resolution=num("resolution"), noise=num("noise"))
 
 
+# -- set-points -------------------------------------------------------------------------------
+def setpoint_thresholds(values, sensor: Sensor | None = None, n_sigma: float = 5.0) -> tuple[float, float]:
+    """Smallest jump and level change of a set-point (reference) record that count as a step.
+
+    A commanded set-point changes by whole counts of its resolution: one count is a change. A
+    read-back set-point is noisy: a jump must exceed ``n_sigma`` sigmas of a difference of two
+    samples (``sqrt(2)`` times the noise) and a new level ``n_sigma`` sigmas of one sample.
+
+    Parameters
+    ----------
+    values : array-like
+        The set-point record. [SI]
+    sensor : Sensor, optional
+        Its resolution and noise (:func:`sensor_from_params`); estimated from ``values`` when absent.
+    n_sigma : float
+        Detection margin. [-]
+
+    Returns
+    -------
+    (jump, level) : tuple of float
+        Thresholds [unit of ``values``]; a record with neither noise nor resolution gets 1e-9 of
+        its magnitude (float round-off is not a step).
+    """
+    r = np.asarray(values, dtype=float)
+    r = r[np.isfinite(r)]
+    if sensor is None:
+        sensor = describe_sensor(r)
+    tiny = 1e-9 * max(float(np.max(np.abs(r), initial=0.0)), 1e-300)
+    count = 0.999 * sensor.resolution
+    jump = max(count, n_sigma * np.sqrt(2.0) * sensor.noise, tiny)
+    level = max(count, n_sigma * sensor.noise, tiny)
+    return float(jump), float(level)
+
+
+def setpoint_jumps(values, jump: float, level: float, min_points: int = 1) -> list[int]:
+    """Indices where a set-point record steps to a new plateau.
+
+    Candidates are samples that differ from the previous one by more than ``jump``; a plateau
+    shorter than ``min_points`` joins the next one (a glitch, the inner samples of a ramp: the
+    step starts where the change starts), then candidates whose plateaus either side differ by
+    no more than ``level`` (medians) are dropped, the smallest first.
+
+    Returns
+    -------
+    list of int
+        The first sample of each new plateau.
+    """
+    r = np.asarray(values, dtype=float)
+    if r.size < 2:
+        return []
+    jumps = list(np.flatnonzero(np.abs(np.diff(r)) > jump) + 1)
+    while jumps:
+        bounds = [0] + jumps + [len(r)]
+        short = [k for k in range(1, len(bounds) - 1) if bounds[k + 1] - bounds[k] < min_points]
+        if short:
+            k = short[0]
+            del jumps[k if k < len(jumps) else k - 1]   # the jump ending it (the last: the one starting it)
+            continue
+        med = np.array([np.median(r[a:b]) for a, b in zip(bounds[:-1], bounds[1:])])
+        change = np.abs(np.diff(med))
+        k = int(np.argmin(change))
+        if change[k] > level:
+            break
+        del jumps[k]
+    return [int(j) for j in jumps]
+
+
 # -- fit quality ----------------------------------------------------------------------------
 def nrmse_pct(measured, model) -> float:
     """``100 * RMS(measured - model) / (max(measured) - min(measured))`` (warehouse.md).
@@ -413,4 +480,5 @@ class Gate:
 
 
 __all__ = ["COND_MAX", "Gate", "LinearFit", "Sensor", "at_bound", "describe_sensor", "jacobian_se", "linear_lstsq",
-           "noise_std", "nrmse_pct", "quantisation_step", "scaled_condition", "sensor_from_params"]
+           "noise_std", "nrmse_pct", "quantisation_step", "scaled_condition", "sensor_from_params",
+           "setpoint_jumps", "setpoint_thresholds"]

@@ -44,7 +44,7 @@ MAX_STEP_CURVES = 12
 ID_COLS = ["run_id", "wn_rad_s", "zeta", "k_lin_m_v_s", "fit_pct", "kp_v_m", "id_sample_rate_hz", "n_samples_id",
            "note"]
 STEP_COLS = ["run_id", "step_mm", "overshoot_pct", "settling_time_s", "rise_time_s", "steady_state_error_mm",
-             "t_step_s", "settled"]
+             "t_step_s", "settled", "note"]
 FIT_COLS = ["chamber", "n_polytropic", "ae_m2", "epsilon_m2", "delta_n_m", "n_tests", "max_nrmse_pct",
             "seed_n_polytropic", "seed_ae_m2", "seed_epsilon_m2", "seed_delta_n_m"]
 TEST_COLS = ["run_id", "chamber", "p0_bar_abs", "amplitude_mm", "frequency_hz", "nrmse_pct"]
@@ -145,22 +145,26 @@ def _step(run_id, path, params):
     df = read_samples(path, ["t_s", "x_m", "x_ref_m"])
     miss = _missing(df, ["t_s", "x_m", "x_ref_m"])
     if miss:
-        return [null], [f"{NAME}: step run lacks {', '.join(miss)}; no step metrics"], None
+        return [dict(null, note=f"lacks {', '.join(miss)}")], [f"{NAME}: step run lacks {', '.join(miss)}; no step metrics"], None
     df = df.dropna()
     if len(df) < 10:
-        return [null], [f"{NAME}: step run too short ({len(df)} samples); no step metrics"], None
+        return [dict(null, note="too short")], [f"{NAME}: step run too short ({len(df)} samples); no step metrics"], None
     t, x, r = (df[c].to_numpy() for c in ("t_s", "x_m", "x_ref_m"))
-    m = stepr.step_response_metrics(t, x, r)
+    m = stepr.step_response_metrics(t, x, r, x_sensor=sensor_from_params(params, "x", x),
+                                    ref_sensor=sensor_from_params(params, "x_ref", r))
     if m.empty:
+        null["note"] = "no step of the reference beyond its sensor's resolution and noise"
         return [null], [f"{NAME}: no step of the reference found; no step metrics"], None
     rows, curves, warns = [], [], []
     for s in m.itertuples(index=False):
         rows.append({"run_id": run_id, "step_mm": s.step_mm, "overshoot_pct": _nan(s.overshoot_pct),
                      "settling_time_s": _nan(s.settling_time_s), "rise_time_s": _nan(s.rise_time_s),
                      "steady_state_error_mm": _nan(s.steady_state_error_mm), "t_step_s": s.t_step_s,
-                     "settled": bool(s.settled)})
-        if not s.settled:
-            warns.append(f"{NAME}: step at t={s.t_step_s:g} s did not settle in the 2 % band")
+                     "settled": bool(s.settled), "note": s.note})
+        if s.note:
+            warns.append(f"{NAME}: step at t={s.t_step_s:g} s: {s.note}")
+        if not np.isfinite(s.rise_time_s) and s.note and "sensor floor" in s.note:
+            continue
         seg = slice(s.i_start, s.i_end)
         stride = max(1, (s.i_end - s.i_start) // 3000)
         ref = r[s.i_start]

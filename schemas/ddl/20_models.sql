@@ -23,7 +23,9 @@ CREATE TABLE step_response (
     rise_time_s            DOUBLE,         -- 10-90 %
     steady_state_error_mm  DOUBLE,         -- signed in the step direction (+: short of the reference)
     t_step_s               DOUBLE,         -- time of the reference jump in the run
-    settled                BOOLEAN         -- inside the 2 % band over the last 10 % of the step
+    settled                BOOLEAN,        -- inside the 2 % band over the last 10 % of the step
+    note                   VARCHAR         -- NULL when sound, else why metrics are NULL (step under the
+                                           -- position sensor floor, 2 % band finer than it, not settled)
 );
 
 CREATE TABLE spring_fits (

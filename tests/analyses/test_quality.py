@@ -2,8 +2,9 @@
 import numpy as np
 import pytest
 
-from analyses.quality import (Gate, at_bound, describe_sensor, linear_lstsq, noise_std, nrmse_pct,
-                              quantisation_step, scaled_condition, sensor_from_params)
+from analyses.quality import (Gate, Sensor, at_bound, describe_sensor, linear_lstsq, noise_std, nrmse_pct,
+                              quantisation_step, scaled_condition, sensor_from_params, setpoint_jumps,
+                              setpoint_thresholds)
 
 
 def _motion(n=20_000, fs=1000.0):
@@ -112,3 +113,21 @@ def test_gate_bound_nrmse_physical_and_points():
     assert "too few points: 2 < 5" == Gate().enough_points(2, 5).note
     g = Gate().physical("mass_kg", 2.0, lo=0)
     assert g.ok and g.apply({"mass_kg": 2.0}, ("mass_kg",)) == {"mass_kg": 2.0, "note": None}
+
+
+def test_setpoint_thresholds_from_resolution_and_noise():
+    r = np.repeat([0.0, 5000.0, 15000.0], 40)
+    assert setpoint_thresholds(r, Sensor(5000.0, 0.0)) == pytest.approx((4995.0, 4995.0))
+    assert setpoint_thresholds(r, Sensor(1.0, 100.0)) == pytest.approx((500 * np.sqrt(2), 500.0))
+    assert setpoint_thresholds(r, Sensor(0.0, 0.0))[0] == pytest.approx(15000.0 * 1e-9)
+
+
+def test_setpoint_jumps_merge_glitches_and_ramps():
+    r = np.repeat([0.0, 5.0, 15.0], 40)
+    assert setpoint_jumps(r, 0.5, 0.5, 5) == [40, 80]
+    glitch = np.zeros(100)
+    glitch[30] = 3.0                          # one sample off and back: no step
+    assert setpoint_jumps(glitch, 0.5, 0.5, 5) == []
+    ramp = np.concatenate([np.zeros(40), [1.0, 2.0, 3.0], np.full(40, 4.0)])
+    assert setpoint_jumps(ramp, 0.5, 0.5, 5) == [40]   # the step starts where the ramp starts
+    assert setpoint_jumps([1.0], 0.5, 0.5) == []

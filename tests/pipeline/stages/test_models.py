@@ -102,6 +102,7 @@ def test_step_response_matches_noise_free_truth(built):
     none = q(wh, "SELECT * FROM step_response WHERE run_id = 'sim/step_none'")
     assert len(none) == 1 and none[["step_mm", "overshoot_pct", "settling_time_s"]].isna().all(axis=None)
     assert any("no step" in w for w in _warnings(wh, "sim/step_none"))
+    assert "no step of the reference" in none["note"].iloc[0] and s["note"].isna().all()
 
 
 def test_spring_fits_recover_table1(built):
