@@ -46,8 +46,8 @@ ID_COLS = ["run_id", "wn_rad_s", "zeta", "k_lin_m_v_s", "fit_pct", "kp_v_m", "id
 STEP_COLS = ["run_id", "step_mm", "overshoot_pct", "settling_time_s", "rise_time_s", "steady_state_error_mm",
              "t_step_s", "settled", "note"]
 FIT_COLS = ["chamber", "n_polytropic", "ae_m2", "epsilon_m2", "delta_n_m", "n_tests", "max_nrmse_pct",
-            "seed_n_polytropic", "seed_ae_m2", "seed_epsilon_m2", "seed_delta_n_m"]
-TEST_COLS = ["run_id", "chamber", "p0_bar_abs", "amplitude_mm", "frequency_hz", "nrmse_pct"]
+            "seed_n_polytropic", "seed_ae_m2", "seed_epsilon_m2", "seed_delta_n_m", "note"]
+TEST_COLS = ["run_id", "chamber", "p0_bar_abs", "amplitude_mm", "frequency_hz", "nrmse_pct", "note"]
 ENERGY_COLS = ["run_id", "chamber", "p0_bar_abs", "amplitude_mm", "frequency_hz", "n_cycles", "loop_energy_j",
                "model_loop_energy_j", "structural_energy_j"]
 PD_COLS = ["chamber", "direction", "wn_rad_s", "zeta", "nrmse_pct", "n_steps", "tau_s", "model", "note"]
@@ -178,20 +178,26 @@ def _spring(run_id, path, params):
     chamber = str(params.get("chamber") or "").strip().lower()
     null = {"run_id": run_id, "chamber": chamber or None, "p0_bar_abs": None,
             "amplitude_mm": _num(params.get("amplitude_mm")), "frequency_hz": _num(params.get("frequency_hz")),
-            "nrmse_pct": None}
+            "nrmse_pct": None, "note": None}
     if chamber not in spring.PRESSURE_SIGN:
+        null["note"] = "chamber must be front or rear"
         return [null], [f"{NAME}: spring run chamber must be front or rear, got {chamber or 'none'}; not fitted"], None
     df = read_samples(path, ["t_s", "d_m", "f_n", "p_pa"])
     miss = _missing(df, ["t_s", "d_m", "f_n", "p_pa"])
     if miss:
+        null["note"] = f"lacks {', '.join(miss)}"
         return [null], [f"{NAME}: spring run lacks {', '.join(miss)}; not fitted"], None
     amp = _num(params.get("amplitude_mm"))
-    run = spring.prepare_spring_run(run_id, df["t_s"].to_numpy(), df["d_m"].to_numpy(), df["f_n"].to_numpy(),
+    d, f = df["d_m"].to_numpy(), df["f_n"].to_numpy()
+    run = spring.prepare_spring_run(run_id, df["t_s"].to_numpy(), d, f,
                                     df["p_pa"].to_numpy(), chamber, _num(params.get("frequency_hz")),
                                     amp / 1e3 if amp else None, _num(params.get("stroke_mm"), 40.0) / 1e3,
-                                    _num(params.get("p_atm_pa"), spring.P_ATM_PA))
+                                    _num(params.get("p_atm_pa"), spring.P_ATM_PA),
+                                    d_sensor=sensor_from_params(params, "d", d),
+                                    f_sensor=sensor_from_params(params, "f", f))
     null["p0_bar_abs"] = _nan(run.p0_abs / 1e5) if np.isfinite(run.p0_abs) else None
     if not run.ok:
+        null["note"] = run.message
         return [null], [f"{NAME}: spring run: {run.message}; not fitted"], None
     null.update(amplitude_mm=run.amplitude_m * 1e3, frequency_hz=run.frequency_hz)
     return [null], [], run
@@ -305,7 +311,8 @@ def _spring_outputs(ctx, out, results):
         fit = fits[chamber]
         if not fit.ok:
             for p in group:
-                out.warn(p.run_id, f"{NAME}: spring fit of the {chamber} chamber failed: {fit.message}")
+                out.warn(p.run_id, f"{NAME}: spring fit of the {chamber} chamber not reported: "
+                                   f"{fit.note or fit.message}")
         elif fit.message:
             for p in group:
                 out.warn(p.run_id, f"{NAME}: spring fit of the {chamber} chamber: {fit.message}")
@@ -313,10 +320,12 @@ def _spring_outputs(ctx, out, results):
         nr = [v for v in fit.nrmse_pct.values() if np.isfinite(v)]
         fit_rows.append({"chamber": chamber, "n_polytropic": fit.n_polytropic, "ae_m2": fit.ae_m2,
                          "epsilon_m2": fit.epsilon_m2, "delta_n_m": fit.delta_n_m, "n_tests": fit.n_tests,
-                         "max_nrmse_pct": max(nr) if nr else None,
+                         "max_nrmse_pct": max(nr) if nr else None, "note": fit.note,
                          **{f"seed_{k}": seeds.get(k) for k in ("n_polytropic", "ae_m2", "epsilon_m2", "delta_n_m")}})
         for p in group:
             rows[p.run_id]["nrmse_pct"] = _nan(fit.nrmse_pct.get(p.run_id))
+            rows[p.run_id]["note"] = fit.test_notes.get(p.run_id) or (
+                None if fit.ok else f"the {chamber} chamber's fit is not reported: {fit.note or fit.message}")
             model_u = spring.model_loop_energy(p, fit) if fit.ok else float("nan")
             energy.append({"run_id": p.run_id, "chamber": chamber, "p0_bar_abs": p.p0_abs / 1e5,
                            "amplitude_mm": p.amplitude_m * 1e3, "frequency_hz": p.frequency_hz,

@@ -39,7 +39,9 @@ CREATE TABLE spring_fits (
     seed_n_polytropic DOUBLE,              -- seeds of the fit (section 3.2 of seed 001)
     seed_ae_m2        DOUBLE,
     seed_epsilon_m2   DOUBLE,
-    seed_delta_n_m    DOUBLE
+    seed_delta_n_m    DOUBLE,
+    note              VARCHAR              -- NULL when sound, else why the parameters are NULL (a parameter at
+                                           -- a bound, not identifiable, RMS of the tests' NRMSE over 2.5 %)
 );
 
 CREATE TABLE spring_tests (
@@ -48,7 +50,9 @@ CREATE TABLE spring_tests (
     p0_bar_abs        DOUBLE,              -- read from the run: pressure at mid-stroke
     amplitude_mm      DOUBLE,
     frequency_hz      DOUBLE,
-    nrmse_pct         DOUBLE
+    nrmse_pct         DOUBLE,              -- kept when the chamber's parameters are NULL (the evidence)
+    note              VARCHAR              -- NULL when sound; NRMSE over 2.5 % and residuals over the load
+                                           -- cell noise, the chamber's fit not reported, or why not fitted
 );
 
 -- Energy dissipated per cycle (loop area) of each spring run: the paper's evidence for

@@ -117,6 +117,7 @@ def test_spring_fits_recover_table1(built):
         assert f["epsilon_m2"] == pytest.approx(tr["eps"], rel=0.10)
         assert f["delta_n_m"] == pytest.approx(tr["delta"], rel=0.10)
         assert f["max_nrmse_pct"] < 2.5
+        assert pd.isna(f["note"])
 
 
 def test_spring_tests_have_p0_from_the_run_and_nrmse_below_the_papers_bound(built):
@@ -131,6 +132,7 @@ def test_spring_tests_have_p0_from_the_run_and_nrmse_below_the_papers_bound(buil
         assert row["chamber"] == truth[rid]["chamber"]
     assert (fitted["nrmse_pct"] < 2.5).all() and (fitted["nrmse_pct"] > 0).all()
     assert pd.isna(t.loc["sim/spring_still", "nrmse_pct"])
+    assert fitted["note"].isna().all() and "no displacement" in t.loc["sim/spring_still", "note"]
     assert any("no displacement" in w for w in _warnings(wh, "sim/spring_still"))
 
 
