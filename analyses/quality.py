@@ -170,6 +170,56 @@ def describe_sensor(values, resolution: float | None = None, noise: float | None
     return Sensor(resolution=res, noise=float(sig), source=source)
 
 
+def describe_sensor_at_rest(values, rest_fraction: float = 0.01, resolution: float | None = None,
+                            noise: float | None = None) -> Sensor:
+    """A channel's :class:`Sensor` estimated from the samples where the signal rests.
+
+    :func:`describe_sensor` assumes the sampling resolves the motion (second differences of the
+    motion well under the noise). A record logged too slowly for its motion (strokes of a metre
+    at a few hertz) breaks that: its differences are the motion. Here only consecutive changes
+    within ``rest_fraction`` of the record's range enter the estimate (rests, dwells, slow
+    travel), so the noise and resolution are those of the sensor, not of the motion.
+
+    Parameters
+    ----------
+    values : array-like
+        The record. [SI]
+    rest_fraction : float
+        Largest sample-to-sample change counted as rest, as a fraction of the range. [-]
+    resolution, noise : float, optional
+        Stated by the rig: used as given.
+
+    Returns
+    -------
+    Sensor
+        As :func:`describe_sensor` on the rest samples (``source`` unchanged).
+    """
+    y = np.asarray(values, dtype=float)
+    y = y[np.isfinite(y)]
+    if y.size < 3:
+        return describe_sensor(y, resolution, noise)
+    d1 = np.diff(y)
+    thr = rest_fraction * float(np.ptp(y))
+    rest = np.abs(d1) <= thr
+    both = rest[:-1] & rest[1:]
+    # a synthetic record made of the rest differences only: its differences are the rest changes
+    # (resolution lattice) and its second differences those between two rest changes (noise)
+    d2 = np.diff(d1)[both]
+    res_rec = np.concatenate([[0.0], np.cumsum(d1[rest])])
+    stated = [v is not None and np.isfinite(v) for v in (resolution, noise)]
+    res = float(resolution) if stated[0] else quantisation_step(res_rec)
+    if stated[1]:
+        sig = float(noise)
+    elif d2.size >= 8:
+        sig = _MAD_TO_SIGMA * float(np.median(np.abs(d2 - np.median(d2)))) / np.sqrt(6.0)
+        if res > 0 and sig < res:
+            sig = min(sig, res / np.sqrt(12.0))
+    else:
+        sig = 0.0
+    source = "metadata" if all(stated) else ("estimated" if not any(stated) else "metadata+estimated")
+    return Sensor(resolution=res, noise=float(sig), source=source)
+
+
 def sensor_from_params(params: dict | None, channel: str, values=()) -> Sensor:
     """The :class:`Sensor` of a run's channel from its params (``sensor_<channel>_resolution`` /
     ``sensor_<channel>_noise``, SI, as ingest stores them), estimated from ``values`` where absent.
@@ -479,6 +529,7 @@ class Gate:
         return out
 
 
-__all__ = ["COND_MAX", "Gate", "LinearFit", "Sensor", "at_bound", "describe_sensor", "jacobian_se", "linear_lstsq",
+__all__ = ["COND_MAX", "Gate", "LinearFit", "Sensor", "at_bound", "describe_sensor", "describe_sensor_at_rest",
+           "jacobian_se", "linear_lstsq",
            "noise_std", "nrmse_pct", "quantisation_step", "scaled_condition", "sensor_from_params",
            "setpoint_jumps", "setpoint_thresholds"]
