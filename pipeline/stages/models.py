@@ -357,7 +357,7 @@ def _pressure_outputs(ctx, out, results):
     fit_by = {(f.chamber, f.direction): f for f in fits}
     rows, step_rows = [], []
     for c, d, group in groups:
-        f = fit_by.get((c, d)) or pdyn.PressureFit(c, d, message="no steps")
+        f = fit_by.get((c, d)) or pdyn.PressureFit(c, d, message="no steps", note=f"no {d} step in the runs")
         if group and not f.ok:
             for rid in sorted({s.run_id for s in group}):
                 out.warn(rid, f"{NAME}: pressure dynamics ({c}, {d}) not reported: {f.note or f.message}")
