@@ -392,12 +392,12 @@ def identify_third_order(t, x, u_d, x_ref, kp: float, rate_hz: float = 50.0,
     fit = fit_percent(y, y_model)
     msg = "" if sol.success else f"least_squares: {sol.message}"
     # standard errors of (wn, zeta, k) from the Jacobian (the initial state is a nuisance)
-    se, _ = jacobian_se(sol.jac, sol.fun)
+    se, cond = jacobian_se(sol.jac, sol.fun)
     gate = Gate()
     for name, v in zip(PARAM_NAMES, p[:3]):
         gate.physical(name, float(v), lo=0.0)
     gate.within_bounds(p[:3], lo[:3], hi[:3], PARAM_NAMES)
-    gate.identifiable(beta=p[:3], se=se[:3], names=PARAM_NAMES)
+    gate.identifiable(cond=cond, beta=p[:3], se=se[:3], names=PARAM_NAMES)
     rms = float(np.sqrt(np.mean((y - y_model) ** 2)))
     if not (np.isfinite(fit) and fit >= FIT_MIN_PCT) and not rms <= 3.0 * x_sensor.floor():
         gate.fail(f"model misses the data (fit {fit:.3g} % < {FIT_MIN_PCT:g} %, residual RMS {rms:.2g} m "
