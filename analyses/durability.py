@@ -28,6 +28,16 @@ including any dwell at the end it starts from), and the mean pressure difference
 indicator: over a stroke that starts and ends at rest the inertial term ``m * a`` averages to
 zero, so ``direction * mean(p_a - p_b) * A`` is the mean force the carriage had to overcome.
 
+The deadband comes from the position sensor
+-------------------------------------------
+``deadband_m = DEADBAND_N_FLOOR * floor`` (:func:`stroke_deadband`), the floor being the larger
+of the encoder's resolution and its noise (stated in run metadata or estimated from the record,
+:mod:`analyses.quality`): 20 floors is 20 counts of a quantised encoder (0.1 mm for the bench's
+5 um encoder) and about ten times the peak-to-peak of Gaussian noise at rest. Strokes are
+detectable only when they are well above it: when the median stroke is shorter than
+``1 / DEADBAND_MAX_FRACTION`` deadbands, reversals near the deadband are lost or invented and
+:func:`strokes_note` says so (the run's distance and strokes are then not reported).
+
 Streaming
 ---------
 :class:`StrokeCounter` takes the run chunk by chunk (``update``) and carries its state (phase,
@@ -45,9 +55,48 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-#: Default reversal deadband [m]: 20 encoder counts of 5 um; far above encoder dither and
-#: sensor noise, far below any stroke of a durability run (tens of mm).
+#: Default reversal deadband [m] of :class:`StrokeCounter`: ``DEADBAND_N_FLOOR`` counts of the
+#: bench's 5 um encoder. Analyses use :func:`stroke_deadband` of the run's own sensor.
 DEADBAND_M = 1e-4
+#: Reversal deadband in position sensor floors. [-]
+DEADBAND_N_FLOOR = 20.0
+#: Strokes are detectable when the deadband is at most this fraction of the median stroke. [-]
+DEADBAND_MAX_FRACTION = 0.25
+
+
+def stroke_deadband(sensor, x_scale_m: float = 1.0) -> float:
+    """Reversal deadband for a position sensor: ``DEADBAND_N_FLOOR`` times its floor.
+
+    Parameters
+    ----------
+    sensor : analyses.quality.Sensor
+        Resolution and noise of ``x``. [m]
+    x_scale_m : float
+        Magnitude of the positions; an ideal sensor (floor 0) gets 1e-9 of it (float
+        round-off is not a reversal). [m]
+
+    Returns
+    -------
+    float
+        Deadband. [m]
+    """
+    return float(max(DEADBAND_N_FLOOR * sensor.floor(), 1e-9 * abs(x_scale_m), 1e-12))
+
+
+def strokes_note(summary: "DurabilitySummary", deadband_m: float) -> str | None:
+    """Why a run's strokes cannot be told from the position sensor, or None when they can.
+
+    Strokes are detectable when the median stroke is at least ``1 / DEADBAND_MAX_FRACTION``
+    deadbands long; a run without strokes has nothing to tell apart (distance 0).
+    """
+    if summary.strokes == 0 or summary.stroke_table.empty:
+        return None
+    median = float(np.median(summary.stroke_table["length_m"]))
+    if deadband_m > DEADBAND_MAX_FRACTION * median:
+        return (f"strokes not detectable: the deadband {deadband_m * 1e3:.3g} mm ({DEADBAND_N_FLOOR:g} x the "
+                f"position sensor floor) is over {DEADBAND_MAX_FRACTION:g} of the median stroke "
+                f"{median * 1e3:.3g} mm")
+    return None
 
 STROKE_COLUMNS = ["stroke", "direction", "t_start_s", "t_end_s", "x_start_m", "x_end_m", "length_m",
                   "mean_speed_m_s", "dp_mean_pa", "dp_friction_pa", "n_samples"]
@@ -336,4 +385,5 @@ def naive_distance(x) -> float:
 
 
 __all__ = ["StrokeCounter", "DurabilitySummary", "durability_summary", "durability_from_chunks",
-           "naive_distance", "DEADBAND_M", "STROKE_COLUMNS"]
+           "naive_distance", "DEADBAND_M", "STROKE_COLUMNS", "DEADBAND_N_FLOOR", "DEADBAND_MAX_FRACTION",
+           "stroke_deadband", "strokes_note"]

@@ -30,7 +30,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy  # its submodules load on first use: a rebuild that reuses every stage never pays for them
 
-__all__ = ["plpa_plant_ss", "plpa_closed_loop_ss", "simulate_closed_loop", "decimate_for_identification",
+from analyses.quality import Gate, Sensor, describe_sensor, jacobian_se
+
+__all__ = ["FIT_MIN_PCT", "plpa_plant_ss", "plpa_closed_loop_ss", "simulate_closed_loop", "decimate_for_identification",
            "fit_percent", "IdentificationResult", "identify_third_order", "plot_identification"]
 
 
@@ -257,6 +259,12 @@ class IdentificationResult:
     x_model_m: np.ndarray = field(default_factory=lambda: np.empty(0))
     u_d_v: np.ndarray = field(default_factory=lambda: np.empty(0))
     message: str = ""
+    note: str | None = None
+    se: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
+
+    def __post_init__(self):
+        if self.note is None and self.message and not self.ok:
+            self.note = self.message   # why the parameters are NaN
 
     @property
     def ok(self) -> bool:
@@ -266,10 +274,17 @@ class IdentificationResult:
 WN_BOUNDS = (0.3, 1000.0)
 ZETA_BOUNDS = (0.01, 10.0)
 K_BOUNDS = (1e-4, 1e3)
+#: The model's acceptance limit on ``fit_pct`` (output error on the identification-rate data):
+#: a model that explains less than this share of the motion is not reported, unless its
+#: residuals are at the position sensor's floor (then the motion itself is that small). [%]
+FIT_MIN_PCT = 80.0
+#: Names of the reported parameters (table columns).
+PARAM_NAMES = ("wn_rad_s", "zeta", "k_lin_m_v_s")
 
 
 def identify_third_order(t, x, u_d, x_ref, kp: float, rate_hz: float = 50.0,
-                         min_samples: int = 100) -> IdentificationResult:
+                         min_samples: int = 100, x_sensor: Sensor | None = None,
+                         ud_sensor: Sensor | None = None) -> IdentificationResult:
     """Identify ``wn``, ``zeta``, ``k`` of Eq. 10 from a closed-loop run by output error.
 
     Parameters
@@ -288,13 +303,20 @@ def identify_third_order(t, x, u_d, x_ref, kp: float, rate_hz: float = 50.0,
         Identification rate (``id_sample_rate_hz``). [Hz]
     min_samples : int
         Fewest identification-rate samples accepted.
+    x_sensor, ud_sensor : Sensor, optional
+        Resolution and noise of ``x`` and ``u_d`` (run metadata); estimated from the records
+        when absent.
 
     Returns
     -------
     IdentificationResult
         Parameters, ``fit_pct`` (warehouse.md) on the identification-rate data, the decimated
-        data and the simulated model output. When the run cannot be identified (too short, no
-        excitation, no convergence) the parameters are NaN and ``message`` says why.
+        data and the simulated model output. When the run cannot be identified the parameters
+        are NaN and ``message`` says why; when the fit does not pass the quality gates (a
+        parameter at its bound, standard errors from the Jacobian over half the value, an
+        ill-conditioned design, ``fit_pct`` under :data:`FIT_MIN_PCT` with residuals above
+        three sigmas of the position sensor) they are NaN too and ``note`` (= ``message``)
+        says why; ``fit_pct`` and the model output are kept as the evidence.
     """
     t = np.asarray(t, float)
     if len(t) < 2 or not np.all(np.isfinite(t)):
@@ -310,8 +332,14 @@ def identify_third_order(t, x, u_d, x_ref, kp: float, rate_hz: float = 50.0,
     if len(y) < min_samples:
         return IdentificationResult(message=f"too short: {len(y)} samples at {1 / dt:.0f} Hz "
                                     f"(need {min_samples})", **base)
-    if np.std(ud) < 1e-9 or np.std(y) < 1e-12:
-        return IdentificationResult(message="no excitation: u_d or x is constant", **base)
+    if x_sensor is None:
+        x_sensor = describe_sensor(data[0])
+    if ud_sensor is None:
+        ud_sensor = describe_sensor(data[1])
+    if not np.std(ud) > ud_sensor.floor() or not np.ptp(y) > 2 * x_sensor.floor():
+        return IdentificationResult(message=f"no excitation: u_d (std {np.std(ud):.2g} V) or x (range "
+                                    f"{np.ptp(y):.2g} m) does not exceed its sensor's floor "
+                                    f"({ud_sensor.floor():.2g} V, {x_sensor.floor():.2g} m)", **base)
 
     n = len(y)
     y_scale = float(np.std(y)) or 1.0
@@ -363,8 +391,22 @@ def identify_third_order(t, x, u_d, x_ref, kp: float, rate_hz: float = 50.0,
     y_model = forced + basis @ p[3:]
     fit = fit_percent(y, y_model)
     msg = "" if sol.success else f"least_squares: {sol.message}"
+    # standard errors of (wn, zeta, k) from the Jacobian (the initial state is a nuisance)
+    se, cond = jacobian_se(sol.jac, sol.fun)
+    gate = Gate()
+    for name, v in zip(PARAM_NAMES, p[:3]):
+        gate.physical(name, float(v), lo=0.0)
+    gate.within_bounds(p[:3], lo[:3], hi[:3], PARAM_NAMES)
+    gate.identifiable(cond=cond, beta=p[:3], se=se[:3], names=PARAM_NAMES)
+    rms = float(np.sqrt(np.mean((y - y_model) ** 2)))
+    if not (np.isfinite(fit) and fit >= FIT_MIN_PCT) and not rms <= 3.0 * x_sensor.floor():
+        gate.fail(f"model misses the data (fit {fit:.3g} % < {FIT_MIN_PCT:g} %, residual RMS {rms:.2g} m "
+                  f"over 3 x the position sensor floor {x_sensor.floor():.2g} m)")
+    if not gate.ok:
+        return IdentificationResult(fit_pct=fit, x0=p[3:].copy(), x_model_m=y_model, message=gate.note,
+                                    note=gate.note, se=se[:3], **base)
     return IdentificationResult(wn_rad_s=float(p[0]), zeta=float(p[1]), k_lin_m_v_s=float(p[2]), fit_pct=fit,
-                                x0=p[3:].copy(), x_model_m=y_model, message=msg, **base)
+                                x0=p[3:].copy(), x_model_m=y_model, message=msg, se=se[:3], **base)
 
 
 def plot_identification(result: IdentificationResult, title: str = ""):

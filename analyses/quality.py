@@ -170,6 +170,56 @@ def describe_sensor(values, resolution: float | None = None, noise: float | None
     return Sensor(resolution=res, noise=float(sig), source=source)
 
 
+def describe_sensor_at_rest(values, rest_fraction: float = 0.01, resolution: float | None = None,
+                            noise: float | None = None) -> Sensor:
+    """A channel's :class:`Sensor` estimated from the samples where the signal rests.
+
+    :func:`describe_sensor` assumes the sampling resolves the motion (second differences of the
+    motion well under the noise). A record logged too slowly for its motion (strokes of a metre
+    at a few hertz) breaks that: its differences are the motion. Here only consecutive changes
+    within ``rest_fraction`` of the record's range enter the estimate (rests, dwells, slow
+    travel), so the noise and resolution are those of the sensor, not of the motion.
+
+    Parameters
+    ----------
+    values : array-like
+        The record. [SI]
+    rest_fraction : float
+        Largest sample-to-sample change counted as rest, as a fraction of the range. [-]
+    resolution, noise : float, optional
+        Stated by the rig: used as given.
+
+    Returns
+    -------
+    Sensor
+        As :func:`describe_sensor` on the rest samples (``source`` unchanged).
+    """
+    y = np.asarray(values, dtype=float)
+    y = y[np.isfinite(y)]
+    if y.size < 3:
+        return describe_sensor(y, resolution, noise)
+    d1 = np.diff(y)
+    thr = rest_fraction * float(np.ptp(y))
+    rest = np.abs(d1) <= thr
+    both = rest[:-1] & rest[1:]
+    # a synthetic record made of the rest differences only: its differences are the rest changes
+    # (resolution lattice) and its second differences those between two rest changes (noise)
+    d2 = np.diff(d1)[both]
+    res_rec = np.concatenate([[0.0], np.cumsum(d1[rest])])
+    stated = [v is not None and np.isfinite(v) for v in (resolution, noise)]
+    res = float(resolution) if stated[0] else quantisation_step(res_rec)
+    if stated[1]:
+        sig = float(noise)
+    elif d2.size >= 8:
+        sig = _MAD_TO_SIGMA * float(np.median(np.abs(d2 - np.median(d2)))) / np.sqrt(6.0)
+        if res > 0 and sig < res:
+            sig = min(sig, res / np.sqrt(12.0))
+    else:
+        sig = 0.0
+    source = "metadata" if all(stated) else ("estimated" if not any(stated) else "metadata+estimated")
+    return Sensor(resolution=res, noise=float(sig), source=source)
+
+
 def sensor_from_params(params: dict | None, channel: str, values=()) -> Sensor:
     """The :class:`Sensor` of a run's channel from its params (``sensor_<channel>_resolution`` /
     ``sensor_<channel>_noise``, SI, as ingest stores them), estimated from ``values`` where absent.
@@ -185,6 +235,73 @@ def sensor_from_params(params: dict | None, channel: str, values=()) -> Sensor:
         return v if np.isfinite(v) and v >= 0 else None
 
     return describe_sensor(values, resolution=num("resolution"), noise=num("noise"))
+
+
+# -- set-points -------------------------------------------------------------------------------
+def setpoint_thresholds(values, sensor: Sensor | None = None, n_sigma: float = 5.0) -> tuple[float, float]:
+    """Smallest jump and level change of a set-point (reference) record that count as a step.
+
+    A commanded set-point changes by whole counts of its resolution: one count is a change. A
+    read-back set-point is noisy: a jump must exceed ``n_sigma`` sigmas of a difference of two
+    samples (``sqrt(2)`` times the noise) and a new level ``n_sigma`` sigmas of one sample.
+
+    Parameters
+    ----------
+    values : array-like
+        The set-point record. [SI]
+    sensor : Sensor, optional
+        Its resolution and noise (:func:`sensor_from_params`); estimated from ``values`` when absent.
+    n_sigma : float
+        Detection margin. [-]
+
+    Returns
+    -------
+    (jump, level) : tuple of float
+        Thresholds [unit of ``values``]; a record with neither noise nor resolution gets 1e-9 of
+        its magnitude (float round-off is not a step).
+    """
+    r = np.asarray(values, dtype=float)
+    r = r[np.isfinite(r)]
+    if sensor is None:
+        sensor = describe_sensor(r)
+    tiny = 1e-9 * max(float(np.max(np.abs(r), initial=0.0)), 1e-300)
+    count = 0.999 * sensor.resolution
+    jump = max(count, n_sigma * np.sqrt(2.0) * sensor.noise, tiny)
+    level = max(count, n_sigma * sensor.noise, tiny)
+    return float(jump), float(level)
+
+
+def setpoint_jumps(values, jump: float, level: float, min_points: int = 1) -> list[int]:
+    """Indices where a set-point record steps to a new plateau.
+
+    Candidates are samples that differ from the previous one by more than ``jump``; a plateau
+    shorter than ``min_points`` joins the next one (a glitch, the inner samples of a ramp: the
+    step starts where the change starts), then candidates whose plateaus either side differ by
+    no more than ``level`` (medians) are dropped, the smallest first.
+
+    Returns
+    -------
+    list of int
+        The first sample of each new plateau.
+    """
+    r = np.asarray(values, dtype=float)
+    if r.size < 2:
+        return []
+    jumps = list(np.flatnonzero(np.abs(np.diff(r)) > jump) + 1)
+    while jumps:
+        bounds = [0] + jumps + [len(r)]
+        short = [k for k in range(1, len(bounds) - 1) if bounds[k + 1] - bounds[k] < min_points]
+        if short:
+            k = short[0]
+            del jumps[k if k < len(jumps) else k - 1]   # the jump ending it (the last: the one starting it)
+            continue
+        med = np.array([np.median(r[a:b]) for a, b in zip(bounds[:-1], bounds[1:])])
+        change = np.abs(np.diff(med))
+        k = int(np.argmin(change))
+        if change[k] > level:
+            break
+        del jumps[k]
+    return [int(j) for j in jumps]
 
 
 # -- fit quality ----------------------------------------------------------------------------
@@ -412,5 +529,7 @@ class Gate:
         return out
 
 
-__all__ = ["COND_MAX", "Gate", "LinearFit", "Sensor", "at_bound", "describe_sensor", "jacobian_se", "linear_lstsq",
-           "noise_std", "nrmse_pct", "quantisation_step", "scaled_condition", "sensor_from_params"]
+__all__ = ["COND_MAX", "Gate", "LinearFit", "Sensor", "at_bound", "describe_sensor", "describe_sensor_at_rest",
+           "jacobian_se", "linear_lstsq",
+           "noise_std", "nrmse_pct", "quantisation_step", "scaled_condition", "sensor_from_params",
+           "setpoint_jumps", "setpoint_thresholds"]

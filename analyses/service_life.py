@@ -14,7 +14,9 @@ depend on the optimiser's tolerance. On Nelson's 70 diesel-engine fans this give
 published SAS values shape 1.0584, scale 26.2968 (tests).
 
 With fewer than two failures the Weibull parameters are not identifiable in any useful sense:
-every Weibull output is NaN (NULL in the warehouse), never invented.
+every Weibull output is NaN (NULL in the warehouse), never invented. The same holds when the
+shape's maximum likelihood lies at the edge of the search range ``SHAPE_BOUNDS`` (e.g. every
+failure at the same distance: the shape runs to infinity): NaN, and ``note`` says why.
 
 B10 and its confidence bounds (method)
 --------------------------------------
@@ -48,6 +50,8 @@ import numpy as np
 import pandas as pd
 import scipy  # its submodules load on first use: a rebuild that reuses every stage never pays for them
 
+from analyses.quality import at_bound
+
 _NAN = float("nan")
 
 
@@ -74,6 +78,7 @@ class WeibullFit:
     loglik: float
     n: int
     n_failed: int
+    note: str | None = None
 
     @property
     def ok(self) -> bool:
@@ -115,6 +120,10 @@ def weibull_loglik(shape: float, scale: float, life, failed) -> float:
     return float(np.sum(np.log(shape / scale) + (shape - 1.0) * np.log(z[f])) - np.sum(zk))
 
 
+#: Search range of the Weibull shape; an MLE at either end is not reported. [-]
+SHAPE_BOUNDS = (1e-3, 1e3)
+
+
 def _profile_mle(x: np.ndarray, f: np.ndarray) -> tuple[float, float]:
     """Exact MLE: for a shape k the scale is (sum x^k / r)^(1/k); k solves the score equation."""
     s = x.max()
@@ -128,9 +137,11 @@ def _profile_mle(x: np.ndarray, f: np.ndarray) -> tuple[float, float]:
         w = y ** k
         return float((w * ly).sum() / w.sum() - 1.0 / k - mean_lf)
 
-    lo, hi = math.log(1e-3), math.log(1e3)
+    lo, hi = math.log(SHAPE_BOUNDS[0]), math.log(SHAPE_BOUNDS[1])
     if score(lo) > 0 or score(hi) < 0:
-        raise ValueError("no finite Weibull MLE for these data")
+        side = "lower" if score(lo) > 0 else "upper"
+        raise ValueError(f"the Weibull shape MLE is at the search's {side} bound "
+                         f"({SHAPE_BOUNDS[0 if side == 'lower' else 1]:g}): the lives cannot tell a shape")
     k = math.exp(scipy.optimize.brentq(score, lo, hi, xtol=1e-14, rtol=1e-14))
     scale = s * ((y ** k).sum() / r) ** (1.0 / k)
     return k, scale
@@ -149,17 +160,17 @@ def weibull_fit(life, failed) -> WeibullFit:
     Returns
     -------
     WeibullFit
-        NaN shape, scale and loglik with fewer than two failures or without a finite MLE.
+        NaN shape, scale and loglik with a ``note`` with fewer than two failures or without a
+        finite MLE inside :data:`SHAPE_BOUNDS`.
     """
     x, f = _as_arrays(life, failed)
     n, r = int(len(x)), int(f.sum())
-    nan = WeibullFit(_NAN, _NAN, _NAN, n, r)
     if r < 2:
-        return nan
+        return WeibullFit(_NAN, _NAN, _NAN, n, r, note=f"too few failures: {r} < 2")
     try:
         k0, s0 = _profile_mle(x, f)
-    except (ValueError, FloatingPointError):
-        return nan
+    except (ValueError, FloatingPointError) as exc:
+        return WeibullFit(_NAN, _NAN, _NAN, n, r, note=str(exc).splitlines()[0])
     best = (k0, s0, weibull_loglik(k0, s0, x, f))
     data = scipy.stats.CensoredData.right_censored(x, ~f)
     try:
@@ -170,6 +181,9 @@ def weibull_fit(life, failed) -> WeibullFit:
             best = (float(k1), float(s1), ll1)
     except Exception:  # scipy's optimiser failing leaves the exact profile solution
         pass
+    if at_bound(best[0], *SHAPE_BOUNDS):
+        return WeibullFit(_NAN, _NAN, _NAN, n, r, note=f"the Weibull shape MLE ({best[0]:.3g}) is at the search "
+                                                      "bound: the lives cannot tell a shape")
     return WeibullFit(float(best[0]), float(best[1]), float(best[2]), n, r)
 
 
@@ -239,12 +253,12 @@ def b10(life, failed, confidence: float = 0.90) -> dict:
     -------
     dict
         ``n``, ``n_failed``, ``shape``, ``scale``, ``b10``, ``b10_lower``, ``b10_upper``,
-        ``confidence``, ``loglik`` (lives' unit for scale and B10).
+        ``confidence``, ``loglik`` (lives' unit for scale and B10), ``note`` (None when sound).
     """
     fit = weibull_fit(life, failed)
     est, lo, hi = weibull_quantile_bounds(fit, life, failed, 0.10, confidence)
     return {"n": fit.n, "n_failed": fit.n_failed, "shape": fit.shape, "scale": fit.scale, "b10": est,
-            "b10_lower": lo, "b10_upper": hi, "confidence": confidence, "loglik": fit.loglik}
+            "b10_lower": lo, "b10_upper": hi, "confidence": confidence, "loglik": fit.loglik, "note": fit.note}
 
 
 def weibull_lr_test(groups: dict) -> dict:
@@ -509,6 +523,6 @@ def plot_hose_distances(hoses: pd.DataFrame):
     return fig
 
 
-__all__ = ["WeibullFit", "weibull_fit", "weibull_loglik", "weibull_quantile_bounds", "b10", "weibull_lr_test",
+__all__ = ["SHAPE_BOUNDS", "WeibullFit", "weibull_fit", "weibull_loglik", "weibull_quantile_bounds", "b10", "weibull_lr_test",
            "kaplan_meier", "weibull_plotting_positions", "plot_weibull_probability", "plot_kaplan_meier",
            "plot_leak_growth", "plot_hose_distances"]

@@ -14,6 +14,12 @@ starts a step that lasts until the next jump (or the end of the run). Per step:
 Crossing instants are interpolated linearly between samples. The position is first smoothed by
 a zero-phase low-pass filter well above the loop's bandwidth, so that sensor noise does not move
 the last exit from the 2 % band.
+
+What the sensors allow (:mod:`analyses.quality`): a jump of ``x_ref`` is a step when it exceeds
+one count of the reference's resolution and ``N_SIGMA`` noise sigmas (never a constant length);
+a step smaller than ``N_SIGMA`` times the position sensor's floor gives no metrics, and one
+whose 2 % band is finer than that floor gives no overshoot or settling time (``note`` says
+which); a step that has not settled by the end of the record has no settling time and a note.
 """
 from __future__ import annotations
 
@@ -23,10 +29,17 @@ import numpy as np
 import pandas as pd
 import scipy  # its submodules load on first use: a rebuild that reuses every stage never pays for them
 
-__all__ = ["find_steps", "step_metrics", "step_response_metrics", "plot_step_errors"]
+from analyses.quality import Sensor, describe_sensor, setpoint_jumps, setpoint_thresholds
+
+__all__ = ["find_steps", "step_metrics", "step_response_metrics", "plot_step_errors", "N_SIGMA"]
+
+#: Detection margin: a reference jump must exceed this many noise sigmas of the reference, and a
+#: step must be this many times the position sensor's floor to be measured. [-]
+N_SIGMA = 5.0
 
 
-def find_steps(t, x_ref, min_step: float = 1e-4, min_duration_s: float = 0.0) -> list[tuple[int, int, float, float]]:
+def find_steps(t, x_ref, min_step: float | None = None, min_duration_s: float = 0.0,
+               sensor: Sensor | None = None, min_points: int = 3) -> list[tuple[int, int, float, float]]:
     """Jumps of the reference.
 
     Parameters
@@ -35,10 +48,16 @@ def find_steps(t, x_ref, min_step: float = 1e-4, min_duration_s: float = 0.0) ->
         Time. [s]
     x_ref : array_like
         Reference. [m]
-    min_step : float
-        Smallest jump that counts as a step. [m]
+    min_step : float, optional
+        Smallest jump that counts as a step; default from the reference's sensor
+        (:func:`analyses.quality.setpoint_thresholds`: one count of its resolution, ``N_SIGMA``
+        noise sigmas). [m]
     min_duration_s : float
         Shortest step kept (a plateau shorter than this is not a step). [s]
+    sensor : Sensor, optional
+        Resolution and noise of ``x_ref`` (run metadata); estimated from it when absent.
+    min_points : int
+        A plateau shorter than this joins the next one (a ramped reference is one step).
 
     Returns
     -------
@@ -50,15 +69,18 @@ def find_steps(t, x_ref, min_step: float = 1e-4, min_duration_s: float = 0.0) ->
     r = np.asarray(x_ref, float)
     if len(r) < 2:
         return []
-    jumps = np.flatnonzero(np.abs(np.diff(r)) > min_step) + 1
-    # a ramped reference (several consecutive small changes) is merged into one jump
+    if min_step is None:
+        jump, level = setpoint_thresholds(r, sensor, N_SIGMA)
+    else:
+        jump = level = float(min_step)
+    jumps = setpoint_jumps(r, jump, level, min_points)
     out = []
     bounds = list(jumps) + [len(r)]
     for j, i0 in enumerate(jumps):
         i1 = bounds[j + 1]
-        before = r[i0 - 1]
+        before = float(np.median(r[(jumps[j - 1] if j else 0):i0]))
         after = float(np.median(r[i0:i1]))
-        if abs(after - before) <= min_step or t[i1 - 1] - t[i0] < min_duration_s:
+        if abs(after - before) <= level or t[i1 - 1] - t[i0] < min_duration_s:
             continue
         out.append((int(i0), int(i1), float(before), after))
     return out
@@ -87,6 +109,7 @@ class StepMetrics:
     rise_time_s: float
     steady_state_error_mm: float
     settled: bool
+    note: str | None = None
 
 
 def step_metrics(t, x, t_step: float, ref_before: float, ref_after: float, band: float = 0.02,
@@ -154,7 +177,8 @@ def _smooth(t, x, cutoff_hz):
                               padlen=min(len(x) - 1, 3 * int(fs / cutoff_hz)))
 
 
-def step_response_metrics(t, x, x_ref, smooth: bool = True, min_step: float = 1e-4) -> pd.DataFrame:
+def step_response_metrics(t, x, x_ref, smooth: bool = True, min_step: float | None = None,
+                          x_sensor: Sensor | None = None, ref_sensor: Sensor | None = None) -> pd.DataFrame:
     """Metrics of every step of a step run.
 
     Parameters
@@ -167,22 +191,29 @@ def step_response_metrics(t, x, x_ref, smooth: bool = True, min_step: float = 1e
         Reference. [m]
     smooth : bool
         Low-pass the position (zero phase) at ten times the inverse rise time before measuring.
-    min_step : float
-        Smallest reference jump that counts as a step. [m]
+    min_step : float, optional
+        Smallest reference jump that counts as a step; default from the reference's sensor. [m]
+    x_sensor, ref_sensor : Sensor, optional
+        Resolution and noise of ``x`` and ``x_ref`` (run metadata); estimated when absent.
 
     Returns
     -------
     DataFrame
         One row per step: ``t_step_s``, ``step_mm``, ``overshoot_pct``, ``settling_time_s``,
-        ``rise_time_s``, ``steady_state_error_mm``, ``settled``, ``i_start``, ``i_end``.
-        Empty when the reference never jumps.
+        ``rise_time_s``, ``steady_state_error_mm``, ``settled``, ``note``, ``i_start``,
+        ``i_end``. Metrics the position sensor cannot resolve are NaN with a ``note``. Empty
+        when the reference never jumps.
     """
     t = np.asarray(t, float)
     x = np.asarray(x, float)
     cols = ["t_step_s", "step_mm", "overshoot_pct", "settling_time_s", "rise_time_s",
-            "steady_state_error_mm", "settled", "i_start", "i_end"]
+            "steady_state_error_mm", "settled", "note", "i_start", "i_end"]
+    if x_sensor is None:
+        x_sensor = describe_sensor(x)
+    floor = x_sensor.floor()
     rows = []
-    for i0, i1, before, after in find_steps(t, x_ref, min_step=min_step):
+    nan = float("nan")
+    for i0, i1, before, after in find_steps(t, x_ref, min_step=min_step, sensor=ref_sensor):
         # the jump happened between samples i0-1 and i0: take the earlier one (the controller
         # at the logging rate reacts from the first sample of the new reference)
         t_step = float(t[i0])
@@ -192,6 +223,16 @@ def step_response_metrics(t, x, x_ref, smooth: bool = True, min_step: float = 1e
             # filter over the whole run (no edge effect at the jump), then cut the step out
             xs = _smooth(t, x, 10.0 / m.rise_time_s)[i0:i1]
             m = step_metrics(seg_t, xs, t_step, before, after)
+        size = abs(after - before)
+        if not size >= N_SIGMA * floor:
+            m = StepMetrics(t_step, m.step_mm, nan, nan, nan, nan, False,
+                            f"step of {size:.3g} m is under {N_SIGMA:g} x the position sensor floor ({floor:.3g} m)")
+        elif 0.02 * size < floor:
+            m.overshoot_pct = m.settling_time_s = nan
+            m.note = (f"the 2 % band ({0.02 * size:.3g} m) is finer than the position sensor floor "
+                      f"({floor:.3g} m): no overshoot or settling time")
+        elif not m.settled:
+            m.note = "did not settle in the 2 % band within the record: no settling time"
         rows.append({**m.__dict__, "i_start": i0, "i_end": i1})
     return pd.DataFrame(rows, columns=cols)
 

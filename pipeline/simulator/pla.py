@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 from scipy.linalg import expm
 
-from pipeline.simulator.base import P_ATM_PA, SimRun, make_rng, pressure_sensor, quantise, time_vector
+from pipeline.simulator.base import P_ATM_PA, PRESSURE_RES_PA, SimRun, make_rng, pressure_sensor, quantise, time_vector
 
 #: Table 1 of the paper, per chamber: polytropic index n [-], effective area Ae [m2],
 #: eps [m2], delta [N/m].
@@ -90,13 +90,24 @@ PRESSURE_STEPS_BAR = (1.0, 3.0, 1.0, 4.0, 2.0, 5.0, 3.0)
 
 def simulate_pressure_step(chamber: str = "rear", rng=None, *, levels_bar=PRESSURE_STEPS_BAR, hold_s: float = 1.0,
                            fs_hz: float = 1000.0, wn: float = PRESSURE_WN, xi: dict | None = None,
-                           noise_pa: float = 300.0, **metadata) -> SimRun:
+                           noise_pa: float = 300.0, tau_s: float | dict | None = None, ref_noise_pa: float = 0.0,
+                           **metadata) -> SimRun:
     """Pressure steps: ``P'' = -2 xi wn P' - wn^2 (P - Pref)``, xi by charge / discharge.
 
     The first level is the initial steady state; every later level is a step of ``p_ref``
     held for ``hold_s``. Solved exactly (matrix exponential) between set-point changes.
+
+    Optional (defaults keep the demo's bytes): ``tau_s`` (a time constant [s], or one per
+    direction ``{"charge": .., "discharge": ..}``) makes the response first order,
+    ``tau P' = Pref - P``, as a pressure loop under closed-loop control answers set-point steps;
+    ``ref_noise_pa`` adds Gaussian noise to the logged set-point (a read-back signal).
+    A closed-loop set-point sweep is ``levels_bar`` with small steps (e.g. 0.05 and 0.1 bar)
+    at ``fs_hz = 20``.
     """
     rng = make_rng(rng)
+    if tau_s is not None:
+        return _first_order_pressure_steps(chamber, rng, levels_bar, hold_s, fs_hz, tau_s, noise_pa, ref_noise_pa,
+                                           metadata)
     xi = dict(PRESSURE_XI if xi is None else xi)
     levels = [lv * 1e5 for lv in levels_bar]
     n_per = int(round(hold_s * fs_hz))
@@ -131,4 +142,37 @@ def simulate_pressure_step(chamber: str = "rear", rng=None, *, levels_bar=PRESSU
     truth = {"kind": "pressure_step", "chamber": chamber, "wn_rad_s": wn, "xi_charge": xi["charge"],
              "xi_discharge": xi["discharge"], "noise_pa": noise_pa, "fs_hz": fs_hz, "hold_s": hold_s,
              "steps": steps}
+    return SimRun(data, meta, truth)
+
+
+def _first_order_pressure_steps(chamber, rng, levels_bar, hold_s, fs_hz, tau_s, noise_pa, ref_noise_pa, metadata):
+    """First-order response ``tau P' = Pref - P`` to the set-point levels (exact between steps)."""
+    taus = dict(tau_s) if isinstance(tau_s, dict) else {"charge": float(tau_s), "discharge": float(tau_s)}
+    levels = [lv * 1e5 for lv in levels_bar]
+    n_per = int(round(hold_s * fs_hz))
+    n = n_per * len(levels)
+    t = time_vector(n, fs_hz)
+    p = np.empty(n)
+    ref = np.empty(n)
+    steps = []
+    prev, value = levels[0], levels[0]
+    tk = np.arange(n_per) / fs_hz
+    for i, level in enumerate(levels):
+        sl = slice(i * n_per, (i + 1) * n_per)
+        direction = "charge" if level >= prev else "discharge"
+        tau = taus[direction]
+        p[sl] = level + (value - level) * np.exp(-tk / tau)
+        ref[sl] = level
+        if i > 0:
+            steps.append({"t_step_s": float(t[sl][0]), "p_from_pa": prev, "p_to_pa": level,
+                          "direction": direction, "tau_s": tau})
+        value = level + (value - level) * np.exp(-n_per / fs_hz / tau)
+        prev = level
+    p_ref = ref + rng.normal(0.0, ref_noise_pa, n) if ref_noise_pa > 0 else ref
+    data = pd.DataFrame({"t_s": t, "p_pa": pressure_sensor(p, rng, noise_pa),
+                         "p_ref_pa": quantise(p_ref, PRESSURE_RES_PA) if ref_noise_pa > 0 else p_ref})
+    meta = {"kind": "pressure_step", "rig": "pla-1", "chamber": chamber, **metadata}
+    truth = {"kind": "pressure_step", "chamber": chamber, "model": "first_order", "tau_charge_s": taus["charge"],
+             "tau_discharge_s": taus["discharge"], "noise_pa": noise_pa, "ref_noise_pa": ref_noise_pa,
+             "fs_hz": fs_hz, "hold_s": hold_s, "steps": steps}
     return SimRun(data, meta, truth)

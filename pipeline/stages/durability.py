@@ -34,7 +34,8 @@ import numpy as np
 import pandas as pd
 import pyarrow.parquet as pq
 
-from analyses.durability import DEADBAND_M, StrokeCounter
+from analyses.durability import StrokeCounter, stroke_deadband, strokes_note
+from analyses.quality import describe_sensor_at_rest
 from analyses.service_life import (b10, kaplan_meier, plot_hose_distances, plot_kaplan_meier, plot_leak_growth,
                                    plot_weibull_probability, weibull_fit, weibull_lr_test)
 from pipeline.logbook import hose_distance_at, hose_life, match_runs, merge_logbooks, read_logbooks
@@ -53,11 +54,14 @@ COLUMNS = ("t_s", "x_m", "p_a_pa", "p_b_pa")
 PA_PER_BAR = 1e5
 
 RUN_COLUMNS = ["run_id", "hose_id", "distance_km", "strokes", "duration_h", "campaign", "started_at", "n_samples",
-               "mean_speed_m_s", "mean_stroke_mm", "dp_friction_bar", "friction_n", "deadband_mm"]
+               "mean_speed_m_s", "mean_stroke_mm", "dp_friction_bar", "friction_n", "deadband_mm", "note"]
+#: Row groups of x sampled (evenly over the run) to describe the position sensor when run
+#: metadata does not state it: enough rest and motion for the estimate, bounded memory.
+SENSOR_ROW_GROUPS = 5
 STROKE_COLUMNS = ["run_id", "hose_id", "stroke", "direction", "t_start_s", "t_end_s", "length_mm", "mean_speed_m_s",
                   "dp_mean_bar", "dp_friction_bar", "friction_n", "n_samples"]
 SERVICE_COLUMNS = ["hose_type", "adjustment", "n_hoses", "n_failed", "weibull_shape", "weibull_scale_km", "b10_km",
-                   "b10_lower_km", "b10_upper_km", "confidence", "n_suspended", "b10_method", "loglik"]
+                   "b10_lower_km", "b10_upper_km", "confidence", "n_suspended", "b10_method", "loglik", "note"]
 SURVIVAL_COLUMNS = ["hose_type", "adjustment", "distance_km", "n_at_risk", "n_failed", "n_censored", "survival",
                     "std_err"]
 TEST_COLUMNS = ["hose_type", "n_force", "n_failed_force", "n_distance", "n_failed_distance", "shape_force",
@@ -66,12 +70,30 @@ LEAK_COLUMNS = ["hose_id", "run_id", "started_at", "distance_km", "adjustment", 
                 "leak_l_min", "hose_status"]
 
 
-def analyse_run(path: str) -> dict:
+def _x_sample(pf) -> np.ndarray:
+    """``x_m`` of up to :data:`SENSOR_ROW_GROUPS` row groups spread over the file."""
+    n = pf.num_row_groups
+    if n == 0:
+        return np.empty(0)
+    groups = sorted({int(round(i)) for i in np.linspace(0, n - 1, min(n, SENSOR_ROW_GROUPS))})
+    return np.concatenate([pf.read_row_group(g, columns=["x_m"]).column("x_m").to_numpy(zero_copy_only=False)
+                           .astype(float) for g in groups])
+
+
+def analyse_run(item) -> dict:
     """Stream one durability run's samples file and count its strokes (module level: picklable).
 
-    Returns a dict with ``distance_m``, ``strokes``, ``duration_s``, ``n_samples`` and
-    ``stroke_table``, or ``error`` (one line) when the run cannot be analysed.
+    Parameters
+    ----------
+    item : str or (str, dict)
+        The samples path, or the path and the run's params (``sensor_x_resolution`` /
+        ``sensor_x_noise`` state the encoder; estimated from sampled row groups otherwise).
+
+    Returns a dict with ``distance_m``, ``strokes``, ``duration_s``, ``n_samples``,
+    ``stroke_table``, ``deadband_m`` and ``note`` (strokes not detectable), or ``error`` (one
+    line) when the run cannot be analysed.
     """
+    path, params = (item, None) if isinstance(item, str) else item
     try:
         pf = pq.ParquetFile(path, pre_buffer=False)  # no read-ahead of whole row groups: less memory
         names = set(pf.schema_arrow.names)
@@ -79,7 +101,14 @@ def analyse_run(path: str) -> dict:
             return {"error": "no t_s/x_m columns in the samples"}
         cols = [c for c in COLUMNS if c in names]
         have_dp = "p_a_pa" in names and "p_b_pa" in names
-        sc = StrokeCounter(DEADBAND_M)
+        stated = {k: _float(_param(params, f"sensor_x_{k}")) for k in ("resolution", "noise")}
+        stated = {k: v for k, v in stated.items() if v is not None and v >= 0}
+        xs = _x_sample(pf) if len(stated) < 2 else np.empty(0)
+        xs = xs[np.isfinite(xs)]
+        # estimated from the samples at rest: a run logged slowly for its strokes has no other
+        sensor = describe_sensor_at_rest(xs, resolution=stated.get("resolution"), noise=stated.get("noise"))
+        deadband = stroke_deadband(sensor, float(np.max(np.abs(xs))) if xs.size else 1.0)
+        sc = StrokeCounter(deadband)
         for batch in pf.iter_batches(batch_size=BATCH_ROWS, columns=cols):
             get = lambda c: batch.column(c).to_numpy(zero_copy_only=False)  # noqa: E731
             dp = get("p_a_pa") - get("p_b_pa") if have_dp else None
@@ -88,7 +117,8 @@ def analyse_run(path: str) -> dict:
         if s.n_samples < 2:
             return {"error": "fewer than two usable samples"}
         return {"distance_m": s.distance_m, "strokes": s.strokes, "duration_s": s.duration_s,
-                "n_samples": s.n_samples, "stroke_table": s.stroke_table}
+                "n_samples": s.n_samples, "stroke_table": s.stroke_table, "deadband_m": deadband,
+                "note": strokes_note(s, deadband)}
     except Exception as exc:  # a run that cannot be analysed gives NULLs and a warning
         return {"error": f"{type(exc).__name__}: {exc}".splitlines()[0]}
 
@@ -113,8 +143,9 @@ def durability_runs(ctx: StageContext, out: StageOutput) -> tuple[pd.DataFrame, 
     runs = ctx.runs_of("durability")
     if runs.empty:
         return pd.DataFrame(columns=RUN_COLUMNS), pd.DataFrame(columns=STROKE_COLUMNS)
-    paths = [str(ctx.samples_file(rid)) for rid in runs["run_id"]]
-    results = ctx.map(analyse_run, paths, label="durability runs")
+    items = [(str(ctx.samples_file(rid)), p if isinstance(p, dict) else None)
+             for rid, p in zip(runs["run_id"], runs["params"] if "params" in runs else [None] * len(runs))]
+    results = ctx.map(analyse_run, items, label="durability runs")
     rows, strokes = [], []
     for run, res in zip(runs.to_dict("records"), results):
         rid, params = run["run_id"], run.get("params")
@@ -122,10 +153,14 @@ def durability_runs(ctx: StageContext, out: StageOutput) -> tuple[pd.DataFrame, 
         hose = None if hose is None else str(hose)
         area = _float(_param(params, "hose_area_m2"))
         row = {"run_id": rid, "hose_id": hose, "campaign": run.get("campaign"), "started_at": run.get("started_at"),
-               "deadband_mm": DEADBAND_M * 1e3}
+               "deadband_mm": res["deadband_m"] * 1e3 if "deadband_m" in res else None, "note": None}
         if "error" in res:
             out.warn(rid, f"durability: cannot analyse the run ({res['error']}); distance and strokes NULL")
-            rows.append(row)
+            rows.append(dict(row, note=f"cannot analyse the run: {res['error']}"))
+            continue
+        if res.get("note"):
+            out.warn(rid, f"durability: {res['note']}; distance and strokes NULL")
+            rows.append(dict(row, note=res["note"], n_samples=int(res["n_samples"]), duration_h=res["duration_s"] / 3600.0))
             continue
         st = res["stroke_table"]
         dist_m, dur_s = res["distance_m"], res["duration_s"]
@@ -136,7 +171,7 @@ def durability_runs(ctx: StageContext, out: StageOutput) -> tuple[pd.DataFrame, 
                    dp_friction_bar=fric_bar, friction_n=fric_bar * PA_PER_BAR * area if fric_bar is not None and area else None)
         if res["strokes"] == 0:
             out.warn(rid, "durability: the carriage never moved more than the deadband "
-                          f"({DEADBAND_M * 1e3:g} mm); distance 0")
+                          f"({res['deadband_m'] * 1e3:.3g} mm); distance 0")
         rows.append(row)
         if len(st):
             strokes.append(pd.DataFrame({
@@ -172,7 +207,8 @@ def service_life(life: pd.DataFrame, confidence: float = CONFIDENCE) -> pd.DataF
                      "n_suspended": int((~failed).sum()), "weibull_shape": r["shape"],
                      "weibull_scale_km": r["scale"], "b10_km": r["b10"], "b10_lower_km": r["b10_lower"],
                      "b10_upper_km": r["b10_upper"], "confidence": confidence,
-                     "b10_method": "likelihood ratio (profile likelihood), two-sided", "loglik": r["loglik"]})
+                     "b10_method": "likelihood ratio (profile likelihood), two-sided", "loglik": r["loglik"],
+                     "note": r["note"]})
     df = pd.DataFrame(rows, columns=SERVICE_COLUMNS)
     for c in ("weibull_shape", "weibull_scale_km", "b10_km", "b10_lower_km", "b10_upper_km", "loglik"):
         df[c] = pd.to_numeric(df[c]).astype("float64")  # NaN -> NULL in the warehouse

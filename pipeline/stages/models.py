@@ -25,6 +25,7 @@ from analyses import identification as ident
 from analyses import pla_spring as spring
 from analyses import pressure_dynamics as pdyn
 from analyses import step_response as stepr
+from analyses.quality import sensor_from_params
 from pipeline.stages import StageContext, StageOutput, read_samples
 
 NAME = "models"
@@ -33,21 +34,25 @@ KINDS = ("identification", "step", "spring", "pressure_step")
 TABLES = ("identification", "step_response", "spring_fits", "spring_tests", "spring_loop_energy",
           "pressure_dynamics", "pressure_steps")
 
+#: Text columns of the tables (the others are numbers).
+TEXT_COLS = ("run_id", "chamber", "direction", "model", "note")
 #: Identification runs drawn one figure each, at most (sorted by run_id).
 MAX_ID_FIGURES = 6
 #: Steps drawn in the Fig. 15-like figure, at most.
 MAX_STEP_CURVES = 12
 
-ID_COLS = ["run_id", "wn_rad_s", "zeta", "k_lin_m_v_s", "fit_pct", "kp_v_m", "id_sample_rate_hz", "n_samples_id"]
+ID_COLS = ["run_id", "wn_rad_s", "zeta", "k_lin_m_v_s", "fit_pct", "kp_v_m", "id_sample_rate_hz", "n_samples_id",
+           "note"]
 STEP_COLS = ["run_id", "step_mm", "overshoot_pct", "settling_time_s", "rise_time_s", "steady_state_error_mm",
-             "t_step_s", "settled"]
+             "t_step_s", "settled", "note"]
 FIT_COLS = ["chamber", "n_polytropic", "ae_m2", "epsilon_m2", "delta_n_m", "n_tests", "max_nrmse_pct",
-            "seed_n_polytropic", "seed_ae_m2", "seed_epsilon_m2", "seed_delta_n_m"]
-TEST_COLS = ["run_id", "chamber", "p0_bar_abs", "amplitude_mm", "frequency_hz", "nrmse_pct"]
+            "seed_n_polytropic", "seed_ae_m2", "seed_epsilon_m2", "seed_delta_n_m", "note"]
+TEST_COLS = ["run_id", "chamber", "p0_bar_abs", "amplitude_mm", "frequency_hz", "nrmse_pct", "note"]
 ENERGY_COLS = ["run_id", "chamber", "p0_bar_abs", "amplitude_mm", "frequency_hz", "n_cycles", "loop_energy_j",
                "model_loop_energy_j", "structural_energy_j"]
-PD_COLS = ["chamber", "direction", "wn_rad_s", "zeta", "nrmse_pct", "n_steps"]
-PSTEP_COLS = ["run_id", "chamber", "direction", "t_step_s", "p_from_bar", "p_to_bar", "nrmse_pct"]
+PD_COLS = ["chamber", "direction", "wn_rad_s", "zeta", "nrmse_pct", "n_steps", "tau_s", "model", "note"]
+PSTEP_COLS = ["run_id", "chamber", "direction", "t_step_s", "p_from_bar", "p_to_bar", "nrmse_pct", "p_start_bar",
+              "note"]
 
 
 def _num(value, default=None):
@@ -111,19 +116,24 @@ def _identification(run_id, path, params):
     kp = _num(params.get("kp_v_m"))
     rate = _num(params.get("id_sample_rate_hz"), 50.0)
     row = {"run_id": run_id, "wn_rad_s": None, "zeta": None, "k_lin_m_v_s": None, "fit_pct": None,
-           "kp_v_m": kp, "id_sample_rate_hz": rate, "n_samples_id": None}
+           "kp_v_m": kp, "id_sample_rate_hz": rate, "n_samples_id": None, "note": None}
     df = read_samples(path, ["t_s", "x_m", "u_d_v", "x_ref_m"])
     miss = _missing(df, ["t_s", "x_m", "u_d_v", "x_ref_m"])
     if miss:
+        row["note"] = f"lacks {', '.join(miss)}"
         return [row], [f"{NAME}: identification run lacks {', '.join(miss)}; not identified"], None
     if kp is None or kp <= 0:
+        row["note"] = "no positive kp_v_m"
         return [row], [f"{NAME}: identification run without a positive kp_v_m; not identified"], None
     df = df.dropna()
-    res = ident.identify_third_order(df["t_s"].to_numpy(), df["x_m"].to_numpy(), df["u_d_v"].to_numpy(),
-                                     df["x_ref_m"].to_numpy(), kp, rate)
+    x, ud = df["x_m"].to_numpy(), df["u_d_v"].to_numpy()
+    res = ident.identify_third_order(df["t_s"].to_numpy(), x, ud, df["x_ref_m"].to_numpy(), kp, rate,
+                                     x_sensor=sensor_from_params(params, "x", x),
+                                     ud_sensor=sensor_from_params(params, "u_d", ud))
     row["n_samples_id"] = len(res.x_m)
     if not res.ok:
-        return [row], [f"{NAME}: identification: {res.message}; not identified"], None
+        row.update(note=res.note or res.message, fit_pct=_nan(res.fit_pct))
+        return [row], [f"{NAME}: identification: {res.note or res.message}; not identified"], None
     row.update(wn_rad_s=res.wn_rad_s, zeta=res.zeta, k_lin_m_v_s=res.k_lin_m_v_s, fit_pct=_nan(res.fit_pct),
                id_sample_rate_hz=1.0 / res.dt_s)
     warns = [f"{NAME}: identification: {res.message}"] if res.message else []
@@ -135,22 +145,26 @@ def _step(run_id, path, params):
     df = read_samples(path, ["t_s", "x_m", "x_ref_m"])
     miss = _missing(df, ["t_s", "x_m", "x_ref_m"])
     if miss:
-        return [null], [f"{NAME}: step run lacks {', '.join(miss)}; no step metrics"], None
+        return [dict(null, note=f"lacks {', '.join(miss)}")], [f"{NAME}: step run lacks {', '.join(miss)}; no step metrics"], None
     df = df.dropna()
     if len(df) < 10:
-        return [null], [f"{NAME}: step run too short ({len(df)} samples); no step metrics"], None
+        return [dict(null, note="too short")], [f"{NAME}: step run too short ({len(df)} samples); no step metrics"], None
     t, x, r = (df[c].to_numpy() for c in ("t_s", "x_m", "x_ref_m"))
-    m = stepr.step_response_metrics(t, x, r)
+    m = stepr.step_response_metrics(t, x, r, x_sensor=sensor_from_params(params, "x", x),
+                                    ref_sensor=sensor_from_params(params, "x_ref", r))
     if m.empty:
+        null["note"] = "no step of the reference beyond its sensor's resolution and noise"
         return [null], [f"{NAME}: no step of the reference found; no step metrics"], None
     rows, curves, warns = [], [], []
     for s in m.itertuples(index=False):
         rows.append({"run_id": run_id, "step_mm": s.step_mm, "overshoot_pct": _nan(s.overshoot_pct),
                      "settling_time_s": _nan(s.settling_time_s), "rise_time_s": _nan(s.rise_time_s),
                      "steady_state_error_mm": _nan(s.steady_state_error_mm), "t_step_s": s.t_step_s,
-                     "settled": bool(s.settled)})
-        if not s.settled:
-            warns.append(f"{NAME}: step at t={s.t_step_s:g} s did not settle in the 2 % band")
+                     "settled": bool(s.settled), "note": s.note})
+        if s.note:
+            warns.append(f"{NAME}: step at t={s.t_step_s:g} s: {s.note}")
+        if not np.isfinite(s.rise_time_s) and s.note and "sensor floor" in s.note:
+            continue
         seg = slice(s.i_start, s.i_end)
         stride = max(1, (s.i_end - s.i_start) // 3000)
         ref = r[s.i_start]
@@ -164,20 +178,26 @@ def _spring(run_id, path, params):
     chamber = str(params.get("chamber") or "").strip().lower()
     null = {"run_id": run_id, "chamber": chamber or None, "p0_bar_abs": None,
             "amplitude_mm": _num(params.get("amplitude_mm")), "frequency_hz": _num(params.get("frequency_hz")),
-            "nrmse_pct": None}
+            "nrmse_pct": None, "note": None}
     if chamber not in spring.PRESSURE_SIGN:
+        null["note"] = "chamber must be front or rear"
         return [null], [f"{NAME}: spring run chamber must be front or rear, got {chamber or 'none'}; not fitted"], None
     df = read_samples(path, ["t_s", "d_m", "f_n", "p_pa"])
     miss = _missing(df, ["t_s", "d_m", "f_n", "p_pa"])
     if miss:
+        null["note"] = f"lacks {', '.join(miss)}"
         return [null], [f"{NAME}: spring run lacks {', '.join(miss)}; not fitted"], None
     amp = _num(params.get("amplitude_mm"))
-    run = spring.prepare_spring_run(run_id, df["t_s"].to_numpy(), df["d_m"].to_numpy(), df["f_n"].to_numpy(),
+    d, f = df["d_m"].to_numpy(), df["f_n"].to_numpy()
+    run = spring.prepare_spring_run(run_id, df["t_s"].to_numpy(), d, f,
                                     df["p_pa"].to_numpy(), chamber, _num(params.get("frequency_hz")),
                                     amp / 1e3 if amp else None, _num(params.get("stroke_mm"), 40.0) / 1e3,
-                                    _num(params.get("p_atm_pa"), spring.P_ATM_PA))
+                                    _num(params.get("p_atm_pa"), spring.P_ATM_PA),
+                                    d_sensor=sensor_from_params(params, "d", d),
+                                    f_sensor=sensor_from_params(params, "f", f))
     null["p0_bar_abs"] = _nan(run.p0_abs / 1e5) if np.isfinite(run.p0_abs) else None
     if not run.ok:
+        null["note"] = run.message
         return [null], [f"{NAME}: spring run: {run.message}; not fitted"], None
     null.update(amplitude_mm=run.amplitude_m * 1e3, frequency_hz=run.frequency_hz)
     return [null], [], run
@@ -190,8 +210,10 @@ def _pressure_step(run_id, path, params):
     if miss:
         return [], [f"{NAME}: pressure_step run lacks {', '.join(miss)}; no steps"], None
     df = df.dropna()
-    steps = pdyn.split_pressure_steps(df["t_s"].to_numpy(), df["p_pa"].to_numpy(), df["p_ref_pa"].to_numpy(),
-                                      run_id, chamber or "")
+    p, p_ref = df["p_pa"].to_numpy(), df["p_ref_pa"].to_numpy()
+    steps = pdyn.split_pressure_steps(df["t_s"].to_numpy(), p, p_ref, run_id, chamber or "",
+                                      ref_sensor=sensor_from_params(params, "p_ref", p_ref),
+                                      p_sensor=sensor_from_params(params, "p", p))
     if not steps:
         return [], [f"{NAME}: no set-point step found in the pressure_step run"], None
     if chamber is None:
@@ -231,7 +253,7 @@ def _frame(rows, cols, ints=(), bools=()) -> pd.DataFrame:
     for c in bools:
         df[c] = df[c].astype("boolean")
     for c in cols:
-        if c not in ints and c not in bools and c not in ("run_id", "chamber", "direction"):
+        if c not in ints and c not in bools and c not in TEXT_COLS:
             df[c] = pd.to_numeric(df[c], errors="coerce").astype("float64")
     return df
 
@@ -289,7 +311,8 @@ def _spring_outputs(ctx, out, results):
         fit = fits[chamber]
         if not fit.ok:
             for p in group:
-                out.warn(p.run_id, f"{NAME}: spring fit of the {chamber} chamber failed: {fit.message}")
+                out.warn(p.run_id, f"{NAME}: spring fit of the {chamber} chamber not reported: "
+                                   f"{fit.note or fit.message}")
         elif fit.message:
             for p in group:
                 out.warn(p.run_id, f"{NAME}: spring fit of the {chamber} chamber: {fit.message}")
@@ -297,10 +320,12 @@ def _spring_outputs(ctx, out, results):
         nr = [v for v in fit.nrmse_pct.values() if np.isfinite(v)]
         fit_rows.append({"chamber": chamber, "n_polytropic": fit.n_polytropic, "ae_m2": fit.ae_m2,
                          "epsilon_m2": fit.epsilon_m2, "delta_n_m": fit.delta_n_m, "n_tests": fit.n_tests,
-                         "max_nrmse_pct": max(nr) if nr else None,
+                         "max_nrmse_pct": max(nr) if nr else None, "note": fit.note,
                          **{f"seed_{k}": seeds.get(k) for k in ("n_polytropic", "ae_m2", "epsilon_m2", "delta_n_m")}})
         for p in group:
             rows[p.run_id]["nrmse_pct"] = _nan(fit.nrmse_pct.get(p.run_id))
+            rows[p.run_id]["note"] = fit.test_notes.get(p.run_id) or (
+                None if fit.ok else f"the {chamber} chamber's fit is not reported: {fit.note or fit.message}")
             model_u = spring.model_loop_energy(p, fit) if fit.ok else float("nan")
             energy.append({"run_id": p.run_id, "chamber": chamber, "p0_bar_abs": p.p0_abs / 1e5,
                            "amplitude_mm": p.amplitude_m * 1e3, "frequency_hz": p.frequency_hz,
@@ -332,16 +357,18 @@ def _pressure_outputs(ctx, out, results):
     fit_by = {(f.chamber, f.direction): f for f in fits}
     rows, step_rows = [], []
     for c, d, group in groups:
-        f = fit_by.get((c, d)) or pdyn.PressureFit(c, d, message="no steps")
+        f = fit_by.get((c, d)) or pdyn.PressureFit(c, d, message="no steps", note=f"no {d} step in the runs")
         if group and not f.ok:
             for rid in sorted({s.run_id for s in group}):
-                out.warn(rid, f"{NAME}: pressure dynamics fit ({c}, {d}) failed: {f.message}")
-        rows.append({"chamber": c, "direction": d, "wn_rad_s": f.wn_rad_s, "zeta": f.zeta,
-                     "nrmse_pct": _nan(f.nrmse_pct), "n_steps": len(group)})
+                out.warn(rid, f"{NAME}: pressure dynamics ({c}, {d}) not reported: {f.note or f.message}")
+        rows.append({"chamber": c, "direction": d, "wn_rad_s": _nan(f.wn_rad_s), "zeta": _nan(f.zeta),
+                     "nrmse_pct": _nan(f.nrmse_pct), "n_steps": f.n_steps, "tau_s": _nan(f.tau_s),
+                     "model": f.model, "note": f.note})
         for s, nr in zip(group, f.step_nrmse_pct or [None] * len(group)):
+            note = s.note or (None if f.ok else f"the ({c}, {d}) fit is not reported")
             step_rows.append({"run_id": s.run_id, "chamber": c, "direction": d, "t_step_s": s.t_step_s,
                               "p_from_bar": s.p_ref_before_pa / 1e5, "p_to_bar": s.p_ref_pa / 1e5,
-                              "nrmse_pct": _nan(nr)})
+                              "nrmse_pct": _nan(nr), "p_start_bar": s.p_start_pa / 1e5, "note": note})
     out.tables["pressure_dynamics"] = _frame(rows, PD_COLS, ints=("n_steps",))
     out.tables["pressure_steps"] = _frame(sorted(step_rows, key=lambda r: (r["run_id"], r["t_step_s"])), PSTEP_COLS)
     for c in chambers:
@@ -349,5 +376,6 @@ def _pressure_outputs(ctx, out, results):
         if any(f.ok for f in cf.values()):
             name = f"pressure_steps_{c}"
             out.figures[name] = pdyn.plot_pressure_steps([s for s in steps if s.chamber == c], cf)
-            out.captions[name] = (f"PLA {c} chamber: pressure after set-point steps, measured vs the second-order "
-                                  "model of Eq. 11 (seed 001, Fig. 14, Table 2).")
+            out.captions[name] = (f"PLA {c} chamber: pressure (bar gauge) after set-point steps, measured vs the "
+                                  "model chosen per direction by BIC: first order or the second order of Eq. 11 "
+                                  "(seed 001, Fig. 14, Table 2). Grey: steps too small for the pressure sensor.")

@@ -10,7 +10,9 @@ CREATE TABLE identification (
     fit_pct           DOUBLE,
     kp_v_m            DOUBLE,              -- gain of the stabilising P controller (metadata)
     id_sample_rate_hz DOUBLE,              -- rate the model was identified at
-    n_samples_id      BIGINT               -- samples at that rate
+    n_samples_id      BIGINT,              -- samples at that rate
+    note              VARCHAR              -- NULL when sound, else why wn/zeta/k are NULL (no excitation,
+                                           -- a parameter at a bound, not identifiable, fit_pct too low)
 );
 
 CREATE TABLE step_response (
@@ -21,7 +23,9 @@ CREATE TABLE step_response (
     rise_time_s            DOUBLE,         -- 10-90 %
     steady_state_error_mm  DOUBLE,         -- signed in the step direction (+: short of the reference)
     t_step_s               DOUBLE,         -- time of the reference jump in the run
-    settled                BOOLEAN         -- inside the 2 % band over the last 10 % of the step
+    settled                BOOLEAN,        -- inside the 2 % band over the last 10 % of the step
+    note                   VARCHAR         -- NULL when sound, else why metrics are NULL (step under the
+                                           -- position sensor floor, 2 % band finer than it, not settled)
 );
 
 CREATE TABLE spring_fits (
@@ -35,7 +39,9 @@ CREATE TABLE spring_fits (
     seed_n_polytropic DOUBLE,              -- seeds of the fit (section 3.2 of seed 001)
     seed_ae_m2        DOUBLE,
     seed_epsilon_m2   DOUBLE,
-    seed_delta_n_m    DOUBLE
+    seed_delta_n_m    DOUBLE,
+    note              VARCHAR              -- NULL when sound, else why the parameters are NULL (a parameter at
+                                           -- a bound, not identifiable, RMS of the tests' NRMSE over 2.5 %)
 );
 
 CREATE TABLE spring_tests (
@@ -44,7 +50,9 @@ CREATE TABLE spring_tests (
     p0_bar_abs        DOUBLE,              -- read from the run: pressure at mid-stroke
     amplitude_mm      DOUBLE,
     frequency_hz      DOUBLE,
-    nrmse_pct         DOUBLE
+    nrmse_pct         DOUBLE,              -- kept when the chamber's parameters are NULL (the evidence)
+    note              VARCHAR              -- NULL when sound; NRMSE over 2.5 % and residuals over the load
+                                           -- cell noise, the chamber's fit not reported, or why not fitted
 );
 
 -- Energy dissipated per cycle (loop area) of each spring run: the paper's evidence for
@@ -61,22 +69,31 @@ CREATE TABLE spring_loop_energy (
     structural_energy_j DOUBLE             -- pi delta D^2 of the fit
 );
 
+-- Per (chamber, direction): first order (tau_s) or second order (wn_rad_s, zeta; Eq. 11), the
+-- one with the lower BIC among the fits that pass the quality gates (the second order by > 6).
+-- The other model's columns are NULL; all are NULL with a note when neither passes.
 CREATE TABLE pressure_dynamics (
     chamber           VARCHAR,
     direction         VARCHAR,             -- charge / discharge
-    wn_rad_s          DOUBLE,
-    zeta              DOUBLE,
-    nrmse_pct         DOUBLE,
-    n_steps           BIGINT
+    wn_rad_s          DOUBLE,              -- second order only
+    zeta              DOUBLE,              -- second order only; never at an optimiser bound
+    nrmse_pct         DOUBLE,              -- of the chosen model over the fitted steps' pressure
+    n_steps           BIGINT,              -- steps fitted (large enough for the pressure sensor)
+    tau_s             DOUBLE,              -- first order only: time constant
+    model             VARCHAR,             -- first_order / second_order; NULL when none is reported
+    note              VARCHAR              -- NULL when sound, else why the parameters are NULL
 );
 
 -- One row per set-point step of a pressure_step run, with the NRMSE of its (chamber, direction) fit.
+-- Pressures in bar GAUGE (as the pressure_steps figure's axis).
 CREATE TABLE pressure_steps (
     run_id            VARCHAR NOT NULL,
     chamber           VARCHAR,
     direction         VARCHAR,             -- charge / discharge
     t_step_s          DOUBLE,
-    p_from_bar        DOUBLE,              -- set-point before the step, gauge
-    p_to_bar          DOUBLE,              -- set-point after the step, gauge
-    nrmse_pct         DOUBLE               -- over this step's own pressure range
+    p_from_bar        DOUBLE,              -- set-point before the step, bar gauge
+    p_to_bar          DOUBLE,              -- set-point after the step, bar gauge
+    nrmse_pct         DOUBLE,              -- over this step's own pressure range; NULL when not fitted
+    p_start_bar       DOUBLE,              -- measured pressure at the step, bar gauge
+    note              VARCHAR              -- why the step is not fitted (under the pressure sensor floor) or NULL
 );

@@ -6,7 +6,8 @@
 CREATE TABLE durability_runs (
     run_id            VARCHAR NOT NULL,
     hose_id           VARCHAR,
-    distance_km       DOUBLE,              -- NULL when the run could not be analysed (see runs.warnings)
+    distance_km       DOUBLE,              -- NULL when the run could not be analysed or its strokes are not
+                                           -- detectable (note; see runs.warnings)
     strokes           BIGINT,
     duration_h        DOUBLE,
     campaign          VARCHAR,
@@ -16,7 +17,8 @@ CREATE TABLE durability_runs (
     mean_stroke_mm    DOUBLE,
     dp_friction_bar   DOUBLE,              -- mean over strokes of direction * mean(p_a - p_b)
     friction_n        DOUBLE,              -- dp_friction_bar * hose_area_m2, when the run gives the area
-    deadband_mm       DOUBLE               -- reversal deadband used
+    deadband_mm       DOUBLE,              -- reversal deadband used: 20 x the position sensor floor
+    note              VARCHAR              -- NULL when sound, else why distance/strokes are NULL
 );
 
 -- One row per stroke of a durability run: the trend of friction and speed over a hose's life.
@@ -72,7 +74,9 @@ CREATE TABLE service_life (
     confidence        DOUBLE,
     n_suspended       BIGINT,              -- removed + running hoses
     b10_method        VARCHAR,             -- how the bounds were computed
-    loglik            DOUBLE               -- log-likelihood at the Weibull MLE
+    loglik            DOUBLE,              -- log-likelihood at the Weibull MLE
+    note              VARCHAR              -- NULL when sound, else why the Weibull columns are NULL
+                                           -- (fewer than two failures, shape MLE at the search bound)
 );
 
 -- Kaplan-Meier survival per (hose_type, adjustment): one row per distinct hose distance.

@@ -143,3 +143,24 @@ def test_missing_pressure_samples_are_left_out_of_the_stroke_means():
     assert st["dp_mean_pa"].tolist() == [2.0, -2.0]          # (1 + 3) / 2 and (-1 - 3) / 2
     assert st["n_samples"].tolist() == [3, 3]
     assert durability_summary(t, x).stroke_table["dp_mean_pa"].isna().all()
+
+
+def test_deadband_is_twenty_sensor_floors():
+    from analyses.durability import stroke_deadband
+    from analyses.quality import Sensor
+
+    assert stroke_deadband(Sensor(5e-6, 1e-6)) == pytest.approx(1e-4)        # the bench's encoder: 0.1 mm
+    assert stroke_deadband(Sensor(1e-6, 20e-6)) == pytest.approx(4e-4)       # an analog sensor: its noise
+    assert stroke_deadband(Sensor(0.0, 0.0), x_scale_m=0.5) == pytest.approx(5e-10)
+
+
+def test_strokes_note_when_the_deadband_is_near_the_stroke():
+    from analyses.durability import strokes_note
+
+    t = np.arange(0, 20, 0.001)
+    x = 0.002 * np.sign(np.sin(2 * np.pi * 0.5 * t)) * np.minimum(1, np.abs(np.sin(2 * np.pi * 0.5 * t)) * 5)
+    s = durability_summary(t, x, deadband_m=1e-4)
+    assert s.strokes > 10 and strokes_note(s, 1e-4) is None                 # 4 mm strokes, 0.1 mm deadband
+    assert "strokes not detectable" in strokes_note(s, 1.5e-3)              # over a quarter of 4 mm
+    still = durability_summary(t, np.zeros_like(t), deadband_m=1e-4)
+    assert still.strokes == 0 and strokes_note(still, 1e-4) is None         # nothing to tell apart

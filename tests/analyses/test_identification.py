@@ -4,8 +4,9 @@ import pytest
 from matplotlib.figure import Figure
 from scipy import signal
 
-from analyses.identification import (decimate_for_identification, fit_percent, identify_third_order,
+from analyses.identification import (FIT_MIN_PCT, decimate_for_identification, fit_percent, identify_third_order,
                                      plot_identification, plpa_closed_loop_ss, simulate_closed_loop)
+from analyses.quality import Sensor
 from pipeline.simulator.plpa import simulate_identification
 
 TRUTH = dict(wn=16.7, zeta=0.51, k=0.82)
@@ -149,6 +150,7 @@ def test_no_excitation_or_too_short_gives_nan_and_a_reason():
     t = np.arange(50000) / 5000
     res = identify_third_order(t, np.full_like(t, 0.3), np.zeros_like(t), np.full_like(t, 0.3), 5.0)
     assert not res.ok and np.isnan(res.wn_rad_s) and "no excitation" in res.message
+    assert res.note == res.message
     short = identify_third_order(t[:500], np.zeros(500), np.ones(500), np.zeros(500), 5.0)
     assert not short.ok and "too short" in short.message
     nokp = identify_third_order(t, np.zeros_like(t), np.ones_like(t), np.zeros_like(t), float("nan"))
@@ -164,3 +166,30 @@ def test_figure_shows_measured_and_model():
     lines = fig.axes[0].get_lines()
     assert len(lines) == 2
     np.testing.assert_allclose(lines[1].get_ydata(), res.x_model_m * 1e3)
+
+
+def test_excitation_under_the_sensor_floor_is_no_excitation():
+    # u_d of 1 uV rms on a 5 um encoder that never leaves its count: nothing to identify from
+    t = np.arange(50000) / 5000
+    ud = np.random.default_rng(0).normal(0, 1e-6, t.size)
+    res = identify_third_order(t, np.full_like(t, 0.3), ud, np.full_like(t, 0.3), 5.0,
+                               x_sensor=Sensor(5e-6, 0.0), ud_sensor=Sensor(1e-6, 1e-6))
+    assert not res.ok and "no excitation" in res.note and "sensor's floor" in res.note
+
+
+def test_identification_rate_too_slow_for_the_plant_is_null_with_a_note():
+    # a 400 rad/s plant identified at 5 Hz: the model misses the data; parameters NULL, fit kept as evidence
+    run = simulate_identification(7, duration_s=20.0, wn=400.0, zeta=0.5, k=0.82)
+    d = run.data
+    res = identify_third_order(d["t_s"], d["x_m"], d["u_d_v"], d["x_ref_m"], 5.0, 5.0)
+    assert not res.ok and np.isnan([res.wn_rad_s, res.zeta, res.k_lin_m_v_s]).all()
+    assert res.note and ("misses the data" in res.note or "bound" in res.note or "identifiable" in res.note)
+    assert np.isfinite(res.fit_pct) and res.fit_pct < FIT_MIN_PCT
+
+
+def test_sound_identification_has_no_note_and_small_standard_errors():
+    run = simulate_identification(1, duration_s=20.0)
+    d = run.data
+    res = identify_third_order(d["t_s"], d["x_m"], d["u_d_v"], d["x_ref_m"], 5.0, 50.0)
+    assert res.ok and res.note is None
+    assert (res.se < 0.01 * np.array([res.wn_rad_s, res.zeta, res.k_lin_m_v_s])).all()

@@ -7,7 +7,9 @@ import pandas as pd
 import pytest
 from matplotlib.figure import Figure
 
-from analyses.pla_spring import (fit_spring_chamber, loop_energy, model_loop_energy, nrmse_percent,
+from analyses.quality import Sensor
+from analyses.quality import nrmse_pct as nrmse_percent
+from analyses.pla_spring import (fit_spring_chamber, loop_energy, model_loop_energy,
                                  plot_loop_energy, plot_spring_loops, prepare_spring_run, read_p0, spring_force,
                                  spring_pressure)
 from pipeline.simulator import simulate_spring
@@ -163,3 +165,44 @@ def test_figures():
         box = legend.get_window_extent(renderer)
         assert not box.overlaps(ax.get_window_extent(renderer))
         assert all(not box.overlaps(other.get_window_extent(renderer)) for other in fig.axes)
+
+
+SMALL_GRID = [(p0, a, 1.0) for p0 in (2.0, 4.0) for a in (3.0, 7.0)]
+
+
+def test_sound_fit_has_no_note_and_small_standard_errors():
+    runs, truth = _prepared("rear", SMALL_GRID)
+    fit = fit_spring_chamber(runs)
+    assert fit.ok and fit.note is None and fit.test_notes == {}
+    for k, v in zip(("n_polytropic", "ae_m2", "epsilon_m2", "delta_n_m"), fit.params):
+        assert fit.se[k] < 0.1 * v
+    assert all(r.f_noise_n == pytest.approx(2.0, rel=0.1) for r in runs)   # the load cell's 2 N, estimated
+
+
+def test_parameter_at_a_bound_is_null_with_a_note():
+    # friction that helps the motion (eps < 0) is outside the model: eps runs to its lower bound 0
+    runs, _ = _prepared("rear", SMALL_GRID, params={"eps_m2": -2e-5})
+    fit = fit_spring_chamber(runs)
+    assert not fit.ok and np.isnan(fit.params).all()
+    assert "epsilon_m2 ran to the optimiser's lower bound" in fit.note
+    assert all(np.isfinite(v) for v in fit.nrmse_pct.values())     # the evidence is kept
+
+
+def test_model_that_misses_the_data_is_null_and_each_test_says_so():
+    # rear-chamber runs labelled front: the polytropic term bends the wrong way
+    runs = []
+    for i, (p0, amp, freq) in enumerate(SMALL_GRID):
+        d = simulate_spring("rear", p0, amp, freq, rng=i).data
+        runs.append(prepare_spring_run(f"x-{i}", d["t_s"], d["d_m"], d["f_n"], d["p_pa"], "front", freq, amp / 1e3))
+    fit = fit_spring_chamber(runs)
+    assert not fit.ok and fit.note
+    assert set(fit.test_notes) == {r.run_id for r in runs}
+    assert all("model misses the data" in n for n in fit.test_notes.values())
+
+
+def test_motion_judged_against_the_displacement_sensor():
+    t = np.linspace(0, 3, 3000)
+    dither = np.round(np.random.default_rng(0).normal(0, 0.4e-6, t.size) / 1e-6) * 1e-6   # LVDT counts only
+    still = prepare_spring_run("s", t, dither, np.ones_like(t), np.full_like(t, 2e5), "rear", 1.0, 0.005,
+                               d_sensor=Sensor(1e-6, 0.5e-6))
+    assert not still.ok and "no displacement" in still.message

@@ -6,8 +6,9 @@ import pytest
 from matplotlib.figure import Figure
 from scipy import signal
 
-from analyses.pressure_dynamics import (fit_pressure_dynamics, plot_pressure_steps, second_order_step,
-                                        split_pressure_steps)
+from analyses.pressure_dynamics import (ZETA_BOUNDS, first_order_step, fit_pressure_dynamics, plot_pressure_steps,
+                                        second_order_step, split_pressure_steps, step_threshold)
+from analyses.quality import Sensor, sensor_from_params
 from pipeline.simulator import simulate_pressure_step
 
 
@@ -57,6 +58,7 @@ def test_recovers_wn_and_xi_per_direction(chamber, wn, xi):
         assert fit.zeta == pytest.approx(xi[direction], rel=0.05)
         assert fit.nrmse_pct < 1.0
         assert len(fit.step_nrmse_pct) == fit.n_steps
+        assert fit.model == "second_order" and math.isnan(fit.tau_s) and fit.note is None
     assert isinstance(plot_pressure_steps(steps, fits), Figure)
 
 
@@ -73,3 +75,112 @@ def test_wrong_model_has_a_larger_nrmse():
 def test_no_steps_gives_nan():
     fit = fit_pressure_dynamics([], "rear", "charge")
     assert not fit.ok and math.isnan(fit.wn_rad_s) and fit.n_steps == 0
+
+
+# -- first-order responses under closed-loop set-point sweeps (the real rigs' case) ----------------
+#: A closed-loop sweep of 5 and 10 kPa set-point steps around 1 bar gauge. [bar]
+SWEEP = (1.0, 1.05, 1.15, 1.10, 1.0, 1.10, 1.15, 1.05, 1.0, 1.1, 1.2, 1.15, 1.05)
+TAU = {"charge": 0.25, "discharge": 0.4}
+
+
+def _fits(run, params=None):
+    d = run.data
+    steps = split_pressure_steps(d["t_s"], d["p_pa"], d["p_ref_pa"], "r", "rear",
+                                 ref_sensor=sensor_from_params(params, "p_ref", d["p_ref_pa"]),
+                                 p_sensor=sensor_from_params(params, "p", d["p_pa"]))
+    return steps, {dr: fit_pressure_dynamics([s for s in steps if s.direction == dr]) for dr in ("charge", "discharge")}
+
+
+@pytest.mark.parametrize("fs_hz", [20.0, 1000.0])
+def test_first_order_sweep_with_5_and_10_kpa_steps(fs_hz):
+    run = simulate_pressure_step("rear", rng=1, levels_bar=SWEEP, hold_s=3.0, fs_hz=fs_hz, tau_s=TAU)
+    steps, fits = _fits(run)
+    truth = run.truth["steps"]
+    # every step is found, the 5 kPa ones included, at the right time and size
+    assert [round(s.p_ref_pa - s.p_ref_before_pa) for s in steps] == [round(s["p_to_pa"] - s["p_from_pa"])
+                                                                       for s in truth]
+    assert sorted({abs(round(s.p_ref_pa - s.p_ref_before_pa)) for s in steps}) == [5000, 10000]
+    assert [s.t_step_s for s in steps] == pytest.approx([s["t_step_s"] for s in truth])
+    assert all(s.usable for s in steps)
+    for direction, fit in fits.items():
+        assert fit.model == "first_order", fit
+        assert fit.tau_s == pytest.approx(TAU[direction], rel=0.05)   # stated tolerance: 5 %
+        assert math.isnan(fit.zeta) and math.isnan(fit.wn_rad_s)       # no zeta, at a bound or not
+        assert fit.note is None and fit.n_steps == 6
+        assert fit.bic["first_order"] < fit.bic["second_order"] + 6.0
+    assert isinstance(plot_pressure_steps(steps, fits), Figure)
+
+
+def test_overdamped_second_order_fit_at_its_bound_is_reported_first_order():
+    # 1 kHz first-order data: the second-order fit runs to zeta = 50 (the real rig's discharge)
+    run = simulate_pressure_step("rear", rng=3, levels_bar=SWEEP, hold_s=3.0, fs_hz=1000.0, tau_s=0.3)
+    _, fits = _fits(run)
+    for fit in fits.values():
+        assert fit.model == "first_order" and fit.tau_s == pytest.approx(0.3, rel=0.03)
+        assert not (fit.zeta == pytest.approx(ZETA_BOUNDS[1]))
+
+
+def test_noisy_read_back_set_point_with_stated_sensors():
+    run = simulate_pressure_step("rear", rng=5, levels_bar=SWEEP, hold_s=3.0, fs_hz=20.0, tau_s=0.3, ref_noise_pa=200.0)
+    params = {"sensor_p_ref_noise": 200.0, "sensor_p_ref_resolution": 1.0, "sensor_p_noise": 300.0}
+    steps, fits = _fits(run, params)
+    assert len(steps) == len(run.truth["steps"]) == 12
+    for fit in fits.values():
+        assert fit.model == "first_order" and fit.tau_s == pytest.approx(0.3, rel=0.05)
+
+
+def test_second_order_sampled_too_slowly_is_not_claimed():
+    # wn = 52 rad/s, xi = 1 sampled at 20 Hz: the data cannot tell it from a first-order lag
+    run = simulate_pressure_step("rear", rng=2, levels_bar=SWEEP, hold_s=3.0, fs_hz=20.0)
+    _, fits = _fits(run)
+    for fit in fits.values():
+        assert fit.model == "first_order" or fit.model is None
+        assert math.isnan(fit.zeta)
+
+
+def test_response_faster_than_the_sampling_is_null_with_a_note():
+    run = simulate_pressure_step("rear", rng=3, levels_bar=SWEEP, hold_s=3.0, fs_hz=20.0, tau_s=0.001)
+    _, fits = _fits(run)
+    fit = fits["discharge"]
+    assert not fit.ok and fit.model is None and math.isnan(fit.tau_s) and math.isnan(fit.zeta)
+    assert "not identifiable" in fit.note or "bound" in fit.note
+
+
+def test_steps_under_the_pressure_sensor_floor_are_listed_not_fitted():
+    # 0.5 and 1 kPa set-point steps, 300 Pa pressure noise: found on the clean set-point, not fittable
+    run = simulate_pressure_step("rear", rng=1, levels_bar=(1.0, 1.005, 1.015, 1.01, 1.0), hold_s=3.0, fs_hz=20.0,
+                                 tau_s=0.3)
+    steps, fits = _fits(run, {"sensor_p_noise": 300.0})
+    assert len(steps) == 4 and not any(s.usable for s in steps)
+    assert all("under 5 x the pressure sensor floor (300 Pa)" in s.note for s in steps)
+    for fit in fits.values():
+        assert not fit.ok and fit.n_steps == 0 and "no step large enough" in fit.note
+        assert all(math.isnan(v) for v in fit.step_nrmse_pct) and len(fit.step_nrmse_pct) == 2
+
+
+def test_step_threshold_from_the_set_point_sensor():
+    r = np.repeat([1e5, 1.05e5, 1.15e5], 50)
+    # a quantised, noise-free set-point: one count is a change (5 kPa steps with a 5 kPa count)
+    jump, level = step_threshold(r, Sensor(resolution=5000.0, noise=0.0))
+    assert jump == level == pytest.approx(4995.0)
+    assert len(split_pressure_steps(np.arange(r.size) * 0.05, r, r, ref_sensor=Sensor(5000.0, 0.0))) == 2
+    # a noisy read-back: 5 sigma of a difference (sqrt 2 sigma) for a jump, 5 sigma for a level
+    jump, level = step_threshold(r, Sensor(resolution=1.0, noise=100.0))
+    assert jump == pytest.approx(500 * math.sqrt(2)) and level == pytest.approx(500.0)
+    # nothing stated, a clean set-point: any change beyond float round-off
+    jump, _ = step_threshold(r)
+    assert jump < 1.0
+
+
+def test_noise_spike_on_the_set_point_is_not_a_step():
+    t = np.arange(300) * 0.05
+    r = np.where(t < 7.5, 1e5, 1.05e5)
+    r[50] += 3000.0        # one glitch, back the next sample
+    p = first_order_step(t - 7.5, 1e5, 1.05e5, 0.2) * (t >= 7.5) + 1e5 * (t < 7.5)
+    steps = split_pressure_steps(t, p, r, p_sensor=Sensor(1.0, 100.0), ref_sensor=Sensor(1.0, 100.0))
+    assert [(s.t_step_s, s.direction) for s in steps] == [(pytest.approx(7.5), "charge")]
+
+
+def test_first_order_step_hand_values():
+    assert first_order_step(0.2, 1e5, 2e5, 0.2) == pytest.approx(2e5 - 1e5 / math.e)
+    assert first_order_step(0.0, 1e5, 2e5, 0.2) == pytest.approx(1e5)

@@ -2,8 +2,9 @@
 import numpy as np
 import pytest
 
-from analyses.quality import (Gate, at_bound, describe_sensor, linear_lstsq, noise_std, nrmse_pct,
-                              quantisation_step, scaled_condition, sensor_from_params)
+from analyses.quality import (Gate, Sensor, at_bound, describe_sensor, describe_sensor_at_rest, linear_lstsq, noise_std, nrmse_pct,
+                              quantisation_step, scaled_condition, sensor_from_params, setpoint_jumps,
+                              setpoint_thresholds)
 
 
 def _motion(n=20_000, fs=1000.0):
@@ -112,3 +113,37 @@ def test_gate_bound_nrmse_physical_and_points():
     assert "too few points: 2 < 5" == Gate().enough_points(2, 5).note
     g = Gate().physical("mass_kg", 2.0, lo=0)
     assert g.ok and g.apply({"mass_kg": 2.0}, ("mass_kg",)) == {"mass_kg": 2.0, "note": None}
+
+
+def test_setpoint_thresholds_from_resolution_and_noise():
+    r = np.repeat([0.0, 5000.0, 15000.0], 40)
+    assert setpoint_thresholds(r, Sensor(5000.0, 0.0)) == pytest.approx((4995.0, 4995.0))
+    assert setpoint_thresholds(r, Sensor(1.0, 100.0)) == pytest.approx((500 * np.sqrt(2), 500.0))
+    assert setpoint_thresholds(r, Sensor(0.0, 0.0))[0] == pytest.approx(15000.0 * 1e-9)
+
+
+def test_setpoint_jumps_merge_glitches_and_ramps():
+    r = np.repeat([0.0, 5.0, 15.0], 40)
+    assert setpoint_jumps(r, 0.5, 0.5, 5) == [40, 80]
+    glitch = np.zeros(100)
+    glitch[30] = 3.0                          # one sample off and back: no step
+    assert setpoint_jumps(glitch, 0.5, 0.5, 5) == []
+    ramp = np.concatenate([np.zeros(40), [1.0, 2.0, 3.0], np.full(40, 4.0)])
+    assert setpoint_jumps(ramp, 0.5, 0.5, 5) == [40]   # the step starts where the ramp starts
+    assert setpoint_jumps([1.0], 0.5, 0.5) == []
+
+
+def test_sensor_at_rest_ignores_motion_the_sampling_does_not_resolve():
+    # 1 m strokes logged at 5 Hz with dwells, 5 um encoder with 3 um jitter: the differences are the motion
+    rng = np.random.default_rng(0)
+    one = np.concatenate([np.full(6, 0.1), np.linspace(0.1, 1.1, 6)[1:-1], np.full(6, 1.1),
+                          np.linspace(1.1, 0.1, 6)[1:-1]])
+    x = np.round((np.tile(one, 200) + rng.normal(0, 3e-6, one.size * 200)) / 5e-6) * 5e-6
+    at_rest = describe_sensor_at_rest(x)
+    assert at_rest.resolution == pytest.approx(5e-6, rel=1e-3) and at_rest.floor() == pytest.approx(5e-6, rel=1e-3)
+    assert describe_sensor(x).floor() > 100 * at_rest.floor()              # fooled by the motion
+    stated = describe_sensor_at_rest(x, resolution=1e-5, noise=2e-6)
+    assert (stated.resolution, stated.noise, stated.source) == (1e-5, 2e-6, "metadata")
+    # analog noise at rest between slow moves: the noise is measured
+    y = np.repeat([0.0, 0.05, 0.0, 0.05], 2000) + rng.normal(0, 20e-6, 8000)
+    assert describe_sensor_at_rest(y).noise == pytest.approx(20e-6, rel=0.1)

@@ -179,3 +179,20 @@ def test_leak_growth_keeps_a_series_lying_on_another_visible():
     legend = (fig.legends + [ax.get_legend()])[0]
     assert [t.get_text() for t in legend.get_texts()] == ["H102 (force)", "H106 (force)"]
     assert not legend.get_window_extent(renderer).overlaps(ax.get_window_extent(renderer))
+
+
+@pytest.mark.parametrize("life,failed", [([10.0, 10.0, 10.0], [True, True, True]),          # one distance
+                                         ([1.0, 2.0, 10.0, 10.0], [False, False, True, True]),
+                                         ([10.0, 10.00001, 10.00002], [True, True, True])])
+def test_shape_mle_at_the_search_bound_is_null_with_a_note(life, failed):
+    fit = weibull_fit(life, failed)
+    assert not fit.ok and math.isnan(fit.shape) and math.isnan(fit.scale)
+    assert "bound" in fit.note and "cannot tell a shape" in fit.note
+    r = b10(life, failed)
+    assert math.isnan(r["b10"]) and r["note"] == fit.note
+
+
+def test_too_few_failures_and_a_sound_fit_say_so():
+    assert weibull_fit([10.0, 20.0, 30.0], [True, False, False]).note == "too few failures: 1 < 2"
+    fit = weibull_fit([5.0, 10.0, 20.0, 30.0], [True, True, True, False])
+    assert fit.ok and fit.note is None and b10([5.0, 10.0, 20.0, 30.0], [True, True, True, False])["note"] is None

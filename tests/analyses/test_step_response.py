@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 from matplotlib.figure import Figure
 
+from analyses.quality import Sensor
 from analyses.step_response import find_steps, plot_step_errors, step_metrics, step_response_metrics
 from pipeline.simulator.plpa import simulate_step
 
@@ -90,3 +91,45 @@ def test_figure_is_error_in_percent_of_the_step():
     fig = plot_step_errors([{"t": t, "error_pct": 100 * np.exp(-t), "label": "a"}])
     assert isinstance(fig, Figure)
     np.testing.assert_allclose(fig.axes[0].get_lines()[0].get_ydata(), 100 * np.exp(-t))
+
+
+def test_steps_found_from_the_reference_sensor_not_a_fixed_length():
+    # 50 um reference steps (under the old fixed 0.1 mm) on a 1 um reference: found
+    t = np.arange(0, 3, 0.001)
+    r = np.round(np.where(t < 1, 0.2, np.where(t < 2, 0.20005, 0.2)) / 1e-6) * 1e-6
+    steps = find_steps(t, r, sensor=Sensor(1e-6, 0.0))
+    assert [(i0, i1) for i0, i1, _, _ in steps] == [(1000, 2000), (2000, 3000)]
+    # a noisy read-back reference (10 um sigma): 50 um steps are 5 sigma levels, still found; noise is not
+    rng = np.random.default_rng(0)
+    noisy = np.where(t < 1, 0.2, 0.2002) + rng.normal(0, 10e-6, t.size)
+    assert [s[0] for s in find_steps(t, noisy, sensor=Sensor(0.0, 10e-6))] == [1000]
+    assert find_steps(t, 0.2 + rng.normal(0, 10e-6, t.size), sensor=Sensor(0.0, 10e-6)) == []
+
+
+def test_step_under_the_encoder_floor_gives_no_metrics_and_a_note():
+    t = np.arange(0, 4, 0.001)
+    r = np.where(t < 1, 0.2, 0.20001)                         # a 10 um step on a 5 um encoder
+    x = np.round((0.2 + 1e-5 * (t >= 1) * (1 - np.exp(-(t - 1) / 0.2))) / 5e-6) * 5e-6
+    m = step_response_metrics(t, x, r, x_sensor=Sensor(5e-6, 0.0), ref_sensor=Sensor(1e-6, 0.0))
+    assert len(m) == 1 and "under 5 x the position sensor floor" in m["note"][0]
+    assert m[["overshoot_pct", "settling_time_s", "rise_time_s", "steady_state_error_mm"]].isna().all(axis=None)
+
+
+def test_band_finer_than_the_encoder_gives_no_settling_time():
+    t = np.arange(0, 4, 0.001)
+    r = np.where(t < 1, 0.2, 0.2002)                          # 0.2 mm step: 2 % band = 4 um < 5 um encoder
+    x = np.round((0.2 + 2e-4 * (t >= 1) * (1 - np.exp(-np.clip(t - 1, 0, None) / 0.2))) / 5e-6) * 5e-6
+    m = step_response_metrics(t, x, r, x_sensor=Sensor(5e-6, 0.0), ref_sensor=Sensor(1e-6, 0.0))
+    assert len(m) == 1 and "finer than the position sensor floor" in m["note"][0]
+    assert np.isnan(m["settling_time_s"][0]) and np.isnan(m["overshoot_pct"][0])
+    assert m["rise_time_s"][0] == pytest.approx(0.2 * np.log(9), rel=0.1)
+
+
+def test_unsettled_step_has_a_note(sim_step):
+    d = sim_step.data
+    cut = d[d["t_s"] < 2.0]                                   # the record ends 1 s after the 20 mm step
+    m = step_response_metrics(cut["t_s"], cut["x_m"], cut["x_ref_m"])
+    assert len(m) == 1 and not m["settled"][0] and np.isnan(m["settling_time_s"][0])
+    assert "did not settle" in m["note"][0]
+    full = step_response_metrics(d["t_s"], d["x_m"], d["x_ref_m"])
+    assert full["note"].isna().all()

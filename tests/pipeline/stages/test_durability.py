@@ -34,8 +34,8 @@ class Bench:
         self.rows = []
         self.truth = {}
 
-    def durability(self, run_id, campaign, started_at, hose_id, distance_m, seed, **kw):
-        sim = simulate_durability(hose_id=hose_id, distance_m=distance_m, rng=seed, stroke_m=0.25, dwell_s=0.1, **kw)
+    def durability(self, run_id, campaign, started_at, hose_id, distance_m, seed, stroke_m=0.25, **kw):
+        sim = simulate_durability(hose_id=hose_id, distance_m=distance_m, rng=seed, stroke_m=stroke_m, dwell_s=0.1, **kw)
         self.truth[run_id] = sim.truth
         self._write(run_id, "durability", campaign, started_at, {**sim.metadata, "hose_id": hose_id}, noisy(sim, seed))
 
@@ -106,6 +106,9 @@ def test_distances_recovered_within_half_a_percent(fleet):
         assert runs.loc[rid, "strokes"] == truth["strokes"], rid
         assert runs.loc[rid, "duration_h"] == pytest.approx(truth["duration_s"] / 3600, rel=1e-3)
         assert runs.loc[rid, "hose_id"] == truth["hose_id"]
+    # the deadband is 20 floors of the 5 um encoder (estimated at rest), as the bench's 0.1 mm
+    assert runs["deadband_mm"].to_numpy() == pytest.approx(0.1, rel=0.05)
+    assert runs["note"].isna().all()
     strokes = out.tables["durability_strokes"]
     f1a = strokes[strokes["run_id"] == "c1/f1_a"]
     assert len(f1a) == b.truth["c1/f1_a"]["strokes"]
@@ -142,6 +145,7 @@ def test_service_life_nulls_with_one_failure_and_bracketing_bounds(fleet):
     sl = out.tables["service_life"].set_index("adjustment")
     assert sl.loc["force", "n_hoses"] == 2 and sl.loc["force", "n_failed"] == 1
     assert sl.loc[["force"], ["weibull_shape", "weibull_scale_km", "b10_km", "b10_lower_km", "b10_upper_km"]].isna().all().all()
+    assert sl.loc["force", "note"] == "too few failures: 1 < 2" and pd.isna(sl.loc["distance", "note"])
     d = sl.loc["distance"]
     assert (d["n_hoses"], d["n_failed"], d["confidence"]) == (3, 2, 0.90)
     assert d["b10_lower_km"] < d["b10_km"] < d["b10_upper_km"]
@@ -257,3 +261,21 @@ def test_simulated_campaigns_hose_life_matches_truth(tmp_path, monkeypatch):
     for rid, t in durability.items():
         assert runs[rid]["distance_km"] == pytest.approx(t["distance_km"], rel=0.005), rid
         assert runs[rid]["strokes"] == t["strokes"], rid
+
+
+def test_deadband_from_the_stated_sensor_and_strokes_not_detectable(tmp_path):
+    """A run whose encoder is stated 20x coarser gets a 20x wider deadband; 3 mm strokes under a stated
+    50 um noise (deadband 1 mm > a quarter of the 3 mm stroke) are not reported, with a note."""
+    b = Bench(tmp_path)
+    b.logbook("c/hoses.csv", "H,installed,2026-01-01,T,force,,866,,,,\n")
+    b.durability("c/coarse", "c", "2026-01-02", "H", 10.0, 1, sensor_x_resolution=1e-4, sensor_x_noise=0.0)
+    b.durability("c/tiny", "c", "2026-01-03", "H", 0.2, 2, stroke_m=0.003, speed_m_s=0.05, sensor_x_noise=5e-5,
+                 sensor_x_resolution=5e-6)
+    out = stage.run(b.ctx())
+    runs = out.tables["durability_runs"].set_index("run_id")
+    assert runs.loc["c/coarse", "deadband_mm"] == pytest.approx(2.0)
+    assert runs.loc["c/coarse", "distance_km"] == pytest.approx(b.truth["c/coarse"]["distance_km"], rel=0.005)
+    tiny = runs.loc["c/tiny"]
+    assert tiny["deadband_mm"] == pytest.approx(1.0) and pd.isna(tiny["distance_km"]) and pd.isna(tiny["strokes"])
+    assert "strokes not detectable" in tiny["note"]
+    assert any("strokes not detectable" in w for w in out.warnings["c/tiny"])

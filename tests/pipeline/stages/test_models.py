@@ -86,6 +86,7 @@ def test_identification_recovers_table2_and_flags_the_flat_run(built):
     assert good["n_samples_id"] == 1000
     flat = t.loc["sim/ident_flat"]
     assert flat[["wn_rad_s", "zeta", "k_lin_m_v_s", "fit_pct"]].isna().all()
+    assert "no excitation" in flat["note"] and pd.isna(good["note"])
     assert any("no excitation" in w for w in _warnings(wh, "sim/ident_flat"))
 
 
@@ -101,6 +102,7 @@ def test_step_response_matches_noise_free_truth(built):
     none = q(wh, "SELECT * FROM step_response WHERE run_id = 'sim/step_none'")
     assert len(none) == 1 and none[["step_mm", "overshoot_pct", "settling_time_s"]].isna().all(axis=None)
     assert any("no step" in w for w in _warnings(wh, "sim/step_none"))
+    assert "no step of the reference" in none["note"].iloc[0] and s["note"].isna().all()
 
 
 def test_spring_fits_recover_table1(built):
@@ -115,6 +117,7 @@ def test_spring_fits_recover_table1(built):
         assert f["epsilon_m2"] == pytest.approx(tr["eps"], rel=0.10)
         assert f["delta_n_m"] == pytest.approx(tr["delta"], rel=0.10)
         assert f["max_nrmse_pct"] < 2.5
+        assert pd.isna(f["note"])
 
 
 def test_spring_tests_have_p0_from_the_run_and_nrmse_below_the_papers_bound(built):
@@ -129,6 +132,7 @@ def test_spring_tests_have_p0_from_the_run_and_nrmse_below_the_papers_bound(buil
         assert row["chamber"] == truth[rid]["chamber"]
     assert (fitted["nrmse_pct"] < 2.5).all() and (fitted["nrmse_pct"] > 0).all()
     assert pd.isna(t.loc["sim/spring_still", "nrmse_pct"])
+    assert fitted["note"].isna().all() and "no displacement" in t.loc["sim/spring_still", "note"]
     assert any("no displacement" in w for w in _warnings(wh, "sim/spring_still"))
 
 
@@ -150,6 +154,7 @@ def test_pressure_dynamics_recover_table2(built):
                                                               ["rear", "charge"], ["rear", "discharge"]]
     tr = truth["sim/pstep_rear"]
     for _, r in pdy.iterrows():
+        assert r["model"] == "second_order" and pd.isna(r["tau_s"]) and pd.isna(r["note"])
         assert r["wn_rad_s"] == pytest.approx(tr["wn_rad_s"], rel=0.05)
         assert r["zeta"] == pytest.approx(tr[f"xi_{r['direction']}"], rel=0.05)
         assert r["nrmse_pct"] < 1.0
@@ -198,3 +203,46 @@ def test_unreadable_or_incomplete_runs_warn_instead_of_raising(tmp_path):
     pq.write_table(pa.table({"t_s": np.arange(10.0), "x_m": np.zeros(10)}), path)
     out = stage.analyse_run(("identification", "x/3", str(path), {"kp_v_m": 5.0}))
     assert out["rows"][0]["wn_rad_s"] is None and "lacks u_d_v, x_ref_m" in out["warnings"][0]
+
+
+#: A closed-loop set-point sweep of 5 and 10 kPa steps (the real rigs' pressure steps). [bar gauge]
+SWEEP = (1.0, 1.05, 1.15, 1.10, 1.0, 1.10, 1.15, 1.05, 1.0, 1.1, 1.2, 1.15, 1.05)
+
+
+@pytest.fixture(scope="module")
+def sweep_built(tmp_path_factory):
+    """First-order pressure loops logged at 20 Hz in kPa: rear states its sensors, front does not;
+    a second front run's steps are all under the pressure sensor's floor."""
+    root = tmp_path_factory.mktemp("sweep")
+    raw, wh = root / "raw", root / "warehouse"
+    runs = {"sweep_rear": simulate_pressure_step("rear", rng=21, levels_bar=SWEEP, hold_s=3.0, fs_hz=20.0,
+                                                 tau_s={"charge": 0.25, "discharge": 0.4},
+                                                 sensor_p_noise=300.0, sensor_p_ref_resolution=10.0),
+            "sweep_front": simulate_pressure_step("front", rng=22, levels_bar=SWEEP, hold_s=3.0, fs_hz=20.0,
+                                                  tau_s=0.3),
+            "sweep_tiny": simulate_pressure_step("front", rng=23, levels_bar=(1.0, 1.005, 1.0), hold_s=3.0,
+                                                 fs_hz=20.0, tau_s=0.3)}
+    for name, run in runs.items():
+        _write(raw, name, run, {"p": "kPa", "p_ref": "kPa"})
+    summary = rebuild(raw, wh, jobs=1, report=False)
+    return wh, {f"sim/{k}": v.truth for k, v in runs.items()}, summary
+
+
+def test_first_order_sweep_at_20_hz_recovers_tau_and_every_5_kpa_step(sweep_built):
+    wh, truth, summary = sweep_built
+    assert [p.error for p in summary.quarantine] == []
+    pdy = q(wh, "SELECT * FROM pressure_dynamics ORDER BY chamber, direction")
+    fitted = pdy
+    assert fitted["model"].tolist() == ["first_order"] * 4
+    assert fitted["zeta"].isna().all() and fitted["wn_rad_s"].isna().all() and fitted["note"].isna().all()
+    tau = {("rear", "charge"): 0.25, ("rear", "discharge"): 0.4, ("front", "charge"): 0.3, ("front", "discharge"): 0.3}
+    for _, r in fitted.iterrows():
+        assert r["tau_s"] == pytest.approx(tau[(r["chamber"], r["direction"])], rel=0.05)
+        assert r["n_steps"] == 6      # the tiny run's steps are listed, not fitted
+    steps = q(wh, "SELECT * FROM pressure_steps WHERE run_id = 'sim/sweep_rear' ORDER BY t_step_s")
+    expect = truth["sim/sweep_rear"]["steps"]
+    assert ((steps["p_to_bar"] - steps["p_from_bar"]) * 1e5).round().tolist() == [
+        round(s["p_to_pa"] - s["p_from_pa"]) for s in expect]          # 5 kPa steps included
+    assert steps["note"].isna().all() and steps["nrmse_pct"].notna().all()
+    tiny = q(wh, "SELECT * FROM pressure_steps WHERE run_id = 'sim/sweep_tiny'")
+    assert len(tiny) == 2 and tiny["nrmse_pct"].isna().all() and tiny["note"].str.contains("sensor floor").all()
