@@ -51,6 +51,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -58,7 +59,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pipeline.layout import Problem
+from pipeline.layout import Problem, display_name, walk_raw
 from pipeline.readers.base import decode_text
 
 LOGBOOK_NAME = "hoses.csv"
@@ -77,17 +78,10 @@ HOSE_COLUMNS = ["hose_id", "hose_type", "adjustment", "z_rollers_mm", "spring_fo
 
 
 def find_logbooks(raw: Path) -> list[Path]:
-    """Every ``hoses.csv`` under ``raw`` (dotted folders skipped), sorted by relative path."""
-    raw = Path(raw)
-    out = []
-    for p in raw.rglob("*"):
-        if p.name.lower() != LOGBOOK_NAME or not p.is_file():
-            continue
-        rel = p.relative_to(raw)
-        if any(part.startswith(".") for part in rel.parts[:-1]):
-            continue
-        out.append(p)
-    return sorted(out, key=lambda p: p.relative_to(raw).as_posix())
+    """Every readable ``hoses.csv`` under ``raw`` (dotted folders skipped, no folder symlink
+    followed, a symlink from outside raw/ not read: :func:`pipeline.layout.walk_raw`, whose
+    quarantine rows the rebuild reports), sorted by relative path."""
+    return [p for p in walk_raw(Path(raw)).side if p.name.lower() == LOGBOOK_NAME]
 
 
 _ISO_TIME = re.compile(r"\d{4}-\d{2}-\d{2}(?:[T ]\d{2}:\d{2}(?::\d{2}(?:[.,]\d{1,9})?)?"
@@ -208,7 +202,7 @@ def read_logbooks(raw: Path) -> tuple[pd.DataFrame, list[Problem]]:
     raw = Path(raw)
     frames, problems = [], []
     for p in find_logbooks(raw):
-        rel = p.relative_to(raw).as_posix()
+        rel = display_name(os.path.relpath(p, os.path.realpath(raw)).replace(os.sep, "/"))
         try:
             df, probs = read_logbook(p, rel)
         except (OSError, csv.Error) as exc:
