@@ -265,7 +265,7 @@ def _symlink(path: str, root: str, out: Listing, problem, classify) -> None:
     target = os.path.realpath(path)
     inside = _walked(root, target)
     if stat.S_ISDIR(st.st_mode):
-        if inside:
+        if inside or target == root:
             out.skipped.append((display_name(os.path.relpath(path, root)),
                                 f"symlink to the folder {display_name(os.path.relpath(target, root))}, "
                                 "whose files are read under their own paths"))
