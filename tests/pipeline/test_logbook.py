@@ -210,3 +210,23 @@ def test_an_odometer_that_goes_down_is_flagged(raw):
     row = hoses.iloc[0]
     assert row["status"] == "failed" and row["odometer_km"] == 400.0  # the event counts, the reading does not
     assert any("b/hoses.csv:3" in w and "does not go back" in w for w in row["warnings"])
+
+
+def test_careless_logbooks_in_a_rebuild_are_quarantine_lines_and_hose_warnings(raw, tmp_path):
+    from pipeline.rebuild import EXIT_QUARANTINED, rebuild
+    from tests.conftest import STEP_META, query
+
+    raw.csv("a/run.csv", STEP_META, {"t[s]": [0.0, 0.1], "x[m]": [0.0, 0.1], "x_ref[m]": [0.1, 0.1]})
+    raw.write("a/hoses.csv", HEADER + "H1,installed,2026-01-01,T,force,,866,,,,\nH1,removed,now,,,,,,,5,\n"
+              "H2,installed,2026-01-01,T,force,,866,,,,\nH2,failed,2026-01-09,,,,,rupture,,40,\n")
+    raw.write("b/hoses.csv", HEADER + "H2,failed,2026-01-09,,,,,rupture,,400,\n")
+    wh = tmp_path / "wh"
+    before = {p: p.read_bytes() for p in raw.root.rglob("*") if p.is_file()}
+    assert rebuild(raw.root, wh, jobs=1).exit_code == EXIT_QUARANTINED
+    assert {p: p.read_bytes() for p in raw.root.rglob("*") if p.is_file()} == before
+    rows = query(wh, "SELECT source_path, line, error FROM quarantine ORDER BY 1, 2")
+    assert [(s, ln) for s, ln, _ in rows] == [("a/hoses.csv", 3), ("b/hoses.csv", 2)]
+    assert "`now` is not ISO 8601" in rows[0][2] and "disagrees with a/hoses.csv:5" in rows[1][2]
+    life = dict(query(wh, "SELECT hose_id, warnings FROM hose_life ORDER BY 1"))
+    assert life["H1"] == [] and any("b/hoses.csv:2" in w for w in life["H2"])
+    assert query(wh, "SELECT run_id FROM runs") == [("a/run",)]
