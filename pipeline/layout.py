@@ -27,7 +27,9 @@ line, never a silent skip:
 * **Names that are not UTF-8** (Latin-1 bytes from an SMB share): read like any other file;
   wherever the name is shown or stored (``source_path``, ``run_id``, campaign, quarantine,
   report, JSON) each byte that is not UTF-8 is written as ``\\xNN`` (Python's
-  ``backslashreplace``: ``b"m\\xe9sure.csv"`` -> ``m\\xe9sure.csv``), see :func:`display_name`.
+  ``backslashreplace``: ``b"m\\xe9sure.csv"`` -> ``m\\xe9sure.csv``), and so is a control
+  character (a newline in a name would break the one-line quarantine: ``\\x0a``), see
+  :func:`display_name`.
   Deterministic and valid UTF-8. Should that text collide with another entry's real name in
   the same folder, the non-UTF-8 entry is quarantined.
 * **Paths longer than the OS limit** (``PATH_MAX``, 4096 bytes on Linux, including the final
@@ -48,6 +50,7 @@ import csv
 import errno
 import io
 import os
+import re
 import stat
 import tomllib
 from collections import Counter
@@ -70,19 +73,24 @@ except (OSError, ValueError, AttributeError):  # pragma: no cover - not POSIX
     PATH_MAX = 4096
 
 
+_CONTROL = re.compile(r"[\x00-\x1f\x7f]")
+
+
 def display_name(text) -> str:
-    """A file name or path as valid UTF-8 text: bytes that are not UTF-8 (carried by Python as
-    lone surrogates, PEP 383) become ``\\xNN``; ``b"m\\xe9sure"`` -> ``"m\\xe9sure"``."""
+    """A file name or path as valid UTF-8 text on one line: bytes that are not UTF-8 (carried
+    by Python as lone surrogates, PEP 383) become ``\\xNN`` (``b"m\\xe9sure"`` ->
+    ``"m\\xe9sure"``), and so do control characters (a newline in a name: ``\\x0a``)."""
     text = str(text)
     try:
         text.encode("utf-8")
-        return text
     except UnicodeEncodeError:
-        pass
-    try:
-        return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
-    except UnicodeEncodeError:  # a surrogate that is not an escaped byte
-        return text.encode("utf-8", "backslashreplace").decode("utf-8")
+        try:
+            text = text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+        except UnicodeEncodeError:  # a surrogate that is not an escaped byte
+            text = text.encode("utf-8", "backslashreplace").decode("utf-8")
+    if _CONTROL.search(text):
+        text = _CONTROL.sub(lambda m: f"\\x{ord(m.group()):02x}", text)
+    return text
 
 
 @dataclass
@@ -133,8 +141,6 @@ class Listing:
         their own path).
     problems : list of Problem
         Entries that cannot be used (quarantine rows).
-    blocked : dict
-        Side files that exist but cannot be read, by absolute path: the reason.
     """
 
     runs: list[Path] = field(default_factory=list)
@@ -142,7 +148,6 @@ class Listing:
     ignored: list[Path] = field(default_factory=list)
     skipped: list[tuple[str, str]] = field(default_factory=list)
     problems: list[Problem] = field(default_factory=list)
-    blocked: dict[str, str] = field(default_factory=dict)
 
 
 def _os_reason(exc: OSError) -> str:
@@ -172,8 +177,6 @@ def walk_raw(raw: Path) -> Listing:
 
     def problem(path: str, msg: str) -> None:
         out.problems.append(Problem(rel_of(path), msg))
-        if os.path.basename(path).lower() in NOT_RUNS:
-            out.blocked[path] = msg
 
     def classify(path: str) -> None:
         p = Path(path)
@@ -328,6 +331,7 @@ class RawTree:
     _chains: dict = field(default_factory=dict)
 
     _listing: Listing | None = None
+    _entries: dict = field(default_factory=dict)
 
     def __post_init__(self):
         self.root = Path(self.root).resolve()
@@ -339,6 +343,35 @@ class RawTree:
             self._listing = walk_raw(self.root)
             self.problems += self._listing.problems
         return self._listing
+
+    def _entry(self, path: Path) -> Listing:
+        """What :func:`walk_raw` says about this one entry (without walking the tree: worker
+        processes ask about the side files of their runs only)."""
+        out = Listing()
+        p = str(path)
+        if p in self._entries:
+            return self._entries[p]
+        if self._listing is not None:
+            out.problems = [x for x in self._listing.problems if x.source_path == self.rel(path)]
+            out.skipped = [x for x in self._listing.skipped if x[0] == self.rel(path)]
+        elif os.path.lexists(p):
+            root = str(self.root)
+
+            def problem(q, msg):
+                out.problems.append(Problem(self.rel(path), msg))
+
+            if len(os.fsencode(p)) >= PATH_MAX:
+                problem(p, "path longer than the OS limit")
+            elif os.path.islink(p):
+                _symlink(p, root, out, problem, lambda q: None)
+            elif not os.path.isfile(p) and not os.path.isdir(p):
+                problem(p, f"not a regular file ({_file_kind(p)}): not read")
+        self._entries[p] = out
+        return out
+
+    def _entry_problem(self, path: Path) -> str | None:
+        probs = self._entry(path).problems
+        return probs[0].error if probs else None
 
     def real(self, path: Path) -> Path:
         """The path with its folders resolved but not its last component (a symlink inside raw/
@@ -378,8 +411,8 @@ class RawTree:
         if folder not in self._rigs:
             f = folder / "rig.toml"
             cfg: dict | ConfigError = {}
-            blocked = self.listing().blocked.get(str(f))
-            if blocked is not None:  # already a quarantine row of its own
+            blocked = self._entry_problem(f)
+            if blocked is not None:  # a quarantine row of its own (walk_raw)
                 cfg = ConfigError(f"cannot use {self.rel(f)}: {blocked}")
             elif os.path.isfile(f):
                 msg = None
@@ -428,8 +461,8 @@ class RawTree:
             return self._manifests[folder]
         rows: dict[str, dict] | ConfigError = {}
         f = folder / "manifest.csv"
-        blocked = self.listing().blocked.get(str(f))
-        if blocked is not None:  # already a quarantine row of its own
+        blocked = self._entry_problem(f)
+        if blocked is not None:  # a quarantine row of its own (walk_raw)
             rows = ConfigError(f"cannot use {self.rel(f)}: {blocked}")
         elif os.path.isfile(f):
             try:
@@ -513,7 +546,7 @@ class RawTree:
                 self.problems.append(Problem(rel_manifest, f"entry `{name}`: no such file", line))
                 continue
             if os.path.islink(target):
-                alias = [why for rel, why in self.listing().skipped if rel == self.rel(target)]
+                alias = [why for _rel, why in self._entry(target).skipped]
                 if alias:
                     self.problems.append(Problem(rel_manifest, f"entry `{name}` is a {alias[0]}; "
                                                  "name that file instead", line))

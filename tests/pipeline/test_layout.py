@@ -173,10 +173,18 @@ def test_an_escaped_name_that_collides_with_a_real_name_is_quarantined(tree, war
                                           "of another entry in the same folder; rename one of them")]}
 
 
+def test_a_newline_in_a_file_name_stays_on_one_line(tree, warehouse):
+    tree.csv("c1/two\nlines.csv", STEP_META, COLS)
+    tree.write("c1/bad\tname.csv", b"")
+    q = rebuild_checked(tree, warehouse, expect_runs=("c1/a", "c2/b", "c1/two\\x0alines"))
+    assert q == {"c1/bad\\x09name.csv": [(None, "empty file (0 bytes)")]}
+
+
 def test_display_name_escapes_only_bytes_that_are_not_utf8():
     assert display_name("café/ü.csv") == "café/ü.csv"
     assert display_name(os.fsdecode(b"m\xe9sure.csv")) == "m\\xe9sure.csv"
     assert display_name("\ud800x") == "\\ud800x"
+    assert display_name("a\nb\x7f") == "a\\x0ab\\x7f"
     for text in (os.fsdecode(b"a\xff\xfe/b\x80"), "\udce9"):
         display_name(text).encode("utf-8")  # valid UTF-8 whatever it gets
 
