@@ -19,7 +19,9 @@ Decisions where the spec is silent
   non-numeric or negative numbers, an adjustment other than ``distance``/``force``, a failure,
   removal or inspection of a hose that is not installed at that time (e.g. failure before its
   installation), a second ``installed`` while installed, any event after a failure.
-  A logbook without the ``hose_id``/``event``/``at`` columns is quarantined as a whole.
+  A logbook without the ``hose_id``/``event``/``at`` columns, or one that is not CSV text (a NUL
+  byte, an unclosed quote, a field over the ``csv`` module's limit), is quarantined as a whole
+  with the line: the events after an unclosed quote would be lost or mangled silently.
 * **Times** are strict ISO 8601: a date ``2026-01-02``, or a date-time
   ``2026-01-02T08:30[:00[.123]]`` with an optional offset (``Z``, ``+01:00``, ``+0100``,
   ``+01``); a space instead of the ``T`` is accepted (RFC 3339). Without offset they are UTC
@@ -132,13 +134,30 @@ def read_logbook(path: Path, rel: str | None = None) -> tuple[pd.DataFrame, list
     rel = rel or Path(path).name
     campaign = rel.split("/")[0] if "/" in rel else None
     problems: list[Problem] = []
-    text = decode_text(Path(path).read_bytes())[0]
+    data = Path(path).read_bytes()
+    empty = pd.DataFrame(columns=EVENT_COLUMNS)
+    if b"\x00" in data:
+        problems.append(Problem(rel, "NUL byte (a binary or UTF-16 file?); save it as UTF-8 CSV; no row of it is read",
+                                data[: data.index(b"\x00")].count(b"\n") + 1, stage="logbook"))
+        return empty, problems
+    text = decode_text(data)[0]
     first = next((ln for ln in text.splitlines() if ln.strip()), "")
     delim = max((",", ";", "\t"), key=first.count) if first else ","
-    reader = csv.reader(io.StringIO(text), delimiter=delim)
+    # strict: an unclosed quote is an error, not a field that swallows the rows after it
+    reader = csv.reader(io.StringIO(text), delimiter=delim, strict=True)
     header = None
     rows = []
-    for cells in reader:
+    while True:
+        start = reader.line_num + 1
+        try:
+            cells = next(reader)
+        except StopIteration:
+            break
+        except csv.Error as exc:
+            msg = ("unclosed quote (the quoted field runs to the end of the file)"
+                   if "unexpected end of data" in str(exc) else f"CSV syntax error: {exc}")
+            problems.append(Problem(rel, f"{msg}; no row of it is read", start, stage="logbook"))
+            return empty, problems
         line = reader.line_num
         if not any(c.strip() for c in cells):
             continue

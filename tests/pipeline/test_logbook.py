@@ -230,3 +230,19 @@ def test_careless_logbooks_in_a_rebuild_are_quarantine_lines_and_hose_warnings(r
     life = dict(query(wh, "SELECT hose_id, warnings FROM hose_life ORDER BY 1"))
     assert life["H1"] == [] and any("b/hoses.csv:2" in w for w in life["H2"])
     assert query(wh, "SELECT run_id FROM runs") == [("a/run",)]
+
+
+@pytest.mark.parametrize("body,line,error", [
+    (HEADER.encode() + b"H1,installed,2026-01-01,T,force,,866,,,,\nH1,failed,2026-01-09,,,,,rup\x00ture,,,\n", 3,
+     "NUL byte (a binary or UTF-16 file?)"),
+    (HEADER.encode() + b'H1,installed,2026-01-01,"T,force,,866,,,,\nH1,failed,2026-01-09,,,,,rupture,,,\n', 2,
+     "unclosed quote (the quoted field runs to the end of the file)"),
+    (HEADER.encode() + b"H1,installed,2026-01-01,T,force,,866,,,," + b"x" * 200_000 + b"\n", 2,
+     "CSV syntax error: field larger than field limit (131072)"),
+])
+def test_a_logbook_that_is_not_csv_text_is_quarantined_whole_with_its_line(raw, body, line, error):
+    raw.write("c/hoses.csv", body)
+    events, problems = read_logbook(raw.root / "c/hoses.csv", "c/hoses.csv")
+    assert events.empty  # no silently swallowed or mangled events
+    assert [(p.source_path, p.line) for p in problems] == [("c/hoses.csv", line)]
+    assert problems[0].error.startswith(error) and problems[0].error.endswith("no row of it is read")
