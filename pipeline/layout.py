@@ -171,6 +171,7 @@ def walk_raw(raw: Path) -> Listing:
     """
     root = os.path.realpath(raw)
     out = Listing()
+    keys: dict[int, bytes] = {}  # id(Path) -> its path relative to raw/ as bytes: the sort key
 
     def rel_of(path: str) -> str:
         return display_name(os.path.relpath(path, root).replace(os.sep, "/"))
@@ -178,19 +179,23 @@ def walk_raw(raw: Path) -> Listing:
     def problem(path: str, msg: str) -> None:
         out.problems.append(Problem(rel_of(path), msg))
 
-    def classify(path: str) -> None:
-        p = Path(path)
+    def classify(p: Path, key: bytes) -> None:
         name = p.name
         if name.lower() in NOT_RUNS and not name.startswith("."):
-            out.side.append(p)
+            dest = out.side
         elif is_run_file(p):
-            out.runs.append(p)
+            dest = out.runs
         elif not is_known_non_run(p):
-            out.ignored.append(p)
+            dest = out.ignored
+        else:
+            return
+        dest.append(p)
+        keys[id(p)] = key
 
-    todo = [root]
+    todo: list[tuple[Path, bytes]] = [(Path(root), b"")]
     while todo:
-        folder = todo.pop()
+        folder_p, prefix = todo.pop()
+        folder = str(folder_p)
         try:
             with os.scandir(folder) as it:
                 entries = sorted(it, key=lambda e: os.fsencode(e.name))
@@ -204,6 +209,8 @@ def walk_raw(raw: Path) -> Listing:
         for e in entries:
             path = e.path
             hidden = e.name.startswith(".")
+            if hidden and not e.is_dir(follow_symlinks=False) and e.name not in (".", ".."):
+                continue  # a dotfile: never read
             if display_name(e.name) != e.name and shown[display_name(e.name)] > 1:
                 problem(path, f"name is not valid UTF-8 and its escaped form `{display_name(e.name)}` is "
                               "the name of another entry in the same folder; rename one of them")
@@ -222,21 +229,19 @@ def walk_raw(raw: Path) -> Listing:
                     problem(path, f"cannot be examined: {_os_reason(exc)}")
                 continue
             if hidden:
-                continue  # dotted folders and dotfiles are never read
+                continue  # dotted folders are never read
+            key = prefix + os.fsencode(e.name)
             if is_dir:
-                sub.append(path)
+                sub.append((folder_p / e.name, key + b"/"))
             elif is_file:
-                classify(path)
+                classify(folder_p / e.name, key)
             elif is_link:
-                _symlink(path, root, out, problem, classify)
+                _symlink(path, root, out, problem, lambda p, k=key: classify(Path(p), k))
             else:
-                kind = _file_kind(path)
-                problem(path, f"not a regular file ({kind}): not read")
+                problem(path, f"not a regular file ({_file_kind(path)}): not read")
         todo += reversed(sub)
-    key = lambda p: os.fsencode(os.path.relpath(p, root))  # noqa: E731
-    out.runs.sort(key=key)
-    out.side.sort(key=key)
-    out.ignored.sort(key=key)
+    for paths in (out.runs, out.side, out.ignored):
+        paths.sort(key=lambda p: keys[id(p)])
     return out
 
 
