@@ -260,3 +260,21 @@ def test_walk_lists_side_files_and_never_leaves_raw(tree, tmp_path):
     assert [(p.source_path, p.error.split(" (")[0]) for p in listing.problems] == [
         ("c2/all", "symlink to a folder outside raw/")]
     assert RawTree(tree.root).rel(tree.root / "c1" / "a.csv") == "c1/a.csv"
+
+
+def test_the_cli_exits_1_and_prints_one_line_per_hostile_entry(tree, warehouse, tmp_path):
+    from click.testing import CliRunner
+
+    from pipeline.cli import main
+
+    (tmp_path / "secret.csv").write_text("x\n")
+    os.symlink(tmp_path / "secret.csv", tree.root / "c1" / "evil.csv")
+    tree.write("c2/empty.csv", b"")
+    res = CliRunner().invoke(main, ["rebuild", "--raw", str(tree.root), "--warehouse", str(warehouse), "--jobs", "1"])
+    assert res.exit_code == EXIT_QUARANTINED, res.output
+    lines = [ln for ln in res.output.splitlines() if "quarantined c" in ln]
+    assert len(lines) == 2
+    assert any(f"quarantined c1/evil.csv: symlink to a file outside raw/: {tmp_path / 'secret.csv'}" in ln
+               for ln in lines)
+    assert any("quarantined c2/empty.csv: empty file (0 bytes)" in ln for ln in lines)
+    assert query(warehouse, "SELECT run_id FROM runs ORDER BY 1") == [("c1/a",), ("c2/b",)]
