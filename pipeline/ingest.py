@@ -22,7 +22,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from pipeline.layout import ConfigError, RawTree
+from pipeline.layout import ConfigError, RawTree, display_name
 from pipeline.readers import RawColumn, ReaderError, read_export
 from pipeline.readers.base import MAX_CHANNELS
 from schemas.channels import CHANNELS, canonical_name, sanitise_name
@@ -142,7 +142,7 @@ def resolve_metadata(rig: dict, embedded: dict, manifest: dict, campaign: str, p
     """Merge the three metadata sources (manifest > embedded > rig.toml), type and check them."""
     meta = {**normalise_keys(rig), **normalise_keys(embedded), **normalise_keys(manifest)}
     meta = {k: v for k, v in meta.items() if not (isinstance(v, str) and v.strip() == "")}
-    meta.setdefault("run_id", f"{campaign}/{path.stem}")
+    meta.setdefault("run_id", display_name(f"{campaign}/{path.stem}"))  # a non-UTF-8 name: \xNN
     for k, spec in META_KEYS.items():
         if spec.default is not None and k not in meta and (k == "p_atm_pa" or _kind_uses(meta.get("kind"), k)):
             meta[k] = spec.default
@@ -399,6 +399,8 @@ def _ingest(tree: RawTree, path: Path, warehouse: Path, rel: str, campaign: str 
             sha: str | None = None, code_version: str | None = None):
     if campaign is None:
         raise IngestError("file is not in a campaign folder (raw/<campaign>/...)")
+    if os.stat(path).st_size == 0:  # before any reader: its complaint would be about rows, not bytes
+        raise IngestError("empty file (0 bytes)")
     hashing = None if sha else _BackgroundHash(path)
     try:
         return _ingest_hashed(tree, path, warehouse, rel, campaign, reuse, sha, hashing, code_version)

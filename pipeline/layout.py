@@ -8,12 +8,52 @@ Run metadata sources, strongest first (bench-exports.md, "Run metadata"):
 3. ``[metadata]`` defaults of the nearest ``rig.toml`` (a subfolder's overrides its parent's).
 
 Nothing here writes to the raw tree.
+
+Walking raw/ (:func:`walk_raw`, one ``os.scandir`` per folder, folder symlinks never followed,
+so a link loop cannot make the walk endless); every entry that cannot be used is a quarantine
+line, never a silent skip:
+
+* **Symlinks.** A symlink to a file *outside* raw/ is quarantined ("symlink to a file outside
+  raw/: <target>"): raw/ is the contract, and a link would let the warehouse depend on files
+  nobody archives. A dangling link, a link loop and a symlink to a folder anywhere are
+  quarantined too (folders are never followed: no loops, no file read twice). A symlink inside
+  raw/ to a file inside raw/ is an *alias*: when its target is itself a run (or side file) the
+  walk reaches, the link is skipped with a note (the run is read once, under the target's own
+  path: no duplicate run); otherwise (its target sits in a dotted folder or has a name that is
+  not a run's) the target's bytes are read under the link's own path, and the link's folder's
+  rig.toml and manifest apply. The same rules hold for ``rig.toml``, ``manifest.csv`` and
+  ``hoses.csv``: a side file linked from outside raw/ is quarantined and not read (runs under a
+  quarantined rig.toml or manifest are quarantined too: their metadata cannot be known).
+* **Names that are not UTF-8** (Latin-1 bytes from an SMB share): read like any other file;
+  wherever the name is shown or stored (``source_path``, ``run_id``, campaign, quarantine,
+  report, JSON) each byte that is not UTF-8 is written as ``\\xNN`` (Python's
+  ``backslashreplace``: ``b"m\\xe9sure.csv"`` -> ``m\\xe9sure.csv``), and so is a control
+  character (a newline in a name would break the one-line quarantine: ``\\x0a``), see
+  :func:`display_name`.
+  Deterministic and valid UTF-8. Should that text collide with another entry's real name in
+  the same folder, the non-UTF-8 entry is quarantined.
+* **Paths longer than the OS limit** (``PATH_MAX``, 4096 bytes on Linux, including the final
+  NUL): quarantined without being opened; a folder that cannot be listed (permissions, a share
+  away) is quarantined with the reason.
+* **Anything not a regular file** (a FIFO would block the reader forever, a socket, a device)
+  is quarantined.
+
+rig.toml files over :data:`MAX_RIG_BYTES` or nested too deeply for the TOML parser, and
+manifest.csv files with a NUL byte, an unclosed quote, a field over the ``csv`` module's limit
+(128 KiB) or another CSV syntax error, are quarantined with the line number, and so is every
+run under them (the metadata they were to give cannot be known: ingesting those runs with the
+remaining sources could silently give them wrong metadata).
 """
 from __future__ import annotations
 
 import csv
+import errno
 import io
+import os
+import re
+import stat
 import tomllib
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -21,16 +61,54 @@ from pipeline.readers import READERS
 from pipeline.readers.base import decode_text
 
 NOT_RUNS = {"manifest.csv", "hoses.csv", "rig.toml"}
+SIDE_NAMES = ("manifest.csv", "hoses.csv", "rig.toml")
+
+#: Largest rig.toml read [bytes] (1 MiB: a real one is a few hundred bytes).
+MAX_RIG_BYTES = 1 << 20
+
+try:
+    #: Longest path the OS opens [bytes], the terminating NUL included.
+    PATH_MAX = os.pathconf("/", "PC_PATH_MAX")
+except (OSError, ValueError, AttributeError):  # pragma: no cover - not POSIX
+    PATH_MAX = 4096
+
+
+_CONTROL = re.compile(r"[\x00-\x1f\x7f]")
+
+
+def display_name(text) -> str:
+    """A file name or path as valid UTF-8 text on one line: bytes that are not UTF-8 (carried
+    by Python as lone surrogates, PEP 383) become ``\\xNN`` (``b"m\\xe9sure"`` ->
+    ``"m\\xe9sure"``), and so do control characters (a newline in a name: ``\\x0a``)."""
+    text = str(text)
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        try:
+            text = text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+        except UnicodeEncodeError:  # a surrogate that is not an escaped byte
+            text = text.encode("utf-8", "backslashreplace").decode("utf-8")
+    if _CONTROL.search(text):
+        text = _CONTROL.sub(lambda m: f"\\x{ord(m.group()):02x}", text)
+    return text
 
 
 @dataclass
 class Problem:
-    """An input (or a line of one) that cannot be used: a future quarantine row."""
+    """An input (or a line of one) that cannot be used: a future quarantine row.
+
+    ``source_path`` and ``error`` are made valid UTF-8 (:func:`display_name`): they land in
+    DuckDB, Parquet, JSON and the report.
+    """
 
     source_path: str
     error: str
     line: int | None = None
     stage: str = "ingest"
+
+    def __post_init__(self):
+        self.source_path = display_name(self.source_path)
+        self.error = display_name(self.error)
 
 
 def is_run_file(path: Path) -> bool:
@@ -46,24 +124,192 @@ def is_known_non_run(path: Path) -> bool:
             or name.lower().endswith(".tdms_index"))
 
 
-def discover_runs(raw: Path, ignored: list[Path] | None = None) -> list[Path]:
-    """Every run file under ``raw`` (hidden folders skipped), sorted by relative path.
+@dataclass
+class Listing:
+    """What :func:`walk_raw` found under raw/ (paths absolute, each list sorted by relative path).
+
+    Attributes
+    ----------
+    runs : list of Path
+        Run files (regular files, or symlinks read under their own path).
+    side : list of Path
+        ``manifest.csv``, ``rig.toml`` and ``hoses.csv`` files that can be read.
+    ignored : list of Path
+        Files that are neither runs nor known non-runs (a spreadsheet, a photo).
+    skipped : list of (str, str)
+        Entries deliberately not read, with the reason (symlink aliases of files read under
+        their own path).
+    problems : list of Problem
+        Entries that cannot be used (quarantine rows).
+    """
+
+    runs: list[Path] = field(default_factory=list)
+    side: list[Path] = field(default_factory=list)
+    ignored: list[Path] = field(default_factory=list)
+    skipped: list[tuple[str, str]] = field(default_factory=list)
+    problems: list[Problem] = field(default_factory=list)
+
+
+def _os_reason(exc: OSError) -> str:
+    return exc.strerror or type(exc).__name__
+
+
+def _walked(root: str, target: str) -> bool:
+    """Whether the walk reaches ``target`` (a resolved path) as a regular entry: inside
+    ``root``, no dotted folder on the way, path within the OS limit."""
+    rel = os.path.relpath(target, root)
+    parts = rel.split(os.sep)
+    return (not rel.startswith("..") and rel != "." and not any(p.startswith(".") for p in parts[:-1])
+            and len(os.fsencode(target)) < PATH_MAX)
+
+
+def walk_raw(raw: Path) -> Listing:
+    """Walk the raw tree once, without following folder symlinks; see the module docstring.
+
+    Dotted folders are skipped, dotfiles and READMEs are known non-runs. Every entry that
+    cannot be used becomes a :class:`Problem` (never an exception, never a silent skip).
+    """
+    root = os.path.realpath(raw)
+    out = Listing()
+    keys: dict[int, bytes] = {}  # id(Path) -> its path relative to raw/ as bytes: the sort key
+
+    def rel_of(path: str) -> str:
+        return display_name(os.path.relpath(path, root).replace(os.sep, "/"))
+
+    def problem(path: str, msg: str) -> None:
+        out.problems.append(Problem(rel_of(path), msg))
+
+    def classify(p: Path, key: bytes) -> None:
+        name = p.name
+        if name.lower() in NOT_RUNS and not name.startswith("."):
+            dest = out.side
+        elif is_run_file(p):
+            dest = out.runs
+        elif not is_known_non_run(p):
+            dest = out.ignored
+        else:
+            return
+        dest.append(p)
+        keys[id(p)] = key
+
+    todo: list[tuple[Path, bytes]] = [(Path(root), b"")]
+    while todo:
+        folder_p, prefix = todo.pop()
+        folder = str(folder_p)
+        try:
+            with os.scandir(folder) as it:
+                entries = sorted(it, key=lambda e: os.fsencode(e.name))
+        except OSError as exc:
+            if folder == root:
+                raise
+            problem(folder, f"folder cannot be listed: {_os_reason(exc)}; its files are not read")
+            continue
+        sub = []
+        shown = Counter(display_name(e.name) for e in entries)
+        for e in entries:
+            path = e.path
+            hidden = e.name.startswith(".")
+            if hidden and not e.is_dir(follow_symlinks=False) and e.name not in (".", ".."):
+                continue  # a dotfile: never read
+            if display_name(e.name) != e.name and shown[display_name(e.name)] > 1:
+                problem(path, f"name is not valid UTF-8 and its escaped form `{display_name(e.name)}` is "
+                              "the name of another entry in the same folder; rename one of them")
+                continue
+            if len(os.fsencode(path)) >= PATH_MAX:
+                if not hidden:
+                    problem(path, f"path is {len(os.fsencode(path))} bytes, longer than the OS limit "
+                                  f"({PATH_MAX - 1} bytes): it cannot be opened; shorten its folder names")
+                continue
+            try:
+                is_link = e.is_symlink()
+                is_dir = not is_link and e.is_dir(follow_symlinks=False)
+                is_file = not is_link and e.is_file(follow_symlinks=False)
+            except OSError as exc:
+                if not hidden:
+                    problem(path, f"cannot be examined: {_os_reason(exc)}")
+                continue
+            if hidden:
+                continue  # dotted folders are never read
+            key = prefix + os.fsencode(e.name)
+            if is_dir:
+                sub.append((folder_p / e.name, key + b"/"))
+            elif is_file:
+                classify(folder_p / e.name, key)
+            elif is_link:
+                _symlink(path, root, out, problem, lambda p, k=key: classify(Path(p), k))
+            else:
+                problem(path, f"not a regular file ({_file_kind(path)}): not read")
+        todo += reversed(sub)
+    for paths in (out.runs, out.side, out.ignored):
+        paths.sort(key=lambda p: keys[id(p)])
+    return out
+
+
+def _file_kind(path: str) -> str:
+    try:
+        mode = os.lstat(path).st_mode
+    except OSError:
+        return "unknown type"
+    return ("a FIFO (named pipe)" if stat.S_ISFIFO(mode) else "a socket" if stat.S_ISSOCK(mode)
+            else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "unknown type")
+
+
+def _symlink(path: str, root: str, out: Listing, problem, classify) -> None:
+    """Quarantine, skip or read a symlink (module docstring, "Symlinks")."""
+    try:
+        link = display_name(os.readlink(path))
+    except OSError:
+        link = "?"
+    try:
+        st = os.stat(path)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            problem(path, f"symlink loop (-> {link}): not read")
+        elif exc.errno in (errno.ENOENT, errno.ENOTDIR):
+            problem(path, f"dangling symlink: its target {link} does not exist")
+        else:
+            problem(path, f"symlink to {link} cannot be followed: {_os_reason(exc)}")
+        return
+    target = os.path.realpath(path)
+    inside = _walked(root, target)
+    if stat.S_ISDIR(st.st_mode):
+        if inside or target == root:
+            out.skipped.append((display_name(os.path.relpath(path, root)),
+                                f"symlink to the folder {display_name(os.path.relpath(target, root))}, "
+                                "whose files are read under their own paths"))
+        else:
+            where = "outside raw/ " if os.path.relpath(target, root).startswith("..") else ""
+            problem(path, f"symlink to a folder {where}({display_name(target)}): folders are not followed; "
+                          "copy or move the files into raw/")
+        return
+    if not stat.S_ISREG(st.st_mode):
+        problem(path, f"symlink to {link}, which is not a regular file ({_file_kind(target)}): not read")
+        return
+    rel_target = os.path.relpath(target, root)
+    if rel_target.startswith(".." + os.sep) or rel_target == "..":
+        problem(path, f"symlink to a file outside raw/: {display_name(target)}")
+        return
+    tname = os.path.basename(target)
+    same_role = (tname.lower() == os.path.basename(path).lower() if os.path.basename(path).lower() in NOT_RUNS
+                 else is_run_file(Path(target)))
+    if inside and same_role and not tname.startswith("."):
+        out.skipped.append((display_name(os.path.relpath(path, root)),
+                            f"symlink to {display_name(rel_target)}, which is read under its own path"))
+        return
+    classify(path)
+
+
+def discover_runs(raw, ignored: list[Path] | None = None) -> list[Path]:
+    """Every run file under ``raw`` (a folder, or a :class:`RawTree` whose walk is reused),
+    sorted by relative path (see :func:`walk_raw`).
 
     Files that are neither runs nor :func:`is_known_non_run` (a spreadsheet, a photo) are
     appended to ``ignored`` when a list is given, so the caller can say so.
     """
-    out = []
-    for p in raw.rglob("*"):
-        rel = p.relative_to(raw)
-        if any(part.startswith(".") for part in rel.parts[:-1]):
-            continue
-        if p.is_file() and is_run_file(p):
-            out.append(p)
-        elif ignored is not None and p.is_file() and not is_known_non_run(p):
-            ignored.append(p)
+    listing = raw.listing() if isinstance(raw, RawTree) else walk_raw(Path(raw))
     if ignored is not None:
-        ignored.sort(key=lambda p: p.relative_to(raw).as_posix())
-    return sorted(out, key=lambda p: p.relative_to(raw).as_posix())
+        ignored += listing.ignored
+    return list(listing.runs)
 
 
 def deep_merge(base: dict, over: dict) -> dict:
@@ -89,18 +335,66 @@ class RawTree:
     _real: dict = field(default_factory=dict)
     _chains: dict = field(default_factory=dict)
 
+    _listing: Listing | None = None
+    _entries: dict = field(default_factory=dict)
+
     def __post_init__(self):
         self.root = Path(self.root).resolve()
 
+    def listing(self) -> Listing:
+        """The walk of the raw tree (:func:`walk_raw`), done once; its problems join
+        :attr:`problems` the first time."""
+        if self._listing is None:
+            self._listing = walk_raw(self.root)
+            self.problems += self._listing.problems
+        return self._listing
+
+    def _entry(self, path: Path) -> Listing:
+        """What :func:`walk_raw` says about this one entry (without walking the tree: worker
+        processes ask about the side files of their runs only)."""
+        out = Listing()
+        p = str(path)
+        if p in self._entries:
+            return self._entries[p]
+        if self._listing is not None:
+            out.problems = [x for x in self._listing.problems if x.source_path == self.rel(path)]
+            out.skipped = [x for x in self._listing.skipped if x[0] == self.rel(path)]
+        elif os.path.lexists(p):
+            root = str(self.root)
+
+            def problem(q, msg):
+                out.problems.append(Problem(self.rel(path), msg))
+
+            if len(os.fsencode(p)) >= PATH_MAX:
+                problem(p, "path longer than the OS limit")
+            elif os.path.islink(p):
+                _symlink(p, root, out, problem, lambda q: None)
+            elif not os.path.isfile(p) and not os.path.isdir(p):
+                problem(p, f"not a regular file ({_file_kind(p)}): not read")
+        self._entries[p] = out
+        return out
+
+    def _entry_problem(self, path: Path) -> str | None:
+        probs = self._entry(path).problems
+        return probs[0].error if probs else None
+
     def real(self, path: Path) -> Path:
-        """``path.resolve()``, cached (a rebuild asks for every file's several times)."""
+        """The path with its folders resolved but not its last component (a symlink inside raw/
+        keeps its own path), cached (a rebuild asks for every file's several times)."""
         key = str(path)
         if key not in self._real:
-            self._real[key] = Path(path).resolve()
+            path = Path(path)
+            self._real[key] = Path(os.path.realpath(path.parent)) / path.name
         return self._real[key]
 
     def rel(self, path: Path) -> str:
-        return self.real(path).relative_to(self.root).as_posix()
+        """Path relative to raw/ as shown and stored: ``/``-separated, valid UTF-8
+        (:func:`display_name`)."""
+        real = self.real(path)
+        try:
+            return display_name(real.relative_to(self.root).as_posix())
+        except ValueError:  # not under raw/ (a caller's mistake): still one clear line
+            return display_name(real.as_posix())
 
     def campaign(self, path: Path) -> str | None:
         parts = Path(self.rel(path)).parts
@@ -122,11 +416,24 @@ class RawTree:
         if folder not in self._rigs:
             f = folder / "rig.toml"
             cfg: dict | ConfigError = {}
-            if f.is_file():
+            blocked = self._entry_problem(f)
+            if blocked is not None:  # a quarantine row of its own (walk_raw)
+                cfg = ConfigError(f"cannot use {self.rel(f)}: {blocked}")
+            elif os.path.isfile(f):
+                msg = None
                 try:
-                    cfg = tomllib.loads(decode_text(f.read_bytes())[0])
+                    size = os.stat(f).st_size
+                    if size > MAX_RIG_BYTES:
+                        msg = f"{size} bytes, larger than the {MAX_RIG_BYTES} bytes a rig.toml may have"
+                    else:
+                        cfg = tomllib.loads(decode_text(f.read_bytes())[0])
                 except tomllib.TOMLDecodeError as exc:
                     msg = f"invalid TOML: {exc}"
+                except (RecursionError, MemoryError):
+                    msg = "invalid TOML: too deeply nested (arrays or inline tables inside each other)"
+                except OSError as exc:
+                    msg = f"cannot read: {_os_reason(exc)}"
+                if msg is not None:
                     self.problems.append(Problem(self.rel(f), msg))
                     cfg = ConfigError(f"cannot use {self.rel(f)}: {msg}")
                 else:
@@ -152,70 +459,137 @@ class RawTree:
         return {k: cfg.get(k, {}) for k in ("read", "channels", "metadata")}
 
     # -- manifest.csv -------------------------------------------------------------------------
-    def _manifest(self, folder: Path) -> dict[str, dict]:
-        """Rows of a folder's manifest.csv by the resolved path of the file they name."""
+    def _manifest(self, folder: Path) -> dict[str, dict] | ConfigError:
+        """Rows of a folder's manifest.csv by the path of the file they name (folders resolved),
+        or a ConfigError when the manifest cannot be read (its problem is recorded once)."""
         if folder in self._manifests:
             return self._manifests[folder]
-        rows: dict[str, dict] = {}
+        rows: dict[str, dict] | ConfigError = {}
         f = folder / "manifest.csv"
-        if f.is_file():
-            rel_manifest = self.rel(f)
-            text = decode_text(f.read_bytes())[0]
-            sample = text[:4096]
-            dialect = csv.excel
+        blocked = self._entry_problem(f)
+        if blocked is not None:  # a quarantine row of its own (walk_raw)
+            rows = ConfigError(f"cannot use {self.rel(f)}: {blocked}")
+        elif os.path.isfile(f):
             try:
-                dialect = csv.Sniffer().sniff(sample.splitlines()[0] if sample else ",", delimiters=",;\t")
-            except csv.Error:
-                pass
-            reader = csv.DictReader(io.StringIO(text), dialect=dialect)
-            fields = [h.strip() for h in (reader.fieldnames or [])]
-            if "file" not in fields:
-                self.problems.append(Problem(rel_manifest, "no `file` column in the header"))
-            else:
-                reader.fieldnames = fields
-                for row in reader:
-                    line = reader.line_num
-                    name = (row.get("file") or "").strip()
-                    if not name:
-                        if any((v or "").strip() for v in row.values() if isinstance(v, str)):
-                            self.problems.append(Problem(rel_manifest, "row has no `file`", line))
-                        continue
-                    target = (folder / name).resolve()
-                    if target != self.root and self.root not in target.parents:
-                        self.problems.append(Problem(rel_manifest, f"entry `{name}` points outside raw/", line))
-                        continue
-                    if folder not in target.parents:
-                        self.problems.append(Problem(rel_manifest, f"entry `{name}` is not in the manifest's folder "
-                                                     "or below (a manifest applies only there)", line))
-                        continue
-                    if not target.is_file():
-                        self.problems.append(Problem(rel_manifest, f"entry `{name}`: no such file", line))
-                        continue
-                    key = target.as_posix()
-                    if key in rows:
-                        self.problems.append(Problem(rel_manifest, f"entry `{name}` is listed twice; the later row is used", line))
-                    meta = {k: v.strip() for k, v in row.items()
-                            if k and k != "file" and isinstance(v, str) and v.strip() != ""}
-                    rows[key] = meta
+                rows = self._parse_manifest(folder, f)
+            except _BadManifest as exc:
+                msg, line = exc.args
+                self.problems.append(Problem(self.rel(f), msg, line))
+                rows = ConfigError(f"cannot use {self.rel(f)}: line {line}: {msg}" if line
+                                   else f"cannot use {self.rel(f)}: {msg}")
         self._manifests[folder] = rows
         return rows
 
+    def _parse_manifest(self, folder: Path, f: Path) -> dict[str, dict]:
+        rel_manifest = self.rel(f)
+        try:
+            data = f.read_bytes()
+        except OSError as exc:
+            raise _BadManifest(f"cannot read: {_os_reason(exc)}", None) from None
+        if b"\x00" in data:
+            raise _BadManifest("NUL byte (a binary or UTF-16 file?); save it as UTF-8 CSV",
+                               data[: data.index(b"\x00")].count(b"\n") + 1)
+        text = decode_text(data)[0]
+        sample = text[:4096]
+        dialect = csv.excel
+        try:
+            dialect = csv.Sniffer().sniff(sample.splitlines()[0] if sample else ",", delimiters=",;\t")
+        except csv.Error:
+            pass
+        # strict: an unclosed quote is an error, not a field that swallows the rest of the file
+        reader = csv.DictReader(io.StringIO(text), dialect=dialect, strict=True)
+        rows: dict[str, dict] = {}
+
+        def bad(exc: csv.Error, line: int):
+            msg = str(exc)
+            if "unexpected end of data" in msg:
+                msg = "unclosed quote (the quoted field runs to the end of the file)"
+            elif "field larger than field limit" in msg:
+                msg = f"a field is longer than {csv.field_size_limit()} characters (the csv module's limit)"
+            else:
+                msg = f"CSV syntax error: {msg}"
+            return _BadManifest(msg, line)
+
+        try:
+            header = reader.fieldnames
+        except csv.Error as exc:
+            raise bad(exc, 1) from None
+        fields = [h.strip() for h in (header or [])]
+        if "file" not in fields:
+            self.problems.append(Problem(rel_manifest, "no `file` column in the header"))
+            return rows
+        reader.fieldnames = fields
+        while True:
+            first_line = reader.line_num + 1
+            try:
+                row = next(reader)
+            except StopIteration:
+                break
+            except csv.Error as exc:
+                raise bad(exc, first_line) from None
+            line = reader.line_num
+            name = (row.get("file") or "").strip()
+            if not name:
+                if any((v or "").strip() for v in row.values() if isinstance(v, str)):
+                    self.problems.append(Problem(rel_manifest, "row has no `file`", line))
+                continue
+            try:
+                named = folder / name
+                target = (Path(os.path.realpath(named)) if named.name in ("", ".", "..")
+                          else self.real(named))
+            except (OSError, ValueError) as exc:
+                self.problems.append(Problem(rel_manifest, f"entry `{name}` cannot be a file name: {exc}", line))
+                continue
+            if target != self.root and self.root not in target.parents:
+                self.problems.append(Problem(rel_manifest, f"entry `{name}` points outside raw/", line))
+                continue
+            if folder not in target.parents:
+                self.problems.append(Problem(rel_manifest, f"entry `{name}` is not in the manifest's folder "
+                                             "or below (a manifest applies only there)", line))
+                continue
+            if not os.path.isfile(target):
+                self.problems.append(Problem(rel_manifest, f"entry `{name}`: no such file", line))
+                continue
+            if os.path.islink(target):
+                alias = [why for _rel, why in self._entry(target).skipped]
+                if alias:
+                    self.problems.append(Problem(rel_manifest, f"entry `{name}` is a {alias[0]}; "
+                                                 "name that file instead", line))
+                    continue
+            key = target.as_posix()
+            if key in rows:
+                self.problems.append(Problem(rel_manifest, f"entry `{name}` is listed twice; the later row is used", line))
+            meta = {k: v.strip() for k, v in row.items()
+                    if k and k != "file" and isinstance(v, str) and v.strip() != ""}
+            rows[key] = meta
+        return rows
+
     def manifest_metadata(self, path: Path) -> dict:
-        """Metadata the manifests give for a run (nearer manifests override farther ones)."""
+        """Metadata the manifests give for a run (nearer manifests override farther ones).
+
+        Raises ConfigError when a manifest of its folder or above cannot be read."""
         key = self.real(path).as_posix()
         meta: dict = {}
         for folder in self._folders(path):
-            meta.update(self._manifest(folder).get(key, {}))
+            part = self._manifest(folder)
+            if isinstance(part, ConfigError):
+                raise part
+            meta.update(part.get(key, {}))
         return meta
+
+    def _side(self, name: str) -> list[Path]:
+        return [p for p in self.listing().side if p.name == name]
 
     def scan_manifests(self) -> None:
         """Parse every manifest once so that bad entries are reported even if no run uses them."""
-        for f in sorted(self.root.rglob("manifest.csv")):
-            if not any(p.startswith(".") for p in f.relative_to(self.root).parts[:-1]):
-                self._manifest(f.parent.resolve())
+        for f in self._side("manifest.csv"):
+            self._manifest(self.real(f).parent)
 
     def scan_rigs(self) -> None:
         """Parse every rig.toml once so that a bad one is reported even if no run uses it."""
-        for f in sorted(self.root.rglob("rig.toml")):
-            if not any(p.startswith(".") for p in f.relative_to(self.root).parts[:-1]):
-                self._rig_file(f.parent.resolve())
+        for f in self._side("rig.toml"):
+            self._rig_file(self.real(f).parent)
+
+
+class _BadManifest(Exception):
+    """args: (message, line or None)."""

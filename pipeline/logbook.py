@@ -19,10 +19,25 @@ Decisions where the spec is silent
   non-numeric or negative numbers, an adjustment other than ``distance``/``force``, a failure,
   removal or inspection of a hose that is not installed at that time (e.g. failure before its
   installation), a second ``installed`` while installed, any event after a failure.
-  A logbook without the ``hose_id``/``event``/``at`` columns is quarantined as a whole.
-* **Times** are ISO 8601; without offset they are UTC (as for runs).
+  A logbook without the ``hose_id``/``event``/``at`` columns, or one that is not CSV text (a NUL
+  byte, an unclosed quote, a field over the ``csv`` module's limit), is quarantined as a whole
+  with the line: the events after an unclosed quote would be lost or mangled silently.
+* **Times** are strict ISO 8601: a date ``2026-01-02``, or a date-time
+  ``2026-01-02T08:30[:00[.123]]`` with an optional offset (``Z``, ``+01:00``, ``+0100``,
+  ``+01``); a space instead of the ``T`` is accepted (RFC 3339). Without offset they are UTC
+  (as for runs). Anything else (``now``, ``today``, ``1/2/2026``, ``2 Jan 2026``) is a
+  quarantined row: a relative time would change a hose's life between two rebuilds, and
+  ``1/2/2026`` is January or February depending on who reads it.
 * **Odometer.** ``distance_km`` of a ``failed``/``removed`` event is read as the hose's
-  cumulative distance at that event; the latest reading is used.
+  cumulative distance at that event; the latest reading is used. A reading lower than an
+  earlier one of the same hose is quarantined (an odometer does not go back; its event still
+  counts, that reading does not) and the hose gets a warning.
+* **Logbooks that disagree.** The same event (hose, event, time) logged in two logbooks with
+  different values (``hose_type``, ``adjustment``, ``failure_mode``, a number) keeps the first
+  logbook's value (sorted path order); the later row is quarantined naming both files and lines,
+  and the hose gets a warning in ``hose_life.warnings``. Two installations of one hose that
+  overlap (e.g. logged in two campaigns' logbooks at different times) quarantine the later one,
+  naming where the first was logged.
 * **Runs.** A ``durability`` run belongs to a hose when its ``hose_id`` matches and its
   ``started_at`` lies in one of the hose's installations ``[installed, end)`` (end = the
   failed/removed time; open when still running). Runs outside every installation, and runs
@@ -38,13 +53,15 @@ from __future__ import annotations
 import csv
 import io
 import math
+import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from pipeline.layout import Problem
+from pipeline.layout import Problem, display_name, walk_raw
 from pipeline.readers.base import decode_text
 
 LOGBOOK_NAME = "hoses.csv"
@@ -63,26 +80,27 @@ HOSE_COLUMNS = ["hose_id", "hose_type", "adjustment", "z_rollers_mm", "spring_fo
 
 
 def find_logbooks(raw: Path) -> list[Path]:
-    """Every ``hoses.csv`` under ``raw`` (dotted folders skipped), sorted by relative path."""
-    raw = Path(raw)
-    out = []
-    for p in raw.rglob("*"):
-        if p.name.lower() != LOGBOOK_NAME or not p.is_file():
-            continue
-        rel = p.relative_to(raw)
-        if any(part.startswith(".") for part in rel.parts[:-1]):
-            continue
-        out.append(p)
-    return sorted(out, key=lambda p: p.relative_to(raw).as_posix())
+    """Every readable ``hoses.csv`` under ``raw`` (dotted folders skipped, no folder symlink
+    followed, a symlink from outside raw/ not read: :func:`pipeline.layout.walk_raw`, whose
+    quarantine rows the rebuild reports), sorted by relative path."""
+    return [p for p in walk_raw(Path(raw)).side if p.name.lower() == LOGBOOK_NAME]
+
+
+_ISO_TIME = re.compile(r"\d{4}-\d{2}-\d{2}(?:[T ]\d{2}:\d{2}(?::\d{2}(?:[.,]\d{1,9})?)?"
+                       r"(?:Z|[+-]\d{2}(?::?\d{2})?)?)?", re.IGNORECASE)
 
 
 def parse_time(text: str) -> pd.Timestamp | None:
-    """ISO 8601 text as a UTC Timestamp (no offset = UTC); None when unparsable."""
+    """Strict ISO 8601 text as a UTC Timestamp (no offset = UTC); None when it is anything else.
+
+    Accepted: ``YYYY-MM-DD`` and ``YYYY-MM-DD[T ]HH:MM[:SS[.fraction]][Z|+HH:MM|+HHMM|+HH]``.
+    Relative words (``now``, ``today``) and locale dates (``1/2/2026``) are refused.
+    """
     text = (text or "").strip()
-    if not text:
+    if not text or not _ISO_TIME.fullmatch(text):
         return None
     try:
-        ts = pd.Timestamp(text)
+        ts = pd.Timestamp(text.replace(",", ".").replace(" ", "T", 1))
     except (ValueError, TypeError, OverflowError):
         return None
     if ts is pd.NaT or pd.isna(ts):
@@ -116,13 +134,30 @@ def read_logbook(path: Path, rel: str | None = None) -> tuple[pd.DataFrame, list
     rel = rel or Path(path).name
     campaign = rel.split("/")[0] if "/" in rel else None
     problems: list[Problem] = []
-    text = decode_text(Path(path).read_bytes())[0]
+    data = Path(path).read_bytes()
+    empty = pd.DataFrame(columns=EVENT_COLUMNS)
+    if b"\x00" in data:
+        problems.append(Problem(rel, "NUL byte (a binary or UTF-16 file?); save it as UTF-8 CSV; no row of it is read",
+                                data[: data.index(b"\x00")].count(b"\n") + 1, stage="logbook"))
+        return empty, problems
+    text = decode_text(data)[0]
     first = next((ln for ln in text.splitlines() if ln.strip()), "")
     delim = max((",", ";", "\t"), key=first.count) if first else ","
-    reader = csv.reader(io.StringIO(text), delimiter=delim)
+    # strict: an unclosed quote is an error, not a field that swallows the rows after it
+    reader = csv.reader(io.StringIO(text), delimiter=delim, strict=True)
     header = None
     rows = []
-    for cells in reader:
+    while True:
+        start = reader.line_num + 1
+        try:
+            cells = next(reader)
+        except StopIteration:
+            break
+        except csv.Error as exc:
+            msg = ("unclosed quote (the quoted field runs to the end of the file)"
+                   if "unexpected end of data" in str(exc) else f"CSV syntax error: {exc}")
+            problems.append(Problem(rel, f"{msg}; no row of it is read", start, stage="logbook"))
+            return empty, problems
         line = reader.line_num
         if not any(c.strip() for c in cells):
             continue
@@ -149,8 +184,8 @@ def read_logbook(path: Path, rel: str | None = None) -> tuple[pd.DataFrame, list
             continue
         at = parse_time(row.get("at", ""))
         if at is None:
-            problems.append(Problem(rel, f"hose {hose}: {event} time `{row.get('at', '')}` is not ISO 8601",
-                                    line, stage="logbook"))
+            problems.append(Problem(rel, f"hose {hose}: {event} time `{row.get('at', '')}` is not ISO 8601 "
+                                         "(YYYY-MM-DD or YYYY-MM-DDTHH:MM[:SS][+HH:MM])", line, stage="logbook"))
             continue
         rec = {"hose_id": hose, "event": event, "at": at, "campaign": campaign, "source_path": rel, "line": line}
         bad = None
@@ -186,7 +221,7 @@ def read_logbooks(raw: Path) -> tuple[pd.DataFrame, list[Problem]]:
     raw = Path(raw)
     frames, problems = [], []
     for p in find_logbooks(raw):
-        rel = p.relative_to(raw).as_posix()
+        rel = display_name(os.path.relpath(p, os.path.realpath(raw)).replace(os.sep, "/"))
         try:
             df, probs = read_logbook(p, rel)
         except (OSError, csv.Error) as exc:
@@ -208,12 +243,30 @@ class _Hose:
     last_close: dict | None = None
     wall: float = np.nan
     odo: float = np.nan
+    odo_row: dict | None = None
     campaigns: set = field(default_factory=set)
     warnings: list = field(default_factory=list)
 
 
 def _where(r) -> str:
     return f"{r['source_path']}:{r['line']}"
+
+
+def _empty(v) -> bool:
+    return v is None or (isinstance(v, float) and math.isnan(v)) or (isinstance(v, str) and not v.strip())
+
+
+def _differ(a, b) -> bool:
+    """Both given and different (numbers compared as numbers)."""
+    if _empty(a) or _empty(b):
+        return False
+    if isinstance(a, float) and isinstance(b, float):
+        return not math.isclose(a, b, rel_tol=1e-9, abs_tol=0.0)
+    return str(a).strip() != str(b).strip()
+
+
+def _show(v) -> str:
+    return f"{v:g}" if isinstance(v, float) else f"`{v}`"
 
 
 def merge_logbooks(events: pd.DataFrame) -> tuple[pd.DataFrame, list[Problem]]:
@@ -242,17 +295,26 @@ def merge_logbooks(events: pd.DataFrame) -> tuple[pd.DataFrame, list[Problem]]:
     for r in ev.to_dict("records"):
         hid, event, at = r["hose_id"], r["event"], r["at"]
         key = (hid, event, at)
-        if key in seen:  # the same event logged twice (e.g. in two campaigns' logbooks)
-            first = seen[key]
-            for col in (*TEXT, *NUMERIC):
-                if first.get(col) is None or (isinstance(first.get(col), float) and math.isnan(first[col])):
-                    first[col] = r[col]
-            continue
         h = hoses.setdefault(hid, _Hose(hid))
-        is_open = bool(h.installs) and h.installs[-1][1] is None
 
         def bad(msg):
             problems.append(Problem(r["source_path"], f"hose {hid}: {msg}", int(r["line"]), stage="logbook"))
+
+        if key in seen:  # the same event logged twice (e.g. in two campaigns' logbooks)
+            first = seen[key]
+            clash = [f"{col} {_show(r[col])} vs {_show(first[col])}" for col in (*TEXT, *NUMERIC)
+                     if col != "notes" and _differ(first.get(col), r[col])]
+            if clash:
+                msg = (f"{event} at {at.isoformat()} disagrees with {_where(first)} ({'; '.join(clash)}); "
+                       f"the values of {_where(first)} are used")
+                bad(msg)
+                h.warnings.append(f"logbooks disagree: {_where(r)} {msg}")
+                continue
+            for col in (*TEXT, *NUMERIC):
+                if _empty(first.get(col)):
+                    first[col] = r[col]
+            continue
+        is_open = bool(h.installs) and h.installs[-1][1] is None
 
         when = at.isoformat()
         if h.failed is not None:
@@ -260,14 +322,15 @@ def merge_logbooks(events: pd.DataFrame) -> tuple[pd.DataFrame, list[Problem]]:
             continue
         if event == "installed":
             if is_open:
-                bad(f"installed at {when} while still installed since {h.installs[-1][0].isoformat()}")
+                bad(f"installed at {when} while still installed since {h.installs[-1][0].isoformat()} "
+                    f"({_where(h.installs[-1][3])})")
                 continue
             if h.inst_row is not None:
                 old = h.inst_row
                 for col in ("hose_type", "adjustment"):
                     if r[col] and old[col] and r[col] != old[col]:
-                        h.warnings.append(f"reinstalled at {when} with {col} {r[col]} (was {old[col]}); "
-                                          f"grouped under {old[col]}")
+                        h.warnings.append(f"reinstalled at {when} with {col} {r[col]} ({_where(r)}; was "
+                                          f"{old[col]} at {_where(old)}); grouped under {old[col]}")
                 for col in ("hose_type", "adjustment", "z_rollers_mm", "spring_force_n"):
                     if old.get(col) is None or (isinstance(old.get(col), float) and math.isnan(old[col])):
                         old[col] = r[col]
@@ -293,7 +356,14 @@ def merge_logbooks(events: pd.DataFrame) -> tuple[pd.DataFrame, list[Problem]]:
         h.installs[-1][2] = event
         h.last_close = r
         if not math.isnan(r["distance_km"]):
-            h.odo = r["distance_km"]
+            if h.odo_row is not None and r["distance_km"] < h.odo:
+                msg = (f"odometer distance_km {_show(r['distance_km'])} at {when} is lower than "
+                       f"{_show(h.odo)} at {h.odo_row['at'].isoformat()} ({_where(h.odo_row)}); an odometer "
+                       "does not go back: this reading is not used")
+                bad(msg)
+                h.warnings.append(f"{_where(r)}: {msg}")
+            else:
+                h.odo, h.odo_row = r["distance_km"], r
         if event == "failed":
             h.failed = r
     rows = []

@@ -706,12 +706,14 @@ def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, r
     tree.scan_rigs()
     tree.scan_manifests()
     ignored: list[Path] = []
-    files = discover_runs(tree.root, ignored)
+    files = discover_runs(tree, ignored)
     summary.n_files = len(files)
     if ignored:
         names = ", ".join(tree.rel(p) for p in ignored[:5]) + (", ..." if len(ignored) > 5 else "")
         progress.message(f"ignored {len(ignored)} file(s) that are not bench exports "
                          f"({', '.join(sorted(READERS))}): {names}")
+    for rel, why in tree.listing().skipped:  # symlink aliases of files read under their own path
+        progress.message(f"skipped {rel}: {why}")
     code = ingest_code_version()
     plans = plan_runs(tree, files, prev, code, warehouse, full)
     side, side_changes = side_records(tree, prev)

@@ -4,9 +4,24 @@ Everything is rendered with absolute paths: the working directory, the raw tree,
 the log file and the ``pneubench`` executable, so the text can be pasted as it is. Overlapping
 runs are handled by the rebuild's own lock (``warehouse/.rebuild.lock``): a run that finds the
 previous one still going waits ``--wait`` seconds, then exits with code 4 and a clear message.
+
+Everything given to it is untrusted text pasted into a shell (cron) and a unit file (systemd):
+
+* every path must be absolute after resolving, valid UTF-8, and free of control characters
+  (a newline would add a crontab entry or a unit directive); anything else is a ``ValueError``
+  (the CLI's usage error, exit 2);
+* the user name must be a conservative POSIX name (``[A-Za-z_][A-Za-z0-9_.-]{0,31}``), the unit
+  name ``[A-Za-z0-9_.-]+`` (``@``-free: no template instances);
+* cron: every word is ``shlex.quote``-d (single quotes: no ``$(...)``, backtick or variable is
+  expanded), the failure message too, and every ``%`` becomes ``\\%`` (cron turns a bare ``%``
+  into a newline and removes the backslash before a ``%``);
+* systemd: words of ``Exec*=`` and ``Environment=`` lines are double-quoted with C escapes
+  (``\\``, ``\"``), ``%`` is doubled everywhere a specifier is expanded (also ``Description=``,
+  ``WorkingDirectory=``, ``StandardOutput=``), and ``$`` is doubled in ``Exec*=`` lines.
 """
 from __future__ import annotations
 
+import re
 import shlex
 import shutil
 import sys
@@ -14,6 +29,26 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 FORMATS = ("all", "cron", "service", "timer")
+
+#: A user name we paste into ``User=`` and the crontab comment: conservative POSIX.
+USER_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_.-]{0,31}")
+#: The unit's name (file name of the service and timer, and the cron comment).
+UNIT_NAME = re.compile(r"[A-Za-z0-9_.-]{1,200}")
+_CONTROL = re.compile(r"[\x00-\x1f\x7f]")
+
+
+def check_text(what: str, text: str) -> str:
+    """``text`` if it can be pasted into a crontab or unit file: valid UTF-8 and no control
+    character (newline, tab, NUL, ESC...); else ``ValueError`` naming ``what``."""
+    text = str(text)
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        raise ValueError(f"{what} is not valid UTF-8: {text.encode('utf-8', 'surrogateescape')!r}") from None
+    m = _CONTROL.search(text)
+    if m:
+        raise ValueError(f"{what} contains a control character {m.group()!r} (newline, tab, ...): {text!r}")
+    return text
 
 
 @dataclass
@@ -32,12 +67,25 @@ class Schedule:
     executable: str | None = None
 
     def __post_init__(self):
+        for what, value in (("--raw", self.raw), ("--warehouse", self.warehouse), ("--workdir", self.workdir),
+                            ("--log", self.log or ""), ("the executable", self.executable or "")):
+            check_text(f"{what} path", value)
+        for arg in self.extra_args:
+            check_text("an extra argument", arg)
+        if self.user is not None and not USER_NAME.fullmatch(str(self.user)):
+            raise ValueError(f"--user {str(self.user)!r} is not a plain user name "
+                             "(letters, digits, _ . -, starting with a letter or _, at most 32)")
+        if not UNIT_NAME.fullmatch(str(self.name)):
+            raise ValueError(f"unit name {self.name!r} is not a plain name (letters, digits, _ . -)")
         self.raw, self.warehouse, self.workdir = (Path(p).expanduser().resolve() for p in
                                                   (self.raw, self.warehouse, self.workdir))
         self.log = Path(self.log).expanduser().resolve() if self.log else self.warehouse / "logs" / "rebuild.log"
         hh, mm = parse_time(self.at)
         self.hour, self.minute = hh, mm
-        self.executable = self.executable or find_executable()
+        self.executable = check_text("the executable path", self.executable or find_executable())
+        for what, value in (("--raw", self.raw), ("--warehouse", self.warehouse), ("--workdir", self.workdir),
+                            ("--log", self.log)):  # resolving may have followed a symlink to a worse name
+            check_text(f"{what} path", value)
 
     def command(self) -> list[str]:
         return [self.executable, "rebuild", "--raw", str(self.raw), "--warehouse", str(self.warehouse),
@@ -75,8 +123,10 @@ def crontab_line(s: Schedule) -> str:
     """
     cmd = " ".join(shlex.quote(c) for c in s.command())
     log = shlex.quote(str(s.log))
+    # The failure message: the exit code is the only expansion ("$?"); the rest is single-quoted.
+    fail = f"echo {shlex.quote(s.name + ' failed with exit code')} \"$?\" {shlex.quote(f'(see {s.log})')}"
     line = (f"{s.minute} {s.hour} * * * cd {shlex.quote(str(s.workdir))} && mkdir -p {shlex.quote(str(s.log.parent))}"
-            f" && {cmd} >> {log} 2>&1 || echo \"{s.name} failed with exit code $? (see {s.log})\"")
+            f" && {cmd} >> {log} 2>&1 || {fail}")
     return (f"# {s.name}: nightly pneubench rebuild at {s.hour:02d}:{s.minute:02d} (install: crontab -e"
             f"{' as ' + s.user if s.user else ''})\n" + line.replace("%", "\\%"))  # cron: bare % = newline
 
@@ -99,7 +149,7 @@ def systemd_service(s: Schedule) -> str:
     user = f"User={s.user}\n" if s.user else ""
     return f"""# /etc/systemd/system/{s.name}.service
 [Unit]
-Description=pneubench nightly rebuild of {s.warehouse}
+Description=pneubench nightly rebuild of {str(s.warehouse).replace("%", "%%")}
 After=local-fs.target network-online.target
 Wants=network-online.target
 

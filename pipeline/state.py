@@ -31,7 +31,7 @@ from pathlib import Path
 import pandas as pd
 
 from pipeline.ingest import INGEST_VERSION, sha256_file
-from pipeline.layout import ConfigError, RawTree, is_run_file
+from pipeline.layout import ConfigError, RawTree
 
 #: Raw files that are not runs but change what the runs mean (their changes are reported).
 SIDE_FILES = {"manifest.csv": "manifest", "rig.toml": "rig", "hoses.csv": "logbook"}
@@ -286,15 +286,9 @@ def record_for(plan: FilePlan, sha: str | None, code_version: str, result: dict 
 
 
 def side_files(tree: RawTree) -> list[Path]:
-    """manifest.csv, rig.toml and hoses.csv files of the raw tree (hidden folders skipped)."""
-    out = []
-    for p in tree.root.rglob("*"):
-        rel = p.relative_to(tree.root)
-        if any(part.startswith(".") for part in rel.parts[:-1]):
-            continue
-        if p.name.lower() in SIDE_FILES and p.is_file() and not is_run_file(p):
-            out.append(p)
-    return sorted(out, key=lambda p: p.relative_to(tree.root).as_posix())
+    """manifest.csv, rig.toml and hoses.csv files of the raw tree that can be read (hidden
+    folders skipped; the walk of :func:`pipeline.layout.walk_raw`)."""
+    return [p for p in tree.listing().side if p.name.lower() in SIDE_FILES]
 
 
 def side_records(tree: RawTree, prev: PreviousState) -> tuple[list[FileRecord], list[dict]]:

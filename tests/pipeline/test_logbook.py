@@ -2,7 +2,7 @@
 import pandas as pd
 import pytest
 
-from pipeline.logbook import (find_logbooks, hose_distance_at, hose_life, match_runs, merge_logbooks,
+from pipeline.logbook import (find_logbooks, hose_distance_at, hose_life, match_runs, merge_logbooks, parse_time,
                               read_logbook, read_logbooks)
 
 HEADER = "hose_id,event,at,hose_type,adjustment,z_rollers_mm,spring_force_n,failure_mode,wall_thickness_mm,distance_km,notes\n"
@@ -143,3 +143,106 @@ def test_match_runs_and_distance_at_time(raw):
     assert hose_distance_at(mine, ts("2026-01-01")) == 0.0
     assert hose_distance_at(mine, ts("2026-01-02T12:00")) == 1.0
     assert hose_distance_at(mine, ts("2026-01-09")) == 3.5
+
+
+# -- careless logbooks ------------------------------------------------------------------------------
+@pytest.mark.parametrize("at", ["now", "today", "Now", "1/2/2026", "2 Jan 2026", "2026-1-2", "02.01.2026",
+                                "2026-01-02T08", "yesterday 08:00", "2026-02-30"])
+def test_times_that_are_not_strict_iso_8601_are_quarantined(raw, at):
+    raw.write("c/hoses.csv", HEADER + "H1,installed,2026-01-01,T,force,,866,,,,\n"
+              f"H1,removed,{at},,,,,,,5,\n")
+    events, problems = read_logbook(raw.root / "c/hoses.csv", "c/hoses.csv")
+    assert len(events) == 1
+    assert [(p.source_path, p.line) for p in problems] == [("c/hoses.csv", 3)]
+    assert f"`{at}` is not ISO 8601" in problems[0].error
+
+
+@pytest.mark.parametrize("at,expected", [
+    ("2026-01-02", "2026-01-02T00:00"), ("2026-01-02T08:30", "2026-01-02T08:30"),
+    ("2026-01-02 08:30:15.25", "2026-01-02T08:30:15.25"), ("2026-01-02T09:30+01:00", "2026-01-02T08:30"),
+    ("2026-01-02T09:30:00+0100", "2026-01-02T08:30"), ("2026-01-02T08:30:00z", "2026-01-02T08:30")])
+def test_strict_iso_8601_times_are_read(at, expected):
+    assert parse_time(at) == ts(expected)
+
+
+def test_two_logbooks_that_disagree_on_an_event_are_flagged_with_both_files_and_lines(raw):
+    raw.write("a/hoses.csv", HEADER + "H1,installed,2026-01-01T08:00,FLEXIGOM AIR,force,,866,,,,\n"
+              "H1,failed,2026-01-09T08:00,,,,,rupture,,40,\n")
+    raw.write("b/hoses.csv", HEADER + "H1,installed,2026-01-01T08:00,SILICONE,distance,,866,,,,\n"
+              "H1,failed,2026-01-09T08:00,,,,,leakage,,400,\n"
+              "H2,installed,2026-01-01T08:00,T,force,,866,,,,same hose twice is fine,\n")
+    raw.write("c/hoses.csv", HEADER + "H2,installed,2026-01-01T08:00,T,force,,866,,,,other notes\n")
+    events, problems = read_logbooks(raw.root)
+    hoses, merge_problems = merge_logbooks(events)
+    assert problems == []
+    got = sorted((p.source_path, p.line, p.error) for p in merge_problems)
+    assert [(s, ln) for s, ln, _ in got] == [("b/hoses.csv", 2), ("b/hoses.csv", 3)]
+    assert "disagrees with a/hoses.csv:2" in got[0][2]
+    assert "hose_type `SILICONE` vs `FLEXIGOM AIR`" in got[0][2] and "adjustment `distance` vs `force`" in got[0][2]
+    assert "disagrees with a/hoses.csv:3" in got[1][2]
+    assert "failure_mode `leakage` vs `rupture`" in got[1][2] and "distance_km 400 vs 40" in got[1][2]
+    h = hoses.set_index("hose_id")
+    assert (h.loc["H1", "hose_type"], h.loc["H1", "failure_mode"], h.loc["H1", "odometer_km"]) == (
+        "FLEXIGOM AIR", "rupture", 40.0)  # the first logbook's values, not a silent mix
+    warn = " ".join(h.loc["H1", "warnings"])
+    assert "logbooks disagree" in warn and "a/hoses.csv:3" in warn and "b/hoses.csv:3" in warn
+    assert h.loc["H2", "warnings"] == []  # same values (notes differ): one event, no warning
+
+
+def test_overlapping_installations_in_two_logbooks_name_the_first(raw):
+    raw.write("a/hoses.csv", HEADER + "H1,installed,2026-01-01T08:00,T,force,,866,,,,\n")
+    raw.write("b/hoses.csv", HEADER + "H1,installed,2026-01-05T08:00,T,force,,866,,,,\n")
+    hoses, problems = merge_logbooks(read_logbooks(raw.root)[0])
+    assert [(p.source_path, p.line) for p in problems] == [("b/hoses.csv", 2)]
+    assert "still installed since" in problems[0].error and "(a/hoses.csv:2)" in problems[0].error
+    assert hoses.iloc[0]["n_installations"] == 1
+
+
+def test_an_odometer_that_goes_down_is_flagged(raw):
+    raw.write("a/hoses.csv", HEADER + "H1,installed,2026-01-01,T,force,,866,,,,\n"
+              "H1,removed,2026-01-05,,,,,,,400,\n")
+    raw.write("b/hoses.csv", HEADER + "H1,installed,2026-01-06,T,force,,866,,,,\n"
+              "H1,failed,2026-01-09,,,,,rupture,,40,\n")
+    hoses, problems = merge_logbooks(read_logbooks(raw.root)[0])
+    assert [(p.source_path, p.line) for p in problems] == [("b/hoses.csv", 3)]
+    assert "distance_km 40 at 2026-01-09" in problems[0].error and "lower than 400" in problems[0].error
+    assert "(a/hoses.csv:3)" in problems[0].error
+    row = hoses.iloc[0]
+    assert row["status"] == "failed" and row["odometer_km"] == 400.0  # the event counts, the reading does not
+    assert any("b/hoses.csv:3" in w and "does not go back" in w for w in row["warnings"])
+
+
+def test_careless_logbooks_in_a_rebuild_are_quarantine_lines_and_hose_warnings(raw, tmp_path):
+    from pipeline.rebuild import EXIT_QUARANTINED, rebuild
+    from tests.conftest import STEP_META, query
+
+    raw.csv("a/run.csv", STEP_META, {"t[s]": [0.0, 0.1], "x[m]": [0.0, 0.1], "x_ref[m]": [0.1, 0.1]})
+    raw.write("a/hoses.csv", HEADER + "H1,installed,2026-01-01,T,force,,866,,,,\nH1,removed,now,,,,,,,5,\n"
+              "H2,installed,2026-01-01,T,force,,866,,,,\nH2,failed,2026-01-09,,,,,rupture,,40,\n")
+    raw.write("b/hoses.csv", HEADER + "H2,failed,2026-01-09,,,,,rupture,,400,\n")
+    wh = tmp_path / "wh"
+    before = {p: p.read_bytes() for p in raw.root.rglob("*") if p.is_file()}
+    assert rebuild(raw.root, wh, jobs=1).exit_code == EXIT_QUARANTINED
+    assert {p: p.read_bytes() for p in raw.root.rglob("*") if p.is_file()} == before
+    rows = query(wh, "SELECT source_path, line, error FROM quarantine ORDER BY 1, 2")
+    assert [(s, ln) for s, ln, _ in rows] == [("a/hoses.csv", 3), ("b/hoses.csv", 2)]
+    assert "`now` is not ISO 8601" in rows[0][2] and "disagrees with a/hoses.csv:5" in rows[1][2]
+    life = dict(query(wh, "SELECT hose_id, warnings FROM hose_life ORDER BY 1"))
+    assert life["H1"] == [] and any("b/hoses.csv:2" in w for w in life["H2"])
+    assert query(wh, "SELECT run_id FROM runs") == [("a/run",)]
+
+
+@pytest.mark.parametrize("body,line,error", [
+    (HEADER.encode() + b"H1,installed,2026-01-01,T,force,,866,,,,\nH1,failed,2026-01-09,,,,,rup\x00ture,,,\n", 3,
+     "NUL byte (a binary or UTF-16 file?)"),
+    (HEADER.encode() + b'H1,installed,2026-01-01,"T,force,,866,,,,\nH1,failed,2026-01-09,,,,,rupture,,,\n', 2,
+     "unclosed quote (the quoted field runs to the end of the file)"),
+    (HEADER.encode() + b"H1,installed,2026-01-01,T,force,,866,,,," + b"x" * 200_000 + b"\n", 2,
+     "CSV syntax error: field larger than field limit (131072)"),
+])
+def test_a_logbook_that_is_not_csv_text_is_quarantined_whole_with_its_line(raw, body, line, error):
+    raw.write("c/hoses.csv", body)
+    events, problems = read_logbook(raw.root / "c/hoses.csv", "c/hoses.csv")
+    assert events.empty  # no silently swallowed or mangled events
+    assert [(p.source_path, p.line) for p in problems] == [("c/hoses.csv", line)]
+    assert problems[0].error.startswith(error) and problems[0].error.endswith("no row of it is read")
