@@ -46,6 +46,12 @@ def is_known_non_run(path: Path) -> bool:
             or name.lower().endswith(".tdms_index"))
 
 
+def skip_reason(path: Path) -> str:
+    """Why a file under raw/ that is not a known side file is not read as a run."""
+    suffix = path.suffix.lower()
+    return f"not a supported format: {suffix}" if suffix else "not a supported format: no file extension"
+
+
 def discover_runs(raw: Path, ignored: list[Path] | None = None) -> list[Path]:
     """Every run file under ``raw`` (hidden folders skipped), sorted by relative path.
 
