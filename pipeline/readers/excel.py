@@ -160,6 +160,11 @@ def _column(values: list) -> tuple[str, pa.Array, str | None]:
     kind: ``float`` (numbers, empty -> NaN), ``datetime`` (seconds since the first value),
     ``duration`` (seconds) or ``string``.
     """
+    if values and not isinstance(values[0], str):
+        try:  # fast path: a column of numbers only (bool is a number), converted in C
+            return "float", pa.array(np.array(values, dtype=float)), None
+        except (TypeError, ValueError):
+            pass
     present = [v for v in values if not _is_empty(v)]
     if present and all(_as_datetime(v) is not None for v in present):
         stamps = [_as_datetime(v) for v in values]
@@ -245,16 +250,17 @@ def read_excel(path: str | Path, read: dict | None = None, hints: dict | None = 
     columns: list[RawColumn] = []
     arrays: list[pa.Array] = []
     warnings: list[str] = []
+    by_column = [list(c) for c in zip(*data)]
     for j, cell in enumerate(header):
         if _is_empty(cell):
-            if all(_is_empty(r[j]) for r in data):
+            if all(_is_empty(v) for v in by_column[j]):
                 continue
             raise ReaderError(f"sheet {name!r}: column {j + 1} has data but no name in the header (row {h + 1})")
         text = str(cell).strip()
         cname, unit = split_name_unit(text)
         if units is not None and not _is_empty(units[j]):
             unit = str(units[j]).strip()
-        kind, arr, first_stamp = _column([r[j] for r in data])
+        kind, arr, first_stamp = _column(by_column[j])
         if kind in ("datetime", "duration"):
             unit = "s"
             if kind == "datetime" and first_stamp and "started_at" not in metadata and cname.casefold() in ("t", "time"):
