@@ -1,4 +1,4 @@
-"""Ingest benchmark: pneubench's CSV / TDMS -> Parquet against plain pandas, pyarrow and npTDMS.
+"""Ingest benchmark: pneubench's CSV / TDMS / MF4 / XLSX -> Parquet against pandas, pyarrow, npTDMS, asammdf.
 
 One command::
 
@@ -15,6 +15,9 @@ ratios the issue sets as targets:
 * CSV: pneubench ``ingest_file`` >= 3x ``pandas.read_csv`` + ``DataFrame.to_parquet``, and
   within 1.5x of ``pyarrow.csv.read_csv`` + ``pyarrow.parquet.write_table``;
 * TDMS: pneubench against ``TdmsFile.read`` + ``as_dataframe`` + ``to_parquet``;
+* MF4 (1 GB): pneubench against ``asammdf.MDF`` + ``to_dataframe`` + ``to_parquet``;
+* XLSX (50 MB, ``--xlsx-size-mb``): pneubench (python-calamine) against ``pandas.read_excel``
+  with its default engine (openpyxl) and with ``engine="calamine"``;
 * peak RSS bounded (under 1 GB for a 2 GB file).
 
 The file is in the page cache for every approach (it was just generated or read), so the
@@ -47,7 +50,13 @@ APPROACHES = {
             ("pyarrow-stream", "pyarrow.csv.open_csv + ParquetWriter, batch by batch (reference)")],
     "tdms": [("pneubench", "pipeline.ingest.ingest_file (sha256, validation, SI, Parquet)"),
              ("nptdms", "TdmsFile.read + as_dataframe + DataFrame.to_parquet")],
+    "mf4": [("pneubench", "pipeline.ingest.ingest_file (sha256, validation, SI, Parquet)"),
+            ("asammdf", "asammdf.MDF + to_dataframe + DataFrame.to_parquet")],
+    "xlsx": [("pneubench", "pipeline.ingest.ingest_file (python-calamine, SI, Parquet)"),
+             ("pandas", "pandas.read_excel (openpyxl, its default) + DataFrame.to_parquet"),
+             ("pandas-calamine", "pandas.read_excel(engine='calamine') + DataFrame.to_parquet")],
 }
+TARGETS_BY_FORMAT = {"mf4": {"asammdf": 1.0}, "xlsx": {"pandas": 1.0}}
 
 
 # -- data ----------------------------------------------------------------------------------
@@ -119,6 +128,53 @@ def make_tdms(path: Path, size_mb: float, segment_rows: int) -> Path:
     return path
 
 
+def make_mf4(path: Path, size_mb: float, chunk: int = 1_000_000) -> Path:
+    """An ASAM MDF 4.10 export of about ``size_mb`` MB as a logger writes it: one channel group,
+    float64 ``p_a``/``p_b`` [bar] and ``x`` [mm], the time as master channel; appended chunk by
+    chunk (asammdf ``extend``), so generating it takes bounded memory."""
+    from asammdf import MDF, Signal
+
+    target = int(size_mb * 1e6)
+    if path.exists() and target <= path.stat().st_size < target + 40e6:
+        return path
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.stem + ".tmp.mf4")
+    mdf = MDF(version="4.10")
+    mdf.header.comment = ";".join(f"{k}={v}" for k, v in META.items())
+    start = 0
+    while start * 32 < target:  # 4 float64 per record
+        t, p_a, p_b, x = _signals(start, chunk)
+        if start == 0:
+            mdf.append([Signal(p_a, t, name="p_a", unit="bar"), Signal(p_b, t, name="p_b", unit="bar"),
+                        Signal(x, t, name="x", unit="mm")], acq_name="Measurement")
+        else:
+            mdf.extend(0, [(t, None), (p_a, None), (p_b, None), (x, None)])
+        start += chunk
+    mdf.save(tmp, overwrite=True)
+    mdf.close()
+    os.replace(tmp, path)
+    return path
+
+
+def make_xlsx(path: Path, size_mb: float) -> Path:
+    """An Excel workbook of about ``size_mb`` MB (one sheet, ``name[unit]`` header, metadata in
+    a ``meta`` sheet), written by the simulator's writer; capped at Excel's 1,048,576 rows."""
+    import numpy as np
+    import pandas as pd
+
+    from pipeline.simulator.writers import ColumnOut, write_xlsx
+
+    if path.exists() and abs(path.stat().st_size - size_mb * 1e6) < 0.3 * size_mb * 1e6:
+        return path
+    rows = min(1_048_000, int(size_mb * 1e6 / 36))  # ~36 compressed bytes per row of 4 numbers
+    t, p_a, p_b, x = _signals(0, rows)
+    frame = pd.DataFrame({"t_s": t, "p_a_pa": (p_a - 0) * 1e5, "p_b_pa": p_b * 1e5, "x_m": np.round(x, 3) * 1e-3})
+    cols = [ColumnOut("p_a_pa", "p_a", "bar"), ColumnOut("p_b_pa", "p_b", "bar"), ColumnOut("x_m", "x", "mm")]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_xlsx(path, frame, cols, META)
+    return path
+
+
 # -- approaches (run in a child process) ---------------------------------------------------
 def _meta_lines(path: Path) -> int:
     n = 0
@@ -146,7 +202,7 @@ def run_approach(fmt: str, name: str, src: Path, out: Path) -> dict:
             raise SystemExit(f"pneubench failed: {res.error}")
         rows = res.run["n_samples"]
         written = out / "warehouse" / res.run["samples_path"]
-    elif name == "pandas":
+    elif name == "pandas" and fmt == "csv":
         import pandas as pd
 
         df = pd.read_csv(src, skiprows=_meta_lines(src))
@@ -173,6 +229,22 @@ def run_approach(fmt: str, name: str, src: Path, out: Path) -> dict:
             for batch in reader:
                 writer.write_batch(batch)
                 rows += batch.num_rows
+    elif name == "asammdf":
+        from asammdf import MDF
+
+        mdf = MDF(str(src))
+        df = mdf.to_dataframe()
+        mdf.close()
+        rows = len(df)
+        written = out / "asammdf.parquet"
+        df.to_parquet(written)
+    elif name in ("pandas", "pandas-calamine") and fmt == "xlsx":
+        import pandas as pd
+
+        df = pd.read_excel(src, sheet_name=0, engine="calamine" if name == "pandas-calamine" else None)
+        rows = len(df)
+        written = out / f"{name}.parquet"
+        df.to_parquet(written)
     elif name == "nptdms":
         from nptdms import TdmsFile
 
@@ -199,6 +271,10 @@ def _child(args) -> None:
     import pyarrow.csv  # noqa: F401
     import pyarrow.parquet  # noqa: F401
     import nptdms  # noqa: F401
+    if args.format in ("mf4", "xlsx"):
+        import pipeline.readers.excel  # noqa: F401
+        import pipeline.readers.mdf  # noqa: F401
+        import asammdf  # noqa: F401
 
     base_kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     result = run_approach(args.format, args.child, Path(args.input), Path(args.out))
@@ -228,7 +304,8 @@ def measure(fmt: str, name: str, src: Path, out: Path) -> dict:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size-mb", type=float, default=1000.0, help="size of each generated export [MB]")
-    ap.add_argument("--formats", default="csv,tdms", help="comma-separated: csv,tdms")
+    ap.add_argument("--formats", default="csv,tdms,mf4,xlsx", help="comma-separated: csv,tdms,mf4,xlsx")
+    ap.add_argument("--xlsx-size-mb", type=float, default=50.0, help="size of the generated workbook [MB]")
     ap.add_argument("--approaches", default=None, help="comma-separated subset (default: all)")
     ap.add_argument("--repeat", type=int, default=1, help="runs per approach; the median is reported")
     ap.add_argument("--tdms-segment-rows", type=int, default=10_000, help="samples per TDMS segment")
@@ -257,6 +334,11 @@ def main(argv=None) -> int:
             make_csv(src, args.size_mb)
         elif fmt == "tdms":
             make_tdms(src, args.size_mb, args.tdms_segment_rows)
+        elif fmt == "mf4":
+            make_mf4(src, args.size_mb)
+        elif fmt == "xlsx":
+            src = args.data_dir / "raw" / "bench" / f"big-{int(args.xlsx_size_mb)}mb.xlsx"
+            make_xlsx(src, args.xlsx_size_mb)
         else:
             raise SystemExit(f"unknown format {fmt!r}")
         mb = src.stat().st_size / 1e6
@@ -285,7 +367,7 @@ def main(argv=None) -> int:
                 if base == "pneubench":
                     continue
                 speedup = res["seconds"] / pb["seconds"]
-                need = TARGETS.get(base)
+                need = TARGETS_BY_FORMAT.get(fmt, TARGETS).get(base)
                 verdict = "" if need is None else ("  target met" if speedup >= need else "  TARGET MISSED")
                 goal = "" if need is None else (f" (target >= {need:g}x)" if need >= 1 else
                                                 f" (target: at most {1 / need:g}x slower)")

@@ -299,6 +299,12 @@ def _symlink(path: str, root: str, out: Listing, problem, classify) -> None:
     classify(path)
 
 
+def skip_reason(path: Path) -> str:
+    """Why a file under raw/ that is not a known side file is not read as a run."""
+    suffix = path.suffix.lower()
+    return f"not a supported format: {suffix}" if suffix else "not a supported format: no file extension"
+
+
 def discover_runs(raw, ignored: list[Path] | None = None) -> list[Path]:
     """Every run file under ``raw`` (a folder, or a :class:`RawTree` whose walk is reused),
     sorted by relative path (see :func:`walk_raw`).

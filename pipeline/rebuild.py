@@ -37,7 +37,7 @@ import pandas as pd
 from pipeline import stages as stage_registry
 from pipeline.executors import CRASH_REASON, Executor, make_executor
 from pipeline.ingest import IngestResult, ingest_file, sha256_file
-from pipeline.layout import Problem, RawTree, discover_runs
+from pipeline.layout import Problem, RawTree, discover_runs, skip_reason
 from pipeline.readers import READERS
 from pipeline.progress import Progress
 from pipeline.state import (FilePlan, FileRecord, PreviousState, StageRecord, frame_hash, ingest_code_version,
@@ -768,6 +768,10 @@ def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, r
         history = pd.concat([prev.history.tail(HISTORY_ROWS - 1), log_row], ignore_index=True)
     all_tables = {
         "runs": runs_df, "quarantine": quarantine, "channels": pd.DataFrame(channels),
+        "skipped_files": pd.DataFrame(
+            [{"source_path": tree.rel(p), "campaign": tree.campaign(p), "reason": skip_reason(p)} for p in ignored]
+            + [{"source_path": rel, "campaign": rel.split("/")[0] if "/" in rel else None, "reason": why}
+               for rel, why in tree.listing().skipped], columns=["source_path", "campaign", "reason"]),
         "figures": pd.DataFrame(staged.figures, columns=["stage", "name", "path", "caption"]),
         **stage_tables,
         "rebuild_log": history, "rebuild_inputs": inputs,

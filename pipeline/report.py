@@ -199,6 +199,11 @@ def _rebuild_section(db: _DB) -> str:
         out.append(html_table(cols, rows, MAX_INPUT_ROWS, n_q))
     else:
         out.append('<p class="meta">none: every input was used</p>')
+    n_s = db.count("skipped_files") if db.has("skipped_files") else 0
+    if n_s:  # not errors, but a run saved in an unsupported format is missing from every analysis
+        cols, rows = db.rows("SELECT source_path, reason FROM skipped_files ORDER BY source_path")
+        out.append(f"<h3>Files not read ({n_s})</h3>")
+        out.append(html_table(cols, rows, MAX_INPUT_ROWS, n_s))
     if db.has("rebuild_inputs"):
         n = db.con.execute("SELECT count(*) FROM rebuild_inputs WHERE status <> 'unchanged'").fetchone()[0]
         per = db.con.execute("SELECT status, count(*) FROM rebuild_inputs WHERE status <> 'unchanged' "

@@ -17,6 +17,12 @@ READERS = {
     ".lvm": "pipeline.readers.lvm:read_lvm",
     ".tdms": "pipeline.readers.tdms:read_tdms",
     ".mat": "pipeline.readers.mat:read_mat",
+    ".xlsx": "pipeline.readers.excel:read_excel",
+    ".xlsm": "pipeline.readers.excel:read_excel",
+    ".xls": "pipeline.readers.excel:read_excel",
+    ".ods": "pipeline.readers.excel:read_excel",
+    ".mf4": "pipeline.readers.mdf:read_mdf",
+    ".mdf": "pipeline.readers.mdf:read_mdf",
 }
 
 

@@ -20,7 +20,9 @@ defaults under both), a ``;`` + decimal-comma CSV with kPa and Nl/min, absolute 
 (``bara``, ``bar(a)``), LVM with two segments and LVM with waveform timing (no X column), TDMS
 with waveform timing and TDMS with two groups, MAT with a ``meta`` struct or numeric scalars,
 a headerless whitespace text export described by ``rig.toml`` (encoder counts scaled there),
-CSV columns renamed by ``rig.toml``, and non-canonical channels kept with their units (the
+CSV columns renamed by ``rig.toml``, Excel workbooks (``meta`` sheet; a units row under the names,
+described by ``rig.toml``) and ASAM MDF 4 files (metadata in the header comment) for every
+characterisation kind, and non-canonical channels kept with their units (the
 logger's ``temperature[degC]`` and ``rel_humidity[%]``, in CSV beside ``p_supply[bar]`` and in
 TDMS with waveform timing, where ``t`` is the only canonical channel).
 
@@ -63,7 +65,8 @@ from pipeline.progress import Progress
 from pipeline.simulator import ambient, pla, plpa
 from pipeline.simulator import durability as dur
 from pipeline.simulator.base import HOSE_AREA_M2, P_ATM_PA, SimRun, jsonable
-from pipeline.simulator.writers import ColumnOut, default_columns, write_csv, write_lvm, write_mat, write_tdms
+from pipeline.simulator.writers import (ColumnOut, default_columns, write_csv, write_lvm, write_mat, write_mf4, write_tdms,
+                                         write_xlsx)
 
 PROFILES_AVAILABLE = ("demo", "full", "mini")
 
@@ -132,6 +135,8 @@ VARIANTS: dict[str, list[dict]] = {
         dict(fmt="tdms", folder="leakage", units={"p_supply": "bar", "q_leak": "l/min"}, embed=True,
              opts=dict(waveform=True)),
         dict(fmt="mat", folder="leakage", units={"p_supply": "Pa", "q_leak": "g/s"}, embed=True),
+        dict(fmt="xlsx", folder="leakage/workbooks", units={"p_supply": "bar", "q_leak": "l/min"}, embed=True,
+             opts=dict(units_row=True)),
     ],
     "breakaway": [
         dict(fmt="lvm", folder="breakaway", units={"p_a": "bar", "p_b": "bar", "x": "mm"}, embed=True,
@@ -141,11 +146,13 @@ VARIANTS: dict[str, list[dict]] = {
              opts=dict(extra_group="Settings")),
         dict(fmt="lvm", folder="breakaway", units={"p_a": "bar", "p_b": "bar", "x": "mm"}, embed=False,
              opts=dict(x_columns="No")),
+        dict(fmt="mf4", folder="breakaway", units={"p_a": "bar", "p_b": "bar", "x": "mm"}, embed=True),
     ],
     "viscous": [
         dict(fmt="csv", folder="viscous", units={"p_a": "bar", "p_b": "bar", "x": "mm"}, embed=True),
         dict(fmt="lvm", folder="viscous", units={"p_a": "bar", "p_b": "bar", "x": "mm"}, embed=True,
              opts=dict(x_columns="No")),
+        dict(fmt="mf4", folder="viscous", units={"p_a": "kPa", "p_b": "kPa", "x": "mm"}, embed=True),
     ],
     "viscous_force": [
         dict(fmt="mat", folder="viscous", units={"f": "N", "x": "mm"}, embed=True, opts=dict(scalars=True)),
@@ -156,22 +163,26 @@ VARIANTS: dict[str, list[dict]] = {
              embed=True, opts=dict(waveform=True)),
         dict(fmt="mat", folder="identification", units={"x": "m", "x_ref": "m", "u": "V", "u_d": "V"}, embed=True,
              opts=dict(scalars=True)),
+        dict(fmt="mf4", folder="identification", units={"x": "mm", "x_ref": "mm", "u": "V", "u_d": "V"}, embed=True),
     ],
     "step": [
         dict(fmt="csv", folder="step", units={"x": "mm", "x_ref": "mm", "u": "V"}, embed=True),
         dict(fmt="lvm", folder="step", units={"x": "mm", "x_ref": "mm", "u": "mV"}, embed=True,
              opts=dict(x_columns="One")),
         dict(fmt="txt", folder="step/headerless", units={}, embed=False, headerless=True),
+        dict(fmt="xlsx", folder="step", units={"x": "mm", "x_ref": "mm", "u": "V"}, embed=True),
     ],
     "spring": [
         dict(fmt="mat", folder="spring", units={"d": "mm", "f": "kN", "p": "bar(a)"}, embed=True),
         dict(fmt="csv", folder="spring/bench-pc", units={"d": "mm", "f": "N", "p": "bar(a)"}, embed=False,
              names={"d": "Displacement", "f": "Force", "p": "Pressure"}, opts=dict(delimiter="\t")),
+        dict(fmt="xlsx", folder="spring", units={"d": "mm", "f": "N", "p": "bar(a)"}, embed=True),
     ],
     "pressure_step": [
         dict(fmt="lvm", folder="pressure_step", units={"p": "bar", "p_ref": "bar"}, embed=True,
              opts=dict(x_columns="One")),
         dict(fmt="csv", folder="pressure_step", units={"p": "bara", "p_ref": "bara"}, embed=True),
+        dict(fmt="mf4", folder="pressure_step", units={"p": "bar", "p_ref": "bar"}, embed=True),
     ],
     "durability": [
         dict(fmt="tdms", folder="runs", units={"x": "mm", "p_a": "bar", "p_b": "bar"}, embed=True,
@@ -204,6 +215,7 @@ RIG_TOMLS = {
         '[channels."3"]\nchannel = "x_ref"\nunit = "mm"\n\n'
         '[metadata]\nkind = "step"\n'),
     "pla-2016/rig.toml": '# PLA cylinder on the hydraulic test machine\n[metadata]\nrig = "pla-1"\nstroke_mm = 40\n',
+    "plpa-2025/leakage/workbooks/rig.toml": '# Spreadsheet exports: units in the row under the names\n[read]\nunits_row = 2\n',
     "pla-2016/spring/bench-pc/rig.toml": (
         '# The bench PC names channels in words\n[channels.Displacement]\nchannel = "d"\n\n'
         '[channels.Force]\nchannel = "f"\n\n[channels.Pressure]\nchannel = "p"\n'),
@@ -346,6 +358,10 @@ def write_run(out_dir: Path, plan: RunPlan, seed: int, chunk_rows: int = 2_000_0
         write_tdms(path, frames, _variant_columns(cols, v), embedded or None, fs_hz=fs, **opts)
     elif v["fmt"] == "mat":
         write_mat(path, frames, _variant_columns(cols, v), embedded or None, **opts)
+    elif v["fmt"] == "xlsx":
+        write_xlsx(path, frames, _variant_columns(cols, v), embedded or None, **opts)
+    elif v["fmt"] == "mf4":
+        write_mf4(path, frames, _variant_columns(cols, v), embedded or None, **opts)
     else:
         raise ValueError(v["fmt"])
     record = {"file": plan.rel_path, "format": v["fmt"], "kind": plan.kind, "metadata": meta,

@@ -1,4 +1,4 @@
-"""Writers: a run's SI samples as a bench export (CSV/TXT, LVM, TDMS, MAT), per bench-exports.md.
+"""Writers: a run's SI samples as a bench export (CSV/TXT, LVM, TDMS, MAT, XLSX, MF4), per bench-exports.md.
 
 Every writer takes the samples as one DataFrame or an iterable of DataFrames (chunks, for
 GB-scale runs) whose columns are warehouse column names in SI (``p_a_pa``, ``x_m`` ...), a list of
@@ -276,4 +276,131 @@ def write_mat(path, data, columns: list[ColumnOut], metadata: dict | None = None
     return path
 
 
-WRITERS = {"csv": write_csv, "txt": write_csv, "lvm": write_lvm, "tdms": write_tdms, "mat": write_mat}
+def _xml_cell(ref: str, v) -> str:
+    from xml.sax.saxutils import escape
+
+    if isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool):
+        return f'<c r="{ref}"><v>{float(v)!r}</v></c>' if np.isfinite(v) else ""
+    return f'<c r="{ref}" t="inlineStr"><is><t>{escape(str(v))}</t></is></c>'
+
+
+def _col_letters(j: int) -> str:
+    out = ""
+    j += 1
+    while j:
+        j, r = divmod(j - 1, 26)
+        out = chr(65 + r) + out
+    return out
+
+
+def _sheet_xml(rows: Iterable[list]) -> bytes:
+    body = []
+    for i, row in enumerate(rows, start=1):
+        cells = "".join(_xml_cell(f"{_col_letters(j)}{i}", v) for j, v in enumerate(row) if v is not None)
+        body.append(f'<row r="{i}">{cells}</row>')
+    return ('<?xml version="1.0" encoding="UTF-8" standalone="yes"?>\n<worksheet xmlns='
+            '"http://schemas.openxmlformats.org/spreadsheetml/2006/main"><sheetData>'
+            + "".join(body) + "</sheetData></worksheet>").encode("utf-8")
+
+
+def write_xlsx(path, data, columns: list[ColumnOut], metadata: dict | None = None, *, units_row: bool = False,
+               p_atm_pa: float = P_ATM_DEFAULT_PA) -> Path:
+    """XLSX as a spreadsheet program saves it: sheet ``run`` with a header row (``name[unit]``, or
+    names with a units row under them when ``units_row``), metadata in a sheet ``meta``.
+
+    Written directly as Office Open XML (a zip of a few XML parts) with fixed zip time stamps,
+    so the same run gives the same bytes. Excel holds at most 1,048,576 rows per sheet.
+    """
+    import zipfile
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    frame = pd.concat(list(_frames(data)), ignore_index=True)
+    if len(frame) + 2 > 1_048_576:
+        raise ValueError(f"{len(frame)} rows do not fit in one Excel sheet")
+    table = _raw_table(frame, columns, p_atm_pa)
+    arrays = [frame["t_s"].to_numpy()] + [table.column(i).to_numpy() for i in range(table.num_columns)]
+    names = ["t"] + [c.name for c in columns]
+    units = ["s"] + [c.unit for c in columns]
+    head = [names, units] if units_row else [[f"{n}[{u}]" for n, u in zip(names, units)]]
+    rows = head + [list(r) for r in zip(*arrays)]
+    sheets = [("run", _sheet_xml(rows))]
+    if metadata:
+        sheets.append(("meta", _sheet_xml([[k, v if isinstance(v, (int, float)) else str(v)]
+                                            for k, v in metadata.items()])))
+    ns = "http://schemas.openxmlformats.org"
+    parts = {
+        "[Content_Types].xml": (
+            '<?xml version="1.0" encoding="UTF-8" standalone="yes"?>\n<Types xmlns="' + ns + '/package/2006/content-types">'
+            '<Default Extension="rels" ContentType="application/vnd.openxmlformats-package.relationships+xml"/>'
+            '<Default Extension="xml" ContentType="application/xml"/>'
+            '<Override PartName="/xl/workbook.xml" ContentType="application/vnd.openxmlformats-officedocument.'
+            'spreadsheetml.sheet.main+xml"/>'
+            + "".join(f'<Override PartName="/xl/worksheets/sheet{i}.xml" ContentType="application/vnd.openxmlformats-'
+                      'officedocument.spreadsheetml.worksheet+xml"/>' for i in range(1, len(sheets) + 1))
+            + "</Types>"),
+        "_rels/.rels": (
+            '<?xml version="1.0" encoding="UTF-8" standalone="yes"?>\n<Relationships xmlns="' + ns
+            + '/package/2006/relationships"><Relationship Id="rId1" Type="' + ns
+            + '/officeDocument/2006/relationships/officeDocument" Target="xl/workbook.xml"/></Relationships>'),
+        "xl/workbook.xml": (
+            '<?xml version="1.0" encoding="UTF-8" standalone="yes"?>\n<workbook xmlns="' + ns
+            + '/spreadsheetml/2006/main" xmlns:r="' + ns + '/officeDocument/2006/relationships"><sheets>'
+            + "".join(f'<sheet name="{n}" sheetId="{i}" r:id="rId{i}"/>' for i, (n, _) in enumerate(sheets, 1))
+            + "</sheets></workbook>"),
+        "xl/_rels/workbook.xml.rels": (
+            '<?xml version="1.0" encoding="UTF-8" standalone="yes"?>\n<Relationships xmlns="' + ns
+            + '/package/2006/relationships">'
+            + "".join(f'<Relationship Id="rId{i}" Type="' + ns + '/officeDocument/2006/relationships/worksheet" '
+                      f'Target="worksheets/sheet{i}.xml"/>' for i in range(1, len(sheets) + 1))
+            + "</Relationships>"),
+    }
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as zf:
+        for name, text in parts.items():
+            zf.writestr(zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0)), text.encode("utf-8"),
+                        compress_type=zipfile.ZIP_DEFLATED)
+        for i, (_, xml) in enumerate(sheets, 1):
+            zf.writestr(zipfile.ZipInfo(f"xl/worksheets/sheet{i}.xml", date_time=(1980, 1, 1, 0, 0, 0)), xml,
+                        compress_type=zipfile.ZIP_DEFLATED)
+    return path
+
+
+def write_mf4(path, data, columns: list[ColumnOut], metadata: dict | None = None, *, group: str = "Data",
+              p_atm_pa: float = P_ATM_DEFAULT_PA) -> Path:
+    """ASAM MDF 4.10 with asammdf: one channel group (acquisition name ``group``), the time as its
+    master channel, metadata as MDF 4 ``common_properties`` of the header comment, ``started_at`` as the
+    header's start time. The file history's time stamp is set to the start time too, so the same
+    run gives the same bytes."""
+    from datetime import datetime, timezone
+
+    from asammdf import MDF, Signal
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    frame = pd.concat(list(_frames(data)), ignore_index=True)
+    t = frame["t_s"].to_numpy()
+    sigs = [Signal(_raw_values(frame, c, p_atm_pa), t, name=c.name, unit=c.unit) for c in columns]
+    meta = dict(metadata or {})
+    start = datetime(2000, 1, 1, tzinfo=timezone.utc)
+    if meta.get("started_at"):
+        start = datetime.fromisoformat(str(meta["started_at"])).replace(tzinfo=timezone.utc)
+    mdf = MDF(version="4.10")
+    mdf.header.start_time = start
+    from xml.sax.saxutils import escape, quoteattr
+
+    mdf.header.comment = ("<HDcomment><TX>pneubench simulator</TX><common_properties>"
+                          + "".join(f"<e name={quoteattr(str(k))}>{escape(_meta_text(v))}</e>" for k, v in meta.items())
+                          + "</common_properties></HDcomment>")
+    mdf.append(sigs, acq_name=group, comment="")
+    mdf.save(path, overwrite=True)
+    mdf.close()
+    blob = bytearray(path.read_bytes())
+    fh = blob.find(b"##FH")  # FH block: 24-byte header, 2 links, then fh_time_ns
+    if fh >= 0:
+        blob[fh + 40:fh + 48] = int(start.timestamp() * 1e9).to_bytes(8, "little")
+    path.write_bytes(bytes(blob))
+    return path
+
+
+WRITERS = {"csv": write_csv, "txt": write_csv, "lvm": write_lvm, "tdms": write_tdms, "mat": write_mat,
+           "xlsx": write_xlsx, "mf4": write_mf4}

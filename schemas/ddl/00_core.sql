@@ -13,7 +13,7 @@ CREATE TABLE runs (
     sample_rate_hz  DOUBLE,                -- median rate of the time channel
     params          JSON,                  -- every metadata key of the run, typed
     warnings        VARCHAR[],             -- one entry per warning, empty when none
-    format          VARCHAR,               -- csv, lvm, tdms, mat
+    format          VARCHAR,               -- csv, lvm, tdms, mat, excel, mdf
     duration_s      DOUBLE,                -- last minus first sample time
     samples_path    VARCHAR                -- the run's samples Parquet file
 );
@@ -24,6 +24,14 @@ CREATE TABLE quarantine (
     line            BIGINT,                -- line of the file, where one is to blame
     campaign        VARCHAR,
     stage           VARCHAR                -- ingest, logbook, or the analysis that refused it
+);
+
+-- Files under raw/ that are neither a supported export nor a known side file (manifest.csv,
+-- hoses.csv, rig.toml, *.tdms_index, dotfiles, README*): not runs, not errors, but said.
+CREATE TABLE skipped_files (
+    source_path     VARCHAR NOT NULL,      -- relative to raw/
+    campaign        VARCHAR,
+    reason          VARCHAR NOT NULL       -- e.g. "not a supported format: .docx"
 );
 
 -- One row per channel of every run: how the raw export named it and in which unit it came.

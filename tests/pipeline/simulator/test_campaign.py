@@ -17,7 +17,7 @@ from pipeline.simulator.campaign import VARIANTS, generate, plan_campaign, simul
 
 SEED = 3
 MINI_PLANS, _ = plan_campaign(SEED, "mini")
-READER_MODULE = {"csv": "csv", "txt": "csv", "lvm": "lvm", "tdms": "tdms", "mat": "mat"}
+READER_MODULE = {"csv": "csv", "txt": "csv", "lvm": "lvm", "tdms": "tdms", "mat": "mat", "xlsx": "excel", "mf4": "mdf"}
 
 
 def _reader_missing(fmt: str) -> bool:

@@ -1,0 +1,281 @@
+"""Spreadsheet exports: Excel (``.xlsx``, ``.xlsm``, ``.xls``) and OpenDocument (``.ods``).
+
+Read with python-calamine (a Rust reader; about ten times faster than openpyxl on the same
+workbook, see ``benchmarks/README.md``). Formulas are read as the values the spreadsheet last
+computed (cached values); a formula the spreadsheet never computed is an empty cell.
+
+* **Which sheet.** The first sheet not named ``meta`` is the run, unless the ``sheet`` key
+  (run metadata, e.g. in ``manifest.csv``, or ``rig.toml`` ``[read] sheet``) names one by its
+  name or 0-based index. A chart sheet holds no cells and is refused.
+* **Metadata.** A sheet named ``meta`` (case-insensitive) with two columns key / value, and
+  ``# key: value`` cells in the first column above the header (as in CSV exports).
+* **Header.** The header row is the first row after the metadata cells (``[read] skip_rows``
+  skips more), or ``[read] header_row`` (the sheet's own 1-based row number). Headers
+  ``name[unit]`` and ``name (unit)`` carry a unit; ``[read] units_row`` (1-based) names a row of
+  units under the names instead (a common spreadsheet layout). Rows between the header (or
+  units row) and the first row with a number are skipped (a second title row, blank rows).
+* **Cells.** Empty trailing rows and columns are ignored; an empty cell in a numeric column is
+  NaN. A column whose cells are date-times (Excel serial dates with a date format) becomes
+  seconds since its first value with unit ``s``; when the run has no ``started_at``, the first
+  date-time of the time column gives it. A column of text (or of numbers mixed with text) is
+  kept as a text column: ingest keeps it as text when it is not a canonical channel and refuses
+  it, naming the column, when it is.
+
+Excel has no partial reads, so the chosen sheet is loaded whole (a sheet holds at most
+1,048,576 rows by Excel's own limit) and then yielded in record batches.
+"""
+from __future__ import annotations
+
+import datetime as dt
+import math
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+
+from pipeline.readers.base import RawColumn, RawExport, ReaderError, parse_key_value, split_name_unit
+
+FORMAT = "excel"
+EXTENSIONS = (".xlsx", ".xlsm", ".xls", ".ods")
+
+#: Rows per record batch.
+BATCH_ROWS = 1 << 16
+
+# An OLE compound file (D0 CF 11 E0): a legacy .xls, or an encrypted (password-protected)
+# Office Open XML package, which Office wraps in one.
+_CFB_MAGIC = b"\xd0\xcf\x11\xe0\xa1\xb1\x1a\xe1"
+_PASSWORD_HINT = "open it in the spreadsheet program and save it without a password"
+
+
+def _open_workbook(path: Path):
+    import python_calamine as pc
+
+    with open(path, "rb") as fh:
+        head = fh.read(8)
+    if head == _CFB_MAGIC and path.suffix.lower() in (".xlsx", ".xlsm"):
+        raise ReaderError(f"password-protected (encrypted) workbook: {_PASSWORD_HINT}")
+    try:
+        return pc.CalamineWorkbook.from_path(str(path))
+    except pc.PasswordError:
+        raise ReaderError(f"password-protected (encrypted) workbook: {_PASSWORD_HINT}") from None
+    except (pc.CalamineError, pc.ZipError, pc.XmlError, ValueError, OSError) as exc:
+        if isinstance(exc, OSError) and exc.errno is not None:
+            raise
+        what = " ".join(str(exc).split())[:200]
+        raise ReaderError(f"not a readable {path.suffix.lower()} workbook ({type(exc).__name__}: {what})") from None
+
+
+def _pick_sheet(wb, selector) -> str:
+    names = list(wb.sheet_names)
+    if not names:
+        raise ReaderError("workbook has no sheets")
+    if selector is None or str(selector).strip() == "":
+        data = [n for n in names if n.strip().casefold() != "meta"]
+        if not data:
+            raise ReaderError("workbook has only a `meta` sheet: no data sheet")
+        return data[0]
+    text = str(selector).strip()
+    if text in names:
+        return text
+    if text.lstrip("-").isdigit():
+        i = int(text)
+        if 0 <= i < len(names):
+            return names[i]
+        raise ReaderError(f"sheet index {i} out of range: the workbook has {len(names)} sheet(s) {names}")
+    raise ReaderError(f"no sheet named {text!r}; sheets: {names}")
+
+
+def _sheet_kind(wb, name: str) -> str:
+    for meta in wb.sheets_metadata:
+        if meta.name == name:
+            return str(meta.typ).rsplit(".", 1)[-1]
+    return "WorkSheet"
+
+
+def _is_empty(v) -> bool:
+    return v is None or (isinstance(v, str) and not v.strip())
+
+
+def _trim(rows: list[list]) -> list[list]:
+    """Rows without empty trailing rows and columns."""
+    while rows and all(_is_empty(v) for v in rows[-1]):
+        rows.pop()
+    width = 0
+    for r in rows:
+        for j in range(len(r) - 1, -1, -1):
+            if not _is_empty(r[j]):
+                width = max(width, j + 1)
+                break
+    return [list(r[:width]) + [None] * (width - len(r[:width])) for r in rows]
+
+
+def _meta_sheet(wb) -> dict:
+    for name in wb.sheet_names:
+        if name.strip().casefold() == "meta":
+            out = {}
+            for r in _trim(wb.get_sheet_by_name(name).to_python(skip_empty_area=False)):
+                if len(r) >= 2 and not _is_empty(r[0]) and not _is_empty(r[1]):
+                    out[str(r[0]).strip()] = _meta_value(r[1])
+            return out
+    return {}
+
+
+def _meta_value(v):
+    if isinstance(v, (dt.datetime, dt.date)):
+        return v.isoformat()
+    if isinstance(v, float) and v.is_integer() and abs(v) < 2 ** 53:
+        return int(v)
+    return v
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float))  # bool is an int: a logical cell is 0 / 1
+
+
+def _row_number(read: dict, key: str) -> int | None:
+    v = read.get(key)
+    if v is None:
+        return None
+    try:
+        n = int(v)
+    except (TypeError, ValueError):
+        raise ReaderError(f"rig.toml [read] {key} = {v!r} is not a row number") from None
+    if n < 1:
+        raise ReaderError(f"rig.toml [read] {key} = {n}: sheet rows are numbered from 1")
+    return n
+
+
+def _as_datetime(v) -> dt.datetime | None:
+    if isinstance(v, dt.datetime):
+        return v
+    if isinstance(v, dt.date):
+        return dt.datetime(v.year, v.month, v.day)
+    return None
+
+
+def _column(values: list) -> tuple[str, pa.Array, str | None]:
+    """(kind, array, first datetime iso) of one column's data cells.
+
+    kind: ``float`` (numbers, empty -> NaN), ``datetime`` (seconds since the first value),
+    ``duration`` (seconds) or ``string``.
+    """
+    if values and not isinstance(values[0], str):
+        try:  # fast path: a column of numbers only (bool is a number), converted in C
+            return "float", pa.array(np.array(values, dtype=float)), None
+        except (TypeError, ValueError):
+            pass
+    present = [v for v in values if not _is_empty(v)]
+    if present and all(_as_datetime(v) is not None for v in present):
+        stamps = [_as_datetime(v) for v in values]
+        t0 = next(s for s in stamps if s is not None)
+        secs = [math.nan if s is None else (s - t0).total_seconds() for s in stamps]
+        return "datetime", pa.array(np.asarray(secs, dtype=float)), t0.isoformat()
+    if present and all(isinstance(v, (dt.timedelta, dt.time)) for v in present):
+        def secs(v):
+            if isinstance(v, dt.timedelta):
+                return v.total_seconds()
+            if isinstance(v, dt.time):
+                return v.hour * 3600 + v.minute * 60 + v.second + v.microsecond * 1e-6
+            return math.nan
+        return "duration", pa.array(np.asarray([secs(v) for v in values], dtype=float)), None
+    if all(_is_empty(v) or _is_number(v) for v in values):
+        arr = np.asarray([math.nan if _is_empty(v) else float(v) for v in values], dtype=float)
+        return "float", pa.array(arr), None
+    return "string", pa.array([None if _is_empty(v) else str(v) for v in values], type=pa.string()), None
+
+
+def read_excel(path: str | Path, read: dict | None = None, hints: dict | None = None) -> RawExport:
+    """Open a spreadsheet export (one sheet = one run).
+
+    Parameters
+    ----------
+    path : path-like
+        The workbook.
+    read : dict, optional
+        ``rig.toml`` ``[read]``: ``sheet``, ``skip_rows``, ``header_row``, ``units_row``.
+    hints : dict, optional
+        Run metadata known before opening (manifest over rig.toml): ``sheet``.
+
+    Returns
+    -------
+    RawExport
+    """
+    path = Path(path)
+    read = dict(read or {})
+    hints = dict(hints or {})
+    wb = _open_workbook(path)
+    name = _pick_sheet(wb, hints.get("sheet", read.get("sheet")))
+    if _sheet_kind(wb, name) != "WorkSheet":
+        raise ReaderError(f"sheet {name!r} is a {_sheet_kind(wb, name)}, not a worksheet: it holds no cells "
+                          "(name the data sheet with the `sheet` key)")
+    try:
+        rows = _trim(wb.get_sheet_by_name(name).to_python(skip_empty_area=False))
+    except Exception as exc:  # calamine's own errors on malformed sheets
+        raise ReaderError(f"sheet {name!r} cannot be read ({type(exc).__name__}: {' '.join(str(exc).split())[:160]})") \
+            from None
+    if not rows:
+        raise ReaderError(f"sheet {name!r} is empty (no cells with values)")
+
+    metadata = _meta_sheet(wb)
+    i = 0
+    while i < len(rows) and (all(_is_empty(v) for v in rows[i])
+                             or (isinstance(rows[i][0], str) and rows[i][0].lstrip().startswith("#"))):
+        first = rows[i][0]
+        if isinstance(first, str) and first.lstrip().startswith("#"):
+            kv = parse_key_value(first.lstrip()[1:])
+            if kv:
+                metadata.setdefault(kv[0], kv[1])
+        i += 1
+    header_row = _row_number(read, "header_row")
+    units_row = _row_number(read, "units_row")
+    h = header_row - 1 if header_row else i + int(read.get("skip_rows", 0) or 0)
+    if h >= len(rows):
+        raise ReaderError(f"sheet {name!r} has no header row (row {h + 1} is past its last row {len(rows)})")
+    header = rows[h]
+    units = None
+    after = h + 1
+    if units_row:
+        if units_row - 1 >= len(rows) or units_row - 1 <= h:
+            raise ReaderError(f"rig.toml [read] units_row = {units_row} is not a row under the header (row {h + 1})")
+        units = rows[units_row - 1]
+        after = units_row
+    start = after
+    while start < len(rows) and not any(_is_number(v) or _as_datetime(v) is not None for v in rows[start]):
+        start += 1
+    data = rows[start:]
+    if not data:
+        raise ReaderError(f"sheet {name!r} has a header (row {h + 1}) but no data rows with numbers")
+
+    columns: list[RawColumn] = []
+    arrays: list[pa.Array] = []
+    warnings: list[str] = []
+    by_column = [list(c) for c in zip(*data)]
+    for j, cell in enumerate(header):
+        if _is_empty(cell):
+            if all(_is_empty(v) for v in by_column[j]):
+                continue
+            raise ReaderError(f"sheet {name!r}: column {j + 1} has data but no name in the header (row {h + 1})")
+        text = str(cell).strip()
+        cname, unit = split_name_unit(text)
+        if units is not None and not _is_empty(units[j]):
+            unit = str(units[j]).strip()
+        kind, arr, first_stamp = _column(by_column[j])
+        if kind in ("datetime", "duration"):
+            unit = "s"
+            if kind == "datetime" and first_stamp and "started_at" not in metadata and cname.casefold() in ("t", "time"):
+                metadata["started_at"] = first_stamp
+        columns.append(RawColumn(key=f"c{j}", name=cname, unit=unit, index=j + 1,
+                                 dtype="string" if kind == "string" else "float"))
+        arrays.append(arr)
+    if not columns:
+        raise ReaderError(f"sheet {name!r} has no named columns")
+    metadata.setdefault("sheet", name)
+    keys = [c.key for c in columns]
+    n = len(data)
+
+    def batches() -> Iterator[pa.RecordBatch]:
+        for a in range(0, n, BATCH_ROWS):
+            yield pa.RecordBatch.from_arrays([arr.slice(a, BATCH_ROWS) for arr in arrays], names=keys)
+
+    return RawExport(format=FORMAT, columns=columns, metadata=metadata, batches=batches, warnings=warnings)

@@ -1,0 +1,231 @@
+"""ASAM MDF exports (``.mf4``, ``.mdf``; MDF 3 and 4), as HBK catman, Dewesoft, imc, Vector
+or Kistler loggers write them. Read with asammdf.
+
+* **Channel group.** The ``group`` key (run metadata or ``rig.toml`` ``[read] group``) names a
+  channel group by its acquisition name or 0-based index; without it the file must hold exactly
+  one group with data (the others are listed in the refusal). Groups logged at different rates
+  are different groups: name the one that is the run.
+* **Time.** The group's master channel is the time (column ``t``, unit from the file, ``s`` when
+  it states none). A group without a master channel is refused; so is a master that is not a
+  time (angle or distance synchronised acquisitions).
+* **Values.** The file's conversions (linear, rational, tables, formulas) are applied, as
+  asammdf does; a channel's unit is the conversion's unit, else the channel's. A channel whose
+  conversion gives text (value-to-text tables) is a text column; arrays and structures are
+  skipped with a run warning.
+* **Metadata.** The header comment: ``key=value`` pairs separated by ``;`` or new lines in its
+  text (``<TX>``), and MDF 4 ``<common_properties>`` entries; the header's start time gives
+  ``started_at`` when the comment does not.
+* **Bus logging.** A CAN (or LIN, FlexRay, Ethernet) bus log holds raw frames: decoding them
+  needs the bus database (DBC / ARXML), which pneubench does not apply. Such a group is
+  refused with a message that says to export the decoded signals first.
+
+Samples are read in slices of records (asammdf reads record ranges), so a large file streams
+in bounded memory.
+"""
+from __future__ import annotations
+
+import re
+import xml.etree.ElementTree as ET
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+
+from pipeline.readers.base import RawColumn, RawExport, ReaderError
+
+FORMAT = "mdf"
+EXTENSIONS = (".mf4", ".mdf")
+
+#: Records per slice read from the file.
+BATCH_ROWS = 1 << 18
+
+_BUS_NAME = re.compile(r"^(CAN|LIN|FlexRay|ETH|Ethernet|MOST)_(DataFrame|RemoteFrame|ErrorFrame|Frame)", re.I)
+#: MDF 4 channel group flag "bus event" (cg_flags bit 1).
+_CG_BUS_EVENT = 1 << 1
+#: MDF 4 channel sync types: 1 = time (master channels of other types are not time).
+_SYNC_TIME = 1
+
+
+def _open(path: Path):
+    from asammdf import MDF
+
+    try:
+        return MDF(str(path))
+    except Exception as exc:  # asammdf raises many kinds on damaged files
+        what = " ".join(str(exc).split())[:200] or type(exc).__name__
+        raise ReaderError(f"not a readable MDF file (truncated or damaged?): {type(exc).__name__}: {what}") from None
+
+
+def _text(elem) -> str:
+    return "".join(elem.itertext()) if elem is not None else ""
+
+
+def parse_header_comment(comment: str) -> dict:
+    """Run metadata from an MDF header comment: ``key=value`` pairs in its text and MDF 4
+    ``<common_properties>`` ``<e name="key">value</e>`` entries (plain text comments too)."""
+    out: dict = {}
+    text = comment or ""
+    props = {}
+    if text.lstrip().startswith("<"):
+        try:
+            root = ET.fromstring(text)
+        except ET.ParseError:
+            root = None
+        if root is not None:
+            tx = root.find("TX")
+            text = _text(tx)
+            for e in root.iter("e"):
+                key = (e.get("name") or "").strip()
+                if key:
+                    props[key] = (e.text or "").strip()
+    for part in re.split(r"[;\n]", text):
+        if "=" in part:
+            k, v = part.split("=", 1)
+            if k.strip():
+                out[k.strip()] = v.strip()
+    out.update(props)
+    return out
+
+
+def _groups(mdf) -> list[tuple[int, str, int]]:
+    """(index, acquisition name, records) of the groups that hold data channels."""
+    out = []
+    for i, g in enumerate(mdf.groups):
+        cg = g.channel_group
+        n_data = len(g.channels) - (1 if mdf.masters_db.get(i) is not None else 0)
+        if getattr(cg, "cycles_nr", 0) and n_data > 0:
+            out.append((i, str(getattr(cg, "acq_name", "") or ""), int(cg.cycles_nr)))
+    return out
+
+
+def _is_bus_log(mdf, index: int) -> bool:
+    g = mdf.groups[index]
+    if int(getattr(g.channel_group, "flags", 0) or 0) & _CG_BUS_EVENT:
+        return True
+    return any(_BUS_NAME.match(ch.name or "") for ch in g.channels)
+
+
+def _pick_group(mdf, selector) -> tuple[int, str, int]:
+    groups = _groups(mdf)
+    listing = ", ".join(f"{i} {name!r}" if name else str(i) for i, name, _ in groups)
+    if selector is None or str(selector).strip() == "":
+        if len(groups) == 1:
+            return groups[0]
+        if not groups:
+            raise ReaderError("MDF file holds no channel group with samples")
+        raise ReaderError(f"MDF file has {len(groups)} channel groups with data ({listing}): "
+                          "name the run's with the `group` key (acquisition name or 0-based index)")
+    text = str(selector).strip()
+    for g in groups:
+        if g[1] == text:
+            return g
+    if text.isdigit():
+        i = int(text)
+        for g in groups:
+            if g[0] == i:
+                return g
+    raise ReaderError(f"no channel group {text!r} with data in the MDF file (groups: {listing or 'none'})")
+
+
+def read_mdf(path: str | Path, read: dict | None = None, hints: dict | None = None) -> RawExport:
+    """Open an ASAM MDF 3 / 4 export.
+
+    Parameters
+    ----------
+    path : path-like
+        The file.
+    read : dict, optional
+        ``rig.toml`` ``[read]``: ``group``.
+    hints : dict, optional
+        Run metadata known before opening (manifest over rig.toml): ``group``.
+
+    Returns
+    -------
+    RawExport
+    """
+    path = Path(path)
+    read = dict(read or {})
+    hints = dict(hints or {})
+    mdf = _open(path)
+    try:
+        index, acq_name, n_records = _pick_group(mdf, hints.get("group", read.get("group")))
+        if _is_bus_log(mdf, index):
+            raise ReaderError(f"channel group {index} is a bus log (raw frames): decoding needs its DBC/ARXML "
+                              "database, which pneubench does not apply; export the decoded signals to MF4 "
+                              "first (e.g. asammdf's extract_bus_logging)")
+        master = mdf.masters_db.get(index)
+        if master is None:
+            raise ReaderError(f"channel group {index} has no master (time) channel")
+        group = mdf.groups[index]
+        mch = group.channels[master]
+        sync = getattr(mch, "sync_type", _SYNC_TIME)
+        if mdf.version >= "4.00" and sync not in (0, _SYNC_TIME):
+            raise ReaderError(f"channel group {index}: the master channel `{mch.name}` is not a time "
+                              f"(sync type {sync}: angle or distance); pneubench needs time")
+        metadata = parse_header_comment(getattr(mdf.header, "comment", "") or "")
+        start = getattr(mdf.header, "start_time", None)
+        if "started_at" not in metadata and start is not None:
+            metadata["started_at"] = start.isoformat()
+        metadata.setdefault("group", acq_name or str(index))
+
+        warnings: list[str] = []
+        columns = [RawColumn(key="c_master", name="t", unit=(mch.unit or "s").strip() or "s", index=1)]
+        fetch: list[tuple[str, str, int]] = []  # (key, channel name, channel index)
+        for ci, ch in enumerate(group.channels):
+            if ci == master:
+                continue
+            try:
+                probe = mdf.get(ch.name, index, ci, record_offset=0, record_count=1)
+            except Exception as exc:
+                warnings.append(f"MDF channel `{ch.name}` skipped: cannot be read ({type(exc).__name__})")
+                continue
+            samples = probe.samples
+            if samples.ndim != 1 or samples.dtype.names:
+                warnings.append(f"MDF channel `{ch.name}` skipped: arrays and structures are not channels")
+                continue
+            kind = samples.dtype.kind
+            dtype = "string" if kind in "SUO" else "float"
+            if kind not in "SUObiuf":
+                warnings.append(f"MDF channel `{ch.name}` skipped: samples of type {samples.dtype} are not numbers")
+                continue
+            unit = (probe.unit or ch.unit or "").strip() or None
+            key = f"c{ci}"
+            columns.append(RawColumn(key=key, name=ch.name, unit=unit, index=ci + 1, dtype=dtype))
+            fetch.append((key, ch.name, ci))
+    except ReaderError:
+        raise
+    except Exception as exc:
+        raise ReaderError(f"MDF file cannot be read: {type(exc).__name__}: {' '.join(str(exc).split())[:160]}") \
+            from None
+    finally:
+        mdf.close()  # batches() opens the file again: nothing stays open between the two
+    kinds = {c.key: c.dtype for c in columns}
+
+    def batches() -> Iterator[pa.RecordBatch]:
+        mdf = _open(path)
+        try:
+            for offset in range(0, n_records, BATCH_ROWS):
+                count = min(BATCH_ROWS, n_records - offset)
+                try:
+                    t = mdf.get_master(index, record_offset=offset, record_count=count)
+                    arrays = {"c_master": np.asarray(t, dtype=float)}
+                    for key, name, ci in fetch:
+                        s = mdf.get(name, index, ci, record_offset=offset, record_count=count, samples_only=True)[0]
+                        arrays[key] = s
+                except Exception as exc:
+                    raise ReaderError(f"MDF samples cannot be read at record {offset}: {type(exc).__name__}: "
+                                      f"{' '.join(str(exc).split())[:160]}") from None
+                out = []
+                for c in columns:
+                    a = arrays[c.key]
+                    if kinds[c.key] == "string":
+                        out.append(pa.array([v.decode("utf-8", "replace") if isinstance(v, bytes) else str(v)
+                                             for v in a], type=pa.string()))
+                    else:
+                        out.append(pa.array(np.asarray(a, dtype=float)))
+                yield pa.RecordBatch.from_arrays(out, names=[c.key for c in columns])
+        finally:
+            mdf.close()
+
+    return RawExport(format=FORMAT, columns=columns, metadata=metadata, batches=batches, warnings=warnings)

@@ -1,0 +1,122 @@
+"""Spreadsheet reader: scenarios built with openpyxl in the test (no binaries committed)."""
+import datetime as dt
+
+import numpy as np
+import pyarrow as pa
+import pytest
+
+openpyxl = pytest.importorskip("openpyxl")
+
+from pipeline.readers import ReaderError, read_export  # noqa: E402
+from pipeline.readers.excel import read_excel  # noqa: E402
+
+
+def _values(exp):
+    table = pa.Table.from_batches(list(exp.batches()))
+    return {c.name: table.column(c.key).to_pylist() for c in exp.columns}
+
+
+def _book(path, rows, title="run", meta=None, extra=None):
+    wb = openpyxl.Workbook()
+    ws = wb.active
+    ws.title = title
+    for r in rows:
+        ws.append(r)
+    if meta:
+        ms = wb.create_sheet("meta")
+        for k, v in meta.items():
+            ms.append([k, v])
+    if extra:
+        extra(wb)
+    wb.save(path)
+    return path
+
+
+def test_header_with_units_and_comment_metadata(tmp_path):
+    p = _book(tmp_path / "r.xlsx", [["# kind: leakage"], ["# chamber: A"], ["t[s]", "p_supply (bar)", "q_leak[l/min]"],
+                                     [0.0, 1.5, 0.25], [0.5, 2.0, 0.5], [1.0, 2.5, None]])
+    exp = read_excel(p)
+    assert exp.format == "excel"
+    assert [(c.name, c.unit) for c in exp.columns] == [("t", "s"), ("p_supply", "bar"), ("q_leak", "l/min")]
+    assert exp.metadata["kind"] == "leakage" and exp.metadata["chamber"] == "A" and exp.metadata["sheet"] == "run"
+    v = _values(exp)
+    assert v["t"] == [0.0, 0.5, 1.0] and v["p_supply"] == [1.5, 2.0, 2.5]
+    assert v["q_leak"][:2] == [0.25, 0.5] and np.isnan(v["q_leak"][2])
+
+
+def test_units_row_meta_sheet_and_rows_before_numbers(tmp_path):
+    p = _book(tmp_path / "r.xlsx", [["t", "x", "note"], ["s", "mm", ""], ["(raw)", "", ""], [0, 1, "a"], [1, 2, "b"]],
+              meta={"kind": "step", "rig": "plpa-9"})
+    exp = read_excel(p, {"units_row": 2})
+    assert [(c.name, c.unit, c.dtype) for c in exp.columns] == [("t", "s", "float"), ("x", "mm", "float"),
+                                                                ("note", None, "string")]
+    assert exp.metadata["kind"] == "step" and exp.metadata["rig"] == "plpa-9"
+    assert _values(exp) == {"t": [0.0, 1.0], "x": [1.0, 2.0], "note": ["a", "b"]}
+
+
+def test_datetime_time_column_becomes_seconds_and_started_at(tmp_path):
+    t0 = dt.datetime(2026, 3, 1, 8, 0, 0)
+    rows = [["time", "p[bar]"]] + [[t0 + dt.timedelta(seconds=0.25 * i), i] for i in range(5)]
+    exp = read_excel(_book(tmp_path / "r.xlsx", rows))
+    assert exp.columns[0].unit == "s"
+    assert _values(exp)["time"] == pytest.approx([0, 0.25, 0.5, 0.75, 1.0])
+    assert exp.metadata["started_at"] == "2026-03-01T08:00:00"
+
+
+def test_sheet_by_name_and_index_trailing_empty_ignored(tmp_path):
+    def more(wb):
+        ws = wb.create_sheet("second")
+        ws.append(["t[s]", "x[mm]"])
+        ws.append([0, 5])
+        ws["E20"] = None  # touched but empty
+    p = _book(tmp_path / "r.xlsx", [["t[s]", "x[mm]"], [0, 1]], extra=more)
+    assert _values(read_excel(p, hints={"sheet": "second"}))["x"] == [5.0]
+    assert _values(read_excel(p, {"sheet": 1}))["x"] == [5.0]
+    with pytest.raises(ReaderError, match="no sheet named 'nope'"):
+        read_excel(p, hints={"sheet": "nope"})
+
+
+def test_extension_in_any_case_goes_to_the_reader(tmp_path):
+    p = _book(tmp_path / "R.XLSX", [["t[s]"], [0], [1]])
+    assert read_export(p).format == "excel"
+
+
+def test_refused_password_protected_workbook(tmp_path):
+    # Office wraps an encrypted .xlsx in an OLE compound file
+    p = tmp_path / "locked.xlsx"
+    p.write_bytes(b"\xd0\xcf\x11\xe0\xa1\xb1\x1a\xe1" + bytes(504) + b"EncryptedPackage")
+    with pytest.raises(ReaderError, match="password-protected"):
+        read_excel(p)
+
+
+def test_refused_chart_only_sheet(tmp_path):
+    def chart(wb):
+        wb.create_chartsheet("plot")
+    p = _book(tmp_path / "c.xlsx", [["t[s]"], [0]], extra=chart)
+    with pytest.raises(ReaderError, match="'plot' is a ChartSheet"):
+        read_excel(p, hints={"sheet": "plot"})
+
+
+def test_refused_not_a_workbook_and_no_data(tmp_path):
+    bad = tmp_path / "bad.xlsx"
+    bad.write_bytes(b"PK\x03\x04 this is not a zip")
+    with pytest.raises(ReaderError, match="not a readable .xlsx workbook"):
+        read_excel(bad)
+    with pytest.raises(ReaderError, match="no data rows"):
+        read_excel(_book(tmp_path / "h.xlsx", [["t[s]", "x[mm]"], ["", ""]]))
+    with pytest.raises(ReaderError, match="column 2 has data but no name"):
+        read_excel(_book(tmp_path / "n.xlsx", [["t[s]", None], [0, 1]]))
+
+
+def test_formula_read_as_its_cached_value(tmp_path):
+    import zipfile
+
+    src = _book(tmp_path / "src.xlsx", [["a[s]", "b[s]"], [2, "=A2*2"]])
+    out = tmp_path / "cached.xlsx"
+    with zipfile.ZipFile(src) as zin, zipfile.ZipFile(out, "w") as zout:
+        for item in zin.infolist():
+            data = zin.read(item.filename)
+            if item.filename == "xl/worksheets/sheet1.xml":  # what a spreadsheet program saves
+                data = data.replace(b"<f>A2*2</f><v></v>", b"<f>A2*2</f><v>4</v>")
+            zout.writestr(item, data)
+    assert _values(read_excel(out)) == {"a": [2.0], "b": [4.0]}

@@ -1,0 +1,133 @@
+"""ASAM MDF reader: scenarios written with asammdf in the test (no binaries committed)."""
+import numpy as np
+import pyarrow as pa
+import pytest
+
+asammdf = pytest.importorskip("asammdf")
+# asammdf's destructor complains about a file it failed to open; the refusal itself is tested
+pytestmark = pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")
+from asammdf import MDF, Signal  # noqa: E402
+
+from pipeline.readers import ReaderError, read_export  # noqa: E402
+from pipeline.readers.mdf import parse_header_comment, read_mdf  # noqa: E402
+
+
+def _values(exp):
+    table = pa.Table.from_batches(list(exp.batches()))
+    return {c.name: np.asarray(table.column(c.key).to_pylist()) for c in exp.columns}
+
+
+def _write(path, groups, comment=None, version="4.10"):
+    m = MDF(version=version)
+    for name, sigs in groups:
+        m.append(sigs, acq_name=name, comment=name or "")
+    if comment is not None:
+        m.header.comment = comment
+    saved = m.save(path, overwrite=True)  # asammdf picks the suffix of the version it writes
+    m.close()
+    return saved
+
+
+def _run(n=1000, fs=100.0):
+    t = np.arange(n) / fs
+    return t, [Signal(1.5 + 0.1 * np.sin(t), t, name="p_a", unit="bar"), Signal(np.arange(n) * 0.005, t, name="x", unit="mm")]
+
+
+def test_round_trip_values_units_and_header_metadata(tmp_path):
+    t, sigs = _run()
+    comment = ('<HDcomment><TX>kind=timeseries; rig=plpa-2</TX><common_properties>'
+               '<e name="operator">ana</e></common_properties></HDcomment>')
+    exp = read_mdf(_write(tmp_path / "r.mf4", [("fast", sigs)], comment))
+    assert exp.format == "mdf"
+    assert [(c.name, c.unit) for c in exp.columns] == [("t", "s"), ("p_a", "bar"), ("x", "mm")]
+    assert exp.metadata["kind"] == "timeseries" and exp.metadata["rig"] == "plpa-2"
+    assert exp.metadata["operator"] == "ana" and "started_at" in exp.metadata
+    v = _values(exp)
+    np.testing.assert_array_equal(v["t"], t)
+    np.testing.assert_array_equal(v["x"], np.arange(1000) * 0.005)
+
+
+def test_batches_stream_in_slices(tmp_path, monkeypatch):
+    import pipeline.readers.mdf as mdf_mod
+
+    monkeypatch.setattr(mdf_mod, "BATCH_ROWS", 300)
+    _, sigs = _run(1000)
+    batches = list(read_mdf(_write(tmp_path / "r.mf4", [("g", sigs)])).batches())
+    assert [b.num_rows for b in batches] == [300, 300, 300, 100]
+
+
+def test_linear_conversion_applied(tmp_path):
+    t = np.arange(10) / 10.0
+    raw = np.arange(10, dtype=np.int16)
+    conv = {"a": 0.5, "b": 1.0}  # phys = 0.5 * raw + 1
+    sig = Signal(raw, t, name="p_a", unit="bar", conversion=conv)
+    v = _values(read_mdf(_write(tmp_path / "c.mf4", [("g", [sig])])))
+    np.testing.assert_allclose(v["p_a"], 0.5 * raw + 1.0)
+
+
+def test_several_groups_need_the_group_key(tmp_path):
+    _, fast = _run(1000, 100.0)
+    t2 = np.arange(20) / 2.0
+    slow = [Signal(20 + t2, t2, name="temp", unit="degC")]
+    p = _write(tmp_path / "g.mf4", [("fast", fast), ("slow", slow)])
+    with pytest.raises(ReaderError, match="2 channel groups with data .*'fast'.*'slow'"):
+        read_mdf(p)
+    assert [c.name for c in read_mdf(p, hints={"group": "slow"}).columns] == ["t", "temp"]
+    assert [c.name for c in read_mdf(p, {"group": 0}).columns] == ["t", "p_a", "x"]
+    with pytest.raises(ReaderError, match="no channel group 'nope'"):
+        read_mdf(p, hints={"group": "nope"})
+
+
+def test_mdf3_file(tmp_path):
+    _, sigs = _run(50)
+    p = _write(tmp_path / "old.mdf", [("", sigs)], version="3.30")
+    upper = p.rename(p.with_name("OLD.MDF"))
+    exp = read_export(upper)
+    assert exp.format == "mdf" and [c.name for c in exp.columns] == ["t", "p_a", "x"]
+
+
+def test_refused_can_bus_log_without_dbc(tmp_path):
+    t = np.arange(5) / 10.0
+    frames = [Signal(np.arange(5, dtype=np.uint32), t, name="CAN_DataFrame.ID"),
+              Signal(np.arange(5, dtype=np.uint8), t, name="CAN_DataFrame.DLC")]
+    with pytest.raises(ReaderError, match="bus log .*DBC"):
+        read_mdf(_write(tmp_path / "can.mf4", [("CAN1", frames)]))
+
+
+def test_refused_truncated_file(tmp_path):
+    _, sigs = _run(5000)
+    p = _write(tmp_path / "cut.mf4", [("g", sigs)])
+    data = p.read_bytes()
+    p.write_bytes(data[: len(data) // 3])
+    with pytest.raises(ReaderError, match="MDF"):
+        exp = read_mdf(p)
+        list(exp.batches())
+
+
+def test_refused_group_without_master_channel(tmp_path):
+    _, sigs = _run(20)
+    p = _write(tmp_path / "nomaster.mf4", [("g", sigs)])
+    data = bytearray(p.read_bytes())
+    # the master's CN block: cn_type 2 (master) -> 0 (a plain fixed-length channel)
+    m = MDF(str(p))
+    addr = m.groups[0].channels[m.masters_db[0]].address
+    m.close()
+    links = int.from_bytes(data[addr + 16:addr + 24], "little")
+    type_at = addr + 24 + 8 * links
+    assert data[type_at] == 2
+    data[type_at] = 0
+    p.write_bytes(bytes(data))
+    with pytest.raises(ReaderError, match="no master"):
+        read_mdf(p)
+
+
+def test_refused_not_mdf(tmp_path):
+    p = tmp_path / "junk.mf4"
+    p.write_bytes(b"hello, this is not MDF" * 10)
+    with pytest.raises(ReaderError, match="not a readable MDF file"):
+        read_mdf(p)
+
+
+def test_header_comment_plain_text():
+    assert parse_header_comment("kind=step\nrig = r1") == {"kind": "step", "rig": "r1"}
+    assert parse_header_comment("<HDcomment><TX>no pairs</TX></HDcomment>") == {}
