@@ -26,8 +26,9 @@ Method (:func:`friction_dynamic`)
 3. *Parallel decimation.* Filtered columns and force are kept every ``r``-th sample, ``r`` such
    that the decimated Nyquist frequency is twice the cut-off: neighbouring rows are then
    nearly independent, as least-squares standard errors assume.
-4. *Rows.* Samples slower than the filtered velocity's noise (:data:`V_MIN_N_SIGMA` sigmas; at
-   rest friction is static and the model does not apply) are left out, with a guard of one
+4. *Rows.* Samples slower than the filtered velocity's noise (:data:`V_MIN_N_SIGMA` sigmas, and
+   at least :data:`V_MIN_REL` of the fastest speed; at rest friction is static and the model
+   does not apply) are left out, with a guard of one
    filter period around them (the filtered force there still carries the force at rest), and so are the filter's edges.
 5. *Least squares* on ``[a, v, sign(v), 1]`` (rows slower than the velocity noise are out, so
    the tanh transition, well under a millimetre per second on the PLPA, is a sign). Standard errors ``sigma^2 (X'X)^-1`` and the scaled condition number
@@ -57,6 +58,9 @@ SNR_MIN = 100.0
 FILTER_ORDER = 4
 #: Samples slower than this many sigmas of the filtered velocity noise are left out. [-]
 V_MIN_N_SIGMA = 5.0
+#: Samples slower than this fraction of the fastest are at rest too, whatever the sensor: the
+#: filtered velocity of a record at rest still rings at about that level near a stop. [-]
+V_MIN_REL = 1e-3
 #: A model that misses the filtered force by more than this NRMSE (and more than 3 times the
 #: filtered force noise) is not reported: the seed papers' own bar for a model that fits
 #: (seed 001, Table 3). A record in the tanh transition (passes under a few ``vs``) misses it. [%]
@@ -206,7 +210,7 @@ def friction_dynamic(t_s, x_m, force_n, sensor: Sensor | None = None, force_sens
     a = np.gradient(v, dt)
     # noise of the filtered velocity (ideal low-pass of white position noise, differentiated)
     sig_v = 2 * np.pi * sig_x * np.sqrt(2 * fc ** 3 / (3 * fs))
-    v_min = max(V_MIN_N_SIGMA * sig_v, 1e-12)
+    v_min = max(V_MIN_N_SIGMA * sig_v, V_MIN_REL * float(np.max(np.abs(v))), 1e-12)
     slow = np.abs(v) < v_min
     slow_raw = slow.copy()
     guard = max(1, int(np.ceil(GUARD_PERIODS / fc / dt)))
