@@ -376,7 +376,9 @@ def seal_envelope(leakage_map: pd.DataFrame, threshold_l_min: float = LEAK_THRES
             "note": note,
         })
         rows.append(row)
-    return pd.DataFrame(rows, columns=cols)
+    out = pd.DataFrame(rows, columns=cols)
+    out["sealed_at_max"] = out["sealed_at_max"].astype("boolean")  # NULL when undecided
+    return out
 
 
 _MARKERS = ("o", "s", "^", "D", "v", "P", "X", "<", ">")

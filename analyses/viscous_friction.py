@@ -761,6 +761,7 @@ def plot_near_zero(points: pd.DataFrame, transition: pd.DataFrame | None = None,
     return fig
 
 
-__all__ = ["nrmse_pct", "find_constant_velocity_passes", "viscous_points", "friction_from_run", "coulomb_viscous",
+__all__ = ["nrmse_pct", "speed_levels", "velocity_uncertainty", "MOTION_N_SIGMA", "STEADY_N_SIGMA", "SPEED_LEVEL_REL",
+           "NRMSE_LIMIT_PCT", "find_constant_velocity_passes", "viscous_points", "friction_from_run", "coulomb_viscous",
            "tanh_viscous", "fit_coulomb_viscous", "fit_tanh_viscous", "stribeck_test", "viscous_fits",
            "viscous_transition", "plot_viscous", "plot_near_zero", "MIN_SPEED_LINEAR_M_S", "NEAR_ZERO_MAX_M_S"]
