@@ -247,7 +247,6 @@ def friction_dynamic(t_s, x_m, force_n, sensor: Sensor | None = None, force_sens
     if not np.isfinite(nrmse) or (nrmse > NRMSE_LIMIT_PCT and rms > 3 * sig_f):
         out["note"] = (f"model misses the data (NRMSE {nrmse:.2g} % > {NRMSE_LIMIT_PCT:g} %)"
                        if np.isfinite(nrmse) else "fit quality undefined (the force has no range)")
-        out["nrmse_pct"] = out["nrmse_pct"]
         return out
     # per-parameter gates
     f_rms = float(np.sqrt(np.mean(y ** 2)))
