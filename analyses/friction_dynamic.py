@@ -28,21 +28,29 @@ Method (:func:`friction_dynamic`)
    nearly independent, as least-squares standard errors assume.
 4. *Rows.* Samples slower than the filtered velocity's noise (:data:`V_MIN_N_SIGMA` sigmas, and
    at least :data:`V_MIN_REL` of the fastest speed; at rest friction is static and the model
-   does not apply) are left out, with a guard of one
-   filter period around them (the filtered force there still carries the force at rest), and so are the filter's edges.
+   does not apply) are left out, with a guard of :data:`GUARD_PERIODS` filter periods around
+   them (the filtered force there still carries the force at rest), and so are the filter's
+   edges.
 5. *Least squares* on ``[a, v, sign(v), 1]`` (rows slower than the velocity noise are out, so
-   the tanh transition, well under a millimetre per second on the PLPA, is a sign). Standard errors ``sigma^2 (X'X)^-1`` and the scaled condition number
-   come from :func:`analyses.quality.linear_lstsq`.
+   the tanh transition, well under a millimetre per second on the PLPA, is a sign). Standard
+   errors ``sigma^2 (X'X)^-1`` and the scaled condition number come from
+   :func:`analyses.quality.linear_lstsq`.
+6. *Cut-off lowered for the mass.* From the noise-floor cut-off down, the first cut-off at which
+   the filtered acceleration's noise is under :data:`EIV_MAX` of its variance is used (noise in
+   a regressor biases its coefficient toward zero by that fraction); if none is, the mass is
+   not reported.
 
-Quality gates (:class:`analyses.quality.Gate`)
-----------------------------------------------
+Quality gates (per parameter, unlike :class:`analyses.quality.Gate` which voids a whole row)
+---------------------------------------------------------------------------------------------
 The whole row is NULL (with a ``note``) when there are too few rows, the design is
 ill-conditioned, or the model misses the filtered force (NRMSE over :data:`NRMSE_LIMIT_PCT`
 and residuals above 3 times the filtered force noise). Otherwise each parameter is judged on
-its own: a parameter whose standard error exceeds half its value (``offset``: half the RMS
-drive force), or whose value is physically impossible (``M <= 0``, ``Fc < 0``, ``Fv < 0``),
+its own: a parameter whose standard error exceeds :data:`MAX_REL_SE` of its value (``offset``:
+of half the RMS drive force), or whose value is physically impossible (``M <= 0``, ``Fc < 0``, ``Fv < 0``),
 is NULL and the note names it and says why -- e.g. ``mass_kg`` with no acceleration content,
-``coulomb_n`` and ``viscous_n_s_m`` when the record moves at one speed level. The others stand:
+``coulomb_n`` and ``viscous_n_s_m`` when the record moves at one speed level (:data:`ONE_LEVEL_REL`,
+:data:`ONE_LEVEL_SHARE`), ``mass_kg`` when the force lags or leads the motion by more than
+:data:`LAG_MAX_SAMPLES` (a jerk term added to the regression is significant). The others stand:
 collinear columns inflate each other's errors but do not bias the remaining estimates.
 """
 from __future__ import annotations

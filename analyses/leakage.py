@@ -328,7 +328,8 @@ def seal_envelope(leakage_map: pd.DataFrame, threshold_l_min: float = LEAK_THRES
     """
     by = [c for c in by if c in leakage_map.columns]
     cols = list(by) + ["spring_force_pct", "threshold_l_min", "sealed_up_to_bar", "first_leak_bar",
-                       "max_tested_bar", "sealed_at_max", "max_leak_l_min", "n_pressures", "runs_used", "n_runs", "note"]
+                       "max_tested_bar", "sealed_at_max", "max_leak_l_min", "n_pressures", "runs_used", "n_runs",
+                       "note"]
     df = leakage_map.dropna(subset=["pressure_bar", "leak_l_min"])
     if characterisation_only:
         df = characterisation_rows(df, by)

@@ -268,7 +268,8 @@ def test_viscous_points_and_fits_recovered(built):
     # the sensors used are recorded: the analog rig's stated, the others' estimated from the record
     sens = pts.groupby("run_id")[["x_resolution_m", "x_noise_m", "sensor_source"]].first()
     assert tuple(sens.loc["sim/visc_analog"]) == (0.0, 2e-5, "metadata")
-    assert sens.loc["sim/visc0", "x_resolution_m"] == pytest.approx(5e-6) and sens.loc["sim/visc0", "sensor_source"] == "estimated"
+    assert sens.loc["sim/visc0", "x_resolution_m"] == pytest.approx(5e-6)
+    assert sens.loc["sim/visc0", "sensor_source"] == "estimated"
     fits = q(wh, "SELECT * FROM viscous_fits ORDER BY backpressure_bar, direction")
     assert len(fits) == 8
     for _, r in fits[fits["backpressure_bar"] < 3].iterrows():
