@@ -42,8 +42,13 @@ import numpy as np
 import pandas as pd
 import scipy  # its submodules load on first use: a rebuild that reuses every stage never pays for them
 
-#: Encoder resolution of the PLPA bench (seed 000). [m]
-ENCODER_RESOLUTION_M = 5e-6
+from analyses.quality import Gate, Sensor, describe_sensor, linear_lstsq
+
+#: Gross motion on a noisy (analog) position: a departure of more than this many noise sigmas. [-]
+GROSS_N_SIGMA = 6.0
+#: Pre-sliding creep of the carriage stays under this (rolling and sliding contacts creep a few
+#: micrometres before they break away); a larger departure is gross sliding. [m]
+CREEP_MAX_M = 20e-6
 
 _SIGN = {"P": 1.0, "N": -1.0}
 
@@ -68,9 +73,21 @@ def drive_force(p_a_pa, p_b_pa, hose_area_m2: float):
     return (np.asarray(p_a_pa, dtype=float) - np.asarray(p_b_pa, dtype=float)) * float(hose_area_m2)
 
 
-def detect_motion_onset(t_s, x_m, direction: str | None = None, *, resolution_m: float = ENCODER_RESOLUTION_M,
+def _position_floor(x, sensor: Sensor | None) -> tuple[float, float]:
+    """``(step, noise)`` of the position: ``step`` its quantisation (or, for a signal that is not
+    quantised, the float round-off), ``noise`` its sigma when it exceeds half a step (0 otherwise)."""
+    s = sensor if sensor is not None else describe_sensor(x)
+    res = float(s.resolution) if np.isfinite(s.resolution) and s.resolution > 0 else 0.0
+    noise = float(s.noise) if np.isfinite(s.noise) and s.noise > 0.5 * res else 0.0
+    if res <= 0:
+        xa = np.asarray(x, dtype=float)
+        res = max(float(np.nanmax(np.abs(xa))) if xa.size else 0.0, 1e-300) * 1e-12
+    return res, noise
+
+
+def detect_motion_onset(t_s, x_m, direction: str | None = None, sensor: Sensor | None = None, *,
                         baseline_s: float = 0.2, threshold_counts: float = 4.0, persist_s: float = 0.05,
-                        flat_s: float = 0.1) -> int | None:
+                        flat_s: float = 0.1, creep_max_m: float = CREEP_MAX_M) -> int | None:
     """Index of the last sample before the carriage breaks away, or None if it never does.
 
     Parameters
@@ -81,13 +98,19 @@ def detect_motion_onset(t_s, x_m, direction: str | None = None, *, resolution_m:
         Carriage position [m] (quantised encoder reading).
     direction : {"P", "N", None}
         Expected direction of motion (+x for P, -x for N); None accepts either.
-    resolution_m : float
-        Encoder count [m].
+    sensor : analyses.quality.Sensor, optional
+        Resolution and noise of the position [m]; estimated from ``x_m`` when not given.
     baseline_s : float
         Length of the pre-ramp baseline [s].
     threshold_counts : float
-        Departure from the baseline that counts as gross motion [counts]; larger than the
-        pre-sliding creep.
+        Departure from the baseline that counts as gross motion [counts of the encoder]; larger
+        than the pre-sliding creep. On a noisy (analog) position the threshold is also at least
+        :data:`GROSS_N_SIGMA` noise sigmas, and the walk back ends at the last sample within
+        3 sigmas of the baseline.
+    creep_max_m : float
+        Largest pre-sliding creep [m]: a physical bound, so a fine encoder that resolves the
+        creep does not take it for the breakaway (gross motion is the largest of this,
+        ``threshold_counts`` counts and :data:`GROSS_N_SIGMA` noise sigmas).
     persist_s : float
         How long the departure must persist [s].
     flat_s : float
@@ -105,19 +128,24 @@ def detect_motion_onset(t_s, x_m, direction: str | None = None, *, resolution_m:
         return None
     nb = max(3, int(np.searchsorted(t, t[0] + baseline_s)))
     base = float(np.median(x[:nb]))
+    resolution_m, noise = _position_floor(x, sensor)
+    gross = max(threshold_counts * resolution_m, GROSS_N_SIGMA * noise, creep_max_m)
     if direction is None:
-        up = _gross_index(t, x - base, resolution_m, threshold_counts, persist_s)
-        down = _gross_index(t, base - x, resolution_m, threshold_counts, persist_s)
+        up = _gross_index(t, x - base, gross, persist_s)
+        down = _gross_index(t, base - x, gross, persist_s)
         cands = [(i, s) for i, s in ((up, 1.0), (down, -1.0)) if i is not None]
         if not cands:
             return None
         i_c, sign = min(cands)
     else:
         sign = _SIGN[direction]
-        i_c = _gross_index(t, sign * (x - base), resolution_m, threshold_counts, persist_s)
+        i_c = _gross_index(t, sign * (x - base), gross, persist_s)
         if i_c is None:
             return None
     d = sign * (x - base)
+    if noise > 0:  # analog: back to the last sample within the noise of the baseline
+        near = np.flatnonzero(d[:i_c] <= 3.0 * noise)
+        return int(near[-1]) if near.size else 0
     half = 0.5 * resolution_m
     j = i_c
     flat_since = None
@@ -141,9 +169,9 @@ def detect_motion_onset(t_s, x_m, direction: str | None = None, *, resolution_m:
     return 0
 
 
-def _gross_index(t, d, resolution_m, threshold_counts, persist_s) -> int | None:
+def _gross_index(t, d, threshold_m, persist_s) -> int | None:
     """First index from which ``d`` stays above the gross-motion threshold for ``persist_s``."""
-    above = d > threshold_counts * resolution_m
+    above = d > threshold_m
     if not above.any():
         return None
     edges = np.flatnonzero(np.diff(np.concatenate(([0], above.astype(np.int8), [0]))))
@@ -183,7 +211,80 @@ def force_at(t_s, f_n, t0: float, fit_s: float = 0.25, t_min: float | None = Non
     return float(icpt), float(slope)
 
 
-def breakaway_force(t_s, x_m, p_a_pa, p_b_pa, hose_area_m2: float, direction: str, *,
+class _Hinge:
+    """Residual sum of squares of ``F = f0 + rate * max(t - tr, 0)`` for any ``tr``, in O(1)
+    per ``tr`` from suffix sums over the (sorted) samples."""
+
+    def __init__(self, t, f):
+        self.t0 = float(t[0])
+        self.t = t - self.t0
+        self.fc = f - f.mean()
+        self.n = t.size
+        rev = lambda a: np.concatenate([np.cumsum(a[::-1])[::-1], [0.0]])  # noqa: E731  suffix sums
+        self.s0 = rev(np.ones_like(self.t))
+        self.s1, self.s2 = rev(self.t), rev(self.t * self.t)
+        self.sy, self.sty = rev(self.fc), rev(self.t * self.fc)
+        self.syy = float(self.fc @ self.fc)
+
+    def rss(self, tr):
+        tr = np.atleast_1d(np.asarray(tr, dtype=float)) - self.t0
+        j = np.searchsorted(self.t, tr, side="right")  # samples j.. lie after tr
+        m, s1, s2, sy, sty = self.s0[j], self.s1[j], self.s2[j], self.sy[j], self.sty[j]
+        sz = s1 - m * tr
+        szz = s2 - 2 * tr * s1 + m * tr * tr - sz * sz / self.n
+        szy = sty - tr * sy
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(szz > 1e-300, self.syy - szy * szy / szz, self.syy)
+
+
+def ramp_rate(t_s, f_n, t_end: float) -> dict:
+    """Rate of a force ramp from its start to ``t_end``: a hinge fitted by least squares.
+
+    Model ``F = f0`` before the ramp start ``t_r``, ``f0 + rate (t - t_r)`` after; ``t_r`` is
+    profiled over every sample instant up to ``t_end`` (then refined between samples) and the
+    rate's standard error is that of the linear fit at the best ``t_r``.
+
+    Parameters
+    ----------
+    t_s, f_n : array_like
+        Time [s] and drive force [N].
+    t_end : float
+        End of the ramp to use (the motion onset) [s].
+
+    Returns
+    -------
+    dict
+        ``rate_n_s``, ``rate_se_n_s``, ``ramp_start_s``, ``note`` (values None, and why, when
+        the ramp start sits at an end of its range, the rate is not distinguishable from zero or
+        is negative, or there are too few samples).
+    """
+    t = np.asarray(t_s, dtype=float)
+    f = np.asarray(f_n, dtype=float)
+    m = (t <= t_end) & np.isfinite(f) & np.isfinite(t)
+    t, f = t[m], f[m]
+    out = {"rate_n_s": None, "rate_se_n_s": None, "ramp_start_s": None, "note": None}
+    g = Gate()
+    if g.enough_points(t.size, 10, "samples before the onset").reasons:
+        out["note"] = g.note
+        return out
+    grid = t[1:-1]  # every sample instant, then refined between the neighbours of the best
+    hinge = _Hinge(t, f)
+    k = int(np.argmin(hinge.rss(grid)))
+    lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, grid.size - 1)]
+    tr = float(scipy.optimize.minimize_scalar(lambda z: float(hinge.rss(z)[0]), bounds=(lo, hi), method="bounded",
+                                              options={"xatol": 1e-3 * float(hi - lo) + 1e-12}).x)
+    if float(hinge.rss(grid[k])[0]) < float(hinge.rss(tr)[0]):
+        tr = float(grid[k])
+    fit = linear_lstsq(np.column_stack([np.ones_like(t), np.clip(t - tr, 0.0, None)]), f)
+    out.update({"rate_n_s": float(fit.beta[1]), "rate_se_n_s": float(fit.se[1]) if np.isfinite(fit.se[1]) else None,
+                "ramp_start_s": float(tr)})
+    g.within_bounds([tr], [grid[0]], [grid[-1]], ("ramp start",), rtol=1e-6)
+    g.identifiable(fit, names=("force level", "force rate"), check=("force rate",))
+    g.physical("force rate", float(fit.beta[1]), lo=0.0)
+    return g.apply(out, ("rate_n_s", "rate_se_n_s", "ramp_start_s"))
+
+
+def breakaway_force(t_s, x_m, p_a_pa, p_b_pa, hose_area_m2: float, direction: str, sensor: Sensor | None = None, *,
                     fit_s: float = 0.25, **onset_kwargs) -> dict:
     """Breakaway force of one run (a magnitude, see the module's sign convention).
 
@@ -195,6 +296,8 @@ def breakaway_force(t_s, x_m, p_a_pa, p_b_pa, hose_area_m2: float, direction: st
         Hose cross-section [m2].
     direction : {"P", "N"}
         P: driven by A toward +x; N: driven by B toward -x.
+    sensor : analyses.quality.Sensor, optional
+        Position sensor [m]; estimated from ``x_m`` when not given.
     fit_s : float
         Window of the force line fit before the onset [s].
     **onset_kwargs
@@ -203,32 +306,42 @@ def breakaway_force(t_s, x_m, p_a_pa, p_b_pa, hose_area_m2: float, direction: st
     Returns
     -------
     dict
-        ``breakaway_force_n`` (None if the carriage never moved), ``onset_t_s``,
-        ``measured_rate_n_s`` (slope of the force before the onset), ``warning`` (text or None).
+        ``breakaway_force_n`` (None if no motion the sensor can tell), ``onset_t_s``,
+        ``measured_rate_n_s`` and ``measured_rate_se_n_s`` (the drive force's rate over the whole
+        ramp, from its start to the onset: :func:`ramp_rate`), ``note`` (why a value is None),
+        ``warning`` (text or None).
     """
     t = np.asarray(t_s, dtype=float)
     x = np.asarray(x_m, dtype=float)
     sign = _SIGN[direction]
     force = sign * drive_force(p_a_pa, p_b_pa, hose_area_m2)
-    onset = detect_motion_onset(t, x, direction, **onset_kwargs)
-    out = {"breakaway_force_n": None, "onset_t_s": None, "measured_rate_n_s": None, "warning": None}
+    if sensor is None and x.size:
+        sensor = describe_sensor(x)
+    onset = detect_motion_onset(t, x, direction, sensor, **onset_kwargs)
+    out = {"breakaway_force_n": None, "onset_t_s": None, "measured_rate_n_s": None, "measured_rate_se_n_s": None,
+           "note": None, "warning": None}
     if onset is None:
-        other = detect_motion_onset(t, x, "N" if direction == "P" else "P", **onset_kwargs)
+        other = detect_motion_onset(t, x, "N" if direction == "P" else "P", sensor, **onset_kwargs)
         if other is not None:
             out["warning"] = (f"carriage moved against direction {direction} at t = {t[other]:.3f} s; "
                               "no breakaway force")
+            out["note"] = f"carriage moved against direction {direction}"
         else:
             span = (np.nanmax(x) - np.nanmin(x)) * 1e6 if x.size else 0.0
+            floor = sensor.describe() if sensor is not None else "unknown sensor"
             out["warning"] = (f"carriage never moved (position span {span:.0f} um, peak drive force "
                               f"{np.nanmax(force):.2f} N); no breakaway force")
+            out["note"] = f"no motion the position sensor can tell (span {span:.0f} um; {floor})"
         return out
     nb = max(3, int(np.searchsorted(t, t[0] + onset_kwargs.get("baseline_s", 0.2))))
-    f0, slope = force_at(t, force, float(t[onset]), fit_s=fit_s, t_min=float(t[min(nb, onset)]))
-    out.update({"breakaway_force_n": f0, "onset_t_s": float(t[onset]),
-                "measured_rate_n_s": None if not np.isfinite(slope) else slope})
+    f0, _slope = force_at(t, force, float(t[onset]), fit_s=fit_s, t_min=float(t[min(nb, onset)]))
+    rate = ramp_rate(t, force, float(t[onset]))
+    out.update({"breakaway_force_n": f0, "onset_t_s": float(t[onset]), "measured_rate_n_s": rate["rate_n_s"],
+                "measured_rate_se_n_s": rate["rate_se_n_s"], "note": rate["note"]})
     if not np.isfinite(f0):
         out["breakaway_force_n"] = None
         out["warning"] = "no force samples before the motion onset"
+        out["note"] = "no force samples before the motion onset"
     elif f0 <= 0:
         out["warning"] = f"drive force at motion onset is {f0:.2f} N (not in direction {direction})"
     return out
@@ -401,4 +514,4 @@ def plot_breakaway(breakaway: pd.DataFrame):
 
 __all__ = ["drive_force", "detect_motion_onset", "force_at", "breakaway_force", "breakaway_summary",
            "backpressure_ratio", "force_rate_slope", "breakaway_findings", "plot_breakaway",
-           "ENCODER_RESOLUTION_M"]
+           "ramp_rate", "CREEP_MAX_M", "GROSS_N_SIGMA"]

@@ -35,6 +35,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from analyses.quality import Sensor
 from schemas.units import kg_s_to_l_min_anr
 
 #: Default leak threshold of the seal envelope. [l/min ANR]
@@ -60,7 +61,8 @@ def _noise_sigma(y: np.ndarray) -> float:
 
 def find_pressure_plateaus(t_s, p_pa, q=None, *, block_s: float = 0.1, flat_tol_bar: float = 0.02,
                            level_tol_bar: float = 0.05, min_duration_s: float = 0.5,
-                           settle_s: float = 0.2) -> list[tuple[int, int]]:
+                           settle_s: float = 0.2, sensor_p: Sensor | None = None,
+                           sensor_q: Sensor | None = None) -> list[tuple[int, int]]:
     """Steady parts of a stepped pressure record.
 
     Parameters
@@ -82,6 +84,9 @@ def find_pressure_plateaus(t_s, p_pa, q=None, *, block_s: float = 0.1, flat_tol_
         Shortest plateau kept, after trimming [s].
     settle_s : float
         Time dropped at the start of every plateau (valve and flow transients) [s].
+    sensor_p, sensor_q : analyses.quality.Sensor, optional
+        Pressure [Pa] and flow [unit of ``q``] sensors (stated by the rig): their noise replaces
+        the estimate from the record, and the pressure's resolution widens the flatness test.
 
     Returns
     -------
@@ -100,7 +105,8 @@ def find_pressure_plateaus(t_s, p_pa, q=None, *, block_s: float = 0.1, flat_tol_
     nb = n // k
     if nb < 1:
         return []
-    sigma = _noise_sigma(p)
+    sigma = _noise_sigma(p) if sensor_p is None else float(sensor_p.noise) / _BAR
+    res_p = 0.0 if sensor_p is None else float(sensor_p.resolution) / _BAR
     # block statistics: mean, slope change across the block, residual scatter
     tb = t[: nb * k].reshape(nb, k)
     pb = p[: nb * k].reshape(nb, k)
@@ -111,7 +117,8 @@ def find_pressure_plateaus(t_s, p_pa, q=None, *, block_s: float = 0.1, flat_tol_
     resid = pb - pm[:, None] - slope[:, None] * tc
     scatter = resid.std(axis=1)
     # a block with a step inside has a large residual scatter even after the line fit
-    flat = (change <= flat_tol_bar + 4 * sigma / np.sqrt(k)) & (scatter <= 2.0 * sigma + 0.25 * flat_tol_bar)
+    flat = ((change <= flat_tol_bar + 4 * sigma / np.sqrt(k) + res_p)
+            & (scatter <= 2.0 * sigma + 0.25 * flat_tol_bar + 0.5 * res_p))
     groups: list[list[int]] = []
     for b in range(nb):
         if not flat[b]:
@@ -121,7 +128,7 @@ def find_pressure_plateaus(t_s, p_pa, q=None, *, block_s: float = 0.1, flat_tol_
         else:
             groups.append([b])
     qa = None if q is None else np.asarray(q, dtype=float)
-    q_sigma = 0.0 if qa is None else _noise_sigma(qa)
+    q_sigma = 0.0 if qa is None else (_noise_sigma(qa) if sensor_q is None else float(sensor_q.floor()))
     out = []
     for g in groups:
         start, stop = g[0] * k, (g[-1] + 1) * k
@@ -149,7 +156,8 @@ def _trim_unsettled(q: np.ndarray, start: int, stop: int, k: int, sigma: float) 
     return i
 
 
-def leakage_plateaus(t_s, p_pa, q_leak_kg_s, **kwargs) -> pd.DataFrame:
+def leakage_plateaus(t_s, p_pa, q_leak_kg_s, sensor_p: Sensor | None = None, sensor_q: Sensor | None = None,
+                     **kwargs) -> pd.DataFrame:
     """One row per pressure plateau of a leakage run: mean pressure and mean leak.
 
     Parameters
@@ -160,6 +168,8 @@ def leakage_plateaus(t_s, p_pa, q_leak_kg_s, **kwargs) -> pd.DataFrame:
         Pressure of the pressurised chamber, gauge [Pa].
     q_leak_kg_s : array_like
         Leakage mass flow [kg/s].
+    sensor_p, sensor_q : analyses.quality.Sensor, optional
+        Pressure [Pa] and flow [kg/s] sensors; see :func:`find_pressure_plateaus`.
     **kwargs
         Passed to :func:`find_pressure_plateaus`.
 
@@ -167,7 +177,9 @@ def leakage_plateaus(t_s, p_pa, q_leak_kg_s, **kwargs) -> pd.DataFrame:
     -------
     DataFrame
         ``plateau`` (0, 1, ...), ``t_start_s``, ``t_end_s``, ``n_samples``, ``pressure_bar``
-        (mean, gauge), ``leak_l_min`` (mean, l/min ANR), ``leak_std_l_min`` (sample scatter).
+        (mean, gauge), ``leak_l_min`` (mean, l/min ANR), ``leak_std_l_min`` (sample scatter),
+        ``leak_se_l_min`` (standard error of the mean, from block means; at least the flow
+        sensor's resolution over ``sqrt(12 n)``).
     """
     t = np.asarray(t_s, dtype=float)
     p = np.asarray(p_pa, dtype=float)
@@ -175,13 +187,27 @@ def leakage_plateaus(t_s, p_pa, q_leak_kg_s, **kwargs) -> pd.DataFrame:
     ok = np.isfinite(t) & np.isfinite(p) & np.isfinite(q)
     t, p, q = t[ok], p[ok], q[ok]
     rows = []
-    for i, (a, b) in enumerate(find_pressure_plateaus(t, p, q, **kwargs)):
+    sensor_q_l_min = 0.0 if sensor_q is None else float(kg_s_to_l_min_anr(sensor_q.resolution))
+    for i, (a, b) in enumerate(find_pressure_plateaus(t, p, q, sensor_p=sensor_p, sensor_q=sensor_q, **kwargs)):
         ql = kg_s_to_l_min_anr(q[a:b])
         rows.append({"plateau": i, "t_start_s": float(t[a]), "t_end_s": float(t[b - 1]), "n_samples": b - a,
                      "pressure_bar": float(np.mean(p[a:b]) / _BAR), "leak_l_min": float(np.mean(ql)),
-                     "leak_std_l_min": float(np.std(ql))})
+                     "leak_std_l_min": float(np.std(ql)), "leak_se_l_min": _mean_se(ql, sensor_q_l_min)})
     return pd.DataFrame(rows, columns=["plateau", "t_start_s", "t_end_s", "n_samples", "pressure_bar",
-                                       "leak_l_min", "leak_std_l_min"])
+                                       "leak_l_min", "leak_std_l_min", "leak_se_l_min"])
+
+
+def _mean_se(y: np.ndarray, floor: float = 0.0) -> float:
+    """Standard error of the mean of a (possibly correlated) plateau: the scatter of the means of
+    (at most) 10 consecutive blocks, and never finer than the sensor's resolution floor."""
+    y = np.asarray(y, dtype=float)
+    nb = min(10, y.size // 2)
+    if nb >= 2:
+        means = np.array([b.mean() for b in np.array_split(y, nb)])
+        se = float(np.std(means, ddof=1) / np.sqrt(nb))
+    else:
+        se = float(np.std(y) / np.sqrt(max(y.size, 1)))
+    return max(se, floor / np.sqrt(12.0 * max(y.size, 1)))
 
 
 def leakage_power_law(p_bar, c_l_min_bar15: float, p_seal_bar: float):
@@ -294,11 +320,16 @@ def seal_envelope(leakage_map: pd.DataFrame, threshold_l_min: float = LEAK_THRES
         ``first_leak_bar`` (lowest tested pressure above threshold; NULL if none),
         ``max_tested_bar``, ``sealed_at_max`` (True when no tested pressure leaks),
         ``max_leak_l_min``, ``n_pressures``, ``runs_used`` (``characterisation``,
-        ``hose_checks`` or, with ``characterisation_only=False``, ``mixed``), ``n_runs``.
+        ``hose_checks`` or, with ``characterisation_only=False``, ``mixed``), ``n_runs``,
+        ``note``: when the leak of a tested pressure (up to the first leaking one) lies within 2
+        standard errors (``leak_se_l_min`` of its plateaus) of the threshold, the data cannot
+        tell sealed from leaking there: ``sealed_up_to_bar`` and ``first_leak_bar`` are NULL and
+        the note says so.
     """
     by = [c for c in by if c in leakage_map.columns]
     cols = list(by) + ["spring_force_pct", "threshold_l_min", "sealed_up_to_bar", "first_leak_bar",
-                       "max_tested_bar", "sealed_at_max", "max_leak_l_min", "n_pressures", "runs_used", "n_runs"]
+                       "max_tested_bar", "sealed_at_max", "max_leak_l_min", "n_pressures", "runs_used", "n_runs",
+                       "note"]
     df = leakage_map.dropna(subset=["pressure_bar", "leak_l_min"])
     if characterisation_only:
         df = characterisation_rows(df, by)
@@ -317,6 +348,18 @@ def seal_envelope(leakage_map: pd.DataFrame, threshold_l_min: float = LEAK_THRES
             sealed_up_to = float(levels.index[-1])
         elif first > 0:
             sealed_up_to = float(levels.index[first - 1])
+        note = None
+        sealed_at_max = first is None
+        if "leak_se_l_min" in g.columns:
+            se2 = pd.to_numeric(g["leak_se_l_min"], errors="coerce").fillna(0.0) ** 2
+            se = (np.sqrt(se2.groupby(g["_nominal"]).sum()) / g.groupby("_nominal").size()).reindex(levels.index)
+            undecided = (np.abs(levels - threshold_l_min) <= 2.0 * se).to_numpy() & (se.to_numpy() > 0)
+            if undecided.any():
+                k = int(np.argmax(undecided))
+                if first is None or k <= first:
+                    note = (f"the leak at {float(levels.index[k]):.1f} bar cannot be told from the threshold "
+                            "(within 2 standard errors)")
+                    sealed_up_to, first, sealed_at_max = None, None, None
         row = dict(zip(by, key))
         force = row.get("spring_force_n")
         row.update({
@@ -325,15 +368,18 @@ def seal_envelope(leakage_map: pd.DataFrame, threshold_l_min: float = LEAK_THRES
             "sealed_up_to_bar": sealed_up_to,
             "first_leak_bar": None if first is None else float(levels.index[first]),
             "max_tested_bar": float(levels.index[-1]),
-            "sealed_at_max": first is None,
+            "sealed_at_max": sealed_at_max,
             "max_leak_l_min": float(levels.max()),
             "n_pressures": int(len(levels)),
             "runs_used": (RUNS_HOSE_CHECKS if g["_check"].all() else
                           RUNS_CHARACTERISATION if not g["_check"].any() else RUNS_MIXED),
             "n_runs": int(g["run_id"].nunique()) if "run_id" in g.columns else None,
+            "note": note,
         })
         rows.append(row)
-    return pd.DataFrame(rows, columns=cols)
+    out = pd.DataFrame(rows, columns=cols)
+    out["sealed_at_max"] = out["sealed_at_max"].astype("boolean")  # NULL when undecided
+    return out
 
 
 _MARKERS = ("o", "s", "^", "D", "v", "P", "X", "<", ">")

@@ -39,30 +39,53 @@ import numpy as np
 import pandas as pd
 import scipy  # its submodules load on first use: a rebuild that reuses every stage never pays for them
 
-from analyses.breakaway import ENCODER_RESOLUTION_M, drive_force
+from analyses.breakaway import drive_force
+from analyses.quality import Gate, Sensor, describe_sensor, linear_lstsq, nrmse_pct
 
 #: Below this speed the tanh transition is not saturated; such points are left out of the
 #: Coulomb + viscous fit. [m/s]
 MIN_SPEED_LINEAR_M_S = 2e-3
 #: Runs whose passes are all slower than this are near-zero runs (Fig. 14). [m/s]
 NEAR_ZERO_MAX_M_S = 0.01
+#: A friction model that misses its points by more than this NRMSE (and by more than 3 times the
+#: points' own noise) is not reported. [%]
+NRMSE_LIMIT_PCT = 5.0
 
 
-def nrmse_pct(measured, model) -> float:
-    """100 * RMS(measured - model) / (max(measured) - min(measured)) (warehouse.md).
+def _effective_sensor(x: np.ndarray, sensor: Sensor | None) -> tuple[Sensor, float, float]:
+    """The position sensor and its two floors: ``(sensor, resolution, noise)``.
 
-    Returns NaN when the measured values have no range.
+    ``noise`` is 0 when quantisation dominates (noise under half a count: the reading dithers by
+    at most one count, a bounded error that the resolution terms cover); otherwise the noise
+    sigma, and motion is judged against it.
     """
-    y = np.asarray(measured, dtype=float)
-    m = np.asarray(model, dtype=float)
-    span = float(np.max(y) - np.min(y)) if y.size else 0.0
-    if span <= 0:
-        return float("nan")
-    return float(100.0 * np.sqrt(np.mean((y - m) ** 2)) / span)
+    s = sensor if sensor is not None else describe_sensor(x)
+    res = float(s.resolution) if np.isfinite(s.resolution) and s.resolution > 0 else 0.0
+    noise = float(s.noise) if np.isfinite(s.noise) and s.noise > 0 else 0.0
+    if res > 0 and noise <= 0.5 * res:
+        noise = 0.0
+    return s, res, noise
+
+
+def _virtual_counts(x: np.ndarray, band: float) -> np.ndarray:
+    """Position tracked with hysteresis: a level that moves in steps of ``band`` only when the
+    reading leaves it by more than ``band`` (a Schmitt trigger on a noisy analog position)."""
+    out = np.empty_like(x)
+    level = float(x[0])
+    for i, xi in enumerate(x.tolist()):
+        d = xi - level
+        if d > band or d < -band:
+            level += band * np.trunc(d / band)
+        out[i] = level
+    return out
 
 
 def _strokes(t: np.ndarray, x: np.ndarray, resolution_m: float, still_s: float) -> list[tuple[int, int, float]]:
-    """Monotone stretches ``(start, stop, sign)`` separated by reversals or stillness."""
+    """Monotone stretches ``(start, stop, sign)`` separated by reversals or stillness.
+
+    ``x`` changes only in steps of at least ``resolution_m`` (encoder counts or the virtual
+    counts of :func:`_virtual_counts`).
+    """
     half = 0.5 * resolution_m
     dx = np.diff(x)
     moves = np.flatnonzero(np.abs(dx) > half)  # sample i -> i+1 changes count
@@ -82,7 +105,29 @@ def _strokes(t: np.ndarray, x: np.ndarray, resolution_m: float, still_s: float) 
     return out
 
 
-def find_constant_velocity_passes(t_s, x_m, *, resolution_m: float = ENCODER_RESOLUTION_M, rel_tol: float = 0.02,
+def velocity_uncertainty(sensor: Sensor, window_s: float, dt_s: float) -> float:
+    """Uncertainty of a velocity estimated over a window of ``window_s`` from a position sensor. [m/s]
+
+    Quantisation: a difference of two readings over the window is off by at most one count,
+    ``res / w``. White noise of sigma ``s``: the slope of a straight line fitted to the
+    ``N = w / dt + 1`` samples of the window has standard deviation
+    ``s sqrt(12 / (N (N^2 - 1))) / dt`` (about ``s sqrt(12 / N^3) / dt``). The larger applies.
+    """
+    _, res, noise = _effective_sensor(np.zeros(1), sensor)
+    w = max(float(window_s), float(dt_s))
+    n = max(2.0, round(w / dt_s) + 1)
+    return float(max(res / w, noise * np.sqrt(12.0 / (n * (n * n - 1))) / dt_s))
+
+
+#: Motion on a noisy (analog) position is a departure of more than this many noise sigmas from
+#: the tracked level: at rest a reading leaves a level by this much about once in 10^9 samples.
+MOTION_N_SIGMA = 6.0
+#: Two velocity windows agree when they differ by less than this many standard deviations of
+#: their difference (plus the relative tolerance and the quantisation bound).
+STEADY_N_SIGMA = 4.0
+
+
+def find_constant_velocity_passes(t_s, x_m, sensor: Sensor | None = None, *, rel_tol: float = 0.02,
                                   min_counts: float = 20.0, still_s: float = 0.5,
                                   window_fraction: float = 0.05) -> list[tuple[int, int]]:
     """Sample ranges ``[start, stop)`` of the constant-velocity passes of a run.
@@ -92,17 +137,21 @@ def find_constant_velocity_passes(t_s, x_m, *, resolution_m: float = ENCODER_RES
     t_s : array_like
         Time [s].
     x_m : array_like
-        Position [m] (encoder).
-    resolution_m : float
-        Encoder count [m].
+        Position [m] (encoder or analog sensor).
+    sensor : analyses.quality.Sensor, optional
+        Resolution and noise of the position [m]; estimated from ``x_m`` when not given.
     rel_tol : float
-        Relative velocity change allowed between neighbouring windows.
+        Physical criterion of "constant": relative velocity change allowed between
+        neighbouring windows [-]. The sensor's own velocity uncertainty over the window
+        (:func:`velocity_uncertainty`) is added to it, and the window is made long enough that
+        this uncertainty does not exceed ``rel_tol`` of the stroke's speed.
     min_counts : float
-        Least travel of a velocity window and of a pass [counts].
+        Least travel of a velocity window and of a pass, in sensor floors
+        (:meth:`Sensor.floor`: counts of an encoder, noise sigmas of an analog sensor) [-].
     still_s : float
         A position held this long ends a stroke [s].
     window_fraction : float
-        Velocity window as a fraction of the stroke duration.
+        Velocity window as a fraction of the stroke duration [-].
 
     Returns
     -------
@@ -115,15 +164,30 @@ def find_constant_velocity_passes(t_s, x_m, *, resolution_m: float = ENCODER_RES
         t, x = t[ok], x[ok]
     if t.size < 10:
         return []
+    sensor, res, noise = _effective_sensor(x, sensor)
+    floor = max(res, noise)
+    if floor <= 0:  # an ideal record: any change is motion; the float round-off of the values is not
+        floor = max(float(np.max(np.abs(x))), 1e-300) * 1e-12
+        res = floor
     dt = float(np.median(np.diff(t)))
+    if not (np.isfinite(dt) and dt > 0):
+        return []
+    if noise > 0:
+        band = max(res, MOTION_N_SIGMA * noise)
+        counts = _virtual_counts(x, band)
+    else:
+        band, counts = res, x
     out = []
-    for a, b, _sign in _strokes(t, x, resolution_m, still_s):
+    for a, b, _sign in _strokes(t, counts, band, still_s):
         dur = t[b - 1] - t[a]
         travel = abs(x[b - 1] - x[a])
-        if dur <= 0 or travel < 2 * min_counts * resolution_m:
+        if dur <= 0 or travel < 2 * min_counts * floor:
             continue
         v_m = travel / dur
-        w = max(window_fraction * dur, min_counts * resolution_m / v_m, 5 * dt)
+        w = max(window_fraction * dur, min_counts * floor / v_m, 5 * dt)
+        if noise > 0:  # long enough that the noise does not blur "constant" at rel_tol
+            while velocity_uncertainty(sensor, w, dt) * STEADY_N_SIGMA * np.sqrt(2) > rel_tol * v_m and 3 * w < dur:
+                w *= 1.25
         if 3 * w > dur:
             continue
         h = max(1, int(round(w / 2 / dt)))
@@ -131,24 +195,30 @@ def find_constant_velocity_passes(t_s, x_m, *, resolution_m: float = ENCODER_RES
         n = xs.size
         if n < 4 * h + 3:
             continue
-        # v over [i-h, i+h]; steady at i if v at i-h and at i+h agree
         vc = np.full(n, np.nan)
-        vc[h:n - h] = (xs[2 * h:] - xs[:n - 2 * h]) / (ts[2 * h:] - ts[:n - 2 * h])
+        if noise > 0:
+            # slope of a straight line over [i-h, i+h] (uniform sampling): sum k x[i+k] / (dt sum k^2)
+            k = np.arange(-h, h + 1, dtype=float)
+            vc[h:n - h] = np.convolve(xs, k[::-1], mode="valid") / (dt * np.sum(k * k))
+            sd_v = noise / (dt * np.sqrt(np.sum(k * k)))
+        else:
+            # v over [i-h, i+h]; exact to one count over the window
+            vc[h:n - h] = (xs[2 * h:] - xs[:n - 2 * h]) / (ts[2 * h:] - ts[:n - 2 * h])
+            sd_v = 0.0
         steady = np.zeros(n, dtype=bool)
         before, after = vc[:n - 2 * h], vc[2 * h:]
         wt = ts[2 * h:] - ts[:n - 2 * h]
-        tol = rel_tol * np.abs(0.5 * (before + after)) + 3 * resolution_m / wt
+        tol = rel_tol * np.abs(0.5 * (before + after)) + 3 * res / wt + STEADY_N_SIGMA * np.sqrt(2) * sd_v
         steady[h:n - h] = np.abs(after - before) <= tol
-        steady &= np.isfinite(vc) | steady
         edges = np.flatnonzero(np.diff(np.concatenate(([0], steady.astype(np.int8), [0]))))
         for s0, s1 in zip(edges[0::2], edges[1::2]):
-            if ts[s1 - 1] - ts[s0] < max(3 * w, w + 5 * dt) or abs(xs[s1 - 1] - xs[s0]) < min_counts * resolution_m:
+            if ts[s1 - 1] - ts[s0] < max(3 * w, w + 5 * dt) or abs(xs[s1 - 1] - xs[s0]) < min_counts * floor:
                 continue
             out.append((a + int(s0), a + int(s1)))
     return out
 
 
-def viscous_points(t_s, x_m, force_n, **kwargs) -> pd.DataFrame:
+def viscous_points(t_s, x_m, force_n, sensor: Sensor | None = None, **kwargs) -> pd.DataFrame:
     """One row per constant-velocity pass: signed mean velocity and signed mean friction.
 
     Parameters
@@ -157,6 +227,8 @@ def viscous_points(t_s, x_m, force_n, **kwargs) -> pd.DataFrame:
         Time [s], position [m].
     force_n : array_like
         Drive force toward +x [N]: ``(p_a - p_b) A`` or the load cell.
+    sensor : analyses.quality.Sensor, optional
+        Position sensor [m]; estimated from ``x_m`` when not given.
     **kwargs
         Passed to :func:`find_constant_velocity_passes`.
 
@@ -164,25 +236,35 @@ def viscous_points(t_s, x_m, force_n, **kwargs) -> pd.DataFrame:
     -------
     DataFrame
         ``pass_index``, ``t_start_s``, ``t_end_s``, ``n_samples``, ``velocity_m_s`` (line fit),
-        ``friction_n`` (mean), ``friction_std_n``, ``accel_m_s2`` (quadratic fit, diagnostic),
-        ``direction`` (P for v > 0, N for v < 0).
+        ``velocity_se_m_s`` (its standard error, from the residuals of the line and at least
+        the quantisation bound ``res / duration``), ``friction_n`` (mean), ``friction_std_n``,
+        ``accel_m_s2`` (quadratic fit, diagnostic), ``direction`` (P for v > 0, N for v < 0).
     """
     t = np.asarray(t_s, dtype=float)
     x = np.asarray(x_m, dtype=float)
     f = np.asarray(force_n, dtype=float)
     ok = np.isfinite(t) & np.isfinite(x) & np.isfinite(f)
     t, x, f = t[ok], x[ok], f[ok]
+    if sensor is None and x.size:
+        sensor = describe_sensor(x)
     rows = []
-    for i, (a, b) in enumerate(find_constant_velocity_passes(t, x, **kwargs)):
+    for i, (a, b) in enumerate(find_constant_velocity_passes(t, x, sensor, **kwargs)):
         tt = t[a:b] - t[a:b].mean()
-        v = float(np.polyfit(tt, x[a:b], 1)[0])
+        coef = np.polyfit(tt, x[a:b], 1)
+        v = float(coef[0])
+        resid = x[a:b] - np.polyval(coef, tt)
+        sxx = float(np.sum(tt * tt))
+        se = float(np.sqrt(np.sum(resid * resid) / max(b - a - 2, 1) / sxx)) if sxx > 0 else float("nan")
+        dur = float(t[b - 1] - t[a])
+        if sensor is not None and dur > 0:
+            se = max(se, float(sensor.resolution) / dur / np.sqrt(3.0))
         acc = float(2 * np.polyfit(tt, x[a:b], 2)[0]) if b - a > 3 else float("nan")
         rows.append({"pass_index": i, "t_start_s": float(t[a]), "t_end_s": float(t[b - 1]), "n_samples": b - a,
-                     "velocity_m_s": v, "friction_n": float(np.mean(f[a:b])),
+                     "velocity_m_s": v, "velocity_se_m_s": se, "friction_n": float(np.mean(f[a:b])),
                      "friction_std_n": float(np.std(f[a:b])), "accel_m_s2": acc,
                      "direction": "P" if v > 0 else "N"})
     return pd.DataFrame(rows, columns=["pass_index", "t_start_s", "t_end_s", "n_samples", "velocity_m_s",
-                                       "friction_n", "friction_std_n", "accel_m_s2", "direction"])
+                                       "velocity_se_m_s", "friction_n", "friction_std_n", "accel_m_s2", "direction"])
 
 
 def friction_from_run(samples: pd.DataFrame, hose_area_m2: float | None = None) -> np.ndarray:
@@ -236,9 +318,44 @@ def tanh_viscous(v_m_s, coulomb_n: float, viscous_n_s_m: float, transition_m_s: 
     return coulomb_n * np.tanh(v / transition_m_s) + viscous_n_s_m * v
 
 
+#: Speeds of one direction within this fraction of each other are one speed level (a speed
+#: controller's pass-to-pass repeatability); two levels closer than that do not separate
+#: Coulomb from viscous friction. Levels are also kept apart by their velocity uncertainty.
+SPEED_LEVEL_REL = 0.05
+
+
+def speed_levels(v_m_s, se_m_s=None, rel: float = SPEED_LEVEL_REL, n_sigma: float = 4.0) -> int:
+    """Number of distinct speed levels among pass velocities.
+
+    Sorted speeds start a new level when they exceed the first speed of the current level by
+    more than ``rel`` of it and by more than ``n_sigma`` combined standard errors.
+
+    Parameters
+    ----------
+    v_m_s : array_like
+        Pass velocities [m/s] (signs ignored).
+    se_m_s : array_like, optional
+        Their standard errors [m/s].
+    """
+    v = np.abs(np.asarray(v_m_s, dtype=float))
+    se = np.zeros_like(v) if se_m_s is None else np.nan_to_num(np.asarray(se_m_s, dtype=float), nan=0.0)
+    ok = np.isfinite(v)
+    v, se = v[ok], se[ok]
+    if v.size == 0:
+        return 0
+    order = np.argsort(v)
+    v, se = v[order], se[order]
+    levels, ref, ref_se = 1, v[0], se[0]
+    for vi, si in zip(v[1:], se[1:]):
+        if vi - ref > max(rel * ref, n_sigma * np.hypot(si, ref_se)):
+            levels += 1
+            ref, ref_se = vi, si
+    return levels
+
+
 def fit_coulomb_viscous(v_m_s, friction_n, min_speed_m_s: float = MIN_SPEED_LINEAR_M_S,
-                        confidence: float = 0.95) -> dict:
-    """Coulomb + viscous fit of one direction's points by linear least squares.
+                        confidence: float = 0.95, velocity_se_m_s=None, friction_se_n=None) -> dict:
+    """Coulomb + viscous fit of one direction's points by linear least squares, gated.
 
     Parameters
     ----------
@@ -246,32 +363,58 @@ def fit_coulomb_viscous(v_m_s, friction_n, min_speed_m_s: float = MIN_SPEED_LINE
         Signed velocity [m/s] and friction [N] of one direction (all v of one sign).
     min_speed_m_s : float
         Points slower than this are left out [m/s].
+    velocity_se_m_s : array_like, optional
+        Standard errors of the velocities [m/s] (to tell speed levels apart).
+    friction_se_n : array_like, optional
+        Standard errors of the friction points [N] (the noise level the fit may reach).
 
     Returns
     -------
     dict
         ``coulomb_n`` (magnitude), ``viscous_n_s_m``, ``nrmse_pct`` (over the points fitted),
-        ``n_points``, ``coulomb_se_n``, ``viscous_se_n_s_m``; None values with fewer than 3
-        points or a single velocity.
+        ``n_points``, ``coulomb_se_n``, ``viscous_se_n_s_m``, ``n_speed_levels``, ``note``.
+        The values are None, with the reason in ``note``, when the points span fewer than two
+        speed levels (:func:`speed_levels`: one speed cannot separate Coulomb from viscous
+        friction), there are fewer than 3 points, the design does not separate the two
+        parameters (standard error over half the value), a value is negative, or the line
+        misses the points (NRMSE over 5 % and residuals above 3 times the points' noise).
     """
     v = np.asarray(v_m_s, dtype=float)
     f = np.asarray(friction_n, dtype=float)
+    vse = None if velocity_se_m_s is None else np.asarray(velocity_se_m_s, dtype=float)
+    fse = None if friction_se_n is None else np.asarray(friction_se_n, dtype=float)
     m = np.isfinite(v) & np.isfinite(f) & (np.abs(v) >= min_speed_m_s)
     v, f = v[m], f[m]
+    vse = None if vse is None else vse[m]
+    fse = None if fse is None else fse[m]
+    fields = ("coulomb_n", "viscous_n_s_m", "coulomb_se_n", "viscous_se_n_s_m")
+    n_levels = speed_levels(v, vse)
     out = {"coulomb_n": None, "viscous_n_s_m": None, "nrmse_pct": None, "n_points": int(v.size),
-           "coulomb_se_n": None, "viscous_se_n_s_m": None}
-    if v.size < 3 or np.ptp(v) <= 0:
-        return out
+           "coulomb_se_n": None, "viscous_se_n_s_m": None, "n_speed_levels": int(n_levels), "note": None}
+    g = Gate()
+    if n_levels < 2:
+        if v.size:
+            g.fail(f"passes at one speed level only (|v| {np.min(np.abs(v)):.3g}-{np.max(np.abs(v)):.3g} m/s): "
+                   "one speed cannot separate Coulomb from viscous friction")
+        else:
+            g.fail(f"no pass at or above {min_speed_m_s:g} m/s")
+        return g.apply(out, fields)
+    if g.enough_points(v.size, 3).reasons:
+        return g.apply(out, fields)
     s = np.sign(np.median(v))
-    X = np.column_stack([np.full_like(v, s), v])
-    beta, *_ = np.linalg.lstsq(X, f, rcond=None)
-    model = X @ beta
-    resid = f - model
-    dof = v.size - 2
-    cov = (resid @ resid / dof) * np.linalg.inv(X.T @ X)
-    out.update({"coulomb_n": float(beta[0]), "viscous_n_s_m": float(beta[1]), "nrmse_pct": nrmse_pct(f, model),
-                "coulomb_se_n": float(np.sqrt(cov[0, 0])), "viscous_se_n_s_m": float(np.sqrt(cov[1, 1]))})
-    return out
+    fit = linear_lstsq(np.column_stack([np.full_like(v, s), v]), f)
+    nrmse = nrmse_pct(f, fit.fitted)
+    out.update({"coulomb_n": float(fit.beta[0]), "viscous_n_s_m": float(fit.beta[1]),
+                "nrmse_pct": nrmse if np.isfinite(nrmse) else None,
+                "coulomb_se_n": float(fit.se[0]) if np.isfinite(fit.se[0]) else None,
+                "viscous_se_n_s_m": float(fit.se[1]) if np.isfinite(fit.se[1]) else None})
+    g.identifiable(fit, names=("coulomb_n", "viscous_n_s_m"))
+    g.physical("coulomb_n", float(fit.beta[0]), lo=0.0)
+    g.physical("viscous_n_s_m", float(fit.beta[1]), lo=0.0)
+    noise = float(np.sqrt(np.mean(fse ** 2))) if fse is not None and np.isfinite(fse).all() and fse.size else None
+    rms = float(np.sqrt(np.mean((f - fit.fitted) ** 2)))
+    g.follows_data(nrmse, NRMSE_LIMIT_PCT, rms=rms, noise=noise)
+    return g.apply(out, fields)
 
 
 def fit_tanh_viscous(v_m_s, friction_n, confidence: float = 0.95) -> dict:
@@ -289,14 +432,19 @@ def fit_tanh_viscous(v_m_s, friction_n, confidence: float = 0.95) -> dict:
     m = np.isfinite(v) & np.isfinite(f)
     v, f = v[m], f[m]
     keys = ("coulomb_n", "viscous_n_s_m", "transition_m_s", "transition_ci_low_m_s", "transition_ci_high_m_s",
-            "nrmse_pct", "rss")
+            "nrmse_pct", "rss", "note")
     out = dict.fromkeys(keys)
     out["n_points"] = int(v.size)
+    fields = keys[:5]
+    g = Gate()
     if v.size < 5 or np.all(v > 0) or np.all(v < 0):
-        return out
+        g.enough_points(v.size, 5)
+        if g.ok:
+            g.fail("near-zero points on one side of zero only: the transition cannot be fitted")
+        return g.apply(out, fields)
     res = _fit_tanh(v, f)
     if res is None:
-        return out
+        return g.fail("tanh fit failed").apply(out, fields)
     p, rss, cov = res
     dof = v.size - 3
     q = scipy.stats.t.ppf(0.5 + confidence / 2, dof)
@@ -306,14 +454,30 @@ def fit_tanh_viscous(v_m_s, friction_n, confidence: float = 0.95) -> dict:
                 "transition_ci_low_m_s": vs * float(np.exp(-q * se_log)) if np.isfinite(se_log) else None,
                 "transition_ci_high_m_s": vs * float(np.exp(q * se_log)) if np.isfinite(se_log) else None,
                 "nrmse_pct": nrmse_pct(f, tanh_viscous(v, p[0], p[1], vs)), "rss": rss})
-    return out
+    lo, hi = _vs_bounds(v)
+    g.within_bounds([vs], [lo], [hi], ("transition velocity",))
+    se = np.sqrt(np.clip(np.diag(cov), 0, None)) if cov is not None else np.full(3, np.nan)
+    g.identifiable(beta=p[:1], se=se[:1], names=("coulomb_n",))
+    if not np.isfinite(se_log):
+        g.fail("transition velocity not identifiable from the data (no standard error)")
+    g.physical("coulomb_n", float(p[0]), lo=0.0)
+    g.physical("viscous_n_s_m", float(p[1]), lo=0.0)
+    return g.apply(out, fields)
+
+
+def _vs_bounds(v) -> tuple[float, float]:
+    """Bounds of the transition velocity of the tanh fit: a twentieth of the slowest speed to
+    twice the fastest. [m/s]"""
+    speeds = np.abs(v[v != 0])
+    lo = max(float(speeds.min()) / 20, 1e-7) if speeds.size else 1e-6
+    hi = float(speeds.max()) * 2 if speeds.size else 1.0
+    return lo, hi
 
 
 def _fit_tanh(v, f, stribeck_v: float | None = None):
     """Least squares of the tanh model (optionally with a Stribeck term); params in log(vs)."""
     speeds = np.abs(v[v != 0])
-    lo = max(float(speeds.min()) / 20, 1e-7) if speeds.size else 1e-6
-    hi = float(speeds.max()) * 2 if speeds.size else 1.0
+    lo, hi = _vs_bounds(v)
 
     def model(p):
         base = p[0] if stribeck_v is None else p[0] + p[3] * np.exp(-(v / stribeck_v) ** 2)
@@ -365,19 +529,23 @@ def stribeck_test(v_m_s, friction_n, alpha: float = 0.01, n_grid: int = 6) -> di
     dict
         ``stribeck_amplitude_n`` (Fst at the best v_st), ``stribeck_amplitude_se_n`` (its
         standard error from the least-squares covariance), ``stribeck_velocity_m_s``,
-        ``stribeck_p_value`` (Bonferroni-corrected), ``stribeck_dip`` (bool), or None values when
-        there are too few points.
+        ``stribeck_p_value`` (Bonferroni-corrected), ``stribeck_dip`` (bool), ``note``; None
+        values (and the reason in ``note``) when there are too few points, and amplitude and
+        velocity None when the amplitude has no finite standard error (the test itself stands).
     """
     v = np.asarray(v_m_s, dtype=float)
     f = np.asarray(friction_n, dtype=float)
     m = np.isfinite(v) & np.isfinite(f)
     v, f = v[m], f[m]
     out = {"stribeck_amplitude_n": None, "stribeck_amplitude_se_n": None, "stribeck_velocity_m_s": None,
-           "stribeck_p_value": None, "stribeck_dip": None}
+           "stribeck_p_value": None, "stribeck_dip": None, "note": None}
     if v.size < 7 or np.all(v > 0) or np.all(v < 0):
+        out["note"] = (f"too few near-zero points for the Stribeck test: {v.size} < 7" if v.size < 7
+                       else "near-zero points on one side of zero only: no Stribeck test")
         return out
     base = _fit_tanh(v, f)
     if base is None:
+        out["note"] = "Stribeck test: tanh fit failed"
         return out
     rss0 = base[1]
     speeds = np.abs(v[v != 0])
@@ -388,10 +556,12 @@ def stribeck_test(v_m_s, friction_n, alpha: float = 0.01, n_grid: int = 6) -> di
         if r is not None and (best is None or r[1] < best[1][1]):
             best = (vst, r)
     if best is None:
+        out["note"] = "Stribeck test: fit failed"
         return out
     vst, (p, rss1, cov) = best
     dof = v.size - 4
     if dof < 1 or rss1 <= 0:
+        out["note"] = "Stribeck test: no residual degrees of freedom"
         return out
     fstat = max(rss0 - rss1, 0.0) / (rss1 / dof)
     pval = min(1.0, float(scipy.stats.f.sf(fstat, 1, dof)) * n_grid)
@@ -399,21 +569,29 @@ def stribeck_test(v_m_s, friction_n, alpha: float = 0.01, n_grid: int = 6) -> di
     out.update({"stribeck_amplitude_n": float(p[3]), "stribeck_amplitude_se_n": se,
                 "stribeck_velocity_m_s": float(vst), "stribeck_p_value": pval,
                 "stribeck_dip": bool(p[3] > 0 and pval < alpha)})
+    if se is None:
+        out.update({"stribeck_amplitude_n": None, "stribeck_velocity_m_s": None,
+                    "note": "Stribeck amplitude not identifiable from the data (no standard error)"})
     return out
 
 
 def viscous_fits(points: pd.DataFrame, min_speed_m_s: float = MIN_SPEED_LINEAR_M_S) -> pd.DataFrame:
     """Coulomb + viscous fit per (backpressure_bar, direction) of ``viscous_points`` rows.
 
+    Each direction is fitted by :func:`fit_coulomb_viscous` (gated: at least two speed levels,
+    identifiable, non-negative, following the points). Optional ``velocity_se_m_s``,
+    ``friction_std_n`` and ``n_samples`` columns tell the speed levels apart and give the
+    points' noise.
+
     Returns
     -------
     DataFrame
         ``backpressure_bar``, ``direction`` (P: v > 0, N: v < 0), ``coulomb_n`` (magnitude),
         ``viscous_n_s_m``, ``nrmse_pct``, ``n_points``, ``coulomb_se_n``, ``viscous_se_n_s_m``,
-        ``min_speed_m_s``.
+        ``min_speed_m_s``, ``n_speed_levels``, ``note`` (NULL when sound, else why the values are NULL).
     """
     cols = ["backpressure_bar", "direction", "coulomb_n", "viscous_n_s_m", "nrmse_pct", "n_points",
-            "coulomb_se_n", "viscous_se_n_s_m", "min_speed_m_s"]
+            "coulomb_se_n", "viscous_se_n_s_m", "min_speed_m_s", "n_speed_levels", "note"]
     df = points.dropna(subset=["velocity_m_s", "friction_n", "backpressure_bar"])
     rows = []
     for bp, g in df.groupby("backpressure_bar", sort=True):
@@ -421,11 +599,18 @@ def viscous_fits(points: pd.DataFrame, min_speed_m_s: float = MIN_SPEED_LINEAR_M
             gg = g[sel]
             if gg.empty:
                 continue
-            r = fit_coulomb_viscous(gg["velocity_m_s"], gg["friction_n"], min_speed_m_s)
+            vse = gg["velocity_se_m_s"] if "velocity_se_m_s" in gg.columns else None
+            fse = None
+            if {"friction_std_n", "n_samples"} <= set(gg.columns):
+                fse = (pd.to_numeric(gg["friction_std_n"], errors="coerce")
+                       / np.sqrt(pd.to_numeric(gg["n_samples"], errors="coerce").clip(lower=1))).to_numpy(float)
+            r = fit_coulomb_viscous(gg["velocity_m_s"], gg["friction_n"], min_speed_m_s,
+                                    velocity_se_m_s=None if vse is None else vse.to_numpy(float), friction_se_n=fse)
             rows.append({"backpressure_bar": float(bp), "direction": d, **r, "min_speed_m_s": min_speed_m_s})
     out = pd.DataFrame(rows, columns=cols)
     if not out.empty:
         out["n_points"] = out["n_points"].astype("int64")
+        out["n_speed_levels"] = out["n_speed_levels"].astype("int64")
     return out
 
 
@@ -446,7 +631,7 @@ def viscous_transition(points: pd.DataFrame, near_zero_max_m_s: float = NEAR_ZER
     """
     cols = ["backpressure_bar", "coulomb_n", "viscous_n_s_m", "transition_velocity_mm_s", "transition_ci_low_mm_s",
             "transition_ci_high_mm_s", "nrmse_pct", "n_points", "stribeck_amplitude_n", "stribeck_amplitude_se_n",
-            "stribeck_velocity_mm_s", "stribeck_p_value", "stribeck_dip"]
+            "stribeck_velocity_mm_s", "stribeck_p_value", "stribeck_dip", "note"]
     df = points.dropna(subset=["velocity_m_s", "friction_n", "backpressure_bar"])
     df = df[df["velocity_m_s"].abs() <= near_zero_max_m_s]
     rows = []
@@ -464,7 +649,8 @@ def viscous_transition(points: pd.DataFrame, near_zero_max_m_s: float = NEAR_ZER
                      "n_points": r["n_points"], "stribeck_amplitude_n": s["stribeck_amplitude_n"],
                      "stribeck_amplitude_se_n": s["stribeck_amplitude_se_n"],
                      "stribeck_velocity_mm_s": mm(s["stribeck_velocity_m_s"]),
-                     "stribeck_p_value": s["stribeck_p_value"], "stribeck_dip": s["stribeck_dip"]})
+                     "stribeck_p_value": s["stribeck_p_value"], "stribeck_dip": s["stribeck_dip"],
+                     "note": "; ".join(n for n in (r["note"], s["note"]) if n) or None})
     return pd.DataFrame(rows, columns=cols)
 
 
@@ -575,6 +761,7 @@ def plot_near_zero(points: pd.DataFrame, transition: pd.DataFrame | None = None,
     return fig
 
 
-__all__ = ["nrmse_pct", "find_constant_velocity_passes", "viscous_points", "friction_from_run", "coulomb_viscous",
+__all__ = ["nrmse_pct", "speed_levels", "velocity_uncertainty", "MOTION_N_SIGMA", "STEADY_N_SIGMA", "SPEED_LEVEL_REL",
+           "NRMSE_LIMIT_PCT", "find_constant_velocity_passes", "viscous_points", "friction_from_run", "coulomb_viscous",
            "tanh_viscous", "fit_coulomb_viscous", "fit_tanh_viscous", "stribeck_test", "viscous_fits",
            "viscous_transition", "plot_viscous", "plot_near_zero", "MIN_SPEED_LINEAR_M_S", "NEAR_ZERO_MAX_M_S"]

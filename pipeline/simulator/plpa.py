@@ -15,6 +15,20 @@ from pipeline.simulator.base import (ENCODER_M, HOSE_AREA_M2, MOVING_MASS_KG, Si
                                      first_order_steps, l_min_anr_to_kg_s, make_rng, pressure_sensor,
                                      quantise, time_vector)
 
+def position_sensor(x_m, rng: np.random.Generator, resolution_m: float = ENCODER_M, noise_m: float = 0.0):
+    """Position reading: Gaussian noise ``noise_m`` (an analog sensor), then quantised to
+    ``resolution_m`` (0: not quantised). The defaults are the bench's encoder. [m]
+
+    Draws from ``rng`` only when ``noise_m > 0``, so the default reading uses no random numbers.
+    """
+    x = np.asarray(x_m, dtype=float)
+    if noise_m == 0.0 and resolution_m == ENCODER_M:
+        return encoder(x)
+    if noise_m > 0:
+        x = x + rng.normal(0.0, noise_m, x.shape)
+    return quantise(x, resolution_m) if resolution_m > 0 else x + 0.0
+
+
 # -- leakage -----------------------------------------------------------------------------------
 #: Leak coefficient per chamber. [l/min/bar^1.5]
 LEAK_C = {"A": 2.0, "B": 2.4}
@@ -151,14 +165,16 @@ def _chamber_pressures(force_n, backpressure_bar: float, direction_sign=None):
 def simulate_breakaway(direction: str = "P", backpressure_bar: float = 0.0, force_rate_n_s: float = 2.0,
                        rng=None, *, fs_hz: float = 1000.0, hold_s: float = 1.0, post_s: float = 0.3,
                        breakaway_force_n: float | None = None, sigma_n: float = 0.5,
-                       creep_m: float = 4e-6, x0_m: float = 0.25, **metadata) -> SimRun:
+                       creep_m: float = 4e-6, x0_m: float = 0.25, position_resolution_m: float = ENCODER_M,
+                       position_noise_m: float = 0.0, **metadata) -> SimRun:
     """Static breakaway: backpressure in one chamber, the other ramped at ``force_rate_n_s``.
 
     Direction P ramps A (force and motion toward +x); N ramps B (toward -x). Below the
     breakaway force the carriage creeps ``creep_m * (F/Fb)^2`` (pre-sliding); at ``Fb`` it
     breaks loose and accelerates against ``Fc tanh(v/vs) + ka v``, ramp continuing, for
     ``post_s``. Breakaway force: ``breakaway_mean_n(backpressure)`` + N(0, sigma), no rate
-    dependence.
+    dependence. ``position_resolution_m`` / ``position_noise_m`` describe another position sensor
+    (:func:`position_sensor`; default the bench's 5 um encoder).
     """
     rng = make_rng(rng)
     sign = 1.0 if direction == "P" else -1.0
@@ -190,8 +206,8 @@ def simulate_breakaway(direction: str = "P", backpressure_bar: float = 0.0, forc
         x[k] = pos
     x_true = x0_m + sign * x
     p_a, p_b = _chamber_pressures(sign * f_drive, backpressure_bar)
-    data = pd.DataFrame({"t_s": t, "p_a_pa": pressure_sensor(p_a, rng), "p_b_pa": pressure_sensor(p_b, rng),
-                         "x_m": encoder(x_true)})
+    data = pd.DataFrame({"t_s": t, "p_a_pa": pressure_sensor(p_a, rng), "p_b_pa": pressure_sensor(p_b, rng)})
+    data["x_m"] = position_sensor(x_true, rng, position_resolution_m, position_noise_m)
     meta = {"kind": "breakaway", "rig": "plpa-1", "direction": direction,
             "backpressure_bar": float(backpressure_bar), "force_rate_n_s": float(force_rate_n_s),
             "hose_area_m2": HOSE_AREA_M2, **metadata}
@@ -259,13 +275,17 @@ def simulate_viscous(backpressure_bar: float = 0.0, speeds_m_s=VISCOUS_SPEEDS_M_
                      max_cruise_s: float = 2.0, min_cruise_s: float = 0.4, dwell_s: float = 0.3,
                      valve_tau_s: float = 0.02, fc_n: float | None = None, ka_n_s_m: float | None = None,
                      vs_m_s: float | None = None, force_noise_n: float = 0.05, x0_m: float = 0.4,
-                     **metadata) -> SimRun:
+                     position_resolution_m: float = ENCODER_M, position_noise_m: float = 0.0,
+                     mass_kg: float = MOVING_MASS_KG, force_offset_n: float = 0.0, **metadata) -> SimRun:
     """Viscous-friction run: constant-velocity passes at ``speeds_m_s`` (signed), rest between.
 
     The drive force is ``m a + F(v)``. With pressures, it reaches the chambers through a
     first-order valve lag ``valve_tau_s`` (so at constant velocity ``(p_a - p_b) A = F(v)``);
     with ``use_force_channel`` a load cell logs it directly as ``f`` (no pressures).
-    Near-zero runs: ``speeds_m_s=NEAR_ZERO_SPEEDS_M_S`` at 0 bar.
+    Near-zero runs: ``speeds_m_s=NEAR_ZERO_SPEEDS_M_S`` at 0 bar. Other rigs:
+    ``position_resolution_m`` / ``position_noise_m`` (an analog position sensor, or another
+    encoder: :func:`position_sensor`), ``mass_kg`` (moving mass) and ``force_offset_n`` (a constant
+    offset of the measured drive force, e.g. a load cell's zero).
     """
     rng = make_rng(rng)
     fc0, ka0, vs0 = viscous_parameters(backpressure_bar)
@@ -276,7 +296,7 @@ def simulate_viscous(backpressure_bar: float = 0.0, speeds_m_s=VISCOUS_SPEEDS_M_
     n = int(math.floor(total * fs_hz)) + 1
     t = time_vector(n, fs_hz)
     x, v, a = evaluate_profile(segs, t)
-    force = MOVING_MASS_KG * a + friction_force(v, fc, ka, vs)
+    force = mass_kg * a + friction_force(v, fc, ka, vs) + force_offset_n
     data = {"t_s": t, "x_m": encoder(x0_m + x)}
     if use_force_channel:
         data["f_n"] = quantise(force + rng.normal(0.0, force_noise_n, n), 1e-3)
@@ -286,6 +306,8 @@ def simulate_viscous(backpressure_bar: float = 0.0, speeds_m_s=VISCOUS_SPEEDS_M_
         p_a, p_b = _chamber_pressures(lagged, backpressure_bar)
         data["p_a_pa"] = pressure_sensor(p_a, rng)
         data["p_b_pa"] = pressure_sensor(p_b, rng)
+    if position_noise_m != 0.0 or position_resolution_m != ENCODER_M:
+        data["x_m"] = position_sensor(x0_m + x, rng, position_resolution_m, position_noise_m)
     settle = 0.0 if use_force_channel else 6 * valve_tau_s
     for p in passes:
         p["friction_n"] = float(friction_force(p["velocity_m_s"], fc, ka, vs))

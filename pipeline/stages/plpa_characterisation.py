@@ -13,7 +13,15 @@ Tables (``schemas/ddl/10_plpa_characterisation.sql``):
 - ``breakaway_findings``: the backpressure ratio and the force-rate slope with their CIs;
 - ``viscous_points``: one row per constant-velocity pass;
 - ``viscous_fits``: Coulomb + viscous per (backpressure, direction);
-- ``viscous_transition``: near-zero tanh transition velocity and Stribeck test per backpressure.
+- ``viscous_transition``: near-zero tanh transition velocity and Stribeck test per backpressure;
+- ``friction_dynamic``: per viscous run, mass, Coulomb and viscous friction and force offset by
+  inverse-dynamics least squares on the whole record (``analyses.friction_dynamic``).
+
+Detection thresholds come from each run's sensors: ``analyses.quality.sensor_from_params`` reads
+``sensor_<channel>_resolution`` / ``sensor_<channel>_noise`` from the run's params (as ingest
+stores what the rig states) and estimates what is not stated from the record; the sensors used
+are recorded in the result rows (``x_resolution_m``, ``x_noise_m``, ``sensor_source``, or a
+``sensors`` text). Fitted results carry a ``note``: NULL when sound, else why values are NULL.
 
 A run that cannot be analysed gives no plateau / pass rows (leakage, viscous) or a NULL force
 (breakaway), and a warning on the run; never an exception.
@@ -27,15 +35,17 @@ import pandas as pd
 import pyarrow.parquet as pq
 
 from analyses import breakaway as bk
+from analyses import friction_dynamic as fd
 from analyses import leakage as lk
 from analyses import viscous_friction as vf
+from analyses.quality import sensor_from_params
 from pipeline.stages import StageContext, StageOutput
 
 NAME = "plpa_characterisation"
 ORDER = 10
 KINDS = ("leakage", "breakaway", "viscous")
 TABLES = ("leakage_map", "seal_envelope", "breakaway", "breakaway_summary", "breakaway_findings",
-          "viscous_points", "viscous_fits", "viscous_transition")
+          "viscous_points", "viscous_fits", "viscous_transition", "friction_dynamic")
 
 #: Seal-envelope leak threshold; a run or rig.toml may not override it (it is a lab-wide choice). [l/min ANR]
 LEAK_THRESHOLD_L_MIN = lk.LEAK_THRESHOLD_L_MIN
@@ -43,11 +53,16 @@ LEAK_THRESHOLD_L_MIN = lk.LEAK_THRESHOLD_L_MIN
 CONFIDENCE = 0.95
 
 LEAKAGE_COLS = ["run_id", "hose_id", "chamber", "adjustment", "z_rollers_mm", "spring_force_n", "pressure_bar",
-                "leak_l_min", "plateau", "t_start_s", "t_end_s", "n_samples", "leak_std_l_min"]
+                "leak_l_min", "plateau", "t_start_s", "t_end_s", "n_samples", "leak_std_l_min", "leak_se_l_min",
+                "sensors"]
 BREAKAWAY_COLS = ["run_id", "direction", "backpressure_bar", "force_rate_n_s", "breakaway_force_n", "onset_t_s",
-                  "measured_rate_n_s"]
+                  "measured_rate_n_s", "measured_rate_se_n_s", "x_resolution_m", "x_noise_m", "sensor_source", "note"]
 VISCOUS_COLS = ["run_id", "backpressure_bar", "velocity_m_s", "friction_n", "direction", "pass_index",
-                "t_start_s", "t_end_s", "n_samples", "friction_std_n", "accel_m_s2", "force_source"]
+                "t_start_s", "t_end_s", "n_samples", "friction_std_n", "accel_m_s2", "force_source",
+                "velocity_se_m_s", "x_resolution_m", "x_noise_m", "sensor_source"]
+DYNAMIC_COLS = ["run_id", "backpressure_bar", "mass_kg", "coulomb_n", "viscous_n_s_m", "offset_n", "mass_se_kg",
+                "coulomb_se_n", "viscous_se_n_s_m", "offset_se_n", "nrmse_pct", "n_samples", "cond", "cutoff_hz",
+                "force_source", "x_resolution_m", "x_noise_m", "sensor_source", "note"]
 
 
 def _num(value):
@@ -82,32 +97,44 @@ def analyse_run(item: tuple) -> dict:
         ``kind``, ``run_id``, ``rows`` (rows for the kind's table), ``warnings`` (list of str).
     """
     kind, run_id, path, params = item
+    dynamic = []
     try:
         if kind == "leakage":
             rows, warns = _leakage(run_id, path, params)
         elif kind == "breakaway":
             rows, warns = _breakaway(run_id, path, params)
         else:
-            rows, warns = _viscous(run_id, path, params)
+            rows, dynamic, warns = _viscous(run_id, path, params)
     except Exception as exc:  # an unforeseen input: NULLs and a warning, never a failed rebuild
         rows = [{"run_id": run_id, "direction": params.get("direction"),
                  "backpressure_bar": _num(params.get("backpressure_bar")),
                  "force_rate_n_s": _num(params.get("force_rate_n_s")), "breakaway_force_n": None}] \
             if kind == "breakaway" else []
         warns = [f"{NAME}: {kind} analysis failed: {type(exc).__name__}: {exc}"]
-    return {"kind": kind, "run_id": run_id, "rows": rows, "warnings": warns}
+    return {"kind": kind, "run_id": run_id, "rows": rows, "dynamic": dynamic, "warnings": warns}
+
+
+def _sensor_cols(sensor) -> dict:
+    return {"x_resolution_m": float(sensor.resolution), "x_noise_m": float(sensor.noise),
+            "sensor_source": sensor.source}
 
 
 def _leakage(run_id, path, params):
     df = _read(path, ["t_s", "p_supply_pa", "q_leak_kg_s"])
     if not {"t_s", "p_supply_pa", "q_leak_kg_s"} <= set(df.columns):
         return [], [f"{NAME}: leakage run lacks p_supply or q_leak; no plateaus"]
-    plat = lk.leakage_plateaus(df["t_s"], df["p_supply_pa"], df["q_leak_kg_s"])
+    sp = sensor_from_params(params, "p_supply", df["p_supply_pa"].to_numpy(float))
+    sq = sensor_from_params(params, "q_leak", df["q_leak_kg_s"].to_numpy(float))
+    # only stated values steer the plateau detector (it estimates the noise itself otherwise)
+    plat = lk.leakage_plateaus(df["t_s"], df["p_supply_pa"], df["q_leak_kg_s"],
+                               sensor_p=sp if sp.source != "estimated" else None,
+                               sensor_q=sq if sq.source != "estimated" else None)
     if plat.empty:
         return [], [f"{NAME}: no steady pressure plateau found in the leakage run"]
     setting = {"run_id": run_id, "hose_id": params.get("hose_id"), "chamber": params.get("chamber"),
                "adjustment": params.get("adjustment"), "z_rollers_mm": _num(params.get("z_rollers_mm")),
-               "spring_force_n": _num(params.get("spring_force_n"))}
+               "spring_force_n": _num(params.get("spring_force_n")),
+               "sensors": f"p_supply: {sp.describe()} Pa; q_leak: {sq.describe()} kg/s"}
     return [{**setting, **r} for r in plat.to_dict("records")], []
 
 
@@ -115,35 +142,55 @@ def _breakaway(run_id, path, params):
     row = {"run_id": run_id, "direction": params.get("direction"),
            "backpressure_bar": _num(params.get("backpressure_bar")),
            "force_rate_n_s": _num(params.get("force_rate_n_s")), "breakaway_force_n": None,
-           "onset_t_s": None, "measured_rate_n_s": None}
+           "onset_t_s": None, "measured_rate_n_s": None, "measured_rate_se_n_s": None, "note": None}
     area = _num(params.get("hose_area_m2"))
     if row["direction"] not in ("P", "N"):
+        row["note"] = "no direction P/N"
         return [row], [f"{NAME}: breakaway run without direction P/N; no breakaway force"]
     if area is None or area <= 0:
+        row["note"] = "no valid hose_area_m2"
         return [row], [f"{NAME}: breakaway run without a valid hose_area_m2; no breakaway force"]
     df = _read(path, ["t_s", "x_m", "p_a_pa", "p_b_pa"])
     if not {"t_s", "x_m", "p_a_pa", "p_b_pa"} <= set(df.columns):
+        row["note"] = "lacks x, p_a or p_b"
         return [row], [f"{NAME}: breakaway run lacks x, p_a or p_b; no breakaway force"]
-    res = bk.breakaway_force(df["t_s"], df["x_m"], df["p_a_pa"], df["p_b_pa"], area, row["direction"])
-    row.update({k: res[k] for k in ("breakaway_force_n", "onset_t_s", "measured_rate_n_s")})
+    sensor = sensor_from_params(params, "x", df["x_m"].to_numpy(float))
+    res = bk.breakaway_force(df["t_s"], df["x_m"], df["p_a_pa"], df["p_b_pa"], area, row["direction"], sensor)
+    row.update({k: res[k] for k in ("breakaway_force_n", "onset_t_s", "measured_rate_n_s", "measured_rate_se_n_s",
+                                    "note")})
+    row.update(_sensor_cols(sensor))
     return [row], ([f"{NAME}: {res['warning']}"] if res["warning"] else [])
 
 
 def _viscous(run_id, path, params):
     df = _read(path, ["t_s", "x_m", "p_a_pa", "p_b_pa", "f_n"])
+    bp = _num(params.get("backpressure_bar"))
     if not {"t_s", "x_m"} <= set(df.columns):
-        return [], [f"{NAME}: viscous run lacks t or x; no passes"]
+        return [], [], [f"{NAME}: viscous run lacks t or x; no passes"]
     try:
         force = vf.friction_from_run(df, _num(params.get("hose_area_m2")))
     except ValueError as exc:
-        return [], [f"{NAME}: viscous run: {exc}; no passes"]
+        return [], [], [f"{NAME}: viscous run: {exc}; no passes"]
     source = "f" if "f_n" in df.columns and df["f_n"].notna().any() else "pressures"
-    pts = vf.viscous_points(df["t_s"], df["x_m"], force)
+    x = df["x_m"].to_numpy(float)
+    sensor = sensor_from_params(params, "x", x)
+    if source == "f":
+        fsens = sensor_from_params(params, "f", force)
+    else:
+        a = sensor_from_params(params, "p_a", df["p_a_pa"].to_numpy(float))
+        b = sensor_from_params(params, "p_b", df["p_b_pa"].to_numpy(float))
+        area = _num(params.get("hose_area_m2"))
+        fsens = type(a)(resolution=area * max(a.resolution, b.resolution),
+                        noise=area * math.hypot(a.noise, b.noise), source=a.source)
+    common = {"run_id": run_id, "backpressure_bar": bp, "force_source": source, **_sensor_cols(sensor)}
+    dyn = fd.friction_dynamic(df["t_s"], x, force, sensor, fsens)
+    dynamic = [{**common, **{k: dyn[k] for k in fd.COLUMNS}}]
+    warns = [f"{NAME}: friction_dynamic: {dyn['note']}"] if dyn["note"] else []
+    pts = vf.viscous_points(df["t_s"], x, force, sensor)
     if pts.empty:
-        return [], [f"{NAME}: no constant-velocity pass found in the viscous run"]
-    bp = _num(params.get("backpressure_bar"))
-    return [{"run_id": run_id, "backpressure_bar": bp, "force_source": source, **r}
-            for r in pts.to_dict("records")], []
+        return [], dynamic, warns + [f"{NAME}: no constant-velocity pass found in the viscous run "
+                                     f"(position sensor {sensor.describe()})"]
+    return [{**common, **r} for r in pts.to_dict("records")], dynamic, warns
 
 
 def _frame(rows: list[dict], cols: list[str]) -> pd.DataFrame:
@@ -175,8 +222,10 @@ def run(ctx: StageContext) -> StageOutput:
             items.append((r.kind, r.run_id, str(ctx.samples_file(r.run_id)), _params(r.params)))
     results = ctx.map(analyse_run, items, label=NAME) if items else []
     rows = {k: [] for k in KINDS}
+    dynamic = []
     for res in results:
         rows[res["kind"]] += res["rows"]
+        dynamic += res.get("dynamic", [])
         for w in res["warnings"]:
             out.warn(res["run_id"], w)
 
@@ -190,7 +239,7 @@ def run(ctx: StageContext) -> StageOutput:
     trans = vf.viscous_transition(pts)
     out.tables = {"leakage_map": leak, "seal_envelope": env, "breakaway": brk, "breakaway_summary": summ,
                   "breakaway_findings": findings, "viscous_points": pts, "viscous_fits": fits,
-                  "viscous_transition": trans}
+                  "viscous_transition": trans, "friction_dynamic": _frame(dynamic, DYNAMIC_COLS)}
 
     for adj, name, fig_no in (("distance", "leakage_distance", 9), ("force", "leakage_force", 10)):
         if not leak.empty and (leak["adjustment"] == adj).any():

@@ -5,7 +5,7 @@ import pandas as pd
 import pytest
 
 from analyses.breakaway import (backpressure_ratio, breakaway_findings, breakaway_force, breakaway_summary,
-                                detect_motion_onset, drive_force, force_rate_slope, plot_breakaway)
+                                detect_motion_onset, drive_force, force_rate_slope, plot_breakaway, ramp_rate)
 
 RES = 5e-6
 DT = 1e-3
@@ -181,3 +181,58 @@ def test_recovers_simulated_breakaway_forces_and_findings():
     assert [a.get_title()[:11] for a in fig.axes] == ["direction P", "direction N"]
     assert "[N]" in fig.axes[0].get_ylabel() and "[bar]" in fig.axes[0].get_xlabel()
     assert [t.get_text() for t in fig.legends[0].get_texts()] == ["0.25 N/s", "1 N/s", "4 N/s"]
+
+
+# -- other position sensors; the force rate over the whole ramp ---------------------------------------
+def test_ramp_rate_hand_checked():
+    # flat at 1 N to t = 2 s, then 0.25 N/s: the hinge puts the start at 2 s and the rate exactly
+    t = np.arange(0, 10, 0.01)
+    f = 1.0 + 0.25 * np.clip(t - 2.0, 0, None)
+    r = ramp_rate(t, f, 9.0)
+    assert r["note"] is None
+    assert r["rate_n_s"] == pytest.approx(0.25, rel=1e-6) and r["ramp_start_s"] == pytest.approx(2.0, abs=0.011)
+    # no ramp: the rate is not distinguishable from zero
+    flat = ramp_rate(t, 1.0 + np.random.default_rng(0).normal(0, 0.1, t.size), 9.0)
+    assert flat["rate_n_s"] is None and flat["note"]
+
+
+@pytest.mark.parametrize("rate", [0.25, 1.0, 4.0])
+def test_measured_rate_recovers_the_simulated_ramp(rate):
+    from pipeline.simulator.plpa import simulate_breakaway
+
+    run = simulate_breakaway("P", 1.0, rate, rng=40)
+    x = run.data
+    res = breakaway_force(x["t_s"], x["x_m"], x["p_a_pa"], x["p_b_pa"], 4.9e-4, "P")
+    assert res["measured_rate_n_s"] == pytest.approx(rate, rel=0.01)
+    assert 0 < res["measured_rate_se_n_s"] < 0.01 * rate
+    assert abs(res["measured_rate_n_s"] - rate) < 4 * res["measured_rate_se_n_s"] + 1e-3 * rate
+
+
+@pytest.mark.parametrize("kw", [dict(fs_hz=100.0, position_resolution_m=0.0, position_noise_m=20e-6),
+                                dict(fs_hz=100.0, position_resolution_m=0.0, position_noise_m=50e-6),
+                                dict(position_resolution_m=1e-6), dict(position_resolution_m=50e-6)])
+def test_breakaway_with_other_position_sensors(kw):
+    """Analog 20/50 um at 100 Hz (onset within the noise), a 1 um encoder that resolves the 4 um
+    pre-sliding creep (not taken for the breakaway), a coarse 50 um encoder."""
+    from pipeline.simulator.plpa import simulate_breakaway
+
+    errs = []
+    for seed, (d, bp, rate) in enumerate([("P", 0.0, 1.0), ("N", 1.0, 4.0), ("P", 3.0, 0.25)]):
+        run = simulate_breakaway(d, bp, rate, rng=60 + seed, **kw)
+        x = run.data
+        res = breakaway_force(x["t_s"], x["x_m"], x["p_a_pa"], x["p_b_pa"], 4.9e-4, d)
+        assert res["note"] is None
+        errs.append(res["breakaway_force_n"] - run.truth["breakaway_force_n"])
+    assert np.max(np.abs(errs)) < 0.3
+
+
+def test_no_motion_the_sensor_can_tell_gives_a_note():
+    from analyses.quality import Sensor
+
+    t = np.arange(0, 3.0, DT)
+    x = 0.25 + np.where(t > 2.0, 30e-6, 0.0)            # 30 um: motion for an encoder ...
+    p = 1e5 + t * 1e4
+    assert breakaway_force(t, x, p, np.zeros_like(t), 4.9e-4, "P", Sensor(5e-6, 0.0))["breakaway_force_n"]
+    res = breakaway_force(t, x, p, np.zeros_like(t), 4.9e-4, "P", Sensor(0.0, 20e-6, "metadata"))
+    assert res["breakaway_force_n"] is None                # ... not for a sensor with 20 um of noise
+    assert "no motion the position sensor can tell" in res["note"] and "noise 2e-05" in res["note"]

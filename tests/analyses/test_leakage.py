@@ -204,3 +204,31 @@ def test_figure_marks_a_setting_with_only_hose_checks():
     assert lb.get_ydata() == pytest.approx([0.1 * p for p in range(7)])
     labels = [t.get_text() for t in fig.legends[0].get_texts()]
     assert labels[:2] == ["z = 5.0 mm", "z = 5.0 mm (hose checks)"]
+
+
+# -- sensors and the undecided seal level ------------------------------------------------------------
+def test_stated_sensors_give_the_same_plateaus_and_a_standard_error():
+    from analyses.quality import Sensor
+    from pipeline.simulator.plpa import simulate_leakage
+
+    d = simulate_leakage("A", "distance", 4.0, rng=12).data
+    est = leakage_plateaus(d["t_s"], d["p_supply_pa"], d["q_leak_kg_s"])
+    stated = leakage_plateaus(d["t_s"], d["p_supply_pa"], d["q_leak_kg_s"], sensor_p=Sensor(1.0, 300.0, "metadata"))
+    assert len(est) == len(stated) == 7
+    assert np.allclose(est["leak_l_min"], stated["leak_l_min"], atol=0.005)
+    # the simulated flow noise is 0.02 l/min (+1 %) per sample; a plateau has hundreds of samples
+    assert (stated["leak_se_l_min"] > 0).all() and (stated["leak_se_l_min"] < 0.01).all()
+
+
+def test_seal_envelope_level_within_two_standard_errors_of_the_threshold_is_undecided():
+    rows = [("u", None, "A", "force", None, 429.0, float(p), q, se)
+            for p, q, se in zip(range(4), [0.0, 0.01, 0.048, 0.3], [0.001, 0.001, 0.002, 0.01])]
+    df = pd.DataFrame(rows, columns=["run_id", "hose_id", "chamber", "adjustment", "z_rollers_mm", "spring_force_n",
+                                     "pressure_bar", "leak_l_min", "leak_se_l_min"])
+    env = seal_envelope(df).iloc[0]
+    # 0.048 +- 0.002 at 2 bar: 0.05 is within 2 standard errors, sealed or leaking cannot be told
+    assert pd.isna(env["sealed_up_to_bar"]) and pd.isna(env["first_leak_bar"]) and pd.isna(env["sealed_at_max"])
+    assert env["note"] == "the leak at 2.0 bar cannot be told from the threshold (within 2 standard errors)"
+    # a precise plateau decides it: sealed up to 2 bar, leaking from 3
+    env = seal_envelope(df.assign(leak_se_l_min=0.0005)).iloc[0]
+    assert (env["sealed_up_to_bar"], env["first_leak_bar"], env["note"]) == (2.0, 3.0, None)

@@ -5,8 +5,8 @@ import pytest
 
 from analyses.viscous_friction import (coulomb_viscous, find_constant_velocity_passes, fit_coulomb_viscous,
                                        fit_tanh_viscous, friction_from_run, nrmse_pct, plot_near_zero,
-                                       plot_viscous, stribeck_test, tanh_viscous, viscous_fits, viscous_points,
-                                       viscous_transition)
+                                       plot_viscous, speed_levels, stribeck_test, tanh_viscous, velocity_uncertainty,
+                                       viscous_fits, viscous_points, viscous_transition)
 
 
 def _trapezoid(v=0.1, acc=1.0, cruise_s=2.0, rest_s=1.0, fs=1000.0):
@@ -182,3 +182,115 @@ def test_fig13_series_with_identical_friction_stay_distinguishable():
     box = legend.get_window_extent()
     xy = ax.transData.transform(pts[["velocity_m_s", "friction_n"]].to_numpy())
     assert not any(box.contains(x, y) for x, y in xy)
+
+
+# -- other rigs: thresholds from the position sensor, gates on the fits ------------------------------
+SLOW = tuple(s * v for v in (0.005, 0.0075, 0.01, 0.0125, 0.015) for s in (1.0, -1.0))
+
+
+def _slow_analog_run(noise_m, seed=3, **kw):
+    """The issue's analog rig: laser triangulation at 100 Hz, a load cell, passes at 5-15 mm/s."""
+    from pipeline.simulator.plpa import simulate_viscous
+
+    return simulate_viscous(0.0, SLOW, use_force_channel=True, rng=seed, fs_hz=100.0, accel_m_s2=0.5,
+                            cruise_m=0.08, max_cruise_s=20.0, position_resolution_m=0.0, position_noise_m=noise_m,
+                            **kw)
+
+
+@pytest.mark.parametrize("noise_m", [5e-6, 20e-6, 50e-6])
+def test_analog_position_sensor_at_100_hz_finds_every_pass_and_the_friction(noise_m):
+    run = _slow_analog_run(noise_m)
+    d = run.data
+    pts = viscous_points(d["t_s"], d["x_m"], friction_from_run(d))        # sensor estimated from the record
+    truth = pd.DataFrame(run.truth["passes"])
+    assert len(pts) == len(truth) == 10
+    assert np.allclose(pts["velocity_m_s"], truth["velocity_m_s"], rtol=0.005)
+    assert np.allclose(pts["friction_n"], truth["friction_n"], rtol=0.01)
+    fits = viscous_fits(pts.assign(backpressure_bar=0.0))
+    for _, r in fits.iterrows():
+        assert r["note"] is None and r["n_speed_levels"] == 5
+        assert r["coulomb_n"] == pytest.approx(3.0, rel=0.05)
+        assert r["viscous_n_s_m"] == pytest.approx(25.0, rel=0.05)
+
+
+@pytest.mark.parametrize("resolution_m", [1e-6, 50e-6])
+def test_encoders_of_1_and_50_um(resolution_m):
+    from pipeline.simulator.plpa import simulate_viscous
+
+    run = simulate_viscous(1.0, rng=4, position_resolution_m=resolution_m)
+    d = run.data
+    pts = viscous_points(d["t_s"], d["x_m"], friction_from_run(d, 4.9e-4))
+    assert len(pts) == len(run.truth["passes"])
+    fits = viscous_fits(pts.assign(backpressure_bar=1.0))
+    assert fits["note"].isna().all()
+    assert np.allclose(fits["coulomb_n"].astype(float), 3.5, rtol=0.02)
+    assert np.allclose(fits["viscous_n_s_m"].astype(float), 28.0, rtol=0.01)
+
+
+def test_stated_and_estimated_sensor_find_the_same_passes():
+    from analyses.quality import Sensor
+
+    run = _slow_analog_run(20e-6, seed=9)
+    d = run.data
+    force = friction_from_run(d)
+    est = viscous_points(d["t_s"], d["x_m"], force)
+    stated = viscous_points(d["t_s"], d["x_m"], force, Sensor(0.0, 20e-6, "metadata"))
+    assert len(est) == len(stated) == 10
+    assert np.allclose(est["friction_n"], stated["friction_n"], rtol=0.002)
+    assert np.allclose(est["velocity_m_s"], stated["velocity_m_s"], rtol=1e-3)
+
+
+def test_one_speed_trapezoid_gives_null_fits_with_a_note():
+    """The issue's second rig: a trapezoid at +-0.12 m/s only (its old fit: Coulomb -203,429 N)."""
+    from pipeline.simulator.plpa import simulate_viscous
+
+    run = simulate_viscous(0.0, (0.12, -0.12) * 4, rng=5)
+    d = run.data
+    pts = viscous_points(d["t_s"], d["x_m"], friction_from_run(d, 4.9e-4))
+    assert len(pts) == 8
+    fits = viscous_fits(pts.assign(backpressure_bar=0.0))
+    assert list(fits["direction"]) == ["P", "N"]
+    assert fits["coulomb_n"].isna().all() and fits["viscous_n_s_m"].isna().all()
+    assert fits["coulomb_se_n"].isna().all() and (fits["n_speed_levels"] == 1).all()
+    assert all("one speed" in n for n in fits["note"])
+
+
+def test_speed_levels_hand_checked():
+    assert speed_levels([0.12, 0.1201, 0.1199, -0.12]) == 1                 # within 5 %
+    assert speed_levels([0.05, 0.1, 0.2]) == 3
+    assert speed_levels([0.100, 0.104, 0.108, 0.112]) == 2                  # 0.108 is > 5 % above 0.100
+    assert speed_levels([0.1, 0.2], [0.03, 0.03]) == 1                      # apart by less than 4 SE
+    assert speed_levels([]) == 0
+
+
+def test_negative_or_unseparable_fits_are_never_reported():
+    v = np.array([0.1, 0.2, 0.3, 0.4])
+    r = fit_coulomb_viscous(v, -2.0 + 30.0 * v)                             # a negative Coulomb level
+    assert r["coulomb_n"] is None and r["viscous_n_s_m"] is None
+    assert "physically impossible" in r["note"]
+    r = fit_coulomb_viscous(v, 3.0 - 1.0 * v + np.array([0, 0.01, -0.01, 0]))  # viscous < 0
+    assert r["viscous_n_s_m"] is None and "viscous_n_s_m" in r["note"]
+    rng = np.random.default_rng(1)
+    r = fit_coulomb_viscous(v, 3.0 + 0.1 * v + rng.normal(0, 0.5, 4))       # viscous lost in the scatter
+    assert r["coulomb_n"] is None and "not identifiable" in r["note"]
+    r = fit_coulomb_viscous([0.1, 0.2], [5, 6])
+    assert r["coulomb_n"] is None and "too few points" in r["note"]
+
+
+def test_tanh_transition_at_its_bound_is_null_with_a_note():
+    # friction that is linear through zero: the "transition" runs to its upper bound
+    v = np.array([0.5, 1, 2, 3, 5, 7]) * 1e-3
+    v = np.concatenate([v, -v])
+    f = 400.0 * v + np.random.default_rng(2).normal(0, 0.01, v.size)
+    r = fit_tanh_viscous(v, f)
+    assert r["transition_m_s"] is None and r["coulomb_n"] is None and r["note"]
+
+
+def test_velocity_uncertainty_hand_checked():
+    from analyses.quality import Sensor
+
+    # encoder: one count over the window
+    assert velocity_uncertainty(Sensor(5e-6, 1e-6), 0.1, 1e-3) == pytest.approx(5e-5)
+    # analog: line slope over N = 11 samples at 100 Hz, s sqrt(12 / (N (N^2 - 1))) / dt
+    assert velocity_uncertainty(Sensor(0.0, 20e-6), 0.1, 0.01) == pytest.approx(
+        20e-6 * np.sqrt(12 / (11 * 120)) / 0.01)

@@ -247,3 +247,14 @@ def test_compare_findings_keeps_the_last_change_while_holds_stays():
     assert second.drop("breakaway_0bar_twice")["changed_at"].isna().all()
     # no previous warehouse: nothing changed
     assert compare_findings(df, {}, False, now=t2)["changed_at"].isna().all()
+
+
+def test_stribeck_finding_without_any_amplitude_keeps_the_dip_test():
+    # viscous_transition rows whose Stribeck amplitude is NULL (no standard error): the finding
+    # reports the test, not an error
+    trans = pd.DataFrame({"backpressure_bar": [0.0], "stribeck_amplitude_n": [None], "stribeck_amplitude_se_n": [None],
+                          "stribeck_velocity_mm_s": [None], "stribeck_p_value": [0.8], "stribeck_dip": [False],
+                          "n_points": [12], "note": ["Stribeck amplitude not identifiable from the data (no standard error)"]})
+    row = fs.stribeck(ctx_with(viscous_transition=trans))
+    assert row["holds"] is True and row["measured"] is None and row["p_value"] == pytest.approx(0.8)
+    assert "no Stribeck amplitude" in row["detail"]

@@ -111,6 +111,14 @@ def built(tmp_path_factory):
     add(simulate_viscous(0.0, rng=1), "visc0")
     add(simulate_viscous(1.0, use_force_channel=True, rng=2), "visc1")
     add(simulate_viscous(0.0, NEAR_ZERO_SPEEDS_M_S, rng=3), "visc_nz")
+    # a foreign rig: analog position sensor (20 um noise, stated in the run's metadata) at 100 Hz,
+    # a load cell, passes at 5-15 mm/s
+    slow = tuple(s * v for v in (0.005, 0.0075, 0.01, 0.0125, 0.015) for s in (1.0, -1.0))
+    add(simulate_viscous(2.0, slow, use_force_channel=True, rng=4, fs_hz=100.0, accel_m_s2=0.5, cruise_m=0.08,
+                         max_cruise_s=20.0, position_resolution_m=0.0, position_noise_m=20e-6,
+                         sensor_x_resolution=0.0, sensor_x_noise=2e-5), "visc_analog")
+    # a rig that moves at one speed level only (trapezoid +-0.12 m/s), load cell
+    add(simulate_viscous(3.0, (0.12, -0.12) * 4, use_force_channel=True, rng=5), "visc_onespeed")
     summary = rebuild(raw, wh, jobs=2, report=False)
     return wh, truth, summary
 
@@ -191,16 +199,19 @@ def test_seal_envelope_macro_hand_checked_at_another_threshold():
         [("c1", None, "A", "force", None, 429.0, p + 0.01, q) for p, q in zip(range(4), [0.0, 0.06, 0.12, 0.3])]
         + [("c2", None, "A", "force", None, 429.0, p - 0.01, q) for p, q in zip(range(4), [0.0, 0.08, 0.2, 0.5])]
         + [("w", "H5", "A", "force", None, 429.0, float(p), 5.0) for p in range(4)]        # worn hose: ignored
-        + [("h", "H6", "B", "distance", 5.0, None, float(p), q) for p, q in zip(range(3), [0.2, 0.3, 0.4])],
+        + [("h", "H6", "B", "distance", 5.0, None, float(p), q) for p, q in zip(range(3), [0.2, 0.3, 0.4])]
+        + [("d", None, "B", "force", None, 858.0, float(p), q) for p, q in zip(range(3), [0.0, 0.09, 0.5])],
         columns=["run_id", "hose_id", "chamber", "adjustment", "z_rollers_mm", "spring_force_n", "pressure_bar",
                  "leak_l_min"])
+    # the plateau standard errors: setting (B, 858 N) at 1 bar leaks 0.09 +- 0.006, within 2 SE of 0.1
+    rows["leak_se_l_min"] = np.where(rows["run_id"] == "d", 0.006, 0.001)
     con = duckdb.connect()
     try:
         for _name, sql in ddl_statements():
             con.execute(sql)
         con.register("_rows", rows)
         con.execute("INSERT INTO leakage_map BY NAME SELECT * FROM _rows")
-        got = con.execute("SELECT * FROM seal_envelope_at(0.1) ORDER BY chamber").df()
+        got = con.execute("SELECT * FROM seal_envelope_at(0.1) ORDER BY chamber, adjustment").df()
     finally:
         con.close()
     # A, 429 N: levels (c1 + c2) / 2 = 0, 0.07, 0.16, 0.4 -> sealed up to 1 bar, first leak at 2 bar
@@ -209,11 +220,16 @@ def test_seal_envelope_macro_hand_checked_at_another_threshold():
     assert (a["max_leak_l_min"], a["n_pressures"], a["runs_used"], a["n_runs"]) == (pytest.approx(0.4), 4,
                                                                                      "characterisation", 2)
     assert (a["spring_force_pct"], a["threshold_l_min"]) == (pytest.approx(33.0), 0.1)
+    # B, 858 N: the 1 bar level cannot be told from the threshold
+    u = got.iloc[2]
+    assert pd.isna(u["sealed_up_to_bar"]) and pd.isna(u["first_leak_bar"]) and pd.isna(u["sealed_at_max"])
+    assert u["note"] == "the leak at 1.0 bar cannot be told from the threshold (within 2 standard errors)"
+    assert pd.isna(a["note"])
     # B, 5 mm: only a hose check, leaking from the lowest pressure
     b = got.iloc[1]
     assert pd.isna(b["sealed_up_to_bar"]) and (b["first_leak_bar"], b["runs_used"]) == (0.0, "hose_checks")
     # and the same as the analysis function at that threshold
-    mine = seal_envelope(rows, threshold_l_min=0.1)
+    mine = seal_envelope(rows, threshold_l_min=0.1).sort_values(["chamber", "adjustment"], ignore_index=True)
     pd.testing.assert_frame_equal(got, mine[got.columns], check_dtype=False)
 
 
@@ -249,15 +265,55 @@ def test_viscous_points_and_fits_recovered(built):
         err = np.abs(g["friction_n"].to_numpy() - tr["friction_n"].to_numpy())
         assert np.all((err <= 0.3) | (err <= 0.03 * tr["friction_n"].abs().to_numpy())), run_id
     assert set(pts.loc[pts["run_id"] == "sim/visc1", "force_source"]) == {"f"}
+    # the sensors used are recorded: the analog rig's stated, the others' estimated from the record
+    sens = pts.groupby("run_id")[["x_resolution_m", "x_noise_m", "sensor_source"]].first()
+    assert tuple(sens.loc["sim/visc_analog"]) == (0.0, 2e-5, "metadata")
+    assert sens.loc["sim/visc0", "x_resolution_m"] == pytest.approx(5e-6)
+    assert sens.loc["sim/visc0", "sensor_source"] == "estimated"
     fits = q(wh, "SELECT * FROM viscous_fits ORDER BY backpressure_bar, direction")
-    assert len(fits) == 4
-    for _, r in fits.iterrows():
+    assert len(fits) == 8
+    for _, r in fits[fits["backpressure_bar"] < 3].iterrows():
         t = truth["sim/visc0" if r["backpressure_bar"] == 0 else "sim/visc1"]
-        assert r["coulomb_n"] == pytest.approx(t["fc_n"], rel=0.15)
+        assert r["coulomb_n"] == pytest.approx(t["fc_n"], rel=0.15 if r["backpressure_bar"] < 2 else 0.05)
         assert r["viscous_n_s_m"] == pytest.approx(t["ka_n_s_m"], rel=0.05)
+        assert pd.isna(r["note"])
+    one = fits[fits["backpressure_bar"] == 3]
+    assert one["coulomb_n"].isna().all() and one["viscous_n_s_m"].isna().all()
+    assert all("one speed" in n for n in one["note"])
     tr = q(wh, "SELECT * FROM viscous_transition")
     assert tr["transition_velocity_mm_s"].item() == pytest.approx(0.5, rel=0.1)
     assert not tr["stribeck_dip"].item()
+
+
+def test_friction_dynamic_one_row_per_viscous_run(built):
+    wh, truth, _ = built
+    fd = q(wh, "SELECT * FROM friction_dynamic ORDER BY run_id").set_index("run_id")
+    assert sorted(fd.index) == sorted(r for r in truth if r.startswith("sim/visc"))
+    lc = fd.loc["sim/visc1"]                                     # load cell, passes 0.05-0.5 m/s
+    assert pd.isna(lc["note"]) and lc["force_source"] == "f"
+    assert (lc["mass_kg"], lc["coulomb_n"], lc["viscous_n_s_m"]) == (
+        pytest.approx(2.0, rel=0.01), pytest.approx(3.5, rel=0.01), pytest.approx(28.0, rel=0.01))
+    assert lc["offset_n"] == pytest.approx(0.0, abs=0.02) and 0 < lc["mass_se_kg"] < 0.02
+    one = fd.loc["sim/visc_onespeed"]                            # one speed: friction split NULL, mass stands
+    assert pd.isna(one["coulomb_n"]) and pd.isna(one["viscous_n_s_m"]) and "one speed level" in one["note"]
+    assert one["mass_kg"] == pytest.approx(2.0, rel=0.01)
+    an = fd.loc["sim/visc_analog"]                               # slow analog rig: no acceleration to see
+    assert pd.isna(an["mass_kg"]) and "mass_kg NULL" in an["note"]
+    assert an["coulomb_n"] == pytest.approx(3.5, rel=0.03) and an["viscous_n_s_m"] == pytest.approx(28.0, rel=0.05)
+    p = fd.loc["sim/visc0"]                                      # pressures through a 20 ms valve lag
+    assert pd.isna(p["mass_kg"]) and "lags the motion" in p["note"]
+    assert pd.isna(fd.loc["sim/visc_nz", "coulomb_n"]) and "misses the data" in fd.loc["sim/visc_nz", "note"]
+
+
+def test_breakaway_rows_carry_rate_sensor_and_note(built):
+    wh, truth, _ = built
+    b = q(wh, "SELECT * FROM breakaway WHERE run_id <> 'sim/brk_never' ORDER BY run_id")
+    rates = np.array([truth[r]["force_rate_n_s"] for r in b["run_id"]])
+    assert np.allclose(b["measured_rate_n_s"], rates, rtol=0.02)
+    assert (b["measured_rate_se_n_s"] > 0).all() and b["note"].isna().all()
+    assert np.allclose(b["x_resolution_m"], 5e-6) and set(b["sensor_source"]) == {"estimated"}
+    never = q(wh, "SELECT note FROM breakaway WHERE run_id = 'sim/brk_never'")["note"].item()
+    assert "no motion the position sensor can tell" in never
 
 
 def test_figures_are_written(built):
