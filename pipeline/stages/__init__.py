@@ -214,9 +214,9 @@ def add_run_columns(tables: dict[str, pd.DataFrame], runs: pd.DataFrame) -> dict
             continue
         df = df.copy()
         if "campaign" not in df.columns:
-            df["campaign"] = df["run_id"].map(campaign).astype(object)
+            df["campaign"] = pd.array(df["run_id"].map(campaign), dtype="string")
         if "hose_id" not in df.columns and df["run_id"].isin(list(hose)).any():
-            df["hose_id"] = df["run_id"].map(hose).astype(object)
+            df["hose_id"] = pd.array(df["run_id"].map(hose), dtype="string")
         out[name] = df
     for name, (source, keys) in POOLS.items():
         df, src = out.get(name), out.get(source)
