@@ -156,7 +156,7 @@ def _step(run_id, path, params):
         ref = r[s.i_start]
         step_m = s.step_mm / 1e3
         curves.append({"t": (t[seg] - s.t_step_s)[::stride], "error_pct": (100 * (ref - x[seg]) / step_m)[::stride],
-                       "label": f"{run_id} @ {s.t_step_s:g} s ({s.step_mm:+g} mm)"})
+                       "label": f"{run_id} @ {s.t_step_s:g} s ({s.step_mm:+g} mm)", "step_mm": s.step_mm})
     return rows, warns, curves
 
 
