@@ -214,7 +214,7 @@ def _findings_section(db: _DB, now: datetime) -> tuple[str, str]:
         alert = f'<p class="meta" id="changes">No finding changed its result {esc(window)}.</p>'
     body = []
     for (fid, statement, measured, unc, unit, criterion, holds, n, p, detail, change, _prev, at) in rows:
-        value = "—" if measured is None else fmt(measured) + (f" ± {fmt(unc)}" if unc is not None else "")
+        value = "—" if measured is None else fmt(measured) + (f" ± {fmt(unc, 2)}" if unc is not None else "")
         body.append(f"<tr><td><b>{esc(statement)}</b><br><span class=\"meta\">{esc(fid)}</span></td>"
                     f'<td class="num">{value} {_unit(unit)}</td><td>{esc(criterion)}</td>{_holds_cell(holds)}'
                     f'<td class="num">{fmt(n)}</td><td class="num">{fmt(p)}</td>'
@@ -606,7 +606,8 @@ def _results_sections(db: _DB, warehouse: Path) -> tuple[str, list]:
     for pid, ptitle, topics in LAYOUT:
         parts, sub = [], []
         for tid, ttitle, patterns, summary, tables in topics:
-            mine = [f for f in figs if _matches(f[1], patterns)]
+            mine = sorted((f for f in figs if _matches(f[1], patterns)),
+                          key=lambda f: (next(k for k, p in enumerate(patterns) if _matches(f[1], [p])), f[1]))
             body = summary(db)
             raws = "".join(_raw_rows(db, t) for t in tables)
             if not mine and not body and not raws:
@@ -615,7 +616,7 @@ def _results_sections(db: _DB, warehouse: Path) -> tuple[str, list]:
             figs_html = "".join(_figure(warehouse, n, p, c) for _s, n, p, c in mine)
             if len(mine) > 1:
                 figs_html = f'<div class="pair">{figs_html}</div>'
-            parts.append(f'<section id="{tid}"><h3>{esc(ttitle)}</h3>{figs_html}{body}'
+            parts.append(f'<section id="{tid}"><h3>{esc(ttitle)}</h3>{body}{figs_html}'
                          f'{"<p class=meta>Rows behind it:</p>" + raws if raws else ""}</section>')
             sub.append((tid, ttitle))
         if parts:
