@@ -274,8 +274,8 @@ def _step_outputs(out, results):
     curves = [c for r in results if r["extra"] for c in r["extra"]][:MAX_STEP_CURVES]
     if curves:
         out.figures["step_errors"] = stepr.plot_step_errors(curves)
-        out.captions["step_errors"] = ("Closed-loop steps: error in % of the step vs time since the step, with the 2 % "
-                                       "band (seed 000, Fig. 15).")
+        out.captions["step_errors"] = ("Closed-loop steps: position vs time since the step; inset: error in % of the "
+                                       "step with the 2 % band (seed 000, Fig. 15).")
 
 
 def _spring_outputs(ctx, out, results):

@@ -247,11 +247,14 @@ def test_demo_report_in_chromium_contents_paper_tables_and_a_run_page(demo, tmp_
                for r in f12)
     assert "PLPA Fig. 15" in dom
     # one run page: opened from its link, channels drawn, metadata and results there
-    href = re.search(r'href="(runs/[^"]*leak-A-z4[^"]*\.html)"', dom).group(1)
+    from pipeline.run_pages import page_name
+
+    href = "runs/" + page_name("plpa-2025/leak-A-z4.0")
+    assert f'href="{href}"' in dom
     page = (report / href).resolve()
     res = run_chromium(page.as_uri(), "--dump-dom")
     console += console_lines(res)
-    assert "Run plpa-2025/leak-A-z4" in res.stdout and "params.z_rollers_mm" in res.stdout
+    assert "<h1>Run plpa-2025/leak-A-z4.0</h1>" in res.stdout and "params.z_rollers_mm" in res.stdout
     assert "leakage_map (7 rows)" in res.stdout
     shot = tmp_path / "run.png"
     res = run_chromium(page.as_uri(), f"--screenshot={shot}", size=(1100, 900))
