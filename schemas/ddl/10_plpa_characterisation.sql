@@ -14,7 +14,8 @@ CREATE TABLE leakage_map (
     t_start_s       DOUBLE,               -- steady part used (transients excluded)
     t_end_s         DOUBLE,
     n_samples       BIGINT,
-    leak_std_l_min  DOUBLE                -- sample scatter of the leak over the plateau
+    leak_std_l_min  DOUBLE,               -- sample scatter of the leak over the plateau
+    campaign        VARCHAR               -- the run's campaign (stages add_run_columns; here for seal_envelope_at)
 );
 
 CREATE TABLE breakaway (
@@ -125,7 +126,7 @@ WITH m AS (
     SELECT run_id, chamber, adjustment, z_rollers_mm, spring_force_n, leak_l_min,
            CAST(leak_threshold AS DOUBLE) AS threshold_l_min,
            round_even(pressure_bar / 0.1::DOUBLE, 0) * 0.1::DOUBLE AS nominal_bar,
-           coalesce(hose_id, '') <> '' AS hose_check
+           coalesce(hose_id, '') <> '' AS hose_check, campaign
     FROM leakage_map
     WHERE pressure_bar IS NOT NULL AND leak_l_min IS NOT NULL AND NOT isnan(pressure_bar) AND NOT isnan(leak_l_min)
 ),
@@ -154,7 +155,8 @@ SELECT chamber, adjustment, z_rollers_mm, spring_force_n,
        max(level_leak_l_min) AS max_leak_l_min,
        count(DISTINCT nominal_bar) AS n_pressures,
        CASE WHEN bool_and(hose_check) THEN 'hose_checks' ELSE 'characterisation' END AS runs_used,
-       count(DISTINCT run_id) AS n_runs
+       count(DISTINCT run_id) AS n_runs,
+       list_sort(list_distinct(list(campaign) FILTER (WHERE campaign IS NOT NULL))) AS campaigns
 FROM first
 GROUP BY chamber, adjustment, z_rollers_mm, spring_force_n
 ORDER BY chamber, adjustment, z_rollers_mm, spring_force_n;

@@ -4,7 +4,7 @@
 -- pooled hoses' logbooks) and how many runs. Added here, after every table of 10-30, so each
 -- DDL file keeps its contract columns first.
 
-ALTER TABLE leakage_map ADD COLUMN campaign VARCHAR;
+-- leakage_map.campaign is in 10_plpa_characterisation.sql (its seal_envelope_at macro reads it)
 ALTER TABLE breakaway ADD COLUMN campaign VARCHAR;
 ALTER TABLE viscous_points ADD COLUMN campaign VARCHAR;
 ALTER TABLE identification ADD COLUMN campaign VARCHAR;
