@@ -1,11 +1,18 @@
-"""The morning report: ``warehouse/report/index.html``, one self-contained static page.
+"""The morning report: ``warehouse/report/index.html``, one self-contained static page, and a
+small page per run beside it (``report/runs/<safe id>.html``).
 
 Built from the warehouse database alone (read-only), so ``pneubench report`` can rebuild it at
-any time. Order: findings whose result changed in the last 24 hours (``findings.changed_at``;
-an overturned one stays there through further rebuilds that night), the findings, the last rebuild
-(new, changed, deleted and quarantined inputs with their reasons), hose life and service life,
-then every analysis figure with its key table. Figures are embedded as base64 PNG, the style
-is inline and there is no script: the file opens from disk anywhere. Every piece of text is
+any time. It reads like a results section: a table of contents; findings whose result changed
+in the last 24 hours (``findings.changed_at``; an overturned one stays there through further
+rebuilds that night); the findings; per paper (:data:`LAYOUT`) each figure with the summary a
+reader compares it to and the paper's tables beside the lab's values (:data:`PAPER`: paper value,
+measured value with its standard uncertainty, difference), the rows behind them folded with a
+CSV download; other figures; the last rebuild (new, changed, deleted and quarantined inputs with
+their reasons); and every run. Column headers carry the unit of the column's suffix, numbers
+show 4 significant digits, every run id links to its page (channels drawn by
+:mod:`pipeline.run_pages`, metadata, warnings, the results derived from it; a page is redrawn
+only when its inputs changed). Figures and downloads are embedded as data: URIs, the style is
+inline and there is no script: the files open from disk anywhere. Every piece of text is
 escaped (``html.escape``): run metadata, file names and quarantine reasons come from raw/.
 
 The report is never silently stale. The rebuild renders it from the new database before the
@@ -132,8 +139,8 @@ def run_href(run_id: str, prefix: str = "runs/") -> str:
     return prefix + page_name(run_id)
 
 
-def _cell(column: str, value, links: bool) -> str:
-    if links and column == "run_id" and isinstance(value, str):
+def _cell(column: str, value, links) -> str:
+    if column == "run_id" and isinstance(value, str) and (links is True or (links and value in links)):
         return f'<td><a href="{esc(run_href(value))}">{esc(value)}</a></td>'
     if isinstance(value, (int, float)) and not isinstance(value, bool):
         return f'<td class="num">{fmt(value)}</td>'
@@ -141,8 +148,9 @@ def _cell(column: str, value, links: bool) -> str:
 
 
 def html_table(columns: list[str], rows: list[tuple], max_rows: int = MAX_ROWS, total: int | None = None,
-               links: bool = True) -> str:
-    """Rows as a table: units from the column names in the headers, run ids linked to run pages."""
+               links: bool | set = True) -> str:
+    """Rows as a table: units from the column names in the headers, run ids linked to run pages
+    (``links``: True for every run id, or the set of ids that have a page)."""
     if not rows:
         return '<p class="more">no rows</p>'
     head = "".join(_th(c) for c in columns)
@@ -163,6 +171,13 @@ class _DB:
     def has(self, table: str) -> bool:
         return table in self.tables
 
+    def run_ids(self) -> set[str]:
+        """Run ids of the warehouse (each has a page)."""
+        if not hasattr(self, "_run_ids"):
+            self._run_ids = ({r[0] for r in self.con.execute("SELECT run_id FROM runs").fetchall()}
+                             if self.has("runs") else set())
+        return self._run_ids
+
     def rows(self, sql: str, params=None) -> tuple[list[str], list[tuple]]:
         cur = self.con.execute(sql, params or [])
         return [d[0] for d in cur.description], cur.fetchall()
@@ -176,6 +191,20 @@ class _DB:
 
 def _unit(unit) -> str:
     return "" if unit in (None, "1") else esc(unit)
+
+
+def _linkify(text, run_ids: set[str]) -> str:
+    """Escaped text in which every ``run <id>`` of a known run links to the run's page."""
+    import re
+
+    out, last = [], 0
+    text = "" if text is None else str(text)
+    for m in re.finditer(r"\brun ([^\s,;()]+)", text):
+        rid = m.group(1).rstrip(".")
+        if rid in run_ids:
+            out.append(esc(text[last:m.start(1)]) + f'<a href="{esc(run_href(rid))}">{esc(rid)}</a>')
+            last = m.start(1) + len(rid)
+    return "".join(out) + esc(text[last:])
 
 
 def _holds_cell(holds) -> str:
@@ -218,7 +247,7 @@ def _findings_section(db: _DB, now: datetime) -> tuple[str, str]:
         body.append(f"<tr><td><b>{esc(statement)}</b><br><span class=\"meta\">{esc(fid)}</span></td>"
                     f'<td class="num">{value} {_unit(unit)}</td><td>{esc(criterion)}</td>{_holds_cell(holds)}'
                     f'<td class="num">{fmt(n)}</td><td class="num">{fmt(p)}</td>'
-                    f"<td>{esc(detail)}{_change_note(change, at)}</td></tr>")
+                    f"<td>{_linkify(detail, db.run_ids())}{_change_note(change, at)}</td></tr>")
     n_hold = sum(1 for r in rows if r[6] is True)
     n_fail = sum(1 for r in rows if r[6] is False)
     n_none = sum(1 for r in rows if r[6] is None)
@@ -261,7 +290,8 @@ def _rebuild_section(db: _DB) -> str:
         # A long list (the first build of a campaign) is folded so the results stay in view.
         opened = " open" if n <= FOLD_INPUT_ROWS else ""
         out.append(f"<details{opened}><summary><b>New, changed and deleted inputs ({n})</b>: {counts}</summary>")
-        out.append(html_table(cols, rows, MAX_INPUT_ROWS, n) if rows else '<p class="meta">nothing changed</p>')
+        out.append(html_table(cols, rows, MAX_INPUT_ROWS, n, links=db.run_ids()) if rows
+                   else '<p class="meta">nothing changed</p>')
         out.append("</details>")
     out.append("</section>")
     return "".join(out)
@@ -297,9 +327,8 @@ def _raw_rows(db: _DB, table: str, what: str = "") -> str:
     else:
         cols, rows = db.rows(f'SELECT * FROM "{table}" LIMIT {MAX_ROWS}')
         dl = f' · {n} rows: <code>pneubench query "SELECT * FROM {esc(table)}"</code>'
-    return (f'<details class="raw" id="raw-{esc(table)}"><summary><b>{esc(table)}</b> ({n} rows){esc(what)}'
-            f"</summary>{html_table(cols, rows, MAX_ROWS, n)}</details>{'' if not rows else ''}"
-            ).replace("</summary>", f"{dl}</summary>", 1)
+    return (f'<details class="raw" id="raw-{esc(table)}"><summary><b>{esc(table)}</b> ({n} rows){esc(what)}{dl}'
+            f"</summary>{html_table(cols, rows, MAX_ROWS, n)}</details>")
 
 
 def _img(warehouse: Path, rel: str) -> str:

@@ -277,7 +277,21 @@ def test_long_input_lists_are_folded_and_quarantine_comes_first(raw, warehouse):
     assert page.index("Quarantined inputs (1)") < page.index("New, changed and deleted inputs")
     (raw.root / "c" / "s00.csv").unlink()
     rebuild(raw.root, warehouse, jobs=1)
-    assert "<details open><summary><b>New, changed and deleted inputs (1)</b>: 1 deleted" in render_report(warehouse)
+    page = render_report(warehouse)
+    assert "<details open><summary><b>New, changed and deleted inputs (1)</b>: 1 deleted" in page
+    # a deleted run has no page, so its id is not a link; a run that is there is
+    from pipeline.run_pages import page_name
+    assert "<td>c/s00</td>" in page and page_name("c/s00") not in page
+    assert f'href="runs/{page_name("c/s01")}"' in page
+
+
+def test_run_ids_in_finding_details_link_to_their_pages():
+    from pipeline.report import _linkify
+    from pipeline.run_pages import page_name
+
+    html = _linkify("worst 0.1 l/min (429 N, run c/a<b>); also run gone/x, run c/z.", {"c/a<b>", "c/z"})
+    assert f'run <a href="runs/{page_name("c/a<b>")}">c/a&lt;b&gt;</a>)' in html
+    assert "run gone/x," in html and f'<a href="runs/{page_name("c/z")}">c/z</a>.' in html
 
 
 def test_an_overturned_finding_stays_first_for_24_hours(built, raw, warehouse, monkeypatch):
