@@ -452,7 +452,7 @@ def breakaway_findings(breakaway: pd.DataFrame, confidence: float = 0.95) -> pd.
         ``p_value``, ``n``, ``unit``, ``significant`` (p < 1 - confidence).
     """
     rows = []
-    for finding, func, unit in (("backpressure_ratio", backpressure_ratio, "1"),
+    for finding, func, unit in (("backpressure_ratio", backpressure_ratio, "ratio"),
                                 ("force_rate_slope", force_rate_slope, "N/(N/s)")):
         for d in ("P", "N", None):
             r = func(breakaway, d, confidence)

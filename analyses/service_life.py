@@ -353,7 +353,7 @@ def _figure(size=(7.0, 4.5)):
     return fig, fig.add_subplot()
 
 
-def plot_weibull_probability(groups: dict, unit: str = "km"):
+def plot_weibull_probability(groups: dict, unit: str = "km", confidence: float = 0.90):
     """Weibull probability plot: failures at their plotting positions, suspensions as ticks.
 
     Suspensions are drawn as ``|`` ticks in a strip below the lowest plotted failure, one row per
@@ -366,12 +366,16 @@ def plot_weibull_probability(groups: dict, unit: str = "km"):
         One series (and its fitted line, when it has one) per group.
     unit : str
         Unit of the lives, for the axis label.
+    confidence : float
+        Two-sided confidence of the B10 bounds drawn on each fitted line (as :func:`b10`).
 
     Returns
     -------
     matplotlib.figure.Figure
+        B10 (10 % failed) of each fitted group is marked with a diamond on its line, its
+        bounds as a horizontal bar at 10 %.
     """
-    fig, ax = _figure(size=(7.0, 5.5))
+    fig, ax = _figure(size=(7.0, 5.8))
     ticks = [0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.3, 0.5, 0.632, 0.8, 0.9, 0.95, 0.99]
     lin = lambda F: np.log(-np.log1p(-np.asarray(F, float)))  # noqa: E731
     all_x = []
@@ -405,10 +409,23 @@ def plot_weibull_probability(groups: dict, unit: str = "km"):
             xs = np.geomspace(max(life.min() / 3, 1e-9), life.max() * 3, 100)
             ys = fit.shape * np.log(xs / fit.scale)
             ax.plot(xs, np.where(ys >= strip_top, ys, np.nan), "-", color=color, lw=1)
+            r = b10(life, failed, confidence)
+            if r["b10"] is not None and np.isfinite(r["b10"]):
+                lo, hi = r["b10_lower"], r["b10_upper"]
+                ok = lo is not None and hi is not None and np.isfinite(lo) and np.isfinite(hi)
+                text = (f"{name}: B10 {r['b10']:.3g} {unit}"
+                        + (f" [{lo:.3g}–{hi:.3g}] ({100 * confidence:g} %)" if ok else " (no bounds)"))
+                y10 = float(lin(0.10)) + 0.06 * (i - (len(names) - 1) / 2)
+                all_x.append(np.array([lo, hi] if ok else [r["b10"]], float))
+                if ok:  # the bounds: a bar at 10 % with end ticks (collections, not data lines)
+                    ax.hlines(y10, lo, hi, color=color, lw=2.0, zorder=4)
+                    ax.vlines([lo, hi], y10 - 0.12, y10 + 0.12, color=color, lw=2.0, zorder=4)
+                ax.plot([r["b10"]], [y10], "D", color=color, mec="black", ms=7, zorder=5, label=text)
     if all_x:
         x = np.concatenate(all_x)
         ax.set_xlim(x.min() / 2, x.max() * 2)
     ax.set_xscale("log")
+    ax.axhline(float(lin(0.10)), color="0.5", lw=0.7, ls=":")
     ax.set_yticks(lin(ticks), [f"{100 * t:g}" for t in ticks])
     ax.set_ylim(min(strip_bottom, strip_top - 0.2), lin(ticks[-1]) + 0.2)
     if with_sus:

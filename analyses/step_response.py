@@ -238,13 +238,18 @@ def step_response_metrics(t, x, x_ref, smooth: bool = True, min_step: float | No
 
 
 def plot_step_errors(steps: list[dict], title: str = ""):
-    """Error in % of the step vs time since the step, like Fig. 15 of seed 000.
+    """Closed-loop steps like Fig. 15 of seed 000: position vs time, the error band as an inset.
+
+    Main axes: the position relative to where the step started [mm] (``step_mm`` (1 - error/100))
+    vs time since the step, one curve per step; up and down steps go their own ways, and
+    curves that coincide (repeated runs) are told apart by line style and by markers at
+    staggered times. Inset: the error in % of the step with the 2 % band, zoomed on the band.
 
     Parameters
     ----------
     steps : list of dict
-        Each with ``t`` [s since the step], ``error_pct`` (``100 (x_ref - x) / step``) and a
-        ``label``.
+        Each with ``t`` [s since the step], ``error_pct`` (``100 (x_ref - x) / step``), a
+        ``label`` and ``step_mm`` [mm] (without it the position is drawn in % of the step).
     title : str
 
     Returns
@@ -253,18 +258,39 @@ def plot_step_errors(steps: list[dict], title: str = ""):
     """
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(8, 4.5))
+    fig = Figure(figsize=(8, 5.2))
     ax = fig.subplots()
-    for s in steps:
-        ax.plot(s["t"], s["error_pct"], lw=1.0, label=s.get("label", ""))
-    ax.axhspan(-2, 2, color="tab:green", alpha=0.12, label="2 % band")
+    styles = ("-", "--", ":", "-.")
+    markers = ("o", "s", "^", "v", "D", "x", "+", "*")
+    signed = all("step_mm" in s for s in steps)
+    t_end = 0.0
+    for k, s in enumerate(steps):
+        t = np.asarray(s["t"], float)
+        err = np.asarray(s["error_pct"], float)
+        pos = (s["step_mm"] if signed else 100.0) * (1 - err / 100.0)
+        if t.size:
+            t_end = max(t_end, float(t[-1]))
+        every = max(1, t.size // 6)
+        ax.plot(t, pos, ls=styles[k % len(styles)], lw=1.3, color=f"C{k % 10}", marker=markers[k % len(markers)],
+                ms=5, markevery=(min(k * max(1, every // max(len(steps), 1)), max(t.size - 1, 0)), every),
+                label=s.get("label", ""))
     ax.axhline(0, color="0.3", lw=0.6)
     ax.set_xlabel("time since the step [s]")
-    ax.set_ylabel("error [% of the step]")
-    ax.set_ylim(-10, 105)
+    ax.set_ylabel("position from the step start [mm]" if signed else "position [% of the step]")
     ax.grid(alpha=0.3)
+    ax.set_title(title or "Closed-loop steps: position (seed 000, Fig. 15); inset: error and the 2 % band")
     if steps:
-        ax.legend(fontsize=7, loc="upper right", ncol=1 + len(steps) // 8)
-    ax.set_title(title or "Closed-loop steps: error in % of the step (seed 000, Fig. 15)")
+        ins = ax.inset_axes([0.55, 0.30, 0.42, 0.36])
+        for k, s in enumerate(steps):
+            ins.plot(s["t"], s["error_pct"], ls=styles[k % len(styles)], lw=1.0, color=f"C{k % 10}")
+        ins.axhspan(-2, 2, color="tab:green", alpha=0.15)
+        ins.axhline(0, color="0.3", lw=0.5)
+        ins.set_ylim(-6, 6)
+        ins.set_xlim(0, t_end or 1.0)
+        ins.set_ylabel("error [%]", fontsize=7)
+        ins.tick_params(labelsize=7)
+        ins.set_title("error in % of the step, 2 % band", fontsize=7)
+        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=min(3, len(steps)),
+                  frameon=False)
     fig.tight_layout()
     return fig

@@ -151,19 +151,37 @@ def simulate(out_dir, seed, profile, runs, jobs, quiet):
 @warehouse_option
 @jobs_option
 @click.option("--quiet", "-q", is_flag=True, help="No progress output.")
-def demo(raw, warehouse, jobs, quiet):
-    """Simulate RAW/demo (seed 1, demo profile) if absent, then rebuild RAW into the warehouse."""
+@click.pass_context
+def demo(ctx, raw, warehouse, jobs, quiet):
+    """Simulate the demo campaigns into RAW (seed 1, demo profile) unless they are there, then
+    rebuild RAW into the warehouse.
+
+    RAW gets plpa-2025/, pla-2016/, durability-2025/, durability-2026/ and truth.json; a RAW
+    that holds anything else is refused (its runs would be pooled with the demo's).
+    """
+    import shlex
+
     from pipeline.rebuild import RebuildError, rebuild as do_rebuild
-    from pipeline.simulator.campaign import simulate_demo
+    from pipeline.simulator.campaign import DemoError, simulate_demo
 
     progress = for_stream(sys.stderr, quiet)
-    made = simulate_demo(raw, jobs=jobs, progress=progress)
-    click.echo(f"demo: {'simulated' if made else 'kept the existing'} {raw / 'demo'}", err=True)
+    try:
+        made = simulate_demo(raw, jobs=jobs, progress=progress)
+    except DemoError as exc:
+        raise click.UsageError(str(exc)) from None
+    click.echo(f"demo: {'simulated' if made else 'kept the existing'} campaigns in {raw} "
+               f"(ground truth in {raw / 'truth.json'})", err=True)
     try:
         summary = do_rebuild(raw, warehouse, jobs=jobs, progress=progress)
     except RebuildError as exc:
         click.echo(f"pneubench demo: {exc}", err=True)
         sys.exit(exc.exit_code)
+    # the hint must work as printed: the same pneubench (e.g. .venv/bin/pneubench), the same warehouse
+    prog = sys.argv[0] if Path(sys.argv[0]).name == "pneubench" else "pneubench"
+    where = ""
+    if ctx.get_parameter_source("warehouse") == click.core.ParameterSource.COMMANDLINE:
+        where = f" --warehouse {shlex.quote(str(warehouse))}"
+    report = f"; report: {summary.report}" if getattr(summary, "report", None) else ""
     click.echo(f"demo: {summary.n_runs} runs in {warehouse / 'pneubench.duckdb'}, {len(summary.quarantine)} "
-               f"quarantined; try: pneubench query \"SELECT * FROM service_life\"")
+               f"quarantined{report}\ntry: {shlex.quote(prog)} query \"SELECT * FROM service_life\"{where}")
     sys.exit(summary.exit_code)

@@ -42,11 +42,20 @@ class _Task:
 
 
 class LogProgress(Progress):
-    """Concise log lines (cron, systemd): start, about every 10 % or 30 s, and the end."""
+    """Concise log lines (cron, systemd): one line per finished outer task, a heartbeat on long ones.
+
+    A task prints nothing when it starts; a task inside another (a stage's per-run work) prints
+    nothing when it ends either, since the outer task and the stage's own message say enough:
+    a rebuild logs one line per stage. Any task running longer than :attr:`heartbeat_s` prints
+    its progress about that often, so a long night is visibly alive.
+    """
+
+    heartbeat_s = 60.0
 
     def __init__(self, stream=None):
         self.stream = stream or sys.stderr
-        self._last: dict[int, tuple[float, int]] = {}
+        self._last: dict[int, float] = {}
+        self._depth = 0
 
     def message(self, text: str) -> None:
         print(text, file=self.stream, flush=True)
@@ -54,23 +63,22 @@ class LogProgress(Progress):
     @contextmanager
     def task(self, name: str, total: int):
         t = _Task(self, name, total)
-        if total:
-            self.message(f"{name}: {total} to do")
-        self._last[id(t)] = (time.monotonic(), 0)
+        outer = self._depth == 0
+        self._depth += 1
+        self._last[id(t)] = time.monotonic()
         try:
             yield t
         finally:
+            self._depth -= 1
             self._last.pop(id(t), None)
-            if total:
+            if total and outer:
                 self.message(f"{name}: {t.done}/{t.total} done in {time.monotonic() - t.started:.1f} s")
 
     def _update(self, t: _Task) -> None:
-        last_time, last_done = self._last.get(id(t), (0.0, 0))
         now = time.monotonic()
-        step = max(t.total // 10, 1)
-        if t.done < t.total and (t.done - last_done >= step or now - last_time >= 30):
-            self._last[id(t)] = (now, t.done)
-            self.message(f"{name_pct(t)}")
+        if t.done < t.total and now - self._last.get(id(t), now) >= self.heartbeat_s:
+            self._last[id(t)] = now
+            self.message(name_pct(t))
 
 
 def name_pct(t: _Task) -> str:

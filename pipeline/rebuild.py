@@ -477,6 +477,7 @@ def run_stages_cached(ctx_args: dict, runs: list[dict], prev: PreviousState, war
                 res.ran.append(name)
                 how = "ran"
             res.records.append(record)
+            tables = stage_registry.add_run_columns(tables, ctx_args["runs"])  # campaign, hose_id, campaigns
             for t, df in tables.items():
                 res.tables[t] = df if t not in res.tables else pd.concat([res.tables[t], df], ignore_index=True)
             res.figures += figures

@@ -1,11 +1,18 @@
-"""The morning report: ``warehouse/report/index.html``, one self-contained static page.
+"""The morning report: ``warehouse/report/index.html``, one self-contained static page, and a
+small page per run beside it (``report/runs/<safe id>.html``).
 
 Built from the warehouse database alone (read-only), so ``pneubench report`` can rebuild it at
-any time. Order: findings whose result changed in the last 24 hours (``findings.changed_at``;
-an overturned one stays there through further rebuilds that night), the findings, the last rebuild
-(new, changed, deleted and quarantined inputs with their reasons), hose life and service life,
-then every analysis figure with its key table. Figures are embedded as base64 PNG, the style
-is inline and there is no script: the file opens from disk anywhere. Every piece of text is
+any time. It reads like a results section: a table of contents; findings whose result changed
+in the last 24 hours (``findings.changed_at``; an overturned one stays there through further
+rebuilds that night); the findings; per paper (:data:`LAYOUT`) each figure with the summary a
+reader compares it to and the paper's tables beside the lab's values (:data:`PAPER`: paper value,
+measured value with its standard uncertainty, difference), the rows behind them folded with a
+CSV download; other figures; the last rebuild (new, changed, deleted and quarantined inputs with
+their reasons); and every run. Column headers carry the unit of the column's suffix, numbers
+show 4 significant digits, every run id links to its page (channels drawn by
+:mod:`pipeline.run_pages`, metadata, warnings, the results derived from it; a page is redrawn
+only when its inputs changed). Figures and downloads are embedded as data: URIs, the style is
+inline and there is no script: the files open from disk anywhere. Every piece of text is
 escaped (``html.escape``): run metadata, file names and quarantine reasons come from raw/.
 
 The report is never silently stale. The rebuild renders it from the new database before the
@@ -51,16 +58,22 @@ def _now() -> datetime:
     return datetime.now(timezone.utc)
 
 CSS = """
-body{font-family:system-ui,-apple-system,"Segoe UI",Roboto,sans-serif;margin:0 auto;max-width:1200px;padding:0 20px 40px;color:#1d2330}
+body{font-family:system-ui,-apple-system,"Segoe UI",Roboto,sans-serif;margin:0 auto;max-width:1180px;padding:0 20px 40px;color:#1d2330;line-height:1.4}
 h1{font-size:1.6em;margin:20px 0 4px}h2{border-bottom:2px solid #d8dce4;padding-bottom:4px;margin-top:34px}
-h3{margin:22px 0 6px}.meta{color:#5b6475;font-size:.92em}
-table{border-collapse:collapse;margin:8px 0 14px;font-size:.88em}th,td{border:1px solid #d8dce4;padding:3px 8px;text-align:left;vertical-align:top}
-th{background:#f1f3f7}td.num{text-align:right;font-variant-numeric:tabular-nums}
+h3{margin:26px 0 6px}h4{margin:14px 0 4px}.meta{color:#5b6475;font-size:.92em}
+table{border-collapse:collapse;margin:8px 0 14px;font-size:.84em}th,td{border:1px solid #d8dce4;padding:3px 7px;text-align:left;vertical-align:top}
+th{background:#f1f3f7;font-weight:600}th small{font-weight:400;color:#5b6475;white-space:nowrap}td.num{text-align:right;font-variant-numeric:tabular-nums;white-space:nowrap}
+.wrap{overflow-x:auto;max-width:100%}
 .ok{background:#e3f5e6;color:#16632a;font-weight:600}.bad{background:#fde4e4;color:#9b1c1c;font-weight:600}
 .nodata{background:#eef0f3;color:#5b6475}.alert{border:2px solid #c62828;background:#fff3f3;padding:10px 16px;margin:16px 0}
 .cards{display:flex;gap:12px;flex-wrap:wrap}.card{border:1px solid #d8dce4;border-radius:6px;padding:8px 14px;min-width:110px}
 .card b{display:block;font-size:1.5em}figure{margin:14px 0}figure img{max-width:100%;border:1px solid #d8dce4}
 figcaption{color:#3a4252;font-size:.92em;margin-top:4px}.more{color:#5b6475;font-style:italic}
+nav.toc{border:1px solid #d8dce4;background:#f8f9fb;padding:8px 18px;margin:14px 0;columns:2;column-gap:30px;font-size:.92em}
+nav.toc ul{margin:2px 0;padding-left:18px}nav.toc>ul{padding-left:0;list-style:none}nav.toc li{break-inside:avoid}
+details{margin:6px 0 12px}summary{cursor:pointer;color:#2a4d8f}a{color:#2a4d8f}
+.pair{display:flex;flex-wrap:wrap;gap:14px}.pair figure{flex:1 1 520px;margin:6px 0}
+td.diff-ok{color:#16632a}td.diff-bad{color:#9b1c1c;font-weight:600}
 """
 
 
@@ -69,8 +82,8 @@ def esc(value) -> str:
     return html.escape("" if value is None else str(value), quote=True)
 
 
-def fmt(value) -> str:
-    """A cell: numbers with 4 significant digits, NULL as an em dash; escaped."""
+def fmt(value, sig: int = 4) -> str:
+    """A cell: numbers to ``sig`` significant digits (no float noise), NULL as an em dash; escaped."""
     if value is None:
         return "—"
     if isinstance(value, bool):
@@ -78,7 +91,7 @@ def fmt(value) -> str:
     if isinstance(value, float):
         if math.isnan(value):
             return "—"
-        return esc(f"{value:.4g}")
+        return esc(_num(value, sig))
     if isinstance(value, datetime):
         return esc(value.strftime("%Y-%m-%d %H:%M:%S %Z").strip())
     if isinstance(value, (list, tuple)):
@@ -86,18 +99,65 @@ def fmt(value) -> str:
     return esc(value)
 
 
-def html_table(columns: list[str], rows: list[tuple], max_rows: int = MAX_ROWS, total: int | None = None) -> str:
+def _num(value: float, sig: int = 4) -> str:
+    """A float to ``sig`` significant digits: 19.999999999999982 -> 20, 0.0001541 -> 1.541e-04."""
+    if value == 0:
+        return "0"
+    if 1e-3 <= abs(value) < 1e6:
+        digits = max(sig - 1 - math.floor(math.log10(abs(value))), 0)
+        text = f"{value:.{digits}f}"
+        return text.rstrip("0").rstrip(".") if "." in text else text
+    return f"{value:.{sig - 1}e}"
+
+
+#: Column-name suffixes and the unit they mean (warehouse convention: names end in their unit).
+UNIT_SUFFIXES = (
+    ("_bar_abs", "bar abs"), ("_n_s_m", "N s/m"), ("_m_v_s", "m/(V s)"), ("_rad_s", "rad/s"), ("_l_min", "l/min"),
+    ("_kg_s", "kg/s"), ("_mm_s", "mm/s"), ("_m_s2", "m/s²"), ("_n_m", "N/m"), ("_n_s", "N/s"), ("_v_m", "V/m"),
+    ("_m_s", "m/s"), ("_m2", "m²"), ("_bar", "bar"), ("_pct", "%"), ("_km", "km"), ("_mm", "mm"), ("_hz", "Hz"),
+    ("_pa", "Pa"), ("_j", "J"), ("_h", "h"), ("_s", "s"), ("_n", "N"), ("_m", "m"),
+)
+
+
+def split_unit(column: str) -> tuple[str, str]:
+    """(name in words, unit) of a warehouse column: ``leak_l_min`` -> (``leak``, ``l/min``)."""
+    for suffix, unit in UNIT_SUFFIXES:
+        if column.endswith(suffix) and len(column) > len(suffix):
+            return column[: -len(suffix)].replace("_", " "), unit
+    return column.replace("_", " "), ""
+
+
+def _th(column: str) -> str:
+    name, unit = split_unit(column)
+    return f"<th>{esc(name)}" + (f"<br><small>[{esc(unit)}]</small>" if unit else "") + "</th>"
+
+
+def run_href(run_id: str, prefix: str = "runs/") -> str:
+    """Relative link of a run's page (``report/runs/<safe id>.html``)."""
+    from pipeline.run_pages import page_name
+
+    return prefix + page_name(run_id)
+
+
+def _cell(column: str, value, links) -> str:
+    if column == "run_id" and isinstance(value, str) and (links is True or (links and value in links)):
+        return f'<td><a href="{esc(run_href(value))}">{esc(value)}</a></td>'
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return f'<td class="num">{fmt(value)}</td>'
+    return f"<td>{fmt(value)}</td>"
+
+
+def html_table(columns: list[str], rows: list[tuple], max_rows: int = MAX_ROWS, total: int | None = None,
+               links: bool | set = True) -> str:
+    """Rows as a table: units from the column names in the headers, run ids linked to run pages
+    (``links``: True for every run id, or the set of ids that have a page)."""
     if not rows:
         return '<p class="more">no rows</p>'
-    head = "".join(f"<th>{esc(c)}</th>" for c in columns)
-    body = []
-    for r in rows[:max_rows]:
-        cells = "".join(f'<td class="num">{fmt(v)}</td>' if isinstance(v, (int, float)) and not isinstance(v, bool)
-                        else f"<td>{fmt(v)}</td>" for v in r)
-        body.append(f"<tr>{cells}</tr>")
+    head = "".join(_th(c) for c in columns)
+    body = ["<tr>" + "".join(_cell(c, v, links) for c, v in zip(columns, r)) + "</tr>" for r in rows[:max_rows]]
     total = len(rows) if total is None else total
     more = f'<p class="more">{total - max_rows} more rows: query the warehouse</p>' if total > max_rows else ""
-    return (f'<div style="overflow-x:auto"><table><thead><tr>{head}</tr></thead><tbody>{"".join(body)}</tbody>'
+    return (f'<div class="wrap"><table><thead><tr>{head}</tr></thead><tbody>{"".join(body)}</tbody>'
             f"</table></div>{more}")
 
 
@@ -110,6 +170,13 @@ class _DB:
 
     def has(self, table: str) -> bool:
         return table in self.tables
+
+    def run_ids(self) -> set[str]:
+        """Run ids of the warehouse (each has a page)."""
+        if not hasattr(self, "_run_ids"):
+            self._run_ids = ({r[0] for r in self.con.execute("SELECT run_id FROM runs").fetchall()}
+                             if self.has("runs") else set())
+        return self._run_ids
 
     def rows(self, sql: str, params=None) -> tuple[list[str], list[tuple]]:
         cur = self.con.execute(sql, params or [])
@@ -124,6 +191,20 @@ class _DB:
 
 def _unit(unit) -> str:
     return "" if unit in (None, "1") else esc(unit)
+
+
+def _linkify(text, run_ids: set[str]) -> str:
+    """Escaped text in which every ``run <id>`` of a known run links to the run's page."""
+    import re
+
+    out, last = [], 0
+    text = "" if text is None else str(text)
+    for m in re.finditer(r"\brun ([^\s,;()]+)", text):
+        rid = m.group(1).rstrip(".")
+        if rid in run_ids:
+            out.append(esc(text[last:m.start(1)]) + f'<a href="{esc(run_href(rid))}">{esc(rid)}</a>')
+            last = m.start(1) + len(rid)
+    return "".join(out) + esc(text[last:])
 
 
 def _holds_cell(holds) -> str:
@@ -162,11 +243,11 @@ def _findings_section(db: _DB, now: datetime) -> tuple[str, str]:
         alert = f'<p class="meta" id="changes">No finding changed its result {esc(window)}.</p>'
     body = []
     for (fid, statement, measured, unc, unit, criterion, holds, n, p, detail, change, _prev, at) in rows:
-        value = "—" if measured is None else fmt(measured) + (f" ± {fmt(unc)}" if unc is not None else "")
+        value = "—" if measured is None else fmt(measured) + (f" ± {fmt(unc, 2)}" if unc is not None else "")
         body.append(f"<tr><td><b>{esc(statement)}</b><br><span class=\"meta\">{esc(fid)}</span></td>"
                     f'<td class="num">{value} {_unit(unit)}</td><td>{esc(criterion)}</td>{_holds_cell(holds)}'
                     f'<td class="num">{fmt(n)}</td><td class="num">{fmt(p)}</td>'
-                    f"<td>{esc(detail)}{_change_note(change, at)}</td></tr>")
+                    f"<td>{_linkify(detail, db.run_ids())}{_change_note(change, at)}</td></tr>")
     n_hold = sum(1 for r in rows if r[6] is True)
     n_fail = sum(1 for r in rows if r[6] is False)
     n_none = sum(1 for r in rows if r[6] is None)
@@ -214,18 +295,45 @@ def _rebuild_section(db: _DB) -> str:
         # A long list (the first build of a campaign) is folded so the results stay in view.
         opened = " open" if n <= FOLD_INPUT_ROWS else ""
         out.append(f"<details{opened}><summary><b>New, changed and deleted inputs ({n})</b>: {counts}</summary>")
-        out.append(html_table(cols, rows, MAX_INPUT_ROWS, n) if rows else '<p class="meta">nothing changed</p>')
+        out.append(html_table(cols, rows, MAX_INPUT_ROWS, n, links=db.run_ids()) if rows
+                   else '<p class="meta">nothing changed</p>')
         out.append("</details>")
     out.append("</section>")
     return "".join(out)
 
 
-def _table_block(db: _DB, table: str, title: str | None = None) -> str:
+# -- raw rows: folded, with the whole table as a CSV download ------------------------------------------
+#: Tables up to this many rows come with a CSV download (a data: URI); longer ones say how to query them.
+CSV_MAX_ROWS = 20_000
+
+
+def _csv_uri(columns: list[str], rows: list[tuple]) -> str:
+    import csv
+    import io
+
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(columns)
+    for r in rows:
+        w.writerow(["" if v is None else (repr(v) if isinstance(v, float) else
+                                          ";".join(map(str, v)) if isinstance(v, (list, tuple)) else v) for v in r])
+    return "data:text/csv;charset=utf-8;base64," + base64.b64encode(buf.getvalue().encode("utf-8")).decode("ascii")
+
+
+def _raw_rows(db: _DB, table: str, what: str = "") -> str:
+    """A table's rows behind ``<details>`` (first :data:`MAX_ROWS`), with a CSV of all of them."""
     if not db.has(table):
         return ""
     n = db.count(table)
-    cols, rows = db.rows(f'SELECT * FROM "{table}" LIMIT {MAX_ROWS}')
-    return f"<h3>{esc(title or table)} <span class=\"meta\">({n} rows)</span></h3>" + html_table(cols, rows, MAX_ROWS, n)
+    if n <= CSV_MAX_ROWS:
+        cols, rows = db.rows(f'SELECT * FROM "{table}"')
+        dl = (f' · <a download="{esc(table)}.csv" href="{_csv_uri(cols, rows)}">download all {n} rows as CSV</a>'
+              if rows else "")
+    else:
+        cols, rows = db.rows(f'SELECT * FROM "{table}" LIMIT {MAX_ROWS}')
+        dl = f' · {n} rows: <code>pneubench query "SELECT * FROM {esc(table)}"</code>'
+    return (f'<details class="raw" id="raw-{esc(table)}"><summary><b>{esc(table)}</b> ({n} rows){esc(what)}{dl}'
+            f"</summary>{html_table(cols, rows, MAX_ROWS, n)}</details>")
 
 
 def _img(warehouse: Path, rel: str) -> str:
@@ -256,25 +364,481 @@ def _key_table(fig: str, stage: str, stage_tables: dict, db: _DB) -> str | None:
     return next((t for t in tables if db.has(t)), None)
 
 
-def _figures_section(db: _DB, warehouse: Path) -> str:
-    out = ['<section id="analyses"><h2>Analyses</h2>']
-    if not db.has("figures") or db.count("figures") == 0:
+# -- the papers' numbers next to the lab's ------------------------------------------------------------
+#: Values printed in the seed papers (/work/shared/spec/physics.md marks them *paper*).
+PAPER = {
+    "plpa_table2": {"wn_rad_s": 16.7, "zeta": 0.51, "k_lin_m_v_s": 0.82},
+    "plpa_fig12": {"mean_0bar_n": 10.0, "mean_ge1bar_n": 5.0, "ratio": 2.0, "rate_slope": 0.0},
+    "plpa_fig15": {"overshoot_pct": 1.2, "settling_time_s": 4.0, "steady_state_error_mm": 0.0},
+    "pla_table1": {"front": {"n_polytropic": 1.123, "ae_m2": 1.541e-3, "epsilon_m2": 2.143e-5, "delta_n_m": 3.509e3},
+                   "rear": {"n_polytropic": 1.063, "ae_m2": 1.795e-3, "epsilon_m2": 2.136e-5, "delta_n_m": 2.963e3}},
+    "pla_table2": {"charge": {"wn_rad_s": 52.0, "zeta": 1.00}, "discharge": {"wn_rad_s": 52.0, "zeta": 0.69}},
+    "pla_table3": {"nrmse_min_pct": 1.16, "nrmse_max_pct": 2.39, "bound_pct": 2.5},
+}
+
+
+def _mean_se(values) -> tuple[float | None, float | None, int]:
+    v = [float(x) for x in values if x is not None and not (isinstance(x, float) and math.isnan(x))]
+    if not v:
+        return None, None, 0
+    m = sum(v) / len(v)
+    if len(v) < 2:
+        return m, None, 1
+    sd = math.sqrt(sum((x - m) ** 2 for x in v) / (len(v) - 1))
+    return m, sd / math.sqrt(len(v)), len(v)
+
+
+NUM_CELL = ' class="num"'
+
+
+def _cmp_row(label: str, unit: str, paper, measured, unc, how: str = "", judge: bool = True) -> str:
+    """One row of a paper-vs-lab table: paper value, measured ± uncertainty, difference."""
+    m = "—" if measured is None else fmt(measured) + (f" ± {fmt(unc, 2)}" if unc is not None else "")
+    if paper is None or measured is None:
+        diff, cls = "—", ""
+    else:
+        d = measured - paper
+        rel = f" ({100 * d / paper:+.1f} %)" if paper else ""
+        diff = f"{'+' if d >= 0 else ''}{fmt(d, 3)}{rel}"
+        # green: within 2 standard uncertainties or 5 % of the paper; red: further; plain for a paper value of
+        # zero (no scale to judge a difference by: the sensor's resolution is on the run pages)
+        if not paper or not judge:
+            cls = ""
+        elif (unc is not None and abs(d) <= 2 * unc) or (paper and abs(d / paper) < 0.05):
+            cls = ' class="num diff-ok"'
+        else:
+            cls = ' class="num diff-bad"'
+    return (f"<tr><td>{esc(label)}</td><td>{esc(unit)}</td><td class=\"num\">{'—' if paper is None else fmt(paper)}</td>"
+            f'<td class="num">{m}</td><td{cls or NUM_CELL}>{diff}</td><td>{esc(how)}</td></tr>')
+
+
+def _cmp_table(caption: str, rows: list[str]) -> str:
+    return (f'<div class="wrap"><table class="paper"><caption style="text-align:left;font-weight:600;padding:4px 0">'
+            f"{esc(caption)}</caption><thead><tr><th>quantity</th><th>unit</th><th>paper</th>"
+            "<th>measured ± std. uncertainty</th><th>difference<br><small>measured − paper</small></th>"
+            f"<th>from</th></tr></thead><tbody>{''.join(rows)}</tbody></table></div>")
+
+
+def _q(db: _DB, sql: str, *tables: str) -> list[tuple]:
+    if not all(db.has(t) for t in tables):
+        return []
+    return db.con.execute(sql).fetchall()
+
+
+def _summary_identification(db: _DB) -> str:
+    rows = _q(db, "SELECT wn_rad_s, zeta, k_lin_m_v_s FROM identification", "identification")
+    if not rows:
+        return ""
+    out = []
+    for k, (col, label, unit) in enumerate((("wn_rad_s", "natural frequency ωn", "rad/s"),
+                                           ("zeta", "damping ratio ζ", ""),
+                                           ("k_lin_m_v_s", "gain k_lin", "m/(V s)"))):
+        m, se, n = _mean_se([r[k] for r in rows])
+        out.append(_cmp_row(label, unit, PAPER["plpa_table2"][col], m, se,
+                            f"mean of {n} identification run{'s' if n != 1 else ''} ± s.e."))
+    return _cmp_table("PLPA Table 2: identified plant parameters, paper vs lab", out)
+
+
+def _summary_breakaway(db: _DB) -> str:
+    out = []
+    r0 = _q(db, "SELECT breakaway_force_n FROM breakaway WHERE backpressure_bar < 0.5", "breakaway")
+    r1 = _q(db, "SELECT breakaway_force_n FROM breakaway WHERE backpressure_bar >= 0.5", "breakaway")
+    for label, rows, key in (("breakaway force at 0 bar backpressure", r0, "mean_0bar_n"),
+                             ("breakaway force at ≥ 1 bar backpressure", r1, "mean_ge1bar_n")):
+        m, se, n = _mean_se([r[0] for r in rows])
+        if n:
+            out.append(_cmp_row(label, "N", PAPER["plpa_fig12"][key], m, se, f"mean of {n} events ± s.e."))
+    f = {r[0]: r[1:] for r in _q(db, "SELECT finding, estimate, ci_low, ci_high, confidence, n FROM breakaway_findings "
+                                      "WHERE direction = 'all'", "breakaway_findings")}
+    for key, label, unit, paper in (("backpressure_ratio", "ratio 0 bar / ≥ 1 bar", "", PAPER["plpa_fig12"]["ratio"]),
+                                    ("force_rate_slope", "effect of the force rate (slope)", "N per N/s",
+                                     PAPER["plpa_fig12"]["rate_slope"])):
+        if key in f and f[key][0] is not None:
+            est, lo, hi, conf, n = f[key]
+            se = (hi - lo) / (2 * 1.96) if lo is not None and hi is not None else None
+            out.append(_cmp_row(label, unit, paper, est, se,
+                                f"breakaway_findings, {n} events; {100 * (conf or 0.95):.0f} % CI "
+                                f"{fmt(lo, 3)}–{fmt(hi, 3)}" if lo is not None else "breakaway_findings"))
+    if not out:
+        return ""
+    table = _cmp_table("PLPA Fig. 12: breakaway forces, paper vs lab (paper: about twice at 0 bar, no rate effect)", out)
+    summary = _q(db, "SELECT backpressure_bar, direction, sum(n) AS n, sum(n * mean_force_n) / sum(n) AS mean_force_n, "
+                     "max(std_force_n) AS largest_std_force_n FROM breakaway_summary GROUP BY ALL ORDER BY 1, 2",
+                 "breakaway_summary")
+    cols = ["backpressure_bar", "direction", "n", "mean_force_n", "largest_std_force_n"]
+    return table + ("<h4>Mean breakaway force per backpressure and direction (all rates)</h4>"
+                    + html_table(cols, summary, 40) if summary else "")
+
+
+def _summary_step(db: _DB) -> str:
+    rows = _q(db, "SELECT overshoot_pct, settling_time_s, steady_state_error_mm FROM step_response", "step_response")
+    if not rows:
+        return ""
+    out = []
+    for k, (col, label, unit) in enumerate((("overshoot_pct", "overshoot", "%"),
+                                           ("settling_time_s", "settling time (2 % band)", "s"),
+                                           ("steady_state_error_mm", "steady-state error", "mm"))):
+        m, se, n = _mean_se([r[k] for r in rows])
+        out.append(_cmp_row(label, unit, PAPER["plpa_fig15"][col], m, se, f"mean of {n} steps ± s.e."))
+    return _cmp_table("PLPA Fig. 15: closed-loop 20 mm step under PID, paper vs lab "
+                      "(paper: about 1.2 % overshoot, about 4 s to the 2 % band, zero steady-state error)", out)
+
+
+def _summary_leakage(db: _DB) -> str:
+    """Seal pressure and leak at 5 and 6 bar per roller setting, from characterisation runs only
+    (runs naming a hose are worn-hose checks and are left out)."""
+    if not db.has("leakage_map"):
+        return ""
+    hose = "coalesce(hose_id, '') = ''" if "hose_id" in db.columns("leakage_map") else "true"
+    env = db.has("seal_envelope")
+    sql = f"""
+        WITH m AS (SELECT chamber, adjustment, z_rollers_mm, spring_force_n, run_id, leak_l_min,
+                          round(pressure_bar) AS nominal_bar FROM leakage_map WHERE {hose}),
+        s AS (SELECT chamber, adjustment, z_rollers_mm, spring_force_n,
+                     avg(leak_l_min) FILTER (WHERE nominal_bar = 5) AS leak_at_5_bar_l_min,
+                     avg(leak_l_min) FILTER (WHERE nominal_bar = 6) AS leak_at_6_bar_l_min,
+                     count(DISTINCT run_id) AS n_runs
+              FROM m GROUP BY ALL)
+        SELECT s.chamber, s.adjustment, coalesce(s.z_rollers_mm, s.spring_force_n) AS setting,
+               CASE WHEN s.adjustment = 'distance' THEN 'mm' ELSE 'N' END AS setting_unit,
+               {'e.sealed_up_to_bar, e.first_leak_bar,' if env else ''}
+               s.leak_at_5_bar_l_min, s.leak_at_6_bar_l_min, s.n_runs
+        FROM s {'LEFT JOIN seal_envelope e ON e.chamber = s.chamber AND e.adjustment = s.adjustment AND '
+                'e.z_rollers_mm IS NOT DISTINCT FROM s.z_rollers_mm AND '
+                'e.spring_force_n IS NOT DISTINCT FROM s.spring_force_n' if env else ''}
+        ORDER BY s.chamber, s.adjustment, setting"""
+    cols, rows = db.rows(sql)
+    if not rows:
+        return ""
+    return ("<h4>Seal and leak per roller setting (characterisation runs only; worn-hose checks left out)</h4>"
+            + html_table(cols, rows, 60))
+
+
+def _summary_viscous(db: _DB) -> str:
+    if not db.has("viscous_fits"):
+        return ""
+    want = [c for c in ("backpressure_bar", "direction", "coulomb_n", "coulomb_se_n", "viscous_n_s_m",
+                        "viscous_se_n_s_m", "nrmse_pct", "n_points", "note") if c in db.columns("viscous_fits")]
+    cols, rows = db.rows(f"SELECT {', '.join(want)} FROM viscous_fits ORDER BY backpressure_bar, direction")
+    out = "<h4>Coulomb + viscous fit per backpressure and direction</h4>" + html_table(cols, rows, 40)
+    if db.has("viscous_transition") and db.count("viscous_transition"):
+        vt = [c for c in ("backpressure_bar", "transition_velocity_mm_s", "stribeck_amplitude_n",
+                          "stribeck_p_value", "stribeck_dip", "n_points") if c in db.columns("viscous_transition")]
+        cols, rows = db.rows(f"SELECT {', '.join(vt)} FROM viscous_transition ORDER BY backpressure_bar")
+        out += "<h4>Near zero velocity: tanh transition and Stribeck test</h4>" + html_table(cols, rows, 20)
+    return out
+
+
+def _summary_spring(db: _DB) -> str:
+    out = ""
+    fits = {r[0]: r[1:] for r in _q(db, "SELECT chamber, n_polytropic, ae_m2, epsilon_m2, delta_n_m, n_tests "
+                                        "FROM spring_fits", "spring_fits")}
+    se_cols = {c: next((x for x in db.columns("spring_fits") if x.startswith(c.split("_")[0] + "_se")), None)
+               for c in ("n_polytropic", "ae_m2", "epsilon_m2", "delta_n_m")}
+    rows = []
+    labels = {"n_polytropic": ("polytropic index n", ""), "ae_m2": ("effective area Ae", "m²"),
+              "epsilon_m2": ("ε (Coulomb-like term)", "m²"), "delta_n_m": ("δ (structural damping)", "N/m")}
+    for chamber in ("front", "rear"):
+        if chamber not in fits:
+            continue
+        ses = {}
+        for c, sc in se_cols.items():
+            if sc:
+                ses[c] = db.con.execute(f'SELECT "{sc}" FROM spring_fits WHERE chamber = ?', [chamber]).fetchone()[0]
+        for k, c in enumerate(("n_polytropic", "ae_m2", "epsilon_m2", "delta_n_m")):
+            label, unit = labels[c]
+            rows.append(_cmp_row(f"{chamber}: {label}", unit, PAPER["pla_table1"][chamber][c], fits[chamber][k],
+                                 ses.get(c), f"spring_fits, {fits[chamber][4]} tests"
+                                 + ("" if ses.get(c) is not None else " (the fit gives no standard error)")))
+    if rows:
+        out += _cmp_table("PLA Table 1: spring model parameters, paper vs lab", rows)
+    nr = _q(db, "SELECT chamber, min(nrmse_pct), max(nrmse_pct), count(nrmse_pct), count(*) FILTER (WHERE nrmse_pct >= 2.5) "
+                "FROM spring_tests GROUP BY chamber ORDER BY chamber", "spring_tests")
+    if nr:
+        p3 = PAPER["pla_table3"]
+        rows = []
+        for chamber, lo, hi, n, above in nr:
+            rows.append(_cmp_row(f"{chamber}: smallest NRMSE", "%", p3["nrmse_min_pct"], lo, None, f"{n} spring tests",
+                                 judge=False))
+            rows.append(_cmp_row(f"{chamber}: largest NRMSE", "%", p3["nrmse_max_pct"], hi, None,
+                                 f"{above} of {n} tests at or above {p3['bound_pct']:g} % (the paper's bound)",
+                                 judge=False))
+        out += _cmp_table("PLA Table 3: NRMSE of the spring model over the 120 tests, paper range vs lab", rows)
+    return out
+
+
+def _summary_pressure(db: _DB) -> str:
+    rows = _q(db, "SELECT chamber, direction, wn_rad_s, zeta, nrmse_pct, n_steps FROM pressure_dynamics "
+                  "ORDER BY chamber, direction", "pressure_dynamics")
+    out = []
+    for chamber, direction, wn, zeta, nrmse, n in rows:
+        p = PAPER["pla_table2"].get(direction)
+        if p is None:
+            continue
+        out.append(_cmp_row(f"{chamber}, {direction}: ωn", "rad/s", p["wn_rad_s"], wn, None,
+                            f"{n} steps, NRMSE {fmt(nrmse, 3)} %"))
+        out.append(_cmp_row(f"{chamber}, {direction}: ξ", "", p["zeta"], zeta, None, f"{n} steps"))
+    return _cmp_table("PLA Table 2: pressure dynamics (Eq. 11), paper vs lab", out) if out else ""
+
+
+def _summary_service_life(db: _DB) -> str:
+    if not db.has("service_life"):
+        return ""
+    want = [c for c in ("hose_type", "adjustment", "n_hoses", "n_failed", "n_suspended", "weibull_shape",
+                        "weibull_scale_km", "b10_km", "b10_lower_km", "b10_upper_km", "confidence", "campaigns", "note")
+            if c in db.columns("service_life")]
+    cols, rows = db.rows(f"SELECT {', '.join(want)} FROM service_life ORDER BY hose_type, adjustment")
+    out = "<h4>Weibull life and B10 per hose type and roller adjustment</h4>" + html_table(cols, rows, 20)
+    if db.has("service_life_test") and db.count("service_life_test"):
+        cols, rows = db.rows("SELECT * FROM service_life_test")
+        out += "<h4>Force- vs distance-set rollers: likelihood-ratio test</h4>" + html_table(cols, rows, 20)
+    return out
+
+
+def _summary_hoses(db: _DB) -> str:
+    if not db.has("hose_life"):
+        return ""
+    want = [c for c in ("hose_id", "adjustment", "z_rollers_mm", "spring_force_n", "status", "failure_mode",
+                        "distance_km", "distance_source", "n_runs", "campaigns") if c in db.columns("hose_life")]
+    cols, rows = db.rows(f"SELECT {', '.join(want)} FROM hose_life ORDER BY hose_id")
+    return "<h4>Hoses</h4>" + html_table(cols, rows, 60)
+
+
+#: The results section: papers, their topics, the figures of each topic (exact names, or a prefix
+#: ending in ``*``), the summary a reader compares them to, and the tables behind it.
+LAYOUT = (
+    ("plpa", "PLPA peristaltic actuator (seed 000: Carneiro et al. 2020)", (
+        ("leakage", "Leakage maps (Figs. 9–10)", ("leakage_distance", "leakage_force"), _summary_leakage,
+         ("leakage_map", "seal_envelope")),
+        ("breakaway", "Static breakaway (Fig. 12)", ("breakaway",), _summary_breakaway,
+         ("breakaway", "breakaway_summary", "breakaway_findings")),
+        ("viscous", "Viscous friction (Figs. 13–14)", ("viscous", "viscous_near_zero"), _summary_viscous,
+         ("viscous_points", "viscous_fits", "viscous_transition", "friction_dynamic")),
+        ("identification", "Identification (Table 2)", ("identification_*",), _summary_identification,
+         ("identification",)),
+        ("step", "Closed-loop step (Fig. 15)", ("step_*",), _summary_step, ("step_response",)),
+    )),
+    ("pla", "PLA cylinder (seed 001: Palomares et al. 2017)", (
+        ("spring", "Spring model (Tables 1 and 3)", ("spring_loops_*", "spring_loop_energy"), _summary_spring,
+         ("spring_fits", "spring_tests", "spring_loop_energy")),
+        ("pressure", "Pressure dynamics (Table 2)", ("pressure_steps_*",), _summary_pressure,
+         ("pressure_dynamics", "pressure_steps")),
+    )),
+    ("durability", "Durability and hose service life", (
+        ("service-life", "Service life: Weibull and B10", ("weibull_probability", "kaplan_meier"),
+         _summary_service_life, ("service_life", "service_life_test", "hose_survival")),
+        ("hoses", "Hoses and durability runs", ("hose_distance", "leak_growth"), _summary_hoses,
+         ("hose_life", "durability_runs", "hose_leak_growth")),
+    )),
+)
+
+
+def _matches(name: str, patterns) -> bool:
+    return any(name == p or (p.endswith("*") and name.startswith(p[:-1])) for p in patterns)
+
+
+def _figure(warehouse: Path, name: str, path: str, caption) -> str:
+    return (f'<figure id="fig-{esc(name)}">{_img(warehouse, path)}<figcaption><b>{esc(name)}</b>'
+            f'{": " + esc(caption) if caption else ""}</figcaption></figure>')
+
+
+def _results_sections(db: _DB, warehouse: Path) -> tuple[str, list]:
+    """(HTML of the papers' sections and the other figures, table-of-contents entries)."""
+    figs = db.rows("SELECT stage, name, path, caption FROM figures ORDER BY stage, name")[1] \
+        if db.has("figures") else []
+    used: set[str] = set()
+    html_out, toc = [], []
+    for pid, ptitle, topics in LAYOUT:
+        parts, sub = [], []
+        for tid, ttitle, patterns, summary, tables in topics:
+            mine = sorted((f for f in figs if _matches(f[1], patterns)),
+                          key=lambda f: (next(k for k, p in enumerate(patterns) if _matches(f[1], [p])), f[1]))
+            body = summary(db)
+            raws = "".join(_raw_rows(db, t) for t in tables)
+            if not mine and not body and not raws:
+                continue
+            used.update(f[1] for f in mine)
+            figs_html = "".join(_figure(warehouse, n, p, c) for _s, n, p, c in mine)
+            if len(mine) > 1:
+                figs_html = f'<div class="pair">{figs_html}</div>'
+            parts.append(f'<section id="{tid}"><h3>{esc(ttitle)}</h3>{body}{figs_html}'
+                         f'{"<p class=meta>Rows behind it:</p>" + raws if raws else ""}</section>')
+            sub.append((tid, ttitle))
+        if parts:
+            html_out.append(f'<section id="{pid}"><h2>{esc(ptitle)}</h2>{"".join(parts)}</section>')
+            toc.append((pid, ptitle, sub))
+    rest = [f for f in figs if f[1] not in used]
+    out = ['<section id="analyses"><h2>Other figures</h2>']
+    if not figs:
         out.append('<p class="nodata">no figures</p>')
+    elif not rest:
+        out.append('<p class="meta">every figure is shown with its paper above</p>')
     else:
         stage_tables = _stage_tables()
-        cols, rows = db.rows("SELECT stage, name, path, caption FROM figures ORDER BY stage, name")
-        shown: set[str] = {"hose_life", "service_life", "findings"}
+        shown = {t for _p, _t, topics in LAYOUT for tp in topics for t in tp[4]} | {"findings"}
         current = None
-        for stage, name, path, caption in rows:
+        for stage, name, path, caption in rest:
             if stage != current:
                 out.append(f"<h3>{esc(stage)}</h3>")
                 current = stage
-            out.append(f'<figure>{_img(warehouse, path)}<figcaption><b>{esc(name)}</b>'
-                       f'{": " + esc(caption) if caption else ""}</figcaption></figure>')
+            out.append(_figure(warehouse, name, path, caption))
             key = _key_table(name, stage, stage_tables, db)
             if key and key not in shown:
                 shown.add(key)
-                out.append(_table_block(db, key, f"{key} (key table of {name})"))
+                out.append(_raw_rows(db, key, f" (key table of {name})"))
+    out.append("</section>")
+    html_out.append("".join(out))
+    toc.append(("analyses", "Other figures", []))
+    return "".join(html_out), toc
+
+
+def _toc(entries: list) -> str:
+    items = []
+    for anchor, title, sub in entries:
+        inner = "".join(f'<li><a href="#{esc(a)}">{esc(t)}</a></li>' for a, t in sub)
+        items.append(f'<li><a href="#{esc(anchor)}">{esc(title)}</a>' + (f"<ul>{inner}</ul>" if inner else "") + "</li>")
+    return f'<nav class="toc" id="toc"><b>Contents</b><ul>{"".join(items)}</ul></nav>'
+
+
+# -- per-run pages -------------------------------------------------------------------------------------
+#: Bumped when the run pages' layout changes (cached pages are then drawn again).
+RUN_PAGE_VERSION = "1"
+
+
+def _run_results(db: _DB) -> dict[str, list[tuple[str, list[str], list[tuple]]]]:
+    """Per run id: (table, columns, rows) of every result table with a ``run_id`` column."""
+    out: dict[str, list] = {}
+    skip = {"runs", "channels", "rebuild_inputs", "ingest_state", "durability_strokes"}
+    for t in sorted(db.tables):
+        if t in skip or t.startswith("samples_") or "run_id" not in db.columns(t):
+            continue
+        cols, rows = db.rows(f'SELECT * FROM "{t}" ORDER BY run_id')
+        k = cols.index("run_id")
+        for r in rows:
+            out.setdefault(r[k], []).append((t, cols, r))
+    return out
+
+
+def _run_page(run: dict, results: list, svg: str, key: str) -> str:
+    from pipeline.run_pages import page_name  # noqa: F401  (same module the links come from)
+
+    import json as _json
+
+    params = run.get("params")
+    if isinstance(params, str):
+        try:
+            params = _json.loads(params)
+        except ValueError:
+            params = {"params": params}
+    meta_rows = [(k, run.get(k)) for k in ("kind", "campaign", "rig", "started_at", "source_path", "format",
+                                            "n_samples", "sample_rate_hz", "duration_s")]
+    meta_rows += [(f"params.{k}", v) for k, v in sorted((params or {}).items())]
+    meta = "".join(f"<tr><th>{esc(k)}</th><td>{fmt(v)}</td></tr>" for k, v in meta_rows)
+    warns = run.get("warnings") or []
+    warn_html = ("<ul>" + "".join(f"<li>{esc(w)}</li>" for w in warns) + "</ul>") if warns else \
+        '<p class="meta">none</p>'
+    by_table: dict[str, tuple[list[str], list[tuple]]] = {}
+    for t, cols, r in results:
+        by_table.setdefault(t, (cols, []))[1].append(r)
+    res_html = "".join(f"<h3>{esc(t)} ({len(rows)} rows)</h3>" + html_table(cols, rows, 50, links=False)
+                       for t, (cols, rows) in sorted(by_table.items())) or '<p class="meta">no result rows</p>'
+    rid = esc(run["run_id"])
+    return "\n".join([
+        f"<!DOCTYPE html><!-- key: {key} -->", '<html lang="en"><head><meta charset="utf-8">',
+        '<meta name="viewport" content="width=device-width, initial-scale=1">',
+        f"<title>run {rid}: pneubench</title><style>{CSS}</style></head><body>",
+        '<p><a href="../index.html">← morning report</a></p>', f"<h1>Run {rid}</h1>",
+        '<section id="channels"><h2>Channels</h2>',
+        svg or '<p class="nodata">samples not available</p>',
+        '<p class="meta">Each channel drawn from its minimum and maximum per pixel column (every excursion is '
+        "visible however long the run); pressures in bar gauge, positions in mm, leak flow in l/min ANR.</p></section>",
+        f'<section id="metadata"><h2>Metadata</h2><div class="wrap"><table>{meta}</table></div></section>',
+        f'<section id="warnings"><h2>Warnings ({len(warns)})</h2>{warn_html}</section>',
+        f'<section id="results"><h2>Results derived from this run</h2>{res_html}</section>',
+        "</body></html>"])
+
+
+def write_run_pages(db: _DB, warehouse: Path, folder: Path | None = None) -> int:
+    """Write ``report/runs/<safe id>.html`` for every run; returns how many were drawn anew.
+
+    A page whose inputs (samples file, source hash, results, warnings, layout version) are
+    unchanged is kept (its key is in its first line), so a nightly rebuild redraws only the
+    runs that changed. Pages of runs no longer in the warehouse are removed.
+    """
+    import hashlib
+    import json as _json
+
+    from pipeline.run_pages import channels_svg, downsample_minmax, page_name
+
+    if not db.has("runs"):
+        return 0
+    folder = folder or (Path(warehouse) / "report" / "runs")
+    folder.mkdir(parents=True, exist_ok=True)
+    results = _run_results(db)
+    channels = {}
+    if db.has("channels"):
+        for rid, col in db.con.execute('SELECT run_id, "column" FROM channels ORDER BY run_id, "column"').fetchall():
+            channels.setdefault(rid, []).append(col)
+    cols, rows = db.rows("SELECT * FROM runs ORDER BY run_id")
+    keep, drawn = set(), 0
+    for row in rows:
+        run = dict(zip(cols, row))
+        rid = run["run_id"]
+        name = page_name(rid)
+        keep.add(name)
+        res = results.get(rid, [])
+        key = hashlib.sha256(_json.dumps([RUN_PAGE_VERSION, run.get("samples_path"), run.get("source_sha256"),
+                                          [(t, c, r) for t, c, r in res], run.get("warnings"), run.get("params")],
+                                         default=str).encode()).hexdigest()[:24]
+        page = folder / name
+        try:
+            with open(page, encoding="utf-8") as fh:
+                if f"<!-- key: {key} -->" in fh.readline():
+                    continue
+        except OSError:
+            pass
+        svg = ""
+        samples = (Path(warehouse) / run["samples_path"]) if run.get("samples_path") else None
+        if samples is not None and samples.is_file():
+            chans = [c for c in channels.get(rid, []) if c not in ("t_s", "run_id")]
+            try:
+                svg = channels_svg(downsample_minmax(samples, chans, run.get("n_samples") or 0), f"channels of {rid}")
+            except Exception as exc:  # a damaged samples file must not cost the whole report
+                svg = f'<p class="nodata">channels could not be drawn: {esc(_one_line_error(exc))}</p>'
+        tmp = folder / f".{name}.tmp-{os.getpid()}"
+        tmp.write_text(_run_page(run, res, svg, key), encoding="utf-8")
+        os.replace(tmp, page)
+        drawn += 1
+    for old in folder.glob("*.html"):
+        if old.name not in keep:
+            old.unlink(missing_ok=True)
+    return drawn
+
+
+def _rebuild_line(db: _DB) -> str:
+    if not (db.has("rebuild_log") and db.count("rebuild_log")):
+        return ""
+    r = db.con.execute("SELECT finished_at, n_runs, n_new, n_changed, n_deleted, n_quarantined FROM rebuild_log "
+                       "ORDER BY finished_at DESC LIMIT 1").fetchone()
+    return (f'Last rebuild {fmt(r[0])}: {fmt(r[1])} runs, {fmt(r[2])} new, {fmt(r[3])} changed, {fmt(r[4])} deleted, '
+            f'<a href="#rebuild">{fmt(r[5])} quarantined</a>.')
+
+
+def _runs_index(db: _DB) -> str:
+    """Every run per campaign and kind, each linked to its page."""
+    if not db.has("runs") or db.count("runs") == 0:
+        return '<section id="runs"><h2>Runs</h2><p class="nodata">no runs</p></section>'
+    rows = db.con.execute("SELECT campaign, kind, run_id, len(warnings) FROM runs ORDER BY campaign, kind, run_id").fetchall()
+    groups: dict[tuple, list] = {}
+    for camp, kind, rid, nw in rows:
+        groups.setdefault((camp, kind), []).append((rid, nw))
+    out = ['<section id="runs"><h2>Runs</h2><p class="meta">Each run has a page with its channels, metadata, '
+           "warnings and the results derived from it.</p>"]
+    for (camp, kind), runs in groups.items():
+        links = ", ".join(f'<a href="{esc(run_href(r))}">{esc(r)}</a>' + (f" ({n} warning{'s' if n != 1 else ''})"
+                                                                          if n else "") for r, n in runs)
+        out.append(f"<details><summary><b>{esc(camp)}</b> · {esc(kind)} ({len(runs)} runs)</summary>"
+                   f'<p style="font-size:.88em">{links}</p></details>')
     out.append("</section>")
     return "".join(out)
 
@@ -296,19 +860,21 @@ def render_report(warehouse: str | Path, now: datetime | None = None, database: 
         db = _DB(con)
         alert, findings = _findings_section(db, now)
         generation = _generation(db)
-        hoses = ('<section id="hoses"><h2>Hose life and service life</h2>'
-                 + (_table_block(db, "service_life", "Service life per hose type and adjustment") or "")
-                 + (_table_block(db, "hose_life", "Hose life") or "")
-                 + ("" if db.has("service_life") or db.has("hose_life") else '<p class="nodata">no data</p>')
-                 + "</section>")
+        results, toc = _results_sections(db, warehouse)
+        write_run_pages(db, warehouse)
+        runs_index = _runs_index(db)
+        entries = ([("overturned", "Findings changed in the last 24 hours", [])] if alert.startswith('<div class="alert"')
+                   else []) + [("findings", "Findings of the two papers", [])] + toc + [
+            ("rebuild", "Last rebuild: inputs and quarantine", []), ("runs", "Runs", [])]
         parts = [
             "<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
             '<meta name="viewport" content="width=device-width, initial-scale=1">',
             "<title>pneubench morning report</title>",
             f"<style>{CSS}</style></head><body>",
             "<h1>pneubench morning report</h1>",
-            f'<p class="meta">warehouse {esc(warehouse.resolve())}, generation {esc(generation)}</p>',
-            alert, findings, _rebuild_section(db), hoses, _figures_section(db, warehouse),
+            f'<p class="meta">warehouse {esc(warehouse.resolve())}, generation {esc(generation)}. '
+            f"{_rebuild_line(db)}</p>",
+            _toc(entries), alert, findings, results, _rebuild_section(db), runs_index,
             "</body></html>",
         ]
         return "\n".join(p for p in parts if p)

@@ -11,7 +11,7 @@
     truth.json       every parameter and every per-run true value
 
 Each of those folders is one campaign when ``out_dir`` is the raw root (``pneubench rebuild --raw
-out_dir``), or subfolders of one campaign when ``out_dir`` is ``raw/<name>`` (the demo).
+out_dir``, as :func:`simulate_demo` does), or subfolders of one campaign when ``out_dir`` is ``raw/<name>``.
 Run ids are explicit (``<folder>/<stem>``), so they do not depend on where ``out_dir`` sits.
 
 Formats are mixed as in a real lab (see :data:`VARIANTS`): every kind in at least two formats,
@@ -793,21 +793,45 @@ def parameters() -> dict:
     })
 
 
-def simulate_demo(raw, seed: int = 1, jobs: int | None = None, progress=None, profile: str = "demo") -> bool:
-    """Simulate ``raw/demo`` (demo profile) unless it exists; returns whether it was written.
+#: The demo's campaigns: the first folders of the raw tree it fills (with ``truth.json`` beside them).
+DEMO_CAMPAIGNS = ("plpa-2025", "pla-2016", "durability-2025", "durability-2026")
 
-    The campaign is written to a hidden folder first and renamed into place, so an interrupted
-    run never leaves a half-written ``raw/demo`` (hidden folders are not read by rebuild).
+
+class DemoError(Exception):
+    """The demo cannot write its campaigns into the raw tree given (one line, names the folder)."""
+
+
+def simulate_demo(raw, seed: int = 1, jobs: int | None = None, progress=None, profile: str = "demo") -> bool:
+    """Simulate the demo campaigns as the campaigns of ``raw`` unless they are there; returns
+    whether they were written.
+
+    ``raw`` gets ``plpa-2025/``, ``pla-2016/``, ``durability-2025/``, ``durability-2026/`` and
+    ``truth.json`` (written last: it marks a complete demo), so a rebuild of ``raw`` sees exactly
+    the simulated campaigns under their own names. A tree that holds anything else is refused
+    (:class:`DemoError`): its runs would be pooled with the simulated ones and the results would
+    no longer be those of ``truth.json``. Nothing already in ``raw`` is modified or deleted. The
+    campaigns are written to a hidden folder first and renamed into place one by one; an
+    interrupted demo is completed by the next one (same seed, same bytes).
     """
     raw = Path(raw)
-    target = raw / "demo"
-    if target.exists():
+    if (raw / "truth.json").is_file():
         return False
+    raw.mkdir(parents=True, exist_ok=True)
+    other = sorted(p.name for p in raw.iterdir() if not p.name.startswith(".") and p.name not in DEMO_CAMPAIGNS)
+    if other:
+        raise DemoError(f"{raw} already holds {', '.join(other[:3])}{', ...' if len(other) > 3 else ''}: the demo "
+                        "writes its campaigns only into an empty raw folder (give another one with --raw)")
     tmp = raw / f".demo-{os.getpid()}.partial"
     if tmp.exists():
         import shutil
 
         shutil.rmtree(tmp)
     simulate_campaign(tmp, seed=seed, profile=profile, jobs=jobs, progress=progress)
-    os.replace(tmp, target)
+    for name in DEMO_CAMPAIGNS:
+        if (tmp / name).exists() and not (raw / name).exists():
+            os.replace(tmp / name, raw / name)
+    os.replace(tmp / "truth.json", raw / "truth.json")
+    import shutil
+
+    shutil.rmtree(tmp, ignore_errors=True)
     return True

@@ -99,7 +99,7 @@ def _std_from_ci(r: dict, log: bool = False) -> float | None:
 def breakaway_ratio(ctx: StageContext) -> dict:
     lo, hi = RATIO_BAND
     args = ("breakaway_0bar_twice", "Breakaway force at 0 bar backpressure is about twice that at >= 1 bar",
-            PLPA, "1", f"ratio of means within {lo:g}-{hi:g}")
+            PLPA, "ratio", f"ratio of means within {lo:g}-{hi:g}")
     r, source = _breakaway_stat(ctx, "backpressure_ratio")
     if r is None or _f(r.get("estimate")) is None:
         return _row(*args, source)
@@ -316,7 +316,7 @@ def _life_groups(hl: pd.DataFrame, hose_type=None) -> dict:
 
 def force_outlives_distance(ctx: StageContext) -> dict:
     args = ("force_set_hoses_outlive_distance_set",
-            "Hoses with force-set rollers outlive hoses with distance-set rollers", PLPA, "1",
+            "Hoses with force-set rollers outlive hoses with distance-set rollers", PLPA, "ratio",
             f"Weibull characteristic life force / distance > 1 and the lives differ (LR test p < {ALPHA:g}), "
             "in every hose type tested both ways")
     from analyses import service_life as sl

@@ -170,7 +170,7 @@ def _step(run_id, path, params):
         ref = r[s.i_start]
         step_m = s.step_mm / 1e3
         curves.append({"t": (t[seg] - s.t_step_s)[::stride], "error_pct": (100 * (ref - x[seg]) / step_m)[::stride],
-                       "label": f"{run_id} @ {s.t_step_s:g} s ({s.step_mm:+g} mm)"})
+                       "label": f"{run_id} @ {s.t_step_s:g} s ({s.step_mm:+g} mm)", "step_mm": s.step_mm})
     return rows, warns, curves
 
 
@@ -296,8 +296,8 @@ def _step_outputs(out, results):
     curves = [c for r in results if r["extra"] for c in r["extra"]][:MAX_STEP_CURVES]
     if curves:
         out.figures["step_errors"] = stepr.plot_step_errors(curves)
-        out.captions["step_errors"] = ("Closed-loop steps: error in % of the step vs time since the step, with the 2 % "
-                                       "band (seed 000, Fig. 15).")
+        out.captions["step_errors"] = ("Closed-loop steps: position vs time since the step; inset: error in % of the "
+                                       "step with the 2 % band (seed 000, Fig. 15).")
 
 
 def _spring_outputs(ctx, out, results):

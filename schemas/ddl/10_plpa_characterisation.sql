@@ -16,7 +16,8 @@ CREATE TABLE leakage_map (
     n_samples       BIGINT,
     leak_std_l_min  DOUBLE,               -- sample scatter of the leak over the plateau
     leak_se_l_min   DOUBLE,               -- standard error of the plateau's mean leak (block means)
-    sensors         VARCHAR               -- pressure and flow sensors used (resolution, noise, source)
+    sensors         VARCHAR,              -- pressure and flow sensors used (resolution, noise, source)
+    campaign        VARCHAR               -- the run's campaign (stages add_run_columns; here for seal_envelope_at)
 );
 
 CREATE TABLE breakaway (
@@ -167,7 +168,7 @@ WITH m AS (
            coalesce(leak_se_l_min, 0.0) AS leak_se,
            CAST(leak_threshold AS DOUBLE) AS threshold_l_min,
            round_even(pressure_bar / 0.1::DOUBLE, 0) * 0.1::DOUBLE AS nominal_bar,
-           coalesce(hose_id, '') <> '' AS hose_check
+           coalesce(hose_id, '') <> '' AS hose_check, campaign
     FROM leakage_map
     WHERE pressure_bar IS NOT NULL AND leak_l_min IS NOT NULL AND NOT isnan(pressure_bar) AND NOT isnan(leak_l_min)
 ),
@@ -211,6 +212,7 @@ SELECT chamber, adjustment, z_rollers_mm, spring_force_n,
        count(DISTINCT nominal_bar) AS n_pressures,
        CASE WHEN bool_and(hose_check) THEN 'hose_checks' ELSE 'characterisation' END AS runs_used,
        count(DISTINCT run_id) AS n_runs,
+       list_sort(list_distinct(list(campaign) FILTER (WHERE campaign IS NOT NULL))) AS campaigns,
        CASE WHEN any_value(undecided)
             THEN 'the leak at ' || printf('%.1f', any_value(undecided_bar)) || ' bar cannot be told from the threshold '
                  || '(within 2 standard errors)'

@@ -196,3 +196,20 @@ def test_too_few_failures_and_a_sound_fit_say_so():
     assert weibull_fit([10.0, 20.0, 30.0], [True, False, False]).note == "too few failures: 1 < 2"
     fit = weibull_fit([5.0, 10.0, 20.0, 30.0], [True, True, True, False])
     assert fit.ok and fit.note is None and b10([5.0, 10.0, 20.0, 30.0], [True, True, True, False])["note"] is None
+
+
+def test_weibull_plot_marks_b10_and_its_bounds():
+    from analyses.service_life import b10, plot_weibull_probability
+
+    rng = np.random.default_rng(5)
+    life = 40 * rng.weibull(1.8, 12)
+    failed = np.ones(12, bool)
+    failed[:2] = False
+    fig = plot_weibull_probability({"g": (life, failed)}, confidence=0.9)
+    ax = fig.axes[0]
+    r = b10(life, failed, 0.9)
+    (marker,) = [ln for ln in ax.get_lines() if ln.get_marker() == "D"]
+    assert marker.get_xdata()[0] == pytest.approx(r["b10"])
+    assert "B10" in marker.get_label() and f"{r['b10_lower']:.3g}" in marker.get_label()
+    segs = [s for c in ax.collections for s in c.get_segments() if len(s) == 2 and s[0][1] == s[1][1]]
+    assert any(s[0][0] == pytest.approx(r["b10_lower"]) and s[1][0] == pytest.approx(r["b10_upper"]) for s in segs)

@@ -90,7 +90,9 @@ def test_figure_is_error_in_percent_of_the_step():
     t = np.linspace(0, 5, 100)
     fig = plot_step_errors([{"t": t, "error_pct": 100 * np.exp(-t), "label": "a"}])
     assert isinstance(fig, Figure)
-    np.testing.assert_allclose(fig.axes[0].get_lines()[0].get_ydata(), 100 * np.exp(-t))
+    # Fig. 15: position (here in % of the step, no step_mm given), the error in the inset
+    np.testing.assert_allclose(fig.axes[0].get_lines()[0].get_ydata(), 100 - 100 * np.exp(-t))
+    np.testing.assert_allclose(fig.axes[0].child_axes[0].get_lines()[0].get_ydata(), 100 * np.exp(-t))
 
 
 def test_steps_found_from_the_reference_sensor_not_a_fixed_length():
@@ -133,3 +135,18 @@ def test_unsettled_step_has_a_note(sim_step):
     assert "did not settle" in m["note"][0]
     full = step_response_metrics(d["t_s"], d["x_m"], d["x_ref_m"])
     assert full["note"].isna().all()
+
+
+def test_repeated_identical_steps_are_told_apart_and_go_their_own_ways():
+    t = np.linspace(0, 5, 100)
+    err = 100 * np.exp(-t)
+    steps = [{"t": t, "error_pct": err, "label": f"run{k} {m:+g}", "step_mm": m} for k in range(3) for m in (20, -20)]
+    fig = plot_step_errors(steps)
+    lines = fig.axes[0].get_lines()[:6]
+    # up and down steps end at +20 and -20 mm
+    assert sorted(round(ln.get_ydata()[-1]) for ln in lines) == [-20, -20, -20, 20, 20, 20]
+    # no two curves share colour, line style and marker
+    looks = {(ln.get_color(), ln.get_linestyle(), ln.get_marker()) for ln in lines}
+    assert len(looks) == 6
+    labels = fig.axes[0].get_legend_handles_labels()[1]
+    assert labels == [s["label"] for s in steps]

@@ -73,13 +73,39 @@ def test_bar_of_a_nested_task_names_the_outer_task():
             assert screen(out.getvalue())[-1].startswith("stages 1/4 > fits")
 
 
-def test_log_lines_every_tenth_and_at_the_end():
+def test_log_lines_one_per_outer_task_and_per_stage_message():
     out = io.StringIO()
     p = LogProgress(out)
     with p.task("ingest", 20) as t:
         for _ in range(20):
             t.advance()
+    with p.task("stages", 2) as stages:
+        for name in ("models", "durability"):
+            with p.task(f"{name} runs", 50) as inner:
+                for _ in range(50):
+                    inner.advance()
+            p.message(f"stage {name} ran: 3 rows")
+            stages.advance()
     lines = out.getvalue().splitlines()
-    assert lines[0] == "ingest: 20 to do"
-    assert lines[1:-1] == [f"ingest: {k}/20 ({5 * k} %)" for k in range(2, 20, 2)]
-    assert lines[-1].startswith("ingest: 20/20 done in ")
+    assert len(lines) == 4, lines
+    assert lines[0].startswith("ingest: 20/20 done in ")
+    assert lines[1:3] == ["stage models ran: 3 rows", "stage durability ran: 3 rows"]
+    assert lines[3].startswith("stages: 2/2 done in ")
+
+
+def test_log_heartbeat_on_a_long_task(monkeypatch):
+    import pipeline.progress as pg
+
+    clock = [1000.0]
+    monkeypatch.setattr(pg.time, "monotonic", lambda: clock[0])
+    out = io.StringIO()
+    p = LogProgress(out)
+    with p.task("stages", 1):
+        with p.task("durability runs", 10) as t:
+            for _ in range(10):
+                clock[0] += 25.0  # 250 s in all: a heartbeat about every minute, none at the end
+                t.advance()
+    lines = out.getvalue().splitlines()
+    assert lines[:-1] == ["durability runs: 3/10 (30 %)", "durability runs: 6/10 (60 %)",
+                          "durability runs: 9/10 (90 %)"]
+    assert lines[-1] == "stages: 0/1 done in 250.0 s"

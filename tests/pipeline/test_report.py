@@ -64,39 +64,126 @@ def built(raw, warehouse, monkeypatch):
 def test_report_order_escaping_and_self_containment(built, warehouse):
     html = (warehouse / "report" / "index.html").read_text()
     assert built.report == warehouse / "report" / "index.html"
-    # the overturned finding comes first, then findings, rebuild, hoses, analyses
-    order = [html.index(k) for k in ('id="overturned"', 'id="findings"', 'id="rebuild"', 'id="hoses"', 'id="analyses"')]
+    # contents first, the overturned finding, findings, the papers' sections, other figures, rebuild, runs
+    order = [html.index(k) for k in ('id="toc"', 'id="overturned"', 'id="findings"', 'id="hoses"', 'id="analyses"',
+                                     'id="rebuild"', 'id="runs"')]
     assert order == sorted(order)
     assert "<b>overturned</b>: Breakaway at 0 bar" in html
     # quarantine reason, key table, caption and the hose logbook are all there, escaped
     assert "c/bad.csv" in html and "not accepted for `x`" in html
     assert "<script" not in html.lower() and "&lt;script&gt;alert(&quot;pwned&quot;)&lt;/script&gt;" in html
-    assert "zz_curve (key table of curve)" in html
-    # self-contained: figures inline, nothing fetched
+    assert re.search(r"<b>zz_curve</b> \(2 rows\) \(key table of curve\)", html)
+    # self-contained: figures and CSV downloads inline; links only to anchors and to the run pages beside it
     assert re.search(r'<img alt="curve" src="data:image/png;base64,[A-Za-z0-9+/=]{1000,}">', html)
-    assert not re.search(r'(src|href)="(?!data:)', html)
+    assert re.search(r'<a download="zz_curve.csv" href="data:text/csv;charset=utf-8;base64,', html)
+    targets = re.findall(r'(?:src|href)="([^"]*)"', html)
+    assert targets and all(t.startswith(("#", "data:", "runs/")) for t in targets), \
+        [t for t in targets if not t.startswith(("#", "data:", "runs/"))]
+    # every contents link has its anchor, every run link its page
+    ids = set(re.findall(r'id="([^"]+)"', html))
+    toc = html[html.index('id="toc"'):html.index("</nav>")]
+    assert {a for a in re.findall(r'href="#([^"]+)"', toc)} <= ids
+    for rel in {t for t in targets if t.startswith("runs/")}:
+        assert (warehouse / "report" / rel).is_file(), rel
+
+
+def test_run_pages_escape_raw_text_and_show_channels_metadata_warnings_and_results(built, warehouse):
+    from pipeline.run_pages import page_name
+    from tests.conftest import query
+
+    html = (warehouse / "report" / "index.html").read_text()
+    run_id = f"{EVIL}0"
+    href = "runs/" + page_name(run_id)
+    assert f'href="{href}"' in html
+    page = (warehouse / "report" / href).read_text()
+    assert "<script" not in page.lower() and "&lt;script&gt;" in page
+    assert '<a href="../index.html">' in page and "<svg" in page and "x [mm]" in page
+    assert "params.rig" in page and "plpa-1" in page
+    assert "zz_curve (1 rows)" in page  # the result rows derived from this run
+    pages = sorted(p.name for p in (warehouse / "report" / "runs").iterdir())
+    assert pages == sorted(page_name(r) for (r,) in query(warehouse, "SELECT run_id FROM runs"))
+
+
+def test_page_names_are_safe_and_distinct():
+    from pipeline.run_pages import page_name
+
+    ids = ["a/b", "a_b", "A/B", "../../etc/passwd", "x" * 500, "ü/ö", ""]
+    names = [page_name(i) for i in ids]
+    assert len(set(names)) == len(ids)
+    for n in names:
+        assert re.fullmatch(r"[A-Za-z0-9._-]+\.html", n) and not n.startswith(".") and len(n) < 100
+
+
+def test_numbers_have_sensible_significant_figures():
+    from pipeline.report import fmt, split_unit
+
+    assert fmt(19.999999999999982) == "20"
+    assert fmt(0.0001541) == "1.541e-04" and fmt(0.001541) == "0.001541" and fmt(3509.0) == "3509"
+    assert fmt(1.976126054271789) == "1.976" and fmt(174544) == "174544" and fmt(float("nan")) == "—"
+    assert split_unit("leak_l_min") == ("leak", "l/min") and split_unit("viscous_n_s_m") == ("viscous", "N s/m")
+    assert split_unit("p0_bar_abs") == ("p0", "bar abs") and split_unit("hose_id") == ("hose id", "")
+
+
+def test_downsampling_keeps_every_excursion_of_a_long_run(tmp_path):
+    import numpy as np
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from pipeline import run_pages as rp
+
+    n = 250_000
+    t = np.arange(n) / 1000.0
+    x = np.sin(t)
+    x[123_457] = 5.0   # one-sample spike
+    x[200_001] = -7.0
+    f = tmp_path / "s.parquet"
+    pq.write_table(pa.table({"t_s": t, "x_m": x}), f, row_group_size=40_000)
+    old = rp.BATCH_ROWS
+    rp.BATCH_ROWS = 30_000  # batches that do not line up with the pixel columns
+    try:
+        b = rp.downsample_minmax(f, ["x_m", "missing"], n, width=500)
+    finally:
+        rp.BATCH_ROWS = old
+    lo, hi = b["x_m"]
+    assert lo.size == 500 and "missing" not in b
+    assert np.nanmax(hi) == 5.0 and np.nanmin(lo) == -7.0
+    assert hi[123_457 * 500 // n] == 5.0 and lo[200_001 * 500 // n] == -7.0
+    assert b["t_s"] == (0.0, t[-1])
+    svg = rp.channels_svg(b, "t")
+    assert svg.startswith("<svg") and "x [mm]" in svg and "5000" in svg and "-7000" in svg
 
 
 def chromium():
     return shutil.which("chromium") or shutil.which("chromium-browser") or shutil.which("google-chrome")
 
 
-@pytest.mark.skipif(chromium() is None, reason="Debian's chromium is not installed (.ci/run installs it)")
-def test_report_in_headless_chromium(built, warehouse, tmp_path):
-    shot = tmp_path / "report.png"
+def run_chromium(url: str, *extra: str, size=(1280, 2400)) -> subprocess.CompletedProcess:
+    """Headless chromium on ``url`` with a throw-away profile and its console on stderr."""
     profile = tempfile.mkdtemp(prefix="chromium-")
     try:
-        res = subprocess.run(
+        return subprocess.run(
             [chromium(), "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-             "--disable-background-networking", "--disable-component-update", "--disable-sync",
+             "--disable-background-networking", "--disable-component-update", "--disable-sync", "--hide-scrollbars",
              "--disable-dev-shm-usage", f"--user-data-dir={profile}", "--enable-logging=stderr", "--v=0",
-             f"--screenshot={shot}", "--window-size=1280,2400", (warehouse / "report" / "index.html").resolve().as_uri()],
-            capture_output=True, text=True, timeout=120)
+             "--virtual-time-budget=5000", *extra, f"--window-size={size[0]},{size[1]}", url],
+            capture_output=True, text=True, timeout=180)
     finally:
         shutil.rmtree(profile, ignore_errors=True)
+
+
+def console_lines(res) -> list[str]:
+    return [line for line in res.stderr.splitlines() if "CONSOLE" in line]
+
+
+needs_chromium = pytest.mark.skipif(chromium() is None, reason="Debian's chromium is not installed (.ci/run installs it)")
+
+
+@needs_chromium
+def test_report_in_headless_chromium(built, warehouse, tmp_path):
+    shot = tmp_path / "report.png"
+    res = run_chromium((warehouse / "report" / "index.html").resolve().as_uri(), f"--screenshot={shot}")
     assert shot.is_file(), res.stderr[-2000:]
-    console = [line for line in res.stderr.splitlines() if "CONSOLE" in line]
-    assert console == []
+    assert console_lines(res) == []
     if os.environ.get("PNEUBENCH_KEEP_SCREENSHOT"):
         shutil.copy(shot, os.environ["PNEUBENCH_KEEP_SCREENSHOT"])
     img = plt.imread(shot)
@@ -106,6 +193,76 @@ def test_report_in_headless_chromium(built, warehouse, tmp_path):
     assert rgb.std() > 0.05
     red = (rgb[..., 0] > 0.7) & (rgb[..., 1] < 0.35) & (rgb[..., 2] < 0.35)
     assert red.sum() > 500
+
+
+def _cells(dom: str, caption: str) -> list[list[str]]:
+    """Text of the cells of the table with ``caption`` in a DOM dump."""
+    i = dom.index(caption)
+    table = dom[i:dom.index("</table>", i)]
+    rows = re.findall(r"<tr>(.*?)</tr>", table, flags=re.S)
+    return [[re.sub(r"<[^>]+>", "", c).strip() for c in re.findall(r"<t[dh][^>]*>(.*?)</t[dh]>", r, flags=re.S)]
+            for r in rows]
+
+
+@needs_chromium
+def test_demo_report_in_chromium_contents_paper_tables_and_a_run_page(demo, tmp_path):
+    report = demo["warehouse"] / "report"
+    index = (report / "index.html").resolve()
+    res = run_chromium(index.as_uri(), "--dump-dom")
+    dom, console = res.stdout, console_lines(res)
+    assert "<h1>pneubench morning report</h1>" in dom, res.stderr[-2000:]
+    # every contents link leads to an element of the rendered page
+    toc = dom[dom.index('id="toc"'):dom.index("</nav>")]
+    anchors = re.findall(r'href="#([^"]+)"', toc)
+    assert {"findings", "plpa", "leakage", "breakaway", "identification", "step", "pla", "spring", "pressure",
+            "durability", "service-life", "rebuild", "runs"} <= set(anchors)
+    for a in anchors:
+        assert f'id="{a}"' in dom, a
+    # ... and followed, each shows a page that is not blank (an iframe per link, one screenshot)
+    band = 420
+    frames = "".join(f'<iframe src="{index.as_uri()}#{a}" style="display:block;border:0;width:1200px;height:{band}px">'
+                     "</iframe>" for a in anchors)
+    wrapper = tmp_path / "follow.html"
+    wrapper.write_text(f'<!DOCTYPE html><html><body style="margin:0">{frames}</body></html>')
+    shot = tmp_path / "follow.png"
+    res = run_chromium(wrapper.as_uri(), f"--screenshot={shot}", size=(1200, band * len(anchors)))
+    console += console_lines(res)
+    img = plt.imread(shot)[..., :3]
+    for k, a in enumerate(anchors):
+        assert img[k * band:(k + 1) * band].std() > 0.03, f"#{a} shows a blank page"
+    # the papers' tables: paper value beside the measured one, with its uncertainty and the difference
+    t2 = _cells(dom, "PLPA Table 2")
+    assert t2[0][:5] == ["quantity", "unit", "paper", "measured ± std. uncertainty", "differencemeasured − paper"]
+    wn = next(r for r in t2 if r[0].startswith("natural frequency"))
+    assert wn[2] == "16.7" and re.fullmatch(r"16\.\d+ ± [0-9.e-]+", wn[3]) and wn[4].endswith("%)")
+    t1 = _cells(dom, "PLA Table 1")
+    assert ["front: polytropic index n", "", "1.123"] == t1[1][:3] and t1[1][3].startswith("1.12")
+    assert any(r[0] == "rear: δ (structural damping)" and r[2] == "2963" for r in t1)
+    t2p = _cells(dom, "PLA Table 2")
+    assert any(r[0] == "front, discharge: ξ" and r[2] == "0.69" and r[3].startswith("0.69") for r in t2p)
+    t3 = _cells(dom, "PLA Table 3")
+    assert any(r[0] == "front: largest NRMSE" and r[2] == "2.39" for r in t3)
+    f12 = _cells(dom, "PLPA Fig. 12")
+    assert any(r[0] == "breakaway force at 0 bar backpressure" and r[2] == "10" and r[3].startswith(("9.", "10."))
+               for r in f12)
+    assert "PLPA Fig. 15" in dom
+    # one run page: opened from its link, channels drawn, metadata and results there
+    from pipeline.run_pages import page_name
+
+    href = "runs/" + page_name("plpa-2025/leak-A-z4.0")
+    assert f'href="{href}"' in dom
+    page = (report / href).resolve()
+    res = run_chromium(page.as_uri(), "--dump-dom")
+    console += console_lines(res)
+    assert "<h1>Run plpa-2025/leak-A-z4.0</h1>" in res.stdout and "params.z_rollers_mm" in res.stdout
+    assert "leakage_map (7 rows)" in res.stdout
+    shot = tmp_path / "run.png"
+    res = run_chromium(page.as_uri(), f"--screenshot={shot}", size=(1100, 900))
+    console += console_lines(res)
+    rgb = plt.imread(shot)[..., :3]
+    blue = (rgb[..., 2] > 0.6) & (rgb[..., 0] < 0.45) & (rgb[..., 1] < 0.65) & (rgb[..., 1] > 0.3)
+    assert blue.sum() > 300  # the first channel's band
+    assert console == []
 
 
 def test_long_input_lists_are_folded_and_quarantine_comes_first(raw, warehouse):
@@ -120,7 +277,21 @@ def test_long_input_lists_are_folded_and_quarantine_comes_first(raw, warehouse):
     assert page.index("Quarantined inputs (1)") < page.index("New, changed and deleted inputs")
     (raw.root / "c" / "s00.csv").unlink()
     rebuild(raw.root, warehouse, jobs=1)
-    assert "<details open><summary><b>New, changed and deleted inputs (1)</b>: 1 deleted" in render_report(warehouse)
+    page = render_report(warehouse)
+    assert "<details open><summary><b>New, changed and deleted inputs (1)</b>: 1 deleted" in page
+    # a deleted run has no page, so its id is not a link; a run that is there is
+    from pipeline.run_pages import page_name
+    assert "<td>c/s00</td>" in page and page_name("c/s00") not in page
+    assert f'href="runs/{page_name("c/s01")}"' in page
+
+
+def test_run_ids_in_finding_details_link_to_their_pages():
+    from pipeline.report import _linkify
+    from pipeline.run_pages import page_name
+
+    html = _linkify("worst 0.1 l/min (429 N, run c/a<b>); also run gone/x, run c/z.", {"c/a<b>", "c/z"})
+    assert f'run <a href="runs/{page_name("c/a<b>")}">c/a&lt;b&gt;</a>)' in html
+    assert "run gone/x," in html and f'<a href="runs/{page_name("c/z")}">c/z</a>.' in html
 
 
 def test_an_overturned_finding_stays_first_for_24_hours(built, raw, warehouse, monkeypatch):

@@ -34,7 +34,7 @@ def test_simulate_rejects_unknown_profile(tmp_path):
 def test_demo_simulates_only_when_absent(tmp_path):
     raw = tmp_path / "raw"
     assert simulate_demo(raw, jobs=1, profile="mini") is True
-    marker = raw / "demo" / "truth.json"
+    marker = raw / "truth.json"
     before = marker.stat().st_mtime_ns
     assert simulate_demo(raw, jobs=1, profile="mini") is False
     assert marker.stat().st_mtime_ns == before

@@ -230,6 +230,8 @@ def test_seal_envelope_macro_hand_checked_at_another_threshold():
     assert pd.isna(b["sealed_up_to_bar"]) and (b["first_leak_bar"], b["runs_used"]) == (0.0, "hose_checks")
     # and the same as the analysis function at that threshold
     mine = seal_envelope(rows, threshold_l_min=0.1).sort_values(["chamber", "adjustment"], ignore_index=True)
+    assert got["campaigns"].isna().all()  # these rows name no campaign (the rebuild adds it)
+    got = got.drop(columns=["campaigns"])
     pd.testing.assert_frame_equal(got, mine[got.columns], check_dtype=False)
 
 
