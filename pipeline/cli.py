@@ -71,12 +71,15 @@ def query(sql, warehouse, fmt):
     """Run read-only SQL on the warehouse, e.g. pneubench query "SELECT * FROM runs"."""
     import duckdb
 
-    from pipeline.query import format_rows, run_query
+    from pipeline.query import QueryError, format_rows, run_query
 
     try:
         columns, rows = run_query(warehouse, sql)
     except FileNotFoundError as exc:
         raise click.UsageError(str(exc)) from None
+    except QueryError as exc:
+        click.echo(f"pneubench query: {exc}", err=True)
+        sys.exit(2)
     except duckdb.Error as exc:
         click.echo(f"pneubench query: {str(exc).splitlines()[0]}", err=True)
         sys.exit(3)

@@ -9,14 +9,93 @@ from datetime import date, datetime
 from decimal import Decimal
 from pathlib import Path
 
+import duckdb
+
 from pipeline.warehouse import connect_readonly
 
 
+class QueryError(ValueError):
+    """SQL that ``pneubench query`` refuses (one line: what and why)."""
+
+
+_READ_ONLY = ("pneubench query is read-only: one SELECT, FROM, WITH, DESCRIBE, SHOW, SUMMARIZE or "
+              "EXPLAIN statement over the warehouse")
+
+#: Statement types a query may run: reading only.
+_READ_TYPES = {duckdb.StatementType.SELECT}
+
+
+def _statement_types(con: duckdb.DuckDBPyConnection, sql: str) -> list[str]:
+    """Type name of each statement of ``sql``, by DuckDB's own parser."""
+    out = []
+    for st in con.extract_statements(sql):
+        try:
+            out.append(st.type.name)
+        except ValueError:  # a statement type the Python enum does not know yet
+            out.append("UNKNOWN")
+    return out
+
+
+def _explained(sql: str) -> str:
+    """The statement an ``EXPLAIN [ANALYZE] [(options)]`` statement explains."""
+    tokens = duckdb.tokenize(sql)
+    depth = 0
+    for i, (offset, kind) in enumerate(tokens):
+        end = tokens[i + 1][0] if i + 1 < len(tokens) else len(sql)
+        text = sql[offset:end].strip()
+        if kind == duckdb.token_type.comment:
+            continue
+        if kind == duckdb.token_type.operator and (depth or text.startswith("(")):
+            depth += text.count("(") - text.count(")")
+            continue
+        if depth or (kind == duckdb.token_type.keyword and text.upper() in ("EXPLAIN", "ANALYZE", "ANALYSE")):
+            continue
+        return sql[offset:]
+    return ""
+
+
+def check_sql(con: duckdb.DuckDBPyConnection, sql: str) -> str:
+    """Refuse anything but one read-only statement; returns the SQL to run.
+
+    The statement is classified by DuckDB's parser: only ``SELECT`` (which includes
+    ``FROM ...``, ``WITH ...``, ``DESCRIBE``, ``SHOW``, ``SUMMARIZE``, ``VALUES``) and ``EXPLAIN``
+    of such a statement pass. Writes, ``COPY``, ``EXPORT``, ``ATTACH``/``DETACH``,
+    ``INSTALL``/``LOAD``, ``SET``/``RESET``/``PRAGMA``/``CALL``, transactions and several
+    statements at once raise :class:`QueryError`. The connection (:func:`connect_readonly`)
+    contains what a ``SELECT`` may read.
+    """
+    if not sql or not sql.strip():
+        raise QueryError("no SQL given")
+    types = _statement_types(con, sql)
+    if not types:
+        raise QueryError("no SQL statement given (only comments or ';')")
+    if len(types) > 1:
+        raise QueryError(f"one statement per call, got {len(types)} ({', '.join(types)})")
+    kind = types[0]
+    if kind == "EXPLAIN":
+        inner = _explained(sql)
+        inner_types = _statement_types(con, inner) if inner.strip() else []
+        if inner_types != ["SELECT"]:
+            raise QueryError(f"EXPLAIN of {'/'.join(inner_types) or 'nothing'} refused: {_READ_ONLY}")
+        return sql
+    if kind not in {t.name for t in _READ_TYPES}:
+        hint = " (write a result out with --format csv > FILE)" if kind in ("COPY", "EXPORT") else ""
+        if kind == "MULTI":
+            hint = " (a PIVOT needs its values listed: PIVOT t ON col IN ('a', 'b'))"
+        raise QueryError(f"{kind} statement refused: {_READ_ONLY}{hint}")
+    return sql
+
+
 def run_query(warehouse: str | Path, sql: str) -> tuple[list[str], list[tuple]]:
-    """Run ``sql`` on a read-only connection. Returns (column names, rows)."""
+    """Run one read-only statement on the warehouse. Returns (column names, rows).
+
+    Raises :class:`QueryError` for SQL the door refuses, ``duckdb.Error`` for SQL DuckDB
+    refuses (including every attempt to reach a file outside the warehouse's samples),
+    ``FileNotFoundError`` when there is no warehouse.
+    """
     con = connect_readonly(Path(warehouse))
     try:
-        cur = con.execute(sql)
+        cur = con.execute(check_sql(con, sql))
         if cur.description is None:
             return [], []
         return [d[0] for d in cur.description], cur.fetchall()

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+import tempfile
 from pathlib import Path
 
 import duckdb
@@ -20,13 +21,76 @@ from schemas.kinds import KINDS
 DB_NAME = "pneubench.duckdb"
 
 
-def connect_readonly(warehouse: Path) -> duckdb.DuckDBPyConnection:
-    """Open the warehouse read-only (raises FileNotFoundError when there is none yet)."""
-    db = Path(warehouse) / DB_NAME
+#: DuckDB variable holding the warehouse folder; the ``samples_<kind>`` views read their
+#: Parquet files relative to it, so a moved or copied warehouse reads its own files. Every
+#: pneubench reader sets it (:func:`connect_readonly`); another DuckDB client runs
+#: ``SET VARIABLE pneubench_warehouse = '/path/to/warehouse';`` first.
+ROOT_VARIABLE = "pneubench_warehouse"
+
+
+def _glob_escape_sql(expr: str) -> str:
+    """SQL expression: ``expr`` with DuckDB's glob characters made literal (``[`` ``*`` ``?``)."""
+    return f"replace(replace(replace({expr}, '[', '[[]'), '*', '[*]'), '?', '[?]')"
+
+
+#: SQL expression of the warehouse folder as the views see it (glob-escaped). Unset, it names
+#: the missing setting, so the error a plain DuckDB client gets says what to do.
+ROOT_SQL = _glob_escape_sql(
+    f"coalesce(getvariable('{ROOT_VARIABLE}'), "
+    f"'(run SET VARIABLE {ROOT_VARIABLE} = <warehouse folder>; see README)')")
+
+
+def _glob_escape(text: str) -> str:
+    return "".join(f"[{c}]" if c in "[*?" else c for c in text)
+
+
+def connect_readonly(warehouse: Path, database: Path | None = None) -> duckdb.DuckDBPyConnection:
+    """The one door to the warehouse: a read-only, contained DuckDB connection.
+
+    Every reader (``pneubench query``, the report, the rebuild's look at the previous state)
+    opens the warehouse here. The connection sees the warehouse's tables and views and can
+    read the files under ``<warehouse>/samples/`` and nothing else on the machine: external
+    access is off except that folder, extensions are neither installed nor loaded, and the
+    configuration is locked, so no SQL can undo any of it. Writes fail (the database is
+    attached read-only; nothing may be written under samples either, see
+    :func:`pipeline.query.check_sql`).
+
+    Parameters
+    ----------
+    warehouse : path
+        The warehouse folder.
+    database : path, optional
+        DuckDB file to open instead of ``<warehouse>/pneubench.duckdb`` (the rebuild renders the
+        report from the new database before swapping it in).
+
+    Raises
+    ------
+    FileNotFoundError
+        When there is no database yet.
+    """
+    warehouse = Path(warehouse).resolve()
+    db = Path(database).resolve() if database is not None else warehouse / DB_NAME
     if not db.is_file():
         raise FileNotFoundError(f"no warehouse at {db} (run `pneubench rebuild` first)")
-    con = duckdb.connect(str(db), read_only=True)
-    con.execute("SET TimeZone = 'UTC'")
+    # An in-memory instance of its own (never Python's cached instance of the file, whose
+    # settings other connections share) with the warehouse attached read-only.
+    con = duckdb.connect(":memory:", config={
+        "autoinstall_known_extensions": False, "autoload_known_extensions": False,
+        "allow_community_extensions": False, "allow_unsigned_extensions": False})
+    try:
+        con.execute("ATTACH ? AS pneubench (READ_ONLY)", [str(db)])
+        con.execute("USE pneubench")
+        con.execute("SET TimeZone = 'UTC'")
+        con.execute(f"SET VARIABLE {ROOT_VARIABLE} = ?", [warehouse.as_posix()])
+        con.execute("SET temp_directory = ?", [(Path(tempfile.gettempdir()) / "pneubench-duckdb").as_posix()])
+        samples = (warehouse / "samples").as_posix() + "/"
+        # the views name files by glob-escaped paths ([*] for *), which match only the real ones
+        con.execute("SET allowed_directories = ?", [sorted({samples, _glob_escape(samples)})])
+        con.execute("SET enable_external_access = false")
+        con.execute("SET lock_configuration = true")
+    except Exception:
+        con.close()
+        raise
     return con
 
 
@@ -59,15 +123,31 @@ def _sql_str(text: str) -> str:
 def create_samples_views(con: duckdb.DuckDBPyConnection, warehouse: Path, runs: pd.DataFrame) -> None:
     """One ``samples_<kind>`` view per kind over that kind's samples Parquet files.
 
-    Files are listed explicitly (absolute paths) so that a database only ever sees the files
-    of its own generation. A kind without runs gets an empty view with the kind's channels.
+    Files are listed explicitly so that a database only ever sees the files of its own
+    generation, by their path relative to the warehouse folder, which the view reads from the
+    variable ``pneubench_warehouse`` (:data:`ROOT_VARIABLE`) at query time: the warehouse may be
+    moved or copied. ``kind`` and ``campaign`` are constants taken from ``runs``, never parsed
+    from the path (no Hive partitioning: the folders above the warehouse, or a campaign named
+    like a partition, cannot change them). A kind without runs gets an empty view with the
+    kind's channels.
     """
-    warehouse = Path(warehouse).resolve()
+    con.execute(f"SET VARIABLE {ROOT_VARIABLE} = ?", [Path(warehouse).resolve().as_posix()])
     for kind, spec in KINDS.items():
-        files = [] if runs.empty else sorted(runs.loc[runs["kind"] == kind, "samples_path"])
-        if files:
-            lst = ", ".join(_sql_str((warehouse / f).as_posix()) for f in files)
-            sql = f"SELECT * FROM read_parquet([{lst}], union_by_name = true, hive_partitioning = true)"
+        by_campaign: dict[str | None, list[str]] = {}
+        if not runs.empty:
+            for campaign, path in runs.loc[runs["kind"] == kind, ["campaign", "samples_path"]].itertuples(index=False):
+                if isinstance(path, str) and path:
+                    by_campaign.setdefault(campaign if isinstance(campaign, str) else None, []).append(path)
+        parts = []
+        for campaign in sorted(by_campaign, key=lambda c: (c is None, c or "")):
+            lst = ", ".join(_sql_str(_glob_escape(Path(f).as_posix())) for f in sorted(by_campaign[campaign]))
+            literal = "CAST(NULL AS VARCHAR)" if campaign is None else _sql_str(campaign)
+            parts.append(
+                f"SELECT *, {_sql_str(kind)} AS kind, {literal} AS campaign FROM read_parquet("
+                f"list_transform([{lst}], lambda f: {ROOT_SQL} || '/' || f), "
+                "union_by_name = true, hive_partitioning = false)")
+        if parts:
+            sql = " UNION ALL BY NAME ".join(parts)
         else:
             cols = ", ".join(f"CAST(NULL AS DOUBLE) AS {CHANNELS[c].column}" for c in spec.channels)
             sql = (f"SELECT CAST(NULL AS VARCHAR) AS run_id, {cols}, CAST(NULL AS VARCHAR) AS kind, "
