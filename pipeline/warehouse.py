@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import tempfile
 from pathlib import Path
 
@@ -178,6 +179,8 @@ def build_database(path: Path, warehouse: Path, tables: dict[str, pd.DataFrame],
         create_samples_views(con, warehouse, runs)
         for sql in extra_sql or []:
             con.execute(sql)
+        for sql in comment_statements(con):
+            con.execute(sql)
         con.execute("CHECKPOINT")
     finally:
         con.close()
@@ -208,3 +211,93 @@ def swap_in(tmp: Path, final: Path) -> None:
             os.close(fd)
     except OSError:
         pass
+
+
+#: What one row of each contract table is (warehouse.md), for tables whose DDL has no comment
+#: block of its own.
+CONTRACT_ROWS = {
+    "runs": "ingested run", "quarantine": "input that could not be used",
+    "leakage_map": "pressure plateau of a leakage run", "breakaway": "breakaway event",
+    "breakaway_summary": "(direction, backpressure_bar, force_rate_n_s)",
+    "viscous_points": "constant-velocity pass", "viscous_fits": "(backpressure_bar, direction P/N)",
+    "friction_dynamic": "viscous run", "identification": "identification run", "step_response": "step in a step run",
+    "spring_fits": "PLA chamber", "spring_tests": "spring run",
+    "pressure_dynamics": "(chamber, direction charge/discharge)", "durability_runs": "durability run",
+    "hose_life": "hose", "service_life": "(hose_type, adjustment)",
+}
+
+#: Tables that describe the rebuild itself, not the lab's data (``pneubench tables`` marks them).
+INTERNAL_TABLES = ("rebuild_log", "rebuild_inputs", "rebuild_changes", "ingest_state", "stage_cache", "figures")
+
+_CREATE = re.compile(r"^\s*CREATE\s+(?:OR\s+REPLACE\s+)?(TABLE|VIEW)\s+(?:IF\s+NOT\s+EXISTS\s+)?\"?(\w+)\"?",
+                     re.IGNORECASE)
+_COLUMN = re.compile(r"^\s+(\"[^\"]+\"|\w+)\s+[A-Z]\w*[^-]*?(?:--\s*(.*))?$")
+
+
+def ddl_comments() -> dict[str, dict]:
+    """Descriptions written as ``--`` comments in ``schemas/ddl``: ``{table: {"comment", "columns"}}``.
+
+    A table's description is the comment block right above its ``CREATE``; a column's is the
+    comment at the end of its line (continued on comment-only lines below it).
+    """
+    out: dict[str, dict] = {}
+    for _name, sql in ddl_statements():
+        block: list[str] = []
+        table = column = None
+        for line in sql.splitlines():
+            stripped = line.strip()
+            m = _CREATE.match(line)
+            if m:
+                table, column = m.group(2), None
+                out[table] = {"comment": " ".join(block) or None, "columns": {}}
+                block = []
+                if m.group(1).upper() == "VIEW" or "(" not in line:
+                    table = None if m.group(1).upper() == "VIEW" else table
+                continue
+            if table is None:
+                block = block + [stripped[2:].strip()] if stripped.startswith("--") else []
+                continue
+            if stripped.startswith(")"):
+                table = column = None
+                block = []
+                continue
+            if stripped.startswith("--"):
+                if column:
+                    cols = out[table]["columns"]
+                    cols[column] = ((cols.get(column) or "") + " " + stripped[2:].strip()).strip()
+                continue
+            m = _COLUMN.match(line)
+            if m and not stripped.upper().startswith(("PRIMARY", "UNIQUE", "CHECK", "FOREIGN", "CONSTRAINT")):
+                column = m.group(1).strip('"')
+                if m.group(2):
+                    out[table]["columns"][column] = m.group(2).strip()
+    return out
+
+
+def comment_statements(con: duckdb.DuckDBPyConnection) -> list[str]:
+    """``COMMENT ON`` statements for every table, view and column the DDL or the channels describe."""
+    present = {r[0]: r[1] for r in con.execute(
+        "SELECT table_name, 'TABLE' FROM duckdb_tables() WHERE database_name = current_database() "
+        "UNION ALL SELECT view_name, 'VIEW' FROM duckdb_views() WHERE NOT internal "
+        "AND database_name = current_database()").fetchall()}
+    columns = {(r[0], r[1]) for r in con.execute(
+        "SELECT table_name, column_name FROM duckdb_columns() WHERE database_name = current_database()").fetchall()}
+    out = []
+    described = ddl_comments()
+    for table, kind in sorted(present.items()):
+        info = described.get(table, {"comment": None, "columns": {}})
+        comment = info["comment"] or (f"One row per {CONTRACT_ROWS[table]}." if table in CONTRACT_ROWS else None)
+        colcomments = dict(info["columns"])
+        if table.startswith("samples_") and table[8:] in KINDS:
+            comment = f"One row per sample of a {table[8:]} run, channels in SI units (column suffix = unit)."
+            colcomments.update({ch.column: ch.description for ch in CHANNELS.values()})
+            colcomments.update(run_id="Run identifier (runs.run_id).", kind="Test kind of the run.",
+                               campaign="Campaign of the run (first folder under raw/).")
+        if table in INTERNAL_TABLES:
+            comment = "(internal: the rebuild's own bookkeeping) " + (comment or "")
+        if comment:
+            out.append(f"COMMENT ON {kind} \"{table}\" IS {_sql_str(comment.strip())}")
+        for col, text in sorted(colcomments.items()):
+            if text and (table, col) in columns:
+                out.append(f"COMMENT ON COLUMN \"{table}\".\"{col}\" IS {_sql_str(text)}")
+    return out
