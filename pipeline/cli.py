@@ -106,11 +106,11 @@ def query(sql, sql_file, warehouse, fmt, max_rows, max_width):
     if sql is not None and sql_file is not None:
         raise click.UsageError("give the SQL as an argument or with -f, not both")
     if sql == "-":
-        sql, sql_file = None, click.get_text_stream("stdin")
+        sql, sql_file = None, sys.stdin
     try:
         text = read_sql(sql, sql_file)
         with open_query(warehouse, text) as result:
-            out = click.get_text_stream("stdout")
+            out = sys.stdout
             width = terminal_width() if fmt == "table" and max_width is None else None
             write_result(result, out, fmt, max_rows=max_rows, width=width, max_width=max_width)
             out.flush()

@@ -14,11 +14,14 @@ from dataclasses import dataclass
 from datetime import date, datetime
 from decimal import Decimal
 from pathlib import Path
-from typing import IO, Iterator
+from typing import IO, TYPE_CHECKING, Iterator
 
 import duckdb
 
 from pipeline.warehouse import INTERNAL_TABLES, connect_readonly
+
+if TYPE_CHECKING:
+    import pyarrow as pa
 
 
 class QueryError(ValueError):
@@ -138,17 +141,21 @@ FORMATS = ("table", "csv", "json", "markdown")
 
 @dataclass
 class Result:
-    """An open result: column names, DuckDB type names, and an iterator of row batches."""
+    """An open result: column names, DuckDB type names, and an iterator of Arrow record batches."""
 
     columns: list[str]
     types: list[str]
-    batches: Iterator[list[tuple]]
+    batches: Iterator["pa.RecordBatch"]
 
 
-def _row_batches(reader) -> Iterator[list[tuple]]:
-    for batch in reader:
-        cols = [c.to_pylist() for c in batch.columns]
-        yield list(zip(*cols)) if cols else []
+def _rows(batch) -> list[tuple]:
+    cols = [c.to_pylist() for c in batch.columns]
+    return list(zip(*cols)) if cols else []
+
+
+def _row_batches(result: Result) -> Iterator[list[tuple]]:
+    for batch in result.batches:
+        yield batch if isinstance(batch, list) else _rows(batch)
 
 
 @contextmanager
@@ -164,8 +171,7 @@ def open_query(warehouse: str | Path, sql: str, batch_rows: int = BATCH_ROWS) ->
         if rel is None:
             yield Result([], [], iter(()))
         else:
-            yield Result(list(rel.columns), [str(t) for t in rel.types],
-                         _row_batches(rel.to_arrow_reader(batch_rows)))
+            yield Result(list(rel.columns), [str(t) for t in rel.types], iter(rel.to_arrow_reader(batch_rows)))
     finally:
         con.close()
 
@@ -185,25 +191,52 @@ def _csv_cell(v):
         return json.dumps(_plain(v), ensure_ascii=False)
     if isinstance(v, float):
         return repr(v) if math.isfinite(v) else ""
+    if isinstance(v, bool):
+        return "true" if v else "false"
     return _plain(v)
 
 
+def _csv_column(col):
+    """An Arrow column ready for Arrow's CSV writer (its unsupported types as text)."""
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    t = col.type
+    if pa.types.is_floating(t):
+        return pc.if_else(pc.is_finite(col), col, pa.scalar(None, t))
+    if pa.types.is_dictionary(t):
+        return _csv_column(col.dictionary_decode())
+    if (pa.types.is_nested(t) or pa.types.is_binary(t) or pa.types.is_large_binary(t) or pa.types.is_time(t)
+            or pa.types.is_duration(t) or pa.types.is_interval(t) or pa.types.is_fixed_size_binary(t)):
+        return pa.array([None if v is None else str(_csv_cell(v)) for v in col.to_pylist()], pa.string())
+    return col
+
+
 def write_csv(result: Result, out: IO[str]) -> int:
-    """Write the result as CSV (header first; NULL empty; lists and structs as JSON). Returns rows."""
-    w = csv.writer(out, lineterminator="\n")
-    w.writerow(result.columns)
+    """Write the result as CSV: header first; NULL, NaN and inf empty; lists and structs as JSON.
+
+    Batches go through Arrow's CSV writer (values quoted only where a batch needs it).
+    """
+    import pyarrow as pa
+    import pyarrow.csv as pcsv
+
+    csv.writer(out, lineterminator="\n").writerow(result.columns)
     n = 0
-    plain = [t in ("BIGINT", "INTEGER", "DOUBLE", "FLOAT", "VARCHAR", "SMALLINT", "TINYINT", "BOOLEAN", "UBIGINT",
-                   "UINTEGER", "HUGEINT")
-             for t in result.types]
-    for rows in result.batches:
-        if all(plain):  # fast path: csv writes these as they are (NaN/inf of a DOUBLE -> empty)
-            if any(t in ("DOUBLE", "FLOAT") for t in result.types):
-                rows = [tuple(None if isinstance(v, float) and not math.isfinite(v) else v for v in r) for r in rows]
-            w.writerows(rows)
-        else:
-            w.writerows([_csv_cell(v) for v in r] for r in rows)
-        n += len(rows)
+    for batch in result.batches:
+        if isinstance(batch, list):  # rows already in Python
+            csv.writer(out, lineterminator="\n").writerows([_csv_cell(v) for v in r] for r in batch)
+            n += len(batch)
+            continue
+        ready = pa.RecordBatch.from_arrays([_csv_column(c) for c in batch.columns],
+                                           names=[f"c{i}" for i in range(batch.num_columns)])
+        buf = io.BytesIO()
+        try:
+            pcsv.write_csv(ready, buf, pcsv.WriteOptions(include_header=False, quoting_style="none"))
+        except pa.ArrowInvalid:  # a delimiter, quote or line break in a value: quote this batch
+            buf = io.BytesIO()
+            pcsv.write_csv(ready, buf, pcsv.WriteOptions(include_header=False, quoting_style="needed"))
+        out.write(buf.getvalue().decode("utf-8"))
+        n += batch.num_rows
     return n
 
 
@@ -221,7 +254,7 @@ def write_json(result: Result, out: IO[str]) -> int:
     is_json = [t == "JSON" for t in result.types]
     n = 0
     out.write("[")
-    for rows in result.batches:
+    for rows in _row_batches(result):
         for r in rows:
             obj = {c: _json_value(v, j) for c, v, j in zip(result.columns, r, is_json)}
             out.write(("\n" if n == 0 else ",\n") + json.dumps(obj, ensure_ascii=False, allow_nan=False))
@@ -241,7 +274,7 @@ def write_markdown(result: Result, out: IO[str]) -> int:
     out.write("| " + " | ".join(_md_cell(c) for c in result.columns) + " |\n")
     out.write("|" + "|".join("---:" if _numeric(t) else "---" for t in result.types) + "|\n")
     n = 0
-    for rows in result.batches:
+    for rows in _row_batches(result):
         for r in rows:
             out.write("| " + " | ".join(_md_cell(v) for v in r) + " |\n")
             n += 1
@@ -341,7 +374,7 @@ def write_table(result: Result, out: IO[str], max_rows: int = MAX_ROWS, width: i
     """Write the first ``max_rows`` rows (0: all) as a table and count the rest. Returns all rows."""
     shown: list[tuple] = []
     n = 0
-    for rows in result.batches:
+    for rows in _row_batches(result):
         if not max_rows or len(shown) < max_rows:
             shown += rows[: (max_rows - len(shown)) if max_rows else None]
         n += len(rows)
@@ -453,10 +486,11 @@ _NOT_SIGNALS = ("run_id", "kind", "campaign", "t_s")
 
 def run_traces(warehouse: str | Path, run_id: str, channels: list[str] | None = None,
                columns: int = 1000) -> tuple[str, dict[str, tuple[list[float], list[float]]]]:
-    """One run's channels, reduced to at most ``2 * columns`` points each.
+    """One run's channels, reduced to at most ``2 * columns + 2`` points each.
 
     A long run is cut into ``columns`` equal time slices (one per pixel column of the plot) and
-    each slice keeps its minimum and its maximum, in time order: every spike stays visible.
+    each slice keeps its minimum and its maximum, in time order: every spike stays visible; the
+    first and last samples are kept too.
 
     Returns
     -------
@@ -497,7 +531,11 @@ def run_traces(warehouse: str | Path, run_id: str, channels: list[str] | None = 
                 SELECT * FROM (
                     SELECT px, arg_min(t_s, v) AS t, min(v) AS v FROM b GROUP BY px
                     UNION ALL
-                    SELECT px, arg_max(t_s, v) AS t, max(v) AS v FROM b GROUP BY px)
+                    SELECT px, arg_max(t_s, v) AS t, max(v) AS v FROM b GROUP BY px
+                    UNION ALL  -- the first and last samples: the plot spans the whole run
+                    SELECT -1, min(t_s), arg_min(v, t_s) FROM s
+                    UNION ALL
+                    SELECT $cols, max(t_s), arg_max(v, t_s) FROM s)
                 ORDER BY t, v""", {"run": run_id, "cols": columns}).fetchall()
             seen, ts, vs = set(), [], []
             for _px, t, v in rows:

@@ -82,6 +82,7 @@ def connect_readonly(warehouse: Path, database: Path | None = None) -> duckdb.Du
         con.execute("ATTACH ? AS pneubench (READ_ONLY)", [str(db)])
         con.execute("USE pneubench")
         con.execute("SET TimeZone = 'UTC'")
+        con.execute("SET enable_progress_bar = false")  # it would print into the result on stdout
         con.execute(f"SET VARIABLE {ROOT_VARIABLE} = ?", [warehouse.as_posix()])
         con.execute("SET temp_directory = ?", [(Path(tempfile.gettempdir()) / "pneubench-duckdb").as_posix()])
         samples = (warehouse / "samples").as_posix() + "/"
