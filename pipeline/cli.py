@@ -130,11 +130,19 @@ def tables(warehouse):
         found = list_tables(warehouse)
     except FileNotFoundError as exc:
         raise click.UsageError(str(exc)) from None
+    from pipeline.query import terminal_width
+    from pipeline.warehouse import INTERNAL_PREFIX
+
     width = max((len(t["name"]) for t in found), default=4)
+    room = terminal_width() - width - 16
     for t in found:
-        rows = f"{t['rows']:>9} rows" if t["rows"] is not None else "     view     "
-        tag = " [internal]" if t["internal"] else ""
-        click.echo(f"{t['name']:<{width}}  {rows}  {(t['comment'] or '').strip()}{tag}".rstrip())
+        n = t["rows"]
+        rows = f"{n:>9} {'row ' if n == 1 else 'rows'}" if n is not None else f"{'view':>14}"
+        text = (t["comment"] or "").removeprefix(INTERNAL_PREFIX).strip()
+        text = ("[internal] " if t["internal"] else "") + text
+        if len(text) > room > 10:
+            text = text[: room - 1] + "…"
+        click.echo(f"{t['name']:<{width}}  {rows}  {text}".rstrip())
 
 
 @main.command()

@@ -225,7 +225,11 @@ CONTRACT_ROWS = {
     "spring_fits": "PLA chamber", "spring_tests": "spring run",
     "pressure_dynamics": "(chamber, direction charge/discharge)", "durability_runs": "durability run",
     "hose_life": "hose", "service_life": "(hose_type, adjustment)",
+    "findings": "conclusion of the seed papers, checked on the lab's latest data",
 }
+
+#: Start of the comment of an internal table.
+INTERNAL_PREFIX = "(internal: the rebuild's own bookkeeping) "
 
 #: Tables that describe the rebuild itself, not the lab's data (``pneubench tables`` marks them).
 INTERNAL_TABLES = ("rebuild_log", "rebuild_inputs", "rebuild_changes", "ingest_state", "stage_cache", "figures")
@@ -290,12 +294,12 @@ def comment_statements(con: duckdb.DuckDBPyConnection) -> list[str]:
         comment = info["comment"] or (f"One row per {CONTRACT_ROWS[table]}." if table in CONTRACT_ROWS else None)
         colcomments = dict(info["columns"])
         if table.startswith("samples_") and table[8:] in KINDS:
-            comment = f"One row per sample of a {table[8:]} run, channels in SI units (column suffix = unit)."
+            comment = f"One row per sample of a run of kind {table[8:]}, channels in SI units (column suffix = unit)."
             colcomments.update({ch.column: ch.description for ch in CHANNELS.values()})
             colcomments.update(run_id="Run identifier (runs.run_id).", kind="Test kind of the run.",
                                campaign="Campaign of the run (first folder under raw/).")
         if table in INTERNAL_TABLES:
-            comment = "(internal: the rebuild's own bookkeeping) " + (comment or "")
+            comment = INTERNAL_PREFIX + (comment or "")
         if comment:
             out.append(f"COMMENT ON {kind} \"{table}\" IS {_sql_str(comment.strip())}")
         for col, text in sorted(colcomments.items()):
