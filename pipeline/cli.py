@@ -63,24 +63,150 @@ def rebuild(raw, warehouse, jobs, full, quiet, executor, scheduler, wait_s, no_r
     sys.exit(summary.exit_code)
 
 
-@main.command()
-@click.argument("sql")
-@warehouse_option
-@click.option("--format", "fmt", type=click.Choice(["table", "csv", "json"]), default="table", show_default=True)
-def query(sql, warehouse, fmt):
-    """Run read-only SQL on the warehouse, e.g. pneubench query "SELECT * FROM runs"."""
+def _query_error(exc) -> None:
+    """Print a refused or failed query and exit: 2 refused/usage, 3 failed."""
     import duckdb
 
-    from pipeline.query import format_rows, run_query
+    from pipeline.query import QueryError
 
+    if isinstance(exc, QueryError):
+        click.echo(f"pneubench query: {exc}", err=True)
+        sys.exit(2)
+    if isinstance(exc, duckdb.PermissionException):  # a way out of the door: one line
+        click.echo(f"pneubench query: {str(exc).splitlines()[0]} (only the warehouse's tables and samples)",
+                   err=True)
+        sys.exit(3)
+    click.echo(f"pneubench query: {str(exc).rstrip()}", err=True)  # DuckDB's whole message (hints)
+    sys.exit(3)
+
+
+@main.command()
+@click.argument("sql", required=False)
+@click.option("-f", "--file", "sql_file", type=click.File("r", encoding="utf-8"), metavar="FILE",
+              help="Read the SQL from FILE (- : stdin).")
+@warehouse_option
+@click.option("--format", "fmt", type=click.Choice(["table", "csv", "json", "markdown"]), default="table",
+              show_default=True, help="csv/json/markdown stream every row; table shows the first --max-rows.")
+@click.option("--max-rows", type=click.IntRange(min=0), default=100, show_default=True,
+              help="Rows the table format shows (0: all); it says how many more there are.")
+@click.option("--max-width", type=click.IntRange(min=0), default=None,
+              help="Widest a table column gets before its cells wrap (default: fit the terminal; 0: never wrap).")
+def query(sql, sql_file, warehouse, fmt, max_rows, max_width):
+    """Run one read-only SQL statement on the warehouse.
+
+    \b
+    pneubench query "SELECT * FROM runs"
+    pneubench query -f q.sql --format csv > out.csv
+    echo "FROM service_life" | pneubench query -
+    """
+    import duckdb
+
+    from pipeline.query import QueryError, open_query, read_sql, terminal_width, write_result
+
+    if sql is not None and sql_file is not None:
+        raise click.UsageError("give the SQL as an argument or with -f, not both")
+    if sql == "-":
+        sql, sql_file = None, sys.stdin
     try:
-        columns, rows = run_query(warehouse, sql)
+        text = read_sql(sql, sql_file)
+        with open_query(warehouse, text) as result:
+            out = sys.stdout
+            width = terminal_width() if fmt == "table" and max_width is None else None
+            write_result(result, out, fmt, max_rows=max_rows, width=width, max_width=max_width)
+            out.flush()
     except FileNotFoundError as exc:
         raise click.UsageError(str(exc)) from None
-    except duckdb.Error as exc:
-        click.echo(f"pneubench query: {str(exc).splitlines()[0]}", err=True)
-        sys.exit(3)
-    click.echo(format_rows(columns, rows, fmt))
+    except (QueryError, duckdb.Error) as exc:
+        _query_error(exc)
+
+
+@main.command()
+@warehouse_option
+def tables(warehouse):
+    """List the warehouse's tables and views: science first, internal (rebuild) ones last."""
+    from pipeline.query import list_tables
+
+    try:
+        found = list_tables(warehouse)
+    except FileNotFoundError as exc:
+        raise click.UsageError(str(exc)) from None
+    from pipeline.query import terminal_width
+    from pipeline.warehouse import INTERNAL_PREFIX
+
+    width = max((len(t["name"]) for t in found), default=4)
+    room = terminal_width() - width - 16
+    for t in found:
+        n = t["rows"]
+        rows = f"{n:>9} {'row ' if n == 1 else 'rows'}" if n is not None else f"{'view':>14}"
+        text = (t["comment"] or "").removeprefix(INTERNAL_PREFIX).strip()
+        text = ("[internal] " if t["internal"] else "") + text
+        if len(text) > room > 10:
+            text = text[: room - 1] + "…"
+        click.echo(f"{t['name']:<{width}}  {rows}  {text}".rstrip())
+
+
+@main.command()
+@click.argument("table")
+@warehouse_option
+@click.option("--max-width", type=click.IntRange(min=0), default=None,
+              help="Widest a column gets before its cells wrap (default: fit the terminal; 0: never wrap).")
+def describe(table, warehouse, max_width):
+    """Columns of TABLE with their types, units and meaning."""
+    from pipeline.query import QueryError, describe_table, format_table, terminal_width
+
+    try:
+        comment, cols = describe_table(warehouse, table)
+    except FileNotFoundError as exc:
+        raise click.UsageError(str(exc)) from None
+    except QueryError as exc:
+        _query_error(exc)
+    if comment:
+        click.echo(f"{table}: {comment}\n")
+    rows = [(c["column"], c["type"], c["unit"] or "", c["comment"] or "") for c in cols]
+    click.echo(format_table(["column", "type", "unit", "meaning"], ["VARCHAR"] * 4, rows,
+                            width=terminal_width() if max_width is None else None, max_width=max_width))
+
+
+@main.command()
+@click.argument("run_id")
+@warehouse_option
+@click.option("--channels", "-c", multiple=True, metavar="COLUMN",
+              help="Channel column(s) to plot, e.g. -c x_m -c p_a_pa (default: every channel of the run).")
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Output .png, .svg or .html (default: plot-<run>.png).")
+def plot(run_id, warehouse, channels, output):
+    """Plot one run's channels against time (long runs: min/max per pixel column)."""
+    import re
+
+    from pipeline.query import QueryError, plot_run
+
+    output = output or Path("plot-" + re.sub(r"[^A-Za-z0-9._-]+", "_", run_id).strip("._") + ".png")
+    try:
+        click.echo(plot_run(warehouse, run_id, output, [c for part in channels for c in part.split(",") if c]))
+    except FileNotFoundError as exc:
+        raise click.UsageError(str(exc)) from None
+    except QueryError as exc:
+        _query_error(exc)
+
+
+@main.command()
+@warehouse_option
+@click.option("-o", "--output", type=click.Path(file_okay=False, path_type=Path), required=True,
+              help="Folder to copy the figures into.")
+def figures(warehouse, output):
+    """Copy the current figures out of their stage folders into OUTPUT (<stage>-<name>.png)."""
+    from pipeline.query import QueryError, copy_figures
+
+    try:
+        copied = copy_figures(warehouse, output)
+    except FileNotFoundError as exc:
+        raise click.UsageError(str(exc)) from None
+    except QueryError as exc:
+        _query_error(exc)
+    for path, caption in copied:
+        click.echo(f"{path}  {caption}".rstrip())
+    if not copied:
+        click.echo("no figures in the warehouse", err=True)
 
 
 @main.command()

@@ -1,22 +1,111 @@
-"""Read-only SQL on the warehouse, and formatting of the result as a table, CSV or JSON."""
+"""Read-only SQL on the warehouse; results as a table, CSV, JSON or Markdown, streamed in batches;
+the catalogue of tables (``tables``, ``describe``), one run's channels as a plot, the figures."""
 from __future__ import annotations
 
 import csv
+import difflib
 import io
 import json
 import math
+import shutil
+import textwrap
+from contextlib import contextmanager
+from dataclasses import dataclass
 from datetime import date, datetime
 from decimal import Decimal
 from pathlib import Path
+from typing import IO, TYPE_CHECKING, Iterator
 
-from pipeline.warehouse import connect_readonly
+import duckdb
+
+from pipeline.warehouse import INTERNAL_TABLES, connect_readonly
+
+if TYPE_CHECKING:
+    import pyarrow as pa
+
+
+class QueryError(ValueError):
+    """SQL that ``pneubench query`` refuses (one line: what and why)."""
+
+
+_READ_ONLY = ("pneubench query is read-only: one SELECT, FROM, WITH, DESCRIBE, SHOW, SUMMARIZE or "
+              "EXPLAIN statement over the warehouse")
+
+#: Statement types a query may run: reading only.
+_READ_TYPES = {duckdb.StatementType.SELECT}
+
+
+def _statement_types(con: duckdb.DuckDBPyConnection, sql: str) -> list[str]:
+    """Type name of each statement of ``sql``, by DuckDB's own parser."""
+    out = []
+    for st in con.extract_statements(sql):
+        try:
+            out.append(st.type.name)
+        except ValueError:  # a statement type the Python enum does not know yet
+            out.append("UNKNOWN")
+    return out
+
+
+def _explained(sql: str) -> str:
+    """The statement an ``EXPLAIN [ANALYZE] [(options)]`` statement explains."""
+    tokens = duckdb.tokenize(sql)
+    depth = 0
+    for i, (offset, kind) in enumerate(tokens):
+        end = tokens[i + 1][0] if i + 1 < len(tokens) else len(sql)
+        text = sql[offset:end].strip()
+        if kind == duckdb.token_type.comment:
+            continue
+        if kind == duckdb.token_type.operator and (depth or text.startswith("(")):
+            depth += text.count("(") - text.count(")")
+            continue
+        if depth or (kind == duckdb.token_type.keyword and text.upper() in ("EXPLAIN", "ANALYZE", "ANALYSE")):
+            continue
+        return sql[offset:]
+    return ""
+
+
+def check_sql(con: duckdb.DuckDBPyConnection, sql: str) -> str:
+    """Refuse anything but one read-only statement; returns the SQL to run.
+
+    The statement is classified by DuckDB's parser: only ``SELECT`` (which includes
+    ``FROM ...``, ``WITH ...``, ``DESCRIBE``, ``SHOW``, ``SUMMARIZE``, ``VALUES``) and ``EXPLAIN``
+    of such a statement pass. Writes, ``COPY``, ``EXPORT``, ``ATTACH``/``DETACH``,
+    ``INSTALL``/``LOAD``, ``SET``/``RESET``/``PRAGMA``/``CALL``, transactions and several
+    statements at once raise :class:`QueryError`. The connection (:func:`connect_readonly`)
+    contains what a ``SELECT`` may read.
+    """
+    if not sql or not sql.strip():
+        raise QueryError("no SQL given")
+    types = _statement_types(con, sql)
+    if not types:
+        raise QueryError("no SQL statement given (only comments or ';')")
+    if len(types) > 1:
+        raise QueryError(f"one statement per call, got {len(types)} ({', '.join(types)})")
+    kind = types[0]
+    if kind == "EXPLAIN":
+        inner = _explained(sql)
+        inner_types = _statement_types(con, inner) if inner.strip() else []
+        if inner_types != ["SELECT"]:
+            raise QueryError(f"EXPLAIN of {'/'.join(inner_types) or 'nothing'} refused: {_READ_ONLY}")
+        return sql
+    if kind not in {t.name for t in _READ_TYPES}:
+        hint = " (write a result out with --format csv > FILE)" if kind in ("COPY", "EXPORT") else ""
+        if kind == "MULTI":
+            hint = " (a PIVOT needs its values listed: PIVOT t ON col IN ('a', 'b'))"
+        raise QueryError(f"{kind} statement refused: {_READ_ONLY}{hint}")
+    return sql
 
 
 def run_query(warehouse: str | Path, sql: str) -> tuple[list[str], list[tuple]]:
-    """Run ``sql`` on a read-only connection. Returns (column names, rows)."""
+    """Run one read-only statement on the warehouse. Returns (column names, rows).
+
+    Raises :class:`QueryError` for SQL the door refuses, ``duckdb.Error`` for SQL DuckDB
+    refuses (including every attempt to reach a file outside the warehouse's samples),
+    ``FileNotFoundError`` when there is no warehouse.
+    """
     con = connect_readonly(Path(warehouse))
     try:
-        cur = con.execute(sql)
+        cur = con.execute(check_sql(con, sql))
         if cur.description is None:
             return [], []
         return [d[0] for d in cur.description], cur.fetchall()
@@ -35,41 +124,497 @@ def _plain(v):
         return [_plain(x) for x in v]
     if isinstance(v, dict):
         return {str(k): _plain(x) for k, x in v.items()}
+    if isinstance(v, (bytes, bytearray)):
+        return v.hex()
     return v
 
 
-def format_rows(columns: list[str], rows: list[tuple], fmt: str = "table", max_width: int = 40) -> str:
-    """Render a result as ``table`` (aligned text), ``csv`` or ``json`` (a list of objects)."""
-    if fmt == "json":
-        return json.dumps([dict(zip(columns, map(_plain, r))) for r in rows], indent=1, ensure_ascii=False)
-    if fmt == "csv":
-        buf = io.StringIO()
-        w = csv.writer(buf, lineterminator="\n")
-        w.writerow(columns)
-        for r in rows:
-            w.writerow(["" if v is None else (json.dumps(_plain(v)) if isinstance(v, (list, dict)) else _plain(v))
-                        for v in r])
-        return buf.getvalue().rstrip("\n")
-    if fmt != "table":
-        raise ValueError(f"unknown format {fmt!r}")
+# ---------------------------------------------------------------------------------------------
+# Streaming results
 
-    def cell(v):
-        if v is None:
-            return "NULL"
-        if isinstance(v, float):
-            text = f"{v:.6g}"
+#: Rows fetched from DuckDB at a time: memory is bounded by one batch, whatever the result size.
+BATCH_ROWS = 65_536
+#: Rows the ``table`` format shows by default (it says how many more there are).
+MAX_ROWS = 100
+FORMATS = ("table", "csv", "json", "markdown")
+
+
+@dataclass
+class Result:
+    """An open result: column names, DuckDB type names, and an iterator of Arrow record batches."""
+
+    columns: list[str]
+    types: list[str]
+    batches: Iterator["pa.RecordBatch"]
+
+
+def _rows(batch) -> list[tuple]:
+    cols = [c.to_pylist() for c in batch.columns]
+    return list(zip(*cols)) if cols else []
+
+
+def _row_batches(result: Result) -> Iterator[list[tuple]]:
+    for batch in result.batches:
+        yield batch if isinstance(batch, list) else _rows(batch)
+
+
+@contextmanager
+def open_query(warehouse: str | Path, sql: str, batch_rows: int = BATCH_ROWS) -> Iterator[Result]:
+    """Check and start one read-only statement; the result is read in batches of ``batch_rows``.
+
+    Raises :class:`QueryError`, ``duckdb.Error`` or ``FileNotFoundError`` (see :func:`run_query`)
+    before anything is yielded.
+    """
+    con = connect_readonly(Path(warehouse))
+    try:
+        rel = con.sql(check_sql(con, sql))
+        if rel is None:
+            yield Result([], [], iter(()))
         else:
-            text = str(_plain(v))
-        text = " ".join(text.split())
-        return text if len(text) <= max_width else text[: max_width - 1] + "…"
+            yield Result(list(rel.columns), [str(t) for t in rel.types], iter(rel.to_arrow_reader(batch_rows)))
+    finally:
+        con.close()
 
-    body = [[cell(v) for v in r] for r in rows]
-    widths = [max([len(c)] + [len(b[i]) for b in body]) for i, c in enumerate(columns)]
-    numeric = [all(isinstance(r[i], (int, float)) or r[i] is None for r in rows) and rows for i in range(len(columns))]
 
-    def line(cells):
-        return "  ".join(c.rjust(w) if num else c.ljust(w) for c, w, num in zip(cells, widths, numeric)).rstrip()
+def read_sql(text: str | None, file: IO[str] | None = None) -> str:
+    """The SQL of a call: ``text`` (``-`` reads stdin, passed as ``file``) or a file's content."""
+    sql = file.read() if file is not None else (text or "")
+    if not sql.strip():
+        raise QueryError("no SQL given: pneubench query \"SELECT ...\", -f FILE.sql, or - to read stdin")
+    return sql
 
-    out = [line(columns), "  ".join("-" * w for w in widths)] + [line(b) for b in body]
-    out.append(f"({len(rows)} row{'s' if len(rows) != 1 else ''})")
+
+def _csv_cell(v):
+    if v is None:
+        return ""
+    if isinstance(v, (list, dict, tuple)):
+        return json.dumps(_plain(v), ensure_ascii=False)
+    if isinstance(v, float):
+        return repr(v) if math.isfinite(v) else ""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    return _plain(v)
+
+
+def _csv_column(col):
+    """An Arrow column ready for Arrow's CSV writer (its unsupported types as text)."""
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    t = col.type
+    if pa.types.is_floating(t):
+        return pc.if_else(pc.is_finite(col), col, pa.scalar(None, t))
+    if pa.types.is_dictionary(t):
+        return _csv_column(col.dictionary_decode())
+    if (pa.types.is_nested(t) or pa.types.is_binary(t) or pa.types.is_large_binary(t) or pa.types.is_time(t)
+            or pa.types.is_duration(t) or pa.types.is_interval(t) or pa.types.is_fixed_size_binary(t)):
+        return pa.array([None if v is None else str(_csv_cell(v)) for v in col.to_pylist()], pa.string())
+    return col
+
+
+def write_csv(result: Result, out: IO[str]) -> int:
+    """Write the result as CSV: header first; NULL, NaN and inf empty; lists and structs as JSON.
+
+    Batches go through Arrow's CSV writer (values quoted only where a batch needs it).
+    """
+    import pyarrow as pa
+    import pyarrow.csv as pcsv
+
+    csv.writer(out, lineterminator="\n").writerow(result.columns)
+    n = 0
+    for batch in result.batches:
+        if isinstance(batch, list):  # rows already in Python
+            csv.writer(out, lineterminator="\n").writerows([_csv_cell(v) for v in r] for r in batch)
+            n += len(batch)
+            continue
+        ready = pa.RecordBatch.from_arrays([_csv_column(c) for c in batch.columns],
+                                           names=[f"c{i}" for i in range(batch.num_columns)])
+        buf = io.BytesIO()
+        try:
+            pcsv.write_csv(ready, buf, pcsv.WriteOptions(include_header=False, quoting_style="none"))
+        except pa.ArrowInvalid:  # a delimiter, quote or line break in a value: quote this batch
+            buf = io.BytesIO()
+            pcsv.write_csv(ready, buf, pcsv.WriteOptions(include_header=False, quoting_style="needed"))
+        out.write(buf.getvalue().decode("utf-8"))
+        n += batch.num_rows
+    return n
+
+
+def _json_value(v, is_json: bool):
+    if is_json and isinstance(v, str):
+        try:
+            return json.loads(v)
+        except ValueError:
+            return v
+    return _plain(v)
+
+
+def write_json(result: Result, out: IO[str]) -> int:
+    """Write the result as a JSON array of objects, one per line; JSON columns (``params``) nested."""
+    is_json = [t == "JSON" for t in result.types]
+    n = 0
+    out.write("[")
+    for rows in _row_batches(result):
+        for r in rows:
+            obj = {c: _json_value(v, j) for c, v, j in zip(result.columns, r, is_json)}
+            out.write(("\n" if n == 0 else ",\n") + json.dumps(obj, ensure_ascii=False, allow_nan=False))
+            n += 1
+    out.write("\n]\n" if n else "]\n")
+    return n
+
+
+def _md_cell(v) -> str:
+    text = "" if v is None else (json.dumps(_plain(v), ensure_ascii=False) if isinstance(v, (list, dict)) else
+                                 str(_plain(v)))
+    return text.replace("\\", "\\\\").replace("|", "\\|").replace("\r", "").replace("\n", "<br>")
+
+
+def write_markdown(result: Result, out: IO[str]) -> int:
+    """Write the result as a GitHub Markdown table (every row)."""
+    out.write("| " + " | ".join(_md_cell(c) for c in result.columns) + " |\n")
+    out.write("|" + "|".join("---:" if _numeric(t) else "---" for t in result.types) + "|\n")
+    n = 0
+    for rows in _row_batches(result):
+        for r in rows:
+            out.write("| " + " | ".join(_md_cell(v) for v in r) + " |\n")
+            n += 1
+    return n
+
+
+def _numeric(duck_type: str) -> bool:
+    return duck_type.split("(")[0] in ("BIGINT", "INTEGER", "SMALLINT", "TINYINT", "HUGEINT", "UBIGINT", "UINTEGER",
+                                       "USMALLINT", "UTINYINT", "UHUGEINT", "DOUBLE", "FLOAT", "DECIMAL")
+
+
+def _table_cell(v) -> str:
+    if v is None:
+        return "NULL"
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    if isinstance(v, (list, dict)):
+        return json.dumps(_plain(v), ensure_ascii=False)
+    return str(_plain(v))
+
+
+def fit_widths(natural: list[int], total: int | None, cap: int | None = None, floor: int = 6) -> list[int]:
+    """Column widths: each at most ``cap``; the widest shrunk first until the line fits ``total``.
+
+    ``None`` for ``total`` / ``cap``: no limit. A column never gets narrower than ``floor``
+    (or its natural width when that is smaller), so very many columns can still overflow.
+    """
+    widths = [min(w, cap) if cap else w for w in natural]
+    if total is None:
+        return widths
+    mins = [min(w, floor) for w in widths]
+    while sum(widths) + 2 * (len(widths) - 1) > total:
+        i = max(range(len(widths)), key=lambda k: widths[k] - mins[k])
+        if widths[i] <= mins[i]:
+            break
+        widths[i] -= 1
+    return widths
+
+
+def _wrap(text: str, width: int) -> list[str]:
+    lines = []
+    for part in text.splitlines() or [""]:
+        lines += textwrap.wrap(part, width, break_long_words=True, replace_whitespace=False,
+                               drop_whitespace=True) or [""]
+    return lines
+
+
+def format_table(columns: list[str], types: list[str], rows: list[tuple], n_total: int | None = None,
+                 width: int | None = None, max_width: int | None = None) -> str:
+    """Aligned text table; cells wrap within their column.
+
+    Parameters
+    ----------
+    width : int, optional
+        Line width to fit (the terminal's); None: no limit.
+    max_width : int, optional
+        Widest a column may be; None: only ``width`` limits; 0: no limit at all (cells whole,
+        never wrapped).
+    n_total : int, optional
+        Rows of the whole result when ``rows`` is only its start.
+    """
+    body = [[_table_cell(v) for v in r] for r in rows]
+    natural = [max([len(c)] + [max((len(x) for x in b[i].splitlines()), default=0) for b in body])
+               for i, c in enumerate(columns)]
+    if max_width == 0:
+        widths = natural
+    else:
+        widths = fit_widths(natural, width, max_width or None)
+    numeric = [_numeric(t) for t in types] if types else [False] * len(columns)
+
+    def lines(cells):
+        wrapped = [_wrap(c, w) if len(c) > w or "\n" in c else [c] for c, w in zip(cells, widths)]
+        height = max((len(x) for x in wrapped), default=1)
+        out = []
+        for k in range(height):
+            parts = []
+            for cell, w, num in zip(wrapped, widths, numeric):
+                text = cell[k] if k < len(cell) else ""
+                parts.append(text.rjust(w) if num else text.ljust(w))
+            out.append("  ".join(parts).rstrip())
+        return out
+
+    out = lines(columns) + ["  ".join("-" * w for w in widths)]
+    for b in body:
+        out += lines(b)
+    total = len(rows) if n_total is None else n_total
+    if total > len(rows):
+        out.append(f"({len(rows)} of {total} rows shown, {total - len(rows)} more: --max-rows 0 shows all, "
+                   "--format csv streams them)")
+    else:
+        out.append(f"({total} row{'s' if total != 1 else ''})")
     return "\n".join(out)
+
+
+def write_table(result: Result, out: IO[str], max_rows: int = MAX_ROWS, width: int | None = None,
+                max_width: int | None = None) -> int:
+    """Write the first ``max_rows`` rows (0: all) as a table and count the rest. Returns all rows."""
+    shown: list[tuple] = []
+    n = 0
+    for rows in _row_batches(result):
+        if not max_rows or len(shown) < max_rows:
+            shown += rows[: (max_rows - len(shown)) if max_rows else None]
+        n += len(rows)
+    out.write(format_table(result.columns, result.types, shown, n, width, max_width) + "\n")
+    return n
+
+
+def write_result(result: Result, out: IO[str], fmt: str = "table", max_rows: int = MAX_ROWS,
+                 width: int | None = None, max_width: int | None = None) -> int:
+    """Write an open result in ``fmt`` (one of :data:`FORMATS`). Returns the number of rows."""
+    if fmt == "csv":
+        return write_csv(result, out)
+    if fmt == "json":
+        return write_json(result, out)
+    if fmt == "markdown":
+        return write_markdown(result, out)
+    if fmt == "table":
+        return write_table(result, out, max_rows, width, max_width)
+    raise ValueError(f"unknown format {fmt!r}")
+
+
+def terminal_width() -> int:
+    """Columns of the terminal (``$COLUMNS`` first; 80 when unknown)."""
+    return shutil.get_terminal_size((80, 24)).columns
+
+
+def format_rows(columns: list[str], rows: list[tuple], fmt: str = "table", max_width: int | None = None,
+                types: list[str] | None = None) -> str:
+    """Render an in-memory result (see :func:`write_result`)."""
+    buf = io.StringIO()
+    types = types or [("DOUBLE" if all(isinstance(r[i], (int, float)) or r[i] is None for r in rows) and rows
+                       else "VARCHAR") for i in range(len(columns))]
+    write_result(Result(columns, types, iter([rows])), buf, fmt, max_rows=0, max_width=max_width)
+    return buf.getvalue().rstrip("\n")
+
+
+# ---------------------------------------------------------------------------------------------
+# Catalogue: tables and describe
+
+#: Units of column-name suffixes (longest match wins); a column without one has no unit.
+UNIT_SUFFIXES = {
+    "_pa": "Pa", "_bar": "bar (gauge)", "_bar_abs": "bar (absolute)", "_m": "m", "_mm": "mm", "_km": "km",
+    "_n": "N", "_s": "s", "_h": "h", "_hz": "Hz", "_v": "V", "_pct": "%", "_kg": "kg", "_kg_s": "kg/s",
+    "_m_s": "m/s", "_n_s": "N/s", "_n_s_m": "N s/m", "_n_m": "N/m", "_rad_s": "rad/s", "_m2": "m²",
+    "_l_min": "l/min (ANR)", "_m_v_s": "m/(V s)", "_j": "J", "_w": "W", "_degc": "°C", "_c": "°C",
+    "_k": "K", "_bytes": "bytes", "_ns": "ns", "_kg_s_pa": "kg/(s Pa)", "_v_m": "V/m",
+}
+
+
+def unit_of(column: str) -> str | None:
+    """Unit a warehouse column name ends in (``leak_l_min`` -> ``l/min (ANR)``), else None."""
+    name = column.lower()
+    best = max((s for s in UNIT_SUFFIXES if name.endswith(s) and len(name) > len(s)), key=len, default=None)
+    return UNIT_SUFFIXES[best] if best else None
+
+
+def list_tables(warehouse: str | Path) -> list[dict]:
+    """Tables and views of the warehouse: science first (by name), then internal ones.
+
+    Each: ``name``, ``type`` (table/view), ``rows`` (tables only), ``internal``, ``comment``.
+    """
+    con = connect_readonly(Path(warehouse))
+    try:
+        found = con.execute(
+            "SELECT table_name, 'table', estimated_size, comment FROM duckdb_tables() "
+            "WHERE database_name = current_database() UNION ALL "
+            "SELECT view_name, 'view', NULL, comment FROM duckdb_views() "
+            "WHERE NOT internal AND database_name = current_database()").fetchall()
+        out = []
+        for name, typ, _est, comment in found:
+            rows = con.execute(f'SELECT count(*) FROM "{name}"').fetchone()[0] if typ == "table" else None
+            out.append({"name": name, "type": typ, "rows": rows, "internal": name in INTERNAL_TABLES,
+                        "comment": comment})
+    finally:
+        con.close()
+    return sorted(out, key=lambda t: (t["internal"], t["name"].startswith("samples_"), t["name"]))
+
+
+def describe_table(warehouse: str | Path, table: str) -> tuple[str | None, list[dict]]:
+    """(table comment, columns) of one table or view: ``column``, ``type``, ``unit``, ``comment``.
+
+    Raises :class:`QueryError` naming the closest tables when there is none of that name.
+    """
+    con = connect_readonly(Path(warehouse))
+    try:
+        names = {r[0]: r[1] for r in con.execute(
+            "SELECT table_name, comment FROM duckdb_tables() WHERE database_name = current_database() UNION ALL "
+            "SELECT view_name, comment FROM duckdb_views() WHERE NOT internal "
+            "AND database_name = current_database()").fetchall()}
+        if table not in names:
+            near = difflib.get_close_matches(table, list(names), n=3)
+            raise QueryError(f"no table or view {table!r}" + (f"; did you mean {', '.join(near)}?" if near else
+                                                               " (pneubench tables lists them)"))
+        comments = dict(con.execute("SELECT column_name, comment FROM duckdb_columns() "
+                                    "WHERE database_name = current_database() AND table_name = ?", [table]).fetchall())
+        cols = [{"column": r[0], "type": r[1], "unit": unit_of(r[0]), "comment": comments.get(r[0])}
+                for r in con.execute(f'DESCRIBE "{table}"').fetchall()]
+    finally:
+        con.close()
+    return names[table], cols
+
+
+# ---------------------------------------------------------------------------------------------
+# One run's channels as a plot; the current figures
+
+#: Channels of a samples view that are not signals.
+_NOT_SIGNALS = ("run_id", "kind", "campaign", "t_s")
+
+
+def run_traces(warehouse: str | Path, run_id: str, channels: list[str] | None = None,
+               columns: int = 1000) -> tuple[str, dict[str, tuple[list[float], list[float]]]]:
+    """One run's channels, reduced to at most ``2 * columns + 2`` points each.
+
+    A long run is cut into ``columns`` equal time slices (one per pixel column of the plot) and
+    each slice keeps its minimum and its maximum, in time order: every spike stays visible; the
+    first and last samples are kept too.
+
+    Returns
+    -------
+    kind : str
+    traces : dict
+        ``{column: (t [s], values [column's unit])}``.
+    """
+    con = connect_readonly(Path(warehouse))
+    try:
+        row = con.execute("SELECT kind FROM runs WHERE run_id = ?", [run_id]).fetchone()
+        if row is None:
+            near = difflib.get_close_matches(run_id, [r[0] for r in con.execute("SELECT run_id FROM runs").fetchall()],
+                                             n=3)
+            raise QueryError(f"no run {run_id!r}" + (f"; did you mean {', '.join(near)}?" if near else ""))
+        kind = row[0]
+        view = f"samples_{kind}"
+        have = [r[0] for r in con.execute(f'DESCRIBE "{view}"').fetchall()
+                if r[0] not in _NOT_SIGNALS and _numeric(r[1])]
+        present = {c for c in have if con.execute(
+            f'SELECT count("{c}") FROM "{view}" WHERE run_id = ?', [run_id]).fetchone()[0]}
+        if channels:
+            unknown = [c for c in channels if c not in have]
+            if unknown:
+                raise QueryError(f"run {run_id!r} ({kind}) has no channel {', '.join(unknown)}; "
+                                 f"it has {', '.join(c for c in have if c in present)}")
+            wanted = list(channels)
+        else:
+            wanted = [c for c in have if c in present]
+        traces = {}
+        for c in wanted:
+            rows = con.execute(f"""
+                WITH s AS (SELECT t_s, "{c}" AS v FROM "{view}" WHERE run_id = $run AND "{c}" IS NOT NULL
+                           AND t_s IS NOT NULL),
+                     r AS (SELECT min(t_s) AS t0, max(t_s) - min(t_s) AS span, count(*) AS n FROM s),
+                     b AS (SELECT CASE WHEN r.n <= 2 * $cols OR r.span = 0 THEN s.t_s
+                                       ELSE least(floor((s.t_s - r.t0) / r.span * $cols), $cols - 1) END AS px,
+                                  s.t_s, s.v FROM s, r)
+                SELECT * FROM (
+                    SELECT px, arg_min(t_s, v) AS t, min(v) AS v FROM b GROUP BY px
+                    UNION ALL
+                    SELECT px, arg_max(t_s, v) AS t, max(v) AS v FROM b GROUP BY px
+                    UNION ALL  -- the first and last samples: the plot spans the whole run
+                    SELECT -1, min(t_s), arg_min(v, t_s) FROM s
+                    UNION ALL
+                    SELECT $cols, max(t_s), arg_max(v, t_s) FROM s)
+                ORDER BY t, v""", {"run": run_id, "cols": columns}).fetchall()
+            seen, ts, vs = set(), [], []
+            for _px, t, v in rows:
+                if (t, v) not in seen:
+                    seen.add((t, v))
+                    ts.append(t)
+                    vs.append(v)
+            traces[c] = (ts, vs)
+    finally:
+        con.close()
+    return kind, traces
+
+
+def plot_run(warehouse: str | Path, run_id: str, out: str | Path, channels: list[str] | None = None,
+             width_px: int = 1200) -> Path:
+    """Plot one run's channels against time, one panel per channel, to ``.png``, ``.svg`` or ``.html``."""
+    out = Path(out)
+    suffix = out.suffix.lower()
+    if suffix not in (".png", ".svg", ".html"):
+        raise QueryError(f"{out}: plot to a .png, .svg or .html file")
+    kind, traces = run_traces(warehouse, run_id, channels, columns=width_px)
+    if not traces:
+        raise QueryError(f"run {run_id!r} has no samples to plot")
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    dpi = 100
+    fig, axes = plt.subplots(len(traces), 1, sharex=True, squeeze=False,
+                             figsize=(width_px / dpi, 1.0 + 1.6 * len(traces)), dpi=dpi)
+    for ax, (col, (t, v)) in zip(axes[:, 0], traces.items()):
+        ax.plot(t, v, lw=0.7)
+        unit = unit_of(col)
+        ax.set_ylabel(f"{col}" + (f"\n[{unit}]" if unit else ""), fontsize=8)
+        ax.grid(alpha=0.3)
+    axes[-1, 0].set_xlabel("t_s [s]")
+    fig.suptitle(f"{run_id} ({kind})", fontsize=10)
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        if suffix == ".html":
+            buf = io.StringIO()
+            fig.savefig(buf, format="svg", metadata={"Date": None})
+            import html
+
+            out.write_text(f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>{html.escape(run_id)}'
+                           f"</title></head><body>\n{buf.getvalue()}\n</body></html>\n", encoding="utf-8")
+        else:
+            fig.savefig(out, metadata={"Software": None} if suffix == ".png" else {"Date": None})
+    finally:
+        plt.close(fig)
+    return out
+
+
+def copy_figures(warehouse: str | Path, dest: str | Path) -> list[tuple[Path, str]]:
+    """Copy the current figures (table ``figures``) out of their content-hashed stage folders.
+
+    Files are named ``<stage>-<name><ext>`` in ``dest``. Returns ``(file, caption)`` per figure.
+    """
+    import re
+
+    warehouse = Path(warehouse).resolve()
+    dest = Path(dest)
+    con = connect_readonly(warehouse)
+    try:
+        has = con.execute("SELECT count(*) FROM duckdb_tables() WHERE table_name = 'figures' "
+                          "AND database_name = current_database()").fetchone()[0]
+        rows = con.execute("SELECT stage, name, path, caption FROM figures ORDER BY stage, name").fetchall() \
+            if has else []
+    finally:
+        con.close()
+    dest.mkdir(parents=True, exist_ok=True)
+    out = []
+    for stage, name, rel, caption in rows:
+        src = (warehouse / rel).resolve()
+        if not src.is_relative_to(warehouse) or not src.is_file():
+            raise QueryError(f"figure {stage}/{name}: {rel} is not a file of the warehouse")
+        target = dest / (re.sub(r"[^A-Za-z0-9._-]+", "_", f"{stage}-{name}") + src.suffix)
+        shutil.copyfile(src, target)
+        out.append((target, caption or ""))
+    return out

@@ -29,8 +29,6 @@ import os
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
-import duckdb
-
 from pipeline.warehouse import DB_NAME, connect_readonly
 
 MAX_ROWS = 30          # rows of a key table shown
@@ -851,11 +849,7 @@ def render_report(warehouse: str | Path, now: datetime | None = None, database: 
     """
     warehouse = Path(warehouse)
     now = now or _now()
-    if database is None:
-        con = connect_readonly(warehouse)
-    else:
-        con = duckdb.connect(str(database), read_only=True)
-        con.execute("SET TimeZone = 'UTC'")
+    con = connect_readonly(warehouse, database)
     try:
         db = _DB(con)
         alert, findings = _findings_section(db, now)

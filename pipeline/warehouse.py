@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import json
 import os
+import re
+import tempfile
 from pathlib import Path
 
 import duckdb
@@ -20,13 +22,77 @@ from schemas.kinds import KINDS
 DB_NAME = "pneubench.duckdb"
 
 
-def connect_readonly(warehouse: Path) -> duckdb.DuckDBPyConnection:
-    """Open the warehouse read-only (raises FileNotFoundError when there is none yet)."""
-    db = Path(warehouse) / DB_NAME
+#: DuckDB variable holding the warehouse folder; the ``samples_<kind>`` views read their
+#: Parquet files relative to it, so a moved or copied warehouse reads its own files. Every
+#: pneubench reader sets it (:func:`connect_readonly`); another DuckDB client runs
+#: ``SET VARIABLE pneubench_warehouse = '/path/to/warehouse';`` first.
+ROOT_VARIABLE = "pneubench_warehouse"
+
+
+def _glob_escape_sql(expr: str) -> str:
+    """SQL expression: ``expr`` with DuckDB's glob characters made literal (``[`` ``*`` ``?``)."""
+    return f"replace(replace(replace({expr}, '[', '[[]'), '*', '[*]'), '?', '[?]')"
+
+
+#: SQL expression of the warehouse folder as the views see it (glob-escaped). Unset, it names
+#: the missing setting, so the error a plain DuckDB client gets says what to do.
+ROOT_SQL = _glob_escape_sql(
+    f"coalesce(getvariable('{ROOT_VARIABLE}'), "
+    f"'(run SET VARIABLE {ROOT_VARIABLE} = <warehouse folder>; see README)')")
+
+
+def _glob_escape(text: str) -> str:
+    return "".join(f"[{c}]" if c in "[*?" else c for c in text)
+
+
+def connect_readonly(warehouse: Path, database: Path | None = None) -> duckdb.DuckDBPyConnection:
+    """The one door to the warehouse: a read-only, contained DuckDB connection.
+
+    Every reader (``pneubench query``, the report, the rebuild's look at the previous state)
+    opens the warehouse here. The connection sees the warehouse's tables and views and can
+    read the files under ``<warehouse>/samples/`` and nothing else on the machine: external
+    access is off except that folder, extensions are neither installed nor loaded, and the
+    configuration is locked, so no SQL can undo any of it. Writes fail (the database is
+    attached read-only; nothing may be written under samples either, see
+    :func:`pipeline.query.check_sql`).
+
+    Parameters
+    ----------
+    warehouse : path
+        The warehouse folder.
+    database : path, optional
+        DuckDB file to open instead of ``<warehouse>/pneubench.duckdb`` (the rebuild renders the
+        report from the new database before swapping it in).
+
+    Raises
+    ------
+    FileNotFoundError
+        When there is no database yet.
+    """
+    warehouse = Path(warehouse).resolve()
+    db = Path(database).resolve() if database is not None else warehouse / DB_NAME
     if not db.is_file():
         raise FileNotFoundError(f"no warehouse at {db} (run `pneubench rebuild` first)")
-    con = duckdb.connect(str(db), read_only=True)
-    con.execute("SET TimeZone = 'UTC'")
+    # An in-memory instance of its own (never Python's cached instance of the file, whose
+    # settings other connections share) with the warehouse attached read-only.
+    con = duckdb.connect(":memory:", config={
+        "autoinstall_known_extensions": False, "autoload_known_extensions": False,
+        "allow_community_extensions": False, "allow_unsigned_extensions": False})
+    try:
+        con.execute("ATTACH ? AS pneubench (READ_ONLY)", [str(db)])
+        con.execute("USE pneubench")
+        con.execute("SET TimeZone = 'UTC'")
+        con.execute("SET enable_progress_bar = false")  # it would print into the result on stdout
+        con.execute(f"SET VARIABLE {ROOT_VARIABLE} = ?", [warehouse.as_posix()])
+        con.execute("SET temp_directory = ?", [(Path(tempfile.gettempdir()) / "pneubench-duckdb").as_posix()])
+        samples = (warehouse / "samples").as_posix() + "/"
+        # the views name files by glob-escaped paths ([*] for *), which match only the real ones
+        con.execute("SET allowed_directories = ?", [sorted({samples, _glob_escape(samples)})])
+        con.execute("SET enable_external_access = false")
+        con.execute("SET lock_configuration = true")
+    except Exception:
+        con.close()
+        raise
     return con
 
 
@@ -59,15 +125,31 @@ def _sql_str(text: str) -> str:
 def create_samples_views(con: duckdb.DuckDBPyConnection, warehouse: Path, runs: pd.DataFrame) -> None:
     """One ``samples_<kind>`` view per kind over that kind's samples Parquet files.
 
-    Files are listed explicitly (absolute paths) so that a database only ever sees the files
-    of its own generation. A kind without runs gets an empty view with the kind's channels.
+    Files are listed explicitly so that a database only ever sees the files of its own
+    generation, by their path relative to the warehouse folder, which the view reads from the
+    variable ``pneubench_warehouse`` (:data:`ROOT_VARIABLE`) at query time: the warehouse may be
+    moved or copied. ``kind`` and ``campaign`` are constants taken from ``runs``, never parsed
+    from the path (no Hive partitioning: the folders above the warehouse, or a campaign named
+    like a partition, cannot change them). A kind without runs gets an empty view with the
+    kind's channels.
     """
-    warehouse = Path(warehouse).resolve()
+    con.execute(f"SET VARIABLE {ROOT_VARIABLE} = ?", [Path(warehouse).resolve().as_posix()])
     for kind, spec in KINDS.items():
-        files = [] if runs.empty else sorted(runs.loc[runs["kind"] == kind, "samples_path"])
-        if files:
-            lst = ", ".join(_sql_str((warehouse / f).as_posix()) for f in files)
-            sql = f"SELECT * FROM read_parquet([{lst}], union_by_name = true, hive_partitioning = true)"
+        by_campaign: dict[str | None, list[str]] = {}
+        if not runs.empty:
+            for campaign, path in runs.loc[runs["kind"] == kind, ["campaign", "samples_path"]].itertuples(index=False):
+                if isinstance(path, str) and path:
+                    by_campaign.setdefault(campaign if isinstance(campaign, str) else None, []).append(path)
+        parts = []
+        for campaign in sorted(by_campaign, key=lambda c: (c is None, c or "")):
+            lst = ", ".join(_sql_str(_glob_escape(Path(f).as_posix())) for f in sorted(by_campaign[campaign]))
+            literal = "CAST(NULL AS VARCHAR)" if campaign is None else _sql_str(campaign)
+            parts.append(
+                f"SELECT *, {_sql_str(kind)} AS kind, {literal} AS campaign FROM read_parquet("
+                f"list_transform([{lst}], lambda f: {ROOT_SQL} || '/' || f), "
+                "union_by_name = true, hive_partitioning = false)")
+        if parts:
+            sql = " UNION ALL BY NAME ".join(parts)
         else:
             cols = ", ".join(f"CAST(NULL AS DOUBLE) AS {CHANNELS[c].column}" for c in spec.channels)
             sql = (f"SELECT CAST(NULL AS VARCHAR) AS run_id, {cols}, CAST(NULL AS VARCHAR) AS kind, "
@@ -97,6 +179,8 @@ def build_database(path: Path, warehouse: Path, tables: dict[str, pd.DataFrame],
                 insert_frame(con, table, df)
         create_samples_views(con, warehouse, runs)
         for sql in extra_sql or []:
+            con.execute(sql)
+        for sql in comment_statements(con):
             con.execute(sql)
         con.execute("CHECKPOINT")
     finally:
@@ -128,3 +212,97 @@ def swap_in(tmp: Path, final: Path) -> None:
             os.close(fd)
     except OSError:
         pass
+
+
+#: What one row of each contract table is (warehouse.md), for tables whose DDL has no comment
+#: block of its own.
+CONTRACT_ROWS = {
+    "runs": "ingested run", "quarantine": "input that could not be used",
+    "leakage_map": "pressure plateau of a leakage run", "breakaway": "breakaway event",
+    "breakaway_summary": "(direction, backpressure_bar, force_rate_n_s)",
+    "viscous_points": "constant-velocity pass", "viscous_fits": "(backpressure_bar, direction P/N)",
+    "friction_dynamic": "viscous run", "identification": "identification run", "step_response": "step in a step run",
+    "spring_fits": "PLA chamber", "spring_tests": "spring run",
+    "pressure_dynamics": "(chamber, direction charge/discharge)", "durability_runs": "durability run",
+    "hose_life": "hose", "service_life": "(hose_type, adjustment)",
+    "findings": "conclusion of the seed papers, checked on the lab's latest data",
+}
+
+#: Start of the comment of an internal table.
+INTERNAL_PREFIX = "(internal: the rebuild's own bookkeeping) "
+
+#: Tables that describe the rebuild itself, not the lab's data (``pneubench tables`` marks them).
+INTERNAL_TABLES = ("rebuild_log", "rebuild_inputs", "rebuild_changes", "ingest_state", "stage_cache", "figures")
+
+_CREATE = re.compile(r"^\s*CREATE\s+(?:OR\s+REPLACE\s+)?(TABLE|VIEW)\s+(?:IF\s+NOT\s+EXISTS\s+)?\"?(\w+)\"?",
+                     re.IGNORECASE)
+_COLUMN = re.compile(r"^\s+(\"[^\"]+\"|\w+)\s+[A-Z]\w*[^-]*?(?:--\s*(.*))?$")
+
+
+def ddl_comments() -> dict[str, dict]:
+    """Descriptions written as ``--`` comments in ``schemas/ddl``: ``{table: {"comment", "columns"}}``.
+
+    A table's description is the comment block right above its ``CREATE``; a column's is the
+    comment at the end of its line (continued on comment-only lines below it).
+    """
+    out: dict[str, dict] = {}
+    for _name, sql in ddl_statements():
+        block: list[str] = []
+        table = column = None
+        for line in sql.splitlines():
+            stripped = line.strip()
+            m = _CREATE.match(line)
+            if m:
+                table, column = m.group(2), None
+                out[table] = {"comment": " ".join(block) or None, "columns": {}}
+                block = []
+                if m.group(1).upper() == "VIEW" or "(" not in line:
+                    table = None if m.group(1).upper() == "VIEW" else table
+                continue
+            if table is None:
+                block = block + [stripped[2:].strip()] if stripped.startswith("--") else []
+                continue
+            if stripped.startswith(")"):
+                table = column = None
+                block = []
+                continue
+            if stripped.startswith("--"):
+                if column:
+                    cols = out[table]["columns"]
+                    cols[column] = ((cols.get(column) or "") + " " + stripped[2:].strip()).strip()
+                continue
+            m = _COLUMN.match(line)
+            if m and not stripped.upper().startswith(("PRIMARY", "UNIQUE", "CHECK", "FOREIGN", "CONSTRAINT")):
+                column = m.group(1).strip('"')
+                if m.group(2):
+                    out[table]["columns"][column] = m.group(2).strip()
+    return out
+
+
+def comment_statements(con: duckdb.DuckDBPyConnection) -> list[str]:
+    """``COMMENT ON`` statements for every table, view and column the DDL or the channels describe."""
+    present = {r[0]: r[1] for r in con.execute(
+        "SELECT table_name, 'TABLE' FROM duckdb_tables() WHERE database_name = current_database() "
+        "UNION ALL SELECT view_name, 'VIEW' FROM duckdb_views() WHERE NOT internal "
+        "AND database_name = current_database()").fetchall()}
+    columns = {(r[0], r[1]) for r in con.execute(
+        "SELECT table_name, column_name FROM duckdb_columns() WHERE database_name = current_database()").fetchall()}
+    out = []
+    described = ddl_comments()
+    for table, kind in sorted(present.items()):
+        info = described.get(table, {"comment": None, "columns": {}})
+        comment = info["comment"] or (f"One row per {CONTRACT_ROWS[table]}." if table in CONTRACT_ROWS else None)
+        colcomments = dict(info["columns"])
+        if table.startswith("samples_") and table[8:] in KINDS:
+            comment = f"One row per sample of a run of kind {table[8:]}, channels in SI units (column suffix = unit)."
+            colcomments.update({ch.column: ch.description for ch in CHANNELS.values()})
+            colcomments.update(run_id="Run identifier (runs.run_id).", kind="Test kind of the run.",
+                               campaign="Campaign of the run (first folder under raw/).")
+        if table in INTERNAL_TABLES:
+            comment = INTERNAL_PREFIX + (comment or "")
+        if comment:
+            out.append(f"COMMENT ON {kind} \"{table}\" IS {_sql_str(comment.strip())}")
+        for col, text in sorted(colcomments.items()):
+            if text and (table, col) in columns:
+                out.append(f"COMMENT ON COLUMN \"{table}\".\"{col}\" IS {_sql_str(text)}")
+    return out

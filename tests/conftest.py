@@ -50,9 +50,9 @@ STEP_META = {"kind": "step", "started_at": "2026-01-02T03:04:05", "rig": "plpa-1
 
 def query(warehouse: Path, sql: str, frame: bool = False):
     """Rows (or a DataFrame with ``frame=True``) of read-only SQL on a built warehouse."""
-    import duckdb
+    from pipeline.warehouse import connect_readonly
 
-    con = duckdb.connect(str(Path(warehouse) / "pneubench.duckdb"), read_only=True)
+    con = connect_readonly(Path(warehouse))
     try:
         cur = con.execute(sql)
         return cur.df() if frame else cur.fetchall()

@@ -1,9 +1,9 @@
 """Executors: local processes and a Dask cluster (two worker processes) give identical results."""
-import duckdb
 import pytest
 
 from pipeline.executors import DaskExecutor, Executor, LocalExecutor, make_executor
 from pipeline.rebuild import rebuild
+from pipeline.warehouse import connect_readonly
 from tests.conftest import STEP_META
 
 distributed = pytest.importorskip("distributed")
@@ -25,7 +25,7 @@ REBUILD_ONLY = {"rebuild_log", "rebuild_inputs", "rebuild_changes", "ingest_stat
 
 def dump(warehouse):
     """Every result table and view of a warehouse, rows sorted."""
-    con = duckdb.connect(str(warehouse / "pneubench.duckdb"), read_only=True)
+    con = connect_readonly(warehouse)
     try:
         tables = sorted({r[0] for r in con.execute("SELECT table_name FROM duckdb_tables() UNION ALL SELECT "
                                                    "view_name FROM duckdb_views() WHERE NOT internal").fetchall()}

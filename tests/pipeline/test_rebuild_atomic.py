@@ -12,6 +12,7 @@ import duckdb
 import pytest
 
 from pipeline.rebuild import EXIT_LOCKED, rebuild, warehouse_lock
+from pipeline.warehouse import connect_readonly
 from tests.conftest import STEP_META
 
 T = [0.0, 0.1, 0.2, 0.3]
@@ -25,7 +26,7 @@ def step(raw, rel, n=4):
 
 def state(warehouse):
     """(run ids, samples rows) of the live warehouse; the samples view must agree with runs."""
-    con = duckdb.connect(str(warehouse / "pneubench.duckdb"), read_only=True)
+    con = connect_readonly(warehouse)
     try:
         runs = [r[0] for r in con.execute("SELECT run_id FROM runs ORDER BY run_id").fetchall()]
         expected = con.execute("SELECT coalesce(sum(n_samples), 0) FROM runs WHERE kind = 'step'").fetchone()[0]
@@ -106,6 +107,8 @@ HAMMER = textwrap.dedent("""
         try:
             con = duckdb.connect(db, read_only=True)
             try:
+                # a plain DuckDB client: the samples views read relative to this variable
+                con.execute("SET VARIABLE pneubench_warehouse = ?", [os.path.dirname(db)])
                 runs = con.execute("SELECT count(*), coalesce(sum(n_samples), 0) FROM runs").fetchone()
                 view = con.execute("SELECT count(*) FROM samples_step").fetchone()[0]
                 gen = con.execute("SELECT max(generation) FROM rebuild_log").fetchone()[0]

@@ -3,13 +3,13 @@ only when their inputs changed, and the result equals a full rebuild table by ta
 import os
 import time
 
-import duckdb
 import pandas as pd
 import pytest
 
 import pipeline.rebuild as rb
 from pipeline.rebuild import rebuild
 from pipeline.stages import StageOutput
+from pipeline.warehouse import connect_readonly
 from tests.conftest import STEP_META, query
 
 T = [0.0, 0.1, 0.2, 0.3]
@@ -32,7 +32,7 @@ def step(raw, rel, scale=1.0, **meta):
 
 
 def dump(warehouse):
-    con = duckdb.connect(str(warehouse / "pneubench.duckdb"), read_only=True)
+    con = connect_readonly(warehouse)
     try:
         names = [r[0] for r in con.execute("SELECT table_name FROM duckdb_tables() UNION ALL "
                                            "SELECT view_name FROM duckdb_views() WHERE NOT internal").fetchall()]

@@ -14,6 +14,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from pipeline.simulator.campaign import VARIANTS, generate, plan_campaign, simulate_campaign
+from pipeline.warehouse import connect_readonly
 
 SEED = 3
 MINI_PLANS, _ = plan_campaign(SEED, "mini")
@@ -162,7 +163,7 @@ def test_timeseries_logger_keeps_non_canonical_channels_with_their_units(built):
     raw, wh, summary, runs = built
     assert {p.fmt for p in TIMESERIES} == {"csv", "tdms"}
     truth = json.loads((raw / "truth.json").read_text())["runs"]
-    con = duckdb.connect(str(wh / "pneubench.duckdb"), read_only=True)
+    con = connect_readonly(wh)
     try:
         cols = {r[0] for r in con.execute("DESCRIBE samples_timeseries").fetchall()}
         counts = dict(con.execute("SELECT run_id, count(*) FROM samples_timeseries GROUP BY run_id").fetchall())

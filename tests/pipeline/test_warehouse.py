@@ -1,0 +1,106 @@
+"""pipeline/warehouse.py: the samples views do not depend on where the warehouse sits."""
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import duckdb
+import pytest
+
+from pipeline.query import run_query
+from pipeline.rebuild import rebuild
+from pipeline.warehouse import DB_NAME, ROOT_VARIABLE
+from tests.conftest import STEP_META, RawBuilder
+
+T = [0.0, 0.1, 0.2]
+
+
+def _step(raw: RawBuilder, rel: str, scale: float = 1.0) -> None:
+    raw.csv(rel, STEP_META, {"t[s]": T, "x[m]": [0.0, 1e-3 * scale, 2e-3 * scale], "x_ref[m]": T})
+
+
+def _build(raw: RawBuilder, wh: Path) -> Path:
+    summary = rebuild(raw.root, wh, jobs=1, report=False)
+    assert summary.exit_code == 0, summary
+    return wh
+
+
+def _samples(wh: Path) -> list[tuple]:
+    return run_query(wh, "SELECT run_id, kind, campaign, t_s, x_m FROM samples_step ORDER BY ALL")[1]
+
+
+def _expected(runs: dict[str, float]) -> list[tuple]:
+    rows = []
+    for run_id, scale in runs.items():
+        for t, x in zip(T, [0.0, 1e-3 * scale, 2e-3 * scale]):
+            rows.append((run_id, "step", run_id.split("/")[0], t, x))
+    return sorted(rows)
+
+
+@pytest.mark.parametrize("where", ["campaign=archive/wh", "run_id=EVIL/t_s=0/wh", "kind=leakage/wh", "wh[1]/w*h"])
+def test_folders_above_the_warehouse_change_nothing(tmp_path, where):
+    raw = RawBuilder(tmp_path / "raw")
+    _step(raw, "c/a.csv")
+    wh = _build(raw, tmp_path / where)
+    assert _samples(wh) == _expected({"c/a": 1.0})
+
+
+def test_campaign_names_read_back_verbatim(tmp_path):
+    raw = RawBuilder(tmp_path / "raw")
+    names = {"lab%41b": 1.0, "rig=2": 2.0, "campaign=x": 3.0, "plain": 4.0, "x*": 5.0, "x1": 6.0, "b[1]": 7.0}
+    for name, scale in names.items():
+        _step(raw, f"{name}/a.csv", scale)
+    wh = _build(raw, tmp_path / "wh")
+    assert _samples(wh) == _expected({f"{n}/a": s for n, s in names.items()})
+    counts = dict(run_query(wh, "SELECT campaign, count(*) FROM samples_step GROUP BY campaign")[1])
+    assert counts == {n: 3 for n in names}
+
+
+def test_moved_warehouse_reads_its_files(tmp_path):
+    raw = RawBuilder(tmp_path / "raw")
+    _step(raw, "c/a.csv")
+    wh = _build(raw, tmp_path / "wh")
+    moved = tmp_path / "elsewhere" / "wh2"
+    moved.parent.mkdir()
+    shutil.move(wh, moved)
+    assert _samples(moved) == _expected({"c/a": 1.0})
+
+
+def test_copied_warehouse_reads_its_own_files_after_the_original_is_gone(tmp_path):
+    raw = RawBuilder(tmp_path / "raw")
+    _step(raw, "c/a.csv")
+    wh = _build(raw, tmp_path / "wh")
+    copy = tmp_path / "copy"
+    shutil.copytree(wh, copy)
+    # the copy's own samples differ from the original's: a copy that read the original would show it
+    for f in (wh / "samples").rglob("*.parquet"):
+        f.write_bytes(b"not parquet")
+    assert _samples(copy) == _expected({"c/a": 1.0})
+    shutil.rmtree(wh)
+    assert _samples(copy) == _expected({"c/a": 1.0})
+
+
+def test_rebuild_after_a_move_works(tmp_path):
+    raw = RawBuilder(tmp_path / "raw")
+    _step(raw, "c/a.csv")
+    wh = _build(raw, tmp_path / "wh")
+    shutil.move(wh, tmp_path / "wh2")
+    _step(raw, "c/b.csv", 2.0)
+    wh2 = _build(raw, tmp_path / "wh2")
+    assert _samples(wh2) == _expected({"c/a": 1.0, "c/b": 2.0})
+
+
+def test_plain_duckdb_client_needs_the_variable_and_says_so(tmp_path, monkeypatch):
+    raw = RawBuilder(tmp_path / "raw")
+    _step(raw, "c/a.csv")
+    wh = _build(raw, tmp_path / "wh")
+    monkeypatch.chdir(tmp_path)
+    con = duckdb.connect(str(wh / DB_NAME), read_only=True)
+    try:
+        with pytest.raises(duckdb.Error, match=f"SET VARIABLE {ROOT_VARIABLE}"):
+            con.execute("SELECT * FROM samples_step").fetchall()
+        con.execute(f"SET VARIABLE {ROOT_VARIABLE} = ?", [str(wh)])
+        assert con.execute("SELECT count(*) FROM samples_step").fetchone() == (3,)
+        assert con.execute("SELECT count(*) FROM runs").fetchone() == (1,)
+    finally:
+        con.close()
