@@ -60,8 +60,9 @@ def test_non_canonical_channels_and_unknown_keys_are_kept(raw, warehouse):
             {"t[s]": T, "x[m]": T, "x_ref[m]": T, "Oil Temp[degC]": [20, 21, 22, 23], "status": ["ok", "ok", "hot", "ok"]})
     res = ingest(raw, "c/a.csv", warehouse)
     table = pq.read_table(warehouse / res.run["samples_path"])
-    assert table.column("oil_temp").to_pylist() == [20.0, 21.0, 22.0, 23.0]
-    assert table.schema.field("oil_temp").metadata[b"unit"] == b"degC"
+    # non-canonical columns end in their unit (docs/inputs.md): `Oil Temp[degC]` -> oil_temp_degc
+    assert table.column("oil_temp_degc").to_pylist() == [20.0, 21.0, 22.0, 23.0]
+    assert table.schema.field("oil_temp_degc").metadata[b"unit"] == b"degC"
     assert table.column("status").to_pylist() == ["ok", "ok", "hot", "ok"]
     assert res.run["params"]["Bench Firmware"] == "v2"
 
@@ -249,10 +250,10 @@ def test_non_canonical_names_that_sanitise_alike_are_both_kept(raw, warehouse):
     res = ingest(raw, "c/a.csv", warehouse)
     assert res.error is None
     table = pq.read_table(warehouse / res.run["samples_path"])
-    assert table.column("foo_bar").to_pylist() == [1.0, 3.0]
-    assert table.column("foo_bar_2").to_pylist() == [2.0, 4.0]
+    assert table.column("foo_bar_v").to_pylist() == [1.0, 3.0]
+    assert table.column("foo_bar_v_2").to_pylist() == [2.0, 4.0]
     assert [(c["column"], c["raw_name"]) for c in res.channels if c["column"].startswith("foo")] == [
-        ("foo_bar", "Foo Bar"), ("foo_bar_2", "foo-bar")]
+        ("foo_bar_v", "Foo Bar"), ("foo_bar_v_2", "foo-bar")]
 
 
 def test_flow_round_trip_anr_and_normal_litres(raw, warehouse):
