@@ -10,7 +10,8 @@ import numpy as np
 import pandas as pd
 from scipy.linalg import expm
 
-from pipeline.simulator.base import P_ATM_PA, SimRun, make_rng, pressure_sensor, quantise, time_vector
+from pipeline.simulator.base import (P_ATM_PA, SimRun, first_order_steps, make_rng, pressure_sensor, quantise,
+                                     time_vector)
 
 #: Table 1 of the paper, per chamber: polytropic index n [-], effective area Ae [m2],
 #: eps [m2], delta [N/m].
@@ -90,13 +91,18 @@ PRESSURE_STEPS_BAR = (1.0, 3.0, 1.0, 4.0, 2.0, 5.0, 3.0)
 
 def simulate_pressure_step(chamber: str = "rear", rng=None, *, levels_bar=PRESSURE_STEPS_BAR, hold_s: float = 1.0,
                            fs_hz: float = 1000.0, wn: float = PRESSURE_WN, xi: dict | None = None,
-                           noise_pa: float = 300.0, **metadata) -> SimRun:
+                           noise_pa: float = 300.0, tau_s: float | None = None, **metadata) -> SimRun:
     """Pressure steps: ``P'' = -2 xi wn P' - wn^2 (P - Pref)``, xi by charge / discharge.
 
     The first level is the initial steady state; every later level is a step of ``p_ref``
     held for ``hold_s``. Solved exactly (matrix exponential) between set-point changes.
+
+    ``tau_s`` [s] instead makes the chamber a first-order lag (a closed-loop pressure regulator):
+    ``tau P' = Pref - P``, exact between set-point changes.
     """
     rng = make_rng(rng)
+    if tau_s is not None:
+        return _first_order_pressure_steps(chamber, rng, levels_bar, hold_s, fs_hz, noise_pa, float(tau_s), metadata)
     xi = dict(PRESSURE_XI if xi is None else xi)
     levels = [lv * 1e5 for lv in levels_bar]
     n_per = int(round(hold_s * fs_hz))
@@ -131,4 +137,23 @@ def simulate_pressure_step(chamber: str = "rear", rng=None, *, levels_bar=PRESSU
     truth = {"kind": "pressure_step", "chamber": chamber, "wn_rad_s": wn, "xi_charge": xi["charge"],
              "xi_discharge": xi["discharge"], "noise_pa": noise_pa, "fs_hz": fs_hz, "hold_s": hold_s,
              "steps": steps}
+    return SimRun(data, meta, truth)
+
+
+def _first_order_pressure_steps(chamber, rng, levels_bar, hold_s, fs_hz, noise_pa, tau_s, metadata) -> SimRun:
+    """Pressure steps through a first-order lag ``tau_s`` (see :func:`simulate_pressure_step`)."""
+    levels = [lv * 1e5 for lv in levels_bar]
+    n_per = int(round(hold_s * fs_hz))
+    n = n_per * len(levels)
+    t = time_vector(n, fs_hz)
+    times = [float(t[i * n_per]) for i in range(1, len(levels))]
+    p = first_order_steps(t, times, levels[1:], levels[0], tau_s)
+    ref = np.repeat(np.asarray(levels, dtype=float), n_per)
+    steps = [{"t_step_s": times[i - 1], "p_from_pa": levels[i - 1], "p_to_pa": levels[i],
+              "direction": "charge" if levels[i] >= levels[i - 1] else "discharge", "tau_s": tau_s}
+             for i in range(1, len(levels))]
+    data = pd.DataFrame({"t_s": t, "p_pa": pressure_sensor(p, rng, noise_pa), "p_ref_pa": ref})
+    meta = {"kind": "pressure_step", "rig": "pla-1", "chamber": chamber, **metadata}
+    truth = {"kind": "pressure_step", "chamber": chamber, "model": "first_order", "tau_s": tau_s,
+             "noise_pa": noise_pa, "fs_hz": fs_hz, "hold_s": hold_s, "steps": steps}
     return SimRun(data, meta, truth)

@@ -259,13 +259,19 @@ def simulate_viscous(backpressure_bar: float = 0.0, speeds_m_s=VISCOUS_SPEEDS_M_
                      max_cruise_s: float = 2.0, min_cruise_s: float = 0.4, dwell_s: float = 0.3,
                      valve_tau_s: float = 0.02, fc_n: float | None = None, ka_n_s_m: float | None = None,
                      vs_m_s: float | None = None, force_noise_n: float = 0.05, x0_m: float = 0.4,
-                     **metadata) -> SimRun:
+                     position_noise_m: float | None = None, position_step_m: float | None = None,
+                     moving_mass_kg: float | None = None, **metadata) -> SimRun:
     """Viscous-friction run: constant-velocity passes at ``speeds_m_s`` (signed), rest between.
 
     The drive force is ``m a + F(v)``. With pressures, it reaches the chambers through a
     first-order valve lag ``valve_tau_s`` (so at constant velocity ``(p_a - p_b) A = F(v)``);
     with ``use_force_channel`` a load cell logs it directly as ``f`` (no pressures).
     Near-zero runs: ``speeds_m_s=NEAR_ZERO_SPEEDS_M_S`` at 0 bar.
+
+    The position is the rig's 5 um encoder by default; ``position_step_m`` [m] is an encoder of
+    another resolution, ``position_noise_m`` [m] an analog sensor (Gaussian noise of that
+    standard deviation, not quantised; drawn after the other noise, so the default run is
+    unchanged). ``moving_mass_kg`` [kg] overrides the carriage mass (default 2 kg).
     """
     rng = make_rng(rng)
     fc0, ka0, vs0 = viscous_parameters(backpressure_bar)
@@ -276,8 +282,12 @@ def simulate_viscous(backpressure_bar: float = 0.0, speeds_m_s=VISCOUS_SPEEDS_M_
     n = int(math.floor(total * fs_hz)) + 1
     t = time_vector(n, fs_hz)
     x, v, a = evaluate_profile(segs, t)
-    force = MOVING_MASS_KG * a + friction_force(v, fc, ka, vs)
-    data = {"t_s": t, "x_m": encoder(x0_m + x)}
+    mass = MOVING_MASS_KG if moving_mass_kg is None else float(moving_mass_kg)
+    force = mass * a + friction_force(v, fc, ka, vs)
+    if position_noise_m is None and position_step_m is not None:
+        data = {"t_s": t, "x_m": quantise(x0_m + x, position_step_m)}
+    else:
+        data = {"t_s": t, "x_m": encoder(x0_m + x)}
     if use_force_channel:
         data["f_n"] = quantise(force + rng.normal(0.0, force_noise_n, n), 1e-3)
     else:
@@ -286,6 +296,8 @@ def simulate_viscous(backpressure_bar: float = 0.0, speeds_m_s=VISCOUS_SPEEDS_M_
         p_a, p_b = _chamber_pressures(lagged, backpressure_bar)
         data["p_a_pa"] = pressure_sensor(p_a, rng)
         data["p_b_pa"] = pressure_sensor(p_b, rng)
+    if position_noise_m is not None:
+        data["x_m"] = (x0_m + x) + rng.normal(0.0, position_noise_m, n)
     settle = 0.0 if use_force_channel else 6 * valve_tau_s
     for p in passes:
         p["friction_n"] = float(friction_force(p["velocity_m_s"], fc, ka, vs))
@@ -295,6 +307,9 @@ def simulate_viscous(backpressure_bar: float = 0.0, speeds_m_s=VISCOUS_SPEEDS_M_
     truth = {"kind": "viscous", "backpressure_bar": float(backpressure_bar), "fc_n": fc, "ka_n_s_m": ka,
              "vs_m_s": vs, "use_force_channel": bool(use_force_channel), "accel_m_s2": accel_m_s2,
              "valve_tau_s": valve_tau_s, "fs_hz": fs_hz, "x0_m": x0_m, "passes": passes}
+    if moving_mass_kg is not None or position_noise_m is not None or position_step_m is not None:
+        truth.update(moving_mass_kg=mass, position_noise_m=position_noise_m,
+                     position_step_m=None if position_noise_m is not None else (position_step_m or 5e-6))
     return SimRun(pd.DataFrame(data), meta, truth)
 
 
