@@ -449,14 +449,16 @@ def plan_derived(derived_cfg: dict, maps: list[ColumnMap], meta: dict,
             names[key] = float(v)
     for m in maps:
         if m.numeric and m.channel is None:
-            names[sanitise_name(m.raw_name)] = m.column
+            alias = sanitise_name(m.raw_name)
+            if canonical_name(alias) is None:   # a look-alike `F[g]` is `f_g`, never `f`
+                names[alias] = m.column
             names[m.column] = m.column
     for m in maps:
         if m.channel is not None:
             names[m.channel] = m.column
     if time_column:
         names["t"] = "t_s"
-    taken = {m.column for m in maps}
+    taken = {m.column for m in maps} | ({"t_s"} if time_column else set())
     out, warnings = [], []
     for name, entry in (derived_cfg or {}).items():
         unit = None

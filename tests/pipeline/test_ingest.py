@@ -484,3 +484,26 @@ def test_lookalike_mapped_in_rig_toml_is_the_channel(raw, warehouse):
     raw.csv("c/a.csv", {**STEP_META, "kind": "timeseries"}, {"t[s]": T, "F[g]": [1.0, 2.0, 0.0, 0.0]})
     table = samples_of(ingest(raw, "c/a.csv", warehouse), warehouse)
     assert table.column("f_n").to_pylist()[:2] == pytest.approx([9.81, 19.62])
+
+
+def test_derived_never_reads_a_lookalike_as_the_canonical_channel(raw, warehouse):
+    raw.write("c/rig.toml", '[derived]\nload = { expr = "f * 2", unit = "N" }\nacc = { expr = "f_g * 9.81", unit = "m/s2" }\n')
+    raw.csv("c/a.csv", {**STEP_META, "kind": "timeseries"}, {"t[s]": T, "F[g]": [1.0, 2.0, 3.0, 4.0]})
+    res = ingest(raw, "c/a.csv", warehouse)
+    table = samples_of(res, warehouse)
+    assert "load_n" not in table.column_names
+    assert table.column("acc_m_s2").to_pylist() == pytest.approx([9.81, 19.62, 29.43, 39.24])
+    assert any("`load` not computed: no channel or numeric metadata `f`" in w for w in res.run["warnings"])
+
+
+def test_derived_time_from_a_non_canonical_clock(raw, warehouse):
+    raw.write("c/rig.toml", '[derived]\nt = "clock_ms / 1000"\n')
+    raw.csv("c/a.csv", STEP_META, {"clock[ms]": [10, 20, 30, 40], "x[m]": T, "x_ref[m]": T})
+    table = samples_of(ingest(raw, "c/a.csv", warehouse), warehouse)
+    assert table.column("t_s").to_pylist() == pytest.approx([0.01, 0.02, 0.03, 0.04])
+
+
+def test_q_derived_time_and_a_stated_rate_conflict(raw, warehouse):
+    raw.write("c/rig.toml", '[derived]\nt = "clock_ms / 1000"\n')
+    raw.csv("c/a.csv", {**STEP_META, "sample_rate_hz": 100}, {"clock[ms]": [10, 20, 30, 40], "x[m]": T, "x_ref[m]": T})
+    assert "rig.toml [derived] `t`: the file already has channel `t`" in quarantine(raw, warehouse)
