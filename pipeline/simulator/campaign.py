@@ -183,11 +183,13 @@ VARIANTS: dict[str, list[dict]] = {
         dict(fmt="csv", folder="runs", units={"x": "mm", "p_a": "bar", "p_b": "bar"}, embed=True),
     ],
     "timeseries": [
-        dict(fmt="csv", folder="ambient", units={"p_supply": "bar", "temperature": "degC", "rel_humidity": "%"},
-             embed=True, channels=["p_supply_pa", "temperature", "rel_humidity"]),
-        dict(fmt="tdms", folder="ambient", units={"temperature": "degC", "rel_humidity": "%"}, embed=False,
-             names={"temperature": "Temperature", "rel_humidity": "Rel. Humidity"},
-             channels=["temperature", "rel_humidity"], opts=dict(waveform=True)),
+        dict(fmt="csv", folder="ambient", units={"p_supply": "bar", "temperature_degc": "degC",
+                                                  "rel_humidity_pct": "%"},
+             names={"temperature_degc": "temperature", "rel_humidity_pct": "rel_humidity"},
+             embed=True, channels=["p_supply_pa", "temperature_degc", "rel_humidity_pct"]),
+        dict(fmt="tdms", folder="ambient", units={"temperature_degc": "degC", "rel_humidity_pct": "%"}, embed=False,
+             names={"temperature_degc": "Temperature", "rel_humidity_pct": "Rel. Humidity"},
+             channels=["temperature_degc", "rel_humidity_pct"], opts=dict(waveform=True)),
     ],
     "leakage_check": [
         dict(fmt="csv", folder="leakage-checks", units={"p_supply": "bar", "q_leak": "l/min"}, embed=True),
