@@ -417,6 +417,9 @@ def resolve_sensors(sensors_cfg: dict, meta: dict, present: set[str]) -> tuple[d
 
 
 # -- derived channels -------------------------------------------------------------------------
+#: Most derived channels a rig.toml may state (rig.toml is untrusted: bounded work per batch).
+MAX_DERIVED = 64
+
 @dataclass
 class DerivedChannel:
     """A rig.toml ``[derived]`` channel of one run: its column and where each name comes from."""
@@ -459,6 +462,8 @@ def plan_derived(derived_cfg: dict, maps: list[ColumnMap], meta: dict,
     if time_column:
         names["t"] = "t_s"
     taken = {m.column for m in maps} | ({"t_s"} if time_column else set())
+    if len(derived_cfg or {}) > MAX_DERIVED:
+        raise IngestError(f"rig.toml [derived] has {len(derived_cfg)} channels (at most {MAX_DERIVED})")
     out, warnings = [], []
     for name, entry in (derived_cfg or {}).items():
         unit = None

@@ -507,3 +507,11 @@ def test_q_derived_time_and_a_stated_rate_conflict(raw, warehouse):
     raw.write("c/rig.toml", '[derived]\nt = "clock_ms / 1000"\n')
     raw.csv("c/a.csv", {**STEP_META, "sample_rate_hz": 100}, {"clock[ms]": [10, 20, 30, 40], "x[m]": T, "x_ref[m]": T})
     assert "rig.toml [derived] `t`: the file already has channel `t`" in quarantine(raw, warehouse)
+
+
+def test_q_too_many_derived_channels(raw, warehouse):
+    from pipeline.ingest import MAX_DERIVED
+
+    raw.write("c/rig.toml", "[derived]\n" + "".join(f'd{i} = "x * {i}"\n' for i in range(MAX_DERIVED + 1)))
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    assert f"at most {MAX_DERIVED}" in quarantine(raw, warehouse)
