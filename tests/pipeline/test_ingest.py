@@ -379,13 +379,15 @@ def test_sensor_metadata_from_rig_toml_and_metadata_in_si(raw, warehouse):
     raw.write("c/rig.toml", '[sensors.x]\nresolution = "5 um"\nnoise = 2e-6\n'
                             '[sensors.p_a]\nnoise = "300 Pa"\nresolution = "0.01 bar"\n'
                             '[sensors.q_leak]\nnoise = "1 g/s"\n')   # channel not in this run: not stored
-    raw.csv("c/a.csv", {**STEP_META, "sensor_X_noise": "0.003 mm", "sensor_p_a_resolution": "1 kPa"},
-            {"t[s]": T, "x[mm]": T, "x_ref[mm]": T, "p_a[bar(a)]": T})
+    raw.csv("c/a.csv", {**STEP_META, "sensor_X_noise": "0.003 mm", "sensor_p_a_resolution": "1 kPa",
+                        "sensor_p_b_noise": "0.003 bara"},
+            {"t[s]": T, "x[mm]": T, "x_ref[mm]": T, "p_a[bar(a)]": T, "p_b[bar]": T})
     p = ingest(raw, "c/a.csv", warehouse).run["params"]
     assert p["sensor_x_resolution"] == 5e-06
     assert p["sensor_x_noise"] == pytest.approx(3e-6)             # metadata overrides rig.toml
     assert p["sensor_p_a_noise"] == 300.0
     assert p["sensor_p_a_resolution"] == 1000.0                    # a difference: no gauge offset
+    assert p["sensor_p_b_noise"] == pytest.approx(300.0)           # bara: still a difference
     assert "sensor_X_noise" not in p and "sensor_q_leak_noise" not in p
 
 
