@@ -698,7 +698,8 @@ def _ingest_hashed(tree, path, warehouse, rel, campaign, reuse, sha, hashing, co
         hint = "".join(_lookalike_hint(c, lookalikes) for c in gaps)
         if "t" in gaps:
             hint += "; no time column: state `sample_rate_hz` or `dt_s` (and `t0_s`) in the run's metadata"
-        hint += "".join(f"; {w}" for w in derived_warnings if any(f"`{c}`" in w.split(" not computed")[0] for c in gaps))
+        hint += "".join(f"; {w}" for w in derived_warnings
+                        if any(f"`{c}`" in w.split(" not computed")[0] for c in gaps))
         raise IngestError(f"missing channel {', '.join(f'`{c}`' for c in gaps)} (kind {kind} needs "
                           + " or ".join(", ".join(s) for s in KINDS[kind].channel_sets) + ")" + hint)
     sensors, sensor_warnings = resolve_sensors(rig.get("sensors", {}), meta, present)
