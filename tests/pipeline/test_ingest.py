@@ -517,3 +517,11 @@ def test_q_too_many_derived_channels(raw, warehouse):
     raw.write("c/rig.toml", "[derived]\n" + "".join(f'd{i} = "x * {i}"\n' for i in range(MAX_DERIVED + 1)))
     raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
     assert f"at most {MAX_DERIVED}" in quarantine(raw, warehouse)
+
+
+def test_q_missing_channel_names_the_derived_channel_that_could_not_be_computed(raw, warehouse):
+    raw.write("c/rig.toml", '[metadata]\nhose_area_m2 = 4.9e-4\n[derived]\nf = "f_cell - p_b * hose_area_m2"\n')
+    raw.csv("c/a.csv", VISCOUS, {"t[s]": T, "x[mm]": T, "load[N]": T})
+    err = quarantine(raw, warehouse)
+    assert "missing channel" in err
+    assert "derived channel `f` not computed: no channel or numeric metadata `f_cell`, `p_b`" in err
