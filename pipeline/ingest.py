@@ -22,10 +22,12 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from pipeline.derived import DerivedError, Expression, parse_expression
 from pipeline.layout import ConfigError, RawTree, display_name
 from pipeline.readers import RawColumn, ReaderError, read_export
 from pipeline.readers.base import MAX_CHANNELS
-from schemas.channels import CHANNELS, canonical_name, sanitise_name
+from schemas.channels import (CHANNELS, canonical_name, noncanonical_column, other_dimension,
+                              sanitise_name)
 from schemas.kinds import (KINDS, META_KEYS, coerce_value, missing_channels,
                            missing_metadata, samples_schema)
 from schemas.units import P_ATM_DEFAULT_PA, accepted_symbols, lookup_unit
@@ -219,7 +221,7 @@ def map_columns(columns: list[RawColumn], channels_cfg: dict) -> list[ColumnMap]
         channel = canonical_name(name)
         label = f"`{col.name}`" if col.name == str(col.index) or not col.name else f"`{col.name}` (column {col.index})"
         if channel is None:
-            column = sanitise_name(name)
+            column = noncanonical_column(name, unit_text)
             base, k = column, next_suffix.get(column, 2)
             while column in seen:  # "Foo Bar" and "foo-bar" both sanitise to foo_bar: keep both
                 column, k = f"{base}_{k}", k + 1
@@ -242,6 +244,267 @@ def map_columns(columns: list[RawColumn], channels_cfg: dict) -> list[ColumnMap]
             raise IngestError(f"channel `{channel or column}` appears twice (`{seen[column]}` and `{col.name}`)")
         seen[column] = col.name
     return maps
+
+
+# -- channels that only look canonical -------------------------------------------------------
+def set_aside_lookalikes(columns: list[RawColumn], channels_cfg: dict) -> tuple[list[RawColumn], dict]:
+    """Raw columns named like a canonical channel but recorded in a unit of another dimension.
+
+    ``F`` in ``g`` is an accelerometer, not the force: without a rig.toml ``[channels]`` entry
+    for it, such a column is renamed to its non-canonical column name (``f_g``) so that
+    :func:`map_columns` keeps it as a non-canonical channel. Units in no table at all (a typo
+    such as ``psig``) are not set aside: on a canonical name they stay an error.
+
+    Returns
+    -------
+    columns : list of RawColumn
+        The columns, look-alikes renamed.
+    lookalikes : dict
+        Column key -> (raw name, canonical channel it looks like, raw unit).
+    """
+    out, looks = [], {}
+    for col in columns:
+        channel = canonical_name(col.name)
+        if channel is not None and _rig_entry(col, channels_cfg or {}) is None and other_dimension(col.unit):
+            looks[col.key] = (col.name, channel, col.unit)
+            col = RawColumn(key=col.key, name=noncanonical_column(col.name, col.unit), unit=col.unit,
+                            index=col.index, dtype=col.dtype)
+        out.append(col)
+    return out, looks
+
+
+def _lookalike_hint(channel: str, looks: dict) -> str:
+    for raw_name, ch, unit in looks.values():
+        if ch == channel:
+            si = CHANNELS[channel].si_unit
+            return (f"; column `{raw_name}` is in `{unit}`, not a {CHANNELS[channel].quantity}: if it is `{channel}`, "
+                    f"map it in rig.toml: [channels.\"{raw_name}\"] channel = \"{channel}\" unit = \"{si}\"")
+    return ""
+
+
+# -- time base -------------------------------------------------------------------------------
+#: MAT scalars that state the sample rate [Hz] or interval [s] of a MAT export.
+MAT_RATE_KEYS = ("Fs", "fs", "sample_rate_hz")
+MAT_DT_KEYS = ("dt",)
+#: Relative disagreement between a ``t`` column's rate and a stated rate that is warned about.
+RATE_TOLERANCE = 0.01
+
+
+@dataclass(frozen=True)
+class TimeBase:
+    """Time of an export without a time column: ``t = t0_s + i / rate_hz`` (or ``+ i * dt_s``)."""
+
+    rate_hz: float | None
+    dt_s: float | None
+    t0_s: float
+    source: str
+
+    @property
+    def stated_rate_hz(self) -> float:
+        return self.rate_hz if self.rate_hz is not None else 1.0 / self.dt_s
+
+    def times(self, row0: int, n: int) -> np.ndarray:
+        """Times of rows ``row0 .. row0 + n - 1``. [s]"""
+        i = np.arange(row0, row0 + n, dtype=np.float64)
+        t = i / self.rate_hz if self.rate_hz is not None else i * self.dt_s
+        return t + self.t0_s if self.t0_s else t
+
+
+def _positive(value, what: str) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise IngestError(f"{what} must be a number, got {value!r}") from None
+    if isinstance(value, bool) or not math.isfinite(v) or v <= 0:
+        raise IngestError(f"{what} must be a positive finite number, got {value!r}")
+    return v
+
+
+def resolve_time_base(meta: dict, export) -> TimeBase | None:
+    """The stated time base of a run: metadata ``sample_rate_hz`` or ``dt_s`` (and ``t0_s``),
+    else a MAT scalar ``Fs`` / ``fs`` / ``sample_rate_hz`` / ``dt``; None when none is stated."""
+    t0 = float(meta.get("t0_s") or 0.0)
+    if meta.get("sample_rate_hz") is not None:
+        return TimeBase(_positive(meta["sample_rate_hz"], "metadata `sample_rate_hz`"), None, t0, "sample_rate_hz")
+    if meta.get("dt_s") is not None:
+        return TimeBase(None, _positive(meta["dt_s"], "metadata `dt_s`"), t0, "dt_s")
+    if export.format == "mat":
+        for k in MAT_RATE_KEYS:
+            if k in export.metadata:
+                return TimeBase(_positive(export.metadata[k], f"MAT scalar `{k}`"), None, t0, k)
+        for k in MAT_DT_KEYS:
+            if k in export.metadata:
+                return TimeBase(None, _positive(export.metadata[k], f"MAT scalar `{k}`"), t0, k)
+    return None
+
+
+# -- sensor characteristics -------------------------------------------------------------------
+SENSOR_FIELDS = ("resolution", "noise")
+_SENSOR_KEY = re.compile(r"^sensor_(?P<channel>.+)_(?P<what>resolution|noise)$", re.IGNORECASE)
+_NUMBER_UNIT = re.compile(r"^\s*(?P<num>[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(?P<unit>\S.*)?$")
+
+
+def sensor_value_si(value, channel: str, what: str, where: str) -> float:
+    """A sensor resolution or noise (``"5 um"``, ``"0.01 bar"``, or a number in the channel's SI
+    unit) -> float in SI. A pressure step or noise is a difference: no gauge offset.
+
+    Raises IngestError naming ``where`` when the value is not a positive finite quantity of the
+    channel's dimension.
+    """
+    quantity = CHANNELS[channel].quantity
+    si = CHANNELS[channel].si_unit
+    if isinstance(value, bool):
+        raise IngestError(f"{where}: {what} must be a number or a number with a unit, got {value!r}")
+    if isinstance(value, (int, float)):
+        v, scale = float(value), 1.0
+    else:
+        m = _NUMBER_UNIT.match(str(value))
+        if not m:
+            raise IngestError(f"{where}: {what} {value!r} is not a number with a unit (e.g. \"5 um\")")
+        v, unit_text = float(m.group("num")), m.group("unit")
+        scale = 1.0
+        if unit_text:
+            unit = lookup_unit(unit_text)
+            if unit is None or unit.quantity != quantity:
+                raise IngestError(f"{where}: unit `{unit_text}` is not a {quantity} unit "
+                                  f"(accepted: {', '.join(accepted_symbols(quantity))})")
+            scale = unit.scale
+    if not math.isfinite(v) or v <= 0:
+        raise IngestError(f"{where}: {what} must be positive and finite, got {value!r}")
+    out = v * scale
+    div = round(1.0 / scale) if scale < 1.0 else 0
+    if div > 1 and abs(div * scale - 1.0) < 1e-12:
+        out = v / div        # 5 um -> 5e-06 exactly as the literal
+    if not math.isfinite(out) or out <= 0:
+        raise IngestError(f"{where}: {what} must be positive and finite in {si}, got {value!r}")
+    return out
+
+
+def resolve_sensors(sensors_cfg: dict, meta: dict, present: set[str]) -> tuple[dict, list[str]]:
+    """Sensor resolution / noise of a run, in SI, under ``sensor_<channel>_resolution|noise``.
+
+    Sources: run metadata keys ``sensor_<channel>_resolution`` / ``_noise`` (any channel
+    spelling, case-insensitive) override rig.toml ``[sensors.<channel>]``; rig.toml values are
+    kept only for channels the run has.
+
+    Returns
+    -------
+    params : dict
+        ``{"set": {sensor key: SI float}, "drop": [metadata keys as spelled, replaced by "set"]}``
+    warnings : list of str
+    """
+    out: dict = {}
+    warnings: list[str] = []
+    for name, table in sorted((sensors_cfg or {}).items()):
+        channel = canonical_name(name)
+        if not isinstance(table, dict):
+            raise IngestError(f"rig.toml [sensors.{name}] must be a table with `resolution` and/or `noise`")
+        if channel is None:
+            warnings.append(f"rig.toml [sensors.{name}] ignored: `{name}` is not a canonical channel")
+            continue
+        unknown = sorted(set(table) - set(SENSOR_FIELDS))
+        if unknown:
+            raise IngestError(f"rig.toml [sensors.{name}]: unknown key(s) {', '.join(unknown)} "
+                              f"(expected {', '.join(SENSOR_FIELDS)})")
+        for what in SENSOR_FIELDS:
+            if what in table:
+                v = sensor_value_si(table[what], channel, what, f"rig.toml [sensors.{name}]")
+                if channel in present:
+                    out[f"sensor_{channel}_{what}"] = v
+    drop = []
+    for key in sorted(meta):
+        m = _SENSOR_KEY.match(str(key))
+        if not m or meta[key] is None:
+            continue
+        channel = canonical_name(m.group("channel"))
+        if channel is None:
+            continue   # a non-canonical channel's: kept as written (unknown keys are kept)
+        what = m.group("what").lower()
+        out[f"sensor_{channel}_{what}"] = sensor_value_si(meta[key], channel, what, f"metadata `{key}`")
+        drop.append(key)
+    return {"set": out, "drop": drop}, warnings
+
+
+# -- derived channels -------------------------------------------------------------------------
+#: Most derived channels a rig.toml may state (rig.toml is untrusted: bounded work per batch).
+MAX_DERIVED = 64
+
+@dataclass
+class DerivedChannel:
+    """A rig.toml ``[derived]`` channel of one run: its column and where each name comes from."""
+
+    name: str
+    channel: str | None
+    column: str
+    unit: str | None
+    expression: Expression
+    inputs: dict            # name -> samples column (str) or metadata value (float)
+
+    def describe(self) -> dict:
+        return {"column": self.column, "channel": self.channel, "raw_name": f"= {self.expression.text}",
+                "raw_unit": None, "unit": self.unit}
+
+
+def plan_derived(derived_cfg: dict, maps: list[ColumnMap], meta: dict,
+                 time_column: bool) -> tuple[list[DerivedChannel], list[str]]:
+    """Check rig.toml ``[derived]`` against a run: which channels it can compute.
+
+    Names in an expression are, in this order: canonical channels (in SI), non-canonical
+    channels by their sanitised raw name (as recorded), channels derived before it, numeric
+    metadata values. A derived channel whose names the run does not have is skipped with a
+    warning (its rig.toml may serve other files); a derived canonical channel that the file
+    also carries is an error.
+    """
+    names: dict = {}
+    for key, v in meta.items():
+        if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(float(v)):
+            names[key] = float(v)
+    for m in maps:
+        if m.numeric and m.channel is None:
+            alias = sanitise_name(m.raw_name)
+            if canonical_name(alias) is None:   # a look-alike `F[g]` is `f_g`, never `f`
+                names[alias] = m.column
+            names[m.column] = m.column
+    for m in maps:
+        if m.channel is not None:
+            names[m.channel] = m.column
+    if time_column:
+        names["t"] = "t_s"
+    taken = {m.column for m in maps} | ({"t_s"} if time_column else set())
+    if len(derived_cfg or {}) > MAX_DERIVED:
+        raise IngestError(f"rig.toml [derived] has {len(derived_cfg)} channels (at most {MAX_DERIVED})")
+    out, warnings = [], []
+    for name, entry in (derived_cfg or {}).items():
+        unit = None
+        text = entry
+        if isinstance(entry, dict):
+            unknown = sorted(set(entry) - {"expr", "unit"})
+            if unknown or "expr" not in entry:
+                raise IngestError(f"rig.toml [derived] `{name}` must be an expression or a table with `expr` "
+                                  "(and optional `unit`)")
+            text, unit = entry["expr"], entry.get("unit")
+        try:
+            expr = parse_expression(text)
+        except DerivedError as exc:
+            raise IngestError(f"rig.toml [derived] `{name}`: {exc}") from None
+        channel = canonical_name(name)
+        if channel is not None:
+            column, unit = CHANNELS[channel].column, CHANNELS[channel].si_unit
+        else:
+            column = noncanonical_column(name, unit)
+        if column in taken:
+            raise IngestError(f"rig.toml [derived] `{name}`: the file already has channel `{channel or column}`")
+        missing = [k for k in expr.names if k not in names]
+        if missing:
+            warnings.append(f"derived channel `{name}` not computed: no channel or numeric metadata "
+                            + ", ".join(f"`{k}`" for k in missing))
+            continue
+        out.append(DerivedChannel(name, channel, column, None if unit is None else str(unit), expr,
+                                  {k: names[k] for k in expr.names}))
+        taken.add(column)
+        names[channel or sanitise_name(name)] = column
+        names[column] = column
+    return out, warnings
 
 
 # -- data ----------------------------------------------------------------------------------
@@ -272,8 +535,13 @@ def _first_non_number(arr):
 
 
 def convert_batch(batch: pa.RecordBatch, maps: list[ColumnMap], schema: pa.Schema, run_id: str,
-                  p_atm_pa: float, row0: int) -> pa.Table:
-    """Raw record batch -> samples table in SI (gauge pressures), in ``schema`` order."""
+                  p_atm_pa: float, row0: int, time_base: TimeBase | None = None,
+                  derived: list[DerivedChannel] | None = None) -> pa.Table:
+    """Raw record batch -> samples table in SI (gauge pressures), in ``schema`` order.
+
+    ``time_base`` synthesises ``t_s`` for an export without a time column; ``derived``
+    channels are computed last, from the converted values (see :mod:`pipeline.derived`).
+    """
     n = batch.num_rows
     arrays = {"run_id": pa.DictionaryArray.from_arrays(pa.array(np.zeros(n, dtype=np.int32)), pa.array([run_id]))}
     for m in maps:
@@ -291,6 +559,15 @@ def convert_batch(batch: pa.RecordBatch, maps: list[ColumnMap], schema: pa.Schem
         if m.absolute:
             v = v - p_atm_pa
         arrays[m.column] = pa.array(v, type=pa.float64())
+    if time_base is not None and "t_s" not in arrays:
+        arrays["t_s"] = pa.array(time_base.times(row0, n), type=pa.float64())
+    for d in derived or ():
+        values = {name: (arrays[src].to_numpy(zero_copy_only=False) if isinstance(src, str) else src)
+                  for name, src in d.inputs.items()}
+        try:
+            arrays[d.column] = pa.array(d.expression.evaluate(values, n), type=pa.float64())
+        except DerivedError as exc:
+            raise IngestError(f"rig.toml [derived] `{d.name}`: {exc}") from None
     return pa.Table.from_arrays([arrays[f.name] for f in schema], schema=schema)
 
 
@@ -415,12 +692,31 @@ def _ingest_hashed(tree, path, warehouse, rel, campaign, reuse, sha, hashing, co
     export = _open_export(path, rig, manifest)
     meta = resolve_metadata(rig["metadata"], export.metadata, manifest, campaign, path)
     kind = meta["kind"]
-    maps = map_columns(export.columns, rig["channels"])
+    raw_columns, lookalikes = set_aside_lookalikes(export.columns, rig["channels"])
+    maps = map_columns(raw_columns, rig["channels"])
+    for m in maps:
+        if m.key in lookalikes:
+            m.raw_name = lookalikes[m.key][0]
     present = {m.channel for m in maps if m.channel}
+    time_base = resolve_time_base(meta, export)
+    synth_time = "t" not in present and time_base is not None
+    if synth_time:
+        present.add("t")
+    derived, derived_warnings = plan_derived(rig.get("derived", {}), maps, meta, "t" in present)
+    present |= {d.channel for d in derived if d.channel}
     gaps = missing_channels(kind, present)
     if gaps:
+        hint = "".join(_lookalike_hint(c, lookalikes) for c in gaps)
+        if "t" in gaps:
+            hint += "; no time column: state `sample_rate_hz` or `dt_s` (and `t0_s`) in the run's metadata"
+        hint += "".join(f"; {w}" for w in derived_warnings
+                        if any(f"`{c}`" in w.split(" not computed")[0] for c in gaps))
         raise IngestError(f"missing channel {', '.join(f'`{c}`' for c in gaps)} (kind {kind} needs "
-                          + " or ".join(", ".join(s) for s in KINDS[kind].channel_sets) + ")")
+                          + " or ".join(", ".join(s) for s in KINDS[kind].channel_sets) + ")" + hint)
+    sensors, sensor_warnings = resolve_sensors(rig.get("sensors", {}), meta, present)
+    for key in sensors["drop"]:
+        meta.pop(key, None)
+    meta.update(sensors["set"])
     miss = missing_metadata(kind, meta, present)
     if miss:
         raise IngestError(f"missing metadata {', '.join(f'`{k}`' for k in miss)} (kind {kind})")
@@ -429,15 +725,25 @@ def _ingest_hashed(tree, path, warehouse, rel, campaign, reuse, sha, hashing, co
                           f"for kind {kind}, got {meta.get('chamber')!r}")
     p_atm = float(meta.get("p_atm_pa", P_ATM_DEFAULT_PA))
     extra = [(m.column, m.unit, pa.float64() if m.numeric else pa.string()) for m in maps if m.channel is None]
+    extra += [(d.column, d.unit, pa.float64()) for d in derived if d.channel is None]
     schema = samples_schema(sorted(present), extra)
     run_id = str(meta["run_id"])
     folder = Path("samples") / f"kind={kind}" / f"campaign={campaign}"
 
     def samples_path(sha: str) -> Path:
-        return folder / f"{safe_file_name(run_id)}-{ingest_key(sha, meta, maps, code_version)[:16]}.parquet"
+        key_meta = {**meta, "__derived": [[d.name, d.expression.text, d.unit] for d in derived],
+                    "__time_base": None if not synth_time else [time_base.rate_hz, time_base.dt_s, time_base.t0_s]}
+        return folder / f"{safe_file_name(run_id)}-{ingest_key(sha, key_meta, maps, code_version)[:16]}.parquet"
 
     rel_out = samples_path(sha) if sha else None
-    warnings: list[str] = []  # ingest's own; the reader's are taken after its data is read
+    # ingest's own warnings; the reader's are taken after its data is read
+    warnings: list[str] = [f"column `{raw}` in `{unit}` looks like channel `{ch}` but is not a "
+                           f"{CHANNELS[ch].quantity}: kept as non-canonical `{m.column}`"
+                           for m in maps if m.key in lookalikes for raw, ch, unit in [lookalikes[m.key]]]
+    warnings += derived_warnings + sensor_warnings
+    if synth_time:
+        warnings.append(f"time from `{time_base.source}` ({time_base.stated_rate_hz:.6g} Hz): the export has no "
+                        "time column")
     run = {
         "run_id": run_id, "kind": kind, "campaign": campaign, "rig": meta.get("rig"),
         "started_at": meta.get("started_at"), "source_path": rel, "source_sha256": sha,
@@ -456,7 +762,8 @@ def _ingest_hashed(tree, path, warehouse, rel, campaign, reuse, sha, hashing, co
             for batch in prefetch(export.batches()):
                 if batch.num_rows == 0:
                     continue
-                table = convert_batch(batch, maps, schema, run_id, p_atm, check.n)
+                table = convert_batch(batch, maps, schema, run_id, p_atm, check.n,
+                                      time_base if synth_time else None, derived)
                 check.update(table.column("t_s").to_numpy())
                 for col in [c for c, e in empty.items() if e]:
                     if table.column(col).null_count < table.num_rows and not np.all(np.isnan(table.column(col).to_numpy())):
@@ -467,9 +774,18 @@ def _ingest_hashed(tree, path, warehouse, rel, campaign, reuse, sha, hashing, co
             if check.repeats:
                 warnings.append(f"time repeats at {check.repeats} rows")
             warnings += [f"channel `{c}` is empty" for c, e in empty.items() if e]
+            if time_base is not None and not synth_time and check.sample_rate_hz:
+                stated, seen = time_base.stated_rate_hz, check.sample_rate_hz
+                if abs(seen - stated) > RATE_TOLERANCE * stated:
+                    warnings.append(f"time column's rate {seen:.6g} Hz disagrees with `{time_base.source}` "
+                                    f"{stated:.6g} Hz; the time column is used")
             run.update(n_samples=check.n, sample_rate_hz=check.sample_rate_hz,
                        duration_s=(check.last - check.first), warnings=list(export.warnings) + warnings)
             channels = [dict(run_id=run_id, **m.describe()) for m in maps]
+            if synth_time:
+                channels.append(dict(run_id=run_id, column="t_s", channel="t", raw_name=f"= {time_base.source}",
+                                     raw_unit=None, unit="s"))
+            channels += [dict(run_id=run_id, **d.describe()) for d in derived]
             if rel_out is None:  # hashed while parsing: the name and the record need it now
                 sha = hashing.result()
                 rel_out = samples_path(sha)

@@ -92,6 +92,9 @@ def display_name(text) -> str:
         text = _CONTROL.sub(lambda m: f"\\x{ord(m.group()):02x}", text)
     return text
 
+#: Tables a rig.toml may have (docs/inputs.md): each must be a table.
+RIG_TABLES = ("read", "channels", "metadata", "sensors", "derived")
+
 
 @dataclass
 class Problem:
@@ -443,26 +446,28 @@ class RawTree:
                     self.problems.append(Problem(self.rel(f), msg))
                     cfg = ConfigError(f"cannot use {self.rel(f)}: {msg}")
                 else:
-                    bad = [k for k in cfg if k not in ("read", "channels", "metadata")]
-                    for k in ("read", "channels", "metadata"):
+                    bad = [k for k in cfg if k not in RIG_TABLES]
+                    for k in RIG_TABLES:
                         if k in cfg and not isinstance(cfg[k], dict):
                             bad.append(k)
                     if bad:
-                        msg = f"unknown or malformed table(s) {', '.join(sorted(set(bad)))} (expected [read], [channels], [metadata])"
+                        msg = (f"unknown or malformed table(s) {', '.join(sorted(set(bad)))} "
+                               f"(expected {', '.join(f'[{t}]' for t in RIG_TABLES)})")
                         self.problems.append(Problem(self.rel(f), msg))
                         cfg = ConfigError(f"cannot use {self.rel(f)}: {msg}")
             self._rigs[folder] = cfg
         return self._rigs[folder]
 
     def rig_config(self, path: Path) -> dict:
-        """The merged rig.toml (``read``, ``channels``, ``metadata``) that applies to a run."""
+        """The merged rig.toml (``read``, ``channels``, ``metadata``, ``sensors``, ``derived``) that
+        applies to a run."""
         cfg: dict = {}
         for folder in self._folders(path):
             part = self._rig_file(folder)
             if isinstance(part, ConfigError):
                 raise part
             cfg = deep_merge(cfg, part)
-        return {k: cfg.get(k, {}) for k in ("read", "channels", "metadata")}
+        return {k: cfg.get(k, {}) for k in RIG_TABLES}
 
     # -- manifest.csv -------------------------------------------------------------------------
     def _manifest(self, folder: Path) -> dict[str, dict] | ConfigError:

@@ -57,11 +57,11 @@ def _hash_sources(paths: list[Path]) -> str:
 def ingest_code_version() -> str:
     """Version of everything that turns a raw file into a runs row and samples Parquet.
 
-    ``INGEST_VERSION`` plus a hash of the schemas, readers, layout and ingest source, so that a
-    code change re-reads the files it may affect.
+    ``INGEST_VERSION`` plus a hash of the schemas, readers, layout, derived-channel and ingest
+    source, so that a code change re-reads the files it may affect.
     """
     files = [*_ROOT.glob("schemas/*.py"), *_ROOT.glob("pipeline/readers/*.py"),
-             _ROOT / "pipeline" / "ingest.py", _ROOT / "pipeline" / "layout.py"]
+             _ROOT / "pipeline" / "ingest.py", _ROOT / "pipeline" / "layout.py", _ROOT / "pipeline" / "derived.py"]
     return f"{INGEST_VERSION}-{_hash_sources([f for f in files if f.is_file()])}"
 
 

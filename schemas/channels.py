@@ -82,6 +82,54 @@ def sanitise_name(raw_name: str) -> str:
     return name
 
 
+_UNIT_WORDS = (("%", "pct"), ("°", "deg"), ("µ", "u"), ("μ", "u"), ("Ω", "ohm"), ("²", "2"), ("³", "3"),
+               ("^", ""), ("/", "_"))
+
+
+def unit_suffix(unit: str | None) -> str:
+    """Column suffix of a raw unit: lower case ``[0-9a-z_]``, ``%`` -> ``pct``, ``°`` -> ``deg``,
+    ``µ`` -> ``u``, ``/`` -> ``_``, ``^`` dropped (``"degC"`` -> ``"degc"``, ``"m/s^2"`` ->
+    ``"m_s2"``, ``"%"`` -> ``"pct"``); empty when there is no unit."""
+    text = str(unit or "").strip()
+    for a, b in _UNIT_WORDS:
+        text = text.replace(a, b)
+    return _SANITISE.sub("_", text.casefold()).strip("_")
+
+
+def noncanonical_column(raw_name: str, unit: str | None) -> str:
+    """Warehouse column of a non-canonical channel: ``<sanitised name>_<unit suffix>``.
+
+    Warehouse columns end in their unit (``valve_temp[degC]`` -> ``valve_temp_degc``,
+    ``F[g]`` -> ``f_g``, ``rel_humidity[%]`` -> ``rel_humidity_pct``). A name that already ends
+    in its suffix keeps it once (``valve_temp_degc[degC]`` -> ``valve_temp_degc``); a channel
+    without a unit keeps its sanitised name alone.
+    """
+    name = sanitise_name(raw_name)
+    suffix = unit_suffix(unit)
+    if not suffix or name == suffix or name.endswith(f"_{suffix}"):
+        return name
+    column = f"{name}_{suffix}"
+    return f"x_{column}" if column in _RESERVED else column
+
+
+#: Units of a dimension no canonical channel has (acceleration, temperature, angle, current,
+#: frequency, speed, mass, ratio, ...). A raw name that looks canonical (``F``) recorded in one
+#: of these (``g``) is another sensor (an accelerometer): ingest keeps it as a non-canonical
+#: channel instead of refusing the file. Units in no table at all stay errors on canonical names.
+OTHER_DIMENSION_UNITS = frozenset(u.casefold() for u in (
+    "g", "m/s2", "m/s^2", "m/s²", "mm/s2", "mm/s^2", "degC", "°C", "C", "degF", "°F", "K", "%", "pct",
+    "%RH", "deg", "°", "rad", "rad/s", "deg/s", "rpm", "Hz", "kHz", "A", "mA", "uA", "Ohm", "kOhm",
+    "m/s", "mm/s", "um/s", "kg", "g/min", "Nm", "N.m", "mN.m", "W", "kW", "J", "counts", "count",
+    "cnt", "1", "-", "ratio", "m3/s", "m^3/s", "l", "ml", "mm2", "m2", "lux", "dB",
+))
+
+
+def other_dimension(unit: str | None) -> bool:
+    """Whether ``unit`` is a unit of a dimension no canonical channel has (see
+    :data:`OTHER_DIMENSION_UNITS`)."""
+    return unit is not None and str(unit).strip().replace(" ", "").casefold() in OTHER_DIMENSION_UNITS
+
+
 def arrow_field(name: str, unit: str | None, description: str, nullable: bool = True) -> pa.Field:
     """A float64 Arrow field carrying its unit and description in the field metadata."""
     meta = {"unit": unit or "", "description": description}

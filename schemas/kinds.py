@@ -55,6 +55,9 @@ META_KEYS: dict[str, MetaKey] = {
         MetaKey("stroke_mm", "float", "PLA stroke. [mm]", default=40.0),
         MetaKey("p0_bar_abs", "float", "Initial absolute chamber pressure of a spring test. [bar]"),
         MetaKey("group", "str", "TDMS group holding the channels."),
+        MetaKey("sample_rate_hz", "float", "Sample rate of an export without a time column. [Hz]"),
+        MetaKey("dt_s", "float", "Sample interval of an export without a time column. [s]"),
+        MetaKey("t0_s", "float", "Time of the first sample of an export without a time column. [s]"),
     )
 }
 

@@ -4,9 +4,13 @@
   variable; all channels must have the same length (else the file is refused, naming the
   lengths). Matrices, cell arrays, complex arrays and structs other than ``meta`` / ``units``
   are not channels: they are skipped with a warning.
+* A numeric 2-D array of N x k or k x N (k <= :data:`MAX_MATRIX_CHANNELS`, N > k) is k
+  channels ``<name>_1`` .. ``<name>_k`` (the long side is time); ``units.<name>`` gives all k
+  their unit unless ``units.<name>_<j>`` says otherwise.
 * Numeric scalars, char arrays and the fields of a struct ``meta`` are run metadata (char
   arrays become text; whole-number doubles become integers, since MATLAB stores every number
-  as a double).
+  as a double). A scalar ``Fs`` / ``fs`` / ``sample_rate_hz`` [Hz] or ``dt`` [s] is the time base
+  of a file without a ``t`` vector (applied by :func:`pipeline.ingest.resolve_time_base`).
 * A struct ``units`` maps a channel name to its unit text (``units.x = 'mm'``). A channel
   without a unit has unit None: ingest rejects it when the channel is canonical.
 * MATLAB objects (``timetable``, ``table``, ``string``, ``datetime``, ...) are MCOS objects
@@ -45,6 +49,8 @@ EXTENSIONS = (".mat",)
 
 #: Rows per record batch.
 BATCH_ROWS = 1 << 18
+#: Most columns (or rows) of a 2-D array read as that many channels.
+MAX_MATRIX_CHANNELS = 16
 
 _NUMERIC_CLASSES = {"double", "single", "int8", "uint8", "int16", "uint16", "int32", "uint32", "int64", "uint64",
                     "logical"}
@@ -92,6 +98,7 @@ class _Collect:
     def __init__(self, path: Path):
         self.path = path
         self.channels: dict[str, int] = {}       # name -> length
+        self.parts: dict[str, tuple[str, int, int]] = {}  # channel of a 2-D array -> (variable, j, time axis)
         self.meta: dict = {}
         self.units: dict[str, str] = {}
         self.warnings: list[str] = []
@@ -108,12 +115,33 @@ class _Collect:
             listed = ", ".join(f"`{k}` {n}" for k, n in self.channels.items())
             raise ReaderError(f"channels have different lengths ({listed[:300]})")
         folded = {k.casefold(): v for k, v in self.units.items()}
-        columns = [RawColumn(key=name, name=name, unit=self.units.get(name, folded.get(name.casefold())), index=i + 1)
+        columns = [RawColumn(key=name, name=name, unit=self._unit(name, folded), index=i + 1)
                    for i, name in enumerate(self.channels)]
-        unknown = sorted(set(self.units) - set(self.channels))
+        unknown = sorted(set(self.units) - set(self.channels) - {v for v, _, _ in self.parts.values()})
         if unknown:
             self.warnings.append(f"`units` names no channel {', '.join(unknown)}")
         return RawExport(format=FORMAT, columns=columns, metadata=self.meta, batches=batches, warnings=self.warnings)
+
+    def _unit(self, name: str, folded: dict) -> str | None:
+        unit = self.units.get(name, folded.get(name.casefold()))
+        if unit is None and name in self.parts:
+            var = self.parts[name][0]
+            unit = self.units.get(var, folded.get(var.casefold()))
+        return unit
+
+    def matrix(self, key: str, shape: tuple) -> bool:
+        """Take a 2-D array of MATLAB shape ``shape`` as k channels ``key_1 .. key_k``; False
+        (and a warning) when it is not N x k / k x N with k <= MAX_MATRIX_CHANNELS and N > k."""
+        k, n = min(shape), max(shape)
+        names = [f"{key}_{j + 1}" for j in range(k)]
+        if len(shape) != 2 or k > MAX_MATRIX_CHANNELS or n <= k or any(m in self.channels for m in names):
+            self.warnings.append(f"variable `{key}` ({' x '.join(map(str, shape))} matrix) ignored")
+            return False
+        axis = 0 if shape[0] == n else 1
+        for j, name in enumerate(names):
+            self.channels[name] = n
+            self.parts[name] = (key, j, axis)
+        return True
 
 
 # -- v5 / v7: the element structure, checked before scipy allocates anything ---------------
@@ -464,13 +492,16 @@ def _read_v5(path: Path) -> RawExport:
             col.meta[key] = _scalar(v)
         elif v.ndim == 2 and min(shape) == 1 or v.ndim == 1:
             col.channels[key] = v.size
+        elif v.ndim == 2:
+            col.matrix(key, shape)
         else:
             col.warnings.append(f"variable `{key}` ({' x '.join(map(str, shape))} matrix) ignored")
-    arrays = {k: data[k] for k in col.channels}
+    arrays = {k: data[k] for k in col.channels if k not in col.parts}
 
     def batches() -> Iterator[pa.RecordBatch]:
         n = next(iter(col.channels.values()))
-        flat = {k: np.asarray(a).reshape(-1) for k, a in arrays.items()}
+        flat = {k: (np.asarray(data[col.parts[k][0]]).take(col.parts[k][1], axis=1 - col.parts[k][2])
+                    if k in col.parts else np.asarray(arrays[k]).reshape(-1)) for k in col.channels}
         for i in range(0, n, BATCH_ROWS):
             yield pa.RecordBatch.from_arrays(
                 [pa.array(flat[k][i:i + BATCH_ROWS].astype(np.float64)) for k in flat], names=list(flat))
@@ -597,6 +628,8 @@ def _read_v73_unchecked(path: Path) -> RawExport:
             elif len(shape) == 1 or (len(shape) == 2 and min(shape) == 1):
                 col.channels[key] = size
                 datasets[key] = key
+            elif len(shape) == 2 and col.matrix(key, tuple(reversed(shape))):   # MATLAB shape
+                pass
             else:
                 col.warnings.append(f"variable `{key}` ({' x '.join(map(str, reversed(shape)))} matrix) ignored")
 
@@ -615,7 +648,14 @@ def _read_v73_unchecked(path: Path) -> RawExport:
             for i in range(0, n, BATCH_ROWS):
                 j = min(n, i + BATCH_ROWS)
                 arrays = []
-                for k, d in ds.items():
+                for name in col.channels:
+                    if name in col.parts:     # HDF5 holds the MATLAB array transposed
+                        var, c, axis = col.parts[name]
+                        d = h[var]
+                        part = d[c, i:j] if axis == 0 else d[i:j, c]
+                        arrays.append(pa.array(np.asarray(part, dtype=np.float64)))
+                        continue
+                    d = ds[name]
                     if len(d.shape) == 1:
                         part = d[i:j]
                     elif d.shape[0] == 1:
@@ -623,7 +663,7 @@ def _read_v73_unchecked(path: Path) -> RawExport:
                     else:
                         part = d[i:j, 0]
                     arrays.append(pa.array(np.asarray(part, dtype=np.float64)))
-                yield pa.RecordBatch.from_arrays(arrays, names=list(ds))
+                yield pa.RecordBatch.from_arrays(arrays, names=list(col.channels))
 
     return col.export(batches)
 

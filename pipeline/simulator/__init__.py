@@ -37,7 +37,7 @@ Generators and their truth keys
     ``stroke_plan(...)`` + ``iter_durability_chunks(plan, rng)``.
 ``simulate_timeseries(rng, duration_s, fs_hz, supply, ...)``
     kind ``timeseries`` (ambient / supply logger): columns t_s, (p_supply_pa,) and the
-    non-canonical temperature [degC], rel_humidity [%]. Truth: fs_hz, duration_s, n_samples,
+    non-canonical temperature_degc [degC], rel_humidity_pct [%]. Truth: fs_hz, duration_s, n_samples,
     temperature_c, drift_c_h, humidity_pct, units, supply cycle, channels (mean, min, max).
 
 Campaigns (every kind, every format, hoses.csv, manifest, rig.toml, truth.json):

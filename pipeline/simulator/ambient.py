@@ -29,6 +29,10 @@ def simulate_timeseries(rng=None, *, duration_s: float = 600.0, fs_hz: float = 1
                         **metadata) -> SimRun:
     """An ambient logger run: ``temperature`` [degC], ``rel_humidity`` [%], optionally ``p_supply``.
 
+    The non-canonical channels are named as ingest stores them (docs/inputs.md: the column ends
+    in its unit): ``temperature_degc``, ``rel_humidity_pct``; exported as ``temperature[degC]``
+    and ``rel_humidity[%]``.
+
     Parameters
     ----------
     rng : numpy.random.Generator or int, optional
@@ -48,7 +52,7 @@ def simulate_timeseries(rng=None, *, duration_s: float = 600.0, fs_hz: float = 1
     Returns
     -------
     SimRun
-        ``data`` columns ``t_s``, (``p_supply_pa``,) ``temperature``, ``rel_humidity`` (the
+        ``data`` columns ``t_s``, (``p_supply_pa``,) ``temperature_degc``, ``rel_humidity_pct`` (the
         non-canonical columns as ingest names them, in their raw units); truth holds the
         parameters and the mean / min / max of every logged channel.
     """
@@ -61,7 +65,7 @@ def simulate_timeseries(rng=None, *, duration_s: float = 600.0, fs_hz: float = 1
     data = {"t_s": t}
     truth = {"kind": "timeseries", "fs_hz": fs_hz, "duration_s": duration_s, "n_samples": n,
              "temperature_c": temperature_c, "drift_c_h": drift_c_h, "humidity_pct": humidity_pct,
-             "units": {"temperature": "degC", "rel_humidity": "%"}}
+             "units": {"temperature_degc": "degC", "rel_humidity_pct": "%"}}
     if supply:
         phase = rng.uniform(0.0, SUPPLY_PERIOD_S)
         frac = ((t + phase) % SUPPLY_PERIOD_S) / SUPPLY_PERIOD_S
@@ -69,8 +73,8 @@ def simulate_timeseries(rng=None, *, duration_s: float = 600.0, fs_hz: float = 1
         data["p_supply_pa"] = quantise(p_bar * 1e5 + rng.normal(0.0, SUPPLY_NOISE_PA, n), PRESSURE_RES_PA)
         truth.update(supply_high_bar=SUPPLY_HIGH_BAR, supply_low_bar=SUPPLY_LOW_BAR,
                      supply_period_s=SUPPLY_PERIOD_S, supply_phase_s=phase, supply_noise_pa=SUPPLY_NOISE_PA)
-    data["temperature"] = temp
-    data["rel_humidity"] = hum
+    data["temperature_degc"] = temp
+    data["rel_humidity_pct"] = hum
     frame = pd.DataFrame(data)
     truth["channels"] = {c: {"mean": float(frame[c].mean()), "min": float(frame[c].min()),
                              "max": float(frame[c].max())} for c in frame.columns if c != "t_s"}

@@ -42,6 +42,10 @@ hoses carry odometer readings only (no runs), as bench-exports.md allows.
 ~0.7 GB TDMS / ~1 GB CSV per run, written in 2 M-row chunks), breakaway with 3 repetitions at
 1 kHz, identification 60 s at 5 kHz.
 ``mini`` is for tests: one run per kind and format variant, tiny durability, 1 min logger runs.
+``foreign`` writes only the campaign ``foreign-2026``: other labs' rigs and exports (analog
+position sensors, 1 um / 50 um encoders, a load cell with a stated force balance, exports without
+a time column, a look-alike channel ``F`` in ``g``), see :mod:`pipeline.simulator.foreign`. It is
+not part of the demo, which stays about a minute.
 ``runs=N`` pads the characterisation matrices with further repetitions (new seeds) to reach N
 runs in total, for campaigns of 1,000+ runs; a smaller N keeps the first N runs (interleaved
 across kinds, durability hoses first).
@@ -68,7 +72,7 @@ from pipeline.simulator.base import HOSE_AREA_M2, P_ATM_PA, SimRun, jsonable
 from pipeline.simulator.writers import (ColumnOut, default_columns, write_csv, write_lvm, write_mat, write_mf4, write_tdms,
                                          write_xlsx)
 
-PROFILES_AVAILABLE = ("demo", "full", "mini")
+PROFILES_AVAILABLE = ("demo", "full", "mini", "foreign")
 
 
 @dataclass(frozen=True)
@@ -190,11 +194,13 @@ VARIANTS: dict[str, list[dict]] = {
         dict(fmt="csv", folder="runs", units={"x": "mm", "p_a": "bar", "p_b": "bar"}, embed=True),
     ],
     "timeseries": [
-        dict(fmt="csv", folder="ambient", units={"p_supply": "bar", "temperature": "degC", "rel_humidity": "%"},
-             embed=True, channels=["p_supply_pa", "temperature", "rel_humidity"]),
-        dict(fmt="tdms", folder="ambient", units={"temperature": "degC", "rel_humidity": "%"}, embed=False,
-             names={"temperature": "Temperature", "rel_humidity": "Rel. Humidity"},
-             channels=["temperature", "rel_humidity"], opts=dict(waveform=True)),
+        dict(fmt="csv", folder="ambient", units={"p_supply": "bar", "temperature_degc": "degC",
+                                                  "rel_humidity_pct": "%"},
+             names={"temperature_degc": "temperature", "rel_humidity_pct": "rel_humidity"},
+             embed=True, channels=["p_supply_pa", "temperature_degc", "rel_humidity_pct"]),
+        dict(fmt="tdms", folder="ambient", units={"temperature_degc": "degC", "rel_humidity_pct": "%"}, embed=False,
+             names={"temperature_degc": "Temperature", "rel_humidity_pct": "Rel. Humidity"},
+             channels=["temperature_degc", "rel_humidity_pct"], opts=dict(waveform=True)),
     ],
     "leakage_check": [
         dict(fmt="csv", folder="leakage-checks", units={"p_supply": "bar", "q_leak": "l/min"}, embed=True),
@@ -711,7 +717,8 @@ def simulate_campaign(out_dir, seed: int = 1, profile: str = "demo", runs: int |
         Folder to write (created). Existing files of the same names are overwritten.
     seed : int
         Same seed, same bytes.
-    profile : {"demo", "full", "mini"}
+    profile : {"demo", "full", "mini", "foreign"}
+        ``foreign``: the foreign-rig campaign only (``runs`` and ``jobs`` do not apply).
     runs : int, optional
         Total number of runs (pads or trims the characterisation matrices).
     jobs : int, optional
@@ -721,6 +728,8 @@ def simulate_campaign(out_dir, seed: int = 1, profile: str = "demo", runs: int |
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    if profile == "foreign":
+        return _simulate_foreign(out, seed)
     prof = PROFILES[profile]
     plans, planner = plan_campaign(seed, prof, runs)
     jobs = jobs or min(4, os.cpu_count() or 1)
@@ -771,6 +780,19 @@ def simulate_campaign(out_dir, seed: int = 1, profile: str = "demo", runs: int |
         by_kind[rec["kind"]] = by_kind.get(rec["kind"], 0) + 1
         by_format[rec["format"]] = by_format.get(rec["format"], 0) + 1
     return CampaignSummary(out, len(records), len(files), sum(f.stat().st_size for f in files), by_kind, by_format)
+
+
+def _simulate_foreign(out: Path, seed: int) -> CampaignSummary:
+    from pipeline.simulator import foreign
+
+    truth = foreign.simulate_foreign(out, seed)
+    files = [f for f in out.rglob("*") if f.is_file()]
+    by_kind, by_format = {}, {}
+    for rec in truth["runs"].values():
+        by_kind[rec["kind"]] = by_kind.get(rec["kind"], 0) + 1
+        by_format[rec["format"]] = by_format.get(rec["format"], 0) + 1
+    return CampaignSummary(out, len(truth["runs"]), len(files), sum(f.stat().st_size for f in files), by_kind,
+                           by_format)
 
 
 def parameters() -> dict:

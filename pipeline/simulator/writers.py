@@ -6,8 +6,9 @@ GB-scale runs) whose columns are warehouse column names in SI (``p_a_pa``, ``x_m
 metadata to embed (``None``: nothing embedded, the manifest carries it). Values are converted
 from SI to the raw unit with the exact inverse of :meth:`schemas.units.Unit.to_si` and written
 with the shortest text that round-trips, so ingest gives back the SI values to float precision.
-Columns that are not canonical (e.g. ``temperature`` in degC) are written as they are: ingest
-keeps them unconverted under their sanitised names, with their unit recorded.
+Columns that are not canonical (e.g. ``temperature_degc`` exported as ``temperature[degC]``) are
+written as they are: ingest keeps them unconverted under ``<sanitised name>_<unit suffix>``, with
+their unit recorded.
 """
 from __future__ import annotations
 

@@ -60,8 +60,9 @@ def test_non_canonical_channels_and_unknown_keys_are_kept(raw, warehouse):
             {"t[s]": T, "x[m]": T, "x_ref[m]": T, "Oil Temp[degC]": [20, 21, 22, 23], "status": ["ok", "ok", "hot", "ok"]})
     res = ingest(raw, "c/a.csv", warehouse)
     table = pq.read_table(warehouse / res.run["samples_path"])
-    assert table.column("oil_temp").to_pylist() == [20.0, 21.0, 22.0, 23.0]
-    assert table.schema.field("oil_temp").metadata[b"unit"] == b"degC"
+    # non-canonical columns end in their unit (docs/inputs.md): `Oil Temp[degC]` -> oil_temp_degc
+    assert table.column("oil_temp_degc").to_pylist() == [20.0, 21.0, 22.0, 23.0]
+    assert table.schema.field("oil_temp_degc").metadata[b"unit"] == b"degC"
     assert table.column("status").to_pylist() == ["ok", "ok", "hot", "ok"]
     assert res.run["params"]["Bench Firmware"] == "v2"
 
@@ -249,10 +250,10 @@ def test_non_canonical_names_that_sanitise_alike_are_both_kept(raw, warehouse):
     res = ingest(raw, "c/a.csv", warehouse)
     assert res.error is None
     table = pq.read_table(warehouse / res.run["samples_path"])
-    assert table.column("foo_bar").to_pylist() == [1.0, 3.0]
-    assert table.column("foo_bar_2").to_pylist() == [2.0, 4.0]
+    assert table.column("foo_bar_v").to_pylist() == [1.0, 3.0]
+    assert table.column("foo_bar_v_2").to_pylist() == [2.0, 4.0]
     assert [(c["column"], c["raw_name"]) for c in res.channels if c["column"].startswith("foo")] == [
-        ("foo_bar", "Foo Bar"), ("foo_bar_2", "foo-bar")]
+        ("foo_bar_v", "Foo Bar"), ("foo_bar_v_2", "foo-bar")]
 
 
 def test_flow_round_trip_anr_and_normal_litres(raw, warehouse):
@@ -327,3 +328,231 @@ def test_map_columns_refuses_more_columns_than_the_limit():
 
     with pytest.raises(IngestError, match=f"^{MAX_CHANNELS + 1} columns: more than the limit of {MAX_CHANNELS} channels"):
         map_columns(_cols(["a"] * (MAX_CHANNELS + 1)), {})
+
+
+# -- time base from metadata (exports without a time column) ---------------------------------
+def samples_of(res, warehouse):
+    assert res.error is None, res.error
+    return pq.read_table(warehouse / res.run["samples_path"])
+
+
+def test_csv_without_time_column_takes_sample_rate_from_the_manifest(raw, warehouse):
+    raw.csv("c/a.csv", {"kind": "timeseries", "started_at": "2026-01-01", "rig": "r"},
+            {"temperature[degC]": [20.0, 20.5, 21.0, 21.5]})
+    raw.write("c/manifest.csv", "file,sample_rate_hz,t0_s\na.csv,0.25,8\n")   # one sample every 4 s
+    res = ingest(raw, "c/a.csv", warehouse)
+    table = samples_of(res, warehouse)
+    assert table.column("t_s").to_pylist() == [8.0, 12.0, 16.0, 20.0]
+    assert res.run["sample_rate_hz"] == pytest.approx(0.25)
+    assert any("time from `sample_rate_hz`" in w for w in res.run["warnings"])
+    assert {"column": "t_s", "channel": "t"}.items() <= next(c for c in res.channels if c["column"] == "t_s").items()
+
+
+def test_headerless_text_takes_dt_s_from_rig_toml(raw, warehouse):
+    raw.write("c/rig.toml", '[read]\ndelimiter = "whitespace"\nheader = false\n'
+                            '[channels."1"]\nchannel = "x"\nunit = "mm"\n[channels."2"]\nchannel = "x_ref"\nunit = "mm"\n'
+                            '[metadata]\nkind = "step"\nrig = "r"\nstarted_at = "2026-01-01"\ndt_s = 0.002\n')
+    raw.write("c/a.txt", "1.0 2.0\n1.5 2.0\n2.0 2.0\n")
+    table = samples_of(ingest(raw, "c/a.txt", warehouse), warehouse)
+    assert table.column("t_s").to_pylist() == [0.0, 0.002, 0.004]
+    assert table.column("x_m").to_pylist() == [1e-3, 1.5e-3, 2e-3]
+
+
+@pytest.mark.parametrize("scalar, value, expected", [("Fs", 50.0, [0.0, 0.02, 0.04]), ("fs", 4.0, [0.0, 0.25, 0.5]),
+                                                      ("dt", 0.5, [0.0, 0.5, 1.0])])
+def test_mat_scalar_sample_rate_gives_time(raw, warehouse, scalar, value, expected):
+    from tests.pipeline.readers.generators import mat_v5
+
+    (raw.root / "c").mkdir(parents=True)
+    mat_v5(raw.root / "c/a.mat", {"x": np.array([1.0, 2.0, 3.0]), "x_ref": np.array([0.0, 0.0, 0.0]),
+                                  scalar: value, "units": {"x": "mm", "x_ref": "mm"},
+                                  "meta": {"kind": "step", "rig": "r", "started_at": "2026-01-01"}})
+    table = samples_of(ingest(raw, "c/a.mat", warehouse), warehouse)
+    assert table.column("t_s").to_pylist() == pytest.approx(expected, abs=0)
+
+
+def test_tdms_without_time_or_waveform_takes_sample_rate_from_metadata(raw, warehouse):
+    from tests.pipeline.readers.test_tdms import write_tdms
+
+    write_tdms(raw.root / "c/a.tdms", {"kind": "step", "rig": "r", "started_at": "2026-01-01", "sample_rate_hz": 100.0},
+               {"Data": {"x": (np.array([1.0, 2.0, 3.0]), {"unit_string": "mm"}),
+                         "x_ref": (np.zeros(3), {"unit_string": "mm"})}})
+    table = samples_of(ingest(raw, "c/a.tdms", warehouse), warehouse)
+    assert table.column("t_s").to_pylist() == [0.0, 0.01, 0.02]
+
+
+def test_lvm_time_column_and_a_disagreeing_stated_rate_warn(raw, warehouse):
+    from tests.pipeline.readers.generators import LvmSegment, lvm_bytes
+
+    s = LvmSegment({"x": [0.0, 1.0, 2.0, 3.0], "x_ref": [0.0] * 4}, units={"x": "mm", "x_ref": "mm"}, dt=0.01)
+    raw.write("c/a.lvm", lvm_bytes([s], x_columns="No", description="kind=step; rig=r; sample_rate_hz=1000"))
+    raw.write("c/b.lvm", lvm_bytes([s], x_columns="No", description="kind=step; rig=r; sample_rate_hz=100"))
+    a, b = ingest(raw, "c/a.lvm", warehouse), ingest(raw, "c/b.lvm", warehouse)
+    assert samples_of(a, warehouse).column("t_s").to_pylist() == pytest.approx([0.0, 0.01, 0.02, 0.03])
+    assert any("disagrees with `sample_rate_hz` 1000 Hz" in w for w in a.run["warnings"])
+    assert not any("disagrees" in w for w in b.run["warnings"])
+
+
+def test_q_no_time_and_no_stated_rate_says_how_to_fix(raw, warehouse):
+    raw.csv("c/a.csv", STEP_META, {"x[m]": T, "x_ref[m]": T})
+    err = quarantine(raw, warehouse)
+    assert "missing channel `t`" in err and "sample_rate_hz" in err
+
+
+@pytest.mark.parametrize("value", ["0", "-5", "fast", "inf"])
+def test_q_bad_stated_sample_rate(raw, warehouse, value):
+    raw.csv("c/a.csv", {**STEP_META, "sample_rate_hz": value}, {"x[m]": T, "x_ref[m]": T})
+    assert "`sample_rate_hz` must be a" in quarantine(raw, warehouse)
+
+
+# -- sensor characteristics -------------------------------------------------------------------
+def test_sensor_metadata_from_rig_toml_and_metadata_in_si(raw, warehouse):
+    raw.write("c/rig.toml", '[sensors.x]\nresolution = "5 um"\nnoise = 2e-6\n'
+                            '[sensors.p_a]\nnoise = "300 Pa"\nresolution = "0.01 bar"\n'
+                            '[sensors.q_leak]\nnoise = "1 g/s"\n')   # channel not in this run: not stored
+    raw.csv("c/a.csv", {**STEP_META, "sensor_X_noise": "0.003 mm", "sensor_p_a_resolution": "1 kPa",
+                        "sensor_p_b_noise": "0.003 bara"},
+            {"t[s]": T, "x[mm]": T, "x_ref[mm]": T, "p_a[bar(a)]": T, "p_b[bar]": T})
+    p = ingest(raw, "c/a.csv", warehouse).run["params"]
+    assert p["sensor_x_resolution"] == 5e-06
+    assert p["sensor_x_noise"] == pytest.approx(3e-6)             # metadata overrides rig.toml
+    assert p["sensor_p_a_noise"] == 300.0
+    assert p["sensor_p_a_resolution"] == 1000.0                    # a difference: no gauge offset
+    assert p["sensor_p_b_noise"] == pytest.approx(300.0)           # bara: still a difference
+    assert "sensor_X_noise" not in p and "sensor_q_leak_noise" not in p
+
+
+@pytest.mark.parametrize("toml, reason", [
+    ('[sensors.x]\nresolution = "5 bar"\n', "unit `bar` is not a length unit"),
+    ('[sensors.x]\nresolution = "-5 um"\n', "must be positive"),
+    ('[sensors.x]\nnoise = 0\n', "must be positive"),
+    ('[sensors.x]\nnoise = "a lot"\n', "not a number with a unit"),
+    ('[sensors.x]\nresolutoin = "5 um"\n', "unknown key(s) resolutoin"),
+    ('[sensors]\nx = "5 um"\n', "must be a table"),
+])
+def test_q_bad_sensor_values(raw, warehouse, toml, reason):
+    raw.write("c/rig.toml", toml)
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[mm]": T, "x_ref[mm]": T})
+    err = quarantine(raw, warehouse)
+    assert "[sensors" in err and reason in err
+
+
+def test_q_bad_sensor_metadata(raw, warehouse):
+    raw.csv("c/a.csv", {**STEP_META, "sensor_x_resolution": "5 N"}, {"t[s]": T, "x[mm]": T, "x_ref[mm]": T})
+    assert "metadata `sensor_x_resolution`: unit `N` is not a length unit" in quarantine(raw, warehouse)
+
+
+# -- derived channels -------------------------------------------------------------------------
+VISCOUS = {"kind": "viscous", "started_at": "2026-01-01", "rig": "lc", "backpressure_bar": 1.0}
+
+
+def test_derived_drive_force_lands_in_samples(raw, warehouse):
+    raw.write("c/rig.toml", '[metadata]\nhose_area_m2 = 4.9e-4\n[derived]\nf = "f_cell - p_b * hose_area_m2"\n'
+                            'f_net_kn = { expr = "f / 1000", unit = "kN" }\n')
+    raw.csv("c/a.csv", VISCOUS, {"t[s]": T, "x[mm]": T, "f_cell[kN]": [0.1, 0.2, 0.3, 0.4], "p_b[bar]": [1, 1, 2, 2]})
+    res = ingest(raw, "c/a.csv", warehouse)
+    table = samples_of(res, warehouse)
+    # f_cell is not canonical: it enters the expression as recorded (kN); p_b in SI (Pa)
+    expected = np.array([0.1, 0.2, 0.3, 0.4]) - np.array([1e5, 1e5, 2e5, 2e5]) * 4.9e-4
+    np.testing.assert_allclose(table.column("f_n").to_numpy(), expected)
+    np.testing.assert_allclose(table.column("f_net_kn").to_numpy(), expected / 1000)
+    assert table.schema.field("f_n").metadata[b"unit"] == b"N"
+    assert table.schema.field("f_net_kn").metadata[b"unit"] == b"kN"
+    ch = {c["column"]: c for c in res.channels}
+    assert ch["f_n"]["channel"] == "f" and ch["f_n"]["raw_name"] == "= f_cell - p_b * hose_area_m2"
+
+
+def test_derived_channel_whose_inputs_are_absent_is_skipped_with_a_warning(raw, warehouse):
+    raw.write("c/rig.toml", '[derived]\nload = { expr = "f_cell * 2", unit = "N" }\n')
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    res = ingest(raw, "c/a.csv", warehouse)
+    assert "load_n" not in samples_of(res, warehouse).column_names
+    assert any("derived channel `load` not computed: no channel or numeric metadata `f_cell`" in w
+               for w in res.run["warnings"])
+
+
+@pytest.mark.parametrize("toml, reason", [
+    ('[derived]\nf = "__import__(\'os\').system(\'touch /tmp/pwned\')"\n', "may be called"),
+    ('[derived]\nf = "x.__class__"\n', "Attribute not allowed"),
+    ('[derived]\nf = "9**9**9"\n', "literal exponent"),
+    ('[derived]\nx_ref = "x * 2"\n', "already has channel `x_ref`"),
+    ('[derived]\nf = { expression = "x" }\n', "must be an expression or a table with `expr`"),
+])
+def test_q_hostile_or_conflicting_derived(raw, warehouse, toml, reason):
+    raw.write("c/rig.toml", toml)
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    err = quarantine(raw, warehouse)
+    assert "rig.toml [derived]" in err and reason in err
+
+
+def test_rig_toml_with_unknown_table_is_refused(raw, warehouse):
+    raw.write("c/rig.toml", '[sensor]\nx = 1\n')
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    assert "unknown or malformed table(s) sensor" in quarantine(raw, warehouse)
+
+
+# -- names that only look canonical ---------------------------------------------------------
+def test_accelerometer_named_f_in_g_is_kept_non_canonical(raw, warehouse):
+    raw.csv("c/a.csv", {**STEP_META, "kind": "timeseries"}, {"t[s]": T, "F[g]": [0.1, -0.2, 0.0, 1.5]})
+    res = ingest(raw, "c/a.csv", warehouse)
+    table = samples_of(res, warehouse)
+    assert "f_n" not in table.column_names
+    assert table.column("f_g").to_pylist() == [0.1, -0.2, 0.0, 1.5]
+    assert table.schema.field("f_g").metadata[b"unit"] == b"g"
+    assert {"column": "f_g", "channel": None, "raw_name": "F", "raw_unit": "g"}.items() <= \
+        next(c for c in res.channels if c["column"] == "f_g").items()
+    assert any("`F` in `g` looks like channel `f`" in w for w in res.run["warnings"])
+
+
+def test_q_lookalike_needed_by_the_kind_says_how_to_map_it(raw, warehouse):
+    raw.csv("c/a.csv", {**STEP_META, "kind": "spring", "chamber": "front", "amplitude_mm": 5, "frequency_hz": 1},
+            {"t[s]": T, "d[mm]": T, "F[g]": T, "p[bar]": T})
+    err = quarantine(raw, warehouse)
+    assert "missing channel `f`" in err
+    assert '[channels."F"] channel = "f" unit = "N"' in err
+
+
+def test_lookalike_mapped_in_rig_toml_is_the_channel(raw, warehouse):
+    raw.write("c/rig.toml", '[channels."F"]\nchannel = "f"\nunit = "N"\nscale = 9.81\n')
+    raw.csv("c/a.csv", {**STEP_META, "kind": "timeseries"}, {"t[s]": T, "F[g]": [1.0, 2.0, 0.0, 0.0]})
+    table = samples_of(ingest(raw, "c/a.csv", warehouse), warehouse)
+    assert table.column("f_n").to_pylist()[:2] == pytest.approx([9.81, 19.62])
+
+
+def test_derived_never_reads_a_lookalike_as_the_canonical_channel(raw, warehouse):
+    raw.write("c/rig.toml", '[derived]\nload = { expr = "f * 2", unit = "N" }\nacc = { expr = "f_g * 9.81", unit = "m/s2" }\n')
+    raw.csv("c/a.csv", {**STEP_META, "kind": "timeseries"}, {"t[s]": T, "F[g]": [1.0, 2.0, 3.0, 4.0]})
+    res = ingest(raw, "c/a.csv", warehouse)
+    table = samples_of(res, warehouse)
+    assert "load_n" not in table.column_names
+    assert table.column("acc_m_s2").to_pylist() == pytest.approx([9.81, 19.62, 29.43, 39.24])
+    assert any("`load` not computed: no channel or numeric metadata `f`" in w for w in res.run["warnings"])
+
+
+def test_derived_time_from_a_non_canonical_clock(raw, warehouse):
+    raw.write("c/rig.toml", '[derived]\nt = "clock_ms / 1000"\n')
+    raw.csv("c/a.csv", STEP_META, {"clock[ms]": [10, 20, 30, 40], "x[m]": T, "x_ref[m]": T})
+    table = samples_of(ingest(raw, "c/a.csv", warehouse), warehouse)
+    assert table.column("t_s").to_pylist() == pytest.approx([0.01, 0.02, 0.03, 0.04])
+
+
+def test_q_derived_time_and_a_stated_rate_conflict(raw, warehouse):
+    raw.write("c/rig.toml", '[derived]\nt = "clock_ms / 1000"\n')
+    raw.csv("c/a.csv", {**STEP_META, "sample_rate_hz": 100}, {"clock[ms]": [10, 20, 30, 40], "x[m]": T, "x_ref[m]": T})
+    assert "rig.toml [derived] `t`: the file already has channel `t`" in quarantine(raw, warehouse)
+
+
+def test_q_too_many_derived_channels(raw, warehouse):
+    from pipeline.ingest import MAX_DERIVED
+
+    raw.write("c/rig.toml", "[derived]\n" + "".join(f'd{i} = "x * {i}"\n' for i in range(MAX_DERIVED + 1)))
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    assert f"at most {MAX_DERIVED}" in quarantine(raw, warehouse)
+
+
+def test_q_missing_channel_names_the_derived_channel_that_could_not_be_computed(raw, warehouse):
+    raw.write("c/rig.toml", '[metadata]\nhose_area_m2 = 4.9e-4\n[derived]\nf = "f_cell - p_b * hose_area_m2"\n')
+    raw.csv("c/a.csv", VISCOUS, {"t[s]": T, "x[mm]": T, "load[N]": T})
+    err = quarantine(raw, warehouse)
+    assert "missing channel" in err
+    assert "derived channel `f` not computed: no channel or numeric metadata `f_cell`, `p_b`" in err

@@ -21,7 +21,7 @@ def test_rebuild_builds_runs_views_and_quarantine(raw, warehouse):
         ("c1/a", "step", "c1", 4), ("c1/b", "step", "c1", 4)]
     assert q(warehouse, "SELECT source_path FROM quarantine") == [("c2/bad.csv",)]
     # the view unifies runs with different channels by name
-    rows = q(warehouse, "SELECT run_id, x_m, temp FROM samples_step ORDER BY run_id, t_s")
+    rows = q(warehouse, "SELECT run_id, x_m, temp_degc FROM samples_step ORDER BY run_id, t_s")
     assert rows[3] == ("c1/a", pytest.approx(0.003), None)
     assert rows[4][2] == 0.0
     assert q(warehouse, "SELECT count(*) FROM samples_durability") == [(0,)]
@@ -116,7 +116,7 @@ def test_rig_toml_problems_are_quarantined(raw, warehouse):
     raw.csv("d/b.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
     summary = rebuild(raw.root, warehouse, jobs=1)
     errors = {(p.source_path, p.error) for p in summary.quarantine}
-    msg = "unknown or malformed table(s) reading (expected [read], [channels], [metadata])"
+    msg = "unknown or malformed table(s) reading (expected [read], [channels], [metadata], [sensors], [derived])"
     assert ("c/rig.toml", msg) in errors
     assert ("c/a.csv", f"cannot use c/rig.toml: {msg}") in errors
     assert ("d/b.csv", "rig.toml scale/offset of column `x` is not a number") in errors

@@ -189,8 +189,8 @@ def test_csv_value_exact_round_trip_with_decimal_comma(raw, warehouse):
     assert out.column("x_m").to_pylist() == [1.5e-3, 2.5e-3, -3e-3]
     assert out.column("x_ref_m").to_pylist() == [1e-5, 2e-5, 3e-5]
     assert out.column("p_a_pa").to_pylist() == [0.0, 100000.0, 250000.0]
-    assert out.column("q").to_pylist() == [0.5, 1.0, 2.0]          # not canonical: kept as written
-    assert out.schema.field("q").metadata[b"unit"] == b"l/min"
+    assert out.column("q_l_min").to_pylist() == [0.5, 1.0, 2.0]    # not canonical: kept as written
+    assert out.schema.field("q_l_min").metadata[b"unit"] == b"l/min"
 
 
 def test_csv_rig_toml_renames_a_named_channel(raw, warehouse):

@@ -112,10 +112,10 @@ def test_mat_scalars_and_meta_are_metadata(tmp_path):
 
 
 def test_mat_matrices_cells_and_other_structs_are_skipped_with_a_warning(tmp_path):
-    ex = read_export(mat_v5(tmp_path / "a.mat", {"t": T, "M": np.ones((4, 2)), "data": {"x": T},
+    ex = read_export(mat_v5(tmp_path / "a.mat", {"t": T, "M": np.ones((4, 4)), "data": {"x": T},
                                                  "z": np.array([1 + 2j, 3j])}))
     assert [c.name for c in ex.columns] == ["t"]
-    assert ex.warnings == ["variable `M` (4 x 2 matrix) ignored",
+    assert ex.warnings == ["variable `M` (4 x 4 matrix) ignored",
                            "struct `data` ignored (only `meta` and `units` structs are read)",
                            "variable `z` (complex) ignored"]
 
@@ -340,3 +340,51 @@ def test_mat_unknown_data_type_is_refused_before_scipy(tmp_path, mtype):
     with pytest.raises(ReaderError, match=rf"^not a readable MAT file: variable at byte 128: "
                                           rf"unknown data type {mtype}$"):
         read_export(path)
+
+
+# -- 2-D arrays and the time base ------------------------------------------------------------
+P = np.array([[1.0, 10.0], [2.0, 20.0], [3.0, 30.0], [4.0, 40.0]])     # N x 2: samples down the rows
+
+
+@pytest.mark.parametrize("writer", ["v5", "v73"])
+@pytest.mark.parametrize("transpose", [False, True])
+def test_mat_2d_array_is_k_channels(tmp_path, writer, transpose):
+    data = P.T if transpose else P                                    # k x N works the same
+    variables = {"t": T, "p": data, "units": {"t": "s", "p": "bar", "p_2": "kPa"}}
+    path = (mat_v5 if writer == "v5" else mat_v73)(tmp_path / "a.mat", variables)
+    ex = read_export(path)
+    # (HDF5 lists variables by name: compare as a mapping)
+    assert {c.name: c.unit for c in ex.columns} == {"t": "s", "p_1": "bar", "p_2": "kPa"}
+    assert values(ex) == {"t": T.tolist(), "p_1": [1.0, 2.0, 3.0, 4.0], "p_2": [10.0, 20.0, 30.0, 40.0]}
+
+
+def test_mat_wide_or_square_matrices_are_still_skipped(tmp_path):
+    k = mat_module.MAX_MATRIX_CHANNELS + 1
+    ex = read_export(mat_v5(tmp_path / "a.mat", {"t": T, "W": np.ones((k, k + 3)), "S": np.ones((3, 3))}))
+    assert [c.name for c in ex.columns] == ["t"]
+    assert any(f"`W` ({k} x {k + 3} matrix) ignored" in w for w in ex.warnings)
+    assert any("`S` (3 x 3 matrix) ignored" in w for w in ex.warnings)
+
+
+@pytest.mark.parametrize("writer", ["v5", "v73"])
+def test_mat_fs_scalar_and_matrix_ingest_without_a_time_vector(raw, warehouse, writer):
+    (raw.root / "c").mkdir(parents=True)
+    xy = np.column_stack([np.arange(6.0), np.zeros(6)])              # x [mm], x_ref [mm]
+    path = (mat_v5 if writer == "v5" else mat_v73)(raw.root / "c/a.mat",
+                                                    {"pos": xy, "Fs": 20.0, "meta": dict(META),
+                                                     "units": {"pos": "mm"}})
+    raw.write("c/rig.toml", '[channels.pos_1]\nchannel = "x"\n[channels.pos_2]\nchannel = "x_ref"\n')
+    res = ingest_file(RawTree(raw.root), path, warehouse)
+    assert res.error is None, res.error
+    out = pq.read_table(warehouse / res.run["samples_path"])
+    assert out.column("t_s").to_pylist() == [0.0, 0.05, 0.1, 0.15, 0.2, 0.25]
+    assert out.column("x_m").to_pylist() == [0.0, 0.001, 0.002, 0.003, 0.004, 0.005]
+    assert res.run["params"]["Fs"] == 20
+
+
+def test_mat_bad_fs_is_quarantined(raw, warehouse):
+    (raw.root / "c").mkdir(parents=True)
+    path = mat_v5(raw.root / "c/a.mat", {"x": T, "x_ref": T, "Fs": -1.0, "meta": dict(META),
+                                         "units": {"x": "m", "x_ref": "m"}})
+    res = ingest_file(RawTree(raw.root), path, warehouse)
+    assert res.run is None and "MAT scalar `Fs` must be a positive finite number" in res.error

@@ -190,7 +190,7 @@ def test_tdms_unit_string(raw, warehouse):
     table = samples(ingest(raw, "c/a.tdms", warehouse), warehouse)
     assert table.column("x_m").to_pylist() == si(X_MM * 1e3, "um")
     assert table.column("t_s").to_pylist() == si(T * 1e3, "ms")
-    assert table.schema.field("temp").metadata[b"unit"] == b"degC"
+    assert table.schema.field("temp_degc").metadata[b"unit"] == b"degC"
 
 
 def test_tdms_unit_in_channel_name_when_no_unit_string(raw, warehouse):

@@ -158,7 +158,8 @@ TIMESERIES = [p for p in MINI_PLANS if p.kind == "timeseries"]
 
 def test_timeseries_logger_keeps_non_canonical_channels_with_their_units(built):
     """The ambient logger (kind timeseries, no analysis): both runs catalogued and queryable in
-    samples_timeseries, temperature [degC] and rel_humidity [%] kept unconverted with their units,
+    samples_timeseries, temperature [degC] and rel_humidity [%] kept unconverted with their units
+    under columns that end in them (temperature_degc, rel_humidity_pct),
     p_supply converted from bar, and the samples are what truth.json says was logged."""
     raw, wh, summary, runs = built
     assert {p.fmt for p in TIMESERIES} == {"csv", "tdms"}
@@ -169,7 +170,7 @@ def test_timeseries_logger_keeps_non_canonical_channels_with_their_units(built):
         counts = dict(con.execute("SELECT run_id, count(*) FROM samples_timeseries GROUP BY run_id").fetchall())
     finally:
         con.close()
-    assert {"run_id", "t_s", "p_supply_pa", "temperature", "rel_humidity"} <= cols
+    assert {"run_id", "t_s", "p_supply_pa", "temperature_degc", "rel_humidity_pct"} <= cols
     for plan in TIMESERIES:
         if _reader_missing(plan.fmt):
             continue
@@ -179,7 +180,7 @@ def test_timeseries_logger_keeps_non_canonical_channels_with_their_units(built):
         assert counts[plan.run_id] == t["n_samples"] == round(t["duration_s"] * t["fs_hz"])
         table = pq.read_table(wh / runs[plan.run_id][0])
         units = {f.name: (f.metadata or {}).get(b"unit", b"").decode() for f in table.schema}
-        assert units["temperature"] == "degC" and units["rel_humidity"] == "%"
+        assert units["temperature_degc"] == "degC" and units["rel_humidity_pct"] == "%"
         meant = generate(plan, SEED).data
         for col, stats in t["channels"].items():
             got = table.column(col).to_numpy()
@@ -189,7 +190,7 @@ def test_timeseries_logger_keeps_non_canonical_channels_with_their_units(built):
                 np.testing.assert_array_equal(got, meant[col].to_numpy())
             assert (got.min(), got.max()) == pytest.approx((stats["min"], stats["max"]), rel=1e-12)
             assert got.mean() == pytest.approx(stats["mean"], rel=1e-12)
-        assert abs(float(np.mean(table.column("temperature").to_numpy())) - t["temperature_c"]) < 0.5
+        assert abs(float(np.mean(table.column("temperature_degc").to_numpy())) - t["temperature_c"]) < 0.5
         if "p_supply_pa" in t["channels"]:
             p = table.column("p_supply_pa").to_numpy() / 1e5
             assert t["supply_low_bar"] - 0.05 < p.min() and p.max() < t["supply_high_bar"] + 0.05

@@ -26,6 +26,17 @@ def test_simulate_runs_pads_to_the_requested_count(tmp_path):
     assert len(truth["runs"]) == 60
 
 
+def test_simulate_foreign_profile_writes_the_foreign_campaign(tmp_path):
+    out = tmp_path / "sim"
+    res = CliRunner().invoke(main, ["simulate", str(out), "--profile", "foreign", "-q"])
+    assert res.exit_code == 0, res.output
+    truth = json.loads((out / "truth.json").read_text())
+    assert truth["profile"] == "foreign" and truth["runs"]
+    assert [p.name for p in out.iterdir() if p.is_dir()] == ["foreign-2026"]
+    for rec in truth["runs"].values():
+        assert (out / rec["file"]).is_file()
+
+
 def test_simulate_rejects_unknown_profile(tmp_path):
     res = CliRunner().invoke(main, ["simulate", str(tmp_path / "x"), "--profile", "huge"])
     assert res.exit_code == 2

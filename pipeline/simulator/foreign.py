@@ -1,0 +1,264 @@
+"""Foreign rigs: runs as other labs' benches export them, with their ground truth.
+
+The campaign ``foreign-2026`` (``pneubench simulate OUT --profile foreign``) holds one folder per
+lab, each with its own ``rig.toml``, so that ingest and the analyses meet sensors and exports
+they were not tuned to:
+
+=================  =========================================================================
+folder             what it exercises
+=================  =========================================================================
+``analog``         viscous runs, analog position sensor (Gaussian noise 5 / 20 / 50 um, not
+                   quantised) at 100 Hz; CSV **without a time column**, ``sample_rate_hz`` in
+                   the manifest; the 20 um run states ``sensor_x_noise`` there, the others not
+``encoder/fine``   viscous, 1 um encoder, LVM; ``[sensors.x] resolution = "1 um"`` in rig.toml
+``encoder/coarse`` viscous, 50 um encoder, TDMS with waveform timing; no sensor metadata
+``loadcell``       viscous with a load cell ``f_cell`` [N] that also carries the passive
+                   chamber's force: ``[derived] f = "f_cell - p_b * hose_area_m2"``
+``trapezoid``      one-speed trapezoid friction run (+-0.12 m/s); MAT **without** ``t``, the
+                   rate as a scalar ``Fs``
+``lowspeed``       low-speed passes (5, 10, 15 mm/s both ways), 1 um encoder
+``pla``            first-order pressure responses (kind ``pressure_step``) of a closed-loop
+                   regulator, set-point sweeps in 5 kPa and 10 kPa steps at 20 Hz; the 10 kPa
+                   run states ``sensor_p_noise = "2 mbar"`` in the manifest
+``accel``          kind ``timeseries`` with a channel ``F`` in ``g`` (an accelerometer, not the
+                   force): kept as the non-canonical ``f_g``
+=================  =========================================================================
+
+truth.json (same layout as the main campaigns) holds per run the true values (``fc_n``
+Coulomb [N], ``ka_n_s_m`` viscous [N s/m], ``moving_mass_kg``, ``x0_m`` offset, ``tau_s``,
+sensor noise / resolution, time base) and, under ``expected``, what ingest must produce
+(time base, derived channel, columns and units). Same seed, same bytes.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import json
+from dataclasses import dataclass, field
+from datetime import datetime, timedelta
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from pipeline.simulator import pla, plpa
+from pipeline.simulator.base import HOSE_AREA_M2, SimRun, jsonable, time_vector
+from pipeline.simulator.writers import ColumnOut, write_csv, write_lvm, write_mat, write_tdms
+
+CAMPAIGN = "foreign-2026"
+START = datetime(2026, 2, 2, 9, 0, 0)
+
+#: Per lab folder: its rig.toml.
+RIG_TOMLS = {
+    "analog/rig.toml": '[metadata]\nrig = "analog-rig"\nhose_area_m2 = 4.9e-4\n',
+    "encoder/fine/rig.toml": ('[metadata]\nrig = "encoder-rig-1um"\nhose_area_m2 = 4.9e-4\n\n'
+                              '[sensors.x]\nresolution = "1 um"\n\n[sensors.p_a]\nnoise = "300 Pa"\n\n'
+                              '[sensors.p_b]\nnoise = "3 mbar"\n'),
+    "encoder/coarse/rig.toml": '[metadata]\nrig = "encoder-rig-50um"\nhose_area_m2 = 4.9e-4\n',
+    "loadcell/rig.toml": ('[metadata]\nrig = "loadcell-rig"\nhose_area_m2 = 4.9e-4\n\n'
+                          '# the load cell also feels the passive chamber: the drive force is\n'
+                          '[derived]\nf = "f_cell - p_b * hose_area_m2"\n\n[sensors.f]\nnoise = "0.05 N"\n'),
+    "trapezoid/rig.toml": '[metadata]\nrig = "trapezoid-rig"\nhose_area_m2 = 4.9e-4\n',
+    "lowspeed/rig.toml": '[metadata]\nrig = "lowspeed-rig"\nhose_area_m2 = 4.9e-4\n',
+    "pla/rig.toml": '[metadata]\nrig = "pla-regulator"\n',
+    "accel/rig.toml": '[metadata]\nrig = "shaker"\n',
+}
+
+LOW_SPEEDS_M_S = tuple(s * v for v in (0.005, 0.010, 0.015) for s in (1.0, -1.0))
+TRAPEZOID_SPEEDS_M_S = (0.12, -0.12, 0.12, -0.12)
+
+
+@dataclass
+class ForeignRun:
+    """One run of the foreign campaign: how it is simulated and exported."""
+
+    index: int
+    stem: str
+    folder: str
+    fmt: str
+    kind: str
+    sim: dict                      # keyword arguments of the generator
+    units: dict                    # raw unit per column written
+    time_column: bool = True
+    manifest: dict = field(default_factory=dict)   # keys in the folder's manifest.csv
+    sensors: dict = field(default_factory=dict)    # true sensor characteristics [SI]
+    stated: dict = field(default_factory=dict)     # sensor params ingest must store [SI]
+
+    @property
+    def run_id(self) -> str:
+        return f"{CAMPAIGN}/{self.stem}"
+
+    @property
+    def rel_path(self) -> str:
+        return f"{CAMPAIGN}/{self.folder}/{self.stem}.{self.fmt}"
+
+
+def plan() -> list[ForeignRun]:
+    """Every run of the foreign campaign, in a fixed order."""
+    runs: list[ForeignRun] = []
+
+    def add(**kw):
+        runs.append(ForeignRun(index=len(runs), **kw))
+
+    vis_units = {"x_m": "mm", "p_a_pa": "bar", "p_b_pa": "bar"}
+    for um in (5, 20, 50):
+        add(stem=f"analog-{um:02d}um", folder="analog", fmt="csv", kind="viscous", time_column=False,
+            sim=dict(backpressure_bar=1.0, fs_hz=100.0, position_noise_m=um / 1e6, position_resolution_m=0.0),
+            units=vis_units, manifest={"sample_rate_hz": 100, **({"sensor_x_noise": "20 um"} if um == 20 else {})},
+            sensors={"x_noise_m": um / 1e6, "p_noise_pa": 300.0},
+            stated={"sensor_x_noise": 2e-05} if um == 20 else {})
+    add(stem="encoder-1um", folder="encoder/fine", fmt="lvm", kind="viscous",
+        sim=dict(backpressure_bar=2.0, fs_hz=500.0, position_resolution_m=1e-6), units=vis_units,
+        sensors={"x_resolution_m": 1e-6, "p_noise_pa": 300.0},
+        stated={"sensor_x_resolution": 1e-06, "sensor_p_a_noise": 300.0, "sensor_p_b_noise": 300.0})
+    add(stem="encoder-50um", folder="encoder/coarse", fmt="tdms", kind="viscous",
+        sim=dict(backpressure_bar=2.0, fs_hz=500.0, position_resolution_m=50e-6),
+        units={"x_m": "um", "p_a_pa": "kPa", "p_b_pa": "kPa"}, sensors={"x_resolution_m": 50e-6, "p_noise_pa": 300.0})
+    add(stem="loadcell", folder="loadcell", fmt="csv", kind="viscous",
+        sim=dict(backpressure_bar=2.0, fs_hz=500.0, use_force_channel=True, mass_kg=3.5,
+                 position_resolution_m=1e-6),
+        units={"x_m": "mm", "f_cell_n": "N", "p_b_pa": "bar"},
+        sensors={"f_noise_n": 0.05, "x_resolution_m": 1e-6, "p_noise_pa": 300.0}, stated={"sensor_f_noise": 0.05})
+    add(stem="trapezoid", folder="trapezoid", fmt="mat", kind="viscous", time_column=False,
+        sim=dict(backpressure_bar=0.0, fs_hz=500.0, speeds_m_s=TRAPEZOID_SPEEDS_M_S, cruise_m=0.3),
+        units={"x_m": "mm", "p_a_pa": "kPa", "p_b_pa": "kPa"}, sensors={"x_resolution_m": 5e-6, "p_noise_pa": 300.0})
+    add(stem="lowspeed", folder="lowspeed", fmt="csv", kind="viscous",
+        sim=dict(backpressure_bar=0.0, fs_hz=200.0, speeds_m_s=LOW_SPEEDS_M_S, position_resolution_m=1e-6,
+                 cruise_m=0.02), units=vis_units, sensors={"x_resolution_m": 1e-6, "p_noise_pa": 300.0})
+    for kpa, n_up in ((5, 8), (10, 6)):
+        up = [2.0 + k * kpa / 100.0 for k in range(n_up + 1)]
+        levels = tuple(round(v, 4) for v in up + up[-2::-1])
+        add(stem=f"pressure-sweep-{kpa:02d}kpa", folder="pla", fmt="csv", kind="pressure_step",
+            sim=dict(chamber="rear", levels_bar=levels, hold_s=1.5, fs_hz=20.0, tau_s=0.25, noise_pa=200.0),
+            units={"p_pa": "bar", "p_ref_pa": "bar"},
+            manifest={"sensor_p_noise": "2 mbar"} if kpa == 10 else {},
+            sensors={"p_noise_pa": 200.0, "step_pa": kpa * 1e3}, stated={"sensor_p_noise": 200.0} if kpa == 10 else {})
+    add(stem="shaker-accel", folder="accel", fmt="csv", kind="timeseries", sim=dict(fs_hz=200.0, duration_s=5.0),
+        units={"f_g": "g"})
+    return runs
+
+
+def _accelerometer(rng: np.random.Generator, fs_hz: float, duration_s: float) -> SimRun:
+    """A shaker's accelerometer: a 12 Hz sine of 0.8 g with 0.02 g noise. [g]"""
+    n = int(round(duration_s * fs_hz))
+    t = time_vector(n, fs_hz)
+    acc = 0.8 * np.sin(2 * np.pi * 12.0 * t) + rng.normal(0.0, 0.02, n)
+    return SimRun(pd.DataFrame({"t_s": t, "f_g": np.round(acc, 5) + 0.0}), {"kind": "timeseries"},
+                  {"kind": "timeseries", "amplitude_g": 0.8, "frequency_hz": 12.0, "noise_g": 0.02, "fs_hz": fs_hz})
+
+
+def simulate(run: ForeignRun, seed: int) -> SimRun:
+    """The run as ingest must give it back: ``data`` in SI under warehouse column names (the
+    load-cell run's ``f_n`` is the derived drive force, ``f_cell_n`` the cell's reading)."""
+    rng = np.random.default_rng([int(seed), 1000 + run.index])
+    if run.kind == "viscous":
+        sim = plpa.simulate_viscous(rng=rng, **run.sim)
+        data = sim.data
+        if run.stem == "loadcell":
+            # the passive chamber B at the backpressure pushes on the cell too
+            p_b = plpa.pressure_sensor(np.full(len(data), run.sim["backpressure_bar"] * 1e5), rng)
+            data = data.assign(p_b_pa=p_b, f_cell_n=data["f_n"] + p_b * HOSE_AREA_M2)
+        truth = {**sim.truth, "moving_mass_kg": run.sim.get("mass_kg", plpa.MOVING_MASS_KG),
+                 "position_noise_m": run.sim.get("position_noise_m"),
+                 "position_step_m": run.sim.get("position_resolution_m") or None}
+        return SimRun(data, sim.metadata, truth)
+    if run.kind == "pressure_step":
+        sim = pla.simulate_pressure_step(rng=rng, **run.sim)
+        return SimRun(sim.data, sim.metadata, {**sim.truth, "tau_s": run.sim["tau_s"]})
+    return _accelerometer(rng, **run.sim)
+
+
+def _export_columns(run: ForeignRun) -> list[ColumnOut]:
+    names = {"f_g": "F", "f_cell_n": "f_cell"}
+    out = []
+    for col, unit in run.units.items():
+        name = names.get(col, col.rsplit("_", 1)[0])
+        out.append(ColumnOut(col, name, unit))
+    return out
+
+
+def write_run(out_dir: Path, run: ForeignRun, seed: int) -> dict:
+    """Write one run's export; returns its truth.json record."""
+    sim = simulate(run, seed)
+    started = (START + timedelta(hours=run.index)).strftime("%Y-%m-%dT%H:%M:%S")
+    meta = {k: v for k, v in sim.metadata.items() if k not in ("rig", "hose_area_m2")}
+    meta = {"kind": run.kind, "run_id": run.run_id, "started_at": started, "operator": "guest", **meta}
+    embedded = {k: v for k, v in meta.items() if k not in run.manifest}
+    path = out_dir / run.rel_path
+    cols = _export_columns(run)
+    frame = sim.data
+    fs = run.sim.get("fs_hz")
+    if run.fmt == "csv":
+        time = [ColumnOut("t_s", "t", "s")] if run.time_column else []
+        write_csv(path, frame, time + cols, embedded)
+    elif run.fmt == "lvm":
+        write_lvm(path, frame, cols, embedded, fs_hz=fs, date=started[:10].replace("-", "/"),
+                  time=started[11:] + ".000000")
+    elif run.fmt == "tdms":
+        write_tdms(path, frame, cols, embedded, fs_hz=fs, waveform=True)
+    elif run.fmt == "mat":
+        write_mat(path, frame, cols, {**embedded, "Fs": float(fs)}, scalars=True, include_time=run.time_column)
+    else:
+        raise ValueError(run.fmt)
+    expected = {
+        "time_base": None if run.time_column else {"sample_rate_hz": fs},
+        "derived": {"f_n": "f_cell - p_b * hose_area_m2"} if run.stem == "loadcell" else {},
+        "columns": _expected_columns(run),
+        "params": run.stated,
+    }
+    truth = {**sim.truth, "sensors": run.sensors}
+    return {"file": run.rel_path, "format": run.fmt, "kind": run.kind, "metadata": meta, "embedded": True,
+            "manifest": run.manifest, "truth": jsonable(truth), "expected": jsonable(expected)}
+
+
+def _expected_columns(run: ForeignRun) -> dict:
+    """Samples columns and their stored units, as ingest must write them."""
+    from schemas.channels import CHANNELS, noncanonical_column
+
+    by_column = {c.column: c for c in CHANNELS.values()}
+    out = {"t_s": "s"}
+    for c in _export_columns(run):
+        ch = by_column.get(c.column)
+        if ch is not None:
+            out[c.column] = ch.si_unit
+        else:
+            out[noncanonical_column(c.name, c.unit)] = c.unit
+    if run.stem == "loadcell":
+        out["f_n"] = "N"
+    return out
+
+
+def _manifest_text(rows: list[dict]) -> str:
+    keys = ["file"] + sorted({k for r in rows for k in r if k != "file"})
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=keys, lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow(r)
+    return buf.getvalue()
+
+
+def simulate_foreign(out_dir, seed: int = 1) -> dict:
+    """Write ``foreign-2026/`` (exports, rig.toml per lab, manifests) and ``truth.json`` under
+    ``out_dir``; returns the truth dict."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    runs = plan()
+    records = [write_run(out, r, seed) for r in runs]
+    for rel, text in RIG_TOMLS.items():
+        p = out / CAMPAIGN / rel
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_text(text, encoding="utf-8")
+    manifests: dict[str, list[dict]] = {}
+    for r in runs:
+        if r.manifest:
+            manifests.setdefault(r.folder, []).append({"file": Path(r.rel_path).name, **r.manifest})
+    for folder, rows in sorted(manifests.items()):
+        (out / CAMPAIGN / folder / "manifest.csv").write_text(_manifest_text(rows), encoding="utf-8")
+    truth = {"generator": "pneubench simulator", "seed": seed, "profile": "foreign", "runs_requested": None,
+             "runs": {rec["metadata"]["run_id"]: rec for rec in records}}
+    (out / "truth.json").write_text(json.dumps(jsonable(truth), indent=1, sort_keys=True), encoding="utf-8")
+    return truth
+
+
+__all__ = ["CAMPAIGN", "ForeignRun", "plan", "simulate", "simulate_foreign", "write_run", "RIG_TOMLS"]
