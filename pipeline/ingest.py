@@ -22,15 +22,14 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from pipeline import code_version as code_version_mod
+from pipeline.code_version import INGEST_VERSION  # noqa: F401 (re-exported)
 from pipeline.layout import ConfigError, RawTree
 from pipeline.readers import RawColumn, ReaderError, read_export
 from schemas.channels import CHANNELS, canonical_name, sanitise_name
 from schemas.kinds import (KINDS, META_KEYS, coerce_value, missing_channels,
                            missing_metadata, samples_schema)
 from schemas.units import P_ATM_DEFAULT_PA, accepted_symbols, lookup_unit
-
-#: Bump when ingest output changes for the same input; part of every samples file's key.
-INGEST_VERSION = "1"
 
 
 class IngestError(Exception):
@@ -334,8 +333,7 @@ def ingest_key(sha: str, meta: dict, maps: list[ColumnMap], code_version: str | 
     version (its source hash; the rebuild passes the one it computed, so every worker agrees),
     so output of changed code never lands on a live file's name."""
     if code_version is None:
-        from pipeline.state import ingest_code_version  # state imports this module
-        code_version = ingest_code_version()
+        code_version = code_version_mod.ingest_code_version()
     blob = json.dumps({"sha": sha, "meta": meta, "maps": [m.__dict__ for m in maps], "v": code_version},
                       sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()

@@ -30,7 +30,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from pipeline.ingest import INGEST_VERSION, sha256_file
+from pipeline.code_version import INGEST_VERSION, ROOT, hash_sources, ingest_code_version  # noqa: F401 (re-exported)
+from pipeline.ingest import sha256_file
 from pipeline.layout import ConfigError, RawTree, is_run_file
 
 #: Raw files that are not runs but change what the runs mean (their changes are reported).
@@ -39,30 +40,11 @@ SIDE_FILES = {"manifest.csv": "manifest", "rig.toml": "rig", "hoses.csv": "logbo
 #: A file modified this recently is hashed again next time (mtime granularity, "racy" files).
 RACY_S = 2.0
 
-_ROOT = Path(__file__).resolve().parent.parent
+_ROOT = ROOT
 
 
 def _hash_sources(paths: list[Path]) -> str:
-    h = hashlib.sha256()
-    for p in sorted(paths):
-        h.update(p.relative_to(_ROOT).as_posix().encode())
-        try:
-            h.update(p.read_bytes())
-        except OSError:
-            pass
-    return h.hexdigest()[:16]
-
-
-@lru_cache(maxsize=1)
-def ingest_code_version() -> str:
-    """Version of everything that turns a raw file into a runs row and samples Parquet.
-
-    ``INGEST_VERSION`` plus a hash of the schemas, readers, layout and ingest source, so that a
-    code change re-reads the files it may affect.
-    """
-    files = [*_ROOT.glob("schemas/*.py"), *_ROOT.glob("pipeline/readers/*.py"),
-             _ROOT / "pipeline" / "ingest.py", _ROOT / "pipeline" / "layout.py"]
-    return f"{INGEST_VERSION}-{_hash_sources([f for f in files if f.is_file()])}"
+    return hash_sources(paths, _ROOT)
 
 
 #: Top-level packages of this project: a stage's version covers what it imports from them.
