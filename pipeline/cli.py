@@ -153,9 +153,14 @@ def simulate(out_dir, seed, profile, runs, jobs, quiet):
 @click.option("--quiet", "-q", is_flag=True, help="No progress output.")
 def demo(raw, warehouse, jobs, quiet):
     """Simulate RAW/demo (seed 1, demo profile) if absent, then rebuild RAW into the warehouse."""
-    from pipeline.rebuild import RebuildError, rebuild as do_rebuild
+    from pipeline.rebuild import RebuildError, check_folders, rebuild as do_rebuild
     from pipeline.simulator.campaign import simulate_demo
 
+    try:  # before anything is simulated into raw/
+        check_folders(raw, warehouse)
+    except RebuildError as exc:
+        click.echo(f"pneubench demo: {exc}", err=True)
+        sys.exit(exc.exit_code)
     progress = for_stream(sys.stderr, quiet)
     made = simulate_demo(raw, jobs=jobs, progress=progress)
     click.echo(f"demo: {'simulated' if made else 'kept the existing'} {raw / 'demo'}", err=True)

@@ -24,8 +24,10 @@ import fcntl
 import json
 import logging
 import os
+import re
 import shutil
 import signal
+import stat as stat_mod
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -131,6 +133,28 @@ def warehouse_lock(warehouse: Path, wait_s: float = 0.0):
     finally:
         fcntl.flock(fh, fcntl.LOCK_UN)
         fh.close()
+
+
+def check_folders(raw: str | Path, warehouse: str | Path) -> None:
+    """Refuse a raw tree and a warehouse that overlap (equal, or one inside the other).
+
+    Compared as resolved real paths (symlinks followed, a warehouse that does not exist yet
+    resolved through its existing parents). Raises :class:`RebuildError` with exit code 2
+    naming both paths; called before anything is written or deleted.
+    """
+    r, w = Path(os.path.realpath(raw)), Path(os.path.realpath(warehouse))
+    if r == w:
+        how = "are the same folder"
+    elif r in w.parents:
+        how = "overlap: the warehouse is inside the raw tree"
+    elif w in r.parents:
+        how = "overlap: the raw tree is inside the warehouse"
+    else:
+        return
+    real = "" if (str(r), str(w)) == (str(raw), str(warehouse)) else f" ({r} and {w})"
+    raise RebuildError(f"raw folder {raw} and warehouse {warehouse} {how}{real}; the rebuild writes and "
+                       "deletes files in the warehouse and never touches raw/: give two separate folders",
+                       EXIT_USAGE)
 
 
 # -- ingest ------------------------------------------------------------------------------------
@@ -565,46 +589,123 @@ def compare_findings(findings: pd.DataFrame, previous: dict[str, bool | None], h
 
 
 # -- garbage ---------------------------------------------------------------------------------------
+# The clean-up deletes only what the warehouse itself wrote: a file is a candidate when it lies
+# in the warehouse's own folders (never through a symlink) AND its name is one the writer uses.
+# Anything else found there (a raw tree placed there by mistake, a user's notes) is left alone.
+_SAMPLES_FILE = re.compile(r"[A-Za-z0-9._-]{1,80}-[0-9a-f]{16}\.parquet")      # ingest: <safe run>-<key>.parquet
+_SAMPLES_TMP = re.compile(r"\.[A-Za-z0-9._-]{1,80}\.[0-9]+\.[0-9a-f]{12}\.tmp")  # ingest's temp name
+_STAGE_NAME = re.compile(r"[a-z_][a-z0-9_]*")
+_STAGE_KEY = re.compile(r"[0-9a-f]{20}")
+_STAGE_TMP = re.compile(r"\.tmp-([a-z_][a-z0-9_]*)-[0-9a-f]{20}-[0-9]+")
+_DB_TMP = re.compile(re.escape(f".{DB_NAME}.tmp-") + r"[0-9]+(\.wal)?")
+_REPORT_TMP = re.compile(r"\.index\.html\.tmp-[0-9]+")
+_FIGURE = re.compile(r"[A-Za-z0-9._-]+\.png")
+
+
+def _real_dir(path: Path) -> bool:
+    """A folder that is not a symlink (the clean-up never follows one)."""
+    try:
+        return stat_mod.S_ISDIR(os.lstat(path).st_mode)
+    except OSError:
+        return False
+
+
+def _entries(folder: Path):
+    """(name, path, is_dir, is_file) of a folder's entries, symlinks neither dir nor file."""
+    try:
+        with os.scandir(folder) as it:
+            ents = sorted(it, key=lambda e: e.name)
+    except OSError:
+        return []
+    return [(e.name, Path(e.path), e.is_dir(follow_symlinks=False), e.is_file(follow_symlinks=False)) for e in ents]
+
+
+def _unlink_if(path: Path, is_file: bool, pattern: re.Pattern) -> None:
+    if is_file and pattern.fullmatch(path.name):
+        path.unlink(missing_ok=True)
+
+
+def _rmdir(path: Path) -> None:
+    try:
+        path.rmdir()
+    except OSError:
+        pass  # not empty: it holds something the warehouse did not write
+
+
+def remove_stage_folder(folder: Path) -> None:
+    """Delete a stage output folder the way ``_save_stage_folder`` wrote it (``output.json``,
+    ``tables/*.parquet``, ``figures/*.png``); anything else in it stays, and so does the folder."""
+    if not _real_dir(folder):
+        return
+    for sub, pattern in (("tables", re.compile(r"[A-Za-z0-9_]+\.parquet")), ("figures", _FIGURE)):
+        if _real_dir(folder / sub):
+            for _name, path, _is_dir, is_file in _entries(folder / sub):
+                _unlink_if(path, is_file, pattern)
+            _rmdir(folder / sub)
+    for _name, path, _is_dir, is_file in _entries(folder):
+        _unlink_if(path, is_file, re.compile(r"output\.json"))
+    _rmdir(folder)
+
+
+def _samples_folders(warehouse: Path):
+    """``samples/kind=<kind>/campaign=<campaign>/`` folders (real folders only)."""
+    from schemas.kinds import KINDS
+
+    samples = warehouse / "samples"
+    if not _real_dir(samples):
+        return
+    for kname, kdir, kis_dir, _ in _entries(samples):
+        if not (kis_dir and kname.startswith("kind=") and kname[5:] in KINDS):
+            continue
+        for cname, cdir, cis_dir, _ in _entries(kdir):
+            if cis_dir and cname.startswith("campaign="):
+                yield kdir, cdir
+
+
 def clean_debris(warehouse: Path) -> None:
-    """Remove what a killed rebuild left behind (temp databases, temp stage folders)."""
-    for f in warehouse.glob(f".{DB_NAME}.tmp-*"):
-        f.unlink(missing_ok=True)
-    stages = warehouse / "stages"
-    if stages.is_dir():
-        for d in stages.glob(".tmp-*"):
-            shutil.rmtree(d, ignore_errors=True)
-    report = warehouse / "report"
-    if report.is_dir():
-        for f in report.glob(".*.tmp*"):
-            f.unlink(missing_ok=True)
+    """Remove what a killed rebuild left behind (temp databases, temp stage folders, temp samples
+    and report files), by the writers' own temp names only."""
+    for _name, path, _is_dir, is_file in _entries(warehouse):
+        _unlink_if(path, is_file, _DB_TMP)
+    if _real_dir(warehouse / "stages"):
+        for name, path, is_dir, _ in _entries(warehouse / "stages"):
+            if is_dir and _STAGE_TMP.fullmatch(name):
+                remove_stage_folder(path)
+    if _real_dir(warehouse / "report"):
+        for _name, path, _is_dir, is_file in _entries(warehouse / "report"):
+            _unlink_if(path, is_file, _REPORT_TMP)
+    for _kdir, cdir in _samples_folders(warehouse):
+        for _name, path, _is_dir, is_file in _entries(cdir):
+            _unlink_if(path, is_file, _SAMPLES_TMP)
 
 
 def collect_garbage(warehouse: Path, keep_samples: set[str], keep_stages: set[str]) -> None:
-    """Delete samples files and stage folders that neither the new nor the previous warehouse uses."""
-    samples = warehouse / "samples"
-    if samples.is_dir():
-        for f in samples.rglob("*"):
-            if f.is_file() and f.relative_to(warehouse).as_posix() not in keep_samples:
-                f.unlink(missing_ok=True)
-        for d in sorted((d for d in samples.rglob("*") if d.is_dir()), key=lambda d: len(d.parts), reverse=True):
-            try:
-                d.rmdir()
-            except OSError:
-                pass
+    """Delete samples files and stage folders the warehouse wrote that are not in ``keep_*``
+    (paths relative to the warehouse). Only writer-named files in the writer's folders go."""
+    for kdir, cdir in list(_samples_folders(warehouse)):
+        for name, path, _is_dir, is_file in _entries(cdir):
+            if is_file and _SAMPLES_FILE.fullmatch(name) and \
+                    path.relative_to(warehouse).as_posix() not in keep_samples:
+                path.unlink(missing_ok=True)
+        _rmdir(cdir)
+        _rmdir(kdir)
     stages = warehouse / "stages"
-    if stages.is_dir():
-        for d in stages.glob("*/*"):
-            if d.is_dir() and d.relative_to(warehouse).as_posix() not in keep_stages:
-                shutil.rmtree(d, ignore_errors=True)
-        for d in stages.iterdir():
-            if d.is_dir() and not d.name.startswith("."):
-                try:
-                    d.rmdir()
-                except OSError:
-                    pass
-    legacy = warehouse / "figures"  # figures of the first layout (before generations)
-    if legacy.is_dir() and not any(p.startswith("figures/") for p in keep_stages):
-        shutil.rmtree(legacy, ignore_errors=True)
+    if _real_dir(stages):
+        for sname, sdir, s_is_dir, _ in _entries(stages):
+            if not (s_is_dir and _STAGE_NAME.fullmatch(sname)):
+                continue
+            for kname, kdir, k_is_dir, _ in _entries(sdir):
+                if k_is_dir and _STAGE_KEY.fullmatch(kname) and f"stages/{sname}/{kname}" not in keep_stages:
+                    remove_stage_folder(kdir)
+            _rmdir(sdir)
+    legacy = warehouse / "figures"  # figures of the first layout (before generations): <stage>/<name>.png
+    if _real_dir(legacy) and not any(p.startswith("figures/") for p in keep_stages):
+        for sname, sdir, s_is_dir, _ in _entries(legacy):
+            if s_is_dir and _STAGE_NAME.fullmatch(sname):
+                for _name, path, _is_dir, is_file in _entries(sdir):
+                    _unlink_if(path, is_file, _FIGURE)
+                _rmdir(sdir)
+        _rmdir(legacy)
 
 
 # -- the rebuild -----------------------------------------------------------------------------------
@@ -679,6 +780,7 @@ def rebuild(raw: str | Path, warehouse: str | Path, jobs: int | None = None, ful
     raw, warehouse = Path(raw), Path(warehouse)
     if not raw.is_dir():
         raise RebuildError(f"raw folder {raw} does not exist", EXIT_USAGE)
+    check_folders(raw, warehouse)
     jobs = jobs or os.cpu_count() or 1
     try:
         warehouse.mkdir(parents=True, exist_ok=True)

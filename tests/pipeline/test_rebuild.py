@@ -161,3 +161,113 @@ def test_a_report_that_cannot_be_rendered_fails_the_rebuild_and_keeps_warehouse_
     # without a report nothing can fail: the new warehouse goes in
     assert CliRunner().invoke(main, [*args, "--no-report"]).exit_code == EXIT_OK
     assert q(warehouse, "SELECT run_id FROM runs ORDER BY 1") == [("c/a",), ("c/b",)]
+
+
+# -- raw/ and the warehouse never overlap; the clean-up deletes only what the warehouse wrote ----
+def test_the_raw_guard_notices_any_change_to_the_raw_tree(raw, tmp_path):
+    # the guard every rebuild of the suite runs under (tests/conftest.py) must be able to fail
+    import os
+
+    from tests.conftest import guard_raw
+
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    raw.write("c/b.csv", "x\n")
+    os.symlink("a.csv", raw.root / "c" / "link.csv")
+    changes = {
+        "bytes": lambda: (raw.root / "c/a.csv").write_text("changed\n"),
+        "mode": lambda: os.chmod(raw.root / "c/b.csv", 0o600),
+        "deleted": lambda: (raw.root / "c/b.csv").unlink(),
+        "created": lambda: raw.write("c/new.txt", "x"),
+        "symlink": lambda: (os.unlink(raw.root / "c/link.csv"), os.symlink("b.csv", raw.root / "c/link.csv")),
+    }
+    os.chmod(raw.root / "c/b.csv", 0o644)
+    for name, change in changes.items():
+        with pytest.raises(pytest.fail.Exception, match="modified its raw tree"):
+            guard_raw(lambda root: change())(raw.root)
+    assert guard_raw(lambda root: 7)(raw.root) == 7  # nothing changed: nothing to say
+
+
+def _overlaps(tmp_path):
+    import os
+
+    raw = tmp_path / "X"
+    (raw / "samples").mkdir(parents=True)          # a campaign folder named like the warehouse's
+    os.symlink(raw, tmp_path / "link")
+    return {
+        "raw inside the warehouse": (raw / "samples", raw),       # --raw W/samples --warehouse W
+        "the same folder": (raw, raw),
+        "warehouse inside raw": (raw, raw / "wh"),
+        "the same folder through a symlink": (raw, tmp_path / "link"),
+        "warehouse inside raw through a symlink": (tmp_path / "link", raw / "w2"),
+    }
+
+
+@pytest.mark.parametrize("case", ["raw inside the warehouse", "the same folder", "warehouse inside raw",
+                                  "the same folder through a symlink", "warehouse inside raw through a symlink"])
+def test_overlapping_raw_and_warehouse_are_a_usage_error_before_anything_is_written(tmp_path, case):
+    from click.testing import CliRunner
+
+    from pipeline.cli import main
+    from tests.conftest import RawBuilder, raw_snapshot
+
+    raw_dir, wh = _overlaps(tmp_path)[case]
+    builder = RawBuilder(tmp_path / "X")
+    builder.csv("samples/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    builder.write("samples/kind=step/campaign=samples/a-0123456789abcdef.parquet", b"PAR1 not really")
+    before = raw_snapshot(tmp_path / "X")
+    with pytest.raises(RebuildError) as err:
+        rebuild(raw_dir, wh, jobs=1)
+    assert err.value.exit_code == 2
+    assert str(raw_dir) in str(err.value) and str(wh) in str(err.value)
+    for cmd in ("rebuild", "demo"):
+        res = CliRunner().invoke(main, [cmd, "--raw", str(raw_dir), "--warehouse", str(wh), "--jobs", "1"])
+        assert res.exit_code == 2, res.output
+        assert str(raw_dir) in res.output and str(wh) in res.output
+    assert raw_snapshot(tmp_path / "X") == before  # nothing written, nothing deleted (no demo/, no lock)
+
+
+def test_the_clean_up_deletes_only_files_the_warehouse_wrote(raw, warehouse, tmp_path):
+    import os
+
+    from tests.conftest import raw_snapshot
+
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    rebuild(raw.root, warehouse, jobs=1)
+    camp = warehouse / "samples" / "kind=step" / "campaign=c"
+    # a raw tree copied where the clean-up looks, foreign names in the warehouse's own folders,
+    # and a symlink out of the warehouse onto a tree of writer-like names
+    outside = tmp_path / "elsewhere"
+    outside.mkdir()
+    (outside / "x-0123456789abcdef.parquet").write_bytes(b"someone's data")
+    foreign = {
+        "samples/kind=step/campaign=c/b.csv": b"t,x\n0,1\n",
+        "samples/kind=step/campaign=c/notes.txt": b"mine",
+        "samples/kind=step/campaign=c/run-12.parquet": b"not a writer name",
+        "samples/kind=step/campaign=c/sub/z-0123456789abcdef.parquet": b"one folder too deep",
+        "samples/c/a.csv": b"a raw tree under samples/",
+        "samples/kind=nope/campaign=c/q-0123456789abcdef.parquet": b"not a kind",
+        "stages/models/0123456789abcdef0123/tables/data.csv": b"foreign",
+        "stages/models/0123456789abcdef0123/output.json.bak": b"foreign",
+        "stages/Not-A-Stage/0123456789abcdef0123/output.json": b"{}",
+        "stages/.tmp-notes/readme.txt": b"foreign",
+        "report/.keep.tmp": b"foreign",
+        ".pneubench.duckdb.tmp-old": b"foreign",
+        "figures/readme.txt": b"foreign",
+    }
+    for rel, data in foreign.items():
+        (warehouse / rel).parent.mkdir(parents=True, exist_ok=True)
+        (warehouse / rel).write_bytes(data)
+    os.symlink(outside, warehouse / "samples" / "kind=step" / "campaign=linked")
+    orphan = camp / "zz-0123456789abcdef.parquet"       # writer-named, used by no warehouse: collected
+    orphan.write_bytes(b"stale")
+    debris = camp / ".a.123.0123456789ab.tmp"             # a killed writer's temp file: collected
+    debris.write_bytes(b"partial")
+    outside_before = raw_snapshot(outside)
+    raw.csv("c/b.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": [1.0] * 4})
+    assert rebuild(raw.root, warehouse, jobs=1).exit_code == EXIT_OK
+    rebuild(raw.root, warehouse, jobs=1)
+    for rel, data in foreign.items():
+        assert (warehouse / rel).read_bytes() == data, rel
+    assert raw_snapshot(outside) == outside_before
+    assert not orphan.exists() and not debris.exists()
+    assert q(warehouse, "SELECT count(*) FROM runs") == [(2,)]

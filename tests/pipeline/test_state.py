@@ -259,6 +259,7 @@ def test_a_new_file_is_hashed_once(raw, warehouse, monkeypatch):
     assert q(warehouse, "SELECT source_sha256 FROM runs") == [(real(raw.root / "c" / "a.csv"),)]
 
 
+@pytest.mark.raw_written("c/a.csv")
 def test_a_file_written_while_it_is_read_is_read_again_next_time(raw, warehouse, monkeypatch):
     # its hash and its samples may be of different bytes: the record says "look again"
     step(raw, "c/a.csv")
@@ -279,6 +280,7 @@ def test_a_file_written_while_it_is_read_is_read_again_next_time(raw, warehouse,
     assert q(warehouse, "SELECT max(x_m) FROM samples_step") == [(pytest.approx(0.006),)]
 
 
+@pytest.mark.raw_written("c/a.csv")
 def test_a_retried_file_is_read_again_not_taken_from_a_samples_file_of_the_same_name(raw, warehouse, monkeypatch):
     # the racy read's samples may carry the new bytes' name with the old bytes' data: the
     # re-check must not reuse them
