@@ -129,7 +129,7 @@ def warehouse_lock(warehouse: Path, wait_s: float = 0.0):
         fh.truncate()
         fh.write(str(os.getpid()))
         fh.flush()
-        yield
+        yield fh
     finally:
         fcntl.flock(fh, fcntl.LOCK_UN)
         fh.close()
@@ -269,7 +269,12 @@ def ingest_incremental(tree: RawTree, plans: list[FilePlan], warehouse: Path, ex
             todo.append((p, (str(tree.root), token, str(p.path), str(warehouse), not full, prev, code_version)))
     if todo:
         progress.message(f"ingest: {len(todo)} of {len(plans)} run files to read")
-    outs = executor.map(_ingest_task, [a for _, a in todo], "ingest", progress, on_crash=_ingest_crashed)
+    # forked local workers inherit the parsed raw tree and the readers of the formats present
+    _TREES.clear()
+    _TREES[(str(tree.root), token)] = tree
+    readers = sorted({READERS[p.path.suffix.lower()].split(":")[0] for p, _ in todo if p.path.suffix.lower() in READERS})
+    outs = executor.map(_ingest_task, [a for _, a in todo], "ingest", progress, on_crash=_ingest_crashed,
+                        preload=readers)
     now = time.time()
     for (p, _), out in zip(todo, outs):
         if out["reused"]:
@@ -789,10 +794,10 @@ def rebuild(raw: str | Path, warehouse: str | Path, jobs: int | None = None, ful
     generation = _generation()
     summary = RebuildSummary(raw=raw, warehouse=warehouse, generation=generation,
                              mode="full" if full else "incremental")
-    with warehouse_lock(warehouse, lock_wait_s):
+    with warehouse_lock(warehouse, lock_wait_s) as lock:
         try:
             return _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, report,
-                                   generation, summary, started_at, t0)
+                                   generation, summary, started_at, t0, lock.fileno())
         except RebuildError:
             raise
         except Exception as exc:  # anything unexpected: exit 3, never 1 (= "quarantined")
@@ -801,7 +806,7 @@ def rebuild(raw: str | Path, warehouse: str | Path, jobs: int | None = None, ful
 
 
 def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, report, generation, summary,
-                    started_at, t0) -> RebuildSummary:
+                    started_at, t0, lock_fd: int) -> RebuildSummary:
     clean_debris(warehouse)
     prev = load_previous(warehouse)
     tree = RawTree(raw)
@@ -821,7 +826,7 @@ def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, r
     progress.message(f"rebuild {generation} ({summary.mode}): {len(files)} run files under {raw}, "
                      f"{n_quick} unchanged at a glance")
     try:
-        ex = make_executor(executor, jobs, scheduler)
+        ex = make_executor(executor, jobs, scheduler, close_in_workers=(lock_fd,))
     except Exception as exc:
         raise RebuildError(f"cannot start the {executor} executor: {type(exc).__name__}: {exc}") from exc
     with ex:

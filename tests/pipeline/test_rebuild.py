@@ -271,3 +271,57 @@ def test_the_clean_up_deletes_only_files_the_warehouse_wrote(raw, warehouse, tmp
     assert raw_snapshot(outside) == outside_before
     assert not orphan.exists() and not debris.exists()
     assert q(warehouse, "SELECT count(*) FROM runs") == [(2,)]
+
+
+# -- readers of untrusted bytes never run in the rebuild's process --------------------------------
+def test_a_reader_that_segfaults_with_one_job_quarantines_its_file_and_the_rest_ingests(raw, warehouse,
+                                                                                       monkeypatch):
+    # a 1-core server is --jobs 1: the reader still runs in a worker process, so a segfault in
+    # C code (scipy's loadmat on a corrupt MAT file did this) costs one file, not the rebuild
+    import os
+    import signal
+
+    import pipeline.ingest as ing
+    from pipeline.rebuild import CRASHED
+
+    real = ing.read_export
+
+    def reader(path, *a, **k):
+        if "segv" in os.path.basename(path):
+            os.kill(os.getpid(), signal.SIGSEGV)
+        return real(path, *a, **k)
+
+    monkeypatch.setattr(ing, "read_export", reader)
+    for name in ("a", "b_segv", "c"):
+        raw.csv(f"c/{name}.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    parent = os.getpid()
+    summary = rebuild(raw.root, warehouse, jobs=1)
+    assert os.getpid() == parent and summary.exit_code == EXIT_QUARANTINED
+    assert [(p.source_path, p.error) for p in summary.quarantine] == [("c/b_segv.csv", CRASHED)]
+    assert q(warehouse, "SELECT run_id FROM runs ORDER BY 1") == [("c/a",), ("c/c",)]
+
+
+def test_ingest_starts_one_worker_process_for_one_job_and_none_when_nothing_is_read(raw, warehouse, monkeypatch):
+    import os
+    import time
+
+    forks = []
+    real_fork = os.fork
+
+    def counting_fork():
+        pid = real_fork()
+        if pid:
+            forks.append(pid)
+        return pid
+
+    monkeypatch.setattr(os, "fork", counting_fork)
+    for name in "abcd":
+        raw.csv(f"c/{name}.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    past = time.time() - 3600  # files written this second are hashed again next time ("racy")
+    for p in raw.root.rglob("*.csv"):
+        os.utime(p, (past, past))
+    rebuild(raw.root, warehouse, jobs=1)
+    assert len(forks) == 1  # one reader worker for four files; the stages run in this process
+    forks.clear()
+    assert rebuild(raw.root, warehouse, jobs=1).n_unchanged == 4
+    assert forks == []  # a no-op rebuild starts no process

@@ -50,13 +50,40 @@ def dump(warehouse):
 q = query
 
 
+class ReadLog:
+    """Calls recorded by hooks that run in the ingest worker processes (forked from the test, so
+    they carry its monkeypatches): one JSON line per call in a file, read back here."""
+
+    def __init__(self, path):
+        self.path = path
+        self.clear()
+
+    def record(self, key, value):
+        import json
+
+        with open(self.path, "a") as fh:
+            fh.write(json.dumps([key, value]) + "\n")
+
+    def __getitem__(self, key):
+        import json
+
+        return [v for k, v in (json.loads(line) for line in self.path.read_text().splitlines()) if k == key]
+
+    def as_dict(self, *keys):
+        return {k: self[k] for k in keys}
+
+    def clear(self):
+        self.path.write_text("")
+
+
 @pytest.fixture
-def counting(monkeypatch):
-    """Count files read (hashed or ingested) in this process (jobs=1 runs everything here)."""
-    seen = {"sha": [], "ingest": []}
+def counting(monkeypatch, tmp_path):
+    """Count files read (hashed or ingested) by the rebuild, in whatever process reads them."""
+    seen = ReadLog(tmp_path / "reads.jsonl")
     real_sha, real_ingest = rb.sha256_file, rb.ingest_file
-    monkeypatch.setattr(rb, "sha256_file", lambda p, *a, **k: seen["sha"].append(p.name) or real_sha(p, *a, **k))
-    monkeypatch.setattr(rb, "ingest_file", lambda t, p, *a, **k: seen["ingest"].append(p.name) or real_ingest(t, p, *a, **k))
+    monkeypatch.setattr(rb, "sha256_file", lambda p, *a, **k: seen.record("sha", p.name) or real_sha(p, *a, **k))
+    monkeypatch.setattr(rb, "ingest_file",
+                        lambda t, p, *a, **k: seen.record("ingest", p.name) or real_ingest(t, p, *a, **k))
     return seen
 
 
@@ -67,9 +94,9 @@ def test_noop_rebuild_reads_no_file_and_reruns_no_stage(raw, warehouse, counting
     first = rebuild(raw.root, warehouse, jobs=1)
     assert sorted(counting["ingest"]) == ["a0.csv", "a1.csv", "a2.csv"]
     assert first.n_new == 3 and first.stages_run
-    counting["sha"].clear(), counting["ingest"].clear()
+    counting.clear()
     second = rebuild(raw.root, warehouse, jobs=1)
-    assert counting == {"sha": [], "ingest": []}
+    assert counting.as_dict("sha", "ingest") == {"sha": [], "ingest": []}
     assert (second.n_new, second.n_changed, second.n_deleted, second.n_unchanged) == (0, 0, 0, 3)
     assert second.stages_run == [] and set(second.stages_reused) == set(first.stages_run)
     assert q(warehouse, "SELECT count(*) FROM rebuild_log") == [(2,)]
@@ -80,7 +107,7 @@ def test_touch_hashes_but_does_not_reingest(raw, warehouse, counting):
     step(raw, "c/a.csv")
     age(raw.root)
     rebuild(raw.root, warehouse, jobs=1)
-    counting["sha"].clear(), counting["ingest"].clear()
+    counting.clear()
     os.utime(raw.root / "c/a.csv", None)  # new mtime, same bytes
     s = rebuild(raw.root, warehouse, jobs=1)
     assert counting["sha"] == ["a.csv"] and counting["ingest"] == []
@@ -94,7 +121,7 @@ def test_changes_deletions_and_metadata_changes(raw, warehouse, counting):
     step(raw, "d/e.csv")
     age(raw.root)
     rebuild(raw.root, warehouse, jobs=1)
-    counting["ingest"].clear()
+    counting.clear()
     step(raw, "c/b.csv", scale=2.0)                                   # content changed
     (raw.root / "d/e.csv").unlink()                                   # deleted
     raw.write("c/sub/manifest.csv", "file,operator\nc.csv,ana\n")     # metadata of c changed
@@ -122,7 +149,7 @@ def test_rig_toml_change_reingests_the_files_below_it(raw, warehouse, counting):
     step(raw, "c/y/b.csv")
     age(raw.root)
     rebuild(raw.root, warehouse, jobs=1)
-    counting["ingest"].clear()
+    counting.clear()
     raw.write("c/x/rig.toml", '[metadata]\nrig = "plpa-2"\n')
     s = rebuild(raw.root, warehouse, jobs=1)
     assert counting["ingest"] == ["a.csv"] and s.n_changed == 1
@@ -133,7 +160,7 @@ def test_quarantined_file_stays_quarantined_without_being_read(raw, warehouse, c
     raw.csv("c/bad.csv", STEP_META, {"t[s]": T, "x[furlong]": T, "x_ref[mm]": T})
     age(raw.root)
     a = rebuild(raw.root, warehouse, jobs=1)
-    counting["ingest"].clear()
+    counting.clear()
     b = rebuild(raw.root, warehouse, jobs=1)
     assert counting["ingest"] == [] and b.exit_code == a.exit_code == 1
     assert [p.error for p in b.quarantine] == [p.error for p in a.quarantine]
@@ -238,24 +265,24 @@ def test_project_imports_follows_imports_transitively(tmp_path, monkeypatch):
     assert got == {"a.py", "b.py", "c.py"}
 
 
-def test_a_new_file_is_hashed_once(raw, warehouse, monkeypatch):
+def test_a_new_file_is_hashed_once(raw, warehouse, monkeypatch, tmp_path):
     # a new file is hashed by ingest while it parses it; a touched one by the rebuild, to decide
     import pipeline.ingest as ing
 
-    calls = []
+    log = ReadLog(tmp_path / "calls.jsonl")
     real = ing.sha256_file
     for mod in (rb, ing):
-        monkeypatch.setattr(mod, "sha256_file", lambda p, *a, **k: calls.append(p.name) or real(p, *a, **k))
+        monkeypatch.setattr(mod, "sha256_file", lambda p, *a, **k: log.record("sha", p.name) or real(p, *a, **k))
     step(raw, "c/a.csv")
     rebuild(raw.root, warehouse, jobs=1)
-    assert calls.count("a.csv") == 1
+    assert log["sha"].count("a.csv") == 1
     assert q(warehouse, "SELECT source_sha256 FROM runs") == [(real(raw.root / "c" / "a.csv"),)]
     # touched with other bytes: the rebuild hashes it to decide and ingest reuses that hash
-    calls.clear()
+    log.clear()
     age(raw.root)
     step(raw, "c/a.csv", scale=2.0)
     rebuild(raw.root, warehouse, jobs=1)
-    assert calls.count("a.csv") == 1
+    assert log["sha"].count("a.csv") == 1
     assert q(warehouse, "SELECT source_sha256 FROM runs") == [(real(raw.root / "c" / "a.csv"),)]
 
 
@@ -281,25 +308,26 @@ def test_a_file_written_while_it_is_read_is_read_again_next_time(raw, warehouse,
 
 
 @pytest.mark.raw_written("c/a.csv")
-def test_a_retried_file_is_read_again_not_taken_from_a_samples_file_of_the_same_name(raw, warehouse, monkeypatch):
+def test_a_retried_file_is_read_again_not_taken_from_a_samples_file_of_the_same_name(raw, warehouse, monkeypatch,
+                                                                                     tmp_path):
     # the racy read's samples may carry the new bytes' name with the old bytes' data: the
     # re-check must not reuse them
     step(raw, "c/a.csv")
     age(raw.root)
     real = rb.ingest_file
-    seen = []
+    seen = ReadLog(tmp_path / "seen.jsonl")
 
     def ingest_while_the_bench_writes(tree, path, *a, **k):
-        seen.append(k.get("reuse"))
+        seen.record("reuse", k.get("reuse"))
         res = real(tree, path, *a, **k)
-        if len(seen) == 1:
+        if len(seen["reuse"]) == 1:
             step(raw, "c/a.csv", scale=2.0)
         return res
 
     monkeypatch.setattr(rb, "ingest_file", ingest_while_the_bench_writes)
     rebuild(raw.root, warehouse, jobs=1)
     rebuild(raw.root, warehouse, jobs=1)
-    assert seen == [True, False]
+    assert seen["reuse"] == [True, False]
 
 
 def test_a_file_that_cannot_be_opened_is_tried_again_next_time(raw, warehouse, monkeypatch):
