@@ -69,16 +69,23 @@ class IngestResult:
     error: str | None = None
     #: the error may pass (the file could not be opened or read): look at the file again next time
     transient: bool = False
+    #: how many bytes ``source_sha256`` was computed over when ingest hashed the file itself [B]
+    bytes_hashed: int | None = None
 
 
-def sha256_file(path: Path, chunk: int = 1 << 22, stop=None) -> str | None:
-    """SHA-256 of a file, read in chunks. [hex] (None when the ``stop`` event was set.)"""
+def sha256_file(path: Path, chunk: int = 1 << 22, stop=None, counted: list | None = None) -> str | None:
+    """SHA-256 of a file, read in chunks. [hex] (None when the ``stop`` event was set.)
+    ``counted``: a list the number of bytes hashed is appended to [B]."""
     h = hashlib.sha256()
+    n = 0
     with open(path, "rb") as fh:
         while block := fh.read(chunk):
             if stop is not None and stop.is_set():
                 return None
             h.update(block)
+            n += len(block)
+    if counted is not None:
+        counted.append(n)
     return h.hexdigest()
 
 
@@ -91,12 +98,15 @@ class _BackgroundHash:
 
         self._stop = threading.Event()
         self._out: dict = {}
+        self.n_bytes: int | None = None  # bytes hashed, once done
         self._thread = threading.Thread(target=self._run, args=(path,), name="ingest-sha256", daemon=True)
         self._thread.start()
 
     def _run(self, path):
+        counted: list[int] = []
         try:
-            self._out["sha"] = sha256_file(path, stop=self._stop)
+            self._out["sha"] = sha256_file(path, stop=self._stop, counted=counted)
+            self.n_bytes = counted[0] if counted else None
         except BaseException as exc:  # noqa: BLE001 - re-raised by result()
             self._out["error"] = exc
 
@@ -367,9 +377,12 @@ def ingest_file(tree: RawTree, path: Path, warehouse: Path, reuse: bool = True,
     """
     rel = tree.rel(path)
     result = IngestResult(source_path=rel, campaign=tree.campaign(path))
+    hashed: list = []
     try:
-        run, channels = _ingest(tree, Path(path), Path(warehouse), rel, result.campaign, reuse, sha256, code_version)
+        run, channels = _ingest(tree, Path(path), Path(warehouse), rel, result.campaign, reuse, sha256, code_version,
+                                hashed)
         result.run, result.channels = run, channels
+        result.bytes_hashed = hashed[0] if hashed else None
     except (IngestError, ReaderError, ConfigError) as exc:
         result.error = _one_line(str(exc))
     except Exception as exc:  # noqa: BLE001
@@ -385,7 +398,7 @@ def _one_line(text: str) -> str:
 
 
 def _ingest(tree: RawTree, path: Path, warehouse: Path, rel: str, campaign: str | None, reuse: bool,
-            sha: str | None = None, code_version: str | None = None):
+            sha: str | None = None, code_version: str | None = None, bytes_hashed: list | None = None):
     if campaign is None:
         raise IngestError("file is not in a campaign folder (raw/<campaign>/...)")
     hashing = None if sha else _BackgroundHash(path)
@@ -394,6 +407,8 @@ def _ingest(tree: RawTree, path: Path, warehouse: Path, rel: str, campaign: str 
     finally:
         if hashing is not None:
             hashing.cancel()
+            if bytes_hashed is not None:
+                bytes_hashed.append(hashing.n_bytes)
 
 
 def _ingest_hashed(tree, path, warehouse, rel, campaign, reuse, sha, hashing, code_version):

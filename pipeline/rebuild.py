@@ -178,12 +178,18 @@ def _unreadable(tree: RawTree, path: Path, error: str, transient: bool = False) 
     return IngestResult(source_path=tree.rel(path), campaign=tree.campaign(path), error=error, transient=transient)
 
 
-def _stat_or_none(path: Path) -> tuple[int, int] | None:
+#: The reason a file is set aside for this night: it changed while it was read (a bench still
+#: writing it). Not a lasting quarantine: the next rebuild reads it again.
+CHANGED_WHILE_READ = "file changed while it was read; will be read again at the next rebuild"
+
+
+def _stat_or_none(path: Path) -> tuple[int, int, int] | None:
+    """``(size, mtime_ns, inode)`` of a file, None when it cannot be stat'ed."""
     try:
         st = os.stat(path)
     except OSError:
         return None
-    return st.st_size, st.st_mtime_ns
+    return st.st_size, st.st_mtime_ns, st.st_ino
 
 
 def _ingest_task(args) -> dict:
@@ -191,26 +197,35 @@ def _ingest_task(args) -> dict:
     its bytes are the same; any other file is ingested (and hashed while it is parsed).
 
     Returns ``{"sha", "reused", "result"}``, with ``"retry": True`` when the next rebuild must
-    look at the file again: it was written to while read (its hash and samples may be of
-    different bytes) or could not be opened (permissions, a share away).
+    look at the file again: it could not be opened (permissions, a share away), or it changed
+    while it was read. A file whose size, mtime or inode differ after reading from before, or
+    whose hash was not computed over exactly the bytes it had, is not published: its result is
+    the one-line :data:`CHANGED_WHILE_READ` (its hash and its samples may be of different bytes).
     """
     raw, token, path, warehouse, reuse, prev, code = args
     path, tree = Path(path), _tree(raw, token)
     before = _stat_or_none(path)
     sha = None
+    hashed: list[int] = []
     if prev is not None:  # only the stat changed: the same bytes keep their record
         if prev["sha"] is None:
             reuse = False  # its last read was not trustworthy: a samples file named by its hash may be stale
         try:
-            sha = sha256_file(path)
+            sha = sha256_file(path, counted=hashed)
         except OSError as exc:
             res = _unreadable(tree, path, f"cannot read file: {type(exc).__name__}: {exc}", transient=True)
             return {"sha": None, "reused": False, "result": res, "retry": True}
-        if prev["sha"] == sha:
+        if prev["sha"] == sha and before is not None and _stat_or_none(path) == before and hashed == [before[0]]:
             return {"sha": sha, "reused": True, "result": None}
     _crash_point(f"ingest:{tree.rel(path)}", signal.SIGSEGV)  # a reader crashing in C code
     res = ingest_file(tree, path, Path(warehouse), reuse=reuse, sha256=sha, code_version=code)
-    if res.transient or before is None or _stat_or_none(path) != before:
+    if res.bytes_hashed is not None:
+        hashed = [res.bytes_hashed]
+    if before is not None and not res.transient and (
+            _stat_or_none(path) != before or (hashed and hashed != [before[0]])):
+        return {"sha": None, "reused": False, "result": _unreadable(tree, path, CHANGED_WHILE_READ, transient=True),
+                "retry": True}
+    if res.transient or before is None:
         return {"sha": None, "reused": False, "result": res, "retry": True}
     if res.run is not None:
         sha = res.run["source_sha256"]
