@@ -42,9 +42,9 @@ from pipeline.ingest import IngestResult, ingest_file, sha256_file
 from pipeline.layout import Problem, RawTree, discover_runs
 from pipeline.readers import READERS
 from pipeline.progress import Progress
-from pipeline.state import (FilePlan, FileRecord, PreviousState, StageRecord, frame_hash, ingest_code_version,
-                            load_previous, logbook_hash, plan_runs, record_for, side_records, stage_code_version,
-                            stage_input_key)
+from pipeline.state import (KEEP_SUPERSEDED_H, FilePlan, FileRecord, PreviousState, StageRecord, frame_hash,
+                            ingest_code_version, load_previous, logbook_hash, plan_runs, record_for, side_records,
+                            stage_code_version, stage_input_key, superseded_files)
 from pipeline.warehouse import DB_NAME, build_database, runs_frame, swap_in
 
 log = logging.getLogger("pneubench")
@@ -760,7 +760,8 @@ def _inputs_table(plans: list[FilePlan], side_changes: list[dict], prev: Previou
 
 def rebuild(raw: str | Path, warehouse: str | Path, jobs: int | None = None, full: bool = False,
             progress: Progress | None = None, lock_wait_s: float = 0.0, executor: str = "local",
-            scheduler: str | None = None, report: bool = True) -> RebuildSummary:
+            scheduler: str | None = None, report: bool = True, keep_superseded_h: float | None = None,
+            clock=None) -> RebuildSummary:
     """Ingest ``raw``, run the analyses and swap in a new warehouse (incrementally).
 
     Parameters
@@ -783,6 +784,13 @@ def rebuild(raw: str | Path, warehouse: str | Path, jobs: int | None = None, ful
         Dask scheduler address (``tcp://host:8786``); without one a local cluster is started.
     report : bool
         Write the morning report ``report/index.html``.
+    keep_superseded_h : float, optional
+        How long samples files and stage folders that the new warehouse no longer uses are kept
+        for readers that still have an earlier warehouse open [h]; 0 collects them at once.
+        Default ``$PNEUBENCH_KEEP_SUPERSEDED_H``, else 24.
+    clock : callable, optional
+        ``clock() -> float``, the time [s since epoch] superseded files are stamped and aged
+        with (default ``time.time``; tests pass a fake one).
 
     Returns
     -------
@@ -801,6 +809,7 @@ def rebuild(raw: str | Path, warehouse: str | Path, jobs: int | None = None, ful
     if not raw.is_dir():
         raise RebuildError(f"raw folder {raw} does not exist", EXIT_USAGE)
     check_folders(raw, warehouse)
+    keep_h = _keep_superseded_h(keep_superseded_h)
     jobs = jobs or os.cpu_count() or 1
     try:
         warehouse.mkdir(parents=True, exist_ok=True)
@@ -812,7 +821,7 @@ def rebuild(raw: str | Path, warehouse: str | Path, jobs: int | None = None, ful
     with warehouse_lock(warehouse, lock_wait_s) as lock:
         try:
             return _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, report,
-                                   generation, summary, started_at, t0, lock.fileno())
+                                   generation, summary, started_at, t0, lock.fileno(), keep_h, clock or time.time)
         except RebuildError:
             raise
         except Exception as exc:  # anything unexpected: exit 3, never 1 (= "quarantined")
@@ -820,8 +829,27 @@ def rebuild(raw: str | Path, warehouse: str | Path, jobs: int | None = None, ful
             raise RebuildError(f"rebuild failed: {type(exc).__name__}: {exc}") from exc
 
 
+def _keep_superseded_h(value: float | None) -> float:
+    """The retention of superseded files [h]: ``value``, else ``$PNEUBENCH_KEEP_SUPERSEDED_H``, else 24."""
+    import math
+
+    source = "--keep-superseded"
+    if value is None:
+        env = os.environ.get("PNEUBENCH_KEEP_SUPERSEDED_H", "").strip()
+        if not env:
+            return KEEP_SUPERSEDED_H
+        source = "PNEUBENCH_KEEP_SUPERSEDED_H"
+        try:
+            value = float(env)
+        except ValueError:
+            raise RebuildError(f"{source}={env!r} is not a number of hours", EXIT_USAGE) from None
+    if not (math.isfinite(value) and value >= 0):
+        raise RebuildError(f"{source} must be a number of hours >= 0, got {value!r}", EXIT_USAGE)
+    return float(value)
+
+
 def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, report, generation, summary,
-                    started_at, t0, lock_fd: int) -> RebuildSummary:
+                    started_at, t0, lock_fd: int, keep_h: float, clock) -> RebuildSummary:
     clean_debris(warehouse)
     prev = load_previous(warehouse)
     tree = RawTree(raw)
@@ -883,6 +911,12 @@ def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, r
         "n_files": len(files), "n_runs": len(runs), "n_new": summary.n_new, "n_changed": summary.n_changed,
         "n_deleted": summary.n_deleted, "n_unchanged": summary.n_unchanged, "n_quarantined": len(problems),
         "stages_run": staged.ran, "stages_reused": staged.reused, "exit_code": summary.exit_code}])
+    in_use = set(runs_df.get("samples_path", [])) | {r.folder for r in staged.records}
+    kept, _expired = superseded_files(prev, in_use, clock(), keep_h)
+    kept_paths = sorted(kept)
+    superseded = pd.DataFrame({
+        "path": pd.Series(kept_paths, dtype="string"),
+        "superseded_at": pd.to_datetime(pd.Series([kept[p] for p in kept_paths], dtype="float64"), unit="s", utc=True)})
     history = log_row
     if prev.history is not None and not prev.history.empty:
         history = pd.concat([prev.history.tail(HISTORY_ROWS - 1), log_row], ignore_index=True)
@@ -893,6 +927,7 @@ def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, r
         "rebuild_log": history, "rebuild_inputs": inputs,
         "ingest_state": pd.DataFrame([r.as_row() for r in records + side]),
         "stage_cache": pd.DataFrame([r.as_row() for r in staged.records]),
+        "superseded_files": superseded,
     }
     tmp_db = warehouse / f".{DB_NAME}.tmp-{os.getpid()}"
     progress.message(f"warehouse: writing {len(all_tables)} tables")
@@ -921,8 +956,11 @@ def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, r
         from pipeline.report import publish_page
         summary.report = publish_page(page)
     _crash_point("after_swap")
-    collect_garbage(warehouse, prev.samples | set(runs_df.get("samples_path", [])),
-                    prev.stage_folders | {r.folder for r in staged.records})
+    # files the new warehouse uses, and those of earlier ones still within their retention
+    # (a reader that opened an earlier warehouse keeps reading its samples)
+    keep = in_use | set(kept)
+    collect_garbage(warehouse, {p for p in keep if p.startswith("samples/")},
+                    {p for p in keep if not p.startswith("samples/")})
     summary.tables = {k: len(v) for k, v in all_tables.items()}
     if summary.report is not None:
         progress.message(f"report: {summary.report}")

@@ -167,6 +167,8 @@ class PreviousState:
     finding_changes: dict[str, tuple] = field(default_factory=dict)
     generation: str | None = None
     history: pd.DataFrame | None = None
+    #: files of earlier warehouses still kept for their readers: path -> superseded at [s since epoch]
+    superseded: dict[str, float] = field(default_factory=dict)
 
 
 def load_previous(warehouse: Path) -> PreviousState:
@@ -199,13 +201,16 @@ def load_previous(warehouse: Path) -> PreviousState:
             if {"change", "changed_at"} <= cols:
                 prev.finding_changes = {fid: (ch, at) for fid, ch, at in con.execute(
                     "SELECT finding_id, change, changed_at FROM findings").fetchall()}
+        if "superseded_files" in tables:
+            prev.superseded = {p: float(at) for p, at in con.execute(
+                "SELECT path, epoch(superseded_at) FROM superseded_files").fetchall()}
         if "rebuild_log" in tables:
             prev.history = con.sql("SELECT * FROM rebuild_log").to_arrow_table().to_pandas()
             if not prev.history.empty:
                 prev.generation = str(prev.history.sort_values("finished_at")["generation"].iloc[-1])
     except Exception:
         # A warehouse from an older version: no usable state, everything is rebuilt.
-        return PreviousState(samples=prev.samples)
+        return PreviousState(samples=prev.samples, stage_folders=prev.stage_folders, superseded=prev.superseded)
     finally:
         con.close()
     return prev
@@ -332,3 +337,36 @@ def stage_input_key(name: str, code: str, runs: list[dict], kinds: set[str], all
     blob = {"stage": name, "code": code, "runs": runs_fingerprint(runs, None if all_runs else kinds),
             "kinds": sorted(kinds), "all": all_runs, "logbooks": logbooks}
     return hashlib.sha256(json.dumps(blob, sort_keys=True).encode()).hexdigest()[:32]
+
+
+# -- files of earlier warehouses ------------------------------------------------------------------
+#: Default retention of superseded samples files and stage folders [h].
+KEEP_SUPERSEDED_H = 24.0
+
+
+def superseded_files(prev: PreviousState, in_use: set[str], now: float, keep_h: float) -> tuple[dict[str, float], set[str]]:
+    """Which files of earlier warehouses to keep for their readers, and which to collect.
+
+    Parameters
+    ----------
+    prev : PreviousState
+        The live warehouse's files (``samples``, ``stage_folders``) and the files it kept
+        (``superseded``, with the time each was superseded).
+    in_use : set of str
+        Files the new warehouse uses (paths relative to the warehouse).
+    now : float
+        The rebuild's clock [s since epoch].
+    keep_h : float
+        Retention [h]: a file is kept this long after the first rebuild that stopped using it.
+
+    Returns
+    -------
+    (kept, expired)
+        ``kept``: path -> superseded at [s since epoch] (recorded in the new warehouse);
+        ``expired``: paths whose retention has passed (to be collected).
+    """
+    superseded = {p: at for p, at in prev.superseded.items() if p not in in_use}
+    for p in sorted((prev.samples | prev.stage_folders) - in_use):
+        superseded.setdefault(p, now)
+    expired = {p for p, at in superseded.items() if now - at >= keep_h * 3600.0}
+    return {p: at for p, at in superseded.items() if p not in expired}, expired

@@ -325,3 +325,91 @@ def test_ingest_starts_one_worker_process_for_one_job_and_none_when_nothing_is_r
     forks.clear()
     assert rebuild(raw.root, warehouse, jobs=1).n_unchanged == 4
     assert forks == []  # a no-op rebuild starts no process
+
+
+# -- readers of an earlier warehouse keep their samples for the retention period -------------------
+class FakeClock:
+    def __init__(self, t):
+        self.t = t
+
+    def __call__(self):
+        return self.t
+
+
+READER = """
+import sys, duckdb
+con = duckdb.connect(sys.argv[1], read_only=True)
+for line in sys.stdin:
+    try:
+        print(repr(con.execute("SELECT max(x_m) FROM samples_step").fetchone()[0]), flush=True)
+    except duckdb.Error as exc:
+        print("error: " + str(exc).splitlines()[0], flush=True)
+"""
+
+
+def test_a_connection_opened_before_two_rebuilds_still_reads_its_samples_until_the_retention_passes(raw, warehouse):
+    import os
+    import subprocess
+    import sys
+    import time
+
+    def step(scale):
+        raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[mm]": [scale * v for v in (0, 1, 2, 3)], "x_ref[mm]": [3] * 4})
+        past = time.time() - 3600
+        os.utime(raw.root / "c/a.csv", (past, past))
+
+    clock = FakeClock(1_800_000_000.0)
+    step(1.0)
+    rebuild(raw.root, warehouse, jobs=1, clock=clock)
+    first = q(warehouse, "SELECT samples_path FROM runs")[0][0]
+    # a long-lived reader in another process (a notebook left open overnight)
+    reader = subprocess.Popen([sys.executable, "-c", READER, str(warehouse / "pneubench.duckdb")],
+                              stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+
+    def ask():
+        reader.stdin.write("?\n")
+        reader.stdin.flush()
+        return reader.stdout.readline().strip()
+
+    try:
+        assert ask() == "0.003"
+        for scale in (2.0, 3.0):  # two rebuilds, the file changed each time
+            clock.t += 3600
+            step(scale)
+            assert rebuild(raw.root, warehouse, jobs=1, clock=clock).n_changed == 1
+        assert q(warehouse, "SELECT max(x_m) FROM samples_step") == [(pytest.approx(0.009),)]
+        assert ask() == "0.003"  # its samples are still there
+        assert q(warehouse, f"SELECT epoch(superseded_at) FROM superseded_files WHERE path = '{first}'") == [
+            (1_800_003_600.0,)]
+        clock.t = 1_800_003_600.0 + 24 * 3600 - 1  # not quite 24 h after the rebuild that stopped using it
+        rebuild(raw.root, warehouse, jobs=1, clock=clock)
+        assert (warehouse / first).is_file() and ask() == "0.003"
+        clock.t += 1
+        rebuild(raw.root, warehouse, jobs=1, clock=clock)
+        assert not (warehouse / first).exists()
+        assert ask().startswith("error: ")
+    finally:
+        reader.stdin.close()
+        reader.wait(timeout=60)
+    assert (warehouse / q(warehouse, "SELECT samples_path FROM runs")[0][0]).is_file()
+
+
+def test_keep_superseded_option_and_environment(raw, warehouse, monkeypatch):
+    from click.testing import CliRunner
+
+    from pipeline.cli import main
+
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    args = ["rebuild", "--raw", str(raw.root), "--warehouse", str(warehouse), "--jobs", "1", "--no-report"]
+    assert CliRunner().invoke(main, args).exit_code == 0
+    first = q(warehouse, "SELECT samples_path FROM runs")[0][0]
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": [1.0] * 4, "x_ref[m]": T})
+    monkeypatch.setenv("PNEUBENCH_KEEP_SUPERSEDED_H", "soon")
+    res = CliRunner().invoke(main, args)
+    assert res.exit_code == 2 and "--keep-superseded" in res.output and "soon" in res.output
+    with pytest.raises(RebuildError, match="PNEUBENCH_KEEP_SUPERSEDED_H='soon' is not a number") as err:
+        rebuild(raw.root, warehouse, jobs=1)
+    assert err.value.exit_code == 2
+    monkeypatch.setenv("PNEUBENCH_KEEP_SUPERSEDED_H", "24")
+    assert CliRunner().invoke(main, [*args, "--keep-superseded", "0"]).exit_code == 0  # the option wins
+    assert not (warehouse / first).exists()

@@ -13,7 +13,7 @@ from pipeline.stages import StageOutput
 from tests.conftest import STEP_META, query
 
 T = [0.0, 0.1, 0.2, 0.3]
-REBUILD_ONLY = {"rebuild_log", "rebuild_inputs", "ingest_state", "stage_cache"}
+REBUILD_ONLY = {"rebuild_log", "rebuild_inputs", "ingest_state", "stage_cache", "superseded_files"}
 BREAK = {"kind": "breakaway", "started_at": "2026-01-02T03:04:05", "rig": "plpa-1", "direction": "P",
          "backpressure_bar": 0, "force_rate_n_s": 1, "hose_area_m2": 4.9e-4}
 
@@ -138,8 +138,9 @@ def test_changes_deletions_and_metadata_changes(raw, warehouse, counting):
     assert q(warehouse, "SELECT json_extract_string(params, '$.operator') FROM runs WHERE run_id = 'c/c'") == [("ana",)]
     assert q(warehouse, "SELECT max(x_m) FROM samples_step WHERE run_id = 'c/b'") == [(pytest.approx(0.006),)]
     assert q(warehouse, "SELECT count(*) FROM samples_step WHERE run_id = 'd/e'") == [(0,)]
-    # the deleted run's samples file is kept one generation (old readers), then collected
-    rebuild(raw.root, warehouse, jobs=1)
+    # the deleted run's samples file is kept for readers of earlier warehouses (24 h), then collected
+    assert any(p.name.startswith("d_e-") for p in (warehouse / "samples").rglob("*.parquet"))
+    rebuild(raw.root, warehouse, jobs=1, clock=lambda: time.time() + 25 * 3600)
     files = {p.name for p in (warehouse / "samples").rglob("*.parquet")}
     assert not any(f.startswith("d_e-") for f in files)
 
@@ -392,3 +393,17 @@ def test_a_file_growing_while_its_reader_reads_it_is_not_published_and_is_read_n
     assert second.exit_code == 0 and second.quarantine == []
     whole = hashlib.sha256((raw.root / "c/a.csv").read_bytes()).hexdigest()
     assert q(warehouse, "SELECT n_samples, source_sha256 FROM runs WHERE run_id = 'c/a'") == [(6, whole)]
+
+
+def test_superseded_files_are_kept_for_the_retention_then_expire():
+    from pipeline.state import PreviousState, superseded_files
+
+    prev = PreviousState(samples={"samples/a", "samples/b"}, stage_folders={"stages/s/1"},
+                         superseded={"samples/old": 1000.0, "samples/back": 1000.0})
+    kept, expired = superseded_files(prev, {"samples/b", "samples/back", "stages/s/2"}, now=5000.0, keep_h=2.0)
+    # newly superseded: stamped now; superseded earlier: keeps its first stamp; used again: dropped
+    assert kept == {"samples/a": 5000.0, "stages/s/1": 5000.0, "samples/old": 1000.0}
+    assert expired == set()
+    kept, expired = superseded_files(prev, {"samples/b"}, now=1000.0 + 3600.0, keep_h=1.0)
+    assert expired == {"samples/old", "samples/back"} and "samples/a" in kept
+    assert superseded_files(prev, set(), now=5000.0, keep_h=0.0)[0] == {}  # 0: collect at once
