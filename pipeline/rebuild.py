@@ -287,7 +287,8 @@ def ingest_incremental(tree: RawTree, plans: list[FilePlan], warehouse: Path, ex
     # forked local workers inherit the parsed raw tree and the readers of the formats present
     _TREES.clear()
     _TREES[(str(tree.root), token)] = tree
-    readers = sorted({READERS[p.path.suffix.lower()].split(":")[0] for p, _ in todo if p.path.suffix.lower() in READERS})
+    readers = sorted({READERS[p.path.suffix.lower()].split(":")[0] for p, _ in todo
+                      if p.path.suffix.lower() in READERS})
     outs = executor.map(_ingest_task, [a for _, a in todo], "ingest", progress, on_crash=_ingest_crashed,
                         preload=readers)
     now = time.time()

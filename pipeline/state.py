@@ -344,7 +344,8 @@ def stage_input_key(name: str, code: str, runs: list[dict], kinds: set[str], all
 KEEP_SUPERSEDED_H = 24.0
 
 
-def superseded_files(prev: PreviousState, in_use: set[str], now: float, keep_h: float) -> tuple[dict[str, float], set[str]]:
+def superseded_files(prev: PreviousState, in_use: set[str], now: float,
+                     keep_h: float) -> tuple[dict[str, float], set[str]]:
     """Which files of earlier warehouses to keep for their readers, and which to collect.
 
     Parameters
