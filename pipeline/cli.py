@@ -41,7 +41,11 @@ def main():
 @click.option("--wait", "wait_s", type=click.FloatRange(min=0), default=0, show_default=True, metavar="SECONDS",
               help="Wait this long for another rebuild of the same warehouse to finish (else exit 4).")
 @click.option("--no-report", is_flag=True, help="Do not write the morning report (warehouse/report/index.html).")
-def rebuild(raw, warehouse, jobs, full, quiet, executor, scheduler, wait_s, no_report):
+@click.option("--keep-superseded", "keep_superseded_h", type=click.FloatRange(min=0), default=None, metavar="HOURS",
+              envvar="PNEUBENCH_KEEP_SUPERSEDED_H",
+              help="Keep samples and stage files the new warehouse no longer uses this long, for readers of "
+                   "an earlier one (default 24; 0: collect at once; or $PNEUBENCH_KEEP_SUPERSEDED_H).")
+def rebuild(raw, warehouse, jobs, full, quiet, executor, scheduler, wait_s, no_report, keep_superseded_h):
     """Ingest new or changed raw files, re-run analyses, swap in the new warehouse.
 
     Exit 0: everything used; 1: warehouse built, some inputs quarantined; 2: usage error;
@@ -56,7 +60,8 @@ def rebuild(raw, warehouse, jobs, full, quiet, executor, scheduler, wait_s, no_r
         raise click.UsageError("--scheduler goes with --executor dask")
     try:
         summary = do_rebuild(raw, warehouse, jobs=jobs, full=full, progress=for_stream(sys.stderr, quiet),
-                             lock_wait_s=wait_s, executor=executor, scheduler=scheduler, report=not no_report)
+                             lock_wait_s=wait_s, executor=executor, scheduler=scheduler, report=not no_report,
+                             keep_superseded_h=keep_superseded_h)
     except RebuildError as exc:
         click.echo(f"pneubench rebuild: {exc}", err=True)
         sys.exit(exc.exit_code)
@@ -288,9 +293,14 @@ def demo(ctx, raw, warehouse, jobs, quiet):
     """
     import shlex
 
-    from pipeline.rebuild import RebuildError, rebuild as do_rebuild
+    from pipeline.rebuild import RebuildError, check_folders, rebuild as do_rebuild
     from pipeline.simulator.campaign import DemoError, simulate_demo
 
+    try:  # before anything is simulated into raw/
+        check_folders(raw, warehouse)
+    except RebuildError as exc:
+        click.echo(f"pneubench demo: {exc}", err=True)
+        sys.exit(exc.exit_code)
     progress = for_stream(sys.stderr, quiet)
     try:
         made = simulate_demo(raw, jobs=jobs, progress=progress)

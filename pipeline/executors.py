@@ -5,9 +5,15 @@ results in the order of the items. The rebuild uses one executor for ingest (one
 file) and hands its ``map`` to the stages as ``StageContext.mapper`` (one task per run). Only the
 calling process (the single writer) ever builds the DuckDB warehouse.
 
-* :class:`LocalExecutor`: a process pool on this machine. Workers are started with the
-  ``forkserver`` method, so they inherit no file descriptors of the rebuild (its lock above
-  all) and exit when the rebuild process dies, even by ``kill -9``.
+* :class:`LocalExecutor`: a process pool on this machine. Work on untrusted bytes (a ``map``
+  with ``on_crash``: ingest) always runs in worker processes, whatever ``jobs`` is, so a reader
+  crashing in C code costs that one file, never the rebuild. Those workers are forked from the
+  rebuild when the first such item comes (none for a no-op rebuild), one per job and no more
+  than there are items, and reused for every item; they start warm (everything the rebuild
+  imported) and close the file descriptors they must not hold (the rebuild's lock).
+  Other work (the stages' per-run analyses) runs in this process with ``jobs`` 1, else in a
+  pool started with the ``forkserver`` method (it inherits no file descriptors of the rebuild).
+  Every worker exits when the rebuild process dies, even by ``kill -9``.
 * :class:`DaskExecutor`: a ``dask.distributed`` cluster (``--scheduler tcp://host:8786``), or a
   private ``LocalCluster`` when no address is given. Workers must see the raw tree and the
   warehouse folder at the same paths (a shared file system): ingest tasks write their samples
@@ -15,11 +21,12 @@ calling process (the single writer) ever builds the DuckDB warehouse.
 """
 from __future__ import annotations
 
+import importlib
 import multiprocessing
 import os
 import time
 from collections.abc import Callable, Iterable
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 
 from pipeline.progress import Progress
@@ -35,9 +42,10 @@ class Executor:
     name = "serial"
 
     def map(self, func: Callable, items: Iterable, label: str = "", progress: Progress | None = None,
-            on_crash: Callable | None = None) -> list:
+            on_crash: Callable | None = None, preload: Iterable[str] = ()) -> list:
         """``func`` over ``items``, results in item order. ``on_crash(item, reason)`` stands in for
-        the result of an item whose worker process died (executors with worker processes)."""
+        the result of an item whose worker process died (executors with worker processes).
+        ``preload``: modules the workers need (imported once before they start, where that helps)."""
         items = list(items)
         progress = progress or Progress()
         out = []
@@ -90,16 +98,28 @@ def _watch_parent(pid: int, every_s: float = 0.2) -> None:
     threading.Thread(target=watch, name="parent-watch", daemon=True).start()
 
 
+def _reader_worker_init(pid: int, close_fds: tuple[int, ...]) -> None:
+    """Initializer of a forked reader worker: close the rebuild's descriptors it must not hold
+    (its lock: a worker outliving a killed rebuild would keep the warehouse locked), then watch
+    the rebuild process."""
+    for fd in close_fds:
+        try:
+            os.close(fd)
+        except OSError:
+            pass
+    _watch_parent(pid)
+
+
 def preload_modules() -> list[str]:
-    """Modules the fork server imports once, so each worker starts warm (readers, stages, analyses)."""
+    """Modules the fork server imports once, so each stage worker starts warm (stages, analyses).
+    Readers are not among them: ingest runs in workers forked from the rebuild itself."""
     import pkgutil
 
     mods = ["numpy", "pandas", "pyarrow.parquet", "scipy.optimize", "scipy.signal", "scipy.stats",
-            "matplotlib.pyplot", "pipeline.ingest"]
+            "matplotlib.pyplot"]
     try:
-        from pipeline import readers, stages
+        from pipeline import stages
 
-        mods += [f"pipeline.readers.{m.name}" for m in pkgutil.iter_modules(readers.__path__)]
         mods += [f"pipeline.stages.{m.name}" for m in pkgutil.iter_modules(stages.__path__) if not m.name.startswith("_")]
     except ImportError:  # pragma: no cover
         pass
@@ -107,13 +127,26 @@ def preload_modules() -> list[str]:
 
 
 class LocalExecutor(Executor):
-    """A pool of ``jobs`` worker processes on this machine (serial when ``jobs`` is 1)."""
+    """A pool of ``jobs`` worker processes on this machine.
+
+    Parameters
+    ----------
+    jobs : int, optional
+        Worker processes (default: all cores). With 1, work without ``on_crash`` runs in this
+        process; work with ``on_crash`` (untrusted bytes) never does.
+    close_in_workers : tuple of int
+        File descriptors of this process that forked workers close at once (the rebuild lock).
+    """
 
     name = "local"
 
-    def __init__(self, jobs: int | None = None):
+    def __init__(self, jobs: int | None = None, close_in_workers: tuple[int, ...] = ()):
         self.jobs = max(1, int(jobs or os.cpu_count() or 1))
+        self.close_in_workers = tuple(close_in_workers)
         self._pool: ProcessPoolExecutor | None = None
+        self._readers: ProcessPoolExecutor | None = None
+        #: worker processes started for untrusted work (for the report and the tests)
+        self.reader_processes_started = 0
 
     def _get_pool(self) -> ProcessPoolExecutor:
         if self._pool is None:
@@ -123,48 +156,102 @@ class LocalExecutor(Executor):
                                              initargs=(os.getpid(),))
         return self._pool
 
-    def map(self, func, items, label="", progress=None, on_crash: Callable | None = None):
+    def _reader_pool(self, workers: int) -> ProcessPoolExecutor:
+        if self._readers is None:
+            self._readers = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("fork"),
+                                                initializer=_reader_worker_init,
+                                                initargs=(os.getpid(), self.close_in_workers))
+            self.reader_processes_started += workers  # started on the first submit, one per worker
+        return self._readers
+
+    def _drop_readers(self) -> None:
+        if self._readers is not None:
+            self._readers.shutdown(wait=True, cancel_futures=True)
+            self._readers = None
+
+    def map(self, func, items, label="", progress=None, on_crash: Callable | None = None, preload=()):
         """``func`` over ``items`` in worker processes, results in item order.
 
-        With ``jobs`` 1 everything runs in this process. Otherwise a worker that dies (a segfault
-        in a C library reading a corrupt file) breaks the pool.
-        With ``on_crash`` the items not finished then are run again, each in a process of its
-        own, and an item whose process dies again gets ``on_crash(item, reason)`` as its result;
-        without it the :class:`~concurrent.futures.process.BrokenProcessPool` error is raised.
+        With ``on_crash`` (work on untrusted bytes) the items always run in worker processes:
+        a worker that dies (a segfault in a C library reading a corrupt file) costs only the item
+        it was running, which gets ``on_crash(item, reason)`` as its result; the other items go on
+        in a fresh worker. Without ``on_crash``, ``jobs`` 1 runs everything in this process, and a
+        dying worker raises :class:`~concurrent.futures.process.BrokenProcessPool`.
         """
         items = list(items)
-        if not items or self.jobs <= 1 or (len(items) == 1 and on_crash is None):
-            return super().map(func, items, label, progress)  # in this process: no isolation
+        if not items:
+            return []
+        if on_crash is not None:
+            return self._map_isolated(func, items, label, progress or Progress(), on_crash, preload)
+        if self.jobs <= 1 or len(items) == 1:
+            return super().map(func, items, label, progress)  # in this process: trusted work only
         progress = progress or Progress()
         out = []
         chunk = max(1, min(16, len(items) // (self.jobs * 8)))
         with progress.task(label or getattr(func, "__name__", "work"), len(items)) as task:
-            try:
-                for res in self._get_pool().map(func, items, chunksize=chunk):
-                    out.append(res)
+            for res in self._get_pool().map(func, items, chunksize=chunk):
+                out.append(res)
+                task.advance()
+        return out
+
+    def _map_isolated(self, func, items, label, progress, on_crash, preload) -> list:
+        """Items in forked worker processes, at most one in flight per worker, so that a dead
+        worker's item is known: with one suspect it is the culprit; with several (``jobs`` > 1)
+        each is run again alone."""
+        for mod in preload:  # imported once here rather than once per worker
+            importlib.import_module(mod)
+        workers = min(self.jobs, len(items))
+        out: list = [None] * len(items)
+        todo = list(range(len(items)))[::-1]
+        running: dict = {}
+        with progress.task(label or getattr(func, "__name__", "work"), len(items)) as task:
+            while todo or running:
+                pool = self._reader_pool(workers)
+                while todo and len(running) < workers:
+                    i = todo.pop()
+                    running[pool.submit(func, items[i])] = i
+                finished, _ = wait(running, return_when=FIRST_COMPLETED)
+                suspects = []
+                for fut in finished:
+                    i = running.pop(fut)
+                    try:
+                        out[i] = fut.result()  # a task's own exception is raised here
+                    except BrokenProcessPool:
+                        suspects.append(i)
+                        continue
                     task.advance()
-            except BrokenProcessPool:
-                if on_crash is None:
-                    raise
-                self._pool = None  # broken: the next map starts a new one
-                progress.message(f"{label or 'work'}: a worker process died; running the "
-                                 f"{len(items) - len(out)} unfinished items one process each")
-                for item in items[len(out):]:
-                    out.append(self._isolated(func, item, on_crash))
+                if not suspects:
+                    continue
+                # the pool is broken: every item still running failed with it
+                for fut, i in list(running.items()):
+                    try:
+                        out[i] = fut.result()
+                        task.advance()
+                    except BrokenProcessPool:
+                        suspects.append(i)
+                running.clear()
+                self._drop_readers()
+                progress.message(f"{label or 'work'}: a worker process died; "
+                                 f"{'its item is' if len(suspects) == 1 else 'its items are'} set aside")
+                for i in sorted(suspects):
+                    out[i] = on_crash(items[i], CRASH_REASON) if len(suspects) == 1 else \
+                        self._isolated(func, items[i], on_crash)
                     task.advance()
         return out
 
     def _isolated(self, func, item, on_crash: Callable):
-        """Run one item in a fresh single-worker pool; ``on_crash`` if that worker dies."""
-        ctx = multiprocessing.get_context("forkserver")
-        with ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=_watch_parent,
-                                 initargs=(os.getpid(),)) as pool:
+        """Run one item in a fresh forked single-worker pool; ``on_crash`` if that worker dies."""
+        self.reader_processes_started += 1
+        with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork"),
+                                 initializer=_reader_worker_init,
+                                 initargs=(os.getpid(), self.close_in_workers)) as pool:
             try:
                 return pool.submit(func, item).result()
             except BrokenProcessPool:
                 return on_crash(item, CRASH_REASON)
 
     def close(self) -> None:
+        self._drop_readers()
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
@@ -203,7 +290,7 @@ class DaskExecutor(Executor):
             self.client = Client(self._cluster)
         self.address = address or self.client.scheduler.address
 
-    def map(self, func, items, label="", progress=None, on_crash: Callable | None = None):
+    def map(self, func, items, label="", progress=None, on_crash: Callable | None = None, preload=()):
         from distributed import KilledWorker, as_completed
 
         items = list(items)
@@ -232,10 +319,12 @@ class DaskExecutor(Executor):
             self._cluster.close()
 
 
-def make_executor(name: str = "local", jobs: int | None = None, scheduler: str | None = None) -> Executor:
-    """The executor called ``name`` (``local`` or ``dask``)."""
+def make_executor(name: str = "local", jobs: int | None = None, scheduler: str | None = None,
+                  close_in_workers: tuple[int, ...] = ()) -> Executor:
+    """The executor called ``name`` (``local`` or ``dask``); ``close_in_workers``: descriptors
+    forked local workers close (the rebuild lock)."""
     if name == "local":
-        return LocalExecutor(jobs)
+        return LocalExecutor(jobs, close_in_workers)
     if name == "dask":
         return DaskExecutor(scheduler, jobs)
     raise ValueError(f"unknown executor {name!r} (one of {', '.join(EXECUTORS)})")

@@ -22,6 +22,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from pipeline import code_version as code_version_mod
+from pipeline.code_version import INGEST_VERSION  # noqa: F401 (re-exported)
 from pipeline.derived import DerivedError, Expression, parse_expression
 from pipeline.layout import ConfigError, RawTree, display_name
 from pipeline.readers import RawColumn, ReaderError, read_export
@@ -31,9 +33,6 @@ from schemas.channels import (CHANNELS, canonical_name, noncanonical_column, oth
 from schemas.kinds import (KINDS, META_KEYS, coerce_value, missing_channels,
                            missing_metadata, samples_schema)
 from schemas.units import P_ATM_DEFAULT_PA, accepted_symbols, lookup_unit
-
-#: Bump when ingest output changes for the same input; part of every samples file's key.
-INGEST_VERSION = "1"
 
 
 class IngestError(Exception):
@@ -73,16 +72,23 @@ class IngestResult:
     error: str | None = None
     #: the error may pass (the file could not be opened or read): look at the file again next time
     transient: bool = False
+    #: how many bytes ``source_sha256`` was computed over when ingest hashed the file itself [B]
+    bytes_hashed: int | None = None
 
 
-def sha256_file(path: Path, chunk: int = 1 << 22, stop=None) -> str | None:
-    """SHA-256 of a file, read in chunks. [hex] (None when the ``stop`` event was set.)"""
+def sha256_file(path: Path, chunk: int = 1 << 22, stop=None, counted: list | None = None) -> str | None:
+    """SHA-256 of a file, read in chunks. [hex] (None when the ``stop`` event was set.)
+    ``counted``: a list the number of bytes hashed is appended to [B]."""
     h = hashlib.sha256()
+    n = 0
     with open(path, "rb") as fh:
         while block := fh.read(chunk):
             if stop is not None and stop.is_set():
                 return None
             h.update(block)
+            n += len(block)
+    if counted is not None:
+        counted.append(n)
     return h.hexdigest()
 
 
@@ -95,12 +101,15 @@ class _BackgroundHash:
 
         self._stop = threading.Event()
         self._out: dict = {}
+        self.n_bytes: int | None = None  # bytes hashed, once done
         self._thread = threading.Thread(target=self._run, args=(path,), name="ingest-sha256", daemon=True)
         self._thread.start()
 
     def _run(self, path):
+        counted: list[int] = []
         try:
-            self._out["sha"] = sha256_file(path, stop=self._stop)
+            self._out["sha"] = sha256_file(path, stop=self._stop, counted=counted)
+            self.n_bytes = counted[0] if counted else None
         except BaseException as exc:  # noqa: BLE001 - re-raised by result()
             self._out["error"] = exc
 
@@ -620,8 +629,7 @@ def ingest_key(sha: str, meta: dict, maps: list[ColumnMap], code_version: str | 
     version (its source hash; the rebuild passes the one it computed, so every worker agrees),
     so output of changed code never lands on a live file's name."""
     if code_version is None:
-        from pipeline.state import ingest_code_version  # state imports this module
-        code_version = ingest_code_version()
+        code_version = code_version_mod.ingest_code_version()
     blob = json.dumps({"sha": sha, "meta": meta, "maps": [m.__dict__ for m in maps], "v": code_version},
                       sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()
@@ -655,9 +663,12 @@ def ingest_file(tree: RawTree, path: Path, warehouse: Path, reuse: bool = True,
     """
     rel = tree.rel(path)
     result = IngestResult(source_path=rel, campaign=tree.campaign(path))
+    hashed: list = []
     try:
-        run, channels = _ingest(tree, Path(path), Path(warehouse), rel, result.campaign, reuse, sha256, code_version)
+        run, channels = _ingest(tree, Path(path), Path(warehouse), rel, result.campaign, reuse, sha256, code_version,
+                                hashed)
         result.run, result.channels = run, channels
+        result.bytes_hashed = hashed[0] if hashed else None
     except (IngestError, ReaderError, ConfigError) as exc:
         result.error = _one_line(str(exc))
     except Exception as exc:  # noqa: BLE001
@@ -673,7 +684,7 @@ def _one_line(text: str) -> str:
 
 
 def _ingest(tree: RawTree, path: Path, warehouse: Path, rel: str, campaign: str | None, reuse: bool,
-            sha: str | None = None, code_version: str | None = None):
+            sha: str | None = None, code_version: str | None = None, bytes_hashed: list | None = None):
     if campaign is None:
         raise IngestError("file is not in a campaign folder (raw/<campaign>/...)")
     if os.stat(path).st_size == 0:  # before any reader: its complaint would be about rows, not bytes
@@ -684,6 +695,8 @@ def _ingest(tree: RawTree, path: Path, warehouse: Path, rel: str, campaign: str 
     finally:
         if hashing is not None:
             hashing.cancel()
+            if bytes_hashed is not None:
+                bytes_hashed.append(hashing.n_bytes)
 
 
 def _ingest_hashed(tree, path, warehouse, rel, campaign, reuse, sha, hashing, code_version):

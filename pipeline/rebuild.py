@@ -24,8 +24,10 @@ import fcntl
 import json
 import logging
 import os
+import re
 import shutil
 import signal
+import stat as stat_mod
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -40,9 +42,9 @@ from pipeline.ingest import IngestResult, ingest_file, sha256_file
 from pipeline.layout import Problem, RawTree, discover_runs, skip_reason
 from pipeline.readers import READERS
 from pipeline.progress import Progress
-from pipeline.state import (FilePlan, FileRecord, PreviousState, StageRecord, frame_hash, ingest_code_version,
-                            load_previous, logbook_hash, plan_runs, record_for, side_records, stage_code_version,
-                            stage_input_key)
+from pipeline.state import (KEEP_SUPERSEDED_H, FilePlan, FileRecord, PreviousState, StageRecord, frame_hash,
+                            ingest_code_version, load_previous, logbook_hash, plan_runs, record_for, side_records,
+                            stage_code_version, stage_input_key, superseded_files)
 from pipeline.warehouse import DB_NAME, build_database, runs_frame, swap_in
 
 log = logging.getLogger("pneubench")
@@ -127,10 +129,32 @@ def warehouse_lock(warehouse: Path, wait_s: float = 0.0):
         fh.truncate()
         fh.write(str(os.getpid()))
         fh.flush()
-        yield
+        yield fh
     finally:
         fcntl.flock(fh, fcntl.LOCK_UN)
         fh.close()
+
+
+def check_folders(raw: str | Path, warehouse: str | Path) -> None:
+    """Refuse a raw tree and a warehouse that overlap (equal, or one inside the other).
+
+    Compared as resolved real paths (symlinks followed, a warehouse that does not exist yet
+    resolved through its existing parents). Raises :class:`RebuildError` with exit code 2
+    naming both paths; called before anything is written or deleted.
+    """
+    r, w = Path(os.path.realpath(raw)), Path(os.path.realpath(warehouse))
+    if r == w:
+        how = "are the same folder"
+    elif r in w.parents:
+        how = "overlap: the warehouse is inside the raw tree"
+    elif w in r.parents:
+        how = "overlap: the raw tree is inside the warehouse"
+    else:
+        return
+    real = "" if (str(r), str(w)) == (str(raw), str(warehouse)) else f" ({r} and {w})"
+    raise RebuildError(f"raw folder {raw} and warehouse {warehouse} {how}{real}; the rebuild writes and "
+                       "deletes files in the warehouse and never touches raw/: give two separate folders",
+                       EXIT_USAGE)
 
 
 # -- ingest ------------------------------------------------------------------------------------
@@ -154,12 +178,18 @@ def _unreadable(tree: RawTree, path: Path, error: str, transient: bool = False) 
     return IngestResult(source_path=tree.rel(path), campaign=tree.campaign(path), error=error, transient=transient)
 
 
-def _stat_or_none(path: Path) -> tuple[int, int] | None:
+#: The reason a file is set aside for this night: it changed while it was read (a bench still
+#: writing it). Not a lasting quarantine: the next rebuild reads it again.
+CHANGED_WHILE_READ = "file changed while it was read; will be read again at the next rebuild"
+
+
+def _stat_or_none(path: Path) -> tuple[int, int, int] | None:
+    """``(size, mtime_ns, inode)`` of a file, None when it cannot be stat'ed."""
     try:
         st = os.stat(path)
     except OSError:
         return None
-    return st.st_size, st.st_mtime_ns
+    return st.st_size, st.st_mtime_ns, st.st_ino
 
 
 def _ingest_task(args) -> dict:
@@ -167,26 +197,35 @@ def _ingest_task(args) -> dict:
     its bytes are the same; any other file is ingested (and hashed while it is parsed).
 
     Returns ``{"sha", "reused", "result"}``, with ``"retry": True`` when the next rebuild must
-    look at the file again: it was written to while read (its hash and samples may be of
-    different bytes) or could not be opened (permissions, a share away).
+    look at the file again: it could not be opened (permissions, a share away), or it changed
+    while it was read. A file whose size, mtime or inode differ after reading from before, or
+    whose hash was not computed over exactly the bytes it had, is not published: its result is
+    the one-line :data:`CHANGED_WHILE_READ` (its hash and its samples may be of different bytes).
     """
     raw, token, path, warehouse, reuse, prev, code = args
     path, tree = Path(path), _tree(raw, token)
     before = _stat_or_none(path)
     sha = None
+    hashed: list[int] = []
     if prev is not None:  # only the stat changed: the same bytes keep their record
         if prev["sha"] is None:
             reuse = False  # its last read was not trustworthy: a samples file named by its hash may be stale
         try:
-            sha = sha256_file(path)
+            sha = sha256_file(path, counted=hashed)
         except OSError as exc:
             res = _unreadable(tree, path, f"cannot read file: {type(exc).__name__}: {exc}", transient=True)
             return {"sha": None, "reused": False, "result": res, "retry": True}
-        if prev["sha"] == sha:
+        if prev["sha"] == sha and before is not None and _stat_or_none(path) == before and hashed == [before[0]]:
             return {"sha": sha, "reused": True, "result": None}
     _crash_point(f"ingest:{tree.rel(path)}", signal.SIGSEGV)  # a reader crashing in C code
     res = ingest_file(tree, path, Path(warehouse), reuse=reuse, sha256=sha, code_version=code)
-    if res.transient or before is None or _stat_or_none(path) != before:
+    if res.bytes_hashed is not None:
+        hashed = [res.bytes_hashed]
+    if before is not None and not res.transient and (
+            _stat_or_none(path) != before or (hashed and hashed != [before[0]])):
+        return {"sha": None, "reused": False, "result": _unreadable(tree, path, CHANGED_WHILE_READ, transient=True),
+                "retry": True}
+    if res.transient or before is None:
         return {"sha": None, "reused": False, "result": res, "retry": True}
     if res.run is not None:
         sha = res.run["source_sha256"]
@@ -245,7 +284,13 @@ def ingest_incremental(tree: RawTree, plans: list[FilePlan], warehouse: Path, ex
             todo.append((p, (str(tree.root), token, str(p.path), str(warehouse), not full, prev, code_version)))
     if todo:
         progress.message(f"ingest: {len(todo)} of {len(plans)} run files to read")
-    outs = executor.map(_ingest_task, [a for _, a in todo], "ingest", progress, on_crash=_ingest_crashed)
+    # forked local workers inherit the parsed raw tree and the readers of the formats present
+    _TREES.clear()
+    _TREES[(str(tree.root), token)] = tree
+    readers = sorted({READERS[p.path.suffix.lower()].split(":")[0] for p, _ in todo
+                      if p.path.suffix.lower() in READERS})
+    outs = executor.map(_ingest_task, [a for _, a in todo], "ingest", progress, on_crash=_ingest_crashed,
+                        preload=readers)
     now = time.time()
     for (p, _), out in zip(todo, outs):
         if out["reused"]:
@@ -566,46 +611,123 @@ def compare_findings(findings: pd.DataFrame, previous: dict[str, bool | None], h
 
 
 # -- garbage ---------------------------------------------------------------------------------------
+# The clean-up deletes only what the warehouse itself wrote: a file is a candidate when it lies
+# in the warehouse's own folders (never through a symlink) AND its name is one the writer uses.
+# Anything else found there (a raw tree placed there by mistake, a user's notes) is left alone.
+_SAMPLES_FILE = re.compile(r"[A-Za-z0-9._-]{1,80}-[0-9a-f]{16}\.parquet")      # ingest: <safe run>-<key>.parquet
+_SAMPLES_TMP = re.compile(r"\.[A-Za-z0-9._-]{1,80}\.[0-9]+\.[0-9a-f]{12}\.tmp")  # ingest's temp name
+_STAGE_NAME = re.compile(r"[a-z_][a-z0-9_]*")
+_STAGE_KEY = re.compile(r"[0-9a-f]{20}")
+_STAGE_TMP = re.compile(r"\.tmp-([a-z_][a-z0-9_]*)-[0-9a-f]{20}-[0-9]+")
+_DB_TMP = re.compile(re.escape(f".{DB_NAME}.tmp-") + r"[0-9]+(\.wal)?")
+_REPORT_TMP = re.compile(r"\.index\.html\.tmp-[0-9]+")
+_FIGURE = re.compile(r"[A-Za-z0-9._-]+\.png")
+
+
+def _real_dir(path: Path) -> bool:
+    """A folder that is not a symlink (the clean-up never follows one)."""
+    try:
+        return stat_mod.S_ISDIR(os.lstat(path).st_mode)
+    except OSError:
+        return False
+
+
+def _entries(folder: Path):
+    """(name, path, is_dir, is_file) of a folder's entries, symlinks neither dir nor file."""
+    try:
+        with os.scandir(folder) as it:
+            ents = sorted(it, key=lambda e: e.name)
+    except OSError:
+        return []
+    return [(e.name, Path(e.path), e.is_dir(follow_symlinks=False), e.is_file(follow_symlinks=False)) for e in ents]
+
+
+def _unlink_if(path: Path, is_file: bool, pattern: re.Pattern) -> None:
+    if is_file and pattern.fullmatch(path.name):
+        path.unlink(missing_ok=True)
+
+
+def _rmdir(path: Path) -> None:
+    try:
+        path.rmdir()
+    except OSError:
+        pass  # not empty: it holds something the warehouse did not write
+
+
+def remove_stage_folder(folder: Path) -> None:
+    """Delete a stage output folder the way ``_save_stage_folder`` wrote it (``output.json``,
+    ``tables/*.parquet``, ``figures/*.png``); anything else in it stays, and so does the folder."""
+    if not _real_dir(folder):
+        return
+    for sub, pattern in (("tables", re.compile(r"[A-Za-z0-9_]+\.parquet")), ("figures", _FIGURE)):
+        if _real_dir(folder / sub):
+            for _name, path, _is_dir, is_file in _entries(folder / sub):
+                _unlink_if(path, is_file, pattern)
+            _rmdir(folder / sub)
+    for _name, path, _is_dir, is_file in _entries(folder):
+        _unlink_if(path, is_file, re.compile(r"output\.json"))
+    _rmdir(folder)
+
+
+def _samples_folders(warehouse: Path):
+    """``samples/kind=<kind>/campaign=<campaign>/`` folders (real folders only)."""
+    from schemas.kinds import KINDS
+
+    samples = warehouse / "samples"
+    if not _real_dir(samples):
+        return
+    for kname, kdir, kis_dir, _ in _entries(samples):
+        if not (kis_dir and kname.startswith("kind=") and kname[5:] in KINDS):
+            continue
+        for cname, cdir, cis_dir, _ in _entries(kdir):
+            if cis_dir and cname.startswith("campaign="):
+                yield kdir, cdir
+
+
 def clean_debris(warehouse: Path) -> None:
-    """Remove what a killed rebuild left behind (temp databases, temp stage folders)."""
-    for f in warehouse.glob(f".{DB_NAME}.tmp-*"):
-        f.unlink(missing_ok=True)
-    stages = warehouse / "stages"
-    if stages.is_dir():
-        for d in stages.glob(".tmp-*"):
-            shutil.rmtree(d, ignore_errors=True)
-    report = warehouse / "report"
-    if report.is_dir():
-        for f in report.glob(".*.tmp*"):
-            f.unlink(missing_ok=True)
+    """Remove what a killed rebuild left behind (temp databases, temp stage folders, temp samples
+    and report files), by the writers' own temp names only."""
+    for _name, path, _is_dir, is_file in _entries(warehouse):
+        _unlink_if(path, is_file, _DB_TMP)
+    if _real_dir(warehouse / "stages"):
+        for name, path, is_dir, _ in _entries(warehouse / "stages"):
+            if is_dir and _STAGE_TMP.fullmatch(name):
+                remove_stage_folder(path)
+    if _real_dir(warehouse / "report"):
+        for _name, path, _is_dir, is_file in _entries(warehouse / "report"):
+            _unlink_if(path, is_file, _REPORT_TMP)
+    for _kdir, cdir in _samples_folders(warehouse):
+        for _name, path, _is_dir, is_file in _entries(cdir):
+            _unlink_if(path, is_file, _SAMPLES_TMP)
 
 
 def collect_garbage(warehouse: Path, keep_samples: set[str], keep_stages: set[str]) -> None:
-    """Delete samples files and stage folders that neither the new nor the previous warehouse uses."""
-    samples = warehouse / "samples"
-    if samples.is_dir():
-        for f in samples.rglob("*"):
-            if f.is_file() and f.relative_to(warehouse).as_posix() not in keep_samples:
-                f.unlink(missing_ok=True)
-        for d in sorted((d for d in samples.rglob("*") if d.is_dir()), key=lambda d: len(d.parts), reverse=True):
-            try:
-                d.rmdir()
-            except OSError:
-                pass
+    """Delete samples files and stage folders the warehouse wrote that are not in ``keep_*``
+    (paths relative to the warehouse). Only writer-named files in the writer's folders go."""
+    for kdir, cdir in list(_samples_folders(warehouse)):
+        for name, path, _is_dir, is_file in _entries(cdir):
+            if is_file and _SAMPLES_FILE.fullmatch(name) and \
+                    path.relative_to(warehouse).as_posix() not in keep_samples:
+                path.unlink(missing_ok=True)
+        _rmdir(cdir)
+        _rmdir(kdir)
     stages = warehouse / "stages"
-    if stages.is_dir():
-        for d in stages.glob("*/*"):
-            if d.is_dir() and d.relative_to(warehouse).as_posix() not in keep_stages:
-                shutil.rmtree(d, ignore_errors=True)
-        for d in stages.iterdir():
-            if d.is_dir() and not d.name.startswith("."):
-                try:
-                    d.rmdir()
-                except OSError:
-                    pass
-    legacy = warehouse / "figures"  # figures of the first layout (before generations)
-    if legacy.is_dir() and not any(p.startswith("figures/") for p in keep_stages):
-        shutil.rmtree(legacy, ignore_errors=True)
+    if _real_dir(stages):
+        for sname, sdir, s_is_dir, _ in _entries(stages):
+            if not (s_is_dir and _STAGE_NAME.fullmatch(sname)):
+                continue
+            for kname, kdir, k_is_dir, _ in _entries(sdir):
+                if k_is_dir and _STAGE_KEY.fullmatch(kname) and f"stages/{sname}/{kname}" not in keep_stages:
+                    remove_stage_folder(kdir)
+            _rmdir(sdir)
+    legacy = warehouse / "figures"  # figures of the first layout (before generations): <stage>/<name>.png
+    if _real_dir(legacy) and not any(p.startswith("figures/") for p in keep_stages):
+        for sname, sdir, s_is_dir, _ in _entries(legacy):
+            if s_is_dir and _STAGE_NAME.fullmatch(sname):
+                for _name, path, _is_dir, is_file in _entries(sdir):
+                    _unlink_if(path, is_file, _FIGURE)
+                _rmdir(sdir)
+        _rmdir(legacy)
 
 
 # -- the rebuild -----------------------------------------------------------------------------------
@@ -640,7 +762,8 @@ def _inputs_table(plans: list[FilePlan], side_changes: list[dict], prev: Previou
 
 def rebuild(raw: str | Path, warehouse: str | Path, jobs: int | None = None, full: bool = False,
             progress: Progress | None = None, lock_wait_s: float = 0.0, executor: str = "local",
-            scheduler: str | None = None, report: bool = True) -> RebuildSummary:
+            scheduler: str | None = None, report: bool = True, keep_superseded_h: float | None = None,
+            clock=None) -> RebuildSummary:
     """Ingest ``raw``, run the analyses and swap in a new warehouse (incrementally).
 
     Parameters
@@ -663,6 +786,13 @@ def rebuild(raw: str | Path, warehouse: str | Path, jobs: int | None = None, ful
         Dask scheduler address (``tcp://host:8786``); without one a local cluster is started.
     report : bool
         Write the morning report ``report/index.html``.
+    keep_superseded_h : float, optional
+        How long samples files and stage folders that the new warehouse no longer uses are kept
+        for readers that still have an earlier warehouse open [h]; 0 collects them at once.
+        Default ``$PNEUBENCH_KEEP_SUPERSEDED_H``, else 24.
+    clock : callable, optional
+        ``clock() -> float``, the time [s since epoch] superseded files are stamped and aged
+        with (default ``time.time``; tests pass a fake one).
 
     Returns
     -------
@@ -680,6 +810,8 @@ def rebuild(raw: str | Path, warehouse: str | Path, jobs: int | None = None, ful
     raw, warehouse = Path(raw), Path(warehouse)
     if not raw.is_dir():
         raise RebuildError(f"raw folder {raw} does not exist", EXIT_USAGE)
+    check_folders(raw, warehouse)
+    keep_h = _keep_superseded_h(keep_superseded_h)
     jobs = jobs or os.cpu_count() or 1
     try:
         warehouse.mkdir(parents=True, exist_ok=True)
@@ -688,10 +820,10 @@ def rebuild(raw: str | Path, warehouse: str | Path, jobs: int | None = None, ful
     generation = _generation()
     summary = RebuildSummary(raw=raw, warehouse=warehouse, generation=generation,
                              mode="full" if full else "incremental")
-    with warehouse_lock(warehouse, lock_wait_s):
+    with warehouse_lock(warehouse, lock_wait_s) as lock:
         try:
             return _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, report,
-                                   generation, summary, started_at, t0)
+                                   generation, summary, started_at, t0, lock.fileno(), keep_h, clock or time.time)
         except RebuildError:
             raise
         except Exception as exc:  # anything unexpected: exit 3, never 1 (= "quarantined")
@@ -699,8 +831,27 @@ def rebuild(raw: str | Path, warehouse: str | Path, jobs: int | None = None, ful
             raise RebuildError(f"rebuild failed: {type(exc).__name__}: {exc}") from exc
 
 
+def _keep_superseded_h(value: float | None) -> float:
+    """The retention of superseded files [h]: ``value``, else ``$PNEUBENCH_KEEP_SUPERSEDED_H``, else 24."""
+    import math
+
+    source = "--keep-superseded"
+    if value is None:
+        env = os.environ.get("PNEUBENCH_KEEP_SUPERSEDED_H", "").strip()
+        if not env:
+            return KEEP_SUPERSEDED_H
+        source = "PNEUBENCH_KEEP_SUPERSEDED_H"
+        try:
+            value = float(env)
+        except ValueError:
+            raise RebuildError(f"{source}={env!r} is not a number of hours", EXIT_USAGE) from None
+    if not (math.isfinite(value) and value >= 0):
+        raise RebuildError(f"{source} must be a number of hours >= 0, got {value!r}", EXIT_USAGE)
+    return float(value)
+
+
 def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, report, generation, summary,
-                    started_at, t0) -> RebuildSummary:
+                    started_at, t0, lock_fd: int, keep_h: float, clock) -> RebuildSummary:
     clean_debris(warehouse)
     prev = load_previous(warehouse)
     tree = RawTree(raw)
@@ -722,7 +873,7 @@ def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, r
     progress.message(f"rebuild {generation} ({summary.mode}): {len(files)} run files under {raw}, "
                      f"{n_quick} unchanged at a glance")
     try:
-        ex = make_executor(executor, jobs, scheduler)
+        ex = make_executor(executor, jobs, scheduler, close_in_workers=(lock_fd,))
     except Exception as exc:
         raise RebuildError(f"cannot start the {executor} executor: {type(exc).__name__}: {exc}") from exc
     with ex:
@@ -764,6 +915,12 @@ def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, r
         "n_files": len(files), "n_runs": len(runs), "n_new": summary.n_new, "n_changed": summary.n_changed,
         "n_deleted": summary.n_deleted, "n_unchanged": summary.n_unchanged, "n_quarantined": len(problems),
         "stages_run": staged.ran, "stages_reused": staged.reused, "exit_code": summary.exit_code}])
+    in_use = set(runs_df.get("samples_path", [])) | {r.folder for r in staged.records}
+    kept, _expired = superseded_files(prev, in_use, clock(), keep_h)
+    kept_paths = sorted(kept)
+    superseded = pd.DataFrame({
+        "path": pd.Series(kept_paths, dtype="string"),
+        "superseded_at": pd.to_datetime(pd.Series([kept[p] for p in kept_paths], dtype="float64"), unit="s", utc=True)})
     history = log_row
     if prev.history is not None and not prev.history.empty:
         history = pd.concat([prev.history.tail(HISTORY_ROWS - 1), log_row], ignore_index=True)
@@ -778,6 +935,7 @@ def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, r
         "rebuild_log": history, "rebuild_inputs": inputs,
         "ingest_state": pd.DataFrame([r.as_row() for r in records + side]),
         "stage_cache": pd.DataFrame([r.as_row() for r in staged.records]),
+        "superseded_files": superseded,
     }
     tmp_db = warehouse / f".{DB_NAME}.tmp-{os.getpid()}"
     progress.message(f"warehouse: writing {len(all_tables)} tables")
@@ -806,8 +964,11 @@ def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, r
         from pipeline.report import publish_page
         summary.report = publish_page(page)
     _crash_point("after_swap")
-    collect_garbage(warehouse, prev.samples | set(runs_df.get("samples_path", [])),
-                    prev.stage_folders | {r.folder for r in staged.records})
+    # files the new warehouse uses, and those of earlier ones still within their retention
+    # (a reader that opened an earlier warehouse keeps reading its samples)
+    keep = in_use | set(kept)
+    collect_garbage(warehouse, {p for p in keep if p.startswith("samples/")},
+                    {p for p in keep if not p.startswith("samples/")})
     summary.tables = {k: len(v) for k, v in all_tables.items()}
     if summary.report is not None:
         progress.message(f"report: {summary.report}")

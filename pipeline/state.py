@@ -30,7 +30,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from pipeline.ingest import INGEST_VERSION, sha256_file
+from pipeline.code_version import INGEST_VERSION, ROOT, hash_sources, ingest_code_version  # noqa: F401 (re-exported)
+from pipeline.ingest import sha256_file
 from pipeline.layout import ConfigError, RawTree
 
 #: Raw files that are not runs but change what the runs mean (their changes are reported).
@@ -39,30 +40,11 @@ SIDE_FILES = {"manifest.csv": "manifest", "rig.toml": "rig", "hoses.csv": "logbo
 #: A file modified this recently is hashed again next time (mtime granularity, "racy" files).
 RACY_S = 2.0
 
-_ROOT = Path(__file__).resolve().parent.parent
+_ROOT = ROOT
 
 
 def _hash_sources(paths: list[Path]) -> str:
-    h = hashlib.sha256()
-    for p in sorted(paths):
-        h.update(p.relative_to(_ROOT).as_posix().encode())
-        try:
-            h.update(p.read_bytes())
-        except OSError:
-            pass
-    return h.hexdigest()[:16]
-
-
-@lru_cache(maxsize=1)
-def ingest_code_version() -> str:
-    """Version of everything that turns a raw file into a runs row and samples Parquet.
-
-    ``INGEST_VERSION`` plus a hash of the schemas, readers, layout, derived-channel and ingest
-    source, so that a code change re-reads the files it may affect.
-    """
-    files = [*_ROOT.glob("schemas/*.py"), *_ROOT.glob("pipeline/readers/*.py"),
-             _ROOT / "pipeline" / "ingest.py", _ROOT / "pipeline" / "layout.py", _ROOT / "pipeline" / "derived.py"]
-    return f"{INGEST_VERSION}-{_hash_sources([f for f in files if f.is_file()])}"
+    return hash_sources(paths, _ROOT)
 
 
 #: Top-level packages of this project: a stage's version covers what it imports from them.
@@ -185,6 +167,8 @@ class PreviousState:
     finding_changes: dict[str, tuple] = field(default_factory=dict)
     generation: str | None = None
     history: pd.DataFrame | None = None
+    #: files of earlier warehouses still kept for their readers: path -> superseded at [s since epoch]
+    superseded: dict[str, float] = field(default_factory=dict)
 
 
 def load_previous(warehouse: Path) -> PreviousState:
@@ -217,13 +201,16 @@ def load_previous(warehouse: Path) -> PreviousState:
             if {"change", "changed_at"} <= cols:
                 prev.finding_changes = {fid: (ch, at) for fid, ch, at in con.execute(
                     "SELECT finding_id, change, changed_at FROM findings").fetchall()}
+        if "superseded_files" in tables:
+            prev.superseded = {p: float(at) for p, at in con.execute(
+                "SELECT path, epoch(superseded_at) FROM superseded_files").fetchall()}
         if "rebuild_log" in tables:
             prev.history = con.sql("SELECT * FROM rebuild_log").to_arrow_table().to_pandas()
             if not prev.history.empty:
                 prev.generation = str(prev.history.sort_values("finished_at")["generation"].iloc[-1])
     except Exception:
         # A warehouse from an older version: no usable state, everything is rebuilt.
-        return PreviousState(samples=prev.samples)
+        return PreviousState(samples=prev.samples, stage_folders=prev.stage_folders, superseded=prev.superseded)
     finally:
         con.close()
     return prev
@@ -344,3 +331,37 @@ def stage_input_key(name: str, code: str, runs: list[dict], kinds: set[str], all
     blob = {"stage": name, "code": code, "runs": runs_fingerprint(runs, None if all_runs else kinds),
             "kinds": sorted(kinds), "all": all_runs, "logbooks": logbooks}
     return hashlib.sha256(json.dumps(blob, sort_keys=True).encode()).hexdigest()[:32]
+
+
+# -- files of earlier warehouses ------------------------------------------------------------------
+#: Default retention of superseded samples files and stage folders [h].
+KEEP_SUPERSEDED_H = 24.0
+
+
+def superseded_files(prev: PreviousState, in_use: set[str], now: float,
+                     keep_h: float) -> tuple[dict[str, float], set[str]]:
+    """Which files of earlier warehouses to keep for their readers, and which to collect.
+
+    Parameters
+    ----------
+    prev : PreviousState
+        The live warehouse's files (``samples``, ``stage_folders``) and the files it kept
+        (``superseded``, with the time each was superseded).
+    in_use : set of str
+        Files the new warehouse uses (paths relative to the warehouse).
+    now : float
+        The rebuild's clock [s since epoch].
+    keep_h : float
+        Retention [h]: a file is kept this long after the first rebuild that stopped using it.
+
+    Returns
+    -------
+    (kept, expired)
+        ``kept``: path -> superseded at [s since epoch] (recorded in the new warehouse);
+        ``expired``: paths whose retention has passed (to be collected).
+    """
+    superseded = {p: at for p, at in prev.superseded.items() if p not in in_use}
+    for p in sorted((prev.samples | prev.stage_folders) - in_use):
+        superseded.setdefault(p, now)
+    expired = {p for p, at in superseded.items() if now - at >= keep_h * 3600.0}
+    return {p: at for p, at in superseded.items() if p not in expired}, expired

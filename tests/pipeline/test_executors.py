@@ -1,7 +1,7 @@
 """Executors: local processes and a Dask cluster (two worker processes) give identical results."""
 import pytest
 
-from pipeline.executors import DaskExecutor, Executor, LocalExecutor, make_executor
+from pipeline.executors import CRASH_REASON, DaskExecutor, Executor, LocalExecutor, make_executor
 from pipeline.rebuild import rebuild
 from pipeline.warehouse import connect_readonly
 from tests.conftest import STEP_META
@@ -20,7 +20,8 @@ def boom(x):
 
 
 #: Tables that describe the rebuild itself (times, generation, executor), not its results.
-REBUILD_ONLY = {"rebuild_log", "rebuild_inputs", "rebuild_changes", "ingest_state", "stage_cache", "figures"}
+REBUILD_ONLY = {"rebuild_log", "rebuild_inputs", "rebuild_changes", "ingest_state", "stage_cache", "figures",
+                "superseded_files"}
 
 
 def dump(warehouse):
@@ -77,3 +78,61 @@ def test_dask_rebuild_equals_local_rebuild(raw, tmp_path, cluster):
     # the workers wrote the samples files: same content-addressed names in both warehouses
     names = lambda w: sorted(p.name for p in (w / "samples").rglob("*.parquet"))  # noqa: E731
     assert names(tmp_path / "local") == names(tmp_path / "dask")
+
+
+def pid_of(x):
+    import os
+
+    return x, os.getpid()
+
+
+def segfault_on_3(x):
+    import os
+    import signal
+
+    if x == 3:
+        os.kill(os.getpid(), signal.SIGSEGV)  # a reader crashing in C code
+    return x, os.getpid()
+
+
+def crashed(item, reason):
+    return item, "crashed: " + reason
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_untrusted_work_always_runs_in_worker_processes_started_once_and_only_when_needed(jobs):
+    import os
+
+    with LocalExecutor(jobs) as ex:
+        assert ex.map(pid_of, [], on_crash=crashed) == []
+        assert ex.reader_processes_started == 0  # nothing to read: no process
+        out = ex.map(pid_of, list(range(6)), on_crash=crashed)
+        assert [x for x, _ in out] == list(range(6))
+        pids = {p for _, p in out}
+        assert os.getpid() not in pids and len(pids) <= jobs  # reused for every item
+        assert ex.reader_processes_started == jobs
+    with LocalExecutor(jobs) as ex:  # never more workers than items
+        ex.map(pid_of, [1], on_crash=crashed)
+        assert ex.reader_processes_started == 1
+    # trusted work (the stages' per-run analyses) still runs in this process with one job
+    if jobs == 1:
+        assert {p for _, p in LocalExecutor(1).map(pid_of, [1, 2])} == {os.getpid()}
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_a_segfaulting_item_gets_on_crash_and_the_others_their_results(jobs):
+    import os
+
+    with LocalExecutor(jobs) as ex:
+        out = ex.map(segfault_on_3, list(range(8)), on_crash=crashed)
+        assert out[3] == (3, "crashed: " + CRASH_REASON)
+        assert [x for x, _ in out] == list(range(8))
+        assert all(isinstance(p, int) and p != os.getpid() for i, (_, p) in enumerate(out) if i != 3)
+        if jobs == 1:  # the one suspect is the culprit: not run again; the rest goes on in one new worker
+            assert ex.reader_processes_started == 2
+            assert len({p for _, p in out[:3]}) == 1 and len({p for _, p in out[4:]}) == 1
+    # without on_crash, a dead worker is an error (trusted work must not crash)
+    from concurrent.futures.process import BrokenProcessPool
+
+    with LocalExecutor(2) as ex, pytest.raises(BrokenProcessPool):
+        ex.map(segfault_on_3, list(range(8)))

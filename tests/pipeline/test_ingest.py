@@ -289,11 +289,11 @@ def test_q_non_finite_number_in_rig_toml_metadata(raw, warehouse):
 def test_new_ingest_code_writes_beside_the_live_samples_file(raw, warehouse, monkeypatch):
     # the samples file name carries the ingest code's version: output of changed code never
     # overwrites the file the live warehouse points at (a crash before the swap keeps it intact)
-    import pipeline.state as state
+    import pipeline.code_version as code_version
 
     raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
     old = ingest(raw, "c/a.csv", warehouse).run["samples_path"]
-    monkeypatch.setattr(state, "ingest_code_version", lambda: "changed-code")
+    monkeypatch.setattr(code_version, "ingest_code_version", lambda: "changed-code")
     new = ingest(raw, "c/a.csv", warehouse).run["samples_path"]
     assert new != old
     assert (warehouse / old).is_file() and (warehouse / new).is_file()

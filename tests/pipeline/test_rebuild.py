@@ -161,3 +161,255 @@ def test_a_report_that_cannot_be_rendered_fails_the_rebuild_and_keeps_warehouse_
     # without a report nothing can fail: the new warehouse goes in
     assert CliRunner().invoke(main, [*args, "--no-report"]).exit_code == EXIT_OK
     assert q(warehouse, "SELECT run_id FROM runs ORDER BY 1") == [("c/a",), ("c/b",)]
+
+
+# -- raw/ and the warehouse never overlap; the clean-up deletes only what the warehouse wrote ----
+def test_the_raw_guard_notices_any_change_to_the_raw_tree(raw, tmp_path):
+    # the guard every rebuild of the suite runs under (tests/conftest.py) must be able to fail
+    import os
+
+    from tests.conftest import guard_raw
+
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    raw.write("c/b.csv", "x\n")
+    os.symlink("a.csv", raw.root / "c" / "link.csv")
+    changes = {
+        "bytes": lambda: (raw.root / "c/a.csv").write_text("changed\n"),
+        "mode": lambda: os.chmod(raw.root / "c/b.csv", 0o600),
+        "deleted": lambda: (raw.root / "c/b.csv").unlink(),
+        "created": lambda: raw.write("c/new.txt", "x"),
+        "symlink": lambda: (os.unlink(raw.root / "c/link.csv"), os.symlink("b.csv", raw.root / "c/link.csv")),
+    }
+    os.chmod(raw.root / "c/b.csv", 0o644)
+    for name, change in changes.items():
+        with pytest.raises(pytest.fail.Exception, match="modified its raw tree"):
+            guard_raw(lambda root: change())(raw.root)
+    assert guard_raw(lambda root: 7)(raw.root) == 7  # nothing changed: nothing to say
+
+
+def _overlaps(tmp_path):
+    import os
+
+    raw = tmp_path / "X"
+    (raw / "samples").mkdir(parents=True)          # a campaign folder named like the warehouse's
+    os.symlink(raw, tmp_path / "link")
+    return {
+        "raw inside the warehouse": (raw / "samples", raw),       # --raw W/samples --warehouse W
+        "the same folder": (raw, raw),
+        "warehouse inside raw": (raw, raw / "wh"),
+        "the same folder through a symlink": (raw, tmp_path / "link"),
+        "warehouse inside raw through a symlink": (tmp_path / "link", raw / "w2"),
+    }
+
+
+@pytest.mark.parametrize("case", ["raw inside the warehouse", "the same folder", "warehouse inside raw",
+                                  "the same folder through a symlink", "warehouse inside raw through a symlink"])
+def test_overlapping_raw_and_warehouse_are_a_usage_error_before_anything_is_written(tmp_path, case):
+    from click.testing import CliRunner
+
+    from pipeline.cli import main
+    from tests.conftest import RawBuilder, raw_snapshot
+
+    raw_dir, wh = _overlaps(tmp_path)[case]
+    builder = RawBuilder(tmp_path / "X")
+    builder.csv("samples/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    builder.write("samples/kind=step/campaign=samples/a-0123456789abcdef.parquet", b"PAR1 not really")
+    before = raw_snapshot(tmp_path / "X")
+    with pytest.raises(RebuildError) as err:
+        rebuild(raw_dir, wh, jobs=1)
+    assert err.value.exit_code == 2
+    assert str(raw_dir) in str(err.value) and str(wh) in str(err.value)
+    for cmd in ("rebuild", "demo"):
+        res = CliRunner().invoke(main, [cmd, "--raw", str(raw_dir), "--warehouse", str(wh), "--jobs", "1"])
+        assert res.exit_code == 2, res.output
+        assert str(raw_dir) in res.output and str(wh) in res.output
+    assert raw_snapshot(tmp_path / "X") == before  # nothing written, nothing deleted (no demo/, no lock)
+
+
+def test_the_clean_up_deletes_only_files_the_warehouse_wrote(raw, warehouse, tmp_path):
+    import os
+
+    from tests.conftest import raw_snapshot
+
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    rebuild(raw.root, warehouse, jobs=1)
+    camp = warehouse / "samples" / "kind=step" / "campaign=c"
+    # a raw tree copied where the clean-up looks, foreign names in the warehouse's own folders,
+    # and a symlink out of the warehouse onto a tree of writer-like names
+    outside = tmp_path / "elsewhere"
+    outside.mkdir()
+    (outside / "x-0123456789abcdef.parquet").write_bytes(b"someone's data")
+    foreign = {
+        "samples/kind=step/campaign=c/b.csv": b"t,x\n0,1\n",
+        "samples/kind=step/campaign=c/notes.txt": b"mine",
+        "samples/kind=step/campaign=c/run-12.parquet": b"not a writer name",
+        "samples/kind=step/campaign=c/sub/z-0123456789abcdef.parquet": b"one folder too deep",
+        "samples/c/a.csv": b"a raw tree under samples/",
+        "samples/kind=nope/campaign=c/q-0123456789abcdef.parquet": b"not a kind",
+        "stages/models/0123456789abcdef0123/tables/data.csv": b"foreign",
+        "stages/models/0123456789abcdef0123/output.json.bak": b"foreign",
+        "stages/Not-A-Stage/0123456789abcdef0123/output.json": b"{}",
+        "stages/.tmp-notes/readme.txt": b"foreign",
+        "report/.keep.tmp": b"foreign",
+        ".pneubench.duckdb.tmp-old": b"foreign",
+        "figures/readme.txt": b"foreign",
+    }
+    for rel, data in foreign.items():
+        (warehouse / rel).parent.mkdir(parents=True, exist_ok=True)
+        (warehouse / rel).write_bytes(data)
+    os.symlink(outside, warehouse / "samples" / "kind=step" / "campaign=linked")
+    orphan = camp / "zz-0123456789abcdef.parquet"       # writer-named, used by no warehouse: collected
+    orphan.write_bytes(b"stale")
+    debris = camp / ".a.123.0123456789ab.tmp"             # a killed writer's temp file: collected
+    debris.write_bytes(b"partial")
+    outside_before = raw_snapshot(outside)
+    raw.csv("c/b.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": [1.0] * 4})
+    assert rebuild(raw.root, warehouse, jobs=1).exit_code == EXIT_OK
+    rebuild(raw.root, warehouse, jobs=1)
+    for rel, data in foreign.items():
+        assert (warehouse / rel).read_bytes() == data, rel
+    assert raw_snapshot(outside) == outside_before
+    assert not orphan.exists() and not debris.exists()
+    assert q(warehouse, "SELECT count(*) FROM runs") == [(2,)]
+
+
+# -- readers of untrusted bytes never run in the rebuild's process --------------------------------
+def test_a_reader_that_segfaults_with_one_job_quarantines_its_file_and_the_rest_ingests(raw, warehouse,
+                                                                                       monkeypatch):
+    # a 1-core server is --jobs 1: the reader still runs in a worker process, so a segfault in
+    # C code (scipy's loadmat on a corrupt MAT file did this) costs one file, not the rebuild
+    import os
+    import signal
+
+    import pipeline.ingest as ing
+    from pipeline.rebuild import CRASHED
+
+    real = ing.read_export
+
+    def reader(path, *a, **k):
+        if "segv" in os.path.basename(path):
+            os.kill(os.getpid(), signal.SIGSEGV)
+        return real(path, *a, **k)
+
+    monkeypatch.setattr(ing, "read_export", reader)
+    for name in ("a", "b_segv", "c"):
+        raw.csv(f"c/{name}.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    parent = os.getpid()
+    summary = rebuild(raw.root, warehouse, jobs=1)
+    assert os.getpid() == parent and summary.exit_code == EXIT_QUARANTINED
+    assert [(p.source_path, p.error) for p in summary.quarantine] == [("c/b_segv.csv", CRASHED)]
+    assert q(warehouse, "SELECT run_id FROM runs ORDER BY 1") == [("c/a",), ("c/c",)]
+
+
+def test_ingest_starts_one_worker_process_for_one_job_and_none_when_nothing_is_read(raw, warehouse, monkeypatch):
+    import os
+    import time
+
+    forks = []
+    real_fork = os.fork
+
+    def counting_fork():
+        pid = real_fork()
+        if pid:
+            forks.append(pid)
+        return pid
+
+    monkeypatch.setattr(os, "fork", counting_fork)
+    for name in "abcd":
+        raw.csv(f"c/{name}.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    past = time.time() - 3600  # files written this second are hashed again next time ("racy")
+    for p in raw.root.rglob("*.csv"):
+        os.utime(p, (past, past))
+    rebuild(raw.root, warehouse, jobs=1)
+    assert len(forks) == 1  # one reader worker for four files; the stages run in this process
+    forks.clear()
+    assert rebuild(raw.root, warehouse, jobs=1).n_unchanged == 4
+    assert forks == []  # a no-op rebuild starts no process
+
+
+# -- readers of an earlier warehouse keep their samples for the retention period -------------------
+class FakeClock:
+    def __init__(self, t):
+        self.t = t
+
+    def __call__(self):
+        return self.t
+
+
+READER = """
+import sys, duckdb
+con = duckdb.connect(sys.argv[1], read_only=True)
+for line in sys.stdin:
+    try:
+        print(repr(con.execute("SELECT max(x_m) FROM samples_step").fetchone()[0]), flush=True)
+    except duckdb.Error as exc:
+        print("error: " + str(exc).splitlines()[0], flush=True)
+"""
+
+
+def test_a_connection_opened_before_two_rebuilds_still_reads_its_samples_until_the_retention_passes(raw, warehouse):
+    import os
+    import subprocess
+    import sys
+    import time
+
+    def step(scale):
+        raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[mm]": [scale * v for v in (0, 1, 2, 3)], "x_ref[mm]": [3] * 4})
+        past = time.time() - 3600
+        os.utime(raw.root / "c/a.csv", (past, past))
+
+    clock = FakeClock(1_800_000_000.0)
+    step(1.0)
+    rebuild(raw.root, warehouse, jobs=1, clock=clock)
+    first = q(warehouse, "SELECT samples_path FROM runs")[0][0]
+    # a long-lived reader in another process (a notebook left open overnight)
+    reader = subprocess.Popen([sys.executable, "-c", READER, str(warehouse / "pneubench.duckdb")],
+                              stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+
+    def ask():
+        reader.stdin.write("?\n")
+        reader.stdin.flush()
+        return reader.stdout.readline().strip()
+
+    try:
+        assert ask() == "0.003"
+        for scale in (2.0, 3.0):  # two rebuilds, the file changed each time
+            clock.t += 3600
+            step(scale)
+            assert rebuild(raw.root, warehouse, jobs=1, clock=clock).n_changed == 1
+        assert q(warehouse, "SELECT max(x_m) FROM samples_step") == [(pytest.approx(0.009),)]
+        assert ask() == "0.003"  # its samples are still there
+        assert q(warehouse, f"SELECT epoch(superseded_at) FROM superseded_files WHERE path = '{first}'") == [
+            (1_800_003_600.0,)]
+        clock.t = 1_800_003_600.0 + 24 * 3600 - 1  # not quite 24 h after the rebuild that stopped using it
+        rebuild(raw.root, warehouse, jobs=1, clock=clock)
+        assert (warehouse / first).is_file() and ask() == "0.003"
+        clock.t += 1
+        rebuild(raw.root, warehouse, jobs=1, clock=clock)
+        assert not (warehouse / first).exists()
+        assert ask().startswith("error: ")
+    finally:
+        reader.stdin.close()
+        reader.wait(timeout=60)
+    assert (warehouse / q(warehouse, "SELECT samples_path FROM runs")[0][0]).is_file()
+
+
+def test_keep_superseded_option_and_environment(raw, warehouse, monkeypatch):
+    from click.testing import CliRunner
+
+    from pipeline.cli import main
+
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    args = ["rebuild", "--raw", str(raw.root), "--warehouse", str(warehouse), "--jobs", "1", "--no-report"]
+    assert CliRunner().invoke(main, args).exit_code == 0
+    first = q(warehouse, "SELECT samples_path FROM runs")[0][0]
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": [1.0] * 4, "x_ref[m]": T})
+    monkeypatch.setenv("PNEUBENCH_KEEP_SUPERSEDED_H", "soon")
+    res = CliRunner().invoke(main, args)
+    assert res.exit_code == 2 and "--keep-superseded" in res.output and "soon" in res.output
+    with pytest.raises(RebuildError, match="PNEUBENCH_KEEP_SUPERSEDED_H='soon' is not a number") as err:
+        rebuild(raw.root, warehouse, jobs=1)
+    assert err.value.exit_code == 2
+    monkeypatch.setenv("PNEUBENCH_KEEP_SUPERSEDED_H", "24")
+    assert CliRunner().invoke(main, [*args, "--keep-superseded", "0"]).exit_code == 0  # the option wins
+    assert not (warehouse / first).exists()

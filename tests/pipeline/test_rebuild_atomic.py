@@ -13,7 +13,7 @@ import pytest
 
 from pipeline.rebuild import EXIT_LOCKED, rebuild, warehouse_lock
 from pipeline.warehouse import connect_readonly
-from tests.conftest import STEP_META
+from tests.conftest import STEP_META, assert_raw_unchanged, raw_snapshot
 
 T = [0.0, 0.1, 0.2, 0.3]
 CLI = [sys.executable, "-c", "from pipeline.cli import main; main()"]
@@ -39,8 +39,12 @@ def state(warehouse):
 
 
 def cli_rebuild(raw, warehouse, *args, env=None):
-    return subprocess.run([*CLI, "rebuild", "--raw", str(raw), "--warehouse", str(warehouse), "--jobs", "2", *args],
-                          capture_output=True, text=True, env={**os.environ, **(env or {})}, timeout=300)
+    """``pneubench rebuild`` in a process of its own; raw/ must be byte-identical afterwards."""
+    before = raw_snapshot(raw)
+    res = subprocess.run([*CLI, "rebuild", "--raw", str(raw), "--warehouse", str(warehouse), "--jobs", "2", *args],
+                         capture_output=True, text=True, env={**os.environ, **(env or {})}, timeout=300)
+    assert_raw_unchanged(raw, before)
+    return res
 
 
 def debris(warehouse):
@@ -85,11 +89,13 @@ def test_kill_9_at_random_moments(raw, warehouse):
     rng = random.Random(7)
     for k in range(3):
         step(raw, f"c/new{k}.csv", n=10 + k)
+        before = raw_snapshot(raw.root)
         p = subprocess.Popen([*CLI, "rebuild", "--raw", str(raw.root), "--warehouse", str(warehouse), "--jobs", "2"],
                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         time.sleep(rng.uniform(0.5, 3.0))
         p.send_signal(signal.SIGKILL)
         p.wait()
+        assert_raw_unchanged(raw.root, before)
         now = state(warehouse)  # readable and self-consistent, whichever generation it is
         good.add(now)
     final = rebuild(raw.root, warehouse, jobs=1)
@@ -156,10 +162,12 @@ def test_second_rebuild_exits_4_with_a_clear_message_or_waits(raw, warehouse):
     assert "another rebuild is running" in res.stderr and "--wait" in res.stderr
     assert not (warehouse / "pneubench.duckdb").exists()
     # two at once, both willing to wait: both complete, one after the other
+    before = raw_snapshot(raw.root)
     procs = [subprocess.Popen([*CLI, "rebuild", "--raw", str(raw.root), "--warehouse", str(warehouse),
                                "--jobs", "1", "--wait", "120"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                               text=True) for _ in range(2)]
     codes = [p.wait(timeout=300) for p in procs]
+    assert_raw_unchanged(raw.root, before)
     assert codes == [0, 0], [p.stderr.read() for p in procs]
     assert state(warehouse) == (("c/a",), 4)
     assert debris(warehouse) == []

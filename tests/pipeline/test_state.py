@@ -13,7 +13,7 @@ from pipeline.warehouse import connect_readonly
 from tests.conftest import STEP_META, query
 
 T = [0.0, 0.1, 0.2, 0.3]
-REBUILD_ONLY = {"rebuild_log", "rebuild_inputs", "ingest_state", "stage_cache"}
+REBUILD_ONLY = {"rebuild_log", "rebuild_inputs", "ingest_state", "stage_cache", "superseded_files"}
 BREAK = {"kind": "breakaway", "started_at": "2026-01-02T03:04:05", "rig": "plpa-1", "direction": "P",
          "backpressure_bar": 0, "force_rate_n_s": 1, "hose_area_m2": 4.9e-4}
 
@@ -50,13 +50,40 @@ def dump(warehouse):
 q = query
 
 
+class ReadLog:
+    """Calls recorded by hooks that run in the ingest worker processes (forked from the test, so
+    they carry its monkeypatches): one JSON line per call in a file, read back here."""
+
+    def __init__(self, path):
+        self.path = path
+        self.clear()
+
+    def record(self, key, value):
+        import json
+
+        with open(self.path, "a") as fh:
+            fh.write(json.dumps([key, value]) + "\n")
+
+    def __getitem__(self, key):
+        import json
+
+        return [v for k, v in (json.loads(line) for line in self.path.read_text().splitlines()) if k == key]
+
+    def as_dict(self, *keys):
+        return {k: self[k] for k in keys}
+
+    def clear(self):
+        self.path.write_text("")
+
+
 @pytest.fixture
-def counting(monkeypatch):
-    """Count files read (hashed or ingested) in this process (jobs=1 runs everything here)."""
-    seen = {"sha": [], "ingest": []}
+def counting(monkeypatch, tmp_path):
+    """Count files read (hashed or ingested) by the rebuild, in whatever process reads them."""
+    seen = ReadLog(tmp_path / "reads.jsonl")
     real_sha, real_ingest = rb.sha256_file, rb.ingest_file
-    monkeypatch.setattr(rb, "sha256_file", lambda p, *a, **k: seen["sha"].append(p.name) or real_sha(p, *a, **k))
-    monkeypatch.setattr(rb, "ingest_file", lambda t, p, *a, **k: seen["ingest"].append(p.name) or real_ingest(t, p, *a, **k))
+    monkeypatch.setattr(rb, "sha256_file", lambda p, *a, **k: seen.record("sha", p.name) or real_sha(p, *a, **k))
+    monkeypatch.setattr(rb, "ingest_file",
+                        lambda t, p, *a, **k: seen.record("ingest", p.name) or real_ingest(t, p, *a, **k))
     return seen
 
 
@@ -67,9 +94,9 @@ def test_noop_rebuild_reads_no_file_and_reruns_no_stage(raw, warehouse, counting
     first = rebuild(raw.root, warehouse, jobs=1)
     assert sorted(counting["ingest"]) == ["a0.csv", "a1.csv", "a2.csv"]
     assert first.n_new == 3 and first.stages_run
-    counting["sha"].clear(), counting["ingest"].clear()
+    counting.clear()
     second = rebuild(raw.root, warehouse, jobs=1)
-    assert counting == {"sha": [], "ingest": []}
+    assert counting.as_dict("sha", "ingest") == {"sha": [], "ingest": []}
     assert (second.n_new, second.n_changed, second.n_deleted, second.n_unchanged) == (0, 0, 0, 3)
     assert second.stages_run == [] and set(second.stages_reused) == set(first.stages_run)
     assert q(warehouse, "SELECT count(*) FROM rebuild_log") == [(2,)]
@@ -80,7 +107,7 @@ def test_touch_hashes_but_does_not_reingest(raw, warehouse, counting):
     step(raw, "c/a.csv")
     age(raw.root)
     rebuild(raw.root, warehouse, jobs=1)
-    counting["sha"].clear(), counting["ingest"].clear()
+    counting.clear()
     os.utime(raw.root / "c/a.csv", None)  # new mtime, same bytes
     s = rebuild(raw.root, warehouse, jobs=1)
     assert counting["sha"] == ["a.csv"] and counting["ingest"] == []
@@ -94,7 +121,7 @@ def test_changes_deletions_and_metadata_changes(raw, warehouse, counting):
     step(raw, "d/e.csv")
     age(raw.root)
     rebuild(raw.root, warehouse, jobs=1)
-    counting["ingest"].clear()
+    counting.clear()
     step(raw, "c/b.csv", scale=2.0)                                   # content changed
     (raw.root / "d/e.csv").unlink()                                   # deleted
     raw.write("c/sub/manifest.csv", "file,operator\nc.csv,ana\n")     # metadata of c changed
@@ -111,8 +138,9 @@ def test_changes_deletions_and_metadata_changes(raw, warehouse, counting):
     assert q(warehouse, "SELECT json_extract_string(params, '$.operator') FROM runs WHERE run_id = 'c/c'") == [("ana",)]
     assert q(warehouse, "SELECT max(x_m) FROM samples_step WHERE run_id = 'c/b'") == [(pytest.approx(0.006),)]
     assert q(warehouse, "SELECT count(*) FROM samples_step WHERE run_id = 'd/e'") == [(0,)]
-    # the deleted run's samples file is kept one generation (old readers), then collected
-    rebuild(raw.root, warehouse, jobs=1)
+    # the deleted run's samples file is kept for readers of earlier warehouses (24 h), then collected
+    assert any(p.name.startswith("d_e-") for p in (warehouse / "samples").rglob("*.parquet"))
+    rebuild(raw.root, warehouse, jobs=1, clock=lambda: time.time() + 25 * 3600)
     files = {p.name for p in (warehouse / "samples").rglob("*.parquet")}
     assert not any(f.startswith("d_e-") for f in files)
 
@@ -122,7 +150,7 @@ def test_rig_toml_change_reingests_the_files_below_it(raw, warehouse, counting):
     step(raw, "c/y/b.csv")
     age(raw.root)
     rebuild(raw.root, warehouse, jobs=1)
-    counting["ingest"].clear()
+    counting.clear()
     raw.write("c/x/rig.toml", '[metadata]\nrig = "plpa-2"\n')
     s = rebuild(raw.root, warehouse, jobs=1)
     assert counting["ingest"] == ["a.csv"] and s.n_changed == 1
@@ -133,7 +161,7 @@ def test_quarantined_file_stays_quarantined_without_being_read(raw, warehouse, c
     raw.csv("c/bad.csv", STEP_META, {"t[s]": T, "x[furlong]": T, "x_ref[mm]": T})
     age(raw.root)
     a = rebuild(raw.root, warehouse, jobs=1)
-    counting["ingest"].clear()
+    counting.clear()
     b = rebuild(raw.root, warehouse, jobs=1)
     assert counting["ingest"] == [] and b.exit_code == a.exit_code == 1
     assert [p.error for p in b.quarantine] == [p.error for p in a.quarantine]
@@ -238,27 +266,28 @@ def test_project_imports_follows_imports_transitively(tmp_path, monkeypatch):
     assert got == {"a.py", "b.py", "c.py"}
 
 
-def test_a_new_file_is_hashed_once(raw, warehouse, monkeypatch):
+def test_a_new_file_is_hashed_once(raw, warehouse, monkeypatch, tmp_path):
     # a new file is hashed by ingest while it parses it; a touched one by the rebuild, to decide
     import pipeline.ingest as ing
 
-    calls = []
+    log = ReadLog(tmp_path / "calls.jsonl")
     real = ing.sha256_file
     for mod in (rb, ing):
-        monkeypatch.setattr(mod, "sha256_file", lambda p, *a, **k: calls.append(p.name) or real(p, *a, **k))
+        monkeypatch.setattr(mod, "sha256_file", lambda p, *a, **k: log.record("sha", p.name) or real(p, *a, **k))
     step(raw, "c/a.csv")
     rebuild(raw.root, warehouse, jobs=1)
-    assert calls.count("a.csv") == 1
+    assert log["sha"].count("a.csv") == 1
     assert q(warehouse, "SELECT source_sha256 FROM runs") == [(real(raw.root / "c" / "a.csv"),)]
     # touched with other bytes: the rebuild hashes it to decide and ingest reuses that hash
-    calls.clear()
+    log.clear()
     age(raw.root)
     step(raw, "c/a.csv", scale=2.0)
     rebuild(raw.root, warehouse, jobs=1)
-    assert calls.count("a.csv") == 1
+    assert log["sha"].count("a.csv") == 1
     assert q(warehouse, "SELECT source_sha256 FROM runs") == [(real(raw.root / "c" / "a.csv"),)]
 
 
+@pytest.mark.raw_written("c/a.csv")
 def test_a_file_written_while_it_is_read_is_read_again_next_time(raw, warehouse, monkeypatch):
     # its hash and its samples may be of different bytes: the record says "look again"
     step(raw, "c/a.csv")
@@ -271,33 +300,37 @@ def test_a_file_written_while_it_is_read_is_read_again_next_time(raw, warehouse,
         return res
 
     monkeypatch.setattr(rb, "ingest_file", ingest_while_the_bench_writes)
-    rebuild(raw.root, warehouse, jobs=1)
+    first = rebuild(raw.root, warehouse, jobs=1)
     monkeypatch.undo()
+    assert [(p.source_path, p.error) for p in first.quarantine] == [("c/a.csv", rb.CHANGED_WHILE_READ)]
+    assert q(warehouse, "SELECT count(*) FROM runs") == [(0,)]  # not published this night
     assert q(warehouse, "SELECT mtime_ns, source_sha256 FROM ingest_state WHERE role = 'run'") == [(-1, None)]
     second = rebuild(raw.root, warehouse, jobs=1)
-    assert second.n_changed == 1
+    assert second.n_changed == 1 and second.exit_code == 0
     assert q(warehouse, "SELECT max(x_m) FROM samples_step") == [(pytest.approx(0.006),)]
 
 
-def test_a_retried_file_is_read_again_not_taken_from_a_samples_file_of_the_same_name(raw, warehouse, monkeypatch):
+@pytest.mark.raw_written("c/a.csv")
+def test_a_retried_file_is_read_again_not_taken_from_a_samples_file_of_the_same_name(raw, warehouse, monkeypatch,
+                                                                                     tmp_path):
     # the racy read's samples may carry the new bytes' name with the old bytes' data: the
     # re-check must not reuse them
     step(raw, "c/a.csv")
     age(raw.root)
     real = rb.ingest_file
-    seen = []
+    seen = ReadLog(tmp_path / "seen.jsonl")
 
     def ingest_while_the_bench_writes(tree, path, *a, **k):
-        seen.append(k.get("reuse"))
+        seen.record("reuse", k.get("reuse"))
         res = real(tree, path, *a, **k)
-        if len(seen) == 1:
+        if len(seen["reuse"]) == 1:
             step(raw, "c/a.csv", scale=2.0)
         return res
 
     monkeypatch.setattr(rb, "ingest_file", ingest_while_the_bench_writes)
     rebuild(raw.root, warehouse, jobs=1)
     rebuild(raw.root, warehouse, jobs=1)
-    assert seen == [True, False]
+    assert seen["reuse"] == [True, False]
 
 
 def test_a_file_that_cannot_be_opened_is_tried_again_next_time(raw, warehouse, monkeypatch):
@@ -316,3 +349,61 @@ def test_a_file_that_cannot_be_opened_is_tried_again_next_time(raw, warehouse, m
     monkeypatch.setattr(ing, "read_export", real)  # chmod fixed it: the stat did not change
     second = rebuild(raw.root, warehouse, jobs=1)
     assert second.quarantine == [] and q(warehouse, "SELECT count(*) FROM runs") == [(1,)]
+
+
+@pytest.mark.raw_written("c/a.csv")
+def test_a_file_growing_while_its_reader_reads_it_is_not_published_and_is_read_next_time(raw, warehouse,
+                                                                                       monkeypatch):
+    # a bench still writing: the reader sees part of the file; publishing it would give a partial
+    # run with a source_sha256 of neither version. It is set aside for the night (exit 1, listed
+    # with the changes) and read whole at the next rebuild.
+    import hashlib
+
+    import pipeline.ingest as ing
+
+    step(raw, "c/a.csv")
+    step(raw, "c/b.csv")
+    age(raw.root)
+    real = ing.read_export
+
+    def reader_while_the_bench_appends(path, *a, **k):
+        export = real(path, *a, **k)
+        if path.name != "a.csv":
+            return export
+        batches = export.batches
+
+        def growing():
+            for i, batch in enumerate(batches()):
+                if i == 0:
+                    with open(path, "a") as fh:
+                        fh.write("0.4,4.0,3\n0.5,5.0,3\n")
+                yield batch
+        export.batches = growing
+        return export
+
+    monkeypatch.setattr(ing, "read_export", reader_while_the_bench_appends)
+    first = rebuild(raw.root, warehouse, jobs=1)
+    monkeypatch.undo()
+    assert first.exit_code == 1
+    assert [(p.source_path, p.error) for p in first.quarantine] == [("c/a.csv", rb.CHANGED_WHILE_READ)]
+    assert q(warehouse, "SELECT run_id FROM runs") == [("c/b",)]
+    assert q(warehouse, "SELECT source_path, status, quarantined, error FROM rebuild_changes "
+                        "WHERE source_path = 'c/a.csv'") == [("c/a.csv", "new", True, rb.CHANGED_WHILE_READ)]
+    second = rebuild(raw.root, warehouse, jobs=1)
+    assert second.exit_code == 0 and second.quarantine == []
+    whole = hashlib.sha256((raw.root / "c/a.csv").read_bytes()).hexdigest()
+    assert q(warehouse, "SELECT n_samples, source_sha256 FROM runs WHERE run_id = 'c/a'") == [(6, whole)]
+
+
+def test_superseded_files_are_kept_for_the_retention_then_expire():
+    from pipeline.state import PreviousState, superseded_files
+
+    prev = PreviousState(samples={"samples/a", "samples/b"}, stage_folders={"stages/s/1"},
+                         superseded={"samples/old": 1000.0, "samples/back": 1000.0})
+    kept, expired = superseded_files(prev, {"samples/b", "samples/back", "stages/s/2"}, now=5000.0, keep_h=2.0)
+    # newly superseded: stamped now; superseded earlier: keeps its first stamp; used again: dropped
+    assert kept == {"samples/a": 5000.0, "stages/s/1": 5000.0, "samples/old": 1000.0}
+    assert expired == set()
+    kept, expired = superseded_files(prev, {"samples/b"}, now=1000.0 + 3600.0, keep_h=1.0)
+    assert expired == {"samples/old", "samples/back"} and "samples/a" in kept
+    assert superseded_files(prev, set(), now=5000.0, keep_h=0.0)[0] == {}  # 0: collect at once
