@@ -338,7 +338,9 @@ class FakeClock:
 
 READER = """
 import sys, duckdb
-con = duckdb.connect(sys.argv[1], read_only=True)
+from pathlib import Path
+from pipeline.warehouse import connect_readonly
+con = connect_readonly(Path(sys.argv[1]).parent)
 for line in sys.stdin:
     try:
         print(repr(con.execute("SELECT max(x_m) FROM samples_step").fetchone()[0]), flush=True)
