@@ -357,8 +357,10 @@ def sensor_value_si(value, channel: str, what: str, where: str) -> float:
     """A sensor resolution or noise (``"5 um"``, ``"0.01 bar"``, or a number in the channel's SI
     unit) -> float in SI. A pressure step or noise is a difference: no gauge offset.
 
-    Raises IngestError naming ``where`` when the value is not a positive finite quantity of the
-    channel's dimension.
+    Zero is allowed and means what :class:`analyses.quality.Sensor` means by it: a resolution of 0
+    is a sensor that is not quantised (an analog sensor), a noise of 0 an ideal signal (a
+    commanded set-point). Raises IngestError naming ``where`` when the value is negative, not
+    finite, or not a quantity of the channel's dimension.
     """
     quantity = CHANNELS[channel].quantity
     si = CHANNELS[channel].si_unit
@@ -378,14 +380,14 @@ def sensor_value_si(value, channel: str, what: str, where: str) -> float:
                 raise IngestError(f"{where}: unit `{unit_text}` is not a {quantity} unit "
                                   f"(accepted: {', '.join(accepted_symbols(quantity))})")
             scale = unit.scale
-    if not math.isfinite(v) or v <= 0:
-        raise IngestError(f"{where}: {what} must be positive and finite, got {value!r}")
+    if not math.isfinite(v) or v < 0:
+        raise IngestError(f"{where}: {what} must be zero or positive and finite, got {value!r}")
     out = v * scale
     div = round(1.0 / scale) if scale < 1.0 else 0
     if div > 1 and abs(div * scale - 1.0) < 1e-12:
         out = v / div        # 5 um -> 5e-06 exactly as the literal
-    if not math.isfinite(out) or out <= 0:
-        raise IngestError(f"{where}: {what} must be positive and finite in {si}, got {value!r}")
+    if not math.isfinite(out) or out < 0:
+        raise IngestError(f"{where}: {what} must be zero or positive and finite in {si}, got {value!r}")
     return out
 
 

@@ -424,8 +424,9 @@ def test_sensor_metadata_from_rig_toml_and_metadata_in_si(raw, warehouse):
 
 @pytest.mark.parametrize("toml, reason", [
     ('[sensors.x]\nresolution = "5 bar"\n', "unit `bar` is not a length unit"),
-    ('[sensors.x]\nresolution = "-5 um"\n', "must be positive"),
-    ('[sensors.x]\nnoise = 0\n', "must be positive"),
+    ('[sensors.x]\nresolution = "-5 um"\n', "must be zero or positive"),
+    ('[sensors.x]\nnoise = "inf"\n', "not a number with a unit"),
+    ('[sensors.x]\nnoise = nan\n', "must be zero or positive and finite"),
     ('[sensors.x]\nnoise = "a lot"\n', "not a number with a unit"),
     ('[sensors.x]\nresolutoin = "5 um"\n', "unknown key(s) resolutoin"),
     ('[sensors]\nx = "5 um"\n', "must be a table"),
@@ -435,6 +436,14 @@ def test_q_bad_sensor_values(raw, warehouse, toml, reason):
     raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[mm]": T, "x_ref[mm]": T})
     err = quarantine(raw, warehouse)
     assert "[sensors" in err and reason in err
+
+
+def test_zero_resolution_states_an_analog_sensor(raw, warehouse):
+    raw.write("c/rig.toml", '[sensors.x]\nresolution = 0\nnoise = "20 um"\n')
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[mm]": T, "x_ref[mm]": T})
+    res = ingest(raw, "c/a.csv", warehouse)
+    assert res.error is None
+    assert (res.run["params"]["sensor_x_resolution"], res.run["params"]["sensor_x_noise"]) == (0.0, 2e-05)
 
 
 def test_q_bad_sensor_metadata(raw, warehouse):
