@@ -46,9 +46,7 @@ remaining sources could silently give them wrong metadata).
 """
 from __future__ import annotations
 
-import csv
 import errno
-import io
 import os
 import re
 import stat
@@ -58,7 +56,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from pipeline.readers import READERS
-from pipeline.readers.base import decode_text
+from pipeline.readers.base import SideCsvError, decode_text, side_csv_rows
 
 NOT_RUNS = {"manifest.csv", "hoses.csv", "rig.toml"}
 SIDE_NAMES = ("manifest.csv", "hoses.csv", "rig.toml")
@@ -497,83 +495,61 @@ class RawTree:
             data = f.read_bytes()
         except OSError as exc:
             raise _BadManifest(f"cannot read: {_os_reason(exc)}", None) from None
-        if b"\x00" in data:
-            raise _BadManifest("NUL byte (a binary or UTF-16 file?); save it as UTF-8 CSV",
-                               data[: data.index(b"\x00")].count(b"\n") + 1)
-        text = decode_text(data)[0]
-        sample = text[:4096]
-        dialect = csv.excel
-        try:
-            dialect = csv.Sniffer().sniff(sample.splitlines()[0] if sample else ",", delimiters=",;\t")
-        except csv.Error:
-            pass
-        # strict: an unclosed quote is an error, not a field that swallows the rest of the file
-        reader = csv.DictReader(io.StringIO(text), dialect=dialect, strict=True)
         rows: dict[str, dict] = {}
-
-        def bad(exc: csv.Error, line: int):
-            msg = str(exc)
-            if "unexpected end of data" in msg:
-                msg = "unclosed quote (the quoted field runs to the end of the file)"
-            elif "field larger than field limit" in msg:
-                msg = f"a field is longer than {csv.field_size_limit()} characters (the csv module's limit)"
-            else:
-                msg = f"CSV syntax error: {msg}"
-            return _BadManifest(msg, line)
-
+        parsed = side_csv_rows(data)
         try:
-            header = reader.fieldnames
-        except csv.Error as exc:
-            raise bad(exc, 1) from None
-        fields = [h.strip() for h in (header or [])]
-        if "file" not in fields:
-            self.problems.append(Problem(rel_manifest, "no `file` column in the header"))
-            return rows
-        reader.fieldnames = fields
-        while True:
-            first_line = reader.line_num + 1
-            try:
-                row = next(reader)
-            except StopIteration:
-                break
-            except csv.Error as exc:
-                raise bad(exc, first_line) from None
-            line = reader.line_num
-            name = (row.get("file") or "").strip()
-            if not name:
-                if any((v or "").strip() for v in row.values() if isinstance(v, str)):
-                    self.problems.append(Problem(rel_manifest, "row has no `file`", line))
-                continue
-            try:
-                named = folder / name
-                target = (Path(os.path.realpath(named)) if named.name in ("", ".", "..")
-                          else self.real(named))
-            except (OSError, ValueError) as exc:
-                self.problems.append(Problem(rel_manifest, f"entry `{name}` cannot be a file name: {exc}", line))
-                continue
-            if target != self.root and self.root not in target.parents:
-                self.problems.append(Problem(rel_manifest, f"entry `{name}` points outside raw/", line))
-                continue
-            if folder not in target.parents:
-                self.problems.append(Problem(rel_manifest, f"entry `{name}` is not in the manifest's folder "
-                                             "or below (a manifest applies only there)", line))
-                continue
-            if not os.path.isfile(target):
-                self.problems.append(Problem(rel_manifest, f"entry `{name}`: no such file", line))
-                continue
-            if os.path.islink(target):
-                alias = [why for _rel, why in self._entry(target).skipped]
-                if alias:
-                    self.problems.append(Problem(rel_manifest, f"entry `{name}` is a {alias[0]}; "
-                                                 "name that file instead", line))
+            fields = None
+            for _first, line, cells in parsed:
+                if fields is None:
+                    if not any(c.strip() for c in cells):
+                        continue  # blank lines before the header
+                    fields = [h.strip() for h in cells]
+                    if "file" not in fields:
+                        self.problems.append(Problem(rel_manifest, "no `file` column in the header"))
+                        return rows
                     continue
-            key = target.as_posix()
-            if key in rows:
-                self.problems.append(Problem(rel_manifest, f"entry `{name}` is listed twice; the later row is used", line))
-            meta = {k: v.strip() for k, v in row.items()
-                    if k and k != "file" and isinstance(v, str) and v.strip() != ""}
-            rows[key] = meta
+                row = dict(zip(fields, cells))
+                self._manifest_row(folder, rel_manifest, rows, row, line)
+        except SideCsvError as exc:
+            raise _BadManifest(*exc.args) from None
         return rows
+
+    def _manifest_row(self, folder: Path, rel_manifest: str, rows: dict, row: dict, line: int) -> None:
+        """Record one manifest row (or the problem with it) in ``rows``."""
+        name = (row.get("file") or "").strip()
+        if not name:
+            if any((v or "").strip() for v in row.values() if isinstance(v, str)):
+                self.problems.append(Problem(rel_manifest, "row has no `file`", line))
+            return
+        try:
+            named = folder / name
+            target = (Path(os.path.realpath(named)) if named.name in ("", ".", "..")
+                      else self.real(named))
+        except (OSError, ValueError) as exc:
+            self.problems.append(Problem(rel_manifest, f"entry `{name}` cannot be a file name: {exc}", line))
+            return
+        if target != self.root and self.root not in target.parents:
+            self.problems.append(Problem(rel_manifest, f"entry `{name}` points outside raw/", line))
+            return
+        if folder not in target.parents:
+            self.problems.append(Problem(rel_manifest, f"entry `{name}` is not in the manifest's folder "
+                                         "or below (a manifest applies only there)", line))
+            return
+        if not os.path.isfile(target):
+            self.problems.append(Problem(rel_manifest, f"entry `{name}`: no such file", line))
+            return
+        if os.path.islink(target):
+            alias = [why for _rel, why in self._entry(target).skipped]
+            if alias:
+                self.problems.append(Problem(rel_manifest, f"entry `{name}` is a {alias[0]}; "
+                                             "name that file instead", line))
+                return
+        key = target.as_posix()
+        if key in rows:
+            self.problems.append(Problem(rel_manifest, f"entry `{name}` is listed twice; the later row is used", line))
+        meta = {k: v.strip() for k, v in row.items()
+                if k and k != "file" and isinstance(v, str) and v.strip() != ""}
+        rows[key] = meta
 
     def manifest_metadata(self, path: Path) -> dict:
         """Metadata the manifests give for a run (nearer manifests override farther ones).

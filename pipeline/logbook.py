@@ -50,8 +50,6 @@ Decisions where the spec is silent
 """
 from __future__ import annotations
 
-import csv
-import io
 import math
 import os
 import re
@@ -62,7 +60,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline.layout import Problem, display_name, walk_raw
-from pipeline.readers.base import decode_text
+from pipeline.readers.base import SideCsvError, side_csv_rows
 
 LOGBOOK_NAME = "hoses.csv"
 EVENTS = ("installed", "inspected", "failed", "removed")
@@ -136,29 +134,15 @@ def read_logbook(path: Path, rel: str | None = None) -> tuple[pd.DataFrame, list
     problems: list[Problem] = []
     data = Path(path).read_bytes()
     empty = pd.DataFrame(columns=EVENT_COLUMNS)
-    if b"\x00" in data:
-        problems.append(Problem(rel, "NUL byte (a binary or UTF-16 file?); save it as UTF-8 CSV; no row of it is read",
-                                data[: data.index(b"\x00")].count(b"\n") + 1, stage="logbook"))
-        return empty, problems
-    text = decode_text(data)[0]
-    first = next((ln for ln in text.splitlines() if ln.strip()), "")
-    delim = max((",", ";", "\t"), key=first.count) if first else ","
-    # strict: an unclosed quote is an error, not a field that swallows the rows after it
-    reader = csv.reader(io.StringIO(text), delimiter=delim, strict=True)
     header = None
     rows = []
-    while True:
-        start = reader.line_num + 1
-        try:
-            cells = next(reader)
-        except StopIteration:
-            break
-        except csv.Error as exc:
-            msg = ("unclosed quote (the quoted field runs to the end of the file)"
-                   if "unexpected end of data" in str(exc) else f"CSV syntax error: {exc}")
-            problems.append(Problem(rel, f"{msg}; no row of it is read", start, stage="logbook"))
-            return empty, problems
-        line = reader.line_num
+    try:
+        parsed = list(side_csv_rows(data))
+    except SideCsvError as exc:
+        msg, start = exc.args
+        problems.append(Problem(rel, f"{msg}; no row of it is read", start, stage="logbook"))
+        return empty, problems
+    for _start, line, cells in parsed:
         if not any(c.strip() for c in cells):
             continue
         if header is None:
@@ -224,7 +208,7 @@ def read_logbooks(raw: Path) -> tuple[pd.DataFrame, list[Problem]]:
         rel = display_name(os.path.relpath(p, os.path.realpath(raw)).replace(os.sep, "/"))
         try:
             df, probs = read_logbook(p, rel)
-        except (OSError, csv.Error) as exc:
+        except OSError as exc:
             problems.append(Problem(rel, f"cannot read logbook: {exc}", stage="logbook"))
             continue
         frames.append(df)

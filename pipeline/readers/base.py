@@ -135,6 +135,49 @@ def decode_text(data: bytes) -> tuple[str, str]:
         return data.decode("latin-1"), "latin-1"
 
 
+class SideCsvError(Exception):
+    """A side file (``manifest.csv``, ``hoses.csv``) that cannot be parsed as CSV text.
+
+    ``args``: (one-line message, 1-based line where the bad row starts, or None).
+    """
+
+
+def side_csv_rows(data: bytes) -> Iterator[tuple[int, int, list[str]]]:
+    """Rows of an untrusted CSV side file as ``(first line, last line, cells)`` (1-based).
+
+    The delimiter is the one of ``,`` ``;`` tab that the first non-blank line uses most. Parsing
+    is strict, so an unclosed quote is an error rather than a field that swallows the rest of
+    the file. Raises :class:`SideCsvError` for a NUL byte (a binary or UTF-16 file), an unclosed
+    quote, a field over the csv module's limit, or any other CSV syntax error.
+    """
+    import csv
+    import io
+
+    if b"\x00" in data:
+        raise SideCsvError("NUL byte (a binary or UTF-16 file?); save it as UTF-8 CSV",
+                           data[: data.index(b"\x00")].count(b"\n") + 1)
+    text = decode_text(data)[0]
+    first = next((ln for ln in text.splitlines() if ln.strip()), "")
+    delim = max((",", ";", "\t"), key=first.count) if first else ","
+    reader = csv.reader(io.StringIO(text), delimiter=delim, strict=True)
+    while True:
+        start = reader.line_num + 1
+        try:
+            cells = next(reader)
+        except StopIteration:
+            return
+        except csv.Error as exc:
+            msg = str(exc)
+            if "unexpected end of data" in msg:
+                msg = "unclosed quote (the quoted field runs to the end of the file)"
+            elif "field larger than field limit" in msg:
+                msg = f"a field is longer than {csv.field_size_limit()} characters (the csv module's limit)"
+            else:
+                msg = f"CSV syntax error: {msg}"
+            raise SideCsvError(msg, start) from None
+        yield start, reader.line_num, cells
+
+
 def parse_key_value(line: str, seps: str = ":=") -> tuple[str, str] | None:
     """``"key: value"`` or ``"key=value"`` -> ``(key, value)``; None when it is not one."""
     positions = [line.find(s) for s in seps if line.find(s) > 0]

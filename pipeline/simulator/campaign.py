@@ -225,8 +225,10 @@ RIG_TOMLS = {
     "pla-2016/spring/bench-pc/rig.toml": (
         '# The bench PC names channels in words\n[channels.Displacement]\nchannel = "d"\n\n'
         '[channels.Force]\nchannel = "f"\n\n[channels.Pressure]\nchannel = "p"\n'),
-    "durability-2025/rig.toml": '[metadata]\nrig = "plpa-2"\nhose_area_m2 = 4.9e-4\n',
-    "durability-2026/rig.toml": '[metadata]\nrig = "plpa-2"\nhose_area_m2 = 4.9e-4\n',
+    # the endurance rig's encoder is stated (docs/inputs.md): at 5 Hz logging, 1 m strokes move
+    # 200 mm between samples, too coarse for the record to show its 5 um quantisation
+    "durability-2025/rig.toml": '[metadata]\nrig = "plpa-2"\nhose_area_m2 = 4.9e-4\n\n[sensors.x]\nresolution = "5 um"\n',
+    "durability-2026/rig.toml": '[metadata]\nrig = "plpa-2"\nhose_area_m2 = 4.9e-4\n\n[sensors.x]\nresolution = "5 um"\n',
 }
 
 CAMPAIGN_START = {"plpa-2025": datetime(2025, 3, 3, 8, 0), "pla-2016": datetime(2016, 5, 9, 9, 0),
