@@ -8,7 +8,7 @@ import pytest
 openpyxl = pytest.importorskip("openpyxl")
 
 from pipeline.readers import ReaderError, read_export  # noqa: E402
-from pipeline.readers.excel import read_excel  # noqa: E402
+from pipeline.readers.excel import list_parts, read_excel  # noqa: E402
 
 
 def _values(exp):
@@ -120,3 +120,23 @@ def test_formula_read_as_its_cached_value(tmp_path):
                 data = data.replace(b"<f>A2*2</f><v></v>", b"<f>A2*2</f><v>4</v>")
             zout.writestr(item, data)
     assert _values(read_excel(out)) == {"a": [2.0], "b": [4.0]}
+
+
+def test_list_parts_is_every_worksheet_but_meta_and_charts(tmp_path):
+    def more(wb):
+        wb.create_sheet("second").append(["t[s]"])
+        wb.create_chartsheet("chart")
+
+    p = _book(tmp_path / "b.xlsx", [["t[s]"], [0.0]], title="first", meta={"kind": "step"}, extra=more)
+    assert list_parts(p) == ["first", "second"]
+    only_meta = _book(tmp_path / "m.xlsx", [["kind", "step"]], title="META")
+    with pytest.raises(ReaderError, match="no data worksheet"):
+        list_parts(only_meta)
+
+
+def test_own_cells_win_over_meta_sheet_only_in_sheets_all_mode(tmp_path):
+    p = _book(tmp_path / "r.xlsx", [["# chamber: B"], ["t[s]", "x[mm]"], [0.0, 1.0]],
+              meta={"chamber": "A", "kind": "step"})
+    assert read_excel(p).metadata["chamber"] == "A"            # one run per file: as before
+    exp = read_excel(p, {"sheets": "all"})                    # one run per sheet: the sheet is more specific
+    assert exp.metadata["chamber"] == "B" and exp.metadata["kind"] == "step"
