@@ -13,7 +13,8 @@ computed (cached values); a formula the spreadsheet never computed is an empty c
 * **Metadata.** A sheet named ``meta`` (case-insensitive) with two columns key / value, and
   ``# key: value`` cells in the first column above the header (as in CSV exports). The
   ``meta`` sheet wins over a sheet's own cells, except with ``[read] sheets = "all"`` (the
-  one-run-per-sheet mode), where a sheet's own cells are more specific and win.
+  one-run-per-sheet mode), where a sheet's own cells are more specific and win, and a
+  ``run_id`` of the ``meta`` sheet becomes ``<run_id>/<sheet>``.
 * **Header.** The header row is the first row after the metadata cells (``[read] skip_rows``
   skips more), or ``[read] header_row`` (the sheet's own 1-based row number). Headers
   ``name[unit]`` and ``name (unit)`` carry a unit; ``[read] units_row`` (1-based) names a row of
@@ -258,7 +259,11 @@ def read_excel(path: str | Path, read: dict | None = None, hints: dict | None = 
             elif kv:
                 metadata.setdefault(kv[0], kv[1])
         i += 1
-    if own:
+    if own is not None:
+        # the `meta` sheet's run_id is the workbook's: each sheet's run is `<run_id>/<sheet>`
+        shared = [k for k in metadata if str(k).strip().casefold() == "run_id"]
+        if shared and not any(str(k).strip().casefold() == "run_id" for k in own):
+            metadata[shared[-1]] = f"{metadata[shared[-1]]}/{name}"
         metadata.update(own)
     header_row = _row_number(read, "header_row")
     units_row = _row_number(read, "units_row")

@@ -198,6 +198,10 @@ def read_mdf(path: str | Path, read: dict | None = None, hints: dict | None = No
         start = getattr(mdf.header, "start_time", None)
         if "started_at" not in metadata and start is not None:
             metadata["started_at"] = start.isoformat()
+        if str(read.get(PARTS_KEY, "")).strip().casefold() == "all":
+            # one run per group: the header's run_id is the file's, each group's is `<run_id>/<group>`
+            for k in [k for k in metadata if k.strip().casefold() == "run_id"]:
+                metadata[k] = f"{metadata[k]}/{hints.get(PART_KEY, acq_name or index)}"
         metadata.setdefault("group", acq_name or str(index))
 
         warnings: list[str] = []

@@ -140,3 +140,15 @@ def test_own_cells_win_over_meta_sheet_only_in_sheets_all_mode(tmp_path):
     assert read_excel(p).metadata["chamber"] == "A"            # one run per file: as before
     exp = read_excel(p, {"sheets": "all"})                    # one run per sheet: the sheet is more specific
     assert exp.metadata["chamber"] == "B" and exp.metadata["kind"] == "step"
+
+
+def test_meta_sheet_run_id_is_the_prefix_of_each_sheet_in_sheets_all_mode(tmp_path):
+    def more(wb):
+        ws = wb.create_sheet("own")
+        for r in [["# run_id: special"], ["t[s]"], [0.0]]:
+            ws.append(r)
+
+    p = _book(tmp_path / "r.xlsx", [["t[s]"], [0.0]], title="S1", meta={"run_id": "bench7/day3"}, extra=more)
+    assert read_excel(p).metadata["run_id"] == "bench7/day3"                                  # one run per file
+    assert read_excel(p, {"sheets": "all"}, {"sheet": "S1"}).metadata["run_id"] == "bench7/day3/S1"
+    assert read_excel(p, {"sheets": "all"}, {"sheet": "own"}).metadata["run_id"] == "special"  # its own cell

@@ -152,3 +152,12 @@ def test_list_parts_of_a_damaged_file_is_one_reader_error(tmp_path):
     p.write_bytes(b"MDF     4.10    " + bytes(100))
     with pytest.raises(ReaderError, match="MDF"):
         list_parts(p)
+
+
+def test_header_run_id_is_the_prefix_of_each_group_in_groups_all_mode(tmp_path):
+    _, fast = _run(10, 100.0)
+    t2 = np.arange(4) / 2.0
+    p = _write(tmp_path / "g.mf4", [("fast", fast), ("slow", [Signal(t2, t2, name="temp", unit="degC")])],
+               comment="run_id=bench7/day3;kind=step")
+    assert read_mdf(p, {"group": "slow"}).metadata["run_id"] == "bench7/day3"          # one group: as written
+    assert read_mdf(p, {"groups": "all"}, {"group": "slow"}).metadata["run_id"] == "bench7/day3/slow"
