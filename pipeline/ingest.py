@@ -811,6 +811,8 @@ def _ingest_hashed(tree, path, warehouse, rel, campaign, reuse, sha, hashing, co
     export = _open_export(path, rig, manifest)
     meta = resolve_metadata(rig["metadata"], export.metadata, manifest, campaign, path,
                             part=None if part is None else part[2])
+    if part is not None:  # a sheet / group name is the file's text: one line, valid UTF-8
+        meta["run_id"] = display_name(meta["run_id"])
     kind = meta["kind"]
     raw_columns, lookalikes = set_aside_lookalikes(export.columns, rig["channels"])
     maps = map_columns(raw_columns, rig["channels"])

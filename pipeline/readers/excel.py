@@ -40,7 +40,8 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from pipeline.readers.base import RawColumn, RawExport, ReaderError, parse_key_value, split_name_unit
+from pipeline.readers.base import (RawColumn, RawExport, ReaderError, check_part_count, parse_key_value,
+                                   split_name_unit)
 
 FORMAT = "excel"
 EXTENSIONS = (".xlsx", ".xlsm", ".xls", ".ods")
@@ -87,6 +88,7 @@ def list_parts(path: str | Path) -> list[str]:
     """
     path = Path(path)
     wb = _open_workbook(path)
+    check_part_count(len(wb.sheet_names), "sheets")
     names = [n for n in wb.sheet_names
              if n.strip().casefold() != "meta" and _sheet_kind(wb, n) == "WorkSheet"]
     if not names:

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from pipeline.readers.base import RawColumn, RawExport, ReaderError
+from pipeline.readers.base import RawColumn, RawExport, ReaderError, check_part_count
 
 FORMAT = "mdf"
 EXTENSIONS = (".mf4", ".mdf")
@@ -132,6 +132,7 @@ def list_parts(path: str | Path) -> list[str]:
         mdf.close()
     if not groups:
         raise ReaderError("MDF file holds no channel group with samples")
+    check_part_count(len(groups), "channel groups with data")
     names = [name for _, name, _ in groups]
     return [name if name and name == name.strip() and names.count(name) == 1 and not name.isdigit() else str(i)
             for i, name, _ in groups]

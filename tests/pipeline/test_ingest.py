@@ -606,3 +606,11 @@ def test_a_file_whose_sheets_cannot_be_listed_is_one_file_error(raw, warehouse):
     raw.write("c/rig.toml", '[read]\nsheets = "all"\n')
     res = ingest(raw, "c/b.xlsx", warehouse)
     assert res.parts is None and res.run is None and "not a readable .xlsx workbook" in res.error
+
+
+def test_sheet_names_with_control_characters_give_one_line_run_ids(raw, warehouse):
+    rows = [["t[s]", "x[mm]", "x_ref[mm]"], [0.0, 1.0, 0.0], [0.1, 2.0, 0.0]]
+    _workbook(raw.root / "c" / "b.xlsx", {"a\tb": rows}, STEP_META)
+    raw.write("c/manifest.csv", "file,sheets,run_id\nb.xlsx,all,day3\n")
+    (part,) = ingest(raw, "c/b.xlsx", warehouse).parts
+    assert part.run["run_id"] == "day3/a\\x09b" and part.run["params"]["sheet"] == "a\tb"

@@ -152,3 +152,12 @@ def test_meta_sheet_run_id_is_the_prefix_of_each_sheet_in_sheets_all_mode(tmp_pa
     assert read_excel(p).metadata["run_id"] == "bench7/day3"                                  # one run per file
     assert read_excel(p, {"sheets": "all"}, {"sheet": "S1"}).metadata["run_id"] == "bench7/day3/S1"
     assert read_excel(p, {"sheets": "all"}, {"sheet": "own"}).metadata["run_id"] == "special"  # its own cell
+
+
+def test_list_parts_refuses_more_sheets_than_the_limit(tmp_path, monkeypatch):
+    import pipeline.readers.base as base
+
+    p = _book(tmp_path / "b.xlsx", [["t[s]"], [0.0]], extra=lambda wb: [wb.create_sheet(f"s{i}") for i in range(3)])
+    monkeypatch.setattr(base, "MAX_PARTS", 3)
+    with pytest.raises(ReaderError, match="4 sheets: more than the limit of 3 runs per file"):
+        list_parts(p)
