@@ -769,10 +769,11 @@ def _ingest_parts(tree: RawTree, path: Path, warehouse: Path, result: IngestResu
     return result
 
 
-def _part_context(rig: dict, manifest: dict, part: tuple[str, str, str]) -> tuple[dict, dict]:
+def _part_context(rig: dict, manifest: dict, part: tuple[str, str, str], own: dict) -> tuple[dict, dict]:
     """rig.toml config and manifest metadata of one sheet / group of a file of several runs:
-    the part key names it, the parts key is dropped (it is not run metadata), and a run_id the
-    manifest gives the file becomes ``<run_id>/<part>``."""
+    the part key names it, the parts key is dropped (it is not run metadata), a run_id the
+    manifest gives the file becomes ``<run_id>/<part>``, and the manifest row of the part
+    itself (``own``, ``file = book.xlsx#Sheet2``) overrides the file's row."""
     plural, singular, name = part
     drop = {plural, singular}
     rig = {**rig, "read": {**rig["read"], plural: "all"},
@@ -783,6 +784,13 @@ def _part_context(rig: dict, manifest: dict, part: tuple[str, str, str]) -> tupl
         if key in drop:
             continue
         out[k] = f"{v}/{name}" if key == "run_id" and not (isinstance(v, str) and v.strip() == "") else v
+    for k, v in own.items():
+        key = str(k).strip().casefold()
+        if key in drop:
+            continue
+        for old in [o for o in out if str(o).strip().casefold() == key]:
+            del out[old]
+        out[k] = v
     out[singular] = name
     return rig, out
 
@@ -807,7 +815,7 @@ def _ingest_hashed(tree, path, warehouse, rel, campaign, reuse, sha, hashing, co
     rig = tree.rig_config(path)
     manifest = tree.manifest_metadata(path)
     if part is not None:
-        rig, manifest = _part_context(rig, manifest, part)
+        rig, manifest = _part_context(rig, manifest, part, tree.manifest_parts(path).get(part[2], {}))
     export = _open_export(path, rig, manifest)
     meta = resolve_metadata(rig["metadata"], export.metadata, manifest, campaign, path,
                             part=None if part is None else part[2])

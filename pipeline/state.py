@@ -109,6 +109,9 @@ def metadata_hash(tree: RawTree, path: Path) -> str:
     """Hash of the metadata that applies to a run from outside the file (rig.toml, manifests)."""
     try:
         blob = {"rig": tree.rig_config(path), "manifest": tree.manifest_metadata(path)}
+        parts = tree.manifest_parts(path)  # rows for one sheet / group (`book.xlsx#Sheet2`)
+        if parts:
+            blob["parts"] = parts
     except ConfigError as exc:
         blob = {"error": str(exc)}
     return hashlib.sha256(json.dumps(blob, sort_keys=True, default=str).encode()).hexdigest()[:32]

@@ -210,3 +210,24 @@ def test_mdf_groups_all_makes_one_run_per_channel_group_at_its_own_rate(raw, war
     x = _x_by_run(warehouse)
     assert x["lab/log/fast"] == pytest.approx(fast * 10e-3, rel=1e-15)
     assert x["lab/log/slow"] == pytest.approx(slow * 2e-3, rel=1e-15)
+
+
+def test_a_manifest_row_file_hash_sheet_gives_that_sheet_its_own_metadata(raw, warehouse):
+    _book(raw.root / "lab" / "book.xlsx", {"A": _step_rows(1.0), "B": _step_rows(2.0)}, meta=_STEP_META)
+    raw.write("lab/manifest.csv", "file,sheets,started_at,run_id\nbook.xlsx,all,,day3\n"
+                                  "book.xlsx#B,,2026-06-01T09:00:00,special\n")
+    assert rebuild(raw.root, warehouse, jobs=1).exit_code == 0
+    runs = query(warehouse, "SELECT run_id, started_at, params FROM runs ORDER BY run_id")
+    assert [r[0] for r in runs] == ["day3/A", "special"]
+    assert str(runs[0][1]).startswith("2026-05-01 10:00:00") and str(runs[1][1]).startswith("2026-06-01 09:00:00")
+    # a change to the sheet's row alone re-ingests the workbook
+    raw.write("lab/manifest.csv", "file,sheets,started_at,run_id\nbook.xlsx,all,,day3\n"
+                                  "book.xlsx#B,,2026-06-02T09:00:00,special\n")
+    s = rebuild(raw.root, warehouse, jobs=1)
+    assert s.n_changed == 1
+    assert str(query(warehouse, "SELECT started_at FROM runs WHERE run_id = 'special'")[0][0]).startswith("2026-06-02")
+    # a row naming no sheet after `#` is one manifest problem; the runs are unaffected
+    raw.write("lab/manifest.csv", "file,sheets\nbook.xlsx,all\nbook.xlsx#,\n")
+    assert rebuild(raw.root, warehouse, jobs=1).n_runs == 2
+    assert query(warehouse, "SELECT source_path, error FROM quarantine") == [
+        ("lab/manifest.csv", "entry `book.xlsx#` names no sheet or group after `#`")]
