@@ -57,4 +57,5 @@ def list_parts(path: str | Path) -> list[str]:
     return importlib.import_module(target.split(":")[0]).list_parts(Path(path))
 
 
-__all__ = ["READERS", "RawColumn", "RawExport", "ReaderError", "list_parts", "parts_keys", "read_export", "reader_for", "split_name_unit"]
+__all__ = ["READERS", "RawColumn", "RawExport", "ReaderError", "list_parts", "parts_keys", "read_export", "reader_for",
+           "split_name_unit"]
