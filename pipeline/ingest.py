@@ -26,7 +26,7 @@ from pipeline import code_version as code_version_mod
 from pipeline.code_version import INGEST_VERSION  # noqa: F401 (re-exported)
 from pipeline.derived import DerivedError, Expression, parse_expression
 from pipeline.layout import ConfigError, RawTree, display_name
-from pipeline.readers import RawColumn, ReaderError, read_export
+from pipeline.readers import RawColumn, ReaderError, list_parts, parts_keys, read_export
 from pipeline.readers.base import MAX_CHANNELS
 from schemas.channels import (CHANNELS, canonical_name, noncanonical_column, other_dimension,
                               sanitise_name)
@@ -74,6 +74,11 @@ class IngestResult:
     transient: bool = False
     #: how many bytes ``source_sha256`` was computed over when ingest hashed the file itself [B]
     bytes_hashed: int | None = None
+    #: a file of several runs (``sheets = "all"``, ``groups = "all"``): one result per run, each
+    #: with ``run`` or ``error`` (then ``run`` and ``error`` of the file's own result are None)
+    parts: list["IngestResult"] | None = None
+    #: SHA-256 of a file of several runs (the single-run result has it in ``run``) [hex]
+    sha256: str | None = None
 
 
 def sha256_file(path: Path, chunk: int = 1 << 22, stop=None, counted: list | None = None) -> str | None:
@@ -149,11 +154,15 @@ def normalise_keys(meta: dict) -> dict:
     return out
 
 
-def resolve_metadata(rig: dict, embedded: dict, manifest: dict, campaign: str, path: Path) -> dict:
-    """Merge the three metadata sources (manifest > embedded > rig.toml), type and check them."""
+def resolve_metadata(rig: dict, embedded: dict, manifest: dict, campaign: str, path: Path,
+                     part: str | None = None) -> dict:
+    """Merge the three metadata sources (manifest > embedded > rig.toml), type and check them.
+    ``part``: the sheet or channel group of a file of several runs (default run_id
+    ``<campaign>/<file stem>/<part>``)."""
     meta = {**normalise_keys(rig), **normalise_keys(embedded), **normalise_keys(manifest)}
     meta = {k: v for k, v in meta.items() if not (isinstance(v, str) and v.strip() == "")}
-    meta.setdefault("run_id", display_name(f"{campaign}/{path.stem}"))  # a non-UTF-8 name: \xNN
+    default_id = f"{campaign}/{path.stem}" if part is None else f"{campaign}/{path.stem}/{part}"
+    meta.setdefault("run_id", display_name(default_id))  # a non-UTF-8 name: \xNN
     for k, spec in META_KEYS.items():
         if spec.default is not None and k not in meta and (k == "p_atm_pa" or _kind_uses(meta.get("kind"), k)):
             meta[k] = spec.default
@@ -665,6 +674,13 @@ def ingest_file(tree: RawTree, path: Path, warehouse: Path, reuse: bool = True,
     """
     rel = tree.rel(path)
     result = IngestResult(source_path=rel, campaign=tree.campaign(path))
+    try:
+        keys = parts_mode(tree, Path(path))
+    except IngestError as exc:
+        result.error = _one_line(str(exc))
+        return result
+    if keys is not None:
+        return _ingest_parts(tree, Path(path), Path(warehouse), result, keys, reuse, sha256, code_version)
     hashed: list = []
     try:
         run, channels = _ingest(tree, Path(path), Path(warehouse), rel, result.campaign, reuse, sha256, code_version,
@@ -685,6 +701,102 @@ def _one_line(text: str) -> str:
     return " ".join(str(text).split())[:500]
 
 
+# -- files of several runs ---------------------------------------------------------------------
+def parts_mode(tree: RawTree, path: Path) -> tuple[str, str] | None:
+    """``(parts key, part key)`` when a file is several runs, else None (one file, one run).
+
+    A workbook is one run per sheet, and an MDF file one run per channel group, when its
+    manifest row, ``rig.toml`` ``[metadata]`` or ``rig.toml`` ``[read]`` (in that precedence)
+    set ``sheets = "all"`` / ``groups = "all"``. Formats with one run per file ignore the keys.
+
+    Raises
+    ------
+    IngestError
+        The key has another value than ``"all"``.
+    """
+    keys = parts_keys(path)
+    if keys is None:
+        return None
+    try:
+        rig = tree.rig_config(path)
+        manifest = normalise_keys(tree.manifest_metadata(path))
+    except ConfigError:
+        return None  # the one-run ingest reports it, as for any file
+    plural, singular = keys
+    value = manifest.get(plural, normalise_keys(rig["metadata"]).get(plural, rig["read"].get(plural)))
+    if value is None or (isinstance(value, str) and value.strip() == ""):
+        return None
+    if str(value).strip().casefold() != "all":
+        raise IngestError(f"`{plural} = {value!r}`: the only value is \"all\" (one run per {singular}); "
+                          f"to read one {singular}, name it with the `{singular}` key")
+    return keys
+
+
+def _ingest_parts(tree: RawTree, path: Path, warehouse: Path, result: IngestResult, keys: tuple[str, str],
+                  reuse: bool, sha: str | None, code_version: str | None) -> IngestResult:
+    """Ingest every sheet / channel group of a file of several runs: one part result each, a
+    bad part is that part's one-line error (naming the file's sheet or group), the others go on."""
+    plural, singular = keys
+    try:
+        if result.campaign is None:
+            raise IngestError("file is not in a campaign folder (raw/<campaign>/...)")
+        if os.stat(path).st_size == 0:
+            raise IngestError("empty file (0 bytes)")
+        if sha is None:  # hashed once for all its runs, before they are read
+            counted: list[int] = []
+            sha = sha256_file(path, counted=counted)
+            result.bytes_hashed = counted[0] if counted else None
+        names = list_parts(path)
+    except (IngestError, ReaderError, ConfigError) as exc:
+        result.error = _one_line(str(exc))
+        return result
+    except Exception as exc:  # noqa: BLE001 - as ingest_file: one line, never a crash
+        result.error = _one_line(f"cannot read file: {type(exc).__name__}: {exc}")
+        result.transient = isinstance(exc, OSError) and not isinstance(exc, pa.ArrowException)
+        return result
+    result.sha256 = sha
+    result.parts = []
+    for name in names:
+        part = IngestResult(source_path=result.source_path, campaign=result.campaign)
+        try:
+            part.run, part.channels = _ingest_hashed(tree, path, warehouse, result.source_path, result.campaign,
+                                                     reuse, sha, None, code_version, part=(plural, singular, name))
+        except (IngestError, ReaderError, ConfigError) as exc:
+            part.error = _one_line(f"{singular} {name!r}: {exc}")
+        except Exception as exc:  # noqa: BLE001
+            part.error = _one_line(f"{singular} {name!r}: cannot read: {type(exc).__name__}: {exc}")
+            part.transient = isinstance(exc, OSError) and not isinstance(exc, pa.ArrowException)
+        result.parts.append(part)
+    result.transient = any(p.transient for p in result.parts)
+    return result
+
+
+def _part_context(rig: dict, manifest: dict, part: tuple[str, str, str], own: dict) -> tuple[dict, dict]:
+    """rig.toml config and manifest metadata of one sheet / group of a file of several runs:
+    the part key names it, the parts key is dropped (it is not run metadata), a run_id the
+    manifest gives the file becomes ``<run_id>/<part>``, and the manifest row of the part
+    itself (``own``, ``file = book.xlsx#Sheet2``) overrides the file's row."""
+    plural, singular, name = part
+    drop = {plural, singular}
+    rig = {**rig, "read": {**rig["read"], plural: "all"},
+           "metadata": {k: v for k, v in rig["metadata"].items() if str(k).strip().casefold() not in drop}}
+    out = {}
+    for k, v in manifest.items():
+        key = str(k).strip().casefold()
+        if key in drop:
+            continue
+        out[k] = f"{v}/{name}" if key == "run_id" and not (isinstance(v, str) and v.strip() == "") else v
+    for k, v in own.items():
+        key = str(k).strip().casefold()
+        if key in drop:
+            continue
+        for old in [o for o in out if str(o).strip().casefold() == key]:
+            del out[old]
+        out[k] = v
+    out[singular] = name
+    return rig, out
+
+
 def _ingest(tree: RawTree, path: Path, warehouse: Path, rel: str, campaign: str | None, reuse: bool,
             sha: str | None = None, code_version: str | None = None, bytes_hashed: list | None = None):
     if campaign is None:
@@ -701,11 +813,16 @@ def _ingest(tree: RawTree, path: Path, warehouse: Path, rel: str, campaign: str 
                 bytes_hashed.append(hashing.n_bytes)
 
 
-def _ingest_hashed(tree, path, warehouse, rel, campaign, reuse, sha, hashing, code_version):
+def _ingest_hashed(tree, path, warehouse, rel, campaign, reuse, sha, hashing, code_version, part=None):
     rig = tree.rig_config(path)
     manifest = tree.manifest_metadata(path)
+    if part is not None:
+        rig, manifest = _part_context(rig, manifest, part, tree.manifest_parts(path).get(part[2], {}))
     export = _open_export(path, rig, manifest)
-    meta = resolve_metadata(rig["metadata"], export.metadata, manifest, campaign, path)
+    meta = resolve_metadata(rig["metadata"], export.metadata, manifest, campaign, path,
+                            part=None if part is None else part[2])
+    if part is not None:  # a sheet / group name is the file's text: one line, valid UTF-8
+        meta["run_id"] = display_name(meta["run_id"])
     kind = meta["kind"]
     raw_columns, lookalikes = set_aside_lookalikes(export.columns, rig["channels"])
     maps = map_columns(raw_columns, rig["channels"])

@@ -521,6 +521,12 @@ class RawTree:
             if any((v or "").strip() for v in row.values() if isinstance(v, str)):
                 self.problems.append(Problem(rel_manifest, "row has no `file`", line))
             return
+        part = None  # `book.xlsx#Sheet2`: one sheet / MDF group of a file of several runs
+        if "#" in name and not os.path.isfile(folder / name):
+            name, part = name.rsplit("#", 1)
+            if not part.strip():
+                self.problems.append(Problem(rel_manifest, f"entry `{name}#` names no sheet or group after `#`", line))
+                return
         try:
             named = folder / name
             target = (Path(os.path.realpath(named)) if named.name in ("", ".", "..")
@@ -544,7 +550,7 @@ class RawTree:
                 self.problems.append(Problem(rel_manifest, f"entry `{name}` is a {alias[0]}; "
                                              "name that file instead", line))
                 return
-        key = target.as_posix()
+        key = target.as_posix() if part is None else f"{target.as_posix()}\x00{part}"  # NUL: in no path
         if key in rows:
             self.problems.append(Problem(rel_manifest, f"entry `{name}` is listed twice; the later row is used", line))
         meta = {k: v.strip() for k, v in row.items()
@@ -563,6 +569,28 @@ class RawTree:
                 raise part
             meta.update(part.get(key, {}))
         return meta
+
+    def manifest_parts(self, path: Path) -> dict[str, dict]:
+        """Metadata the manifests give for single sheets / MDF groups of a file of several runs
+        (rows ``file = book.xlsx#Sheet2``): part name -> metadata (nearer manifests override).
+
+        Raises ConfigError when a manifest of its folder or above cannot be read."""
+        key = self.real(path).as_posix()
+        index = self.__dict__.setdefault("_part_rows", {})  # folder -> file -> part -> metadata
+        out: dict[str, dict] = {}
+        for folder in self._folders(path):
+            rows = self._manifest(folder)
+            if isinstance(rows, ConfigError):
+                raise rows
+            if folder not in index:
+                index[folder] = {}
+                for k, meta in rows.items():
+                    if "\x00" in k:
+                        file, part = k.split("\x00", 1)
+                        index[folder].setdefault(file, {})[part] = meta
+            for part, meta in index[folder].get(key, {}).items():
+                out.setdefault(part, {}).update(meta)
+        return out
 
     def _side(self, name: str) -> list[Path]:
         return [p for p in self.listing().side if p.name == name]

@@ -46,6 +46,7 @@ from pipeline.state import (KEEP_SUPERSEDED_H, FilePlan, FileRecord, PreviousSta
                             ingest_code_version, load_previous, logbook_hash, plan_runs, record_for, side_records,
                             stage_code_version, stage_input_key, superseded_files)
 from pipeline.warehouse import DB_NAME, build_database, runs_frame, swap_in
+from pipeline.state import record_result  # files of several runs (kept apart for the merge)
 
 log = logging.getLogger("pneubench")
 
@@ -229,6 +230,8 @@ def _ingest_task(args) -> dict:
         return {"sha": None, "reused": False, "result": res, "retry": True}
     if res.run is not None:
         sha = res.run["source_sha256"]
+    elif res.parts is not None:  # a file of several runs (sheets, MDF groups)
+        sha = res.sha256
     elif sha is None:  # quarantined before its hash was done: record it, or the next rebuild re-reads it
         try:
             sha = sha256_file(path)
@@ -256,7 +259,12 @@ def _ingest_crashed(args, reason: str) -> dict:
 
 def _result_from_record(rec: FileRecord, tree: RawTree, path: Path) -> IngestResult:
     res = IngestResult(source_path=rec.source_path, campaign=tree.campaign(path))
-    if rec.result is not None:
+    if rec.result is not None and "parts" in rec.result:  # a file of several runs
+        res.sha256 = rec.source_sha256
+        res.parts = [IngestResult(source_path=rec.source_path, campaign=res.campaign, run=p.get("run"),
+                                  channels=p.get("channels") or [], error=p.get("error"))
+                     for p in rec.result["parts"]]
+    elif rec.result is not None:
         res.run, res.channels = rec.result["run"], rec.result["channels"]
     else:
         res.error = rec.error
@@ -303,7 +311,7 @@ def ingest_incremental(tree: RawTree, plans: list[FilePlan], warehouse: Path, ex
         if p.status == "check":
             p.status = "changed"
         results[p.rel] = res
-        result = {"run": res.run, "channels": res.channels} if res.run is not None else None
+        result = record_result(res)
         records[p.rel] = record_for(p, out["sha"], code_version, result, res.error, now, retry=out.get("retry", False))
     order = [p.rel for p in plans]
     return [results[r] for r in order], [records[r] for r in order]
@@ -313,7 +321,8 @@ def deduplicate(results: list[IngestResult]) -> tuple[list[dict], list[dict], li
     """Runs, channel rows and quarantine rows; a repeated run_id is quarantined (first path wins)."""
     runs, channels, problems = [], [], []
     owner: dict[str, str] = {}
-    for r in sorted(results, key=lambda r: r.source_path):
+    flat = [p for r in results for p in (r.parts if r.parts is not None else [r])]  # a file of several runs
+    for r in sorted(flat, key=lambda r: r.source_path):
         if r.error is not None:
             problems.append(Problem(r.source_path, r.error))
             continue

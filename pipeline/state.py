@@ -109,6 +109,9 @@ def metadata_hash(tree: RawTree, path: Path) -> str:
     """Hash of the metadata that applies to a run from outside the file (rig.toml, manifests)."""
     try:
         blob = {"rig": tree.rig_config(path), "manifest": tree.manifest_metadata(path)}
+        parts = tree.manifest_parts(path)  # rows for one sheet / group (`book.xlsx#Sheet2`)
+        if parts:
+            blob["parts"] = parts
     except ConfigError as exc:
         blob = {"error": str(exc)}
     return hashlib.sha256(json.dumps(blob, sort_keys=True, default=str).encode()).hexdigest()[:32]
@@ -126,7 +129,9 @@ class FileRecord:
     source_sha256: str | None
     meta_hash: str | None = None
     code_version: str | None = None
-    result: dict | None = None     # {"run": runs row, "channels": [...]} for an ingested run
+    result: dict | None = None     # {"run": runs row, "channels": [...]} for an ingested run, or
+    #                                {"parts": [{"run", "channels"} or {"error"}, ...]} for a file of
+    #                                several runs (sheets / MDF groups, see pipeline.ingest.parts_mode)
     error: str | None = None       # quarantine reason for a run file that could not be used
 
     def as_row(self) -> dict:
@@ -251,7 +256,7 @@ def plan_runs(tree: RawTree, files: list[Path], prev: PreviousState, code_versio
             continue
         same_stat = (old.size_bytes, old.mtime_ns, old.inode) == st
         same_ctx = old.meta_hash == mh and old.code_version == code_version
-        samples_ok = old.result is None or (warehouse / old.result["run"]["samples_path"]).is_file()
+        samples_ok = all((warehouse / r["samples_path"]).is_file() for r in result_runs(old.result))
         if same_stat and same_ctx and samples_ok:
             plans.append(FilePlan(path, rel, st, mh, "unchanged", "", old))
         else:
@@ -259,6 +264,23 @@ def plan_runs(tree: RawTree, files: list[Path], prev: PreviousState, code_versio
                       else "samples" if not samples_ok else "content")
             plans.append(FilePlan(path, rel, st, mh, "check", reason, old))
     return plans
+
+
+def result_runs(result: dict | None) -> list[dict]:
+    """The runs rows of a file's state record ``result`` (none, one, or one per part)."""
+    if result is None:
+        return []
+    if "parts" in result:
+        return [p["run"] for p in result["parts"] if p.get("run") is not None]
+    return [result["run"]]
+
+
+def record_result(res) -> dict | None:
+    """A file's :class:`pipeline.ingest.IngestResult` as its state record's ``result``."""
+    if res.parts is not None:
+        return {"parts": [{"run": p.run, "channels": p.channels} if p.run is not None else {"error": p.error}
+                          for p in res.parts]}
+    return {"run": res.run, "channels": res.channels} if res.run is not None else None
 
 
 def record_for(plan: FilePlan, sha: str | None, code_version: str, result: dict | None, error: str | None,

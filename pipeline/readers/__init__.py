@@ -40,4 +40,22 @@ def read_export(path: str | Path, read: dict | None = None, hints: dict | None =
     return reader_for(path)(Path(path), read or {}, hints or {})
 
 
-__all__ = ["READERS", "RawColumn", "RawExport", "ReaderError", "read_export", "reader_for", "split_name_unit"]
+def parts_keys(path: str | Path) -> tuple[str, str] | None:
+    """``(parts key, part key)`` of a format whose files may hold several runs (``("sheets",
+    "sheet")`` for workbooks, ``("groups", "group")`` for MDF), None for one-run formats."""
+    target = READERS.get(Path(path).suffix.lower())
+    module = importlib.import_module(target.split(":")[0]) if target else None
+    keys = (getattr(module, "PARTS_KEY", None), getattr(module, "PART_KEY", None))
+    return keys if None not in keys and hasattr(module, "list_parts") else None
+
+
+def list_parts(path: str | Path) -> list[str]:
+    """The runs of a several-runs file, each as its part key names it (sheet names, MDF groups)."""
+    target = READERS.get(Path(path).suffix.lower())
+    if target is None:
+        raise ReaderError(f"no reader for extension {Path(path).suffix!r}")
+    return importlib.import_module(target.split(":")[0]).list_parts(Path(path))
+
+
+__all__ = ["READERS", "RawColumn", "RawExport", "ReaderError", "list_parts", "parts_keys", "read_export", "reader_for",
+           "split_name_unit"]

@@ -24,6 +24,11 @@ class ReaderError(Exception):
 #: with thousands of columns is malformed or hostile and is refused before any per-column work.
 MAX_CHANNELS = 4096
 
+#: Most runs one file may hold (sheets of a workbook, MDF channel groups, in ``sheets`` /
+#: ``groups = "all"`` mode). A bench file holds a few runs; each is opened and read on its own,
+#: so a file declaring thousands is malformed or hostile and is refused before any is read.
+MAX_PARTS = 1024
+
 #: Decompressed (or declared, for sparse / chunked storage) data may be this many times the
 #: file's size ...
 MAX_INFLATE_RATIO = 100
@@ -44,6 +49,12 @@ def check_channel_count(n: int, what: str = "columns") -> None:
     """Refuse an export with more than :data:`MAX_CHANNELS` channels (one-line ReaderError)."""
     if n > MAX_CHANNELS:
         raise ReaderError(f"{n} {what}: more than the limit of {MAX_CHANNELS} channels per file")
+
+
+def check_part_count(n: int, what: str) -> None:
+    """Refuse a file of more than :data:`MAX_PARTS` runs (one-line ReaderError)."""
+    if n > MAX_PARTS:
+        raise ReaderError(f"{n} {what}: more than the limit of {MAX_PARTS} runs per file")
 
 
 def inflate_cap(file_size: int) -> int:

@@ -7,8 +7,14 @@ computed (cached values); a formula the spreadsheet never computed is an empty c
 * **Which sheet.** The first sheet not named ``meta`` is the run, unless the ``sheet`` key
   (run metadata, e.g. in ``manifest.csv``, or ``rig.toml`` ``[read] sheet``) names one by its
   name or 0-based index. A chart sheet holds no cells and is refused.
+* **One run per sheet.** With ``sheets = "all"`` (``rig.toml`` ``[read]``, or a manifest /
+  ``[metadata]`` key) every worksheet not named ``meta`` is a run of its own
+  (:func:`list_parts`; ingest reads each with the ``sheet`` key set).
 * **Metadata.** A sheet named ``meta`` (case-insensitive) with two columns key / value, and
-  ``# key: value`` cells in the first column above the header (as in CSV exports).
+  ``# key: value`` cells in the first column above the header (as in CSV exports). The
+  ``meta`` sheet wins over a sheet's own cells, except with ``[read] sheets = "all"`` (the
+  one-run-per-sheet mode), where a sheet's own cells are more specific and win, and a
+  ``run_id`` of the ``meta`` sheet becomes ``<run_id>/<sheet>``.
 * **Header.** The header row is the first row after the metadata cells (``[read] skip_rows``
   skips more), or ``[read] header_row`` (the sheet's own 1-based row number). Headers
   ``name[unit]`` and ``name (unit)`` carry a unit; ``[read] units_row`` (1-based) names a row of
@@ -34,7 +40,8 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from pipeline.readers.base import RawColumn, RawExport, ReaderError, parse_key_value, split_name_unit
+from pipeline.readers.base import (RawColumn, RawExport, ReaderError, check_part_count, parse_key_value,
+                                   split_name_unit)
 
 FORMAT = "excel"
 EXTENSIONS = (".xlsx", ".xlsm", ".xls", ".ods")
@@ -64,6 +71,29 @@ def _open_workbook(path: Path):
             raise
         what = " ".join(str(exc).split())[:200]
         raise ReaderError(f"not a readable {path.suffix.lower()} workbook ({type(exc).__name__}: {what})") from None
+
+
+#: ``[read]`` / metadata key that makes every data sheet a run, and the key naming one sheet.
+PARTS_KEY, PART_KEY = "sheets", "sheet"
+
+
+def list_parts(path: str | Path) -> list[str]:
+    """Names of the sheets that are runs when ``sheets = "all"``: every worksheet not named
+    ``meta`` (chart sheets hold no cells and are left out), in workbook order.
+
+    Raises
+    ------
+    ReaderError
+        The workbook cannot be opened, or has no such sheet.
+    """
+    path = Path(path)
+    wb = _open_workbook(path)
+    check_part_count(len(wb.sheet_names), "sheets")
+    names = [n for n in wb.sheet_names
+             if n.strip().casefold() != "meta" and _sheet_kind(wb, n) == "WorkSheet"]
+    if not names:
+        raise ReaderError("workbook has no data worksheet (only `meta` or chart sheets)")
+    return names
 
 
 def _pick_sheet(wb, selector) -> str:
@@ -218,15 +248,25 @@ def read_excel(path: str | Path, read: dict | None = None, hints: dict | None = 
         raise ReaderError(f"sheet {name!r} is empty (no cells with values)")
 
     metadata = _meta_sheet(wb)
+    # one run per sheet: a sheet's own `# key: value` cells beat the workbook's `meta` sheet
+    own: dict | None = {} if str(read.get(PARTS_KEY, "")).strip().casefold() == "all" else None
     i = 0
     while i < len(rows) and (all(_is_empty(v) for v in rows[i])
                              or (isinstance(rows[i][0], str) and rows[i][0].lstrip().startswith("#"))):
         first = rows[i][0]
         if isinstance(first, str) and first.lstrip().startswith("#"):
             kv = parse_key_value(first.lstrip()[1:])
-            if kv:
+            if kv and own is not None:
+                own.setdefault(kv[0], kv[1])
+            elif kv:
                 metadata.setdefault(kv[0], kv[1])
         i += 1
+    if own is not None:
+        # the `meta` sheet's run_id is the workbook's: each sheet's run is `<run_id>/<sheet>`
+        shared = [k for k in metadata if str(k).strip().casefold() == "run_id"]
+        if shared and not any(str(k).strip().casefold() == "run_id" for k in own):
+            metadata[shared[-1]] = f"{metadata[shared[-1]]}/{name}"
+        metadata.update(own)
     header_row = _row_number(read, "header_row")
     units_row = _row_number(read, "units_row")
     h = header_row - 1 if header_row else i + int(read.get("skip_rows", 0) or 0)

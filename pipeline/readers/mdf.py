@@ -4,7 +4,9 @@ or Kistler loggers write them. Read with asammdf.
 * **Channel group.** The ``group`` key (run metadata or ``rig.toml`` ``[read] group``) names a
   channel group by its acquisition name or 0-based index; without it the file must hold exactly
   one group with data (the others are listed in the refusal). Groups logged at different rates
-  are different groups: name the one that is the run.
+  are different groups: name the one that is the run, or set ``groups = "all"`` (``rig.toml``
+  ``[read]``, or a manifest / ``[metadata]`` key) to make every group with data a run of its own
+  (:func:`list_parts`).
 * **Time.** The group's master channel is the time (column ``t``, unit from the file, ``s`` when
   it states none). A group without a master channel is refused; so is a master that is not a
   time (angle or distance synchronised acquisitions).
@@ -32,7 +34,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from pipeline.readers.base import RawColumn, RawExport, ReaderError
+from pipeline.readers.base import RawColumn, RawExport, ReaderError, check_part_count
 
 FORMAT = "mdf"
 EXTENSIONS = (".mf4", ".mdf")
@@ -106,6 +108,36 @@ def _is_bus_log(mdf, index: int) -> bool:
     return any(_BUS_NAME.match(ch.name or "") for ch in g.channels)
 
 
+#: ``[read]`` / metadata key that makes every channel group a run, and the key naming one group.
+PARTS_KEY, PART_KEY = "groups", "group"
+
+
+def list_parts(path: str | Path) -> list[str]:
+    """The channel groups with data, as the ``group`` key names them, when ``groups = "all"``:
+    the acquisition name when the group has one that no other group with data shares (and
+    that is not a number, which would read as an index), else the 0-based group index.
+
+    Raises
+    ------
+    ReaderError
+        The file cannot be opened, or holds no group with samples.
+    """
+    mdf = _open(Path(path))
+    try:
+        groups = _groups(mdf)
+    except Exception as exc:
+        raise ReaderError(f"MDF file cannot be read: {type(exc).__name__}: {' '.join(str(exc).split())[:160]}") \
+            from None
+    finally:
+        mdf.close()
+    if not groups:
+        raise ReaderError("MDF file holds no channel group with samples")
+    check_part_count(len(groups), "channel groups with data")
+    names = [name for _, name, _ in groups]
+    return [name if name and name == name.strip() and names.count(name) == 1 and not name.isdigit() else str(i)
+            for i, name, _ in groups]
+
+
 def _pick_group(mdf, selector) -> tuple[int, str, int]:
     groups = _groups(mdf)
     listing = ", ".join(f"{i} {name!r}" if name else str(i) for i, name, _ in groups)
@@ -167,6 +199,10 @@ def read_mdf(path: str | Path, read: dict | None = None, hints: dict | None = No
         start = getattr(mdf.header, "start_time", None)
         if "started_at" not in metadata and start is not None:
             metadata["started_at"] = start.isoformat()
+        if str(read.get(PARTS_KEY, "")).strip().casefold() == "all":
+            # one run per group: the header's run_id is the file's, each group's is `<run_id>/<group>`
+            for k in [k for k in metadata if k.strip().casefold() == "run_id"]:
+                metadata[k] = f"{metadata[k]}/{hints.get(PART_KEY, acq_name or index)}"
         metadata.setdefault("group", acq_name or str(index))
 
         warnings: list[str] = []

@@ -565,3 +565,61 @@ def test_q_missing_channel_names_the_derived_channel_that_could_not_be_computed(
     err = quarantine(raw, warehouse)
     assert "missing channel" in err
     assert "derived channel `f` not computed: no channel or numeric metadata `f_cell`, `p_b`" in err
+
+
+# -- files of several runs ---------------------------------------------------------------------
+def _workbook(path, sheets, meta):
+    openpyxl = pytest.importorskip("openpyxl")
+    wb = openpyxl.Workbook()
+    wb.remove(wb.active)
+    for name, rows in sheets.items():
+        ws = wb.create_sheet(name)
+        for r in rows:
+            ws.append(r)
+    ms = wb.create_sheet("meta")
+    for k, v in meta.items():
+        ms.append([k, v])
+    path.parent.mkdir(parents=True, exist_ok=True)
+    wb.save(path)
+    return path
+
+
+def test_sheets_all_gives_one_part_per_sheet_each_with_its_samples_file(raw, warehouse):
+    rows = [["t[s]", "x[mm]", "x_ref[mm]"], [0.0, 1.0, 0.0], [0.1, 2.0, 0.0]]
+    _workbook(raw.root / "c" / "b.xlsx", {"S1": rows, "S 2": rows, "bad": [["t[s]", "x[mm]"], [0.0, "oops"]]},
+              STEP_META)
+    raw.write("c/rig.toml", '[read]\nsheets = "all"\n')
+    res = ingest(raw, "c/b.xlsx", warehouse)
+    assert res.run is None and res.error is None and len(res.sha256) == 64
+    assert [p.run["run_id"] if p.run else None for p in res.parts] == ["c/b/S1", "c/b/S 2", None]
+    assert res.parts[2].error.startswith("sheet 'bad': ")
+    assert all(p.source_path == "c/b.xlsx" for p in res.parts)
+    ok = [p.run for p in res.parts[:2]]
+    assert [r["params"]["sheet"] for r in ok] == ["S1", "S 2"] and all("sheets" not in r["params"] for r in ok)
+    assert len({r["samples_path"] for r in ok}) == 2 and all(r["source_sha256"] == res.sha256 for r in ok)
+    for r in ok:
+        footer = json.loads(pq.read_metadata(warehouse / r["samples_path"]).metadata[b"pneubench"])
+        assert footer["run"] == r
+        assert pq.read_table(warehouse / r["samples_path"]).column("x_m").to_pylist() == [0.001, 0.002]
+
+
+def test_parts_keys_are_ignored_by_one_run_formats(raw, warehouse):
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    raw.write("c/rig.toml", '[read]\nsheets = "all"\ngroups = "all"\n')
+    res = ingest(raw, "c/a.csv", warehouse)
+    assert res.parts is None and res.run["run_id"] == "c/a"
+
+
+def test_a_file_whose_sheets_cannot_be_listed_is_one_file_error(raw, warehouse):
+    raw.write("c/b.xlsx", b"PK\x03\x04 not a workbook")
+    raw.write("c/rig.toml", '[read]\nsheets = "all"\n')
+    res = ingest(raw, "c/b.xlsx", warehouse)
+    assert res.parts is None and res.run is None and "not a readable .xlsx workbook" in res.error
+
+
+def test_sheet_names_with_control_characters_give_one_line_run_ids(raw, warehouse):
+    rows = [["t[s]", "x[mm]", "x_ref[mm]"], [0.0, 1.0, 0.0], [0.1, 2.0, 0.0]]
+    _workbook(raw.root / "c" / "b.xlsx", {"a\tb": rows}, STEP_META)
+    raw.write("c/manifest.csv", "file,sheets,run_id\nb.xlsx,all,day3\n")
+    (part,) = ingest(raw, "c/b.xlsx", warehouse).parts
+    assert part.run["run_id"] == "day3/a\\x09b" and part.run["params"]["sheet"] == "a\tb"

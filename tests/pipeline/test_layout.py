@@ -278,3 +278,19 @@ def test_the_cli_exits_1_and_prints_one_line_per_hostile_entry(tree, warehouse, 
                for ln in lines)
     assert any("quarantined c2/empty.csv: empty file (0 bytes)" in ln for ln in lines)
     assert query(warehouse, "SELECT run_id FROM runs ORDER BY 1") == [("c1/a",), ("c2/b",)]
+
+
+def test_manifest_rows_for_one_sheet_are_kept_apart_from_the_file_row(raw):
+    raw.write("c/b.xlsx", b"x")
+    raw.write("c/odd#name.csv", b"x")          # a real file with `#` in its name is that file
+    raw.write("manifest.csv", "file,kind\nc/b.xlsx#S1,step\nc/b.xlsx#S2,leakage\n")
+    raw.write("c/manifest.csv", "file,kind,rig\nb.xlsx,spring,r1\nb.xlsx#S1,identification,\n"
+                                "odd#name.csv,step,\n../c/b.xlsx#S3,step,\n")
+    tree = RawTree(raw.root)
+    assert tree.manifest_metadata(raw.root / "c/b.xlsx") == {"kind": "spring", "rig": "r1"}
+    # nearer manifests override farther ones, part by part
+    assert tree.manifest_parts(raw.root / "c/b.xlsx") == {
+        "S1": {"kind": "identification"}, "S2": {"kind": "leakage"}, "S3": {"kind": "step"}}
+    assert tree.manifest_metadata(raw.root / "c/odd#name.csv") == {"kind": "step"}
+    assert tree.manifest_parts(raw.root / "c/odd#name.csv") == {}
+    assert tree.problems == []

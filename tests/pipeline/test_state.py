@@ -1,7 +1,9 @@
 """Incremental rebuilds: unchanged files are not read, changes and deletions land, stages re-run
 only when their inputs changed, and the result equals a full rebuild table by table."""
+import json
 import os
 import time
+from pathlib import Path
 
 import pandas as pd
 import pytest
@@ -407,3 +409,58 @@ def test_superseded_files_are_kept_for_the_retention_then_expire():
     kept, expired = superseded_files(prev, {"samples/b"}, now=1000.0 + 3600.0, keep_h=1.0)
     assert expired == {"samples/old", "samples/back"} and "samples/a" in kept
     assert superseded_files(prev, set(), now=5000.0, keep_h=0.0)[0] == {}  # 0: collect at once
+
+
+def _sheets_book(raw, rel, n=3):
+    openpyxl = pytest.importorskip("openpyxl")
+    wb = openpyxl.Workbook()
+    wb.remove(wb.active)
+    for i in range(n):
+        ws = wb.create_sheet(f"S{i}")
+        ws.append(["t[s]", "x[mm]", "x_ref[mm]"])
+        for j in range(4):
+            ws.append([0.1 * j, (i + 1) * j, 0.0])
+    ms = wb.create_sheet("meta")
+    for k, v in STEP_META.items():
+        ms.append([k, v])
+    path = raw.root / rel
+    path.parent.mkdir(parents=True, exist_ok=True)
+    wb.save(path)
+    raw.write(str(Path(rel).parent / "rig.toml"), '[read]\nsheets = "all"\n')
+    return path
+
+
+def test_a_workbook_of_sheets_is_one_state_record_reused_read_by_its_bytes(raw, warehouse, counting):
+    book = _sheets_book(raw, "c/b.xlsx")
+    age(raw.root)
+    assert rebuild(raw.root, warehouse, jobs=1).n_runs == 3
+    assert counting["ingest"] == ["b.xlsx"]                     # one read for its three runs
+    (rec,), = q(warehouse, "SELECT result FROM ingest_state WHERE role = 'run'")
+    assert [p["run"]["run_id"] for p in json.loads(rec)["parts"]] == ["c/b/S0", "c/b/S1", "c/b/S2"]
+    counting.clear()
+    s = rebuild(raw.root, warehouse, jobs=1)                     # no-op: nothing read, all reused
+    assert counting.as_dict("sha", "ingest") == {"sha": [], "ingest": []} and (s.n_unchanged, s.n_runs) == (1, 3)
+    os.utime(book, None)                                         # touch: hashed, not re-read
+    s = rebuild(raw.root, warehouse, jobs=1)
+    assert counting["sha"] == ["b.xlsx"] and counting["ingest"] == [] and s.n_runs == 3
+    # one sheet's samples file gone: the file is read again and all its runs are back
+    lost = warehouse / q(warehouse, "SELECT samples_path FROM runs WHERE run_id = 'c/b/S1'")[0][0]
+    lost.unlink()
+    counting.clear()
+    s = rebuild(raw.root, warehouse, jobs=1)
+    assert counting["ingest"] == ["b.xlsx"] and s.n_runs == 3 and lost.is_file()
+
+
+def test_result_runs_and_record_result_round_trip_parts():
+    from pipeline.ingest import IngestResult
+    from pipeline.state import record_result, result_runs
+
+    single = IngestResult("c/a.csv", "c", run={"run_id": "c/a", "samples_path": "s/a.parquet"}, channels=[{"c": 1}])
+    assert record_result(single) == {"run": single.run, "channels": [{"c": 1}]}
+    assert result_runs(record_result(single)) == [single.run]
+    assert record_result(IngestResult("c/a.csv", "c", error="bad")) is None and result_runs(None) == []
+    book = IngestResult("c/b.xlsx", "c", parts=[IngestResult("c/b.xlsx", "c", run={"run_id": "c/b/A"}),
+                                                IngestResult("c/b.xlsx", "c", error="sheet 'B': bad")])
+    rec = record_result(book)
+    assert rec == {"parts": [{"run": {"run_id": "c/b/A"}, "channels": []}, {"error": "sheet 'B': bad"}]}
+    assert result_runs(rec) == [{"run_id": "c/b/A"}]

@@ -8,7 +8,7 @@ import pytest
 openpyxl = pytest.importorskip("openpyxl")
 
 from pipeline.readers import ReaderError, read_export  # noqa: E402
-from pipeline.readers.excel import read_excel  # noqa: E402
+from pipeline.readers.excel import list_parts, read_excel  # noqa: E402
 
 
 def _values(exp):
@@ -120,3 +120,44 @@ def test_formula_read_as_its_cached_value(tmp_path):
                 data = data.replace(b"<f>A2*2</f><v></v>", b"<f>A2*2</f><v>4</v>")
             zout.writestr(item, data)
     assert _values(read_excel(out)) == {"a": [2.0], "b": [4.0]}
+
+
+def test_list_parts_is_every_worksheet_but_meta_and_charts(tmp_path):
+    def more(wb):
+        wb.create_sheet("second").append(["t[s]"])
+        wb.create_chartsheet("chart")
+
+    p = _book(tmp_path / "b.xlsx", [["t[s]"], [0.0]], title="first", meta={"kind": "step"}, extra=more)
+    assert list_parts(p) == ["first", "second"]
+    only_meta = _book(tmp_path / "m.xlsx", [["kind", "step"]], title="META")
+    with pytest.raises(ReaderError, match="no data worksheet"):
+        list_parts(only_meta)
+
+
+def test_own_cells_win_over_meta_sheet_only_in_sheets_all_mode(tmp_path):
+    p = _book(tmp_path / "r.xlsx", [["# chamber: B"], ["t[s]", "x[mm]"], [0.0, 1.0]],
+              meta={"chamber": "A", "kind": "step"})
+    assert read_excel(p).metadata["chamber"] == "A"            # one run per file: as before
+    exp = read_excel(p, {"sheets": "all"})                    # one run per sheet: the sheet is more specific
+    assert exp.metadata["chamber"] == "B" and exp.metadata["kind"] == "step"
+
+
+def test_meta_sheet_run_id_is_the_prefix_of_each_sheet_in_sheets_all_mode(tmp_path):
+    def more(wb):
+        ws = wb.create_sheet("own")
+        for r in [["# run_id: special"], ["t[s]"], [0.0]]:
+            ws.append(r)
+
+    p = _book(tmp_path / "r.xlsx", [["t[s]"], [0.0]], title="S1", meta={"run_id": "bench7/day3"}, extra=more)
+    assert read_excel(p).metadata["run_id"] == "bench7/day3"                                  # one run per file
+    assert read_excel(p, {"sheets": "all"}, {"sheet": "S1"}).metadata["run_id"] == "bench7/day3/S1"
+    assert read_excel(p, {"sheets": "all"}, {"sheet": "own"}).metadata["run_id"] == "special"  # its own cell
+
+
+def test_list_parts_refuses_more_sheets_than_the_limit(tmp_path, monkeypatch):
+    import pipeline.readers.base as base
+
+    p = _book(tmp_path / "b.xlsx", [["t[s]"], [0.0]], extra=lambda wb: [wb.create_sheet(f"s{i}") for i in range(3)])
+    monkeypatch.setattr(base, "MAX_PARTS", 3)
+    with pytest.raises(ReaderError, match="4 sheets: more than the limit of 3 runs per file"):
+        list_parts(p)

@@ -9,7 +9,7 @@ pytestmark = pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptio
 from asammdf import MDF, Signal  # noqa: E402
 
 from pipeline.readers import ReaderError, read_export  # noqa: E402
-from pipeline.readers.mdf import parse_header_comment, read_mdf  # noqa: E402
+from pipeline.readers.mdf import list_parts, parse_header_comment, read_mdf  # noqa: E402
 
 
 def _values(exp):
@@ -131,3 +131,33 @@ def test_refused_not_mdf(tmp_path):
 def test_header_comment_plain_text():
     assert parse_header_comment("kind=step\nrig = r1") == {"kind": "step", "rig": "r1"}
     assert parse_header_comment("<HDcomment><TX>no pairs</TX></HDcomment>") == {}
+
+
+def test_list_parts_names_groups_by_unique_acquisition_name_else_index(tmp_path):
+    _, fast = _run(100, 100.0)
+    t2 = np.arange(20) / 2.0
+    slow = [Signal(20 + t2, t2, name="temp", unit="degC")]
+    p = _write(tmp_path / "g.mf4", [("fast", fast), ("slow", slow)])
+    assert list_parts(p) == ["fast", "slow"]
+    # each name selects its own group (its own rate)
+    assert [c.name for c in read_mdf(p, hints={"group": "slow"}).columns] == ["t", "temp"]
+    # shared, numeric or missing acquisition names would be ambiguous: the 0-based index is used
+    q = _write(tmp_path / "d.mf4", [("daq", fast), ("daq", slow), ("7", slow), ("", slow)])
+    assert list_parts(q) == ["0", "1", "2", "3"]
+    assert [c.name for c in read_mdf(q, hints={"group": "1"}).columns] == ["t", "temp"]
+
+
+def test_list_parts_of_a_damaged_file_is_one_reader_error(tmp_path):
+    p = tmp_path / "cut.mf4"
+    p.write_bytes(b"MDF     4.10    " + bytes(100))
+    with pytest.raises(ReaderError, match="MDF"):
+        list_parts(p)
+
+
+def test_header_run_id_is_the_prefix_of_each_group_in_groups_all_mode(tmp_path):
+    _, fast = _run(10, 100.0)
+    t2 = np.arange(4) / 2.0
+    p = _write(tmp_path / "g.mf4", [("fast", fast), ("slow", [Signal(t2, t2, name="temp", unit="degC")])],
+               comment="run_id=bench7/day3;kind=step")
+    assert read_mdf(p, {"group": "slow"}).metadata["run_id"] == "bench7/day3"          # one group: as written
+    assert read_mdf(p, {"groups": "all"}, {"group": "slow"}).metadata["run_id"] == "bench7/day3/slow"
