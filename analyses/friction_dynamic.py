@@ -75,7 +75,7 @@ V_MIN_REL = 1e-3
 NRMSE_LIMIT_PCT = 2.5
 #: A drive force that lags or leads the motion by more than this many samples makes the mass
 #: unreliable (see :func:`friction_dynamic`). [-]
-LAG_MAX_SAMPLES = 1.0
+LAG_MAX_SAMPLES = 0.5
 #: Largest share of the filtered acceleration's variance that may be sensor noise (the bias of
 #: the mass toward zero, errors in variables). [-]
 EIV_MAX = 0.01

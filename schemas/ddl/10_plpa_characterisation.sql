@@ -110,7 +110,8 @@ CREATE TABLE breakaway_findings (
     p_value           DOUBLE,
     n                 BIGINT,
     unit              VARCHAR,
-    significant       BOOLEAN
+    significant       BOOLEAN,
+    note              VARCHAR             -- NULL when the estimate stands, else why it is NULL
 );
 
 -- Near-zero friction per backpressure: tanh transition velocity and the Stribeck test.

@@ -50,6 +50,37 @@ def test_describe_sensor_prefers_metadata_and_says_so():
     assert describe_sensor([], resolution=5e-6, noise=0.0).source == "metadata"
 
 
+def test_constant_speed_passes_are_not_taken_for_quantisation():
+    """A 1 um encoder at 200 Hz in passes at 5, 10 and 15 mm/s changes by 25, 50 and 75 um per
+    sample, all multiples of 25 um, and never by one count: the values' lattice (ramps, rests)
+    still gives the 1 um step, not the per-sample travel."""
+    from pipeline.simulator.plpa import evaluate_profile, motion_profile
+
+    speeds = tuple(s * v for v in (0.005, 0.010, 0.015) for s in (1.0, -1.0))
+    segs, _, total = motion_profile(speeds, 2.0, 0.02, 2.0, 0.4, 0.3)
+    t = np.arange(0.0, total, 1 / 200.0)
+    x = np.round((0.4 + evaluate_profile(segs, t)[0]) / 1e-6) * 1e-6
+    d = np.abs(np.diff(x))
+    assert not np.any(np.abs(d - 1e-6) < 1e-9)        # no change of one count in the record
+    assert quantisation_step(x) == pytest.approx(1e-6, rel=1e-6)
+    assert quantisation_step(x * 1e3) == pytest.approx(1e-3, rel=1e-6)   # logged in mm
+
+
+def test_unquantised_passes_at_commensurate_speeds_are_not_quantised():
+    """The same passes from a continuous (noise-free, unquantised) sensor: every change but the
+    few ramp samples is a multiple of 25 um, yet the passes start from ramps at other phases, so
+    the values sit on no lattice: 0, not the per-sample travel."""
+    from pipeline.simulator.plpa import evaluate_profile, motion_profile
+
+    speeds = tuple(s * v for v in (0.005, 0.010, 0.015) for s in (1.0, -1.0))
+    segs, _, total = motion_profile(speeds, np.sqrt(20.0), 0.02, 2.0, 0.4, 0.3)  # ramps of sqrt(20) m/s2
+    x = 0.4 + evaluate_profile(segs, np.arange(0.0, total, 1 / 200.0))[0]
+    d = np.abs(np.diff(x))
+    k = d[d > 1e-12] / 25e-6
+    assert np.mean(np.abs(k - np.round(k)) < 1e-6) > 0.99     # the differences alone look quantised
+    assert quantisation_step(x) == 0.0
+
+
 def test_quantised_noise_free_encoder_has_noise_below_half_a_step():
     _, x = _motion()
     s = describe_sensor(np.round(x / 5e-6) * 5e-6)
