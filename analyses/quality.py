@@ -156,11 +156,14 @@ def quantisation_step(values, rel_tol: float = 0.02) -> float:
 
 
 def noise_std(values) -> float:
-    """Standard deviation of the white noise on a record, from its second differences.
+    """Standard deviation of the white noise on a record, from its third differences.
 
-    For white noise of standard deviation ``s`` on a smooth signal, the second difference has
-    standard deviation ``sqrt(6) s``; the median absolute deviation makes the estimate robust
-    to steps, reversals and other rare large changes.
+    For white noise of standard deviation ``s`` on a smooth signal, the third difference has
+    standard deviation ``sqrt(20) s``; the median absolute deviation makes the estimate robust
+    to steps, reversals and other rare large changes. Third rather than second differences:
+    a constant acceleration (every ramp of a trapezoidal motion) vanishes from them, while in
+    second differences it is ``a dt^2`` -- on a 100 Hz record with 2 m/s2 ramps, 200 um on a
+    share of the samples large enough to lift the median by a quarter.
 
     Parameters
     ----------
@@ -175,9 +178,9 @@ def noise_std(values) -> float:
     d1 = _diff_sample(values)
     if d1.size < 8:
         return 0.0
-    d2 = np.diff(d1)
-    mad = float(np.median(np.abs(d2 - np.median(d2))))
-    return _MAD_TO_SIGMA * mad / np.sqrt(6.0)
+    d3 = np.diff(d1, 2)
+    mad = float(np.median(np.abs(d3 - np.median(d3))))
+    return _MAD_TO_SIGMA * mad / np.sqrt(20.0)
 
 
 def describe_sensor(values, resolution: float | None = None, noise: float | None = None) -> Sensor:
@@ -195,7 +198,7 @@ def describe_sensor(values, resolution: float | None = None, noise: float | None
     sig = float(noise) if stated[1] else noise_std(values)
     if not stated[1] and res > 0:
         # on a quantised record the difference estimator sees quantisation, not noise: a
-        # record whose second differences are mostly zero has noise below half a step
+        # record whose differences are mostly zero has noise below half a step
         sig = min(sig, res / np.sqrt(12.0)) if sig < res else sig
     source = "metadata" if all(stated) else ("estimated" if not any(stated) else "metadata+estimated")
     return Sensor(resolution=res, noise=float(sig), source=source)
