@@ -213,11 +213,11 @@ SELECT chamber, adjustment, z_rollers_mm, spring_force_n,
        count(DISTINCT nominal_bar) AS n_pressures,
        CASE WHEN bool_and(hose_check) THEN 'hose_checks' ELSE 'characterisation' END AS runs_used,
        count(DISTINCT run_id) AS n_runs,
-       list_sort(list_distinct(list(campaign) FILTER (WHERE campaign IS NOT NULL))) AS campaigns,
        CASE WHEN any_value(undecided)
             THEN 'the leak at ' || printf('%.1f', any_value(undecided_bar)) || ' bar cannot be told from the threshold '
                  || '(within 2 standard errors)'
-       END AS note
+       END AS note,
+       list_sort(list_distinct(list(campaign) FILTER (WHERE campaign IS NOT NULL))) AS campaigns   -- as the table (35_run_columns)
 FROM decided
 GROUP BY chamber, adjustment, z_rollers_mm, spring_force_n
 ORDER BY chamber, adjustment, z_rollers_mm, spring_force_n;
