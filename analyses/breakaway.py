@@ -377,15 +377,21 @@ def backpressure_ratio(breakaway: pd.DataFrame, direction: str | None = None, co
     -------
     dict
         ``estimate``, ``ci_low``, ``ci_high``, ``n`` (events used), ``p_value`` (Welch t test
-        of equal means).
+        of equal means), ``note`` (None, or why the estimate is None).
     """
     df = breakaway.dropna(subset=["breakaway_force_n"])
     if direction is not None:
         df = df[df["direction"] == direction]
     lo = df.loc[df["backpressure_bar"].abs() < 0.05, "breakaway_force_n"].to_numpy(float)
     hi = df.loc[df["backpressure_bar"] >= high_bar - 0.05, "breakaway_force_n"].to_numpy(float)
-    out = {"estimate": None, "ci_low": None, "ci_high": None, "n": int(lo.size + hi.size), "p_value": None}
-    if lo.size < 2 or hi.size < 2 or lo.mean() <= 0 or hi.mean() <= 0:
+    out = {"estimate": None, "ci_low": None, "ci_high": None, "n": int(lo.size + hi.size), "p_value": None,
+           "note": None}
+    if lo.size < 2 or hi.size < 2:
+        out["note"] = (f"too few breakaway forces for a ratio: {lo.size} at 0 bar and {hi.size} at >= "
+                       f"{high_bar:g} bar (2 of each needed)")
+        return out
+    if lo.mean() <= 0 or hi.mean() <= 0:
+        out["note"] = "a mean breakaway force is not positive: no ratio"
         return out
     m0, m1 = lo.mean(), hi.mean()
     v0 = lo.var(ddof=1) / (lo.size * m0**2)
@@ -409,13 +415,18 @@ def force_rate_slope(breakaway: pd.DataFrame, direction: str | None = None, conf
     Returns
     -------
     dict
-        ``estimate`` [N/(N/s)], ``ci_low``, ``ci_high``, ``n``, ``p_value`` (slope = 0).
+        ``estimate`` [N/(N/s)], ``ci_low``, ``ci_high``, ``n``, ``p_value`` (slope = 0), ``note``
+        (None, or why the estimate is None).
     """
     df = breakaway.dropna(subset=["breakaway_force_n", "force_rate_n_s", "backpressure_bar"])
     if direction is not None:
         df = df[df["direction"] == direction]
-    out = {"estimate": None, "ci_low": None, "ci_high": None, "n": int(len(df)), "p_value": None}
-    if df.empty or df["force_rate_n_s"].nunique() < 2:
+    out = {"estimate": None, "ci_low": None, "ci_high": None, "n": int(len(df)), "p_value": None, "note": None}
+    if df.empty:
+        out["note"] = "no breakaway forces"
+        return out
+    if df["force_rate_n_s"].nunique() < 2:
+        out["note"] = "one force rate only: no slope"
         return out
     groups = df.groupby(["direction", "backpressure_bar"], sort=True).ngroup().to_numpy()
     ng = groups.max() + 1
@@ -425,6 +436,7 @@ def force_rate_slope(breakaway: pd.DataFrame, direction: str | None = None, conf
     y = df["breakaway_force_n"].to_numpy(float)
     dof = len(df) - np.linalg.matrix_rank(X)
     if dof < 1:
+        out["note"] = f"too few breakaway forces for a slope ({len(df)} events, no degree of freedom left)"
         return out
     beta, *_ = np.linalg.lstsq(X, y, rcond=None)
     resid = y - X @ beta
@@ -449,7 +461,8 @@ def breakaway_findings(breakaway: pd.DataFrame, confidence: float = 0.95) -> pd.
     -------
     DataFrame
         ``finding``, ``direction``, ``estimate``, ``ci_low``, ``ci_high``, ``confidence``,
-        ``p_value``, ``n``, ``unit``, ``significant`` (p < 1 - confidence).
+        ``p_value``, ``n``, ``unit``, ``significant`` (p < 1 - confidence), ``note`` (NULL when
+        the estimate stands, else why it is NULL).
     """
     rows = []
     for finding, func, unit in (("backpressure_ratio", backpressure_ratio, "ratio"),
@@ -459,7 +472,7 @@ def breakaway_findings(breakaway: pd.DataFrame, confidence: float = 0.95) -> pd.
             rows.append({"finding": finding, "direction": d or "all", **r, "confidence": confidence, "unit": unit,
                          "significant": None if r["p_value"] is None else bool(r["p_value"] < 1 - confidence)})
     return pd.DataFrame(rows, columns=["finding", "direction", "estimate", "ci_low", "ci_high", "confidence",
-                                       "p_value", "n", "unit", "significant"])
+                                       "p_value", "n", "unit", "significant", "note"])
 
 
 def plot_breakaway(breakaway: pd.DataFrame):

@@ -74,8 +74,11 @@ V_MIN_REL = 1e-3
 #: (seed 001, Table 3). A record in the tanh transition (passes under a few ``vs``) misses it. [%]
 NRMSE_LIMIT_PCT = 2.5
 #: A drive force that lags or leads the motion by more than this many samples makes the mass
-#: unreliable (see :func:`friction_dynamic`). [-]
-LAG_MAX_SAMPLES = 1.0
+#: unreliable (see :func:`friction_dynamic`): sampling resolves the timing of a channel to about
+#: half a sample, and smaller apparent lags are the filter's and the differences' own (a load
+#: cell with no lag shows up to a quarter of a sample); a real lag of half a sample already biases
+#: the mass by tens of percent at 100 Hz. [-]
+LAG_MAX_SAMPLES = 0.5
 #: Largest share of the filtered acceleration's variance that may be sensor noise (the bias of
 #: the mass toward zero, errors in variables). [-]
 EIV_MAX = 0.01

@@ -110,7 +110,8 @@ CREATE TABLE breakaway_findings (
     p_value           DOUBLE,
     n                 BIGINT,
     unit              VARCHAR,
-    significant       BOOLEAN
+    significant       BOOLEAN,
+    note              VARCHAR             -- NULL when the estimate stands, else why it is NULL
 );
 
 -- Near-zero friction per backpressure: tanh transition velocity and the Stribeck test.
@@ -216,7 +217,7 @@ SELECT chamber, adjustment, z_rollers_mm, spring_force_n,
             THEN 'the leak at ' || printf('%.1f', any_value(undecided_bar)) || ' bar cannot be told from the threshold '
                  || '(within 2 standard errors)'
        END AS note,
-       list_sort(list_distinct(list(campaign) FILTER (WHERE campaign IS NOT NULL))) AS campaigns
+       list_sort(list_distinct(list(campaign) FILTER (WHERE campaign IS NOT NULL))) AS campaigns   -- as the table (35_run_columns)
 FROM decided
 GROUP BY chamber, adjustment, z_rollers_mm, spring_force_n
 ORDER BY chamber, adjustment, z_rollers_mm, spring_force_n;

@@ -153,6 +153,20 @@ def test_findings_without_data_are_null_not_errors():
     f = breakaway_findings(pd.DataFrame(columns=["direction", "backpressure_bar", "force_rate_n_s",
                                                  "breakaway_force_n"]))
     assert f["estimate"].isna().all()
+    assert f["note"].eq("no breakaway forces").sum() == 3          # the slope rows
+    assert f.loc[f.finding == "backpressure_ratio", "note"].str.startswith("too few breakaway forces").all()
+
+
+def test_findings_say_why_a_design_gives_no_estimate():
+    ev = _events()
+    one_rate = ev[ev.force_rate_n_s == ev.force_rate_n_s.iloc[0]]
+    assert force_rate_slope(one_rate)["estimate"] is None
+    assert force_rate_slope(one_rate)["note"] == "one force rate only: no slope"
+    only_high = ev[ev.backpressure_bar >= 1]
+    r = backpressure_ratio(only_high)
+    assert r["estimate"] is None and r["note"].startswith("too few breakaway forces for a ratio: 0 at 0 bar")
+    f = breakaway_findings(ev)
+    assert f["note"].isna().all() and f["estimate"].notna().all()
 
 
 def test_recovers_simulated_breakaway_forces_and_findings():

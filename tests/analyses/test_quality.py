@@ -33,6 +33,20 @@ def test_analog_sensor_is_not_quantised_and_its_noise_is_measured():
     assert noise_std(noisy) == pytest.approx(20e-6, rel=0.05)
 
 
+@pytest.mark.parametrize("sigma", [5e-6, 20e-6, 50e-6])
+def test_noise_of_an_analog_sensor_in_trapezoidal_passes_at_100_hz(sigma):
+    """Passes at 0.05-0.5 m/s with 2 m/s2 ramps, sampled at 100 Hz: a ramp moves the second
+    difference by a dt^2 = 200 um on about a fifth of the samples; the estimate stays within
+    10 % of the sensor's noise (second differences gave +25 % at 5 um)."""
+    from pipeline.simulator.plpa import evaluate_profile, motion_profile
+
+    speeds = tuple(s * v for v in (0.05, 0.1, 0.2, 0.3, 0.4, 0.5) for s in (1.0, -1.0))
+    segs, _, total = motion_profile(speeds, 2.0, 0.25, 2.0, 0.4, 0.3)
+    x = 0.4 + evaluate_profile(segs, np.arange(0.0, total, 0.01))[0]
+    noisy = x + np.random.default_rng(7).normal(0.0, sigma, x.size)
+    assert noise_std(noisy) == pytest.approx(sigma, rel=0.1)
+
+
 def test_noise_estimate_ignores_steps():
     rng = np.random.default_rng(4)
     y = np.repeat([0.0, 5000.0, 10000.0, 2000.0], 2000) + rng.normal(0, 300.0, 8000)
@@ -48,6 +62,37 @@ def test_describe_sensor_prefers_metadata_and_says_so():
     assert s.source == "metadata+estimated"
     assert s.floor() == pytest.approx(s.noise)
     assert describe_sensor([], resolution=5e-6, noise=0.0).source == "metadata"
+
+
+def test_constant_speed_passes_are_not_taken_for_quantisation():
+    """A 1 um encoder at 200 Hz in passes at 5, 10 and 15 mm/s changes by 25, 50 and 75 um per
+    sample, all multiples of 25 um, and never by one count: the values' lattice (ramps, rests)
+    still gives the 1 um step, not the per-sample travel."""
+    from pipeline.simulator.plpa import evaluate_profile, motion_profile
+
+    speeds = tuple(s * v for v in (0.005, 0.010, 0.015) for s in (1.0, -1.0))
+    segs, _, total = motion_profile(speeds, 2.0, 0.02, 2.0, 0.4, 0.3)
+    t = np.arange(0.0, total, 1 / 200.0)
+    x = np.round((0.4 + evaluate_profile(segs, t)[0]) / 1e-6) * 1e-6
+    d = np.abs(np.diff(x))
+    assert not np.any(np.abs(d - 1e-6) < 1e-9)        # no change of one count in the record
+    assert quantisation_step(x) == pytest.approx(1e-6, rel=1e-6)
+    assert quantisation_step(x * 1e3) == pytest.approx(1e-3, rel=1e-6)   # logged in mm
+
+
+def test_unquantised_passes_at_commensurate_speeds_are_not_quantised():
+    """The same passes from a continuous (noise-free, unquantised) sensor: every change but the
+    few ramp samples is a multiple of 25 um, yet the passes start from ramps at other phases, so
+    the values sit on no lattice: 0, not the per-sample travel."""
+    from pipeline.simulator.plpa import evaluate_profile, motion_profile
+
+    speeds = tuple(s * v for v in (0.005, 0.010, 0.015) for s in (1.0, -1.0))
+    segs, _, total = motion_profile(speeds, np.sqrt(20.0), 0.02, 2.0, 0.4, 0.3)  # ramps of sqrt(20) m/s2
+    x = 0.4 + evaluate_profile(segs, np.arange(0.0, total, 1 / 200.0))[0]
+    d = np.abs(np.diff(x))
+    k = d[d > 1e-12] / 25e-6
+    assert np.mean(np.abs(k - np.round(k)) < 1e-6) > 0.99     # the differences alone look quantised
+    assert quantisation_step(x) == 0.0
 
 
 def test_quantised_noise_free_encoder_has_noise_below_half_a_step():

@@ -116,7 +116,7 @@ def built(tmp_path_factory):
     slow = tuple(s * v for v in (0.005, 0.0075, 0.01, 0.0125, 0.015) for s in (1.0, -1.0))
     add(simulate_viscous(2.0, slow, use_force_channel=True, rng=4, fs_hz=100.0, accel_m_s2=0.5, cruise_m=0.08,
                          max_cruise_s=20.0, position_resolution_m=0.0, position_noise_m=20e-6,
-                         sensor_x_resolution=0.0, sensor_x_noise=2e-5), "visc_analog")
+                         sensor_x_noise=2e-5), "visc_analog")   # resolution: not stated (ingest wants > 0)
     # a rig that moves at one speed level only (trapezoid +-0.12 m/s), load cell
     add(simulate_viscous(3.0, (0.12, -0.12) * 4, use_force_channel=True, rng=5), "visc_onespeed")
     summary = rebuild(raw, wh, jobs=2, report=False)
@@ -269,7 +269,7 @@ def test_viscous_points_and_fits_recovered(built):
     assert set(pts.loc[pts["run_id"] == "sim/visc1", "force_source"]) == {"f"}
     # the sensors used are recorded: the analog rig's stated, the others' estimated from the record
     sens = pts.groupby("run_id")[["x_resolution_m", "x_noise_m", "sensor_source"]].first()
-    assert tuple(sens.loc["sim/visc_analog"]) == (0.0, 2e-5, "metadata")
+    assert tuple(sens.loc["sim/visc_analog"]) == (0.0, 2e-5, "metadata+estimated")
     assert sens.loc["sim/visc0", "x_resolution_m"] == pytest.approx(5e-6)
     assert sens.loc["sim/visc0", "sensor_source"] == "estimated"
     fits = q(wh, "SELECT * FROM viscous_fits ORDER BY backpressure_bar, direction")
