@@ -64,6 +64,13 @@ t = pa.table({'t_s': t.column(0), 'p_a_pa': pc.multiply(t.column(1), 1e5), 'p_b_
               'x_m': pc.multiply(t.column(3), 1e-3)})
 pq.write_table(t, out)
 """,
+    "duckdb": _CONVERT + """
+import duckdb
+con = duckdb.connect(config={"enable_progress_bar": False})
+con.execute(f\"\"\"COPY (SELECT column0 AS t_s, column1 * 1e5 AS p_a_pa, column2 * 1e5 AS p_b_pa, column3 * 1e-3 AS x_m
+  FROM read_csv('{src}', skip={skip + 1}, header=false, columns={{'column0': 'DOUBLE', 'column1': 'DOUBLE',
+  'column2': 'DOUBLE', 'column3': 'DOUBLE'}})) TO '{out}' (FORMAT parquet)\"\"\")
+""",
     "nptdms": """
 import sys
 from nptdms import TdmsFile
@@ -159,13 +166,14 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
-    print(f"pneubench whole-command benchmark: {os.cpu_count()} cores, python {sys.version.split()[0]}")
+    print(f"pneubench whole-command benchmark: {os.cpu_count()} cores, python {sys.version.split()[0]}, "
+          f"load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     checks = []
     res: dict = {}
-    res["csv100"] = r = one_export("csv", 100, args.repeat, ["pandas", "pyarrow"])
+    res["csv100"] = r = one_export("csv", 100, args.repeat, ["pandas", "pyarrow", "duckdb"])
     checks.append(("CSV 100 MB: pneubench rebuild >= 1.5x pandas", r["pandas"]["wall_s"] / r["pneubench"]["wall_s"], 1.5))
     if not args.quick:
-        res["csv1000"] = r = one_export("csv", 1000, args.repeat, ["pandas", "pyarrow"])
+        res["csv1000"] = r = one_export("csv", 1000, args.repeat, ["pandas", "pyarrow", "duckdb"])
         checks.append(("CSV 1 GB: pneubench rebuild >= 2.5x pandas", r["pandas"]["wall_s"] / r["pneubench"]["wall_s"], 2.5))
         res["tdms1000"] = r = one_export("tdms", 1000, args.repeat, ["nptdms"])
         checks.append(("TDMS 1 GB: pneubench rebuild >= 2x npTDMS", r["nptdms"]["wall_s"] / r["pneubench"]["wall_s"], 2.0))

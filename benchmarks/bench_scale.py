@@ -89,6 +89,31 @@ def _exponent(ns: list[int], ts: list[float]) -> float | None:
     return float(k)
 
 
+#: Phases of a rebuild whose cumulative time the no-op profile reports [function name in cProfile].
+PHASES = {"load_previous": "load_previous", "scan raw/": "discover_runs", "plan (stat, metadata)": "plan_runs",
+          "ingest": "ingest_incremental", "stages (reuse or run)": "run_stages_cached",
+          "write database": "build_database", "morning report": "render_report", "publish report": "publish_page",
+          "collect garbage": "collect_garbage", "whole rebuild()": "rebuild"}
+
+
+def profile_noop(rebuild: list[str], out: Path) -> dict:
+    """Seconds per phase of one no-op rebuild (cProfile in the rebuild's process; the rest of the
+    wall time is Python start-up and imports)."""
+    import pstats
+
+    argv = rebuild[3:]
+    code = (f"import cProfile, sys; sys.argv = ['pneubench'] + {argv!r}; from pipeline.cli import main; "
+            f"cProfile.run('main()', {str(out)!r})")
+    measure([sys.executable, "-c", code], cwd=ROOT)
+    st = pstats.Stats(str(out)).stats
+    phases = {}
+    for label, fn in PHASES.items():
+        cum = [v[3] for (file, _line, name), v in st.items() if name == fn and "pipeline" in file]
+        phases[label] = max(cum) if cum else 0.0
+    phases["all in the process"] = max(v[3] for v in st.values())
+    return phases
+
+
 def bench_size(runs: int, seed: int, repeat: int, jobs: int | None) -> dict:
     base = DATA / f"scale-{runs}"
     print(f"\n{runs} runs ({base})")
@@ -104,6 +129,9 @@ def bench_size(runs: int, seed: int, repeat: int, jobs: int | None) -> dict:
     out["full_s"], out["full_tree_mb"] = full.wall_s, full.tree_peak_mb
     noop = Series("noop", [measure(rebuild, cwd=ROOT) for _ in range(repeat)])
     out["noop_s"], out["noop_tree_mb"] = noop.wall_s, noop.tree_peak_mb
+    out["noop_cpu_s"] = noop.cpu_s
+    prof = profile_noop(rebuild, base / "noop.prof")
+    print("  no-op profile [s, cumulative, under cProfile]: " + ", ".join(f"{k} {v:.2f}" for k, v in prof.items()))
 
     victim = next(p for p in sorted(raw.rglob("*.csv")) if p.name not in ("manifest.csv", "hoses.csv"))
     original = victim.read_bytes()
@@ -131,8 +159,9 @@ def bench_size(runs: int, seed: int, repeat: int, jobs: int | None) -> dict:
     }
     for key, sql in queries.items():
         out[key] = Series(key, [measure([*query, sql], cwd=ROOT) for _ in range(repeat)]).wall_s
+    out["noop_profile"] = prof
     for k, v in out.items():
-        if k != "runs":
+        if k not in ("runs", "noop_profile"):
             print(f"  {k:22s} {v:10.3f}")
     return out
 
@@ -171,10 +200,18 @@ def main(argv=None) -> int:
     ap.add_argument("--jobs", type=int, default=None)
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--plot", type=Path, default=HERE / "scale.png")
+    ap.add_argument("--with-json", type=Path, action="append", default=[],
+                    help="also use the sizes measured by an earlier run (its --json), for the table, the "
+                         "exponents and the plot (a size measured now wins)")
     args = ap.parse_args(argv)
-    sizes = sorted(int(n) for n in args.runs.split(","))
+    sizes = sorted(int(n) for n in args.runs.split(",") if n.strip())
     print(f"pneubench cost curve: {sizes} runs, {os.cpu_count()} cores, python {sys.version.split()[0]}")
+    print(f"load average before: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     results = [bench_size(n, args.seed, args.repeat, args.jobs) for n in sizes]
+    for f in args.with_json:
+        results += [r for r in json.loads(f.read_text())["results"] if r["runs"] not in sizes]
+    results.sort(key=lambda r: r["runs"])
+    print(f"load average after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     big = results[-1]
     ns = [r["runs"] for r in results]
     k_noop = _exponent(ns, [r["noop_s"] for r in results])
