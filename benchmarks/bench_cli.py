@@ -66,7 +66,8 @@ pq.write_table(t, out)
 """,
     "duckdb": _CONVERT + """
 import duckdb
-con = duckdb.connect(config={"enable_progress_bar": False})
+con = duckdb.connect()
+con.execute("SET enable_progress_bar = false")
 con.execute(f\"\"\"COPY (SELECT column0 AS t_s, column1 * 1e5 AS p_a_pa, column2 * 1e5 AS p_b_pa, column3 * 1e-3 AS x_m
   FROM read_csv('{src}', skip={skip + 1}, header=false, columns={{'column0': 'DOUBLE', 'column1': 'DOUBLE',
   'column2': 'DOUBLE', 'column3': 'DOUBLE'}})) TO '{out}' (FORMAT parquet)\"\"\")
@@ -108,7 +109,10 @@ def one_export(fmt: str, size_mb: float, repeat: int, baselines: list[str]) -> d
         for name, cmd in commands.items():
             shutil.rmtree(work, ignore_errors=True)
             work.mkdir(parents=True)
-            series[name].runs.append(measure(cmd(), cwd=ROOT))
+            m = measure(cmd(), cwd=ROOT)
+            if name != "pneubench" and m.exit_code != 0:  # exit 1 is pneubench's "some quarantined", not a baseline's
+                raise SystemExit(f"baseline {name} failed ({m.exit_code}):\n{m.stderr[-2000:]}")
+            series[name].runs.append(m)
     shutil.rmtree(work, ignore_errors=True)
     print(f"\n{fmt.upper()} {mb:.0f} MB, whole processes, median of {repeat}:")
     for name, s in series.items():
