@@ -17,6 +17,8 @@ BENCHMARKS = {
     "durability": ([], ["--hours", "0.5", "--repeat", "1"]),  # default: one full-profile run (10 km)
     "spring_fit": ([], []),
     "rebuild": (["--runs", "1000"], ["--runs", "150"]),
+    "cli": ([], ["--quick"]),  # whole pneubench commands as processes against whole-process baselines
+    "scale": ([], ["--runs", "300,1000"]),  # the cost curve to 10,000 runs
 }
 
 

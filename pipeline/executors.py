@@ -12,7 +12,10 @@ calling process (the single writer) ever builds the DuckDB warehouse.
   than there are items, and reused for every item; they start warm (everything the rebuild
   imported) and close the file descriptors they must not hold (the rebuild's lock).
   Other work (the stages' per-run analyses) runs in this process with ``jobs`` 1, else in a
-  pool started with the ``forkserver`` method (it inherits no file descriptors of the rebuild).
+  pool forked from the rebuild when the first such map comes: its workers start warm in a few
+  milliseconds (a ``forkserver`` pool importing numpy, pandas, scipy and matplotlib afresh cost
+  ~2 s of a 2-core machine, more than the work it spread; issue 14) and, like the readers,
+  close the rebuild's lock at once.
   Every worker exits when the rebuild process dies, even by ``kill -9``.
 * :class:`DaskExecutor`: a ``dask.distributed`` cluster (``--scheduler tcp://host:8786``), or a
   private ``LocalCluster`` when no address is given. Workers must see the raw tree and the
@@ -111,8 +114,8 @@ def _reader_worker_init(pid: int, close_fds: tuple[int, ...]) -> None:
 
 
 def preload_modules() -> list[str]:
-    """Modules the fork server imports once, so each stage worker starts warm (stages, analyses).
-    Readers are not among them: ingest runs in workers forked from the rebuild itself."""
+    """Modules a worker of the stages needs (stages, analyses). The local pools are forked from
+    the rebuild, which has imported them already; kept for executors that start cold."""
     import pkgutil
 
     mods = ["numpy", "pandas", "pyarrow.parquet", "scipy.optimize", "scipy.signal", "scipy.stats",
@@ -149,11 +152,10 @@ class LocalExecutor(Executor):
         self.reader_processes_started = 0
 
     def _get_pool(self) -> ProcessPoolExecutor:
-        if self._pool is None:
-            ctx = multiprocessing.get_context("forkserver")
-            ctx.set_forkserver_preload(preload_modules())
-            self._pool = ProcessPoolExecutor(max_workers=self.jobs, mp_context=ctx, initializer=_watch_parent,
-                                             initargs=(os.getpid(),))
+        if self._pool is None:  # forked: warm at once; the lock closed in each worker
+            self._pool = ProcessPoolExecutor(max_workers=self.jobs, mp_context=multiprocessing.get_context("fork"),
+                                             initializer=_reader_worker_init,
+                                             initargs=(os.getpid(), self.close_in_workers))
         return self._pool
 
     def _reader_pool(self, workers: int) -> ProcessPoolExecutor:

@@ -431,7 +431,6 @@ def _save_stage_folder(warehouse: Path, name: str, folder_key: str, out: stage_r
 
     Returns (folder relative to the warehouse, whether the tables could be cached).
     """
-    import matplotlib.pyplot as plt
     import pyarrow as pa
     import pyarrow.parquet as pq
 
@@ -449,6 +448,8 @@ def _save_stage_folder(warehouse: Path, name: str, folder_key: str, out: stage_r
         except (pa.ArrowException, TypeError, ValueError):
             cacheable = False
     figures = {}
+    if out.figures:  # pyplot costs ~0.5 s to import: only a stage that drew a figure pays it
+        import matplotlib.pyplot as plt
     for fname, fig in sorted(out.figures.items()):
         file = f"{fname}.png"
         fig.savefig(tmp / "figures" / file, dpi=110, metadata={"Software": None})

@@ -11,13 +11,16 @@ import os
 import re
 import tempfile
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import duckdb
-import pandas as pd
 
 from schemas import ddl_statements
-from schemas.channels import CHANNELS
-from schemas.kinds import KINDS
+
+# pandas and pyarrow (through schemas.channels) cost ~0.5 s each to import: `pneubench query` needs
+# neither, so the writers below import them where they are used.
+if TYPE_CHECKING:
+    import pandas as pd
 
 DB_NAME = "pneubench.duckdb"
 
@@ -34,11 +37,12 @@ def _glob_escape_sql(expr: str) -> str:
     return f"replace(replace(replace({expr}, '[', '[[]'), '*', '[*]'), '?', '[?]')"
 
 
-#: SQL expression of the warehouse folder as the views see it (glob-escaped). Unset, it names
-#: the missing setting, so the error a plain DuckDB client gets says what to do.
-ROOT_SQL = _glob_escape_sql(
-    f"coalesce(getvariable('{ROOT_VARIABLE}'), "
-    f"'(run SET VARIABLE {ROOT_VARIABLE} = <warehouse folder>; see README)')")
+#: SQL expression of the warehouse folder (as DuckDB's ``filename`` column shows it). Unset, it
+#: names the missing setting, so the error a plain DuckDB client gets says what to do.
+ROOT_RAW_SQL = (f"coalesce(getvariable('{ROOT_VARIABLE}'), "
+                f"'(run SET VARIABLE {ROOT_VARIABLE} = <warehouse folder>; see README)')")
+#: The same, glob-escaped, as the views' file lists need it.
+ROOT_SQL = _glob_escape_sql(ROOT_RAW_SQL)
 
 
 def _glob_escape(text: str) -> str:
@@ -122,6 +126,16 @@ def _sql_str(text: str) -> str:
     return "'" + str(text).replace("'", "''") + "'"
 
 
+def _columns_by_run(con: duckdb.DuckDBPyConnection) -> dict[str, frozenset[str]]:
+    """Columns of each run's samples file, from the ``channels`` table (``run_id`` + one row per column)."""
+    if "channels" not in {r[0] for r in con.execute("SELECT table_name FROM duckdb_tables()").fetchall()}:
+        return {}
+    if not {"run_id", "column"} <= set(table_columns(con, "channels")):
+        return {}
+    rows = con.execute('SELECT run_id, list(DISTINCT "column") FROM channels GROUP BY run_id').fetchall()
+    return {rid: frozenset(cols) | {"run_id"} for rid, cols in rows}
+
+
 def create_samples_views(con: duckdb.DuckDBPyConnection, warehouse: Path, runs: pd.DataFrame) -> None:
     """One ``samples_<kind>`` view per kind over that kind's samples Parquet files.
 
@@ -132,22 +146,46 @@ def create_samples_views(con: duckdb.DuckDBPyConnection, warehouse: Path, runs: 
     from the path (no Hive partitioning: the folders above the warehouse, or a campaign named
     like a partition, cannot change them). A kind without runs gets an empty view with the
     kind's channels.
+
+    Speed (issue 14): files with the same columns (``channels`` table) are read as one group
+    with ``union_by_name = false``, so binding the view opens one file per group, not every
+    file; groups are joined by name. ``run_id`` comes from a (run_id, file) list joined on the
+    file name, so a filter on ``run_id`` reaches the scan as a filter on the file name and
+    DuckDB opens only the files of the runs asked for (a one-run query at 10,000 runs reads one
+    footer, not 10,000).
     """
+    from schemas.channels import CHANNELS
+    from schemas.kinds import KINDS
+
     con.execute(f"SET VARIABLE {ROOT_VARIABLE} = ?", [Path(warehouse).resolve().as_posix()])
+    columns = _columns_by_run(con)
     for kind, spec in KINDS.items():
-        by_campaign: dict[str | None, list[str]] = {}
+        groups: dict[tuple, list[tuple[str, str]]] = {}
         if not runs.empty:
-            for campaign, path in runs.loc[runs["kind"] == kind, ["campaign", "samples_path"]].itertuples(index=False):
+            sel = runs.loc[runs["kind"] == kind, ["run_id", "campaign", "samples_path"]]
+            for run_id, campaign, path in sel.itertuples(index=False):
                 if isinstance(path, str) and path:
-                    by_campaign.setdefault(campaign if isinstance(campaign, str) else None, []).append(path)
+                    camp = campaign if isinstance(campaign, str) else None
+                    cols = columns.get(run_id)
+                    key = (camp is None, camp or "", tuple(sorted(cols)) if cols else None)
+                    groups.setdefault(key, []).append((str(run_id), Path(path).as_posix()))
         parts = []
-        for campaign in sorted(by_campaign, key=lambda c: (c is None, c or "")):
-            lst = ", ".join(_sql_str(_glob_escape(Path(f).as_posix())) for f in sorted(by_campaign[campaign]))
-            literal = "CAST(NULL AS VARCHAR)" if campaign is None else _sql_str(campaign)
+        for key in sorted(groups, key=lambda k: (k[0], k[1], k[2] is None, k[2] or ())):
+            members = sorted(groups[key], key=lambda m: m[1])
+            lst = ", ".join(_sql_str(_glob_escape(f)) for _, f in members)
+            literal = "CAST(NULL AS VARCHAR)" if key[0] else _sql_str(key[1])
+            if key[2] is None:  # columns unknown: read every schema (slow to bind, never wrong)
+                parts.append(
+                    f"SELECT *, {_sql_str(kind)} AS kind, {literal} AS campaign FROM read_parquet("
+                    f"list_transform([{lst}], lambda f: {ROOT_SQL} || '/' || f), "
+                    "union_by_name = true, hive_partitioning = false)")
+                continue
+            pairs = ", ".join(f"({_sql_str(r)}, {_sql_str(f)})" for r, f in members)
             parts.append(
-                f"SELECT *, {_sql_str(kind)} AS kind, {literal} AS campaign FROM read_parquet("
-                f"list_transform([{lst}], lambda f: {ROOT_SQL} || '/' || f), "
-                "union_by_name = true, hive_partitioning = false)")
+                f"SELECT m.run_id, s.* EXCLUDE (run_id, filename), {_sql_str(kind)} AS kind, {literal} AS campaign "
+                f"FROM read_parquet(list_transform([{lst}], lambda f: {ROOT_SQL} || '/' || f), "
+                "union_by_name = false, hive_partitioning = false, filename = true) AS s "
+                f"JOIN (VALUES {pairs}) AS m(run_id, rel) ON s.filename = {ROOT_RAW_SQL} || '/' || m.rel")
         if parts:
             sql = " UNION ALL BY NAME ".join(parts)
         else:
@@ -189,6 +227,8 @@ def build_database(path: Path, warehouse: Path, tables: dict[str, pd.DataFrame],
 
 def runs_frame(runs: list[dict]) -> pd.DataFrame:
     """``runs`` rows (dicts from ingest) as a DataFrame ready for the warehouse."""
+    import pandas as pd
+
     cols = ["run_id", "kind", "campaign", "rig", "started_at", "source_path", "source_sha256", "n_samples",
             "sample_rate_hz", "params", "warnings", "format", "duration_s", "samples_path"]
     df = pd.DataFrame(runs, columns=cols)
@@ -281,6 +321,9 @@ def ddl_comments() -> dict[str, dict]:
 
 def comment_statements(con: duckdb.DuckDBPyConnection) -> list[str]:
     """``COMMENT ON`` statements for every table, view and column the DDL or the channels describe."""
+    from schemas.channels import CHANNELS
+    from schemas.kinds import KINDS
+
     present = {r[0]: r[1] for r in con.execute(
         "SELECT table_name, 'TABLE' FROM duckdb_tables() WHERE database_name = current_database() "
         "UNION ALL SELECT view_name, 'VIEW' FROM duckdb_views() WHERE NOT internal "

@@ -1,0 +1,255 @@
+"""The cost curve: what a user waits for as the raw tree grows to 10,000 runs.
+
+One command::
+
+    python -m benchmarks scale                              # 1,000, 3,000 and 10,000 runs (~15 min)
+    python -m benchmarks.bench_scale --runs 300,1000        # a quick look
+
+For each size it writes a campaign with ``pneubench simulate DIR --runs N`` (demo profile, under
+``benchmarks/_data/scale-N/``, git-ignored, reused when present; files aged an hour, as a
+night's files are when the job runs) and times, each as a whole ``pneubench`` process (imports,
+workers and the morning report included, what cron runs):
+
+* ``full``: the first ``pneubench rebuild`` into a fresh warehouse;
+* ``noop``: the same raw/ again (median of 3);
+* ``one file``: one run file's bytes changed (a newline appended), then rebuilt;
+* ``one logbook line``: one ``hoses.csv`` line's notes changed, then rebuilt;
+* the warehouse's size on disk;
+* three typical queries through ``pneubench query`` (median of 3): one run's samples by run_id,
+  the leak map at 5 bar, the service life table.
+
+Targets (at the largest size): no-op under 2 s; one file changed under 5 % of a full rebuild;
+the one-run samples query under 0.5 s; no-op and one-change time growing no faster than linear
+in the number of runs (the exponent of a power law fitted over the sizes, log-log least squares,
+at most 1.0). It prints every figure with PASS / MISS, writes ``--json`` and a log-log plot of
+the curve (``--plot``, default ``benchmarks/scale.png``).
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import json
+import os
+import shutil
+import sys
+import time
+from pathlib import Path
+
+from benchmarks.proc import Series, measure, pneubench_cmd, verdict
+
+DATA = Path(__file__).resolve().parent / "_data"
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+
+
+def _age(raw: Path, seconds: float = 3600.0) -> None:
+    past = time.time() - seconds
+    for p in raw.rglob("*"):
+        if p.is_file():
+            os.utime(p, (past, past))
+
+
+def make_campaign(base: Path, runs: int, seed: int) -> Path:
+    raw = base / "raw"
+    if (base / ".complete").is_file():
+        return raw
+    shutil.rmtree(base, ignore_errors=True)
+    base.mkdir(parents=True)
+    m = measure([*pneubench_cmd(), "simulate", str(raw), "--seed", str(seed), "--runs", str(runs), "-q"], cwd=ROOT)
+    print(f"  simulated {runs} runs in {m.wall_s:.0f} s: {m.stdout.strip()}")
+    (base / ".complete").write_text("ok\n")
+    return raw
+
+
+def _size_mb(folder: Path) -> float:
+    return sum(p.stat().st_size for p in folder.rglob("*") if p.is_file()) / 1e6
+
+
+def _edit_logbook(path: Path) -> bytes:
+    """Change the notes of the logbook's first data line; returns the original bytes."""
+    original = path.read_bytes()
+    rows = list(csv.reader(io.StringIO(original.decode("utf-8"))))
+    head = rows[0]
+    col = head.index("notes") if "notes" in head else len(head) - 1
+    rows[1][col] = (rows[1][col] + " (checked)").strip()
+    buf = io.StringIO()
+    csv.writer(buf, lineterminator="\n").writerows(rows)
+    path.write_text(buf.getvalue(), encoding="utf-8")
+    return original
+
+
+def _exponent(ns: list[int], ts: list[float]) -> float | None:
+    """Slope of log(t) against log(n), least squares: t ~ n^k."""
+    import numpy as np
+
+    if len(ns) < 2:
+        return None
+    k, _ = np.polyfit(np.log(ns), np.log(ts), 1)
+    return float(k)
+
+
+#: Phases of a rebuild whose cumulative time the no-op profile reports [function name in cProfile].
+PHASES = {"load_previous": "load_previous", "scan raw/": "discover_runs", "plan (stat, metadata)": "plan_runs",
+          "ingest": "ingest_incremental", "stages (reuse or run)": "run_stages_cached",
+          "write database": "build_database", "morning report": "render_report", "publish report": "publish_page",
+          "collect garbage": "collect_garbage", "whole rebuild()": "rebuild"}
+
+
+def profile_noop(rebuild: list[str], out: Path) -> dict:
+    """Seconds per phase of one no-op rebuild (cProfile in the rebuild's process; the rest of the
+    wall time is Python start-up and imports)."""
+    import pstats
+
+    argv = rebuild[3:]
+    code = (f"import cProfile, sys; sys.argv = ['pneubench'] + {argv!r}; from pipeline.cli import main; "
+            f"cProfile.run('main()', {str(out)!r})")
+    measure([sys.executable, "-c", code], cwd=ROOT)
+    st = pstats.Stats(str(out)).stats
+    phases = {}
+    for label, fn in PHASES.items():
+        cum = [v[3] for (file, _line, name), v in st.items() if name == fn and "pipeline" in file]
+        phases[label] = max(cum) if cum else 0.0
+    phases["all in the process"] = max(v[3] for v in st.values())
+    return phases
+
+
+def bench_size(runs: int, seed: int, repeat: int, jobs: int | None) -> dict:
+    base = DATA / f"scale-{runs}"
+    print(f"\n{runs} runs ({base})")
+    raw = make_campaign(base, runs, seed)
+    _age(raw)
+    wh = base / "warehouse"
+    shutil.rmtree(wh, ignore_errors=True)
+    rebuild = [*pneubench_cmd(), "rebuild", "--raw", str(raw), "--warehouse", str(wh), "-q"]
+    if jobs:
+        rebuild += ["--jobs", str(jobs)]
+    out: dict = {"runs": runs, "raw_mb": _size_mb(raw)}
+    full = measure(rebuild, cwd=ROOT)
+    out["full_s"], out["full_tree_mb"] = full.wall_s, full.tree_peak_mb
+    noop = Series("noop", [measure(rebuild, cwd=ROOT) for _ in range(repeat)])
+    out["noop_s"], out["noop_tree_mb"] = noop.wall_s, noop.tree_peak_mb
+    out["noop_cpu_s"] = noop.cpu_s
+    prof = profile_noop(rebuild, base / "noop.prof")
+    print("  no-op profile [s, cumulative, under cProfile]: " + ", ".join(f"{k} {v:.2f}" for k, v in prof.items()))
+
+    victim = next(p for p in sorted(raw.rglob("*.csv")) if p.name not in ("manifest.csv", "hoses.csv"))
+    original = victim.read_bytes()
+    victim.write_bytes(original + b"\n")
+    out["one_file_s"] = measure(rebuild, cwd=ROOT).wall_s
+    victim.write_bytes(original)
+    _age(raw)
+    measure(rebuild, cwd=ROOT)
+
+    logbook = sorted(raw.rglob("hoses.csv"))[0]
+    original = _edit_logbook(logbook)
+    out["one_logbook_line_s"] = measure(rebuild, cwd=ROOT).wall_s
+    logbook.write_bytes(original)
+    _age(raw)
+    measure(rebuild, cwd=ROOT)
+    out["warehouse_mb"] = _size_mb(wh)
+
+    query = [*pneubench_cmd(), "query", "--warehouse", str(wh), "--format", "csv"]
+    run_id = measure([*query, "SELECT run_id FROM runs WHERE kind = 'durability' ORDER BY n_samples DESC LIMIT 1"],
+                     cwd=ROOT).stdout.splitlines()[1].strip()
+    # and one run of the kind with the most runs (the most files a view could open)
+    many = measure([*query, "SELECT kind, min(run_id) FROM runs WHERE samples_path IS NOT NULL GROUP BY kind "
+                    "ORDER BY count(*) DESC, kind LIMIT 1"], cwd=ROOT).stdout.splitlines()[1].strip().split(",", 1)
+    queries = {
+        "query_one_run_s": f"SELECT * FROM samples_durability WHERE run_id = '{run_id}'",
+        "query_one_run_many_files_s": f"SELECT * FROM samples_{many[0]} WHERE run_id = '{many[1]}'",
+        "query_leak_5bar_s": "SELECT * FROM leakage_map WHERE round(pressure_bar) = 5 ORDER BY run_id",
+        "query_service_life_s": "SELECT * FROM service_life",
+    }
+    for key, sql in queries.items():
+        q = Series(key, [measure([*query, sql], cwd=ROOT) for _ in range(repeat)])
+        out[key], out[key[:-2] + "_cpu_s"] = q.wall_s, q.cpu_s  # CPU: the figure a loaded machine does not move
+    out["noop_profile"] = prof
+    for k, v in out.items():
+        if k not in ("runs", "noop_profile"):
+            print(f"  {k:22s} {v:10.3f}")
+    return out
+
+
+def plot(results: list[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ns = [r["runs"] for r in results]
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    series = [("full_s", "full rebuild", "o-"), ("one_file_s", "one file changed", "s-"),
+              ("one_logbook_line_s", "one logbook line changed", "^-"), ("noop_s", "no-op rebuild", "D-"),
+              ("query_one_run_s", "query: one run's samples", "v--"), ("query_service_life_s", "query: service life", "x--")]
+    for key, label, style in series:
+        ax.plot(ns, [r[key] for r in results], style, label=label)
+    ax.plot(ns, [ns[0] and results[0]["full_s"] * n / ns[0] for n in ns], ":", color="grey", label="linear in runs")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("runs in raw/")
+    ax.set_ylabel("wall time, whole process [s]")
+    ax.set_title("pneubench cost curve (2 cores)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--runs", default="1000,3000,10000", help="comma-separated campaign sizes")
+    ap.add_argument("--seed", type=int, default=7)
+    ap.add_argument("--repeat", type=int, default=3, help="runs of the no-op and of each query (median)")
+    ap.add_argument("--jobs", type=int, default=None)
+    ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--plot", type=Path, default=HERE / "scale.png")
+    ap.add_argument("--with-json", type=Path, action="append", default=[],
+                    help="also use the sizes measured by an earlier run (its --json), for the table, the "
+                         "exponents and the plot (a size measured now wins)")
+    args = ap.parse_args(argv)
+    sizes = sorted(int(n) for n in args.runs.split(",") if n.strip())
+    print(f"pneubench cost curve: {sizes} runs, {os.cpu_count()} cores, python {sys.version.split()[0]}")
+    print(f"load average before: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+    results = [bench_size(n, args.seed, args.repeat, args.jobs) for n in sizes]
+    for f in args.with_json:
+        results += [r for r in json.loads(f.read_text())["results"] if r["runs"] not in sizes]
+    results.sort(key=lambda r: r["runs"])
+    print(f"load average after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+    big = results[-1]
+    ns = [r["runs"] for r in results]
+    k_noop = _exponent(ns, [r["noop_s"] for r in results])
+    k_one = _exponent(ns, [r["one_file_s"] for r in results])
+    checks = [
+        (f"no-op rebuild at {big['runs']} runs < 2 s", big["noop_s"], big["noop_s"] < 2.0),
+        (f"one file changed < 5 % of full at {big['runs']} runs", big["one_file_s"] / big["full_s"],
+         big["one_file_s"] / big["full_s"] < 0.05),
+        (f"one-run samples query at {big['runs']} runs < 0.5 s", big["query_one_run_s"], big["query_one_run_s"] < 0.5),
+    ]
+    if "query_one_run_many_files_s" in big:
+        checks.append((f"one-run samples query, kind with the most files, at {big['runs']} runs < 0.5 s",
+                       big["query_one_run_many_files_s"], big["query_one_run_many_files_s"] < 0.5))
+    if k_noop is not None:
+        checks += [("no-op growth exponent <= 1 (linear)", k_noop, k_noop <= 1.0),
+                   ("one-change growth exponent <= 1 (linear)", k_one, k_one <= 1.0)]
+    print("\n| runs | raw MB | full s | no-op s | one file s | one logbook line s | warehouse MB | one-run query s "
+          "| leak map query s | service life query s |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for r in results:
+        print(f"| {r['runs']:,} | {r['raw_mb']:.0f} | {r['full_s']:.1f} | {r['noop_s']:.2f} | {r['one_file_s']:.2f} "
+              f"| {r['one_logbook_line_s']:.2f} | {r['warehouse_mb']:.0f} | {r['query_one_run_s']:.2f} "
+              f"| {r['query_leak_5bar_s']:.2f} | {r['query_service_life_s']:.2f} |")
+    print()
+    for what, value, ok in checks:
+        print(f"{verdict(ok)}  {what}: {value:.3f}")
+    if args.plot:
+        plot(results, args.plot)
+        print(f"plot: {args.plot}")
+    if args.json:
+        args.json.write_text(json.dumps({"results": results, "checks": [(w, v, ok) for w, v, ok in checks]}, indent=1))
+    return 0 if all(ok for _, _, ok in checks) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
