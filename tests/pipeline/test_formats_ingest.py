@@ -6,25 +6,12 @@ import pytest
 
 from pipeline.rebuild import rebuild
 from tests.conftest import query
+from tests.pipeline.readers.generators import xlsx_workbook
 
 openpyxl = pytest.importorskip("openpyxl")
 asammdf = pytest.importorskip("asammdf")
 
 pytestmark = pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")
-
-
-def _xlsx(path, rows, meta=None):
-    wb = openpyxl.Workbook()
-    ws = wb.active
-    for r in rows:
-        ws.append(r)
-    if meta:
-        ms = wb.create_sheet("meta")
-        for k, v in meta.items():
-            ms.append([k, v])
-    path.parent.mkdir(parents=True, exist_ok=True)
-    wb.save(path)
-    return path
 
 
 def _mf4(path, t, signals, comment):
@@ -39,7 +26,7 @@ def _mf4(path, t, signals, comment):
 
 def test_xlsx_and_mf4_runs_ingest_value_exact_and_other_files_are_listed(raw, warehouse):
     t = np.arange(6) * 0.1
-    _xlsx(raw.root / "lab" / "leak.xlsx",
+    xlsx_workbook(raw.root / "lab" / "leak.xlsx",
           [["t", "supply", "q_leak"], ["s", "kPa", "l/min"]] + [[ti, 100.0 * i, 0.5 * i] for i, ti in enumerate(t)],
           meta={"kind": "leakage", "chamber": "A", "adjustment": "distance", "z_rollers_mm": 4,
                 "started_at": "2026-05-01T10:00:00"})

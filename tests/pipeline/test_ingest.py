@@ -8,6 +8,7 @@ import pytest
 from pipeline.ingest import ingest_file
 from pipeline.layout import RawTree
 from tests.conftest import STEP_META
+from tests.pipeline.readers.generators import xlsx_workbook
 
 T = [0.0, 0.1, 0.2, 0.3]
 
@@ -568,25 +569,9 @@ def test_q_missing_channel_names_the_derived_channel_that_could_not_be_computed(
 
 
 # -- files of several runs ---------------------------------------------------------------------
-def _workbook(path, sheets, meta):
-    openpyxl = pytest.importorskip("openpyxl")
-    wb = openpyxl.Workbook()
-    wb.remove(wb.active)
-    for name, rows in sheets.items():
-        ws = wb.create_sheet(name)
-        for r in rows:
-            ws.append(r)
-    ms = wb.create_sheet("meta")
-    for k, v in meta.items():
-        ms.append([k, v])
-    path.parent.mkdir(parents=True, exist_ok=True)
-    wb.save(path)
-    return path
-
-
 def test_sheets_all_gives_one_part_per_sheet_each_with_its_samples_file(raw, warehouse):
     rows = [["t[s]", "x[mm]", "x_ref[mm]"], [0.0, 1.0, 0.0], [0.1, 2.0, 0.0]]
-    _workbook(raw.root / "c" / "b.xlsx", {"S1": rows, "S 2": rows, "bad": [["t[s]", "x[mm]"], [0.0, "oops"]]},
+    xlsx_workbook(raw.root / "c" / "b.xlsx", {"S1": rows, "S 2": rows, "bad": [["t[s]", "x[mm]"], [0.0, "oops"]]},
               STEP_META)
     raw.write("c/rig.toml", '[read]\nsheets = "all"\n')
     res = ingest(raw, "c/b.xlsx", warehouse)
@@ -619,7 +604,7 @@ def test_a_file_whose_sheets_cannot_be_listed_is_one_file_error(raw, warehouse):
 
 def test_sheet_names_with_control_characters_give_one_line_run_ids(raw, warehouse):
     rows = [["t[s]", "x[mm]", "x_ref[mm]"], [0.0, 1.0, 0.0], [0.1, 2.0, 0.0]]
-    _workbook(raw.root / "c" / "b.xlsx", {"a\tb": rows}, STEP_META)
+    xlsx_workbook(raw.root / "c" / "b.xlsx", {"a\tb": rows}, STEP_META)
     raw.write("c/manifest.csv", "file,sheets,run_id\nb.xlsx,all,day3\n")
     (part,) = ingest(raw, "c/b.xlsx", warehouse).parts
     assert part.run["run_id"] == "day3/a\\x09b" and part.run["params"]["sheet"] == "a\tb"

@@ -253,3 +253,30 @@ def v5_tag(mtype: int, data: bytes, nbytes: int | None = None) -> bytes:
 def v5_double(name: str, values) -> bytes:
     """A miMATRIX element: a double N x 1 vector."""
     return _v5_double(name, values)
+
+
+# -- spreadsheets ----------------------------------------------------------------------------
+def xlsx_workbook(path: Path, sheets, meta: dict | None = None, extra=None) -> Path:
+    """An ``.xlsx`` written with openpyxl: ``sheets`` maps sheet name -> rows (a plain list of
+    rows is one sheet named ``run``); ``meta`` becomes a ``meta`` sheet of key / value rows;
+    ``extra(workbook)`` may change anything else (a chart sheet, a second sheet) before saving."""
+    import openpyxl
+
+    if not isinstance(sheets, dict):
+        sheets = {"run": sheets}
+    wb = openpyxl.Workbook()
+    wb.remove(wb.active)
+    for name, rows in sheets.items():
+        ws = wb.create_sheet(name)
+        for r in rows:
+            ws.append(r)
+    if meta:
+        ms = wb.create_sheet("meta")
+        for k, v in meta.items():
+            ms.append([k, v])
+    if extra:
+        extra(wb)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    wb.save(path)
+    return path

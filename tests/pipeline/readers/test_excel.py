@@ -9,27 +9,16 @@ openpyxl = pytest.importorskip("openpyxl")
 
 from pipeline.readers import ReaderError, read_export  # noqa: E402
 from pipeline.readers.excel import list_parts, read_excel  # noqa: E402
+from tests.pipeline.readers.generators import xlsx_workbook  # noqa: E402
+
+
+def _book(path, rows, title="run", meta=None, extra=None):
+    return xlsx_workbook(path, {title: rows}, meta, extra)
 
 
 def _values(exp):
     table = pa.Table.from_batches(list(exp.batches()))
     return {c.name: table.column(c.key).to_pylist() for c in exp.columns}
-
-
-def _book(path, rows, title="run", meta=None, extra=None):
-    wb = openpyxl.Workbook()
-    ws = wb.active
-    ws.title = title
-    for r in rows:
-        ws.append(r)
-    if meta:
-        ms = wb.create_sheet("meta")
-        for k, v in meta.items():
-            ms.append([k, v])
-    if extra:
-        extra(wb)
-    wb.save(path)
-    return path
 
 
 def test_header_with_units_and_comment_metadata(tmp_path):
