@@ -340,6 +340,7 @@ class RawTree:
     _rigs: dict = field(default_factory=dict)
     _manifests: dict = field(default_factory=dict)
     _real: dict = field(default_factory=dict)
+    _rels: dict = field(default_factory=dict)
     _chains: dict = field(default_factory=dict)
 
     _listing: Listing | None = None
@@ -396,12 +397,18 @@ class RawTree:
 
     def rel(self, path: Path) -> str:
         """Path relative to raw/ as shown and stored: ``/``-separated, valid UTF-8
-        (:func:`display_name`)."""
-        real = self.real(path)
-        try:
-            return display_name(real.relative_to(self.root).as_posix())
-        except ValueError:  # not under raw/ (a caller's mistake): still one clear line
-            return display_name(real.as_posix())
+        (:func:`display_name`); cached, as :meth:`real` is (a rebuild asks for it per file
+        several times)."""
+        key = str(path)
+        out = self._rels.get(key)
+        if out is None:
+            real = self.real(path)
+            try:
+                out = display_name(real.relative_to(self.root).as_posix())
+            except ValueError:  # not under raw/ (a caller's mistake): still one clear line
+                out = display_name(real.as_posix())
+            self._rels[key] = out
+        return out
 
     def campaign(self, path: Path) -> str | None:
         parts = Path(self.rel(path)).parts

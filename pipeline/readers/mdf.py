@@ -21,8 +21,8 @@ or Kistler loggers write them. Read with asammdf.
   needs the bus database (DBC / ARXML), which pneubench does not apply. Such a group is
   refused with a message that says to export the decoded signals first.
 
-Samples are read in slices of records (asammdf reads record ranges), so a large file streams
-in bounded memory.
+Samples are read fragment by fragment of the group's data blocks (asammdf's own chunking, as
+its ``iter_get`` does) and yielded in record batches, so a large file streams in bounded memory.
 """
 from __future__ import annotations
 
@@ -240,27 +240,37 @@ def read_mdf(path: str | Path, read: dict | None = None, hints: dict | None = No
 
     def batches() -> Iterator[pa.RecordBatch]:
         mdf = _open(path)
+        offset = 0
         try:
-            for offset in range(0, n_records, BATCH_ROWS):
-                count = min(BATCH_ROWS, n_records - offset)
+            # asammdf's own chunking (as its public iter_get does): the group's data blocks in
+            # fragments of bounded size, every channel decoded from the same fragment. Reading by
+            # record_offset instead re-scans the blocks for every slice (and fails on some files).
+            fragments = mdf._mdf._load_data(mdf.groups[index])
+            while True:
                 try:
-                    t = mdf.get_master(index, record_offset=offset, record_count=count)
+                    fragment = next(fragments, None)
+                    if fragment is None:
+                        break
+                    t = mdf.get_master(index, data=fragment)
                     arrays = {"c_master": np.asarray(t, dtype=float)}
-                    for key, name, ci in fetch:
-                        s = mdf.get(name, index, ci, record_offset=offset, record_count=count, samples_only=True)[0]
-                        arrays[key] = s
+                    for key, _name, ci in fetch:
+                        arrays[key] = mdf.get(group=index, index=ci, data=fragment, samples_only=True,
+                                              ignore_invalidation_bits=True)[0]
                 except Exception as exc:
                     raise ReaderError(f"MDF samples cannot be read at record {offset}: {type(exc).__name__}: "
                                       f"{' '.join(str(exc).split())[:160]}") from None
-                out = []
-                for c in columns:
-                    a = arrays[c.key]
-                    if kinds[c.key] == "string":
-                        out.append(pa.array([v.decode("utf-8", "replace") if isinstance(v, bytes) else str(v)
-                                             for v in a], type=pa.string()))
-                    else:
-                        out.append(pa.array(np.asarray(a, dtype=float)))
-                yield pa.RecordBatch.from_arrays(out, names=[c.key for c in columns])
+                n = len(arrays["c_master"])
+                for a in range(0, n, BATCH_ROWS):
+                    out = []
+                    for c in columns:
+                        part = arrays[c.key][a:a + BATCH_ROWS]
+                        if kinds[c.key] == "string":
+                            out.append(pa.array([v.decode("utf-8", "replace") if isinstance(v, bytes) else str(v)
+                                                 for v in part], type=pa.string()))
+                        else:
+                            out.append(pa.array(np.asarray(part, dtype=float)))
+                    yield pa.RecordBatch.from_arrays(out, names=[c.key for c in columns])
+                offset += n
         finally:
             mdf.close()
 

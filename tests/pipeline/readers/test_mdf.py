@@ -161,3 +161,21 @@ def test_header_run_id_is_the_prefix_of_each_group_in_groups_all_mode(tmp_path):
                comment="run_id=bench7/day3;kind=step")
     assert read_mdf(p, {"group": "slow"}).metadata["run_id"] == "bench7/day3"          # one group: as written
     assert read_mdf(p, {"groups": "all"}, {"group": "slow"}).metadata["run_id"] == "bench7/day3/slow"
+
+
+def test_a_file_written_in_several_blocks_streams_in_order(tmp_path):
+    """A logger appends blocks as it records (asammdf extend): every record comes back once, in order."""
+    n = 400_000
+    m = MDF(version="4.10")
+    for k in range(3):
+        t = (np.arange(n) + k * n) / 1000.0
+        if k == 0:
+            m.append([Signal(t * 2, t, name="x", unit="mm")], acq_name="daq")
+        else:
+            m.extend(0, [(t, None), (t * 2, None)])
+    p = m.save(tmp_path / "blocks.mf4", overwrite=True)
+    m.close()
+    v = _values(read_mdf(p))
+    t = np.arange(3 * n) / 1000.0
+    np.testing.assert_array_equal(v["t"], t)
+    np.testing.assert_array_equal(v["x"], t * 2)
