@@ -14,16 +14,6 @@ asammdf = pytest.importorskip("asammdf")
 pytestmark = pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")
 
 
-def _mf4(path, t, signals, comment):
-    m = asammdf.MDF(version="4.10")
-    m.append([asammdf.Signal(v, t, name=n, unit=u) for n, (v, u) in signals.items()], acq_name="daq")
-    m.header.comment = comment
-    path.parent.mkdir(parents=True, exist_ok=True)
-    m.save(path, overwrite=True)
-    m.close()
-    return path
-
-
 def test_xlsx_and_mf4_runs_ingest_value_exact_and_other_files_are_listed(raw, warehouse):
     t = np.arange(6) * 0.1
     xlsx_workbook(raw.root / "lab" / "leak.xlsx",
@@ -32,7 +22,7 @@ def test_xlsx_and_mf4_runs_ingest_value_exact_and_other_files_are_listed(raw, wa
                 "started_at": "2026-05-01T10:00:00"})
     raw.write("lab/rig.toml", '[read]\nunits_row = 2\n[channels.supply]\nchannel = "p_supply"\n'
                               '[metadata]\nrig = "plpa-x"\n')
-    _mf4(raw.root / "lab" / "step.MF4", t, {"x": (t * 10, "mm"), "x_ref": (np.full(6, 0.5), "mm")},
+    _mf4_groups(raw.root / "lab" / "step.MF4", {"daq": (t, {"x": (t * 10, "mm"), "x_ref": (np.full(6, 0.5), "mm")})},
          "<HDcomment><TX>kind=step;started_at=2026-05-01T11:00:00</TX></HDcomment>")
     raw.write("lab/notes.docx", b"PK not really a docx")
     code = rebuild(raw.root, warehouse, jobs=1).exit_code
