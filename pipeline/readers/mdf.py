@@ -49,14 +49,37 @@ _CG_BUS_EVENT = 1 << 1
 _SYNC_TIME = 1
 
 
-def _open(path: Path):
-    from asammdf import MDF
+#: Bytes of data blocks decoded at a time. [bytes]
+READ_FRAGMENT_BYTES = 16 << 20
 
-    try:
-        return MDF(str(path))
-    except Exception as exc:  # asammdf raises many kinds on damaged files
-        what = " ".join(str(exc).split())[:200] or type(exc).__name__
-        raise ReaderError(f"not a readable MDF file (truncated or damaged?): {type(exc).__name__}: {what}") from None
+
+class _Opened:
+    """An MDF opened from a file object: asammdf then reads with ordinary reads, not a memory
+    map of the whole file (whose pages count as the process's resident memory: 1.1 GB for a
+    1 GB file, against 0.17 GB this way). Closing closes both."""
+
+    def __init__(self, path: Path):
+        from asammdf import MDF
+
+        self.fh = open(path, "rb")
+        try:
+            self.mdf = MDF(self.fh)
+        except Exception as exc:  # asammdf raises many kinds on damaged files
+            self.fh.close()
+            what = " ".join(str(exc).split())[:200] or type(exc).__name__
+            raise ReaderError(f"not a readable MDF file (truncated or damaged?): {type(exc).__name__}: {what}") \
+                from None
+        self.mdf.configure(read_fragment_size=READ_FRAGMENT_BYTES)
+
+    def close(self) -> None:
+        try:
+            self.mdf.close()
+        finally:
+            self.fh.close()
+
+
+def _open(path: Path) -> _Opened:
+    return _Opened(path)
 
 
 def _text(elem) -> str:
@@ -122,14 +145,15 @@ def list_parts(path: str | Path) -> list[str]:
     ReaderError
         The file cannot be opened, or holds no group with samples.
     """
-    mdf = _open(Path(path))
+    opened = _open(Path(path))
+    mdf = opened.mdf
     try:
         groups = _groups(mdf)
     except Exception as exc:
         raise ReaderError(f"MDF file cannot be read: {type(exc).__name__}: {' '.join(str(exc).split())[:160]}") \
             from None
     finally:
-        mdf.close()
+        opened.close()
     if not groups:
         raise ReaderError("MDF file holds no channel group with samples")
     check_part_count(len(groups), "channel groups with data")
@@ -179,7 +203,8 @@ def read_mdf(path: str | Path, read: dict | None = None, hints: dict | None = No
     path = Path(path)
     read = dict(read or {})
     hints = dict(hints or {})
-    mdf = _open(path)
+    opened = _open(path)
+    mdf = opened.mdf
     try:
         index, acq_name, n_records = _pick_group(mdf, hints.get("group", read.get("group")))
         if _is_bus_log(mdf, index):
@@ -235,11 +260,12 @@ def read_mdf(path: str | Path, read: dict | None = None, hints: dict | None = No
         raise ReaderError(f"MDF file cannot be read: {type(exc).__name__}: {' '.join(str(exc).split())[:160]}") \
             from None
     finally:
-        mdf.close()  # batches() opens the file again: nothing stays open between the two
+        opened.close()  # batches() opens the file again: nothing stays open between the two
     kinds = {c.key: c.dtype for c in columns}
 
     def batches() -> Iterator[pa.RecordBatch]:
-        mdf = _open(path)
+        opened = _open(path)
+        mdf = opened.mdf
         offset = 0
         try:
             # asammdf's own chunking (as its public iter_get does): the group's data blocks in
@@ -272,6 +298,6 @@ def read_mdf(path: str | Path, read: dict | None = None, hints: dict | None = No
                     yield pa.RecordBatch.from_arrays(out, names=[c.key for c in columns])
                 offset += n
         finally:
-            mdf.close()
+            opened.close()
 
     return RawExport(format=FORMAT, columns=columns, metadata=metadata, batches=batches, warnings=warnings)
