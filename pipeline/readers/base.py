@@ -146,6 +146,12 @@ def decode_text(data: bytes) -> tuple[str, str]:
         return data.decode("latin-1"), "latin-1"
 
 
+def exc_text(exc: BaseException, limit: int = 160) -> str:
+    """A library's exception as one short line for a quarantine reason: ``Type: message``."""
+    what = " ".join(str(exc).split())[:limit]
+    return f"{type(exc).__name__}: {what}" if what else type(exc).__name__
+
+
 class SideCsvError(Exception):
     """A side file (``manifest.csv``, ``hoses.csv``) that cannot be parsed as CSV text.
 

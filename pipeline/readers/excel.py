@@ -40,8 +40,8 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from pipeline.readers.base import (RawColumn, RawExport, ReaderError, check_part_count, parse_key_value,
-                                   split_name_unit)
+from pipeline.readers.base import (RawColumn, RawExport, ReaderError, check_part_count, exc_text,
+                                   parse_key_value, split_name_unit)
 
 FORMAT = "excel"
 EXTENSIONS = (".xlsx", ".xlsm", ".xls", ".ods")
@@ -69,8 +69,7 @@ def _open_workbook(path: Path):
     except (pc.CalamineError, pc.ZipError, pc.XmlError, ValueError, OSError) as exc:
         if isinstance(exc, OSError) and exc.errno is not None:
             raise
-        what = " ".join(str(exc).split())[:200]
-        raise ReaderError(f"not a readable {path.suffix.lower()} workbook ({type(exc).__name__}: {what})") from None
+        raise ReaderError(f"not a readable {path.suffix.lower()} workbook ({exc_text(exc, 200)})") from None
 
 
 #: ``[read]`` / metadata key that makes every data sheet a run, and the key naming one sheet.
@@ -242,8 +241,7 @@ def read_excel(path: str | Path, read: dict | None = None, hints: dict | None = 
     try:
         rows = _trim(wb.get_sheet_by_name(name).to_python(skip_empty_area=False))
     except Exception as exc:  # calamine's own errors on malformed sheets
-        raise ReaderError(f"sheet {name!r} cannot be read ({type(exc).__name__}: {' '.join(str(exc).split())[:160]})") \
-            from None
+        raise ReaderError(f"sheet {name!r} cannot be read ({exc_text(exc)})") from None
     if not rows:
         raise ReaderError(f"sheet {name!r} is empty (no cells with values)")
 

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from pipeline.readers.base import RawColumn, RawExport, ReaderError, check_part_count
+from pipeline.readers.base import RawColumn, RawExport, ReaderError, check_part_count, exc_text
 
 FORMAT = "mdf"
 EXTENSIONS = (".mf4", ".mdf")
@@ -66,9 +66,7 @@ class _Opened:
             self.mdf = MDF(self.fh)
         except Exception as exc:  # asammdf raises many kinds on damaged files
             self.fh.close()
-            what = " ".join(str(exc).split())[:200] or type(exc).__name__
-            raise ReaderError(f"not a readable MDF file (truncated or damaged?): {type(exc).__name__}: {what}") \
-                from None
+            raise ReaderError(f"not a readable MDF file (truncated or damaged?): {exc_text(exc, 200)}") from None
         self.mdf.configure(read_fragment_size=READ_FRAGMENT_BYTES)
 
     def close(self) -> None:
@@ -150,8 +148,7 @@ def list_parts(path: str | Path) -> list[str]:
     try:
         groups = _groups(mdf)
     except Exception as exc:
-        raise ReaderError(f"MDF file cannot be read: {type(exc).__name__}: {' '.join(str(exc).split())[:160]}") \
-            from None
+        raise ReaderError(f"MDF file cannot be read: {exc_text(exc)}") from None
     finally:
         opened.close()
     if not groups:
@@ -257,8 +254,7 @@ def read_mdf(path: str | Path, read: dict | None = None, hints: dict | None = No
     except ReaderError:
         raise
     except Exception as exc:
-        raise ReaderError(f"MDF file cannot be read: {type(exc).__name__}: {' '.join(str(exc).split())[:160]}") \
-            from None
+        raise ReaderError(f"MDF file cannot be read: {exc_text(exc)}") from None
     finally:
         opened.close()  # batches() opens the file again: nothing stays open between the two
     kinds = {c.key: c.dtype for c in columns}
@@ -283,8 +279,7 @@ def read_mdf(path: str | Path, read: dict | None = None, hints: dict | None = No
                         arrays[key] = mdf.get(group=index, index=ci, data=fragment, samples_only=True,
                                               ignore_invalidation_bits=True)[0]
                 except Exception as exc:
-                    raise ReaderError(f"MDF samples cannot be read at record {offset}: {type(exc).__name__}: "
-                                      f"{' '.join(str(exc).split())[:160]}") from None
+                    raise ReaderError(f"MDF samples cannot be read at record {offset}: {exc_text(exc)}") from None
                 n = len(arrays["c_master"])
                 for a in range(0, n, BATCH_ROWS):
                     out = []
