@@ -40,3 +40,17 @@ def ingest_code_version() -> str:
              ROOT / "pipeline" / "ingest.py", ROOT / "pipeline" / "layout.py", ROOT / "pipeline" / "derived.py",
              ROOT / "pipeline" / "code_version.py"]
     return f"{INGEST_VERSION}-{hash_sources([f for f in files if f.is_file()])}"
+
+
+@lru_cache(maxsize=1)
+def project_code_version() -> str:
+    """Version of all of the project's code: every ``.py``, ``.sql`` and ``.toml`` file under
+    ``pipeline/``, ``analyses/`` and ``schemas/`` [16 hex digits].
+
+    A superset of :func:`ingest_code_version` and of every stage's code version: the rebuild's
+    no-op fast path (:func:`pipeline.rebuild.inputs_key`) may reuse the previous database as it
+    is only when none of the code that wrote it has changed.
+    """
+    files = [p for d in ("pipeline", "analyses", "schemas") for p in (ROOT / d).rglob("*")
+             if p.suffix in (".py", ".sql", ".toml") and "__pycache__" not in p.parts and p.is_file()]
+    return hash_sources(files)

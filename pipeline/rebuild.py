@@ -42,6 +42,7 @@ from pipeline.ingest import IngestResult, ingest_file, sha256_file
 from pipeline.layout import Problem, RawTree, discover_runs, skip_reason
 from pipeline.readers import READERS
 from pipeline.progress import Progress
+from pipeline.code_version import project_code_version
 from pipeline.state import (KEEP_SUPERSEDED_H, FilePlan, FileRecord, PreviousState, StageRecord, frame_hash,
                             ingest_code_version, load_previous, logbook_hash, plan_runs, record_for, side_records,
                             stage_code_version, stage_input_key, superseded_files)
@@ -462,10 +463,10 @@ def _save_stage_folder(warehouse: Path, name: str, folder_key: str, out: stage_r
     (tmp / "output.json").write_text(json.dumps(meta, sort_keys=True, default=str))
     final.parent.mkdir(parents=True, exist_ok=True)
     if final.exists():  # same inputs, same outputs: keep the folder a live warehouse may use
-        shutil.rmtree(tmp, ignore_errors=True)
-        if cacheable:
+        if cacheable and (final / "output.json").is_file():
+            shutil.rmtree(tmp, ignore_errors=True)
             return rel, True
-        shutil.rmtree(final)  # pragma: no cover - only for stages whose tables cannot be stored
+        remove_stage_folder(final)  # damaged (its output.json gone), or tables that cannot be stored
     os.replace(tmp, final)
     return rel, cacheable
 
@@ -880,6 +881,13 @@ def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, r
     plans = plan_runs(tree, files, prev, code, warehouse, full)
     side, side_changes = side_records(tree, prev)
     n_quick = sum(p.status == "unchanged" for p in plans)
+    key = inputs_key(tree, code, plans, side, ignored)
+    if not full and nothing_changed(prev, plans, side, key, warehouse):
+        summary.mode = "no-op"
+        progress.message(f"rebuild {generation} (no-op): {len(files)} run files under {raw}, nothing changed "
+                         "since the last rebuild: its database is carried over")
+        return _rebuild_noop(warehouse, prev, plans, key, executor, report, generation, summary, started_at, t0,
+                             keep_h, clock, progress)
     progress.message(f"rebuild {generation} ({summary.mode}): {len(files)} run files under {raw}, "
                      f"{n_quick} unchanged at a glance")
     try:
@@ -924,13 +932,16 @@ def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, r
         "duration_s": time.monotonic() - t0, "mode": summary.mode, "executor": ex.name,
         "n_files": len(files), "n_runs": len(runs), "n_new": summary.n_new, "n_changed": summary.n_changed,
         "n_deleted": summary.n_deleted, "n_unchanged": summary.n_unchanged, "n_quarantined": len(problems),
-        "stages_run": staged.ran, "stages_reused": staged.reused, "exit_code": summary.exit_code}])
+        "stages_run": staged.ran, "stages_reused": staged.reused, "exit_code": summary.exit_code,
+        "inputs_key": key}])
     in_use = set(runs_df.get("samples_path", [])) | {r.folder for r in staged.records}
     kept, _expired = superseded_files(prev, in_use, clock(), keep_h)
     kept_paths = sorted(kept)
     superseded = pd.DataFrame({
         "path": pd.Series(kept_paths, dtype="string"),
-        "superseded_at": pd.to_datetime(pd.Series([kept[p] for p in kept_paths], dtype="float64"), unit="s", utc=True)})
+        # whole microseconds, as DuckDB stores them: a time carried from rebuild to rebuild never drifts
+        "superseded_at": pd.to_datetime(pd.Series([round(kept[p] * 1e6) for p in kept_paths], dtype="int64"),
+                                        unit="us", utc=True)})
     history = log_row
     if prev.history is not None and not prev.history.empty:
         history = pd.concat([prev.history.tail(HISTORY_ROWS - 1), log_row], ignore_index=True)
@@ -989,4 +1000,137 @@ def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, r
     progress.message(f"rebuild: {summary.n_runs} runs ({summary.n_new} new, {summary.n_changed} changed, "
                      f"{summary.n_deleted} deleted, {summary.n_unchanged} unchanged), {len(problems)} quarantined, "
                      f"stages run: {', '.join(staged.ran) or 'none'}, {summary.seconds:.1f} s")
+    return summary
+
+
+# -- the no-op fast path ---------------------------------------------------------------------------
+def inputs_key(tree: RawTree, code: str, plans: list[FilePlan], side: list[FileRecord], ignored: list[Path]) -> str:
+    """Fingerprint of everything a rebuild reads: every run file's path, ``(size, mtime, inode)``
+    and applicable metadata, every side file's path and stat, the files ignored or skipped, the
+    raw tree's own problems (links, manifests, rig.toml) and the version of all the project's
+    code. Equal keys with no file in doubt (:func:`nothing_changed`) mean the rebuild would write
+    the same database again."""
+    import hashlib
+
+    blob = {
+        "code": [code, project_code_version()],
+        "runs": [[p.rel, *p.stat, p.meta_hash] for p in plans],
+        "side": [[r.source_path, r.role, r.size_bytes, r.mtime_ns, r.inode, r.source_sha256] for r in side],
+        "ignored": [tree.rel(p) for p in ignored],
+        "skipped": [list(x) for x in tree.listing().skipped],
+        "problems": [[p.source_path, p.error, p.line, p.stage] for p in tree.problems],
+    }
+    return hashlib.sha256(json.dumps(blob, sort_keys=True, default=str).encode()).hexdigest()[:32]
+
+
+def nothing_changed(prev: PreviousState, plans: list[FilePlan], side: list[FileRecord], key: str,
+                    warehouse: Path) -> bool:
+    """Whether the live warehouse is exactly what this rebuild would write, bookkeeping aside.
+
+    True when the previous rebuild saw the same inputs (same :func:`inputs_key`), every run file
+    is unchanged at a glance (same stat, metadata and ingest code, samples file present, no
+    racy mtime), every side file has the stat its record holds, and every stage's cached
+    output is there and was cacheable. Anything in doubt gives False: the full incremental path.
+    """
+    if prev.generation is None or prev.inputs_key != key or not (warehouse / DB_NAME).is_file():
+        return False
+    if any(p.status != "unchanged" for p in plans) or len(prev.files) != len(plans) + len(side):
+        return False
+    for r in side:
+        old = prev.files.get(r.source_path)
+        if old is None or old.mtime_ns < 0 or (old.size_bytes, old.mtime_ns, old.inode) != \
+                (r.size_bytes, r.mtime_ns, r.inode) or old.source_sha256 != r.source_sha256:
+            return False
+    if not prev.stages:
+        return False
+    return all(s.input_key != "uncacheable" and (warehouse / s.folder / "output.json").is_file()
+               for s in prev.stages.values())
+
+
+def _rebuild_noop(warehouse: Path, prev: PreviousState, plans: list[FilePlan], key: str, executor: str,
+                  report: bool, generation: str, summary: RebuildSummary, started_at: datetime, t0: float,
+                  keep_h: float, clock, progress: Progress) -> RebuildSummary:
+    """Nothing changed: the previous database is copied and only the rebuild's bookkeeping is
+    brought up to date, as the incremental path would have written it (``rebuild_log`` gets this
+    rebuild's row; ``rebuild_inputs`` says every input is unchanged; ``findings`` carry their
+    last change; ``superseded_files`` drops what has expired). The report is rendered anew (it
+    states the time and the last rebuild) without redrawing run pages whose inputs are the
+    same. Same swap, same crash safety as a full rebuild."""
+    import duckdb
+
+    from pipeline.warehouse import insert_frame
+
+    tmp_db = warehouse / f".{DB_NAME}.tmp-{os.getpid()}"
+    in_use = prev.samples | prev.stage_folders
+    kept, expired = superseded_files(prev, in_use, clock(), keep_h)
+    page = None
+    try:
+        shutil.copyfile(warehouse / DB_NAME, tmp_db)
+        con = duckdb.connect(str(tmp_db))
+        try:
+            con.execute("SET TimeZone = 'UTC'")
+            con.execute("DELETE FROM rebuild_inputs WHERE status = 'deleted'")
+            con.execute("UPDATE rebuild_inputs SET status = 'unchanged', reason = NULL WHERE status <> 'unchanged'")
+            # compare_findings with every finding holding as before: the last change is carried over
+            con.execute("UPDATE findings SET previous_holds = holds, "
+                        "change = CASE WHEN change IS NOT NULL AND changed_at IS NOT NULL THEN change END, "
+                        "changed_at = CASE WHEN change IS NOT NULL AND changed_at IS NOT NULL THEN changed_at END")
+            if expired:
+                con.executemany("DELETE FROM superseded_files WHERE path = ?", [[p] for p in sorted(expired)])
+            problems = [Problem(s, e, ln, st) for s, e, ln, st in con.execute(
+                "SELECT source_path, error, line, stage FROM quarantine").fetchall()]
+            n_runs = con.execute("SELECT count(*) FROM runs").fetchone()[0]
+            stages = [r[0] for r in con.execute("SELECT stage FROM stage_cache").fetchall()]
+            summary.n_files = len(plans)
+            summary.n_runs, summary.n_unchanged, summary.quarantine = n_runs, len(plans), problems
+            summary.stages_reused = stages
+            log_row = pd.DataFrame([{
+                "generation": generation, "started_at": started_at, "finished_at": datetime.now(timezone.utc),
+                "duration_s": time.monotonic() - t0, "mode": "no-op", "executor": executor,
+                "n_files": len(plans), "n_runs": n_runs, "n_new": 0, "n_changed": 0, "n_deleted": 0,
+                "n_unchanged": len(plans), "n_quarantined": len(problems), "stages_run": [],
+                "stages_reused": stages, "exit_code": summary.exit_code, "inputs_key": key}])
+            history = log_row
+            if prev.history is not None and not prev.history.empty:
+                history = pd.concat([prev.history.tail(HISTORY_ROWS - 1), log_row], ignore_index=True)
+            con.execute("DELETE FROM rebuild_log")
+            insert_frame(con, "rebuild_log", history)
+            summary.tables = {t: con.execute(f'SELECT count(*) FROM "{t}"').fetchone()[0] for (t,) in con.execute(
+                "SELECT table_name FROM duckdb_tables() WHERE schema_name = 'main' ORDER BY table_name").fetchall()}
+            con.execute("CHECKPOINT")
+        finally:
+            con.close()
+        if report:
+            from pipeline.report import render_report, stage_page
+            try:
+                page = stage_page(warehouse, render_report(warehouse, database=tmp_db, run_pages="missing"))
+            except Exception as exc:
+                log.exception("report failed")
+                raise RebuildError(f"the morning report could not be written: {type(exc).__name__}: "
+                                   f"{' '.join(str(exc).split())}; the previous warehouse and report are kept") from exc
+        _crash_point("before_swap")
+        swap_in(tmp_db, warehouse / DB_NAME)
+    except Exception as exc:
+        tmp_db.unlink(missing_ok=True)
+        Path(f"{tmp_db}.wal").unlink(missing_ok=True)
+        if page is not None:
+            page.unlink(missing_ok=True)
+        if isinstance(exc, RebuildError):
+            raise
+        raise RebuildError(f"could not write the warehouse: {type(exc).__name__}: {exc}") from exc
+    if page is not None:
+        from pipeline.report import publish_page
+        summary.report = publish_page(page)
+    _crash_point("after_swap")
+    keep = in_use | set(kept)
+    collect_garbage(warehouse, {p for p in keep if p.startswith("samples/")},
+                    {p for p in keep if not p.startswith("samples/")})
+    summary.seconds = time.monotonic() - t0
+    if summary.report is not None:
+        progress.message(f"report: {summary.report}")
+    for p in summary.quarantine:
+        where = f"{p.source_path}:{p.line}" if p.line else p.source_path
+        progress.message(f"quarantined {where}: {p.error}")
+    progress.message(f"rebuild: {summary.n_runs} runs (no-op: nothing changed), {len(summary.quarantine)} "
+                     f"quarantined, stages run: none, {summary.seconds:.1f} s")
     return summary

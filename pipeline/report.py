@@ -841,11 +841,28 @@ def _runs_index(db: _DB) -> str:
     return "".join(out)
 
 
-def render_report(warehouse: str | Path, now: datetime | None = None, database: str | Path | None = None) -> str:
+def _run_pages_present(db: _DB, warehouse: Path) -> bool:
+    """Whether ``report/runs/`` holds exactly one page per run of the database."""
+    from pipeline.run_pages import page_name
+
+    folder = Path(warehouse) / "report" / "runs"
+    try:
+        have = {n for n in os.listdir(folder) if n.endswith(".html")}
+    except OSError:
+        return False
+    want = {page_name(r) for (r,) in db.con.execute("SELECT run_id FROM runs").fetchall()} if db.has("runs") else set()
+    return have == want
+
+
+def render_report(warehouse: str | Path, now: datetime | None = None, database: str | Path | None = None,
+                  run_pages: str = "update") -> str:
     """The report of the warehouse as one HTML string (``now``: the clock for "last 24 hours").
 
     ``database``: the DuckDB file to read instead of the warehouse's live one (the rebuild
     renders the report from the new database before swapping it in).
+    ``run_pages``: ``"update"`` redraws every run page whose inputs changed (each page's key is
+    checked); ``"missing"`` only when a run's page is missing (the no-op rebuild: the runs and
+    their results are those of the pages already there).
     """
     warehouse = Path(warehouse)
     now = now or _now()
@@ -855,7 +872,8 @@ def render_report(warehouse: str | Path, now: datetime | None = None, database: 
         alert, findings = _findings_section(db, now)
         generation = _generation(db)
         results, toc = _results_sections(db, warehouse)
-        write_run_pages(db, warehouse)
+        if run_pages != "missing" or not _run_pages_present(db, warehouse):
+            write_run_pages(db, warehouse)
         runs_index = _runs_index(db)
         entries = ([("overturned", "Findings changed in the last 24 hours", [])] if alert.startswith('<div class="alert"')
                    else []) + [("findings", "Findings of the two papers", [])] + toc + [

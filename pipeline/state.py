@@ -174,6 +174,8 @@ class PreviousState:
     history: pd.DataFrame | None = None
     #: files of earlier warehouses still kept for their readers: path -> superseded at [s since epoch]
     superseded: dict[str, float] = field(default_factory=dict)
+    #: :func:`pipeline.rebuild.inputs_key` of the last rebuild (None before the column existed)
+    inputs_key: str | None = None
 
 
 def load_previous(warehouse: Path) -> PreviousState:
@@ -208,11 +210,14 @@ def load_previous(warehouse: Path) -> PreviousState:
                     "SELECT finding_id, change, changed_at FROM findings").fetchall()}
         if "superseded_files" in tables:
             prev.superseded = {p: float(at) for p, at in con.execute(
-                "SELECT path, epoch(superseded_at) FROM superseded_files").fetchall()}
+                "SELECT path, epoch_us(superseded_at) / 1e6 FROM superseded_files").fetchall()}
         if "rebuild_log" in tables:
             prev.history = con.sql("SELECT * FROM rebuild_log").to_arrow_table().to_pandas()
             if not prev.history.empty:
-                prev.generation = str(prev.history.sort_values("finished_at")["generation"].iloc[-1])
+                last = prev.history.sort_values("finished_at").iloc[-1]
+                prev.generation = str(last["generation"])
+                key = last.get("inputs_key")
+                prev.inputs_key = key if isinstance(key, str) else None
     except Exception:
         # A warehouse from an older version: no usable state, everything is rebuilt.
         return PreviousState(samples=prev.samples, stage_folders=prev.stage_folders, superseded=prev.superseded)

@@ -8,7 +8,7 @@ CREATE TABLE rebuild_log (
     started_at      TIMESTAMPTZ,
     finished_at     TIMESTAMPTZ,
     duration_s      DOUBLE,
-    mode            VARCHAR,              -- incremental / full
+    mode            VARCHAR,              -- incremental / full / no-op (nothing changed: the previous database carried over)
     executor        VARCHAR,              -- local / dask
     n_files         BIGINT,               -- run files under raw/
     n_runs          BIGINT,
@@ -19,7 +19,8 @@ CREATE TABLE rebuild_log (
     n_quarantined   BIGINT,               -- rows of `quarantine`
     stages_run      VARCHAR[],            -- stages that ran
     stages_reused   VARCHAR[],            -- stages whose cached outputs were reused
-    exit_code       INTEGER
+    exit_code       INTEGER,
+    inputs_key      VARCHAR               -- fingerprint of every input's stat, the tree and the code; a rebuild finding the same key takes the no-op path
 );
 
 -- One row per input of the last rebuild (run files, manifests, rig.toml, hose logbooks),
