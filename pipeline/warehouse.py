@@ -126,6 +126,10 @@ def _sql_str(text: str) -> str:
     return "'" + str(text).replace("'", "''") + "'"
 
 
+#: Table of every samples file: (run_id, kind, campaign, path relative to the warehouse).
+FILES_TABLE = "samples_files"
+
+
 def _columns_by_run(con: duckdb.DuckDBPyConnection) -> dict[str, frozenset[str]]:
     """Columns of each run's samples file, from the ``channels`` table (``run_id`` + one row per column)."""
     if "channels" not in {r[0] for r in con.execute("SELECT table_name FROM duckdb_tables()").fetchall()}:
@@ -149,43 +153,45 @@ def create_samples_views(con: duckdb.DuckDBPyConnection, warehouse: Path, runs: 
 
     Speed (issue 14): files with the same columns (``channels`` table) are read as one group
     with ``union_by_name = false``, so binding the view opens one file per group, not every
-    file; groups are joined by name. ``run_id`` comes from a (run_id, file) list joined on the
-    file name, so a filter on ``run_id`` reaches the scan as a filter on the file name and
-    DuckDB opens only the files of the runs asked for (a one-run query at 10,000 runs reads one
-    footer, not 10,000).
+    file; groups are joined by name. ``run_id``, ``kind`` and ``campaign`` come from the
+    ``samples_files`` table (:data:`FILES_TABLE`, one row per file) joined on DuckDB's
+    ``filename`` column: a filter on ``run_id`` becomes a dynamic filter on the file name and
+    DuckDB skips every other file without opening it (a one-run query at 10,000 runs reads one
+    footer). The join is against a table, not a literal ``VALUES`` list in the view, so the
+    view's SQL is the file list only; binding and planning still cost ~10-20 us per file of the
+    kind (DuckDB's multi-file list: see benchmarks/README.md).
     """
     from schemas.channels import CHANNELS
     from schemas.kinds import KINDS
 
     con.execute(f"SET VARIABLE {ROOT_VARIABLE} = ?", [Path(warehouse).resolve().as_posix()])
     columns = _columns_by_run(con)
+    files = []  # (run_id, kind, campaign, path) of every samples file, for the samples_files table
+    if not runs.empty:
+        for run_id, kind, campaign, path in runs[["run_id", "kind", "campaign", "samples_path"]].itertuples(index=False):
+            if isinstance(path, str) and path and kind in KINDS:
+                files.append((str(run_id), kind, campaign if isinstance(campaign, str) else None,
+                              Path(path).as_posix()))
+    con.execute(f"CREATE TABLE {FILES_TABLE} (run_id VARCHAR, kind VARCHAR, campaign VARCHAR, path VARCHAR)")
+    if files:
+        con.executemany(f"INSERT INTO {FILES_TABLE} VALUES (?, ?, ?, ?)", sorted(files, key=lambda f: f[3]))
     for kind, spec in KINDS.items():
-        groups: dict[tuple, list[tuple[str, str]]] = {}
-        if not runs.empty:
-            sel = runs.loc[runs["kind"] == kind, ["run_id", "campaign", "samples_path"]]
-            for run_id, campaign, path in sel.itertuples(index=False):
-                if isinstance(path, str) and path:
-                    camp = campaign if isinstance(campaign, str) else None
-                    cols = columns.get(run_id)
-                    key = (camp is None, camp or "", tuple(sorted(cols)) if cols else None)
-                    groups.setdefault(key, []).append((str(run_id), Path(path).as_posix()))
+        groups: dict[tuple | None, list[str]] = {}
+        for run_id, fkind, _campaign, path in files:
+            if fkind == kind:
+                cols = columns.get(run_id)
+                groups.setdefault(tuple(sorted(cols)) if cols else None, []).append(path)
         parts = []
-        for key in sorted(groups, key=lambda k: (k[0], k[1], k[2] is None, k[2] or ())):
-            members = sorted(groups[key], key=lambda m: m[1])
-            lst = ", ".join(_sql_str(_glob_escape(f)) for _, f in members)
-            literal = "CAST(NULL AS VARCHAR)" if key[0] else _sql_str(key[1])
-            if key[2] is None:  # columns unknown: read every schema (slow to bind, never wrong)
-                parts.append(
-                    f"SELECT *, {_sql_str(kind)} AS kind, {literal} AS campaign FROM read_parquet("
-                    f"list_transform([{lst}], lambda f: {ROOT_SQL} || '/' || f), "
-                    "union_by_name = true, hive_partitioning = false)")
-                continue
-            pairs = ", ".join(f"({_sql_str(r)}, {_sql_str(f)})" for r, f in members)
+        for key in sorted(groups, key=lambda k: (k is None, k or ())):
+            lst = ", ".join(_sql_str(_glob_escape(f)) for f in sorted(groups[key]))
+            files_sql = f"list_transform([{lst}], lambda f: {ROOT_SQL} || '/' || f)"
+            if key is None:  # columns unknown: read every schema (slow to bind, never wrong)
+                source = f"read_parquet({files_sql}, union_by_name = true, hive_partitioning = false, filename = true)"
+            else:
+                source = f"read_parquet({files_sql}, union_by_name = false, hive_partitioning = false, filename = true)"
             parts.append(
-                f"SELECT m.run_id, s.* EXCLUDE (run_id, filename), {_sql_str(kind)} AS kind, {literal} AS campaign "
-                f"FROM read_parquet(list_transform([{lst}], lambda f: {ROOT_SQL} || '/' || f), "
-                "union_by_name = false, hive_partitioning = false, filename = true) AS s "
-                f"JOIN (VALUES {pairs}) AS m(run_id, rel) ON s.filename = {ROOT_RAW_SQL} || '/' || m.rel")
+                f"SELECT m.run_id, s.* EXCLUDE (run_id, filename), m.kind, m.campaign FROM {source} AS s "
+                f"JOIN {FILES_TABLE} AS m ON s.filename = {ROOT_RAW_SQL} || '/' || m.path")
         if parts:
             sql = " UNION ALL BY NAME ".join(parts)
         else:
@@ -266,13 +272,16 @@ CONTRACT_ROWS = {
     "pressure_dynamics": "(chamber, direction charge/discharge)", "durability_runs": "durability run",
     "hose_life": "hose", "service_life": "(hose_type, adjustment)",
     "findings": "conclusion of the seed papers, checked on the lab's latest data",
+    FILES_TABLE: "samples Parquet file (path relative to the warehouse folder) of a run, as the "
+                 "samples_<kind> views read it",
 }
 
 #: Start of the comment of an internal table.
 INTERNAL_PREFIX = "(internal: the rebuild's own bookkeeping) "
 
 #: Tables that describe the rebuild itself, not the lab's data (``pneubench tables`` marks them).
-INTERNAL_TABLES = ("rebuild_log", "rebuild_inputs", "rebuild_changes", "ingest_state", "stage_cache", "figures")
+INTERNAL_TABLES = ("rebuild_log", "rebuild_inputs", "rebuild_changes", "ingest_state", "stage_cache", "figures",
+                   FILES_TABLE)
 
 _CREATE = re.compile(r"^\s*CREATE\s+(?:OR\s+REPLACE\s+)?(TABLE|VIEW)\s+(?:IF\s+NOT\s+EXISTS\s+)?\"?(\w+)\"?",
                      re.IGNORECASE)

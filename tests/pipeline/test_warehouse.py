@@ -104,3 +104,55 @@ def test_plain_duckdb_client_needs_the_variable_and_says_so(tmp_path, monkeypatc
         assert con.execute("SELECT count(*) FROM runs").fetchone() == (1,)
     finally:
         con.close()
+
+
+def _files_read(con: duckdb.DuckDBPyConnection, sql: str) -> list[int]:
+    """``Total Files Read`` of each Parquet scan in DuckDB's EXPLAIN ANALYZE of ``sql``."""
+    import re
+
+    text = "\n".join(r[1] for r in con.execute("EXPLAIN ANALYZE " + sql).fetchall())
+    return [int(n) for n in re.findall(r"Total Files Read:\s*(\d+)", text)]
+
+
+def test_one_run_query_opens_only_that_runs_file(tmp_path):
+    """A filter on run_id reaches the Parquet scan as a filter on the file name: of 60 files
+    (two column groups) one is opened, and the view holds no (run_id, file) literal list."""
+    import pandas as pd
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from pipeline.warehouse import FILES_TABLE, connect_readonly, create_samples_views
+
+    wh = tmp_path / "wh"
+    folder = wh / "samples" / "kind=step" / "campaign=c"
+    folder.mkdir(parents=True)
+    runs, channels = [], []
+    for i in range(60):
+        run_id = f"c/r{i:03d}"
+        cols = {"run_id": [run_id] * 3, "t_s": T, "x_m": [float(i)] * 3}
+        if i % 2:
+            cols["x_ref_m"] = T
+        rel = f"samples/kind=step/campaign=c/r{i:03d}-0123456789abcdef.parquet"
+        pq.write_table(pa.table(cols), wh / rel)
+        runs.append({"run_id": run_id, "kind": "step", "campaign": "c", "samples_path": rel})
+        channels += [{"run_id": run_id, "column": c} for c in cols if c != "run_id"]
+    runs_df, channels_df = pd.DataFrame(runs), pd.DataFrame(channels)  # noqa: F841 (read by DuckDB)
+    con = duckdb.connect(str(wh / DB_NAME))
+    con.execute("CREATE TABLE channels AS SELECT * FROM channels_df")
+    create_samples_views(con, wh, runs_df)
+    view_sql = con.execute("SELECT sql FROM duckdb_views() WHERE view_name = 'samples_step'").fetchone()[0]
+    con.close()
+    assert "VALUES" not in view_sql and "'c/r007'" not in view_sql  # run ids are in the table only
+
+    con = connect_readonly(wh)
+    try:
+        assert con.execute(f"SELECT count(*) FROM {FILES_TABLE}").fetchone() == (60,)
+        one = "SELECT run_id, kind, campaign, x_m, x_ref_m FROM samples_step WHERE run_id = 'c/r007'"
+        assert sorted(con.execute(one).fetchall()) == [("c/r007", "step", "c", 7.0, t) for t in T]
+        assert sum(_files_read(con, one)) == 1
+        # several runs: DuckDB's join filter is a range of file names, so a few more may be opened
+        assert sum(_files_read(con, "SELECT * FROM samples_step WHERE run_id IN ('c/r007', 'c/r008')")) <= 4
+        assert sum(_files_read(con, "SELECT * FROM samples_step")) == 60  # the count is real
+        assert con.execute("SELECT count(*) FROM samples_step").fetchone() == (180,)
+    finally:
+        con.close()
