@@ -46,7 +46,9 @@ remaining sources could silently give them wrong metadata).
 """
 from __future__ import annotations
 
+import copy
 import errno
+import json
 import os
 import re
 import stat
@@ -340,6 +342,8 @@ class RawTree:
     _rigs: dict = field(default_factory=dict)
     _manifests: dict = field(default_factory=dict)
     _real: dict = field(default_factory=dict)
+    _real_dirs: dict = field(default_factory=dict)
+    _rig_cache: dict = field(default_factory=dict)
     _rels: dict = field(default_factory=dict)
     _chains: dict = field(default_factory=dict)
 
@@ -390,10 +394,14 @@ class RawTree:
         """The path with its folders resolved but not its last component (a symlink inside raw/
         keeps its own path), cached (a rebuild asks for every file's several times)."""
         key = str(path)
-        if key not in self._real:
-            path = Path(path)
-            self._real[key] = Path(os.path.realpath(path.parent)) / path.name
-        return self._real[key]
+        out = self._real.get(key)
+        if out is None:
+            parent, name = os.path.split(key)
+            folder = self._real_dirs.get(parent)
+            if folder is None:  # one realpath per folder, not per file (10,000 files: 0.5 s)
+                folder = self._real_dirs[parent] = Path(os.path.realpath(parent or "."))
+            out = self._real[key] = folder / name if name else Path(os.path.realpath(key))
+        return out
 
     def rel(self, path: Path) -> str:
         """Path relative to raw/ as shown and stored: ``/``-separated, valid UTF-8
@@ -402,11 +410,16 @@ class RawTree:
         key = str(path)
         out = self._rels.get(key)
         if out is None:
-            real = self.real(path)
-            try:
-                out = display_name(real.relative_to(self.root).as_posix())
-            except ValueError:  # not under raw/ (a caller's mistake): still one clear line
-                out = display_name(real.as_posix())
+            real = str(self.real(path))
+            prefix = self.__dict__.get("_root_prefix") or self.__dict__.setdefault(
+                "_root_prefix", str(self.root).rstrip("/") + "/")
+            if real.startswith(prefix):
+                out = display_name(real[len(prefix):])
+            else:  # raw/ itself, or not under raw/ (a caller's mistake): still one clear line
+                try:
+                    out = display_name(Path(real).relative_to(self.root).as_posix())
+                except ValueError:
+                    out = display_name(Path(real).as_posix())
             self._rels[key] = out
         return out
 
@@ -416,14 +429,16 @@ class RawTree:
 
     def _folders(self, path: Path) -> list[Path]:
         """Folders from raw/ down to the file's folder."""
-        folder = self.real(path).parent
-        if folder not in self._chains:
+        key = os.path.dirname(str(path))  # cached by the folder as given: no Path built per call
+        chain = self._chains.get(key)
+        if chain is None:
+            folder = self.real(path).parent
             chain, f = [folder], folder
             while f != self.root and self.root in f.parents:
                 f = f.parent
                 chain.append(f)
-            self._chains[folder] = list(reversed(chain))
-        return self._chains[folder]
+            chain = self._chains[key] = list(reversed(chain))
+        return chain
 
     # -- rig.toml ---------------------------------------------------------------------------
     def _rig_file(self, folder: Path) -> dict:
@@ -466,13 +481,36 @@ class RawTree:
     def rig_config(self, path: Path) -> dict:
         """The merged rig.toml (``read``, ``channels``, ``metadata``, ``sensors``, ``derived``) that
         applies to a run."""
-        cfg: dict = {}
-        for folder in self._folders(path):
-            part = self._rig_file(folder)
-            if isinstance(part, ConfigError):
-                raise part
-            cfg = deep_merge(cfg, part)
-        return {k: cfg.get(k, {}) for k in RIG_TABLES}
+        folder = self.real(path).parent
+        cfg = self._rig_cache.get(folder)
+        if cfg is None:  # the same for every run of a folder: merged once
+            cfg = {}
+            for f in self._folders(path):
+                part = self._rig_file(f)
+                if isinstance(part, ConfigError):
+                    cfg = part
+                    break
+                cfg = deep_merge(cfg, part)
+            if not isinstance(cfg, ConfigError):
+                cfg = {k: cfg.get(k, {}) for k in RIG_TABLES}
+            self._rig_cache[folder] = cfg
+        if isinstance(cfg, ConfigError):
+            raise cfg
+        return copy.deepcopy(cfg)
+
+    def rig_json(self, path: Path) -> str:
+        """:meth:`rig_config` as canonical JSON (sorted keys), computed once per folder."""
+        folder = self.real(path).parent
+        cache = self.__dict__.setdefault("_rig_json", {})
+        if folder not in cache:
+            try:
+                cache[folder] = json.dumps(self.rig_config(path), sort_keys=True, default=str)
+            except ConfigError as exc:
+                cache[folder] = exc
+        out = cache[folder]
+        if isinstance(out, ConfigError):
+            raise out
+        return out
 
     # -- manifest.csv -------------------------------------------------------------------------
     def _manifest(self, folder: Path) -> dict[str, dict] | ConfigError:
@@ -564,40 +602,49 @@ class RawTree:
                 if k and k != "file" and isinstance(v, str) and v.strip() != ""}
         rows[key] = meta
 
+    def _manifest_chain(self, path: Path) -> tuple[dict, dict]:
+        """The manifests that apply to a folder, merged once per folder (nearer manifests
+        override farther ones): (file -> metadata, file -> part -> metadata). Raises ConfigError
+        when a manifest of the folder or above cannot be read."""
+        key = os.path.dirname(str(path))
+        cache = self.__dict__.setdefault("_manifest_chains", {})
+        hit = cache.get(key)
+        if hit is None:
+            metas: dict[str, dict] = {}
+            parts: dict[str, dict[str, dict]] = {}
+            try:
+                for folder in self._folders(path):
+                    rows = self._manifest(folder)
+                    if isinstance(rows, ConfigError):
+                        raise rows
+                    for k, meta in rows.items():
+                        if "\x00" in k:
+                            file, part = k.split("\x00", 1)
+                            parts.setdefault(file, {}).setdefault(part, {}).update(meta)
+                        else:
+                            metas.setdefault(k, {}).update(meta)
+                hit = (metas, parts)
+            except ConfigError as exc:
+                hit = exc
+            cache[key] = hit
+        if isinstance(hit, ConfigError):
+            raise hit
+        return hit
+
     def manifest_metadata(self, path: Path) -> dict:
         """Metadata the manifests give for a run (nearer manifests override farther ones).
 
         Raises ConfigError when a manifest of its folder or above cannot be read."""
-        key = self.real(path).as_posix()
-        meta: dict = {}
-        for folder in self._folders(path):
-            part = self._manifest(folder)
-            if isinstance(part, ConfigError):
-                raise part
-            meta.update(part.get(key, {}))
-        return meta
+        metas, _parts = self._manifest_chain(path)
+        return dict(metas.get(str(self.real(path)), {}))
 
     def manifest_parts(self, path: Path) -> dict[str, dict]:
         """Metadata the manifests give for single sheets / MDF groups of a file of several runs
         (rows ``file = book.xlsx#Sheet2``): part name -> metadata (nearer manifests override).
 
         Raises ConfigError when a manifest of its folder or above cannot be read."""
-        key = self.real(path).as_posix()
-        index = self.__dict__.setdefault("_part_rows", {})  # folder -> file -> part -> metadata
-        out: dict[str, dict] = {}
-        for folder in self._folders(path):
-            rows = self._manifest(folder)
-            if isinstance(rows, ConfigError):
-                raise rows
-            if folder not in index:
-                index[folder] = {}
-                for k, meta in rows.items():
-                    if "\x00" in k:
-                        file, part = k.split("\x00", 1)
-                        index[folder].setdefault(file, {})[part] = meta
-            for part, meta in index[folder].get(key, {}).items():
-                out.setdefault(part, {}).update(meta)
-        return out
+        _metas, parts = self._manifest_chain(path)
+        return {part: dict(meta) for part, meta in parts.get(str(self.real(path)), {}).items()}
 
     def _side(self, name: str) -> list[Path]:
         return [p for p in self.listing().side if p.name == name]

@@ -631,7 +631,7 @@ _STAGE_NAME = re.compile(r"[a-z_][a-z0-9_]*")
 _STAGE_KEY = re.compile(r"[0-9a-f]{20}")
 _STAGE_TMP = re.compile(r"\.tmp-([a-z_][a-z0-9_]*)-[0-9a-f]{20}-[0-9]+")
 _DB_TMP = re.compile(re.escape(f".{DB_NAME}.tmp-") + r"[0-9]+(\.wal)?")
-_REPORT_TMP = re.compile(r"\.index\.html\.tmp-[0-9]+")
+_REPORT_TMP = re.compile(r"\.(index\.html|parts-cache)\.tmp-[0-9]+")
 _FIGURE = re.compile(r"[A-Za-z0-9._-]+\.png")
 
 
@@ -651,6 +651,16 @@ def _entries(folder: Path):
     except OSError:
         return []
     return [(e.name, Path(e.path), e.is_dir(follow_symlinks=False), e.is_file(follow_symlinks=False)) for e in ents]
+
+
+def _file_names(folder: Path) -> list[str]:
+    """Names of a folder's regular files (not symlinks), sorted; no Path per entry (a samples
+    folder holds thousands)."""
+    try:
+        with os.scandir(folder) as it:
+            return sorted(e.name for e in it if e.is_file(follow_symlinks=False))
+    except OSError:
+        return []
 
 
 def _unlink_if(path: Path, is_file: bool, pattern: re.Pattern) -> None:
@@ -708,18 +718,19 @@ def clean_debris(warehouse: Path) -> None:
         for _name, path, _is_dir, is_file in _entries(warehouse / "report"):
             _unlink_if(path, is_file, _REPORT_TMP)
     for _kdir, cdir in _samples_folders(warehouse):
-        for _name, path, _is_dir, is_file in _entries(cdir):
-            _unlink_if(path, is_file, _SAMPLES_TMP)
+        for name in _file_names(cdir):
+            if _SAMPLES_TMP.fullmatch(name):
+                (cdir / name).unlink(missing_ok=True)
 
 
 def collect_garbage(warehouse: Path, keep_samples: set[str], keep_stages: set[str]) -> None:
     """Delete samples files and stage folders the warehouse wrote that are not in ``keep_*``
     (paths relative to the warehouse). Only writer-named files in the writer's folders go."""
     for kdir, cdir in list(_samples_folders(warehouse)):
-        for name, path, _is_dir, is_file in _entries(cdir):
-            if is_file and _SAMPLES_FILE.fullmatch(name) and \
-                    path.relative_to(warehouse).as_posix() not in keep_samples:
-                path.unlink(missing_ok=True)
+        rel_dir = f"samples/{kdir.name}/{cdir.name}/"
+        for name in _file_names(cdir):
+            if _SAMPLES_FILE.fullmatch(name) and rel_dir + name not in keep_samples:
+                (cdir / name).unlink(missing_ok=True)
         _rmdir(cdir)
         _rmdir(kdir)
     stages = warehouse / "stages"
@@ -1058,8 +1069,6 @@ def _rebuild_noop(warehouse: Path, prev: PreviousState, plans: list[FilePlan], k
     same. Same swap, same crash safety as a full rebuild."""
     import duckdb
 
-    from pipeline.warehouse import insert_frame
-
     tmp_db = warehouse / f".{DB_NAME}.tmp-{os.getpid()}"
     in_use = prev.samples | prev.stage_folders
     kept, expired = superseded_files(prev, in_use, clock(), keep_h)
@@ -1084,17 +1093,15 @@ def _rebuild_noop(warehouse: Path, prev: PreviousState, plans: list[FilePlan], k
             summary.n_files = len(plans)
             summary.n_runs, summary.n_unchanged, summary.quarantine = n_runs, len(plans), problems
             summary.stages_reused = stages
-            log_row = pd.DataFrame([{
-                "generation": generation, "started_at": started_at, "finished_at": datetime.now(timezone.utc),
-                "duration_s": time.monotonic() - t0, "mode": "no-op", "executor": executor,
-                "n_files": len(plans), "n_runs": n_runs, "n_new": 0, "n_changed": 0, "n_deleted": 0,
-                "n_unchanged": len(plans), "n_quarantined": len(problems), "stages_run": [],
-                "stages_reused": stages, "exit_code": summary.exit_code, "inputs_key": key}])
-            history = log_row
-            if prev.history is not None and not prev.history.empty:
-                history = pd.concat([prev.history.tail(HISTORY_ROWS - 1), log_row], ignore_index=True)
-            con.execute("DELETE FROM rebuild_log")
-            insert_frame(con, "rebuild_log", history)
+            row = {"generation": generation, "started_at": started_at, "finished_at": datetime.now(timezone.utc),
+                   "duration_s": time.monotonic() - t0, "mode": "no-op", "executor": executor,
+                   "n_files": len(plans), "n_runs": n_runs, "n_new": 0, "n_changed": 0, "n_deleted": 0,
+                   "n_unchanged": len(plans), "n_quarantined": len(problems), "stages_run": [],
+                   "stages_reused": stages, "exit_code": summary.exit_code, "inputs_key": key}
+            con.execute(f"INSERT INTO rebuild_log ({', '.join(row)}) VALUES ({', '.join('?' * len(row))})",
+                        list(row.values()))
+            con.execute("DELETE FROM rebuild_log WHERE rowid NOT IN "
+                        f"(SELECT rowid FROM rebuild_log ORDER BY rowid DESC LIMIT {HISTORY_ROWS})")
             summary.tables = {t: con.execute(f'SELECT count(*) FROM "{t}"').fetchone()[0] for (t,) in con.execute(
                 "SELECT table_name FROM duckdb_tables() WHERE schema_name = 'main' ORDER BY table_name").fetchall()}
             con.execute("CHECKPOINT")

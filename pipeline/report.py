@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import base64
 import html
+import json
 import math
 import os
 from datetime import datetime, timedelta, timezone
@@ -871,10 +872,15 @@ def render_report(warehouse: str | Path, now: datetime | None = None, database: 
         db = _DB(con)
         alert, findings = _findings_section(db, now)
         generation = _generation(db)
-        results, toc = _results_sections(db, warehouse)
+        cached = _cached_parts(db, warehouse)
+        if cached is not None:  # the same inputs as the last report: the same results
+            results, toc, runs_index = cached
+        else:
+            results, toc = _results_sections(db, warehouse)
+            runs_index = _runs_index(db)
+            _cache_parts(db, warehouse, results, toc, runs_index)
         if run_pages != "missing" or not _run_pages_present(db, warehouse):
             write_run_pages(db, warehouse)
-        runs_index = _runs_index(db)
         entries = ([("overturned", "Findings changed in the last 24 hours", [])] if alert.startswith('<div class="alert"')
                    else []) + [("findings", "Findings of the two papers", [])] + toc + [
             ("rebuild", "Last rebuild: inputs and quarantine", []), ("runs", "Runs", [])]
@@ -892,6 +898,49 @@ def render_report(warehouse: str | Path, now: datetime | None = None, database: 
         return "\n".join(p for p in parts if p)
     finally:
         con.close()
+
+
+#: The report's parts that depend on the data only (results sections, runs index), kept beside
+#: the page under the inputs key of the rebuild that rendered them.
+PARTS_CACHE = ".parts-cache.json"
+
+
+def _inputs_key(db: _DB) -> str | None:
+    """``rebuild_log.inputs_key`` of the last rebuild: every input and all of the code, so equal
+    keys mean equal result tables (the rebuild is deterministic)."""
+    if not db.has("rebuild_log") or "inputs_key" not in {r[0] for r in db.con.execute("DESCRIBE rebuild_log").fetchall()}:
+        return None
+    row = db.con.execute("SELECT inputs_key FROM rebuild_log ORDER BY finished_at DESC LIMIT 1").fetchone()
+    return row[0] if row and isinstance(row[0], str) else None
+
+
+def _cached_parts(db: _DB, warehouse: Path) -> tuple[str, list, str] | None:
+    key = _inputs_key(db)
+    if key is None:
+        return None
+    try:
+        data = json.loads((Path(warehouse) / "report" / PARTS_CACHE).read_text(encoding="utf-8"))
+        if data.get("key") != key:
+            return None
+        toc = [(a, t, [tuple(x) for x in sub]) for a, t, sub in data["toc"]]
+        return str(data["results"]), toc, str(data["runs_index"])
+    except (OSError, ValueError, TypeError, KeyError):
+        return None  # none yet, or damaged: rendered anew
+
+
+def _cache_parts(db: _DB, warehouse: Path, results: str, toc: list, runs_index: str) -> None:
+    key = _inputs_key(db)
+    if key is None:
+        return
+    folder = Path(warehouse) / "report"
+    tmp = folder / f".parts-cache.tmp-{os.getpid()}"
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        tmp.write_text(json.dumps({"key": key, "results": results, "toc": toc, "runs_index": runs_index}),
+                       encoding="utf-8")
+        os.replace(tmp, folder / PARTS_CACHE)
+    except OSError:
+        tmp.unlink(missing_ok=True)  # a cache only: the report itself is unaffected
 
 
 def _generation(db: _DB) -> str:

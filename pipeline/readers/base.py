@@ -11,8 +11,10 @@ from __future__ import annotations
 import re
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
-import pyarrow as pa
+if TYPE_CHECKING:  # the readers import pyarrow themselves; the raw tree's walk needs none of it
+    import pyarrow as pa
 
 
 class ReaderError(Exception):

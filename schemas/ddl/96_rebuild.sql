@@ -51,7 +51,8 @@ CREATE TABLE ingest_state (
     meta_hash       VARCHAR,              -- rig.toml + manifest metadata that applies
     code_version    VARCHAR,              -- ingest code + schema version
     result          JSON,                 -- runs row and channels of an ingested run
-    error           VARCHAR               -- quarantine reason of a run file
+    error           VARCHAR,              -- quarantine reason of a run file
+    samples_paths   VARCHAR[]             -- samples files of the runs in `result` (read without decoding it)
 );
 
 -- Incremental state: the cached outputs of every analysis stage (stages/<name>/<key>/).
