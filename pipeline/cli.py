@@ -114,7 +114,7 @@ def query(sql, sql_file, warehouse, fmt, max_rows, max_width):
         sql, sql_file = None, sys.stdin
     try:
         text = read_sql(sql, sql_file)
-        with open_query(warehouse, text) as result:
+        with open_query(warehouse, text, arrow=fmt == "csv") as result:  # pyarrow only to stream CSV
             out = sys.stdout
             width = terminal_width() if fmt == "table" and max_width is None else None
             write_result(result, out, fmt, max_rows=max_rows, width=width, max_width=max_width)
