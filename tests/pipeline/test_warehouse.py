@@ -156,3 +156,33 @@ def test_one_run_query_opens_only_that_runs_file(tmp_path):
         assert con.execute("SELECT count(*) FROM samples_step").fetchone() == (180,)
     finally:
         con.close()
+
+
+@pytest.mark.parametrize("run_id", ["c/plain", "c/with space", "c/..dots..", "c/_x_", "c/été-ü", "c/" + "y" * 100,
+                                    "c/a'b", "c/[x]*?"])
+def test_the_safe_name_in_sql_is_the_ingests(run_id):
+    from pipeline.ingest import safe_file_name
+    from pipeline.warehouse import SAFE_NAME_SQL
+
+    con = duckdb.connect()
+    got = con.execute(f"SELECT {SAFE_NAME_SQL.replace('rid', '$rid')}", {"rid": run_id}).fetchone()[0]
+    assert got == safe_file_name(run_id)
+
+
+def test_the_samples_macro_reads_one_runs_file_and_never_an_earlier_generations(tmp_path):
+    """samples('<run_id>') reads the run's live samples file: not a file of another run whose safe
+    name is the same, not the run's superseded file kept for earlier readers."""
+    raw = RawBuilder(tmp_path / "raw")
+    wh = tmp_path / "wh"
+    for rid_file in ("c/a b.csv", "c/a_b.csv", "c/[x]*.csv"):
+        raw.csv(rid_file, STEP_META, {"t[s]": T, "x[mm]": [1, 2, 3], "x_ref[mm]": [3] * 3})
+    rebuild(raw.root, wh, jobs=1, report=False)
+    raw.csv("c/a b.csv", STEP_META, {"t[s]": T, "x[mm]": [7, 8, 9], "x_ref[mm]": [3] * 3})  # a new version
+    rebuild(raw.root, wh, jobs=1, report=False)
+    assert len(list((wh / "samples").rglob("c_a_b-*.parquet"))) == 3  # a b (old and new), a_b
+    cols, rows = run_query(wh, "SELECT run_id, kind, campaign, x_m FROM samples('c/a b') ORDER BY t_s")
+    assert rows == [("c/a b", "step", "c", 0.007), ("c/a b", "step", "c", 0.008), ("c/a b", "step", "c", 0.009)]
+    assert [r[0] for r in run_query(wh, "SELECT x_m FROM samples('c/a_b') ORDER BY t_s")[1]] == [0.001, 0.002, 0.003]
+    assert len(run_query(wh, "SELECT * FROM samples('c/[x]*')")[1]) == 3
+    same = run_query(wh, "SELECT * FROM samples_step WHERE run_id = 'c/a b' ORDER BY t_s")
+    assert run_query(wh, "SELECT * FROM samples('c/a b') ORDER BY t_s") == same
