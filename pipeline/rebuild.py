@@ -33,12 +33,9 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import pandas as pd
-
-from pipeline import stages as stage_registry
 from pipeline.executors import CRASH_REASON, Executor, make_executor
-from pipeline.ingest import IngestResult, ingest_file, sha256_file
 from pipeline.layout import Problem, RawTree, discover_runs, skip_reason
 from pipeline.readers import READERS
 from pipeline.progress import Progress
@@ -47,9 +44,33 @@ from pipeline.state import (KEEP_SUPERSEDED_H, FilePlan, FileRecord, PreviousSta
                             ingest_code_version, load_previous, logbook_hash, plan_runs, record_for, side_records,
                             stage_code_version, stage_input_key, superseded_files)
 from pipeline.warehouse import DB_NAME, build_database, runs_frame, swap_in
+from schemas.kind_names import KIND_NAMES  # not schemas.kinds: a no-op needs no pyarrow
 from pipeline.state import record_result  # files of several runs (kept apart for the merge)
 
 log = logging.getLogger("pneubench")
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+    from pipeline import stages as stage_registry
+    from pipeline.ingest import IngestResult
+
+# pandas, pyarrow, numpy and the analyses are imported by the functions that use them, not here:
+# a no-op rebuild needs none of them (~0.5 s of a 10,000-run no-op's 2 s budget; issue 14).
+
+
+def sha256_file(path, *args, **kwargs):
+    """:func:`pipeline.ingest.sha256_file` (imported when a file is first hashed)."""
+    from pipeline.ingest import sha256_file as _sha256_file
+
+    return _sha256_file(path, *args, **kwargs)
+
+
+def ingest_file(tree, path, *args, **kwargs):
+    """:func:`pipeline.ingest.ingest_file` (imported when a file is first read)."""
+    from pipeline.ingest import ingest_file as _ingest_file
+
+    return _ingest_file(tree, path, *args, **kwargs)
 
 EXIT_OK, EXIT_QUARANTINED, EXIT_USAGE, EXIT_FAILED, EXIT_LOCKED = 0, 1, 2, 3, 4
 
@@ -177,6 +198,8 @@ CRASHED = f"cannot read file: {CRASH_REASON}"
 
 
 def _unreadable(tree: RawTree, path: Path, error: str, transient: bool = False) -> IngestResult:
+    from pipeline.ingest import IngestResult
+
     return IngestResult(source_path=tree.rel(path), campaign=tree.campaign(path), error=error, transient=transient)
 
 
@@ -259,6 +282,8 @@ def _ingest_crashed(args, reason: str) -> dict:
 
 
 def _result_from_record(rec: FileRecord, tree: RawTree, path: Path) -> IngestResult:
+    from pipeline.ingest import IngestResult
+
     res = IngestResult(source_path=rec.source_path, campaign=tree.campaign(path))
     if rec.result is not None and "parts" in rec.result:  # a file of several runs
         res.sha256 = rec.source_sha256
@@ -377,39 +402,56 @@ class _TrackedResults(dict):
         return super().__iter__()
 
 
-class _TrackedContext(stage_registry.StageContext):
-    """A StageContext that remembers which kinds of runs a stage read (for its cache key)."""
+def _tracked_context(**kwargs):
+    """A :class:`_TrackedContext` (its class made on first use: it subclasses the stages'
+    StageContext, whose module imports pandas)."""
+    global _TrackedContext
+    if _TrackedContext is None:
+        _TrackedContext = _make_tracked_context()
+    return _TrackedContext(**kwargs)
 
-    @property
-    def runs(self):
-        if not self.__dict__.get("_inside", 0):
-            self.__dict__["all_runs_read"] = True
-        return self.__dict__["_runs"]
 
-    @runs.setter
-    def runs(self, value):
-        self.__dict__["_runs"] = value
+_TrackedContext = None
 
-    @contextmanager
-    def _internal(self):
-        self.__dict__["_inside"] = self.__dict__.get("_inside", 0) + 1
-        try:
-            yield
-        finally:
-            self.__dict__["_inside"] -= 1
 
-    @property
-    def kinds_read(self) -> set[str]:
-        return self.__dict__.setdefault("_kinds_read", set())
+def _make_tracked_context():
+    from pipeline import stages as stage_registry
 
-    def runs_of(self, *kinds):
-        self.kinds_read.update(kinds)
-        with self._internal():
-            return super().runs_of(*kinds)
+    class _TrackedContext(stage_registry.StageContext):
+        """A StageContext that remembers which kinds of runs a stage read (for its cache key)."""
 
-    def samples_file(self, run_id):
-        with self._internal():
-            return super().samples_file(run_id)
+        @property
+        def runs(self):
+            if not self.__dict__.get("_inside", 0):
+                self.__dict__["all_runs_read"] = True
+            return self.__dict__["_runs"]
+
+        @runs.setter
+        def runs(self, value):
+            self.__dict__["_runs"] = value
+
+        @contextmanager
+        def _internal(self):
+            self.__dict__["_inside"] = self.__dict__.get("_inside", 0) + 1
+            try:
+                yield
+            finally:
+                self.__dict__["_inside"] -= 1
+
+        @property
+        def kinds_read(self) -> set[str]:
+            return self.__dict__.setdefault("_kinds_read", set())
+
+        def runs_of(self, *kinds):
+            self.kinds_read.update(kinds)
+            with self._internal():
+                return super().runs_of(*kinds)
+
+        def samples_file(self, run_id):
+            with self._internal():
+                return super().samples_file(run_id)
+
+    return _TrackedContext
 
 
 def _reads_logbooks(mod) -> bool:
@@ -473,6 +515,8 @@ def _save_stage_folder(warehouse: Path, name: str, folder_key: str, out: stage_r
 
 def _load_stage_folder(warehouse: Path, rel: str, stage: str, fresh: stage_registry.StageOutput | None = None):
     """(tables, figure rows, problems, warnings) of a stage folder."""
+    import pandas as pd
+
     folder = warehouse / rel
     meta = json.loads((folder / "output.json").read_text())
     tables = {}
@@ -488,6 +532,10 @@ def _load_stage_folder(warehouse: Path, rel: str, stage: str, fresh: stage_regis
 def run_stages_cached(ctx_args: dict, runs: list[dict], prev: PreviousState, warehouse: Path, full: bool,
                       logbooks: str, progress: Progress, generation: str = "") -> StageResults:
     """Run every stage in order, or reuse its cached outputs when its inputs are unchanged."""
+    import pandas as pd
+
+    from pipeline import stages as stage_registry
+
     import hashlib
 
     res = StageResults()
@@ -513,7 +561,7 @@ def run_stages_cached(ctx_args: dict, runs: list[dict], prev: PreviousState, war
                 how = "reused"
             else:
                 results = _TrackedResults(res.tables)
-                ctx = _TrackedContext(**ctx_args)
+                ctx = _tracked_context(**ctx_args)
                 ctx.results = results
                 try:
                     out = mod.run(ctx)
@@ -548,6 +596,10 @@ def run_stages_cached(ctx_args: dict, runs: list[dict], prev: PreviousState, war
 
 def run_stages(ctx: stage_registry.StageContext, progress: Progress):
     """Run every stage in order without any cache; returns (tables, figures, captions, problems, warnings)."""
+    import pandas as pd
+
+    from pipeline import stages as stage_registry
+
     tables: dict[str, pd.DataFrame] = {}
     figures: dict[tuple[str, str], object] = {}
     captions: dict[tuple[str, str], str] = {}
@@ -581,6 +633,8 @@ def compare_findings(findings: pd.DataFrame, previous: dict[str, bool | None], h
     carried over from the previous warehouse (``previous_changes``: {finding_id: (change,
     changed_at)}), so a second rebuild in the same night does not clear an overturned finding.
     """
+    import pandas as pd
+
     if findings is None or findings.empty:
         return findings
     now = now or datetime.now(timezone.utc)
@@ -692,13 +746,11 @@ def remove_stage_folder(folder: Path) -> None:
 
 def _samples_folders(warehouse: Path):
     """``samples/kind=<kind>/campaign=<campaign>/`` folders (real folders only)."""
-    from schemas.kinds import KINDS
-
     samples = warehouse / "samples"
     if not _real_dir(samples):
         return
     for kname, kdir, kis_dir, _ in _entries(samples):
-        if not (kis_dir and kname.startswith("kind=") and kname[5:] in KINDS):
+        if not (kis_dir and kname.startswith("kind=") and kname[5:] in KIND_NAMES):
             continue
         for cname, cdir, cis_dir, _ in _entries(kdir):
             if cis_dir and cname.startswith("campaign="):
@@ -759,6 +811,8 @@ def _generation() -> str:
 
 def _inputs_table(plans: list[FilePlan], side_changes: list[dict], prev: PreviousState, seen: set[str],
                   problems: list[Problem], results: list[IngestResult]) -> pd.DataFrame:
+    import pandas as pd
+
     errors: dict[str, list[str]] = {}
     for p in problems:
         errors.setdefault(p.source_path, []).append(f"line {p.line}: {p.error}" if p.line else p.error)
@@ -899,6 +953,9 @@ def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, r
                          "since the last rebuild: its database is carried over")
         return _rebuild_noop(warehouse, prev, plans, key, executor, report, generation, summary, started_at, t0,
                              keep_h, clock, progress)
+    import pandas as pd  # the incremental path: what the no-op does without
+
+    from pipeline import stages as stage_registry  # noqa: F401 (the analyses, imported before any worker forks)
     progress.message(f"rebuild {generation} ({summary.mode}): {len(files)} run files under {raw}, "
                      f"{n_quick} unchanged at a glance")
     try:
@@ -1138,6 +1195,6 @@ def _rebuild_noop(warehouse: Path, prev: PreviousState, plans: list[FilePlan], k
     for p in summary.quarantine:
         where = f"{p.source_path}:{p.line}" if p.line else p.source_path
         progress.message(f"quarantined {where}: {p.error}")
-    progress.message(f"rebuild: {summary.n_runs} runs (no-op: nothing changed), {len(summary.quarantine)} "
-                     f"quarantined, stages run: none, {summary.seconds:.1f} s")
+    progress.message(f"rebuild: {summary.n_runs} runs (0 new, 0 changed, 0 deleted, {summary.n_unchanged} unchanged: "
+                     f"a no-op), {len(summary.quarantine)} quarantined, stages run: none, {summary.seconds:.1f} s")
     return summary

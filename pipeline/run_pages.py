@@ -11,9 +11,10 @@ import hashlib
 import html
 import re
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import numpy as np
-import pyarrow.parquet as pq
+if TYPE_CHECKING:  # imported by the functions that draw: page_name() needs neither
+    import numpy as np
 
 #: Pixel columns of a plot (one min/max pair per column).
 WIDTH = 880
@@ -53,6 +54,9 @@ def downsample_minmax(path: str | Path, columns: list[str], n_rows: int, width: 
     dict
         ``{"t_s": (t_min, t_max), column: (min array, max array), ...}``; bins without samples are NaN.
     """
+    import numpy as np
+    import pyarrow.parquet as pq
+
     pf = pq.ParquetFile(path)
     have = [c for c in columns if c in pf.schema_arrow.names]
     n_rows = max(int(n_rows or pf.metadata.num_rows), 1)
@@ -95,6 +99,8 @@ def downsample_minmax(path: str | Path, columns: list[str], n_rows: int, width: 
 
 def _display(column: str, values: np.ndarray) -> tuple[np.ndarray, str, str]:
     """Values in a readable unit: (values, label, unit)."""
+    import numpy as np
+
     for suffix, factor, unit in DISPLAY:
         if column.endswith(suffix):
             name = column[: -len(suffix)]
@@ -115,6 +121,8 @@ def channels_svg(bands: dict, title: str = "") -> str:
 
     ``bands`` is the output of :func:`downsample_minmax`. Returns "" when there is nothing to draw.
     """
+    import numpy as np
+
     chans = [c for c in bands if c != "t_s"]
     if not chans:
         return ""

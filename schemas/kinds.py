@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import pyarrow as pa
 
 from schemas.channels import CHANNELS, COLUMN, arrow_field, channel_field
+from schemas.kind_names import KIND_NAMES
 
 
 @dataclass(frozen=True)
@@ -191,6 +192,10 @@ def samples_schema(canonical: list[str], extra: list[tuple] | None = None) -> pa
         f = arrow_field(col, unit, "Non-canonical channel, kept as recorded (unit not converted).")
         fields.append(f.with_type(typ[0]) if typ else f)
     return pa.schema(fields)
+
+
+if tuple(KINDS) != KIND_NAMES:  # pragma: no cover - a kind added in one place only
+    raise ImportError(f"schemas.kind_names.KIND_NAMES {KIND_NAMES} differs from the kinds defined here {tuple(KINDS)}")
 
 
 __all__ = ["KINDS", "META_KEYS", "KindSpec", "MetaKey", "COLUMN", "samples_schema", "coerce_value",
