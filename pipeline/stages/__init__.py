@@ -81,6 +81,8 @@ class StageContext:
     jobs: int = 1
     progress: Progress = field(default_factory=Progress)
     mapper: Callable | None = None
+    #: per-item results kept between rebuilds (``pipeline.memo.Memo``; the rebuild sets one per stage)
+    memo: object | None = None
 
     def runs_of(self, *kinds: str) -> pd.DataFrame:
         """Runs of the given kinds, sorted by run_id."""
@@ -101,9 +103,15 @@ class StageContext:
     def map(self, func: Callable, items: Iterable, label: str = "") -> list:
         """``[func(item) for item in items]`` in parallel (processes, or the configured executor).
 
-        ``func`` must be a picklable module-level function. Order is preserved.
+        ``func`` must be a picklable module-level function. Order is preserved. With a
+        :attr:`memo`, only the items it has no result for are computed.
         """
         items = list(items)
+        if self.memo is not None:
+            return self.memo.map(self._compute, func, items, label)
+        return self._compute(func, items, label)
+
+    def _compute(self, func: Callable, items: list, label: str = "") -> list:
         if self.mapper is not None:
             return self.mapper(func, items, label)
         out = []
