@@ -91,10 +91,17 @@ class StageContext:
         return self.runs[self.runs["kind"].isin(kinds)].sort_values("run_id").reset_index(drop=True)
 
     def samples_file(self, run_id: str) -> Path:
-        row = self.runs.loc[self.runs["run_id"] == run_id]
-        if row.empty:
+        runs = self.runs
+        cached = self.__dict__.get("_samples_paths")
+        if cached is None or cached[0] is not runs:  # one index per runs frame, not a scan per run
+            paths: dict = {}
+            if runs is not None and not runs.empty and {"run_id", "samples_path"} <= set(runs.columns):
+                for rid, sp in zip(runs["run_id"], runs["samples_path"]):
+                    paths.setdefault(rid, sp)
+            cached = self.__dict__["_samples_paths"] = (runs, paths)
+        if run_id not in cached[1]:
             raise KeyError(f"no run {run_id!r}")
-        return self.warehouse / row.iloc[0]["samples_path"]
+        return self.warehouse / cached[1][run_id]
 
     def samples(self, run_id: str, columns: list[str] | None = None) -> pd.DataFrame:
         """A run's samples as a DataFrame in SI (``t_s``, ``p_a_pa``, ...), without ``run_id``."""
