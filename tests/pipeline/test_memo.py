@@ -184,6 +184,9 @@ def test_a_code_change_of_the_analysis_recomputes_every_item(raw, warehouse, sta
 
     monkeypatch.setattr(state_mod, "stage_code_version", edited)  # what the memo keys use
     monkeypatch.setattr(rb, "stage_code_version", edited)         # what the stage cache uses
+    if hasattr(rb, "project_code_version"):                       # what the no-op fast path uses
+        real_project = rb.project_code_version
+        monkeypatch.setattr(rb, "project_code_version", lambda: real_project() + "-edited")
     s = rebuild(raw.root, warehouse, jobs=1)
     assert s.stages_run == ["plpa_characterisation"]
     assert counts(stages_of[-1], "plpa_characterisation") == (0, 4)
@@ -257,7 +260,9 @@ def test_a_memo_file_goes_with_its_stage_folder_after_the_retention(raw, warehou
     assert (warehouse / "memo" / "models.pkl").is_file()
     real = st.discover
     monkeypatch.setattr(st, "discover", lambda: [m for m in real() if m.NAME != "models"])
+    step(raw, "c/b.csv")  # a change each time: not a no-op rebuild (removing a stage's file is one)
     rebuild(raw.root, warehouse, jobs=1)  # its last folder is kept for readers (24 h), and so is its memo
     assert (warehouse / "memo" / "models.pkl").is_file()
+    step(raw, "c/c.csv")
     rebuild(raw.root, warehouse, jobs=1, clock=lambda: time.time() + 25 * 3600)
     assert not (warehouse / "memo" / "models.pkl").exists()
