@@ -37,6 +37,7 @@ from typing import TYPE_CHECKING
 
 from pipeline.executors import CRASH_REASON, Executor, make_executor
 from pipeline.layout import Problem, RawTree, discover_runs, skip_reason
+from pipeline.memo import MEMO_DIR, MEMO_FILE, MEMO_TMP, Memo
 from pipeline.readers import READERS
 from pipeline.progress import Progress
 from pipeline.code_version import project_code_version
@@ -467,6 +468,8 @@ class StageResults:
     records: list[StageRecord] = field(default_factory=list)
     ran: list[str] = field(default_factory=list)
     reused: list[str] = field(default_factory=list)
+    #: per stage that ran: its per-item memo (hits, computed items)
+    memos: dict[str, Memo] = field(default_factory=dict)
 
 
 def _save_stage_folder(warehouse: Path, name: str, folder_key: str, out: stage_registry.StageOutput) -> tuple[str, bool]:
@@ -563,10 +566,13 @@ def run_stages_cached(ctx_args: dict, runs: list[dict], prev: PreviousState, war
                 results = _TrackedResults(res.tables)
                 ctx = _tracked_context(**ctx_args)
                 ctx.results = results
+                # per-run results of earlier rebuilds (not read by --full, written either way)
+                ctx.memo = memo = res.memos[name] = Memo(warehouse, name, read=not full)
                 try:
                     out = mod.run(ctx)
                 except Exception as exc:  # a bug in an analysis: fail, keep the previous warehouse
                     raise RebuildError(f"stage {name} failed: {type(exc).__name__}: {exc}") from exc
+                memo.save()
                 kinds = declared | ctx.kinds_read
                 all_runs = bool(ctx.__dict__.get("all_runs_read"))
                 read = {t: frame_hash(res.tables.get(t)) for t in sorted(results.read)}
@@ -588,8 +594,9 @@ def run_stages_cached(ctx_args: dict, runs: list[dict], prev: PreviousState, war
             res.problems += problems
             for rid, ws in warnings.items():
                 res.warnings.setdefault(rid, []).extend(ws)
+            memo_note = res.memos[name].summary() if name in res.memos else ""
             progress.message(f"stage {name} {how}: " + ", ".join(f"{k} {len(v)} rows" for k, v in tables.items())
-                             + f" ({time.monotonic() - t0:.1f} s)")
+                             + f" ({time.monotonic() - t0:.1f} s{'; ' + memo_note if memo_note else ''})")
             task.advance()
     return res
 
@@ -773,6 +780,9 @@ def clean_debris(warehouse: Path) -> None:
         for name in _file_names(cdir):
             if _SAMPLES_TMP.fullmatch(name):
                 (cdir / name).unlink(missing_ok=True)
+    if _real_dir(warehouse / MEMO_DIR):
+        for _name, path, _is_dir, is_file in _entries(warehouse / MEMO_DIR):
+            _unlink_if(path, is_file, MEMO_TMP)
 
 
 def collect_garbage(warehouse: Path, keep_samples: set[str], keep_stages: set[str]) -> None:
@@ -794,6 +804,15 @@ def collect_garbage(warehouse: Path, keep_samples: set[str], keep_stages: set[st
                 if k_is_dir and _STAGE_KEY.fullmatch(kname) and f"stages/{sname}/{kname}" not in keep_stages:
                     remove_stage_folder(kdir)
             _rmdir(sdir)
+    # a stage's per-item memo goes with the last of its stage folders that is kept
+    memo = warehouse / MEMO_DIR
+    if _real_dir(memo):
+        live = {p.split("/")[1] for p in keep_stages if p.startswith("stages/") and p.count("/") >= 2}
+        for name, path, _is_dir, is_file in _entries(memo):
+            m = MEMO_FILE.fullmatch(name)
+            if is_file and m and m.group(1) not in live:
+                path.unlink(missing_ok=True)
+        _rmdir(memo)
     legacy = warehouse / "figures"  # figures of the first layout (before generations): <stage>/<name>.png
     if _real_dir(legacy) and not any(p.startswith("figures/") for p in keep_stages):
         for sname, sdir, s_is_dir, _ in _entries(legacy):

@@ -81,6 +81,8 @@ class StageContext:
     jobs: int = 1
     progress: Progress = field(default_factory=Progress)
     mapper: Callable | None = None
+    #: per-item results kept between rebuilds (``pipeline.memo.Memo``; the rebuild sets one per stage)
+    memo: object | None = None
 
     def runs_of(self, *kinds: str) -> pd.DataFrame:
         """Runs of the given kinds, sorted by run_id."""
@@ -89,10 +91,17 @@ class StageContext:
         return self.runs[self.runs["kind"].isin(kinds)].sort_values("run_id").reset_index(drop=True)
 
     def samples_file(self, run_id: str) -> Path:
-        row = self.runs.loc[self.runs["run_id"] == run_id]
-        if row.empty:
+        runs = self.runs
+        cached = self.__dict__.get("_samples_paths")
+        if cached is None or cached[0] is not runs:  # one index per runs frame, not a scan per run
+            paths: dict = {}
+            if runs is not None and not runs.empty and {"run_id", "samples_path"} <= set(runs.columns):
+                for rid, sp in zip(runs["run_id"], runs["samples_path"]):
+                    paths.setdefault(rid, sp)
+            cached = self.__dict__["_samples_paths"] = (runs, paths)
+        if run_id not in cached[1]:
             raise KeyError(f"no run {run_id!r}")
-        return self.warehouse / row.iloc[0]["samples_path"]
+        return self.warehouse / cached[1][run_id]
 
     def samples(self, run_id: str, columns: list[str] | None = None) -> pd.DataFrame:
         """A run's samples as a DataFrame in SI (``t_s``, ``p_a_pa``, ...), without ``run_id``."""
@@ -101,9 +110,15 @@ class StageContext:
     def map(self, func: Callable, items: Iterable, label: str = "") -> list:
         """``[func(item) for item in items]`` in parallel (processes, or the configured executor).
 
-        ``func`` must be a picklable module-level function. Order is preserved.
+        ``func`` must be a picklable module-level function. Order is preserved. With a
+        :attr:`memo`, only the items it has no result for are computed.
         """
         items = list(items)
+        if self.memo is not None:
+            return self.memo.map(self._compute, func, items, label)
+        return self._compute(func, items, label)
+
+    def _compute(self, func: Callable, items: list, label: str = "") -> list:
         if self.mapper is not None:
             return self.mapper(func, items, label)
         out = []
