@@ -707,7 +707,8 @@ RUN_PAGE_VERSION = "1"
 def _run_results(db: _DB) -> dict[str, list[tuple[str, list[str], list[tuple]]]]:
     """Per run id: (table, columns, rows) of every result table with a ``run_id`` column."""
     out: dict[str, list] = {}
-    skip = {"runs", "channels", "rebuild_inputs", "ingest_state", "durability_strokes"}
+    skip = {"runs", "channels", "rebuild_inputs", "ingest_state", "durability_strokes",
+            "rebuild_changes"}  # bookkeeping: after a --full rebuild every run is "changed", every page redrawn
     for t in sorted(db.tables):
         if t in skip or t.startswith("samples_") or "run_id" not in db.columns(t):
             continue
