@@ -158,6 +158,8 @@ def bench_size(runs: int, seed: int, repeat: int, jobs: int | None) -> dict:
     queries = {
         "query_one_run_s": f"SELECT * FROM samples_durability WHERE run_id = '{run_id}'",
         "query_one_run_many_files_s": f"SELECT * FROM samples_{many[0]} WHERE run_id = '{many[1]}'",
+        # the same run through the samples() macro: planned without the kind's file list
+        "query_one_run_macro_s": f"SELECT * FROM samples('{many[1]}')",
         "query_leak_5bar_s": "SELECT * FROM leakage_map WHERE round(pressure_bar) = 5 ORDER BY run_id",
         "query_service_life_s": "SELECT * FROM service_life",
     }
@@ -230,6 +232,9 @@ def main(argv=None) -> int:
     if "query_one_run_many_files_s" in big:
         checks.append((f"one-run samples query, kind with the most files, at {big['runs']} runs < 0.5 s",
                        big["query_one_run_many_files_s"], big["query_one_run_many_files_s"] < 0.5))
+    if "query_one_run_macro_s" in big:
+        checks.append((f"one-run samples query through samples('<run_id>'), kind with the most files, at "
+                       f"{big['runs']} runs < 0.5 s", big["query_one_run_macro_s"], big["query_one_run_macro_s"] < 0.5))
     if k_noop is not None:
         checks += [("no-op growth exponent <= 1 (linear)", k_noop, k_noop <= 1.0),
                    ("one-change growth exponent <= 1 (linear)", k_one, k_one <= 1.0)]
