@@ -173,8 +173,10 @@ def create_samples_views(con: duckdb.DuckDBPyConnection, warehouse: Path, runs: 
                 files.append((str(run_id), kind, campaign if isinstance(campaign, str) else None,
                               Path(path).as_posix()))
     con.execute(f"CREATE TABLE {FILES_TABLE} (run_id VARCHAR, kind VARCHAR, campaign VARCHAR, path VARCHAR)")
-    if files:
-        con.executemany(f"INSERT INTO {FILES_TABLE} VALUES (?, ?, ?, ?)", sorted(files, key=lambda f: f[3]))
+    if files:  # one statement of four lists: executemany inserts row by row (10,000 runs: ~5 s)
+        rows = sorted(files, key=lambda f: f[3])
+        con.execute(f"INSERT INTO {FILES_TABLE} SELECT unnest($1), unnest($2), unnest($3), unnest($4)",
+                    [[r[i] for r in rows] for i in range(4)])
     for kind, spec in KINDS.items():
         groups: dict[tuple | None, list[str]] = {}
         for run_id, fkind, _campaign, path in files:
