@@ -163,8 +163,9 @@ def bench_size(runs: int, seed: int, repeat: int, jobs: int | None) -> dict:
         "query_leak_5bar_s": "SELECT * FROM leakage_map WHERE round(pressure_bar) = 5 ORDER BY run_id",
         "query_service_life_s": "SELECT * FROM service_life",
     }
+    shown = [*pneubench_cmd(), "query", "--warehouse", str(wh)]  # the default table format, as typed
     for key, sql in queries.items():
-        q = Series(key, [measure([*query, sql], cwd=ROOT) for _ in range(repeat)])
+        q = Series(key, [measure([*shown, sql], cwd=ROOT) for _ in range(repeat)])
         out[key], out[key[:-2] + "_cpu_s"] = q.wall_s, q.cpu_s  # CPU: the figure a loaded machine does not move
     out["noop_profile"] = prof
     for k, v in out.items():

@@ -166,12 +166,21 @@ def _fetch_batches(cur, batch_rows: int) -> Iterator[list[tuple]]:
 
 
 def _count_rest(cur) -> int:
-    """Rows left in a cursor, counted as Arrow batches (never turned into Python values)."""
+    """Rows left in a cursor: the first 100,000 fetched as tuples (no pyarrow to import for a
+    result of a few thousand rows), the rest counted as Arrow batches (never turned into Python
+    values)."""
     import warnings
+
+    n = 0
+    for _ in range(10):
+        rows = cur.fetchmany(10_000)
+        n += len(rows)
+        if len(rows) < 10_000:
+            return n
 
     with warnings.catch_warnings():  # "an extra copy of the rows": only their number is kept
         warnings.simplefilter("ignore")
-        return sum(b.num_rows for b in cur.to_arrow_reader(BATCH_ROWS))
+        return n + sum(b.num_rows for b in cur.to_arrow_reader(BATCH_ROWS))
 
 
 @contextmanager
