@@ -1045,15 +1045,50 @@ def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, r
         "stage_cache": pd.DataFrame([r.as_row() for r in staged.records]),
         "superseded_files": superseded,
     }
-    tmp_db = warehouse / f".{DB_NAME}.tmp-{os.getpid()}"
     progress.message(f"warehouse: writing {len(all_tables)} tables")
+    summary.report = swap_in_new_database(
+        warehouse, lambda tmp_db: build_database(tmp_db, warehouse, all_tables, runs_df), report)
+    # files the new warehouse uses, and those of earlier ones still within their retention
+    # (a reader that opened an earlier warehouse keeps reading its samples)
+    keep = in_use | set(kept)
+    collect_garbage(warehouse, *_split_kept(keep))
+    summary.tables = {k: len(v) for k, v in all_tables.items()}
+    if summary.report is not None:
+        progress.message(f"report: {summary.report}")
+    summary.seconds = time.monotonic() - t0
+    _report_quarantine(problems, progress)
+    progress.message(f"rebuild: {summary.n_runs} runs ({summary.n_new} new, {summary.n_changed} changed, "
+                     f"{summary.n_deleted} deleted, {summary.n_unchanged} unchanged), {len(problems)} quarantined, "
+                     f"stages run: {', '.join(staged.ran) or 'none'}, {summary.seconds:.1f} s")
+    return summary
+
+
+def _split_kept(keep: set[str]) -> tuple[set[str], set[str]]:
+    """Paths to keep (relative to the warehouse) as (samples files, stage folders and the rest)."""
+    return {p for p in keep if p.startswith("samples/")}, {p for p in keep if not p.startswith("samples/")}
+
+
+def _report_quarantine(problems: list[Problem], progress: Progress) -> None:
+    for p in problems:
+        where = f"{p.source_path}:{p.line}" if p.line else p.source_path
+        progress.message(f"quarantined {where}: {p.error}")
+
+def swap_in_new_database(warehouse: Path, write, report: bool, run_pages: str = "update") -> Path | None:
+    """Write the new database under a temporary name (``write(tmp_db)``), render the morning
+    report from it, swap the database in, then publish the report; returns the report's path.
+
+    Any failure before the swap removes the temporary database and staged page and raises
+    :class:`RebuildError`: the previous warehouse and its report are kept (the two always agree).
+    ``run_pages`` as for :func:`pipeline.report.render_report`.
+    """
+    tmp_db = warehouse / f".{DB_NAME}.tmp-{os.getpid()}"
     page = None  # the morning report, staged beside index.html: rendered from the new database
     try:
-        build_database(tmp_db, warehouse, all_tables, runs_df)
+        write(tmp_db)
         if report:  # before the swap: a failure keeps the previous warehouse and its report
             from pipeline.report import render_report, stage_page
             try:
-                page = stage_page(warehouse, render_report(warehouse, database=tmp_db))
+                page = stage_page(warehouse, render_report(warehouse, database=tmp_db, run_pages=run_pages))
             except Exception as exc:
                 log.exception("report failed")
                 raise RebuildError(f"the morning report could not be written: {type(exc).__name__}: "
@@ -1068,26 +1103,12 @@ def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, r
         if isinstance(exc, RebuildError):
             raise
         raise RebuildError(f"could not write the warehouse: {type(exc).__name__}: {exc}") from exc
+    published = None
     if page is not None:  # straight after the swap: the report follows the warehouse it describes
         from pipeline.report import publish_page
-        summary.report = publish_page(page)
+        published = publish_page(page)
     _crash_point("after_swap")
-    # files the new warehouse uses, and those of earlier ones still within their retention
-    # (a reader that opened an earlier warehouse keeps reading its samples)
-    keep = in_use | set(kept)
-    collect_garbage(warehouse, {p for p in keep if p.startswith("samples/")},
-                    {p for p in keep if not p.startswith("samples/")})
-    summary.tables = {k: len(v) for k, v in all_tables.items()}
-    if summary.report is not None:
-        progress.message(f"report: {summary.report}")
-    summary.seconds = time.monotonic() - t0
-    for p in problems:
-        where = f"{p.source_path}:{p.line}" if p.line else p.source_path
-        progress.message(f"quarantined {where}: {p.error}")
-    progress.message(f"rebuild: {summary.n_runs} runs ({summary.n_new} new, {summary.n_changed} changed, "
-                     f"{summary.n_deleted} deleted, {summary.n_unchanged} unchanged), {len(problems)} quarantined, "
-                     f"stages run: {', '.join(staged.ran) or 'none'}, {summary.seconds:.1f} s")
-    return summary
+    return published
 
 
 # -- the no-op fast path ---------------------------------------------------------------------------
@@ -1145,11 +1166,10 @@ def _rebuild_noop(warehouse: Path, prev: PreviousState, plans: list[FilePlan], k
     same. Same swap, same crash safety as a full rebuild."""
     import duckdb
 
-    tmp_db = warehouse / f".{DB_NAME}.tmp-{os.getpid()}"
     in_use = prev.samples | prev.stage_folders
     kept, expired = superseded_files(prev, in_use, clock(), keep_h)
-    page = None
-    try:
+
+    def carry_over(tmp_db: Path) -> None:
         shutil.copyfile(warehouse / DB_NAME, tmp_db)
         con = duckdb.connect(str(tmp_db))
         try:
@@ -1183,37 +1203,14 @@ def _rebuild_noop(warehouse: Path, prev: PreviousState, plans: list[FilePlan], k
             con.execute("CHECKPOINT")
         finally:
             con.close()
-        if report:
-            from pipeline.report import render_report, stage_page
-            try:
-                page = stage_page(warehouse, render_report(warehouse, database=tmp_db, run_pages="missing"))
-            except Exception as exc:
-                log.exception("report failed")
-                raise RebuildError(f"the morning report could not be written: {type(exc).__name__}: "
-                                   f"{' '.join(str(exc).split())}; the previous warehouse and report are kept") from exc
-        _crash_point("before_swap")
-        swap_in(tmp_db, warehouse / DB_NAME)
-    except Exception as exc:
-        tmp_db.unlink(missing_ok=True)
-        Path(f"{tmp_db}.wal").unlink(missing_ok=True)
-        if page is not None:
-            page.unlink(missing_ok=True)
-        if isinstance(exc, RebuildError):
-            raise
-        raise RebuildError(f"could not write the warehouse: {type(exc).__name__}: {exc}") from exc
-    if page is not None:
-        from pipeline.report import publish_page
-        summary.report = publish_page(page)
-    _crash_point("after_swap")
+
+    summary.report = swap_in_new_database(warehouse, carry_over, report, run_pages="missing")
     keep = in_use | set(kept)
-    collect_garbage(warehouse, {p for p in keep if p.startswith("samples/")},
-                    {p for p in keep if not p.startswith("samples/")})
+    collect_garbage(warehouse, *_split_kept(keep))
     summary.seconds = time.monotonic() - t0
     if summary.report is not None:
         progress.message(f"report: {summary.report}")
-    for p in summary.quarantine:
-        where = f"{p.source_path}:{p.line}" if p.line else p.source_path
-        progress.message(f"quarantined {where}: {p.error}")
+    _report_quarantine(summary.quarantine, progress)
     progress.message(f"rebuild: {summary.n_runs} runs (0 new, 0 changed, 0 deleted, {summary.n_unchanged} unchanged: "
                      f"a no-op), {len(summary.quarantine)} quarantined, stages run: none, {summary.seconds:.1f} s")
     return summary
