@@ -487,10 +487,15 @@ def _save_stage_folder(warehouse: Path, name: str, folder_key: str, out: stage_r
     (tmp / "tables").mkdir(parents=True)
     (tmp / "figures").mkdir()
     cacheable = True
+    empty = {}  # a table without rows is kept as its columns' dtypes in output.json, not a Parquet file
     for table, df in out.tables.items():
         try:
-            pq.write_table(pa.Table.from_pandas(df.reset_index(drop=True), preserve_index=False),
-                           tmp / "tables" / f"{table}.parquet")
+            arrow = pa.Table.from_pandas(df.reset_index(drop=True), preserve_index=False)
+            columns = _empty_columns(arrow) if arrow.num_rows == 0 else None
+            if columns is not None:
+                empty[table] = columns
+                continue
+            pq.write_table(arrow, tmp / "tables" / f"{table}.parquet")
         except (pa.ArrowException, TypeError, ValueError):
             cacheable = False
     figures = {}
@@ -501,7 +506,7 @@ def _save_stage_folder(warehouse: Path, name: str, folder_key: str, out: stage_r
         fig.savefig(tmp / "figures" / file, dpi=110, metadata={"Software": None})
         plt.close(fig)
         figures[fname] = {"file": file, "caption": out.captions.get(fname, "")}
-    meta = {"tables": sorted(out.tables), "figures": figures, "cacheable": cacheable,
+    meta = {"tables": sorted(out.tables), "empty": empty, "figures": figures, "cacheable": cacheable,
             "problems": [{"source_path": p.source_path, "error": p.error, "line": p.line, "stage": p.stage}
                          for p in out.problems],
             "warnings": {k: list(v) for k, v in sorted(out.warnings.items())}}
@@ -516,20 +521,58 @@ def _save_stage_folder(warehouse: Path, name: str, folder_key: str, out: stage_r
     return rel, cacheable
 
 
+def _empty_frame(columns: list) -> pd.DataFrame:
+    """The DataFrame ``pd.read_parquet`` gives for a table without rows, from its ``[[column, dtype]]``."""
+    import pandas as pd
+
+    return pd.DataFrame({c: pd.array([], dtype=d) for c, d in columns}, index=pd.RangeIndex(0), copy=False)
+
+
+def _empty_columns(arrow) -> list | None:
+    """``[[column, dtype]]`` of a table without rows, when :func:`_empty_frame` rebuilds exactly the
+    frame its Parquet file would read back as; else None (the table is written as Parquet)."""
+    import io
+
+    import pandas as pd
+    import pyarrow.parquet as pq
+
+    buf = io.BytesIO()  # the round trip itself (Parquet has no second unit, for one: s comes back as ms)
+    pq.write_table(arrow, buf)
+    back = pd.read_parquet(io.BytesIO(buf.getvalue()))
+    columns = [[c, str(d)] for c, d in back.dtypes.items()]
+    if not all(isinstance(c, str) for c, _ in columns) or len(set(back.columns)) != len(columns):
+        return None
+    try:
+        again = _empty_frame(columns)
+    except (TypeError, ValueError):
+        return None
+    same = list(again.columns) == list(back.columns) and [repr(d) for d in again.dtypes] == [repr(d) for d in back.dtypes]
+    return columns if same else None  # repr, not ==: a category dtype equals "category" whatever its categories
+
+
 def _load_stage_folder(warehouse: Path, rel: str, stage: str, fresh: stage_registry.StageOutput | None = None):
     """(tables, figure rows, problems, warnings) of a stage folder."""
     import pandas as pd
 
     folder = warehouse / rel
     meta = json.loads((folder / "output.json").read_text())
+    empty = meta.get("empty") or {}
     tables = {}
     for t in meta["tables"]:
         f = folder / "tables" / f"{t}.parquet"
-        tables[t] = pd.read_parquet(f) if f.is_file() and meta.get("cacheable", True) else fresh.tables[t]
+        if t in empty:  # no rows: its dtypes were checked to come back exactly as from Parquet
+            tables[t] = _empty_frame(empty[t])
+        else:
+            tables[t] = pd.read_parquet(f) if f.is_file() and meta.get("cacheable", True) else fresh.tables[t]
     figures = [{"stage": stage, "name": n, "path": f"{rel}/figures/{v['file']}", "caption": v["caption"]}
                for n, v in sorted(meta["figures"].items())]
     problems = [Problem(p["source_path"], p["error"], p["line"], p.get("stage") or stage) for p in meta["problems"]]
     return tables, figures, problems, meta["warnings"]
+
+
+def _seconds(s: float) -> str:
+    """``"12 ms"`` below a second (a stage that is only reused), else ``"3.4 s"``."""
+    return f"{s * 1e3:.0f} ms" if s < 1 else f"{s:.1f} s"
 
 
 def run_stages_cached(ctx_args: dict, runs: list[dict], prev: PreviousState, warehouse: Path, full: bool,
@@ -543,11 +586,13 @@ def run_stages_cached(ctx_args: dict, runs: list[dict], prev: PreviousState, war
 
     res = StageResults()
     mods = stage_registry.discover()
+    # every stage's code version up front: the project's sources are read and hashed once for all
+    codes = {mod.NAME: stage_code_version(getattr(mod, "__file__", None) or mod.NAME) for mod in mods}
     with progress.task("stages", len(mods)) as task:
         for mod in mods:
             t0 = time.monotonic()
             name = mod.NAME
-            code = stage_code_version(getattr(mod, "__file__", None) or name)
+            code = codes[name]
             declared = set(getattr(mod, "KINDS", ()) or ())
             logb = logbooks if _reads_logbooks(mod) else None
             old = prev.stages.get(name)
@@ -596,7 +641,7 @@ def run_stages_cached(ctx_args: dict, runs: list[dict], prev: PreviousState, war
                 res.warnings.setdefault(rid, []).extend(ws)
             memo_note = res.memos[name].summary() if name in res.memos else ""
             progress.message(f"stage {name} {how}: " + ", ".join(f"{k} {len(v)} rows" for k, v in tables.items())
-                             + f" ({time.monotonic() - t0:.1f} s{'; ' + memo_note if memo_note else ''})")
+                             + f" ({_seconds(time.monotonic() - t0)}{'; ' + memo_note if memo_note else ''})")
             task.advance()
     return res
 

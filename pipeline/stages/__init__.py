@@ -227,6 +227,9 @@ def add_run_columns(tables: dict[str, pd.DataFrame], runs: pd.DataFrame) -> dict
     for name, df in tables.items():
         if df is None or "run_id" not in df.columns:
             continue
+        if df.empty:  # the same columns and dtypes, without pandas' per-column work (a reused empty stage)
+            out[name] = df.assign(campaign=pd.array([], dtype="string")) if "campaign" not in df.columns else df.copy()
+            continue
         df = df.copy()
         if "campaign" not in df.columns:
             df["campaign"] = pd.array(df["run_id"].map(campaign), dtype="string")

@@ -415,3 +415,76 @@ def test_keep_superseded_option_and_environment(raw, warehouse, monkeypatch):
     monkeypatch.setenv("PNEUBENCH_KEEP_SUPERSEDED_H", "24")
     assert CliRunner().invoke(main, [*args, "--keep-superseded", "0"]).exit_code == 0  # the option wins
     assert not (warehouse / first).exists()
+
+
+def test_a_stage_table_without_rows_is_kept_as_dtypes_and_loads_as_its_parquet_file_would(tmp_path, monkeypatch):
+    """A table without rows is stored as its columns' dtypes in ``output.json`` (no Parquet file to
+    write and read back: a stage with nothing to do costs milliseconds), and loads exactly as the
+    Parquet file would have; a dtype its name does not rebuild exactly still goes to Parquet."""
+    import json
+
+    import pandas as pd
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    import pipeline.rebuild as rb
+    from pipeline.stages import StageOutput
+
+    empty = pd.DataFrame({
+        "run_id": pd.Series([], dtype="str"), "x": pd.Series([], dtype="float64"), "n": pd.Series([], dtype="Int64"),
+        "k": pd.Series([], dtype="int64"), "ok": pd.Series([], dtype="boolean"), "flag": pd.Series([], dtype="bool"),
+        "note": pd.Series([], dtype="string"), "anything": pd.Series([], dtype=object),
+        "at": pd.Series([], dtype="datetime64[ns, UTC]"), "naive": pd.Series([], dtype="datetime64[s]"),
+        "cat": pd.Series([], dtype=pd.CategoricalDtype(["a", "b"]))})
+    full = pd.DataFrame({"run_id": ["a"], "x": [1.5]})
+
+    def saved_and_loaded(out: StageOutput, key: str):
+        rel, cacheable = rb._save_stage_folder(tmp_path, "demo", key, out)
+        assert cacheable
+        folder = tmp_path / rel
+        tables, *_ = rb._load_stage_folder(tmp_path, rel, "demo")
+        for name, df in out.tables.items():  # what the Parquet file would give
+            pq.write_table(pa.Table.from_pandas(df, preserve_index=False), tmp_path / f"{name}.parquet")
+            pd.testing.assert_frame_equal(tables[name], pd.read_parquet(tmp_path / f"{name}.parquet"),
+                                          check_index_type=True)
+        return sorted(p.name for p in (folder / "tables").iterdir()), json.loads((folder / "output.json").read_text())
+
+    files, meta = saved_and_loaded(StageOutput(tables={"empty": empty, "full": full}), "0" * 20)
+    assert files == ["full.parquet"] and list(meta["empty"]) == ["empty"]
+    assert dict(meta["empty"]["empty"])["naive"] == "datetime64[ms]"  # Parquet's unit, not the frame's
+    real = rb._empty_frame
+    monkeypatch.setattr(rb, "_empty_frame", lambda cols: real(cols).astype({"x": "float32"}) if
+                        "x" in dict(cols) else real(cols))  # a name that does not rebuild its dtype
+    files, meta = saved_and_loaded(StageOutput(tables={"empty": empty, "full": full}), "1" * 20)
+    assert files == ["empty.parquet", "full.parquet"] and meta["empty"] == {}
+
+
+def test_every_stage_loads_the_same_tables_with_or_without_empty_tables_kept_as_dtypes(raw, tmp_path, monkeypatch):
+    """The whole rebuild: every stage's tables (most of them empty on a small tree) load equal to
+    what the Parquet files gave before tables without rows were kept as dtypes."""
+    import pandas as pd
+
+    import pipeline.rebuild as rb
+
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[mm]": [0, 1, 2, 3], "x_ref[mm]": [3] * 4})
+    loaded: dict[str, dict] = {}
+    real = rb._load_stage_folder
+
+    def spy(warehouse, rel, stage, fresh=None):
+        got = real(warehouse, rel, stage, fresh)
+        loaded.setdefault(warehouse.name, {})[stage] = got[0]
+        return got
+
+    monkeypatch.setattr(rb, "_load_stage_folder", spy)
+    rebuild(raw.root, tmp_path / "as-dtypes", jobs=1, report=False)
+    monkeypatch.setattr(rb, "_empty_columns", lambda arrow: None)  # every table as Parquet, as before
+    rebuild(raw.root, tmp_path / "as-parquet", jobs=1, report=False)
+    a, b = loaded["as-dtypes"], loaded["as-parquet"]
+    assert sorted(a) == sorted(b) and sum(len(t) for t in a.values()) > 10
+    n_empty = 0
+    for stage in a:
+        assert sorted(a[stage]) == sorted(b[stage])
+        for name in a[stage]:
+            pd.testing.assert_frame_equal(a[stage][name], b[stage][name], check_index_type=True)
+            n_empty += a[stage][name].empty
+    assert n_empty > 10

@@ -53,3 +53,17 @@ def test_pooled_tables_state_their_campaigns_and_runs_and_the_envelope_leaves_ho
 def test_no_runs_leaves_tables_as_they_are():
     tables = {"leakage_map": pd.DataFrame({"run_id": ["a"]})}
     assert add_run_columns(tables, RUNS.iloc[0:0]) is tables
+
+
+def test_an_empty_table_gets_the_columns_and_dtypes_a_table_with_rows_gets():
+    """The shortcut for tables without rows (a reused stage with nothing to do) types them as the
+    general path does: ``campaign`` a string column, no ``hose_id`` (no run names a hose)."""
+    rows = pd.DataFrame({"run_id": ["c1/leak"], "pressure_bar": [1.0]})
+    tables = {"leakage_map": rows.iloc[0:0], "breakaway": pd.DataFrame({"run_id": pd.Series([], dtype="str"),
+                                                                         "campaign": pd.Series([], dtype="str")})}
+    out = add_run_columns(tables, RUNS)
+    full = add_run_columns({"leakage_map": rows}, RUNS)["leakage_map"]
+    assert list(out["leakage_map"].columns) == ["run_id", "pressure_bar", "campaign"]
+    assert out["leakage_map"].dtypes.to_dict() == full.dtypes.to_dict() and out["leakage_map"].empty
+    assert out["breakaway"].dtypes.to_dict() == tables["breakaway"].dtypes.to_dict()
+    assert out["breakaway"] is not tables["breakaway"] and "campaign" not in tables["leakage_map"]
