@@ -19,6 +19,7 @@ BENCHMARKS = {
     "rebuild": (["--runs", "1000"], ["--runs", "150"]),
     "cli": ([], ["--quick"]),  # whole pneubench commands as processes against whole-process baselines
     "scale": ([], ["--runs", "300,1000"]),  # the cost curve to 10,000 runs
+    "memo": ([], ["--entries", "1000"]),  # the per-run memo's own cost: one change out of 10,000
 }
 
 

@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING
 
 from pipeline.executors import CRASH_REASON, Executor, make_executor
 from pipeline.layout import Problem, RawTree, discover_runs, skip_reason
-from pipeline.memo import MEMO_DIR, MEMO_FILE, MEMO_TMP, Memo
+from pipeline.memo import LEGACY_FILE, LEGACY_TMP, MEMO_DIR, SHARD_FILE, SHARD_TMP, STAGE_NAME, Memo
 from pipeline.readers import READERS
 from pipeline.progress import Progress
 from pipeline.code_version import project_code_version
@@ -826,8 +826,11 @@ def clean_debris(warehouse: Path) -> None:
             if _SAMPLES_TMP.fullmatch(name):
                 (cdir / name).unlink(missing_ok=True)
     if _real_dir(warehouse / MEMO_DIR):
-        for _name, path, _is_dir, is_file in _entries(warehouse / MEMO_DIR):
-            _unlink_if(path, is_file, MEMO_TMP)
+        for name, path, is_dir, is_file in _entries(warehouse / MEMO_DIR):
+            _unlink_if(path, is_file, LEGACY_TMP)
+            if is_dir and STAGE_NAME.fullmatch(name):
+                for _name, spath, _is_dir, s_is_file in _entries(path):
+                    _unlink_if(spath, s_is_file, SHARD_TMP)
 
 
 def collect_garbage(warehouse: Path, keep_samples: set[str], keep_stages: set[str]) -> None:
@@ -849,14 +852,18 @@ def collect_garbage(warehouse: Path, keep_samples: set[str], keep_stages: set[st
                 if k_is_dir and _STAGE_KEY.fullmatch(kname) and f"stages/{sname}/{kname}" not in keep_stages:
                     remove_stage_folder(kdir)
             _rmdir(sdir)
-    # a stage's per-item memo goes with the last of its stage folders that is kept
+    # a stage's per-item memo (memo/<stage>/<xx>.pkl) goes with the last of its stage folders
+    # that is kept; the first layout's whole-stage files (memo/<stage>.pkl) are never read: all go
     memo = warehouse / MEMO_DIR
     if _real_dir(memo):
         live = {p.split("/")[1] for p in keep_stages if p.startswith("stages/") and p.count("/") >= 2}
-        for name, path, _is_dir, is_file in _entries(memo):
-            m = MEMO_FILE.fullmatch(name)
-            if is_file and m and m.group(1) not in live:
-                path.unlink(missing_ok=True)
+        for name, path, is_dir, is_file in _entries(memo):
+            _unlink_if(path, is_file, LEGACY_FILE)
+            if is_dir and STAGE_NAME.fullmatch(name) and name not in live:
+                for _name, spath, _is_dir, s_is_file in _entries(path):
+                    _unlink_if(spath, s_is_file, SHARD_FILE)
+                    _unlink_if(spath, s_is_file, SHARD_TMP)
+                _rmdir(path)
         _rmdir(memo)
     legacy = warehouse / "figures"  # figures of the first layout (before generations): <stage>/<name>.png
     if _real_dir(legacy) and not any(p.startswith("figures/") for p in keep_stages):
