@@ -7,6 +7,7 @@ import difflib
 import io
 import json
 import math
+import re
 import shutil
 import textwrap
 from contextlib import contextmanager
@@ -96,6 +97,19 @@ def check_sql(con: duckdb.DuckDBPyConnection, sql: str) -> str:
     return sql
 
 
+@contextmanager
+def _no_samples_explained(sql: str):
+    """DuckDB's "No files found that match the pattern" from ``samples('<run_id>')`` (a run_id
+    the warehouse does not have, or a run without samples) as a :class:`QueryError` that says so."""
+    try:
+        yield
+    except duckdb.IOException as exc:
+        if "No files found" in str(exc) and re.search(r"\bsamples\s*\(", sql, re.IGNORECASE):
+            raise QueryError("samples('<run_id>') found no samples file: no run with that run_id has samples in "
+                             "this warehouse (SELECT run_id, samples_path FROM runs lists them)") from None
+        raise
+
+
 def run_query(warehouse: str | Path, sql: str) -> tuple[list[str], list[tuple]]:
     """Run one read-only statement on the warehouse. Returns (column names, rows).
 
@@ -105,7 +119,8 @@ def run_query(warehouse: str | Path, sql: str) -> tuple[list[str], list[tuple]]:
     """
     con = connect_readonly(Path(warehouse))
     try:
-        cur = con.execute(check_sql(con, sql))
+        with _no_samples_explained(sql):
+            cur = con.execute(check_sql(con, sql))
         if cur.description is None:
             return [], []
         return [d[0] for d in cur.description], cur.fetchall()
@@ -195,15 +210,16 @@ def open_query(warehouse: str | Path, sql: str, batch_rows: int = BATCH_ROWS, ar
     """
     con = connect_readonly(Path(warehouse))
     try:
-        checked = check_sql(con, sql)
+        with _no_samples_explained(sql):
+            checked = check_sql(con, sql)
+            rel = con.sql(checked) if arrow else None
+            cur = None if arrow else con.execute(checked)
         if arrow:
-            rel = con.sql(checked)
             if rel is None:
                 yield Result([], [], iter(()))
             else:
                 yield Result(list(rel.columns), [str(t) for t in rel.types], iter(rel.to_arrow_reader(batch_rows)))
         else:
-            cur = con.execute(checked)
             desc = cur.description or []
             yield Result([d[0] for d in desc], [str(d[1]) for d in desc], _fetch_batches(cur, batch_rows),
                          cursor=cur if desc else None)

@@ -212,8 +212,9 @@ SAFE_NAME_SQL = "coalesce(nullif(left(trim(regexp_replace(rid, '[^A-Za-z0-9._-]+
 #: views above cost ~10-60 us per file of their kind to plan and run (DuckDB's multi-file list:
 #: 0.2-0.4 s for a one-run query on 6,500 spring runs); the macro globs the few files named like
 #: the run (its safe name, any kind and campaign folder) and keeps the one ``samples_files``
-#: lists for it (an earlier generation's file, kept for its readers, is never read). A run
-#: without samples: "No files found that match the pattern ...".
+#: lists for it (an earlier generation's file, kept for its readers, is never read). A run_id
+#: without samples makes DuckDB say "No files found that match the pattern ..."; ``pneubench
+#: query`` turns that into a one-line error naming the cause (``pipeline.query``).
 SAMPLES_MACRO = (
     "CREATE MACRO samples(rid) AS TABLE "
     f"SELECT m.run_id, s.* EXCLUDE (filename, run_id), m.kind, m.campaign "

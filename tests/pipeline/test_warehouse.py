@@ -186,3 +186,29 @@ def test_the_samples_macro_reads_one_runs_file_and_never_an_earlier_generations(
     assert len(run_query(wh, "SELECT * FROM samples('c/[x]*')")[1]) == 3
     same = run_query(wh, "SELECT * FROM samples_step WHERE run_id = 'c/a b' ORDER BY t_s")
     assert run_query(wh, "SELECT * FROM samples('c/a b') ORDER BY t_s") == same
+
+
+def test_the_samples_macro_says_in_one_line_when_no_run_has_that_id(tmp_path):
+    """A run_id the warehouse has no samples for: a QueryError that says so, not DuckDB's "No files
+    found that match the pattern" with the warehouse's glob; through the CLI, one line and exit 2."""
+    from click.testing import CliRunner
+
+    from pipeline.cli import main
+    from pipeline.query import QueryError, open_query
+
+    raw = RawBuilder(tmp_path / "raw")
+    wh = tmp_path / "wh"
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[mm]": [1, 2, 3], "x_ref[mm]": [3] * 3})
+    rebuild(raw.root, wh, jobs=1, report=False)
+    with pytest.raises(QueryError, match=r"^samples\('<run_id>'\) found no samples file"):
+        run_query(wh, "SELECT * FROM samples('c/nope')")
+    for arrow in (True, False):
+        with pytest.raises(QueryError, match="found no samples file"):
+            with open_query(wh, "select count(*) from SAMPLES ('nope')", arrow=arrow) as _:
+                pass
+    with pytest.raises(duckdb.Error, match="Permission Error"):  # other SQL keeps DuckDB's words
+        run_query(wh, "SELECT * FROM read_parquet('samples/none-*.parquet')")
+    assert run_query(wh, "SELECT count(*) FROM samples_step WHERE run_id = 'nope'")[1] == [(0,)]
+    res = CliRunner().invoke(main, ["query", "--warehouse", str(wh), "SELECT * FROM samples('nope')"])
+    assert res.exit_code == 2 and "found no samples file" in res.output and len(res.output.strip().splitlines()) == 1
+    assert len(run_query(wh, "SELECT * FROM samples('c/a')")[1]) == 3
