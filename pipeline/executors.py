@@ -45,12 +45,18 @@ class Executor:
     name = "serial"
 
     def map(self, func: Callable, items: Iterable, label: str = "", progress: Progress | None = None,
-            on_crash: Callable | None = None, preload: Iterable[str] = ()) -> list:
+            on_crash: Callable | None = None, preload: Iterable[str] = (),
+            while_waiting: Callable[[], object] | None = None) -> list:
         """``func`` over ``items``, results in item order. ``on_crash(item, reason)`` stands in for
         the result of an item whose worker process died (executors with worker processes).
-        ``preload``: modules the workers need (imported once before they start, where that helps)."""
+        ``preload``: modules this process imports for the work (once, where that helps).
+        ``while_waiting()``: work of the caller's own, called once while the first items run
+        elsewhere (in this process's executor: before them), so that it costs no wall time
+        beside worker processes."""
         items = list(items)
         progress = progress or Progress()
+        if items and while_waiting is not None:
+            while_waiting()
         out = []
         with progress.task(label or getattr(func, "__name__", "work"), len(items)) as task:
             for item in items:
@@ -113,6 +119,19 @@ def _reader_worker_init(pid: int, close_fds: tuple[int, ...]) -> None:
     _watch_parent(pid)
 
 
+def forked_pool(workers: int, close_fds: tuple[int, ...] = ()) -> ProcessPoolExecutor:
+    """A pool of ``workers`` processes forked from this one when the first task comes (warm at
+    once: everything imported here is there), which close ``close_fds`` (the rebuild's lock) and
+    exit when this process dies."""
+    return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("fork"),
+                               initializer=_reader_worker_init, initargs=(os.getpid(), tuple(close_fds)))
+
+
+def default_jobs(jobs: int | None) -> int:
+    """``jobs``, or every core when None."""
+    return max(1, int(jobs or os.cpu_count() or 1))
+
+
 def preload_modules() -> list[str]:
     """Modules a worker of the stages needs (stages, analyses). The local pools are forked from
     the rebuild, which has imported them already; kept for executors that start cold."""
@@ -144,7 +163,7 @@ class LocalExecutor(Executor):
     name = "local"
 
     def __init__(self, jobs: int | None = None, close_in_workers: tuple[int, ...] = ()):
-        self.jobs = max(1, int(jobs or os.cpu_count() or 1))
+        self.jobs = default_jobs(jobs)
         self.close_in_workers = tuple(close_in_workers)
         self._pool: ProcessPoolExecutor | None = None
         self._readers: ProcessPoolExecutor | None = None
@@ -153,16 +172,12 @@ class LocalExecutor(Executor):
 
     def _get_pool(self) -> ProcessPoolExecutor:
         if self._pool is None:  # forked: warm at once; the lock closed in each worker
-            self._pool = ProcessPoolExecutor(max_workers=self.jobs, mp_context=multiprocessing.get_context("fork"),
-                                             initializer=_reader_worker_init,
-                                             initargs=(os.getpid(), self.close_in_workers))
+            self._pool = forked_pool(self.jobs, self.close_in_workers)
         return self._pool
 
     def _reader_pool(self, workers: int) -> ProcessPoolExecutor:
         if self._readers is None:
-            self._readers = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("fork"),
-                                                initializer=_reader_worker_init,
-                                                initargs=(os.getpid(), self.close_in_workers))
+            self._readers = forked_pool(workers, self.close_in_workers)
             self.reader_processes_started += workers  # started on the first submit, one per worker
         return self._readers
 
@@ -171,7 +186,8 @@ class LocalExecutor(Executor):
             self._readers.shutdown(wait=True, cancel_futures=True)
             self._readers = None
 
-    def map(self, func, items, label="", progress=None, on_crash: Callable | None = None, preload=()):
+    def map(self, func, items, label="", progress=None, on_crash: Callable | None = None, preload=(),
+            while_waiting=None):
         """``func`` over ``items`` in worker processes, results in item order.
 
         With ``on_crash`` (work on untrusted bytes) the items always run in worker processes:
@@ -184,24 +200,30 @@ class LocalExecutor(Executor):
         if not items:
             return []
         if on_crash is not None:
-            return self._map_isolated(func, items, label, progress or Progress(), on_crash, preload)
-        if self.jobs <= 1 or len(items) == 1:
-            return super().map(func, items, label, progress)  # in this process: trusted work only
+            return self._map_isolated(func, items, label, progress or Progress(), on_crash, preload, while_waiting)
+        if self.jobs <= 1 or len(items) == 1:  # in this process: trusted work only
+            return super().map(func, items, label, progress, while_waiting=while_waiting)
         progress = progress or Progress()
         out = []
         chunk = max(1, min(16, len(items) // (self.jobs * 8)))
         with progress.task(label or getattr(func, "__name__", "work"), len(items)) as task:
-            for res in self._get_pool().map(func, items, chunksize=chunk):
+            results = self._get_pool().map(func, items, chunksize=chunk)  # submitted at once
+            if while_waiting is not None:
+                while_waiting()
+            for res in results:
                 out.append(res)
                 task.advance()
         return out
 
-    def _map_isolated(self, func, items, label, progress, on_crash, preload) -> list:
+    def _map_isolated(self, func, items, label, progress, on_crash, preload, while_waiting=None) -> list:
         """Items in forked worker processes, at most one in flight per worker, so that a dead
         worker's item is known: with one suspect it is the culprit; with several (``jobs`` > 1)
-        each is run again alone."""
-        for mod in preload:  # imported once here rather than once per worker
-            importlib.import_module(mod)
+        each is run again alone.
+
+        The workers are forked before ``preload`` is imported here: each imports what its items
+        need while this process imports ``preload`` and runs ``while_waiting`` (the two would
+        otherwise come one after the other; issue 14). A worker forked again later (after a
+        crash) starts warm."""
         workers = min(self.jobs, len(items))
         out: list = [None] * len(items)
         todo = list(range(len(items)))[::-1]
@@ -212,6 +234,12 @@ class LocalExecutor(Executor):
                 while todo and len(running) < workers:
                     i = todo.pop()
                     running[pool.submit(func, items[i])] = i
+                if preload is not None:
+                    for mod in preload:
+                        importlib.import_module(mod)
+                    preload = None
+                    if while_waiting is not None:
+                        while_waiting()
                 finished, _ = wait(running, return_when=FIRST_COMPLETED)
                 suspects = []
                 for fut in finished:
@@ -244,9 +272,7 @@ class LocalExecutor(Executor):
     def _isolated(self, func, item, on_crash: Callable):
         """Run one item in a fresh forked single-worker pool; ``on_crash`` if that worker dies."""
         self.reader_processes_started += 1
-        with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork"),
-                                 initializer=_reader_worker_init,
-                                 initargs=(os.getpid(), self.close_in_workers)) as pool:
+        with forked_pool(1, self.close_in_workers) as pool:
             try:
                 return pool.submit(func, item).result()
             except BrokenProcessPool:
@@ -292,7 +318,8 @@ class DaskExecutor(Executor):
             self.client = Client(self._cluster)
         self.address = address or self.client.scheduler.address
 
-    def map(self, func, items, label="", progress=None, on_crash: Callable | None = None, preload=()):
+    def map(self, func, items, label="", progress=None, on_crash: Callable | None = None, preload=(),
+            while_waiting=None):
         from distributed import KilledWorker, as_completed
 
         items = list(items)
@@ -300,6 +327,8 @@ class DaskExecutor(Executor):
         if not items:
             return []
         futures = self.client.map(func, items, pure=False)
+        if while_waiting is not None:
+            while_waiting()
         index = {f.key: i for i, f in enumerate(futures)}
         out: list = [None] * len(items)
         with progress.task(label or getattr(func, "__name__", "work"), len(items)) as task:

@@ -35,7 +35,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from pipeline.executors import CRASH_REASON, Executor, make_executor
+from pipeline.executors import CRASH_REASON, Executor, default_jobs, forked_pool, make_executor
 from pipeline.layout import Problem, RawTree, discover_runs, skip_reason
 from pipeline.memo import LEGACY_FILE, LEGACY_TMP, MEMO_DIR, SHARD_FILE, SHARD_TMP, STAGE_NAME, Memo
 from pipeline.readers import READERS
@@ -298,10 +298,22 @@ def _result_from_record(rec: FileRecord, tree: RawTree, path: Path) -> IngestRes
     return res
 
 
+def _import_for_stages() -> None:
+    """What the stages need (pandas, the analyses): imported while the readers' workers work (they
+    are forked first and import the readers themselves), and in any case before the stages' own
+    pool is forked, so that its workers start warm."""
+    import pandas  # noqa: F401
+
+    from pipeline import stages
+
+    stages.discover()
+
+
 def ingest_incremental(tree: RawTree, plans: list[FilePlan], warehouse: Path, executor: Executor,
-                       progress: Progress, code_version: str, full: bool, token: str
-                       ) -> tuple[list[IngestResult], list[FileRecord]]:
-    """Ingest what the plans say; reuse the previous records of unchanged files."""
+                       progress: Progress, code_version: str, full: bool, token: str,
+                       while_waiting=None) -> tuple[list[IngestResult], list[FileRecord]]:
+    """Ingest what the plans say; reuse the previous records of unchanged files. ``while_waiting``:
+    the caller's own work, done while the first files are read (``Executor.map``)."""
     results: dict[str, IngestResult] = {}
     records: dict[str, FileRecord] = {}
     todo = []
@@ -325,7 +337,7 @@ def ingest_incremental(tree: RawTree, plans: list[FilePlan], warehouse: Path, ex
     readers = sorted({READERS[p.path.suffix.lower()].split(":")[0] for p, _ in todo
                       if p.path.suffix.lower() in READERS})
     outs = executor.map(_ingest_task, [a for _, a in todo], "ingest", progress, on_crash=_ingest_crashed,
-                        preload=readers)
+                        preload=readers, while_waiting=while_waiting)
     now = time.time()
     for (p, _), out in zip(todo, outs):
         if out["reused"]:
@@ -472,10 +484,112 @@ class StageResults:
     memos: dict[str, Memo] = field(default_factory=dict)
 
 
-def _save_stage_folder(warehouse: Path, name: str, folder_key: str, out: stage_registry.StageOutput) -> tuple[str, bool]:
+def _save_figure(fig, path: Path) -> None:
+    """Save a stage figure (a matplotlib Figure or a ``FigureRecipe``) as PNG, byte for byte the
+    same for the same figure (no software or date in the metadata)."""
+    from pipeline import stages as stage_registry
+
+    fig = stage_registry.figure_of(fig)
+    fig.savefig(path, dpi=110, metadata={"Software": None})
+
+
+def _warm_figures() -> None:
+    """Import what drawing a figure needs (in the drawing worker, while the stages run)."""
+    import matplotlib.backends.backend_agg  # noqa: F401
+    import matplotlib.figure  # noqa: F401
+
+
+class FigureDrawer:
+    """Draws the stages' figures into their stage folders, off the rebuild's critical path.
+
+    With ``jobs`` > 1, each figure (a ``FigureRecipe``) is drawn in one worker process forked
+    from the rebuild, while this process goes on with the next stages and the database; with
+    ``jobs`` 1 (or a figure already drawn), here, at once. A stage folder is written under its
+    temporary name and renamed into place only when its figures are all drawn (:meth:`finish`,
+    before the new database is swapped in), so a folder under its final name always holds every
+    figure its ``output.json`` lists, whenever the rebuild is killed. A figure that fails fails
+    the rebuild, as a failing stage does. Use it as a context manager (the worker is closed).
+    """
+
+    def __init__(self, jobs: int | None = 1, close_fds: tuple[int, ...] = ()):
+        self.jobs = default_jobs(jobs)
+        self.close_fds = tuple(close_fds)
+        self._pool = None
+        self._pending: list[tuple[object, str, str]] = []  # (future, stage, figure name)
+        self._folders: list[tuple[Path, Path]] = []  # (temporary folder, final folder)
+
+    def _submit(self, func, *args):
+        if self.jobs <= 1:
+            return None
+        if self._pool is None:
+            self._pool = forked_pool(1, self.close_fds)
+        return self._pool.submit(func, *args)
+
+    def warm(self) -> None:
+        """Start the drawing worker and its matplotlib import now (a stage is about to run)."""
+        if self._pool is None:
+            self._submit(_warm_figures)
+
+    def draw(self, stage: str, name: str, fig, path: Path) -> None:
+        from pipeline import stages as stage_registry
+
+        fut = self._submit(_save_figure, fig, path) if isinstance(fig, stage_registry.FigureRecipe) else None
+        if fut is None:
+            _save_figure(fig, path)
+        else:
+            self._pending.append((fut, stage, name))
+
+    @property
+    def busy(self) -> bool:
+        return bool(self._pending)
+
+    def publish(self, tmp: Path, final: Path) -> None:
+        """Rename ``tmp`` to ``final`` once the figures drawn into it are done."""
+        self._folders.append((tmp, final))
+
+    def finish(self) -> None:
+        """Wait for every figure; then put the stage folders in place."""
+        pending, self._pending = self._pending, []
+        failed = None
+        for fut, stage, name in pending:
+            try:
+                fut.result()
+            except Exception as exc:  # a bug in a plot function, or its worker died
+                failed = failed or RebuildError(f"stage {stage} failed: figure {name}: {type(exc).__name__}: {exc}")
+        folders, self._folders = self._folders, []
+        if failed is not None:
+            for tmp, _final in folders:
+                shutil.rmtree(tmp, ignore_errors=True)
+            raise failed
+        for tmp, final in folders:
+            _place_stage_folder(tmp, final)
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+        return False
+
+
+def _place_stage_folder(tmp: Path, final: Path) -> None:
+    if final.exists():  # damaged (its output.json gone), or tables that could not be stored
+        remove_stage_folder(final)
+    os.replace(tmp, final)
+
+
+def _save_stage_folder(warehouse: Path, name: str, folder_key: str, out: stage_registry.StageOutput,
+                       drawer: FigureDrawer | None = None) -> tuple[str, bool, Path]:
     """Write a stage's outputs to ``stages/<name>/<key>/`` (temp folder, then one rename).
 
-    Returns (folder relative to the warehouse, whether the tables could be cached).
+    Returns (folder relative to the warehouse, whether the tables could be cached, the folder
+    that holds them now). With a ``drawer``, figures may still be being drawn into a temporary
+    folder, which the drawer renames into place (:meth:`FigureDrawer.finish`).
     """
     import pyarrow as pa
     import pyarrow.parquet as pq
@@ -483,6 +597,10 @@ def _save_stage_folder(warehouse: Path, name: str, folder_key: str, out: stage_r
     rel = f"stages/{name}/{folder_key}"
     final = warehouse / rel
     tmp = warehouse / "stages" / f".tmp-{name}-{folder_key}-{os.getpid()}"
+    if final.exists() and (final / "output.json").is_file() and _cacheable_tables(out):
+        # same inputs, same outputs (stages are deterministic): keep the folder a live warehouse
+        # may use, and draw nothing
+        return rel, True, final
     shutil.rmtree(tmp, ignore_errors=True)
     (tmp / "tables").mkdir(parents=True)
     (tmp / "figures").mkdir()
@@ -498,13 +616,11 @@ def _save_stage_folder(warehouse: Path, name: str, folder_key: str, out: stage_r
             pq.write_table(arrow, tmp / "tables" / f"{table}.parquet")
         except (pa.ArrowException, TypeError, ValueError):
             cacheable = False
+    drawer = drawer or FigureDrawer()
     figures = {}
-    if out.figures:  # pyplot costs ~0.5 s to import: only a stage that drew a figure pays it
-        import matplotlib.pyplot as plt
     for fname, fig in sorted(out.figures.items()):
         file = f"{fname}.png"
-        fig.savefig(tmp / "figures" / file, dpi=110, metadata={"Software": None})
-        plt.close(fig)
+        drawer.draw(name, fname, fig, tmp / "figures" / file)
         figures[fname] = {"file": file, "caption": out.captions.get(fname, "")}
     meta = {"tables": sorted(out.tables), "empty": empty, "figures": figures, "cacheable": cacheable,
             "problems": [{"source_path": p.source_path, "error": p.error, "line": p.line, "stage": p.stage}
@@ -512,13 +628,23 @@ def _save_stage_folder(warehouse: Path, name: str, folder_key: str, out: stage_r
             "warnings": {k: list(v) for k, v in sorted(out.warnings.items())}}
     (tmp / "output.json").write_text(json.dumps(meta, sort_keys=True, default=str))
     final.parent.mkdir(parents=True, exist_ok=True)
-    if final.exists():  # same inputs, same outputs: keep the folder a live warehouse may use
-        if cacheable and (final / "output.json").is_file():
-            shutil.rmtree(tmp, ignore_errors=True)
-            return rel, True
-        remove_stage_folder(final)  # damaged (its output.json gone), or tables that cannot be stored
-    os.replace(tmp, final)
-    return rel, cacheable
+    drawer.publish(tmp, final)
+    if drawer.busy:
+        return rel, cacheable, tmp
+    drawer.finish()
+    return rel, cacheable, final
+
+
+def _cacheable_tables(out: stage_registry.StageOutput) -> bool:
+    """Whether every table of ``out`` can be stored as Parquet (and so read back from a folder)."""
+    import pyarrow as pa
+
+    try:
+        for df in out.tables.values():
+            pa.Schema.from_pandas(df, preserve_index=False)
+    except (pa.ArrowException, TypeError, ValueError):
+        return False
+    return True
 
 
 def _empty_frame(columns: list) -> pd.DataFrame:
@@ -550,11 +676,13 @@ def _empty_columns(arrow) -> list | None:
     return columns if same else None  # repr, not ==: a category dtype equals "category" whatever its categories
 
 
-def _load_stage_folder(warehouse: Path, rel: str, stage: str, fresh: stage_registry.StageOutput | None = None):
-    """(tables, figure rows, problems, warnings) of a stage folder."""
+def _load_stage_folder(warehouse: Path, rel: str, stage: str, fresh: stage_registry.StageOutput | None = None,
+                       folder: Path | None = None):
+    """(tables, figure rows, problems, warnings) of a stage folder (``rel``; read from ``folder``
+    when it is still under its temporary name)."""
     import pandas as pd
 
-    folder = warehouse / rel
+    folder = folder or warehouse / rel
     meta = json.loads((folder / "output.json").read_text())
     empty = meta.get("empty") or {}
     tables = {}
@@ -576,8 +704,12 @@ def _seconds(s: float) -> str:
 
 
 def run_stages_cached(ctx_args: dict, runs: list[dict], prev: PreviousState, warehouse: Path, full: bool,
-                      logbooks: str, progress: Progress, generation: str = "") -> StageResults:
-    """Run every stage in order, or reuse its cached outputs when its inputs are unchanged."""
+                      logbooks: str, progress: Progress, generation: str = "",
+                      drawer: FigureDrawer | None = None) -> StageResults:
+    """Run every stage in order, or reuse its cached outputs when its inputs are unchanged.
+
+    With a ``drawer``, figures may still be being drawn when this returns: the caller calls
+    ``drawer.finish()`` before it publishes the stage folders (without one, they are drawn here)."""
     import pandas as pd
 
     from pipeline import stages as stage_registry
@@ -585,6 +717,8 @@ def run_stages_cached(ctx_args: dict, runs: list[dict], prev: PreviousState, war
     import hashlib
 
     res = StageResults()
+    own_drawer = drawer is None
+    drawer = drawer or FigureDrawer()
     mods = stage_registry.discover()
     # every stage's code version up front: the project's sources are read and hashed once for all
     codes = {mod.NAME: stage_code_version(getattr(mod, "__file__", None) or mod.NAME) for mod in mods}
@@ -608,6 +742,8 @@ def run_stages_cached(ctx_args: dict, runs: list[dict], prev: PreviousState, war
                 res.reused.append(name)
                 how = "reused"
             else:
+                if drawer is not None:
+                    drawer.warm()
                 results = _TrackedResults(res.tables)
                 ctx = _tracked_context(**ctx_args)
                 ctx.results = results
@@ -626,9 +762,9 @@ def run_stages_cached(ctx_args: dict, runs: list[dict], prev: PreviousState, war
                 # a folder with the same inputs (stages are deterministic)
                 salt = generation if full else ""
                 folder_key = hashlib.sha256(json.dumps([key, read, salt], sort_keys=True).encode()).hexdigest()[:20]
-                rel, cacheable = _save_stage_folder(warehouse, name, folder_key, out)
+                rel, cacheable, now_in = _save_stage_folder(warehouse, name, folder_key, out, drawer)
                 record = StageRecord(name, key if cacheable else "uncacheable", rel, sorted(kinds), all_runs, read)
-                tables, figures, problems, warnings = _load_stage_folder(warehouse, rel, name, out)
+                tables, figures, problems, warnings = _load_stage_folder(warehouse, rel, name, out, now_in)
                 res.ran.append(name)
                 how = "ran"
             res.records.append(record)
@@ -643,6 +779,8 @@ def run_stages_cached(ctx_args: dict, runs: list[dict], prev: PreviousState, war
             progress.message(f"stage {name} {how}: " + ", ".join(f"{k} {len(v)} rows" for k, v in tables.items())
                              + f" ({_seconds(time.monotonic() - t0)}{'; ' + memo_note if memo_note else ''})")
             task.advance()
+    if own_drawer:
+        drawer.finish()
     return res
 
 
@@ -666,7 +804,7 @@ def run_stages(ctx: stage_registry.StageContext, progress: Progress):
         for name, df in out.tables.items():
             tables[name] = df if name not in tables else pd.concat([tables[name], df], ignore_index=True)
         for name, fig in out.figures.items():
-            figures[(mod.NAME, name)] = fig
+            figures[(mod.NAME, name)] = stage_registry.figure_of(fig)
             if name in out.captions:
                 captions[(mod.NAME, name)] = out.captions[name]
         problems += out.problems
@@ -1024,86 +1162,90 @@ def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, r
                          "since the last rebuild: its database is carried over")
         return _rebuild_noop(warehouse, prev, plans, key, executor, report, generation, summary, started_at, t0,
                              keep_h, clock, progress)
-    import pandas as pd  # the incremental path: what the no-op does without
-
-    from pipeline import stages as stage_registry  # noqa: F401 (the analyses, imported before any worker forks)
     progress.message(f"rebuild {generation} ({summary.mode}): {len(files)} run files under {raw}, "
                      f"{n_quick} unchanged at a glance")
     try:
         ex = make_executor(executor, jobs, scheduler, close_in_workers=(lock_fd,))
     except Exception as exc:
         raise RebuildError(f"cannot start the {executor} executor: {type(exc).__name__}: {exc}") from exc
-    with ex:
-        results, records = ingest_incremental(tree, plans, warehouse, ex, progress, code, full, generation)
-        _crash_point("after_ingest")
-        runs, channels, problems = deduplicate(results)
-        problems = tree.problems + problems
-        runs_df = runs_frame(runs)
-        ctx_args = dict(raw=tree.root, warehouse=warehouse,
-                        runs=runs_df.assign(params=[r["params"] for r in runs]) if runs else runs_df,
-                        jobs=jobs, progress=progress, mapper=ex.mapper(progress))
-        staged = run_stages_cached(ctx_args, runs, prev, warehouse, full, logbook_hash(side), progress,
-                                   generation)
-    _crash_point("after_stages")
-    problems += staged.problems
-    if staged.warnings and not runs_df.empty:
-        runs_df["warnings"] = [list(w) + staged.warnings.get(rid, [])
-                               for rid, w in zip(runs_df["run_id"], runs_df["warnings"])]
-    quarantine = pd.DataFrame([{"source_path": p.source_path, "error": p.error, "line": p.line,
-                                "campaign": p.source_path.split("/")[0] if "/" in p.source_path else None,
-                                "stage": p.stage} for p in problems],
-                              columns=["source_path", "error", "line", "campaign", "stage"])
-    stage_tables = dict(staged.tables)
-    if "findings" in stage_tables:
-        stage_tables["findings"] = compare_findings(stage_tables["findings"], prev.findings,
-                                                    prev.generation is not None, prev.finding_changes, started_at)
-    seen = {p.rel for p in plans} | {r.source_path for r in side}
-    inputs = _inputs_table(plans, side_changes, prev, seen, problems, results)
-    summary.n_new = int(((inputs["status"] == "new") & (inputs["role"] == "run")).sum())
-    summary.n_changed = int(((inputs["status"] == "changed") & (inputs["role"] == "run")).sum())
-    summary.n_deleted = int(((inputs["status"] == "deleted") & (inputs["role"] == "run")).sum())
-    summary.n_unchanged = int(((inputs["status"] == "unchanged") & (inputs["role"] == "run")).sum())
-    summary.n_runs = len(runs)
-    summary.quarantine = problems
-    summary.stages_run, summary.stages_reused = staged.ran, staged.reused
-    log_row = pd.DataFrame([{
-        "generation": generation, "started_at": started_at, "finished_at": datetime.now(timezone.utc),
-        "duration_s": time.monotonic() - t0, "mode": summary.mode, "executor": ex.name,
-        "n_files": len(files), "n_runs": len(runs), "n_new": summary.n_new, "n_changed": summary.n_changed,
-        "n_deleted": summary.n_deleted, "n_unchanged": summary.n_unchanged, "n_quarantined": len(problems),
-        "stages_run": staged.ran, "stages_reused": staged.reused, "exit_code": summary.exit_code,
-        "inputs_key": key}])
-    in_use = set(runs_df.get("samples_path", [])) | {r.folder for r in staged.records}
-    kept, _expired = superseded_files(prev, in_use, clock(), keep_h)
-    kept_paths = sorted(kept)
-    superseded = pd.DataFrame({
-        "path": pd.Series(kept_paths, dtype="string"),
-        # whole microseconds, as DuckDB stores them: a time carried from rebuild to rebuild never drifts
-        "superseded_at": pd.to_datetime(pd.Series([round(kept[p] * 1e6) for p in kept_paths], dtype="int64"),
-                                        unit="us", utc=True)})
-    history = log_row
-    if prev.history is not None and not prev.history.empty:
-        history = pd.concat([prev.history.tail(HISTORY_ROWS - 1), log_row], ignore_index=True)
-    all_tables = {
-        "runs": runs_df, "quarantine": quarantine, "channels": pd.DataFrame(channels),
-        "skipped_files": pd.DataFrame(
-            [{"source_path": tree.rel(p), "campaign": tree.campaign(p), "reason": skip_reason(p)} for p in ignored]
-            + [{"source_path": rel, "campaign": rel.split("/")[0] if "/" in rel else None, "reason": why}
-               for rel, why in tree.listing().skipped], columns=["source_path", "campaign", "reason"]),
-        "figures": pd.DataFrame(staged.figures, columns=["stage", "name", "path", "caption"]),
-        **stage_tables,
-        "rebuild_log": history, "rebuild_inputs": inputs,
-        "ingest_state": pd.DataFrame([r.as_row() for r in records + side]),
-        "stage_cache": pd.DataFrame([r.as_row() for r in staged.records]),
-        "superseded_files": superseded,
-    }
-    progress.message(f"warehouse: writing {len(all_tables)} tables")
-    summary.report = swap_in_new_database(
-        warehouse, lambda tmp_db: build_database(tmp_db, warehouse, all_tables, runs_df), report)
-    # files the new warehouse uses, and those of earlier ones still within their retention
-    # (a reader that opened an earlier warehouse keeps reading its samples)
-    keep = in_use | set(kept)
-    collect_garbage(warehouse, *_split_kept(keep))
+    with FigureDrawer(jobs if executor == "local" else 1, close_fds=(lock_fd,)) as drawer:
+        with ex:
+            results, records = ingest_incremental(tree, plans, warehouse, ex, progress, code, full, generation,
+                                                  while_waiting=_import_for_stages)
+            import pandas as pd  # the incremental path: what the no-op does without
+            _crash_point("after_ingest")
+            runs, channels, problems = deduplicate(results)
+            problems = tree.problems + problems
+            runs_df = runs_frame(runs)
+            ctx_args = dict(raw=tree.root, warehouse=warehouse,
+                            runs=runs_df.assign(params=[r["params"] for r in runs]) if runs else runs_df,
+                            jobs=jobs, progress=progress, mapper=ex.mapper(progress))
+            staged = run_stages_cached(ctx_args, runs, prev, warehouse, full, logbook_hash(side), progress,
+                                       generation, drawer)
+        _crash_point("after_stages")
+        problems += staged.problems
+        if staged.warnings and not runs_df.empty:
+            runs_df["warnings"] = [list(w) + staged.warnings.get(rid, [])
+                                   for rid, w in zip(runs_df["run_id"], runs_df["warnings"])]
+        quarantine = pd.DataFrame([{"source_path": p.source_path, "error": p.error, "line": p.line,
+                                    "campaign": p.source_path.split("/")[0] if "/" in p.source_path else None,
+                                    "stage": p.stage} for p in problems],
+                                  columns=["source_path", "error", "line", "campaign", "stage"])
+        stage_tables = dict(staged.tables)
+        if "findings" in stage_tables:
+            stage_tables["findings"] = compare_findings(stage_tables["findings"], prev.findings,
+                                                        prev.generation is not None, prev.finding_changes, started_at)
+        seen = {p.rel for p in plans} | {r.source_path for r in side}
+        inputs = _inputs_table(plans, side_changes, prev, seen, problems, results)
+        summary.n_new = int(((inputs["status"] == "new") & (inputs["role"] == "run")).sum())
+        summary.n_changed = int(((inputs["status"] == "changed") & (inputs["role"] == "run")).sum())
+        summary.n_deleted = int(((inputs["status"] == "deleted") & (inputs["role"] == "run")).sum())
+        summary.n_unchanged = int(((inputs["status"] == "unchanged") & (inputs["role"] == "run")).sum())
+        summary.n_runs = len(runs)
+        summary.quarantine = problems
+        summary.stages_run, summary.stages_reused = staged.ran, staged.reused
+        log_row = pd.DataFrame([{
+            "generation": generation, "started_at": started_at, "finished_at": datetime.now(timezone.utc),
+            "duration_s": time.monotonic() - t0, "mode": summary.mode, "executor": ex.name,
+            "n_files": len(files), "n_runs": len(runs), "n_new": summary.n_new, "n_changed": summary.n_changed,
+            "n_deleted": summary.n_deleted, "n_unchanged": summary.n_unchanged, "n_quarantined": len(problems),
+            "stages_run": staged.ran, "stages_reused": staged.reused, "exit_code": summary.exit_code,
+            "inputs_key": key}])
+        in_use = set(runs_df.get("samples_path", [])) | {r.folder for r in staged.records}
+        kept, _expired = superseded_files(prev, in_use, clock(), keep_h)
+        kept_paths = sorted(kept)
+        superseded = pd.DataFrame({
+            "path": pd.Series(kept_paths, dtype="string"),
+            # whole microseconds, as DuckDB stores them: a time carried from rebuild to rebuild never drifts
+            "superseded_at": pd.to_datetime(pd.Series([round(kept[p] * 1e6) for p in kept_paths], dtype="int64"),
+                                            unit="us", utc=True)})
+        history = log_row
+        if prev.history is not None and not prev.history.empty:
+            history = pd.concat([prev.history.tail(HISTORY_ROWS - 1), log_row], ignore_index=True)
+        all_tables = {
+            "runs": runs_df, "quarantine": quarantine, "channels": pd.DataFrame(channels),
+            "skipped_files": pd.DataFrame(
+                [{"source_path": tree.rel(p), "campaign": tree.campaign(p), "reason": skip_reason(p)} for p in ignored]
+                + [{"source_path": rel, "campaign": rel.split("/")[0] if "/" in rel else None, "reason": why}
+                   for rel, why in tree.listing().skipped], columns=["source_path", "campaign", "reason"]),
+            "figures": pd.DataFrame(staged.figures, columns=["stage", "name", "path", "caption"]),
+            **stage_tables,
+            "rebuild_log": history, "rebuild_inputs": inputs,
+            "ingest_state": pd.DataFrame([r.as_row() for r in records + side]),
+            "stage_cache": pd.DataFrame([r.as_row() for r in staged.records]),
+            "superseded_files": superseded,
+        }
+        progress.message(f"warehouse: writing {len(all_tables)} tables")
+
+        def write(tmp_db):
+            build_database(tmp_db, warehouse, all_tables, runs_df)
+            drawer.finish()  # the figures drawn beside the database, their stage folders put in place
+
+        summary.report = swap_in_new_database(warehouse, write, report)
+        # files the new warehouse uses, and those of earlier ones still within their retention
+        # (a reader that opened an earlier warehouse keeps reading its samples)
+        keep = in_use | set(kept)
+        collect_garbage(warehouse, *_split_kept(keep))
     summary.tables = {k: len(v) for k, v in all_tables.items()}
     if summary.report is not None:
         progress.message(f"report: {summary.report}")

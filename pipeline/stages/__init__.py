@@ -31,6 +31,31 @@ from pipeline.layout import Problem
 from pipeline.progress import Progress
 
 
+@dataclass(frozen=True)
+class FigureRecipe:
+    """A figure not drawn yet: ``func(*args, **kwargs)`` returns a matplotlib Figure.
+
+    A stage hands the rebuild recipes (:meth:`StageOutput.draw`) rather than figures, so that
+    the figures can be drawn off the rebuild's critical path, in a worker process beside the
+    other stages and the database write (matplotlib's import and ``savefig`` were most of a
+    one-export rebuild's stage time; issue 14), and not at all when the stage folder already
+    holds them. ``func`` must be a module-level function and the arguments picklable.
+    """
+
+    func: Callable
+    args: tuple = ()
+    kwargs: dict = field(default_factory=dict)
+
+    def figure(self):
+        """Draw it: the matplotlib Figure."""
+        return self.func(*self.args, **self.kwargs)
+
+
+def figure_of(fig):
+    """A matplotlib Figure from a figure or a :class:`FigureRecipe`."""
+    return fig.figure() if isinstance(fig, FigureRecipe) else fig
+
+
 @dataclass
 class StageOutput:
     """What a stage produces.
@@ -39,9 +64,9 @@ class StageOutput:
     ----------
     tables : dict of str to DataFrame
         Rows per warehouse table; columns by name (missing columns become NULL).
-    figures : dict of str to matplotlib Figure
-        Saved by the orchestrator as ``figures/<stage>/<name>.png`` and listed in the
-        ``figures`` table; ``captions`` may describe them.
+    figures : dict of str to FigureRecipe (or matplotlib Figure)
+        Drawn and saved by the orchestrator as ``figures/<stage>/<name>.png`` and listed in the
+        ``figures`` table; ``captions`` may describe them. Add them with :meth:`draw`.
     problems : list of Problem
         Inputs (files or lines) the stage could not use: quarantine rows.
     warnings : dict of str to list of str
@@ -56,6 +81,13 @@ class StageOutput:
 
     def warn(self, run_id: str, text: str) -> None:
         self.warnings.setdefault(run_id, []).append(text)
+
+    def draw(self, name: str, func: Callable, *args, caption: str | None = None, **kwargs) -> None:
+        """Figure ``name`` is ``func(*args, **kwargs)`` (a plot function of ``analyses``), drawn
+        later by the rebuild (:class:`FigureRecipe`); ``caption`` describes it."""
+        self.figures[name] = FigureRecipe(func, args, kwargs)
+        if caption is not None:
+            self.captions[name] = caption
 
 
 @dataclass

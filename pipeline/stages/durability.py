@@ -310,17 +310,17 @@ def run(ctx: StageContext) -> StageOutput:
 
     groups = {f"{t or '?'} / {a or '?'}": (x, f) for (t, a), x, f in _groups(life, ("hose_type", "adjustment"))}
     if groups:
-        out.figures["weibull_probability"] = plot_weibull_probability(groups)
+        out.draw("weibull_probability", plot_weibull_probability, groups)
         out.captions["weibull_probability"] = ("Weibull probability plot of hose life per hose type / roller "
                                                "adjustment; | marks suspensions (removed or running hoses).")
-        out.figures["kaplan_meier"] = plot_kaplan_meier(groups)
+        out.draw("kaplan_meier", plot_kaplan_meier, groups)
         out.captions["kaplan_meier"] = "Kaplan-Meier survival of hoses vs distance, force- vs distance-set rollers."
     if len(life):
-        out.figures["hose_distance"] = plot_hose_distances(life)
+        out.draw("hose_distance", plot_hose_distances, life)
         out.captions["hose_distance"] = "Distance per hose, coloured by status (failed / removed / running)."
     pts = _leak_plot_points(growth) if len(growth) else growth
     if len(pts):
-        out.figures["leak_growth"] = plot_leak_growth(pts)
+        out.draw("leak_growth", plot_leak_growth, pts)
         out.captions["leak_growth"] = ("Leak vs hose distance at the time of each leakage run (highest pressure "
                                        "level per hose): the wall-thinning signature.")
     return out

@@ -284,7 +284,7 @@ def _identification_outputs(out, results):
     fitted = [r for r in results if r["extra"] is not None]
     for r in fitted[:MAX_ID_FIGURES]:
         name = f"identification_{_slug(r['run_id'])}"
-        out.figures[name] = ident.plot_identification(r["extra"], title=f"{r['run_id']}: measured vs model (Eq. 14)")
+        out.draw(name, ident.plot_identification, r["extra"], title=f"{r['run_id']}: measured vs model (Eq. 14)")
         out.captions[name] = (f"Identification run {r['run_id']}: position at the identification rate, measured "
                               "(anti-aliased, decimated) and simulated by the output-error model from the measured "
                               "u_d and x_ref (seed 000, section 2.3).")
@@ -295,7 +295,7 @@ def _step_outputs(out, results):
     out.tables["step_response"] = _frame(rows, STEP_COLS, bools=("settled",))
     curves = [c for r in results if r["extra"] for c in r["extra"]][:MAX_STEP_CURVES]
     if curves:
-        out.figures["step_errors"] = stepr.plot_step_errors(curves)
+        out.draw("step_errors", stepr.plot_step_errors, curves)
         out.captions["step_errors"] = ("Closed-loop steps: position vs time since the step; inset: error in % of the "
                                        "step with the 2 % band (seed 000, Fig. 15).")
 
@@ -339,11 +339,11 @@ def _spring_outputs(ctx, out, results):
         fit = fits[chamber]
         if fit.ok:
             name = f"spring_loops_{chamber}"
-            out.figures[name] = spring.plot_spring_loops(group, fit)
+            out.draw(name, spring.plot_spring_loops, group, fit)
             out.captions[name] = (f"PLA {chamber} chamber: force-displacement loops, experimental vs fitted model, "
                                   "for the tests of seed 001 Figs. 8-13 (closest available runs).")
     if energy:
-        out.figures["spring_loop_energy"] = spring.plot_loop_energy(out.tables["spring_loop_energy"], fits)
+        out.draw("spring_loop_energy", spring.plot_loop_energy, out.tables["spring_loop_energy"], fits)
         out.captions["spring_loop_energy"] = ("Energy dissipated per cycle (loop area) vs displacement amplitude and "
                                               "vs frequency; lines: structural part pi delta D^2 of the fits.")
 
@@ -375,7 +375,7 @@ def _pressure_outputs(ctx, out, results):
         cf = {d: fit_by[(c, d)] for d in ("charge", "discharge") if (c, d) in fit_by}
         if any(f.ok for f in cf.values()):
             name = f"pressure_steps_{c}"
-            out.figures[name] = pdyn.plot_pressure_steps([s for s in steps if s.chamber == c], cf)
+            out.draw(name, pdyn.plot_pressure_steps, [s for s in steps if s.chamber == c], cf)
             out.captions[name] = (f"PLA {c} chamber: pressure (bar gauge) after set-point steps, measured vs the "
                                   "model chosen per direction by BIC: first order or the second order of Eq. 11 "
                                   "(seed 001, Fig. 14, Table 2). Grey: steps too small for the pressure sensor.")

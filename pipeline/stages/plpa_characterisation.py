@@ -243,7 +243,7 @@ def run(ctx: StageContext) -> StageOutput:
 
     for adj, name, fig_no in (("distance", "leakage_distance", 9), ("force", "leakage_force", 10)):
         if not leak.empty and (leak["adjustment"] == adj).any():
-            out.figures[name] = lk.plot_leakage_map(leak, adj, LEAK_THRESHOLD_L_MIN)
+            out.draw(name, lk.plot_leakage_map, leak, adj, LEAK_THRESHOLD_L_MIN)
             sub = env[env["adjustment"] == adj]
             fallback = bool((sub["runs_used"] == lk.RUNS_HOSE_CHECKS).any())
             out.captions[name] = (f"Leak vs pressure with {adj} adjustment, one curve per setting from its "
@@ -252,15 +252,15 @@ def run(ctx: StageContext) -> StageOutput:
                                   f"l/min ANR" + ("; dashed, hollow: settings with only hose-check runs."
                                                   if fallback else "."))
     if brk["breakaway_force_n"].notna().any():
-        out.figures["breakaway"] = bk.plot_breakaway(brk)
+        out.draw("breakaway", bk.plot_breakaway, brk)
         out.captions["breakaway"] = ("Breakaway force vs backpressure, one series per force rate, directions P "
                                      "and N (seed 000, Fig. 12); mean +/- std.")
     if not pts.empty:
-        out.figures["viscous"] = vf.plot_viscous(pts, fits)
+        out.draw("viscous", vf.plot_viscous, pts, fits)
         out.captions["viscous"] = ("Friction vs velocity per backpressure with Coulomb + viscous fits "
                                    "(seed 000, Fig. 13).")
         if (pts["velocity_m_s"].abs() <= vf.NEAR_ZERO_MAX_M_S).any():
-            out.figures["viscous_near_zero"] = vf.plot_near_zero(pts, trans)
+            out.draw("viscous_near_zero", vf.plot_near_zero, pts, trans)
             out.captions["viscous_near_zero"] = ("Friction around zero velocity with the tanh fit "
                                                  "(seed 000, Fig. 14).")
     return out

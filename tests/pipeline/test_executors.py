@@ -119,6 +119,39 @@ def test_untrusted_work_always_runs_in_worker_processes_started_once_and_only_wh
         assert {p for _, p in LocalExecutor(1).map(pid_of, [1, 2])} == {os.getpid()}
 
 
+def waits_for(path):
+    """An item that waits (at most 20 s) for ``path`` to appear: True if it did."""
+    import os
+    import time
+
+    end = time.monotonic() + 20
+    while time.monotonic() < end:
+        if os.path.exists(path):
+            return True
+        time.sleep(0.01)
+    return False
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_while_waiting_runs_once_here_while_the_workers_read(jobs, tmp_path):
+    """The rebuild imports what its stages need while the readers' workers work: ``while_waiting``
+    runs in this process while the first items are in flight (they wait for what it writes)."""
+    import os
+
+    calls = []
+    flag = tmp_path / "flag"
+
+    def meanwhile():
+        calls.append(os.getpid())
+        flag.write_text("ok")
+
+    with LocalExecutor(jobs) as ex:
+        out = ex.map(waits_for, [str(flag)] * 3, on_crash=crashed, while_waiting=meanwhile)
+    assert out == [True] * 3 and calls == [os.getpid()]
+    with LocalExecutor(jobs) as ex:  # nothing to do: nothing run
+        assert ex.map(waits_for, [], on_crash=crashed, while_waiting=meanwhile) == [] and len(calls) == 1
+
+
 @pytest.mark.parametrize("jobs", [1, 2])
 def test_a_segfaulting_item_gets_on_crash_and_the_others_their_results(jobs):
     import os
