@@ -547,8 +547,9 @@ class FigureDrawer:
         """Rename ``tmp`` to ``final`` once the figures drawn into it are done."""
         self._folders.append((tmp, final))
 
-    def finish(self) -> None:
-        """Wait for every figure; then put the stage folders in place."""
+    def finish(self) -> int:
+        """Wait for every figure; then put the stage folders in place. Returns how many figures
+        were drawn in the worker."""
         pending, self._pending = self._pending, []
         failed = None
         for fut, stage, name in pending:
@@ -563,6 +564,7 @@ class FigureDrawer:
             raise failed
         for tmp, final in folders:
             _place_stage_folder(tmp, final)
+        return len(pending)
 
     def close(self) -> None:
         if self._pool is not None:
@@ -1239,7 +1241,11 @@ def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, r
 
         def write(tmp_db):
             build_database(tmp_db, warehouse, all_tables, runs_df)
-            drawer.finish()  # the figures drawn beside the database, their stage folders put in place
+            waited = time.monotonic()
+            n_aside = drawer.finish()  # the figures drawn beside the database, their stage folders put in place
+            if n_aside:
+                progress.message(f"figures: {n_aside} drawn in a worker beside the stages and the database "
+                                 f"(waited {_seconds(time.monotonic() - waited)} for them)")
 
         summary.report = swap_in_new_database(warehouse, write, report)
         # files the new warehouse uses, and those of earlier ones still within their retention
