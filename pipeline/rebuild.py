@@ -303,6 +303,8 @@ def _import_for_stages() -> None:
     are forked first and import the readers themselves), and in any case before the stages' own
     pool is forked, so that its workers start warm."""
     import pandas  # noqa: F401
+    import pyarrow.dataset  # noqa: F401 (what the first pd.read_parquet of a process imports: ~15 ms)
+    import pyarrow.pandas_compat  # noqa: F401
 
     from pipeline import stages
 
