@@ -33,12 +33,12 @@ def hash_sources(paths: list[Path], root: Path | None = None) -> str:
 def ingest_code_version() -> str:
     """Version of everything that turns a raw file into a runs row and samples Parquet.
 
-    ``INGEST_VERSION`` plus a hash of the schemas, readers, layout, derived-channel and ingest
-    source, so that a code change re-reads the files it may affect.
+    ``INGEST_VERSION`` plus a hash of the schemas, readers, layout, derived-channel, prefetch and
+    ingest source, so that a code change re-reads the files it may affect.
     """
     files = [*ROOT.glob("schemas/*.py"), *ROOT.glob("pipeline/readers/*.py"),
              ROOT / "pipeline" / "ingest.py", ROOT / "pipeline" / "layout.py", ROOT / "pipeline" / "derived.py",
-             ROOT / "pipeline" / "code_version.py"]
+             ROOT / "pipeline" / "prefetch.py", ROOT / "pipeline" / "code_version.py"]
     return f"{INGEST_VERSION}-{hash_sources([f for f in files if f.is_file()])}"
 
 

@@ -26,6 +26,7 @@ from pipeline import code_version as code_version_mod
 from pipeline.code_version import INGEST_VERSION  # noqa: F401 (re-exported)
 from pipeline.derived import DerivedError, Expression, parse_expression
 from pipeline.layout import ConfigError, RawTree, display_name
+from pipeline.prefetch import prefetch
 from pipeline.readers import RawColumn, ReaderError, list_parts, parts_keys, read_export
 from pipeline.readers.base import MAX_CHANNELS
 from schemas.channels import (CHANNELS, canonical_name, noncanonical_column, other_dimension,
@@ -940,56 +941,6 @@ def parquet_options(schema: pa.Schema) -> dict:
     floats = [f.name for f in schema if pa.types.is_floating(f.type)]
     return {"use_dictionary": [f.name for f in schema if not pa.types.is_floating(f.type)],
             "use_byte_stream_split": floats or False, "compression": "zstd", "compression_level": 1}
-
-
-def prefetch(batches, depth: int = 2):
-    """Iterate ``batches`` in a background thread, ``depth`` batches ahead (bounded memory).
-
-    Parsing the next batch (pyarrow's CSV reader, npTDMS reads: both release the GIL) overlaps
-    with converting and writing the current one. Exceptions reach the caller unchanged.
-    """
-    import queue
-    import threading
-
-    q: queue.Queue = queue.Queue(maxsize=depth)
-    stop = threading.Event()
-    done = object()
-
-    def put(item) -> bool:
-        while not stop.is_set():
-            try:
-                q.put(item, timeout=0.1)
-                return True
-            except queue.Full:
-                continue
-        return False
-
-    def work():
-        try:
-            for batch in batches:
-                if not put(batch):
-                    return
-            put(done)
-        except BaseException as exc:  # noqa: BLE001 - handed to the consumer
-            put(exc)
-        finally:
-            close = getattr(batches, "close", None)
-            if close is not None and stop.is_set():
-                close()
-
-    thread = threading.Thread(target=work, name="ingest-prefetch", daemon=True)
-    thread.start()
-    try:
-        while True:
-            item = q.get()
-            if item is done:
-                return
-            if isinstance(item, BaseException):
-                raise item
-            yield item
-    finally:
-        stop.set()
-        thread.join()
 
 
 def _open_export(path: Path, rig: dict, manifest: dict):

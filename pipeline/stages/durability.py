@@ -39,6 +39,7 @@ from analyses.quality import describe_sensor_at_rest
 from analyses.service_life import (b10, kaplan_meier, plot_hose_distances, plot_kaplan_meier, plot_leak_growth,
                                    plot_weibull_probability, weibull_fit, weibull_lr_test)
 from pipeline.logbook import hose_distance_at, hose_life, match_runs, merge_logbooks, read_logbooks
+from pipeline.prefetch import prefetch
 from pipeline.stages import StageContext, StageOutput
 
 NAME = "durability"
@@ -109,7 +110,7 @@ def analyse_run(item) -> dict:
         sensor = describe_sensor_at_rest(xs, resolution=stated.get("resolution"), noise=stated.get("noise"))
         deadband = stroke_deadband(sensor, float(np.max(np.abs(xs))) if xs.size else 1.0)
         sc = StrokeCounter(deadband)
-        for batch in pf.iter_batches(batch_size=BATCH_ROWS, columns=cols):
+        for batch in prefetch(pf.iter_batches(batch_size=BATCH_ROWS, columns=cols)):  # decode beside counting
             get = lambda c: batch.column(c).to_numpy(zero_copy_only=False)  # noqa: E731
             dp = get("p_a_pa") - get("p_b_pa") if have_dp else None
             sc.update(get("t_s"), get("x_m"), dp)
