@@ -30,6 +30,7 @@ import os
 import time
 from collections.abc import Callable, Iterable
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import TimeoutError as FuturesTimeout
 from concurrent.futures.process import BrokenProcessPool
 
 from pipeline.progress import Progress
@@ -37,6 +38,13 @@ from pipeline.progress import Progress
 EXECUTORS = ("local", "dask")
 #: What ``on_crash`` is told when the worker process running an item died.
 CRASH_REASON = "the worker process reading it died (a crash in a C library, or killed for memory)"
+#: What ``on_crash`` is told when an item ran past its time limit and its worker was stopped
+#: (the limit in seconds follows).
+STUCK_REASON = "the reader was stopped after"
+
+
+def stuck_reason(limit_s: float) -> str:
+    return f"{STUCK_REASON} {limit_s:.0f} s, far longer than a file of its size takes (a reader stuck in a loop)"
 
 
 class Executor:
@@ -46,13 +54,14 @@ class Executor:
 
     def map(self, func: Callable, items: Iterable, label: str = "", progress: Progress | None = None,
             on_crash: Callable | None = None, preload: Iterable[str] = (),
-            while_waiting: Callable[[], object] | None = None) -> list:
+            while_waiting: Callable[[], object] | None = None, time_limit: Callable | None = None) -> list:
         """``func`` over ``items``, results in item order. ``on_crash(item, reason)`` stands in for
         the result of an item whose worker process died (executors with worker processes).
         ``preload``: modules this process imports for the work (once, where that helps).
         ``while_waiting()``: work of the caller's own, called once while the first items run
         elsewhere (in this process's executor: before them), so that it costs no wall time
-        beside worker processes."""
+        beside worker processes. ``time_limit(item)``: seconds an item may run before its worker
+        is stopped (executors that can stop one; see :class:`LocalExecutor`)."""
         items = list(items)
         progress = progress or Progress()
         if items and while_waiting is not None:
@@ -187,7 +196,7 @@ class LocalExecutor(Executor):
             self._readers = None
 
     def map(self, func, items, label="", progress=None, on_crash: Callable | None = None, preload=(),
-            while_waiting=None):
+            while_waiting=None, time_limit: Callable | None = None):
         """``func`` over ``items`` in worker processes, results in item order.
 
         With ``on_crash`` (work on untrusted bytes) the items always run in worker processes:
@@ -195,12 +204,15 @@ class LocalExecutor(Executor):
         it was running, which gets ``on_crash(item, reason)`` as its result; the other items go on
         in a fresh worker. Without ``on_crash``, ``jobs`` 1 runs everything in this process, and a
         dying worker raises :class:`~concurrent.futures.process.BrokenProcessPool`.
+        With ``on_crash``, ``time_limit(item)`` may give the seconds an item may run: past them
+        its worker is stopped and the item gets ``on_crash(item, stuck_reason(limit))``.
         """
         items = list(items)
         if not items:
             return []
         if on_crash is not None:
-            return self._map_isolated(func, items, label, progress or Progress(), on_crash, preload, while_waiting)
+            return self._map_isolated(func, items, label, progress or Progress(), on_crash, preload, while_waiting,
+                                      time_limit)
         if self.jobs <= 1 or len(items) == 1:  # in this process: trusted work only
             return super().map(func, items, label, progress, while_waiting=while_waiting)
         progress = progress or Progress()
@@ -215,7 +227,8 @@ class LocalExecutor(Executor):
                 task.advance()
         return out
 
-    def _map_isolated(self, func, items, label, progress, on_crash, preload, while_waiting=None) -> list:
+    def _map_isolated(self, func, items, label, progress, on_crash, preload, while_waiting=None,
+                      time_limit=None) -> list:
         """Items in forked worker processes, at most one in flight per worker, so that a dead
         worker's item is known: with one suspect it is the culprit; with several (``jobs`` > 1)
         each is run again alone.
@@ -228,22 +241,44 @@ class LocalExecutor(Executor):
         out: list = [None] * len(items)
         todo = list(range(len(items)))[::-1]
         running: dict = {}
+        deadline: dict = {}  # future -> time.monotonic() past which its item is stuck
         with progress.task(label or getattr(func, "__name__", "work"), len(items)) as task:
             while todo or running:
                 pool = self._reader_pool(workers)
                 while todo and len(running) < workers:
                     i = todo.pop()
-                    running[pool.submit(func, items[i])] = i
+                    fut = pool.submit(func, items[i])
+                    running[fut] = i
+                    if time_limit is not None:
+                        limit = time_limit(items[i])
+                        deadline[fut] = (time.monotonic() + limit, limit)
                 if preload is not None:
                     for mod in preload:
                         importlib.import_module(mod)
                     preload = None
                     if while_waiting is not None:
                         while_waiting()
-                finished, _ = wait(running, return_when=FIRST_COMPLETED)
+                first = min((deadline[f][0] for f in running if f in deadline), default=None)
+                finished, _ = wait(running, return_when=FIRST_COMPLETED,
+                                   timeout=None if first is None else max(0.0, first - time.monotonic()))
+                if not finished:  # an item ran past its limit: stop the workers, set it aside
+                    now = time.monotonic()
+                    stuck = {f: i for f, i in running.items() if f in deadline and deadline[f][0] <= now}
+                    if stuck:
+                        self._kill_readers()
+                        for f, i in sorted(stuck.items(), key=lambda fi: fi[1]):
+                            out[i] = on_crash(items[i], stuck_reason(deadline[f][1]))
+                            task.advance()
+                        todo += sorted((i for f, i in running.items() if f not in stuck), reverse=True)
+                        running.clear()
+                        deadline.clear()
+                        progress.message(f"{label or 'work'}: {len(stuck)} item(s) ran past their time limit; "
+                                         "their worker was stopped and they are set aside")
+                    continue
                 suspects = []
                 for fut in finished:
                     i = running.pop(fut)
+                    deadline.pop(fut, None)
                     try:
                         out[i] = fut.result()  # a task's own exception is raised here
                     except BrokenProcessPool:
@@ -265,18 +300,33 @@ class LocalExecutor(Executor):
                                  f"{'its item is' if len(suspects) == 1 else 'its items are'} set aside")
                 for i in sorted(suspects):
                     out[i] = on_crash(items[i], CRASH_REASON) if len(suspects) == 1 else \
-                        self._isolated(func, items[i], on_crash)
+                        self._isolated(func, items[i], on_crash, time_limit)
                     task.advance()
         return out
 
-    def _isolated(self, func, item, on_crash: Callable):
-        """Run one item in a fresh forked single-worker pool; ``on_crash`` if that worker dies."""
+    def _kill_readers(self) -> None:
+        """Stop the readers' workers at once (one is stuck); the pool is dropped."""
+        if self._readers is not None:
+            for proc in list(getattr(self._readers, "_processes", {}).values()):
+                proc.kill()
+            self._drop_readers()
+
+    def _isolated(self, func, item, on_crash: Callable, time_limit: Callable | None = None):
+        """Run one item in a fresh forked single-worker pool; ``on_crash`` if that worker dies
+        (or runs past ``time_limit(item)``: then it is stopped)."""
         self.reader_processes_started += 1
-        with forked_pool(1, self.close_in_workers) as pool:
-            try:
-                return pool.submit(func, item).result()
-            except BrokenProcessPool:
-                return on_crash(item, CRASH_REASON)
+        pool = forked_pool(1, self.close_in_workers)
+        limit = None if time_limit is None else time_limit(item)
+        try:
+            return pool.submit(func, item).result(timeout=limit)
+        except BrokenProcessPool:
+            return on_crash(item, CRASH_REASON)
+        except FuturesTimeout:
+            for proc in list(getattr(pool, "_processes", {}).values()):
+                proc.kill()
+            return on_crash(item, stuck_reason(limit))
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
 
     def close(self) -> None:
         self._drop_readers()
@@ -319,14 +369,14 @@ class DaskExecutor(Executor):
         self.address = address or self.client.scheduler.address
 
     def map(self, func, items, label="", progress=None, on_crash: Callable | None = None, preload=(),
-            while_waiting=None):
+            while_waiting=None, time_limit=None):
         from distributed import KilledWorker, as_completed
 
         items = list(items)
         progress = progress or Progress()
         if not items:
             return []
-        futures = self.client.map(func, items, pure=False)
+        futures = self.client.map(func, items, pure=False)  # time_limit: Dask cannot stop one task's worker
         if while_waiting is not None:
             while_waiting()
         index = {f.key: i for i, f in enumerate(futures)}

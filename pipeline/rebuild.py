@@ -35,7 +35,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from pipeline.executors import CRASH_REASON, Executor, default_jobs, forked_pool, make_executor
+from pipeline.executors import CRASH_REASON, STUCK_REASON, Executor, default_jobs, forked_pool, make_executor
 from pipeline.layout import Problem, RawTree, discover_runs, skip_reason
 from pipeline.memo import LEGACY_FILE, LEGACY_TMP, MEMO_DIR, SHARD_FILE, SHARD_TMP, STAGE_NAME, Memo
 from pipeline.readers import READERS
@@ -117,9 +117,11 @@ class RebuildSummary:
 
 
 def _crash_point(name: str, sig: int = signal.SIGKILL) -> None:
-    """Test-only: die by ``sig`` here when ``PNEUBENCH_CRASH_AT`` names this point."""
+    """Test-only: die by ``sig`` here when ``PNEUBENCH_CRASH_AT`` names this point
+    (``PNEUBENCH_CRASH_SIGNAL=SIGSTOP``: stop instead, as a reader stuck in a loop would)."""
     if os.environ.get("PNEUBENCH_CRASH_AT") == name:
-        os.kill(os.getpid(), sig)
+        other = os.environ.get("PNEUBENCH_CRASH_SIGNAL")
+        os.kill(os.getpid(), getattr(signal, other) if other in ("SIGSTOP", "SIGSEGV", "SIGKILL") else sig)
 
 
 @contextmanager
@@ -196,6 +198,7 @@ def _tree(raw: str, token: str) -> RawTree:
 
 #: The quarantine reason of a file whose reader's worker process died.
 CRASHED = f"cannot read file: {CRASH_REASON}"
+STUCK = f"cannot read file: {STUCK_REASON}"  # a reader stopped at its time limit: tried once more, as a crash
 
 
 def _unreadable(tree: RawTree, path: Path, error: str, transient: bool = False) -> IngestResult:
@@ -265,6 +268,17 @@ def _ingest_task(args) -> dict:
     return {"sha": sha, "reused": False, "result": res}
 
 
+def _read_time_limit(args) -> float:
+    """Seconds an ingest task may run (``pipeline.readers.base.read_time_limit`` of its file)."""
+    from pipeline.readers.base import read_time_limit
+
+    try:
+        size = os.stat(args[2]).st_size
+    except OSError:
+        size = 0
+    return read_time_limit(size)
+
+
 def _ingest_crashed(args, reason: str) -> dict:
     """Result of an ingest task whose worker process died: the file is quarantined.
 
@@ -329,7 +343,7 @@ def ingest_incremental(tree: RawTree, plans: list[FilePlan], warehouse: Path, ex
             if p.previous is not None and p.status == "check" and p.reason == "content":
                 # only the stat changed: a file with the same bytes keeps its record
                 prev = {"sha": p.previous.source_sha256,
-                        "crashed": p.previous.error == CRASHED}
+                        "crashed": p.previous.error == CRASHED or (p.previous.error or "").startswith(STUCK)}
             todo.append((p, (str(tree.root), token, str(p.path), str(warehouse), not full, prev, code_version)))
     if todo:
         progress.message(f"ingest: {len(todo)} of {len(plans)} run files to read")
@@ -339,7 +353,7 @@ def ingest_incremental(tree: RawTree, plans: list[FilePlan], warehouse: Path, ex
     readers = sorted({READERS[p.path.suffix.lower()].split(":")[0] for p, _ in todo
                       if p.path.suffix.lower() in READERS})
     outs = executor.map(_ingest_task, [a for _, a in todo], "ingest", progress, on_crash=_ingest_crashed,
-                        preload=readers, while_waiting=while_waiting)
+                        preload=readers, while_waiting=while_waiting, time_limit=_read_time_limit)
     now = time.time()
     for (p, _), out in zip(todo, outs):
         if out["reused"]:

@@ -42,6 +42,21 @@ INFLATE_FLOOR_BYTES = 64 << 20
 INFLATE_CEILING_BYTES = 4 << 30
 
 
+#: Time one file may take to read, whatever its size [s] ...
+READ_TIME_FLOOR_S = 300.0
+#: ... plus its size at this rate [B/s]: 0.5 MB/s is ten times slower than the slowest reader
+#: (workbooks, ~5 MB/s) on a slow share. A reader still busy after that is stuck (a loop in a C
+#: library on a file whose links point back on themselves): its worker is stopped and the file
+#: quarantined, so one file cannot hold up the night.
+READ_RATE_FLOOR_B_S = 0.5e6
+
+
+def read_time_limit(size_bytes: int) -> float:
+    """Seconds a file of ``size_bytes`` may take to read (:data:`READ_TIME_FLOOR_S` plus its
+    size at :data:`READ_RATE_FLOOR_B_S`)."""
+    return READ_TIME_FLOOR_S + max(0, size_bytes) / READ_RATE_FLOOR_B_S
+
+
 #: Longest line a text reader holds while looking for its end [B]: 4,096 channels of 25
 #: characters are 100 KB; a longer "line" is binary data or a file without line breaks.
 MAX_LINE_BYTES = 16 << 20

@@ -139,11 +139,20 @@ def _trim(rows: list[list]) -> list[list]:
     return [list(r[:width]) + [None] * (width - len(r[:width])) for r in rows]
 
 
+def _sheet_rows(wb, name: str) -> list[list]:
+    """A worksheet's cells as rows (trimmed); a sheet calamine cannot read (a damaged part of the
+    zip, XML that does not parse, a sheet listed but missing) is a :class:`ReaderError`."""
+    try:
+        return _trim(wb.get_sheet_by_name(name).to_python(skip_empty_area=False))
+    except Exception as exc:  # calamine's own errors on malformed sheets
+        raise ReaderError(f"sheet {name!r} cannot be read ({exc_text(exc)})") from None
+
+
 def _meta_sheet(wb) -> dict:
     for name in wb.sheet_names:
         if name.strip().casefold() == "meta":
             out = {}
-            for r in _trim(wb.get_sheet_by_name(name).to_python(skip_empty_area=False)):
+            for r in _sheet_rows(wb, name):
                 if len(r) >= 2 and not _is_empty(r[0]) and not _is_empty(r[1]):
                     out[str(r[0]).strip()] = _meta_value(r[1])
             return out
@@ -238,10 +247,7 @@ def read_excel(path: str | Path, read: dict | None = None, hints: dict | None = 
     if _sheet_kind(wb, name) != "WorkSheet":
         raise ReaderError(f"sheet {name!r} is a {_sheet_kind(wb, name)}, not a worksheet: it holds no cells "
                           "(name the data sheet with the `sheet` key)")
-    try:
-        rows = _trim(wb.get_sheet_by_name(name).to_python(skip_empty_area=False))
-    except Exception as exc:  # calamine's own errors on malformed sheets
-        raise ReaderError(f"sheet {name!r} cannot be read ({exc_text(exc)})") from None
+    rows = _sheet_rows(wb, name)
     if not rows:
         raise ReaderError(f"sheet {name!r} is empty (no cells with values)")
 

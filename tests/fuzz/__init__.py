@@ -1,7 +1,7 @@
 """Reader fuzz harness: seeded mutants of small valid exports, ingested in child processes.
 
 Seeds are small valid runs in every format the readers take (CSV, LVM, TDMS, MAT v5
-uncompressed and compressed, MAT v7.3), written by the simulator writers
+uncompressed and compressed, MAT v7.3, XLSX, MF4), written by the simulator writers
 (:mod:`pipeline.simulator.writers`) and the reader-test generators
 (:mod:`tests.pipeline.readers.generators`). Mutant ``i`` of a run with seed ``s`` is derived
 from ``random.Random(f"{s}:{i}")`` only, so it is the same whatever the batch it runs in:
@@ -69,7 +69,8 @@ def make_seeds(folder: Path) -> dict[str, bytes]:
     """Small valid exports: name (with its extension) -> bytes. Deterministic."""
     import numpy as np
 
-    from pipeline.simulator.writers import default_columns, write_csv, write_lvm, write_mat, write_tdms
+    from pipeline.simulator.writers import (default_columns, write_csv, write_lvm, write_mat, write_mf4, write_tdms,
+                                            write_xlsx)
     from tests.pipeline.readers.generators import LvmSegment, lvm_bytes, mat_v5, mat_v73
 
     folder.mkdir(parents=True, exist_ok=True)
@@ -94,6 +95,8 @@ def make_seeds(folder: Path) -> dict[str, bytes]:
     data[:116] = b"MATLAB 5.0 MAT-file, fuzz seed".ljust(116, b" ")     # no creation time
     (folder / "seed_v5.mat").write_bytes(bytes(data))
     mat_v73(folder / "seed_v73.mat", {**variables, "t": np.asarray(variables["t"])})
+    write_xlsx(folder / "seed.xlsx", frame, with_t, meta)        # a zip of XML parts: calamine reads it
+    write_mf4(folder / "seed.mf4", frame, cols, meta)            # ASAM MDF 4.10: asammdf reads it
     return {p.name: p.read_bytes() for p in sorted(folder.iterdir())}
 
 
@@ -224,7 +227,11 @@ def child_main() -> None:
 
     raw, warehouse = Path(sys.argv[-2]), Path(sys.argv[-1])
     tree = RawTree(raw)
-    print(json.dumps({"ready": True}), flush=True)
+    # the answers go through a descriptor of their own: a library that prints while reading a
+    # mutant (Python or C code writing to fd 1) writes to stderr, never into the answers
+    answers = os.fdopen(os.dup(1), "w", buffering=1)
+    os.dup2(2, 1)
+    print(json.dumps({"ready": True}), file=answers, flush=True)
     for line in sys.stdin:
         path = Path(line.strip())
         try:
@@ -235,7 +242,7 @@ def child_main() -> None:
         except BaseException as exc:  # noqa: BLE001 - reported as a finding
             out = {"run": False, "error": f"cannot read file: {type(exc).__name__} escaped ingest_file: {exc}"}
         shutil.rmtree(warehouse, ignore_errors=True)
-        print(json.dumps(out), flush=True)
+        print(json.dumps(out), file=answers, flush=True)
 
 
 class _Child:

@@ -21,7 +21,7 @@ def test_fixed_seed_run_has_no_crash_hang_memory_or_unexplained_reason():
 def test_mutants_are_deterministic_and_cover_every_format(tmp_path):
     seeds = fuzz.make_seeds(tmp_path / "a")
     assert seeds == fuzz.make_seeds(tmp_path / "b")
-    assert {name.rsplit(".", 1)[1] for name in seeds} == {"csv", "txt", "lvm", "tdms", "mat"}
+    assert {name.rsplit(".", 1)[1] for name in seeds} == {"csv", "txt", "lvm", "tdms", "mat", "xlsx", "mf4"}
     a = [fuzz.mutant(seeds, 7, i) for i in range(200)]
     b = [fuzz.mutant(seeds, 7, i) for i in reversed(range(200))][::-1]
     assert [(m.data, m.how) for m in a] == [(m.data, m.how) for m in b]

@@ -152,6 +152,28 @@ def test_while_waiting_runs_once_here_while_the_workers_read(jobs, tmp_path):
         assert ex.map(waits_for, [], on_crash=crashed, while_waiting=meanwhile) == [] and len(calls) == 1
 
 
+def sleeps_on_3(x):
+    import time
+
+    if x == 3:
+        time.sleep(120)  # a reader stuck in a loop
+    return x
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_an_item_past_its_time_limit_is_stopped_and_the_others_get_their_results(jobs):
+    import time
+
+    from pipeline.executors import stuck_reason
+
+    t0 = time.monotonic()
+    with LocalExecutor(jobs) as ex:
+        out = ex.map(sleeps_on_3, list(range(6)), on_crash=crashed, time_limit=lambda x: 2.0)
+    assert time.monotonic() - t0 < 30
+    assert out == [0, 1, 2, (3, "crashed: " + stuck_reason(2.0)), 4, 5]
+    assert stuck_reason(2.0).startswith("the reader was stopped after 2 s")
+
+
 @pytest.mark.parametrize("jobs", [1, 2])
 def test_a_segfaulting_item_gets_on_crash_and_the_others_their_results(jobs):
     import os

@@ -209,3 +209,35 @@ def test_a_file_that_crashes_its_reader_twice_is_not_read_every_night(raw, wareh
         assert con.execute("SELECT source_path FROM quarantine").fetchall() == [("c/c.csv",)]
     finally:
         con.close()
+
+
+def test_a_stuck_reader_is_stopped_at_its_time_limit_and_the_night_goes_on(raw, warehouse, monkeypatch):
+    """A reader that never returns (asammdf looping over an MDF file whose block links point
+    back on themselves did: tests/fuzz) is stopped at the file's time limit; the file is
+    quarantined, tried once more the next night, then kept quarantined until its bytes change."""
+    import pipeline.readers.base as base
+    from tests.conftest import query
+
+    monkeypatch.setattr(base, "READ_TIME_FLOOR_S", 3.0)  # the limits are computed by the rebuild process
+    monkeypatch.setattr(base, "READ_RATE_FLOOR_B_S", 1e12)
+    for name in "abcd":
+        step(raw, f"c/{name}.csv")
+    monkeypatch.setenv("PNEUBENCH_CRASH_AT", "ingest:c/b.csv")
+    monkeypatch.setenv("PNEUBENCH_CRASH_SIGNAL", "SIGSTOP")  # the worker stops and never answers
+    for jobs in (1, 2):
+        t0 = time.monotonic()
+        s = rebuild(raw.root, warehouse, jobs=jobs)
+        assert time.monotonic() - t0 < 60
+        assert s.exit_code == 1
+        assert [(p.source_path, p.error) for p in s.quarantine] == [
+            ("c/b.csv", "cannot read file: the reader was stopped after 3 s, far longer than a file of its size "
+                        "takes (a reader stuck in a loop)")]
+        assert [r[0] for r in query(warehouse, "SELECT run_id FROM runs ORDER BY 1")] == ["c/a", "c/c", "c/d"]
+    # stuck twice: hashed and kept quarantined, not read again while its bytes stay the same
+    monkeypatch.delenv("PNEUBENCH_CRASH_AT")
+    s = rebuild(raw.root, warehouse, jobs=1)
+    assert s.exit_code == 1 and [p.source_path for p in s.quarantine] == ["c/b.csv"]
+    step(raw, "c/b.csv", n=5)  # new bytes: read again
+    s = rebuild(raw.root, warehouse, jobs=1)
+    assert s.exit_code == 0 and [r[0] for r in query(warehouse, "SELECT run_id FROM runs ORDER BY 1")] == [
+        "c/a", "c/b", "c/c", "c/d"]
