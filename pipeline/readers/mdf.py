@@ -53,6 +53,74 @@ _SYNC_TIME = 1
 READ_FRAGMENT_BYTES = 16 << 20
 
 
+#: Most blocks one linked list of an MDF file may chain (data groups, channel groups, channels).
+MAX_CHAINED_BLOCKS = 1_000_000
+
+
+def check_block_links(fh) -> None:
+    """Refuse an MDF file whose data group / channel group / channel lists loop back on
+    themselves (a :class:`ReaderError` naming the block), before asammdf walks them: asammdf
+    follows them without looking back (``count_channel_groups``), so a damaged link that points
+    to an earlier block kept a worker busy forever (found by ``tests/fuzz``). The walk mirrors
+    asammdf's: MDF 4 links are 8 bytes (first DG at 88; next at +24, first child at +32), MDF 3
+    links 4 bytes (first DG at 68; next at +4, first child at +8)."""
+    import struct
+
+    size = fh.seek(0, 2)
+    fh.seek(64)
+    head = fh.read(4)
+    if head[:2] == b"HD":
+        width, first, nxt, child = 4, 68, 4, 8
+    elif head == b"##HD":
+        width, first, nxt, child = 8, 88, 24, 32
+    else:
+        return  # not MDF: asammdf says so
+    fmt = "<I" if width == 4 else "<Q"
+
+    def link(at: int) -> int:
+        fh.seek(at)
+        raw = fh.read(width)
+        return struct.unpack(fmt, raw)[0] if len(raw) == width else 0
+
+    def chain(addr: int, what: str, inner=None) -> None:
+        seen: set[int] = set()
+        while addr:
+            if addr >= size:
+                return  # out of the file: asammdf refuses it itself
+            if addr in seen or len(seen) >= MAX_CHAINED_BLOCKS:
+                raise ReaderError(f"damaged MDF file: its {what} block links loop back (block at {addr:#x} "
+                                  "again)" if addr in seen else
+                                  f"damaged MDF file: more than {MAX_CHAINED_BLOCKS} {what} blocks in one list")
+            seen.add(addr)
+            if inner is not None:
+                inner(link(addr + child))
+            addr = link(addr + nxt)
+
+    channels = lambda a: chain(a, "channel")  # noqa: E731
+    groups = lambda a: chain(a, "channel group", channels)  # noqa: E731
+    chain(link(first), "data group", groups)
+    fh.seek(0)
+
+
+def check_record_layout(mdf, index: int) -> None:
+    """Refuse a channel group whose channels lie past the end of its records (a damaged byte
+    offset): asammdf's C code copies such a channel's bytes without a bounds check and crashed
+    the worker (found by ``tests/fuzz``). MDF 4 channels that hold bytes in the record (fixed
+    length, variable length, master, sync, maximum length) must end within the record."""
+    if not str(getattr(mdf, "version", "")).startswith("4"):
+        return
+    group = mdf.groups[index]
+    record = int(group.channel_group.samples_byte_nr)
+    for ch in group.channels:
+        if int(getattr(ch, "channel_type", 0)) in (3, 6):  # virtual: no bytes in the record
+            continue
+        start = int(ch.byte_offset)
+        end = start + (int(ch.bit_offset) + int(ch.bit_count) + 7) // 8
+        if end > record:
+            raise ReaderError(f"damaged MDF file: channel `{ch.name}` of channel group {index} lies past the end "
+                              f"of its {record}-byte records (bytes {start} to {end})")
+
+
 class _Opened:
     """An MDF opened from a file object: asammdf then reads with ordinary reads, not a memory
     map of the whole file (whose pages count as the process's resident memory: 1.1 GB for a
@@ -62,6 +130,11 @@ class _Opened:
         from asammdf import MDF
 
         self.fh = open(path, "rb")
+        try:
+            check_block_links(self.fh)
+        except BaseException:
+            self.fh.close()
+            raise
         try:
             self.mdf = MDF(self.fh)
         except Exception as exc:  # asammdf raises many kinds on damaged files
@@ -211,6 +284,7 @@ def read_mdf(path: str | Path, read: dict | None = None, hints: dict | None = No
         master = mdf.masters_db.get(index)
         if master is None:
             raise ReaderError(f"channel group {index} has no master (time) channel")
+        check_record_layout(mdf, index)
         group = mdf.groups[index]
         mch = group.channels[master]
         sync = getattr(mch, "sync_type", _SYNC_TIME)

@@ -150,3 +150,21 @@ def test_list_parts_refuses_more_sheets_than_the_limit(tmp_path, monkeypatch):
     monkeypatch.setattr(base, "MAX_PARTS", 3)
     with pytest.raises(ReaderError, match="4 sheets: more than the limit of 3 runs per file"):
         list_parts(p)
+
+
+def test_refused_meta_sheet_that_cannot_be_read(tmp_path):
+    """A `meta` sheet the workbook lists but whose part is damaged or gone let calamine's errors
+    (WorksheetNotFound, XmlError) escape the reader (tests/fuzz): one ReaderError naming the sheet."""
+    import zipfile
+
+    good = _book(tmp_path / "good.xlsx", [["t[s]", "x[mm]"], [0, 1], [1, 2]], meta={"kind": "step"})
+    bad = tmp_path / "bad.xlsx"
+    with zipfile.ZipFile(good) as src, zipfile.ZipFile(bad, "w") as dst:
+        names = src.namelist()
+        meta_part = [n for n in names if n.startswith("xl/worksheets/")][-1]  # openpyxl writes `meta` last
+        for name in names:
+            if name != meta_part:
+                dst.writestr(name, src.read(name))
+    assert read_excel(good).metadata["kind"] == "step"
+    with pytest.raises(ReaderError, match=r"sheet 'meta' cannot be read \(\w+"):
+        read_excel(bad)

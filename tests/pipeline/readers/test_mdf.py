@@ -179,3 +179,51 @@ def test_a_file_written_in_several_blocks_streams_in_order(tmp_path):
     t = np.arange(3 * n) / 1000.0
     np.testing.assert_array_equal(v["t"], t)
     np.testing.assert_array_equal(v["x"], t * 2)
+
+
+def _first_channel(data: bytes) -> tuple[int, int]:
+    """(address of the first data group's first channel group's first channel, its link count)
+    in an MDF 4 file: HD links the first DG at 88, a DG its first CG at +32, a CG its first CN
+    at +32; a block's link count is at +16."""
+    import struct
+
+    link = lambda at: struct.unpack_from("<Q", data, at)[0]  # noqa: E731
+    cn = link(link(link(88) + 32) + 32)
+    return cn, link(cn + 16)
+
+
+def test_refused_channel_list_that_loops_back_on_itself(tmp_path):
+    """A damaged link made asammdf walk a channel list forever (tests/fuzz): refused at once."""
+    import struct
+
+    t, sigs = _run(50)
+    path = _write(tmp_path / "r.mf4", [("fast", sigs)])
+    data = bytearray(path.read_bytes())
+    cn, _ = _first_channel(bytes(data))
+    struct.pack_into("<Q", data, cn + 24, cn)  # the channel's "next" is itself
+    path.write_bytes(bytes(data))
+    with pytest.raises(ReaderError, match=r"damaged MDF file: its channel block links loop back \(block at 0x"):
+        read_mdf(path)
+
+
+def test_refused_channel_past_the_end_of_its_records(tmp_path):
+    """A damaged byte offset made asammdf's C code read past the record and segfault (tests/fuzz)."""
+    import struct
+
+    t, sigs = _run(50)
+    path = _write(tmp_path / "r.mf4", [("fast", sigs)])
+    data = bytearray(path.read_bytes())
+    cn, links = _first_channel(bytes(data))
+    while cn:  # the last channel of the group: the one asammdf reads after the master
+        nxt = struct.unpack_from("<Q", data, cn + 24)[0]
+        if not nxt:
+            break
+        cn = nxt
+        links = struct.unpack_from("<Q", data, cn + 16)[0]
+    # CN data after the header (24 B) and the links: type, sync type, data type, bit offset (1 B
+    # each), then the byte offset (4 B)
+    struct.pack_into("<I", data, cn + 24 + 8 * links + 4, 4_194_312)
+    path.write_bytes(bytes(data))
+    with pytest.raises(ReaderError, match=r"damaged MDF file: channel `\w+` of channel group 0 lies past the end "
+                                          r"of its \d+-byte records"):
+        read_mdf(path)
