@@ -122,8 +122,9 @@ def one_export(fmt: str, size_mb: float, repeat: int, baselines: list[str]) -> d
     print(f"\n{fmt.upper()} {mb:.0f} MB, whole processes, median of {repeat}:")
     for name, s in series.items():
         print(f"  {name:10s} {s.wall_s:7.2f} s  {mb / s.wall_s:6.0f} MB/s  cpu {s.cpu_s:6.2f} s  "
-              f"peak RSS of the process tree {s.tree_peak_mb:6.0f} MB")
-    return {"mb": mb, **{n: {"wall_s": s.wall_s, "cpu_s": s.cpu_s, "tree_peak_mb": s.tree_peak_mb}
+              f"peak RSS of the process tree {s.tree_peak_mb:6.0f} MB (PSS {s.tree_peak_pss_mb:6.0f} MB)")
+    return {"mb": mb, **{n: {"wall_s": s.wall_s, "cpu_s": s.cpu_s, "tree_peak_mb": s.tree_peak_mb,
+                             "tree_peak_pss_mb": s.tree_peak_pss_mb}
                          for n, s in series.items()}}
 
 

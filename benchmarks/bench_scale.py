@@ -127,6 +127,7 @@ def bench_size(runs: int, seed: int, repeat: int, jobs: int | None) -> dict:
     out: dict = {"runs": runs, "raw_mb": _size_mb(raw)}
     full = measure(rebuild, cwd=ROOT)
     out["full_s"], out["full_tree_mb"] = full.wall_s, full.tree_peak_mb
+    out["full_tree_pss_mb"] = full.tree_peak_pss_mb  # shared (forked) pages counted once
     noop = Series("noop", [measure(rebuild, cwd=ROOT) for _ in range(repeat)])
     out["noop_s"], out["noop_tree_mb"] = noop.wall_s, noop.tree_peak_mb
     out["noop_cpu_s"] = noop.cpu_s

@@ -4,7 +4,9 @@ its whole process tree (the command and every worker it starts).
 ``ru_maxrss`` of a child is the largest single process, not the tree: two workers of 400 MB each
 use 800 MB of the machine. So the tree is sampled from ``/proc`` every ``interval_s`` (the RSS
 of the process and all its descendants, summed) and the peak of those sums is reported, beside
-the largest single-process peak from ``os.wait4``.
+the largest single-process peak from ``os.wait4``, and the peak of the tree's summed PSS
+(``smaps_rollup``): forked workers share their parent's pages, which the RSS sum counts once per
+process and the PSS sum once.
 """
 from __future__ import annotations
 
@@ -41,19 +43,48 @@ def _children() -> dict[int, list[int]]:
     return kids
 
 
-def tree_rss_bytes(pid: int) -> int:
-    """Resident memory of ``pid`` and all its descendants, summed. [bytes]"""
+def _tree(pid: int) -> list[int]:
     kids = _children()
-    total, todo = 0, [pid]
+    out, todo = [], [pid]
     while todo:
         p = todo.pop()
-        try:
-            with open(f"/proc/{p}/statm", "rb") as fh:
-                total += int(fh.read().split()[1]) * _PAGE
-        except OSError:
-            pass
+        out.append(p)
         todo.extend(kids.get(p, ()))
-    return total
+    return out
+
+
+def _rss(p: int) -> int:
+    try:
+        with open(f"/proc/{p}/statm", "rb") as fh:
+            return int(fh.read().split()[1]) * _PAGE
+    except OSError:
+        return 0
+
+
+def _pss(p: int) -> int:
+    """Proportional set size of ``p``: its private pages plus its share of the pages it shares
+    (a page three forked workers share counts a third to each). [bytes]"""
+    try:
+        with open(f"/proc/{p}/smaps_rollup", "rb") as fh:
+            for line in fh:
+                if line.startswith(b"Pss:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return 0
+
+
+def tree_rss_bytes(pid: int) -> int:
+    """Resident memory of ``pid`` and all its descendants, summed. [bytes]"""
+    return sum(_rss(p) for p in _tree(pid))
+
+
+def tree_memory_bytes(pid: int) -> tuple[int, int]:
+    """(RSS, PSS) of ``pid`` and all its descendants, summed [bytes]. The RSS sum counts a page
+    that forked workers share once per process (it over-states a forked pool); the PSS sum counts
+    every page once: the memory the tree takes from the machine."""
+    procs = _tree(pid)
+    return sum(_rss(p) for p in procs), sum(_pss(p) for p in procs)
 
 
 @dataclass
@@ -68,6 +99,8 @@ class Measured:
     cpu_s: float
     stdout: str = ""
     stderr: str = ""
+    #: peak of the tree's summed PSS (shared pages counted once) [MB]
+    tree_peak_pss_mb: float = 0.0
 
 
 def measure(cmd: list[str], cwd: Path | None = None, env: dict | None = None, interval_s: float = 0.02,
@@ -75,7 +108,7 @@ def measure(cmd: list[str], cwd: Path | None = None, env: dict | None = None, in
     """Run ``cmd`` to completion; wall time, peak tree RSS, CPU of the tree."""
     out_path = f"/tmp/pneubench-bench-{os.getpid()}.out"
     err_path = f"/tmp/pneubench-bench-{os.getpid()}.err"
-    peak = [0]
+    peak = [0, 0]  # tree RSS, tree PSS
     with open(out_path, "wb") as fo, open(err_path, "wb") as fe:
         t0 = time.perf_counter()
         proc = subprocess.Popen(cmd, cwd=cwd, env=env, stdout=fo, stderr=fe, stdin=subprocess.DEVNULL)
@@ -83,7 +116,8 @@ def measure(cmd: list[str], cwd: Path | None = None, env: dict | None = None, in
 
         def sample():
             while not done.is_set():
-                peak[0] = max(peak[0], tree_rss_bytes(proc.pid))
+                rss, pss = tree_memory_bytes(proc.pid)
+                peak[0], peak[1] = max(peak[0], rss), max(peak[1], pss)
                 done.wait(interval_s)
 
         th = threading.Thread(target=sample, daemon=True)
@@ -100,7 +134,7 @@ def measure(cmd: list[str], cwd: Path | None = None, env: dict | None = None, in
         raise SystemExit(f"{' '.join(map(str, cmd))} failed ({code}):\n{err[-2000:]}")
     return Measured(cmd=[str(c) for c in cmd], wall_s=wall, exit_code=code, tree_peak_mb=peak[0] / 1e6,
                     max_process_mb=usage.ru_maxrss * 1024 / 1e6, cpu_s=usage.ru_utime + usage.ru_stime,
-                    stdout=out, stderr=err)
+                    stdout=out, stderr=err, tree_peak_pss_mb=peak[1] / 1e6)
 
 
 @dataclass
@@ -117,6 +151,10 @@ class Series:
     @property
     def tree_peak_mb(self) -> float:
         return max(r.tree_peak_mb for r in self.runs)
+
+    @property
+    def tree_peak_pss_mb(self) -> float:
+        return max(r.tree_peak_pss_mb for r in self.runs)
 
     @property
     def cpu_s(self) -> float:
