@@ -136,6 +136,12 @@ def forked_pool(workers: int, close_fds: tuple[int, ...] = ()) -> ProcessPoolExe
                                initializer=_reader_worker_init, initargs=(os.getpid(), tuple(close_fds)))
 
 
+def _kill_workers(pool: ProcessPoolExecutor) -> None:
+    """SIGKILL every worker process of ``pool`` (a stuck one does not answer anything else)."""
+    for proc in list((getattr(pool, "_processes", None) or {}).values()):
+        proc.kill()
+
+
 def default_jobs(jobs: int | None) -> int:
     """``jobs``, or every core when None."""
     return max(1, int(jobs or os.cpu_count() or 1))
@@ -307,8 +313,7 @@ class LocalExecutor(Executor):
     def _kill_readers(self) -> None:
         """Stop the readers' workers at once (one is stuck); the pool is dropped."""
         if self._readers is not None:
-            for proc in list(getattr(self._readers, "_processes", {}).values()):
-                proc.kill()
+            _kill_workers(self._readers)
             self._drop_readers()
 
     def _isolated(self, func, item, on_crash: Callable, time_limit: Callable | None = None):
@@ -322,8 +327,7 @@ class LocalExecutor(Executor):
         except BrokenProcessPool:
             return on_crash(item, CRASH_REASON)
         except FuturesTimeout:
-            for proc in list(getattr(pool, "_processes", {}).values()):
-                proc.kill()
+            _kill_workers(pool)
             return on_crash(item, stuck_reason(limit))
         finally:
             pool.shutdown(wait=True, cancel_futures=True)

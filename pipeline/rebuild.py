@@ -760,8 +760,7 @@ def run_stages_cached(ctx_args: dict, runs: list[dict], prev: PreviousState, war
                 res.reused.append(name)
                 how = "reused"
             else:
-                if drawer is not None:
-                    drawer.warm()
+                drawer.warm()
                 results = _TrackedResults(res.tables)
                 ctx = _tracked_context(**ctx_args)
                 ctx.results = results

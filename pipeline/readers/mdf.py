@@ -87,10 +87,10 @@ def check_block_links(fh) -> None:
         while addr:
             if addr >= size:
                 return  # out of the file: asammdf refuses it itself
-            if addr in seen or len(seen) >= MAX_CHAINED_BLOCKS:
-                raise ReaderError(f"damaged MDF file: its {what} block links loop back (block at {addr:#x} "
-                                  "again)" if addr in seen else
-                                  f"damaged MDF file: more than {MAX_CHAINED_BLOCKS} {what} blocks in one list")
+            if addr in seen:
+                raise ReaderError(f"damaged MDF file: its {what} block links loop back (block at {addr:#x} again)")
+            if len(seen) >= MAX_CHAINED_BLOCKS:
+                raise ReaderError(f"damaged MDF file: more than {MAX_CHAINED_BLOCKS} {what} blocks in one list")
             seen.add(addr)
             if inner is not None:
                 inner(link(addr + child))

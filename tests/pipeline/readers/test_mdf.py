@@ -242,3 +242,15 @@ def test_refused_channel_past_the_end_of_its_records(tmp_path):
     with pytest.raises(ReaderError, match=r"damaged MDF file: channel `\w+` of channel group 0 lies past the end "
                                           r"of its \d+-byte records"):
         read_mdf(path)
+
+
+def test_refused_list_longer_than_the_limit_and_read_within_it(tmp_path, monkeypatch):
+    import pipeline.readers.mdf as mdf_reader
+
+    t, sigs = _run(50)
+    path = _write(tmp_path / "r.mf4", [("fast", sigs)])  # time + 2 channels in one group
+    monkeypatch.setattr(mdf_reader, "MAX_CHAINED_BLOCKS", 3)
+    assert {c.name for c in read_mdf(path).columns} >= {"p_a", "x"}
+    monkeypatch.setattr(mdf_reader, "MAX_CHAINED_BLOCKS", 2)
+    with pytest.raises(ReaderError, match="damaged MDF file: more than 2 channel blocks in one list"):
+        read_mdf(path)
