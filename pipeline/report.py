@@ -364,7 +364,7 @@ def _key_table(fig: str, stage: str, stage_tables: dict, db: _DB) -> str | None:
 
 
 # -- the papers' numbers next to the lab's ------------------------------------------------------------
-#: Values printed in the seed papers (/work/shared/spec/physics.md marks them *paper*).
+#: Values printed in the seed papers (docs/physics.md marks them *paper*).
 PAPER = {
     "plpa_table2": {"wn_rad_s": 16.7, "zeta": 0.51, "k_lin_m_v_s": 0.82},
     "plpa_fig12": {"mean_0bar_n": 10.0, "mean_ge1bar_n": 5.0, "ratio": 2.0, "rate_slope": 0.0},

@@ -1,6 +1,6 @@
 """PLA bench generators (seed 001): spring (closed chamber, harmonic displacement), pressure steps.
 
-Models and Table 1 / Table 2 values from ``shared/spec/physics.md``.
+Models and Table 1 / Table 2 values from ``docs/physics.md``.
 """
 from __future__ import annotations
 

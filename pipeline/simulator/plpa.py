@@ -1,6 +1,6 @@
 """PLPA bench generators (seed 000): leakage, breakaway, viscous, identification, step.
 
-Models, defaults and sign conventions are those of ``shared/spec/physics.md``; every function
+Models, defaults and sign conventions are those of ``docs/physics.md``; every function
 returns a :class:`~pipeline.simulator.base.SimRun` (see the package docstring for truth keys).
 """
 from __future__ import annotations

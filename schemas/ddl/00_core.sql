@@ -1,4 +1,4 @@
--- Core tables of the warehouse contract (../shared/spec/warehouse.md).
+-- Core tables of the warehouse contract (docs/warehouse.md).
 -- Column names end in their unit; a value without a unit has no suffix.
 
 CREATE TABLE runs (

@@ -6,6 +6,7 @@
 
 -- leakage_map.campaign is in 10_plpa_characterisation.sql (its seal_envelope_at macro reads it)
 ALTER TABLE breakaway ADD COLUMN campaign VARCHAR;
+ALTER TABLE friction_dynamic ADD COLUMN campaign VARCHAR;
 ALTER TABLE viscous_points ADD COLUMN campaign VARCHAR;
 ALTER TABLE identification ADD COLUMN campaign VARCHAR;
 ALTER TABLE step_response ADD COLUMN campaign VARCHAR;

@@ -64,3 +64,11 @@ CREATE TABLE stage_cache (
     all_runs_read   BOOLEAN,
     results_read    JSON                  -- earlier tables read -> content hash
 );
+
+-- The figures of the current warehouse: one row per figure an analysis stage drew.
+CREATE TABLE figures (
+    stage           VARCHAR,              -- analysis stage that drew it
+    name            VARCHAR,              -- figure name within the stage
+    path            VARCHAR,              -- PNG file, relative to the warehouse (stages/<stage>/<key>/figures/)
+    caption         VARCHAR               -- what the figure shows, as the report captions it
+);

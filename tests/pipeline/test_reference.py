@@ -1,0 +1,79 @@
+"""The users' copy of the contracts in docs/: complete, in step with the DDL and the warehouse."""
+from __future__ import annotations
+
+import re
+import subprocess
+from pathlib import Path
+
+from pipeline import reference
+from pipeline.warehouse import connect_readonly
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _sections(text: str) -> dict[str, str]:
+    """``### `name` `` sections of docs/warehouse.md: {name: section text}."""
+    parts = re.split(r"^### `([^`]+)`.*$", text, flags=re.MULTILINE)
+    return {parts[i]: parts[i + 1] for i in range(1, len(parts), 2)}
+
+
+def test_the_table_reference_is_in_step_with_the_ddl():
+    assert reference.main(["--check"]) == 0, "run `python -m pipeline.reference` and commit docs/warehouse.md"
+
+
+def test_every_table_and_column_of_a_built_warehouse_is_documented(demo):
+    sections = _sections(reference.DOC.read_text(encoding="utf-8"))
+    con = connect_readonly(demo["warehouse"])
+    try:
+        rows = con.execute("SELECT table_name, column_name FROM duckdb_columns() "
+                           "WHERE database_name = current_database()").fetchall()
+    finally:
+        con.close()
+    assert len({t for t, _ in rows}) > 20
+    missing = []
+    for table, column in rows:
+        key = "samples_<kind>" if table.startswith("samples_") and table != "samples_files" else table
+        section = sections.get(key)
+        if section is None:
+            missing.append(table)
+        elif key != "samples_<kind>" and f"| `{column}` |" not in section:
+            missing.append(f"{table}.{column}")
+    assert not missing, f"not in docs/warehouse.md: {sorted(set(missing))}"
+
+
+def test_a_table_missing_from_the_page_is_caught(tmp_path, monkeypatch):
+    page = tmp_path / "warehouse.md"
+    text = reference.DOC.read_text(encoding="utf-8")
+    page.write_text(text.replace("### `hose_life`", "### `hose_lives`"), encoding="utf-8")
+    monkeypatch.setattr(reference, "DOC", page)
+    assert reference.main(["--check"]) == 1
+    assert reference.main([]) == 0 and reference.main(["--check"]) == 0
+    assert "### `hose_life`" in page.read_text(encoding="utf-8")
+
+
+def test_replace_block_appends_then_replaces():
+    once = reference.replace_block("# Title\n", "B\n" + reference.BEGIN + "x" + reference.END)
+    assert once.startswith("# Title\n\nB\n")
+    block = reference.BEGIN + "\nnew\n" + reference.END
+    assert reference.replace_block("head\n" + reference.BEGIN + "\nold\n" + reference.END + "\ntail\n", block) \
+        == "head\n" + block + "\ntail\n"
+
+
+def test_column_meaning_prefers_the_ddl_then_the_glossary_then_the_name():
+    assert reference.column_meaning("run_id", {"run_id": "from the DDL"}) == "from the DDL"
+    assert reference.column_meaning("run_id", {}) == reference.COMMON_COLUMNS["run_id"]
+    assert reference.column_meaning("coulomb_se_n", {}) == "standard error of `coulomb_n`"
+    assert reference.column_meaning("b10_lower_km", {}) == "lower bound of `b10_km`"
+    assert reference.column_meaning("transition_ci_low_mm_s", {}) == "lower confidence bound of `transition_mm_s`"
+    assert reference.column_meaning("second", {}) is None  # "se" inside a word is not a standard error
+
+
+def test_the_project_stands_alone_no_link_leaves_the_repository():
+    tracked = subprocess.run(["git", "ls-files", "*.md", "*.py", "*.sql"], cwd=ROOT, capture_output=True,
+                             text=True, check=True).stdout.split()
+    assert tracked
+    leaving = [p for p in tracked if "shared/spec" in (ROOT / p).read_text(encoding="utf-8", errors="replace")
+               and p != "tests/pipeline/test_reference.py"]
+    assert not leaving, f"links to files a clone does not have: {leaving}"
+    for doc in ("bench-exports.md", "warehouse.md", "physics.md"):
+        assert (ROOT / "docs" / doc).stat().st_size > 2000

@@ -1,0 +1,43 @@
+"""The refactoring check (benchmarks/same_behaviour.py) on small hand-made cases."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import duckdb
+
+from benchmarks.same_behaviour import _mask, compare_tables
+
+
+def _db(path: Path, rows: list[tuple], log_time: str) -> Path:
+    con = duckdb.connect(str(path))
+    con.execute("CREATE TABLE runs (run_id VARCHAR, n_samples BIGINT)")
+    con.executemany("INSERT INTO runs VALUES (?, ?)", rows)
+    con.execute("CREATE TABLE rebuild_log (generation VARCHAR, n_runs BIGINT)")
+    con.execute("INSERT INTO rebuild_log VALUES (?, ?)", [log_time, len(rows)])
+    con.close()
+    return path
+
+
+def test_equal_tables_are_the_same_and_volatile_columns_are_left_out(tmp_path):
+    a = _db(tmp_path / "a.duckdb", [("r1", 10), ("r2", 20)], "gen-1")
+    b = _db(tmp_path / "b.duckdb", [("r2", 20), ("r1", 10)], "gen-2")
+    diffs, left_out = compare_tables(a, b)
+    assert diffs == []
+    assert left_out == ["rebuild_log.generation"]
+
+
+def test_a_changed_value_and_a_duplicated_row_are_found(tmp_path):
+    a = _db(tmp_path / "a.duckdb", [("r1", 10), ("r2", 20)], "g")
+    b = _db(tmp_path / "b.duckdb", [("r1", 10), ("r2", 21)], "g")
+    diffs, _ = compare_tables(a, b)
+    assert diffs == ["runs: 1 rows only before, 1 only after (columns ['n_samples'])"]
+    c = _db(tmp_path / "c.duckdb", [("r1", 10), ("r1", 10), ("r2", 20)], "g")
+    diffs, _ = compare_tables(a, c)
+    assert any(d.startswith("runs: 0 rows only before, 1 only after") for d in diffs)
+
+
+def test_masks_hide_times_generations_durations_and_folders(tmp_path):
+    one = f"warehouse {tmp_path}/w, generation 20261125T163620.216183Z-3041, finished 2026-11-25 16:36:20 UTC, 0.35 s"
+    two = f"warehouse {tmp_path}/w, generation 20261126T020000.000001Z-12, finished 2026-11-26 02:00:00 UTC, 12 s"
+    assert _mask(one, tmp_path) == _mask(two, tmp_path)
+    assert _mask("leak 0.35 l/min", tmp_path) != _mask("leak 0.36 l/min", tmp_path)
