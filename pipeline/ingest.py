@@ -30,7 +30,7 @@ from pipeline.prefetch import prefetch
 from pipeline.readers import RawColumn, ReaderError, list_parts, parts_keys, read_export
 from pipeline.readers.base import MAX_CHANNELS
 from schemas.channels import (CHANNELS, canonical_name, noncanonical_column, other_dimension,
-                              sanitise_name)
+                              reserved_clash, sanitise_name)
 from schemas.kinds import (KINDS, META_KEYS, coerce_value, missing_channels,
                            missing_metadata, samples_schema)
 from schemas.units import P_ATM_DEFAULT_PA, accepted_symbols, lookup_unit
@@ -56,6 +56,7 @@ class ColumnMap:
     absolute: bool = False    # absolute pressure: subtract p_atm
     si_divisor: float | None = None
     numeric: bool = True
+    reserved: str | None = None  # the reserved column name the channel's own name gave (it got ``x_``)
 
     def describe(self) -> dict:
         return {"column": self.column, "channel": self.channel, "raw_name": self.raw_name,
@@ -246,7 +247,7 @@ def map_columns(columns: list[RawColumn], channels_cfg: dict) -> list[ColumnMap]
                 column, k = f"{base}_{k}", k + 1
             next_suffix[base] = k
             maps.append(ColumnMap(col.key, column, None, col.name, col.unit, unit_text, scale, offset,
-                                  numeric=col.dtype != "string"))
+                                  numeric=col.dtype != "string", reserved=reserved_clash(name, unit_text)))
         else:
             quantity = CHANNELS[channel].quantity
             if unit_text is None or str(unit_text).strip() == "":
@@ -874,6 +875,10 @@ def _ingest_hashed(tree, path, warehouse, rel, campaign, reuse, sha, hashing, co
                            f"{CHANNELS[ch].quantity}: kept as non-canonical `{m.column}`"
                            for m in maps if m.key in lookalikes for raw, ch, unit in [lookalikes[m.key]]]
     warnings += derived_warnings + sensor_warnings
+    warnings += [f"channel `{name}` is stored as `{column}`: `{clash}` is a name the samples views use"
+                 for name, column, clash in [(m.raw_name, m.column, m.reserved) for m in maps]
+                 + [(d.name, d.column, None if d.channel else reserved_clash(d.name, d.unit)) for d in derived]
+                 if clash]
     if synth_time:
         warnings.append(f"time from `{time_base.source}` ({time_base.stated_rate_hz:.6g} Hz): the export has no "
                         "time column")

@@ -212,3 +212,41 @@ def test_the_samples_macro_says_in_one_line_when_no_run_has_that_id(tmp_path):
     res = CliRunner().invoke(main, ["query", "--warehouse", str(wh), "SELECT * FROM samples('nope')"])
     assert res.exit_code == 2 and "found no samples file" in res.output and len(res.output.strip().splitlines()) == 1
     assert len(run_query(wh, "SELECT * FROM samples('c/a')")[1]) == 3
+
+
+# -- issue 21: names and types the views must survive ---------------------------------------------
+def _rebuilt(raw: RawBuilder, wh: Path):
+    summary = rebuild(raw.root, wh, jobs=1, report=False)
+    assert summary.exit_code == 0, summary
+    return summary
+
+
+@pytest.mark.parametrize("layout", ["csv header", "derived channel"])
+def test_a_channel_named_like_a_column_the_views_add_is_renamed_with_a_note(tmp_path, layout):
+    """DuckDB's ``filename`` column (the views and samples() join on it) and run_id / kind /
+    campaign are the views' own: a raw channel that sanitises to one of them is stored under
+    ``x_<name>`` and the run says so; every query works and no value is lost."""
+    raw = RawBuilder(tmp_path / "raw")
+    wh = tmp_path / "wh"
+    _step(raw, "p/plain.csv")  # the happy case beside it
+    if layout == "csv header":
+        raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T, "FileName": ["a.tdms", "b", "c"],
+                                       "Kind": ["k1", "k2", "k3"], "note": ["n1", "n2", "n3"]})
+        expected = ["a.tdms", "b", "c"]
+        notes = {"`FileName` is stored as `x_filename`", "`Kind` is stored as `x_kind`"}
+    else:
+        raw.write("c/rig.toml", '[derived]\nfilename = "x * 2"\n')
+        raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+        expected = [0.0, 0.2, 0.4]
+        notes = {"`filename` is stored as `x_filename`"}
+    _rebuilt(raw, wh)
+    rows = run_query(wh, "SELECT run_id, x_filename FROM samples_step ORDER BY run_id, t_s")[1]
+    assert rows == [("c/a", v) for v in expected] + [("p/plain", None)] * 3
+    cols, every = run_query(wh, "SELECT * FROM samples_step ORDER BY run_id, t_s")
+    assert "filename" not in cols and len(every) == 6
+    assert [r[0] for r in run_query(wh, "SELECT x_filename FROM samples('c/a') ORDER BY t_s")[1]] == expected
+    warnings = run_query(wh, "SELECT warnings FROM runs WHERE run_id = 'c/a'")[1][0][0]
+    for note in notes:
+        assert any(note in w and "name the samples views use" in w for w in warnings), (note, warnings)
+    plain = run_query(wh, "SELECT warnings FROM runs WHERE run_id = 'p/plain'")[1][0][0]
+    assert not any("samples views" in w for w in plain)
