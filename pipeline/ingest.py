@@ -60,7 +60,7 @@ class ColumnMap:
 
     def describe(self) -> dict:
         return {"column": self.column, "channel": self.channel, "raw_name": self.raw_name,
-                "raw_unit": self.raw_unit, "unit": self.unit}
+                "raw_unit": self.raw_unit, "unit": self.unit, "type": "DOUBLE" if self.numeric else "VARCHAR"}
 
 
 @dataclass
@@ -464,7 +464,7 @@ class DerivedChannel:
 
     def describe(self) -> dict:
         return {"column": self.column, "channel": self.channel, "raw_name": f"= {self.expression.text}",
-                "raw_unit": None, "unit": self.unit}
+                "raw_unit": None, "unit": self.unit, "type": "DOUBLE"}
 
 
 def plan_derived(derived_cfg: dict, maps: list[ColumnMap], meta: dict,
@@ -922,7 +922,7 @@ def _ingest_hashed(tree, path, warehouse, rel, campaign, reuse, sha, hashing, co
             channels = [dict(run_id=run_id, **m.describe()) for m in maps]
             if synth_time:
                 channels.append(dict(run_id=run_id, column="t_s", channel="t", raw_name=f"= {time_base.source}",
-                                     raw_unit=None, unit="s"))
+                                     raw_unit=None, unit="s", type="DOUBLE"))
             channels += [dict(run_id=run_id, **d.describe()) for d in derived]
             if rel_out is None:  # hashed while parsing: the name and the record need it now
                 sha = hashing.result()

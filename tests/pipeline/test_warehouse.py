@@ -250,3 +250,35 @@ def test_a_channel_named_like_a_column_the_views_add_is_renamed_with_a_note(tmp_
         assert any(note in w and "name the samples views use" in w for w in warnings), (note, warnings)
     plain = run_query(wh, "SELECT warnings FROM runs WHERE run_id = 'p/plain'")[1][0][0]
     assert not any("samples views" in w for w in plain)
+
+
+def test_a_channel_numeric_in_one_run_and_text_in_another_is_text_in_the_view(tmp_path):
+    """``note`` holds numbers in one file and words in another: one type per view, VARCHAR, with
+    the numbers as DuckDB writes a DOUBLE; a channel that is numeric everywhere stays DOUBLE and one
+    that is text everywhere VARCHAR; the column's comment says so."""
+    raw = RawBuilder(tmp_path / "raw")
+    wh = tmp_path / "wh"
+    base = {"t[s]": T, "x[m]": T, "x_ref[m]": T}
+    raw.csv("c/a.csv", STEP_META, {**base, "note": ["1.5", "2", "3"], "gain": [1, 2, 3], "label": ["p", "q", "r"]})
+    raw.csv("c/b.csv", STEP_META, {**base, "note": ["x", "y", "z"], "gain": [4, 5, 6], "label": ["s", "t", "u"]})
+    raw.csv("d/c.csv", STEP_META, {**base, "note": ["7", "8", "9"]})
+    _rebuilt(raw, wh)
+    cols, rows = run_query(wh, "SELECT * FROM samples_step ORDER BY run_id, t_s")
+    assert len(rows) == 9
+    got = run_query(wh, "SELECT run_id, note, gain, label FROM samples_step ORDER BY run_id, t_s")[1]
+    assert got == [("c/a", "1.5", 1.0, "p"), ("c/a", "2.0", 2.0, "q"), ("c/a", "3.0", 3.0, "r"),
+                   ("c/b", "x", 4.0, "s"), ("c/b", "y", 5.0, "t"), ("c/b", "z", 6.0, "u"),
+                   ("d/c", "7.0", None, None), ("d/c", "8.0", None, None), ("d/c", "9.0", None, None)]
+    types = dict((r[0], r[1]) for r in run_query(wh, "DESCRIBE samples_step")[1])
+    assert (types["note"], types["gain"], types["label"]) == ("VARCHAR", "DOUBLE", "VARCHAR")
+    comment = run_query(wh, "SELECT comment FROM duckdb_columns() WHERE table_name = 'samples_step' "
+                            "AND column_name = 'note'")[1][0][0]
+    assert "text in some runs" in comment and "VARCHAR" in comment
+    assert run_query(wh, "SELECT note FROM samples('d/c') ORDER BY t_s")[1] == [(7.0,), (8.0,), (9.0,)]
+    from click.testing import CliRunner
+
+    from pipeline.cli import main
+
+    res = CliRunner().invoke(main, ["query", "--warehouse", str(wh), "--format", "csv",
+                                    "SELECT run_id, note FROM samples_step ORDER BY run_id, t_s"])
+    assert res.exit_code == 0 and res.output.splitlines()[1:4] == ["c/a,1.5", "c/a,2.0", "c/a,3.0"], res.output
