@@ -637,6 +637,20 @@ def safe_file_name(run_id: str) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "_", run_id).strip("._")[:80] or "run"
 
 
+#: Characters of a campaign name written ``%XX`` in its samples folder name: DuckDB's file glob
+#: takes ``\`` for a path separator (``\xNN`` of a Latin-1 name, ``data\[old]``) and
+#: ``[ ] * ? { }`` for patterns; ``%`` itself, so that the name stays one-to-one.
+_FOLDER_QUOTED = re.compile(r"[%\\\[\]*?{}]")
+
+
+def samples_folder_name(campaign: str) -> str:
+    """Name of a campaign's folder under ``samples/kind=<kind>/``: ``campaign=<campaign>`` with
+    :data:`_FOLDER_QUOTED` characters as ``%XX`` (``data\\[old]`` -> ``campaign=data%5C%5Bold%5D``),
+    so that the views name their files by plain paths and the ``samples()`` macro's folder glob
+    lists every campaign. ``kind`` and ``campaign`` come from ``runs``, never from this name."""
+    return "campaign=" + _FOLDER_QUOTED.sub(lambda m: f"%{ord(m.group()):02X}", campaign)
+
+
 def ingest_key(sha: str, meta: dict, maps: list[ColumnMap], code_version: str | None = None) -> str:
     """Content key of a samples file: source bytes, metadata, column map and the ingest code's
     version (its source hash; the rebuild passes the one it computed, so every worker agrees),
@@ -660,7 +674,7 @@ def ingest_file(tree: RawTree, path: Path, warehouse: Path, reuse: bool = True,
         The raw file.
     warehouse : Path
         Warehouse folder; the samples file goes to
-        ``samples/kind=<kind>/campaign=<campaign>/<run>-<key>.parquet``.
+        ``samples/kind=<kind>/campaign=<campaign>/<run>-<key>.parquet`` (:func:`samples_folder_name`).
     reuse : bool
         Keep an existing samples file with the same content key instead of writing it again.
     sha256 : str, optional
@@ -862,7 +876,7 @@ def _ingest_hashed(tree, path, warehouse, rel, campaign, reuse, sha, hashing, co
     extra += [(d.column, d.unit, pa.float64()) for d in derived if d.channel is None]
     schema = samples_schema(sorted(present), extra)
     run_id = str(meta["run_id"])
-    folder = Path("samples") / f"kind={kind}" / f"campaign={campaign}"
+    folder = Path("samples") / f"kind={kind}" / samples_folder_name(campaign)
 
     def samples_path(sha: str) -> Path:
         key_meta = {**meta, "__derived": [[d.name, d.expression.text, d.unit] for d in derived],

@@ -177,7 +177,10 @@ def create_samples_views(con: duckdb.DuckDBPyConnection, warehouse: Path, runs: 
     A group is files with the same columns *of the same types* (``channels.type``): a
     non-canonical channel that is numeric in some files and text in others is in different
     groups, and the join by name makes it VARCHAR (one type per view; DuckDB writes the numbers
-    as text, ``'1.5'``), never a conversion error at query time.
+    as text, ``'1.5'``), never a conversion error at query time. The paths below the warehouse
+    folder hold no glob character nor backslash (:func:`pipeline.ingest.samples_folder_name`:
+    DuckDB's file glob takes ``\\`` for a path separator); only the warehouse folder's own glob
+    characters are escaped.
     """
     from schemas.channels import CHANNELS
     from schemas.kinds import KINDS

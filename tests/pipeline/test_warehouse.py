@@ -252,6 +252,53 @@ def test_a_channel_named_like_a_column_the_views_add_is_renamed_with_a_note(tmp_
     assert not any("samples views" in w for w in plain)
 
 
+#: Campaign (folder) names with DuckDB's glob characters and backslashes before them.
+GLOB_NAMES = ["data\\[old]", "b\\x", "c[1]", "br]", "x*", "a\\*", "q?", "{e}", "f{a,b}", "end\\", "m\\?x", "plain"]
+
+
+def test_campaign_and_file_names_with_glob_characters_and_backslashes_read_back(tmp_path):
+    """A backslash in a folder name made DuckDB's glob split the path there (its file glob takes
+    ``\\`` for a separator), so ``data\\[old]`` was never found and every rebuild exited 3: the
+    samples folders are written without those characters and the views list plain paths."""
+    raw = RawBuilder(tmp_path / "raw")
+    wh = tmp_path / "wh"
+    for i, name in enumerate(GLOB_NAMES):
+        _step(raw, f"{name}/{name}.csv", float(i + 1))
+    _rebuilt(raw, wh)
+    assert _samples(wh) == _expected({f"{n}/{n}": float(i + 1) for i, n in enumerate(GLOB_NAMES)})
+    for i, name in enumerate(GLOB_NAMES):
+        rid = f"{name}/{name}"
+        rows = run_query(wh, f"SELECT run_id, campaign, x_m FROM samples({_sql_lit(rid)}) ORDER BY t_s")[1]
+        assert rows == [(rid, name, x) for x in (0.0, 1e-3 * (i + 1), 2e-3 * (i + 1))], name
+    again = rebuild(raw.root, wh, jobs=1, report=False)  # and the next night too
+    assert again.exit_code == 0 and again.n_unchanged == len(GLOB_NAMES)
+
+
+def _sql_lit(text: str) -> str:
+    return "'" + text.replace("'", "''") + "'"
+
+
+def test_samples_macro_finds_runs_of_a_latin1_campaign_folder(tmp_path):
+    """A campaign folder whose name is not UTF-8 (``caf\\xe9``) is written with a backslash: the
+    macro's folder glob never listed it, so samples('<run_id>') found nothing that samples_step had."""
+    import os
+
+    raw = RawBuilder(tmp_path / "raw")
+    wh = tmp_path / "wh"
+    _step(raw, "plain/a.csv")
+    _step(raw, "tmp/a.csv", 2.0)
+    root = os.fsencode(raw.root)
+    os.rename(root + b"/tmp", root + b"/caf\xe9")
+    _step(raw, "tmp/r.csv", 3.0)
+    os.rename(root + b"/tmp/r.csv", root + b"/tmp/r\xfcn.csv")
+    os.rename(root + b"/tmp", root + b"/\xe9t\xe9")
+    _rebuilt(raw, wh)
+    for rid in ("plain/a", "caf\\xe9/a", "\\xe9t\\xe9/r\\xfcn"):
+        view = run_query(wh, f"SELECT * FROM samples_step WHERE run_id = {_sql_lit(rid)} ORDER BY t_s")
+        assert len(view[1]) == 3
+        assert run_query(wh, f"SELECT * FROM samples({_sql_lit(rid)}) ORDER BY t_s") == view, rid
+
+
 def test_a_channel_numeric_in_one_run_and_text_in_another_is_text_in_the_view(tmp_path):
     """``note`` holds numbers in one file and words in another: one type per view, VARCHAR, with
     the numbers as DuckDB writes a DOUBLE; a channel that is numeric everywhere stays DOUBLE and one
