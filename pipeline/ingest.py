@@ -30,7 +30,7 @@ from pipeline.prefetch import prefetch
 from pipeline.readers import RawColumn, ReaderError, list_parts, parts_keys, read_export
 from pipeline.readers.base import MAX_CHANNELS
 from schemas.channels import (CHANNELS, canonical_name, noncanonical_column, other_dimension,
-                              sanitise_name)
+                              reserved_clash, sanitise_name)
 from schemas.kinds import (KINDS, META_KEYS, coerce_value, missing_channels,
                            missing_metadata, samples_schema)
 from schemas.units import P_ATM_DEFAULT_PA, accepted_symbols, lookup_unit
@@ -56,10 +56,11 @@ class ColumnMap:
     absolute: bool = False    # absolute pressure: subtract p_atm
     si_divisor: float | None = None
     numeric: bool = True
+    reserved: str | None = None  # the reserved column name the channel's own name gave (it got ``x_``)
 
     def describe(self) -> dict:
         return {"column": self.column, "channel": self.channel, "raw_name": self.raw_name,
-                "raw_unit": self.raw_unit, "unit": self.unit}
+                "raw_unit": self.raw_unit, "unit": self.unit, "type": "DOUBLE" if self.numeric else "VARCHAR"}
 
 
 @dataclass
@@ -246,7 +247,7 @@ def map_columns(columns: list[RawColumn], channels_cfg: dict) -> list[ColumnMap]
                 column, k = f"{base}_{k}", k + 1
             next_suffix[base] = k
             maps.append(ColumnMap(col.key, column, None, col.name, col.unit, unit_text, scale, offset,
-                                  numeric=col.dtype != "string"))
+                                  numeric=col.dtype != "string", reserved=reserved_clash(name, unit_text)))
         else:
             quantity = CHANNELS[channel].quantity
             if unit_text is None or str(unit_text).strip() == "":
@@ -463,7 +464,7 @@ class DerivedChannel:
 
     def describe(self) -> dict:
         return {"column": self.column, "channel": self.channel, "raw_name": f"= {self.expression.text}",
-                "raw_unit": None, "unit": self.unit}
+                "raw_unit": None, "unit": self.unit, "type": "DOUBLE"}
 
 
 def plan_derived(derived_cfg: dict, maps: list[ColumnMap], meta: dict,
@@ -636,6 +637,20 @@ def safe_file_name(run_id: str) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "_", run_id).strip("._")[:80] or "run"
 
 
+#: Characters of a campaign name written ``%XX`` in its samples folder name: DuckDB's file glob
+#: takes ``\`` for a path separator (``\xNN`` of a Latin-1 name, ``data\[old]``) and
+#: ``[ ] * ? { }`` for patterns; ``%`` itself, so that the name stays one-to-one.
+_FOLDER_QUOTED = re.compile(r"[%\\\[\]*?{}]")
+
+
+def samples_folder_name(campaign: str) -> str:
+    """Name of a campaign's folder under ``samples/kind=<kind>/``: ``campaign=<campaign>`` with
+    :data:`_FOLDER_QUOTED` characters as ``%XX`` (``data\\[old]`` -> ``campaign=data%5C%5Bold%5D``),
+    so that the views name their files by plain paths and the ``samples()`` macro's folder glob
+    lists every campaign. ``kind`` and ``campaign`` come from ``runs``, never from this name."""
+    return "campaign=" + _FOLDER_QUOTED.sub(lambda m: f"%{ord(m.group()):02X}", campaign)
+
+
 def ingest_key(sha: str, meta: dict, maps: list[ColumnMap], code_version: str | None = None) -> str:
     """Content key of a samples file: source bytes, metadata, column map and the ingest code's
     version (its source hash; the rebuild passes the one it computed, so every worker agrees),
@@ -659,7 +674,7 @@ def ingest_file(tree: RawTree, path: Path, warehouse: Path, reuse: bool = True,
         The raw file.
     warehouse : Path
         Warehouse folder; the samples file goes to
-        ``samples/kind=<kind>/campaign=<campaign>/<run>-<key>.parquet``.
+        ``samples/kind=<kind>/campaign=<campaign>/<run>-<key>.parquet`` (:func:`samples_folder_name`).
     reuse : bool
         Keep an existing samples file with the same content key instead of writing it again.
     sha256 : str, optional
@@ -861,7 +876,7 @@ def _ingest_hashed(tree, path, warehouse, rel, campaign, reuse, sha, hashing, co
     extra += [(d.column, d.unit, pa.float64()) for d in derived if d.channel is None]
     schema = samples_schema(sorted(present), extra)
     run_id = str(meta["run_id"])
-    folder = Path("samples") / f"kind={kind}" / f"campaign={campaign}"
+    folder = Path("samples") / f"kind={kind}" / samples_folder_name(campaign)
 
     def samples_path(sha: str) -> Path:
         key_meta = {**meta, "__derived": [[d.name, d.expression.text, d.unit] for d in derived],
@@ -874,6 +889,10 @@ def _ingest_hashed(tree, path, warehouse, rel, campaign, reuse, sha, hashing, co
                            f"{CHANNELS[ch].quantity}: kept as non-canonical `{m.column}`"
                            for m in maps if m.key in lookalikes for raw, ch, unit in [lookalikes[m.key]]]
     warnings += derived_warnings + sensor_warnings
+    warnings += [f"channel `{name}` is stored as `{column}`: `{clash}` is a name the samples views use"
+                 for name, column, clash in [(m.raw_name, m.column, m.reserved) for m in maps]
+                 + [(d.name, d.column, None if d.channel else reserved_clash(d.name, d.unit)) for d in derived]
+                 if clash]
     if synth_time:
         warnings.append(f"time from `{time_base.source}` ({time_base.stated_rate_hz:.6g} Hz): the export has no "
                         "time column")
@@ -917,7 +936,7 @@ def _ingest_hashed(tree, path, warehouse, rel, campaign, reuse, sha, hashing, co
             channels = [dict(run_id=run_id, **m.describe()) for m in maps]
             if synth_time:
                 channels.append(dict(run_id=run_id, column="t_s", channel="t", raw_name=f"= {time_base.source}",
-                                     raw_unit=None, unit="s"))
+                                     raw_unit=None, unit="s", type="DOUBLE"))
             channels += [dict(run_id=run_id, **d.describe()) for d in derived]
             if rel_out is None:  # hashed while parsing: the name and the record need it now
                 sha = hashing.result()

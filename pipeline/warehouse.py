@@ -130,14 +130,27 @@ def _sql_str(text: str) -> str:
 FILES_TABLE = "samples_files"
 
 
-def _columns_by_run(con: duckdb.DuckDBPyConnection) -> dict[str, frozenset[str]]:
-    """Columns of each run's samples file, from the ``channels`` table (``run_id`` + one row per column)."""
+def _columns_by_run(con: duckdb.DuckDBPyConnection) -> dict[str, frozenset[tuple[str, str]]]:
+    """(column, type) of each run's samples file, from the ``channels`` table (``run_id`` + one
+    row per column; type ``""`` where the table does not say it)."""
     if "channels" not in {r[0] for r in con.execute("SELECT table_name FROM duckdb_tables()").fetchall()}:
         return {}
-    if not {"run_id", "column"} <= set(table_columns(con, "channels")):
+    have = set(table_columns(con, "channels"))
+    if not {"run_id", "column"} <= have:
         return {}
-    rows = con.execute('SELECT run_id, list(DISTINCT "column") FROM channels GROUP BY run_id').fetchall()
-    return {rid: frozenset(cols) | {"run_id"} for rid, cols in rows}
+    typ = "coalesce(type, '')" if "type" in have else "''"
+    rows = con.execute(f'SELECT run_id, list(DISTINCT ("column", {typ})) FROM channels GROUP BY run_id').fetchall()
+    return {rid: frozenset(tuple(c) for c in cols) | {("run_id", "")} for rid, cols in rows}
+
+
+def _mixed_columns(con: duckdb.DuckDBPyConnection) -> set[tuple[str, str]]:
+    """(kind, column) of every samples column that is DOUBLE in some of the kind's files and
+    VARCHAR in others (the ``channels`` table's ``type``): the kind's view has it as VARCHAR."""
+    tables = {r[0] for r in con.execute("SELECT table_name FROM duckdb_tables()").fetchall()}
+    if not {"channels", FILES_TABLE} <= tables or "type" not in table_columns(con, "channels"):
+        return set()
+    return set(con.execute(f'SELECT f.kind, c."column" FROM channels AS c JOIN {FILES_TABLE} AS f USING (run_id) '
+                           "WHERE c.type IS NOT NULL GROUP BY ALL HAVING count(DISTINCT c.type) > 1").fetchall())
 
 
 def create_samples_views(con: duckdb.DuckDBPyConnection, warehouse: Path, runs: pd.DataFrame) -> None:
@@ -160,6 +173,14 @@ def create_samples_views(con: duckdb.DuckDBPyConnection, warehouse: Path, runs: 
     footer). The join is against a table, not a literal ``VALUES`` list in the view, so the
     view's SQL is the file list only; binding and planning still cost ~10-20 us per file of the
     kind (DuckDB's multi-file list: see benchmarks/README.md).
+
+    A group is files with the same columns *of the same types* (``channels.type``): a
+    non-canonical channel that is numeric in some files and text in others is in different
+    groups, and the join by name makes it VARCHAR (one type per view; DuckDB writes the numbers
+    as text, ``'1.5'``), never a conversion error at query time. The paths below the warehouse
+    folder hold no glob character nor backslash (:func:`pipeline.ingest.samples_folder_name`:
+    DuckDB's file glob takes ``\\`` for a path separator); only the warehouse folder's own glob
+    characters are escaped.
     """
     from schemas.channels import CHANNELS
     from schemas.kinds import KINDS
@@ -370,6 +391,7 @@ def comment_statements(con: duckdb.DuckDBPyConnection) -> list[str]:
         "SELECT table_name, column_name FROM duckdb_columns() WHERE database_name = current_database()").fetchall()}
     out = []
     described = ddl_comments()
+    mixed = _mixed_columns(con)
     for table, kind in sorted(present.items()):
         info = described.get(table, {"comment": None, "columns": {}})
         comment = info["comment"] or (f"One row per {CONTRACT_ROWS[table]}." if table in CONTRACT_ROWS else None)
@@ -379,6 +401,10 @@ def comment_statements(con: duckdb.DuckDBPyConnection) -> list[str]:
             colcomments.update({ch.column: ch.description for ch in CHANNELS.values()})
             colcomments.update(run_id="Run identifier (runs.run_id).", kind="Test kind of the run.",
                                campaign="Campaign of the run (first folder under raw/).")
+            colcomments.update({col: "Non-canonical channel, text in some runs of this kind and numbers in others: "
+                                     "VARCHAR in this view, the numbers written as text ('1.5'; TRY_CAST(... AS "
+                                     "DOUBLE) gives them back); channels.type says which runs have text."
+                                for k, col in mixed if k == table[8:]})
         if table in INTERNAL_TABLES:
             comment = INTERNAL_PREFIX + (comment or "")
         if comment:

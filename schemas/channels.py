@@ -65,14 +65,19 @@ def canonical_name(raw_name: str) -> str | None:
 
 
 _SANITISE = re.compile(r"[^0-9a-z]+")
-_RESERVED = {"run_id", "kind", "campaign"} | set(COLUMN.values())
+#: Columns the samples views and the ``samples()`` macro add to a samples file's own
+#: (``pipeline.warehouse``): ``run_id``, ``kind``, ``campaign``, and DuckDB's ``filename`` (the
+#: file each row comes from, which they join on). No channel may be stored under one of them.
+VIEW_COLUMNS = frozenset({"run_id", "kind", "campaign", "filename"})
+_RESERVED = set(VIEW_COLUMNS) | set(COLUMN.values())
 
 
 def sanitise_name(raw_name: str) -> str:
     """Column name for a non-canonical channel: lower case, ``[0-9a-z_]`` only.
 
-    Names that would collide with a canonical column or a partition column get an ``x_``
-    prefix, so a channel called ``Kind`` or ``x_m`` can never shadow real data.
+    Names that would collide with a canonical column or a column the samples views add
+    (:data:`VIEW_COLUMNS`) get an ``x_`` prefix, so a channel called ``Kind``, ``FileName`` or
+    ``x_m`` can never shadow real data.
     """
     name = _SANITISE.sub("_", str(raw_name).strip().casefold()).strip("_") or "channel"
     if name[0].isdigit():
@@ -110,6 +115,19 @@ def noncanonical_column(raw_name: str, unit: str | None) -> str:
         return name
     column = f"{name}_{suffix}"
     return f"x_{column}" if column in _RESERVED else column
+
+
+def reserved_clash(raw_name: str, unit: str | None) -> str | None:
+    """The reserved column (canonical or :data:`VIEW_COLUMNS`) that :func:`noncanonical_column`
+    kept the channel ``raw_name`` [``unit``] out of with its ``x_`` prefix, or None."""
+    name = _SANITISE.sub("_", str(raw_name).strip().casefold()).strip("_") or "channel"
+    if name[0].isdigit():
+        name = f"c_{name}"
+    if name in _RESERVED:
+        return name
+    suffix = unit_suffix(unit)
+    column = f"{name}_{suffix}"
+    return column if suffix and name != suffix and not name.endswith(f"_{suffix}") and column in _RESERVED else None
 
 
 #: Units of a dimension no canonical channel has (acceleration, temperature, angle, current,

@@ -41,5 +41,7 @@ CREATE TABLE channels (
     channel         VARCHAR,               -- canonical channel, NULL when not canonical
     raw_name        VARCHAR,
     raw_unit        VARCHAR,
-    unit            VARCHAR                -- unit of the stored values
+    unit            VARCHAR,               -- unit of the stored values
+    type            VARCHAR                -- DOUBLE, or VARCHAR for a text channel, in this run's samples file
+                                           -- (samples_<kind> has a channel that is text in any of its runs as VARCHAR)
 );

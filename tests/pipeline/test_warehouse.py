@@ -212,3 +212,120 @@ def test_the_samples_macro_says_in_one_line_when_no_run_has_that_id(tmp_path):
     res = CliRunner().invoke(main, ["query", "--warehouse", str(wh), "SELECT * FROM samples('nope')"])
     assert res.exit_code == 2 and "found no samples file" in res.output and len(res.output.strip().splitlines()) == 1
     assert len(run_query(wh, "SELECT * FROM samples('c/a')")[1]) == 3
+
+
+# -- issue 21: names and types the views must survive ---------------------------------------------
+def _rebuilt(raw: RawBuilder, wh: Path):
+    summary = rebuild(raw.root, wh, jobs=1, report=False)
+    assert summary.exit_code == 0, summary
+    return summary
+
+
+@pytest.mark.parametrize("layout", ["csv header", "derived channel"])
+def test_a_channel_named_like_a_column_the_views_add_is_renamed_with_a_note(tmp_path, layout):
+    """DuckDB's ``filename`` column (the views and samples() join on it) and run_id / kind /
+    campaign are the views' own: a raw channel that sanitises to one of them is stored under
+    ``x_<name>`` and the run says so; every query works and no value is lost."""
+    raw = RawBuilder(tmp_path / "raw")
+    wh = tmp_path / "wh"
+    _step(raw, "p/plain.csv")  # the happy case beside it
+    if layout == "csv header":
+        raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T, "FileName": ["a.tdms", "b", "c"],
+                                       "Kind": ["k1", "k2", "k3"], "note": ["n1", "n2", "n3"]})
+        expected = ["a.tdms", "b", "c"]
+        notes = {"`FileName` is stored as `x_filename`", "`Kind` is stored as `x_kind`"}
+    else:
+        raw.write("c/rig.toml", '[derived]\nfilename = "x * 2"\n')
+        raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+        expected = [0.0, 0.2, 0.4]
+        notes = {"`filename` is stored as `x_filename`"}
+    _rebuilt(raw, wh)
+    rows = run_query(wh, "SELECT run_id, x_filename FROM samples_step ORDER BY run_id, t_s")[1]
+    assert rows == [("c/a", v) for v in expected] + [("p/plain", None)] * 3
+    cols, every = run_query(wh, "SELECT * FROM samples_step ORDER BY run_id, t_s")
+    assert "filename" not in cols and len(every) == 6
+    assert [r[0] for r in run_query(wh, "SELECT x_filename FROM samples('c/a') ORDER BY t_s")[1]] == expected
+    warnings = run_query(wh, "SELECT warnings FROM runs WHERE run_id = 'c/a'")[1][0][0]
+    for note in notes:
+        assert any(note in w and "name the samples views use" in w for w in warnings), (note, warnings)
+    plain = run_query(wh, "SELECT warnings FROM runs WHERE run_id = 'p/plain'")[1][0][0]
+    assert not any("samples views" in w for w in plain)
+
+
+#: Campaign (folder) names with DuckDB's glob characters and backslashes before them.
+GLOB_NAMES = ["data\\[old]", "b\\x", "c[1]", "br]", "x*", "a\\*", "q?", "{e}", "f{a,b}", "end\\", "m\\?x", "plain"]
+
+
+def test_campaign_and_file_names_with_glob_characters_and_backslashes_read_back(tmp_path):
+    """A backslash in a folder name made DuckDB's glob split the path there (its file glob takes
+    ``\\`` for a separator), so ``data\\[old]`` was never found and every rebuild exited 3: the
+    samples folders are written without those characters and the views list plain paths."""
+    raw = RawBuilder(tmp_path / "raw")
+    wh = tmp_path / "wh"
+    for i, name in enumerate(GLOB_NAMES):
+        _step(raw, f"{name}/{name}.csv", float(i + 1))
+    _rebuilt(raw, wh)
+    assert _samples(wh) == _expected({f"{n}/{n}": float(i + 1) for i, n in enumerate(GLOB_NAMES)})
+    for i, name in enumerate(GLOB_NAMES):
+        rid = f"{name}/{name}"
+        rows = run_query(wh, f"SELECT run_id, campaign, x_m FROM samples({_sql_lit(rid)}) ORDER BY t_s")[1]
+        assert rows == [(rid, name, x) for x in (0.0, 1e-3 * (i + 1), 2e-3 * (i + 1))], name
+    again = rebuild(raw.root, wh, jobs=1, report=False)  # and the next night too
+    assert again.exit_code == 0 and again.n_unchanged == len(GLOB_NAMES)
+
+
+def _sql_lit(text: str) -> str:
+    return "'" + text.replace("'", "''") + "'"
+
+
+def test_samples_macro_finds_runs_of_a_latin1_campaign_folder(tmp_path):
+    """A campaign folder whose name is not UTF-8 (``caf\\xe9``) is written with a backslash: the
+    macro's folder glob never listed it, so samples('<run_id>') found nothing that samples_step had."""
+    import os
+
+    raw = RawBuilder(tmp_path / "raw")
+    wh = tmp_path / "wh"
+    _step(raw, "plain/a.csv")
+    _step(raw, "tmp/a.csv", 2.0)
+    root = os.fsencode(raw.root)
+    os.rename(root + b"/tmp", root + b"/caf\xe9")
+    _step(raw, "tmp/r.csv", 3.0)
+    os.rename(root + b"/tmp/r.csv", root + b"/tmp/r\xfcn.csv")
+    os.rename(root + b"/tmp", root + b"/\xe9t\xe9")
+    _rebuilt(raw, wh)
+    for rid in ("plain/a", "caf\\xe9/a", "\\xe9t\\xe9/r\\xfcn"):
+        view = run_query(wh, f"SELECT * FROM samples_step WHERE run_id = {_sql_lit(rid)} ORDER BY t_s")
+        assert len(view[1]) == 3
+        assert run_query(wh, f"SELECT * FROM samples({_sql_lit(rid)}) ORDER BY t_s") == view, rid
+
+
+def test_a_channel_numeric_in_one_run_and_text_in_another_is_text_in_the_view(tmp_path):
+    """``note`` holds numbers in one file and words in another: one type per view, VARCHAR, with
+    the numbers as DuckDB writes a DOUBLE; a channel that is numeric everywhere stays DOUBLE and one
+    that is text everywhere VARCHAR; the column's comment says so."""
+    raw = RawBuilder(tmp_path / "raw")
+    wh = tmp_path / "wh"
+    base = {"t[s]": T, "x[m]": T, "x_ref[m]": T}
+    raw.csv("c/a.csv", STEP_META, {**base, "note": ["1.5", "2", "3"], "gain": [1, 2, 3], "label": ["p", "q", "r"]})
+    raw.csv("c/b.csv", STEP_META, {**base, "note": ["x", "y", "z"], "gain": [4, 5, 6], "label": ["s", "t", "u"]})
+    raw.csv("d/c.csv", STEP_META, {**base, "note": ["7", "8", "9"]})
+    _rebuilt(raw, wh)
+    cols, rows = run_query(wh, "SELECT * FROM samples_step ORDER BY run_id, t_s")
+    assert len(rows) == 9
+    got = run_query(wh, "SELECT run_id, note, gain, label FROM samples_step ORDER BY run_id, t_s")[1]
+    assert got == [("c/a", "1.5", 1.0, "p"), ("c/a", "2.0", 2.0, "q"), ("c/a", "3.0", 3.0, "r"),
+                   ("c/b", "x", 4.0, "s"), ("c/b", "y", 5.0, "t"), ("c/b", "z", 6.0, "u"),
+                   ("d/c", "7.0", None, None), ("d/c", "8.0", None, None), ("d/c", "9.0", None, None)]
+    types = dict((r[0], r[1]) for r in run_query(wh, "DESCRIBE samples_step")[1])
+    assert (types["note"], types["gain"], types["label"]) == ("VARCHAR", "DOUBLE", "VARCHAR")
+    comment = run_query(wh, "SELECT comment FROM duckdb_columns() WHERE table_name = 'samples_step' "
+                            "AND column_name = 'note'")[1][0][0]
+    assert "text in some runs" in comment and "VARCHAR" in comment
+    assert run_query(wh, "SELECT note FROM samples('d/c') ORDER BY t_s")[1] == [(7.0,), (8.0,), (9.0,)]
+    from click.testing import CliRunner
+
+    from pipeline.cli import main
+
+    res = CliRunner().invoke(main, ["query", "--warehouse", str(wh), "--format", "csv",
+                                    "SELECT run_id, note FROM samples_step ORDER BY run_id, t_s"])
+    assert res.exit_code == 0 and res.output.splitlines()[1:4] == ["c/a,1.5", "c/a,2.0", "c/a,3.0"], res.output
