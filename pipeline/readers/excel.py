@@ -42,6 +42,7 @@ import math
 import posixpath
 import re
 import zipfile
+import zlib
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -158,7 +159,7 @@ def _sheet_parts(zf: zipfile.ZipFile, names: list[str]) -> dict[str, str]:
             if el.tag.rsplit("}", 1)[-1] == "sheet":
                 rid = next((v for k, v in el.attrib.items() if k.rsplit("}", 1)[-1] == "id"), None)
                 ids[el.get("name")] = rels.get(rid)
-    except (KeyError, ET.ParseError, zipfile.BadZipFile, ValueError, OSError):
+    except (KeyError, ET.ParseError):
         return {}
     out = {}
     for name in names:
@@ -173,7 +174,10 @@ def _xml_chunks(zf: zipfile.ZipFile, member: str, name: str, cap: int, size: int
     inflated, carry = 0, b""
     with zf.open(member) as fh:
         while True:
-            chunk = fh.read(_CHUNK)
+            try:
+                chunk = fh.read(_CHUNK)
+            except (zipfile.BadZipFile, zlib.error, EOFError) as exc:   # a bad CRC, a cut stream
+                raise ReaderError(f"sheet {name!r}: its XML cannot be read ({exc_text(exc)})") from None
             inflated += len(chunk)
             if inflated > cap:
                 raise ReaderError(f"sheet {name!r}: its XML inflates past {mib(cap)}, more than "
@@ -261,27 +265,37 @@ def _check_sheet_extent(path: Path, names: list[str]) -> None:
     if path.suffix.lower() not in (".xlsx", ".xlsm"):
         return
     size = path.stat().st_size
-    cap = inflate_cap(size)
     try:
-        zf = zipfile.ZipFile(path)
-    except (zipfile.BadZipFile, ValueError, OSError):
-        return                                               # calamine says what is wrong
-    with zf:
-        parts = _sheet_parts(zf, names)
-        for name in names:
-            member = parts.get(name)
-            if member is None or member not in zf.NameToInfo:
-                continue
-            bound = _sheet_extent(_xml_chunks(zf, member, name, cap, size))
-            if bound is not None and max(bound[0], bound[1] * bound[2]) * CELL_BYTES <= cap:
-                continue
-            cells, n_rows, n_cols = _sheet_extent_exact(_xml_chunks(zf, member, name, cap, size))
-            grid = n_rows * n_cols
-            if max(grid, cells) * CELL_BYTES > cap:
-                raise ReaderError(f"sheet {name!r}: its cells span {n_rows:,} rows x {n_cols:,} columns "
-                                  f"({grid:,} cells, {mib(grid * CELL_BYTES)} to read as a grid) but {cells:,} "
-                                  f"are present: more than the {mib(cap)} a {size:,}-byte workbook may take "
-                                  "(a stray cell far from the data?)")
+        with zipfile.ZipFile(path) as zf:
+            _check_extents(zf, names, size)
+    except ReaderError:
+        raise
+    except OSError as exc:
+        if exc.errno is not None:                            # an I/O error: not the file's fault
+            raise
+    except Exception:  # noqa: BLE001 - a damaged zip or XML part: calamine says what is wrong
+        pass
+
+
+def _check_extents(zf: zipfile.ZipFile, names: list[str], size: int) -> None:
+    cap = inflate_cap(size)
+    parts = _sheet_parts(zf, names)
+    parts = {n: m for n, m in parts.items() if m in zf.NameToInfo}
+    if len(parts) < len(names):       # a sheet not found through the workbook's links: every worksheet part
+        sheets = [m for m in zf.namelist() if m.startswith("xl/worksheets/") and m.endswith(".xml")]
+        check_part_count(len(sheets), "worksheet parts")
+        parts.update({m: m for m in sheets if m not in parts.values()})
+    for name, member in parts.items():
+        bound = _sheet_extent(_xml_chunks(zf, member, name, cap, size))
+        if bound is not None and max(bound[0], bound[1] * bound[2]) * CELL_BYTES <= cap:
+            continue
+        cells, n_rows, n_cols = _sheet_extent_exact(_xml_chunks(zf, member, name, cap, size))
+        grid = n_rows * n_cols
+        if max(grid, cells) * CELL_BYTES > cap:
+            raise ReaderError(f"sheet {name!r}: its cells span {n_rows:,} rows x {n_cols:,} columns "
+                              f"({grid:,} cells, {mib(grid * CELL_BYTES)} to read as a grid) but {cells:,} "
+                              f"are present: more than the {mib(cap)} a {size:,}-byte workbook may take "
+                              "(a stray cell far from the data?)")
 
 
 def _sheet_kind(wb, name: str) -> str:

@@ -247,3 +247,17 @@ def test_a_stray_cell_peak_memory_stays_bounded(tmp_path):
     lines = out.stdout.splitlines()
     assert lines and lines[0].startswith("refused sheet 'run': its cells span 1,048,576 rows"), out.stderr[-300:]
     assert int(lines[1]) * 1024 < 200 << 20       # [kB]; calamine's grid alone would be 8 GiB
+
+
+def test_a_stray_cell_is_found_when_the_workbook_links_do_not_parse(tmp_path):
+    """Relationships Python's XML parser refuses: every worksheet part is checked instead."""
+    import zipfile
+
+    p = _book(tmp_path / "b.xlsx", _DATA, extra=lambda wb: wb["run"].cell(row=65536, column=256, value=1))
+    bad = tmp_path / "c.xlsx"
+    with zipfile.ZipFile(p) as a, zipfile.ZipFile(bad, "w", zipfile.ZIP_DEFLATED) as b:
+        for info in a.infolist():
+            data = a.read(info)
+            b.writestr(info, data + b"<" if info.filename == "xl/_rels/workbook.xml.rels" else data)
+    with pytest.raises(ReaderError, match=r"^sheet 'xl/worksheets/sheet1\.xml': its cells span 65,536 rows x 256"):
+        read_excel(bad)
