@@ -128,14 +128,15 @@ def _pick_sheet(wb, selector) -> str:
 
 
 _NS = r"(?:[A-Za-z_][\w.-]*:)?"                                # an element may carry a prefix (x:c)
-_CELL_REF = re.compile(rb"<" + _NS.encode() + rb"c\s[^>]*?\br=\"([A-Z]+)([0-9]+)\"")
-_ROW_REF = re.compile(rb"<" + _NS.encode() + rb"row\s[^>]*?\br=\"([0-9]+)\"")
+_CELL_REF = re.compile(rb"<" + _NS.encode() + rb"c\s[^>]*?\br\s*=\s*[\"']([A-Za-z]+)([0-9]+)[\"']")  # a1 too
+_CELL_ANY_REF = re.compile(rb"<" + _NS.encode() + rb"c\s[^>]*?\br\s*=")
+_ROW_REF = re.compile(rb"<" + _NS.encode() + rb"row\s[^>]*?\br\s*=\s*[\"']([0-9]+)[\"']")
 _CHUNK = 4 << 20
 
 
 def _col_number(letters: bytes) -> int:
     n = 0
-    for ch in letters:
+    for ch in letters.upper():
         n = 26 * n + ch - 64
     return n
 
@@ -217,27 +218,29 @@ def _sheet_extent(chunks) -> tuple[int, int, int] | None:
     cells = digits = letters = 0
     for buf in chunks:
         n = _cell_tags(buf)
-        if buf.count(b'<c r="') != n:
+        if buf.count(b'<c r="') != n or re.search(rb'<c r="(?![A-Za-z]+[0-9]+")', buf):
             return None
         cells += n
-        if re.search(rb'<c r="(?:[A-Z]{%d}|[A-Z]+[0-9]{%d})' % (letters + 1, digits + 1), buf):
-            digits = _widest(buf, rb'<c r="[A-Z]+[0-9]{%d}', 8, digits)
-            letters = _widest(buf, rb'<c r="[A-Z]{%d}', 4, letters)
+        if re.search(rb'<c r="(?:[A-Za-z]{%d}|[A-Za-z]+[0-9]{%d})' % (letters + 1, digits + 1), buf):
+            digits = _widest(buf, rb'<c r="[A-Za-z]+[0-9]{%d}', 8, digits)
+            letters = _widest(buf, rb'<c r="[A-Za-z]{%d}', 4, letters)
             if digits == 8 or letters == 4:                  # past Excel's own grid: no bound from these
                 return None
     return cells, 10 ** digits - 1, sum(26 ** k for k in range(1, letters + 1))
 
 
-def _sheet_extent_exact(chunks) -> tuple[int, int, int]:
+def _sheet_extent_exact(chunks) -> tuple[int, int, int] | None:
     """(cells present, rows, columns) of the grid from the first cell to the last, whatever the
-    attribute order or prefixes; a cell or row without a reference takes the next position."""
-    cells = refs = rows = row_refs = max_row = max_col = 0
+    attribute order or prefixes; a cell or row without a reference takes the next position.
+    None when a cell has a reference that is not a plain ``A1`` one (it cannot be bounded)."""
+    cells = refs = any_refs = rows = row_refs = max_row = max_col = 0
     min_row = min_col = 1 << 62
     cell = re.compile(rb"<" + _NS.encode() + rb"c[\s/>]")
     row = re.compile(rb"<" + _NS.encode() + rb"row[\s/>]")
     for buf in chunks:
         cells += len(cell.findall(buf))
         rows += len(row.findall(buf))
+        any_refs += len(_CELL_ANY_REF.findall(buf))
         found = _CELL_REF.findall(buf)
         if found:
             refs += len(found)
@@ -250,6 +253,8 @@ def _sheet_extent_exact(chunks) -> tuple[int, int, int]:
             row_refs += len(found)
             at = [int(r) for r in found]
             max_row, min_row = max(max_row, max(at)), min(min_row, min(at))
+    if any_refs > refs:
+        return None
     n_rows = (max_row - min_row + 1 if max_row else 0) + max(0, rows - row_refs)
     n_cols = (max_col - min_col + 1 if max_col else 0) + max(0, cells - refs)
     return cells, n_rows, n_cols
@@ -289,7 +294,11 @@ def _check_extents(zf: zipfile.ZipFile, names: list[str], size: int) -> None:
         bound = _sheet_extent(_xml_chunks(zf, member, name, cap, size))
         if bound is not None and max(bound[0], bound[1] * bound[2]) * CELL_BYTES <= cap:
             continue
-        cells, n_rows, n_cols = _sheet_extent_exact(_xml_chunks(zf, member, name, cap, size))
+        exact = _sheet_extent_exact(_xml_chunks(zf, member, name, cap, size))
+        if exact is None:
+            raise ReaderError(f"sheet {name!r}: a cell reference is not a plain A1 reference: its grid cannot be "
+                              "bounded before it is read")
+        cells, n_rows, n_cols = exact
         grid = n_rows * n_cols
         if max(grid, cells) * CELL_BYTES > cap:
             raise ReaderError(f"sheet {name!r}: its cells span {n_rows:,} rows x {n_cols:,} columns "

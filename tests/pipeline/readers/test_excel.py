@@ -194,15 +194,20 @@ def test_a_note_cell_beside_the_data_is_read(tmp_path):
     assert _values(ex)["x"][:3] == [0.0, 0.1, 0.2]
 
 
-@pytest.mark.parametrize("order", ["r first", "r after another attribute"])
+@pytest.mark.parametrize("order", ["r first", "r after another attribute", "lower-case reference",
+                                   "single quotes"])
 def test_a_stray_cell_far_from_the_data_is_refused_naming_the_span(tmp_path, order):
     """One cell at IV65536 in a 5 KB workbook: calamine would load a 65,536 x 256 grid (16.8 M
     cells, 512 MiB; at IV1048576, 8 GiB: see the child-process test below). Refused from the
     sheet's XML, before calamine sees it; the second case writes its cells as `<c s="0" r="A1">`
     (the exact scan, not the quick bound)."""
     p = _book(tmp_path / "b.xlsx", _DATA, extra=lambda wb: wb["run"].cell(row=65536, column=256, value=1))
-    if order != "r first":
+    if order == "r after another attribute":
         p = _rewrite_sheet(p, tmp_path / "c.xlsx", lambda x: x.replace(b'<c r="', b'<c s="0" r="'))
+    if order == "single quotes":                          # XML allows them; the quick bound sees no <c r="
+        p = _rewrite_sheet(p, tmp_path / "c.xlsx", lambda x: x.replace(b'r="IV65536"', b"r='IV65536'"))
+    if order == "lower-case reference":                   # calamine reads iv65536 as IV65536
+        p = _rewrite_sheet(p, tmp_path / "c.xlsx", lambda x: x.replace(b'r="IV65536"', b'r="iv65536"'))
     size = p.stat().st_size
     with pytest.raises(ReaderError, match=(
             rf"^sheet 'run': its cells span 65,536 rows x 256 columns \(16,777,216 cells, 640\.0 MiB to read "
@@ -223,7 +228,8 @@ def test_a_stray_cell_in_a_row_without_cell_references_is_refused(tmp_path):
 def test_a_sheet_whose_xml_inflates_past_the_cap_is_refused(tmp_path):
     """80 MiB of blanks in a sheet's XML compress to about 80 KB: past the 64 MiB floor."""
     p = _book(tmp_path / "b.xlsx", _DATA)
-    p = _rewrite_sheet(p, tmp_path / "c.xlsx", lambda x: x.replace(b"</sheetData>", b" " * (80 << 20) + b"</sheetData>"))
+    blanks = b" " * (80 << 20)
+    p = _rewrite_sheet(p, tmp_path / "c.xlsx", lambda x: x.replace(b"</sheetData>", blanks + b"</sheetData>"))
     with pytest.raises(ReaderError, match=r"^sheet 'run': its XML inflates past 64\.0 MiB, more than [\d,]+ x the "
                                           r"[\d,]+-byte workbook \(a decompression bomb\?\)$"):
         read_excel(p)
@@ -261,3 +267,12 @@ def test_a_stray_cell_is_found_when_the_workbook_links_do_not_parse(tmp_path):
             b.writestr(info, data + b"<" if info.filename == "xl/_rels/workbook.xml.rels" else data)
     with pytest.raises(ReaderError, match=r"^sheet 'xl/worksheets/sheet1\.xml': its cells span 65,536 rows x 256"):
         read_excel(bad)
+
+
+def test_a_cell_reference_that_is_not_plain_a1_is_refused(tmp_path):
+    """`r="&#73;V65536"` (a character reference): no bound can be read from it, so no grid is built."""
+    p = _book(tmp_path / "b.xlsx", _DATA, extra=lambda wb: wb["run"].cell(row=65536, column=256, value=1))
+    p = _rewrite_sheet(p, tmp_path / "c.xlsx", lambda x: x.replace(b'r="IV65536"', b'r="&#73;V65536"'))
+    with pytest.raises(ReaderError, match=r"^sheet 'run': a cell reference is not a plain A1 reference: its grid "
+                                          r"cannot be bounded before it is read$"):
+        read_excel(p)
