@@ -58,7 +58,7 @@ from __future__ import annotations
 import numpy as np
 import scipy  # submodules load on first use
 
-from analyses.quality import COND_MAX, Sensor, describe_sensor, linear_lstsq, nrmse_pct
+from analyses.quality import COND_MAX, Sensor, describe_sensor, linear_lstsq, nrmse_pct, time_base_gap
 
 #: The motion must stand this far above the position noise floor (power ratio) to be used. [-]
 SNR_MIN = 100.0
@@ -192,6 +192,10 @@ def friction_dynamic(t_s, x_m, force_n, sensor: Sensor | None = None, force_sens
     sensor = sensor if sensor is not None else describe_sensor(x)
     force_sensor = force_sensor if force_sensor is not None else describe_sensor(f)
     if np.max(np.abs(np.diff(t) - dt)) > 0.01 * dt:  # not uniformly sampled: onto a uniform grid
+        gap = time_base_gap(t, dt)  # a grid sized by the span, not by the samples: refused
+        if gap:
+            out["note"] = gap
+            return out
         tu = t[0] + dt * np.arange(int(np.floor((t[-1] - t[0]) / dt)) + 1)
         x, f, t = np.interp(tu, t, x), np.interp(tu, t, f), tu
     fs = 1.0 / dt

@@ -190,6 +190,7 @@ def decimate_for_identification(t, x, u_d, x_ref, rate_hz: float = 50.0):
     x_ref = np.asarray(x_ref, float)
     dt_log = float(np.median(np.diff(t)))
     q = max(1, int(round(1.0 / (rate_hz * dt_log))))
+    q = min(q, max(1, len(t)))  # a factor past the record leaves no block; its FIR (20 q taps) stays that size
     off = _hold_phase(u_d, q) if q > 1 else 0
     n_blocks = (len(t) - off) // q
     end = off + n_blocks * q
@@ -326,6 +327,13 @@ def identify_third_order(t, x, u_d, x_ref, kp: float, rate_hz: float = 50.0,
     data = [np.asarray(v, float) for v in (x, u_d, x_ref)]
     if any(not np.all(np.isfinite(v)) for v in data):
         return IdentificationResult(message="non-finite samples in x, u_d or x_ref")
+    dt_log = float(np.median(np.diff(t)))
+    if not dt_log > 0:
+        return IdentificationResult(message=f"time does not advance (median step {dt_log:.3g} s)")
+    q = max(1, round(1.0 / (rate_hz * dt_log)))  # as decimate_for_identification: said before its filter
+    if len(t) // q < min_samples:                 # (20 q taps, sized by the step) is built
+        return IdentificationResult(message=f"too short: {len(t) // q} samples at {1 / (q * dt_log):.3g} Hz "
+                                    f"(need {min_samples})")
     dec = decimate_for_identification(t, *data, rate_hz=rate_hz)
     y, ud, xr, dt = dec["x_m"], dec["u_d_v"], dec["x_ref_m"], dec["dt_s"]
     base = dict(dt_s=dt, t_s=dec["t_s"], x_m=y, u_d_v=ud)

@@ -33,6 +33,11 @@ _MAX_DIFFS = 200_000
 #: A condition number above this (columns scaled to unit norm) means the design cannot
 #: separate its parameters in float64 arithmetic, whatever the noise. [-]
 COND_MAX = 1e8
+#: A record goes onto a uniform time grid (of its median step) only when the grid has at most
+#: this many points per sample the record holds: the others would be interpolated, not measured,
+#: and the grid's size would follow from the time span (one jump of the clock) instead of from
+#: the data. [-]
+MAX_GRID_PER_SAMPLE = 2.0
 
 
 # -- sensors --------------------------------------------------------------------------------
@@ -269,6 +274,41 @@ def sensor_from_params(params: dict | None, channel: str, values=()) -> Sensor:
         return v if np.isfinite(v) and v >= 0 else None
 
     return describe_sensor(values, resolution=num("resolution"), noise=num("noise"))
+
+
+# -- time base -------------------------------------------------------------------------------
+def time_base_gap(t, dt: float, max_per_sample: float = MAX_GRID_PER_SAMPLE) -> str | None:
+    """Why a record cannot go onto a uniform time grid of step ``dt``; None when it can.
+
+    The grid over ``[t[0], t[-1]]`` holds ``(t[-1] - t[0]) / dt + 1`` points; a gap in the time
+    base (a clock that jumped, two records logged into one file) makes it as large as the span
+    says, whatever the number of samples. Call this before building such a grid.
+
+    Parameters
+    ----------
+    t : array-like
+        Time, sorted ascending. [s]
+    dt : float
+        Step of the grid (the record's median step). [s]
+    max_per_sample : float
+        Most grid points per sample of the record. [-]
+
+    Returns
+    -------
+    str or None
+        One line naming the largest gap, e.g. ``time base has a gap of 1e+06 s (2e+08 x the
+        median step) at t = 10.7 s: a uniform grid would need 2e+08 points for 4284 samples``.
+    """
+    t = np.asarray(t, dtype=float)
+    if t.size < 2 or not (np.isfinite(dt) and dt > 0):
+        return None
+    points = (float(t[-1]) - float(t[0])) / dt + 1.0
+    if points <= max_per_sample * t.size:
+        return None
+    d = np.diff(t)
+    i = int(np.argmax(d))
+    return (f"time base has a gap of {d[i]:.3g} s ({d[i] / dt:.3g} x the median step) at t = {t[i]:.6g} s: "
+            f"a uniform grid would need {points:.3g} points for {t.size} samples (at most {max_per_sample:g} x)")
 
 
 # -- set-points -------------------------------------------------------------------------------
@@ -566,4 +606,4 @@ class Gate:
 __all__ = ["COND_MAX", "Gate", "LinearFit", "Sensor", "at_bound", "describe_sensor", "describe_sensor_at_rest",
            "jacobian_se", "linear_lstsq",
            "noise_std", "nrmse_pct", "quantisation_step", "scaled_condition", "sensor_from_params",
-           "setpoint_jumps", "setpoint_thresholds"]
+           "setpoint_jumps", "setpoint_thresholds", "time_base_gap"]

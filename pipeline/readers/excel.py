@@ -28,26 +28,38 @@ computed (cached values); a formula the spreadsheet never computed is an empty c
   it, naming the column, when it is.
 
 Excel has no partial reads, so the chosen sheet is loaded whole (a sheet holds at most
-1,048,576 rows by Excel's own limit) and then yielded in record batches.
+1,048,576 rows by Excel's own limit) and then yielded in record batches. calamine loads it as
+the dense grid from its first to its last cell: one stray cell at ``IV1048576`` makes a 1.7 KB
+workbook a grid of 268 M cells (8 GiB). So an ``.xlsx`` / ``.xlsm`` sheet's XML is scanned first
+(:func:`_check_sheet_extent`: cells present, the rows and columns they span) and a grid of more
+than :data:`CELL_BYTES` x cells over :func:`pipeline.readers.base.inflate_cap` of the file is
+refused, naming the span and the cells present. (``.xls`` grids are at most 65,536 x 256.)
 """
 from __future__ import annotations
 
 import datetime as dt
 import math
+import posixpath
+import re
+import zipfile
+import zlib
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
 
-from pipeline.readers.base import (RawColumn, RawExport, ReaderError, check_part_count, exc_text,
-                                   parse_key_value, split_name_unit)
+from pipeline.readers.base import (MAX_LINE_BYTES, RawColumn, RawExport, ReaderError, check_part_count, exc_text,
+                                   inflate_cap, mib, parse_key_value, split_name_unit)
 
 FORMAT = "excel"
 EXTENSIONS = (".xlsx", ".xlsm", ".xls", ".ods")
 
 #: Rows per record batch.
 BATCH_ROWS = 1 << 16
+#: Bytes one cell of a sheet's grid takes while it is read: calamine's cell value (32 B) and the
+#: Python list slot it becomes (8 B). Empty cells inside the span count as much as full ones. [B]
+CELL_BYTES = 40
 
 # An OLE compound file (D0 CF 11 E0): a legacy .xls, or an encrypted (password-protected)
 # Office Open XML package, which Office wraps in one.
@@ -113,6 +125,186 @@ def _pick_sheet(wb, selector) -> str:
             return names[i]
         raise ReaderError(f"sheet index {i} out of range: the workbook has {len(names)} sheet(s) {names}")
     raise ReaderError(f"no sheet named {text!r}; sheets: {names}")
+
+
+_NS = r"(?:[A-Za-z_][\w.-]*:)?"                                # an element may carry a prefix (x:c)
+_CELL_REF = re.compile(rb"<" + _NS.encode() + rb"c\s[^>]*?\br\s*=\s*[\"']([A-Za-z]+)([0-9]+)[\"']")  # a1 too
+_CELL_ANY_REF = re.compile(rb"<" + _NS.encode() + rb"c\s[^>]*?\br\s*=")
+_ROW_REF = re.compile(rb"<" + _NS.encode() + rb"row\s[^>]*?\br\s*=\s*[\"']([0-9]+)[\"']")
+_CHUNK = 4 << 20
+
+
+def _col_number(letters: bytes) -> int:
+    n = 0
+    for ch in letters.upper():
+        n = 26 * n + ch - 64
+    return n
+
+
+def _sheet_parts(zf: zipfile.ZipFile, names: list[str]) -> dict[str, str]:
+    """Zip member of each named worksheet (workbook.xml -> its relationships); a name that cannot
+    be mapped is left out."""
+    import xml.etree.ElementTree as ET
+
+    def xml(member):
+        with zf.open(member) as fh:
+            data = fh.read(MAX_LINE_BYTES + 1)
+        if len(data) > MAX_LINE_BYTES:
+            raise ReaderError(f"workbook part {member} is over {mib(MAX_LINE_BYTES)}")
+        return ET.fromstring(data)
+
+    try:
+        rels = {r.get("Id"): r.get("Target", "") for r in xml("xl/_rels/workbook.xml.rels")}
+        ids = {}
+        for el in xml("xl/workbook.xml").iter():
+            if el.tag.rsplit("}", 1)[-1] == "sheet":
+                rid = next((v for k, v in el.attrib.items() if k.rsplit("}", 1)[-1] == "id"), None)
+                ids[el.get("name")] = rels.get(rid)
+    except (KeyError, ET.ParseError):
+        return {}
+    out = {}
+    for name in names:
+        target = ids.get(name)
+        if target:
+            out[name] = posixpath.normpath(target.lstrip("/") if target.startswith("/") else "xl/" + target)
+    return out
+
+
+def _xml_chunks(zf: zipfile.ZipFile, member: str, name: str, cap: int, size: int) -> Iterator[bytes]:
+    """A sheet's XML inflated in chunks that end before a tag (refused past ``cap`` bytes)."""
+    inflated, carry = 0, b""
+    with zf.open(member) as fh:
+        while True:
+            try:
+                chunk = fh.read(_CHUNK)
+            except (zipfile.BadZipFile, zlib.error, EOFError) as exc:   # a bad CRC, a cut stream
+                raise ReaderError(f"sheet {name!r}: its XML cannot be read ({exc_text(exc)})") from None
+            inflated += len(chunk)
+            if inflated > cap:
+                raise ReaderError(f"sheet {name!r}: its XML inflates past {mib(cap)}, more than "
+                                  f"{cap // max(size, 1):,} x the {size:,}-byte workbook (a decompression bomb?)")
+            buf = carry + chunk
+            cut = buf.rfind(b"<") if chunk else len(buf)
+            if cut < 0 or len(buf) - cut > 1 << 20:      # no tag open at the end (or one that long)
+                cut = len(buf)
+            yield buf[:cut]
+            carry = buf[cut:]
+            if not chunk:
+                return
+
+
+def _cell_tags(buf: bytes) -> int:
+    """Cell elements in ``buf``: ``<c`` or ``<prefix:c`` followed by a space, a tab, a line break,
+    ``/`` or ``>`` (vectorised: a regex over every cell of a large sheet costs a second)."""
+    a = np.frombuffer(buf, dtype=np.uint8)
+    if a.size < 3:
+        return 0
+    c = (a[1:-1] == 0x63) & ((a[:-2] == 0x3C) | (a[:-2] == 0x3A))          # "<c" or ":c"
+    nxt = a[2:]
+    c &= (nxt == 0x20) | (nxt == 0x09) | (nxt == 0x0A) | (nxt == 0x0D) | (nxt == 0x2F) | (nxt == 0x3E)
+    return int(np.count_nonzero(c))
+
+
+def _widest(buf: bytes, pattern: bytes, most: int, known: int) -> int:
+    """Largest ``k`` in (``known``, ``most``] such that ``pattern % k`` occurs in ``buf``, else ``known``."""
+    return next((k for k in range(most, known, -1) if re.search(pattern % k, buf)), known)
+
+
+def _sheet_extent(chunks) -> tuple[int, int, int] | None:
+    """(cells present, rows, columns spanned) when every cell is written ``<c r="A1"`` (as Excel
+    and most writers write them), as upper bounds from the widest references: rows < 10 **
+    digits, columns <= 26 + 26 ** 2 + ... for their letters; None when some cell is written
+    otherwise (another attribute first, a prefix, no reference)."""
+    cells = digits = letters = 0
+    for buf in chunks:
+        n = _cell_tags(buf)
+        if buf.count(b'<c r="') != n or re.search(rb'<c r="(?![A-Za-z]+[0-9]+")', buf):
+            return None
+        cells += n
+        if re.search(rb'<c r="(?:[A-Za-z]{%d}|[A-Za-z]+[0-9]{%d})' % (letters + 1, digits + 1), buf):
+            digits = _widest(buf, rb'<c r="[A-Za-z]+[0-9]{%d}', 8, digits)
+            letters = _widest(buf, rb'<c r="[A-Za-z]{%d}', 4, letters)
+            if digits == 8 or letters == 4:                  # past Excel's own grid: no bound from these
+                return None
+    return cells, 10 ** digits - 1, sum(26 ** k for k in range(1, letters + 1))
+
+
+def _sheet_extent_exact(chunks) -> tuple[int, int, int] | None:
+    """(cells present, rows, columns) of the grid from the first cell to the last, whatever the
+    attribute order or prefixes; a cell or row without a reference takes the next position.
+    None when a cell has a reference that is not a plain ``A1`` one (it cannot be bounded)."""
+    cells = refs = any_refs = rows = row_refs = max_row = max_col = 0
+    min_row = min_col = 1 << 62
+    cell = re.compile(rb"<" + _NS.encode() + rb"c[\s/>]")
+    row = re.compile(rb"<" + _NS.encode() + rb"row[\s/>]")
+    for buf in chunks:
+        cells += len(cell.findall(buf))
+        rows += len(row.findall(buf))
+        any_refs += len(_CELL_ANY_REF.findall(buf))
+        found = _CELL_REF.findall(buf)
+        if found:
+            refs += len(found)
+            at = [int(r) for _, r in found]
+            max_row, min_row = max(max_row, max(at)), min(min_row, min(at))
+            at = [_col_number(c) for c in {c for c, _ in found}]
+            max_col, min_col = max(max_col, max(at)), min(min_col, min(at))
+        found = _ROW_REF.findall(buf)
+        if found:
+            row_refs += len(found)
+            at = [int(r) for r in found]
+            max_row, min_row = max(max_row, max(at)), min(min_row, min(at))
+    if any_refs > refs:
+        return None
+    n_rows = (max_row - min_row + 1 if max_row else 0) + max(0, rows - row_refs)
+    n_cols = (max_col - min_col + 1 if max_col else 0) + max(0, cells - refs)
+    return cells, n_rows, n_cols
+
+
+def _check_sheet_extent(path: Path, names: list[str]) -> None:
+    """Refuse an ``.xlsx`` / ``.xlsm`` sheet whose grid (the rows and columns its cells span, as
+    calamine loads it) would take more than ``inflate_cap(file size)`` at :data:`CELL_BYTES` a
+    cell, or whose XML inflates past that cap. Other formats pass (see the module docstring).
+
+    A first pass bounds the grid from the widest cell references (cheap); only a sheet that
+    bound does not clear is scanned cell by cell for its exact span."""
+    if path.suffix.lower() not in (".xlsx", ".xlsm"):
+        return
+    size = path.stat().st_size
+    try:
+        with zipfile.ZipFile(path) as zf:
+            _check_extents(zf, names, size)
+    except ReaderError:
+        raise
+    except OSError as exc:
+        if exc.errno is not None:                            # an I/O error: not the file's fault
+            raise
+    except Exception:  # noqa: BLE001 - a damaged zip or XML part: calamine says what is wrong
+        pass
+
+
+def _check_extents(zf: zipfile.ZipFile, names: list[str], size: int) -> None:
+    cap = inflate_cap(size)
+    parts = _sheet_parts(zf, names)
+    parts = {n: m for n, m in parts.items() if m in zf.NameToInfo}
+    if len(parts) < len(names):       # a sheet not found through the workbook's links: every worksheet part
+        sheets = [m for m in zf.namelist() if m.startswith("xl/worksheets/") and m.endswith(".xml")]
+        check_part_count(len(sheets), "worksheet parts")
+        parts.update({m: m for m in sheets if m not in parts.values()})
+    for name, member in parts.items():
+        bound = _sheet_extent(_xml_chunks(zf, member, name, cap, size))
+        if bound is not None and max(bound[0], bound[1] * bound[2]) * CELL_BYTES <= cap:
+            continue
+        exact = _sheet_extent_exact(_xml_chunks(zf, member, name, cap, size))
+        if exact is None:
+            raise ReaderError(f"sheet {name!r}: a cell reference is not a plain A1 reference: its grid cannot be "
+                              "bounded before it is read")
+        cells, n_rows, n_cols = exact
+        grid = n_rows * n_cols
+        if max(grid, cells) * CELL_BYTES > cap:
+            raise ReaderError(f"sheet {name!r}: its cells span {n_rows:,} rows x {n_cols:,} columns "
+                              f"({grid:,} cells, {mib(grid * CELL_BYTES)} to read as a grid) but {cells:,} "
+                              f"are present: more than the {mib(cap)} a {size:,}-byte workbook may take "
+                              "(a stray cell far from the data?)")
 
 
 def _sheet_kind(wb, name: str) -> str:
@@ -247,6 +439,7 @@ def read_excel(path: str | Path, read: dict | None = None, hints: dict | None = 
     if _sheet_kind(wb, name) != "WorkSheet":
         raise ReaderError(f"sheet {name!r} is a {_sheet_kind(wb, name)}, not a worksheet: it holds no cells "
                           "(name the data sheet with the `sheet` key)")
+    _check_sheet_extent(path, [name] + [n for n in wb.sheet_names if n.strip().casefold() == "meta"])
     rows = _sheet_rows(wb, name)
     if not rows:
         raise ReaderError(f"sheet {name!r} is empty (no cells with values)")

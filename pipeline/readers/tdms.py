@@ -30,10 +30,13 @@ but each chunk read once).
 Untrusted bytes: a file must start with a TDMS lead-in (``TDSm``, version 4712 or 4713); npTDMS
 reads through :class:`_BoundedReader` (no read past the end of the file, whatever length a
 corrupt field gives), a ``.tdms_index`` beside the file is not used, and a channel may not
-declare more values than the file has bytes.
+declare more values than the file has bytes. A sparse file (holes that read back as zeros but
+are not stored) may not declare more values than :func:`pipeline.readers.base.inflate_cap` of
+the bytes it stores: a 4 KB file whose size says 1 GB is refused, not read as 125 M zeros.
 """
 from __future__ import annotations
 
+import errno
 import io
 import logging
 import math
@@ -46,7 +49,8 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from pipeline.readers.base import RawColumn, RawExport, ReaderError, check_channel_count, split_name_unit
+from pipeline.readers.base import (RawColumn, RawExport, ReaderError, check_channel_count, inflate_cap, mib,
+                                   split_name_unit)
 
 FORMAT = "tdms"
 EXTENSIONS = (".tdms",)
@@ -86,8 +90,9 @@ def read_tdms(path: str | Path, read: dict | None = None, hints: dict | None = N
         then a synthesised ``t`` when time comes from waveform properties.
     """
     path = Path(path)
-    with _open(path) as tdms:
-        plan = _plan(tdms, hints or {}, path.stat().st_size)
+    opened = _open(path)
+    with opened as tdms:
+        plan = _plan(tdms, hints or {}, path.stat().st_size, opened.fh.stored)
         columns, metadata, warnings, n_rows, group_name = plan
         # npTDMS reads whole raw-data chunks: never re-read a big chunk once per batch.
         rows_per_batch = max(1, min(n_rows, max(BATCH_ROWS, _largest_chunk(tdms))))
@@ -122,6 +127,7 @@ class _BoundedReader(io.BufferedReader):
     def __init__(self, path: Path):
         super().__init__(io.FileIO(path, "rb"))
         self._size = os.fstat(self.fileno()).st_size
+        self.stored = _stored_bytes(self.fileno(), self._size)
 
     def read(self, size: int | None = -1) -> bytes:
         if size is not None and size > 1 << 16:          # small reads cannot allocate much: no tell()
@@ -129,6 +135,32 @@ class _BoundedReader(io.BufferedReader):
             if size == 0:
                 return b""
         return super().read(size)
+
+
+def _stored_bytes(fd: int, size: int) -> int:
+    """Bytes of a file that are stored, not holes: the sum of its data extents (``SEEK_DATA`` /
+    ``SEEK_HOLE``); ``st_blocks * 512`` where the file system cannot tell, else ``size``. [B]
+
+    A sparse file reads back zeros from its holes without storing them: its size says nothing
+    of what it holds. The descriptor's position is left at 0.
+    """
+    try:
+        stored = pos = 0
+        while pos < size:
+            try:
+                start = os.lseek(fd, pos, os.SEEK_DATA)
+            except OSError as exc:
+                if exc.errno == errno.ENXIO:        # no data past pos: a hole to the end
+                    break
+                raise
+            pos = os.lseek(fd, start, os.SEEK_HOLE)
+            stored += pos - start
+        return min(stored, size)
+    except (OSError, AttributeError):               # no SEEK_DATA here (EINVAL) or on this platform
+        blocks = getattr(os.fstat(fd), "st_blocks", None)
+        return size if blocks is None else min(size, blocks * 512)
+    finally:
+        os.lseek(fd, 0, os.SEEK_SET)
 
 
 class _open:
@@ -200,7 +232,7 @@ class _Col:
     t0: object = None     # elapsed: first timestamp; wf_time: (offset, increment)
 
 
-def _plan(tdms, hints: dict, file_size: int):
+def _plan(tdms, hints: dict, file_size: int, stored: int | None = None):
     root = dict(tdms.properties)
     metadata = {str(k): _plain(v) for k, v in root.items()}
     group = _select_group(tdms, hints, metadata)
@@ -252,6 +284,14 @@ def _plan(tdms, hints: dict, file_size: int):
         raise ReaderError(f"TDMS group `{group.name}` has no channels")
     if not lengths:
         raise ReaderError(f"TDMS group `{group.name}` has no data")
+    # A sparse file: what its channels declare must come from the bytes it stores, as for
+    # compressed data (inflate_cap), not from holes that read back as zeros.
+    stored = file_size if stored is None else stored
+    declared = sum(n * max(4, np.dtype(group[k].dtype or object).itemsize) for k, n in lengths.items())
+    if stored < file_size and declared > max(stored, inflate_cap(stored)):
+        raise ReaderError(f"TDMS channels of group `{group.name}` declare {mib(declared)} of values but the file "
+                          f"stores {stored:,} bytes of its {mib(file_size)} (a sparse file whose holes read as zeros): "
+                          f"more than the {mib(inflate_cap(stored))} it may declare")
 
     # Rows: every channel as long as the others; a crash may cut the last segment short.
     n_rows = min(lengths.values())

@@ -131,3 +131,51 @@ def test_cutoff_follows_the_noise_floor():
     noisy = motion_cutoff_hz(x + rng.normal(0, 100e-6, x.size), 1000.0, Sensor(0.0, 100e-6))
     assert 0 < noisy < quiet <= 200.0
     assert motion_cutoff_hz(rng.normal(0, 1e-6, x.size), 1000.0, Sensor(0.0, 1e-6)) is None
+
+
+def test_a_record_with_dropped_samples_goes_onto_a_uniform_grid():
+    """Every tenth sample lost (a busy logger): the grid is 1.1 x the samples, the fit stands."""
+    run = simulate_viscous(1.0, MULTI, rng=21, fs_hz=1000.0, use_force_channel=True)
+    d = run.data
+    keep = np.arange(len(d)) % 10 != 5
+    r = friction_dynamic(d["t_s"][keep], d["x_m"][keep], friction_from_run(d, 4.9e-4)[keep])
+    assert r["note"] is None
+    assert r["mass_kg"] == pytest.approx(2.0, rel=0.02)
+    assert r["viscous_n_s_m"] == pytest.approx(run.truth["ka_n_s_m"], rel=0.02)
+
+
+_GAP_CHILD = """
+import resource, sys
+resource.setrlimit(resource.RLIMIT_AS, (2 << 30, 2 << 30))
+import numpy as np
+from analyses.friction_dynamic import friction_dynamic
+from analyses.viscous_friction import friction_from_run
+from pipeline.simulator.plpa import simulate_viscous
+MULTI = tuple(s * v for v in (0.05, 0.1, 0.2, 0.3, 0.4, 0.5) for s in (1.0, -1.0))
+d = simulate_viscous(1.0, MULTI, rng=21, fs_hz=200.0, use_force_channel=True).data
+t = d["t_s"].to_numpy().copy()
+t[t.size // 2:] += 1e6
+r = friction_dynamic(t, d["x_m"], friction_from_run(d, 4.9e-4))
+print(repr(r))
+print([l.split()[1] for l in open("/proc/self/status") if l.startswith("VmHWM")][0])
+"""
+
+
+def test_a_gap_in_the_time_base_is_named_not_gridded():
+    """A clock that jumps by 1e6 s in a 200 Hz record of 4,284 samples: the uniform grid would be
+    2e8 points (8 GB). In a child limited to 2 GiB of address space: a NULL row and a note naming
+    the gap, at the memory of the record itself."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = str(Path(__file__).resolve().parents[2])
+    out = subprocess.run([sys.executable, "-c", _GAP_CHILD], capture_output=True, text=True, timeout=120, cwd=root,
+                         env={**os.environ, "PYTHONPATH": root})
+    assert out.returncode == 0, out.stderr[-600:]
+    r = eval(out.stdout.splitlines()[0])
+    assert all(r[k] is None for k in ("mass_kg", "coulomb_n", "viscous_n_s_m", "offset_n")) and r["n_samples"] == 0
+    assert r["note"].startswith("time base has a gap of 1e+06 s (2e+08 x the median step) at t = 10.7")
+    assert "for 4284 samples (at most 2 x)" in r["note"]
+    assert int(out.stdout.splitlines()[1]) * 1024 < 400 << 20   # [kB] peak RSS; the grid alone is 1.6 GB

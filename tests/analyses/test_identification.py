@@ -193,3 +193,16 @@ def test_sound_identification_has_no_note_and_small_standard_errors():
     res = identify_third_order(d["t_s"], d["x_m"], d["u_d_v"], d["x_ref_m"], 5.0, 50.0)
     assert res.ok and res.note is None
     assert (res.se < 0.01 * np.array([res.wn_rad_s, res.zeta, res.k_lin_m_v_s])).all()
+
+
+def test_a_time_step_too_fine_for_the_rate_is_too_short_before_any_filter_is_built():
+    """A median step of 2e-11 s (a time column in the wrong unit): the decimation factor to 50 Hz
+    is about 1e9 and its FIR would have 2e10 taps (149 GiB). Said from the sample count instead."""
+    n = 5000
+    rng = np.random.default_rng(0)
+    x, u = np.cumsum(rng.normal(0, 1e-5, n)), rng.normal(0, 1, n)
+    r = identify_third_order(np.arange(n) / (50 * 1_000_000_007), x, u, np.zeros(n), kp=10.0)
+    assert r.message == "too short: 0 samples at 50 Hz (need 100)"
+    r = identify_third_order(np.r_[np.zeros(n - 1), 1.0], x, u, np.zeros(n), kp=10.0)
+    assert r.message == "time does not advance (median step 0 s)"
+    assert len(decimate_for_identification(np.arange(n) * 1e-11, x, u, np.zeros(n))["x_m"]) <= 1

@@ -192,3 +192,14 @@ def test_sensor_at_rest_ignores_motion_the_sampling_does_not_resolve():
     # analog noise at rest between slow moves: the noise is measured
     y = np.repeat([0.0, 0.05, 0.0, 0.05], 2000) + rng.normal(0, 20e-6, 8000)
     assert describe_sensor_at_rest(y).noise == pytest.approx(20e-6, rel=0.1)
+
+
+def test_time_base_gap_names_a_jump_of_the_clock_and_passes_lost_samples():
+    from analyses.quality import time_base_gap
+
+    t = np.arange(1000) * 0.01
+    assert time_base_gap(t, 0.01) is None
+    assert time_base_gap(np.delete(t, np.arange(0, 1000, 3)), 0.01) is None   # a third lost: 1.5 x
+    t[600:] += 1e6
+    assert time_base_gap(t, 0.01) == ("time base has a gap of 1e+06 s (1e+08 x the median step) at t = 5.99 s: "
+                                      "a uniform grid would need 1e+08 points for 1000 samples (at most 2 x)")

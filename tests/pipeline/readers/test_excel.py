@@ -168,3 +168,111 @@ def test_refused_meta_sheet_that_cannot_be_read(tmp_path):
     assert read_excel(good).metadata["kind"] == "step"
     with pytest.raises(ReaderError, match=r"sheet 'meta' cannot be read \(\w+"):
         read_excel(bad)
+
+
+# -- a sheet's grid is bounded by what the workbook holds --------------------------------------
+_DATA = [["t [s]", "x [mm]"]] + [[i * 1e-3, i * 0.1] for i in range(20)]
+
+
+def _rewrite_sheet(src, dst, change):
+    """A copy of workbook ``src`` whose first worksheet's XML is ``change(xml)``."""
+    import zipfile
+
+    with zipfile.ZipFile(src) as a, zipfile.ZipFile(dst, "w", zipfile.ZIP_DEFLATED) as b:
+        for info in a.infolist():
+            data = a.read(info)
+            b.writestr(info, change(data) if info.filename == "xl/worksheets/sheet1.xml" else data)
+    return dst
+
+
+def test_a_note_cell_beside_the_data_is_read(tmp_path):
+    """A note at Z1 and a value far down (A5000): the grids (5,000 x 26) fit in what the file may take."""
+    def extra(wb):
+        wb["run"]["Z1"] = "checked by AB"
+        wb["run"]["A5000"] = "end"
+    ex = read_excel(_book(tmp_path / "b.xlsx", _DATA, extra=extra))
+    assert _values(ex)["x"][:3] == [0.0, 0.1, 0.2]
+
+
+@pytest.mark.parametrize("order", ["r first", "r after another attribute", "lower-case reference",
+                                   "single quotes"])
+def test_a_stray_cell_far_from_the_data_is_refused_naming_the_span(tmp_path, order):
+    """One cell at IV65536 in a 5 KB workbook: calamine would load a 65,536 x 256 grid (16.8 M
+    cells, 512 MiB; at IV1048576, 8 GiB: see the child-process test below). Refused from the
+    sheet's XML, before calamine sees it; the second case writes its cells as `<c s="0" r="A1">`
+    (the exact scan, not the quick bound)."""
+    p = _book(tmp_path / "b.xlsx", _DATA, extra=lambda wb: wb["run"].cell(row=65536, column=256, value=1))
+    if order == "r after another attribute":
+        p = _rewrite_sheet(p, tmp_path / "c.xlsx", lambda x: x.replace(b'<c r="', b'<c s="0" r="'))
+    if order == "single quotes":                          # XML allows them; the quick bound sees no <c r="
+        p = _rewrite_sheet(p, tmp_path / "c.xlsx", lambda x: x.replace(b'r="IV65536"', b"r='IV65536'"))
+    if order == "lower-case reference":                   # calamine reads iv65536 as IV65536
+        p = _rewrite_sheet(p, tmp_path / "c.xlsx", lambda x: x.replace(b'r="IV65536"', b'r="iv65536"'))
+    size = p.stat().st_size
+    with pytest.raises(ReaderError, match=(
+            rf"^sheet 'run': its cells span 65,536 rows x 256 columns \(16,777,216 cells, 640\.0 MiB to read "
+            rf"as a grid\) but 43 are present: more than the 64\.0 MiB a {size:,}-byte workbook may take "
+            r"\(a stray cell far from the data\?\)$")):
+        read_excel(p)
+
+
+def test_a_stray_cell_in_a_row_without_cell_references_is_refused(tmp_path):
+    """`<row r="1048576"><c><v>1</v></c>`: the cell takes its row's position, at 1,048,576."""
+    p = _book(tmp_path / "b.xlsx", _DATA)
+    far = b'<row r="1048576"><c t="n"><v>1</v></c><c t="n"><v>1</v></c></row></sheetData>'
+    p = _rewrite_sheet(p, tmp_path / "c.xlsx", lambda x: x.replace(b"</sheetData>", far))
+    with pytest.raises(ReaderError, match=r"^sheet 'run': its cells span 1,048,576 rows x 4 columns"):
+        read_excel(p)
+
+
+def test_a_sheet_whose_xml_inflates_past_the_cap_is_refused(tmp_path):
+    """80 MiB of blanks in a sheet's XML compress to about 80 KB: past the 64 MiB floor."""
+    p = _book(tmp_path / "b.xlsx", _DATA)
+    blanks = b" " * (80 << 20)
+    p = _rewrite_sheet(p, tmp_path / "c.xlsx", lambda x: x.replace(b"</sheetData>", blanks + b"</sheetData>"))
+    with pytest.raises(ReaderError, match=r"^sheet 'run': its XML inflates past 64\.0 MiB, more than [\d,]+ x the "
+                                          r"[\d,]+-byte workbook \(a decompression bomb\?\)$"):
+        read_excel(p)
+
+
+def test_a_stray_cell_peak_memory_stays_bounded(tmp_path):
+    """In a child process (peak RSS its own): refused at the memory of an interpreter."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    p = _book(tmp_path / "b.xlsx", _DATA, extra=lambda wb: wb["run"].cell(row=1048576, column=256, value=1))
+    code = ("import resource, sys\nresource.setrlimit(resource.RLIMIT_AS, (2 << 30, 2 << 30))\n"
+            "from pipeline.readers import ReaderError, read_export\n"
+            "try:\n    read_export(sys.argv[1])\nexcept ReaderError as e:\n    print('refused', e)\n"
+            "print([l.split()[1] for l in open('/proc/self/status') if l.startswith('VmHWM')][0])\n")
+    root = str(Path(__file__).resolve().parents[3])
+    out = subprocess.run([sys.executable, "-c", code, str(p)], capture_output=True, text=True, timeout=120,
+                         cwd=root, env={**os.environ, "PYTHONPATH": root})
+    lines = out.stdout.splitlines()
+    assert lines and lines[0].startswith("refused sheet 'run': its cells span 1,048,576 rows"), out.stderr[-300:]
+    assert int(lines[1]) * 1024 < 200 << 20       # [kB]; calamine's grid alone would be 8 GiB
+
+
+def test_a_stray_cell_is_found_when_the_workbook_links_do_not_parse(tmp_path):
+    """Relationships Python's XML parser refuses: every worksheet part is checked instead."""
+    import zipfile
+
+    p = _book(tmp_path / "b.xlsx", _DATA, extra=lambda wb: wb["run"].cell(row=65536, column=256, value=1))
+    bad = tmp_path / "c.xlsx"
+    with zipfile.ZipFile(p) as a, zipfile.ZipFile(bad, "w", zipfile.ZIP_DEFLATED) as b:
+        for info in a.infolist():
+            data = a.read(info)
+            b.writestr(info, data + b"<" if info.filename == "xl/_rels/workbook.xml.rels" else data)
+    with pytest.raises(ReaderError, match=r"^sheet 'xl/worksheets/sheet1\.xml': its cells span 65,536 rows x 256"):
+        read_excel(bad)
+
+
+def test_a_cell_reference_that_is_not_plain_a1_is_refused(tmp_path):
+    """`r="&#73;V65536"` (a character reference): no bound can be read from it, so no grid is built."""
+    p = _book(tmp_path / "b.xlsx", _DATA, extra=lambda wb: wb["run"].cell(row=65536, column=256, value=1))
+    p = _rewrite_sheet(p, tmp_path / "c.xlsx", lambda x: x.replace(b'r="IV65536"', b'r="&#73;V65536"'))
+    with pytest.raises(ReaderError, match=r"^sheet 'run': a cell reference is not a plain A1 reference: its grid "
+                                          r"cannot be bounded before it is read$"):
+        read_excel(p)

@@ -6,6 +6,7 @@ raw data, interleaved data, a segment a crash left unfinished) are built byte by
 """
 from __future__ import annotations
 
+import re
 import struct
 
 import numpy as np
@@ -528,3 +529,49 @@ def test_tdms_bounded_reader_never_asks_for_more_than_the_file_holds(tmp_path):
         fh.seek(60)
         assert fh.read(1 << 40) == bytes(4)
         assert fh.read(1 << 40) == b""
+
+
+def _sparse_tdms(path, n: int):
+    """A TDMS file whose channels `t` and `x` declare ``n`` float64 values each, all in a hole:
+    the metadata is written, the raw data never (``truncate`` extends the file with a hole)."""
+    seg = (Segment().root(TIMESERIES).group("g").channel("g", "t", "f64", n, {"unit_string": "s"})
+           .channel("g", "x", "f64", n, {"unit_string": "mm"}))
+    head = seg.bytes(b"")
+    meta_len = struct.unpack("<Q", head[20:28])[0]
+    head = head[:12] + struct.pack("<Q", meta_len + 16 * n) + head[20:]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "wb") as fh:
+        fh.write(head)
+        fh.truncate(len(head) + 16 * n)
+    st = path.stat()
+    if st.st_blocks * 512 >= st.st_size:
+        pytest.skip("this file system does not make sparse files")
+    return path
+
+
+def test_tdms_sparse_file_declaring_more_than_it_stores_is_refused(raw, warehouse):
+    """4 KB stored, 256 MiB apparent: npTDMS would read 32 M zeros per channel from the hole."""
+    path = _sparse_tdms(raw.root / "c/a.tdms", 16 << 20)
+    assert re.fullmatch(r"TDMS channels of group `g` declare 256\.0 MiB of values but the file stores [\d,]+ bytes "
+                        r"of its 256\.0 MiB \(a sparse file whose holes read as zeros\): more than the 64\.0 MiB "
+                        r"it may declare", quarantined(raw, "c/a.tdms", warehouse))
+
+
+def test_tdms_sparse_file_within_the_inflate_cap_is_read(raw):
+    """A hole of 1.6 MB (zeros a copy tool left unwritten) is under the 64 MiB floor: read."""
+    path = _sparse_tdms(raw.root / "c/a.tdms", 100_000)
+    ex = read_export(path)
+    assert sum(b.num_rows for b in ex.batches()) == 100_000
+
+
+def test_tdms_stored_bytes_of_dense_and_sparse_files(tmp_path):
+    dense = tmp_path / "d.bin"
+    dense.write_bytes(b"\1" * 10_000)
+    with open(dense, "rb") as fh:
+        assert tdms_reader._stored_bytes(fh.fileno(), 10_000) == 10_000 and fh.tell() == 0
+    sparse = tmp_path / "s.bin"
+    with open(sparse, "wb") as fh:
+        fh.write(b"\1" * 4096)
+        fh.truncate(1 << 30)
+    with open(sparse, "rb") as fh:
+        assert 4096 <= tdms_reader._stored_bytes(fh.fileno(), 1 << 30) < 1 << 20
