@@ -86,6 +86,10 @@ def escapes(wh: Path) -> dict[str, str]:
         "read_text_passwd": "SELECT * FROM read_text('/etc/passwd')",
         "read_text_secret": f"SELECT * FROM read_text('{secret}')",
         "read_blob_traversal": f"SELECT * FROM read_blob('{wh / 'samples'}/../../secret.txt')",
+        "read_blob_database": f"SELECT * FROM read_blob('{db}')",
+        "read_blob_database_via_samples": f"SELECT size FROM read_blob('{wh / 'samples'}/../{DB_NAME}')",
+        "read_text_database_glob": f"SELECT * FROM read_text('{wh}/*.duckdb')",
+        "read_csv_database": f"SELECT * FROM read_csv('{db}', delim = '\x01', header = false, strict_mode = false)",
         "glob_root": "SELECT * FROM glob('/root/*')",
         "glob_outside": f"SELECT * FROM glob('{wh.parent}/*')",
         "replacement_scan": f"SELECT * FROM '{secret}'",
@@ -180,6 +184,55 @@ def test_the_door_itself_contains_sql_without_the_statement_check(built):
         assert con.execute("SELECT count(*) FROM runs").fetchone() == (2,)
     finally:
         con.close()
+
+
+def test_the_database_is_attached_through_a_name_that_is_gone(built):
+    """DuckDB allows SQL to read the files of an attached database: the door attaches it through
+    a private link it removes at once, so the allowed path names nothing (issue 21, item 8)."""
+    con = connect_readonly(built)
+    try:
+        allowed = con.execute("SELECT value FROM duckdb_settings() WHERE name = 'allowed_paths'").fetchone()[0]
+        assert str(built / DB_NAME) not in allowed
+        (path,) = con.execute("SELECT path FROM duckdb_databases() WHERE database_name = 'pneubench'").fetchone()
+        assert not Path(path).exists() and Path(path).parent.stat().st_mode & 0o777 == 0o700
+        try:  # nothing there: no rows, or "No files found"
+            assert con.execute(f"SELECT * FROM read_blob('{path}')").fetchall() == []
+        except duckdb.IOException as exc:
+            assert "No files found" in str(exc)
+        assert con.execute("SELECT count(*) FROM samples_step").fetchone() == (8,)
+    finally:
+        con.close()
+
+
+def test_temp_folder_is_private_to_the_process(built, tmp_path, monkeypatch):
+    """A folder another user planted where the old fixed temp folder was (a symlink to theirs)
+    is not readable through the door; the temp folder is made by mkdtemp, mode 0700, per
+    process (issue 21, item 7)."""
+    import tempfile
+
+    systmp = tmp_path / "systmp"
+    theirs = tmp_path / "theirs"
+    systmp.mkdir(), theirs.mkdir()
+    (theirs / "planted.txt").write_text("planted by another user\n")
+    (systmp / "pneubench-duckdb").symlink_to(theirs, target_is_directory=True)
+    monkeypatch.setattr(tempfile, "tempdir", str(systmp))
+    with pytest.raises(duckdb.PermissionException):
+        run_query(built, f"SELECT * FROM read_text('{systmp}/pneubench-duckdb/planted.txt')")
+    con = connect_readonly(built)
+    try:
+        temp = Path(con.execute("SELECT current_setting('temp_directory')").fetchone()[0])
+    finally:
+        con.close()
+    assert temp.parent.name.startswith("pneubench-door-") and temp.parent.stat().st_mode & 0o777 == 0o700
+    assert temp.parent.stat().st_uid == os.getuid()
+    assert not temp.exists()  # DuckDB made it only to spill, and removed it on close
+    # another process gets another folder
+    code = ("import sys; from pipeline.warehouse import connect_readonly; "
+            "c = connect_readonly(sys.argv[1]); print(c.execute(\"SELECT current_setting('temp_directory')\").fetchone()[0])")
+    other = subprocess.run([sys.executable, "-c", code, str(built)], capture_output=True, text=True, check=True,
+                           env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])})
+    assert Path(other.stdout.strip()).parent != temp.parent
+    assert not Path(other.stdout.strip()).parent.exists()  # removed when that process ended
 
 
 def test_two_doors_and_a_plain_connection_coexist_in_one_process(built):
