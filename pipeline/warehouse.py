@@ -109,8 +109,7 @@ def _limit(con: duckdb.DuckDBPyConnection, setting: str, value: str | None, env:
     try:
         con.execute(f"SET {setting} = ?", [str(value)])
     except duckdb.Error as exc:
-        raise duckdb.InvalidInputException(
-            f"{setting} {value!r} (${env} or the option): {str(exc).splitlines()[0]}") from None
+        raise ValueError(f"{setting} {value!r} (from the option or ${env}): {str(exc).splitlines()[0]}") from None
 
 
 def connect_readonly(warehouse: Path, database: Path | None = None, memory_limit: str | None = None,
@@ -140,7 +139,7 @@ def connect_readonly(warehouse: Path, database: Path | None = None, memory_limit
     ------
     FileNotFoundError
         When there is no database yet.
-    duckdb.InvalidInputException
+    ValueError
         When a limit is not a size DuckDB understands.
     """
     warehouse = Path(warehouse).resolve()
