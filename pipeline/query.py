@@ -294,8 +294,8 @@ def open_query(warehouse: str | Path, sql: str, batch_rows: int = BATCH_ROWS, ar
     try:
         with _limited(con, timeout_s):
             with _no_samples_explained(sql):
-                checked = _printable(con, check_sql(con, sql))
-                rel = con.sql(checked) if arrow else None
+                checked, bound = _printable(con, check_sql(con, sql))
+                rel = (bound if bound is not None else con.sql(checked)) if arrow else None
                 cur = None if arrow else con.execute(checked)
             if arrow:
                 if rel is None:
@@ -332,14 +332,16 @@ def _statement_body(sql: str) -> str:
     return sql[:end].rstrip().rstrip(";")
 
 
-def _printable(con: duckdb.DuckDBPyConnection, sql: str) -> str:
+def _printable(con: duckdb.DuckDBPyConnection, sql: str) -> tuple[str, "duckdb.DuckDBPyRelation | None"]:
     """The statement with every column of a type outside :data:`_NATIVE_TYPES` as text (JSON
     for nested types), so every DuckDB type prints, exactly (issue 21): Python's ``timedelta``
     has no months, Arrow's CSV writer cannot write BIGNUM and writes a UHUGEINT above 2^127 as
-    a negative number, ``DATE 'infinity'`` becomes 9999-12-31 in Python."""
+    a negative number, ``DATE 'infinity'`` becomes 9999-12-31 in Python.
+
+    Returns the SQL to run and, when it is ``sql`` itself, its bound relation (else None)."""
     rel = con.sql(sql)  # binds the statement (a SELECT is not run)
     if rel is None:
-        return sql
+        return sql, None
     exprs, changed = [], False
     for i, (name, typ) in enumerate(zip(rel.columns, rel.types)):
         kind = typ.id
@@ -353,9 +355,9 @@ def _printable(con: duckdb.DuckDBPyConnection, sql: str) -> str:
         changed |= expr != col
         exprs.append(f'{expr} AS "{name.replace(chr(34), chr(34) * 2)}"')
     if not changed:
-        return sql
+        return sql, rel
     cols = ", ".join(f"c{i}" for i in range(len(exprs)))
-    return f"SELECT {', '.join(exprs)} FROM (\n{_statement_body(sql)}\n) AS _q({cols})"
+    return f"SELECT {', '.join(exprs)} FROM (\n{_statement_body(sql)}\n) AS _q({cols})", None
 
 
 def read_sql(text: str | None, file: IO[str] | None = None) -> str:
@@ -480,7 +482,7 @@ def write_json(result: Result, out: IO[str]) -> int:
 
 def _md_cell(v) -> str:
     text = "" if v is None else (json.dumps(_plain(v), ensure_ascii=False) if isinstance(v, (list, dict)) else
-                                 str(_plain(v)))
+                                 str(v) if isinstance(v, Decimal) else str(_plain(v)))
     return text.replace("\\", "\\\\").replace("|", "\\|").replace("\r", "").replace("\n", "<br>")
 
 
@@ -506,6 +508,8 @@ def _table_cell(v) -> str:
         return "NULL"
     if isinstance(v, float):
         return f"{v:.6g}"
+    if isinstance(v, Decimal):  # exact: a DECIMAL(38) is not a double
+        return str(v)
     if isinstance(v, (list, dict)):
         return json.dumps(_plain(v), ensure_ascii=False)
     return str(_plain(v))

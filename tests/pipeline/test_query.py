@@ -573,6 +573,8 @@ def test_every_duckdb_type_prints_in_every_format(built, fmt):
         if col == "bn" and "bn" not in _all_types_sql():
             continue
         assert text in out, (col, text)
+    if fmt != "json":  # a DECIMAL(38) exactly (JSON: a number, a double)
+        assert "-12345678901234567890123456789.123456789" in out
     if fmt == "json":
         (row,) = json.loads(out)
         assert row["i"] == EXPECTED_TEXT["i"] and row["dinf"] == "infinity" and row["l"] == [1, None, 3]
