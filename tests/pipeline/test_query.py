@@ -227,8 +227,8 @@ def test_temp_folder_is_private_to_the_process(built, tmp_path, monkeypatch):
     assert temp.parent.stat().st_uid == os.getuid()
     assert not temp.exists()  # DuckDB made it only to spill, and removed it on close
     # another process gets another folder
-    code = ("import sys; from pipeline.warehouse import connect_readonly; "
-            "c = connect_readonly(sys.argv[1]); print(c.execute(\"SELECT current_setting('temp_directory')\").fetchone()[0])")
+    code = ("import sys; from pipeline.warehouse import connect_readonly; c = connect_readonly(sys.argv[1]); "
+            "print(c.execute(\"SELECT current_setting('temp_directory')\").fetchone()[0])")
     other = subprocess.run([sys.executable, "-c", code, str(built)], capture_output=True, text=True, check=True,
                            env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])})
     assert Path(other.stdout.strip()).parent != temp.parent
@@ -617,15 +617,16 @@ def test_a_statement_that_runs_for_ever_is_stopped_by_the_timeout(built):
                        timeout=60)
     assert res.returncode == 3 and "statement timeout" in res.stderr
     # a statement within it is not touched; the default is finite
-    assert _cli(built, "SELECT count(*) AS n FROM range(1000)", "--timeout", "5", "--format", "csv").stdout == "n\n1000\n"
+    res = _cli(built, "SELECT count(*) AS n FROM range(1000)", "--timeout", "5", "--format", "csv")
+    assert res.stdout == "n\n1000\n"
     from pipeline.query import TIMEOUT_S
     assert 0 < TIMEOUT_S < float("inf")
 
 
 def test_memory_limit_default_option_and_environment(built):
     def setting(*args, env=None):
-        res = _cli(built, "SELECT current_setting('memory_limit') AS m, current_setting('max_temp_directory_size') AS t",
-                   "--format", "json", *args, env=env)
+        res = _cli(built, "SELECT current_setting('memory_limit') AS m, "
+                   "current_setting('max_temp_directory_size') AS t", "--format", "json", *args, env=env)
         assert res.exit_code == 0, res.stderr
         return json.loads(res.stdout)[0]
 
