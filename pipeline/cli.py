@@ -72,8 +72,11 @@ def _query_error(exc) -> None:
     """Print a refused or failed query and exit: 2 refused/usage, 3 failed."""
     import duckdb
 
-    from pipeline.query import QueryError
+    from pipeline.query import QueryError, QueryLimitError
 
+    if isinstance(exc, QueryLimitError):  # a limit of the door: one line naming it
+        click.echo(f"pneubench query: {exc}", err=True)
+        sys.exit(3)
     if isinstance(exc, QueryError):
         click.echo(f"pneubench query: {exc}", err=True)
         sys.exit(2)
@@ -96,7 +99,17 @@ def _query_error(exc) -> None:
               help="Rows the table format shows (0: all); it says how many more there are.")
 @click.option("--max-width", type=click.IntRange(min=0), default=None,
               help="Widest a table column gets before its cells wrap (default: fit the terminal; 0: never wrap).")
-def query(sql, sql_file, warehouse, fmt, max_rows, max_width):
+@click.option("--csv-safe", is_flag=True,
+              help="CSV to open in a spreadsheet: a text cell starting with = + - @ tab or CR gets a leading ' "
+                   "(without it, the data is exact).")
+@click.option("--timeout", "timeout_s", type=click.FloatRange(min=0), default=None, metavar="SECONDS",
+              help="Stop the statement after this long (default 600, or $PNEUBENCH_QUERY_TIMEOUT; 0: never).")
+@click.option("--memory-limit", default=None, metavar="SIZE",
+              help="DuckDB's memory (default 2GB, or $PNEUBENCH_QUERY_MEMORY_LIMIT); beyond it DuckDB spills to "
+                   "disk or the statement fails.")
+@click.option("--temp-limit", default=None, metavar="SIZE",
+              help="DuckDB's spill files in all (default 10GB, or $PNEUBENCH_QUERY_TEMP_LIMIT).")
+def query(sql, sql_file, warehouse, fmt, max_rows, max_width, csv_safe, timeout_s, memory_limit, temp_limit):
     """Run one read-only SQL statement on the warehouse.
 
     \b
@@ -106,22 +119,25 @@ def query(sql, sql_file, warehouse, fmt, max_rows, max_width):
     """
     import duckdb
 
-    from pipeline.query import QueryError, open_query, read_sql, terminal_width, write_result
+    from pipeline.query import QueryError, QueryLimitError, open_query, read_sql, terminal_width, write_result
 
     if sql is not None and sql_file is not None:
         raise click.UsageError("give the SQL as an argument or with -f, not both")
+    if csv_safe and fmt != "csv":
+        raise click.UsageError("--csv-safe goes with --format csv")
     if sql == "-":
         sql, sql_file = None, sys.stdin
     try:
         text = read_sql(sql, sql_file)
-        with open_query(warehouse, text, arrow=fmt == "csv") as result:  # pyarrow only to stream CSV
+        with open_query(warehouse, text, arrow=fmt == "csv", timeout_s=timeout_s, memory_limit=memory_limit,
+                        temp_limit=temp_limit) as result:  # pyarrow only to stream CSV
             out = sys.stdout
             width = terminal_width() if fmt == "table" and max_width is None else None
-            write_result(result, out, fmt, max_rows=max_rows, width=width, max_width=max_width)
+            write_result(result, out, fmt, max_rows=max_rows, width=width, max_width=max_width, csv_safe=csv_safe)
             out.flush()
     except FileNotFoundError as exc:
         raise click.UsageError(str(exc)) from None
-    except (QueryError, duckdb.Error) as exc:
+    except (QueryError, QueryLimitError, duckdb.Error) as exc:
         _query_error(exc)
 
 

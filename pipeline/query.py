@@ -7,19 +7,22 @@ import difflib
 import io
 import json
 import math
+import os
 import re
 import shutil
 import textwrap
+import threading
+import uuid
 from contextlib import contextmanager
 from dataclasses import dataclass
-from datetime import date, datetime
+from datetime import date, datetime, time
 from decimal import Decimal
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Iterator
 
 import duckdb
 
-from pipeline.warehouse import INTERNAL_TABLES, connect_readonly
+from pipeline.warehouse import INTERNAL_TABLES, MEMORY_LIMIT_ENV, TEMP_LIMIT_ENV, connect_readonly
 
 if TYPE_CHECKING:
     import pyarrow as pa
@@ -27,6 +30,68 @@ if TYPE_CHECKING:
 
 class QueryError(ValueError):
     """SQL that ``pneubench query`` refuses (one line: what and why)."""
+
+
+class QueryLimitError(RuntimeError):
+    """A statement stopped by a limit of the door: its memory, its spill files or its time (one
+    line naming the limit and how to raise it)."""
+
+
+#: Default statement timeout of ``pneubench query`` in seconds (README); ``$PNEUBENCH_QUERY_TIMEOUT``
+#: overrides it, ``--timeout`` both; 0: none. Wall-clock time from the start of the statement
+#: to its last row written.
+TIMEOUT_S = 600.0
+TIMEOUT_ENV = "PNEUBENCH_QUERY_TIMEOUT"
+
+
+def _timeout_s(value: float | None) -> float:
+    if value is None:
+        text = os.environ.get(TIMEOUT_ENV, "").strip()
+        try:
+            value = float(text) if text else TIMEOUT_S
+        except ValueError:
+            raise QueryError(f"${TIMEOUT_ENV} = {text!r}: a number of seconds (0: no timeout)") from None
+    if not value >= 0:
+        raise QueryError(f"timeout {value!r}: a number of seconds >= 0 (0: no timeout)")
+    return float(value)
+
+
+@contextmanager
+def _limited(con: duckdb.DuckDBPyConnection, timeout_s: float | None):
+    """Run the body under the statement timeout (a watchdog thread calls ``con.interrupt()``:
+    DuckDB has no statement timeout before 1.5, and this one also covers fetching the rows) and
+    turn DuckDB's "Out of Memory" into one line naming the door's limit that was reached."""
+    seconds = _timeout_s(timeout_s)
+    fired = threading.Event()
+
+    def stop():
+        fired.set()
+        con.interrupt()
+
+    timer = threading.Timer(seconds, stop) if seconds else None
+    if timer is not None:
+        timer.daemon = True
+        timer.start()
+    try:
+        yield
+    except (duckdb.Error, OSError) as exc:  # Arrow's reader raises DuckDB's errors as OSError
+        text = str(exc).strip()
+        if fired.is_set() and (isinstance(exc, duckdb.InterruptException) or text.startswith("INTERRUPT Error")):
+            raise QueryLimitError(f"statement timeout: stopped after {seconds:g} s (--timeout SECONDS or "
+                                  f"${TIMEOUT_ENV} gives it longer; 0: no timeout)") from None
+        if not (isinstance(exc, duckdb.OutOfMemoryException) or text.startswith("Out of Memory Error")):
+            raise
+        first = text.splitlines()[0]
+        if "max_temp_directory_size" in str(exc):
+            size = con.execute("SELECT current_setting('max_temp_directory_size')").fetchone()[0]
+            raise QueryLimitError(f"{first} (the door's spill files are limited to max_temp_directory_size "
+                                  f"{size}: --temp-limit or ${TEMP_LIMIT_ENV} raises it)") from None
+        size = con.execute("SELECT current_setting('memory_limit')").fetchone()[0]
+        raise QueryLimitError(f"{first} (the door's memory_limit is {size}: --memory-limit or "
+                              f"${MEMORY_LIMIT_ENV} raises it)") from None
+    finally:
+        if timer is not None:
+            timer.cancel()
 
 
 _READ_ONLY = ("pneubench query is read-only: one SELECT, FROM, WITH, DESCRIBE, SHOW, SUMMARIZE or "
@@ -110,27 +175,40 @@ def _no_samples_explained(sql: str):
         raise
 
 
-def run_query(warehouse: str | Path, sql: str) -> tuple[list[str], list[tuple]]:
+def _connect(warehouse: str | Path, memory_limit: str | None, temp_limit: str | None) -> duckdb.DuckDBPyConnection:
+    try:
+        return connect_readonly(Path(warehouse), memory_limit=memory_limit, temp_limit=temp_limit)
+    except ValueError as exc:  # a limit that is not a size
+        raise QueryError(str(exc)) from None
+
+
+def run_query(warehouse: str | Path, sql: str, timeout_s: float | None = None, memory_limit: str | None = None,
+              temp_limit: str | None = None) -> tuple[list[str], list[tuple]]:
     """Run one read-only statement on the warehouse. Returns (column names, rows).
 
     Raises :class:`QueryError` for SQL the door refuses, ``duckdb.Error`` for SQL DuckDB
     refuses (including every attempt to reach a file outside the warehouse's samples),
-    ``FileNotFoundError`` when there is no warehouse.
+    :class:`QueryLimitError` when a limit stops it (``timeout_s``: :data:`TIMEOUT_S`; the memory
+    and spill limits: :func:`pipeline.warehouse.connect_readonly`), ``FileNotFoundError`` when
+    there is no warehouse.
     """
-    con = connect_readonly(Path(warehouse))
+    con = _connect(warehouse, memory_limit, temp_limit)
     try:
-        with _no_samples_explained(sql):
-            cur = con.execute(check_sql(con, sql))
-        if cur.description is None:
-            return [], []
-        return [d[0] for d in cur.description], cur.fetchall()
+        with _limited(con, timeout_s):
+            with _no_samples_explained(sql):
+                cur = con.execute(check_sql(con, sql))
+            if cur.description is None:
+                return [], []
+            return [d[0] for d in cur.description], cur.fetchall()
     finally:
         con.close()
 
 
 def _plain(v):
-    if isinstance(v, (datetime, date)):
+    if isinstance(v, (datetime, date, time)):
         return v.isoformat()
+    if isinstance(v, uuid.UUID):
+        return str(v)
     if isinstance(v, Decimal):
         return float(v)
     if isinstance(v, float) and not math.isfinite(v):
@@ -199,32 +277,87 @@ def _count_rest(cur) -> int:
 
 
 @contextmanager
-def open_query(warehouse: str | Path, sql: str, batch_rows: int = BATCH_ROWS, arrow: bool = True) -> Iterator[Result]:
+def open_query(warehouse: str | Path, sql: str, batch_rows: int = BATCH_ROWS, arrow: bool = True,
+               timeout_s: float | None = None, memory_limit: str | None = None,
+               temp_limit: str | None = None) -> Iterator[Result]:
     """Check and start one read-only statement; the result is read in batches of ``batch_rows``.
 
     ``arrow``: batches are Arrow record batches (what :func:`write_csv` streams); otherwise lists
-    of row tuples, and pyarrow is never imported (0.15 s of a query's start-up).
+    of row tuples, and pyarrow is never imported (0.15 s of a query's start-up). Columns of a
+    type Python or Arrow cannot carry exactly come as DuckDB's text of them (:func:`_printable`).
 
     Raises :class:`QueryError`, ``duckdb.Error`` or ``FileNotFoundError`` (see :func:`run_query`)
-    before anything is yielded.
+    before anything is yielded; :class:`QueryLimitError` when a limit stops the statement, also
+    while its rows are read (the timeout covers the whole ``with`` block).
     """
-    con = connect_readonly(Path(warehouse))
+    con = _connect(warehouse, memory_limit, temp_limit)
     try:
-        with _no_samples_explained(sql):
-            checked = check_sql(con, sql)
-            rel = con.sql(checked) if arrow else None
-            cur = None if arrow else con.execute(checked)
-        if arrow:
-            if rel is None:
-                yield Result([], [], iter(()))
+        with _limited(con, timeout_s):
+            with _no_samples_explained(sql):
+                checked, bound = _printable(con, check_sql(con, sql))
+                rel = (bound if bound is not None else con.sql(checked)) if arrow else None
+                cur = None if arrow else con.execute(checked)
+            if arrow:
+                if rel is None:
+                    yield Result([], [], iter(()))
+                else:
+                    yield Result(list(rel.columns), [str(t) for t in rel.types],
+                                 iter(rel.to_arrow_reader(batch_rows)))
             else:
-                yield Result(list(rel.columns), [str(t) for t in rel.types], iter(rel.to_arrow_reader(batch_rows)))
-        else:
-            desc = cur.description or []
-            yield Result([d[0] for d in desc], [str(d[1]) for d in desc], _fetch_batches(cur, batch_rows),
-                         cursor=cur if desc else None)
+                desc = cur.description or []
+                yield Result([d[0] for d in desc], [str(d[1]) for d in desc], _fetch_batches(cur, batch_rows),
+                             cursor=cur if desc else None)
     finally:
         con.close()
+
+
+#: DuckDB types (``DuckDBPyType.id``) whose Python and Arrow values are what DuckDB holds; a
+#: column of any other type is written as DuckDB's own text of it (INTERVAL, UHUGEINT, BIGNUM,
+#: BIT, TIMETZ, TIME_NS, TIMESTAMP_NS, DATE with its infinities, and types DuckDB adds later),
+#: nested ones (LIST, STRUCT, MAP, ARRAY, UNION) as JSON (``to_json``).
+_NATIVE_TYPES = {"boolean", "tinyint", "smallint", "integer", "bigint", "utinyint", "usmallint", "uinteger",
+                 "ubigint", "hugeint", "float", "double", "decimal", "varchar", "blob", "uuid", "time", "timestamp",
+                 "timestamp_s", "timestamp_ms", "timestamp with time zone", "enum", "null"}
+_NESTED_TYPES = {"list", "struct", "map", "array", "union"}
+
+
+def _statement_body(sql: str) -> str:
+    """``sql`` without its trailing ``;`` and comments (to be wrapped as a subquery)."""
+    end = 0
+    tokens = duckdb.tokenize(sql)
+    for i, (offset, kind) in enumerate(tokens):
+        stop = tokens[i + 1][0] if i + 1 < len(tokens) else len(sql)
+        if kind != duckdb.token_type.comment and sql[offset:stop].strip() != ";":
+            end = stop
+    return sql[:end].rstrip().rstrip(";")
+
+
+def _printable(con: duckdb.DuckDBPyConnection, sql: str) -> tuple[str, "duckdb.DuckDBPyRelation | None"]:
+    """The statement with every column of a type outside :data:`_NATIVE_TYPES` as text (JSON
+    for nested types), so every DuckDB type prints, exactly (issue 21): Python's ``timedelta``
+    has no months, Arrow's CSV writer cannot write BIGNUM and writes a UHUGEINT above 2^127 as
+    a negative number, ``DATE 'infinity'`` becomes 9999-12-31 in Python.
+
+    Returns the SQL to run and, when it is ``sql`` itself, its bound relation (else None)."""
+    rel = con.sql(sql)  # binds the statement (a SELECT is not run)
+    if rel is None:
+        return sql, None
+    exprs, changed = [], False
+    for i, (name, typ) in enumerate(zip(rel.columns, rel.types)):
+        kind = typ.id
+        col = f"c{i}"
+        if kind in _NESTED_TYPES:
+            expr = f"to_json({col})"
+        elif kind in _NATIVE_TYPES or str(typ) == "JSON":
+            expr = col
+        else:
+            expr = f"CAST({col} AS VARCHAR)"
+        changed |= expr != col
+        exprs.append(f'{expr} AS "{name.replace(chr(34), chr(34) * 2)}"')
+    if not changed:
+        return sql, rel
+    cols = ", ".join(f"c{i}" for i in range(len(exprs)))
+    return f"SELECT {', '.join(exprs)} FROM (\n{_statement_body(sql)}\n) AS _q({cols})", None
 
 
 def read_sql(text: str | None, file: IO[str] | None = None) -> str:
@@ -233,6 +366,33 @@ def read_sql(text: str | None, file: IO[str] | None = None) -> str:
     if not sql.strip():
         raise QueryError("no SQL given: pneubench query \"SELECT ...\", -f FILE.sql, or - to read stdin")
     return sql
+
+
+#: First characters that make a spreadsheet run a text cell as a formula (OWASP, "CSV Injection").
+FORMULA_START = ("=", "+", "-", "@", "\t", "\r")
+
+
+def neutralise_cell(v):
+    """A text cell a spreadsheet would run as a formula (``=HYPERLINK(...)``, ``@SUM(...)``) with
+    a ``'`` put before it, as OWASP advises; every other value unchanged (a number such as -1.5
+    stays a number: the advice is for text cells). Used by the report's CSV downloads and by
+    ``pneubench query --format csv --csv-safe``."""
+    if isinstance(v, str) and v.startswith(FORMULA_START):
+        return "'" + v
+    return v
+
+
+def _safe_column(col):
+    """An Arrow text column through :func:`neutralise_cell` (other columns unchanged)."""
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    if not (pa.types.is_string(col.type) or pa.types.is_large_string(col.type)):
+        return col
+    pattern = "^[" + "".join(re.escape(c) for c in FORMULA_START) + "]"
+    if not pc.any(pc.match_substring_regex(col, pattern)).as_py():
+        return col
+    return pa.array([neutralise_cell(v) for v in col.to_pylist()], pa.string())
 
 
 def _csv_cell(v):
@@ -263,22 +423,28 @@ def _csv_column(col):
     return col
 
 
-def write_csv(result: Result, out: IO[str]) -> int:
+def write_csv(result: Result, out: IO[str], safe: bool = False) -> int:
     """Write the result as CSV: header first; NULL, NaN and inf empty; lists and structs as JSON.
 
-    Batches go through Arrow's CSV writer (values quoted only where a batch needs it).
+    Batches go through Arrow's CSV writer (values quoted only where a batch needs it). The
+    data is exact; ``safe``: text cells a spreadsheet would run as formulas get a leading ``'``
+    (:func:`neutralise_cell`).
     """
     import pyarrow as pa
     import pyarrow.csv as pcsv
 
-    csv.writer(out, lineterminator="\n").writerow(result.columns)
+    cell = neutralise_cell if safe else (lambda v: v)
+    csv.writer(out, lineterminator="\n").writerow([cell(c) for c in result.columns])
     n = 0
     for batch in result.batches:
         if isinstance(batch, list):  # rows already in Python
-            csv.writer(out, lineterminator="\n").writerows([_csv_cell(v) for v in r] for r in batch)
+            csv.writer(out, lineterminator="\n").writerows([_csv_cell(cell(v)) for v in r] for r in batch)
             n += len(batch)
             continue
-        ready = pa.RecordBatch.from_arrays([_csv_column(c) for c in batch.columns],
+        columns = [_csv_column(c) for c in batch.columns]
+        if safe:
+            columns = [_safe_column(c) for c in columns]
+        ready = pa.RecordBatch.from_arrays(columns,
                                            names=[f"c{i}" for i in range(batch.num_columns)])
         buf = io.BytesIO()
         try:
@@ -293,8 +459,8 @@ def write_csv(result: Result, out: IO[str]) -> int:
 
 def _json_value(v, is_json: bool):
     if is_json and isinstance(v, str):
-        try:
-            return json.loads(v)
+        try:  # NaN and infinities (to_json writes them) are null, as in a plain column
+            return json.loads(v, parse_constant=lambda _c: None)
         except ValueError:
             return v
     return _plain(v)
@@ -316,7 +482,7 @@ def write_json(result: Result, out: IO[str]) -> int:
 
 def _md_cell(v) -> str:
     text = "" if v is None else (json.dumps(_plain(v), ensure_ascii=False) if isinstance(v, (list, dict)) else
-                                 str(_plain(v)))
+                                 str(v) if isinstance(v, Decimal) else str(_plain(v)))
     return text.replace("\\", "\\\\").replace("|", "\\|").replace("\r", "").replace("\n", "<br>")
 
 
@@ -342,6 +508,8 @@ def _table_cell(v) -> str:
         return "NULL"
     if isinstance(v, float):
         return f"{v:.6g}"
+    if isinstance(v, Decimal):  # exact: a DECIMAL(38) is not a double
+        return str(v)
     if isinstance(v, (list, dict)):
         return json.dumps(_plain(v), ensure_ascii=False)
     return str(_plain(v))
@@ -441,10 +609,12 @@ def write_table(result: Result, out: IO[str], max_rows: int = MAX_ROWS, width: i
 
 
 def write_result(result: Result, out: IO[str], fmt: str = "table", max_rows: int = MAX_ROWS,
-                 width: int | None = None, max_width: int | None = None) -> int:
-    """Write an open result in ``fmt`` (one of :data:`FORMATS`). Returns the number of rows."""
+                 width: int | None = None, max_width: int | None = None, csv_safe: bool = False) -> int:
+    """Write an open result in ``fmt`` (one of :data:`FORMATS`). Returns the number of rows.
+
+    ``csv_safe``: see :func:`write_csv`."""
     if fmt == "csv":
-        return write_csv(result, out)
+        return write_csv(result, out, safe=csv_safe)
     if fmt == "json":
         return write_json(result, out)
     if fmt == "markdown":

@@ -310,12 +310,15 @@ def _csv_uri(columns: list[str], rows: list[tuple]) -> str:
     import csv
     import io
 
+    from pipeline.query import neutralise_cell
+
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(columns)
-    for r in rows:
+    w.writerow([neutralise_cell(c) for c in columns])
+    for r in rows:  # text a spreadsheet would run as a formula (a run id "=HYPERLINK(...)") made inert
         w.writerow(["" if v is None else (repr(v) if isinstance(v, float) else
-                                          ";".join(map(str, v)) if isinstance(v, (list, tuple)) else v) for v in r])
+                                          neutralise_cell(";".join(map(str, v)) if isinstance(v, (list, tuple)) else v))
+                    for v in r])
     return "data:text/csv;charset=utf-8;base64," + base64.b64encode(buf.getvalue().encode("utf-8")).decode("ascii")
 
 

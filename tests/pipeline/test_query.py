@@ -86,6 +86,10 @@ def escapes(wh: Path) -> dict[str, str]:
         "read_text_passwd": "SELECT * FROM read_text('/etc/passwd')",
         "read_text_secret": f"SELECT * FROM read_text('{secret}')",
         "read_blob_traversal": f"SELECT * FROM read_blob('{wh / 'samples'}/../../secret.txt')",
+        "read_blob_database": f"SELECT * FROM read_blob('{db}')",
+        "read_blob_database_via_samples": f"SELECT size FROM read_blob('{wh / 'samples'}/../{DB_NAME}')",
+        "read_text_database_glob": f"SELECT * FROM read_text('{wh}/*.duckdb')",
+        "read_csv_database": f"SELECT * FROM read_csv('{db}', delim = '\x01', header = false, strict_mode = false)",
         "glob_root": "SELECT * FROM glob('/root/*')",
         "glob_outside": f"SELECT * FROM glob('{wh.parent}/*')",
         "replacement_scan": f"SELECT * FROM '{secret}'",
@@ -180,6 +184,55 @@ def test_the_door_itself_contains_sql_without_the_statement_check(built):
         assert con.execute("SELECT count(*) FROM runs").fetchone() == (2,)
     finally:
         con.close()
+
+
+def test_the_database_is_attached_through_a_name_that_is_gone(built):
+    """DuckDB allows SQL to read the files of an attached database: the door attaches it through
+    a private link it removes at once, so the allowed path names nothing (issue 21, item 8)."""
+    con = connect_readonly(built)
+    try:
+        allowed = con.execute("SELECT value FROM duckdb_settings() WHERE name = 'allowed_paths'").fetchone()[0]
+        assert str(built / DB_NAME) not in allowed
+        (path,) = con.execute("SELECT path FROM duckdb_databases() WHERE database_name = 'pneubench'").fetchone()
+        assert not Path(path).exists() and Path(path).parent.stat().st_mode & 0o777 == 0o700
+        try:  # nothing there: no rows, or "No files found"
+            assert con.execute(f"SELECT * FROM read_blob('{path}')").fetchall() == []
+        except duckdb.IOException as exc:
+            assert "No files found" in str(exc)
+        assert con.execute("SELECT count(*) FROM samples_step").fetchone() == (8,)
+    finally:
+        con.close()
+
+
+def test_temp_folder_is_private_to_the_process(built, tmp_path, monkeypatch):
+    """A folder another user planted where the old fixed temp folder was (a symlink to theirs)
+    is not readable through the door; the temp folder is made by mkdtemp, mode 0700, per
+    process (issue 21, item 7)."""
+    import tempfile
+
+    systmp = tmp_path / "systmp"
+    theirs = tmp_path / "theirs"
+    systmp.mkdir(), theirs.mkdir()
+    (theirs / "planted.txt").write_text("planted by another user\n")
+    (systmp / "pneubench-duckdb").symlink_to(theirs, target_is_directory=True)
+    monkeypatch.setattr(tempfile, "tempdir", str(systmp))
+    with pytest.raises(duckdb.PermissionException):
+        run_query(built, f"SELECT * FROM read_text('{systmp}/pneubench-duckdb/planted.txt')")
+    con = connect_readonly(built)
+    try:
+        temp = Path(con.execute("SELECT current_setting('temp_directory')").fetchone()[0])
+    finally:
+        con.close()
+    assert temp.parent.name.startswith("pneubench-door-") and temp.parent.stat().st_mode & 0o777 == 0o700
+    assert temp.parent.stat().st_uid == os.getuid()
+    assert not temp.exists()  # DuckDB made it only to spill, and removed it on close
+    # another process gets another folder
+    code = ("import sys; from pipeline.warehouse import connect_readonly; c = connect_readonly(sys.argv[1]); "
+            "print(c.execute(\"SELECT current_setting('temp_directory')\").fetchone()[0])")
+    other = subprocess.run([sys.executable, "-c", code, str(built)], capture_output=True, text=True, check=True,
+                           env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])})
+    assert Path(other.stdout.strip()).parent != temp.parent
+    assert not Path(other.stdout.strip()).parent.exists()  # removed when that process ended
 
 
 def test_two_doors_and_a_plain_connection_coexist_in_one_process(built):
@@ -447,3 +500,159 @@ def test_figures_never_copy_from_outside_the_warehouse(tmp_path):
     with pytest.raises(QueryError, match="not a file of the warehouse"):
         copy_figures(wh, tmp_path / "out")
     assert not (tmp_path / "out" / "x-evil.png").exists()
+
+
+# ---------------------------------------------------------------------------------------------
+# Issue 21: CSV formula injection (item 9), every DuckDB type prints (item 17), the door's limits (item 19)
+
+FORMULAS = ["=HYPERLINK(\"http://x\",\"y\")", "+1+1", "-2+3", "@SUM(1)", "\tx", "\rx"]
+
+
+def test_query_csv_is_exact_by_default_and_neutralised_with_csv_safe(built):
+    cells = ", ".join(f"'{f}' AS f{i}" for i, f in enumerate(FORMULAS))
+    sql = f"SELECT {cells}, -1.5 AS neg, 'c/a' AS plain, '=x' AS \"=h\""
+    res = _cli(built, sql, "--format", "csv")
+    assert res.exit_code == 0, res.stderr
+    header, row = list(csv.reader(io.StringIO(res.stdout)))
+    assert row == FORMULAS + ["-1.5", "c/a", "=x"] and header[-1] == "=h"  # exact: what the warehouse holds
+    res = _cli(built, sql, "--format", "csv", "--csv-safe")
+    assert res.exit_code == 0, res.stderr
+    header, row = list(csv.reader(io.StringIO(res.stdout)))
+    assert row == ["'" + f for f in FORMULAS] + ["-1.5", "c/a", "'=x"] and header[-1] == "'=h"
+    assert float(row[-3]) == -1.5  # a number stays a number
+    res = _cli(built, sql, "--format", "json", "--csv-safe")
+    assert res.exit_code == 2 and "--csv-safe goes with --format csv" in res.stderr
+
+
+def test_csv_safe_rows_already_in_python_take_the_same_rule():
+    from pipeline.query import Result, write_csv
+
+    out = io.StringIO()
+    write_csv(Result(["run_id", "x"], ["VARCHAR", "DOUBLE"], iter([[("@SUM(1)", -1.5), ("c/a", 2.0)]])), out,
+              safe=True)
+    assert list(csv.reader(io.StringIO(out.getvalue()))) == [["run_id", "x"], ["'@SUM(1)", "-1.5"], ["c/a", "2.0"]]
+
+
+def _all_types_sql() -> str:
+    have = {r[0] for r in duckdb.connect().execute("SELECT type_name FROM duckdb_types()").fetchall()}
+    bignum = "bignum" if "bignum" in have else "varint" if "varint" in have else None
+    cols = {
+        "i": "INTERVAL 1 YEAR + INTERVAL 2 MONTH + INTERVAL 3 DAY + INTERVAL 4 HOUR + INTERVAL 5 MICROSECOND",
+        "h": "170141183460469231731687303715884105727::HUGEINT",
+        "uh": "340282366920938463463374607431768211455::UHUGEINT",
+        "d38": "-12345678901234567890123456789.123456789::DECIMAL(38,9)",
+        "u": "'a0eebc99-9c0b-4ef8-bb6d-6bb9bd380a11'::UUID", "b": "'\\x00\\xFFab'::BLOB", "bit": "'10101'::BIT",
+        "t": "TIME '12:34:56.789'", "ttz": "TIMETZ '12:34:56+02:30'",
+        "tns": "TIMESTAMP_NS '2026-01-02 03:04:05.123456789'", "dinf": "DATE 'infinity'",
+        "e": "'b'::ENUM('a', 'b')", "l": "[1, NULL, 3]", "s": "{'x': 1, 'y': 'z'}", "m": "MAP {'k': 1.5}",
+        "un": "union_value(num := 2)::UNION(num INTEGER, str VARCHAR)", "arr": "[1.5, 2.5]::DOUBLE[2]",
+        "n": "NULL", "li": "[INTERVAL 1 DAY]", "nan": "[1.5, 'NaN'::DOUBLE]",
+    }
+    if bignum:
+        cols["bn"] = f"'123456789012345678901234567890123456789012345'::{bignum.upper()}"
+    return "SELECT " + ", ".join(f"{v} AS {k}" for k, v in cols.items())
+
+
+#: What each column must print as (its text in every format; JSON: the value).
+EXPECTED_TEXT = {
+    "i": "1 year 2 months 3 days 04:00:00.000005", "h": "170141183460469231731687303715884105727",
+    "uh": "340282366920938463463374607431768211455", "bit": "10101", "ttz": "12:34:56+02:30",
+    "tns": "2026-01-02 03:04:05.123456789", "dinf": "infinity", "u": "a0eebc99-9c0b-4ef8-bb6d-6bb9bd380a11",
+    "bn": "123456789012345678901234567890123456789012345",
+}
+
+
+@pytest.mark.parametrize("fmt", ["table", "csv", "json", "markdown"])
+def test_every_duckdb_type_prints_in_every_format(built, fmt):
+    res = _cli(built, _all_types_sql(), "--format", fmt, "--max-width", "0") if fmt == "table" else \
+        _cli(built, _all_types_sql(), "--format", fmt)
+    assert res.exit_code == 0, res.stderr
+    assert res.stderr == ""
+    out = res.stdout
+    for col, text in EXPECTED_TEXT.items():
+        if col == "bn" and "bn" not in _all_types_sql():
+            continue
+        assert text in out, (col, text)
+    if fmt != "json":  # a DECIMAL(38) exactly (JSON: a number, a double)
+        assert "-12345678901234567890123456789.123456789" in out
+    if fmt == "json":
+        (row,) = json.loads(out)
+        assert row["i"] == EXPECTED_TEXT["i"] and row["dinf"] == "infinity" and row["l"] == [1, None, 3]
+        assert row["s"] == {"x": 1, "y": "z"} and row["m"] == {"k": 1.5} and row["nan"] == [1.5, None]
+        assert row["n"] is None and row["t"] == "12:34:56.789000" and row["arr"] == [1.5, 2.5]
+    if fmt == "csv":
+        header, row = list(csv.reader(io.StringIO(out)))
+        got = dict(zip(header, row))
+        assert got["d38"] == "-12345678901234567890123456789.123456789" and got["uh"] == EXPECTED_TEXT["uh"]
+        assert got["li"] == '["1 day"]' and got["e"] == "b" and got["n"] == ""
+
+
+def _cli_process(built, *args, env=None, timeout=120, memory=4 << 30):
+    """``pneubench query`` in a child process under an address-space limit (a query that escapes
+    its limits cannot take the machine), killed after ``timeout`` seconds."""
+    import resource
+
+    def limit():
+        resource.setrlimit(resource.RLIMIT_AS, (memory, memory))
+
+    code = "import sys; sys.argv[0] = 'pneubench'; from pipeline.cli import main; main()"
+    return subprocess.run([sys.executable, "-c", code, "query", "--warehouse", str(built), *args],
+                          capture_output=True, text=True, timeout=timeout, preexec_fn=limit,
+                          env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2]), **(env or {})})
+
+
+def test_a_statement_that_runs_for_ever_is_stopped_by_the_timeout(built):
+    import time
+
+    for args, env in [(["--timeout", "1"], None), ([], {"PNEUBENCH_QUERY_TIMEOUT": "1"})]:
+        t0 = time.monotonic()
+        res = _cli_process(built, "SELECT count(*) FROM range(1e15::BIGINT)", *args, env=env, timeout=60)
+        assert res.returncode == 3, res.stderr
+        assert time.monotonic() - t0 < 30
+        assert res.stderr.strip().splitlines() == [
+            "pneubench query: statement timeout: stopped after 1 s (--timeout SECONDS or $PNEUBENCH_QUERY_TIMEOUT "
+            "gives it longer; 0: no timeout)"]
+    # the timeout covers the rows as they stream out, too
+    res = _cli_process(built, "SELECT range FROM range(1e13::BIGINT)", "--format", "csv", "--timeout", "2",
+                       timeout=60)
+    assert res.returncode == 3 and "statement timeout" in res.stderr
+    # a statement within it is not touched; the default is finite
+    res = _cli(built, "SELECT count(*) AS n FROM range(1000)", "--timeout", "5", "--format", "csv")
+    assert res.stdout == "n\n1000\n"
+    from pipeline.query import TIMEOUT_S
+    assert 0 < TIMEOUT_S < float("inf")
+
+
+def test_memory_limit_default_option_and_environment(built):
+    def setting(*args, env=None):
+        res = _cli(built, "SELECT current_setting('memory_limit') AS m, "
+                   "current_setting('max_temp_directory_size') AS t", "--format", "json", *args, env=env)
+        assert res.exit_code == 0, res.stderr
+        return json.loads(res.stdout)[0]
+
+    assert setting() == {"m": "1.8 GiB", "t": "9.3 GiB"}  # 2GB and 10GB: the documented defaults
+    assert setting("--memory-limit", "300MB", "--temp-limit", "20MB") == {"m": "286.1 MiB", "t": "19.0 MiB"}
+    assert setting(env={"PNEUBENCH_QUERY_MEMORY_LIMIT": "300MB", "PNEUBENCH_QUERY_TEMP_LIMIT": "1GB"}) == \
+        {"m": "286.1 MiB", "t": "953.6 MiB"}
+    res = _cli(built, "SELECT 1", "--memory-limit", "lots")
+    assert res.exit_code == 2 and "memory_limit 'lots'" in res.stderr
+
+
+def test_a_memory_hungry_query_fails_with_one_line_naming_the_limit(built):
+    sql = "SELECT list(range) FROM range(30000000)"  # one list: DuckDB cannot spill it
+    res = _cli_process(built, sql, "--memory-limit", "50MB", "--format", "csv")
+    assert res.returncode == 3, res.stderr
+    (line,) = res.stderr.strip().splitlines()
+    assert line.startswith("pneubench query: Out of Memory Error") and "memory_limit is 47.6 MiB" in line
+    assert "--memory-limit or $PNEUBENCH_QUERY_MEMORY_LIMIT" in line
+
+
+def test_spill_files_are_capped_by_the_temp_limit(built):
+    sql = "SELECT max(r) AS m FROM (SELECT range AS r, random() AS x FROM range(10000000) ORDER BY x)"
+    res = _cli_process(built, sql, "--memory-limit", "100MB", "--temp-limit", "20MB", "--format", "csv")
+    assert res.returncode == 3, res.stderr
+    (line,) = res.stderr.strip().splitlines()
+    assert "max_temp_directory_size 19.0 MiB" in line and "--temp-limit or $PNEUBENCH_QUERY_TEMP_LIMIT" in line
+    # the same sort within a cap it fits: it spills and finishes
+    res = _cli_process(built, sql, "--memory-limit", "100MB", "--temp-limit", "2GB", "--format", "csv")
+    assert res.returncode == 0 and res.stdout == "m\n9999999\n", res.stderr

@@ -384,3 +384,23 @@ def test_pneubench_report_command_exits_3_when_the_page_cannot_be_rendered(built
     res = CliRunner().invoke(main, ["report", "--warehouse", str(warehouse)])
     assert res.exit_code == 3
     assert "pneubench report: failed: ZeroDivisionError: division by zero" in res.output
+
+
+def test_csv_downloads_neutralise_formulas_and_keep_numbers():
+    """Issue 21, item 9: a run id such as =HYPERLINK(...) is text in a spreadsheet, not a formula
+    (OWASP: a leading '), and numbers (-1.5) stay numbers."""
+    import base64
+    import csv
+    import io
+
+    from pipeline.report import _csv_uri
+
+    uri = _csv_uri(["run_id", "x", "warnings", "=h"], [("=HYPERLINK(\"http://x\",\"y\")", -1.5, ["@a", "b"], 1),
+                                                       ("+1", None, [], -2), ("-2+3", 2.0, None, 3),
+                                                       ("\tx", 0.5, None, 4), ("c/a", -0.0, None, 5)])
+    text = base64.b64decode(uri.split(",", 1)[1]).decode("utf-8")
+    rows = list(csv.reader(io.StringIO(text)))
+    assert rows == [["run_id", "x", "warnings", "'=h"],
+                    ["'=HYPERLINK(\"http://x\",\"y\")", "-1.5", "'@a;b", "1"],
+                    ["'+1", "", "", "-2"], ["'-2+3", "2.0", "", "3"], ["'\tx", "0.5", "", "4"],
+                    ["c/a", "-0.0", "", "5"]]
