@@ -667,3 +667,14 @@ def test_q_sensor_values_outside_their_plausible_range(raw, warehouse, where, st
         meta.update(stated)
     raw.csv("c/a.csv", meta, {"t[s]": T, "x[mm]": T, "x_ref[mm]": T, "p_a[bar]": T})
     assert quarantine(raw, warehouse).startswith(reason)
+
+
+def test_q_mat_scalar_rate_outside_the_sample_rate_range(raw, warehouse):
+    from tests.pipeline.readers.generators import mat_v5
+
+    (raw.root / "c").mkdir(parents=True)
+    mat_v5(raw.root / "c/a.mat", {"x": np.array([1.0, 2.0, 3.0]), "x_ref": np.array([0.0, 0.0, 0.0]),
+                                  "dt": 1e-12, "units": {"x": "mm", "x_ref": "mm"},    # ps: a unit slip
+                                  "meta": {"kind": "step", "rig": "r", "started_at": "2026-01-01"}})
+    assert quarantine(raw, warehouse, "c/a.mat").startswith(
+        "MAT scalar `dt` = 1e-12 s is outside its plausible range 1e-09 to 10000 s (")
