@@ -365,7 +365,8 @@ def check_plausible(meta: dict, time_base: TimeBase | None = None) -> None:
         why = implausible(key, meta[key])
         if why is not None:
             raise IngestError(f"metadata `{key}` = {why}")
-    if time_base is not None and time_base.source in MAT_RATE_KEYS + MAT_DT_KEYS and time_base.source not in META_KEYS:
+    mat_scalar = time_base is not None and time_base.source in MAT_RATE_KEYS + MAT_DT_KEYS
+    if mat_scalar and time_base.source not in META_KEYS:  # `sample_rate_hz` is checked above
         key, value = (("sample_rate_hz", time_base.rate_hz) if time_base.rate_hz is not None
                       else ("dt_s", time_base.dt_s))
         why = implausible(key, value)
