@@ -6,6 +6,7 @@ the docs all read it from here.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 
 import pyarrow as pa
@@ -191,6 +192,10 @@ object.__setattr__(META_KEYS["kind"], "choices", tuple(KINDS))
 REQUIRED_METADATA = ("kind", "run_id", "started_at", "rig")
 
 
+#: A number with `,` digit grouping (`1,250`, `1,250,000`): 1.25 with a decimal comma, or 1250.
+_GROUPED_COMMA = re.compile(r"^[+-]?[1-9]\d{0,2}(,\d{3})+$")
+
+
 def coerce_value(key: str, value):
     """Type a metadata value by :data:`META_KEYS`. Raises ValueError with a short reason."""
     spec = META_KEYS.get(key)
@@ -199,6 +204,14 @@ def coerce_value(key: str, value):
     if spec.type == "float":
         if isinstance(value, bool):
             raise ValueError(f"`{key}` must be a number, got {value!r}")
+        if isinstance(value, str) and _GROUPED_COMMA.match(value.strip()):
+            text = value.strip()
+            if text.count(",") > 1:
+                raise ValueError(f"`{key}` = {value!r} has thousands separators: write it without digit grouping "
+                                 f"({text.replace(',', '')})")
+            raise ValueError(f"`{key}` = {value!r} reads as {float(text.replace(',', '.')):g} with a decimal comma "
+                             f"or {text.replace(',', '')} with a thousands separator: write it without digit grouping "
+                             "(or with a decimal point)")
         try:
             out = float(str(value).strip().replace(",", ".")) if isinstance(value, str) else float(value)
         except (TypeError, ValueError):
