@@ -31,7 +31,7 @@ from pipeline.readers import RawColumn, ReaderError, list_parts, parts_keys, rea
 from pipeline.readers.base import MAX_CHANNELS
 from schemas.channels import (CHANNELS, canonical_name, noncanonical_column, other_dimension,
                               reserved_clash, sanitise_name)
-from schemas.kinds import (KINDS, META_KEYS, coerce_value, missing_channels,
+from schemas.kinds import (KINDS, META_KEYS, coerce_value, implausible, missing_channels,
                            missing_metadata, samples_schema)
 from schemas.units import P_ATM_DEFAULT_PA, accepted_symbols, lookup_unit
 
@@ -358,6 +358,23 @@ def resolve_time_base(meta: dict, export) -> TimeBase | None:
     return None
 
 
+def check_plausible(meta: dict, time_base: TimeBase | None = None) -> None:
+    """Refuse a stated value outside its physical range (:data:`schemas.kinds.PLAUSIBLE`): one
+    line naming the key, the value and the range. A MAT scalar rate is held to the range of
+    ``sample_rate_hz`` / ``dt_s``."""
+    for key in sorted(meta):
+        why = implausible(key, meta[key])
+        if why is not None:
+            raise IngestError(f"metadata `{key}` = {why}")
+    mat_scalar = time_base is not None and time_base.source in MAT_RATE_KEYS + MAT_DT_KEYS
+    if mat_scalar and time_base.source not in META_KEYS:  # `sample_rate_hz` is checked above
+        key, value = (("sample_rate_hz", time_base.rate_hz) if time_base.rate_hz is not None
+                      else ("dt_s", time_base.dt_s))
+        why = implausible(key, value)
+        if why is not None:
+            raise IngestError(f"MAT scalar `{time_base.source}` = {why}")
+
+
 # -- sensor characteristics -------------------------------------------------------------------
 SENSOR_FIELDS = ("resolution", "noise")
 _SENSOR_KEY = re.compile(r"^sensor_(?P<channel>.+)_(?P<what>resolution|noise)$", re.IGNORECASE)
@@ -399,6 +416,9 @@ def sensor_value_si(value, channel: str, what: str, where: str) -> float:
         out = v / div        # 5 um -> 5e-06 exactly as the literal
     if not math.isfinite(out) or out < 0:
         raise IngestError(f"{where}: {what} must be zero or positive and finite in {si}, got {value!r}")
+    why = implausible(f"sensor:{quantity}", out)
+    if why is not None:
+        raise IngestError(f"{where}: {what} {why}")
     return out
 
 
@@ -871,6 +891,7 @@ def _ingest_hashed(tree, path, warehouse, rel, campaign, reuse, sha, hashing, co
     if KINDS[kind].chambers and meta.get("chamber") not in KINDS[kind].chambers:
         raise IngestError(f"metadata `chamber` must be one of {', '.join(KINDS[kind].chambers)} "
                           f"for kind {kind}, got {meta.get('chamber')!r}")
+    check_plausible(meta, time_base)
     p_atm = float(meta.get("p_atm_pa", P_ATM_DEFAULT_PA))
     extra = [(m.column, m.unit, pa.float64() if m.numeric else pa.string()) for m in maps if m.channel is None]
     extra += [(d.column, d.unit, pa.float64()) for d in derived if d.channel is None]

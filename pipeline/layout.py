@@ -42,7 +42,11 @@ rig.toml files over :data:`MAX_RIG_BYTES` or nested too deeply for the TOML pars
 manifest.csv files with a NUL byte, an unclosed quote, a field over the ``csv`` module's limit
 (128 KiB) or another CSV syntax error, are quarantined with the line number, and so is every
 run under them (the metadata they were to give cannot be known: ingesting those runs with the
-remaining sources could silently give them wrong metadata).
+remaining sources could silently give them wrong metadata). So are a manifest without a header
+row (empty), without a ``file`` column (``File``: the hint says lower case) or with a column
+named twice (case-insensitively), and a ``Manifest.csv`` / ``Rig.toml`` named in another case
+(the walk knows it is not a run; unread, it would be a silent skip). A manifest row with a value
+in a column the header does not name (its values are shifted) quarantines the run it names.
 """
 from __future__ import annotations
 
@@ -390,6 +394,27 @@ class RawTree:
         probs = self._entry(path).problems
         return probs[0].error if probs else None
 
+    def _miscased(self, folder: Path, name: str) -> ConfigError | None:
+        """A side file in ``folder`` whose name is ``name`` in another case (``Manifest.csv``,
+        ``RIG.TOML``): the walk knows it is not a run, yet it is not read, so the metadata it was
+        to give cannot be known. Each such file is a quarantine line (once) and the returned
+        ConfigError quarantines the runs it applies to; None when there is none."""
+        cache = self.__dict__.setdefault("_miscased_cache", {})
+        key = (str(folder), name)
+        if key not in cache:
+            try:
+                found = sorted(n for n in os.listdir(folder) if n.lower() == name and n != name)
+            except OSError:
+                found = []
+            err = None
+            for n in found:
+                what = "a manifest" if name == "manifest.csv" else f"a {name}"
+                msg = f"named `{display_name(n)}`: {what} must be named `{name}` (lower case); it is not read"
+                self.problems.append(Problem(self.rel(folder / n), msg))
+                err = err or ConfigError(f"cannot use {self.rel(folder / n)}: {msg}")
+            cache[key] = err
+        return cache[key]
+
     def real(self, path: Path) -> Path:
         """The path with its folders resolved but not its last component (a symlink inside raw/
         keeps its own path), cached (a rebuild asks for every file's several times)."""
@@ -446,8 +471,11 @@ class RawTree:
             f = folder / "rig.toml"
             cfg: dict | ConfigError = {}
             blocked = self._entry_problem(f)
+            miscased = self._miscased(folder, "rig.toml")
             if blocked is not None:  # a quarantine row of its own (walk_raw)
                 cfg = ConfigError(f"cannot use {self.rel(f)}: {blocked}")
+            elif miscased is not None:
+                cfg = miscased
             elif os.path.isfile(f):
                 msg = None
                 try:
@@ -521,8 +549,11 @@ class RawTree:
         rows: dict[str, dict] | ConfigError = {}
         f = folder / "manifest.csv"
         blocked = self._entry_problem(f)
+        miscased = self._miscased(folder, "manifest.csv")
         if blocked is not None:  # a quarantine row of its own (walk_raw)
             rows = ConfigError(f"cannot use {self.rel(f)}: {blocked}")
+        elif miscased is not None:
+            rows = miscased
         elif os.path.isfile(f):
             try:
                 rows = self._parse_manifest(folder, f)
@@ -549,18 +580,23 @@ class RawTree:
                     if not any(c.strip() for c in cells):
                         continue  # blank lines before the header
                     fields = [h.strip() for h in cells]
-                    if "file" not in fields:
-                        self.problems.append(Problem(rel_manifest, "no `file` column in the header"))
-                        return rows
+                    _check_manifest_header(fields, line)
                     continue
+                extra = _unnamed_value(fields, cells)
                 row = dict(zip(fields, cells))
-                self._manifest_row(folder, rel_manifest, rows, row, line)
+                self._manifest_row(folder, rel_manifest, rows, row, line, extra)
         except SideCsvError as exc:
             raise _BadManifest(*exc.args) from None
+        if fields is None:
+            raise _BadManifest("no header row (an empty manifest: a header naming the `file` column comes first)",
+                               None)
         return rows
 
-    def _manifest_row(self, folder: Path, rel_manifest: str, rows: dict, row: dict, line: int) -> None:
-        """Record one manifest row (or the problem with it) in ``rows``."""
+    def _manifest_row(self, folder: Path, rel_manifest: str, rows: dict, row: dict, line: int,
+                      extra: str | None = None) -> None:
+        """Record one manifest row (or the problem with it) in ``rows``. ``extra``: why the row's
+        values cannot be known (a value under no header name); the run it names then gets a
+        ConfigError instead of metadata."""
         name = (row.get("file") or "").strip()
         if not name:
             if any((v or "").strip() for v in row.values() if isinstance(v, str)):
@@ -598,6 +634,10 @@ class RawTree:
         key = target.as_posix() if part is None else f"{target.as_posix()}\x00{part}"  # NUL: in no path
         if key in rows:
             self.problems.append(Problem(rel_manifest, f"entry `{name}` is listed twice; the later row is used", line))
+        if extra is not None:
+            self.problems.append(Problem(rel_manifest, extra, line))
+            rows[key] = ConfigError(f"cannot use {rel_manifest}: line {line}: {extra}")
+            return
         meta = {k: v.strip() for k, v in row.items()
                 if k and k != "file" and isinstance(v, str) and v.strip() != ""}
         rows[key] = meta
@@ -620,9 +660,9 @@ class RawTree:
                     for k, meta in rows.items():
                         if "\x00" in k:
                             file, part = k.split("\x00", 1)
-                            parts.setdefault(file, {}).setdefault(part, {}).update(meta)
+                            _merge_row(parts.setdefault(file, {}), part, meta)
                         else:
-                            metas.setdefault(k, {}).update(meta)
+                            _merge_row(metas, k, meta)
                 hit = (metas, parts)
             except ConfigError as exc:
                 hit = exc
@@ -636,7 +676,10 @@ class RawTree:
 
         Raises ConfigError when a manifest of its folder or above cannot be read."""
         metas, _parts = self._manifest_chain(path)
-        return dict(metas.get(str(self.real(path)), {}))
+        meta = metas.get(str(self.real(path)), {})
+        if isinstance(meta, ConfigError):  # its row cannot be read: the run waits for it
+            raise meta
+        return dict(meta)
 
     def manifest_parts(self, path: Path) -> dict[str, dict]:
         """Metadata the manifests give for single sheets / MDF groups of a file of several runs
@@ -644,10 +687,14 @@ class RawTree:
 
         Raises ConfigError when a manifest of its folder or above cannot be read."""
         _metas, parts = self._manifest_chain(path)
-        return {part: dict(meta) for part, meta in parts.get(str(self.real(path)), {}).items()}
+        out = parts.get(str(self.real(path)), {})
+        for meta in out.values():
+            if isinstance(meta, ConfigError):
+                raise meta
+        return {part: dict(meta) for part, meta in out.items()}
 
     def _side(self, name: str) -> list[Path]:
-        return [p for p in self.listing().side if p.name == name]
+        return [p for p in self.listing().side if p.name.lower() == name]  # `Manifest.csv` too: refused
 
     def scan_manifests(self) -> None:
         """Parse every manifest once so that bad entries are reported even if no run uses them."""
@@ -662,3 +709,42 @@ class RawTree:
 
 class _BadManifest(Exception):
     """args: (message, line or None)."""
+
+
+def _check_manifest_header(fields: list[str], line: int) -> None:
+    """Refuse a manifest header that cannot say which value is which key: no `file` column, or a
+    column named twice (keys are matched case-insensitively, so `notes` and `Notes` too)."""
+    if "file" not in fields:
+        hint = next((f for f in fields if f.casefold() == "file"), None)
+        raise _BadManifest("no `file` column in the header" + (
+            f" (`{hint}` is not `file`: the column is named in lower case)" if hint else ""), None)
+    seen: dict[str, int] = {}
+    for i, name in enumerate(fields, start=1):
+        if not name:
+            continue
+        first = seen.setdefault(name.casefold(), i)
+        if first != i:
+            raise _BadManifest(f"column `{name}` appears twice in the header (columns {first} and {i}; "
+                               "names are matched case-insensitively)", line)
+
+
+def _unnamed_value(fields: list[str], cells: list[str]) -> str | None:
+    """Why a manifest row cannot be read: a value in a column the header does not name (beyond
+    its last column, or under an empty name), which shifts the row's values; else None."""
+    for i, cell in enumerate(cells):
+        if cell.strip() and (i >= len(fields) or not fields[i]):
+            return (f"row has a value in column {i + 1} (`{display_name(cell.strip()[:40])}`), which the header "
+                    "does not name (an unquoted delimiter in a value?)")
+    return None
+
+
+def _merge_row(into: dict, key: str, meta) -> None:
+    """A manifest row on top of what farther manifests gave (a nearer one overrides key by key);
+    a row that cannot be read (ConfigError) stays an error whichever manifest it is in."""
+    old = into.get(key)
+    if isinstance(old, ConfigError):
+        return
+    if isinstance(meta, ConfigError):
+        into[key] = meta
+    else:
+        into.setdefault(key, {}).update(meta)

@@ -6,6 +6,7 @@ the docs all read it from here.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 
 import pyarrow as pa
@@ -62,6 +63,69 @@ META_KEYS: dict[str, MetaKey] = {
     )
 }
 
+
+
+@dataclass(frozen=True)
+class Plausible:
+    """The physical range a stated value must lie in (both ends included), in ``unit``."""
+
+    low: float
+    high: float
+    unit: str
+    why: str
+
+    def range_text(self) -> str:
+        return f"{self.low:g} to {self.high:g} {self.unit}"
+
+
+#: Plausible ranges of stated values: a value outside quarantines its run with one line naming the
+#: key and the range (docs/inputs.md, "Plausible values"). The one table of them: metadata keys in
+#: the unit of :data:`META_KEYS`, sensor resolution / noise (``sensor:<quantity>``) in SI. Each is
+#: wide enough for any real lab (physics, not our simulator), and catches a unit slip of 100x or
+#: more. Keys not here (``z_rollers_mm``, ``spring_force_n``, ``kp_v_m``, ``t0_s``: their sign is a
+#: rig's convention) are only checked to be finite numbers.
+PLAUSIBLE: dict[str, Plausible] = {
+    "p_atm_pa": Plausible(50e3, 110e3, "Pa", "ambient air pressure from 5,400 m altitude (Everest base camp, "
+                          "about 53 kPa) to below sea level (Dead Sea shore about 107 kPa, record high 108.4 kPa); "
+                          "hPa written as Pa is 100 times too small"),
+    "temperature_c": Plausible(-100.0, 250.0, "degC", "any lab or climate chamber: below the coldest air on Earth "
+                               "(-89 degC) to above the 200 degC that elastomer hoses stand; kelvin is out"),
+    "hose_area_m2": Plausible(1e-7, 1.0, "m2", "a 0.36 mm bore (micro tubing) to a 1.1 m bore (large air bellows); "
+                              "mm2 or cm2 written as m2 are out"),
+    "backpressure_bar": Plausible(-1.1, 100.0, "bar", "gauge: a full vacuum (-1.01 bar at sea level, -1.1 bar at "
+                                  "110 kPa ambient) to 2.5 times the 40 bar of high-pressure compressed air; kPa or "
+                                  "Pa written as bar are out"),
+    "p0_bar_abs": Plausible(0.0, 101.0, "bar", "absolute: a vacuum to 100 bar gauge (the backpressure_bar range)"),
+    "force_rate_n_s": Plausible(1e-3, 1e6, "N/s", "drive-force ramps from 1 N in 17 minutes to 10 kN in 10 ms "
+                                "(faster is an impact, not a ramp)"),
+    "sample_rate_hz": Plausible(1e-4, 1e9, "Hz", "one sample every 3 hours (a slow logger) to 1 GS/s (a fast "
+                                "digitiser)"),
+    "id_sample_rate_hz": Plausible(1e-4, 1e9, "Hz", "as sample_rate_hz"),
+    "dt_s": Plausible(1e-9, 1e4, "s", "the sample intervals of the sample_rate_hz range"),
+    "frequency_hz": Plausible(1e-4, 1e4, "Hz", "one cycle every 3 hours to the 10 kHz of electrodynamic shakers"),
+    "amplitude_mm": Plausible(1e-4, 1e4, "mm", "0.1 um (a piezo stage) to 10 m (more than any actuator's stroke)"),
+    "stroke_mm": Plausible(0.1, 1e4, "mm", "0.1 mm to 10 m (the longest rodless cylinders run about 6 m)"),
+    "sensor:time": Plausible(0.0, 60.0, "s", "a time stamp coarser than a minute cannot time a test"),
+    "sensor:pressure": Plausible(0.0, 1e5, "Pa", "1 bar is 1 % of a 100 bar sensor's span: a coarser sensor cannot "
+                                 "measure compressed air"),
+    "sensor:length": Plausible(0.0, 0.1, "m", "10 cm is coarser than any bench's position sensor; a bare number is "
+                               "metres (5 meant as 5 um is out)"),
+    "sensor:force": Plausible(0.0, 1e4, "N", "10 kN is 1 % of a 1 MN load cell's span"),
+    "sensor:mass_flow": Plausible(0.0, 1.0, "kg/s", "1 kg/s is about 50,000 l/min (ANR), beyond the span of any "
+                                  "leak or supply flow meter"),
+    "sensor:voltage": Plausible(0.0, 100.0, "V", "control signals span 10 V, supplies 48 V"),
+}
+
+
+def implausible(key: str, value: float) -> str | None:
+    """``"<value> <unit> is outside its plausible range <low> to <high> <unit> (<why>)"`` when a stated
+    value lies outside its :data:`PLAUSIBLE` range, else None (also for keys without a range)."""
+    spec = PLAUSIBLE.get(key)
+    if spec is None or isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    if spec.low <= value <= spec.high:
+        return None
+    return f"{value:g} {spec.unit} is outside its plausible range {spec.range_text()} ({spec.why})"
 
 @dataclass(frozen=True)
 class KindSpec:
@@ -128,6 +192,10 @@ object.__setattr__(META_KEYS["kind"], "choices", tuple(KINDS))
 REQUIRED_METADATA = ("kind", "run_id", "started_at", "rig")
 
 
+#: A number with `,` digit grouping (`1,250`, `1,250,000`): 1.25 with a decimal comma, or 1250.
+_GROUPED_COMMA = re.compile(r"^[+-]?[1-9]\d{0,2}(,\d{3})+$")
+
+
 def coerce_value(key: str, value):
     """Type a metadata value by :data:`META_KEYS`. Raises ValueError with a short reason."""
     spec = META_KEYS.get(key)
@@ -136,6 +204,14 @@ def coerce_value(key: str, value):
     if spec.type == "float":
         if isinstance(value, bool):
             raise ValueError(f"`{key}` must be a number, got {value!r}")
+        if isinstance(value, str) and _GROUPED_COMMA.match(value.strip()):
+            text = value.strip()
+            if text.count(",") > 1:
+                raise ValueError(f"`{key}` = {value!r} has thousands separators: write it without digit grouping "
+                                 f"({text.replace(',', '')})")
+            raise ValueError(f"`{key}` = {value!r} reads as {float(text.replace(',', '.')):g} with a decimal comma "
+                             f"or {text.replace(',', '')} with a thousands separator: write it without digit grouping "
+                             "(or with a decimal point)")
         try:
             out = float(str(value).strip().replace(",", ".")) if isinstance(value, str) else float(value)
         except (TypeError, ValueError):
@@ -199,4 +275,4 @@ if tuple(KINDS) != KIND_NAMES:  # pragma: no cover - a kind added in one place o
 
 
 __all__ = ["KINDS", "META_KEYS", "KindSpec", "MetaKey", "COLUMN", "samples_schema", "coerce_value",
-           "missing_metadata", "missing_channels", "REQUIRED_METADATA"]
+           "missing_metadata", "missing_channels", "REQUIRED_METADATA", "PLAUSIBLE", "Plausible", "implausible"]

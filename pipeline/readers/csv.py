@@ -2,8 +2,11 @@
 
 * Delimiter detected among ``,`` ``;`` and tab (``rig.toml`` ``[read] delimiter`` overrides,
   and may say ``"whitespace"`` for runs of blanks).
-* With ``;`` or tab, a decimal comma is detected from the first data rows (European
-  spreadsheet exports); ``[read] decimal`` overrides.
+* With ``;``, tab or blanks, the decimal mark is decided from every numeric cell of the data
+  rows in the first 64 KiB (:func:`_detect_decimal`): a comma is a decimal comma only when no
+  cell says it groups thousands, and a file whose numbers read differently under both marks
+  (``1,250`` beside ``998``; ``0,5`` beside ``1.5``) is refused with the column and a value,
+  never read half one way. ``[read] decimal`` overrides.
 * Files without a header are described by ``rig.toml`` (``header = false``; columns are then
   addressed by their 1-based index); ``skip_rows`` drops lines before the header / data.
 
@@ -34,7 +37,6 @@ HEAD_BYTES = 1 << 16
 BLOCK_BYTES = 1 << 23
 
 _DELIMITERS = {",": ",", ";": ";", "\t": "\t", "tab": "\t", "\\t": "\t", "whitespace": "whitespace", " ": "whitespace"}
-_DECIMAL_COMMA = re.compile(r"^[+-]?\d+,\d+([eE][+-]?\d+)?$")
 # Line breaks as the CSV parsers see them (str.splitlines also breaks at \x85, \x0c, ...,
 # which a Latin-1 file may contain inside a line).
 _LINE_BREAK = re.compile(r"\r\n|\r|\n")
@@ -67,12 +69,107 @@ def _detect_delimiter(header: str, samples: list[str]) -> str:
     return best
 
 
-def _detect_decimal(delimiter: str, samples: list[str]) -> str:
+# A number under one of the marks: plain (`1.5`, `1,5`, `.5`, `1e3`) or with digit grouping
+# (`1,250`, `1,250,000.5`, `1.250,5`). Dates (`02.01.2026`) and versions (`1.2.3`) are not.
+_NUMBER_CELL = re.compile(r"^[+-]?((\d+([.,]\d*)?|[.,]\d+)([eE][+-]?\d+)?"
+                          r"|[1-9]\d{0,2}(,\d{3})+(\.\d*)?|[1-9]\d{0,2}(\.\d{3})+(,\d*)?)$")
+_GROUPED = {",": re.compile(r"^[+-]?[1-9]\d{0,2}(,\d{3})+$"), ".": re.compile(r"^[+-]?[1-9]\d{0,2}(\.\d{3})+$")}
+_INTEGER = re.compile(r"^[+-]?\d+([eE][+-]?\d+)?$")
+
+
+def _detect_decimal(delimiter: str, samples: list[str], header: str | None = None) -> str:
+    """The decimal mark of a ``;`` / tab / whitespace file, decided from every numeric cell of
+    ``samples`` (columns whose every cell is a number under one of the marks; text columns do
+    not vote). Returns ``","`` when a cell is a decimal comma that no grouping explains (``1,25``,
+    ``0,250``, ``998,5``) and nothing contradicts it, else ``"."`` when that reads every cell.
+
+    Raises ReaderError (naming the column and a value) when the numbers cannot be read one way:
+    digit grouping (``1,250`` beside ``998`` in one column: a decimal-comma writer gives
+    ``998,000`` or ``1,25``; ``1,250,000``; ``1,250`` beside a decimal point; ``1.250`` beside a
+    decimal comma), a decimal comma and a decimal point in one file, or only values like
+    ``1,250`` that read as 1.25 or as 1250 with nothing to decide (rig.toml ``[read] decimal``
+    then says which).
+    """
     if delimiter in (",",):
         return "."
-    fields = [f.strip() for s in samples for f in (s.split() if delimiter == "whitespace" else s.split(delimiter))]
-    if any(_DECIMAL_COMMA.match(f) for f in fields):
+    if delimiter == "whitespace":
+        table = [s.split() for s in samples]
+        names = header.split() if header is not None else []
+    else:
+        table = [next(_csv.reader([s], delimiter=delimiter), []) for s in samples]
+        names = next(_csv.reader([header], delimiter=delimiter), []) if header is not None else []
+    by_column: dict[int, list[str]] = {}   # one pass over the cells (rows may differ in width)
+    for r in table:
+        for k, cell in enumerate(r):
+            cell = cell.strip()
+            if cell and cell not in _NULLS:
+                by_column.setdefault(k, []).append(cell)
+    first: dict[str, tuple[str, str]] = {}   # evidence -> (value, column)
+
+    def note(what: str, value: str, column: str) -> None:
+        first.setdefault(what, (value, column))
+
+    for k, cells in sorted(by_column.items()):
+        if not all(_NUMBER_CELL.match(c) for c in cells):
+            continue  # a text column (or an empty one): it does not vote
+        column = (split_name_unit(names[k])[0] if k < len(names) and names[k].strip() else "") or str(k + 1)
+        integer = next((c for c in cells if _INTEGER.match(c)), None)
+        for c in cells:
+            comma, dot = "," in c, "." in c
+            if comma and dot:
+                note("both", c, column)
+            elif comma:
+                if c.count(",") > 1:
+                    note("comma groups", c, column)
+                elif not _GROUPED[","].match(c):
+                    note("comma decimal", c, column)
+                elif integer is not None and c.endswith("0"):
+                    note("comma groups beside " + integer, c, column)
+                else:
+                    note("comma ambiguous", c, column)
+            elif dot:
+                if c.count(".") > 1:
+                    note("dot groups", c, column)
+                elif not _GROUPED["."].match(c):
+                    note("dot decimal", c, column)
+                else:
+                    note("dot ambiguous", c, column)
+
+    def at(what: str) -> str:
+        value, column = first[what]
+        return f"`{value}` in column `{column}`"
+
+    unread = "digit grouping is not read; export the numbers without thousands separators"
+    for what, sep in (("both", None), ("comma groups", ","), ("dot groups", ".")):
+        if what in first:
+            how = ("mixes `,` and `.`" if sep is None else f"groups thousands with `{sep}`")
+            why = "" if sep is None else " (a decimal comma appears once in a number)" if sep == "," else \
+                " (a decimal point appears once in a number)"
+            raise ReaderError(f"{at(what)} {how}{why}: {unread}")
+    if "comma decimal" in first and "dot decimal" in first:
+        raise ReaderError(f"{at('comma decimal')} is a decimal comma but {at('dot decimal')} a decimal point: "
+                          "the file mixes decimal marks; export it with one")
+    if "comma decimal" in first:
+        if "dot ambiguous" in first:
+            raise ReaderError(f"{at('dot ambiguous')} groups thousands with `.` ({at('comma decimal')} is a "
+                              f"decimal comma): {unread}")
         return ","
+    ambiguous = first.get("comma ambiguous")
+    beside = next((w for w in first if w.startswith("comma groups beside ")), None)
+    if "dot decimal" in first and (ambiguous or beside):
+        what = beside or "comma ambiguous"
+        raise ReaderError(f"{at(what)} groups thousands with `,` ({at('dot decimal')} has a decimal point): {unread}")
+    if beside is not None:
+        integer = beside.rsplit(" ", 1)[1]
+        as_decimal = f"{float(first[beside][0].replace(',', '.')):g}".replace(".", ",")
+        raise ReaderError(f"{at(beside)} groups thousands with `,` (beside `{integer}` in the same column, a decimal "
+                          f"comma would have given `{integer},000` or `{as_decimal}`): {unread}")
+    if ambiguous is not None:
+        value = ambiguous[0]
+        raise ReaderError(f"{at('comma ambiguous')} reads as {float(value.replace(',', '.')):g} with a decimal "
+                          f"comma or {value.replace(',', '')} with a thousands separator, and no number in the first "
+                          "rows decides; set rig.toml [read] decimal = \",\" if it is a decimal comma, or export "
+                          "without thousands separators")
     return "."
 
 
@@ -116,12 +213,13 @@ def read_csv(path: str | Path, read: dict | None = None, hints: dict | None = No
     header_line = lines[i] if has_header else None
     data_start = i + 1 if has_header else i
     samples = [ln for ln in lines[data_start:data_start + 20] if ln.strip()]
+    head_rows = [ln for ln in lines[data_start:] if ln.strip()]   # every data row of the head: the decimal
     if delim_opt is not None:
         delimiter = _DELIMITERS[delim_opt]
     else:
         delimiter = _detect_delimiter(header_line if header_line is not None else (samples[0] if samples else ""),
                                       samples)
-    decimal = read.get("decimal") or _detect_decimal(delimiter, samples)
+    decimal = read.get("decimal") or _detect_decimal(delimiter, head_rows, header_line)
     if decimal not in (".", ","):
         raise ReaderError(f"rig.toml decimal {decimal!r} is not '.' or ','")
     if decimal == "," and delimiter == ",":

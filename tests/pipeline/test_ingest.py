@@ -608,3 +608,73 @@ def test_sheet_names_with_control_characters_give_one_line_run_ids(raw, warehous
     raw.write("c/manifest.csv", "file,sheets,run_id\nb.xlsx,all,day3\n")
     (part,) = ingest(raw, "c/b.xlsx", warehouse).parts
     assert part.run["run_id"] == "day3/a\\x09b" and part.run["params"]["sheet"] == "a\tb"
+
+
+# -- plausibility of stated values (schemas.kinds.PLAUSIBLE) ---------------------------------------
+def test_q_ambient_pressure_in_hpa_written_as_pa_is_refused_not_shifted(raw, warehouse):
+    """Issue 21 item 15: `p_atm_pa = 1013.25` (hPa written as Pa) with `bara` channels moved every
+    pressure by about 1 bar without a word. A lab at 500 m (95 kPa) stays read right."""
+    cols = {"t[s]": T, "x[mm]": T, "x_ref[mm]": T, "p_a[bara]": [1.0, 2.0, 3.0, 4.0]}
+    raw.csv("c/a.csv", {**STEP_META, "p_atm_pa": "1013.25"}, cols)
+    assert quarantine(raw, warehouse) == (
+        "metadata `p_atm_pa` = 1013.25 Pa is outside its plausible range 50000 to 110000 Pa (ambient air "
+        "pressure from 5,400 m altitude (Everest base camp, about 53 kPa) to below sea level (Dead Sea shore "
+        "about 107 kPa, record high 108.4 kPa); hPa written as Pa is 100 times too small)")
+    raw.csv("c/b.csv", {**STEP_META, "p_atm_pa": "95000"}, cols)
+    res = ingest(raw, "c/b.csv", warehouse)
+    assert res.error is None
+    assert pq.read_table(warehouse / res.run["samples_path"]).column("p_a_pa").to_pylist() == [
+        5000.0, 105000.0, 205000.0, 305000.0]
+
+
+@pytest.mark.parametrize("key,value,shown,range_text", [
+    ("hose_area_m2", "490", "490 m2", "1e-07 to 1 m2"),               # mm2 written as m2
+    ("hose_area_m2", "-4.9e-4", "-0.00049 m2", "1e-07 to 1 m2"),
+    ("backpressure_bar", "200000", "200000 bar", "-1.1 to 100 bar"),   # Pa written as bar
+    ("backpressure_bar", "-3", "-3 bar", "-1.1 to 100 bar"),           # below a vacuum
+    ("force_rate_n_s", "0", "0 N/s", "0.001 to 1e+06 N/s"),
+    ("temperature_c", "293.15", "293.15 degC", "-100 to 250 degC"),    # kelvin written as degC
+    ("p0_bar_abs", "-0.5", "-0.5 bar", "0 to 101 bar"),
+    ("sample_rate_hz", "5e12", "5e+12 Hz", "0.0001 to 1e+09 Hz"),
+    ("amplitude_mm", "0", "0 mm", "0.0001 to 10000 mm"),
+])
+def test_q_metadata_outside_its_plausible_range(raw, warehouse, key, value, shown, range_text):
+    raw.csv("c/a.csv", {**BREAKAWAY, key: value}, {"t[s]": T, "p_a[bar]": T, "p_b[bar]": T, "x[m]": T})
+    err = quarantine(raw, warehouse)
+    assert err.startswith(f"metadata `{key}` = {shown} is outside its plausible range {range_text} (")
+
+
+def test_plausible_values_at_both_ends_of_a_range_are_kept(raw, warehouse):
+    meta = {**BREAKAWAY, "p_atm_pa": 53000, "backpressure_bar": -1.0, "hose_area_m2": 7.9e-7,
+            "temperature_c": -40, "force_rate_n_s": 5000}
+    raw.csv("c/a.csv", meta, {"t[s]": T, "p_a[bar]": T, "p_b[bar]": T, "x[m]": T})
+    res = ingest(raw, "c/a.csv", warehouse)
+    assert res.error is None
+    assert res.run["params"]["p_atm_pa"] == 53000.0 and res.run["params"]["hose_area_m2"] == 7.9e-7
+
+
+@pytest.mark.parametrize("where,stated,reason", [
+    ("meta", {"sensor_x_resolution": "5"}, "metadata `sensor_x_resolution`: resolution 5 m is outside its plausible "
+                                           "range 0 to 0.1 m ("),          # um meant, a bare number is metres
+    ("rig", '[sensors.p_a]\nnoise = "300 bar"\n', "rig.toml [sensors.p_a]: noise 3e+07 Pa is outside its plausible "
+                                                  "range 0 to 100000 Pa ("),
+])
+def test_q_sensor_values_outside_their_plausible_range(raw, warehouse, where, stated, reason):
+    meta = dict(STEP_META)
+    if where == "rig":
+        raw.write("c/rig.toml", stated)
+    else:
+        meta.update(stated)
+    raw.csv("c/a.csv", meta, {"t[s]": T, "x[mm]": T, "x_ref[mm]": T, "p_a[bar]": T})
+    assert quarantine(raw, warehouse).startswith(reason)
+
+
+def test_q_mat_scalar_rate_outside_the_sample_rate_range(raw, warehouse):
+    from tests.pipeline.readers.generators import mat_v5
+
+    (raw.root / "c").mkdir(parents=True)
+    mat_v5(raw.root / "c/a.mat", {"x": np.array([1.0, 2.0, 3.0]), "x_ref": np.array([0.0, 0.0, 0.0]),
+                                  "dt": 1e-12, "units": {"x": "mm", "x_ref": "mm"},    # ps: a unit slip
+                                  "meta": {"kind": "step", "rig": "r", "started_at": "2026-01-01"}})
+    assert quarantine(raw, warehouse, "c/a.mat").startswith(
+        "MAT scalar `dt` = 1e-12 s is outside its plausible range 1e-09 to 10000 s (")

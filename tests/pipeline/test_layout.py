@@ -140,6 +140,70 @@ def test_a_manifest_entry_that_cannot_be_a_file_name_is_one_line(tree, warehouse
         ("fine",)]
 
 
+
+# Every way a manifest (or rig.toml) is refused as a whole: the refusal is its own quarantine line
+# and every run under it waits for it to be fixed, none is published with the remaining sources.
+MANIFEST_REFUSALS = [
+    ("c1/manifest.csv", "File,notes\na.csv,2\n", None,
+     "no `file` column in the header (`File` is not `file`: the column is named in lower case)"),
+    ("c1/manifest.csv", "name,notes\na.csv,2\n", None, "no `file` column in the header"),
+    ("c1/manifest.csv", "", None, "no header row (an empty manifest: a header naming the `file` column "
+                                  "comes first)"),
+    ("c1/manifest.csv", "\n \n", None, "no header row (an empty manifest: a header naming the `file` column "
+                                        "comes first)"),
+    ("c1/manifest.csv", "file,notes,Notes\na.csv,x,y\n", 1,
+     "column `Notes` appears twice in the header (columns 2 and 3; names are matched case-insensitively)"),
+    ("c1/Manifest.csv", "file,notes\na.csv,x\n", None,
+     "named `Manifest.csv`: a manifest must be named `manifest.csv` (lower case); it is not read"),
+    ("c1/MANIFEST.CSV", "file,notes\na.csv,x\n", None,
+     "named `MANIFEST.CSV`: a manifest must be named `manifest.csv` (lower case); it is not read"),
+    ("c1/Rig.toml", "[metadata]\nrig = \"other\"\n", None,
+     "named `Rig.toml`: a rig.toml must be named `rig.toml` (lower case); it is not read"),
+]
+
+
+@pytest.mark.parametrize("name,body,line,error", MANIFEST_REFUSALS, ids=[
+    "header-File", "no-file-column", "empty", "blank", "duplicate-column", "Manifest.csv", "MANIFEST.CSV",
+    "Rig.toml"])
+def test_a_refused_manifest_quarantines_every_run_under_it(tree, warehouse, name, body, line, error):
+    tree.write(name, body)
+    tree.csv("c1/sub/c.csv", STEP_META, COLS)
+    q = rebuild_checked(tree, warehouse, expect_runs=("c2/b",))
+    assert q.pop(name) == [(line, error)]
+    reason = f"cannot use {name}: line {line}: {error}" if line else f"cannot use {name}: {error}"
+    assert q == {"c1/a.csv": [(None, reason)], "c1/sub/c.csv": [(None, reason)]}
+    assert query(warehouse, "SELECT run_id FROM runs") == [("c2/b",)]
+
+
+def test_a_wrong_case_header_does_not_publish_its_runs_with_fallback_metadata(raw, warehouse):
+    """Issue 21 item 14: `File` instead of `file` published the run with the rig.toml's
+    backpressure 0 instead of the manifest's 2; it waits now, and is published with 2 once the
+    header is fixed."""
+    raw.write("c/rig.toml", "[metadata]\nbackpressure_bar = 0\n")
+    raw.csv("c/a.csv", STEP_META, COLS)
+    raw.write("c/manifest.csv", "File,backpressure_bar\na.csv,2\n")
+    summary = rebuild(raw.root, warehouse, jobs=1)
+    assert summary.exit_code == EXIT_QUARANTINED
+    assert query(warehouse, "SELECT count(*) FROM runs") == [(0,)]
+    raw.write("c/manifest.csv", "file,backpressure_bar\na.csv,2\n")
+    assert rebuild(raw.root, warehouse, jobs=1).exit_code == 0
+    assert query(warehouse, "SELECT json_extract(params, '$.backpressure_bar')::DOUBLE FROM runs") == [(2.0,)]
+
+
+def test_a_manifest_row_with_cells_beyond_the_header_quarantines_its_run_only(tree, warehouse):
+    """A row with more cells than the header (an unquoted `,` in a note) has its values shifted:
+    the run it names waits; the manifest's other rows apply."""
+    tree.csv("c1/c.csv", STEP_META, COLS)
+    tree.csv("c1/d.csv", STEP_META, COLS)
+    tree.write("c1/manifest.csv", "file,operator,notes,\na.csv,Smith, J.,ok,\nc.csv,Lee,fine,\n"
+                                  "d.csv,Lee,fine,,\n")
+    q = rebuild_checked(tree, warehouse, expect_runs=("c1/c", "c1/d", "c2/b"))
+    msg = "row has a value in column 4 (`ok`), which the header does not name (an unquoted delimiter in a value?)"
+    assert q == {"c1/manifest.csv": [(2, msg)], "c1/a.csv": [(None, f"cannot use c1/manifest.csv: line 2: {msg}")]}
+    assert query(warehouse, "SELECT run_id, json_extract_string(params, '$.operator') FROM runs ORDER BY 1") == [
+        ("c1/c", "Lee"), ("c1/d", "Lee"), ("c2/b", None)]
+
+
 # -- 3. names that are not UTF-8 -----------------------------------------------------------------
 def test_file_and_folder_names_that_are_not_utf8_are_ingested_with_escaped_bytes(tree, warehouse):
     root = os.fsencode(tree.root)

@@ -54,3 +54,14 @@ def test_sanitised_names_never_shadow_canonical_columns():
 
 def test_p0_bar_abs_is_typed_whatever_the_source():
     assert coerce_value("p0_bar_abs", "3,0") == 3.0
+
+
+def test_a_metadata_number_that_reads_two_ways_is_refused():
+    """`1,250` was read as 1.25 (decimal comma) though it may be 1250 with a thousands separator
+    (issue 21, item 16, for metadata); `1,5`, `0,250` and `1250` read one way only."""
+    for text in ("1,250", "12,500"):
+        with pytest.raises(ValueError, match=r"reads as .* with a decimal comma or .* with a thousands separator"):
+            coerce_value("force_rate_n_s", text)
+    with pytest.raises(ValueError, match=r"'1,250,000' has thousands separators: .* \(1250000\)"):
+        coerce_value("force_rate_n_s", "1,250,000")
+    assert [coerce_value("force_rate_n_s", t) for t in ("1,5", "0,250", "1250", "1.250")] == [1.5, 0.25, 1250.0, 1.25]

@@ -1,4 +1,6 @@
 """CSV / TXT reader: one scenario per edge case of bench exports."""
+import re
+
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
@@ -46,6 +48,74 @@ def test_csv_decimal_comma(tmp_path, delimiter):
     text = f"t[s]{delimiter}x[mm]\n0{delimiter}1,5\n0,25{delimiter}-2,75\n1{delimiter}3\n"
     assert rows(open_csv(tmp_path, text)) == {"t[s]": [0.0, 0.25, 1.0], "x[mm]": [1.5, -2.75, 3.0]}
 
+
+
+# -- decimal comma or thousands separator: decided from every numeric cell of the first rows ------
+def test_csv_thousands_separator_is_not_read_as_a_decimal_comma(tmp_path):
+    """Issue 21 item 16: `1,250` (Pa) beside `998` made the whole file "decimal comma": 1,250 Pa
+    was stored as 1.25 while 998 stayed 998. A decimal-comma writer would have written 998 as
+    `998,000` (fixed decimals) or 1.25 as `1,25` (general format): the comma groups thousands."""
+    text = "t[s];p_a[Pa]\n0;998\n1;1,250\n2;1,001\n"
+    with pytest.raises(ReaderError) as exc:
+        rows(open_csv(tmp_path, text))
+    assert str(exc.value) == ("`1,250` in column `p_a` groups thousands with `,` (beside `998` in the same column, "
+                              "a decimal comma would have given `998,000` or `1,25`): digit grouping is not read; "
+                              "export the numbers without thousands separators")
+
+
+@pytest.mark.parametrize("text,example", [
+    ("t[s]\tp_a[Pa]\n0\t1,250\n0.5\t2,500\n", "`1,250` in column `p_a` groups thousands with `,` (`0.5` in "
+                                                 "column `t` has a decimal point)"),
+    ("t[s];p_a[Pa]\n0;1,250,000\n1;2,000,500\n", "`1,250,000` in column `p_a` groups thousands with `,` (a "
+                                                  "decimal comma appears once in a number)"),
+    ("t[s];p_a[Pa]\n0,5;1.250\n1;2\n", "`1.250` in column `p_a` groups thousands with `.` (`0,5` in column `t` "
+                                      "is a decimal comma)"),
+    ("t[s];p_a[Pa]\n0;1,250.5\n1;2\n", "`1,250.5` in column `p_a` mixes `,` and `.`: digit grouping is not read"),
+])
+def test_csv_thousands_separator_proven_by_another_cell_is_refused(tmp_path, text, example):
+    with pytest.raises(ReaderError, match="^" + re.escape(example)):
+        open_csv(tmp_path, text)
+
+
+def test_csv_numbers_ambiguous_under_both_readings_are_refused(tmp_path):
+    text = "t[s];p_a[Pa]\n0;1,250\n1;2,500\n2;12,750\n"    # 1.25 .. or 1250 ..: nothing decides
+    with pytest.raises(ReaderError) as exc:
+        open_csv(tmp_path, text)
+    assert str(exc.value) == ("`1,250` in column `p_a` reads as 1.25 with a decimal comma or 1250 with a thousands "
+                              "separator, and no number in the first rows decides; set rig.toml [read] "
+                              "decimal = \",\" if it is a decimal comma, or export without thousands separators")
+    # the rig.toml says which: read as it says
+    assert rows(open_csv(tmp_path, text, {"decimal": ","}))["p_a[Pa]"] == [1.25, 2.5, 12.75]
+
+
+def test_csv_decimal_comma_and_decimal_point_in_one_file_are_refused(tmp_path):
+    with pytest.raises(ReaderError, match=re.escape("`0,5` in column `x` is a decimal comma but `1.5` in column "
+                                                    "`p_a` a decimal point")):
+        open_csv(tmp_path, "t[s];x[mm];p_a[bar]\n0;0,5;1.5\n1;1;2\n")
+
+
+@pytest.mark.parametrize("text,expected", [
+    # a German export: decimal comma, some cells with three decimals that look like grouping
+    ("t[s];p_a[Pa];x[mm]\n0;1,250;0,5\n0,001;998,5;12,3456\n", {"t[s]": [0.0, 0.001], "p_a[Pa]": [1.25, 998.5],
+                                                               "x[mm]": [0.5, 12.3456]}),
+    ("t[s]\tx[mm]\n0,000\t1,250\n0,010\t1,500\n", {"t[s]": [0.0, 0.01], "x[mm]": [1.25, 1.5]}),  # 0,xxx
+    ("t[s];x[mm]\n0;1,25\n1;998\n", {"t[s]": [0.0, 1.0], "x[mm]": [1.25, 998.0]}),  # general format
+    ("t[s];x[mm]\n0;1.250\n1;998\n", {"t[s]": [0.0, 1.0], "x[mm]": [1.25, 998.0]}),  # decimal point
+    ("t[s];x[mm]\n0;1\n1;998\n", {"t[s]": [0.0, 1.0], "x[mm]": [1.0, 998.0]}),       # whole numbers
+    ("t[s];x[mm];note\n0;1;12,500 cycles\n1;2;1,250\n", {"t[s]": [0.0, 1.0], "x[mm]": [1.0, 2.0],
+                                                         "note": ["12,500 cycles", "1,250"]}),  # text column
+    ("t[s];x[mm];date\n0;1,5;02.01.2026\n1;2;1.2.3\n", {"t[s]": [0.0, 1.0], "x[mm]": [1.5, 2.0],
+                                                       "date": ["02.01.2026", "1.2.3"]}),  # dates are text
+])
+def test_csv_decimal_mark_consistent_with_every_value_is_read(tmp_path, text, expected):
+    assert rows(open_csv(tmp_path, text)) == expected
+
+
+def test_csv_decimal_decided_beyond_the_first_20_rows(tmp_path):
+    """A column whose first rows are whole numbers and that shows its decimal comma only later
+    (a slow ramp) is still decided by the cells of the head, not by a guess."""
+    body = "".join(f"{i};{1000 + i}\n" for i in range(30)) + "30;1,250\n31;998,5\n"
+    assert rows(open_csv(tmp_path, "t[s];p_a[Pa]\n" + body))["p_a[Pa]"][-2:] == [1.25, 998.5]
 
 def test_csv_metadata_comment_lines(tmp_path):
     ex = open_csv(tmp_path, "# kind: breakaway\n#direction=P\n\n# notes: valve 2: new\nt[s],x[m]\n0,1\n")
