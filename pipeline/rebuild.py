@@ -1228,6 +1228,7 @@ def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, r
             "n_deleted": summary.n_deleted, "n_unchanged": summary.n_unchanged, "n_quarantined": len(problems),
             "stages_run": staged.ran, "stages_reused": staged.reused, "exit_code": summary.exit_code,
             "inputs_key": key}])
+        old_log = numbered_history(prev.history)
         in_use = set(runs_df.get("samples_path", [])) | {r.folder for r in staged.records}
         kept, _expired = superseded_files(prev, in_use, clock(), keep_h)
         kept_paths = sorted(kept)
@@ -1236,9 +1237,10 @@ def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, r
             # whole microseconds, as DuckDB stores them: a time carried from rebuild to rebuild never drifts
             "superseded_at": pd.to_datetime(pd.Series([round(kept[p] * 1e6) for p in kept_paths], dtype="int64"),
                                             unit="us", utc=True)})
+        log_row["seq"] = int(old_log["seq"].max()) + 1 if old_log is not None else 1
         history = log_row
-        if prev.history is not None and not prev.history.empty:
-            history = pd.concat([prev.history.tail(HISTORY_ROWS - 1), log_row], ignore_index=True)
+        if old_log is not None:
+            history = pd.concat([old_log.tail(HISTORY_ROWS - 1), log_row], ignore_index=True)
         all_tables = {
             "runs": runs_df, "quarantine": quarantine, "channels": pd.DataFrame(channels),
             "skipped_files": pd.DataFrame(
@@ -1276,6 +1278,16 @@ def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, r
                      f"{summary.n_deleted} deleted, {summary.n_unchanged} unchanged), {len(problems)} quarantined, "
                      f"stages run: {', '.join(staged.ran) or 'none'}, {summary.seconds:.1f} s")
     return summary
+
+
+def numbered_history(history: pd.DataFrame | None) -> pd.DataFrame | None:
+    """``rebuild_log`` of the previous warehouse with its ``seq`` (None when empty). A log from
+    before the column is numbered 1, 2, ... in its stored order (the order rebuilds appended it)."""
+    if history is None or history.empty:
+        return None
+    if "seq" not in history.columns or history["seq"].isna().any():
+        history = history.assign(seq=range(1, len(history) + 1))
+    return history
 
 
 def _split_kept(keep: set[str]) -> tuple[set[str], set[str]]:
@@ -1408,7 +1420,8 @@ def _rebuild_noop(warehouse: Path, prev: PreviousState, plans: list[FilePlan], k
                    "duration_s": time.monotonic() - t0, "mode": "no-op", "executor": executor,
                    "n_files": len(plans), "n_runs": n_runs, "n_new": 0, "n_changed": 0, "n_deleted": 0,
                    "n_unchanged": len(plans), "n_quarantined": len(problems), "stages_run": [],
-                   "stages_reused": stages, "exit_code": summary.exit_code, "inputs_key": key}
+                   "stages_reused": stages, "exit_code": summary.exit_code, "inputs_key": key,
+                   "seq": con.execute("SELECT coalesce(max(seq), 0) + 1 FROM rebuild_log").fetchone()[0]}
             con.execute(f"INSERT INTO rebuild_log ({', '.join(row)}) VALUES ({', '.join('?' * len(row))})",
                         list(row.values()))
             con.execute("DELETE FROM rebuild_log WHERE rowid NOT IN "

@@ -258,12 +258,19 @@ def _findings_section(db: _DB, now: datetime) -> tuple[str, str]:
     return alert, section
 
 
+def _log_order(db: _DB) -> str:
+    """``rebuild_log``'s last rebuild first: by its number, never by wall time (a clock set back)."""
+    from pipeline.state import log_order
+
+    return log_order(db.columns("rebuild_log"))
+
+
 def _rebuild_section(db: _DB) -> str:
     out = ['<section id="rebuild"><h2>Last rebuild</h2>']
     if db.has("rebuild_log") and db.count("rebuild_log"):
         cols, rows = db.rows("SELECT generation, finished_at, duration_s, mode, executor, n_files, n_runs, n_new, "
                              "n_changed, n_deleted, n_unchanged, n_quarantined, stages_run, stages_reused "
-                             "FROM rebuild_log ORDER BY finished_at DESC LIMIT 1")
+                             f"FROM rebuild_log ORDER BY {_log_order(db)} LIMIT 1")
         r = dict(zip(cols, rows[0]))
         out.append(f'<p class="meta">generation {esc(r["generation"])}, finished {fmt(r["finished_at"])}, '
                    f'{fmt(r["duration_s"])} s, {esc(r["mode"])} rebuild on the {esc(r["executor"])} executor; '
@@ -819,7 +826,7 @@ def _rebuild_line(db: _DB) -> str:
     if not (db.has("rebuild_log") and db.count("rebuild_log")):
         return ""
     r = db.con.execute("SELECT finished_at, n_runs, n_new, n_changed, n_deleted, n_quarantined FROM rebuild_log "
-                       "ORDER BY finished_at DESC LIMIT 1").fetchone()
+                       f"ORDER BY {_log_order(db)} LIMIT 1").fetchone()
     return (f'Last rebuild {fmt(r[0])}: {fmt(r[1])} runs, {fmt(r[2])} new, {fmt(r[3])} changed, {fmt(r[4])} deleted, '
             f'<a href="#rebuild">{fmt(r[5])} quarantined</a>.')
 
@@ -911,7 +918,7 @@ def _inputs_key(db: _DB) -> str | None:
     keys mean equal result tables (the rebuild is deterministic)."""
     if not db.has("rebuild_log") or "inputs_key" not in {r[0] for r in db.con.execute("DESCRIBE rebuild_log").fetchall()}:
         return None
-    row = db.con.execute("SELECT inputs_key FROM rebuild_log ORDER BY finished_at DESC LIMIT 1").fetchone()
+    row = db.con.execute(f"SELECT inputs_key FROM rebuild_log ORDER BY {_log_order(db)} LIMIT 1").fetchone()
     return row[0] if row and isinstance(row[0], str) else None
 
 
@@ -946,7 +953,7 @@ def _cache_parts(db: _DB, warehouse: Path, results: str, toc: list, runs_index: 
 
 def _generation(db: _DB) -> str:
     if db.has("rebuild_log") and db.count("rebuild_log"):
-        return db.con.execute("SELECT generation FROM rebuild_log ORDER BY finished_at DESC LIMIT 1").fetchone()[0]
+        return db.con.execute(f"SELECT generation FROM rebuild_log ORDER BY {_log_order(db)} LIMIT 1").fetchone()[0]
     return ""
 
 
