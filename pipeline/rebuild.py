@@ -76,7 +76,7 @@ def ingest_file(tree, path, *args, **kwargs):
 EXIT_OK, EXIT_QUARANTINED, EXIT_USAGE, EXIT_FAILED, EXIT_LOCKED = 0, 1, 2, 3, 4
 
 #: Test hook: ``PNEUBENCH_CRASH_AT=<point>`` kills the rebuild with SIGKILL at that point.
-CRASH_POINTS = ("after_ingest", "after_stages", "before_swap", "after_swap")
+CRASH_POINTS = ("after_ingest", "after_stages", "before_swap", "between_swaps", "after_swap")
 
 #: Rows of ``rebuild_log`` carried from one warehouse to the next.
 HISTORY_ROWS = 200
@@ -1155,6 +1155,8 @@ def _keep_superseded_h(value: float | None) -> float:
 def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, report, generation, summary,
                     started_at, t0, lock_fd: int, keep_h: float, clock) -> RebuildSummary:
     clean_debris(warehouse)
+    from pipeline.report import settle_report
+    settle_report(warehouse)  # a report staged by a rebuild killed after its database swap goes in
     prev = load_previous(warehouse)
     tree = RawTree(raw)
     tree.scan_rigs()
@@ -1309,13 +1311,13 @@ def swap_in_new_database(warehouse: Path, write, report: bool, run_pages: str = 
     ``run_pages`` as for :func:`pipeline.report.render_report`.
     """
     tmp_db = warehouse / f".{DB_NAME}.tmp-{os.getpid()}"
-    page = None  # the morning report, staged beside index.html: rendered from the new database
+    page = None  # the morning report (index and run pages), a folder beside the live one: from the new database
     try:
         write(tmp_db)
         if report:  # before the swap: a failure keeps the previous warehouse and its report
-            from pipeline.report import render_report, stage_page
+            from pipeline.report import stage_report
             try:
-                page = stage_page(warehouse, render_report(warehouse, database=tmp_db, run_pages=run_pages))
+                page = stage_report(warehouse, database=tmp_db, run_pages=run_pages)
             except Exception as exc:
                 log.exception("report failed")
                 raise RebuildError(f"the morning report could not be written: {type(exc).__name__}: "
@@ -1326,14 +1328,16 @@ def swap_in_new_database(warehouse: Path, write, report: bool, run_pages: str = 
         tmp_db.unlink(missing_ok=True)
         Path(f"{tmp_db}.wal").unlink(missing_ok=True)
         if page is not None:
-            page.unlink(missing_ok=True)
+            from pipeline.report import remove_report_folder
+            remove_report_folder(page)
         if isinstance(exc, RebuildError):
             raise
         raise RebuildError(f"could not write the warehouse: {type(exc).__name__}: {exc}") from exc
     published = None
+    _crash_point("between_swaps")  # killed here: the next rebuild or report publishes the staged report
     if page is not None:  # straight after the swap: the report follows the warehouse it describes
-        from pipeline.report import publish_page
-        published = publish_page(page)
+        from pipeline.report import publish_report
+        published = publish_report(warehouse, page)
     _crash_point("after_swap")
     return published
 
