@@ -19,6 +19,8 @@ The report is never silently stale. The rebuild renders it from the new database
 swap, so a report that cannot be rendered fails the rebuild (exit 3): the previous warehouse
 and its report stay, and they agree. ``pneubench report`` (``write_report``) replaces a page it
 cannot render with a short page saying so, with the error, and raises :class:`ReportError`.
+The index and its run pages are one folder, published whole with the database (``report`` is a
+symlink to it, replaced by one rename: :func:`stage_report`, :func:`publish_report`).
 """
 from __future__ import annotations
 

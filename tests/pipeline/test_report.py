@@ -437,3 +437,42 @@ def test_the_report_shows_the_last_rebuild_even_when_the_clock_went_back(raw, wa
     assert load_previous(warehouse).generation == fourth.generation
     assert [r[0] for r in query(warehouse, "SELECT seq FROM rebuild_log ORDER BY seq")] == [1, 2, 3, 4]
     assert f"generation {fourth.generation}" in (warehouse / "report" / "index.html").read_text()
+
+
+def test_a_new_report_reuses_unchanged_run_pages_and_keeps_what_others_put_in_the_report_folder(raw, warehouse):
+    """The report folder is swapped whole (issue 21.4): an unchanged run's page is the same file
+    (a hard link, not drawn again); a report/ folder of the old layout becomes the first
+    generation; files and folders a user put there stay readable under report/."""
+    import os
+
+    from pipeline.run_pages import page_name
+
+    meta = {"t[s]": [0, 0.1], "x[mm]": [0, 1], "x_ref[mm]": [1, 1]}
+    raw.csv("c/a.csv", STEP_META, meta)
+    raw.csv("c/b.csv", STEP_META, meta)
+    rebuild(raw.root, warehouse, jobs=1)
+    report = warehouse / "report"
+    assert os.path.islink(report)
+    # back to the old layout: report/ a real folder, with a user's notes in it
+    folder = report.resolve()
+    report.unlink()
+    folder.rename(report)
+    (report / "notes.txt").write_text("mine")
+    (report / "extra").mkdir()
+    (report / "extra" / "x.txt").write_text("also mine")
+    (report / "runs" / "README").write_text("mine too")
+    ino = {r: os.stat(report / "runs" / page_name(r)).st_ino for r in ("c/a", "c/b")}
+    raw.csv("c/b.csv", STEP_META, {**meta, "x[mm]": [0, 2]})
+    rebuild(raw.root, warehouse, jobs=1)
+    assert os.path.islink(report)
+    assert os.stat(report / "runs" / page_name("c/a")).st_ino == ino["c/a"]  # taken over, not redrawn
+    assert os.stat(report / "runs" / page_name("c/b")).st_ino != ino["c/b"]
+    assert (report / "notes.txt").read_text() == "mine" and (report / "extra" / "x.txt").read_text() == "also mine"
+    assert (report / "runs" / "README").read_text() == "mine too"
+    assert [p.name for p in warehouse.iterdir() if p.name.startswith(".report")] == [os.readlink(report)]
+    # a no-op rebuild: the same pages again, the same files
+    ino = {r: os.stat(report / "runs" / page_name(r)).st_ino for r in ("c/a", "c/b")}
+    rebuild(raw.root, warehouse, jobs=1)
+    assert {r: os.stat(report / "runs" / page_name(r)).st_ino for r in ("c/a", "c/b")} == ino
+    assert (report / "notes.txt").read_text() == "mine" and (report / "extra" / "x.txt").read_text() == "also mine"
+    assert [p.name for p in warehouse.iterdir() if p.name.startswith(".report")] == [os.readlink(report)]
