@@ -476,3 +476,29 @@ def test_a_new_report_reuses_unchanged_run_pages_and_keeps_what_others_put_in_th
     assert {r: os.stat(report / "runs" / page_name(r)).st_ino for r in ("c/a", "c/b")} == ino
     assert (report / "notes.txt").read_text() == "mine" and (report / "extra" / "x.txt").read_text() == "also mine"
     assert [p.name for p in warehouse.iterdir() if p.name.startswith(".report")] == [os.readlink(report)]
+
+
+def test_a_rebuild_log_from_before_seq_is_numbered_in_its_stored_order(raw, warehouse, monkeypatch):
+    from datetime import datetime, timezone
+
+    import duckdb
+
+    import pipeline.report as rp
+    from pipeline.state import load_previous
+    from tests.conftest import query
+
+    raw.csv("c/a.csv", STEP_META, {"t[s]": [0, 0.1], "x[mm]": [0, 1], "x_ref[mm]": [1, 1]})
+    _clock_at(monkeypatch, datetime(2026, 3, 2, tzinfo=timezone.utc))
+    first = rebuild(raw.root, warehouse, jobs=1)
+    raw.csv("c/b.csv", STEP_META, {"t[s]": [0, 0.1], "x[mm]": [0, 1], "x_ref[mm]": [1, 1]})
+    _clock_at(monkeypatch, datetime(2026, 3, 1, tzinfo=timezone.utc))  # the clock went back
+    second = rebuild(raw.root, warehouse, jobs=1)
+    con = duckdb.connect(str(warehouse / "pneubench.duckdb"))  # as an earlier version wrote it
+    con.execute("ALTER TABLE rebuild_log DROP COLUMN seq")
+    con.close()
+    assert load_previous(warehouse).generation == second.generation
+    assert f"generation {second.generation}" in rp.write_report(warehouse).read_text()
+    raw.csv("c/c.csv", STEP_META, {"t[s]": [0, 0.1], "x[mm]": [0, 1], "x_ref[mm]": [1, 1]})
+    third = rebuild(raw.root, warehouse, jobs=1)
+    assert query(warehouse, "SELECT generation, seq FROM rebuild_log ORDER BY seq") == [
+        (first.generation, 1), (second.generation, 2), (third.generation, 3)]
