@@ -1128,18 +1128,26 @@ def publish_report(warehouse: str | Path, staged: Path) -> Path:
 
     warehouse = Path(warehouse)
     link = warehouse / REPORT_DIR
-    if os.path.isdir(link) and not os.path.islink(link):
-        os.rename(link, warehouse / f".report-{os.getpid()}-{secrets.token_hex(4)}")
     tmp = warehouse / f".report.link-tmp-{os.getpid()}"
     tmp.unlink(missing_ok=True)
-    os.symlink(staged.name, tmp)
+    try:
+        os.symlink(staged.name, tmp)
+    except OSError:  # a file system without symlinks (vfat, exFAT, some SMB shares): two renames
+        aside = warehouse / f".report-{os.getpid()}-{secrets.token_hex(4)}"
+        if os.path.isdir(link) and not os.path.islink(link):
+            os.rename(link, aside)  # killed before the next rename: settle_report renames staged in
+        os.rename(staged, link)
+        _remove_old_folders(warehouse, None, live=link)
+        return link / "index.html"
+    if os.path.isdir(link) and not os.path.islink(link):
+        os.rename(link, warehouse / f".report-{os.getpid()}-{secrets.token_hex(4)}")
     os.replace(tmp, link)
     _remove_old_folders(warehouse, staged.name)
     return link / "index.html"
 
 
-def _remove_old_folders(warehouse: Path, keep: str | None) -> None:
-    live = warehouse / keep if keep else None
+def _remove_old_folders(warehouse: Path, keep: str | None, live: Path | None = None) -> None:
+    live = live or (warehouse / keep if keep else None)
     for entry in _scandir(warehouse):
         if entry.name != keep and entry.is_dir(follow_symlinks=False) and \
                 (_FOLDER.fullmatch(entry.name) or _STAGING.fullmatch(entry.name)):
@@ -1167,13 +1175,13 @@ def settle_report(warehouse: str | Path) -> None:
                 con.close()
         except Exception:
             pass
-        current = _folder_generation(warehouse / target) if target else None
+        current = _folder_generation(warehouse / REPORT_DIR)  # a link, or a folder (no symlinks)
         if live_gen is not None and current != live_gen:
             for folder in others:
                 if _folder_generation(folder) == live_gen:
                     publish_report(warehouse, folder)
                     return
-    _remove_old_folders(warehouse, target)
+    _remove_old_folders(warehouse, target, live=warehouse / REPORT_DIR if os.path.isdir(warehouse / REPORT_DIR) else None)
 
 
 def write_report(warehouse: str | Path, generation: str | None = None, now: datetime | None = None) -> Path:

@@ -502,3 +502,26 @@ def test_a_rebuild_log_from_before_seq_is_numbered_in_its_stored_order(raw, ware
     third = rebuild(raw.root, warehouse, jobs=1)
     assert query(warehouse, "SELECT generation, seq FROM rebuild_log ORDER BY seq") == [
         (first.generation, 1), (second.generation, 2), (third.generation, 3)]
+
+
+def test_on_a_file_system_without_symlinks_the_report_folder_is_swapped_by_rename(raw, warehouse, monkeypatch):
+    import os
+
+    from pipeline.run_pages import page_name
+
+    def no_symlinks(*a, **k):
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(os, "symlink", no_symlinks)
+    meta = {"t[s]": [0, 0.1], "x[mm]": [0, 1], "x_ref[mm]": [1, 1]}
+    raw.csv("c/a.csv", STEP_META, meta)
+    raw.csv("c/b.csv", STEP_META, meta)
+    rebuild(raw.root, warehouse, jobs=1)
+    (raw.root / "c/b.csv").unlink()
+    raw.csv("c/c.csv", STEP_META, meta)
+    s = rebuild(raw.root, warehouse, jobs=1)
+    report = warehouse / "report"
+    assert report.is_dir() and not os.path.islink(report)
+    assert f"generation {s.generation}" in (report / "index.html").read_text()
+    assert {p.name for p in (report / "runs").iterdir()} == {page_name("c/a"), page_name("c/c")}
+    assert not [p.name for p in warehouse.iterdir() if p.name.startswith(".report")]
