@@ -1181,7 +1181,8 @@ def settle_report(warehouse: str | Path) -> None:
                 if _folder_generation(folder) == live_gen:
                     publish_report(warehouse, folder)
                     return
-    _remove_old_folders(warehouse, target, live=warehouse / REPORT_DIR if os.path.isdir(warehouse / REPORT_DIR) else None)
+    link = warehouse / REPORT_DIR
+    _remove_old_folders(warehouse, target, live=link if os.path.isdir(link) else None)
 
 
 def write_report(warehouse: str | Path, generation: str | None = None, now: datetime | None = None) -> Path:
@@ -1216,7 +1217,8 @@ def write_report(warehouse: str | Path, generation: str | None = None, now: date
         except Exception:
             generation = None
     try:
-        page = publish_report(warehouse, _stage(warehouse, lambda folder: failure_page(warehouse, generation, cause, now)))
+        failed = _stage(warehouse, lambda folder: failure_page(warehouse, generation, cause, now))
+        page = publish_report(warehouse, failed)
     except Exception:
         page = None
         try:
