@@ -92,7 +92,7 @@ def _exponent(ns: list[int], ts: list[float]) -> float | None:
 #: Phases of a rebuild whose cumulative time the no-op profile reports [function name in cProfile].
 PHASES = {"load_previous": "load_previous", "scan raw/": "discover_runs", "plan (stat, metadata)": "plan_runs",
           "ingest": "ingest_incremental", "stages (reuse or run)": "run_stages_cached",
-          "write database": "build_database", "morning report": "render_report", "publish report": "publish_page",
+          "write database": "build_database", "morning report": "render_report", "publish report": "publish_report",
           "collect garbage": "collect_garbage", "whole rebuild()": "rebuild"}
 
 

@@ -256,12 +256,26 @@ def schedule(raw, warehouse, at, workdir, log, user, wait_s, fmt):
 
 @main.command()
 @warehouse_option
-def report(warehouse):
-    """Write the morning report (warehouse/report/index.html) from the warehouse again."""
-    from pipeline.report import ReportError, write_report
+@click.option("--wait", "wait_s", type=click.FloatRange(min=0), default=0, show_default=True, metavar="SECONDS",
+              help="Wait this long for a rebuild of the same warehouse to finish (else exit 4).")
+def report(warehouse, wait_s):
+    """Write the morning report (warehouse/report/index.html) from the warehouse again.
 
+    Holds the rebuild lock while it renders (a rebuild cannot swap its database in between);
+    exit 4 when a rebuild is running: it writes the report itself when it finishes.
+    """
+    from pipeline.rebuild import RebuildError, warehouse_lock
+    from pipeline.report import ReportError, write_report
+    from pipeline.warehouse import DB_NAME
+
+    if not (Path(warehouse) / DB_NAME).is_file():
+        raise click.UsageError(f"no warehouse at {Path(warehouse) / DB_NAME} (run `pneubench rebuild` first)")
     try:
-        path = write_report(warehouse)
+        with warehouse_lock(Path(warehouse), wait_s):
+            path = write_report(warehouse)
+    except RebuildError as exc:
+        click.echo(f"pneubench report: {exc}", err=True)
+        sys.exit(exc.exit_code)
     except FileNotFoundError as exc:
         raise click.UsageError(str(exc)) from None
     except ReportError as exc:

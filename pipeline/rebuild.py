@@ -76,7 +76,7 @@ def ingest_file(tree, path, *args, **kwargs):
 EXIT_OK, EXIT_QUARANTINED, EXIT_USAGE, EXIT_FAILED, EXIT_LOCKED = 0, 1, 2, 3, 4
 
 #: Test hook: ``PNEUBENCH_CRASH_AT=<point>`` kills the rebuild with SIGKILL at that point.
-CRASH_POINTS = ("after_ingest", "after_stages", "before_swap", "after_swap")
+CRASH_POINTS = ("after_ingest", "after_stages", "before_swap", "between_swaps", "after_swap")
 
 #: Rows of ``rebuild_log`` carried from one warehouse to the next.
 HISTORY_ROWS = 200
@@ -1155,6 +1155,8 @@ def _keep_superseded_h(value: float | None) -> float:
 def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, report, generation, summary,
                     started_at, t0, lock_fd: int, keep_h: float, clock) -> RebuildSummary:
     clean_debris(warehouse)
+    from pipeline.report import settle_report
+    settle_report(warehouse)  # a report staged by a rebuild killed after its database swap goes in
     prev = load_previous(warehouse)
     tree = RawTree(raw)
     tree.scan_rigs()
@@ -1228,6 +1230,7 @@ def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, r
             "n_deleted": summary.n_deleted, "n_unchanged": summary.n_unchanged, "n_quarantined": len(problems),
             "stages_run": staged.ran, "stages_reused": staged.reused, "exit_code": summary.exit_code,
             "inputs_key": key}])
+        old_log = numbered_history(prev.history)
         in_use = set(runs_df.get("samples_path", [])) | {r.folder for r in staged.records}
         kept, _expired = superseded_files(prev, in_use, clock(), keep_h)
         kept_paths = sorted(kept)
@@ -1236,9 +1239,10 @@ def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, r
             # whole microseconds, as DuckDB stores them: a time carried from rebuild to rebuild never drifts
             "superseded_at": pd.to_datetime(pd.Series([round(kept[p] * 1e6) for p in kept_paths], dtype="int64"),
                                             unit="us", utc=True)})
+        log_row["seq"] = int(old_log["seq"].max()) + 1 if old_log is not None else 1
         history = log_row
-        if prev.history is not None and not prev.history.empty:
-            history = pd.concat([prev.history.tail(HISTORY_ROWS - 1), log_row], ignore_index=True)
+        if old_log is not None:
+            history = pd.concat([old_log.tail(HISTORY_ROWS - 1), log_row], ignore_index=True)
         all_tables = {
             "runs": runs_df, "quarantine": quarantine, "channels": pd.DataFrame(channels),
             "skipped_files": pd.DataFrame(
@@ -1278,6 +1282,16 @@ def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, r
     return summary
 
 
+def numbered_history(history: pd.DataFrame | None) -> pd.DataFrame | None:
+    """``rebuild_log`` of the previous warehouse with its ``seq`` (None when empty). A log from
+    before the column is numbered 1, 2, ... in its stored order (the order rebuilds appended it)."""
+    if history is None or history.empty:
+        return None
+    if "seq" not in history.columns or history["seq"].isna().any():
+        history = history.assign(seq=range(1, len(history) + 1))
+    return history
+
+
 def _split_kept(keep: set[str]) -> tuple[set[str], set[str]]:
     """Paths to keep (relative to the warehouse) as (samples files, stage folders and the rest)."""
     return {p for p in keep if p.startswith("samples/")}, {p for p in keep if not p.startswith("samples/")}
@@ -1297,13 +1311,13 @@ def swap_in_new_database(warehouse: Path, write, report: bool, run_pages: str = 
     ``run_pages`` as for :func:`pipeline.report.render_report`.
     """
     tmp_db = warehouse / f".{DB_NAME}.tmp-{os.getpid()}"
-    page = None  # the morning report, staged beside index.html: rendered from the new database
+    page = None  # the morning report (index and run pages), a folder beside the live one: from the new database
     try:
         write(tmp_db)
         if report:  # before the swap: a failure keeps the previous warehouse and its report
-            from pipeline.report import render_report, stage_page
+            from pipeline.report import stage_report
             try:
-                page = stage_page(warehouse, render_report(warehouse, database=tmp_db, run_pages=run_pages))
+                page = stage_report(warehouse, database=tmp_db, run_pages=run_pages)
             except Exception as exc:
                 log.exception("report failed")
                 raise RebuildError(f"the morning report could not be written: {type(exc).__name__}: "
@@ -1314,14 +1328,16 @@ def swap_in_new_database(warehouse: Path, write, report: bool, run_pages: str = 
         tmp_db.unlink(missing_ok=True)
         Path(f"{tmp_db}.wal").unlink(missing_ok=True)
         if page is not None:
-            page.unlink(missing_ok=True)
+            from pipeline.report import remove_report_folder
+            remove_report_folder(page)
         if isinstance(exc, RebuildError):
             raise
         raise RebuildError(f"could not write the warehouse: {type(exc).__name__}: {exc}") from exc
     published = None
+    _crash_point("between_swaps")  # killed here: the next rebuild or report publishes the staged report
     if page is not None:  # straight after the swap: the report follows the warehouse it describes
-        from pipeline.report import publish_page
-        published = publish_page(page)
+        from pipeline.report import publish_report
+        published = publish_report(warehouse, page)
     _crash_point("after_swap")
     return published
 
@@ -1408,7 +1424,8 @@ def _rebuild_noop(warehouse: Path, prev: PreviousState, plans: list[FilePlan], k
                    "duration_s": time.monotonic() - t0, "mode": "no-op", "executor": executor,
                    "n_files": len(plans), "n_runs": n_runs, "n_new": 0, "n_changed": 0, "n_deleted": 0,
                    "n_unchanged": len(plans), "n_quarantined": len(problems), "stages_run": [],
-                   "stages_reused": stages, "exit_code": summary.exit_code, "inputs_key": key}
+                   "stages_reused": stages, "exit_code": summary.exit_code, "inputs_key": key,
+                   "seq": con.execute("SELECT coalesce(max(seq), 0) + 1 FROM rebuild_log").fetchone()[0]}
             con.execute(f"INSERT INTO rebuild_log ({', '.join(row)}) VALUES ({', '.join('?' * len(row))})",
                         list(row.values()))
             con.execute("DELETE FROM rebuild_log WHERE rowid NOT IN "

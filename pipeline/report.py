@@ -19,6 +19,8 @@ The report is never silently stale. The rebuild renders it from the new database
 swap, so a report that cannot be rendered fails the rebuild (exit 3): the previous warehouse
 and its report stay, and they agree. ``pneubench report`` (``write_report``) replaces a page it
 cannot render with a short page saying so, with the error, and raises :class:`ReportError`.
+The index and its run pages are one folder, published whole with the database (``report`` is a
+symlink to it, replaced by one rename: :func:`stage_report`, :func:`publish_report`).
 """
 from __future__ import annotations
 
@@ -27,6 +29,7 @@ import html
 import json
 import math
 import os
+import re
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
@@ -258,12 +261,19 @@ def _findings_section(db: _DB, now: datetime) -> tuple[str, str]:
     return alert, section
 
 
+def _log_order(db: _DB) -> str:
+    """``rebuild_log``'s last rebuild first: by its number, never by wall time (a clock set back)."""
+    from pipeline.state import log_order
+
+    return log_order(db.columns("rebuild_log"))
+
+
 def _rebuild_section(db: _DB) -> str:
     out = ['<section id="rebuild"><h2>Last rebuild</h2>']
     if db.has("rebuild_log") and db.count("rebuild_log"):
         cols, rows = db.rows("SELECT generation, finished_at, duration_s, mode, executor, n_files, n_runs, n_new, "
                              "n_changed, n_deleted, n_unchanged, n_quarantined, stages_run, stages_reused "
-                             "FROM rebuild_log ORDER BY finished_at DESC LIMIT 1")
+                             f"FROM rebuild_log ORDER BY {_log_order(db)} LIMIT 1")
         r = dict(zip(cols, rows[0]))
         out.append(f'<p class="meta">generation {esc(r["generation"])}, finished {fmt(r["finished_at"])}, '
                    f'{fmt(r["duration_s"])} s, {esc(r["mode"])} rebuild on the {esc(r["executor"])} executor; '
@@ -761,12 +771,13 @@ def _run_page(run: dict, results: list, svg: str, key: str) -> str:
         "</body></html>"])
 
 
-def write_run_pages(db: _DB, warehouse: Path, folder: Path | None = None) -> int:
+def write_run_pages(db: _DB, warehouse: Path, folder: Path | None = None, previous: Path | None = None) -> int:
     """Write ``report/runs/<safe id>.html`` for every run; returns how many were drawn anew.
 
     A page whose inputs (samples file, source hash, results, warnings, layout version) are
     unchanged is kept (its key is in its first line), so a nightly rebuild redraws only the
-    runs that changed. Pages of runs no longer in the warehouse are removed.
+    runs that changed. Pages of runs no longer in the warehouse are removed. ``previous``: the
+    live report's run pages, an unchanged one is linked (or copied) from there into ``folder``.
     """
     import hashlib
     import json as _json
@@ -794,9 +805,12 @@ def write_run_pages(db: _DB, warehouse: Path, folder: Path | None = None) -> int
                                           [(t, c, r) for t, c, r in res], run.get("warnings"), run.get("params")],
                                          default=str).encode()).hexdigest()[:24]
         page = folder / name
+        old = page if previous is None else previous / name
         try:
-            with open(page, encoding="utf-8") as fh:
+            with open(old, encoding="utf-8") as fh:
                 if f"<!-- key: {key} -->" in fh.readline():
+                    if old != page:
+                        _link_or_copy(old, page)
                     continue
         except OSError:
             pass
@@ -822,7 +836,7 @@ def _rebuild_line(db: _DB) -> str:
     if not (db.has("rebuild_log") and db.count("rebuild_log")):
         return ""
     r = db.con.execute("SELECT finished_at, n_runs, n_new, n_changed, n_deleted, n_quarantined FROM rebuild_log "
-                       "ORDER BY finished_at DESC LIMIT 1").fetchone()
+                       f"ORDER BY {_log_order(db)} LIMIT 1").fetchone()
     return (f'Last rebuild {fmt(r[0])}: {fmt(r[1])} runs, {fmt(r[2])} new, {fmt(r[3])} changed, {fmt(r[4])} deleted, '
             f'<a href="#rebuild">{fmt(r[5])} quarantined</a>.')
 
@@ -860,17 +874,20 @@ def _run_pages_present(db: _DB, warehouse: Path) -> bool:
 
 
 def render_report(warehouse: str | Path, now: datetime | None = None, database: str | Path | None = None,
-                  run_pages: str = "update") -> str:
+                  run_pages: str = "update", folder: str | Path | None = None) -> str:
     """The report of the warehouse as one HTML string (``now``: the clock for "last 24 hours").
 
     ``database``: the DuckDB file to read instead of the warehouse's live one (the rebuild
     renders the report from the new database before swapping it in).
+    ``folder``: the new report folder (:func:`stage_report`) the run pages and the parts cache
+    are written into, each unchanged page taken over from the live report; None writes nothing.
     ``run_pages``: ``"update"`` redraws every run page whose inputs changed (each page's key is
     checked); ``"missing"`` only when a run's page is missing (the no-op rebuild: the runs and
     their results are those of the pages already there).
     """
     warehouse = Path(warehouse)
     now = now or _now()
+    live = warehouse / REPORT_DIR
     con = connect_readonly(warehouse, database)
     try:
         db = _DB(con)
@@ -882,9 +899,13 @@ def render_report(warehouse: str | Path, now: datetime | None = None, database: 
         else:
             results, toc = _results_sections(db, warehouse)
             runs_index = _runs_index(db)
-            _cache_parts(db, warehouse, results, toc, runs_index)
-        if run_pages != "missing" or not _run_pages_present(db, warehouse):
-            write_run_pages(db, warehouse)
+        if folder is not None:
+            (Path(folder) / GENERATION_FILE).write_text(generation or "", encoding="utf-8")
+            _cache_parts(db, Path(folder), results, toc, runs_index)
+            if run_pages == "missing" and _run_pages_present(db, warehouse):
+                _carry_pages(live / "runs", Path(folder) / "runs")
+            else:
+                write_run_pages(db, warehouse, Path(folder) / "runs", previous=live / "runs")
         entries = ([("overturned", "Findings changed in the last 24 hours", [])] if alert.startswith('<div class="alert"')
                    else []) + [("findings", "Findings of the two papers", [])] + toc + [
             ("rebuild", "Last rebuild: inputs and quarantine", []), ("runs", "Runs", [])]
@@ -914,7 +935,7 @@ def _inputs_key(db: _DB) -> str | None:
     keys mean equal result tables (the rebuild is deterministic)."""
     if not db.has("rebuild_log") or "inputs_key" not in {r[0] for r in db.con.execute("DESCRIBE rebuild_log").fetchall()}:
         return None
-    row = db.con.execute("SELECT inputs_key FROM rebuild_log ORDER BY finished_at DESC LIMIT 1").fetchone()
+    row = db.con.execute(f"SELECT inputs_key FROM rebuild_log ORDER BY {_log_order(db)} LIMIT 1").fetchone()
     return row[0] if row and isinstance(row[0], str) else None
 
 
@@ -932,11 +953,10 @@ def _cached_parts(db: _DB, warehouse: Path) -> tuple[str, list, str] | None:
         return None  # none yet, or damaged: rendered anew
 
 
-def _cache_parts(db: _DB, warehouse: Path, results: str, toc: list, runs_index: str) -> None:
+def _cache_parts(db: _DB, folder: Path, results: str, toc: list, runs_index: str) -> None:
     key = _inputs_key(db)
     if key is None:
         return
-    folder = Path(warehouse) / "report"
     tmp = folder / f".parts-cache.tmp-{os.getpid()}"
     try:
         folder.mkdir(parents=True, exist_ok=True)
@@ -949,7 +969,7 @@ def _cache_parts(db: _DB, warehouse: Path, results: str, toc: list, runs_index: 
 
 def _generation(db: _DB) -> str:
     if db.has("rebuild_log") and db.count("rebuild_log"):
-        return db.con.execute("SELECT generation FROM rebuild_log ORDER BY finished_at DESC LIMIT 1").fetchone()[0]
+        return db.con.execute(f"SELECT generation FROM rebuild_log ORDER BY {_log_order(db)} LIMIT 1").fetchone()[0]
     return ""
 
 
@@ -973,59 +993,221 @@ def failure_page(warehouse: str | Path, generation: str | None, error: str, now:
         "</body></html>"])
 
 
-def stage_page(warehouse: str | Path, text: str) -> Path:
-    """Write ``text`` beside ``report/index.html`` under a temporary name; :func:`publish_page`
-    renames it into place. The rebuild stages the page before its database swap and publishes
-    it right after, so a full disk fails the rebuild instead of leaving no report."""
-    folder = Path(warehouse) / "report"
-    folder.mkdir(parents=True, exist_ok=True)
-    tmp = folder / f".index.html.tmp-{os.getpid()}"
+# -- publishing: the report is one folder, swapped in whole --------------------------------------------
+#: ``<warehouse>/report`` is a symlink to the live report folder (``.report-<pid>-<hex>/``: the
+#: index, ``runs/``, the parts cache and :data:`GENERATION_FILE`). A new report is written into a
+#: folder of its own (``.report-tmp-<pid>-<hex>/``), renamed to its final name once complete, and
+#: published by renaming a new symlink over ``report`` (rename(2): atomic). A reader following
+#: ``report/`` sees the previous index and its pages, or the new ones, never a mix.
+REPORT_DIR = "report"
+#: The database generation a report folder was rendered from (one line).
+GENERATION_FILE = ".generation"
+_FOLDER = re.compile(r"\.report-[0-9]+-[0-9a-f]{8}")
+_STAGING = re.compile(r"\.report-tmp-[0-9]+-[0-9a-f]{8}")
+_LINK_TMP = re.compile(r"\.report\.link-tmp-[0-9]+")
+_OWN_FILE = re.compile(r"index\.html|\.generation|\.parts-cache\.json|\.(index\.html|parts-cache)\.tmp-[0-9]+")
+_OWN_PAGE = re.compile(r"[A-Za-z0-9._-]{1,80}-[0-9a-f]{8}\.html|\.[A-Za-z0-9._-]{1,80}-[0-9a-f]{8}\.html\.tmp-[0-9]+")
+
+
+def _link_or_copy(src: Path, dst: Path) -> None:
+    """``dst`` as a hard link to ``src`` (a copy where the file system has none)."""
+    import shutil
+
     try:
-        tmp.write_text(text, encoding="utf-8")
-    except BaseException:
-        tmp.unlink(missing_ok=True)
+        os.link(src, dst)
+    except FileExistsError:
         raise
-    return tmp
+    except OSError:
+        shutil.copyfile(src, dst)
 
 
-def publish_page(staged: Path) -> Path:
-    """Rename a :func:`stage_page` file to ``index.html`` (atomic). Returns the page's path."""
-    final = staged.parent / "index.html"
-    os.replace(staged, final)
-    return final
+def _carry_pages(src: Path, dst: Path) -> None:
+    """Every run page of ``src`` into ``dst`` (the no-op rebuild: the same pages again)."""
+    dst.mkdir(parents=True, exist_ok=True)
+    for entry in _scandir(src):  # plain strings: a no-op rebuild of 10,000 runs does this 10,000 times
+        if ".tmp-" not in entry.name and _OWN_PAGE.fullmatch(entry.name) and entry.is_file(follow_symlinks=False):
+            _link_or_copy(entry.path, os.path.join(dst, entry.name))
 
 
-def _write_atomic(folder: Path, text: str) -> Path:
-    folder.mkdir(parents=True, exist_ok=True)
-    final = folder / "index.html"
-    tmp = folder / f".index.html.tmp-{os.getpid()}"
+def _scandir(folder: Path) -> list:
     try:
-        tmp.write_text(text, encoding="utf-8")
-        os.replace(tmp, final)
-    finally:
-        tmp.unlink(missing_ok=True)
+        with os.scandir(folder) as it:
+            return list(it)
+    except OSError:
+        return []
+
+
+def _carry_foreign(live: Path, new: Path) -> None:
+    """Files someone else put into the live report folder (or its ``runs/``) go on into the new
+    one (hard links): publishing a report never takes a user's file away."""
+    for sub, own in (("", _OWN_FILE), ("runs", _OWN_PAGE)):
+        for entry in _scandir(live / sub):
+            if entry.is_file(follow_symlinks=False) and not own.fullmatch(entry.name) and \
+                    not (new / sub / entry.name).exists():
+                (new / sub).mkdir(parents=True, exist_ok=True)
+                _link_or_copy(Path(entry.path), new / sub / entry.name)
+
+
+def remove_report_folder(folder: Path, live: Path | None = None) -> None:
+    """Delete a report folder the way it was written (index, run pages, cache, temp names). A
+    file someone else put there goes only when it was carried into ``live`` (the same inode); a
+    folder of theirs is moved into ``live``. Whatever is left keeps the folder."""
+    for sub, own in (("runs", _OWN_PAGE), ("", _OWN_FILE)):
+        for entry in _scandir(folder / sub):
+            if entry.is_file(follow_symlinks=False):
+                if own.fullmatch(entry.name) or (live is not None and _same_file(entry.path, live / sub / entry.name)):
+                    try:
+                        os.unlink(entry.path)
+                    except FileNotFoundError:
+                        pass
+            elif sub == "" and entry.is_dir(follow_symlinks=False) and entry.name != "runs" and live is not None \
+                    and not os.path.lexists(live / entry.name):
+                try:
+                    os.rename(entry.path, live / entry.name)
+                except OSError:
+                    pass
+        try:
+            (folder / sub).rmdir()
+        except OSError:
+            pass  # not empty: it holds something the report did not write
+
+
+def _same_file(a, b) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def _folder_generation(folder: Path) -> str | None:
+    try:
+        return (folder / GENERATION_FILE).read_text(encoding="utf-8").strip() or None
+    except OSError:
+        return None
+
+
+def _live_target(warehouse: Path) -> str | None:
+    """Name of the folder ``report`` links to (None: no link, or a folder of the old layout)."""
+    try:
+        return os.readlink(warehouse / REPORT_DIR)
+    except OSError:
+        return None
+
+
+def stage_report(warehouse: str | Path, database: str | Path | None = None, run_pages: str = "update",
+                 now: datetime | None = None) -> Path:
+    """Render the whole report (index and run pages) into a new folder beside the live one;
+    :func:`publish_report` swaps it in. Unchanged run pages are hard links to the live ones.
+    A failure removes the folder and raises (the live report is untouched)."""
+    return _stage(Path(warehouse), lambda folder: render_report(warehouse, now, database=database,
+                                                                 run_pages=run_pages, folder=folder))
+
+
+def _stage(warehouse: Path, render) -> Path:
+    import secrets
+
+    token = f"{os.getpid()}-{secrets.token_hex(4)}"
+    tmp = warehouse / f".report-tmp-{token}"
+    tmp.mkdir()
+    try:
+        text = render(tmp)
+        (tmp / "index.html").write_text(text, encoding="utf-8")
+        _carry_foreign(warehouse / REPORT_DIR, tmp)
+        final = warehouse / f".report-{token}"
+        os.rename(tmp, final)  # complete: a rebuild killed after this rolls it forward (settle_report)
+    except BaseException:
+        remove_report_folder(tmp)
+        raise
     return final
+
+
+def publish_report(warehouse: str | Path, staged: Path) -> Path:
+    """Point ``report`` at the :func:`stage_report` folder ``staged`` (one rename(2) of a new
+    symlink over it) and remove the report folders before it. Returns ``report/index.html``.
+
+    A ``report/`` folder of the old layout (a real folder) is first renamed aside: a crash in
+    that moment leaves no ``report`` at all until :func:`settle_report` puts the link in."""
+    import secrets
+
+    warehouse = Path(warehouse)
+    link = warehouse / REPORT_DIR
+    tmp = warehouse / f".report.link-tmp-{os.getpid()}"
+    tmp.unlink(missing_ok=True)
+    try:
+        os.symlink(staged.name, tmp)
+    except OSError:  # a file system without symlinks (vfat, exFAT, some SMB shares): two renames
+        aside = warehouse / f".report-{os.getpid()}-{secrets.token_hex(4)}"
+        if os.path.isdir(link) and not os.path.islink(link):
+            os.rename(link, aside)  # killed before the next rename: settle_report renames staged in
+        os.rename(staged, link)
+        _remove_old_folders(warehouse, None, live=link)
+        return link / "index.html"
+    if os.path.isdir(link) and not os.path.islink(link):
+        os.rename(link, warehouse / f".report-{os.getpid()}-{secrets.token_hex(4)}")
+    os.replace(tmp, link)
+    _remove_old_folders(warehouse, staged.name)
+    return link / "index.html"
+
+
+def _remove_old_folders(warehouse: Path, keep: str | None, live: Path | None = None) -> None:
+    live = live or (warehouse / keep if keep else None)
+    for entry in _scandir(warehouse):
+        if entry.name != keep and entry.is_dir(follow_symlinks=False) and \
+                (_FOLDER.fullmatch(entry.name) or _STAGING.fullmatch(entry.name)):
+            remove_report_folder(Path(entry.path), live)
+        elif entry.is_symlink() and _LINK_TMP.fullmatch(entry.name):
+            Path(entry.path).unlink(missing_ok=True)
+
+
+def settle_report(warehouse: str | Path) -> None:
+    """Bring the report folders in order after a killed rebuild (the caller holds the rebuild
+    lock): a complete report of the live database that was not yet published (killed between
+    the database swap and the report's) is published; every other report folder but the live
+    one, and the temp folders and links, are removed."""
+    warehouse = Path(warehouse)
+    target = _live_target(warehouse)
+    others = [Path(e.path) for e in _scandir(warehouse)
+              if e.is_dir(follow_symlinks=False) and _FOLDER.fullmatch(e.name) and e.name != target]
+    if others:
+        live_gen = None
+        try:
+            con = connect_readonly(warehouse)
+            try:
+                live_gen = _generation(_DB(con)) or None
+            finally:
+                con.close()
+        except Exception:
+            pass
+        current = _folder_generation(warehouse / REPORT_DIR)  # a link, or a folder (no symlinks)
+        if live_gen is not None and current != live_gen:
+            for folder in others:
+                if _folder_generation(folder) == live_gen:
+                    publish_report(warehouse, folder)
+                    return
+    link = warehouse / REPORT_DIR
+    _remove_old_folders(warehouse, target, live=link if os.path.isdir(link) else None)
 
 
 def write_report(warehouse: str | Path, generation: str | None = None, now: datetime | None = None) -> Path:
-    """Write ``report/index.html`` (temp file, then an atomic rename). Returns its path.
+    """Render the report (index and run pages) into a new folder and publish it in one rename;
+    returns ``report/index.html``. The caller holds the warehouse's rebuild lock
+    (``pneubench report`` does): a rebuild cannot swap in between.
 
     Raises
     ------
     FileNotFoundError
         When there is no warehouse (nothing is written).
     ReportError
-        When the report could not be rendered or written. ``index.html`` is then replaced by
+        When the report could not be rendered or written. The report is then replaced by
         :func:`failure_page` for ``generation`` (read from ``rebuild_log`` when not given), or
         removed if even that cannot be written: never the previous report left in place.
     """
     warehouse = Path(warehouse)
-    folder = warehouse / "report"
+    connect_readonly(warehouse).close()  # FileNotFoundError without a warehouse
+    settle_report(warehouse)
     try:
-        return _write_atomic(folder, render_report(warehouse, now))
+        return publish_report(warehouse, stage_report(warehouse, now=now))
     except Exception as exc:
-        if isinstance(exc, FileNotFoundError) and not (warehouse / DB_NAME).is_file():
-            raise  # no warehouse at all: nothing to report on
         original = exc
     cause = _one_line_error(original)
     if generation is None:
@@ -1038,11 +1220,13 @@ def write_report(warehouse: str | Path, generation: str | None = None, now: date
         except Exception:
             generation = None
     try:
-        page = _write_atomic(folder, failure_page(warehouse, generation, cause, now))
+        failed = _stage(warehouse, lambda folder: failure_page(warehouse, generation, cause, now))
+        page = publish_report(warehouse, failed)
     except Exception:
         page = None
         try:
-            (folder / "index.html").unlink(missing_ok=True)
+            link = warehouse / REPORT_DIR
+            (link if os.path.islink(link) else link / "index.html").unlink(missing_ok=True)
         except OSError:
             pass
     raise ReportError(cause, page) from original

@@ -234,6 +234,12 @@ class PreviousState:
         return self.__dict__["_history"]
 
 
+def log_order(columns) -> str:
+    """``ORDER BY`` of ``rebuild_log``, the last rebuild first: by ``seq`` (a log from before the
+    column: by its stored order, the order rebuilds appended it)."""
+    return "seq DESC NULLS LAST" if "seq" in set(columns) else "rowid DESC"
+
+
 def load_previous(warehouse: Path) -> PreviousState:
     """Read the state of the live warehouse; an unreadable or missing one gives an empty state."""
     from pipeline.warehouse import connect_readonly
@@ -273,8 +279,9 @@ def load_previous(warehouse: Path) -> PreviousState:
                 "SELECT path, epoch_us(superseded_at) / 1e6 FROM superseded_files").fetchall()}
         if "rebuild_log" in tables:
             cols = {r[0] for r in con.execute("DESCRIBE rebuild_log").fetchall()}
+            # the last rebuild by its number, never by its clock (set back by NTP, a battery)
             last = con.execute(f"SELECT generation, {'inputs_key' if 'inputs_key' in cols else 'NULL'} "
-                               "FROM rebuild_log ORDER BY finished_at DESC NULLS LAST LIMIT 1").fetchone()
+                               f"FROM rebuild_log ORDER BY {log_order(cols)} LIMIT 1").fetchone()
             if last is not None:
                 prev.generation = str(last[0])
                 prev.inputs_key = last[1] if isinstance(last[1], str) else None

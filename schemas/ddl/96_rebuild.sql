@@ -20,7 +20,8 @@ CREATE TABLE rebuild_log (
     stages_run      VARCHAR[],            -- stages that ran
     stages_reused   VARCHAR[],            -- stages whose cached outputs were reused
     exit_code       INTEGER,
-    inputs_key      VARCHAR               -- fingerprint of every input's stat, the tree and the code; a rebuild finding the same key takes the no-op path
+    inputs_key      VARCHAR,              -- fingerprint of every input's stat, the tree and the code; a rebuild finding the same key takes the no-op path
+    seq             BIGINT                -- number of the rebuild, 1, 2, ...: one more than the previous row's; generations are ordered by it, never by wall time (a clock set back)
 );
 
 -- One row per input of the last rebuild (run files, manifests, rig.toml, hose logbooks),

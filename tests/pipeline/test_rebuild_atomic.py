@@ -241,3 +241,124 @@ def test_a_stuck_reader_is_stopped_at_its_time_limit_and_the_night_goes_on(raw, 
     s = rebuild(raw.root, warehouse, jobs=1)
     assert s.exit_code == 0 and [r[0] for r in query(warehouse, "SELECT run_id FROM runs ORDER BY 1")] == [
         "c/a", "c/b", "c/c", "c/d"]
+
+
+# -- the report is published with the database (issue 21.4) ------------------------------------------
+def live_generation(warehouse, back=0):
+    """The live database's generation (``back``: that many rebuilds before it) and its run ids."""
+    con = connect_readonly(warehouse)
+    try:
+        gens = [r[0] for r in con.execute("SELECT generation FROM rebuild_log ORDER BY seq DESC").fetchall()]
+        runs = {r[0] for r in con.execute("SELECT run_id FROM runs").fetchall()}
+        return gens[back], runs
+    finally:
+        con.close()
+
+
+def report_agrees(warehouse):
+    """The live report's index and its run pages agree: every run linked has its page and no page
+    is there that the index does not list. Returns (the index's generation, its run pages)."""
+    import re
+
+    report = warehouse / "report"
+    html = (report / "index.html").read_text()
+    gen = re.search(r"generation (\d{8}T\d{6}\.\d{6}Z-\d+)", html).group(1)
+    linked = set(re.findall(r'href="runs/([^"#]+)"', html))
+    present = {p.name for p in (report / "runs").iterdir()}
+    assert linked == present, (sorted(linked), sorted(present))
+    for name in present:  # each page links back to the index beside it
+        assert '<a href="../index.html">' in (report / "runs" / name).read_text()
+    return gen, present
+
+
+def pages_of(runs):
+    from pipeline.run_pages import page_name
+
+    return {page_name(r) for r in runs}
+
+
+@pytest.mark.parametrize("point", ["after_ingest", "after_stages", "before_swap", "between_swaps", "after_swap"])
+def test_kill_9_at_each_point_leaves_an_index_and_run_pages_that_agree(raw, warehouse, point):
+    step(raw, "c/a.csv")
+    step(raw, "c/b.csv")
+    rebuild(raw.root, warehouse, jobs=1)
+    old_gen, old_runs = live_generation(warehouse)
+    (raw.root / "c/b.csv").unlink()  # b goes, c comes: its page must not appear before c is published
+    step(raw, "c/c.csv", n=6)
+    res = cli_rebuild(raw.root, warehouse, env={"PNEUBENCH_CRASH_AT": point})
+    assert res.returncode == -signal.SIGKILL, res.stderr
+    gen, pages = report_agrees(warehouse)
+    live, runs = live_generation(warehouse)
+    if point in ("after_ingest", "after_stages", "before_swap"):
+        assert (gen, pages) == (old_gen, pages_of(old_runs)) and live == old_gen
+    elif point == "between_swaps":  # the new database is in, the report still the previous one, whole
+        assert (gen, pages) == (old_gen, pages_of(old_runs)) and runs == {"c/a", "c/c"}
+    else:
+        assert (gen, pages) == (live, pages_of(runs)) and runs == {"c/a", "c/c"}
+    # the report the killed rebuild finished but did not publish goes in at the next look at the
+    # warehouse (here `pneubench report`; a rebuild does it first thing too)
+    res = subprocess.run([*CLI, "report", "--warehouse", str(warehouse)], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    live, runs = live_generation(warehouse)
+    assert report_agrees(warehouse) == (live, pages_of(runs))
+    s = rebuild(raw.root, warehouse, jobs=1)
+    assert s.exit_code == 0
+    assert report_agrees(warehouse) == (s.generation, pages_of({"c/a", "c/c"}))
+    # one generation of the report left, nothing half-written
+    assert os.path.islink(warehouse / "report")
+    assert [p.name for p in warehouse.iterdir() if p.name.startswith(".report")] == [os.readlink(warehouse / "report")]
+
+
+def test_a_report_that_started_before_a_rebuilds_swap_cannot_put_yesterdays_back(raw, warehouse, monkeypatch):
+    """``pneubench report`` holds the rebuild lock: a rebuild that comes while it renders waits
+    for it (or exits 4 without --wait) and the report it then publishes is its own."""
+    from click.testing import CliRunner
+
+    import pipeline.report as rp
+    from pipeline.cli import main
+
+    step(raw, "c/a.csv")
+    step(raw, "c/b.csv")
+    rebuild(raw.root, warehouse, jobs=1)
+    (raw.root / "c/b.csv").unlink()
+    step(raw, "c/c.csv", n=6)
+    real, seen = rp.render_report, []
+
+    def slow_render(*args, **kwargs):
+        page = real(*args, **kwargs)  # yesterday's database read and rendered ...
+        # ... and a rebuild comes before this report is written
+        seen.append(cli_rebuild(raw.root, warehouse))
+        return page
+
+    monkeypatch.setattr(rp, "render_report", slow_render)
+    res = CliRunner().invoke(main, ["report", "--warehouse", str(warehouse)])
+    assert res.exit_code == 0, res.output
+    assert seen[0].returncode == EXIT_LOCKED, seen[0].stderr
+    live, runs = live_generation(warehouse)
+    assert report_agrees(warehouse) == (live, pages_of(runs))
+    monkeypatch.setattr(rp, "render_report", real)
+    # a rebuild willing to wait runs once the report is done, and its report is the one left
+    proc = subprocess.Popen([*CLI, "rebuild", "--raw", str(raw.root), "--warehouse", str(warehouse), "--jobs", "1",
+                             "--wait", "120"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    res = CliRunner().invoke(main, ["report", "--warehouse", str(warehouse), "--wait", "120"])
+    assert res.exit_code == 0, res.output
+    assert proc.wait(timeout=300) == 0, proc.stderr.read()
+    live, runs = live_generation(warehouse)
+    assert runs == {"c/a", "c/c"} and report_agrees(warehouse) == (live, pages_of(runs))
+
+
+def test_pneubench_report_exits_4_while_a_rebuild_runs(raw, warehouse):
+    from click.testing import CliRunner
+
+    from pipeline.cli import main
+
+    step(raw, "c/a.csv")
+    rebuild(raw.root, warehouse, jobs=1)
+    index = (warehouse / "report" / "index.html").read_text()
+    with warehouse_lock(warehouse):
+        res = CliRunner().invoke(main, ["report", "--warehouse", str(warehouse)])
+    assert res.exit_code == EXIT_LOCKED, res.output
+    assert "another rebuild is running" in res.output and "--wait" in res.output
+    assert (warehouse / "report" / "index.html").read_text() == index
+    res = CliRunner().invoke(main, ["report", "--warehouse", str(warehouse)])
+    assert res.exit_code == 0, res.output

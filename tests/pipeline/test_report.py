@@ -404,3 +404,144 @@ def test_csv_downloads_neutralise_formulas_and_keep_numbers():
                     ["'=HYPERLINK(\"http://x\",\"y\")", "-1.5", "'@a;b", "1"],
                     ["'+1", "", "", "-2"], ["'-2+3", "2.0", "", "3"], ["'\tx", "0.5", "", "4"],
                     ["c/a", "-0.0", "", "5"]]
+
+
+def _clock_at(monkeypatch, when):
+    """The rebuild's wall clock (``datetime.now``) set to ``when``."""
+    from datetime import datetime
+
+    import pipeline.rebuild as rb
+
+    class Fixed(datetime):
+        @classmethod
+        def now(cls, tz=None):
+            return when
+
+    monkeypatch.setattr(rb, "datetime", Fixed)
+
+
+@pytest.mark.parametrize("back", [False, True])
+def test_the_report_shows_the_last_rebuild_even_when_the_clock_went_back(raw, warehouse, monkeypatch, back):
+    """Issue 21.5: generations are ordered by their number, never by wall time (NTP, a dead
+    battery): a rebuild whose clock went back is still the last one."""
+    from datetime import datetime, timezone
+
+    import pipeline.report as rp
+    from pipeline.state import load_previous
+    from tests.conftest import query
+
+    raw.csv("c/a.csv", STEP_META, {"t[s]": [0, 0.1], "x[mm]": [0, 1], "x_ref[mm]": [1, 1]})
+    _clock_at(monkeypatch, datetime(2026, 3, 2, 2, 30, tzinfo=timezone.utc))
+    first = rebuild(raw.root, warehouse, jobs=1)
+    raw.csv("c/b.csv", STEP_META, {"t[s]": [0, 0.1], "x[mm]": [0, 1], "x_ref[mm]": [1, 1]})
+    _clock_at(monkeypatch, datetime(2026, 3, 1 if back else 3, 2, 30, tzinfo=timezone.utc))
+    second = rebuild(raw.root, warehouse, jobs=1)
+    assert first.generation != second.generation
+    assert query(warehouse, "SELECT generation, seq FROM rebuild_log ORDER BY seq") == [
+        (first.generation, 1), (second.generation, 2)]
+    assert load_previous(warehouse).generation == second.generation
+    html = (warehouse / "report" / "index.html").read_text()
+    assert f"generation {second.generation}" in html and first.generation not in html
+    assert ": 2 runs, 1 new, 0 changed" in html
+    assert rp.render_report(warehouse).count(f"generation {second.generation}") == 2  # header and rebuild section
+    # the next rebuild (a no-op when nothing is in doubt) is the last one too, with the next number
+    _clock_at(monkeypatch, datetime(2026, 2, 1, tzinfo=timezone.utc))
+    third = rebuild(raw.root, warehouse, jobs=1)
+    assert query(warehouse, "SELECT generation, seq FROM rebuild_log ORDER BY seq DESC LIMIT 1") == [
+        (third.generation, 3)]
+    assert f"generation {third.generation}" in (warehouse / "report" / "index.html").read_text()
+    assert load_previous(warehouse).generation == third.generation
+    raw.csv("c/a.csv", STEP_META, {"t[s]": [0, 0.1], "x[mm]": [0, 2], "x_ref[mm]": [1, 1]})
+    _clock_at(monkeypatch, datetime(2025, 1, 1, tzinfo=timezone.utc))
+    fourth = rebuild(raw.root, warehouse, jobs=1)
+    assert load_previous(warehouse).generation == fourth.generation
+    assert [r[0] for r in query(warehouse, "SELECT seq FROM rebuild_log ORDER BY seq")] == [1, 2, 3, 4]
+    assert f"generation {fourth.generation}" in (warehouse / "report" / "index.html").read_text()
+
+
+def test_a_new_report_reuses_unchanged_run_pages_and_keeps_what_others_put_in_the_report_folder(raw, warehouse):
+    """The report folder is swapped whole (issue 21.4): an unchanged run's page is the same file
+    (a hard link, not drawn again); a report/ folder of the old layout becomes the first
+    generation; files and folders a user put there stay readable under report/."""
+    import os
+
+    from pipeline.run_pages import page_name
+
+    meta = {"t[s]": [0, 0.1], "x[mm]": [0, 1], "x_ref[mm]": [1, 1]}
+    raw.csv("c/a.csv", STEP_META, meta)
+    raw.csv("c/b.csv", STEP_META, meta)
+    rebuild(raw.root, warehouse, jobs=1)
+    report = warehouse / "report"
+    assert os.path.islink(report)
+    # back to the old layout: report/ a real folder, with a user's notes in it
+    folder = report.resolve()
+    report.unlink()
+    folder.rename(report)
+    (report / "notes.txt").write_text("mine")
+    (report / "extra").mkdir()
+    (report / "extra" / "x.txt").write_text("also mine")
+    (report / "runs" / "README").write_text("mine too")
+    ino = {r: os.stat(report / "runs" / page_name(r)).st_ino for r in ("c/a", "c/b")}
+    raw.csv("c/b.csv", STEP_META, {**meta, "x[mm]": [0, 2]})
+    rebuild(raw.root, warehouse, jobs=1)
+    assert os.path.islink(report)
+    assert os.stat(report / "runs" / page_name("c/a")).st_ino == ino["c/a"]  # taken over, not redrawn
+    assert os.stat(report / "runs" / page_name("c/b")).st_ino != ino["c/b"]
+    assert (report / "notes.txt").read_text() == "mine" and (report / "extra" / "x.txt").read_text() == "also mine"
+    assert (report / "runs" / "README").read_text() == "mine too"
+    assert [p.name for p in warehouse.iterdir() if p.name.startswith(".report")] == [os.readlink(report)]
+    # a no-op rebuild: the same pages again, the same files
+    ino = {r: os.stat(report / "runs" / page_name(r)).st_ino for r in ("c/a", "c/b")}
+    rebuild(raw.root, warehouse, jobs=1)
+    assert {r: os.stat(report / "runs" / page_name(r)).st_ino for r in ("c/a", "c/b")} == ino
+    assert (report / "notes.txt").read_text() == "mine" and (report / "extra" / "x.txt").read_text() == "also mine"
+    assert [p.name for p in warehouse.iterdir() if p.name.startswith(".report")] == [os.readlink(report)]
+
+
+def test_a_rebuild_log_from_before_seq_is_numbered_in_its_stored_order(raw, warehouse, monkeypatch):
+    from datetime import datetime, timezone
+
+    import duckdb
+
+    import pipeline.report as rp
+    from pipeline.state import load_previous
+    from tests.conftest import query
+
+    raw.csv("c/a.csv", STEP_META, {"t[s]": [0, 0.1], "x[mm]": [0, 1], "x_ref[mm]": [1, 1]})
+    _clock_at(monkeypatch, datetime(2026, 3, 2, tzinfo=timezone.utc))
+    first = rebuild(raw.root, warehouse, jobs=1)
+    raw.csv("c/b.csv", STEP_META, {"t[s]": [0, 0.1], "x[mm]": [0, 1], "x_ref[mm]": [1, 1]})
+    _clock_at(monkeypatch, datetime(2026, 3, 1, tzinfo=timezone.utc))  # the clock went back
+    second = rebuild(raw.root, warehouse, jobs=1)
+    con = duckdb.connect(str(warehouse / "pneubench.duckdb"))  # as an earlier version wrote it
+    con.execute("ALTER TABLE rebuild_log DROP COLUMN seq")
+    con.close()
+    assert load_previous(warehouse).generation == second.generation
+    assert f"generation {second.generation}" in rp.write_report(warehouse).read_text()
+    raw.csv("c/c.csv", STEP_META, {"t[s]": [0, 0.1], "x[mm]": [0, 1], "x_ref[mm]": [1, 1]})
+    third = rebuild(raw.root, warehouse, jobs=1)
+    assert query(warehouse, "SELECT generation, seq FROM rebuild_log ORDER BY seq") == [
+        (first.generation, 1), (second.generation, 2), (third.generation, 3)]
+
+
+def test_on_a_file_system_without_symlinks_the_report_folder_is_swapped_by_rename(raw, warehouse, monkeypatch):
+    import os
+
+    from pipeline.run_pages import page_name
+
+    def no_symlinks(*a, **k):
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(os, "symlink", no_symlinks)
+    meta = {"t[s]": [0, 0.1], "x[mm]": [0, 1], "x_ref[mm]": [1, 1]}
+    raw.csv("c/a.csv", STEP_META, meta)
+    raw.csv("c/b.csv", STEP_META, meta)
+    rebuild(raw.root, warehouse, jobs=1)
+    (raw.root / "c/b.csv").unlink()
+    raw.csv("c/c.csv", STEP_META, meta)
+    s = rebuild(raw.root, warehouse, jobs=1)
+    report = warehouse / "report"
+    assert report.is_dir() and not os.path.islink(report)
+    assert f"generation {s.generation}" in (report / "index.html").read_text()
+    assert {p.name for p in (report / "runs").iterdir()} == {page_name("c/a"), page_name("c/c")}
+    assert not [p.name for p in warehouse.iterdir() if p.name.startswith(".report")]
