@@ -45,11 +45,16 @@ def main():
               envvar="PNEUBENCH_KEEP_SUPERSEDED_H",
               help="Keep samples and stage files the new warehouse no longer uses this long, for readers of "
                    "an earlier one (default 24; 0: collect at once; or $PNEUBENCH_KEEP_SUPERSEDED_H).")
-def rebuild(raw, warehouse, jobs, full, quiet, executor, scheduler, wait_s, no_report, keep_superseded_h):
+@click.option("--allow-mass-delete", is_flag=True, envvar="PNEUBENCH_ALLOW_MASS_DELETE",
+              help="Go on when every run, or more than half of them (at least 5), would be deleted because "
+                   "their raw files are gone; without it such a rebuild exits 2 and keeps the warehouse "
+                   "(or $PNEUBENCH_ALLOW_MASS_DELETE=1).")
+def rebuild(raw, warehouse, jobs, full, quiet, executor, scheduler, wait_s, no_report, keep_superseded_h,
+            allow_mass_delete):
     """Ingest new or changed raw files, re-run analyses, swap in the new warehouse.
 
-    Exit 0: everything used; 1: warehouse built, some inputs quarantined; 2: usage error;
-    3 or more: failed (also when the morning report cannot be rendered), previous warehouse and
+    Exit 0: everything used; 1: warehouse built, some inputs quarantined; 2: usage error, or a
+    mass delete refused (--allow-mass-delete); 3 or more: failed (also when the morning report cannot be rendered), previous warehouse and
     report untouched (4: another rebuild is running).
     """
     from pipeline.rebuild import RebuildError, rebuild as do_rebuild
@@ -61,7 +66,7 @@ def rebuild(raw, warehouse, jobs, full, quiet, executor, scheduler, wait_s, no_r
     try:
         summary = do_rebuild(raw, warehouse, jobs=jobs, full=full, progress=for_stream(sys.stderr, quiet),
                              lock_wait_s=wait_s, executor=executor, scheduler=scheduler, report=not no_report,
-                             keep_superseded_h=keep_superseded_h)
+                             keep_superseded_h=keep_superseded_h, allow_mass_delete=allow_mass_delete)
     except RebuildError as exc:
         click.echo(f"pneubench rebuild: {exc}", err=True)
         sys.exit(exc.exit_code)

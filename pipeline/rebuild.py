@@ -81,6 +81,12 @@ CRASH_POINTS = ("after_ingest", "after_stages", "before_swap", "after_swap")
 #: Rows of ``rebuild_log`` carried from one warehouse to the next.
 HISTORY_ROWS = 200
 
+#: A rebuild that would drop more than this share of the live warehouse's runs (their raw files
+#: gone: a share not mounted, a raw/ moved) is refused (exit 2) unless it is allowed...
+MASS_DELETE_SHARE = 0.5
+#: ... when it drops at least this many runs; one that drops every run is refused whatever their number.
+MASS_DELETE_MIN_RUNS = 5
+
 
 class RebuildError(Exception):
     """The rebuild failed; the previous warehouse is untouched. ``exit_code`` says how."""
@@ -1065,7 +1071,7 @@ def _inputs_table(plans: list[FilePlan], side_changes: list[dict], prev: Previou
 def rebuild(raw: str | Path, warehouse: str | Path, jobs: int | None = None, full: bool = False,
             progress: Progress | None = None, lock_wait_s: float = 0.0, executor: str = "local",
             scheduler: str | None = None, report: bool = True, keep_superseded_h: float | None = None,
-            clock=None) -> RebuildSummary:
+            clock=None, allow_mass_delete: bool = False) -> RebuildSummary:
     """Ingest ``raw``, run the analyses and swap in a new warehouse (incrementally).
 
     Parameters
@@ -1095,6 +1101,11 @@ def rebuild(raw: str | Path, warehouse: str | Path, jobs: int | None = None, ful
     clock : callable, optional
         ``clock() -> float``, the time [s since epoch] superseded files are stamped and aged
         with (default ``time.time``; tests pass a fake one).
+    allow_mass_delete : bool
+        Go on when the rebuild would drop every run of the live warehouse, or more than
+        :data:`MASS_DELETE_SHARE` of them and at least :data:`MASS_DELETE_MIN_RUNS` (their raw
+        files gone). Without it such a rebuild is refused before anything is written
+        (:class:`RebuildError`, exit 2): an empty or unmounted raw/ must not empty the warehouse.
 
     Returns
     -------
@@ -1125,12 +1136,35 @@ def rebuild(raw: str | Path, warehouse: str | Path, jobs: int | None = None, ful
     with warehouse_lock(warehouse, lock_wait_s) as lock:
         try:
             return _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, report,
-                                   generation, summary, started_at, t0, lock.fileno(), keep_h, clock or time.time)
+                                   generation, summary, started_at, t0, lock.fileno(), keep_h, clock or time.time,
+                                   allow_mass_delete)
         except RebuildError:
             raise
         except Exception as exc:  # anything unexpected: exit 3, never 1 (= "quarantined")
             log.exception("rebuild failed")
             raise RebuildError(f"rebuild failed: {type(exc).__name__}: {exc}") from exc
+
+
+def check_mass_delete(prev: PreviousState, plans: list[FilePlan]) -> None:
+    """Refuse (exit 2) a rebuild that would drop every run of the live warehouse, or more than
+    :data:`MASS_DELETE_SHARE` of them and at least :data:`MASS_DELETE_MIN_RUNS`, because their raw
+    files are no longer listed (raw/ empty, moved, or a share not mounted). Called before anything
+    is written; a first build (no runs yet) never is one."""
+    live = prev.samples  # the samples file of every run the live warehouse publishes
+    if not live:
+        return
+    listed = {p.rel for p in plans}
+    gone = [(rel, [s for s in rec.samples_paths() if s in live]) for rel, rec in sorted(prev.files.items())
+            if rec.role == "run" and rel not in listed]
+    gone = [(rel, runs) for rel, runs in gone if runs]
+    lost = sum(len(runs) for _rel, runs in gone)
+    if lost < len(live) and not (lost > MASS_DELETE_SHARE * len(live) and lost >= MASS_DELETE_MIN_RUNS):
+        return
+    names = ", ".join(rel for rel, _ in gone[:3]) + (", ..." if len(gone) > 3 else "")
+    raise RebuildError(
+        f"refusing to delete {lost} of the warehouse's {len(live)} runs: their raw files are gone ({names}); "
+        "is raw/ empty, moved, or a share not mounted? The previous warehouse and report are kept. If the "
+        "deletion is intended, run again with --allow-mass-delete (or PNEUBENCH_ALLOW_MASS_DELETE=1)", EXIT_USAGE)
 
 
 def _keep_superseded_h(value: float | None) -> float:
@@ -1153,7 +1187,8 @@ def _keep_superseded_h(value: float | None) -> float:
 
 
 def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, report, generation, summary,
-                    started_at, t0, lock_fd: int, keep_h: float, clock) -> RebuildSummary:
+                    started_at, t0, lock_fd: int, keep_h: float, clock,
+                    allow_mass_delete: bool = False) -> RebuildSummary:
     clean_debris(warehouse)
     prev = load_previous(warehouse)
     tree = RawTree(raw)
@@ -1172,6 +1207,8 @@ def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, r
     plans = plan_runs(tree, files, prev, code, warehouse, full)
     side, side_changes = side_records(tree, prev)
     n_quick = sum(p.status == "unchanged" for p in plans)
+    if not allow_mass_delete:
+        check_mass_delete(prev, plans)
     key = inputs_key(tree, code, plans, side, ignored)
     if not full and nothing_changed(prev, plans, side, key, warehouse):
         summary.mode = "no-op"
