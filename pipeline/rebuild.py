@@ -1134,15 +1134,46 @@ def rebuild(raw: str | Path, warehouse: str | Path, jobs: int | None = None, ful
     summary = RebuildSummary(raw=raw, warehouse=warehouse, generation=generation,
                              mode="full" if full else "incremental")
     with warehouse_lock(warehouse, lock_wait_s) as lock:
+        live = _live_database(warehouse)
         try:
             return _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, report,
                                    generation, summary, started_at, t0, lock.fileno(), keep_h, clock or time.time,
                                    allow_mass_delete)
-        except RebuildError:
-            raise
-        except Exception as exc:  # anything unexpected: exit 3, never 1 (= "quarantined")
-            log.exception("rebuild failed")
+        except BaseException as exc:  # failed or interrupted (KeyboardInterrupt: re-raised as it is)
+            if not (isinstance(exc, RebuildError) and exc.exit_code == EXIT_USAGE):  # refused: nothing written
+                clean_after_failure(warehouse, live)
+            if isinstance(exc, RebuildError) or not isinstance(exc, Exception):
+                raise
+            log.exception("rebuild failed")  # anything unexpected: exit 3, never 1 (= "quarantined")
             raise RebuildError(f"rebuild failed: {type(exc).__name__}: {exc}") from exc
+
+
+def _live_database(warehouse: Path) -> tuple[int, int, int] | None:
+    """(inode, mtime, size) of the live database, None without one: the swap changes it."""
+    try:
+        st = os.stat(warehouse / DB_NAME)
+    except OSError:
+        return None
+    return st.st_ino, st.st_mtime_ns, st.st_size
+
+
+def clean_after_failure(warehouse: Path, live: tuple[int, int, int] | None) -> None:
+    """Remove what a rebuild that failed (a full disk) or was interrupted before its swap wrote:
+    its temporary files (:func:`clean_debris`), and the samples files, stage folders and memo
+    files that the live warehouse neither uses nor keeps for its readers (``superseded_files``).
+    ``live``: :func:`_live_database` when the rebuild started; when it differs now the new
+    warehouse is in place and only temporary files go. Called under the rebuild lock, after the
+    worker processes are gone; never raises (the rebuild's own error is the one reported)."""
+    try:
+        clean_debris(warehouse)
+        if _live_database(warehouse) != live:
+            return
+        prev = load_previous(warehouse)
+        if live is not None and prev.generation is None:  # the live database could not be read: keep all
+            return
+        collect_garbage(warehouse, *_split_kept(prev.samples | prev.stage_folders | set(prev.superseded)))
+    except Exception:  # pragma: no cover - the clean-up of a failure must not hide the failure
+        log.exception("clean-up after a failed rebuild failed")
 
 
 def check_mass_delete(prev: PreviousState, plans: list[FilePlan]) -> None:
