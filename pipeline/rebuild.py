@@ -36,6 +36,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from pipeline.executors import CRASH_REASON, STUCK_REASON, Executor, default_jobs, forked_pool, make_executor
+from pipeline.executors import _kill_workers  # stop the figure worker of an interrupted rebuild
 from pipeline.layout import Problem, RawTree, discover_runs, skip_reason
 from pipeline.memo import LEGACY_FILE, LEGACY_TMP, MEMO_DIR, SHARD_FILE, SHARD_TMP, STAGE_NAME, Memo
 from pipeline.readers import READERS
@@ -596,7 +597,9 @@ class FigureDrawer:
     def __enter__(self):
         return self
 
-    def __exit__(self, *exc):
+    def __exit__(self, exc_type, *exc):
+        if self._pool is not None and exc_type is not None and not issubclass(exc_type, Exception):
+            _kill_workers(self._pool)  # interrupted: not after the figure it is drawing
         self.close()
         return False
 
@@ -1142,6 +1145,8 @@ def rebuild(raw: str | Path, warehouse: str | Path, jobs: int | None = None, ful
         except BaseException as exc:  # failed or interrupted (KeyboardInterrupt: re-raised as it is)
             if not (isinstance(exc, RebuildError) and exc.exit_code == EXIT_USAGE):  # refused: nothing written
                 clean_after_failure(warehouse, live)
+            if isinstance(exc, KeyboardInterrupt):  # for the caller's message: which warehouse is live
+                exc.swapped = _live_database(warehouse) != live
             if isinstance(exc, RebuildError) or not isinstance(exc, Exception):
                 raise
             log.exception("rebuild failed")  # anything unexpected: exit 3, never 1 (= "quarantined")

@@ -308,3 +308,74 @@ def test_leftovers_of_an_earlier_crash_do_not_stop_later_nights(raw, warehouse):
         assert rebuild(raw.root, warehouse, jobs=2, **kwargs).exit_code == 0
         assert state(warehouse) == (("c/a", "c/b"), 10)
     assert debris(warehouse) == []
+
+
+def _descendants(pid):
+    """Pids of every process below ``pid`` (from /proc/<pid>/task/*/children)."""
+    out, todo = [], [pid]
+    while todo:
+        p = todo.pop()
+        try:
+            tasks = os.listdir(f"/proc/{p}/task")
+        except OSError:
+            continue
+        for t in tasks:
+            try:
+                with open(f"/proc/{p}/task/{t}/children") as fh:
+                    kids = [int(k) for k in fh.read().split()]
+            except OSError:
+                kids = []
+            out += kids
+            todo += kids
+    return out
+
+
+def _proc_state(pid):
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as fh:
+            return fh.read().rsplit(b")", 1)[1].split()[0].decode()
+    except OSError:
+        return None
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_an_interrupt_while_workers_read_exits_128_plus_the_signal_in_one_line_and_leaves_nothing(
+        raw, warehouse, sig):
+    # issue 21.3: Ctrl-C exited 1 ("built, some inputs quarantined") with ~40 lines of worker tracebacks
+    step(raw, "c/a.csv")
+    rebuild(raw.root, warehouse, jobs=1)
+    before, listed = state(warehouse), _listing(warehouse)
+    step(raw, "c/b.csv", n=6)
+    step(raw, "c/c.csv", n=5)
+    snap = raw_snapshot(raw.root)
+    # the worker reading c/b.csv stops itself (busy for ever, as a slow reader); the other reads c/c.csv
+    env = {**os.environ, "PNEUBENCH_CRASH_AT": "ingest:c/b.csv", "PNEUBENCH_CRASH_SIGNAL": "SIGSTOP"}
+    proc = subprocess.Popen([*CLI, "rebuild", "--raw", str(raw.root), "--warehouse", str(warehouse), "--jobs", "2",
+                             "-q"], stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env,
+                            start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not any(_proc_state(k) == "T" for k in _descendants(proc.pid)):
+            assert time.monotonic() < deadline and proc.poll() is None, "no worker got busy"
+            time.sleep(0.05)
+        workers = _descendants(proc.pid)
+        if sig == signal.SIGINT:
+            os.killpg(proc.pid, sig)  # Ctrl-C: the terminal signals the whole foreground group
+        else:
+            proc.send_signal(sig)  # systemctl stop, kill: the rebuild process only
+        out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == 128 + sig, err
+    assert err.splitlines() == [f"pneubench rebuild: interrupted ({sig.name}); nothing half-written is left, "
+                                "the previous warehouse is kept"], err
+    assert out == ""
+    assert state(warehouse) == before
+    assert _listing(warehouse) == listed  # no temp file, no samples file of c/b or c/c, no stage folder
+    time.sleep(0.5)
+    assert [w for w in workers if _proc_state(w) not in (None, "Z")] == []  # every worker is gone
+    assert_raw_unchanged(raw.root, snap)
+    assert rebuild(raw.root, warehouse, jobs=2).exit_code == 0
+    assert state(warehouse) == (("c/a", "c/b", "c/c"), 15)
