@@ -607,6 +607,7 @@ class FigureDrawer:
 def _place_stage_folder(tmp: Path, final: Path) -> None:
     if final.exists():  # damaged (its output.json gone), or tables that could not be stored
         remove_stage_folder(final)
+    final.parent.mkdir(parents=True, exist_ok=True)  # the collection before the database removes empty folders
     os.replace(tmp, final)
 
 
@@ -1335,6 +1336,9 @@ def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, r
                 progress.message(f"figures: {n_aside} drawn in a worker beside the stages and the database "
                                  f"(waited {_seconds(time.monotonic() - waited)} for them)")
 
+        # before the new database is written, what neither warehouse uses nor keeps goes (files past
+        # their retention, what a killed night left): a nearly full disk gets that room back first
+        collect_garbage(warehouse, *_split_kept(in_use | set(kept) | prev.samples | prev.stage_folders))
         summary.report = swap_in_new_database(warehouse, write, report)
         # files the new warehouse uses, and those of earlier ones still within their retention
         # (a reader that opened an earlier warehouse keeps reading its samples)
@@ -1492,6 +1496,7 @@ def _rebuild_noop(warehouse: Path, prev: PreviousState, plans: list[FilePlan], k
         finally:
             con.close()
 
+    collect_garbage(warehouse, *_split_kept(in_use | set(kept)))  # before the copy: room on a nearly full disk
     summary.report = swap_in_new_database(warehouse, carry_over, report, run_pages="missing")
     keep = in_use | set(kept)
     collect_garbage(warehouse, *_split_kept(keep))
