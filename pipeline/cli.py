@@ -2,7 +2,9 @@
 from __future__ import annotations
 
 import logging
+import signal
 import sys
+from contextlib import contextmanager
 from pathlib import Path
 
 import click
@@ -19,6 +21,38 @@ warehouse_option = click.option("--warehouse", type=click.Path(file_okay=False, 
                                 envvar="PNEUBENCH_WAREHOUSE", default="warehouse", show_default=True, help=WH_HELP)
 jobs_option = click.option("--jobs", type=click.IntRange(min=1), default=None,
                            help="Worker processes (default: all cores).")
+
+
+class Interrupted(KeyboardInterrupt):
+    """SIGTERM (or SIGINT) received: raised in the main thread, like Ctrl-C's KeyboardInterrupt."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _raise_interrupted(signum, _frame):
+    raise Interrupted(signum)
+
+
+@contextmanager
+def _interruptible(command: str):
+    """SIGTERM as an interrupt; an interrupt (Ctrl-C, SIGTERM) is one line and exit 128 + signal
+    (130, 143), never click's "Aborted!" and exit 1 (= "built, some inputs quarantined"). The
+    rebuild has stopped its workers and removed what it wrote before this line is printed."""
+    previous = signal.signal(signal.SIGTERM, _raise_interrupted)
+    try:
+        yield
+    except KeyboardInterrupt as exc:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not cut the line short
+        signum = getattr(exc, "signum", signal.SIGINT)
+        live = "the new warehouse was already in place" if getattr(exc, "swapped", False) else \
+            "the previous warehouse is kept"
+        click.echo(f"pneubench {command}: interrupted ({signal.Signals(signum).name}); nothing half-written is "
+                   f"left, {live}", err=True)
+        sys.exit(128 + signum)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -45,11 +79,16 @@ def main():
               envvar="PNEUBENCH_KEEP_SUPERSEDED_H",
               help="Keep samples and stage files the new warehouse no longer uses this long, for readers of "
                    "an earlier one (default 24; 0: collect at once; or $PNEUBENCH_KEEP_SUPERSEDED_H).")
-def rebuild(raw, warehouse, jobs, full, quiet, executor, scheduler, wait_s, no_report, keep_superseded_h):
+@click.option("--allow-mass-delete", is_flag=True, envvar="PNEUBENCH_ALLOW_MASS_DELETE",
+              help="Go on when every run, or more than half of them (at least 5), would be deleted because "
+                   "their raw files are gone; without it such a rebuild exits 2 and keeps the warehouse "
+                   "(or $PNEUBENCH_ALLOW_MASS_DELETE=1).")
+def rebuild(raw, warehouse, jobs, full, quiet, executor, scheduler, wait_s, no_report, keep_superseded_h,
+            allow_mass_delete):
     """Ingest new or changed raw files, re-run analyses, swap in the new warehouse.
 
-    Exit 0: everything used; 1: warehouse built, some inputs quarantined; 2: usage error;
-    3 or more: failed (also when the morning report cannot be rendered), previous warehouse and
+    Exit 0: everything used; 1: warehouse built, some inputs quarantined; 2: usage error, or a
+    mass delete refused (--allow-mass-delete); 3 or more: failed (also when the morning report cannot be rendered), previous warehouse and
     report untouched (4: another rebuild is running).
     """
     from pipeline.rebuild import RebuildError, rebuild as do_rebuild
@@ -59,9 +98,10 @@ def rebuild(raw, warehouse, jobs, full, quiet, executor, scheduler, wait_s, no_r
     if scheduler and executor != "dask":
         raise click.UsageError("--scheduler goes with --executor dask")
     try:
-        summary = do_rebuild(raw, warehouse, jobs=jobs, full=full, progress=for_stream(sys.stderr, quiet),
-                             lock_wait_s=wait_s, executor=executor, scheduler=scheduler, report=not no_report,
-                             keep_superseded_h=keep_superseded_h)
+        with _interruptible("rebuild"):
+            summary = do_rebuild(raw, warehouse, jobs=jobs, full=full, progress=for_stream(sys.stderr, quiet),
+                                 lock_wait_s=wait_s, executor=executor, scheduler=scheduler, report=not no_report,
+                                 keep_superseded_h=keep_superseded_h, allow_mass_delete=allow_mass_delete)
     except RebuildError as exc:
         click.echo(f"pneubench rebuild: {exc}", err=True)
         sys.exit(exc.exit_code)
@@ -343,7 +383,8 @@ def demo(ctx, raw, warehouse, jobs, quiet):
     click.echo(f"demo: {'simulated' if made else 'kept the existing'} campaigns in {raw} "
                f"(ground truth in {raw / 'truth.json'})", err=True)
     try:
-        summary = do_rebuild(raw, warehouse, jobs=jobs, progress=progress)
+        with _interruptible("demo"):
+            summary = do_rebuild(raw, warehouse, jobs=jobs, progress=progress)
     except RebuildError as exc:
         click.echo(f"pneubench demo: {exc}", err=True)
         sys.exit(exc.exit_code)

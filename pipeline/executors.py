@@ -27,6 +27,7 @@ from __future__ import annotations
 import importlib
 import multiprocessing
 import os
+import signal
 import time
 from collections.abc import Callable, Iterable
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -119,7 +120,11 @@ def _watch_parent(pid: int, every_s: float = 0.2) -> None:
 def _reader_worker_init(pid: int, close_fds: tuple[int, ...]) -> None:
     """Initializer of a forked reader worker: close the rebuild's descriptors it must not hold
     (its lock: a worker outliving a killed rebuild would keep the warehouse locked), then watch
-    the rebuild process."""
+    the rebuild process. A worker ignores SIGINT (Ctrl-C signals the whole process group: the
+    rebuild stops its workers itself, without a traceback from each) and dies of SIGTERM (the
+    rebuild's own handler, inherited by the fork, is not its)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     for fd in close_fds:
         try:
             os.close(fd)
@@ -337,6 +342,14 @@ class LocalExecutor(Executor):
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
+
+    def __exit__(self, exc_type, *exc):
+        if exc_type is not None and not issubclass(exc_type, Exception):  # interrupted (Ctrl-C, SIGTERM)
+            for pool in (self._readers, self._pool):  # at once: not after the items they are running
+                if pool is not None:
+                    _kill_workers(pool)
+        self.close()
+        return False
 
 
 class DaskExecutor(Executor):

@@ -36,6 +36,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from pipeline.executors import CRASH_REASON, STUCK_REASON, Executor, default_jobs, forked_pool, make_executor
+from pipeline.executors import _kill_workers  # stop the figure worker of an interrupted rebuild
 from pipeline.layout import Problem, RawTree, discover_runs, skip_reason
 from pipeline.memo import LEGACY_FILE, LEGACY_TMP, MEMO_DIR, SHARD_FILE, SHARD_TMP, STAGE_NAME, Memo
 from pipeline.readers import READERS
@@ -80,6 +81,12 @@ CRASH_POINTS = ("after_ingest", "after_stages", "before_swap", "between_swaps", 
 
 #: Rows of ``rebuild_log`` carried from one warehouse to the next.
 HISTORY_ROWS = 200
+
+#: A rebuild that would drop more than this share of the live warehouse's runs (their raw files
+#: gone: a share not mounted, a raw/ moved) is refused (exit 2) unless it is allowed...
+MASS_DELETE_SHARE = 0.5
+#: ... when it drops at least this many runs; one that drops every run is refused whatever their number.
+MASS_DELETE_MIN_RUNS = 5
 
 
 class RebuildError(Exception):
@@ -590,7 +597,9 @@ class FigureDrawer:
     def __enter__(self):
         return self
 
-    def __exit__(self, *exc):
+    def __exit__(self, exc_type, *exc):
+        if self._pool is not None and exc_type is not None and not issubclass(exc_type, Exception):
+            _kill_workers(self._pool)  # interrupted: not after the figure it is drawing
         self.close()
         return False
 
@@ -598,6 +607,7 @@ class FigureDrawer:
 def _place_stage_folder(tmp: Path, final: Path) -> None:
     if final.exists():  # damaged (its output.json gone), or tables that could not be stored
         remove_stage_folder(final)
+    final.parent.mkdir(parents=True, exist_ok=True)  # the collection before the database removes empty folders
     os.replace(tmp, final)
 
 
@@ -1065,7 +1075,7 @@ def _inputs_table(plans: list[FilePlan], side_changes: list[dict], prev: Previou
 def rebuild(raw: str | Path, warehouse: str | Path, jobs: int | None = None, full: bool = False,
             progress: Progress | None = None, lock_wait_s: float = 0.0, executor: str = "local",
             scheduler: str | None = None, report: bool = True, keep_superseded_h: float | None = None,
-            clock=None) -> RebuildSummary:
+            clock=None, allow_mass_delete: bool = False) -> RebuildSummary:
     """Ingest ``raw``, run the analyses and swap in a new warehouse (incrementally).
 
     Parameters
@@ -1095,6 +1105,11 @@ def rebuild(raw: str | Path, warehouse: str | Path, jobs: int | None = None, ful
     clock : callable, optional
         ``clock() -> float``, the time [s since epoch] superseded files are stamped and aged
         with (default ``time.time``; tests pass a fake one).
+    allow_mass_delete : bool
+        Go on when the rebuild would drop every run of the live warehouse, or more than
+        :data:`MASS_DELETE_SHARE` of them and at least :data:`MASS_DELETE_MIN_RUNS` (their raw
+        files gone). Without it such a rebuild is refused before anything is written
+        (:class:`RebuildError`, exit 2): an empty or unmounted raw/ must not empty the warehouse.
 
     Returns
     -------
@@ -1123,14 +1138,70 @@ def rebuild(raw: str | Path, warehouse: str | Path, jobs: int | None = None, ful
     summary = RebuildSummary(raw=raw, warehouse=warehouse, generation=generation,
                              mode="full" if full else "incremental")
     with warehouse_lock(warehouse, lock_wait_s) as lock:
+        live = _live_database(warehouse)
         try:
             return _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, report,
-                                   generation, summary, started_at, t0, lock.fileno(), keep_h, clock or time.time)
-        except RebuildError:
-            raise
-        except Exception as exc:  # anything unexpected: exit 3, never 1 (= "quarantined")
-            log.exception("rebuild failed")
+                                   generation, summary, started_at, t0, lock.fileno(), keep_h, clock or time.time,
+                                   allow_mass_delete)
+        except BaseException as exc:  # failed or interrupted (KeyboardInterrupt: re-raised as it is)
+            if not (isinstance(exc, RebuildError) and exc.exit_code == EXIT_USAGE):  # refused: nothing written
+                clean_after_failure(warehouse, live)
+            if isinstance(exc, KeyboardInterrupt):  # for the caller's message: which warehouse is live
+                exc.swapped = _live_database(warehouse) != live
+            if isinstance(exc, RebuildError) or not isinstance(exc, Exception):
+                raise
+            log.exception("rebuild failed")  # anything unexpected: exit 3, never 1 (= "quarantined")
             raise RebuildError(f"rebuild failed: {type(exc).__name__}: {exc}") from exc
+
+
+def _live_database(warehouse: Path) -> tuple[int, int, int] | None:
+    """(inode, mtime, size) of the live database, None without one: the swap changes it."""
+    try:
+        st = os.stat(warehouse / DB_NAME)
+    except OSError:
+        return None
+    return st.st_ino, st.st_mtime_ns, st.st_size
+
+
+def clean_after_failure(warehouse: Path, live: tuple[int, int, int] | None) -> None:
+    """Remove what a rebuild that failed (a full disk) or was interrupted before its swap wrote:
+    its temporary files (:func:`clean_debris`), and the samples files, stage folders and memo
+    files that the live warehouse neither uses nor keeps for its readers (``superseded_files``).
+    ``live``: :func:`_live_database` when the rebuild started; when it differs now the new
+    warehouse is in place and only temporary files go. Called under the rebuild lock, after the
+    worker processes are gone; never raises (the rebuild's own error is the one reported)."""
+    try:
+        clean_debris(warehouse)
+        if _live_database(warehouse) != live:
+            return
+        prev = load_previous(warehouse)
+        if live is not None and prev.generation is None:  # the live database could not be read: keep all
+            return
+        collect_garbage(warehouse, *_split_kept(prev.samples | prev.stage_folders | set(prev.superseded)))
+    except Exception:  # pragma: no cover - the clean-up of a failure must not hide the failure
+        log.exception("clean-up after a failed rebuild failed")
+
+
+def check_mass_delete(prev: PreviousState, plans: list[FilePlan]) -> None:
+    """Refuse (exit 2) a rebuild that would drop every run of the live warehouse, or more than
+    :data:`MASS_DELETE_SHARE` of them and at least :data:`MASS_DELETE_MIN_RUNS`, because their raw
+    files are no longer listed (raw/ empty, moved, or a share not mounted). Called before anything
+    is written; a first build (no runs yet) never is one."""
+    live = prev.samples  # the samples file of every run the live warehouse publishes
+    if not live:
+        return
+    listed = {p.rel for p in plans}
+    gone = [(rel, [s for s in rec.samples_paths() if s in live]) for rel, rec in sorted(prev.files.items())
+            if rec.role == "run" and rel not in listed]
+    gone = [(rel, runs) for rel, runs in gone if runs]
+    lost = sum(len(runs) for _rel, runs in gone)
+    if lost < len(live) and not (lost > MASS_DELETE_SHARE * len(live) and lost >= MASS_DELETE_MIN_RUNS):
+        return
+    names = ", ".join(rel for rel, _ in gone[:3]) + (", ..." if len(gone) > 3 else "")
+    raise RebuildError(
+        f"refusing to delete {lost} of the warehouse's {len(live)} runs: their raw files are gone ({names}); "
+        "is raw/ empty, moved, or a share not mounted? The previous warehouse and report are kept. If the "
+        "deletion is intended, run again with --allow-mass-delete (or PNEUBENCH_ALLOW_MASS_DELETE=1)", EXIT_USAGE)
 
 
 def _keep_superseded_h(value: float | None) -> float:
@@ -1153,7 +1224,8 @@ def _keep_superseded_h(value: float | None) -> float:
 
 
 def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, report, generation, summary,
-                    started_at, t0, lock_fd: int, keep_h: float, clock) -> RebuildSummary:
+                    started_at, t0, lock_fd: int, keep_h: float, clock,
+                    allow_mass_delete: bool = False) -> RebuildSummary:
     clean_debris(warehouse)
     from pipeline.report import settle_report
     settle_report(warehouse)  # a report staged by a rebuild killed after its database swap goes in
@@ -1174,6 +1246,8 @@ def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, r
     plans = plan_runs(tree, files, prev, code, warehouse, full)
     side, side_changes = side_records(tree, prev)
     n_quick = sum(p.status == "unchanged" for p in plans)
+    if not allow_mass_delete:
+        check_mass_delete(prev, plans)
     key = inputs_key(tree, code, plans, side, ignored)
     if not full and nothing_changed(prev, plans, side, key, warehouse):
         summary.mode = "no-op"
@@ -1266,6 +1340,9 @@ def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, r
                 progress.message(f"figures: {n_aside} drawn in a worker beside the stages and the database "
                                  f"(waited {_seconds(time.monotonic() - waited)} for them)")
 
+        # before the new database is written, what neither warehouse uses nor keeps goes (files past
+        # their retention, what a killed night left): a nearly full disk gets that room back first
+        collect_garbage(warehouse, *_split_kept(in_use | set(kept) | prev.samples | prev.stage_folders))
         summary.report = swap_in_new_database(warehouse, write, report)
         # files the new warehouse uses, and those of earlier ones still within their retention
         # (a reader that opened an earlier warehouse keeps reading its samples)
@@ -1436,6 +1513,7 @@ def _rebuild_noop(warehouse: Path, prev: PreviousState, plans: list[FilePlan], k
         finally:
             con.close()
 
+    collect_garbage(warehouse, *_split_kept(in_use | set(kept)))  # before the copy: room on a nearly full disk
     summary.report = swap_in_new_database(warehouse, carry_over, report, run_pages="missing")
     keep = in_use | set(kept)
     collect_garbage(warehouse, *_split_kept(keep))

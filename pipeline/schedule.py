@@ -128,7 +128,10 @@ def crontab_line(s: Schedule) -> str:
     line = (f"{s.minute} {s.hour} * * * cd {shlex.quote(str(s.workdir))} && mkdir -p {shlex.quote(str(s.log.parent))}"
             f" && {cmd} >> {log} 2>&1 || {fail}")
     return (f"# {s.name}: nightly pneubench rebuild at {s.hour:02d}:{s.minute:02d} (install: crontab -e"
-            f"{' as ' + s.user if s.user else ''})\n" + line.replace("%", "\\%"))  # cron: bare % = newline
+            f"{' as ' + s.user if s.user else ''})\n"
+            "# exit 2: refused, nothing written (raw/ empty or not mounted: every run, or more than half, would be\n"
+            "# deleted); to delete them on purpose put PNEUBENCH_ALLOW_MASS_DELETE=1 before pneubench, once\n"
+            + line.replace("%", "\\%"))  # cron: bare % = newline
 
 
 def _sd_quote(value, exec_line: bool = True) -> str:
@@ -163,6 +166,10 @@ ExecStart={cmd}
 # exit 1 = warehouse built, some inputs quarantined (see the morning report): not a failure.
 # Remove the next line to be alerted (OnFailure=, systemctl --failed) on quarantined inputs too.
 SuccessExitStatus=1
+# exit 2 = refused before anything was written: raw/ empty or not mounted (the rebuild would delete
+# every run, or more than half), or a usage error. To delete that many runs on purpose, uncomment:
+#Environment=PNEUBENCH_ALLOW_MASS_DELETE=1
+# exit 130/143 = interrupted (SIGINT, SIGTERM: systemctl stop): a failure; the previous warehouse kept.
 StandardOutput=append:{str(s.log).replace("%", "%%")}
 StandardError=append:{str(s.log).replace("%", "%%")}
 Nice=10

@@ -48,3 +48,24 @@ def test_rebuild_into_an_unusable_warehouse_folder_fails_with_3(raw, tmp_path):
     res = CliRunner().invoke(main, ["rebuild", "--raw", str(raw.root), "--warehouse", str(tmp_path / "afile" / "wh")])
     assert res.exit_code == 3
     assert "cannot create warehouse folder" in res.output and "Not a directory" in res.output
+
+
+def test_an_empty_raw_tree_exits_2_naming_the_count_unless_allowed_by_flag_or_environment(raw, warehouse, tmp_path):
+    runner = CliRunner()
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    args = ["rebuild", "--warehouse", str(warehouse), "--jobs", "1", "-q"]
+    assert runner.invoke(main, [*args, "--raw", str(raw.root)]).exit_code == 0
+    db = (warehouse / "pneubench.duckdb").read_bytes()
+    empty = tmp_path / "unmounted"
+    empty.mkdir()
+    res = runner.invoke(main, [*args, "--raw", str(empty)])
+    assert res.exit_code == 2
+    assert "refusing to delete 1 of the warehouse's 1 runs" in res.output
+    assert (warehouse / "pneubench.duckdb").read_bytes() == db
+    res = runner.invoke(main, [*args, "--raw", str(empty)], env={"PNEUBENCH_ALLOW_MASS_DELETE": "0"})
+    assert res.exit_code == 2
+    res = runner.invoke(main, [*args, "--raw", str(empty)], env={"PNEUBENCH_ALLOW_MASS_DELETE": "1"})
+    assert res.exit_code == 0, res.output
+    runner.invoke(main, [*args, "--raw", str(raw.root)])
+    res = runner.invoke(main, [*args, "--raw", str(empty), "--allow-mass-delete"])
+    assert res.exit_code == 0, res.output

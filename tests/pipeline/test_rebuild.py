@@ -599,3 +599,62 @@ def test_a_rebuild_draws_the_same_figures_with_jobs_2_as_with_jobs_1(raw, tmp_pa
         assert not list((wh / "stages").glob(".tmp-*"))
     assert ("durability", "hose_distance") in figs[1]
     assert figs[2] == figs[1]
+
+
+def _tree_listing(folder):
+    """Every path under ``folder`` with its bytes' hash (the lock file aside: it holds the pid)."""
+    import hashlib
+
+    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest() if p.is_file() else None
+            for p in sorted(folder.rglob("*")) if p.name != ".rebuild.lock"}
+
+
+def _steps(raw, names):
+    for n in names:
+        raw.csv(f"c/{n}.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+
+
+def test_an_empty_raw_tree_is_refused_before_anything_is_written_unless_allowed(raw, warehouse, tmp_path):
+    # issue 21.1: an unmounted share (an empty raw/) emptied the warehouse with exit 0
+    _steps(raw, "abcdefgh")
+    assert rebuild(raw.root, warehouse, jobs=1).n_runs == 8
+    before = _tree_listing(warehouse)
+    empty = tmp_path / "mountpoint"
+    empty.mkdir()
+    with pytest.raises(RebuildError) as err:
+        rebuild(empty, warehouse, jobs=1)
+    assert err.value.exit_code == 2
+    assert "refusing to delete 8 of the warehouse's 8 runs" in str(err.value)
+    assert "c/a.csv, c/b.csv, c/c.csv, ..." in str(err.value) and "--allow-mass-delete" in str(err.value)
+    assert _tree_listing(warehouse) == before  # database, report, samples, stages: as they were
+    # more than half of the runs (and at least MASS_DELETE_MIN_RUNS): refused too
+    for n in "abcde":
+        (raw.root / f"c/{n}.csv").unlink()
+    with pytest.raises(RebuildError, match="refusing to delete 5 of the warehouse's 8 runs"):
+        rebuild(raw.root, warehouse, jobs=1)
+    assert _tree_listing(warehouse) == before
+    # intended: allowed
+    s = rebuild(empty, warehouse, jobs=1, allow_mass_delete=True)
+    assert (s.n_runs, s.n_deleted, s.exit_code) == (0, 8, EXIT_OK)
+    assert query(warehouse, "SELECT count(*) FROM runs") == [(0,)]
+
+
+def test_deleting_half_the_runs_or_fewer_than_five_goes_on_and_a_first_empty_build_is_no_mass_delete(raw, tmp_path):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    s = rebuild(empty, tmp_path / "w0", jobs=1)  # a first build of nothing deletes nothing
+    assert (s.n_runs, s.exit_code) == (0, EXIT_OK)
+    _steps(raw, "abcdefgh")
+    wh = tmp_path / "w1"
+    rebuild(raw.root, wh, jobs=1)
+    for n in "abcd":  # exactly half
+        (raw.root / f"c/{n}.csv").unlink()
+    s = rebuild(raw.root, wh, jobs=1)
+    assert (s.n_runs, s.n_deleted) == (4, 4)
+    for n in "efg":  # 3 of 4: more than half, but fewer than MASS_DELETE_MIN_RUNS
+        (raw.root / f"c/{n}.csv").unlink()
+    s = rebuild(raw.root, wh, jobs=1)
+    assert (s.n_runs, s.n_deleted) == (1, 3)
+    (raw.root / "c/h.csv").unlink()  # the last run: all of them, refused whatever their number
+    with pytest.raises(RebuildError, match="refusing to delete 1 of the warehouse's 1 runs"):
+        rebuild(raw.root, wh, jobs=1)

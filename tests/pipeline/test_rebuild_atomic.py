@@ -362,3 +362,174 @@ def test_pneubench_report_exits_4_while_a_rebuild_runs(raw, warehouse):
     assert (warehouse / "report" / "index.html").read_text() == index
     res = CliRunner().invoke(main, ["report", "--warehouse", str(warehouse)])
     assert res.exit_code == 0, res.output
+
+
+def _listing(warehouse):
+    """Every path under the warehouse with its bytes' hash; not the lock file (it holds the pid) nor
+    the per-run memo of the live stages (a cache of results by their inputs: a failed night may have
+    added to it, as a killed one does), nor the run pages and their cache, written into the live
+    report before the swap (issue 21.4, not this test's)."""
+    import hashlib
+
+    skip = ("memo/", "report/runs/", "report/.parts-cache.json")
+    return {str(p.relative_to(warehouse)): hashlib.sha256(p.read_bytes()).hexdigest() if p.is_file() else None
+            for p in sorted(warehouse.rglob("*")) if p.name != ".rebuild.lock" and not
+            str(p.relative_to(warehouse)).startswith(skip)}
+
+
+@pytest.mark.parametrize("where", ["database", "swap"])
+@pytest.mark.parametrize("next_night", [{}, {"full": True}, {"keep_superseded_h": 0}])
+def test_a_full_disk_while_the_database_is_written_leaves_nothing_and_the_next_night_recovers(
+        raw, warehouse, monkeypatch, where, next_night):
+    # issue 21.2: the failed night left a complete orphan samples file (and stage folders) behind
+    import errno
+
+    import pipeline.rebuild as rb
+    from pipeline.rebuild import RebuildError
+
+    step(raw, "c/a.csv")
+    rebuild(raw.root, warehouse, jobs=2)
+    before, listed = state(warehouse), _listing(warehouse)
+    step(raw, "c/b.csv", n=6)
+    real_build, real_swap = rb.build_database, rb.swap_in
+
+    def full_disk_build(path, *args, **kwargs):
+        real_build(path, *args, **kwargs) if where == "swap" else path.write_bytes(b"\0" * 4096)
+        raise OSError(errno.ENOSPC, "No space left on device", str(path))
+
+    def full_disk_swap(tmp, final):
+        raise OSError(errno.ENOSPC, "No space left on device", str(tmp))
+
+    monkeypatch.setattr(rb, "build_database", full_disk_build)
+    if where == "swap":
+        monkeypatch.setattr(rb, "build_database", real_build)
+        monkeypatch.setattr(rb, "swap_in", full_disk_swap)
+    with pytest.raises(RebuildError, match="No space left on device") as err:
+        rebuild(raw.root, warehouse, jobs=2)
+    assert err.value.exit_code == 3
+    assert state(warehouse) == before
+    assert _listing(warehouse) == listed  # nothing the failed night wrote is left (samples, stages, memo, temp)
+    monkeypatch.setattr(rb, "build_database", real_build)
+    monkeypatch.setattr(rb, "swap_in", real_swap)
+    s = rebuild(raw.root, warehouse, jobs=2, **next_night)  # the next night recovers by itself
+    assert s.exit_code == 0
+    assert state(warehouse) == (("c/a", "c/b"), 10)
+    assert debris(warehouse) == []
+
+
+def test_leftovers_of_an_earlier_crash_do_not_stop_later_nights(raw, warehouse):
+    # a night killed after its samples and stage folders were written (kill -9: nothing cleans up)
+    step(raw, "c/a.csv")
+    rebuild(raw.root, warehouse, jobs=1)
+    step(raw, "c/b.csv", n=6)
+    assert cli_rebuild(raw.root, warehouse, env={"PNEUBENCH_CRASH_AT": "before_swap"}).returncode == -signal.SIGKILL
+    orphans = sorted(p.name for p in (warehouse / "samples").rglob("*.parquet"))
+    assert any(n.startswith("c_b-") for n in orphans), orphans
+    for kwargs in ({"full": True}, {"keep_superseded_h": 0}, {}):
+        assert rebuild(raw.root, warehouse, jobs=2, **kwargs).exit_code == 0
+        assert state(warehouse) == (("c/a", "c/b"), 10)
+    assert debris(warehouse) == []
+
+
+def _descendants(pid):
+    """Pids of every process below ``pid`` (from /proc/<pid>/task/*/children)."""
+    out, todo = [], [pid]
+    while todo:
+        p = todo.pop()
+        try:
+            tasks = os.listdir(f"/proc/{p}/task")
+        except OSError:
+            continue
+        for t in tasks:
+            try:
+                with open(f"/proc/{p}/task/{t}/children") as fh:
+                    kids = [int(k) for k in fh.read().split()]
+            except OSError:
+                kids = []
+            out += kids
+            todo += kids
+    return out
+
+
+def _proc_state(pid):
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as fh:
+            return fh.read().rsplit(b")", 1)[1].split()[0].decode()
+    except OSError:
+        return None
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_an_interrupt_while_workers_read_exits_128_plus_the_signal_in_one_line_and_leaves_nothing(
+        raw, warehouse, sig):
+    # issue 21.3: Ctrl-C exited 1 ("built, some inputs quarantined") with ~40 lines of worker tracebacks
+    step(raw, "c/a.csv")
+    rebuild(raw.root, warehouse, jobs=1)
+    before, listed = state(warehouse), _listing(warehouse)
+    step(raw, "c/b.csv", n=6)
+    step(raw, "c/c.csv", n=5)
+    snap = raw_snapshot(raw.root)
+    # the worker reading c/b.csv stops itself (busy for ever, as a slow reader); the other reads c/c.csv
+    env = {**os.environ, "PNEUBENCH_CRASH_AT": "ingest:c/b.csv", "PNEUBENCH_CRASH_SIGNAL": "SIGSTOP"}
+    proc = subprocess.Popen([*CLI, "rebuild", "--raw", str(raw.root), "--warehouse", str(warehouse), "--jobs", "2",
+                             "-q"], stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env,
+                            start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not any(_proc_state(k) == "T" for k in _descendants(proc.pid)):
+            assert time.monotonic() < deadline and proc.poll() is None, "no worker got busy"
+            time.sleep(0.05)
+        workers = _descendants(proc.pid)
+        if sig == signal.SIGINT:
+            os.killpg(proc.pid, sig)  # Ctrl-C: the terminal signals the whole foreground group
+        else:
+            proc.send_signal(sig)  # systemctl stop, kill: the rebuild process only
+        out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == 128 + sig, err
+    assert err.splitlines() == [f"pneubench rebuild: interrupted ({sig.name}); nothing half-written is left, "
+                                "the previous warehouse is kept"], err
+    assert out == ""
+    assert state(warehouse) == before
+    assert _listing(warehouse) == listed  # no temp file, no samples file of c/b or c/c, no stage folder
+    time.sleep(0.5)
+    assert [w for w in workers if _proc_state(w) not in (None, "Z")] == []  # every worker is gone
+    assert_raw_unchanged(raw.root, snap)
+    assert rebuild(raw.root, warehouse, jobs=2).exit_code == 0
+    assert state(warehouse) == (("c/a", "c/b", "c/c"), 15)
+
+
+@pytest.mark.parametrize("noop", [False, True])
+def test_files_past_their_retention_are_collected_before_the_database_is_written(raw, warehouse, monkeypatch, noop):
+    # a disk that has room for the new database only once the superseded files are gone: the night
+    # that collected them only after its swap exited 3 every night, --keep-superseded 0 too
+    import errno
+
+    import pipeline.rebuild as rb
+
+    step(raw, "c/a.csv")
+    step(raw, "c/b.csv", n=6)
+    rebuild(raw.root, warehouse, jobs=1)
+    old_b = {p for p in (warehouse / "samples").rglob("c_b-*.parquet")}
+    b = step(raw, "c/b.csv", n=7)  # b changes: its first samples file is superseded, kept 24 h for readers
+    os.utime(b, ns=(b.stat().st_atime_ns, b.stat().st_mtime_ns - 10**10))  # not racy: the next night may be a no-op
+    rebuild(raw.root, warehouse, jobs=1)
+    assert all(p.exists() for p in old_b)
+    if not noop:
+        step(raw, "c/c.csv", n=5)
+    real_build, real_copy = rb.build_database, rb.shutil.copyfile
+
+    def needs_room(*args, **kwargs):
+        if any(p.exists() for p in old_b):
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return (real_copy if len(args) == 2 and not kwargs else real_build)(*args, **kwargs)
+
+    monkeypatch.setattr(rb, "build_database", needs_room)
+    monkeypatch.setattr(rb.shutil, "copyfile", needs_room)
+    s = rebuild(raw.root, warehouse, jobs=1, keep_superseded_h=0)
+    assert s.exit_code == 0 and s.mode == ("no-op" if noop else "incremental")
+    assert state(warehouse)[0] == (("c/a", "c/b") if noop else ("c/a", "c/b", "c/c"))
+    assert not any(p.exists() for p in old_b)

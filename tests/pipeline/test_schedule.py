@@ -217,3 +217,16 @@ def test_a_path_that_is_not_utf8_is_refused(tmp_path):
     with pytest.raises(ValueError, match="UTF-8"):
         Schedule(raw=os.fsdecode(bytes(tmp_path) + b"/m\xe9sure"), warehouse=tmp_path, workdir=tmp_path,
                  executable="/x")
+
+
+def test_the_units_count_only_1_as_success_and_say_how_to_allow_a_mass_delete(sched):
+    svc = configparser.ConfigParser(strict=False, interpolation=None)
+    svc.optionxform = str
+    text = systemd_service(sched)
+    svc.read_string(text)
+    assert svc["Service"]["SuccessExitStatus"] == "1"  # 2 (refused), 3, 4, 130, 143 (interrupted) fail
+    assert "#Environment=PNEUBENCH_ALLOW_MASS_DELETE=1" in text.splitlines()
+    assert "Environment" not in [k for k in svc["Service"] if "MASS" in svc["Service"][k]]  # off by default
+    cron = crontab_line(sched).splitlines()
+    assert all(ln.startswith("#") for ln in cron[:-1]) and "PNEUBENCH_ALLOW_MASS_DELETE=1" in " ".join(cron[:-1])
+    assert "PNEUBENCH_ALLOW_MASS_DELETE" not in cron[-1]
