@@ -57,6 +57,7 @@ from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from pipeline.rawfile import open_raw, read_raw_bytes
 from pipeline.readers import READERS
 from pipeline.readers.base import SideCsvError, decode_text, side_csv_rows
 
@@ -509,11 +510,12 @@ class RawTree:
             elif os.path.isfile(f):
                 msg = None
                 try:
-                    size = os.stat(f).st_size
-                    if size > MAX_RIG_BYTES:
-                        msg = f"{size} bytes, larger than the {MAX_RIG_BYTES} bytes a rig.toml may have"
-                    else:
-                        cfg = tomllib.loads(decode_text(f.read_bytes())[0])
+                    with open_raw(self.root, f) as opened:  # no symlink out of raw/ followed since the walk
+                        size = opened.size
+                        if size > MAX_RIG_BYTES:
+                            msg = f"{size} bytes, larger than the {MAX_RIG_BYTES} bytes a rig.toml may have"
+                        else:
+                            cfg = tomllib.loads(decode_text(opened.read_bytes())[0])
                 except tomllib.TOMLDecodeError as exc:
                     msg = f"invalid TOML: {exc}"
                 except (RecursionError, MemoryError):
@@ -595,7 +597,7 @@ class RawTree:
     def _parse_manifest(self, folder: Path, f: Path) -> dict[str, dict]:
         rel_manifest = self.rel(f)
         try:
-            data = f.read_bytes()
+            data = read_raw_bytes(self.root, f)  # no symlink out of raw/ followed since the walk
         except OSError as exc:
             raise _BadManifest(f"cannot read: {_os_reason(exc)}", None) from None
         rows: dict[str, dict] = {}
