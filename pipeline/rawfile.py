@@ -14,8 +14,10 @@ read (its hash, the reader, a library that wants a path) goes through that descr
   caller passes it;
 * :attr:`RawFile.source` is the path the readers get: a symlink named as the file (same name,
   same extension: libraries that choose a format by extension still do) in a private folder
-  (``mkdtemp``, mode 0700), pointing at ``/proc/self/fd/N``. Opening it opens the inode of the
-  descriptor, whatever the name in raw/ points at by then; it is removed with the descriptor.
+  (``mkdtemp``, mode 0700, one per process, in ``/dev/shm`` when there is one: a folder made
+  and removed per file on a journaling disk costs milliseconds), pointing at
+  ``/proc/self/fd/N``. Opening it opens the inode of the descriptor, whatever the name in raw/
+  points at by then; it is removed with the descriptor, the folder when the process exits.
   Where ``/proc/self/fd`` does not exist (not Linux) it is the path itself.
 
 :class:`RawOpenError` is an ``OSError`` whose message is the one-line quarantine reason.
@@ -24,8 +26,10 @@ from __future__ import annotations
 
 import errno
 import os
+import shutil
 import stat
 import tempfile
+import threading
 from pathlib import Path
 
 _NOFOLLOW = getattr(os, "O_NOFOLLOW", 0)
@@ -33,6 +37,35 @@ _DIR_FLAGS = os.O_RDONLY | getattr(os, "O_DIRECTORY", 0) | _NOFOLLOW | getattr(o
 _FILE_FLAGS = (os.O_RDONLY | _NOFOLLOW | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0)
                | getattr(os, "O_CLOEXEC", 0))
 _PROC_FD = "/proc/self/fd"
+
+# The private folder of this process (a forked worker makes its own) and its free slots: one
+# subfolder per file open at the same time, so that two files of the same name never meet.
+_LINKS: dict = {"pid": None, "dir": None, "free": [], "n": 0}
+_LINKS_LOCK = threading.Lock()
+
+
+def _take_slot() -> str:
+    with _LINKS_LOCK:
+        if _LINKS["pid"] != os.getpid():
+            from multiprocessing import util
+
+            shm = "/dev/shm" if os.path.isdir("/dev/shm") and os.access("/dev/shm", os.W_OK) else None
+            folder = tempfile.mkdtemp(prefix="pneubench-open-", dir=shm)
+            _LINKS.update(pid=os.getpid(), dir=folder, free=[], n=0)
+            # at exit, also of a worker of a multiprocessing pool (which skips atexit)
+            util.Finalize(None, shutil.rmtree, args=(folder, True), exitpriority=0)
+        if _LINKS["free"]:
+            return _LINKS["free"].pop()
+        _LINKS["n"] += 1
+        slot = os.path.join(_LINKS["dir"], str(_LINKS["n"]))
+        os.mkdir(slot, 0o700)
+        return slot
+
+
+def _give_slot(slot: str) -> None:
+    with _LINKS_LOCK:
+        if os.path.dirname(slot) == _LINKS["dir"]:
+            _LINKS["free"].append(slot)
 
 
 class RawOpenError(OSError):
@@ -137,7 +170,7 @@ class RawFile:
             if not os.path.isdir(_PROC_FD):  # pragma: no cover - not Linux
                 self._source = self.path
             else:
-                self._dir = tempfile.mkdtemp(prefix="pneubench-open-")
+                self._dir = _take_slot()
                 link = os.path.join(self._dir, self.path.name)
                 os.symlink(f"{_PROC_FD}/{self.fd}", link)
                 self._source = Path(link)
@@ -157,7 +190,7 @@ class RawFile:
         if self._dir is not None:
             try:
                 os.unlink(os.path.join(self._dir, self.path.name))
-                os.rmdir(self._dir)
+                _give_slot(self._dir)
             except OSError:
                 pass
             self._dir = None

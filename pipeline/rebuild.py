@@ -225,7 +225,7 @@ def _ingest_task(args) -> dict:
     """Worker task: open the file once (:func:`pipeline.rawfile.open_raw`: no symlink out of raw/
     followed, a regular file, the inode the scan saw), then :func:`_ingest_opened`. A file that
     cannot be opened so is quarantined for this night with the reason and looked at again next time."""
-    from pipeline.rawfile import open_raw
+    from pipeline.rawfile import RawOpenError, open_raw
 
     raw, token, path, warehouse, reuse, prev, code = args[:7]
     seen = args[7] if len(args) > 7 else None  # the inode the scan saw
@@ -233,7 +233,7 @@ def _ingest_task(args) -> dict:
     try:
         opened = open_raw(tree.root, path, inode=seen)
     except OSError as exc:
-        why = str(exc) if exc.strerror == str(exc) else f"cannot read file: {type(exc).__name__}: {exc}"
+        why = str(exc) if isinstance(exc, RawOpenError) else f"cannot read file: {type(exc).__name__}: {exc}"
         return {"sha": None, "reused": False, "result": _unreadable(tree, path, why, transient=True), "retry": True}
     with opened:
         return _ingest_opened(args, opened)

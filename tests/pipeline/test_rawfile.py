@@ -183,7 +183,7 @@ def test_each_reader_reads_the_opened_descriptor_not_the_name(fmt, tmp_path):
             assert list_parts(opened.source) == list_parts(tmp_path / f"moved{FORMATS[fmt]}")
         assert sha256_file(opened.source) == want_sha
         source = opened.source
-    assert not os.path.lexists(source) and not os.path.exists(source.parent)  # removed with the descriptor
+    assert not os.path.lexists(source)  # removed with the descriptor
     with pytest.raises(RawOpenError, match=f"symlink to a file outside raw/: {outside}"):
         open_raw(root, path)
 
@@ -212,3 +212,32 @@ def test_open_raw_refuses_a_folder_link_a_fifo_and_another_inode_and_opens_an_al
     os.symlink(tmp_path / "elsewhere", root / "c1")  # a folder swapped for a link out of raw/
     with pytest.raises(RawOpenError, match="^folder c1 is a symlink: folders are not followed"):
         open_raw(root, root / "c1" / "a.csv")
+
+
+def test_the_private_link_folder_is_made_once_per_process_and_removed_at_exit(tmp_path):
+    """Files of the same name open at once get links in different slots; a process's folder
+    (a forked pool worker's too) is removed when it exits."""
+    import subprocess
+    import sys
+
+    root = tmp_path / "raw"
+    for c in ("c1", "c2"):
+        (root / c).mkdir(parents=True)
+        (root / c / "a.csv").write_text(c)
+    with open_raw(root, root / "c1" / "a.csv") as one, open_raw(root, root / "c2" / "a.csv") as two:
+        assert one.source != two.source and one.source.parent.parent == two.source.parent.parent
+        assert (one.source.read_text(), two.source.read_text()) == ("c1", "c2")
+        assert stat.S_IMODE(os.stat(one.source.parent.parent).st_mode) == 0o700
+    code = ("import concurrent.futures as cf, multiprocessing as mp, sys\n"
+            "from pipeline.rawfile import open_raw\n"
+            "def f(p):\n"
+            "    with open_raw(sys.argv[1], p) as o:\n"
+            "        return str(o.source.parent.parent)\n"
+            "if __name__ == '__main__':\n"
+            "    with cf.ProcessPoolExecutor(1, mp_context=mp.get_context('fork')) as ex:\n"
+            "        print(ex.submit(f, sys.argv[2]).result())\n"
+            "    print(f(sys.argv[2]))\n")
+    out = subprocess.run([sys.executable, "-c", code, str(root), str(root / "c1" / "a.csv")], capture_output=True,
+                         text=True, check=True, cwd=os.path.dirname(os.path.dirname(os.path.dirname(__file__))))
+    worker, parent = out.stdout.split()
+    assert worker != parent and not os.path.exists(worker) and not os.path.exists(parent)
