@@ -17,7 +17,8 @@ read (its hash, the reader, a library that wants a path) goes through that descr
   (``mkdtemp``, mode 0700, one per process, in ``/dev/shm`` when there is one: a folder made
   and removed per file on a journaling disk costs milliseconds), pointing at
   ``/proc/self/fd/N``. Opening it opens the inode of the descriptor, whatever the name in raw/
-  points at by then; it is removed with the descriptor, the folder when the process exits.
+  points at by then; it is removed with the descriptor, the folder when the process exits (the
+  folder of a process killed with SIGKILL by the next process that makes one).
   Where ``/proc/self/fd`` does not exist (not Linux) it is the path itself.
 
 :class:`RawOpenError` is an ``OSError`` whose message is the one-line quarantine reason.
@@ -50,7 +51,8 @@ def _take_slot() -> str:
             from multiprocessing import util
 
             shm = "/dev/shm" if os.path.isdir("/dev/shm") and os.access("/dev/shm", os.W_OK) else None
-            folder = tempfile.mkdtemp(prefix="pneubench-open-", dir=shm)
+            _remove_stale(shm or tempfile.gettempdir())
+            folder = tempfile.mkdtemp(prefix=f"pneubench-open-{os.getpid()}-", dir=shm)
             _LINKS.update(pid=os.getpid(), dir=folder, free=[], n=0)
             # at exit, also of a worker of a multiprocessing pool (which skips atexit)
             util.Finalize(None, shutil.rmtree, args=(folder, True), exitpriority=0)
@@ -60,6 +62,27 @@ def _take_slot() -> str:
         slot = os.path.join(_LINKS["dir"], str(_LINKS["n"]))
         os.mkdir(slot, 0o700)
         return slot
+
+
+def _remove_stale(base: str) -> None:
+    """Remove this user's link folders of processes that are gone (a worker killed with
+    SIGKILL, a stuck reader's, cannot remove its own)."""
+    try:
+        entries = list(os.scandir(base))
+    except OSError:
+        return
+    for e in entries:
+        parts = e.name.split("-")
+        if len(parts) != 4 or e.name[:15] != "pneubench-open-" or not parts[2].isdigit():
+            continue
+        try:
+            if e.stat(follow_symlinks=False).st_uid != os.getuid() or not e.is_dir(follow_symlinks=False):
+                continue
+            os.kill(int(parts[2]), 0)
+        except ProcessLookupError:
+            shutil.rmtree(e.path, ignore_errors=True)
+        except OSError:
+            continue
 
 
 def _give_slot(slot: str) -> None:

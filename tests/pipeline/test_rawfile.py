@@ -234,10 +234,20 @@ def test_the_private_link_folder_is_made_once_per_process_and_removed_at_exit(tm
             "    with open_raw(sys.argv[1], p) as o:\n"
             "        return str(o.source.parent.parent)\n"
             "if __name__ == '__main__':\n"
+            "    import os\n"
+            "    parent = f(sys.argv[2])  # made before the fork: the worker's exit leaves it\n"
             "    with cf.ProcessPoolExecutor(1, mp_context=mp.get_context('fork')) as ex:\n"
             "        print(ex.submit(f, sys.argv[2]).result())\n"
-            "    print(f(sys.argv[2]))\n")
+            "    print(parent if os.path.isdir(parent) and f(sys.argv[2]) == parent else 'gone')\n")
     out = subprocess.run([sys.executable, "-c", code, str(root), str(root / "c1" / "a.csv")], capture_output=True,
                          text=True, check=True, cwd=os.path.dirname(os.path.dirname(os.path.dirname(__file__))))
     worker, parent = out.stdout.split()
     assert worker != parent and not os.path.exists(worker) and not os.path.exists(parent)
+    # a process killed with SIGKILL leaves its folder: the next process to make one removes it
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                          text=True, check=True).stdout.strip()
+    stale = os.path.join(os.path.dirname(parent), f"pneubench-open-{dead}-abc")
+    os.makedirs(os.path.join(stale, "1"))
+    subprocess.run([sys.executable, "-c", code, str(root), str(root / "c1" / "a.csv")], check=True,
+                   capture_output=True, cwd=os.path.dirname(os.path.dirname(os.path.dirname(__file__))))
+    assert not os.path.exists(stale)
