@@ -27,6 +27,7 @@ from pipeline.code_version import INGEST_VERSION  # noqa: F401 (re-exported)
 from pipeline.derived import DerivedError, Expression, parse_expression
 from pipeline.layout import ConfigError, RawTree, display_name
 from pipeline.prefetch import prefetch
+from pipeline.rawfile import RawFile, RawOpenError, open_raw
 from pipeline.readers import RawColumn, ReaderError, list_parts, parts_keys, read_export
 from pipeline.readers.base import MAX_CHANNELS
 from schemas.channels import (CHANNELS, canonical_name, noncanonical_column, other_dimension,
@@ -683,7 +684,8 @@ def ingest_key(sha: str, meta: dict, maps: list[ColumnMap], code_version: str | 
 
 
 def ingest_file(tree: RawTree, path: Path, warehouse: Path, reuse: bool = True,
-                sha256: str | None = None, code_version: str | None = None) -> IngestResult:
+                sha256: str | None = None, code_version: str | None = None,
+                opened: RawFile | None = None) -> IngestResult:
     """Ingest one raw file into ``warehouse/samples/``; never raises for bad input.
 
     Parameters
@@ -702,6 +704,10 @@ def ingest_file(tree: RawTree, path: Path, warehouse: Path, reuse: bool = True,
         changed file first): it is not read twice.
     code_version : str, optional
         The ingest code's version for the samples file name (default: computed here).
+    opened : RawFile, optional
+        The file opened by :func:`pipeline.rawfile.open_raw` (the rebuild opens it to hash it
+        first); default: opened here. Its hash and its data are read from that descriptor only
+        (never the name again: a symlink swapped in later is not followed).
 
     Returns
     -------
@@ -710,17 +716,28 @@ def ingest_file(tree: RawTree, path: Path, warehouse: Path, reuse: bool = True,
     """
     rel = tree.rel(path)
     result = IngestResult(source_path=rel, campaign=tree.campaign(path))
+    if opened is None:
+        try:
+            opened = open_raw(tree.root, path)
+        except OSError as exc:  # RawOpenError: a symlink out of raw/, not a regular file
+            result.error = _one_line(str(exc) if isinstance(exc, RawOpenError)
+                                     else f"cannot read file: {type(exc).__name__}: {exc}")
+            result.transient = True
+            return result
+        with opened:
+            return ingest_file(tree, path, warehouse, reuse, sha256, code_version, opened)
+    src = opened.source  # the path every read goes through: the opened descriptor's file
     try:
         keys = parts_mode(tree, Path(path))
     except IngestError as exc:
         result.error = _one_line(str(exc))
         return result
     if keys is not None:
-        return _ingest_parts(tree, Path(path), Path(warehouse), result, keys, reuse, sha256, code_version)
+        return _ingest_parts(tree, Path(path), Path(warehouse), result, keys, reuse, sha256, code_version, src)
     hashed: list = []
     try:
         run, channels = _ingest(tree, Path(path), Path(warehouse), rel, result.campaign, reuse, sha256, code_version,
-                                hashed)
+                                hashed, src)
         result.run, result.channels = run, channels
         result.bytes_hashed = hashed[0] if hashed else None
     except (IngestError, ReaderError, ConfigError) as exc:
@@ -769,20 +786,21 @@ def parts_mode(tree: RawTree, path: Path) -> tuple[str, str] | None:
 
 
 def _ingest_parts(tree: RawTree, path: Path, warehouse: Path, result: IngestResult, keys: tuple[str, str],
-                  reuse: bool, sha: str | None, code_version: str | None) -> IngestResult:
+                  reuse: bool, sha: str | None, code_version: str | None, src: Path | None = None) -> IngestResult:
     """Ingest every sheet / channel group of a file of several runs: one part result each, a
     bad part is that part's one-line error (naming the file's sheet or group), the others go on."""
     plural, singular = keys
+    src = src or path
     try:
         if result.campaign is None:
             raise IngestError("file is not in a campaign folder (raw/<campaign>/...)")
-        if os.stat(path).st_size == 0:
+        if os.stat(src).st_size == 0:
             raise IngestError("empty file (0 bytes)")
         if sha is None:  # hashed once for all its runs, before they are read
             counted: list[int] = []
-            sha = sha256_file(path, counted=counted)
+            sha = sha256_file(src, counted=counted)
             result.bytes_hashed = counted[0] if counted else None
-        names = list_parts(path)
+        names = list_parts(src)
     except (IngestError, ReaderError, ConfigError) as exc:
         result.error = _one_line(str(exc))
         return result
@@ -796,7 +814,8 @@ def _ingest_parts(tree: RawTree, path: Path, warehouse: Path, result: IngestResu
         part = IngestResult(source_path=result.source_path, campaign=result.campaign)
         try:
             part.run, part.channels = _ingest_hashed(tree, path, warehouse, result.source_path, result.campaign,
-                                                     reuse, sha, None, code_version, part=(plural, singular, name))
+                                                     reuse, sha, None, code_version, part=(plural, singular, name),
+                                                     src=src)
         except (IngestError, ReaderError, ConfigError) as exc:
             part.error = _one_line(f"{singular} {name!r}: {exc}")
         except Exception as exc:  # noqa: BLE001
@@ -834,14 +853,16 @@ def _part_context(rig: dict, manifest: dict, part: tuple[str, str, str], own: di
 
 
 def _ingest(tree: RawTree, path: Path, warehouse: Path, rel: str, campaign: str | None, reuse: bool,
-            sha: str | None = None, code_version: str | None = None, bytes_hashed: list | None = None):
+            sha: str | None = None, code_version: str | None = None, bytes_hashed: list | None = None,
+            src: Path | None = None):
+    src = src or path
     if campaign is None:
         raise IngestError("file is not in a campaign folder (raw/<campaign>/...)")
-    if os.stat(path).st_size == 0:  # before any reader: its complaint would be about rows, not bytes
+    if os.stat(src).st_size == 0:  # before any reader: its complaint would be about rows, not bytes
         raise IngestError("empty file (0 bytes)")
-    hashing = None if sha else _BackgroundHash(path)
+    hashing = None if sha else _BackgroundHash(src)
     try:
-        return _ingest_hashed(tree, path, warehouse, rel, campaign, reuse, sha, hashing, code_version)
+        return _ingest_hashed(tree, path, warehouse, rel, campaign, reuse, sha, hashing, code_version, src=src)
     finally:
         if hashing is not None:
             hashing.cancel()
@@ -849,12 +870,12 @@ def _ingest(tree: RawTree, path: Path, warehouse: Path, rel: str, campaign: str 
                 bytes_hashed.append(hashing.n_bytes)
 
 
-def _ingest_hashed(tree, path, warehouse, rel, campaign, reuse, sha, hashing, code_version, part=None):
+def _ingest_hashed(tree, path, warehouse, rel, campaign, reuse, sha, hashing, code_version, part=None, src=None):
     rig = tree.rig_config(path)
     manifest = tree.manifest_metadata(path)
     if part is not None:
         rig, manifest = _part_context(rig, manifest, part, tree.manifest_parts(path).get(part[2], {}))
-    export = _open_export(path, rig, manifest)
+    export = _open_export(src or path, rig, manifest)  # src: the opened file, under the same name
     meta = resolve_metadata(rig["metadata"], export.metadata, manifest, campaign, path,
                             part=None if part is None else part[2])
     if part is not None:  # a sheet / group name is the file's text: one line, valid UTF-8

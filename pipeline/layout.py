@@ -61,6 +61,7 @@ from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from pipeline.rawfile import open_raw, read_raw_bytes
 from pipeline.readers import READERS
 from pipeline.readers.base import SideCsvError, decode_text, side_csv_rows
 
@@ -223,7 +224,9 @@ def walk_raw(raw: Path) -> Listing:
                               "the name of another entry in the same folder; rename one of them")
                 continue
             if len(os.fsencode(path)) >= PATH_MAX:
-                if not hidden:
+                if not hidden and e.is_dir(follow_symlinks=False):
+                    _beyond_path_max(folder, e.name, problem)
+                elif not hidden:
                     problem(path, f"path is {len(os.fsencode(path))} bytes, longer than the OS limit "
                                   f"({PATH_MAX - 1} bytes): it cannot be opened; shorten its folder names")
                 continue
@@ -250,6 +253,62 @@ def walk_raw(raw: Path) -> Listing:
     for paths in (out.runs, out.side, out.ignored):
         paths.sort(key=lambda p: keys[id(p)])
     return out
+
+
+def _beyond_path_max(folder: str, name: str, problem) -> None:
+    """The run and side files under ``folder/name``, a folder whose path is longer than the OS
+    limit: each is a quarantine row naming its own path (the folder's files are never read).
+
+    Listed through folder descriptors (``openat``: one name per call, so no path is too long),
+    one descriptor open per level of the folder being listed; no symlink is followed. A folder
+    that cannot be listed (permissions, more levels than open files allow) is a row itself.
+    """
+    def too_long(path: str) -> str:
+        return (f"path is {len(os.fsencode(path))} bytes, longer than the OS limit ({PATH_MAX - 1} bytes): "
+                "it cannot be opened; shorten its folder names")
+
+    flags = os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW | getattr(os, "O_CLOEXEC", 0)
+    try:
+        top = os.open(folder, flags)
+    except OSError as exc:
+        problem(os.path.join(folder, name), f"folder cannot be listed: {_os_reason(exc)}; its files are not read")
+        return
+    stack: list = []  # (fd, its path, iterator over its subfolders' names)
+    todo = [(top, name, os.path.join(folder, name))]
+    try:
+        while todo or stack:
+            if todo:
+                parent, sub, path = todo.pop()
+                try:
+                    fd = os.open(sub, flags, dir_fd=parent)
+                    with os.scandir(fd) as it:
+                        entries = sorted(it, key=lambda x: os.fsencode(x.name))
+                except OSError as exc:
+                    problem(path, f"folder cannot be listed: {_os_reason(exc)}; its files are not read")
+                    continue
+                subs = []
+                for x in entries:
+                    if x.name.startswith("."):
+                        continue  # dotfiles and dotted folders: never read
+                    try:
+                        is_dir = x.is_dir(follow_symlinks=False)
+                    except OSError:
+                        is_dir = False
+                    if is_dir:
+                        subs.append(x.name)
+                    elif x.name.lower() in NOT_RUNS or is_run_file(Path(x.name)):
+                        problem(os.path.join(path, x.name), too_long(os.path.join(path, x.name)))
+                stack.append((fd, path, iter(subs)))
+            fd, path, subs = stack[-1]
+            sub = next(subs, None)
+            if sub is None:
+                os.close(stack.pop()[0])
+            else:
+                todo.append((fd, sub, os.path.join(path, sub)))
+    finally:
+        for fd, _path, _subs in stack:
+            os.close(fd)
+        os.close(top)
 
 
 def _file_kind(path: str) -> str:
@@ -479,11 +538,12 @@ class RawTree:
             elif os.path.isfile(f):
                 msg = None
                 try:
-                    size = os.stat(f).st_size
-                    if size > MAX_RIG_BYTES:
-                        msg = f"{size} bytes, larger than the {MAX_RIG_BYTES} bytes a rig.toml may have"
-                    else:
-                        cfg = tomllib.loads(decode_text(f.read_bytes())[0])
+                    with open_raw(self.root, f) as opened:  # no symlink out of raw/ followed since the walk
+                        size = opened.size
+                        if size > MAX_RIG_BYTES:
+                            msg = f"{size} bytes, larger than the {MAX_RIG_BYTES} bytes a rig.toml may have"
+                        else:
+                            cfg = tomllib.loads(decode_text(opened.read_bytes())[0])
                 except tomllib.TOMLDecodeError as exc:
                     msg = f"invalid TOML: {exc}"
                 except (RecursionError, MemoryError):
@@ -568,7 +628,7 @@ class RawTree:
     def _parse_manifest(self, folder: Path, f: Path) -> dict[str, dict]:
         rel_manifest = self.rel(f)
         try:
-            data = f.read_bytes()
+            data = read_raw_bytes(self.root, f)  # no symlink out of raw/ followed since the walk
         except OSError as exc:
             raise _BadManifest(f"cannot read: {_os_reason(exc)}", None) from None
         rows: dict[str, dict] = {}

@@ -60,6 +60,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline.layout import Problem, display_name, walk_raw
+from pipeline.rawfile import read_raw_bytes
 from pipeline.readers.base import SideCsvError, side_csv_rows
 
 LOGBOOK_NAME = "hoses.csv"
@@ -113,7 +114,7 @@ def _number(text: str) -> float:
     return value
 
 
-def read_logbook(path: Path, rel: str | None = None) -> tuple[pd.DataFrame, list[Problem]]:
+def read_logbook(path: Path, rel: str | None = None, root: Path | None = None) -> tuple[pd.DataFrame, list[Problem]]:
     """One ``hoses.csv`` as event rows, and the rows it cannot use.
 
     Parameters
@@ -122,6 +123,9 @@ def read_logbook(path: Path, rel: str | None = None) -> tuple[pd.DataFrame, list
         The logbook.
     rel : str, optional
         Its path relative to raw/ (used in problems and rows; the campaign is its first folder).
+    root : Path, optional
+        raw/ (resolved): the file is opened from there without following a symlink out of it
+        (default: its own folder).
 
     Returns
     -------
@@ -132,7 +136,8 @@ def read_logbook(path: Path, rel: str | None = None) -> tuple[pd.DataFrame, list
     rel = rel or Path(path).name
     campaign = rel.split("/")[0] if "/" in rel else None
     problems: list[Problem] = []
-    data = Path(path).read_bytes()
+    # opened without following a symlink out of raw/ (pipeline.rawfile): from raw/ when given
+    data = read_raw_bytes(root if root is not None else os.path.dirname(os.path.abspath(path)), path)
     empty = pd.DataFrame(columns=EVENT_COLUMNS)
     header = None
     rows = []
@@ -207,7 +212,7 @@ def read_logbooks(raw: Path) -> tuple[pd.DataFrame, list[Problem]]:
     for p in find_logbooks(raw):
         rel = display_name(os.path.relpath(p, os.path.realpath(raw)).replace(os.sep, "/"))
         try:
-            df, probs = read_logbook(p, rel)
+            df, probs = read_logbook(p, rel, root=os.path.realpath(raw))
         except OSError as exc:
             problems.append(Problem(rel, f"cannot read logbook: {exc}", stage="logbook"))
             continue

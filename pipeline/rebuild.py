@@ -229,6 +229,24 @@ def _stat_or_none(path: Path) -> tuple[int, int, int] | None:
 
 
 def _ingest_task(args) -> dict:
+    """Worker task: open the file once (:func:`pipeline.rawfile.open_raw`: no symlink out of raw/
+    followed, a regular file, the inode the scan saw), then :func:`_ingest_opened`. A file that
+    cannot be opened so is quarantined for this night with the reason and looked at again next time."""
+    from pipeline.rawfile import RawOpenError, open_raw
+
+    raw, token, path, warehouse, reuse, prev, code = args[:7]
+    seen = args[7] if len(args) > 7 else None  # the inode the scan saw
+    path, tree = Path(path), _tree(raw, token)
+    try:
+        opened = open_raw(tree.root, path, inode=seen)
+    except OSError as exc:
+        why = str(exc) if isinstance(exc, RawOpenError) else f"cannot read file: {type(exc).__name__}: {exc}"
+        return {"sha": None, "reused": False, "result": _unreadable(tree, path, why, transient=True), "retry": True}
+    with opened:
+        return _ingest_opened(args, opened)
+
+
+def _ingest_opened(args, opened) -> dict:
     """Worker task: a file whose stat alone changed is hashed and keeps its previous record when
     its bytes are the same; any other file is ingested (and hashed while it is parsed).
 
@@ -238,23 +256,23 @@ def _ingest_task(args) -> dict:
     whose hash was not computed over exactly the bytes it had, is not published: its result is
     the one-line :data:`CHANGED_WHILE_READ` (its hash and its samples may be of different bytes).
     """
-    raw, token, path, warehouse, reuse, prev, code = args
+    raw, token, path, warehouse, reuse, prev, code = args[:7]
     path, tree = Path(path), _tree(raw, token)
-    before = _stat_or_none(path)
+    before = _stat_or_none(opened.source)  # the opened file's; after reading, the name's must match it
     sha = None
     hashed: list[int] = []
     if prev is not None:  # only the stat changed: the same bytes keep their record
         if prev["sha"] is None:
             reuse = False  # its last read was not trustworthy: a samples file named by its hash may be stale
         try:
-            sha = sha256_file(path, counted=hashed)
+            sha = sha256_file(opened.source, counted=hashed)
         except OSError as exc:
             res = _unreadable(tree, path, f"cannot read file: {type(exc).__name__}: {exc}", transient=True)
             return {"sha": None, "reused": False, "result": res, "retry": True}
         if prev["sha"] == sha and before is not None and _stat_or_none(path) == before and hashed == [before[0]]:
             return {"sha": sha, "reused": True, "result": None}
     _crash_point(f"ingest:{tree.rel(path)}", signal.SIGSEGV)  # a reader crashing in C code
-    res = ingest_file(tree, path, Path(warehouse), reuse=reuse, sha256=sha, code_version=code)
+    res = ingest_file(tree, path, Path(warehouse), reuse=reuse, sha256=sha, code_version=code, opened=opened)
     if res.bytes_hashed is not None:
         hashed = [res.bytes_hashed]
     if before is not None and not res.transient and (
@@ -269,7 +287,7 @@ def _ingest_task(args) -> dict:
         sha = res.sha256
     elif sha is None:  # quarantined before its hash was done: record it, or the next rebuild re-reads it
         try:
-            sha = sha256_file(path)
+            sha = sha256_file(opened.source)
         except OSError:
             pass
     return {"sha": sha, "reused": False, "result": res}
@@ -293,11 +311,14 @@ def _ingest_crashed(args, reason: str) -> dict:
     that crashed its reader twice is hashed here (hashing cannot crash) and stays quarantined
     until its bytes change.
     """
-    raw, token, path, warehouse, reuse, prev, code = args
+    from pipeline.rawfile import open_raw
+
+    raw, token, path, warehouse, reuse, prev, code = args[:7]
     res = _unreadable(_tree(raw, token), Path(path), f"cannot read file: {reason}")
     if prev is not None and prev.get("crashed"):
         try:
-            return {"sha": sha256_file(Path(path)), "reused": False, "result": res}
+            with open_raw(_tree(raw, token).root, path) as opened:
+                return {"sha": sha256_file(opened.source), "reused": False, "result": res}
         except OSError:
             pass
     return {"sha": None, "reused": False, "result": res, "retry": True}
@@ -351,7 +372,8 @@ def ingest_incremental(tree: RawTree, plans: list[FilePlan], warehouse: Path, ex
                 # only the stat changed: a file with the same bytes keeps its record
                 prev = {"sha": p.previous.source_sha256,
                         "crashed": p.previous.error == CRASHED or (p.previous.error or "").startswith(STUCK)}
-            todo.append((p, (str(tree.root), token, str(p.path), str(warehouse), not full, prev, code_version)))
+            todo.append((p, (str(tree.root), token, str(p.path), str(warehouse), not full, prev, code_version,
+                             p.stat[2])))  # the inode the scan saw: another file there is not read
     if todo:
         progress.message(f"ingest: {len(todo)} of {len(plans)} run files to read")
     # forked local workers inherit the parsed raw tree and the readers of the formats present

@@ -413,8 +413,13 @@ def side_records(tree: RawTree, prev: PreviousState) -> tuple[list[FileRecord], 
             sha = old.source_sha256
         else:
             from pipeline.ingest import sha256_file
+            from pipeline.rawfile import open_raw
 
-            sha = sha256_file(p)
+            try:  # hashed through one descriptor, no symlink out of raw/ followed (pipeline.rawfile)
+                with open_raw(tree.root, p) as opened:
+                    sha = sha256_file(opened.source)
+            except OSError:
+                sha = None  # not read: reading it for its metadata says why (a quarantine row)
         mtime = st[1] if now - st[1] / 1e9 >= RACY_S else -1
         records.append(FileRecord(rel, SIDE_FILES[p.name.lower()], st[0], mtime, st[2], sha))
         status = "new" if old is None else ("unchanged" if old.source_sha256 == sha else "changed")

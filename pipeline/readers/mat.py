@@ -530,6 +530,16 @@ def _h5_value(ds):
     return _scalar(arr)
 
 
+def _check_h5_storage(obj, name: str) -> None:
+    """Refuse a dataset whose bytes are not in this file: HDF5 external storage (raw bytes in any
+    file named by path) or a virtual dataset (mapped from other HDF5 files). h5py would open those
+    files by name, wherever they are: outside raw/, not the file that was opened."""
+    how = ("HDF5 virtual dataset" if getattr(obj, "is_virtual", False)
+           else "HDF5 external storage" if obj.id.get_create_plist().get_external_count() else None)
+    if how is not None:
+        raise ReaderError(f"variable `{name}` keeps its data in another file ({how}): not read")
+
+
 def _check_h5_size(obj, name: str, file_size: int) -> None:
     """Refuse a dataset whose shape x item size exceeds :func:`inflate_cap` of the file size
     (HDF5 stores unwritten chunks as nothing and compresses chunks: a small file may declare
@@ -597,6 +607,7 @@ def _read_v73_unchecked(path: Path) -> RawExport:
                         if isinstance(fobj, h5py.Group):
                             col.warnings.append(f"field `{key}.{field_name}` (group) ignored")
                             continue
+                        _check_h5_storage(fobj, f"{key}.{field_name}")
                         _check_h5_size(fobj, f"{key}.{field_name}", file_size)
                         v = _h5_value(fobj)
                         if key == "meta":
@@ -614,6 +625,7 @@ def _read_v73_unchecked(path: Path) -> RawExport:
             if not isinstance(obj, h5py.Dataset):
                 col.warnings.append(f"variable `{key}` ({type(obj).__name__}) ignored")
                 continue
+            _check_h5_storage(obj, key)
             _check_h5_size(obj, key, file_size)
             if cls == "char":
                 col.meta[key] = _h5_value(obj)

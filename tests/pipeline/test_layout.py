@@ -295,9 +295,45 @@ def test_a_path_longer_than_the_os_limit_is_quarantined(tree, warehouse):
         os.close(fd)
     q = rebuild_checked(tree, warehouse)
     (src, [(line, err)]), = q.items()
-    assert src == "c1/" + "/".join(names) and line is None
+    assert src == "c1/" + "/".join(names) + "/deep.csv" and line is None  # the run, not only its folder
     assert err.startswith(f"path is {len(os.fsencode(tree.root / src))} bytes, longer than the OS limit "
                           f"({PATH_MAX - 1} bytes): it cannot be opened")
+
+
+def test_every_run_under_a_folder_beyond_the_os_limit_is_named(tree, warehouse):
+    """Folders nested past PATH_MAX (made through folder fds, as a share or an archive can):
+    each run and side file below the first over-long folder, however deep, is a quarantine row
+    naming its own path; files that are not runs are not rows; the other runs are ingested."""
+    fd = os.open(tree.root / "c1", os.O_RDONLY)
+    names = []
+
+    def put(dfd, name, data=b"t[s],x[mm],x_ref[mm]\n0,0,0\n"):
+        out = os.open(name, os.O_WRONLY | os.O_CREAT, 0o644, dir_fd=dfd)
+        os.write(out, data)
+        os.close(out)
+
+    try:
+        while len(names) < 20:  # 20 x 251 bytes: well past PATH_MAX
+            name = f"d{len(names):02d}" + "y" * 248
+            os.mkdir(name, dir_fd=fd)
+            nfd = os.open(name, os.O_RDONLY, dir_fd=fd)
+            os.close(fd)
+            fd, names = nfd, names + [name]
+            if len(names) == 17:
+                put(fd, "mid.csv")
+                put(fd, "manifest.csv", b"file,notes\nmid.csv,x\n")
+                put(fd, "photo.png", b"\x89PNG")
+        put(fd, "deepest.lvm")
+        os.mkdir(b"caf\xe9", dir_fd=fd)  # an empty folder with a Latin-1 name: nothing to name
+    finally:
+        os.close(fd)
+    q = rebuild_checked(tree, warehouse)
+    base = "c1/" + "/".join(names[:17])
+    expect = {base + "/manifest.csv", base + "/mid.csv", "c1/" + "/".join(names) + "/deepest.lvm"}
+    assert set(q) == expect
+    for src, [(line, err)] in q.items():
+        assert line is None and err.startswith(f"path is {len(os.fsencode(tree.root / src))} bytes, longer than "
+                                               "the OS limit"), (src, err)
 
 
 # -- 6. empty and special files -----------------------------------------------------------------

@@ -388,3 +388,31 @@ def test_mat_bad_fs_is_quarantined(raw, warehouse):
                                          "units": {"x": "m", "x_ref": "m"}})
     res = ingest_file(RawTree(raw.root), path, warehouse)
     assert res.run is None and "MAT scalar `Fs` must be a positive finite number" in res.error
+
+
+def test_mat_v73_data_kept_in_another_file_is_refused_not_read(tmp_path):
+    """HDF5 lets a dataset keep its bytes in any other file (external storage) or map them from
+    other HDF5 files (a virtual dataset): h5py would read that file by name, wherever it is (a
+    file outside raw/). Such a variable is refused with one line; a plain v7.3 file beside it reads."""
+    import h5py
+
+    secret = tmp_path / "secret.bin"
+    secret.write_bytes(b"SECRET-EXTERNAL-DATA-0123456789abcdef")
+    t = np.arange(4) * 0.1
+    plain = mat_v73(tmp_path / "plain.mat", {"t": t, "x": t * 2})
+    assert read_export(plain).columns[1].name == "x"
+    ext = mat_v73(tmp_path / "external.mat", {"t": t})
+    with h5py.File(ext, "a") as f:
+        f.create_dataset("x", shape=(1, 4), dtype="<f8", external=[(str(secret), 0, 32)])
+        f["x"].attrs["MATLAB_class"] = np.bytes_("double")
+    with pytest.raises(ReaderError, match=r"^variable `x` keeps its data "
+                                          r"in another file \(HDF5 external storage\): not read$"):
+        read_export(ext)
+    virt = mat_v73(tmp_path / "virtual.mat", {"t": t})
+    layout = h5py.VirtualLayout(shape=(1, 4), dtype="<f8")
+    layout[0, :] = h5py.VirtualSource(str(plain), "x", shape=(1, 4))[0, :]
+    with h5py.File(virt, "a") as f:
+        f.create_virtual_dataset("x", layout)
+        f["x"].attrs["MATLAB_class"] = np.bytes_("double")
+    with pytest.raises(ReaderError, match=r"variable `x` keeps its data in another file \(HDF5 virtual dataset\)"):
+        read_export(virt)
