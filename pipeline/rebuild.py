@@ -239,6 +239,11 @@ def _ingest_task(args) -> dict:
     path, tree = Path(path), _tree(raw, token)
     try:
         opened = open_raw(tree.root, path, inode=seen)
+        try:
+            opened.source  # the readers' link to the descriptor; no link, no read (never by name)
+        except OSError:
+            opened.close()
+            raise
     except OSError as exc:
         why = str(exc) if isinstance(exc, RawOpenError) else f"cannot read file: {type(exc).__name__}: {exc}"
         return {"sha": None, "reused": False, "result": _unreadable(tree, path, why, transient=True), "retry": True}

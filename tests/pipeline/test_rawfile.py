@@ -75,6 +75,28 @@ def test_an_export_swapped_for_a_link_out_of_raw_after_the_scan_is_not_read(raw,
     _nowhere(warehouse)
 
 
+def test_no_link_for_the_readers_is_a_quarantine_line_never_a_read_by_name(raw, warehouse, monkeypatch):
+    """Fail closed: when the private link to the descriptor cannot be made (no symlinks there, a
+    full /dev/shm), the file is not read by its name instead; it is one line, read again next time,
+    and the rebuild goes on."""
+    _good(raw, "c1/a.csv")
+    real_symlink = os.symlink
+
+    def no_fd_links(src, dst, *a, **k):
+        if str(src).startswith("/proc/self/fd/"):
+            raise OSError(28, "No space left on device")
+        return real_symlink(src, dst, *a, **k)
+
+    monkeypatch.setattr(os, "symlink", no_fd_links)
+    summary = rebuild(raw.root, warehouse, jobs=1)
+    assert summary.exit_code == EXIT_QUARANTINED
+    assert query(warehouse, "SELECT source_path, error FROM quarantine") == [
+        ("c1/a.csv", "cannot read file: OSError: [Errno 28] No space left on device")]
+    monkeypatch.setattr(os, "symlink", real_symlink)
+    assert rebuild(raw.root, warehouse, jobs=1).exit_code == 0
+    assert query(warehouse, "SELECT run_id FROM runs") == [("c1/a",)]
+
+
 @pytest.mark.raw_written("c1/evil.csv", "c1/.orig-evil.csv")
 def test_an_export_swapped_for_another_file_after_the_scan_is_read_next_time(raw, warehouse, monkeypatch):
     """A file replaced inside raw/ (another inode than the scan saw) is not read this night and
