@@ -68,23 +68,23 @@ def rebuild(raw, warehouse, jobs, full, quiet, executor, scheduler, wait_s, no_r
     sys.exit(summary.exit_code)
 
 
-def _query_error(exc) -> None:
-    """Print a refused or failed query and exit: 2 refused/usage, 3 failed."""
+def _query_error(exc, command: str = "query") -> None:
+    """Print a refused or failed query and exit: 2 refused/usage, 3 failed; the line names ``command``."""
     import duckdb
 
     from pipeline.query import QueryError, QueryLimitError
 
     if isinstance(exc, QueryLimitError):  # a limit of the door: one line naming it
-        click.echo(f"pneubench query: {exc}", err=True)
+        click.echo(f"pneubench {command}: {exc}", err=True)
         sys.exit(3)
     if isinstance(exc, QueryError):
-        click.echo(f"pneubench query: {exc}", err=True)
+        click.echo(f"pneubench {command}: {exc}", err=True)
         sys.exit(2)
     if isinstance(exc, duckdb.PermissionException):  # a way out of the door: one line
-        click.echo(f"pneubench query: {str(exc).splitlines()[0]} (only the warehouse's tables and samples)",
+        click.echo(f"pneubench {command}: {str(exc).splitlines()[0]} (only the warehouse's tables and samples)",
                    err=True)
         sys.exit(3)
-    click.echo(f"pneubench query: {str(exc).rstrip()}", err=True)  # DuckDB's whole message (hints)
+    click.echo(f"pneubench {command}: {str(exc).rstrip()}", err=True)  # DuckDB's whole message (hints)
     sys.exit(3)
 
 
@@ -180,7 +180,7 @@ def describe(table, warehouse, max_width):
     except FileNotFoundError as exc:
         raise click.UsageError(str(exc)) from None
     except QueryError as exc:
-        _query_error(exc)
+        _query_error(exc, "describe")
     if comment:
         click.echo(f"{table}: {comment}\n")
     rows = [(c["column"], c["type"], c["unit"] or "", c["comment"] or "") for c in cols]
@@ -207,7 +207,7 @@ def plot(run_id, warehouse, channels, output):
     except FileNotFoundError as exc:
         raise click.UsageError(str(exc)) from None
     except QueryError as exc:
-        _query_error(exc)
+        _query_error(exc, "plot")
 
 
 @main.command()
@@ -223,7 +223,7 @@ def figures(warehouse, output):
     except FileNotFoundError as exc:
         raise click.UsageError(str(exc)) from None
     except QueryError as exc:
-        _query_error(exc)
+        _query_error(exc, "figures")
     for path, caption in copied:
         click.echo(f"{path}  {caption}".rstrip())
     if not copied:

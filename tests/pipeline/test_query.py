@@ -656,3 +656,23 @@ def test_spill_files_are_capped_by_the_temp_limit(built):
     # the same sort within a cap it fits: it spills and finishes
     res = _cli_process(built, sql, "--memory-limit", "100MB", "--temp-limit", "2GB", "--format", "csv")
     assert res.returncode == 0 and res.stdout == "m\n9999999\n", res.stderr
+
+
+# ---------------------------------------------------------------------------------------------
+# Issue 25: each command names itself in its errors (item 8); one record per block when a table
+# does not fit the terminal (item 14)
+
+
+def test_describe_plot_and_figures_errors_name_their_command(built, long_run, tmp_path):
+    res = CliRunner().invoke(main, ["describe", "runz", "--warehouse", str(built)])
+    assert res.exit_code == 2 and res.stderr.startswith("pneubench describe: no table"), res.stderr
+    res = CliRunner().invoke(main, ["plot", "c/lung", "--warehouse", str(long_run), "-o", str(tmp_path / "a.png")])
+    assert res.exit_code == 2 and res.stderr.startswith("pneubench plot: no run 'c/lung'"), res.stderr
+    (tmp_path / "secret.png").write_bytes(b"secret")
+    wh = _figures_warehouse(tmp_path, [("x", "evil", "../secret.png", "")])
+    res = CliRunner().invoke(main, ["figures", "--warehouse", str(wh), "-o", str(tmp_path / "out")])
+    assert res.exit_code == 2 and res.stderr.startswith("pneubench figures: "), res.stderr
+    assert "not a file of the warehouse" in res.stderr
+    # the query command still names itself
+    res = _cli(built, "SELECT * FROM runz")
+    assert res.exit_code == 3 and res.stderr.startswith("pneubench query: ")
