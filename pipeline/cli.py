@@ -93,10 +93,13 @@ def _query_error(exc, command: str = "query") -> None:
 @click.option("-f", "--file", "sql_file", type=click.File("r", encoding="utf-8"), metavar="FILE",
               help="Read the SQL from FILE (- : stdin).")
 @warehouse_option
-@click.option("--format", "fmt", type=click.Choice(["table", "csv", "json", "markdown"]), default="table",
-              show_default=True, help="csv/json/markdown stream every row; table shows the first --max-rows.")
+@click.option("--format", "fmt", type=click.Choice(["auto", "table", "line", "csv", "json", "markdown"]),
+              default="auto", show_default=True,
+              help="csv/json/markdown stream every row; table shows the first --max-rows; line shows them one "
+                   "record per block (name | value); auto: table, or line when the table would wrap a column "
+                   "narrower than its header or 10 characters.")
 @click.option("--max-rows", type=click.IntRange(min=0), default=100, show_default=True,
-              help="Rows the table format shows (0: all); it says how many more there are.")
+              help="Rows the table and line formats show (0: all); they say how many more there are.")
 @click.option("--max-width", type=click.IntRange(min=0), default=None,
               help="Widest a table column gets before its cells wrap (default: fit the terminal; 0: never wrap).")
 @click.option("--csv-safe", is_flag=True,
@@ -132,7 +135,7 @@ def query(sql, sql_file, warehouse, fmt, max_rows, max_width, csv_safe, timeout_
         with open_query(warehouse, text, arrow=fmt == "csv", timeout_s=timeout_s, memory_limit=memory_limit,
                         temp_limit=temp_limit) as result:  # pyarrow only to stream CSV
             out = sys.stdout
-            width = terminal_width() if fmt == "table" and max_width is None else None
+            width = terminal_width() if fmt in ("auto", "table", "line") and max_width is None else None
             write_result(result, out, fmt, max_rows=max_rows, width=width, max_width=max_width, csv_safe=csv_safe)
             out.flush()
     except FileNotFoundError as exc:
