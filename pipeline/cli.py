@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import logging
+import os
 import sys
 from pathlib import Path
 
@@ -26,6 +27,9 @@ jobs_option = click.option("--jobs", type=click.IntRange(min=1), default=None,
 def main():
     """pneubench: bench exports in, DuckDB warehouse and durability analytics out."""
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(message)s")
+    # distributed sets its own loggers to INFO when imported (a private cluster's start and stop
+    # are 33 lines); warnings only, like ours, unless the user configured dask otherwise
+    os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "warning")
 
 
 @main.command()
