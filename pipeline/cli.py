@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import logging
+import os
 import signal
 import sys
 from contextlib import contextmanager
@@ -60,6 +61,9 @@ def _interruptible(command: str):
 def main():
     """pneubench: bench exports in, DuckDB warehouse and durability analytics out."""
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(message)s")
+    # distributed sets its own loggers to INFO when imported (a private cluster's start and stop
+    # are 33 lines); warnings only, like ours, unless the user configured dask otherwise
+    os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "warning")
 
 
 @main.command()
@@ -108,23 +112,23 @@ def rebuild(raw, warehouse, jobs, full, quiet, executor, scheduler, wait_s, no_r
     sys.exit(summary.exit_code)
 
 
-def _query_error(exc) -> None:
-    """Print a refused or failed query and exit: 2 refused/usage, 3 failed."""
+def _query_error(exc, command: str = "query") -> None:
+    """Print a refused or failed query and exit: 2 refused/usage, 3 failed; the line names ``command``."""
     import duckdb
 
     from pipeline.query import QueryError, QueryLimitError
 
     if isinstance(exc, QueryLimitError):  # a limit of the door: one line naming it
-        click.echo(f"pneubench query: {exc}", err=True)
+        click.echo(f"pneubench {command}: {exc}", err=True)
         sys.exit(3)
     if isinstance(exc, QueryError):
-        click.echo(f"pneubench query: {exc}", err=True)
+        click.echo(f"pneubench {command}: {exc}", err=True)
         sys.exit(2)
     if isinstance(exc, duckdb.PermissionException):  # a way out of the door: one line
-        click.echo(f"pneubench query: {str(exc).splitlines()[0]} (only the warehouse's tables and samples)",
+        click.echo(f"pneubench {command}: {str(exc).splitlines()[0]} (only the warehouse's tables and samples)",
                    err=True)
         sys.exit(3)
-    click.echo(f"pneubench query: {str(exc).rstrip()}", err=True)  # DuckDB's whole message (hints)
+    click.echo(f"pneubench {command}: {str(exc).rstrip()}", err=True)  # DuckDB's whole message (hints)
     sys.exit(3)
 
 
@@ -133,10 +137,13 @@ def _query_error(exc) -> None:
 @click.option("-f", "--file", "sql_file", type=click.File("r", encoding="utf-8"), metavar="FILE",
               help="Read the SQL from FILE (- : stdin).")
 @warehouse_option
-@click.option("--format", "fmt", type=click.Choice(["table", "csv", "json", "markdown"]), default="table",
-              show_default=True, help="csv/json/markdown stream every row; table shows the first --max-rows.")
+@click.option("--format", "fmt", type=click.Choice(["auto", "table", "line", "csv", "json", "markdown"]),
+              default="auto", show_default=True,
+              help="csv/json/markdown stream every row; table shows the first --max-rows; line shows them one "
+                   "record per block (name | value); auto: table, or line when the table would wrap a column "
+                   "narrower than its header or 10 characters.")
 @click.option("--max-rows", type=click.IntRange(min=0), default=100, show_default=True,
-              help="Rows the table format shows (0: all); it says how many more there are.")
+              help="Rows the table and line formats show (0: all); they say how many more there are.")
 @click.option("--max-width", type=click.IntRange(min=0), default=None,
               help="Widest a table column gets before its cells wrap (default: fit the terminal; 0: never wrap).")
 @click.option("--csv-safe", is_flag=True,
@@ -172,7 +179,7 @@ def query(sql, sql_file, warehouse, fmt, max_rows, max_width, csv_safe, timeout_
         with open_query(warehouse, text, arrow=fmt == "csv", timeout_s=timeout_s, memory_limit=memory_limit,
                         temp_limit=temp_limit) as result:  # pyarrow only to stream CSV
             out = sys.stdout
-            width = terminal_width() if fmt == "table" and max_width is None else None
+            width = terminal_width() if fmt in ("auto", "table", "line") and max_width is None else None
             write_result(result, out, fmt, max_rows=max_rows, width=width, max_width=max_width, csv_safe=csv_safe)
             out.flush()
     except FileNotFoundError as exc:
@@ -220,7 +227,7 @@ def describe(table, warehouse, max_width):
     except FileNotFoundError as exc:
         raise click.UsageError(str(exc)) from None
     except QueryError as exc:
-        _query_error(exc)
+        _query_error(exc, "describe")
     if comment:
         click.echo(f"{table}: {comment}\n")
     rows = [(c["column"], c["type"], c["unit"] or "", c["comment"] or "") for c in cols]
@@ -247,7 +254,7 @@ def plot(run_id, warehouse, channels, output):
     except FileNotFoundError as exc:
         raise click.UsageError(str(exc)) from None
     except QueryError as exc:
-        _query_error(exc)
+        _query_error(exc, "plot")
 
 
 @main.command()
@@ -263,7 +270,7 @@ def figures(warehouse, output):
     except FileNotFoundError as exc:
         raise click.UsageError(str(exc)) from None
     except QueryError as exc:
-        _query_error(exc)
+        _query_error(exc, "figures")
     for path, caption in copied:
         click.echo(f"{path}  {caption}".rstrip())
     if not copied:

@@ -174,12 +174,42 @@ def resolve_metadata(rig: dict, embedded: dict, manifest: dict, campaign: str, p
     except ValueError as exc:
         raise IngestError(f"metadata {exc}") from None
     if meta.get("kind") is None:
-        raise IngestError("missing metadata `kind` (one of " + ", ".join(KINDS) + ")")
+        raise IngestError("missing metadata `kind` (one of " + ", ".join(KINDS) + "): " + _where_kind_goes(path))
     if "started_at" in meta:
         meta["started_at"] = parse_started_at(meta["started_at"])
     for k, v in list(meta.items()):
         meta[k] = _jsonable(v)
     return meta
+
+
+#: Where a file of each format carries its own metadata (docs/bench-exports.md, docs/formats.md),
+#: as an example declaring ``kind``.
+_EMBEDDED_KIND = {
+    **dict.fromkeys((".csv", ".txt"), "CSV: a `# kind: step` line above the header"),
+    ".lvm": "LVM: `kind=step` in the header's Description",
+    ".tdms": "TDMS: a root property `kind` = `step`",
+    ".mat": "MAT: a struct `meta` with `meta.kind = 'step'`",
+    **dict.fromkeys((".xlsx", ".xlsm", ".xls", ".ods"), "Excel: a `# kind: step` cell above the header, or a "
+                                                        "`meta` sheet row `kind | step`"),
+    **dict.fromkeys((".mf4", ".mdf"), "MDF: `kind=step` in the header comment"),
+}
+
+
+def _where_kind_goes(path: Path) -> str:
+    """The three places a run's ``kind`` can be declared, each with a one-line example (the
+    manifest row names this file)."""
+    import csv
+    import io
+
+    name = display_name(path.name)
+    if not name.isprintable():
+        name = "run01" + path.suffix
+    row = io.StringIO()
+    csv.writer(row, lineterminator="").writerow([name, "step"])
+    own = _EMBEDDED_KIND.get(path.suffix.lower())
+    return ("declare it in " + (f"the file's own metadata ({own}), " if own else "the file's own metadata, ")
+            + f"a manifest.csv row (`file,kind` then `{row.getvalue()}`) or rig.toml (`[metadata]` then "
+              '`kind = "step"`)')
 
 
 def _kind_uses(kind, key) -> bool:

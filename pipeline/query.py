@@ -229,7 +229,11 @@ def _plain(v):
 BATCH_ROWS = 65_536
 #: Rows the ``table`` format shows by default (it says how many more there are).
 MAX_ROWS = 100
-FORMATS = ("table", "csv", "json", "markdown")
+FORMATS = ("auto", "table", "line", "csv", "json", "markdown")
+#: ``auto`` shows one record per block (``line``) when fitting the table to the terminal would wrap
+#: a column narrower than its header or than this many characters (or than its natural width,
+#: when that is less): below it, a cell becomes a tower of fragments nobody can read.
+NARROWEST = 10
 
 
 @dataclass
@@ -589,8 +593,11 @@ def format_table(columns: list[str], types: list[str], rows: list[tuple], n_tota
 
 
 def write_table(result: Result, out: IO[str], max_rows: int = MAX_ROWS, width: int | None = None,
-                max_width: int | None = None) -> int:
-    """Write the first ``max_rows`` rows (0: all) as a table and count the rest. Returns all rows."""
+                max_width: int | None = None, auto: bool = False) -> int:
+    """Write the first ``max_rows`` rows (0: all) as a table and count the rest. Returns all rows.
+
+    ``auto``: one record per block instead (:func:`format_records`) when the table does not fit
+    ``width`` (:func:`table_squashed`)."""
     shown: list[tuple] = []
     n = 0
     if result.cursor is not None and max_rows:  # only the rows shown become Python values
@@ -598,14 +605,109 @@ def write_table(result: Result, out: IO[str], max_rows: int = MAX_ROWS, width: i
         n = len(shown)
         if n == max_rows and result.cursor.fetchmany(1):
             n += 1 + _count_rest(result.cursor)
-        out.write(format_table(result.columns, result.types, shown, n, width, max_width) + "\n")
+        out.write(_table_or_records(result, shown, n, width, max_width, auto) + "\n")
         return n
     for rows in _row_batches(result):
         if not max_rows or len(shown) < max_rows:
             shown += rows[: (max_rows - len(shown)) if max_rows else None]
         n += len(rows)
-    out.write(format_table(result.columns, result.types, shown, n, width, max_width) + "\n")
+    out.write(_table_or_records(result, shown, n, width, max_width, auto) + "\n")
     return n
+
+
+def _table_or_records(result: Result, shown: list[tuple], n: int, width: int | None, max_width: int | None,
+                      auto: bool) -> str:
+    if auto and table_squashed(result.columns, shown, width, max_width):
+        return format_records(result.columns, shown, n, width, max_width)
+    return format_table(result.columns, result.types, shown, n, width, max_width)
+
+
+def table_squashed(columns: list[str], rows: list[tuple], width: int | None, max_width: int | None = None) -> bool:
+    """Whether :func:`format_table` fitting ``rows`` into ``width`` wraps a column narrower than
+    its header or than :data:`NARROWEST` characters (or than its natural width, when that is
+    less). Never when nothing limits the width, ``max_width`` is 0 (never wrap) or there are no rows."""
+    if width is None or max_width == 0 or not rows or not columns:
+        return False
+    body = [[_table_cell(v) for v in r] for r in rows]
+    natural = [max([len(c)] + [max((len(x) for x in b[i].splitlines()), default=0) for b in body])
+               for i, c in enumerate(columns)]
+    natural = [min(w, max_width) if max_width else w for w in natural]
+    widths = fit_widths(natural, width, max_width or None)
+    return any(w < min(nat, max(len(c), NARROWEST)) for w, nat, c in zip(widths, natural, columns))
+
+
+def _value_width(columns: list[str], width: int | None, max_width: int | None) -> int | None:
+    """Width a value of :func:`format_records` wraps at: ``max_width``, else what the terminal
+    leaves beside the names (at least :data:`NARROWEST`); None: never wrap."""
+    if max_width == 0:
+        return None
+    if max_width:
+        return max_width
+    if width is None:
+        return None
+    return max(width - max((len(c) for c in columns), default=0) - 3, NARROWEST)
+
+
+def _record(k: int, columns: list[str], row: tuple, value_width: int | None) -> str:
+    """Record ``k`` as psql's expanded display: a ``-[ RECORD k ]---`` line, then ``name | value``
+    lines; a long or multi-line value continues on lines of its own under the ``|``, wrapped at
+    spaces only: a longer word (a hash, a path) stays whole on its line, to be copied."""
+    name_w = max((len(c) for c in columns), default=0)
+    lines = []
+    for c, v in zip(columns, row):
+        text = _table_cell(v)
+        parts = [line for part in text.splitlines() or [""]  # a word (hash, path, id) stays whole to copy
+                 for line in (textwrap.wrap(part, value_width, break_long_words=False, break_on_hyphens=False)
+                              if value_width and len(part) > value_width else [part]) or [""]]
+        lines += [f"{c if i == 0 else '':<{name_w}} | {part}".rstrip() for i, part in enumerate(parts)]
+    label = f"-[ RECORD {k} ]"
+    rule = max((len(x) for x in lines), default=0)
+    if value_width:
+        rule = min(rule, name_w + 3 + value_width)  # an overlong word does not stretch the rule
+    return "\n".join([label.ljust(rule, "-")] + lines)
+
+
+def _rows_footer(shown: int, total: int) -> str:
+    if total > shown:
+        return (f"({shown} of {total} rows shown, {total - shown} more: --max-rows 0 shows all, "
+                "--format csv streams them)")
+    return f"({total} row{'s' if total != 1 else ''})"
+
+
+def format_records(columns: list[str], rows: list[tuple], n_total: int | None = None, width: int | None = None,
+                   max_width: int | None = None) -> str:
+    """One record per block (psql's expanded display), for results too wide for a table.
+
+    ``width``: the terminal's, long values wrap within what the names leave of it; ``max_width``
+    caps a value's line (0: never wrap); ``n_total`` as for :func:`format_table`."""
+    vw = _value_width(columns, width, max_width)
+    out = [_record(k, columns, r, vw) for k, r in enumerate(rows, 1)]
+    return "\n".join(out + [_rows_footer(len(rows), len(rows) if n_total is None else n_total)])
+
+
+def write_line(result: Result, out: IO[str], max_rows: int = MAX_ROWS, width: int | None = None,
+               max_width: int | None = None) -> int:
+    """Stream the first ``max_rows`` rows (0: all) one record per block (:func:`format_records`)
+    and count the rest; memory holds one batch. Returns all rows."""
+    vw = _value_width(result.columns, width, max_width)
+    shown = total = 0
+    if result.cursor is not None and max_rows:  # only the rows shown become Python values
+        batches = iter([result.cursor.fetchmany(max_rows)])
+    else:
+        batches = _row_batches(result)
+    for rows in batches:
+        for r in rows if not max_rows else rows[: max(max_rows - shown, 0)]:
+            shown += 1
+            out.write(_record(shown, result.columns, r, vw) + "\n")
+        total += len(rows)
+        if max_rows and shown >= max_rows:
+            if result.cursor is not None:
+                total += _count_rest(result.cursor)
+            else:
+                total += sum(len(rows) for rows in batches)
+            break
+    out.write(_rows_footer(shown, total) + "\n")
+    return total
 
 
 def write_result(result: Result, out: IO[str], fmt: str = "table", max_rows: int = MAX_ROWS,
@@ -619,8 +721,10 @@ def write_result(result: Result, out: IO[str], fmt: str = "table", max_rows: int
         return write_json(result, out)
     if fmt == "markdown":
         return write_markdown(result, out)
-    if fmt == "table":
-        return write_table(result, out, max_rows, width, max_width)
+    if fmt in ("table", "auto"):
+        return write_table(result, out, max_rows, width, max_width, auto=fmt == "auto")
+    if fmt == "line":
+        return write_line(result, out, max_rows, width, max_width)
     raise ValueError(f"unknown format {fmt!r}")
 
 

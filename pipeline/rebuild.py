@@ -132,12 +132,16 @@ def _crash_point(name: str, sig: int = signal.SIGKILL) -> None:
 
 
 @contextmanager
-def warehouse_lock(warehouse: Path, wait_s: float = 0.0):
+def warehouse_lock(warehouse: Path, wait_s: float = 0.0, on_wait=None):
     """Hold the warehouse's rebuild lock; a second rebuild waits ``wait_s`` then gives up.
 
     ``flock`` on ``.rebuild.lock``: the kernel releases it when the holder dies, even by
-    ``kill -9`` (worker processes are started by a fork server and do not inherit it).
+    ``kill -9`` (worker processes are started by a fork server and do not inherit it). The
+    holder writes ``<pid> on <host> since <time>`` into it; ``on_wait(text)`` is called once,
+    naming the holder, when a rebuild starts waiting for it.
     """
+    import socket
+
     lock_path = Path(warehouse) / ".rebuild.lock"
     try:
         fh = open(lock_path, "a+")
@@ -149,18 +153,22 @@ def warehouse_lock(warehouse: Path, wait_s: float = 0.0):
             fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
             break
         except BlockingIOError:
+            fh.seek(0)
+            holder = fh.read().strip() or "unknown"
             if time.monotonic() >= deadline:
-                fh.seek(0)
-                holder = fh.read().strip() or "unknown"
                 fh.close()
                 waited = f" after waiting {wait_s:g} s" if wait_s > 0 else ""
                 raise RebuildError(f"another rebuild is running on {warehouse} (pid {holder}){waited}; "
                                    "try again when it has finished, or use --wait SECONDS", EXIT_LOCKED) from None
+            if on_wait is not None:
+                on_wait(f"waiting up to {wait_s:g} s for another rebuild of {warehouse} to finish (pid {holder})")
+                on_wait = None
             time.sleep(0.1)
     try:
         fh.seek(0)
         fh.truncate()
-        fh.write(str(os.getpid()))
+        since = datetime.now(timezone.utc).astimezone().isoformat(timespec="seconds")
+        fh.write(f"{os.getpid()} on {socket.gethostname()} since {since}")
         fh.flush()
         yield fh
     finally:
@@ -1164,7 +1172,7 @@ def rebuild(raw: str | Path, warehouse: str | Path, jobs: int | None = None, ful
     generation = _generation()
     summary = RebuildSummary(raw=raw, warehouse=warehouse, generation=generation,
                              mode="full" if full else "incremental")
-    with warehouse_lock(warehouse, lock_wait_s) as lock:
+    with warehouse_lock(warehouse, lock_wait_s, progress.message) as lock:
         live = _live_database(warehouse)
         try:
             return _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, report,

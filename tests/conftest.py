@@ -196,3 +196,14 @@ def _raw_guard_per_test(request, monkeypatch):
         monkeypatch.setattr(rb, "rebuild", guarded)
     for mod in _holders(original):
         monkeypatch.setattr(mod, "rebuild", guarded)
+
+
+def segfault() -> None:
+    """Crash this process with SIGSEGV, as a reader's C code does, without the dump of
+    faulthandler: pytest enables it and a forked worker inherits it, writing past the capture
+    to the terminal ("Fatal Python error: Segmentation fault" and every thread's stack)."""
+    import faulthandler
+    import signal
+
+    faulthandler.disable()
+    os.kill(os.getpid(), signal.SIGSEGV)

@@ -69,3 +69,40 @@ def test_an_empty_raw_tree_exits_2_naming_the_count_unless_allowed_by_flag_or_en
     runner.invoke(main, [*args, "--raw", str(raw.root)])
     res = runner.invoke(main, [*args, "--raw", str(empty), "--allow-mass-delete"])
     assert res.exit_code == 0, res.output
+
+
+def _pneubench(*args, timeout=300, memory=6 << 30, env=None):
+    """``pneubench ARGS`` in a child process under an address-space limit."""
+    import os
+    import resource
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    def limit():
+        resource.setrlimit(resource.RLIMIT_AS, (memory, memory))
+
+    code = "import sys; sys.argv[0] = 'pneubench'; from pipeline.cli import main; main()"
+    return subprocess.run([sys.executable, "-c", code, *map(str, args)], capture_output=True, text=True,
+                          timeout=timeout, preexec_fn=limit,
+                          env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2]), **(env or {})})
+
+
+def test_quiet_dask_rebuild_prints_nothing(raw, warehouse):
+    """distributed's INFO chatter (33 lines: scheduler, nannies, workers, clients) is not the
+    rebuild's output; its warnings still are, and DASK_LOGGING__DISTRIBUTED=info brings it back."""
+    import pytest
+
+    pytest.importorskip("distributed")
+    from tests.conftest import raw_snapshot
+
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    before = raw_snapshot(raw.root)
+    res = _pneubench("rebuild", "-q", "--executor", "dask", "--jobs", "1", "--no-report", "--raw", raw.root,
+                     "--warehouse", warehouse)
+    assert res.returncode == 0, res.stderr
+    assert res.stderr == "" and res.stdout == ""
+    assert raw_snapshot(raw.root) == before
+    res = _pneubench("rebuild", "-q", "--executor", "dask", "--jobs", "1", "--no-report", "--full",
+                     "--raw", raw.root, "--warehouse", warehouse, env={"DASK_LOGGING__DISTRIBUTED": "info"})
+    assert res.returncode == 0 and "Scheduler at:" in res.stderr

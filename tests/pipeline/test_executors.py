@@ -88,10 +88,11 @@ def pid_of(x):
 
 def segfault_on_3(x):
     import os
-    import signal
+
+    from tests.conftest import segfault
 
     if x == 3:
-        os.kill(os.getpid(), signal.SIGSEGV)  # a reader crashing in C code
+        segfault()  # a reader crashing in C code
     return x, os.getpid()
 
 
@@ -191,3 +192,23 @@ def test_a_segfaulting_item_gets_on_crash_and_the_others_their_results(jobs):
 
     with LocalExecutor(2) as ex, pytest.raises(BrokenProcessPool):
         ex.map(segfault_on_3, list(range(8)))
+
+
+def test_a_deliberately_crashed_worker_prints_no_fatal_error_dump():
+    """pytest enables faulthandler and a forked worker inherits it, writing past the capture: the
+    crash tests crash without it (``segfault``), and the crash is still reported."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = ("from pipeline.executors import LocalExecutor\n"
+            "from tests.pipeline.test_executors import crashed, segfault_on_3\n"
+            "with LocalExecutor(1) as ex:\n"
+            "    print(ex.map(segfault_on_3, [2, 3], on_crash=crashed)[1])\n")
+    root = str(Path(__file__).resolve().parents[2])
+    res = subprocess.run([sys.executable, "-X", "faulthandler", "-c", code], capture_output=True, text=True,
+                         timeout=120, cwd=root, env={**os.environ, "PYTHONPATH": root})
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip() == str((3, "crashed: " + CRASH_REASON))
+    assert "Fatal Python error" not in res.stderr and res.stderr == ""

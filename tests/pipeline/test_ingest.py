@@ -678,3 +678,57 @@ def test_q_mat_scalar_rate_outside_the_sample_rate_range(raw, warehouse):
                                   "meta": {"kind": "step", "rig": "r", "started_at": "2026-01-01"}})
     assert quarantine(raw, warehouse, "c/a.mat").startswith(
         "MAT scalar `dt` = 1e-12 s is outside its plausible range 1e-09 to 10000 s (")
+
+
+# -- issue 25 item 16: a file without `kind` says where to declare it ---------------------------
+def _foreign_lvm_without_kind(raw):
+    """The foreign campaign's 1 um encoder run, as LabVIEW wrote it, with no `kind` anywhere:
+    not in the LVM's Description, not in its lab's rig.toml, no manifest."""
+    from pipeline.simulator.foreign import CAMPAIGN, RIG_TOMLS, plan, simulate
+    from pipeline.simulator.writers import ColumnOut, write_lvm
+
+    run = next(r for r in plan() if r.fmt == "lvm")
+    sim = simulate(run, 1)
+    cols = [ColumnOut(c, c.rsplit("_", 1)[0], u) for c, u in run.units.items()]
+    meta = {k: v for k, v in sim.metadata.items() if k not in ("rig", "hose_area_m2", "kind")}  # as write_run
+    meta = {"run_id": run.run_id, "started_at": "2026-02-02T09:00:00", "operator": "guest", **meta}
+    path = raw.root / run.rel_path
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_lvm(path, sim.data, cols, meta, fs_hz=run.sim["fs_hz"])
+    raw.write(f"{CAMPAIGN}/{run.folder}/rig.toml", RIG_TOMLS[f"{run.folder}/rig.toml"], dedent=False)
+    return run
+
+
+def test_missing_kind_says_where_to_declare_it_and_each_way_works(raw, warehouse):
+    from pipeline.rebuild import rebuild
+    from pipeline.simulator.foreign import CAMPAIGN, RIG_TOMLS
+
+    run = _foreign_lvm_without_kind(raw)
+    (p,) = rebuild(raw.root, warehouse, jobs=1, report=False).quarantine
+    assert p.source_path == run.rel_path and "\n" not in p.error
+    assert p.error.startswith("missing metadata `kind` (one of ")
+    # the three places, each with its one-line example, the manifest row naming this very file
+    assert "`kind=viscous`" not in p.error  # an example, not a guess of this run's kind
+    assert "the file's own metadata (LVM: `kind=step` in the header's Description)" in p.error
+    assert "a manifest.csv row (`file,kind` then `encoder-1um.lvm,step`)" in p.error
+    assert "rig.toml (`[metadata]` then `kind = \"step\"`)" in p.error
+    folder = f"{CAMPAIGN}/{run.folder}"
+    # as the manifest example says (with this run's kind): the run ingests
+    raw.write(f"{folder}/manifest.csv", "file,kind\nencoder-1um.lvm,viscous\n")
+    summary = rebuild(raw.root, warehouse, jobs=1, report=False)
+    assert summary.quarantine == [] and summary.exit_code == 0
+    # as the rig.toml example says: too
+    (raw.root / folder / "manifest.csv").unlink()
+    raw.write(f"{folder}/rig.toml", RIG_TOMLS[f"{run.folder}/rig.toml"].replace(
+        "[metadata]\n", '[metadata]\nkind = "viscous"\n'), dedent=False)
+    summary = rebuild(raw.root, warehouse, jobs=1, report=False)
+    assert summary.quarantine == [] and summary.exit_code == 0
+
+
+def test_missing_kind_in_a_csv_names_the_csv_comment_line(raw, warehouse):
+    raw.csv("c/run 01.csv", {"started_at": "2026-01-01", "rig": "r"}, {"t[s]": T})
+    err = quarantine(raw, warehouse, "c/run 01.csv")
+    assert "the file's own metadata (CSV: a `# kind: step` line above the header)" in err
+    assert "(`file,kind` then `run 01.csv,step`)" in err
+    raw.write("c/a,b.csv", "# rig: r\nt[s]\n0\n")  # a name the CSV row must quote
+    assert '(`file,kind` then `"a,b.csv",step`)' in quarantine(raw, warehouse, "c/a,b.csv")

@@ -656,3 +656,93 @@ def test_spill_files_are_capped_by_the_temp_limit(built):
     # the same sort within a cap it fits: it spills and finishes
     res = _cli_process(built, sql, "--memory-limit", "100MB", "--temp-limit", "2GB", "--format", "csv")
     assert res.returncode == 0 and res.stdout == "m\n9999999\n", res.stderr
+
+
+# ---------------------------------------------------------------------------------------------
+# Issue 25: each command names itself in its errors (item 8); one record per block when a table
+# does not fit the terminal (item 14)
+
+
+def test_describe_plot_and_figures_errors_name_their_command(built, long_run, tmp_path):
+    res = CliRunner().invoke(main, ["describe", "runz", "--warehouse", str(built)])
+    assert res.exit_code == 2 and res.stderr.startswith("pneubench describe: no table"), res.stderr
+    res = CliRunner().invoke(main, ["plot", "c/lung", "--warehouse", str(long_run), "-o", str(tmp_path / "a.png")])
+    assert res.exit_code == 2 and res.stderr.startswith("pneubench plot: no run 'c/lung'"), res.stderr
+    (tmp_path / "secret.png").write_bytes(b"secret")
+    wh = _figures_warehouse(tmp_path, [("x", "evil", "../secret.png", "")])
+    res = CliRunner().invoke(main, ["figures", "--warehouse", str(wh), "-o", str(tmp_path / "out")])
+    assert res.exit_code == 2 and res.stderr.startswith("pneubench figures: "), res.stderr
+    assert "not a file of the warehouse" in res.stderr
+    # the query command still names itself
+    res = _cli(built, "SELECT * FROM runz")
+    assert res.exit_code == 3 and res.stderr.startswith("pneubench query: ")
+
+
+def test_a_wide_result_shows_one_record_per_block_at_80_columns(built):
+    res = _cli(built, "SELECT * FROM runs ORDER BY run_id LIMIT 2", env={"COLUMNS": "80"})
+    assert res.exit_code == 0, res.stderr
+    lines = res.stdout.splitlines()
+    columns = run_query(built, "SELECT * FROM runs LIMIT 0")[0]
+    assert lines[0].startswith("-[ RECORD 1 ]") and sum(x.startswith("-[ RECORD ") for x in lines) == 2
+    name_w = max(len(c) for c in columns)
+    # lines fit 80 columns; only a single word longer than the room (a hash, a path) stays whole
+    assert all(len(x) <= 80 or " " not in x.split(" | ", 1)[1] for x in lines)
+    sha = run_query(built, "SELECT source_sha256 FROM runs WHERE run_id = 'c/a'")[1][0][0]
+    assert f"{'source_sha256':<{name_w}} | {sha}" in lines
+    # every column is one `name | value` line of each record (a long value continues below it)
+    for c in columns:
+        assert sum(x.startswith(f"{c:<{name_w}} | ") for x in lines) == 2, c
+    assert f"{'run_id':<{name_w}} | c/a" in lines and f"{'kind':<{name_w}} | step" in lines
+    assert lines[-1] == "(2 rows)"
+    assert len(lines) < 4 * len(columns)  # was 107 lines for two rows, every cell in a 6-character column
+
+
+def test_a_result_that_fits_stays_a_table_and_the_format_can_be_forced(built):
+    sql = "SELECT run_id, kind, n_samples FROM runs ORDER BY run_id"
+    res = _cli(built, sql, env={"COLUMNS": "80"})
+    assert res.stdout.splitlines()[0].split() == ["run_id", "kind", "n_samples"]
+    res = _cli(built, sql, "--format", "line", env={"COLUMNS": "80"})
+    assert res.stdout.splitlines()[:4] == ["-[ RECORD 1 ]---", "run_id    | c/a", "kind      | step",
+                                           "n_samples | 4"]
+    # --format table asked for by name is a table, wrapped to the terminal however narrow
+    res = _cli(built, "SELECT * FROM runs ORDER BY run_id LIMIT 2", "--format", "table", env={"COLUMNS": "80"})
+    assert res.stdout.splitlines()[0].split()[:2] == ["run_id", "kind"] and "RECORD" not in res.stdout
+    # never wrapping (--max-width 0) or a cap of the user's: a table too
+    res = _cli(built, "SELECT * FROM runs ORDER BY run_id LIMIT 2", "--max-width", "0", env={"COLUMNS": "80"})
+    assert "RECORD" not in res.stdout and len(res.stdout.splitlines()) == 5
+
+
+def test_line_format_counts_the_rows_it_does_not_show_and_wraps_long_values(built):
+    res = _cli(built, "SELECT run_id FROM runs ORDER BY run_id", "--format", "line", "--max-rows", "1")
+    assert res.exit_code == 0
+    assert res.stdout.splitlines() == ["-[ RECORD 1 ]", "run_id | c/a",
+                                       "(1 of 2 rows shown, 1 more: --max-rows 0 shows all, --format csv streams them)"]
+    res = _cli(built, f"SELECT '{LONG.strip()}' AS notes, NULL AS nothing, 'a\nb' AS two", "--format", "line",
+               env={"COLUMNS": "40"})
+    lines = res.stdout.splitlines()
+    assert max(len(x) for x in lines) <= 40 and lines[1].startswith("notes   | word")
+    assert all(x.startswith("notes   | ") or x.startswith("        | ") for x in lines[1:-4])
+    assert " ".join(lines).split().count("word") == 60  # wrapped, nothing cut
+    assert lines[-4:] == ["nothing | NULL", "two     | a", "        | b", "(1 row)"]
+
+
+def test_line_format_streams_records_as_they_come():
+    from pipeline.query import Result, write_result
+
+    fetched = []
+
+    def batches():
+        for k in range(3):
+            fetched.append(k)
+            yield [(k, "x" * 5)]
+
+    out = io.StringIO()
+
+    class Spy(io.StringIO):
+        def write(self, s):
+            if "RECORD 1 " in s:
+                assert fetched == [0]  # written before the next batch is read
+            return out.write(s)
+
+    n = write_result(Result(["i", "s"], ["INTEGER", "VARCHAR"], batches()), Spy(), "line", max_rows=0)
+    assert n == 3 and out.getvalue().count("-[ RECORD") == 3 and out.getvalue().endswith("(3 rows)\n")

@@ -281,16 +281,16 @@ def test_a_reader_that_segfaults_with_one_job_quarantines_its_file_and_the_rest_
     # a 1-core server is --jobs 1: the reader still runs in a worker process, so a segfault in
     # C code (scipy's loadmat on a corrupt MAT file did this) costs one file, not the rebuild
     import os
-    import signal
 
     import pipeline.ingest as ing
     from pipeline.rebuild import CRASHED
+    from tests.conftest import segfault
 
     real = ing.read_export
 
     def reader(path, *a, **k):
         if "segv" in os.path.basename(path):
-            os.kill(os.getpid(), signal.SIGSEGV)
+            segfault()
         return real(path, *a, **k)
 
     monkeypatch.setattr(ing, "read_export", reader)

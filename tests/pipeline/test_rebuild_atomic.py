@@ -534,3 +534,35 @@ def test_files_past_their_retention_are_collected_before_the_database_is_written
     assert s.exit_code == 0 and s.mode == ("no-op" if noop else "incremental")
     assert state(warehouse)[0] == (("c/a", "c/b") if noop else ("c/a", "c/b", "c/c"))
     assert not any(p.exists() for p in old_b)
+
+
+def test_a_waiting_rebuild_says_once_whose_lock_it_waits_for(raw, warehouse):
+    """--wait names the holder (pid, host, since when) once, when it starts waiting; a free lock
+    is taken without a word."""
+    import socket
+    import threading
+
+    step(raw, "c/a.csv")
+    warehouse.mkdir(parents=True)
+    held, release = threading.Event(), threading.Event()
+
+    def holder():
+        with warehouse_lock(warehouse):
+            held.set()
+            release.wait(60)
+
+    th = threading.Thread(target=holder)
+    th.start()
+    held.wait(30)
+    try:
+        res = cli_rebuild(raw.root, warehouse, "--wait", "1.5")
+    finally:
+        release.set()
+        th.join()
+    assert res.returncode == EXIT_LOCKED
+    who = f"pid {os.getpid()} on {socket.gethostname()} since "
+    waiting = [x for x in res.stderr.splitlines() if x.startswith("waiting")]
+    assert len(waiting) == 1 and who in waiting[0] and "up to 1.5 s" in waiting[0], res.stderr
+    assert who in res.stderr.splitlines()[-1] and "after waiting 1.5 s" in res.stderr.splitlines()[-1]
+    res = cli_rebuild(raw.root, warehouse, "--wait", "60")
+    assert res.returncode == 0 and "waiting up to" not in res.stderr, res.stderr
