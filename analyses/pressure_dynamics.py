@@ -594,8 +594,9 @@ def age_changes(fits: dict) -> dict[StepGroup, dict[str, float]]:
 
 def plot_pressure_ageing(table, title: str = ""):
     """``wn``, ``zeta`` and ``tau`` of every part against its age: one line per (rig, part,
-    chamber, direction), the part's ages in order; the x axis in hours of use when every plotted
-    row states them, else in km.
+    chamber, direction), the part's ages in order, each later age labelled with its change from
+    the youngest (``*_change_pct``, when the table has it); the x axis in hours of use when every
+    plotted row states them, else in km.
 
     Parameters
     ----------
@@ -628,9 +629,14 @@ def plot_pressure_ageing(table, title: str = ""):
             y = pd.to_numeric(grp[col], errors="coerce") * scale
             if y.notna().any():
                 rig, kind, part, chamber, direction = key
-                ax.plot(grp[xcol].to_numpy(float), y.to_numpy(float), marker="o",
-                        ls="-" if direction == "charge" else "--",
-                        label=f"{kind or 'part'} {part}, {chamber} {direction} ({rig})")
+                line, = ax.plot(grp[xcol].to_numpy(float), y.to_numpy(float), marker="o",
+                                ls="-" if direction == "charge" else "--",
+                                label=f"{kind or 'part'} {part}, {chamber} {direction} ({rig})")
+                change = f"{col.split('_')[0]}_change_pct"
+                for x, v, c in zip(grp[xcol], y, grp[change] if change in grp.columns else [None] * len(grp)):
+                    if c is not None and pd.notna(c) and pd.notna(v):   # the change from the youngest age
+                        ax.annotate(f"{c:+.1f} %", (float(x), float(v)), textcoords="offset points",
+                                    xytext=(-6, 6), ha="right", fontsize=7, color=line.get_color())
         ax.set_xlabel("age of the part [h]" if use_h else "distance run by the part [km]")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)

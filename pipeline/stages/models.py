@@ -38,6 +38,8 @@ TABLES = ("identification", "step_response", "spring_fits", "spring_tests", "spr
 TEXT_COLS = ("run_id", "chamber", "direction", "model", "note", "level", "campaign", "rig", "part_kind", "part_id")
 #: Identification runs drawn one figure each, at most (sorted by run_id).
 MAX_ID_FIGURES = 6
+#: Parts at one age drawn one step figure each, at most (in table order).
+MAX_PART_FIGURES = 6
 #: Steps drawn in the Fig. 15-like figure, at most.
 MAX_STEP_CURVES = 12
 
@@ -422,21 +424,42 @@ def _pressure_outputs(ctx, out, results):
     out.tables["pressure_steps"] = _frame(sorted(step_rows, key=lambda r: (r["run_id"], r["t_step_s"])), PSTEP_COLS)
     rigs = sorted({(g.campaign, g.rig, g.chamber) for g in grouped if g.level == "rig"})
     for campaign, rig, c in rigs:
-        cf = {d: fits[g] for g in grouped if g.level == "rig" and (g.campaign, g.rig, g.chamber) == (campaign, rig, c)
-              for d in (g.direction,) if grouped[g]}
+        mine = [g for g in grouped if g.level == "rig" and (g.campaign, g.rig, g.chamber) == (campaign, rig, c)]
+        cf = {g.direction: fits[g] for g in mine if grouped[g]}
         if any(f.ok for f in cf.values()):
             alone = sum(1 for r in rigs if r[2] == c) == 1
+            pla = alone and c in ("front", "rear")   # the paper's chambers: the figure they always had
             name = f"pressure_steps_{_slug(c)}" + ("" if alone else f"_{_slug(campaign)}_{_slug(rig)}")
-            out.draw(name, pdyn.plot_pressure_steps,
-                     [s for g in grouped if g.level == "rig" and (g.campaign, g.rig, g.chamber) == (campaign, rig, c)
-                      for s in grouped[g]], cf,
-                     title="" if alone else f"{c} chamber of {rig} ({campaign}): pressure after set-point steps, "
-                                            "experiment vs the chosen model (first order or Eq. 11)")
-            out.captions[name] = (f"{'PLA ' if alone else ''}{c} chamber{'' if alone else f' of {rig} ({campaign})'}: "
+            out.draw(name, pdyn.plot_pressure_steps, [s for g in mine for s in grouped[g]], cf,
+                     title="" if pla else f"{c} chamber of {rig} ({campaign}), every step of the rig pooled: "
+                                          "measured vs the chosen model (first order or Eq. 11)")
+            out.captions[name] = (f"{'PLA ' + c + ' chamber' if pla else f'{c} chamber of {rig} ({campaign})'}: "
                                   "pressure (bar gauge) after set-point steps, measured vs the "
                                   "model chosen per direction by BIC: first order or the second order of Eq. 11 "
-                                  "(seed 001, Fig. 14, Table 2), every step of the rig pooled. Grey: steps too small "
-                                  "for the pressure sensor.")
+                                  "(seed 001, Fig. 14, Table 2), every step of the rig pooled (level 'rig'). Grey: "
+                                  "steps too small for the pressure sensor.")
+    parts = sorted({(g.campaign, g.rig, g.chamber, g.part_kind, g.part_id, g.age_h, g.distance_km)
+                    for g in grouped if g.level == "part"}, key=lambda k: pdyn.StepGroup("part", *k[:3], "", *k[3:])
+                   .sort_key())
+    drawn = 0
+    for key in parts:
+        mine = [g for g in grouped if g.level == "part"
+                and (g.campaign, g.rig, g.chamber, g.part_kind, g.part_id, g.age_h, g.distance_km) == key]
+        cf = {g.direction: fits[g] for g in mine if grouped[g]}
+        if not any(f.ok for f in cf.values()) or drawn >= MAX_PART_FIGURES:
+            continue
+        drawn += 1
+        g0 = mine[0]
+        age = "_".join(x for x in (f"{g0.age_h:g}h" if g0.age_h is not None else "",
+                                   f"{g0.distance_km:g}km" if g0.distance_km is not None else "") if x)
+        name = f"pressure_steps_{_slug(g0.chamber)}_{_slug(g0.part_id)}" + (f"_{_slug(age)}" if age else "")
+        if name in out.figures:   # the same part at the same age on another rig or in another campaign
+            name += f"_{_slug(g0.campaign)}_{_slug(g0.rig)}"
+        label = _group_label(g0).split("; ", 1)[1].rstrip(")")
+        out.draw(name, pdyn.plot_pressure_steps, [s for g in mine for s in grouped[g]], cf,
+                 title=f"{g0.chamber} chamber, {label}: measured vs the chosen model (first order or Eq. 11)")
+        out.captions[name] = (f"{g0.chamber} chamber, {label}: pressure (bar gauge) after set-point steps, measured "
+                              "vs the model fitted to this part at this age alone (level 'part').")
     table = out.tables["pressure_dynamics"]
     aged = table[(table["level"] == "part") & (table["part_age_h"].notna() | table["part_distance_km"].notna())
                  & (table["wn_rad_s"].notna() | table["tau_s"].notna())]

@@ -318,5 +318,6 @@ def test_pressure_dynamics_per_part_and_age_beside_a_pooled_row_per_rig(valve_bu
 def test_pressure_figures_per_rig_and_the_ageing_figure(valve_built):
     wh, _, _ = valve_built
     figs = q(wh, "SELECT name, caption FROM figures WHERE stage = 'models' ORDER BY name")
-    assert figs["name"].tolist() == ["pressure_ageing", "pressure_steps_patient", "pressure_steps_rear"]
+    assert figs["name"].tolist() == ["pressure_ageing", "pressure_steps_patient", "pressure_steps_patient_V1_0h",
+                                     "pressure_steps_patient_V1_594h", "pressure_steps_rear"]
     assert "age" in figs["caption"].iloc[0]
