@@ -321,3 +321,23 @@ def test_pressure_figures_per_rig_and_the_ageing_figure(valve_built):
     assert figs["name"].tolist() == ["pressure_ageing", "pressure_steps_patient", "pressure_steps_patient_V1_0h",
                                      "pressure_steps_patient_V1_594h", "pressure_steps_rear"]
     assert "age" in figs["caption"].iloc[0]
+
+
+def test_hostile_chamber_and_part_names_are_stored_as_written_and_never_name_a_path(tmp_path):
+    """A chamber and valve named like paths and markup: stored as written, figure names slugged,
+    every figure inside the stage's folder."""
+    raw, wh = tmp_path / "raw", tmp_path / "warehouse"
+    chamber, valve = "../../evil <b>x</b>", "../V/1"
+    run = simulate_pressure_step(chamber, rng=70, levels_bar=PEEP_PIP, hold_s=1.0, wn=40.0, xi=VALVE[0][1],
+                                 noise_pa=5.0, valve_id=valve, age_h=3)
+    write_csv(raw / "h" / "a.csv", run.data, default_columns(run.data.columns, {"p": "mbar", "p_ref": "mbar"}),
+              {**run.metadata, "run_id": "h/a", "started_at": START})
+    summary = rebuild(raw, wh, jobs=1, report=False)
+    assert [p.error for p in summary.quarantine] == []
+    pdy = q(wh, "SELECT DISTINCT chamber, part_id FROM pressure_dynamics WHERE level = 'part'")
+    assert pdy.values.tolist() == [[chamber, valve]]
+    figs = q(wh, "SELECT name, path FROM figures WHERE stage = 'models' ORDER BY name")
+    assert figs["name"].tolist() == ["pressure_ageing", "pressure_steps_evil_b_x_b", "pressure_steps_evil_b_x_b_V_1_3h"]
+    for p in figs["path"]:
+        f = (wh / p).resolve()
+        assert f.is_relative_to((wh / "stages" / "models").resolve()) and f.read_bytes()[:4] == b"\x89PNG"
