@@ -594,7 +594,8 @@ def _summary_pressure(db: _DB) -> str:
         want = ["rig", "part_kind", "part_id", "chamber", "direction", "part_age_h", "part_distance_km", "model",
                 "wn_rad_s", "zeta", "tau_s", "wn_change_pct", "zeta_change_pct", "tau_change_pct", "n_steps", "note"]
         cols, prow = db.rows(f"SELECT {', '.join(want)} FROM pressure_dynamics WHERE level = 'part' ORDER BY rig, "
-                             "part_kind, part_id, chamber, direction, part_age_h NULLS LAST, part_distance_km NULLS LAST")
+                             "part_kind, part_id, chamber, direction, part_age_h NULLS LAST, "
+                             "part_distance_km NULLS LAST")
         if prow:
             html_out += ("<h4>Per part and age: pressure dynamics of each valve / hose under test, and the change "
                          "from its youngest age</h4>" + html_table(cols, prow, 40))

@@ -53,8 +53,8 @@ TEST_COLS = ["run_id", "chamber", "p0_bar_abs", "amplitude_mm", "frequency_hz", 
 ENERGY_COLS = ["run_id", "chamber", "p0_bar_abs", "amplitude_mm", "frequency_hz", "n_cycles", "loop_energy_j",
                "model_loop_energy_j", "structural_energy_j"]
 PD_COLS = ["chamber", "direction", "wn_rad_s", "zeta", "nrmse_pct", "n_steps", "tau_s", "model", "note", "level",
-           "campaign", "rig", "part_kind", "part_id", "part_age_h", "part_distance_km", "wn_change_pct", "zeta_change_pct",
-           "tau_change_pct", "campaigns", "n_runs"]
+           "campaign", "rig", "part_kind", "part_id", "part_age_h", "part_distance_km", "wn_change_pct",
+           "zeta_change_pct", "tau_change_pct", "campaigns", "n_runs"]
 PSTEP_COLS = ["run_id", "chamber", "direction", "t_step_s", "p_from_bar", "p_to_bar", "nrmse_pct", "p_start_bar",
               "note"]
 

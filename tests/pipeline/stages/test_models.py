@@ -272,7 +272,8 @@ def valve_built(tmp_path_factory):
     plain = simulate_pressure_step("patient", rng=62, levels_bar=PEEP_PIP, hold_s=1.0, wn=40.0,
                                    xi=VALVE[0][1], noise_pa=5.0)
     plain.metadata["rig"] = "vent"
-    write_csv(raw / "vent" / "plain.csv", plain.data, default_columns(plain.data.columns, {"p": "mbar", "p_ref": "mbar"}),
+    write_csv(raw / "vent" / "plain.csv", plain.data,
+              default_columns(plain.data.columns, {"p": "mbar", "p_ref": "mbar"}),
               {**plain.metadata, "run_id": "vent/plain", "started_at": START})
     _write(raw, "pstep_rear", simulate_pressure_step("rear", rng=7))
     summary = rebuild(raw, wh, jobs=1, report=False)
