@@ -580,17 +580,36 @@ def _summary_spring(db: _DB) -> str:
 
 
 def _summary_pressure(db: _DB) -> str:
-    rows = _q(db, "SELECT chamber, direction, wn_rad_s, zeta, nrmse_pct, n_steps FROM pressure_dynamics "
-                  "ORDER BY chamber, direction", "pressure_dynamics")
+    grouped = db.has("pressure_dynamics") and "level" in db.columns("pressure_dynamics")
+    # the paper's PLA chambers, one pooled row per rig (level 'rig'); other rigs' chambers are not the paper's
+    if grouped:
+        sql = ("SELECT chamber, direction, wn_rad_s, zeta, nrmse_pct, n_steps, rig, campaign FROM pressure_dynamics "
+               "WHERE level = 'rig' AND chamber IN ('front', 'rear') ORDER BY chamber, direction, campaign, rig")
+    else:
+        sql = ("SELECT chamber, direction, wn_rad_s, zeta, nrmse_pct, n_steps, NULL, NULL FROM pressure_dynamics "
+               "ORDER BY chamber, direction")
+    rows = _q(db, sql, "pressure_dynamics")
+    several = len({(r[6], r[7]) for r in rows}) > 1
     out = []
-    for chamber, direction, wn, zeta, nrmse, n in rows:
+    for chamber, direction, wn, zeta, nrmse, n, rig, campaign in rows:
         p = PAPER["pla_table2"].get(direction)
         if p is None:
             continue
-        out.append(_cmp_row(f"{chamber}, {direction}: ωn", "rad/s", p["wn_rad_s"], wn, None,
+        who = f"{chamber} ({rig}, {campaign})" if several else chamber
+        out.append(_cmp_row(f"{who}, {direction}: ωn", "rad/s", p["wn_rad_s"], wn, None,
                             f"{n} steps, NRMSE {fmt(nrmse, 3)} %"))
-        out.append(_cmp_row(f"{chamber}, {direction}: ξ", "", p["zeta"], zeta, None, f"{n} steps"))
-    return _cmp_table("PLA Table 2: pressure dynamics (Eq. 11), paper vs lab", out) if out else ""
+        out.append(_cmp_row(f"{who}, {direction}: ξ", "", p["zeta"], zeta, None, f"{n} steps"))
+    html_out = _cmp_table("PLA Table 2: pressure dynamics (Eq. 11), paper vs lab", out) if out else ""
+    if grouped:
+        want = ["rig", "part_kind", "part_id", "chamber", "direction", "part_age_h", "part_distance_km", "model",
+                "wn_rad_s", "zeta", "tau_s", "wn_change_pct", "zeta_change_pct", "tau_change_pct", "n_steps", "note"]
+        cols, prow = db.rows(f"SELECT {', '.join(want)} FROM pressure_dynamics WHERE level = 'part' ORDER BY rig, "
+                             "part_kind, part_id, chamber, direction, part_age_h NULLS LAST, "
+                             "part_distance_km NULLS LAST")
+        if prow:
+            html_out += ("<h4>Per part and age: pressure dynamics of each valve / hose under test, and the change "
+                         "from its youngest age</h4>" + html_table(cols, prow, 40))
+    return html_out
 
 
 def _summary_service_life(db: _DB) -> str:
@@ -633,7 +652,7 @@ LAYOUT = (
     ("pla", "PLA cylinder (seed 001: Palomares et al. 2017)", (
         ("spring", "Spring model (Tables 1 and 3)", ("spring_loops_*", "spring_loop_energy"), _summary_spring,
          ("spring_fits", "spring_tests", "spring_loop_energy")),
-        ("pressure", "Pressure dynamics (Table 2)", ("pressure_steps_*",), _summary_pressure,
+        ("pressure", "Pressure dynamics (Table 2)", ("pressure_ageing", "pressure_steps_*"), _summary_pressure,
          ("pressure_dynamics", "pressure_steps")),
     )),
     ("durability", "Durability and hose service life", (

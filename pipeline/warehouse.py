@@ -393,7 +393,8 @@ CONTRACT_ROWS = {
     "viscous_points": "constant-velocity pass", "viscous_fits": "(backpressure_bar, direction P/N)",
     "friction_dynamic": "viscous run", "identification": "identification run", "step_response": "step in a step run",
     "spring_fits": "PLA chamber", "spring_tests": "spring run",
-    "pressure_dynamics": "(chamber, direction charge/discharge)", "durability_runs": "durability run",
+    "pressure_dynamics": "(campaign, rig, chamber, direction) pooled, or one part at one age (level)",
+    "durability_runs": "durability run",
     "hose_life": "hose", "service_life": "(hose_type, adjustment)",
     "findings": "conclusion of the seed papers, checked on the lab's latest data",
     FILES_TABLE: "samples Parquet file (path relative to the warehouse folder) of a run, as the "

@@ -20,7 +20,8 @@ class MetaKey:
     """A metadata key whose value pneubench interprets.
 
     ``type`` is ``"str"``, ``"float"`` or ``"enum"`` (one of ``choices``, matched
-    case-insensitively and stored in the spelling of ``choices``).
+    case-insensitively and stored in the spelling of ``choices``), or ``"name"`` (any text; a
+    value that matches one of ``choices`` case-insensitively is stored in its spelling).
     """
 
     name: str
@@ -42,7 +43,13 @@ META_KEYS: dict[str, MetaKey] = {
         MetaKey("p_atm_pa", "float", "Atmospheric pressure, for absolute pressure units. [Pa]", default=101325.0),
         MetaKey("temperature_c", "float", "Ambient temperature. [degC]"),
         MetaKey("hose_id", "str", "The hose under test."),
-        MetaKey("chamber", "enum", "Chamber: A/B (PLPA) or front/rear (PLA).", choices=("A", "B", "front", "rear")),
+        MetaKey("chamber", "name", "Chamber: A/B (PLPA), front/rear (PLA), or any name another rig gives it "
+                "(a kind's analysis may need one of its own, e.g. spring: front/rear).",
+                choices=("A", "B", "front", "rear")),
+        MetaKey("valve_id", "str", "The valve under test (e.g. a ventilator's pinch valve)."),
+        MetaKey("age_h", "float", "Hours of use of the part under test (valve_id, else hose_id) at the run. [h]"),
+        MetaKey("distance_km", "float",
+                "Distance run by the part under test (valve_id, else hose_id) at the run. [km]"),
         MetaKey("adjustment", "enum", "How the rollers are set.", choices=("distance", "force")),
         MetaKey("z_rollers_mm", "float", "Roller distance setting. [mm]"),
         MetaKey("spring_force_n", "float", "Roller spring force setting. [N]"),
@@ -179,7 +186,8 @@ KINDS: dict[str, KindSpec] = {
                  ("chamber", "amplitude_mm", "frequency_hz"), chambers=("front", "rear"),
                  description="Closed pressurised chamber under harmonic displacement."),
         KindSpec("pressure_step", "PLA", (("t", "p", "p_ref"),), ("chamber",),
-                 chambers=("front", "rear"), description="Pressure response to set-point steps."),
+                 description="Pressure response to set-point steps (any chamber name; valve_id or hose_id, "
+                             "age_h, distance_km optional)."),
         KindSpec("durability", "PLPA", (("t", "x", "p_a", "p_b"),), ("hose_id",),
                  description="Long back-and-forth strokes for hose service life."),
         KindSpec("timeseries", "any", (("t",),), description="Any export: catalogued, no analysis."),
@@ -225,6 +233,9 @@ def coerce_value(key: str, value):
             if text.casefold() == choice.casefold():
                 return choice
         raise ValueError(f"`{key}` must be one of {', '.join(spec.choices)}, got {value!r}")
+    if spec.type == "name":
+        text = str(value).strip()
+        return next((c for c in spec.choices if c.casefold() == text.casefold()), text)
     if spec.type == "str":
         if isinstance(value, float) and value.is_integer():
             value = int(value)

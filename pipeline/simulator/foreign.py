@@ -22,6 +22,11 @@ folder             what it exercises
                    run states ``sensor_p_noise = "2 mbar"`` in the manifest
 ``accel``          kind ``timeseries`` with a channel ``F`` in ``g`` (an accelerometer, not the
                    force): kept as the non-canonical ``f_g``
+``pinch-valve``    a ventilator's roller pinch valve on peristaltic tubing (kind
+                   ``pressure_step``, chamber ``patient``, pressures in mbar at 1 kHz): the
+                   same valve ``RPV-2`` new (``age_h = 0``) and after 594 h of life testing
+                   (``age_h = 594``), PEEP <-> PIP steps answered in second order with a lower
+                   ``wn`` and more damping once the tubing has aged (:data:`PINCH_VALVE`)
 =================  =========================================================================
 
 truth.json (same layout as the main campaigns) holds per run the true values (``fc_n``
@@ -62,6 +67,7 @@ RIG_TOMLS = {
     "lowspeed/rig.toml": '[metadata]\nrig = "lowspeed-rig"\nhose_area_m2 = 4.9e-4\n',
     "pla/rig.toml": '[metadata]\nrig = "pla-regulator"\n',
     "accel/rig.toml": '[metadata]\nrig = "shaker"\n',
+    "pinch-valve/rig.toml": '[metadata]\nrig = "vent-pinch"\n\n[sensors.p]\nnoise = "0.05 mbar"\n',
 }
 
 LOW_SPEEDS_M_S = tuple(s * v for v in (0.005, 0.010, 0.015) for s in (1.0, -1.0))
@@ -135,7 +141,35 @@ def plan() -> list[ForeignRun]:
             sensors={"p_noise_pa": 200.0, "step_pa": kpa * 1e3}, stated={"sensor_p_noise": 200.0} if kpa == 10 else {})
     add(stem="shaker-accel", folder="accel", fmt="csv", kind="timeseries", sim=dict(fs_hz=200.0, duration_s=5.0),
         units={"f_g": "g"})
+    _pinch_valve_runs(add)
     return runs
+
+
+# -- a ventilator's roller pinch valve, new and aged (issue 25 item 3) -------------------------------
+PINCH_FOLDER = "pinch-valve"
+#: The valve's pressure dynamics per age [h]: (wn [rad/s], zeta per direction). Aged peristaltic
+#: tubing is softer (lower wn) and more lossy (more damping).
+PINCH_VALVE = {0.0: (40.0, {"charge": 0.50, "discharge": 0.70}),
+               594.0: (31.0, {"charge": 0.65, "discharge": 0.85})}
+#: PEEP <-> PIP set-point levels of the pinch valve runs: 5 to 20-30 mbar. [bar gauge]
+PINCH_LEVELS_BAR = (0.005, 0.025, 0.005, 0.020, 0.005, 0.030, 0.005, 0.025, 0.005)
+
+
+def _pinch_valve_runs(add) -> None:
+    """The pinch valve ``RPV-2`` new and after 594 h: second-order steps at 1 kHz in mbar, chamber
+    ``patient``, the valve and its age in the file's metadata."""
+    for age, (wn, xi) in PINCH_VALVE.items():
+        add(stem=f"pinch-valve-{age:g}h", folder=PINCH_FOLDER, fmt="csv", kind="pressure_step",
+            sim=dict(chamber="patient", levels_bar=PINCH_LEVELS_BAR, hold_s=1.0, fs_hz=1000.0, wn=wn, xi=dict(xi),
+                     noise_pa=5.0, valve_id="RPV-2", age_h=age),
+            units={"p_pa": "mbar", "p_ref_pa": "mbar"}, sensors={"p_noise_pa": 5.0},
+            stated={"sensor_p_noise": 5.0})
+
+
+def _pinch_valve(run: ForeignRun, rng: np.random.Generator) -> SimRun:
+    """One pinch valve run: :func:`pipeline.simulator.pla.simulate_pressure_step` in second order."""
+    sim = pla.simulate_pressure_step(rng=rng, **run.sim)
+    return SimRun(sim.data, sim.metadata, {**sim.truth, "valve_id": run.sim["valve_id"], "age_h": run.sim["age_h"]})
 
 
 def _accelerometer(rng: np.random.Generator, fs_hz: float, duration_s: float) -> SimRun:
@@ -162,6 +196,8 @@ def simulate(run: ForeignRun, seed: int) -> SimRun:
                  "position_noise_m": run.sim.get("position_noise_m"),
                  "position_step_m": run.sim.get("position_resolution_m") or None}
         return SimRun(data, sim.metadata, truth)
+    if run.folder == PINCH_FOLDER:
+        return _pinch_valve(run, rng)
     if run.kind == "pressure_step":
         sim = pla.simulate_pressure_step(rng=rng, **run.sim)
         return SimRun(sim.data, sim.metadata, {**sim.truth, "tau_s": run.sim["tau_s"]})
@@ -261,4 +297,4 @@ def simulate_foreign(out_dir, seed: int = 1) -> dict:
     return truth
 
 
-__all__ = ["CAMPAIGN", "ForeignRun", "plan", "simulate", "simulate_foreign", "write_run", "RIG_TOMLS"]
+__all__ = ["CAMPAIGN", "ForeignRun", "plan", "simulate", "simulate_foreign", "write_run", "RIG_TOMLS", "PINCH_VALVE"]

@@ -201,7 +201,7 @@ POOLS: dict[str, tuple[str, tuple[str, ...]]] = {
     "viscous_fits": ("viscous_points", ("backpressure_bar", "direction")),
     "viscous_transition": ("viscous_points", ("backpressure_bar",)),
     "spring_fits": ("spring_tests", ("chamber",)),
-    "pressure_dynamics": ("pressure_steps", ("chamber", "direction")),
+    "pressure_dynamics": ("pressure_steps", ("chamber", "direction")),  # the stage fills its own (per rig, part)
     "service_life": ("hose_life", ("hose_type", "adjustment")),
     "hose_survival": ("hose_life", ("hose_type", "adjustment")),
     "service_life_test": ("hose_life", ("hose_type",)),

@@ -35,9 +35,11 @@ TABLES = ("identification", "step_response", "spring_fits", "spring_tests", "spr
           "pressure_dynamics", "pressure_steps")
 
 #: Text columns of the tables (the others are numbers).
-TEXT_COLS = ("run_id", "chamber", "direction", "model", "note")
+TEXT_COLS = ("run_id", "chamber", "direction", "model", "note", "level", "campaign", "rig", "part_kind", "part_id")
 #: Identification runs drawn one figure each, at most (sorted by run_id).
 MAX_ID_FIGURES = 6
+#: Parts at one age drawn one step figure each, at most (in table order).
+MAX_PART_FIGURES = 6
 #: Steps drawn in the Fig. 15-like figure, at most.
 MAX_STEP_CURVES = 12
 
@@ -50,7 +52,9 @@ FIT_COLS = ["chamber", "n_polytropic", "ae_m2", "epsilon_m2", "delta_n_m", "n_te
 TEST_COLS = ["run_id", "chamber", "p0_bar_abs", "amplitude_mm", "frequency_hz", "nrmse_pct", "note"]
 ENERGY_COLS = ["run_id", "chamber", "p0_bar_abs", "amplitude_mm", "frequency_hz", "n_cycles", "loop_energy_j",
                "model_loop_energy_j", "structural_energy_j"]
-PD_COLS = ["chamber", "direction", "wn_rad_s", "zeta", "nrmse_pct", "n_steps", "tau_s", "model", "note"]
+PD_COLS = ["chamber", "direction", "wn_rad_s", "zeta", "nrmse_pct", "n_steps", "tau_s", "model", "note", "level",
+           "campaign", "rig", "part_kind", "part_id", "part_age_h", "part_distance_km", "wn_change_pct",
+           "zeta_change_pct", "tau_change_pct", "campaigns", "n_runs"]
 PSTEP_COLS = ["run_id", "chamber", "direction", "t_step_s", "p_from_bar", "p_to_bar", "nrmse_pct", "p_start_bar",
               "note"]
 
@@ -204,7 +208,7 @@ def _spring(run_id, path, params):
 
 
 def _pressure_step(run_id, path, params):
-    chamber = str(params.get("chamber") or "").strip().lower() or None
+    chamber = str(params.get("chamber") or "").strip() or None   # any name the rig gives it
     df = read_samples(path, ["t_s", "p_pa", "p_ref_pa"])
     miss = _missing(df, ["t_s", "p_pa", "p_ref_pa"])
     if miss:
@@ -253,7 +257,7 @@ def _frame(rows, cols, ints=(), bools=()) -> pd.DataFrame:
     for c in bools:
         df[c] = df[c].astype("boolean")
     for c in cols:
-        if c not in ints and c not in bools and c not in TEXT_COLS:
+        if c not in ints and c not in bools and c not in TEXT_COLS and c != "campaigns":
             df[c] = pd.to_numeric(df[c], errors="coerce").astype("float64")
     return df
 
@@ -348,34 +352,120 @@ def _spring_outputs(ctx, out, results):
                                               "vs frequency; lines: structural part pi delta D^2 of the fits.")
 
 
+def _run_parts(ctx) -> dict:
+    """Per pressure_step run: campaign, rig, and the part under test with its age
+    (:class:`analyses.pressure_dynamics.RunPart`) from the run's metadata."""
+    runs = ctx.runs_of("pressure_step")
+    out = {}
+    for r in (runs.itertuples(index=False) if not runs.empty else ()):
+        params = _params(getattr(r, "params", None))
+        valve, hose = (str(params.get(k) or "").strip() or None for k in ("valve_id", "hose_id"))
+        kind = "valve" if valve else "hose" if hose else None
+        out[r.run_id] = pdyn.RunPart(str(getattr(r, "campaign", "") or ""), str(getattr(r, "rig", "") or ""),
+                                     kind, valve or hose, _num(params.get("age_h")) if kind else None,
+                                     _num(params.get("distance_km")) if kind else None)
+    return out
+
+
+def _group_label(g) -> str:
+    where = f"{g.rig or 'no rig'} in {g.campaign or 'no campaign'}"
+    if g.level == "part":
+        age = ", ".join(x for x in (f"{g.age_h:g} h" if g.age_h is not None else "",
+                                    f"{g.distance_km:g} km" if g.distance_km is not None else "") if x)
+        where = f"{g.part_kind} {g.part_id}{' at ' + age if age else ''}, {where}"
+    return f"({g.chamber}, {g.direction}; {where})"
+
+
 def _pressure_outputs(ctx, out, results):
     steps = [s for r in results if r["extra"] for s in r["extra"]]
-    chambers = sorted({s.chamber for s in steps})
-    groups = [(c, d, [s for s in steps if s.chamber == c and s.direction == d])
-              for c in chambers for d in ("charge", "discharge")]
-    fits = ctx.map(fit_pressure_item, [g for g in groups if g[2]], label=f"{NAME}: pressure fits") if steps else []
-    fit_by = {(f.chamber, f.direction): f for f in fits}
+    parts = _run_parts(ctx)
+    grouped = pdyn.group_pressure_steps(steps, parts)
+    # a rig that logged a chamber in one direction only still gets a row for the other
+    for g in [g for g in grouped if g.level == "rig"]:
+        for d in ("charge", "discharge"):
+            grouped.setdefault(pdyn.StepGroup("rig", g.campaign, g.rig, g.chamber, d), [])
+    grouped = {g: grouped[g] for g in sorted(grouped, key=pdyn.StepGroup.sort_key)}
+    todo = [(g, (g.chamber, g.direction, v)) for g, v in grouped.items() if v]
+    fits = dict(zip((g for g, _ in todo), ctx.map(fit_pressure_item, [i for _, i in todo],
+                                                  label=f"{NAME}: pressure fits"))) if todo else {}
+    for g in grouped:
+        fits.setdefault(g, pdyn.PressureFit(g.chamber, g.direction, message="no steps",
+                                            note=f"no {g.direction} step in the runs"))
+    changes = pdyn.age_changes(fits)
+    finest = {}   # (run_id, direction) -> its finest group (the part's age when it names one)
+    for g, group in grouped.items():
+        for s in group:
+            if g.level == "part" or (s.run_id, g.direction) not in finest:
+                finest[(s.run_id, g.direction)] = g
     rows, step_rows = [], []
-    for c, d, group in groups:
-        f = fit_by.get((c, d)) or pdyn.PressureFit(c, d, message="no steps", note=f"no {d} step in the runs")
+    for g, group in grouped.items():
+        f = fits[g]
+        mine = sorted({s.run_id for s in group if finest.get((s.run_id, g.direction)) == g})
         if group and not f.ok:
-            for rid in sorted({s.run_id for s in group}):
-                out.warn(rid, f"{NAME}: pressure dynamics ({c}, {d}) not reported: {f.note or f.message}")
-        rows.append({"chamber": c, "direction": d, "wn_rad_s": _nan(f.wn_rad_s), "zeta": _nan(f.zeta),
-                     "nrmse_pct": _nan(f.nrmse_pct), "n_steps": f.n_steps, "tau_s": _nan(f.tau_s),
-                     "model": f.model, "note": f.note})
+            for rid in mine:
+                out.warn(rid, f"{NAME}: pressure dynamics {_group_label(g)} not reported: {f.note or f.message}")
+        ch = changes.get(g, {})
+        rows.append({"chamber": g.chamber, "direction": g.direction, "wn_rad_s": _nan(f.wn_rad_s),
+                     "zeta": _nan(f.zeta), "nrmse_pct": _nan(f.nrmse_pct), "n_steps": f.n_steps,
+                     "tau_s": _nan(f.tau_s), "model": f.model, "note": f.note, "level": g.level,
+                     "campaign": g.campaign, "rig": g.rig, "part_kind": g.part_kind, "part_id": g.part_id,
+                     "part_age_h": g.age_h, "part_distance_km": g.distance_km,
+                     **{k: _nan(ch.get(k)) for k in ("wn_change_pct", "zeta_change_pct", "tau_change_pct")},
+                     "campaigns": [g.campaign], "n_runs": len({s.run_id for s in group})})
         for s, nr in zip(group, f.step_nrmse_pct or [None] * len(group)):
-            note = s.note or (None if f.ok else f"the ({c}, {d}) fit is not reported")
-            step_rows.append({"run_id": s.run_id, "chamber": c, "direction": d, "t_step_s": s.t_step_s,
-                              "p_from_bar": s.p_ref_before_pa / 1e5, "p_to_bar": s.p_ref_pa / 1e5,
-                              "nrmse_pct": _nan(nr), "p_start_bar": s.p_start_pa / 1e5, "note": note})
-    out.tables["pressure_dynamics"] = _frame(rows, PD_COLS, ints=("n_steps",))
+            if finest.get((s.run_id, g.direction)) != g:
+                continue
+            note = s.note or (None if f.ok else f"the {_group_label(g)} fit is not reported")
+            step_rows.append({"run_id": s.run_id, "chamber": g.chamber, "direction": g.direction,
+                              "t_step_s": s.t_step_s, "p_from_bar": s.p_ref_before_pa / 1e5,
+                              "p_to_bar": s.p_ref_pa / 1e5, "nrmse_pct": _nan(nr),
+                              "p_start_bar": s.p_start_pa / 1e5, "note": note})
+    out.tables["pressure_dynamics"] = _frame(rows, PD_COLS, ints=("n_steps", "n_runs"))
     out.tables["pressure_steps"] = _frame(sorted(step_rows, key=lambda r: (r["run_id"], r["t_step_s"])), PSTEP_COLS)
-    for c in chambers:
-        cf = {d: fit_by[(c, d)] for d in ("charge", "discharge") if (c, d) in fit_by}
+    rigs = sorted({(g.campaign, g.rig, g.chamber) for g in grouped if g.level == "rig"})
+    for campaign, rig, c in rigs:
+        mine = [g for g in grouped if g.level == "rig" and (g.campaign, g.rig, g.chamber) == (campaign, rig, c)]
+        cf = {g.direction: fits[g] for g in mine if grouped[g]}
         if any(f.ok for f in cf.values()):
-            name = f"pressure_steps_{c}"
-            out.draw(name, pdyn.plot_pressure_steps, [s for s in steps if s.chamber == c], cf)
-            out.captions[name] = (f"PLA {c} chamber: pressure (bar gauge) after set-point steps, measured vs the "
+            alone = sum(1 for r in rigs if r[2] == c) == 1
+            pla = alone and c in ("front", "rear")   # the paper's chambers: the figure they always had
+            name = f"pressure_steps_{_slug(c)}" + ("" if alone else f"_{_slug(campaign)}_{_slug(rig)}")
+            out.draw(name, pdyn.plot_pressure_steps, [s for g in mine for s in grouped[g]], cf,
+                     title="" if pla else f"{c} chamber of {rig} ({campaign}), every step of the rig pooled: "
+                                          "measured vs the chosen model (first order or Eq. 11)")
+            out.captions[name] = (f"{'PLA ' + c + ' chamber' if pla else f'{c} chamber of {rig} ({campaign})'}: "
+                                  "pressure (bar gauge) after set-point steps, measured vs the "
                                   "model chosen per direction by BIC: first order or the second order of Eq. 11 "
-                                  "(seed 001, Fig. 14, Table 2). Grey: steps too small for the pressure sensor.")
+                                  "(seed 001, Fig. 14, Table 2), every step of the rig pooled (level 'rig'). Grey: "
+                                  "steps too small for the pressure sensor.")
+    parts = sorted({(g.campaign, g.rig, g.chamber, g.part_kind, g.part_id, g.age_h, g.distance_km)
+                    for g in grouped if g.level == "part"}, key=lambda k: pdyn.StepGroup("part", *k[:3], "", *k[3:])
+                   .sort_key())
+    drawn = 0
+    for key in parts:
+        mine = [g for g in grouped if g.level == "part"
+                and (g.campaign, g.rig, g.chamber, g.part_kind, g.part_id, g.age_h, g.distance_km) == key]
+        cf = {g.direction: fits[g] for g in mine if grouped[g]}
+        if not any(f.ok for f in cf.values()) or drawn >= MAX_PART_FIGURES:
+            continue
+        drawn += 1
+        g0 = mine[0]
+        age = "_".join(x for x in (f"{g0.age_h:g}h" if g0.age_h is not None else "",
+                                   f"{g0.distance_km:g}km" if g0.distance_km is not None else "") if x)
+        name = f"pressure_steps_{_slug(g0.chamber)}_{_slug(g0.part_id)}" + (f"_{_slug(age)}" if age else "")
+        if name in out.figures:   # the same part at the same age on another rig or in another campaign
+            name += f"_{_slug(g0.campaign)}_{_slug(g0.rig)}"
+        label = _group_label(g0).split("; ", 1)[1].rstrip(")")
+        out.draw(name, pdyn.plot_pressure_steps, [s for g in mine for s in grouped[g]], cf,
+                 title=f"{g0.chamber} chamber, {label}: measured vs the chosen model (first order or Eq. 11)")
+        out.captions[name] = (f"{g0.chamber} chamber, {label}: pressure (bar gauge) after set-point steps, measured "
+                              "vs the model fitted to this part at this age alone (level 'part').")
+    table = out.tables["pressure_dynamics"]
+    aged = table[(table["level"] == "part") & (table["part_age_h"].notna() | table["part_distance_km"].notna())
+                 & (table["wn_rad_s"].notna() | table["tau_s"].notna())]
+    if len(aged):
+        out.draw("pressure_ageing", pdyn.plot_pressure_ageing, aged.reset_index(drop=True))
+        out.captions["pressure_ageing"] = (
+            "Pressure dynamics of each part under test (the runs' valve_id / hose_id) against its age (the runs' "
+            "age_h, else distance_km): wn, zeta (second order) and tau (first order) fitted per part, age, chamber "
+            "and direction (solid: charge, dashed: discharge); table pressure_dynamics, level = 'part'.")

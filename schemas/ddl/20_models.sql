@@ -69,11 +69,19 @@ CREATE TABLE spring_loop_energy (
     structural_energy_j DOUBLE             -- pi delta D^2 of the fit
 );
 
--- Per (chamber, direction): first order (tau_s) or second order (wn_rad_s, zeta; Eq. 11), the
--- one with the lower BIC among the fits that pass the quality gates (the second order by > 6).
--- The other model's columns are NULL; all are NULL with a note when neither passes.
+-- Per group of steps: first order (tau_s) or second order (wn_rad_s, zeta; Eq. 11), the one with
+-- the lower BIC among the fits that pass the quality gates (the second order by > 6). The other
+-- model's columns are NULL; all are NULL with a note when neither passes.
+-- Groups (`level`): 'rig' = every step of one (campaign, rig, chamber, direction), all parts and
+-- ages pooled (one such row per rig: a campaign without part ids has only these, the table it
+-- always had); 'part' = the steps of one part under test (the run's valve_id or hose_id) at one
+-- age (the run's age_h / distance_km) on that rig. `chamber` is any name the rig gives it.
+-- `SELECT * FROM pressure_dynamics WHERE chamber = 'A' AND direction = 'charge'` finds one 'rig'
+-- row per (campaign, rig) followed by that rig's 'part' rows; add `AND level = 'rig'` for the
+-- pooled rows only. `campaigns` (the row's campaign) and `n_runs` (runs whose steps it pools) are
+-- added by 35_run_columns.sql and filled by the stage.
 CREATE TABLE pressure_dynamics (
-    chamber           VARCHAR,
+    chamber           VARCHAR,             -- any name (A / B, front / rear, patient, tube ...)
     direction         VARCHAR,             -- charge / discharge
     wn_rad_s          DOUBLE,              -- second order only
     zeta              DOUBLE,              -- second order only; never at an optimiser bound
@@ -81,10 +89,23 @@ CREATE TABLE pressure_dynamics (
     n_steps           BIGINT,              -- steps fitted (large enough for the pressure sensor)
     tau_s             DOUBLE,              -- first order only: time constant
     model             VARCHAR,             -- first_order / second_order; NULL when none is reported
-    note              VARCHAR              -- NULL when sound, else why the parameters are NULL
+    note              VARCHAR,             -- NULL when sound, else why the parameters are NULL
+    level             VARCHAR,             -- rig (pooled over the rig's parts and ages) / part (one part at one age)
+    campaign          VARCHAR,             -- first folder under raw/
+    rig               VARCHAR,             -- the run's `rig`
+    part_kind         VARCHAR,             -- valve / hose (the run's valve_id, else hose_id); NULL on rig rows
+    part_id           VARCHAR,             -- the run's valve_id or hose_id; NULL on rig rows
+    part_age_h        DOUBLE,              -- the run's age_h: hours of use of the part; NULL when not stated
+    part_distance_km  DOUBLE,              -- the run's distance_km: distance run by the part; NULL when not stated
+    wn_change_pct     DOUBLE,              -- part rows: 100 (wn / wn of the part's youngest fitted age - 1)
+    zeta_change_pct   DOUBLE,              -- part rows: the same for zeta
+    tau_change_pct    DOUBLE               -- part rows: the same for tau_s (changes: same rig, chamber and
+                                           -- direction, ages by part_age_h else part_distance_km; NULL for the
+                                           -- youngest, when the two ages chose different models, on rig rows)
 );
 
--- One row per set-point step of a pressure_step run, with the NRMSE of its (chamber, direction) fit.
+-- One row per set-point step of a pressure_step run, with the NRMSE of its finest group's fit
+-- (pressure_dynamics: its part's age when the run names a part, else its rig's).
 -- Pressures in bar GAUGE (as the pressure_steps figure's axis).
 CREATE TABLE pressure_steps (
     run_id            VARCHAR NOT NULL,

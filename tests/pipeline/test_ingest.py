@@ -142,8 +142,23 @@ def test_q_bad_started_at(raw, warehouse):
 
 
 def test_q_wrong_chamber_for_rig(raw, warehouse):
-    raw.csv("c/a.csv", {**STEP_META, "kind": "pressure_step", "chamber": "A"}, {"t[s]": T, "p[bar]": T, "p_ref[bar]": T})
+    # the spring model needs to know which side of the piston (its pressure and force signs)
+    raw.csv("c/a.csv", {**STEP_META, "kind": "spring", "chamber": "A", "amplitude_mm": 5, "frequency_hz": 1},
+            {"t[s]": T, "d[mm]": T, "f[N]": T, "p[bar]": T})
     assert "`chamber` must be one of front, rear" in quarantine(raw, warehouse)
+
+
+@pytest.mark.parametrize("chamber,stored", [("patient", "patient"), ("Tube 2", "Tube 2"), ("REAR", "rear"),
+                                            ("a", "A")])
+def test_a_pressure_step_chamber_is_any_name_and_known_names_keep_their_spelling(raw, warehouse, chamber, stored):
+    """Another rig's chamber names (a ventilator's `patient` line) are kept as written; the
+    project's own names are stored in their spelling, whatever the case (issue 25 item 3)."""
+    raw.csv("c/a.csv", {**STEP_META, "kind": "pressure_step", "chamber": chamber, "valve_id": "RPV-2",
+                        "age_h": "594"}, {"t[s]": T, "p[bar]": T, "p_ref[bar]": T})
+    res = ingest(raw, "c/a.csv", warehouse)
+    assert res.error is None, res.error
+    params = res.run["params"] if isinstance(res.run["params"], dict) else json.loads(res.run["params"])
+    assert params["chamber"] == stored and params["valve_id"] == "RPV-2" and params["age_h"] == 594.0
 
 
 def test_q_not_a_number_in_data(raw, warehouse):

@@ -246,3 +246,99 @@ def test_first_order_sweep_at_20_hz_recovers_tau_and_every_5_kpa_step(sweep_buil
     assert steps["note"].isna().all() and steps["nrmse_pct"].notna().all()
     tiny = q(wh, "SELECT * FROM pressure_steps WHERE run_id = 'sim/sweep_tiny'")
     assert len(tiny) == 2 and tiny["nrmse_pct"].isna().all() and tiny["note"].str.contains("sensor floor").all()
+
+
+# -- grouping per rig, and per part and age (issue 25 item 3) ---------------------------------------
+#: A roller pinch valve, new and after 594 h: (wn [rad/s], zeta per direction).
+VALVE = {0: (40.0, {"charge": 0.5, "discharge": 0.7}), 594: (31.0, {"charge": 0.65, "discharge": 0.85})}
+PEEP_PIP = (0.005, 0.025, 0.005, 0.02, 0.005, 0.03, 0.005)   # bar gauge
+
+
+@pytest.fixture(scope="module")
+def valve_built(tmp_path_factory):
+    """One rig `vent` in campaign `vent`: valve V1 new and aged on chamber `patient` (in mbar),
+    and a run naming no part on the same chamber; a second campaign's rig `pla-1` (rear) beside."""
+    root = tmp_path_factory.mktemp("valve")
+    raw, wh = root / "raw", root / "warehouse"
+    truth = {}
+    for k, (age, (wn, xi)) in enumerate(VALVE.items()):
+        run = simulate_pressure_step("patient", rng=60 + k, levels_bar=PEEP_PIP, hold_s=1.0, wn=wn, xi=xi,
+                                     noise_pa=5.0, valve_id="V1", age_h=age)
+        run.metadata["rig"] = "vent"
+        meta = {**run.metadata, "run_id": f"vent/v1-{age}h", "started_at": START}
+        write_csv(raw / "vent" / f"v1-{age}h.csv", run.data,
+                  default_columns(run.data.columns, {"p": "mbar", "p_ref": "mbar"}), meta)
+        truth[age] = run.truth
+    plain = simulate_pressure_step("patient", rng=62, levels_bar=PEEP_PIP, hold_s=1.0, wn=40.0,
+                                   xi=VALVE[0][1], noise_pa=5.0)
+    plain.metadata["rig"] = "vent"
+    write_csv(raw / "vent" / "plain.csv", plain.data,
+              default_columns(plain.data.columns, {"p": "mbar", "p_ref": "mbar"}),
+              {**plain.metadata, "run_id": "vent/plain", "started_at": START})
+    _write(raw, "pstep_rear", simulate_pressure_step("rear", rng=7))
+    summary = rebuild(raw, wh, jobs=1, report=False)
+    return wh, truth, summary
+
+
+def test_pressure_dynamics_per_part_and_age_beside_a_pooled_row_per_rig(valve_built):
+    wh, truth, summary = valve_built
+    assert [p.error for p in summary.quarantine] == []
+    pdy = q(wh, "SELECT * FROM pressure_dynamics ORDER BY campaign, rig, chamber, direction, level DESC, "
+                "part_age_h NULLS FIRST")
+    key = pdy[["campaign", "rig", "chamber", "direction", "level", "part_id", "part_age_h", "n_runs"]]
+    assert key.astype(object).where(key.notna(), None).values.tolist() == [
+        ["sim", "pla-1", "rear", "charge", "rig", None, None, 1],
+        ["sim", "pla-1", "rear", "discharge", "rig", None, None, 1],
+        ["vent", "vent", "patient", "charge", "rig", None, None, 3],
+        ["vent", "vent", "patient", "charge", "part", "V1", 0.0, 1],
+        ["vent", "vent", "patient", "charge", "part", "V1", 594.0, 1],
+        ["vent", "vent", "patient", "discharge", "rig", None, None, 3],
+        ["vent", "vent", "patient", "discharge", "part", "V1", 0.0, 1],
+        ["vent", "vent", "patient", "discharge", "part", "V1", 594.0, 1]]
+    part = pdy[pdy["level"] == "part"]
+    for _, r in part.iterrows():
+        wn, xi = VALVE[int(r["part_age_h"])]
+        assert r["model"] == "second_order" and pd.isna(r["note"]) and r["part_kind"] == "valve"
+        assert r["wn_rad_s"] == pytest.approx(wn, rel=0.05) and r["zeta"] == pytest.approx(xi[r["direction"]], rel=0.05)
+        if r["part_age_h"] == 594:
+            assert r["wn_change_pct"] == pytest.approx(100 * (31 / 40 - 1), abs=5)
+            assert r["zeta_change_pct"] == pytest.approx(100 * (VALVE[594][1][r["direction"]]
+                                                                / VALVE[0][1][r["direction"]] - 1), abs=5)
+        else:
+            assert pd.isna(r["wn_change_pct"]) and pd.isna(r["zeta_change_pct"])
+    # the query every existing user runs still finds the rig's pooled row first, labelled
+    got = q(wh, "SELECT level, rig, n_steps FROM pressure_dynamics WHERE chamber = 'patient' AND direction = 'charge'")
+    assert sorted(got["level"]) == ["part", "part", "rig"] and (got["rig"] == "vent").all()
+    assert got.loc[got["level"] == "rig", "n_steps"].item() == 9
+    # steps carry the NRMSE of their finest group: the valve's age, or the rig's for the plain run
+    steps = q(wh, "SELECT run_id, count(*) AS n, count(nrmse_pct) AS fitted FROM pressure_steps "
+                  "WHERE run_id LIKE 'vent/%' GROUP BY run_id ORDER BY run_id")
+    assert steps.values.tolist() == [["vent/plain", 6, 6], ["vent/v1-0h", 6, 6], ["vent/v1-594h", 6, 6]]
+
+
+def test_pressure_figures_per_rig_and_the_ageing_figure(valve_built):
+    wh, _, _ = valve_built
+    figs = q(wh, "SELECT name, caption FROM figures WHERE stage = 'models' ORDER BY name")
+    assert figs["name"].tolist() == ["pressure_ageing", "pressure_steps_patient", "pressure_steps_patient_V1_0h",
+                                     "pressure_steps_patient_V1_594h", "pressure_steps_rear"]
+    assert "age" in figs["caption"].iloc[0]
+
+
+def test_hostile_chamber_and_part_names_are_stored_as_written_and_never_name_a_path(tmp_path):
+    """A chamber and valve named like paths and markup: stored as written, figure names slugged,
+    every figure inside the stage's folder."""
+    raw, wh = tmp_path / "raw", tmp_path / "warehouse"
+    chamber, valve = "../../evil <b>x</b>", "../V/1"
+    run = simulate_pressure_step(chamber, rng=70, levels_bar=PEEP_PIP, hold_s=1.0, wn=40.0, xi=VALVE[0][1],
+                                 noise_pa=5.0, valve_id=valve, age_h=3)
+    write_csv(raw / "h" / "a.csv", run.data, default_columns(run.data.columns, {"p": "mbar", "p_ref": "mbar"}),
+              {**run.metadata, "run_id": "h/a", "started_at": START})
+    summary = rebuild(raw, wh, jobs=1, report=False)
+    assert [p.error for p in summary.quarantine] == []
+    pdy = q(wh, "SELECT DISTINCT chamber, part_id FROM pressure_dynamics WHERE level = 'part'")
+    assert pdy.values.tolist() == [[chamber, valve]]
+    figs = q(wh, "SELECT name, path FROM figures WHERE stage = 'models' ORDER BY name")
+    assert figs["name"].tolist() == ["pressure_ageing", "pressure_steps_evil_b_x_b", "pressure_steps_evil_b_x_b_V_1_3h"]
+    for p in figs["path"]:
+        f = (wh / p).resolve()
+        assert f.is_relative_to((wh / "stages" / "models").resolve()) and f.read_bytes()[:4] == b"\x89PNG"
