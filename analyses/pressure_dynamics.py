@@ -40,7 +40,7 @@ import numpy as np
 import scipy  # its submodules load on first use: a rebuild that reuses every stage never pays for them
 
 from analyses.quality import (Gate, Sensor, describe_sensor, jacobian_se, nrmse_pct, setpoint_jumps,
-                              setpoint_thresholds)
+                              setpoint_thresholds, settle_points)
 
 __all__ = ["second_order_step", "first_order_step", "PressureStep", "step_threshold", "split_pressure_steps",
            "PressureFit", "fit_pressure_dynamics", "plot_pressure_steps", "NRMSE_LIMIT_PCT", "STEP_SNR_MIN",
@@ -199,13 +199,16 @@ def split_pressure_steps(t, p, p_ref, run_id: str = "", chamber: str = "", min_s
     r = np.asarray(p_ref, float)
     if len(t) < 2:
         return []
+    settle, ref_noise = min_points, 0.0
     if min_step_pa is None:
+        ref_sensor = ref_sensor if ref_sensor is not None else describe_sensor(r)
         jump_thr, level_thr = step_threshold(r, ref_sensor)
+        settle, ref_noise = settle_points(ref_sensor, min_points), ref_sensor.noise
     else:
         jump_thr = level_thr = float(min_step_pa)
     if p_sensor is None:
         p_sensor = describe_sensor(p)
-    jumps = setpoint_jumps(r, jump_thr, level_thr, min_points)
+    jumps = setpoint_jumps(r, jump_thr, level_thr, min_points, settle_points=settle, noise=ref_noise)
     bounds = jumps + [len(r)]
     floor = p_sensor.floor()
     out = []
