@@ -185,8 +185,13 @@ def find_constant_velocity_passes(t_s, x_m, sensor: Sensor | None = None, *, rel
             continue
         v_m = travel / dur
         w = max(window_fraction * dur, min_counts * floor / v_m, 5 * dt)
-        if noise > 0:  # long enough that the noise does not blur "constant" at rel_tol
-            while velocity_uncertainty(sensor, w, dt) * STEADY_N_SIGMA * np.sqrt(2) > rel_tol * v_m and 3 * w < dur:
+        if noise > 0:  # long enough that the noise does not blur "constant" at rel_tol, as far as
+            # the stroke allows: an eighth of it, for a pass of 3 w, the w at each end that the
+            # windows lose, and as much again for the stroke's ends (blurred by the motion band and
+            # the ramps) and the steady test's noise there; a short, fast stroke on a noisy sensor
+            # keeps the shorter window and its pass is judged whole (_constant_over)
+            while (velocity_uncertainty(sensor, w, dt) * STEADY_N_SIGMA * np.sqrt(2) > rel_tol * v_m
+                   and 8 * w * 1.25 <= dur):
                 w *= 1.25
         if 3 * w > dur:
             continue
@@ -214,8 +219,32 @@ def find_constant_velocity_passes(t_s, x_m, sensor: Sensor | None = None, *, rel
         for s0, s1 in zip(edges[0::2], edges[1::2]):
             if ts[s1 - 1] - ts[s0] < max(3 * w, w + 5 * dt) or abs(xs[s1 - 1] - xs[s0]) < min_counts * floor:
                 continue
+            if noise > 0 and not _constant_over(ts[s0:s1], xs[s0:s1], noise, res, rel_tol):
+                continue
             out.append((a + int(s0), a + int(s1)))
     return out
+
+
+def _constant_over(t: np.ndarray, x: np.ndarray, noise: float, res: float, rel_tol: float) -> bool:
+    """Whether a pass keeps one velocity from end to end: the change of velocity across it, from a
+    quadratic fitted to the position (``2 c2 T``), is within ``rel_tol`` of the speed plus
+    ``STEADY_N_SIGMA`` standard errors of that change (white noise ``noise`` and the quantisation
+    ``res / sqrt(12)`` on every sample). All the pass's samples judge it at once: far finer than
+    two windows, so a short pass on a noisy sensor is told from a ramp all the same."""
+    n = t.size
+    if n < 5:
+        return False
+    tt = t - t.mean()
+    dur = float(tt[-1] - tt[0])
+    design = np.column_stack([tt * tt - np.mean(tt * tt), tt, np.ones(n)])
+    coef, *_ = np.linalg.lstsq(design, x, rcond=None)
+    sigma = float(np.hypot(noise, res / np.sqrt(12.0)))
+    try:
+        se_c2 = sigma * float(np.sqrt(np.linalg.inv(design.T @ design)[0, 0]))
+    except np.linalg.LinAlgError:
+        return False
+    change, se_change = abs(2 * coef[0] * dur), 2 * se_c2 * dur
+    return bool(change <= rel_tol * abs(coef[1]) + STEADY_N_SIGMA * se_change)
 
 
 def viscous_points(t_s, x_m, force_n, sensor: Sensor | None = None, **kwargs) -> pd.DataFrame:
