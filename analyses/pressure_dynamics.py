@@ -21,7 +21,9 @@ Steps: a pressure-step run logs the chamber pressure ``p`` and the set-point ``p
 A change of ``p_ref`` is a step when it exceeds what ``p_ref``'s own sensor can produce (one
 count of its resolution, and ``N_SIGMA_REF`` noise sigmas of a difference of two samples),
 never a constant in pascals; the new level must differ from the old one by more than the
-resolution and ``N_SIGMA_REF`` noise sigmas too. A step is a *charge* when the set-point rises
+resolution and ``N_SIGMA_REF`` noise sigmas too. Steps are taken between the set-point's settled
+levels (:func:`analyses.quality.setpoint_levels`), not at every change: a ramp is one step from
+the first sample off the old level. A step is a *charge* when the set-point rises
 and a *discharge* when it falls; it lasts until the next step. It starts from the pressure
 measured just before the jump, with zero rate of change. A step smaller than ``STEP_SNR_MIN``
 times the pressure sensor's floor is listed but not fitted (its ``note`` says why).

@@ -16,7 +16,8 @@ a zero-phase low-pass filter well above the loop's bandwidth, so that sensor noi
 the last exit from the 2 % band.
 
 What the sensors allow (:mod:`analyses.quality`): a jump of ``x_ref`` is a step when it exceeds
-one count of the reference's resolution and ``N_SIGMA`` noise sigmas (never a constant length);
+one count of the reference's resolution and ``N_SIGMA`` noise sigmas (never a constant length),
+taken between the reference's settled levels (a ramp is one step from where it starts);
 a step smaller than ``N_SIGMA`` times the position sensor's floor gives no metrics, and one
 whose 2 % band is finer than that floor gives no overshoot or settling time (``note`` says
 which); a step that has not settled by the end of the record has no settling time and a note.
