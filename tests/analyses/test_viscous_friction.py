@@ -350,3 +350,35 @@ def test_a_short_stroke_losing_a_fifth_of_its_speed_is_no_pass_at_laser_noise():
             noise = np.random.default_rng(seed).normal(0, 0.1e-3, t.size)
             noisy = np.round((x + noise) / 1e-5) * 1e-5
             assert len(find_constant_velocity_passes(t, noisy)) == n_passes, (seed, v0, v1)
+
+
+def test_a_direction_without_passes_says_why_in_viscous_fits():
+    # 0.2 mm of laser noise at 100 Hz, strokes of 0.1-0.12 s of cruise at 0.25-0.3 m/s one way (10-12
+    # samples), slow returns the other: no pass one way, and the table says why with the sensor's numbers
+    import re
+
+    from analyses.viscous_friction import missing_directions
+    from pipeline.simulator.plpa import simulate_viscous
+
+    run = simulate_viscous(0.0, (0.25, -0.004, 0.3, -0.008), use_force_channel=True, rng=1, fs_hz=100.0,
+                           cruise_m=0.03, min_cruise_s=0.05, max_cruise_s=30.0, position_resolution_m=10e-6,
+                           position_noise_m=0.2e-3)
+    d = run.data
+    pts = viscous_points(d["t_s"], d["x_m"], friction_from_run(d))
+    assert set(pts["direction"]) == {"N"}
+    why = missing_directions(d["t_s"], d["x_m"], set(pts["direction"]))
+    assert list(why) == ["P"]
+    m = re.fullmatch(r"direction P: no pass of constant velocity longer than ([\d.]+) s at the position noise "
+                     r"([\d.e-]+) m \(resolution 1e-05 m\): 2 strokes of up to ([\d.]+) s at up to ([\d.]+) m/s",
+                     why["P"])
+    assert m, why["P"]
+    assert float(m[2]) == pytest.approx(0.2e-3, rel=0.1) and float(m[3]) < 0.5 and float(m[4]) > 0.2
+    fits = viscous_fits(pts.assign(backpressure_bar=0.0),
+                        missing=[{"backpressure_bar": 0.0, "direction": "P", "note": f"laser-1: {why['P']}"}])
+    row = fits.set_index("direction").loc["P"]
+    assert row["n_points"] == 0 and pd.isna(row["coulomb_n"]) and row["note"] == f"laser-1: {why['P']}"
+    # a direction that has passes gets no such note; a laser run with passes both ways has nothing to say
+    assert "no pass" not in str(fits.set_index("direction").loc["N", "note"])
+    full = _laser_run(0.1e-3).data
+    found = set(viscous_points(full["t_s"], full["x_m"], friction_from_run(full))["direction"])
+    assert missing_directions(full["t_s"], full["x_m"], found) == {}
