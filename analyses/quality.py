@@ -379,9 +379,9 @@ def setpoint_levels(values, level: float, settle: int = 1, noise: float = 0.0) -
     ``level`` of that window's median, and only when a line fitted across it changes by no more
     than ``level`` (a ramp slow for the band drifts through it: no level). The level ends at the
     first sample off it, walked back over the samples just before that already lie more than
-    ``noise`` (one sigma) on the side it leaves for (where a noisy ramp starts). Samples between two levels (a ramp, a glitch, the
-    overshoot of a read-back) belong to no level. Consecutive levels whose medians differ by no
-    more than ``level`` are one level (a glitch inside a hold).
+    ``noise`` (one sigma) on the side it leaves for (where a noisy ramp starts). Samples between
+    two levels (a ramp, a glitch, the overshoot of a read-back) belong to no level. Consecutive
+    levels whose medians differ by no more than ``level`` are one level (a glitch inside a hold).
 
     Returns
     -------
@@ -434,8 +434,9 @@ def setpoint_jumps(values, jump: float, level: float, min_points: int = 1, settl
     ends where the next level begins; a ramp in one-sample plateaus, a glitch or a noisy
     read-back between two levels is one step or none. A level must hold ``settle_points``
     samples (default ``min_points``; :func:`settle_points` from the set-point's sensor) and differ
-    from the previous one by more than ``level``; ``noise`` is the set-point's noise sigma. ``jump`` (the smallest sample-to-sample change)
-    is kept for the callers' signature: a change under ``level`` never leaves a level.
+    from the previous one by more than ``level``; ``noise`` is the set-point's noise sigma.
+    ``jump`` (the smallest sample-to-sample change of the former rule) is kept for the callers'
+    signature and not used: leaving a level by more than ``level`` is what starts a step.
 
     Returns
     -------

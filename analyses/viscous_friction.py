@@ -281,9 +281,10 @@ def missing_directions(t_s, x_m, found=(), sensor: Sensor | None = None, *, rel_
         if d in found:
             continue
         longest = max(st)
+        v_max = max(v for _, v, _ in st)
         out[d] = (f"direction {d}: no pass of constant velocity longer than {longest[2]:.3g} s at the position "
                   f"noise {sensor.noise:.3g} m (resolution {sensor.resolution:.3g} m): {len(st)} stroke"
-                  f"{'s' if len(st) > 1 else ''} of up to {longest[0]:.3g} s at up to {max(v for _, v, _ in st):.3g} m/s")
+                  f"{'s' if len(st) > 1 else ''} of up to {longest[0]:.3g} s at up to {v_max:.3g} m/s")
     return out
 
 

@@ -216,7 +216,8 @@ def test_ramped_set_point_is_one_step_starting_where_the_ramp_starts(ref_noise, 
     steps = split_pressure_steps(t, p, ref, ref_sensor=Sensor(ref_res, ref_noise) if stated else None)
     assert [s.direction for s in steps] == ["charge", "discharge"]
     assert steps[0].t_step_s == pytest.approx(1.0, abs=0.005 if ref_noise else 1e-9)
-    assert steps[0].p_ref_before_pa == pytest.approx(500.0, abs=10) and steps[0].p_ref_pa == pytest.approx(2000.0, abs=10)
+    assert steps[0].p_ref_before_pa == pytest.approx(500.0, abs=10)
+    assert steps[0].p_ref_pa == pytest.approx(2000.0, abs=10)
     assert steps[1].t_step_s == pytest.approx(2.0, abs=0.002)
 
 
