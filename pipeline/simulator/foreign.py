@@ -26,8 +26,9 @@ folder             what it exercises
                    PEEP, a 100 ms ramp to PIP in one-sample plateaus, PIP, back to PEEP; each
                    breath is one charge and one discharge step
 ``laser``          viscous runs of a 3D-printed cylinder, laser position sensor at 100 Hz
-                   (white noise 0.05-0.2 mm, 10 um steps): short fast strokes one way (20, 50,
-                   80 mm/s over 60 mm), slow returns the other (4 and 8 mm/s)
+                   (white noise 0.05-0.2 mm, 10 um steps; the 0.15 mm run loses 0.5 % of its
+                   samples, written `nan`): short fast strokes one way (20, 50, 80 mm/s over
+                   60 mm), slow returns the other (4 and 8 mm/s)
 =================  =========================================================================
 
 truth.json (same layout as the main campaigns) holds per run the true values (``fc_n``
@@ -78,6 +79,8 @@ LOW_SPEEDS_M_S = tuple(s * v for v in (0.005, 0.010, 0.015) for s in (1.0, -1.0)
 LASER_SPEEDS_M_S = (0.02, -0.004, 0.05, -0.008, 0.08, -0.004)
 #: The laser sensor's white noise per run. [m]
 LASER_NOISES_M = (0.05e-3, 0.1e-3, 0.15e-3, 0.2e-3)
+#: Share of the 0.15 mm laser run's position samples lost (no reflection), written `nan`. [-]
+LASER_DROPOUTS = 0.005
 TRAPEZOID_SPEEDS_M_S = (0.12, -0.12, 0.12, -0.12)
 
 
@@ -96,6 +99,7 @@ class ForeignRun:
     manifest: dict = field(default_factory=dict)   # keys in the folder's manifest.csv
     sensors: dict = field(default_factory=dict)    # true sensor characteristics [SI]
     stated: dict = field(default_factory=dict)     # sensor params ingest must store [SI]
+    dropouts: float = 0.0                          # share of position samples lost (NaN)
 
     @property
     def run_id(self) -> str:
@@ -162,9 +166,18 @@ def _plan_ramps_and_laser(add) -> None:
         add(stem=f"laser-{noise * 1e6:03.0f}um", folder="laser", fmt="csv", kind="viscous",
             sim=dict(backpressure_bar=1.0, fs_hz=100.0, speeds_m_s=LASER_SPEEDS_M_S, cruise_m=0.06,
                      max_cruise_s=30.0, position_noise_m=noise, position_resolution_m=10e-6),
+            dropouts=LASER_DROPOUTS if noise == 0.15e-3 else 0.0,
             units={"x_m": "mm", "p_a_pa": "bar", "p_b_pa": "bar"},
             sensors={"x_noise_m": noise, "x_resolution_m": 10e-6, "p_noise_pa": 300.0},
             stated={"sensor_x_resolution": 1e-05})
+
+
+def _drop_samples(data: pd.DataFrame, column: str, share: float, rng: np.random.Generator) -> pd.DataFrame:
+    """A laser sensor's dropouts: ``share`` of the samples of ``column`` lost (NaN)."""
+    lost = rng.choice(len(data), int(round(share * len(data))), replace=False)
+    out = data.copy()
+    out.loc[out.index[lost], column] = np.nan
+    return out
 
 
 def _ventilator(rng: np.random.Generator, fs_hz: float, breaths: int, peep_pa: float, pip_pa: float, ramp_s: float,
@@ -219,6 +232,8 @@ def simulate(run: ForeignRun, seed: int) -> SimRun:
             # the passive chamber B at the backpressure pushes on the cell too
             p_b = plpa.pressure_sensor(np.full(len(data), run.sim["backpressure_bar"] * 1e5), rng)
             data = data.assign(p_b_pa=p_b, f_cell_n=data["f_n"] + p_b * HOSE_AREA_M2)
+        if run.dropouts:
+            data = _drop_samples(data, "x_m", run.dropouts, rng)
         truth = {**sim.truth, "moving_mass_kg": run.sim.get("mass_kg", plpa.MOVING_MASS_KG),
                  "position_noise_m": run.sim.get("position_noise_m"),
                  "position_step_m": run.sim.get("position_resolution_m") or None}
