@@ -21,7 +21,9 @@ Steps: a pressure-step run logs the chamber pressure ``p`` and the set-point ``p
 A change of ``p_ref`` is a step when it exceeds what ``p_ref``'s own sensor can produce (one
 count of its resolution, and ``N_SIGMA_REF`` noise sigmas of a difference of two samples),
 never a constant in pascals; the new level must differ from the old one by more than the
-resolution and ``N_SIGMA_REF`` noise sigmas too. A step is a *charge* when the set-point rises
+resolution and ``N_SIGMA_REF`` noise sigmas too. Steps are taken between the set-point's settled
+levels (:func:`analyses.quality.setpoint_levels`), not at every change: a ramp is one step from
+the first sample off the old level. A step is a *charge* when the set-point rises
 and a *discharge* when it falls; it lasts until the next step. It starts from the pressure
 measured just before the jump, with zero rate of change. A step smaller than ``STEP_SNR_MIN``
 times the pressure sensor's floor is listed but not fitted (its ``note`` says why).
@@ -48,7 +50,7 @@ import numpy as np
 import scipy  # its submodules load on first use: a rebuild that reuses every stage never pays for them
 
 from analyses.quality import (Gate, Sensor, describe_sensor, jacobian_se, nrmse_pct, setpoint_jumps,
-                              setpoint_thresholds)
+                              setpoint_thresholds, settle_points)
 
 __all__ = ["second_order_step", "first_order_step", "PressureStep", "step_threshold", "split_pressure_steps",
            "PressureFit", "fit_pressure_dynamics", "plot_pressure_steps", "NRMSE_LIMIT_PCT", "STEP_SNR_MIN",
@@ -208,13 +210,16 @@ def split_pressure_steps(t, p, p_ref, run_id: str = "", chamber: str = "", min_s
     r = np.asarray(p_ref, float)
     if len(t) < 2:
         return []
+    settle, ref_noise = min_points, 0.0
     if min_step_pa is None:
+        ref_sensor = ref_sensor if ref_sensor is not None else describe_sensor(r)
         jump_thr, level_thr = step_threshold(r, ref_sensor)
+        settle, ref_noise = settle_points(ref_sensor, min_points), ref_sensor.noise
     else:
         jump_thr = level_thr = float(min_step_pa)
     if p_sensor is None:
         p_sensor = describe_sensor(p)
-    jumps = setpoint_jumps(r, jump_thr, level_thr, min_points)
+    jumps = setpoint_jumps(r, jump_thr, level_thr, min_points, settle_points=settle, noise=ref_noise)
     bounds = jumps + [len(r)]
     floor = p_sensor.floor()
     out = []

@@ -345,37 +345,110 @@ def setpoint_thresholds(values, sensor: Sensor | None = None, n_sigma: float = 5
     return float(jump), float(level)
 
 
-def setpoint_jumps(values, jump: float, level: float, min_points: int = 1) -> list[int]:
-    """Indices where a set-point record steps to a new plateau.
+#: Fewest samples a noisy set-point must hold a level to count as settled: over ``N`` samples the
+#: change across a fitted line has a standard error of ``sigma sqrt(12 / N)``, within one noise
+#: sigma from 12 samples on, so a level's drift is told at the same n-sigma margin as the level. [-]
+SETTLE_SAMPLES_NOISY = 12
 
-    Candidates are samples that differ from the previous one by more than ``jump``; a plateau
-    shorter than ``min_points`` joins the next one (a glitch, the inner samples of a ramp: the
-    step starts where the change starts), then candidates whose plateaus either side differ by
-    no more than ``level`` (medians) are dropped, the smallest first.
+
+def settle_points(sensor: Sensor, min_points: int = 1) -> int:
+    """Fewest samples a set-point must hold a level, within its band, to be a settled level.
+
+    A clean commanded set-point (no noise) shows every change: ``min_points``. A noisy read-back
+    must hold :data:`SETTLE_SAMPLES_NOISY` samples, so that a ramp slower than the jump threshold
+    per sample is not taken for a run of short levels.
+    """
+    noisy = np.isfinite(sensor.noise) and sensor.noise > 0 and sensor.noise > sensor.resolution / np.sqrt(12.0)
+    return int(max(min_points, SETTLE_SAMPLES_NOISY if noisy else 1))
+
+
+def _drift(y: np.ndarray) -> float:
+    """Change across a stretch of a line fitted to it by least squares (0 under 3 samples)."""
+    m = y.size
+    if m < 3:
+        return 0.0
+    x = np.arange(m) - (m - 1) / 2.0
+    return float(abs(np.dot(x, y - y.mean()) / np.dot(x, x)) * (m - 1))
+
+
+def setpoint_levels(values, level: float, settle: int = 1, noise: float = 0.0) -> list[tuple[int, int, float]]:
+    """The settled levels of a set-point record: stretches that hold within ``level`` of their median.
+
+    A level starts at the first window of ``settle`` samples whose range is within ``2 level``
+    (every sample within ``level`` of its middle) and lasts while the samples stay within
+    ``level`` of that window's median, and only when a line fitted across it changes by no more
+    than ``level`` (a ramp slow for the band drifts through it: no level). The level ends at the
+    first sample off it, walked back over the samples just before that already lie more than
+    ``noise`` (one sigma) on the side it leaves for (where a noisy ramp starts). Samples between
+    two levels (a ramp, a glitch, the overshoot of a read-back) belong to no level. Consecutive
+    levels whose medians differ by no more than ``level`` are one level (a glitch inside a hold).
+
+    Returns
+    -------
+    list of (i_start, i_end, median)
+        ``i_end`` is one past the last sample held.
+    """
+    r = np.asarray(values, dtype=float)
+    n = int(max(1, settle))
+    if r.size < n:
+        return []
+    win = np.lib.stride_tricks.sliding_window_view(r, n)
+    flat = np.flatnonzero(np.max(win, axis=1) - np.min(win, axis=1) <= 2 * level)
+    out: list[list] = []
+    pos = 0
+    while True:
+        k = int(np.searchsorted(flat, pos))
+        if k >= flat.size:
+            break
+        i = int(flat[k])
+        lev = float(np.median(r[i:i + n]))
+        j, chunk = i + n, 1024
+        while j < r.size:   # the first sample off the level, searched in growing chunks
+            off = np.flatnonzero(np.abs(r[j:j + chunk] - lev) > level)
+            if off.size:
+                j += int(off[0])
+                break
+            j += chunk
+            chunk *= 2
+        j = min(j, r.size)
+        pos = j
+        if _drift(r[i:j]) > level:
+            continue        # a stretch of a ramp slow for the band, not a level
+        if j < r.size:      # the departure starts at the run of samples already on its side
+            side = np.sign(r[j] - lev)
+            while j - 1 > i + n and side * (r[j - 1] - lev) > noise:
+                j -= 1
+        if out and abs(lev - out[-1][2]) <= level:
+            out[-1][1] = j      # same level again after a glitch: one hold
+        else:
+            out.append([i, j, lev])
+    return [(a, b, float(np.median(r[a:b]))) for a, b, _ in out]
+
+
+def setpoint_jumps(values, jump: float, level: float, min_points: int = 1, settle_points: int | None = None,
+                   noise: float = 0.0) -> list[int]:
+    """Indices where a set-point record steps to a new settled level.
+
+    Steps are found on the set-point's settled levels (:func:`setpoint_levels`), not on every
+    change: a step starts at the first sample that leaves one level (where a ramp starts) and
+    ends where the next level begins; a ramp in one-sample plateaus, a glitch or a noisy
+    read-back between two levels is one step or none. A level must hold ``settle_points``
+    samples (default ``min_points``; :func:`settle_points` from the set-point's sensor) and differ
+    from the previous one by more than ``level``; ``noise`` is the set-point's noise sigma.
+    ``jump`` (the smallest sample-to-sample change of the former rule) is kept for the callers'
+    signature and not used: leaving a level by more than ``level`` is what starts a step.
 
     Returns
     -------
     list of int
-        The first sample of each new plateau.
+        The first sample of each step.
     """
     r = np.asarray(values, dtype=float)
     if r.size < 2:
         return []
-    jumps = list(np.flatnonzero(np.abs(np.diff(r)) > jump) + 1)
-    while jumps:
-        bounds = [0] + jumps + [len(r)]
-        short = [k for k in range(1, len(bounds) - 1) if bounds[k + 1] - bounds[k] < min_points]
-        if short:
-            k = short[0]
-            del jumps[k if k < len(jumps) else k - 1]   # the jump ending it (the last: the one starting it)
-            continue
-        med = np.array([np.median(r[a:b]) for a, b in zip(bounds[:-1], bounds[1:])])
-        change = np.abs(np.diff(med))
-        k = int(np.argmin(change))
-        if change[k] > level:
-            break
-        del jumps[k]
-    return [int(j) for j in jumps]
+    settle = int(max(1, min_points if settle_points is None else settle_points))
+    levels = setpoint_levels(r, level, settle, noise)
+    return [int(levels[k - 1][1]) for k in range(1, len(levels))]
 
 
 # -- fit quality ----------------------------------------------------------------------------
@@ -606,4 +679,5 @@ class Gate:
 __all__ = ["COND_MAX", "Gate", "LinearFit", "Sensor", "at_bound", "describe_sensor", "describe_sensor_at_rest",
            "jacobian_se", "linear_lstsq",
            "noise_std", "nrmse_pct", "quantisation_step", "scaled_condition", "sensor_from_params",
-           "setpoint_jumps", "setpoint_thresholds", "time_base_gap"]
+           "setpoint_jumps", "setpoint_levels", "setpoint_thresholds", "settle_points", "SETTLE_SAMPLES_NOISY",
+           "time_base_gap"]

@@ -16,7 +16,8 @@ a zero-phase low-pass filter well above the loop's bandwidth, so that sensor noi
 the last exit from the 2 % band.
 
 What the sensors allow (:mod:`analyses.quality`): a jump of ``x_ref`` is a step when it exceeds
-one count of the reference's resolution and ``N_SIGMA`` noise sigmas (never a constant length);
+one count of the reference's resolution and ``N_SIGMA`` noise sigmas (never a constant length),
+taken between the reference's settled levels (a ramp is one step from where it starts);
 a step smaller than ``N_SIGMA`` times the position sensor's floor gives no metrics, and one
 whose 2 % band is finer than that floor gives no overshoot or settling time (``note`` says
 which); a step that has not settled by the end of the record has no settling time and a note.
@@ -29,7 +30,7 @@ import numpy as np
 import pandas as pd
 import scipy  # its submodules load on first use: a rebuild that reuses every stage never pays for them
 
-from analyses.quality import Sensor, describe_sensor, setpoint_jumps, setpoint_thresholds
+from analyses.quality import Sensor, describe_sensor, setpoint_jumps, setpoint_thresholds, settle_points
 
 __all__ = ["find_steps", "step_metrics", "step_response_metrics", "plot_step_errors", "N_SIGMA"]
 
@@ -69,11 +70,14 @@ def find_steps(t, x_ref, min_step: float | None = None, min_duration_s: float = 
     r = np.asarray(x_ref, float)
     if len(r) < 2:
         return []
+    settle, noise = min_points, 0.0
     if min_step is None:
+        sensor = sensor if sensor is not None else describe_sensor(r)
         jump, level = setpoint_thresholds(r, sensor, N_SIGMA)
+        settle, noise = settle_points(sensor, min_points), sensor.noise
     else:
         jump = level = float(min_step)
-    jumps = setpoint_jumps(r, jump, level, min_points)
+    jumps = setpoint_jumps(r, jump, level, min_points, settle_points=settle, noise=noise)
     out = []
     bounds = list(jumps) + [len(r)]
     for j, i0 in enumerate(jumps):

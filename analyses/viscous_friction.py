@@ -184,10 +184,7 @@ def find_constant_velocity_passes(t_s, x_m, sensor: Sensor | None = None, *, rel
         if dur <= 0 or travel < 2 * min_counts * floor:
             continue
         v_m = travel / dur
-        w = max(window_fraction * dur, min_counts * floor / v_m, 5 * dt)
-        if noise > 0:  # long enough that the noise does not blur "constant" at rel_tol
-            while velocity_uncertainty(sensor, w, dt) * STEADY_N_SIGMA * np.sqrt(2) > rel_tol * v_m and 3 * w < dur:
-                w *= 1.25
+        w = _velocity_window(dur, v_m, floor, dt, sensor, noise, rel_tol, min_counts, window_fraction)
         if 3 * w > dur:
             continue
         h = max(1, int(round(w / 2 / dt)))
@@ -214,8 +211,103 @@ def find_constant_velocity_passes(t_s, x_m, sensor: Sensor | None = None, *, rel
         for s0, s1 in zip(edges[0::2], edges[1::2]):
             if ts[s1 - 1] - ts[s0] < max(3 * w, w + 5 * dt) or abs(xs[s1 - 1] - xs[s0]) < min_counts * floor:
                 continue
+            if noise > 0 and not _constant_over(ts[s0:s1], xs[s0:s1], noise, res, rel_tol):
+                continue
             out.append((a + int(s0), a + int(s1)))
     return out
+
+
+def _velocity_window(dur: float, v_m: float, floor: float, dt: float, sensor: Sensor, noise: float,
+                     rel_tol: float, min_counts: float, window_fraction: float) -> float:
+    """Velocity window of a stroke of ``dur`` at mean speed ``v_m``: ``window_fraction`` of it, at least
+    ``min_counts`` floors of travel and 5 samples; on a noisy sensor long enough that the noise does
+    not blur "constant" at ``rel_tol``, as far as the stroke allows: an eighth of it, for a pass of
+    3 w, the w at each end that the windows lose, and as much again for the stroke's ends (blurred
+    by the motion band and the ramps) and the steady test's noise there. A short, fast stroke on a
+    noisy sensor keeps the shorter window and its pass is judged whole (:func:`_constant_over`). [s]"""
+    w = max(window_fraction * dur, min_counts * floor / v_m, 5 * dt)
+    if noise > 0:
+        while (velocity_uncertainty(sensor, w, dt) * STEADY_N_SIGMA * np.sqrt(2) > rel_tol * v_m
+               and 8 * w * 1.25 <= dur):
+            w *= 1.25
+    return float(w)
+
+
+def missing_directions(t_s, x_m, found=(), sensor: Sensor | None = None, *, rel_tol: float = 0.02,
+                       min_counts: float = 20.0, still_s: float = 0.5, window_fraction: float = 0.05) -> dict:
+    """Why a direction the carriage moved in has no constant-velocity pass.
+
+    Parameters
+    ----------
+    t_s, x_m : array_like
+        Time [s], position [m].
+    found : iterable of str
+        Directions that have passes (``"P"``, ``"N"``).
+    sensor, rel_tol, min_counts, still_s, window_fraction
+        As :func:`find_constant_velocity_passes`.
+
+    Returns
+    -------
+    dict of str to str
+        For each direction with strokes (travel of at least ``2 min_counts`` floors) but not in
+        ``found``, one line: ``direction N: no pass of constant velocity longer than 0.62 s at the
+        position noise 0.0002 m (resolution 1e-05 m): 3 strokes of up to 0.5 s at up to 0.08 m/s``.
+    """
+    t = np.asarray(t_s, dtype=float)
+    x = np.asarray(x_m, dtype=float)
+    ok = np.isfinite(t) & np.isfinite(x)
+    t, x = t[ok], x[ok]
+    if t.size < 10:
+        return {}
+    sensor, res, noise = _effective_sensor(x, sensor)
+    floor = max(res, noise)
+    if floor <= 0:
+        floor = max(float(np.max(np.abs(x))), 1e-300) * 1e-12
+        res = floor
+    dt = float(np.median(np.diff(t)))
+    if not (np.isfinite(dt) and dt > 0):
+        return {}
+    band = max(res, MOTION_N_SIGMA * noise) if noise > 0 else res
+    counts = _virtual_counts(x, band) if noise > 0 else x
+    strokes: dict[str, list] = {}
+    for a, b, sign in _strokes(t, counts, band, still_s):
+        dur, travel = float(t[b - 1] - t[a]), abs(float(x[b - 1] - x[a]))
+        if dur > 0 and travel >= 2 * min_counts * floor:
+            w = _velocity_window(dur, travel / dur, floor, dt, sensor, noise, rel_tol, min_counts, window_fraction)
+            strokes.setdefault("P" if sign > 0 else "N", []).append((dur, travel / dur, 3 * w))
+    found = set(found)
+    out = {}
+    for d, st in sorted(strokes.items()):
+        if d in found:
+            continue
+        longest = max(st)
+        v_max = max(v for _, v, _ in st)
+        out[d] = (f"direction {d}: no pass of constant velocity longer than {longest[2]:.3g} s at the position "
+                  f"noise {sensor.noise:.3g} m (resolution {sensor.resolution:.3g} m): {len(st)} stroke"
+                  f"{'s' if len(st) > 1 else ''} of up to {longest[0]:.3g} s at up to {v_max:.3g} m/s")
+    return out
+
+
+def _constant_over(t: np.ndarray, x: np.ndarray, noise: float, res: float, rel_tol: float) -> bool:
+    """Whether a pass keeps one velocity from end to end: the change of velocity across it, from a
+    quadratic fitted to the position (``2 c2 T``), is within ``rel_tol`` of the speed plus
+    ``STEADY_N_SIGMA`` standard errors of that change (white noise ``noise`` and the quantisation
+    ``res / sqrt(12)`` on every sample). All the pass's samples judge it at once: far finer than
+    two windows, so a short pass on a noisy sensor is told from a ramp all the same."""
+    n = t.size
+    if n < 5:
+        return False
+    tt = t - t.mean()
+    dur = float(tt[-1] - tt[0])
+    design = np.column_stack([tt * tt - np.mean(tt * tt), tt, np.ones(n)])
+    coef, *_ = np.linalg.lstsq(design, x, rcond=None)
+    sigma = float(np.hypot(noise, res / np.sqrt(12.0)))
+    try:
+        se_c2 = sigma * float(np.sqrt(np.linalg.inv(design.T @ design)[0, 0]))
+    except np.linalg.LinAlgError:
+        return False
+    change, se_change = abs(2 * coef[0] * dur), 2 * se_c2 * dur
+    return bool(change <= rel_tol * abs(coef[1]) + STEADY_N_SIGMA * se_change)
 
 
 def viscous_points(t_s, x_m, force_n, sensor: Sensor | None = None, **kwargs) -> pd.DataFrame:
@@ -575,7 +667,8 @@ def stribeck_test(v_m_s, friction_n, alpha: float = 0.01, n_grid: int = 6) -> di
     return out
 
 
-def viscous_fits(points: pd.DataFrame, min_speed_m_s: float = MIN_SPEED_LINEAR_M_S) -> pd.DataFrame:
+def viscous_fits(points: pd.DataFrame, min_speed_m_s: float = MIN_SPEED_LINEAR_M_S,
+                 missing: list[dict] | None = None) -> pd.DataFrame:
     """Coulomb + viscous fit per (backpressure_bar, direction) of ``viscous_points`` rows.
 
     Each direction is fitted by :func:`fit_coulomb_viscous` (gated: at least two speed levels,
@@ -589,6 +682,9 @@ def viscous_fits(points: pd.DataFrame, min_speed_m_s: float = MIN_SPEED_LINEAR_M
         ``backpressure_bar``, ``direction`` (P: v > 0, N: v < 0), ``coulomb_n`` (magnitude),
         ``viscous_n_s_m``, ``nrmse_pct``, ``n_points``, ``coulomb_se_n``, ``viscous_se_n_s_m``,
         ``min_speed_m_s``, ``n_speed_levels``, ``note`` (NULL when sound, else why the values are NULL).
+        A (backpressure, direction) named in ``missing`` (dicts with ``backpressure_bar``,
+        ``direction``, ``note``: :func:`missing_directions` per run, the run prefixed) that has no
+        pass gets a row too: NULL values, ``n_points`` 0 and the notes joined.
     """
     cols = ["backpressure_bar", "direction", "coulomb_n", "viscous_n_s_m", "nrmse_pct", "n_points",
             "coulomb_se_n", "viscous_se_n_s_m", "min_speed_m_s", "n_speed_levels", "note"]
@@ -607,6 +703,17 @@ def viscous_fits(points: pd.DataFrame, min_speed_m_s: float = MIN_SPEED_LINEAR_M
             r = fit_coulomb_viscous(gg["velocity_m_s"], gg["friction_n"], min_speed_m_s,
                                     velocity_se_m_s=None if vse is None else vse.to_numpy(float), friction_se_n=fse)
             rows.append({"backpressure_bar": float(bp), "direction": d, **r, "min_speed_m_s": min_speed_m_s})
+    have = {(r["backpressure_bar"], r["direction"]) for r in rows}
+    notes: dict[tuple, list] = {}
+    for m in missing or ():
+        bp = m.get("backpressure_bar")
+        if bp is None or not np.isfinite(float(bp)) or (float(bp), m["direction"]) in have:
+            continue
+        notes.setdefault((float(bp), m["direction"]), []).append(m["note"])
+    for (bp, d), ns in sorted(notes.items()):
+        rows.append({"backpressure_bar": bp, "direction": d, "coulomb_n": None, "viscous_n_s_m": None,
+                     "nrmse_pct": None, "n_points": 0, "coulomb_se_n": None, "viscous_se_n_s_m": None,
+                     "min_speed_m_s": min_speed_m_s, "n_speed_levels": 0, "note": "; ".join(ns)})
     out = pd.DataFrame(rows, columns=cols)
     if not out.empty:
         out["n_points"] = out["n_points"].astype("int64")

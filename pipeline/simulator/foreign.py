@@ -27,6 +27,13 @@ folder             what it exercises
                    same valve ``RPV-2`` new (``age_h = 0``) and after 594 h of life testing
                    (``age_h = 594``), PEEP <-> PIP steps answered in second order with a lower
                    ``wn`` and more damping once the tubing has aged (:data:`PINCH_VALVE`)
+``ventilator``     a ventilator's pressure set-point at 1 kHz (kind ``pressure_step``, in mbar):
+                   PEEP, a 100 ms ramp to PIP in one-sample plateaus, PIP, back to PEEP; each
+                   breath is one charge and one discharge step
+``laser``          viscous runs of a 3D-printed cylinder, laser position sensor at 100 Hz
+                   (white noise 0.05-0.2 mm, 10 um steps; the 0.15 mm run loses 0.5 % of its
+                   samples, written `nan`): short fast strokes one way (20, 50, 80 mm/s over
+                   60 mm), slow returns the other (4 and 8 mm/s)
 =================  =========================================================================
 
 truth.json (same layout as the main campaigns) holds per run the true values (``fc_n``
@@ -68,9 +75,18 @@ RIG_TOMLS = {
     "pla/rig.toml": '[metadata]\nrig = "pla-regulator"\n',
     "accel/rig.toml": '[metadata]\nrig = "shaker"\n',
     "pinch-valve/rig.toml": '[metadata]\nrig = "vent-pinch"\n\n[sensors.p]\nnoise = "0.05 mbar"\n',
+    "ventilator/rig.toml": '[metadata]\nrig = "ventilator-pinch-valve"\n',
+    "laser/rig.toml": ('[metadata]\nrig = "printed-cylinder-laser"\nhose_area_m2 = 4.9e-4\n\n'
+                       '[sensors.x]\nresolution = "10 um"\n'),
 }
 
 LOW_SPEEDS_M_S = tuple(s * v for v in (0.005, 0.010, 0.015) for s in (1.0, -1.0))
+#: The laser rig's strokes: fast one way, a slow return the other. [m/s]
+LASER_SPEEDS_M_S = (0.02, -0.004, 0.05, -0.008, 0.08, -0.004)
+#: The laser sensor's white noise per run. [m]
+LASER_NOISES_M = (0.05e-3, 0.1e-3, 0.15e-3, 0.2e-3)
+#: Share of the 0.15 mm laser run's position samples lost (no reflection), written `nan`. [-]
+LASER_DROPOUTS = 0.005
 TRAPEZOID_SPEEDS_M_S = (0.12, -0.12, 0.12, -0.12)
 
 
@@ -89,6 +105,7 @@ class ForeignRun:
     manifest: dict = field(default_factory=dict)   # keys in the folder's manifest.csv
     sensors: dict = field(default_factory=dict)    # true sensor characteristics [SI]
     stated: dict = field(default_factory=dict)     # sensor params ingest must store [SI]
+    dropouts: float = 0.0                          # share of position samples lost (NaN)
 
     @property
     def run_id(self) -> str:
@@ -142,7 +159,62 @@ def plan() -> list[ForeignRun]:
     add(stem="shaker-accel", folder="accel", fmt="csv", kind="timeseries", sim=dict(fs_hz=200.0, duration_s=5.0),
         units={"f_g": "g"})
     _pinch_valve_runs(add)
+    _plan_ramps_and_laser(add)
     return runs
+
+
+def _plan_ramps_and_laser(add) -> None:
+    """Issue 25, items 2 and 6: a ventilator's ramped set-point; a laser position sensor."""
+    add(stem="ventilator-ramp", folder="ventilator", fmt="csv", kind="pressure_step",
+        sim=dict(fs_hz=1000.0, breaths=3, peep_pa=500.0, pip_pa=2000.0, ramp_s=0.1, insp_s=1.0, exp_s=1.5,
+                 tau_s=0.05, noise_pa=20.0),
+        units={"p_pa": "mbar", "p_ref_pa": "mbar"}, sensors={"p_noise_pa": 20.0})
+    for noise in LASER_NOISES_M:
+        add(stem=f"laser-{noise * 1e6:03.0f}um", folder="laser", fmt="csv", kind="viscous",
+            sim=dict(backpressure_bar=1.0, fs_hz=100.0, speeds_m_s=LASER_SPEEDS_M_S, cruise_m=0.06,
+                     max_cruise_s=30.0, position_noise_m=noise, position_resolution_m=10e-6),
+            dropouts=LASER_DROPOUTS if noise == 0.15e-3 else 0.0,
+            units={"x_m": "mm", "p_a_pa": "bar", "p_b_pa": "bar"},
+            sensors={"x_noise_m": noise, "x_resolution_m": 10e-6, "p_noise_pa": 300.0},
+            stated={"sensor_x_resolution": 1e-05})
+
+
+def _drop_samples(data: pd.DataFrame, column: str, share: float, rng: np.random.Generator) -> pd.DataFrame:
+    """A laser sensor's dropouts: ``share`` of the samples of ``column`` lost (NaN)."""
+    lost = rng.choice(len(data), int(round(share * len(data))), replace=False)
+    out = data.copy()
+    out.loc[out.index[lost], column] = np.nan
+    return out
+
+
+def _ventilator(rng: np.random.Generator, fs_hz: float, breaths: int, peep_pa: float, pip_pa: float, ramp_s: float,
+                insp_s: float, exp_s: float, tau_s: float, noise_pa: float) -> SimRun:
+    """A ventilator's pressure loop: the set-point holds PEEP for ``exp_s``, rises to PIP over ``ramp_s``
+    in one-sample plateaus (a new value every sample), holds PIP until ``insp_s`` after the ramp's
+    start, drops to PEEP; the pressure follows it as a first-order lag ``tau_s`` (exact for a set-point
+    held over each sample), with white noise ``noise_pa``, logged at 1 Pa. [Pa gauge]"""
+    n_exp, n_ramp, n_insp = (int(round(v * fs_hz)) for v in (exp_s, ramp_s, insp_s))
+    ramp = peep_pa + (pip_pa - peep_pa) * np.arange(1, n_ramp + 1) / n_ramp
+    breath = np.concatenate([np.full(n_exp, peep_pa), ramp, np.full(n_insp - n_ramp, pip_pa)])
+    ref = np.round(np.concatenate([np.tile(breath, breaths), np.full(n_exp, peep_pa)]), 6)
+    t = time_vector(ref.size, fs_hz)
+    alpha = np.exp(-1.0 / (fs_hz * tau_s))
+    p = np.empty(ref.size)
+    p[0] = peep_pa
+    for i in range(1, ref.size):
+        p[i] = ref[i - 1] + (p[i - 1] - ref[i - 1]) * alpha
+    steps = []
+    for k in range(breaths):
+        t0 = (k * breath.size + n_exp) / fs_hz
+        steps.append({"t_step_s": t0, "p_from_pa": peep_pa, "p_to_pa": pip_pa, "direction": "charge",
+                      "ramp_s": ramp_s})
+        steps.append({"t_step_s": t0 + insp_s, "p_from_pa": pip_pa, "p_to_pa": peep_pa, "direction": "discharge",
+                      "ramp_s": 0.0})
+    data = pd.DataFrame({"t_s": t, "p_pa": np.round(p + rng.normal(0.0, noise_pa, p.size)), "p_ref_pa": ref})
+    meta = {"kind": "pressure_step", "chamber": "front"}
+    truth = {"kind": "pressure_step", "chamber": "front", "model": "first_order", "tau_s": tau_s, "noise_pa": noise_pa,
+             "fs_hz": fs_hz, "steps": steps}
+    return SimRun(data, meta, truth)
 
 
 # -- a ventilator's roller pinch valve, new and aged (issue 25 item 3) -------------------------------
@@ -185,6 +257,8 @@ def simulate(run: ForeignRun, seed: int) -> SimRun:
     """The run as ingest must give it back: ``data`` in SI under warehouse column names (the
     load-cell run's ``f_n`` is the derived drive force, ``f_cell_n`` the cell's reading)."""
     rng = np.random.default_rng([int(seed), 1000 + run.index])
+    if run.stem == "ventilator-ramp":
+        return _ventilator(rng, **run.sim)
     if run.kind == "viscous":
         sim = plpa.simulate_viscous(rng=rng, **run.sim)
         data = sim.data
@@ -192,6 +266,8 @@ def simulate(run: ForeignRun, seed: int) -> SimRun:
             # the passive chamber B at the backpressure pushes on the cell too
             p_b = plpa.pressure_sensor(np.full(len(data), run.sim["backpressure_bar"] * 1e5), rng)
             data = data.assign(p_b_pa=p_b, f_cell_n=data["f_n"] + p_b * HOSE_AREA_M2)
+        if run.dropouts:
+            data = _drop_samples(data, "x_m", run.dropouts, rng)
         truth = {**sim.truth, "moving_mass_kg": run.sim.get("mass_kg", plpa.MOVING_MASS_KG),
                  "position_noise_m": run.sim.get("position_noise_m"),
                  "position_step_m": run.sim.get("position_resolution_m") or None}

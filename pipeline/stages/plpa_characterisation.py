@@ -97,21 +97,21 @@ def analyse_run(item: tuple) -> dict:
         ``kind``, ``run_id``, ``rows`` (rows for the kind's table), ``warnings`` (list of str).
     """
     kind, run_id, path, params = item
-    dynamic = []
+    dynamic, missing = [], []
     try:
         if kind == "leakage":
             rows, warns = _leakage(run_id, path, params)
         elif kind == "breakaway":
             rows, warns = _breakaway(run_id, path, params)
         else:
-            rows, dynamic, warns = _viscous(run_id, path, params)
+            rows, dynamic, warns, missing = _viscous(run_id, path, params)
     except Exception as exc:  # an unforeseen input: NULLs and a warning, never a failed rebuild
         rows = [{"run_id": run_id, "direction": params.get("direction"),
                  "backpressure_bar": _num(params.get("backpressure_bar")),
                  "force_rate_n_s": _num(params.get("force_rate_n_s")), "breakaway_force_n": None}] \
             if kind == "breakaway" else []
         warns = [f"{NAME}: {kind} analysis failed: {type(exc).__name__}: {exc}"]
-    return {"kind": kind, "run_id": run_id, "rows": rows, "dynamic": dynamic, "warnings": warns}
+    return {"kind": kind, "run_id": run_id, "rows": rows, "dynamic": dynamic, "warnings": warns, "missing": missing}
 
 
 def _sensor_cols(sensor) -> dict:
@@ -166,11 +166,11 @@ def _viscous(run_id, path, params):
     df = _read(path, ["t_s", "x_m", "p_a_pa", "p_b_pa", "f_n"])
     bp = _num(params.get("backpressure_bar"))
     if not {"t_s", "x_m"} <= set(df.columns):
-        return [], [], [f"{NAME}: viscous run lacks t or x; no passes"]
+        return [], [], [f"{NAME}: viscous run lacks t or x; no passes"], []
     try:
         force = vf.friction_from_run(df, _num(params.get("hose_area_m2")))
     except ValueError as exc:
-        return [], [], [f"{NAME}: viscous run: {exc}; no passes"]
+        return [], [], [f"{NAME}: viscous run: {exc}; no passes"], []
     source = "f" if "f_n" in df.columns and df["f_n"].notna().any() else "pressures"
     x = df["x_m"].to_numpy(float)
     sensor = sensor_from_params(params, "x", x)
@@ -187,10 +187,14 @@ def _viscous(run_id, path, params):
     dynamic = [{**common, **{k: dyn[k] for k in fd.COLUMNS}}]
     warns = [f"{NAME}: friction_dynamic: {dyn['note']}"] if dyn["note"] else []
     pts = vf.viscous_points(df["t_s"], x, force, sensor)
+    # a direction the carriage moved in without a pass: why, for viscous_fits' note (issue 25)
+    why = vf.missing_directions(df["t_s"], x, set(pts["direction"]), sensor)
+    missing = [{"backpressure_bar": bp, "direction": d, "note": f"{run_id}: {n}"} for d, n in why.items()]
+    warns = warns + [f"{NAME}: {n}" for n in why.values()]
     if pts.empty:
         return [], dynamic, warns + [f"{NAME}: no constant-velocity pass found in the viscous run "
-                                     f"(position sensor {sensor.describe()})"]
-    return [{**common, **r} for r in pts.to_dict("records")], dynamic, warns
+                                     f"(position sensor {sensor.describe()})"], missing
+    return [{**common, **r} for r in pts.to_dict("records")], dynamic, warns, missing
 
 
 def _frame(rows: list[dict], cols: list[str]) -> pd.DataFrame:
@@ -222,10 +226,11 @@ def run(ctx: StageContext) -> StageOutput:
             items.append((r.kind, r.run_id, str(ctx.samples_file(r.run_id)), _params(r.params)))
     results = ctx.map(analyse_run, items, label=NAME) if items else []
     rows = {k: [] for k in KINDS}
-    dynamic = []
+    dynamic, missing = [], []
     for res in results:
         rows[res["kind"]] += res["rows"]
         dynamic += res.get("dynamic", [])
+        missing += res.get("missing", [])
         for w in res["warnings"]:
             out.warn(res["run_id"], w)
 
@@ -235,7 +240,7 @@ def run(ctx: StageContext) -> StageOutput:
     summ = bk.breakaway_summary(brk)
     findings = bk.breakaway_findings(brk, CONFIDENCE)
     pts = _frame(rows["viscous"], VISCOUS_COLS)
-    fits = vf.viscous_fits(pts)
+    fits = vf.viscous_fits(pts, missing=missing)
     trans = vf.viscous_transition(pts)
     out.tables = {"leakage_map": leak, "seal_envelope": env, "breakaway": brk, "breakaway_summary": summ,
                   "breakaway_findings": findings, "viscous_points": pts, "viscous_fits": fits,

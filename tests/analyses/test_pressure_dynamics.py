@@ -282,3 +282,47 @@ def test_recovers_wn_and_zeta_per_age_from_noisy_steps():
     assert isinstance(fig, Figure) and len(fig.axes) == 3
     assert fig.axes[0].get_xlabel() == "age of the part [h]"
     assert {len(line.get_xdata()) for line in fig.axes[0].lines} == {2}    # new and aged, per direction
+
+
+def _breaths(fs_hz=1000.0, ramp_s=0.1, peep_pa=500.0, pip_pa=2000.0, mid_pa=None, hold_s=1.0):
+    """A ventilator's set-point at ``fs_hz``: PEEP, a ramp to PIP over ``ramp_s`` in one-sample
+    plateaus (a new value every sample), PIP, back to PEEP; or, with ``mid_pa``, a two-level staircase
+    PEEP -> mid -> PIP, each level held ``hold_s``."""
+    n_hold = int(round(hold_s * fs_hz))
+    if mid_pa is None:
+        n_ramp = int(round(ramp_s * fs_hz))
+        ramp = peep_pa + (pip_pa - peep_pa) * np.arange(1, n_ramp + 1) / n_ramp
+        r = np.concatenate([np.full(n_hold, peep_pa), ramp, np.full(n_hold - n_ramp, pip_pa), np.full(n_hold, peep_pa)])
+    else:
+        r = np.repeat([peep_pa, mid_pa, pip_pa, peep_pa], n_hold)
+    t = np.arange(r.size) / fs_hz
+    return t, r
+
+
+@pytest.mark.parametrize("ref_noise, ref_res, stated", [(0.0, 0.0, False), (5.0, 10.0, True), (10.0, 10.0, True),
+                                                     (20.0, 0.0, False)])
+def test_ramped_set_point_is_one_step_starting_where_the_ramp_starts(ref_noise, ref_res, stated):
+    # PEEP 500 Pa -> PIP 2000 Pa over 100 ms in one-sample plateaus at 1 kHz (15 Pa a sample):
+    # one charge step at 1.0 s, not one per change (before: the clean ramp gave 20 charge steps,
+    # a read-back with 5 Pa noise in 10 Pa counts 6, with 10 Pa noise 17); a read-back noisier
+    # than the ramp's rate (20 Pa a sample) too, its sensor estimated from the record
+    t, r = _breaths()
+    rng = np.random.default_rng(3)
+    ref = r + rng.normal(0, ref_noise, r.size) if ref_noise else r
+    ref = np.round(ref / ref_res) * ref_res if ref_res else ref
+    p = r + rng.normal(0, 20.0, r.size)
+    steps = split_pressure_steps(t, p, ref, ref_sensor=Sensor(ref_res, ref_noise) if stated else None)
+    assert [s.direction for s in steps] == ["charge", "discharge"]
+    assert steps[0].t_step_s == pytest.approx(1.0, abs=0.005 if ref_noise else 1e-9)
+    assert steps[0].p_ref_before_pa == pytest.approx(500.0, abs=10)
+    assert steps[0].p_ref_pa == pytest.approx(2000.0, abs=10)
+    assert steps[1].t_step_s == pytest.approx(2.0, abs=0.002)
+
+
+def test_two_level_staircase_stays_two_steps():
+    # the hostile neighbour: PEEP -> 1250 Pa -> 2000 Pa, each level held 1 s, is two charge steps
+    for fs_hz, hold_s in ((1000.0, 1.0), (1000.0, 0.02), (20.0, 1.5)):
+        t, r = _breaths(fs_hz=fs_hz, mid_pa=1250.0, hold_s=hold_s)
+        steps = split_pressure_steps(t, r, r)
+        assert [(s.direction, s.p_ref_pa) for s in steps] == [("charge", 1250.0), ("charge", 2000.0),
+                                                              ("discharge", 500.0)], (fs_hz, hold_s)

@@ -4,7 +4,7 @@ import pytest
 
 from analyses.quality import (Gate, Sensor, at_bound, describe_sensor, describe_sensor_at_rest, linear_lstsq, noise_std, nrmse_pct,
                               quantisation_step, scaled_condition, sensor_from_params, setpoint_jumps,
-                              setpoint_thresholds)
+                              setpoint_thresholds, settle_points)
 
 
 def _motion(n=20_000, fs=1000.0):
@@ -203,3 +203,17 @@ def test_time_base_gap_names_a_jump_of_the_clock_and_passes_lost_samples():
     t[600:] += 1e6
     assert time_base_gap(t, 0.01) == ("time base has a gap of 1e+06 s (1e+08 x the median step) at t = 5.99 s: "
                                       "a uniform grid would need 1e+08 points for 1000 samples (at most 2 x)")
+
+
+def test_setpoint_jumps_on_settled_levels_not_on_every_change():
+    # 1 kHz: a ramp of 100 samples, each its own value (15 a sample, one count of 15), then a hold
+    r = np.concatenate([np.zeros(1000), 15.0 * np.arange(1, 101), np.full(900, 1500.0), np.zeros(1000)])
+    assert setpoint_jumps(r, 14.985, 14.985, 5) == [1000, 2000]
+    # a noisy read-back of it (5 sigma thresholds of 10 noise), settled over 12 samples
+    noisy = r + np.random.default_rng(0).normal(0, 10.0, r.size)
+    jumps = setpoint_jumps(noisy, 50 * np.sqrt(2), 50.0, 5, settle_points=settle_points(Sensor(0.0, 10.0), 5))
+    assert len(jumps) == 2 and 1000 <= jumps[0] <= 1005 and jumps[1] == 2000
+    # a two-level staircase stays two steps
+    stairs = np.repeat([0.0, 750.0, 1500.0], 1000)
+    assert setpoint_jumps(stairs, 14.985, 14.985, 5) == [1000, 2000]
+    assert settle_points(Sensor(0.0, 10.0), 5) == 12 and settle_points(Sensor(1.0, 0.0), 5) == 5

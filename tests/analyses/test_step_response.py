@@ -150,3 +150,16 @@ def test_repeated_identical_steps_are_told_apart_and_go_their_own_ways():
     assert len(looks) == 6
     labels = fig.axes[0].get_legend_handles_labels()[1]
     assert labels == [s["label"] for s in steps]
+
+
+def test_ramped_reference_is_one_step_and_a_staircase_two():
+    # a position reference ramped over 100 ms in one-sample plateaus at 1 kHz: one step from the first
+    # sample off the level (the ramp starts at the 1.0 s knot, sample 1001 is its first change)
+    t = np.arange(0, 3, 0.001)
+    r = np.interp(t, [0, 1.0, 1.1, 2.0, 2.0005, 3.0], [0.2, 0.2, 0.21, 0.21, 0.2, 0.2])
+    r = np.round(r / 1e-6) * 1e-6
+    steps = find_steps(t, r, sensor=Sensor(1e-6, 0.0))
+    assert [(i0, round(before, 6), round(after, 6)) for i0, _, before, after in steps] == [(1001, 0.2, 0.21),
+                                                                                         (2001, 0.21, 0.2)]
+    stairs = np.round(np.where(t < 1, 0.2, np.where(t < 2, 0.205, 0.21)) / 1e-6) * 1e-6
+    assert [s[0] for s in find_steps(t, stairs, sensor=Sensor(1e-6, 0.0))] == [1000, 2000]

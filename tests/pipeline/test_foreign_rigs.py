@@ -122,7 +122,7 @@ def test_viscous_fits_recover_coulomb_and_viscous_per_backpressure(foreign):
     same): Coulomb and viscous within 3 %, note NULL."""
     fits = _rows(foreign["wh"], "SELECT * FROM viscous_fits ORDER BY backpressure_bar, direction")
     by_bp: dict[float, set] = {}
-    for stem in VISCOUS + ("trapezoid",):
+    for stem in VISCOUS + ("trapezoid",) + LASER:
         t = _truth(foreign, stem)
         by_bp.setdefault(float(t["backpressure_bar"]), set()).add((t["fc_n"], t["ka_n_s_m"]))
     assert sorted(fits["backpressure_bar"].unique()) == sorted(by_bp)
@@ -238,6 +238,40 @@ def test_the_report_shows_the_valve_against_its_age_in_the_pressure_section(fore
     section = section[:section.index("</section>")]
     assert 'id="fig-pressure_ageing"' in section and 'id="fig-pressure_steps_patient"' in section
     assert "RPV-2" in section and "594" in section          # the per-part table with its change
+
+
+def test_a_ramped_set_point_is_one_step_per_breath(foreign):
+    """The ventilator's set-point rises from PEEP to PIP over 100 ms in one-sample plateaus at 1 kHz:
+    one charge step per breath, from where the ramp starts, PEEP to PIP (before: 20 charge steps per
+    breath at intermediate levels, 5 ms apart: 60 charges for 3 breaths)."""
+    steps = _truth(foreign, "ventilator-ramp")["steps"]
+    got = _q(foreign["wh"], "SELECT * FROM pressure_steps WHERE run_id = ? ORDER BY t_step_s",
+             [f"{CAMPAIGN}/ventilator-ramp"])
+    assert list(got["direction"]) == [s["direction"] for s in steps] == ["charge", "discharge"] * 3
+    for s, (_, g) in zip(steps, got.iterrows()):
+        assert g["t_step_s"] == pytest.approx(s["t_step_s"], abs=1e-6)
+        assert g["p_from_bar"] == pytest.approx(s["p_from_pa"] / 1e5, abs=1e-6)
+        assert g["p_to_bar"] == pytest.approx(s["p_to_pa"] / 1e5, abs=1e-6)
+
+
+# -- laser position sensor at 100 Hz ------------------------------------------------------------------------
+LASER = ("laser-050um", "laser-100um", "laser-150um", "laser-200um")
+
+
+@pytest.mark.parametrize("stem", LASER)
+def test_laser_runs_have_passes_in_both_directions(foreign, stem):
+    """Fast strokes one way, slow returns the other, 0.05-0.2 mm of laser noise at 100 Hz: every true
+    pass found once, at its speed (1 %), inside its cruise, in both directions (before, P + N of the 6:
+    2 + 3, 0 + 3, 0 + 2 and 0 + 0; the 0.1 and 0.15 mm runs had the slow returns only)."""
+    truth = _truth(foreign, stem)
+    pts = _q(foreign["wh"], "SELECT * FROM viscous_points WHERE run_id = ? ORDER BY pass_index",
+             [f"{CAMPAIGN}/{stem}"])
+    assert len(pts) == len(truth["passes"]) == 6, stem
+    for p in truth["passes"]:
+        near = pts[(pts["velocity_m_s"] - p["velocity_m_s"]).abs() <= 0.01 * abs(p["velocity_m_s"])]
+        near = near[(near["t_start_s"] >= p["t_start_s"]) & (near["t_end_s"] <= p["t_end_s"] + 1e-9)]
+        assert len(near) == 1, (stem, p)
+    assert sorted(set(pts["direction"])) == ["N", "P"]
 
 
 # -- accelerometer -----------------------------------------------------------------------------------------

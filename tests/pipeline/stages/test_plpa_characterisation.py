@@ -350,3 +350,22 @@ def test_stage_is_deterministic_and_matches_the_warehouse(built):
     mine = first.tables["breakaway"].sort_values("run_id")
     assert np.allclose(stored["breakaway_force_n"].astype(float), mine["breakaway_force_n"].astype(float),
                        equal_nan=True)
+
+
+def test_a_direction_without_passes_is_a_viscous_fits_row_with_why(tmp_path):
+    # laser noise 0.2 mm at 100 Hz: fast strokes of 10-12 samples one way (no pass), slow returns the other
+    from analyses import viscous_friction as vf
+    from pipeline.simulator.plpa import simulate_viscous
+
+    run = simulate_viscous(0.0, (0.25, -0.004, 0.3, -0.008), use_force_channel=True, rng=1, fs_hz=100.0,
+                           cruise_m=0.03, min_cruise_s=0.05, max_cruise_s=30.0, position_resolution_m=10e-6,
+                           position_noise_m=0.2e-3)
+    path = tmp_path / "laser.parquet"
+    run.data.to_parquet(path)
+    out = stage.analyse_run(("viscous", "lab/laser", str(path), {"backpressure_bar": 0.0}))
+    assert {r["direction"] for r in out["rows"]} == {"N"}
+    assert [m["direction"] for m in out["missing"]] == ["P"]
+    assert out["missing"][0]["note"].startswith("lab/laser: direction P: no pass of constant velocity longer than")
+    assert any("direction P: no pass of constant velocity longer than" in w for w in out["warnings"])
+    fits = vf.viscous_fits(pd.DataFrame(out["rows"]), missing=out["missing"]).set_index("direction")
+    assert fits.loc["P", "n_points"] == 0 and fits.loc["P", "note"] == out["missing"][0]["note"]
