@@ -31,7 +31,7 @@ def test_every_foreign_run_ingests(campaign):
     assert {r.error for r in results.values()} == {None}
     assert len(results) == summary.n_runs == len(truth["runs"]) == len(foreign.plan())
     assert {r.run["run_id"] for r in results.values()} == set(truth["runs"])
-    assert summary.by_kind == {"viscous": 8, "pressure_step": 2, "timeseries": 1}
+    assert summary.by_kind == {"viscous": 10, "pressure_step": 2, "timeseries": 1}
 
 
 def _samples(campaign, run_id):
