@@ -394,7 +394,9 @@ def friction_dynamic(t_s, x_m, force_n, sensor: Sensor | None = None, force_sens
         reasons.append(f"mass_kg NULL: the drive force {way} the motion by more than {1e3 * edge * dt:.2g} ms, "
                        "which the model has no term for")
     if out["lag_s"] is None:
-        reasons.append("lag_s NULL: the record cannot tell a lag of the force from its mass and friction")
+        reasons.append(f"lag_s NULL: the estimate runs past the {1e3 * edge * dt:.2g} ms the record's edges leave"
+                       if np.isfinite(tau_se) else
+                       "lag_s NULL: the record cannot tell a lag of the force from its mass and friction")
     for name in PARAMS:
         if name in failed:
             out[name] = out[SE_NAMES[name]] = None
