@@ -22,7 +22,11 @@ Method (:func:`friction_dynamic`)
    acceleration are central differences of the filtered position. Because the force is filtered
    exactly like the position, the linear terms hold on the filtered signals (parallel
    filtering); the nonlinear Coulomb column is computed from the filtered velocity and then
-   filtered again, like the force.
+   filtered again, like the force. Its sign is read from a velocity filtered at
+   :data:`SIGN_CUTOFF_FACTOR` times the cut-off (at most ``fs / 4``): at the cut-off itself the
+   motion's top frequencies are attenuated, which moves the zero crossings of the
+   velocity -- and the Coulomb steps with them -- against the force's (on a multi-sine record this
+   showed as a 0.7 ms lag of a force that had none, and Coulomb 13 % low).
 3. *Parallel decimation.* Filtered columns and force are kept every ``r``-th sample, ``r`` such
    that the decimated Nyquist frequency is twice the cut-off: neighbouring rows are then
    nearly independent, as least-squares standard errors assume.
@@ -39,6 +43,21 @@ Method (:func:`friction_dynamic`)
    the filtered acceleration's noise is under :data:`EIV_MAX` of its variance is used (noise in
    a regressor biases its coefficient toward zero by that fraction); if none is, the mass is
    not reported.
+7. *Lag of the force* (``lag_s``, positive when the force lags the motion, negative when it leads;
+   ``lag_se_s``). A force logged ``tau`` late is ``F(t - tau) ~ F - tau dF/dt``: the time derivative
+   of the fitted model, added as a column, estimates the lag with its standard error; the filtered
+   force is then shifted by the estimate (cubic spline through the band-limited filtered force, a
+   fractional delay) and the step repeated until it is under 1 % of its standard error (Gauss-Newton
+   on the lag). A lag within :data:`LAG_MAX_SAMPLES` sample period -- channels scanned one after
+   another, a position read a little late -- is within the sampling: when significant (over
+   :data:`LAG_N_SE` standard errors) every parameter is taken from the compensated fit, provided,
+   for a force that lags, that the form of the lag cannot move the mass beyond its standard error
+   (a delay and any other lag of the same delay agree to first order in ``w tau`` and differ at
+   the next: at most ``|dM| w_c tau / 2``, ``dM`` the mass change of the compensation, ``w_c``
+   the cut-off). A force that leads is timing, not the force's dynamics (nothing causal advances
+   it). A longer lag, or one whose form matters, is a dynamics (a valve, an amplifier, a filter in
+   the DAQ) that a delay does not model: the uncompensated values are reported, and the mass only
+   if compensating the lag as a delay would move it by no more than its standard error.
 
 Quality gates (per parameter, unlike :class:`analyses.quality.Gate` which voids a whole row)
 ---------------------------------------------------------------------------------------------
@@ -50,7 +69,8 @@ of half the RMS drive force), or whose value is physically impossible (``M <= 0`
 is NULL and the note names it and says why -- e.g. ``mass_kg`` with no acceleration content,
 ``coulomb_n`` and ``viscous_n_s_m`` when the record moves at one speed level (:data:`ONE_LEVEL_REL`,
 :data:`ONE_LEVEL_SHARE`), ``mass_kg`` when the force lags or leads the motion by more than
-:data:`LAG_MAX_SAMPLES` (a jerk term added to the regression is significant). The others stand:
+:data:`LAG_MAX_SAMPLES` sample and compensating it would move the mass beyond its standard error
+(step 7). The others stand:
 collinear columns inflate each other's errors but do not bias the remaining estimates.
 """
 from __future__ import annotations
@@ -73,12 +93,21 @@ V_MIN_REL = 1e-3
 #: filtered force noise) is not reported: the seed papers' own bar for a model that fits
 #: (seed 001, Table 3). A record in the tanh transition (passes under a few ``vs``) misses it. [%]
 NRMSE_LIMIT_PCT = 2.5
-#: A drive force that lags or leads the motion by more than this many samples makes the mass
-#: unreliable (see :func:`friction_dynamic`): sampling resolves the timing of a channel to about
-#: half a sample, and smaller apparent lags are the filter's and the differences' own (a load
-#: cell with no lag shows up to a quarter of a sample); a real lag of half a sample already biases
-#: the mass by tens of percent at 100 Hz. [-]
-LAG_MAX_SAMPLES = 0.5
+#: A drive force that lags or leads the motion by at most this many sample periods is compensated
+#: (a fractional delay, step 7 of the module docstring): the sampling does not resolve a timing
+#: under a sample, and a multiplexed DAQ scans its channels within one sample period. A longer lag
+#: is dynamics a delay does not model: it voids the mass when compensating it as a delay would
+#: move the mass beyond its standard error. [-]
+LAG_MAX_SAMPLES = 1.0
+#: A lag is significant beyond this many of its standard errors. [-]
+LAG_N_SE = 3.0
+#: Most Gauss-Newton steps of the lag estimate. [-]
+LAG_MAX_ITER = 8
+#: The Coulomb column's sign comes from a velocity filtered at this multiple of the cut-off (at
+#: most ``fs / 4``): an order-4 Butterworth run forwards and backwards passes the band of the
+#: filtered columns (up to 1/3 of its own cut-off) within 2e-4 in amplitude, so the zero crossings
+#: stay where the motion has them. [-]
+SIGN_CUTOFF_FACTOR = 3.0
 #: Largest share of the filtered acceleration's variance that may be sensor noise (the bias of
 #: the mass toward zero, errors in variables). [-]
 EIV_MAX = 0.01
@@ -100,7 +129,7 @@ PARAMS = ("mass_kg", "viscous_n_s_m", "coulomb_n", "offset_n")
 SE_NAMES = {"mass_kg": "mass_se_kg", "viscous_n_s_m": "viscous_se_n_s_m", "coulomb_n": "coulomb_se_n",
             "offset_n": "offset_se_n"}
 COLUMNS = ("mass_kg", "coulomb_n", "viscous_n_s_m", "offset_n", "mass_se_kg", "coulomb_se_n", "viscous_se_n_s_m",
-           "offset_se_n", "nrmse_pct", "n_samples", "cond", "cutoff_hz", "note")
+           "offset_se_n", "nrmse_pct", "n_samples", "cond", "cutoff_hz", "lag_s", "lag_se_s", "note")
 
 
 def _sigma_eff(sensor: Sensor) -> float:
@@ -144,6 +173,33 @@ def motion_cutoff_hz(x_m, fs_hz: float, sensor: Sensor | None = None, snr_min: f
 
 def _filt(sos, y):
     return scipy.signal.sosfiltfilt(sos, y)
+
+
+def _estimate_lag(ff, X, X_all, idx, dt: float, max_shift: float):
+    """Lag of the filtered force behind the model (module docstring, step 7).
+
+    Returns ``(tau, tau_se, fit, y)``: the lag [s] (positive: the force lags), its standard error,
+    the fit on the force shifted by it and that shifted force at the rows ``idx``; ``tau_se`` NaN
+    (and ``fit``, ``y`` None) when the record cannot tell a lag from the other columns, ``fit``
+    and ``y`` None when the estimate runs past ``max_shift`` [s] (the rows' margin to the edges).
+    """
+    spline = scipy.interpolate.CubicSpline(np.arange(ff.size), ff)
+    tau, step, tau_se = 0.0, np.inf, float("nan")
+    for _ in range(LAG_MAX_ITER):
+        y = spline(idx + tau / dt)  # F_meas(t + tau): the force as it was when the motion was
+        fit = linear_lstsq(X, y)
+        deriv = np.gradient(X_all @ fit.beta, dt)[idx]
+        aug = linear_lstsq(np.column_stack([X, deriv]), y)
+        if aug.rank < X.shape[1] + 1 or not np.isfinite(aug.se[-1]):
+            return tau, float("nan"), None, None
+        step, tau_se = -float(aug.beta[-1]), float(aug.se[-1])
+        tau += step
+        if not abs(tau) < max_shift:
+            return tau, tau_se, None, None
+        if abs(step) <= 0.01 * tau_se:
+            break
+    y = spline(idx + tau / dt)
+    return tau, tau_se, linear_lstsq(X, y), y
 
 
 def friction_dynamic(t_s, x_m, force_n, sensor: Sensor | None = None, force_sensor: Sensor | None = None, *,
@@ -243,20 +299,44 @@ def friction_dynamic(t_s, x_m, force_n, sensor: Sensor | None = None, force_sens
         out["n_samples"] = int(idx.size)
         out["note"] = f"too few moving samples: {idx.size} < {MIN_ROWS}"
         return out
-    # sign(v), 0 where the carriage is at rest, filtered like the force (parallel filtering)
-    col = _filt(sos, np.where(slow_raw, 0.0, np.sign(v)))
-    X = np.column_stack([a[idx], v[idx], col[idx], np.ones(idx.size)])
+    # sign(v), 0 where the carriage is at rest, filtered like the force (parallel filtering); the
+    # sign from a velocity that keeps the motion's zero crossings (SIGN_CUTOFF_FACTOR)
+    fc_sign = min(SIGN_CUTOFF_FACTOR * fc, fs / 4.0)
+    if fc_sign > fc:
+        v_s = np.gradient(_filt(scipy.signal.butter(FILTER_ORDER, fc_sign, fs=fs, output="sos"), x), dt)
+        sig_vs = 2 * np.pi * sig_x * np.sqrt(2 * fc_sign ** 3 / (3 * fs))
+        vs_min = max(V_MIN_N_SIGMA * sig_vs, V_MIN_REL * float(np.max(np.abs(v_s))), 1e-12)
+        col = _filt(sos, np.where(np.abs(v_s) < vs_min, 0.0, np.sign(v_s)))
+    else:
+        col = _filt(sos, np.where(slow_raw, 0.0, np.sign(v)))
+    X_all = np.column_stack([a, v, col, np.ones(v.size)])
+    X = X_all[idx]
     fit = linear_lstsq(X, ff[idx])
     y = ff[idx]
-    nrmse = nrmse_pct(y, fit.fitted)
-    out.update({"n_samples": int(idx.size), "cond": float(fit.cond),
-                "nrmse_pct": float(nrmse) if np.isfinite(nrmse) else None})
-    values = dict(zip(PARAMS, (float(b) for b in fit.beta)))
-    ses = dict(zip(PARAMS, (float(s) for s in fit.se)))
+    out.update({"n_samples": int(idx.size), "cond": float(fit.cond)})
     if not (fit.cond < COND_MAX) or fit.rank < len(PARAMS):
         out["note"] = (f"design is ill-conditioned (condition number {fit.cond:.2g}): "
                        "the record cannot separate mass, friction and offset")
         return out
+    tau, tau_se, lag_fit, lag_y = _estimate_lag(ff, X, X_all, idx, dt, edge * dt)
+    lag_known = bool(np.isfinite(tau_se)) and lag_fit is not None
+    fit_delay = None  # the compensated fit of a lag that is not compensated, to weigh the mass against
+    if lag_known and abs(tau) > LAG_N_SE * tau_se:
+        # a lead is timing (nothing causal advances the force); a lag may be a dynamics: how far the
+        # delay moves the mass, and how far a lag of another form could move it beyond that (the
+        # forms agree to first order in w tau and differ at the next, ~ w_c tau / 2 of it)
+        shift_m = abs(float(lag_fit.beta[0] - fit.beta[0]))
+        shape_m = shift_m * 2 * np.pi * fc * tau / 2 if tau > 0 else 0.0
+        if abs(tau) <= LAG_MAX_SAMPLES * dt and shape_m <= fit.se[0]:
+            fit, y = lag_fit, lag_y  # within the sampling: compensated
+        else:
+            fit_delay = lag_fit
+    if lag_known:
+        out["lag_s"], out["lag_se_s"] = float(tau), float(tau_se)
+    nrmse = nrmse_pct(y, fit.fitted)
+    out["nrmse_pct"] = float(nrmse) if np.isfinite(nrmse) else None
+    values = dict(zip(PARAMS, (float(b) for b in fit.beta)))
+    ses = dict(zip(PARAMS, (float(s) for s in fit.se)))
     sig_f = _sigma_eff(force_sensor) * np.sqrt(2 * fc / fs)
     rms = float(np.sqrt(np.mean((y - fit.fitted) ** 2)))
     if not np.isfinite(nrmse) or (nrmse > NRMSE_LIMIT_PCT and rms > 3 * sig_f):
@@ -294,19 +374,29 @@ def friction_dynamic(t_s, x_m, force_n, sensor: Sensor | None = None, force_sens
         reasons.append(f"mass_kg NULL: {failed['mass_kg']}; acceleration content {acc_rms:.2g} m/s2 RMS")
     if "offset_n" in failed:
         reasons.append(f"offset_n NULL: {failed['offset_n']}")
-    if "mass_kg" not in failed and fit.rank == len(PARAMS):
-        # a force that lags (or leads) the motion -- a valve or amplifier lag, a filter in the
-        # DAQ -- shows as a jerk term: F_meas ~ F - tau dF/dt ~ ... - tau M j. A significant
-        # implied lag biases the mass; the friction, read at steadier speeds, stands.
-        j = np.gradient(a, dt)
-        lag = linear_lstsq(np.column_stack([X, j[idx]]), ff[idx])
-        if lag.rank == len(PARAMS) + 1 and np.isfinite(lag.se[4]) and lag.beta[0] > 0:
-            tau = -float(lag.beta[4]) / values["mass_kg"]
-            tau_se = float(lag.se[4]) / values["mass_kg"]
-            if abs(tau) > max(LAG_MAX_SAMPLES * dt, 3 * tau_se):
-                failed["mass_kg"] = "lag"
-                reasons.append(f"mass_kg NULL: the drive force {'lags' if tau > 0 else 'leads'} the motion by about "
-                               f"{1e3 * abs(tau):.2g} ms, which the model has no term for")
+    # a force that lags (or leads) the motion by more than a sample -- a valve or amplifier lag, a
+    # filter in the DAQ -- is dynamics, not a delay: the mass stands only if compensating the lag
+    # as a delay would not move it beyond its standard error; the friction, read at steadier
+    # speeds, stands
+    way = "lags" if tau > 0 else "leads"
+    if "mass_kg" not in failed and fit_delay is not None:
+        m_delay = float(fit_delay.beta[0])
+        if abs(m_delay - values["mass_kg"]) > ses["mass_kg"]:
+            failed["mass_kg"] = "lag"
+            why = ("more than a sample" if abs(tau) > LAG_MAX_SAMPLES * dt else
+                   f"{2 * np.pi * fc * abs(tau):.2g} rad at the cut-off, where a delay no longer stands for any lag")
+            reasons.append(f"mass_kg NULL: the drive force {way} the motion by about {1e3 * abs(tau):.2g} ms "
+                           f"({abs(tau) / dt:.2g} samples, {why}), which the model has no term for: compensated as "
+                           f"a delay it would move the mass from {values['mass_kg']:.3g} to {m_delay:.3g} kg, beyond "
+                           f"its standard error {ses['mass_kg']:.2g} kg")
+    elif "mass_kg" not in failed and np.isfinite(tau_se) and lag_fit is None:
+        failed["mass_kg"] = "lag"
+        reasons.append(f"mass_kg NULL: the drive force {way} the motion by more than {1e3 * edge * dt:.2g} ms, "
+                       "which the model has no term for")
+    if out["lag_s"] is None:
+        reasons.append(f"lag_s NULL: the estimate runs past the {1e3 * edge * dt:.2g} ms the record's edges leave"
+                       if np.isfinite(tau_se) else
+                       "lag_s NULL: the record cannot tell a lag of the force from its mass and friction")
     for name in PARAMS:
         if name in failed:
             out[name] = out[SE_NAMES[name]] = None

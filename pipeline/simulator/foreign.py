@@ -34,6 +34,10 @@ folder             what it exercises
                    (white noise 0.05-0.2 mm, 10 um steps; the 0.15 mm run loses 0.5 % of its
                    samples, written `nan`): short fast strokes one way (20, 50, 80 mm/s over
                    60 mm), slow returns the other (4 and 8 mm/s)
+``lineardrive``    a linear motor axis at 1 kHz (:func:`linear_drive`): multi-sine motion, 1 um
+                   encoder, drive force ``f`` [N] from the motor current, no pressures; the force
+                   leads the motion by 0.57 ms (``linear-drive``, under a sample) or by 3 ms
+                   (``linear-drive-fieldbus``: the position comes over a fieldbus 3 samples late)
 =================  =========================================================================
 
 truth.json (same layout as the main campaigns) holds per run the true values (``fc_n``
@@ -78,6 +82,7 @@ RIG_TOMLS = {
     "ventilator/rig.toml": '[metadata]\nrig = "ventilator-pinch-valve"\n',
     "laser/rig.toml": ('[metadata]\nrig = "printed-cylinder-laser"\nhose_area_m2 = 4.9e-4\n\n'
                        '[sensors.x]\nresolution = "10 um"\n'),
+    "lineardrive/rig.toml": '[metadata]\nrig = "linear-drive"\n',
 }
 
 LOW_SPEEDS_M_S = tuple(s * v for v in (0.005, 0.010, 0.015) for s in (1.0, -1.0))
@@ -160,6 +165,10 @@ def plan() -> list[ForeignRun]:
         units={"f_g": "g"})
     _pinch_valve_runs(add)
     _plan_ramps_and_laser(add)
+    for stem, lead in (("linear-drive", 0.57e-3), ("linear-drive-fieldbus", 3e-3)):
+        add(stem=stem, folder="lineardrive", fmt="csv", kind="viscous", sim=dict(force_lead_s=lead),
+            units={"x_m": "mm", "f_n": "N"},
+            sensors={"x_resolution_m": LINEAR_DRIVE["position_resolution_m"], "f_noise_n": LINEAR_DRIVE["force_noise_n"]})
     return runs
 
 
@@ -244,6 +253,55 @@ def _pinch_valve(run: ForeignRun, rng: np.random.Generator) -> SimRun:
     return SimRun(sim.data, sim.metadata, {**sim.truth, "valve_id": run.sim["valve_id"], "age_h": run.sim["age_h"]})
 
 
+#: The linear drive: a linear motor axis (moving mass, Coulomb and viscous friction of its guides,
+#: a force offset from the current sensor's zero), excited by a sum of sines as inverse-dynamics
+#: identification does; logged at 1 kHz with a 1 um encoder and the force from the motor current
+#: (noise 0.4 N, 0.01 N steps). [SI]
+LINEAR_DRIVE = {"fs_hz": 1000.0, "duration_s": 20.0, "mass_kg": 3.8, "fc_n": 9.5, "ka_n_s_m": 42.0,
+                "force_offset_n": -1.2, "force_noise_n": 0.4, "force_step_n": 0.01, "position_resolution_m": 1e-6,
+                "x0_m": 0.2, "vs_m_s": plpa.VS_M_S,
+                "sines": ((0.05, 0.7, 0.0), (0.02, 2.3, 1.0), (0.006, 5.9, 2.0))}   # (amplitude m, Hz, phase rad)
+
+
+def _sines_kinematics(sines, t):
+    """Position, velocity and acceleration of a sum of ``(amplitude, frequency, phase)`` sines."""
+    x, v, a = (np.zeros_like(t) for _ in range(3))
+    for amp, f_hz, phase in sines:
+        w = 2 * np.pi * f_hz
+        x = x + amp * np.sin(w * t + phase)
+        v = v + amp * w * np.cos(w * t + phase)
+        a = a - amp * w * w * np.sin(w * t + phase)
+    return x, v, a
+
+
+def linear_drive(rng=None, *, force_lead_s: float = 0.0, **overrides) -> SimRun:
+    """A linear drive's record: ``f = m a + Fc tanh(v / vs) + ka v + offset`` evaluated
+    ``force_lead_s`` later than the position (a force that leads the motion: a position read late,
+    or channels scanned one after another; negative: the force lags), with sensor noise.
+
+    Parameters are those of :data:`LINEAR_DRIVE`, each overridable by keyword. The truth holds them
+    (``moving_mass_kg``, ``fc_n``, ``ka_n_s_m``, ``force_offset_n``, ``force_lead_s``) and ``lag_s``
+    (the lag as :func:`analyses.friction_dynamic.friction_dynamic` reports it: ``-force_lead_s``).
+    """
+    from pipeline.simulator.base import make_rng, quantise
+
+    p = {**LINEAR_DRIVE, **overrides}
+    rng = make_rng(rng)
+    n = int(round(p["duration_s"] * p["fs_hz"]))
+    t = time_vector(n, p["fs_hz"])
+    x = _sines_kinematics(p["sines"], t)[0]
+    _, v, a = _sines_kinematics(p["sines"], t + force_lead_s)
+    force = p["mass_kg"] * a + plpa.friction_force(v, p["fc_n"], p["ka_n_s_m"], p["vs_m_s"]) + p["force_offset_n"]
+    data = pd.DataFrame({"t_s": t, "x_m": quantise(p["x0_m"] + x, p["position_resolution_m"]),
+                         "f_n": quantise(force + rng.normal(0.0, p["force_noise_n"], n), p["force_step_n"])})
+    truth = {"kind": "viscous", "moving_mass_kg": p["mass_kg"], "fc_n": p["fc_n"], "ka_n_s_m": p["ka_n_s_m"],
+             "vs_m_s": p["vs_m_s"], "force_offset_n": p["force_offset_n"], "force_lead_s": float(force_lead_s),
+             "lag_s": -float(force_lead_s), "fs_hz": p["fs_hz"], "x0_m": p["x0_m"], "sines": p["sines"],
+             "position_step_m": p["position_resolution_m"], "force_noise_n": p["force_noise_n"], "passes": []}
+    # a viscous run states its backpressure; an electric drive has no chamber: 0 bar
+    return SimRun(data, {"kind": "viscous", "rig": "linear-drive", "backpressure_bar": 0.0}, truth)
+
+
 def _accelerometer(rng: np.random.Generator, fs_hz: float, duration_s: float) -> SimRun:
     """A shaker's accelerometer: a 12 Hz sine of 0.8 g with 0.02 g noise. [g]"""
     n = int(round(duration_s * fs_hz))
@@ -259,6 +317,8 @@ def simulate(run: ForeignRun, seed: int) -> SimRun:
     rng = np.random.default_rng([int(seed), 1000 + run.index])
     if run.stem == "ventilator-ramp":
         return _ventilator(rng, **run.sim)
+    if run.folder == "lineardrive":
+        return linear_drive(rng, **run.sim)
     if run.kind == "viscous":
         sim = plpa.simulate_viscous(rng=rng, **run.sim)
         data = sim.data
@@ -373,4 +433,4 @@ def simulate_foreign(out_dir, seed: int = 1) -> dict:
     return truth
 
 
-__all__ = ["CAMPAIGN", "ForeignRun", "plan", "simulate", "simulate_foreign", "write_run", "RIG_TOMLS", "PINCH_VALVE"]
+__all__ = ["CAMPAIGN", "ForeignRun", "plan", "simulate", "simulate_foreign", "write_run", "RIG_TOMLS", "PINCH_VALVE", "linear_drive"]

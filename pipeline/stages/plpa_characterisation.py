@@ -62,7 +62,7 @@ VISCOUS_COLS = ["run_id", "backpressure_bar", "velocity_m_s", "friction_n", "dir
                 "velocity_se_m_s", "x_resolution_m", "x_noise_m", "sensor_source"]
 DYNAMIC_COLS = ["run_id", "backpressure_bar", "mass_kg", "coulomb_n", "viscous_n_s_m", "offset_n", "mass_se_kg",
                 "coulomb_se_n", "viscous_se_n_s_m", "offset_se_n", "nrmse_pct", "n_samples", "cond", "cutoff_hz",
-                "force_source", "x_resolution_m", "x_noise_m", "sensor_source", "note"]
+                "lag_s", "lag_se_s", "force_source", "x_resolution_m", "x_noise_m", "sensor_source", "note"]
 
 
 def _num(value):

@@ -151,6 +151,10 @@ CREATE TABLE friction_dynamic (
     n_samples         BIGINT,             -- rows used (after filtering, decimation, rest removed)
     cond              DOUBLE,             -- scaled condition number of the design
     cutoff_hz         DOUBLE,             -- low-pass cut-off chosen from the data
+    lag_s             DOUBLE,             -- lag of the drive force behind the motion (negative: it leads);
+                                          -- within a sample period it is compensated, longer it voids the
+                                          -- mass when compensating it would move the mass beyond mass_se_kg
+    lag_se_s          DOUBLE,             -- standard error of lag_s
     force_source      VARCHAR,            -- 'f' or 'pressures'
     x_resolution_m    DOUBLE,
     x_noise_m         DOUBLE,

@@ -31,7 +31,7 @@ def test_every_foreign_run_ingests(campaign):
     assert {r.error for r in results.values()} == {None}
     assert len(results) == summary.n_runs == len(truth["runs"]) == len(foreign.plan())
     assert {r.run["run_id"] for r in results.values()} == set(truth["runs"])
-    assert summary.by_kind == {"viscous": 12, "pressure_step": 5, "timeseries": 1}  # + pinch valve new/aged, ventilator ramp, laser runs
+    assert summary.by_kind == {"viscous": 14, "pressure_step": 5, "timeseries": 1}  # + pinch valve new/aged, ventilator ramp, laser runs, linear drive
 
 
 def _samples(campaign, run_id):
