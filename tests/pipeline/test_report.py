@@ -579,6 +579,14 @@ def test_a_leak_under_the_flow_sensors_floor_reads_below_it_and_a_column_keeps_o
     # without the sensors the floor is unknown: the values are shown, still in one format, no scientific notation
     cells = _table_cells(html_table(cols[:4], [r[:4] for r in rows]))
     assert [r[2] for r in cells] == ["-0.002", "0.000", "0.704", "14.707"]
+    # a sensors text that states no usable flow sensor gives no floor (the value is shown)
+    from pipeline.report import flow_floor_l_min
+    assert flow_floor_l_min(Q_SENSORS) == pytest.approx(floor)
+    for bad in (None, "", "p_supply: resolution 1, noise 307 (estimated) Pa", "q_leak: resolution x, noise y (estimated) kg/s",
+                "q_leak: resolution nan, noise nan (estimated) kg/s", "q_leak: resolution 0, noise 0 (estimated) kg/s"):
+        assert flow_floor_l_min(bad) is None, bad
+    cells = _table_cells(html_table(cols, [("r1", 5.0, -0.0019, 0.0027, "q_leak: resolution x, noise y (estimated) kg/s")]))
+    assert cells[0][2] == "-0.0019"
     # a column of tiny values alone is scientific throughout; one too wide for fixed notation as well
     cells = _table_cells(html_table(["ae_m2"], [(1.541e-5,), (2.1e-6,)]))
     assert [r[0] for r in cells] == ["1.541e-05", "2.100e-06"]
