@@ -282,7 +282,7 @@ def plot_step_errors(steps: list[dict], title: str = ""):
     ax.set_xlabel("time since the step [s]")
     ax.set_ylabel("position from the step start [mm]" if signed else "position [% of the step]")
     ax.grid(alpha=0.3)
-    ax.set_title(title or "Closed-loop steps: position (seed 000, Fig. 15); inset: error and the 2 % band")
+    ax.set_title(title or "Closed-loop steps: position (the PLPA paper, Fig. 15); inset: error and the 2 % band")
     if steps:
         ins = ax.inset_axes([0.55, 0.30, 0.42, 0.36])
         for k, s in enumerate(steps):

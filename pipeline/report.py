@@ -7,9 +7,12 @@ in the last 24 hours (``findings.changed_at``; an overturned one stays there thr
 rebuilds that night); the findings; per paper (:data:`LAYOUT`) each figure with the summary a
 reader compares it to and the paper's tables beside the lab's values (:data:`PAPER`: paper value,
 measured value with its standard uncertainty, difference), the rows behind them folded with a
-CSV download; other figures; the last rebuild (new, changed, deleted and quarantined inputs with
-their reasons); and every run. Column headers carry the unit of the column's suffix, numbers
-show 4 significant digits, every run id links to its page (channels drawn by
+CSV download, each figure on a row of its own (drawn near its full size); other figures, when a
+figure belongs to no paper; the last rebuild (new, changed, deleted and quarantined inputs with
+their reasons); and every run. Column headers carry the unit of the column's suffix, a column of
+numbers keeps one format chosen from its range (:func:`column_format`), a leak under its flow
+sensor's floor reads "< floor" (:data:`FLOORED_COLUMNS`; the stored value stays), every run id
+links to its page (channels drawn by
 :mod:`pipeline.run_pages`, metadata, warnings, the results derived from it; a page is redrawn
 only when its inputs changed). Figures and downloads are embedded as data: URIs, the style is
 inline and there is no script: the files open from disk anywhere. Every piece of text is
@@ -33,6 +36,7 @@ import re
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
+from pipeline.papers import PLA_CITATION, PLPA_CITATION
 from pipeline.warehouse import DB_NAME, connect_readonly
 
 MAX_ROWS = 30          # rows of a key table shown
@@ -74,7 +78,6 @@ figcaption{color:#3a4252;font-size:.92em;margin-top:4px}.more{color:#5b6475;font
 nav.toc{border:1px solid #d8dce4;background:#f8f9fb;padding:8px 18px;margin:14px 0;columns:2;column-gap:30px;font-size:.92em}
 nav.toc ul{margin:2px 0;padding-left:18px}nav.toc>ul{padding-left:0;list-style:none}nav.toc li{break-inside:avoid}
 details{margin:6px 0 12px}summary{cursor:pointer;color:#2a4d8f}a{color:#2a4d8f}
-.pair{display:flex;flex-wrap:wrap;gap:14px}.pair figure{flex:1 1 520px;margin:6px 0}
 td.diff-ok{color:#16632a}td.diff-bad{color:#9b1c1c;font-weight:600}
 """
 
@@ -141,12 +144,91 @@ def run_href(run_id: str, prefix: str = "runs/") -> str:
     return prefix + page_name(run_id)
 
 
-def _cell(column: str, value, links) -> str:
+def _cell(column: str, value, links, number=None) -> str:
     if column == "run_id" and isinstance(value, str) and (links is True or (links and value in links)):
         return f'<td><a href="{esc(run_href(value))}">{esc(value)}</a></td>'
     if isinstance(value, (int, float)) and not isinstance(value, bool):
-        return f'<td class="num">{fmt(value)}</td>'
+        return f'<td class="num">{esc(number(value)) if number is not None else fmt(value)}</td>'
     return f"<td>{fmt(value)}</td>"
+
+
+#: Leak columns that read "< floor" where their value is under the flow sensor's floor (the stored
+#: value stays as it is): a mean leak that small, or negative, is the sensor's own scatter.
+FLOORED_COLUMNS = ("leak_l_min", "leak_at_5_bar_l_min", "leak_at_6_bar_l_min")
+#: A row's floor of :data:`FLOORED_COLUMNS`: this column when the row has it, else the flow sensor
+#: stated in its ``sensors`` text (``leakage_map``).
+FLOOR_COLUMN = "leak_floor_l_min"
+_FLOW_SENSOR = re.compile(r"q_leak: resolution (\S+), noise (\S+) \([^)]*\) kg/s")
+
+
+def flow_floor_l_min(sensors) -> float | None:
+    """Floor of the leak-flow sensor a ``leakage_map.sensors`` text states, in l/min ANR: the
+    larger of its resolution and noise (:meth:`analyses.quality.Sensor.floor`); None without one."""
+    from schemas.units import kg_s_to_l_min_anr
+
+    m = _FLOW_SENSOR.search(sensors) if isinstance(sensors, str) else None
+    try:
+        floor = max(float(m.group(1)), float(m.group(2))) if m else math.nan
+    except ValueError:
+        return None
+    return float(kg_s_to_l_min_anr(floor)) if math.isfinite(floor) and floor > 0 else None
+
+
+#: A column shows at most this many decimals more than its largest value needs for its digits.
+MORE_DECIMALS = 1
+
+
+def column_format(values, sig: int = 4):
+    """One number format for a column (a function float -> text), chosen from its range: fixed
+    notation with the decimals its values need for ``sig`` significant digits each (fewer when they
+    show the same with fewer; at most :data:`MORE_DECIMALS` past what the largest needs), or
+    scientific notation throughout when the largest is under 1e-3 or from 1e6 up. Integers print
+    whole; "-0.00" prints "0.00"."""
+    finite = [abs(float(v)) for v in values if isinstance(v, float) and math.isfinite(v)]
+    hi = max(finite, default=0.0)
+    if hi == 0:
+        return lambda v: _num(v, sig) if isinstance(v, float) else str(v)
+    if not 1e-3 <= hi < 1e6:
+        return lambda v: (str(v) if not isinstance(v, float) else "—" if math.isnan(v)
+                          else "0" if v == 0 else f"{v:.{sig - 1}e}")
+    top = max(sig - 1 - math.floor(math.log10(hi)), 0)
+    # as many decimals as the values need to show their own ``sig`` digits (3.5 beside 1300 keeps its
+    # .5), at most MORE_DECIMALS past what the largest needs: a value far under the largest is noise there
+    need = max((sig - 1 - math.floor(math.log10(v)) for v in finite if v), default=0)
+    limit = max(0, min(need, top + MORE_DECIMALS))
+    shown = [float(f"{float(_num(v, sig)):.{limit}f}") for v in finite]
+    decimals = next(d for d in range(limit + 1) if all(float(f"{v:.{d}f}") == v for v in shown))
+
+    def number(v) -> str:
+        if not isinstance(v, float):
+            return str(v)
+        if not math.isfinite(v):
+            return "—" if math.isnan(v) else str(v)
+        text = f"{v:.{decimals}f}"
+        return text.lstrip("-") if float(text) == 0 else text
+    number.decimals = decimals
+    return number
+
+
+def _row_floor(columns: list[str], row: tuple) -> float | None:
+    if FLOOR_COLUMN in columns:
+        v = row[columns.index(FLOOR_COLUMN)]
+        return float(v) if isinstance(v, (int, float)) and math.isfinite(v) and v > 0 else None
+    return flow_floor_l_min(row[columns.index("sensors")]) if "sensors" in columns else None
+
+
+def _under_floor(value, floor) -> bool:
+    return floor is not None and isinstance(value, (int, float)) and not isinstance(value, bool) \
+        and math.isfinite(value) and abs(value) < floor
+
+
+def _floor_text(floor: float, number) -> str:
+    """``< floor``, the floor rounded up to the column's decimals (at least one significant digit)."""
+    decimals = getattr(number, "decimals", None)
+    if decimals is None:
+        return "< " + _num(floor, 1)
+    d = max(decimals, -math.floor(math.log10(floor)))
+    return f"< {math.ceil(floor * 10 ** d - 1e-9) / 10 ** d:.{d}f}"
 
 
 def html_table(columns: list[str], rows: list[tuple], max_rows: int = MAX_ROWS, total: int | None = None,
@@ -156,7 +238,17 @@ def html_table(columns: list[str], rows: list[tuple], max_rows: int = MAX_ROWS, 
     if not rows:
         return '<p class="more">no rows</p>'
     head = "".join(_th(c) for c in columns)
-    body = ["<tr>" + "".join(_cell(c, v, links) for c, v in zip(columns, r)) + "</tr>" for r in rows[:max_rows]]
+    shown = rows[:max_rows]
+    floors = [_row_floor(columns, r) for r in shown] if any(c in FLOORED_COLUMNS for c in columns) else [None] * len(shown)
+    numbers = []  # one format per column, from the values it shows as numbers
+    for j, c in enumerate(columns):
+        values = [r[j] for r, f in zip(shown, floors) if not (c in FLOORED_COLUMNS and _under_floor(r[j], f))]
+        numbers.append(column_format(values) if any(isinstance(v, float) for v in values) else None)
+    body = []
+    for r, floor in zip(shown, floors):
+        cells = [f'<td class="num">{esc(_floor_text(floor, n))}</td>' if c in FLOORED_COLUMNS and _under_floor(v, floor)
+                 else _cell(c, v, links, n) for c, v, n in zip(columns, r, numbers)]
+        body.append("<tr>" + "".join(cells) + "</tr>")
     total = len(rows) if total is None else total
     more = f'<p class="more">{total - max_rows} more rows: query the warehouse</p>' if total > max_rows else ""
     return (f'<div class="wrap"><table><thead><tr>{head}</tr></thead><tbody>{"".join(body)}</tbody>'
@@ -225,6 +317,14 @@ def _change_note(change, at) -> str:
     return f"<br><b>{esc(change)}</b>" + (f" {_when(at)}" if at is not None else "")
 
 
+def _p_text(p) -> str:
+    """A p-value in one format: four decimals, "< 0.0001" under that (a p of 1e-30 is no more
+    meaningful than one of 1e-5)."""
+    if not isinstance(p, (int, float)) or isinstance(p, bool) or not math.isfinite(p):
+        return "—"
+    return "< 0.0001" if p < 5e-5 else f"{p:.4f}"
+
+
 def _findings_section(db: _DB, now: datetime) -> tuple[str, str]:
     """(first section: findings whose result changed in the last 24 hours, findings section)."""
     since = now - CHANGE_WINDOW
@@ -248,7 +348,7 @@ def _findings_section(db: _DB, now: datetime) -> tuple[str, str]:
         value = "—" if measured is None else fmt(measured) + (f" ± {fmt(unc, 2)}" if unc is not None else "")
         body.append(f"<tr><td><b>{esc(statement)}</b><br><span class=\"meta\">{esc(fid)}</span></td>"
                     f'<td class="num">{value} {_unit(unit)}</td><td>{esc(criterion)}</td>{_holds_cell(holds)}'
-                    f'<td class="num">{fmt(n)}</td><td class="num">{fmt(p)}</td>'
+                    f'<td class="num">{fmt(n)}</td><td class="num">{esc(_p_text(p))}</td>'
                     f"<td>{_linkify(detail, db.run_ids())}{_change_note(change, at)}</td></tr>")
     n_hold = sum(1 for r in rows if r[6] is True)
     n_fail = sum(1 for r in rows if r[6] is False)
@@ -502,19 +602,21 @@ def _summary_leakage(db: _DB) -> str:
     if not db.has("leakage_map"):
         return ""
     hose = "coalesce(hose_id, '') = ''" if "hose_id" in db.columns("leakage_map") else "true"
+    sensors = "sensors" if "sensors" in db.columns("leakage_map") else "NULL::VARCHAR"
     env = db.has("seal_envelope")
     sql = f"""
         WITH m AS (SELECT chamber, adjustment, z_rollers_mm, spring_force_n, run_id, leak_l_min,
-                          round(pressure_bar) AS nominal_bar FROM leakage_map WHERE {hose}),
+                          {sensors} AS sensors, round(pressure_bar) AS nominal_bar FROM leakage_map WHERE {hose}),
         s AS (SELECT chamber, adjustment, z_rollers_mm, spring_force_n,
                      avg(leak_l_min) FILTER (WHERE nominal_bar = 5) AS leak_at_5_bar_l_min,
                      avg(leak_l_min) FILTER (WHERE nominal_bar = 6) AS leak_at_6_bar_l_min,
+                     list(DISTINCT sensors) FILTER (WHERE nominal_bar IN (5, 6)) AS leak_floor_l_min,
                      count(DISTINCT run_id) AS n_runs
               FROM m GROUP BY ALL)
         SELECT s.chamber, s.adjustment, coalesce(s.z_rollers_mm, s.spring_force_n) AS setting,
                CASE WHEN s.adjustment = 'distance' THEN 'mm' ELSE 'N' END AS setting_unit,
                {'e.sealed_up_to_bar, e.first_leak_bar,' if env else ''}
-               s.leak_at_5_bar_l_min, s.leak_at_6_bar_l_min, s.n_runs
+               s.leak_at_5_bar_l_min, s.leak_at_6_bar_l_min, s.leak_floor_l_min, s.n_runs
         FROM s {'LEFT JOIN seal_envelope e ON e.chamber = s.chamber AND e.adjustment = s.adjustment AND '
                 'e.z_rollers_mm IS NOT DISTINCT FROM s.z_rollers_mm AND '
                 'e.spring_force_n IS NOT DISTINCT FROM s.spring_force_n' if env else ''}
@@ -522,6 +624,10 @@ def _summary_leakage(db: _DB) -> str:
     cols, rows = db.rows(sql)
     if not rows:
         return ""
+    # the floor of a mean over runs: the coarsest flow sensor among them (leak cells under it read "< floor")
+    j = cols.index(FLOOR_COLUMN)
+    rows = [(*r[:j], max((f for t in (r[j] or []) if (f := flow_floor_l_min(t)) is not None), default=None), *r[j + 1:])
+            for r in rows]
     return ("<h4>Seal and leak per roller setting (characterisation runs only; worn-hose checks left out)</h4>"
             + html_table(cols, rows, 60))
 
@@ -638,7 +744,7 @@ def _summary_hoses(db: _DB) -> str:
 #: The results section: papers, their topics, the figures of each topic (exact names, or a prefix
 #: ending in ``*``), the summary a reader compares them to, and the tables behind it.
 LAYOUT = (
-    ("plpa", "PLPA peristaltic actuator (seed 000: Carneiro et al. 2020)", (
+    ("plpa", f"PLPA peristaltic actuator ({PLPA_CITATION})", (
         ("leakage", "Leakage maps (Figs. 9–10)", ("leakage_distance", "leakage_force"), _summary_leakage,
          ("leakage_map", "seal_envelope")),
         ("breakaway", "Static breakaway (Fig. 12)", ("breakaway",), _summary_breakaway,
@@ -649,7 +755,7 @@ LAYOUT = (
          ("identification",)),
         ("step", "Closed-loop step (Fig. 15)", ("step_*",), _summary_step, ("step_response",)),
     )),
-    ("pla", "PLA cylinder (seed 001: Palomares et al. 2017)", (
+    ("pla", f"PLA cylinder ({PLA_CITATION})", (
         ("spring", "Spring model (Tables 1 and 3)", ("spring_loops_*", "spring_loop_energy"), _summary_spring,
          ("spring_fits", "spring_tests", "spring_loop_energy")),
         ("pressure", "Pressure dynamics (Table 2)", ("pressure_ageing", "pressure_steps_*"), _summary_pressure,
@@ -689,9 +795,7 @@ def _results_sections(db: _DB, warehouse: Path) -> tuple[str, list]:
             if not mine and not body and not raws:
                 continue
             used.update(f[1] for f in mine)
-            figs_html = "".join(_figure(warehouse, n, p, c) for _s, n, p, c in mine)
-            if len(mine) > 1:
-                figs_html = f'<div class="pair">{figs_html}</div>'
+            figs_html = "".join(_figure(warehouse, n, p, c) for _s, n, p, c in mine)  # one per row, full width
             parts.append(f'<section id="{tid}"><h3>{esc(ttitle)}</h3>{body}{figs_html}'
                          f'{"<p class=meta>Rows behind it:</p>" + raws if raws else ""}</section>')
             sub.append((tid, ttitle))
@@ -699,24 +803,21 @@ def _results_sections(db: _DB, warehouse: Path) -> tuple[str, list]:
             html_out.append(f'<section id="{pid}"><h2>{esc(ptitle)}</h2>{"".join(parts)}</section>')
             toc.append((pid, ptitle, sub))
     rest = [f for f in figs if f[1] not in used]
+    if not rest:  # every figure is shown with its paper above (or there is none): no empty section
+        return "".join(html_out), toc
     out = ['<section id="analyses"><h2>Other figures</h2>']
-    if not figs:
-        out.append('<p class="nodata">no figures</p>')
-    elif not rest:
-        out.append('<p class="meta">every figure is shown with its paper above</p>')
-    else:
-        stage_tables = _stage_tables()
-        shown = {t for _p, _t, topics in LAYOUT for tp in topics for t in tp[4]} | {"findings"}
-        current = None
-        for stage, name, path, caption in rest:
-            if stage != current:
-                out.append(f"<h3>{esc(stage)}</h3>")
-                current = stage
-            out.append(_figure(warehouse, name, path, caption))
-            key = _key_table(name, stage, stage_tables, db)
-            if key and key not in shown:
-                shown.add(key)
-                out.append(_raw_rows(db, key, f" (key table of {name})"))
+    stage_tables = _stage_tables()
+    shown = {t for _p, _t, topics in LAYOUT for tp in topics for t in tp[4]} | {"findings"}
+    current = None
+    for stage, name, path, caption in rest:
+        if stage != current:
+            out.append(f"<h3>{esc(stage)}</h3>")
+            current = stage
+        out.append(_figure(warehouse, name, path, caption))
+        key = _key_table(name, stage, stage_tables, db)
+        if key and key not in shown:
+            shown.add(key)
+            out.append(_raw_rows(db, key, f" (key table of {name})"))
     out.append("</section>")
     html_out.append("".join(out))
     toc.append(("analyses", "Other figures", []))

@@ -20,6 +20,7 @@ import numpy as np
 import pandas as pd
 import scipy  # its submodules load on first use: a rebuild that reuses every stage never pays for them
 
+from pipeline.papers import PLA_CITATION, PLPA_CITATION
 from pipeline.stages import StageContext, StageOutput
 
 NAME = "findings"
@@ -27,8 +28,8 @@ ORDER = 90
 KINDS: tuple[str, ...] = ()
 TABLES = ("findings",)
 
-PLPA = "PLPA: Carneiro et al., Information 11(2):76, 2020"
-PLA = "PLA: Palomares et al., Mechatronics 45, 2017"
+PLPA = f"PLPA: {PLPA_CITATION}"
+PLA = f"PLA: {PLA_CITATION}"
 
 #: Spring force of the PLPA rollers at 100 % [N] (physics.md).
 SPRING_FORCE_MAX_N = 1300.0

@@ -26,6 +26,7 @@ from analyses import pla_spring as spring
 from analyses import pressure_dynamics as pdyn
 from analyses import step_response as stepr
 from analyses.quality import sensor_from_params
+from pipeline.papers import PLA_CITATION, PLPA_CITATION
 from pipeline.stages import StageContext, StageOutput, read_samples
 
 NAME = "models"
@@ -291,7 +292,7 @@ def _identification_outputs(out, results):
         out.draw(name, ident.plot_identification, r["extra"], title=f"{r['run_id']}: measured vs model (Eq. 14)")
         out.captions[name] = (f"Identification run {r['run_id']}: position at the identification rate, measured "
                               "(anti-aliased, decimated) and simulated by the output-error model from the measured "
-                              "u_d and x_ref (seed 000, section 2.3).")
+                              f"u_d and x_ref ({PLPA_CITATION}, section 2.3).")
 
 
 def _step_outputs(out, results):
@@ -299,9 +300,10 @@ def _step_outputs(out, results):
     out.tables["step_response"] = _frame(rows, STEP_COLS, bools=("settled",))
     curves = [c for r in results if r["extra"] for c in r["extra"]][:MAX_STEP_CURVES]
     if curves:
-        out.draw("step_errors", stepr.plot_step_errors, curves)
+        out.draw("step_errors", stepr.plot_step_errors, curves,
+                 title=f"Closed-loop steps: position ({PLPA_CITATION}, Fig. 15)")
         out.captions["step_errors"] = ("Closed-loop steps: position vs time since the step; inset: error in % of the "
-                                       "step with the 2 % band (seed 000, Fig. 15).")
+                                       f"step with the 2 % band ({PLPA_CITATION}, Fig. 15).")
 
 
 def _spring_outputs(ctx, out, results):
@@ -345,7 +347,7 @@ def _spring_outputs(ctx, out, results):
             name = f"spring_loops_{chamber}"
             out.draw(name, spring.plot_spring_loops, group, fit)
             out.captions[name] = (f"PLA {chamber} chamber: force-displacement loops, experimental vs fitted model, "
-                                  "for the tests of seed 001 Figs. 8-13 (closest available runs).")
+                                  f"for the tests of {PLA_CITATION}, Figs. 8-13 (closest available runs).")
     if energy:
         out.draw("spring_loop_energy", spring.plot_loop_energy, out.tables["spring_loop_energy"], fits)
         out.captions["spring_loop_energy"] = ("Energy dissipated per cycle (loop area) vs displacement amplitude and "
@@ -436,7 +438,7 @@ def _pressure_outputs(ctx, out, results):
             out.captions[name] = (f"{'PLA ' + c + ' chamber' if pla else f'{c} chamber of {rig} ({campaign})'}: "
                                   "pressure (bar gauge) after set-point steps, measured vs the "
                                   "model chosen per direction by BIC: first order or the second order of Eq. 11 "
-                                  "(seed 001, Fig. 14, Table 2), every step of the rig pooled (level 'rig'). Grey: "
+                                  f"({PLA_CITATION}, Fig. 14, Table 2), every step of the rig pooled (level 'rig'). Grey: "
                                   "steps too small for the pressure sensor.")
     parts = sorted({(g.campaign, g.rig, g.chamber, g.part_kind, g.part_id, g.age_h, g.distance_km)
                     for g in grouped if g.level == "part"}, key=lambda k: pdyn.StepGroup("part", *k[:3], "", *k[3:])

@@ -39,6 +39,7 @@ from analyses import friction_dynamic as fd
 from analyses import leakage as lk
 from analyses import viscous_friction as vf
 from analyses.quality import sensor_from_params
+from pipeline.papers import PLPA_CITATION
 from pipeline.stages import StageContext, StageOutput
 
 NAME = "plpa_characterisation"
@@ -253,19 +254,19 @@ def run(ctx: StageContext) -> StageOutput:
             fallback = bool((sub["runs_used"] == lk.RUNS_HOSE_CHECKS).any())
             out.captions[name] = (f"Leak vs pressure with {adj} adjustment, one curve per setting from its "
                                   f"characterisation runs (hose checks left out), one panel per chamber "
-                                  f"(seed 000, Fig. {fig_no}); dotted: seal threshold {LEAK_THRESHOLD_L_MIN:g} "
+                                  f"({PLPA_CITATION}, Fig. {fig_no}); dotted: seal threshold {LEAK_THRESHOLD_L_MIN:g} "
                                   f"l/min ANR" + ("; dashed, hollow: settings with only hose-check runs."
                                                   if fallback else "."))
     if brk["breakaway_force_n"].notna().any():
         out.draw("breakaway", bk.plot_breakaway, brk)
         out.captions["breakaway"] = ("Breakaway force vs backpressure, one series per force rate, directions P "
-                                     "and N (seed 000, Fig. 12); mean +/- std.")
+                                     f"and N ({PLPA_CITATION}, Fig. 12); mean +/- std.")
     if not pts.empty:
         out.draw("viscous", vf.plot_viscous, pts, fits)
         out.captions["viscous"] = ("Friction vs velocity per backpressure with Coulomb + viscous fits "
-                                   "(seed 000, Fig. 13).")
+                                   f"({PLPA_CITATION}, Fig. 13).")
         if (pts["velocity_m_s"].abs() <= vf.NEAR_ZERO_MAX_M_S).any():
             out.draw("viscous_near_zero", vf.plot_near_zero, pts, trans)
             out.captions["viscous_near_zero"] = ("Friction around zero velocity with the tanh fit "
-                                                 "(seed 000, Fig. 14).")
+                                                 f"({PLPA_CITATION}, Fig. 14).")
     return out
