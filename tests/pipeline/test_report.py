@@ -628,3 +628,22 @@ def test_the_sensors_column_is_shown_in_bar_and_l_min_but_stored_in_si():
     cell = html_table(["run_id", "sensors"], [("r", stored)])
     assert "p_supply: resolution 0.001 bar, noise 0.0004 bar (metadata); q_leak: resolution 0.01 l/min" in cell
     assert " Pa" not in cell and "kg/s" not in cell
+
+
+def test_a_run_with_thousands_of_events_draws_a_bounded_page():
+    import numpy as np
+
+    from pipeline import run_pages as rp
+
+    n = 5 * rp.MAX_EVENTS
+    res = [("viscous_points", ["run_id", "pass_index", "t_start_s", "t_end_s"], ("r", i, i + 0.2, i + 0.7))
+           for i in range(n)] + [("viscous_points", ["run_id", "t_start_s", "t_end_s"], ("r", None, 3.0))]
+    ev = rp.run_events(res)
+    assert len(ev) == n  # a pass without a start is not drawn
+    bands = {"t_s": (0.0, float(n)), "x_m": (np.zeros(rp.WIDTH), np.ones(rp.WIDTH)),
+             "p_a_pa": (np.zeros(rp.WIDTH), np.ones(rp.WIDTH))}
+    svg = rp.channels_svg(bands, "many", ev)
+    assert svg.count("<title>constant-velocity pass") == 2 * rp.MAX_EVENTS
+    assert f"constant-velocity pass ({rp.MAX_EVENTS})" in svg
+    assert f"(first {rp.MAX_EVENTS} drawn, {n - rp.MAX_EVENTS} more in the tables)" in svg
+    assert len(svg) < 300_000
