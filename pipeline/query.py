@@ -876,6 +876,27 @@ def run_traces(warehouse: str | Path, run_id: str, channels: list[str] | None = 
     return kind, traces
 
 
+#: Result tables whose rows name events of a run (see :func:`pipeline.run_pages.run_events`).
+EVENT_TABLES = ("breakaway", "viscous_points", "leakage_map", "step_response", "pressure_steps")
+
+
+def run_result_rows(warehouse: str | Path, run_id: str) -> list[tuple[str, list[str], tuple]]:
+    """``(table, columns, row)`` of the rows of :data:`EVENT_TABLES` derived from one run."""
+    con = connect_readonly(Path(warehouse))
+    try:
+        have = {r[0] for r in con.execute("SELECT table_name FROM duckdb_tables() "
+                                          "WHERE database_name = current_database()").fetchall()}
+        out = []
+        for table in EVENT_TABLES:
+            if table in have:
+                cur = con.execute(f'SELECT * FROM "{table}" WHERE run_id = ?', [run_id])
+                cols = [d[0] for d in cur.description]
+                out += [(table, cols, r) for r in cur.fetchall()]
+    finally:
+        con.close()
+    return out
+
+
 def plot_run(warehouse: str | Path, run_id: str, out: str | Path, channels: list[str] | None = None,
              width_px: int = 1200) -> Path:
     """Plot one run's channels against time, one panel per channel, to ``.png``, ``.svg`` or ``.html``."""
@@ -897,11 +918,18 @@ def plot_run(warehouse: str | Path, run_id: str, out: str | Path, channels: list
                              figsize=(width_px / dpi, 1.0 + 1.6 * len(traces)), dpi=dpi)
     from matplotlib.ticker import FixedLocator, FuncFormatter
 
-    from pipeline.run_pages import hms, time_ticks
+    from pipeline.run_pages import EVENT_STYLE, MAX_EVENTS, hms, run_events, time_ticks
     from schemas.units import to_display
 
+    events = run_events(run_result_rows(warehouse, run_id))[:MAX_EVENTS]  # what the analyses saw
     for ax, (col, (t, v)) in zip(axes[:, 0], traces.items()):
         shown, name, unit = to_display(col, np.asarray(v, dtype=float))  # the report's units; storage stays SI
+        for kind_, a, b, _text in events:
+            label = EVENT_STYLE[kind_][0] if ax is axes[0, 0] else None
+            if b is None:
+                ax.axvline(a, color=EVENT_STYLE[kind_][1], lw=1.0, ls="--", label=label)
+            else:
+                ax.axvspan(a, b, color=EVENT_STYLE[kind_][1], alpha=0.16, lw=0, label=label)
         ax.plot(t, shown, lw=0.7)
         ax.set_ylabel(f"{name}" + (f"\n[{unit}]" if unit else ""), fontsize=8)
         ax.grid(alpha=0.3)
@@ -912,6 +940,10 @@ def plot_run(warehouse: str | Path, run_id: str, out: str | Path, channels: list
         axes[-1, 0].xaxis.set_major_locator(FixedLocator(ticks))
         axes[-1, 0].xaxis.set_major_formatter(FuncFormatter(lambda x, _pos: hms(x)))
     axes[-1, 0].set_xlabel(f"t [{tunit}]")
+    if events:
+        handles, labels = axes[0, 0].get_legend_handles_labels()
+        seen = dict(zip(labels, handles))  # one entry per kind
+        axes[0, 0].legend(seen.values(), seen.keys(), fontsize=7, loc="upper right", framealpha=0.8)
     fig.suptitle(f"{run_id} ({kind})", fontsize=10)
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -20,7 +20,7 @@ from pipeline.cli import main
 from pipeline.query import QueryError, check_sql, copy_figures, run_query, run_traces
 from pipeline.rebuild import rebuild
 from pipeline.warehouse import DB_NAME, build_database, connect_readonly, runs_frame
-from tests.conftest import STEP_META, RawBuilder
+from tests.conftest import STEP_META, RawBuilder, query
 
 T = [0.0, 0.1, 0.2, 0.3]
 
@@ -775,6 +775,9 @@ def test_plot_shows_mm_and_h_mm_ss_past_an_hour(hour_run, long_run, tmp_path):
     texts = _svg_text(out)
     assert ["x", "[mm]"] == texts[texts.index("x"):texts.index("x") + 2] and "t [h:mm:ss]" in texts and {"0:00:00", "1:00:00", "2:00:00"} <= set(texts)
     assert "40" in texts and not any("e+" in t or "1e4" in t or "[m]" in t for t in texts), texts
+    steps = query(hour_run, "SELECT count(*) FROM step_response WHERE run_id = 'c/hour'")[0][0]
+    assert steps > 0 and "set-point step" in texts  # the steps the analysis found, with a legend
+    assert out.read_text().count('stroke-dasharray') >= steps
     out = tmp_path / "s.svg"  # a short run keeps seconds
     res = CliRunner().invoke(main, ["plot", "c/long", "--warehouse", str(long_run), "-c", "x_m", "-o", str(out)])
     assert res.exit_code == 0, res.output
