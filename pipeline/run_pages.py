@@ -147,7 +147,8 @@ def value_ticks(vmin: float, vmax: float, n: int = 4) -> list[float]:
     if not vmax > vmin:
         return [vmin]
     tol = (vmax - vmin) * 1e-9
-    return [float(v) for v in MaxNLocator(nbins=n, steps=[1, 2, 2.5, 5, 10]).tick_values(vmin, vmax) if vmin - tol <= v <= vmax + tol]
+    ticks = MaxNLocator(nbins=n, steps=[1, 2, 2.5, 5, 10]).tick_values(vmin, vmax)
+    return [float(v) for v in ticks if vmin - tol <= v <= vmax + tol]
 
 
 def time_ticks(t0: float, t1: float, n: int = 8) -> tuple[list[float], list[str], str]:
@@ -197,7 +198,8 @@ def run_events(results) -> list[tuple[str, float, float | None, str]]:
             if a is not None and b is not None:
                 kind = "pass" if table == "viscous_points" else "plateau"
                 idx = r.get("pass_index") if kind == "pass" else r.get("plateau")
-                out.append((kind, min(a, b), max(a, b), f"{EVENT_STYLE[kind][0]} {'' if idx is None else idx}".rstrip()))
+                text = f"{EVENT_STYLE[kind][0]} {'' if idx is None else idx}".rstrip()
+                out.append((kind, min(a, b), max(a, b), text))
         elif table in ("step_response", "pressure_steps") and num(r.get("t_step_s")) is not None:
             where = r.get("chamber") or ""
             out.append(("step", num(r["t_step_s"]), None, f"set-point step {where}".rstrip()))

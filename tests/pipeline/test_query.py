@@ -773,7 +773,8 @@ def test_plot_shows_mm_and_h_mm_ss_past_an_hour(hour_run, long_run, tmp_path):
     res = CliRunner().invoke(main, ["plot", "c/hour", "--warehouse", str(hour_run), "-c", "x_m", "-o", str(out)])
     assert res.exit_code == 0, res.output
     texts = _svg_text(out)
-    assert ["x", "[mm]"] == texts[texts.index("x"):texts.index("x") + 2] and "t [h:mm:ss]" in texts and {"0:00:00", "1:00:00", "2:00:00"} <= set(texts)
+    assert ["x", "[mm]"] == texts[texts.index("x"):texts.index("x") + 2]
+    assert "t [h:mm:ss]" in texts and {"0:00:00", "1:00:00", "2:00:00"} <= set(texts)
     assert "40" in texts and not any("e+" in t or "1e4" in t or "[m]" in t for t in texts), texts
     steps = query(hour_run, "SELECT count(*) FROM step_response WHERE run_id = 'c/hour'")[0][0]
     assert steps > 0 and "set-point step" in texts  # the steps the analysis found, with a legend
