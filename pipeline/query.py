@@ -23,6 +23,7 @@ from typing import IO, TYPE_CHECKING, Iterator
 import duckdb
 
 from pipeline.warehouse import INTERNAL_TABLES, MEMORY_LIMIT_ENV, TEMP_LIMIT_ENV, connect_readonly
+from schemas.units import COLUMN_UNITS, column_unit
 
 if TYPE_CHECKING:
     import pyarrow as pa
@@ -746,21 +747,15 @@ def format_rows(columns: list[str], rows: list[tuple], fmt: str = "table", max_w
 # ---------------------------------------------------------------------------------------------
 # Catalogue: tables and describe
 
-#: Units of column-name suffixes (longest match wins); a column without one has no unit.
-UNIT_SUFFIXES = {
-    "_pa": "Pa", "_bar": "bar (gauge)", "_bar_abs": "bar (absolute)", "_m": "m", "_mm": "mm", "_km": "km",
-    "_n": "N", "_s": "s", "_h": "h", "_hz": "Hz", "_v": "V", "_pct": "%", "_kg": "kg", "_kg_s": "kg/s",
-    "_m_s": "m/s", "_n_s": "N/s", "_n_s_m": "N s/m", "_n_m": "N/m", "_rad_s": "rad/s", "_m2": "m²",
-    "_l_min": "l/min (ANR)", "_m_v_s": "m/(V s)", "_j": "J", "_w": "W", "_degc": "°C", "_c": "°C",
-    "_k": "K", "_bytes": "bytes", "_ns": "ns", "_kg_s_pa": "kg/(s Pa)", "_v_m": "V/m",
-}
+#: Units of column-name suffixes (longest match wins); a column without one has no unit. The one
+#: table is :data:`schemas.units.COLUMN_UNITS` (the report's headers use its short forms).
+UNIT_SUFFIXES = {s: u[0] for s, u in COLUMN_UNITS.items()}
 
 
 def unit_of(column: str) -> str | None:
     """Unit a warehouse column name ends in (``leak_l_min`` -> ``l/min (ANR)``), else None."""
-    name = column.lower()
-    best = max((s for s in UNIT_SUFFIXES if name.endswith(s) and len(name) > len(s)), key=len, default=None)
-    return UNIT_SUFFIXES[best] if best else None
+    found = column_unit(column)
+    return found[1] if found else None
 
 
 def list_tables(warehouse: str | Path) -> list[dict]:
@@ -881,6 +876,27 @@ def run_traces(warehouse: str | Path, run_id: str, channels: list[str] | None = 
     return kind, traces
 
 
+#: Result tables whose rows name events of a run (see :func:`pipeline.run_pages.run_events`).
+EVENT_TABLES = ("breakaway", "viscous_points", "leakage_map", "step_response", "pressure_steps")
+
+
+def run_result_rows(warehouse: str | Path, run_id: str) -> list[tuple[str, list[str], tuple]]:
+    """``(table, columns, row)`` of the rows of :data:`EVENT_TABLES` derived from one run."""
+    con = connect_readonly(Path(warehouse))
+    try:
+        have = {r[0] for r in con.execute("SELECT table_name FROM duckdb_tables() "
+                                          "WHERE database_name = current_database()").fetchall()}
+        out = []
+        for table in EVENT_TABLES:
+            if table in have:
+                cur = con.execute(f'SELECT * FROM "{table}" WHERE run_id = ?', [run_id])
+                cols = [d[0] for d in cur.description]
+                out += [(table, cols, r) for r in cur.fetchall()]
+    finally:
+        con.close()
+    return out
+
+
 def plot_run(warehouse: str | Path, run_id: str, out: str | Path, channels: list[str] | None = None,
              width_px: int = 1200) -> Path:
     """Plot one run's channels against time, one panel per channel, to ``.png``, ``.svg`` or ``.html``."""
@@ -892,6 +908,7 @@ def plot_run(warehouse: str | Path, run_id: str, out: str | Path, channels: list
     if not traces:
         raise QueryError(f"run {run_id!r} has no samples to plot")
     import matplotlib
+    import numpy as np
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -899,12 +916,34 @@ def plot_run(warehouse: str | Path, run_id: str, out: str | Path, channels: list
     dpi = 100
     fig, axes = plt.subplots(len(traces), 1, sharex=True, squeeze=False,
                              figsize=(width_px / dpi, 1.0 + 1.6 * len(traces)), dpi=dpi)
+    from matplotlib.ticker import FixedLocator, FuncFormatter
+
+    from pipeline.run_pages import EVENT_STYLE, MAX_EVENTS, hms, run_events, time_ticks
+    from schemas.units import to_display
+
+    events = run_events(run_result_rows(warehouse, run_id))[:MAX_EVENTS]  # what the analyses saw
     for ax, (col, (t, v)) in zip(axes[:, 0], traces.items()):
-        ax.plot(t, v, lw=0.7)
-        unit = unit_of(col)
-        ax.set_ylabel(f"{col}" + (f"\n[{unit}]" if unit else ""), fontsize=8)
+        shown, name, unit = to_display(col, np.asarray(v, dtype=float))  # the report's units; storage stays SI
+        for kind_, a, b, _text in events:
+            label = EVENT_STYLE[kind_][0] if ax is axes[0, 0] else None
+            if b is None:
+                ax.axvline(a, color=EVENT_STYLE[kind_][1], lw=1.0, ls="--", label=label)
+            else:
+                ax.axvspan(a, b, color=EVENT_STYLE[kind_][1], alpha=0.16, lw=0, label=label)
+        ax.plot(t, shown, lw=0.7)
+        ax.set_ylabel(f"{name}" + (f"\n[{unit}]" if unit else ""), fontsize=8)
         ax.grid(alpha=0.3)
-    axes[-1, 0].set_xlabel("t_s [s]")
+    ts = [x for t, _v in traces.values() for x in t if x is not None]
+    t0, t1 = (min(ts), max(ts)) if ts else (0.0, 0.0)
+    ticks, _labels, tunit = time_ticks(t0, t1)
+    if tunit == "h:mm:ss":  # past an hour: h:mm:ss on whole minutes or hours, not 1.125e+04
+        axes[-1, 0].xaxis.set_major_locator(FixedLocator(ticks))
+        axes[-1, 0].xaxis.set_major_formatter(FuncFormatter(lambda x, _pos: hms(x)))
+    axes[-1, 0].set_xlabel(f"t [{tunit}]")
+    if events:
+        handles, labels = axes[0, 0].get_legend_handles_labels()
+        seen = dict(zip(labels, handles))  # one entry per kind
+        axes[0, 0].legend(seen.values(), seen.keys(), fontsize=7, loc="upper right", framealpha=0.8)
     fig.suptitle(f"{run_id} ({kind})", fontsize=10)
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -38,6 +38,7 @@ from pathlib import Path
 
 from pipeline.papers import PLA_CITATION, PLPA_CITATION
 from pipeline.warehouse import DB_NAME, connect_readonly
+from schemas.units import COLUMN_UNITS, display_sensors_text
 
 MAX_ROWS = 30          # rows of a key table shown
 FOLD_INPUT_ROWS = 20   # longer lists of changed inputs start folded
@@ -115,13 +116,9 @@ def _num(value: float, sig: int = 4) -> str:
     return f"{value:.{sig - 1}e}"
 
 
-#: Column-name suffixes and the unit they mean (warehouse convention: names end in their unit).
-UNIT_SUFFIXES = (
-    ("_bar_abs", "bar abs"), ("_n_s_m", "N s/m"), ("_m_v_s", "m/(V s)"), ("_rad_s", "rad/s"), ("_l_min", "l/min"),
-    ("_kg_s", "kg/s"), ("_mm_s", "mm/s"), ("_m_s2", "m/s²"), ("_n_m", "N/m"), ("_n_s", "N/s"), ("_v_m", "V/m"),
-    ("_m_s", "m/s"), ("_m2", "m²"), ("_bar", "bar"), ("_pct", "%"), ("_km", "km"), ("_mm", "mm"), ("_hz", "Hz"),
-    ("_pa", "Pa"), ("_j", "J"), ("_h", "h"), ("_s", "s"), ("_n", "N"), ("_m", "m"),
-)
+#: Column-name suffixes and the unit they mean (warehouse convention: names end in their unit),
+#: longest first: the short forms of the one table, :data:`schemas.units.COLUMN_UNITS`.
+UNIT_SUFFIXES = tuple((s, u[1]) for s, u in sorted(COLUMN_UNITS.items(), key=lambda kv: -len(kv[0])))
 
 
 def split_unit(column: str) -> tuple[str, str]:
@@ -147,6 +144,8 @@ def run_href(run_id: str, prefix: str = "runs/") -> str:
 def _cell(column: str, value, links, number=None) -> str:
     if column == "run_id" and isinstance(value, str) and (links is True or (links and value in links)):
         return f'<td><a href="{esc(run_href(value))}">{esc(value)}</a></td>'
+    if column == "sensors" and isinstance(value, str):  # stored in SI; shown in the report's units
+        return f"<td>{esc(display_sensors_text(value))}</td>"
     if isinstance(value, (int, float)) and not isinstance(value, bool):
         return f'<td class="num">{esc(number(value)) if number is not None else fmt(value)}</td>'
     return f"<td>{fmt(value)}</td>"
@@ -834,7 +833,7 @@ def _toc(entries: list) -> str:
 
 # -- per-run pages -------------------------------------------------------------------------------------
 #: Bumped when the run pages' layout changes (cached pages are then drawn again).
-RUN_PAGE_VERSION = "1"
+RUN_PAGE_VERSION = "2"
 
 
 def _run_results(db: _DB) -> dict[str, list[tuple[str, list[str], list[tuple]]]]:
@@ -884,7 +883,8 @@ def _run_page(run: dict, results: list, svg: str, key: str) -> str:
         '<section id="channels"><h2>Channels</h2>',
         svg or '<p class="nodata">samples not available</p>',
         '<p class="meta">Each channel drawn from its minimum and maximum per pixel column (every excursion is '
-        "visible however long the run); pressures in bar gauge, positions in mm, leak flow in l/min ANR.</p></section>",
+        "visible however long the run); pressures in bar gauge, positions in mm, flows in l/min ANR; shaded and "
+        "dashed: what the analyses found (their rows are below).</p></section>",
         f'<section id="metadata"><h2>Metadata</h2><div class="wrap"><table>{meta}</table></div></section>',
         f'<section id="warnings"><h2>Warnings ({len(warns)})</h2>{warn_html}</section>',
         f'<section id="results"><h2>Results derived from this run</h2>{res_html}</section>',
@@ -902,7 +902,7 @@ def write_run_pages(db: _DB, warehouse: Path, folder: Path | None = None, previo
     import hashlib
     import json as _json
 
-    from pipeline.run_pages import channels_svg, downsample_minmax, page_name
+    from pipeline.run_pages import channels_svg, downsample_minmax, page_name, run_events
 
     if not db.has("runs"):
         return 0
@@ -939,7 +939,8 @@ def write_run_pages(db: _DB, warehouse: Path, folder: Path | None = None, previo
         if samples is not None and samples.is_file():
             chans = [c for c in channels.get(rid, []) if c not in ("t_s", "run_id")]
             try:
-                svg = channels_svg(downsample_minmax(samples, chans, run.get("n_samples") or 0), f"channels of {rid}")
+                svg = channels_svg(downsample_minmax(samples, chans, run.get("n_samples") or 0), f"channels of {rid}",
+                                   run_events(res))
             except Exception as exc:  # a damaged samples file must not cost the whole report
                 svg = f'<p class="nodata">channels could not be drawn: {esc(_one_line_error(exc))}</p>'
         tmp = folder / f".{name}.tmp-{os.getpid()}"

@@ -184,3 +184,92 @@ def kg_s_to_l_min_anr(q_kg_s):
 def pa_to_bar(p_pa):
     """Pressure in bar from pascal (gauge stays gauge). [bar]"""
     return p_pa / 1e5
+
+
+def m_to_mm(x_m):
+    """Length in millimetres from metres. [mm]"""
+    return x_m * 1e3
+
+
+# -- display: one convention for people (Parquet and warehouse columns stay SI) -------------------------
+
+#: Units of warehouse column-name suffixes (a column's name ends in its unit; longest match wins):
+#: suffix -> (unit, short unit). The long form is for ``describe`` and plots, the short one for
+#: table headers. One table for the catalogue (``pipeline.query``) and the report.
+COLUMN_UNITS: dict[str, tuple[str, str]] = {
+    s: (u if isinstance(u, str) else u[0], u if isinstance(u, str) else u[1]) for s, u in {
+        "_pa": "Pa", "_bar": ("bar (gauge)", "bar"), "_bar_abs": ("bar (absolute)", "bar abs"), "_m": "m",
+        "_mm": "mm", "_km": "km", "_n": "N", "_s": "s", "_h": "h", "_hz": "Hz", "_v": "V", "_pct": "%",
+        "_kg": "kg", "_kg_s": "kg/s", "_m_s": "m/s", "_mm_s": "mm/s", "_m_s2": "m/s²", "_n_s": "N/s",
+        "_n_s_m": "N s/m", "_n_m": "N/m", "_rad_s": "rad/s", "_m2": "m²", "_l_min": ("l/min (ANR)", "l/min"),
+        "_m_v_s": "m/(V s)", "_j": "J", "_w": "W", "_degc": "°C", "_c": "°C", "_k": "K", "_bytes": "bytes",
+        "_ns": "ns", "_kg_s_pa": "kg/(s Pa)", "_v_m": "V/m",
+    }.items()}
+
+
+def column_unit(column: str, short: bool = False) -> tuple[str, str] | None:
+    """(suffix, unit) of the longest unit suffix ``column`` ends in, else None."""
+    name = str(column).lower()
+    best = max((s for s in COLUMN_UNITS if name.endswith(s) and len(name) > len(s)), key=len, default=None)
+    return None if best is None else (best, COLUMN_UNITS[best][1 if short else 0])
+
+
+#: How people see SI channels: SI column suffix -> (display column suffix, conversion of values).
+#: Pressures in bar gauge, positions in mm, forces in N, flows in l/min ANR, times in s.
+DISPLAY: dict[str, tuple[str, object]] = {
+    "_pa": ("_bar", pa_to_bar),
+    "_m": ("_mm", m_to_mm),
+    "_kg_s": ("_l_min", kg_s_to_l_min_anr),
+    "_n": ("_n", lambda v: v),
+    "_s": ("_s", lambda v: v),
+    "_v": ("_v", lambda v: v),
+}
+
+
+def to_display(column: str, values):
+    """An SI column's values as people read them: ``(values, name, unit)``.
+
+    ``p_a_pa`` -> (values in bar, ``"p_a"``, ``"bar (gauge)"``); a column without an SI suffix of
+    :data:`DISPLAY` is returned as it is, with the unit of its suffix if any.
+    """
+    name = str(column)
+    found = column_unit(name)
+    if found is None:
+        return values, name, ""
+    suffix, unit = found
+    if suffix in DISPLAY:
+        shown, convert = DISPLAY[suffix]
+        return convert(values), name[: -len(suffix)], COLUMN_UNITS[shown][0]
+    return values, name[: -len(suffix)], unit
+
+
+#: SI unit symbol -> the column suffix of its quantity (for SI values quoted in text).
+_SI_SUFFIX = {q.si_unit: "_" + q.suffix for q in QUANTITIES.values()}
+
+
+def display_sensors_text(text: str) -> str:
+    """A ``sensors`` text of result rows in display units.
+
+    ``"p_supply: resolution 100, noise 40 (metadata) Pa; q_leak: ... kg/s"`` ->
+    ``"p_supply: resolution 0.001 bar, noise 0.0004 bar (metadata); q_leak: ... l/min"``.
+    A part that does not read that way is left as it is.
+    """
+    import re
+
+    def one(part: str) -> str:
+        m = re.fullmatch(r"\s*(?P<name>[^:;]+): resolution (?P<res>\S+), noise (?P<noise>\S+) "
+                         r"\((?P<src>[^)]*)\) (?P<unit>\S+)\s*", part)
+        if m is None or m["unit"] not in _SI_SUFFIX:
+            return part.strip()
+        try:
+            res, noise = float(m["res"]), float(m["noise"])
+        except ValueError:
+            return part.strip()
+        shown, convert = DISPLAY.get(_SI_SUFFIX[m["unit"]], (None, None))
+        if shown is None:
+            return part.strip()
+        unit = COLUMN_UNITS[shown][1]
+        return (f"{m['name']}: resolution {float(convert(res)):.3g} {unit}, noise {float(convert(noise)):.3g} {unit} "
+                f"({m['src']})")
+
+    return "; ".join(one(p) for p in str(text).split(";"))

@@ -6,6 +6,7 @@ import hashlib
 import io
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -19,7 +20,7 @@ from pipeline.cli import main
 from pipeline.query import QueryError, check_sql, copy_figures, run_query, run_traces
 from pipeline.rebuild import rebuild
 from pipeline.warehouse import DB_NAME, build_database, connect_readonly, runs_frame
-from tests.conftest import STEP_META, RawBuilder
+from tests.conftest import STEP_META, RawBuilder, query
 
 T = [0.0, 0.1, 0.2, 0.3]
 
@@ -746,3 +747,40 @@ def test_line_format_streams_records_as_they_come():
 
     n = write_result(Result(["i", "s"], ["INTEGER", "VARCHAR"], batches()), Spy(), "line", max_rows=0)
     assert n == 3 and out.getvalue().count("-[ RECORD") == 3 and out.getvalue().endswith("(3 rows)\n")
+
+
+# -- issue 25 items 10, 13: `plot` shows the report's units and reads h:mm:ss past an hour ---------------
+@pytest.fixture(scope="module")
+def hour_run(tmp_path_factory) -> Path:
+    """A step run logged at 1 Hz for 2 h 10 min, position written in mm (x 0..40 mm)."""
+    root = tmp_path_factory.mktemp("hplot")
+    raw = RawBuilder(root / "raw")
+    n = 7_800
+    raw.csv("c/hour.csv", STEP_META, {"t[s]": list(range(n)), "x[mm]": [40.0 * (i % 600 > 300) for i in range(n)],
+                                      "x_ref[mm]": [40.0 * (i % 600 > 300) for i in range(n)]})
+    wh = root / "wh"
+    rebuild(raw.root, wh, jobs=1, report=False)
+    return wh
+
+
+def _svg_text(path: Path) -> list[str]:
+    """The texts of a matplotlib SVG (each glyph run is preceded by a comment with its text)."""
+    return [t.strip() for t in re.findall(r"<!-- (.*?) -->", path.read_text(), flags=re.S)]
+
+
+def test_plot_shows_mm_and_h_mm_ss_past_an_hour(hour_run, long_run, tmp_path):
+    out = tmp_path / "h.svg"
+    res = CliRunner().invoke(main, ["plot", "c/hour", "--warehouse", str(hour_run), "-c", "x_m", "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    texts = _svg_text(out)
+    assert ["x", "[mm]"] == texts[texts.index("x"):texts.index("x") + 2]
+    assert "t [h:mm:ss]" in texts and {"0:00:00", "1:00:00", "2:00:00"} <= set(texts)
+    assert "40" in texts and not any("e+" in t or "1e4" in t or "[m]" in t for t in texts), texts
+    steps = query(hour_run, "SELECT count(*) FROM step_response WHERE run_id = 'c/hour'")[0][0]
+    assert steps > 0 and "set-point step" in texts  # the steps the analysis found, with a legend
+    assert out.read_text().count('stroke-dasharray') >= steps
+    out = tmp_path / "s.svg"  # a short run keeps seconds
+    res = CliRunner().invoke(main, ["plot", "c/long", "--warehouse", str(long_run), "-c", "x_m", "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    texts = _svg_text(out)
+    assert "t [s]" in texts and "[mm]" in texts and "40" in texts and not any(":" in t for t in texts[1:])

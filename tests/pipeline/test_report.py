@@ -647,3 +647,101 @@ def test_demo_report_figures_are_drawn_near_their_full_size(demo, tmp_path):
     assert len(widths) >= 10
     small = [(a, n, w) for a, n, w in widths if int(w) < 0.85 * min(int(n), 1100)]
     assert not small, small
+
+
+# -- issue 25 items 10, 13: run pages read like the report, with what the analyses saw ------------------
+def _svg_texts(page: str) -> list[str]:
+    svg = page[page.index("<svg"):page.index("</svg>")]
+    return re.findall(r"<text[^>]*>([^<]*)</text>", svg)
+
+
+def test_run_pages_of_foreign_rigs_mark_passes_and_steps_on_round_ticks_in_bar_and_mm(raw, warehouse):
+    """A ventilator's set-point at 1 kHz in mbar and a laser-sensor cylinder at 100 Hz in mm, as
+    those rigs wrote them: their pages mark the steps and passes the analyses found."""
+    from pipeline.run_pages import page_name
+    from pipeline.simulator.foreign import CAMPAIGN, RIG_TOMLS, plan, write_run
+    from tests.conftest import query
+
+    runs = [r for r in plan() if r.stem in ("ventilator-ramp", "laser-050um")]
+    for r in runs:
+        write_run(raw.root, r, 1)
+        raw.write(f"{CAMPAIGN}/{r.folder}/rig.toml", RIG_TOMLS[f"{r.folder}/rig.toml"], dedent=False)
+    summary = rebuild(raw.root, warehouse, jobs=1)
+    assert summary.quarantine == []
+    vent, laser = (next(r.run_id for r in runs if r.stem == s) for s in ("ventilator-ramp", "laser-050um"))
+    steps = query(warehouse, f"SELECT count(*) FROM pressure_steps WHERE run_id = '{vent}'")[0][0]
+    passes = query(warehouse, f"SELECT count(*) FROM viscous_points WHERE run_id = '{laser}'")[0][0]
+    assert steps > 0 and passes > 0
+
+    page = (warehouse / "report" / "runs" / page_name(vent)).read_text()
+    texts = _svg_texts(page)
+    assert f"set-point step ({steps})" in texts and "p [bar (gauge)]" in texts
+    assert page.count('stroke-dasharray="4 2">') >= steps  # one dashed line per step and panel
+    # pressure ticks: round values in bar gauge (PEEP 5 mbar, PIP 20 mbar), not Pa, more than min and max
+    ticks = [t for t in texts if re.fullmatch(r"-?\d+\.\d+", t)]
+    assert {"0.005", "0.010", "0.015", "0.020"} <= set(ticks), texts
+    assert "t [s]" in texts and not any("e+" in t or "Pa" in t for t in texts)
+
+    page = (warehouse / "report" / "runs" / page_name(laser)).read_text()
+    texts = _svg_texts(page)
+    assert f"constant-velocity pass ({passes})" in texts and "x [mm]" in texts
+    assert len(re.findall(r'<rect [^>]*fill-opacity="0.16"><title>constant-velocity pass', page)) == 3 * passes
+    assert sum(re.fullmatch(r"-?\d+", t) is not None for t in texts) >= 3 * 3  # ticks on p_a, p_b and x
+
+
+def test_a_long_runs_time_axis_reads_h_mm_ss_and_a_breakaway_onset_is_marked(tmp_path):
+    import numpy as np
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from pipeline import run_pages as rp
+
+    n = 11_251  # an hour-long durability record at 1 Hz, to 3:07:30
+    t = np.arange(n, dtype=float)
+    f = tmp_path / "s.parquet"
+    pq.write_table(pa.table({"t_s": t, "p_a_pa": 2e5 + 3e4 * np.sin(t / 7), "x_m": 0.1 + 0.5 * np.sin(t / 5)}), f)
+    svg = rp.channels_svg(rp.downsample_minmax(f, ["p_a_pa", "x_m"], n), "long")
+    texts = re.findall(r"<text[^>]*>([^<]*)</text>", svg)
+    assert "t [h:mm:ss]" in texts and {"0:00:00", "1:00:00", "2:00:00", "3:00:00"} <= set(texts)
+    assert not any("e+" in x for x in texts)
+    assert {"1.8", "2.0", "2.2"} <= set(texts) and {"-250", "0", "250", "500"} <= set(texts)  # bar, mm
+    # a short run stays in seconds; a breakaway onset (and nothing of other tables) is drawn with a legend
+    res = [("breakaway", ["run_id", "direction", "onset_t_s"], ("r", "P", 12.5)),
+           ("breakaway_findings", ["run_id", "onset_t_s"], ("r", 3.0)),
+           ("step_response", ["run_id", "t_step_s"], ("r", float("nan")))]
+    ev = rp.run_events(res)
+    assert ev == [("onset", 12.5, None, "breakaway onset P")]
+    bands = {"t_s": (0.0, 40.0), "x_m": (np.linspace(0, 0.01, 100), np.linspace(0, 0.01, 100))}
+    svg = rp.channels_svg(bands, "brk", ev)
+    texts = re.findall(r"<text[^>]*>([^<]*)</text>", svg)
+    assert "breakaway onset (1)" in texts and "t [s]" in texts and {"0", "10", "20", "30", "40"} <= set(texts)
+    x_onset = 70 + 12.5 / 40 * rp.WIDTH
+    assert f'x1="{x_onset:.1f}"' in svg and "<title>breakaway onset P: 12.5 s</title>" in svg
+
+
+def test_the_sensors_column_is_shown_in_bar_and_l_min_but_stored_in_si():
+    from pipeline.report import html_table
+
+    stored = "p_supply: resolution 100, noise 40 (metadata) Pa; q_leak: resolution 1.975e-07, noise 0 (estimated) kg/s"
+    cell = html_table(["run_id", "sensors"], [("r", stored)])
+    assert "p_supply: resolution 0.001 bar, noise 0.0004 bar (metadata); q_leak: resolution 0.01 l/min" in cell
+    assert " Pa" not in cell and "kg/s" not in cell
+
+
+def test_a_run_with_thousands_of_events_draws_a_bounded_page():
+    import numpy as np
+
+    from pipeline import run_pages as rp
+
+    n = 5 * rp.MAX_EVENTS
+    res = [("viscous_points", ["run_id", "pass_index", "t_start_s", "t_end_s"], ("r", i, i + 0.2, i + 0.7))
+           for i in range(n)] + [("viscous_points", ["run_id", "t_start_s", "t_end_s"], ("r", None, 3.0))]
+    ev = rp.run_events(res)
+    assert len(ev) == n  # a pass without a start is not drawn
+    bands = {"t_s": (0.0, float(n)), "x_m": (np.zeros(rp.WIDTH), np.ones(rp.WIDTH)),
+             "p_a_pa": (np.zeros(rp.WIDTH), np.ones(rp.WIDTH))}
+    svg = rp.channels_svg(bands, "many", ev)
+    assert svg.count("<title>constant-velocity pass") == 2 * rp.MAX_EVENTS
+    assert f"constant-velocity pass ({rp.MAX_EVENTS})" in svg
+    assert f"(first {rp.MAX_EVENTS} drawn, {n - rp.MAX_EVENTS} more in the tables)" in svg
+    assert len(svg) < 300_000

@@ -44,3 +44,40 @@ def test_unit_spelling_tolerance_and_refusals():
     assert lookup_unit("furlong") is None
     assert lookup_unit("") is None
     assert "bar(a)" in accepted_symbols("pressure")
+
+
+# -- issue 25 item 10: one display convention for people, SI in storage -------------------------------
+def test_display_convention_bar_mm_l_min_from_si_columns():
+    from schemas.units import to_display
+
+    v, name, unit = to_display("p_a_pa", np.array([2.5e5, -1e4]))
+    assert (name, unit) == ("p_a", "bar (gauge)") and v.tolist() == [2.5, -0.1]
+    v, name, unit = to_display("x_m", np.array([0.0125]))
+    assert (name, unit) == ("x", "mm") and v[0] == pytest.approx(12.5)
+    v, name, unit = to_display("q_leak_kg_s", np.array([L_MIN_M3_S * RHO_ANR_KG_M3]))
+    assert (name, unit) == ("q_leak", "l/min (ANR)") and v[0] == pytest.approx(1.0)
+    assert to_display("f_n", 3.0) == (3.0, "f", "N") and to_display("t_s", 7.0) == (7.0, "t", "s")
+    # a velocity ends in _s but is no time, a column without unit keeps its name
+    assert to_display("v_m_s", 0.1) == (0.1, "v", "m/s") and to_display("hose_id", "H1") == ("H1", "hose_id", "")
+
+
+def test_one_unit_table_for_describe_and_the_report():
+    import pipeline.query as q
+    import pipeline.report as r
+    from schemas.units import COLUMN_UNITS
+
+    assert q.unit_of("leak_l_min") == "l/min (ANR)" and r.split_unit("leak_l_min") == ("leak", "l/min")
+    assert q.unit_of("mass_kg") == "kg" and r.split_unit("mass_kg") == ("mass", "kg")  # once only in query's
+    assert {s for s, _u in r.UNIT_SUFFIXES} == set(COLUMN_UNITS) == set(q.UNIT_SUFFIXES)
+
+
+def test_sensors_text_reads_in_display_units():
+    from schemas.units import display_sensors_text
+
+    q_res = 0.01 * L_MIN_M3_S * RHO_ANR_KG_M3  # 0.01 l/min ANR in kg/s
+    text = f"p_supply: resolution 100, noise 40 (metadata) Pa; q_leak: resolution {q_res!r}, noise 0 (estimated) kg/s"
+    assert display_sensors_text(text) == ("p_supply: resolution 0.001 bar, noise 0.0004 bar (metadata); "
+                                          "q_leak: resolution 0.01 l/min, noise 0 l/min (estimated)")
+    # what does not read that way stays as it is
+    assert display_sensors_text("hand-made note; x: resolution 1, noise 2 (metadata) furlong") == \
+        "hand-made note; x: resolution 1, noise 2 (metadata) furlong"
