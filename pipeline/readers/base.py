@@ -102,6 +102,9 @@ class RawColumn:
     dtype : str
         ``"float"`` (default) or ``"string"`` for a column of text; a canonical channel is
         always read as numbers.
+    header : str or None
+        The header text exactly as written (``"time(sec)"``) when the reader split a unit off
+        it; a ``rig.toml`` ``[channels]`` key may name it. None when there is no such text.
     """
 
     key: str
@@ -109,6 +112,7 @@ class RawColumn:
     unit: str | None
     index: int
     dtype: str = "float"
+    header: str | None = None
 
 
 @dataclass

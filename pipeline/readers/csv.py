@@ -256,7 +256,8 @@ def read_csv(path: str | Path, read: dict | None = None, hints: dict | None = No
         # A canonical channel is always numbers: a bad value is then reported with its line.
         numeric = canonical_name(name) is not None or all(_is_number(v, decimal) for v in values)
         dtype = "float" if numeric else "string"
-        columns.append(RawColumn(key=key, name=name, unit=unit, index=k + 1, dtype=dtype))
+        columns.append(RawColumn(key=key, name=name, unit=unit, index=k + 1, dtype=dtype,
+                                 header=header if has_header else None))
     # Physical lines before the first data row (comment lines, skipped rows, header).
     lines_before = data_start
 

@@ -503,7 +503,7 @@ def read_excel(path: str | Path, read: dict | None = None, hints: dict | None = 
             if kind == "datetime" and first_stamp and "started_at" not in metadata and cname.casefold() in ("t", "time"):
                 metadata["started_at"] = first_stamp
         columns.append(RawColumn(key=f"c{j}", name=cname, unit=unit, index=j + 1,
-                                 dtype="string" if kind == "string" else "float"))
+                                 dtype="string" if kind == "string" else "float", header=text))
         arrays.append(arr)
     if not columns:
         raise ReaderError(f"sheet {name!r} has no named columns")
