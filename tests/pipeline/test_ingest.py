@@ -57,7 +57,7 @@ def test_started_at_with_offset_is_converted_to_utc(raw, warehouse):
 
 
 def test_non_canonical_channels_and_unknown_keys_are_kept(raw, warehouse):
-    raw.csv("c/a.csv", {**STEP_META, "Bench Firmware": "v2"},
+    raw.csv("c/a.csv", {**STEP_META, "Bench-Firmware": "v2"},
             {"t[s]": T, "x[m]": T, "x_ref[m]": T, "Oil Temp[degC]": [20, 21, 22, 23], "status": ["ok", "ok", "hot", "ok"]})
     res = ingest(raw, "c/a.csv", warehouse)
     table = pq.read_table(warehouse / res.run["samples_path"])
@@ -65,7 +65,7 @@ def test_non_canonical_channels_and_unknown_keys_are_kept(raw, warehouse):
     assert table.column("oil_temp_degc").to_pylist() == [20.0, 21.0, 22.0, 23.0]
     assert table.schema.field("oil_temp_degc").metadata[b"unit"] == b"degC"
     assert table.column("status").to_pylist() == ["ok", "ok", "hot", "ok"]
-    assert res.run["params"]["Bench Firmware"] == "v2"
+    assert res.run["params"]["Bench-Firmware"] == "v2"
 
 
 def test_samples_footer_records_the_run(raw, warehouse):
@@ -775,3 +775,14 @@ def test_channels_key_for_another_header_leaves_the_column_unmapped(raw, warehou
     raw.write("c/rig.toml", '[channels."time(ms)"]\nchannel = "t"\nunit = "ms"\n')
     raw.csv("c/a.csv", STEP_META, {"time(sec)": T, "x[m]": T, "x_ref[m]": T})
     assert "missing channel `t`" in quarantine(raw, warehouse)
+
+
+# -- comment lines are not metadata (issue 25 item 4) ------------------------------------------
+def test_comment_line_is_kept_under_comments_not_read_as_a_key(raw, warehouse):
+    raw.write("c/a.csv", "# Captured 2020-07-03 03:08:17.057076 by unknown user\n# kind: step\n"
+                         "# started_at: 2026-01-02T03:04:05\n# rig = plpa-1\nt[s],x[m],x_ref[m]\n0,0,0\n0.1,0,0\n")
+    res = ingest(raw, "c/a.csv", warehouse)
+    p = res.run["params"]
+    assert p["comments"] == ["Captured 2020-07-03 03:08:17.057076 by unknown user"]
+    assert not any(k.startswith("Captured") for k in p)
+    assert res.run["rig"] == "plpa-1" and res.run["kind"] == "step"
