@@ -238,7 +238,9 @@ def _jsonable(v):
 
 # -- columns -------------------------------------------------------------------------------
 def _rig_entry(col: RawColumn, channels_cfg: dict) -> dict | None:
-    for key in (col.name, f"{col.name}[{col.unit}]" if col.unit else None, str(col.index), col.key):
+    # The bare name, name[unit], the header text exactly as written (`time(sec)`, `Time (s)`),
+    # then the 1-based index (headerless files) and the reader's key.
+    for key in (col.name, f"{col.name}[{col.unit}]" if col.unit else None, col.header, str(col.index), col.key):
         if key is not None and key in channels_cfg:
             entry = channels_cfg[key]
             return entry if isinstance(entry, dict) else {"channel": str(entry)}
@@ -319,7 +321,7 @@ def set_aside_lookalikes(columns: list[RawColumn], channels_cfg: dict) -> tuple[
         if channel is not None and _rig_entry(col, channels_cfg or {}) is None and other_dimension(col.unit):
             looks[col.key] = (col.name, channel, col.unit)
             col = RawColumn(key=col.key, name=noncanonical_column(col.name, col.unit), unit=col.unit,
-                            index=col.index, dtype=col.dtype)
+                            index=col.index, dtype=col.dtype, header=col.header)
         out.append(col)
     return out, looks
 

@@ -102,6 +102,9 @@ class RawColumn:
     dtype : str
         ``"float"`` (default) or ``"string"`` for a column of text; a canonical channel is
         always read as numbers.
+    header : str or None
+        The header text exactly as written (``"time(sec)"``) when the reader split a unit off
+        it; a ``rig.toml`` ``[channels]`` key may name it. None when there is no such text.
     """
 
     key: str
@@ -109,6 +112,7 @@ class RawColumn:
     unit: str | None
     index: int
     dtype: str = "float"
+    header: str | None = None
 
 
 @dataclass
@@ -212,13 +216,31 @@ def side_csv_rows(data: bytes) -> Iterator[tuple[int, int, list[str]]]:
         yield start, reader.line_num, cells
 
 
+#: What a metadata key looks like: letters, digits, ``_``, ``.``, ``-``; no spaces.
+_META_KEY = re.compile(r"[\w.\-]+")
+
+
 def parse_key_value(line: str, seps: str = ":=") -> tuple[str, str] | None:
-    """``"key: value"`` or ``"key=value"`` -> ``(key, value)``; None when it is not one."""
+    """``"key: value"`` or ``"key=value"`` -> ``(key, value)``; None when it is not one.
+
+    The key must look like a key (:data:`_META_KEY`): ``"Captured 2020-07-03 03:08:17 by ..."``
+    is a comment, not the key ``"Captured 2020-07-03 03"``.
+    """
     positions = [line.find(s) for s in seps if line.find(s) > 0]
     if not positions:
         return None
     i = min(positions)
     key, value = line[:i].strip(), line[i + 1:].strip()
-    if not key or len(key) > 64:
+    if not key or len(key) > 64 or not _META_KEY.fullmatch(key):
         return None
     return key, value
+
+
+def add_comment_line(text: str, metadata: dict) -> None:
+    """One ``#`` line of a file's head (``text`` after the ``#``): ``key: value`` / ``key = value``
+    into ``metadata``, any other non-empty line kept whole, in order, in ``metadata["comments"]``."""
+    kv = parse_key_value(text)
+    if kv and kv[0].casefold() != "comments":
+        metadata[kv[0]] = kv[1]
+    elif text.strip():
+        metadata.setdefault("comments", []).append(text.strip())

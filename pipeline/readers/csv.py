@@ -24,8 +24,8 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.csv as pacsv
 
-from pipeline.readers.base import (MAX_LINE_BYTES, RawColumn, RawExport, ReaderError, check_channel_count,
-                                   decode_text, parse_key_value, split_name_unit)
+from pipeline.readers.base import (MAX_LINE_BYTES, RawColumn, RawExport, ReaderError, add_comment_line,
+                                   check_channel_count, decode_text, split_name_unit)
 from schemas.channels import canonical_name
 
 FORMAT = "csv"
@@ -193,13 +193,13 @@ def read_csv(path: str | Path, read: dict | None = None, hints: dict | None = No
     path = Path(path)
     read = dict(read or {})
     lines, encoding, complete = _head_lines(path)
-    metadata: dict[str, str] = {}
+    metadata: dict = {}
     i = 0
-    # Leading "# key: value" lines (blank lines between them are allowed).
+    # Leading "# key: value" lines (blank lines between them are allowed); other "#" lines are
+    # comments, kept whole under "comments".
     while i < len(lines) and (lines[i].lstrip().startswith("#") or not lines[i].strip()):
-        kv = parse_key_value(lines[i].lstrip()[1:]) if lines[i].lstrip().startswith("#") else None
-        if kv:
-            metadata[kv[0]] = kv[1]
+        if lines[i].lstrip().startswith("#"):
+            add_comment_line(lines[i].lstrip()[1:], metadata)
         i += 1
     skip = int(read.get("skip_rows", 0) or 0)
     i += skip
@@ -256,7 +256,8 @@ def read_csv(path: str | Path, read: dict | None = None, hints: dict | None = No
         # A canonical channel is always numbers: a bad value is then reported with its line.
         numeric = canonical_name(name) is not None or all(_is_number(v, decimal) for v in values)
         dtype = "float" if numeric else "string"
-        columns.append(RawColumn(key=key, name=name, unit=unit, index=k + 1, dtype=dtype))
+        columns.append(RawColumn(key=key, name=name, unit=unit, index=k + 1, dtype=dtype,
+                                 header=header if has_header else None))
     # Physical lines before the first data row (comment lines, skipped rows, header).
     lines_before = data_start
 

@@ -447,7 +447,7 @@ def read_excel(path: str | Path, read: dict | None = None, hints: dict | None = 
     metadata = _meta_sheet(wb)
     # one run per sheet: a sheet's own `# key: value` cells beat the workbook's `meta` sheet
     own: dict | None = {} if str(read.get(PARTS_KEY, "")).strip().casefold() == "all" else None
-    i = 0
+    i, notes = 0, []
     while i < len(rows) and (all(_is_empty(v) for v in rows[i])
                              or (isinstance(rows[i][0], str) and rows[i][0].lstrip().startswith("#"))):
         first = rows[i][0]
@@ -457,7 +457,11 @@ def read_excel(path: str | Path, read: dict | None = None, hints: dict | None = 
                 own.setdefault(kv[0], kv[1])
             elif kv:
                 metadata.setdefault(kv[0], kv[1])
+            elif first.lstrip()[1:].strip():   # not `key: value`: a comment, kept whole
+                notes.append(first.lstrip()[1:].strip())
         i += 1
+    if notes:
+        (own if own is not None else metadata).setdefault("comments", notes)
     if own is not None:
         # the `meta` sheet's run_id is the workbook's: each sheet's run is `<run_id>/<sheet>`
         shared = [k for k in metadata if str(k).strip().casefold() == "run_id"]
@@ -503,7 +507,7 @@ def read_excel(path: str | Path, read: dict | None = None, hints: dict | None = 
             if kind == "datetime" and first_stamp and "started_at" not in metadata and cname.casefold() in ("t", "time"):
                 metadata["started_at"] = first_stamp
         columns.append(RawColumn(key=f"c{j}", name=cname, unit=unit, index=j + 1,
-                                 dtype="string" if kind == "string" else "float"))
+                                 dtype="string" if kind == "string" else "float", header=text))
         arrays.append(arr)
     if not columns:
         raise ReaderError(f"sheet {name!r} has no named columns")

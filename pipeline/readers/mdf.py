@@ -20,6 +20,8 @@ or Kistler loggers write them. Read with asammdf.
 * **Bus logging.** A CAN (or LIN, FlexRay, Ethernet) bus log holds raw frames: decoding them
   needs the bus database (DBC / ARXML), which pneubench does not apply. Such a group is
   refused with a message that says to export the decoded signals first.
+* **Unfinalised files.** An MDF 4 file a logger never finalised (``UnFinMF``) is read from a
+  private temporary copy, which asammdf finalises; the raw file is never written.
 
 Samples are read fragment by fragment of the group's data blocks (asammdf's own chunking, as
 its ``iter_get`` does) and yielded in record batches, so a large file streams in bounded memory.
@@ -121,10 +123,48 @@ def check_record_layout(mdf, index: int) -> None:
                               f"of its {record}-byte records (bytes {start} to {end})")
 
 
+#: Bytes copied at a time when an unfinalised MDF 4 file is copied for asammdf to finalise.
+COPY_CHUNK_BYTES = 1 << 20
+
+
+def is_unfinalised(fh) -> bool:
+    """Whether an MDF 4.10+ file is unfinalised (``id_unfin_flags`` set in its identification
+    block, as CAN loggers and interrupted recordings leave them). asammdf finalises such a file
+    on opening by writing the missing cycle counters and block lengths into the file it reads."""
+    fh.seek(0)
+    ident = fh.read(64)
+    fh.seek(0)
+    if len(ident) < 64:
+        return False
+    version = ident[8:16].decode("latin-1").strip(" \n\t\r\0")
+    return version >= "4.10" and int.from_bytes(ident[60:62], "little") != 0
+
+
+def _private_copy(fh):
+    """A writable temporary copy of ``fh`` (deleted when closed): asammdf finalises it there,
+    never in raw/."""
+    import shutil
+    import tempfile
+
+    copy = tempfile.TemporaryFile()
+    try:
+        fh.seek(0)
+        shutil.copyfileobj(fh, copy, COPY_CHUNK_BYTES)
+        copy.seek(0)
+    except BaseException:
+        copy.close()
+        raise
+    return copy
+
+
 class _Opened:
     """An MDF opened from a file object: asammdf then reads with ordinary reads, not a memory
     map of the whole file (whose pages count as the process's resident memory: 1.1 GB for a
-    1 GB file, against 0.17 GB this way). Closing closes both."""
+    1 GB file, against 0.17 GB this way). Closing closes both.
+
+    An unfinalised MDF 4 file (:func:`is_unfinalised`) is read from a private temporary copy:
+    asammdf finalises the file it reads in place, and a read-only raw file made it fail with
+    ``UnsupportedOperation: write`` (a CAN logger's MF4, issue 25)."""
 
     def __init__(self, path: Path):
         from asammdf import MDF
@@ -132,8 +172,15 @@ class _Opened:
         self.fh = open(path, "rb")
         try:
             check_block_links(self.fh)
+            if is_unfinalised(self.fh):
+                raw, self.fh = self.fh, None
+                try:
+                    self.fh = _private_copy(raw)
+                finally:
+                    raw.close()
         except BaseException:
-            self.fh.close()
+            if self.fh is not None:
+                self.fh.close()
             raise
         try:
             self.mdf = MDF(self.fh)
@@ -200,6 +247,34 @@ def _is_bus_log(mdf, index: int) -> bool:
     if int(getattr(g.channel_group, "flags", 0) or 0) & _CG_BUS_EVENT:
         return True
     return any(_BUS_NAME.match(ch.name or "") for ch in g.channels)
+
+
+#: Bus type of a bus log -> the database its frames need to become signals.
+_BUS_DATABASE = {"CAN": "a DBC database", "LIN": "an LDF database", "FLEXRAY": "a FIBEX or ARXML database",
+                 "ETH": "an ARXML database", "ETHERNET": "an ARXML database", "MOST": "a MOST function catalog"}
+#: MDF 4 source bus types (si_bus_type) by name.
+_SI_BUS = {2: "CAN", 3: "LIN", 4: "MOST", 5: "FlexRay", 7: "Ethernet"}
+
+
+def _bus_log_refusal(mdf, index: int) -> str:
+    """The one-line refusal of bus-log group ``index``: which bus, and what its frames need."""
+    g = mdf.groups[index]
+    bus = None
+    for ch in g.channels:
+        m = _BUS_NAME.match(ch.name or "")
+        if m:
+            bus = m.group(1)
+            break
+    if bus is None:
+        source = getattr(g.channel_group, "acq_source", None)
+        bus = _SI_BUS.get(int(getattr(source, "bus_type", 0) or 0)) if source is not None else None
+    bus = {"CAN": "CAN", "LIN": "LIN", "FLEXRAY": "FlexRay", "ETH": "Ethernet", "ETHERNET": "Ethernet",
+           "MOST": "MOST"}.get((bus or "").upper(), bus)
+    database = _BUS_DATABASE.get((bus or "").upper(), "its bus database (DBC, LDF, ARXML)")
+    what = f"{bus} frames" if bus else "bus frames"
+    return (f"channel group {index} is an MDF bus log ({what}): its signals need {database}, which pneubench "
+            "does not decode; export the decoded signals instead (e.g. asammdf's extract_bus_logging with the "
+            "database, saved as MF4)")
 
 
 #: ``[read]`` / metadata key that makes every channel group a run, and the key naming one group.
@@ -276,11 +351,15 @@ def read_mdf(path: str | Path, read: dict | None = None, hints: dict | None = No
     opened = _open(path)
     mdf = opened.mdf
     try:
-        index, acq_name, n_records = _pick_group(mdf, hints.get("group", read.get("group")))
+        selector = hints.get("group", read.get("group"))
+        if selector is None or str(selector).strip() == "":
+            # a logger's file of data, error and remote frames: a bus log, not a choice of groups
+            logs = [i for i, _, _ in _groups(mdf) if _is_bus_log(mdf, i)]
+            if len(logs) > 1 and len(logs) == len(_groups(mdf)):
+                raise ReaderError(_bus_log_refusal(mdf, logs[0]))
+        index, acq_name, n_records = _pick_group(mdf, selector)
         if _is_bus_log(mdf, index):
-            raise ReaderError(f"channel group {index} is a bus log (raw frames): decoding needs its DBC/ARXML "
-                              "database, which pneubench does not apply; export the decoded signals to MF4 "
-                              "first (e.g. asammdf's extract_bus_logging)")
+            raise ReaderError(_bus_log_refusal(mdf, index))
         master = mdf.masters_db.get(index)
         if master is None:
             raise ReaderError(f"channel group {index} has no master (time) channel")

@@ -272,7 +272,7 @@ def _plan(tdms, hints: dict, file_size: int, stored: int | None = None):
             unit = "s"
             first_time = _plain(t0)
         raw = RawColumn(key=key, name=name, unit=unit, index=index,
-                        dtype="string" if kind in ("string", "timestamp") else "float")
+                        dtype="string" if kind in ("string", "timestamp") else "float", header=ch.name)
         cols.append(_Col(raw, kind, ch.name, t0))
         if n:
             lengths[ch.name] = n

@@ -38,6 +38,10 @@ folder             what it exercises
                    encoder, drive force ``f`` [N] from the motor current, no pressures; the force
                    leads the motion by 0.57 ms (``linear-drive``, under a sample) or by 3 ms
                    (``linear-drive-fieldbus``: the position comes over a fieldbus 3 samples late)
+``kpa-logger``     a regulator's pressure steps logged by a script (:data:`LOGGER_HEADERS`):
+                   headers ``time(sec)``, ``pressure(kPa)``, ``setpoint(kPa)`` mapped by
+                   ``[channels."time(sec)"]`` ... in its rig.toml, and a comment line
+                   ``# Captured <date time.us> by unknown user`` above the header
 =================  =========================================================================
 
 truth.json (same layout as the main campaigns) holds per run the true values (``fc_n``
@@ -59,7 +63,7 @@ import pandas as pd
 
 from pipeline.simulator import pla, plpa
 from pipeline.simulator.base import HOSE_AREA_M2, SimRun, jsonable, time_vector
-from pipeline.simulator.writers import ColumnOut, write_csv, write_lvm, write_mat, write_tdms
+from pipeline.simulator.writers import ColumnOut, _meta_text, write_csv, write_lvm, write_mat, write_tdms
 
 CAMPAIGN = "foreign-2026"
 START = datetime(2026, 2, 2, 9, 0, 0)
@@ -169,6 +173,7 @@ def plan() -> list[ForeignRun]:
         add(stem=stem, folder="lineardrive", fmt="csv", kind="viscous", sim=dict(force_lead_s=lead),
             units={"x_m": "mm", "f_n": "N"},
             sensors={"x_resolution_m": LINEAR_DRIVE["position_resolution_m"], "f_noise_n": LINEAR_DRIVE["force_noise_n"]})
+    _plan_logger_headers(add)
     return runs
 
 
@@ -311,6 +316,43 @@ def _accelerometer(rng: np.random.Generator, fs_hz: float, duration_s: float) ->
                   {"kind": "timeseries", "amplitude_g": 0.8, "frequency_hz": 12.0, "noise_g": 0.02, "fs_hz": fs_hz})
 
 
+# -- a script's log: `time(sec)` headers, a `# Captured ...` comment (issue 25 items 1 and 4) ----------
+LOGGER_FOLDER = "kpa-logger"
+#: The logger's header text per samples column: the unit in parentheses, `sec` for seconds.
+LOGGER_HEADERS = {"t_s": "time(sec)", "p_pa": "pressure(kPa)", "p_ref_pa": "setpoint(kPa)"}
+RIG_TOMLS[f"{LOGGER_FOLDER}/rig.toml"] = (
+    '[metadata]\nrig = "kpa-logger"\n\n'
+    '# the logger\'s headers as written\n'
+    '[channels."time(sec)"]\nchannel = "t"\nunit = "s"\n\n'
+    '[channels."pressure(kPa)"]\nchannel = "p"\nunit = "kPa"\n\n'
+    '[channels."setpoint(kPa)"]\nchannel = "p_ref"\nunit = "kPa"\n')
+
+
+def _plan_logger_headers(add) -> None:
+    """Issue 25, items 1 and 4: first-order pressure steps of a regulator (0.5-1.5 bar gauge,
+    tau 80 ms) at 100 Hz, written by a logging script (:func:`_write_logger_csv`)."""
+    add(stem="kpa-logger-steps", folder=LOGGER_FOLDER, fmt="csv", kind="pressure_step",
+        sim=dict(chamber="rear", levels_bar=(0.5, 1.0, 0.5, 1.5, 0.5), hold_s=2.0, fs_hz=100.0, tau_s=0.08,
+                 noise_pa=100.0),
+        units={"p_pa": "kPa", "p_ref_pa": "kPa"}, sensors={"p_noise_pa": 100.0})
+
+
+def _logger_comment(run: ForeignRun) -> str:
+    """The logger's comment line (without ``#``): capture time to the microsecond, no user."""
+    captured = START + timedelta(hours=run.index, microseconds=57076 + 1000 * run.index)
+    return f"Captured {captured:%Y-%m-%d %H:%M:%S.%f} by unknown user"
+
+
+def _write_logger_csv(path: Path, frame: pd.DataFrame, columns: list[ColumnOut], metadata: dict,
+                      comment: str) -> None:
+    """The script's CSV: ``# key: value`` lines, ``# <comment>`` right above the header, the header
+    as :data:`LOGGER_HEADERS`, then the rows exactly as :func:`write_csv` writes them."""
+    write_csv(path, frame, columns, None, header=False)
+    head = [f"# {k}: {_meta_text(v)}" for k, v in metadata.items()] + [f"# {comment}"]
+    head.append(",".join(LOGGER_HEADERS[c.column] for c in columns))
+    path.write_bytes(("\n".join(head) + "\n").encode("utf-8") + path.read_bytes())
+
+
 def simulate(run: ForeignRun, seed: int) -> SimRun:
     """The run as ingest must give it back: ``data`` in SI under warehouse column names (the
     load-cell run's ``f_n`` is the derived drive force, ``f_cell_n`` the cell's reading)."""
@@ -360,7 +402,9 @@ def write_run(out_dir: Path, run: ForeignRun, seed: int) -> dict:
     cols = _export_columns(run)
     frame = sim.data
     fs = run.sim.get("fs_hz")
-    if run.fmt == "csv":
+    if run.folder == LOGGER_FOLDER:
+        _write_logger_csv(path, frame, [ColumnOut("t_s", "t", "s")] + cols, embedded, _logger_comment(run))
+    elif run.fmt == "csv":
         time = [ColumnOut("t_s", "t", "s")] if run.time_column else []
         write_csv(path, frame, time + cols, embedded)
     elif run.fmt == "lvm":
@@ -378,6 +422,8 @@ def write_run(out_dir: Path, run: ForeignRun, seed: int) -> dict:
         "columns": _expected_columns(run),
         "params": run.stated,
     }
+    if run.folder == LOGGER_FOLDER:
+        expected["comments"] = [_logger_comment(run)]   # params["comments"], not a metadata key
     truth = {**sim.truth, "sensors": run.sensors}
     return {"file": run.rel_path, "format": run.fmt, "kind": run.kind, "metadata": meta, "embedded": True,
             "manifest": run.manifest, "truth": jsonable(truth), "expected": jsonable(expected)}

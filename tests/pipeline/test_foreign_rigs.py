@@ -210,6 +210,27 @@ def test_pressure_sweeps_are_first_order_with_their_time_constant(foreign):
         assert r["nrmse_pct"] < pressure_dynamics.NRMSE_LIMIT_PCT
 
 
+def test_a_loggers_parenthesised_headers_and_comment_line_ingest_and_fit(foreign):
+    """Issue 25 items 1 and 4: `time(sec)`, `pressure(kPa)` mapped by rig.toml `[channels."time(sec)"]`
+    (it was quarantined: "missing channel `t`"), and `# Captured ... by unknown user` kept in
+    params.comments (it was the key "Captured 2026-... 05"); the steps then fit their first order."""
+    import json
+
+    wh, run_id = foreign["wh"], f"{CAMPAIGN}/kpa-logger-steps"
+    run = _q(wh, "SELECT params FROM runs WHERE run_id = ?", [run_id])
+    assert len(run) == 1
+    params = json.loads(run["params"][0])
+    assert params["comments"] == foreign["truth"][run_id]["expected"]["comments"]
+    assert not any(k.startswith("Captured") for k in params)
+    tau = _truth(foreign, "kpa-logger-steps")["tau_s"]
+    rows = _rows(wh, "SELECT * FROM pressure_dynamics WHERE rig = 'kpa-logger' AND level = 'rig' ORDER BY direction")
+    assert list(rows["direction"]) == ["charge", "discharge"]
+    for _, r in rows.iterrows():
+        assert r["model"] == "first_order" and r["tau_s"] == pytest.approx(tau, rel=TAU_REL), r.to_dict()
+    steps = _q(wh, "SELECT * FROM pressure_steps WHERE run_id = ?", [run_id])
+    assert len(steps) == len(_truth(foreign, "kpa-logger-steps")["steps"])
+
+
 def test_every_set_point_step_is_listed(foreign):
     wh = foreign["wh"]
     for stem in ("pressure-sweep-05kpa", "pressure-sweep-10kpa"):

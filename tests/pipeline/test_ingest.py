@@ -57,7 +57,7 @@ def test_started_at_with_offset_is_converted_to_utc(raw, warehouse):
 
 
 def test_non_canonical_channels_and_unknown_keys_are_kept(raw, warehouse):
-    raw.csv("c/a.csv", {**STEP_META, "Bench Firmware": "v2"},
+    raw.csv("c/a.csv", {**STEP_META, "Bench-Firmware": "v2"},
             {"t[s]": T, "x[m]": T, "x_ref[m]": T, "Oil Temp[degC]": [20, 21, 22, 23], "status": ["ok", "ok", "hot", "ok"]})
     res = ingest(raw, "c/a.csv", warehouse)
     table = pq.read_table(warehouse / res.run["samples_path"])
@@ -65,7 +65,7 @@ def test_non_canonical_channels_and_unknown_keys_are_kept(raw, warehouse):
     assert table.column("oil_temp_degc").to_pylist() == [20.0, 21.0, 22.0, 23.0]
     assert table.schema.field("oil_temp_degc").metadata[b"unit"] == b"degC"
     assert table.column("status").to_pylist() == ["ok", "ok", "hot", "ok"]
-    assert res.run["params"]["Bench Firmware"] == "v2"
+    assert res.run["params"]["Bench-Firmware"] == "v2"
 
 
 def test_samples_footer_records_the_run(raw, warehouse):
@@ -747,3 +747,42 @@ def test_missing_kind_in_a_csv_names_the_csv_comment_line(raw, warehouse):
     assert "(`file,kind` then `run 01.csv,step`)" in err
     raw.write("c/a,b.csv", "# rig: r\nt[s]\n0\n")  # a name the CSV row must quote
     assert '(`file,kind` then `"a,b.csv",step`)' in quarantine(raw, warehouse, "c/a,b.csv")
+
+
+# -- a [channels] key is the header text as written (issue 25 item 1) -------------------------
+def test_channels_key_with_a_parenthesised_unit_maps_the_column(raw, warehouse):
+    # A rig writes `time(sec)`, `pressure(kPa)`; its rig.toml maps the headers as written.
+    raw.write("c/rig.toml", '[channels."time(sec)"]\nchannel = "t"\nunit = "s"\n'
+                            '[channels."pressure(kPa)"]\nchannel = "p"\nunit = "kPa"\n')
+    raw.csv("c/a.csv", {**STEP_META, "kind": "timeseries"},
+            {"time(sec)": T, "pressure(kPa)": [100.0, 101.0, 102.0, 103.0], "valve [V]": [0, 1, 1, 0]})
+    res = ingest(raw, "c/a.csv", warehouse)
+    assert res.error is None
+    table = samples_of(res, warehouse)
+    assert table.column("t_s").to_pylist() == T
+    assert table.column("p_pa").to_pylist() == pytest.approx([1.0e5, 1.01e5, 1.02e5, 1.03e5])
+    assert next(c for c in res.channels if c["column"] == "p_pa")["raw_name"] == "pressure"
+
+
+def test_channels_key_as_written_with_a_space_before_the_unit(raw, warehouse):
+    raw.write("c/rig.toml", '[channels."Time (s)"]\nchannel = "t"\n')
+    raw.csv("c/a.csv", STEP_META, {"Time (s)": T, "x[m]": T, "x_ref[m]": T})
+    assert ingest(raw, "c/a.csv", warehouse).error is None
+
+
+def test_channels_key_for_another_header_leaves_the_column_unmapped(raw, warehouse):
+    # The happy case's hostile twin: a key for `time(ms)` does not map `time(sec)`.
+    raw.write("c/rig.toml", '[channels."time(ms)"]\nchannel = "t"\nunit = "ms"\n')
+    raw.csv("c/a.csv", STEP_META, {"time(sec)": T, "x[m]": T, "x_ref[m]": T})
+    assert "missing channel `t`" in quarantine(raw, warehouse)
+
+
+# -- comment lines are not metadata (issue 25 item 4) ------------------------------------------
+def test_comment_line_is_kept_under_comments_not_read_as_a_key(raw, warehouse):
+    raw.write("c/a.csv", "# Captured 2020-07-03 03:08:17.057076 by unknown user\n# kind: step\n"
+                         "# started_at: 2026-01-02T03:04:05\n# rig = plpa-1\nt[s],x[m],x_ref[m]\n0,0,0\n0.1,0,0\n")
+    res = ingest(raw, "c/a.csv", warehouse)
+    p = res.run["params"]
+    assert p["comments"] == ["Captured 2020-07-03 03:08:17.057076 by unknown user"]
+    assert not any(k.startswith("Captured") for k in p)
+    assert res.run["rig"] == "plpa-1" and res.run["kind"] == "step"

@@ -280,3 +280,68 @@ def xlsx_workbook(path: Path, sheets, meta: dict | None = None, extra=None) -> P
     path.parent.mkdir(parents=True, exist_ok=True)
     wb.save(path)
     return path
+
+
+# -- MDF bus logging -------------------------------------------------------------------------
+#: The ``CAN_DataFrame`` structure of the ASAM MDF bus logging standard (classic CAN, 8 bytes).
+CAN_DATAFRAME = np.dtype([("CAN_DataFrame.BusChannel", "<u1"), ("CAN_DataFrame.ID", "<u4"),
+                          ("CAN_DataFrame.IDE", "<u1"), ("CAN_DataFrame.DLC", "<u1"),
+                          ("CAN_DataFrame.DataLength", "<u1"), ("CAN_DataFrame.DataBytes", "(8,)u1"),
+                          ("CAN_DataFrame.Dir", "<u1")])
+
+
+def mdf_unfinalised(path: Path) -> Path:
+    """Leave an uncompressed MDF 4.1x file as a logger leaves it when it never finalises it
+    (CAN loggers write so by design): file identifier ``UnFinMF``, standard flags "update the
+    cycle counters" and "update the length of the last DT block", every channel group's cycle
+    counter 0 and every DT block's length only its 24-byte header. A reader must finalise it
+    (asammdf does on opening: it writes the counters and lengths into the file it opened)."""
+    data = bytearray(Path(path).read_bytes())
+    assert data[:3] == b"MDF" and data[8:12] >= b"4.10", "an MDF 4.10+ file"
+    data[0:8] = b"UnFinMF "
+    data[60:62] = struct.pack("<H", 0x1 | 0x4)   # FLAG_UNFIN_UPDATE_CG_COUNTER | _LAST_DT_LENGTH
+    pos = 64
+    while pos + 24 <= len(data):
+        block, length, links = data[pos:pos + 4], *struct.unpack_from("<QQ", data, pos + 8)
+        if block == b"##CG":
+            struct.pack_into("<Q", data, pos + 24 + 8 * links + 8, 0)      # cg_cycle_count
+        elif block == b"##DT":
+            struct.pack_into("<Q", data, pos + 8, 24)                      # dt length: header only
+        pos += (length + 7) // 8 * 8 if block[:2] == b"##" and length >= 24 else 8
+    Path(path).write_bytes(bytes(data))
+    return Path(path)
+
+
+def mf4_can_bus_log(path: Path, n_frames: int = 200, unfinalised: bool = True, error_frames: int = 0) -> Path:
+    """A CAN bus log as a CAN logger writes it (MDF 4.11): one channel group of
+    ``CAN_DataFrame`` records (bus channel, ID, IDE, DLC, data length, 8 data bytes, direction)
+    with a CAN bus acquisition source, so the group carries the bus-event flags; the time
+    stamps are the master. Two message IDs at 100 Hz whose bytes hold a counter and a ramp (the
+    signals a DBC would describe). ``error_frames``: that many ``CAN_ErrorFrame`` records in a
+    second group. ``unfinalised``: left as the logger leaves it (:func:`mdf_unfinalised`)."""
+    from asammdf import MDF, Signal
+    from asammdf.blocks.v4_blocks import SourceInformation
+    from asammdf.blocks.v4_constants import BUS_TYPE_CAN, SOURCE_BUS
+
+    frames = np.zeros(n_frames, dtype=CAN_DATAFRAME)
+    k = np.arange(n_frames)
+    frames["CAN_DataFrame.BusChannel"] = 1
+    frames["CAN_DataFrame.ID"] = np.where(k % 2 == 0, 0x18F, 0x2A0)
+    frames["CAN_DataFrame.DLC"] = frames["CAN_DataFrame.DataLength"] = 8
+    frames["CAN_DataFrame.DataBytes"][:, 0] = k % 256
+    frames["CAN_DataFrame.DataBytes"][:, 1] = (k * 3) % 256
+    frames["CAN_DataFrame.DataBytes"][:, 2] = k // 256
+    m = MDF(version="4.11")
+    m.append(Signal(frames, k * 0.005, name="CAN_DataFrame",
+                    source=SourceInformation(source_type=SOURCE_BUS, bus_type=BUS_TYPE_CAN)),
+             acq_name="CAN1")
+    if error_frames:
+        errors = np.zeros(error_frames, dtype=[(n.replace("DataFrame", "ErrorFrame"), *CAN_DATAFRAME.fields[n][:1])
+                                               for n in CAN_DATAFRAME.names])
+        m.append(Signal(errors, np.arange(error_frames) * 0.37, name="CAN_ErrorFrame",
+                        source=SourceInformation(source_type=SOURCE_BUS, bus_type=BUS_TYPE_CAN)), acq_name="CAN1")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    saved = Path(m.save(path, overwrite=True, compression=0))
+    m.close()
+    return mdf_unfinalised(saved) if unfinalised else saved

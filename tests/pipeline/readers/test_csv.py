@@ -123,6 +123,20 @@ def test_csv_metadata_comment_lines(tmp_path):
     assert rows(ex) == {"t[s]": [0.0], "x[m]": [1.0]}
 
 
+def test_csv_comment_line_that_is_not_a_key_is_kept_whole(tmp_path):
+    # A real rig's export (issue 25 item 4): a sentence with a time in it is not `key: value`.
+    ex = open_csv(tmp_path, "# Captured 2020-07-03 03:08:17.057076 by unknown user\n# kind: step\n"
+                            "# gain = 2.5\n# Bench Firmware: v2\n# \n# valve: V-12\nt[s],x[m]\n0,1\n")
+    assert ex.metadata == {"kind": "step", "gain": "2.5", "valve": "V-12",
+                           "comments": ["Captured 2020-07-03 03:08:17.057076 by unknown user", "Bench Firmware: v2"]}
+    assert rows(ex) == {"t[s]": [0.0], "x[m]": [1.0]}
+
+
+def test_csv_metadata_keys_with_dots_dashes_and_digits(tmp_path):
+    ex = open_csv(tmp_path, "# sensor.p_a-range2: 10 bar\n# 2nd_valve = V-3\nt[s],x[m]\n0,1\n")
+    assert ex.metadata == {"sensor.p_a-range2": "10 bar", "2nd_valve": "V-3"}
+
+
 def test_csv_headerless_whitespace_with_rig_toml(raw, warehouse):
     raw.write("c/rig.toml", """
         [read]

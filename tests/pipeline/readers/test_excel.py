@@ -21,6 +21,14 @@ def _values(exp):
     return {c.name: table.column(c.key).to_pylist() for c in exp.columns}
 
 
+def test_comment_cell_that_is_not_a_key_is_kept_whole(tmp_path):
+    p = _book(tmp_path / "r.xlsx", [["# Captured 2020-07-03 03:08:17.057076 by unknown user"], ["# kind: leakage"],
+                                     ["t[s]", "p_supply[bar]"], [0.0, 1.5], [0.5, 2.0]])
+    exp = read_excel(p)
+    assert exp.metadata["comments"] == ["Captured 2020-07-03 03:08:17.057076 by unknown user"]
+    assert exp.metadata["kind"] == "leakage" and not any(str(k).startswith("Captured") for k in exp.metadata)
+
+
 def test_header_with_units_and_comment_metadata(tmp_path):
     p = _book(tmp_path / "r.xlsx", [["# kind: leakage"], ["# chamber: A"], ["t[s]", "p_supply (bar)", "q_leak[l/min]"],
                                      [0.0, 1.5, 0.25], [0.5, 2.0, 0.5], [1.0, 2.5, None]])

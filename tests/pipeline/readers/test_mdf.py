@@ -1,4 +1,6 @@
 """ASAM MDF reader: scenarios written with asammdf in the test (no binaries committed)."""
+from pathlib import Path
+
 import numpy as np
 import pyarrow as pa
 import pytest
@@ -10,6 +12,7 @@ from asammdf import MDF, Signal  # noqa: E402
 
 from pipeline.readers import ReaderError, read_export  # noqa: E402
 from pipeline.readers.mdf import list_parts, parse_header_comment, read_mdf  # noqa: E402
+from tests.pipeline.readers.generators import mdf_unfinalised, mf4_can_bus_log  # noqa: E402
 
 
 def _values(exp):
@@ -92,6 +95,48 @@ def test_refused_can_bus_log_without_dbc(tmp_path):
               Signal(np.arange(5, dtype=np.uint8), t, name="CAN_DataFrame.DLC")]
     with pytest.raises(ReaderError, match="bus log .*DBC"):
         read_mdf(_write(tmp_path / "can.mf4", [("CAN1", frames)]))
+
+
+def test_can_logger_bus_log_is_refused_as_a_bus_log_not_as_damaged(tmp_path):
+    # A CAN logger's MF4 (issue 25 item 7): CAN_DataFrame records, left unfinalised as loggers
+    # leave them; it was refused as "not a readable MDF file ...: UnsupportedOperation: write".
+    p = mf4_can_bus_log(tmp_path / "can.mf4")
+    before = p.read_bytes()
+    with pytest.raises(ReaderError) as err:
+        read_mdf(p)
+    msg = str(err.value)
+    assert "an MDF bus log (CAN frames)" in msg and "DBC database" in msg and "export the decoded signals" in msg
+    assert "UnsupportedOperation" not in msg and "\n" not in msg
+    assert p.read_bytes() == before            # the logger's file is never finalised in place
+
+
+def test_finalised_can_bus_log_is_refused_the_same_way(tmp_path):
+    with pytest.raises(ReaderError, match=r"an MDF bus log \(CAN frames\)"):
+        read_mdf(mf4_can_bus_log(tmp_path / "can.mf4", unfinalised=False))
+
+
+def test_can_log_of_data_and_error_frames_is_a_bus_log_not_a_choice_of_groups(tmp_path):
+    p = mf4_can_bus_log(tmp_path / "can.mf4", error_frames=3)
+    with pytest.raises(ReaderError, match=r"an MDF bus log \(CAN frames\)"):
+        read_mdf(p)
+    with pytest.raises(ReaderError, match=r"channel group 1 is an MDF bus log \(CAN frames\)"):
+        read_mdf(p, {"group": 1})
+
+
+def test_unfinalised_mf4_of_signals_reads_like_the_finalised_one(tmp_path):
+    t, sigs = _run(500)
+    m = MDF(version="4.11")
+    m.append(sigs, acq_name="fast")
+    p = Path(m.save(tmp_path / "r.mf4", overwrite=True, compression=0))
+    m.close()
+    finalised = _values(read_mdf(p))
+    before = mdf_unfinalised(p).read_bytes()
+    assert before[:8] == b"UnFinMF "
+    v = _values(read_mdf(p))
+    np.testing.assert_array_equal(v["t"], t)
+    np.testing.assert_array_equal(v["x"], finalised["x"])
+    np.testing.assert_array_equal(v["p_a"], finalised["p_a"])
+    assert p.read_bytes() == before
 
 
 def test_refused_truncated_file(tmp_path):
@@ -254,3 +299,20 @@ def test_refused_list_longer_than_the_limit_and_read_within_it(tmp_path, monkeyp
     monkeypatch.setattr(mdf_reader, "MAX_CHAINED_BLOCKS", 2)
     with pytest.raises(ReaderError, match="damaged MDF file: more than 2 channel blocks in one list"):
         read_mdf(path)
+
+
+def test_can_logger_bus_log_is_one_quarantine_line_and_a_signal_log_beside_it_ingests(raw, warehouse):
+    from pipeline.ingest import ingest_file
+    from pipeline.layout import RawTree
+
+    raw.write("c/rig.toml", '[metadata]\nkind = "timeseries"\nrig = "can-1"\n')
+    can = mf4_can_bus_log(raw.root / "c" / "can.mf4")
+    t, sigs = _run(200)
+    m = MDF(version="4.11")
+    m.append(sigs, acq_name="fast")
+    sig = mdf_unfinalised(Path(m.save(raw.root / "c" / "sig.mf4", overwrite=True, compression=0)))
+    m.close()
+    bad = ingest_file(RawTree(raw.root), can, warehouse)
+    assert bad.run is None and bad.error.startswith("channel group 0 is an MDF bus log (CAN frames)")
+    good = ingest_file(RawTree(raw.root), sig, warehouse)
+    assert good.error is None and good.run["n_samples"] == 200

@@ -31,7 +31,7 @@ def test_every_foreign_run_ingests(campaign):
     assert {r.error for r in results.values()} == {None}
     assert len(results) == summary.n_runs == len(truth["runs"]) == len(foreign.plan())
     assert {r.run["run_id"] for r in results.values()} == set(truth["runs"])
-    assert summary.by_kind == {"viscous": 14, "pressure_step": 5, "timeseries": 1}  # + pinch valve new/aged, ventilator ramp, laser runs, linear drive
+    assert summary.by_kind == {"viscous": 14, "pressure_step": 6, "timeseries": 1}  # + pinch valve new/aged, ventilator ramp, laser runs, linear drive, kpa logger
 
 
 def _samples(campaign, run_id):
@@ -147,3 +147,19 @@ def test_default_runs_are_unchanged():
     assert digest(plpa.simulate_viscous(rng=1, fs_hz=200.0)) == DEFAULT_DIGESTS["viscous"]
     assert digest(plpa.simulate_viscous(rng=2, use_force_channel=True, fs_hz=200.0)) == DEFAULT_DIGESTS["viscous_force"]
     assert digest(pla.simulate_pressure_step(rng=3, fs_hz=200.0)) == DEFAULT_DIGESTS["pressure_step"]
+
+
+def test_logger_headers_map_by_their_text_and_its_comment_is_kept_whole(campaign):
+    """Issue 25 items 1 and 4: `time(sec)` / `pressure(kPa)` headers mapped by rig.toml
+    `[channels."time(sec)"]`, and `# Captured <date time.us> by unknown user` above the header."""
+    raw, _, _, _, truth = campaign
+    run_id = f"{foreign.CAMPAIGN}/kpa-logger-steps"
+    rec = truth["runs"][run_id]
+    lines = (raw / rec["file"]).read_text().splitlines()
+    assert lines[5].startswith("# Captured ") and lines[5].endswith(" by unknown user")
+    assert lines[6] == "time(sec),pressure(kPa),setpoint(kPa)"
+    res, table = _samples(campaign, run_id)
+    assert res.run["params"]["comments"] == rec["expected"]["comments"] == [lines[5][2:]]
+    assert not any(k.startswith("Captured") for k in res.run["params"])
+    raw_names = {c["column"]: c["raw_name"] for c in res.channels}
+    assert raw_names == {"t_s": "time", "p_pa": "pressure", "p_ref_pa": "setpoint"}
