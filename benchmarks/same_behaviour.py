@@ -13,7 +13,8 @@ is compared too) and rebuilds it into its own warehouse as a process (``-q --job
   ``EXCEPT ALL`` both ways over every table, both databases attached read-only); columns that
   name the code or the moment (:data:`VOLATILE`: a generation id, timestamps, code versions and
   the hashed stage-folder names derived from them) are left out and listed;
-- **samples**: every samples Parquet file, byte for byte, by its path under ``samples/``;
+- **samples**: every run's samples Parquet file, byte for byte, matched by run_id (a file's
+  name carries a key that hashes the ingest code version, so paths are compared with it masked);
 - **figures**: every stage figure's PNG bytes, by (stage, name);
 - **report**: ``report/index.html`` and every run page, after masking the build's time and
   durations;
@@ -47,6 +48,19 @@ VOLATILE = {
     "rebuild_inputs": set(),
     "figures": {"path"},
     "superseded_files": {"path", "superseded_at"},
+}
+
+#: A samples file is named ``<run>-<key>.parquet``, the key hashing the ingest code version too:
+#: a change of the ingest code renames every file (same bytes). Paths are compared with the key
+#: masked, and the files by run (``runs.samples_path``).
+_KEY = r"-[0-9a-f]{16}\.parquet"
+#: Columns holding samples paths, compared with :data:`_KEY` masked: {(table, column): SQL}.
+KEYED = {
+    ("runs", "samples_path"): "regexp_replace(\"samples_path\", '{key}', '-<key>.parquet', 'g')",
+    ("samples_files", "path"): "regexp_replace(\"path\", '{key}', '-<key>.parquet', 'g')",
+    ("ingest_state", "samples_paths"):
+        "list_transform(\"samples_paths\", p -> regexp_replace(p, '{key}', '-<key>.parquet', 'g'))",
+    ("ingest_state", "result"): "regexp_replace(\"result\"::VARCHAR, '{key}', '-<key>.parquet', 'g')",
 }
 
 #: Text that changes from one build to the next: times, durations, sizes of timings, temp paths.
@@ -133,18 +147,37 @@ def compare_tables(db_a: Path, db_b: Path) -> tuple[list[str], list[str]]:
         left_out += [f"{table}.{c}" for c in sorted(volatile) if (table, c) in ca]
         if not cols:
             continue
-        sel = ", ".join(f'"{c}"' for c in cols)
+        sel = ", ".join(KEYED[(table, c)].format(key=_KEY) if (table, c) in KEYED else f'"{c}"' for c in cols)
         n_ab = con.execute(f'SELECT count(*) FROM (SELECT {sel} FROM a."{table}" EXCEPT ALL '
                            f'SELECT {sel} FROM b."{table}")').fetchone()[0]
         n_ba = con.execute(f'SELECT count(*) FROM (SELECT {sel} FROM b."{table}" EXCEPT ALL '
                            f'SELECT {sel} FROM a."{table}")').fetchone()[0]
         if n_ab or n_ba:
+            def one(c):
+                return KEYED[(table, c)].format(key=_KEY) if (table, c) in KEYED else f'"{c}"'
             bad = [c for c in cols if con.execute(
-                f'SELECT count(*) FROM (SELECT "{c}" FROM a."{table}" EXCEPT ALL SELECT "{c}" FROM b."{table}")'
+                f'SELECT count(*) FROM (SELECT {one(c)} FROM a."{table}" EXCEPT ALL SELECT {one(c)} FROM b."{table}")'
             ).fetchone()[0]]
             diffs.append(f"{table}: {n_ab} rows only before, {n_ba} only after (columns {bad[:8]})")
     con.close()
     return diffs, left_out
+
+
+def compare_samples(wa: Path, wb: Path) -> list[str]:
+    """Every run's samples Parquet bytes, matched by run_id through each database's ``runs``."""
+    import duckdb
+
+    def digests(wh: Path) -> dict[str, str]:
+        con = duckdb.connect(str(wh / "pneubench.duckdb"), read_only=True)
+        try:
+            rows = con.execute("SELECT run_id, samples_path FROM runs").fetchall()
+        finally:
+            con.close()
+        return {r: hashlib.sha256((wh / p).read_bytes()).hexdigest() if p else "" for r, p in rows}
+
+    da, db = digests(wa), digests(wb)
+    diff = sorted(k for k in set(da) | set(db) if da.get(k) != db.get(k))
+    return [f"samples: {len(diff)} of {len(set(da) | set(db))} runs differ, e.g. {diff[:3]}"] if diff else []
 
 
 def compare_files(a: Path, b: Path, label: str, mask: bool = False) -> list[str]:
@@ -232,7 +265,7 @@ def main(argv=None) -> int:
         (wa, wb) = built["before"][1], built["after"][1]
         diffs, left_out = compare_tables(wa / "pneubench.duckdb", wb / "pneubench.duckdb")
         checks["tables"] = diffs
-        checks["samples Parquet"] = compare_files(wa / "samples", wb / "samples", "samples")
+        checks["samples Parquet"] = compare_samples(wa, wb)
         checks["figures"] = compare_figures(wa, wb)
         checks["report"] = compare_files(wa / "report", wb / "report", "report", mask=True)
         ca = commands(before, top / "before", built["before"][0])

@@ -41,3 +41,34 @@ def test_masks_hide_times_generations_durations_and_folders(tmp_path):
     two = f"warehouse {tmp_path}/w, generation 20261126T020000.000001Z-12, finished 2026-11-26 02:00:00 UTC, 12 s"
     assert _mask(one, tmp_path) == _mask(two, tmp_path)
     assert _mask("leak 0.35 l/min", tmp_path) != _mask("leak 0.36 l/min", tmp_path)
+
+
+def _runs_db(wh: Path, paths: dict[str, bytes]) -> Path:
+    """A warehouse folder whose ``runs`` names one samples file per run, holding the given bytes."""
+    wh.mkdir()
+    con = duckdb.connect(str(wh / "pneubench.duckdb"))
+    con.execute("CREATE TABLE runs (run_id VARCHAR, samples_path VARCHAR)")
+    for rel, data in paths.items():
+        (wh / rel).parent.mkdir(parents=True, exist_ok=True)
+        (wh / rel).write_bytes(data)
+        con.execute("INSERT INTO runs VALUES (?, ?)", [rel.split("/")[-1].rsplit("-", 1)[0], rel])
+    con.close()
+    return wh
+
+
+def test_samples_renamed_by_a_new_ingest_code_version_are_the_same_and_changed_bytes_are_not(tmp_path):
+    from benchmarks.same_behaviour import compare_samples
+
+    a = _runs_db(tmp_path / "a", {"samples/c/r1-0123456789abcdef.parquet": b"one",
+                                  "samples/c/r2-1111111111111111.parquet": b"two"})
+    b = _runs_db(tmp_path / "b", {"samples/c/r1-fedcba9876543210.parquet": b"one",
+                                  "samples/c/r2-2222222222222222.parquet": b"two"})
+    assert compare_samples(a, b) == []
+    assert compare_tables(a / "pneubench.duckdb", b / "pneubench.duckdb") == ([], [])
+    c = _runs_db(tmp_path / "c", {"samples/c/r1-0123456789abcdef.parquet": b"one",
+                                  "samples/c/r2-1111111111111111.parquet": b"TWO"})
+    assert compare_samples(a, c) == ["samples: 1 of 2 runs differ, e.g. ['r2']"]
+    d = _runs_db(tmp_path / "d", {"samples/c/r1-0123456789abcdef.parquet": b"one",
+                                  "samples/other/r2-1111111111111111.parquet": b"two"})
+    diffs, _ = compare_tables(a / "pneubench.duckdb", d / "pneubench.duckdb")
+    assert diffs == ["runs: 1 rows only before, 1 only after (columns ['samples_path'])"]
