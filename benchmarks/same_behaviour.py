@@ -59,7 +59,7 @@ KEYED = {
     ("runs", "samples_path"): "regexp_replace(\"samples_path\", '{key}', '-<key>.parquet', 'g')",
     ("samples_files", "path"): "regexp_replace(\"path\", '{key}', '-<key>.parquet', 'g')",
     ("ingest_state", "samples_paths"):
-        "list_transform(\"samples_paths\", p -> regexp_replace(p, '{key}', '-<key>.parquet', 'g'))",
+        "regexp_replace(\"samples_paths\"::VARCHAR, '{key}', '-<key>.parquet', 'g')",
     ("ingest_state", "result"): "regexp_replace(\"result\"::VARCHAR, '{key}', '-<key>.parquet', 'g')",
 }
 

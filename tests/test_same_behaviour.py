@@ -48,7 +48,10 @@ def _runs_db(wh: Path, paths: dict[str, bytes]) -> Path:
     wh.mkdir()
     con = duckdb.connect(str(wh / "pneubench.duckdb"))
     con.execute("CREATE TABLE runs (run_id VARCHAR, samples_path VARCHAR)")
+    con.execute("CREATE TABLE ingest_state (source_path VARCHAR, result JSON, samples_paths VARCHAR[])")
     for rel, data in paths.items():
+        source = rel.split("/")[-1].rsplit("-", 1)[0] + ".csv"
+        con.execute("INSERT INTO ingest_state VALUES (?, ?, ?)", [source, f'{{"samples_path": "{rel}"}}', [rel]])
         (wh / rel).parent.mkdir(parents=True, exist_ok=True)
         (wh / rel).write_bytes(data)
         con.execute("INSERT INTO runs VALUES (?, ?)", [rel.split("/")[-1].rsplit("-", 1)[0], rel])
@@ -71,4 +74,5 @@ def test_samples_renamed_by_a_new_ingest_code_version_are_the_same_and_changed_b
     d = _runs_db(tmp_path / "d", {"samples/c/r1-0123456789abcdef.parquet": b"one",
                                   "samples/other/r2-1111111111111111.parquet": b"two"})
     diffs, _ = compare_tables(a / "pneubench.duckdb", d / "pneubench.duckdb")
-    assert diffs == ["runs: 1 rows only before, 1 only after (columns ['samples_path'])"]
+    assert diffs == ["ingest_state: 1 rows only before, 1 only after (columns ['result', 'samples_paths'])",
+                     "runs: 1 rows only before, 1 only after (columns ['samples_path'])"]
