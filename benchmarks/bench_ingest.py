@@ -44,15 +44,15 @@ TARGETS = {"pandas": 3.0, "pyarrow": 1.0 / 1.5}  # required speed-up of pneubenc
 
 #: Approaches per format: (name, description).
 APPROACHES = {
-    "csv": [("pneubench", "pipeline.ingest.ingest_file (sha256, validation, SI, Parquet)"),
+    "csv": [("pneubench", "pipeline.ingest.file.ingest_file (sha256, validation, SI, Parquet)"),
             ("pandas", "pandas.read_csv + DataFrame.to_parquet"),
             ("pyarrow", "pyarrow.csv.read_csv + pyarrow.parquet.write_table"),
             ("pyarrow-stream", "pyarrow.csv.open_csv + ParquetWriter, batch by batch (reference)")],
-    "tdms": [("pneubench", "pipeline.ingest.ingest_file (sha256, validation, SI, Parquet)"),
+    "tdms": [("pneubench", "pipeline.ingest.file.ingest_file (sha256, validation, SI, Parquet)"),
              ("nptdms", "TdmsFile.read + as_dataframe + DataFrame.to_parquet")],
-    "mf4": [("pneubench", "pipeline.ingest.ingest_file (sha256, validation, SI, Parquet)"),
+    "mf4": [("pneubench", "pipeline.ingest.file.ingest_file (sha256, validation, SI, Parquet)"),
             ("asammdf", "asammdf.MDF + to_dataframe + DataFrame.to_parquet")],
-    "xlsx": [("pneubench", "pipeline.ingest.ingest_file (python-calamine, SI, Parquet)"),
+    "xlsx": [("pneubench", "pipeline.ingest.file.ingest_file (python-calamine, SI, Parquet)"),
              ("pandas", "pandas.read_excel (openpyxl, its default) + DataFrame.to_parquet"),
              ("pandas-calamine", "pandas.read_excel(engine='calamine') + DataFrame.to_parquet")],
 }
@@ -194,8 +194,8 @@ def run_approach(fmt: str, name: str, src: Path, out: Path) -> dict:
     c0 = _cpu_seconds()
     t0 = time.perf_counter()
     if name == "pneubench":
-        from pipeline.ingest import ingest_file
-        from pipeline.layout import RawTree
+        from pipeline.ingest.file import ingest_file
+        from pipeline.raw.layout import RawTree
 
         res = ingest_file(RawTree(src.parent.parent), src, out / "warehouse", reuse=False)
         if res.error:
@@ -266,7 +266,7 @@ def _cpu_seconds() -> float:
 
 
 def _child(args) -> None:
-    import pipeline.ingest  # noqa: F401 - imports before the baseline RSS is taken
+    import pipeline.ingest.file  # noqa: F401 - imports before the baseline RSS is taken
     import pandas  # noqa: F401
     import pyarrow.csv  # noqa: F401
     import pyarrow.parquet  # noqa: F401

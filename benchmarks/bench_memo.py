@@ -3,8 +3,8 @@
 One command::
 
     python -m benchmarks.bench_memo                     # 10,000 entries of ~35 KB (models at 10,000 runs)
-    python -m benchmarks.bench_memo --memo-file old.py  # the same with another version of pipeline/memo.py
-                                                        # (e.g. ``git show <rev>:pipeline/memo.py > old.py``)
+    python -m benchmarks.bench_memo --memo-file old.py  # the same with another version of pipeline/rebuild/memo.py
+                                                        # (e.g. ``git show <rev>:pipeline/rebuild/memo.py > old.py``)
 
 A synthetic memo of ``--entries`` results of ``--kb`` KB each (random bytes: pickled arrays cost
 the same to copy) is written once in a temp folder (``write all``: a ``--full`` rebuild's save).
@@ -70,16 +70,16 @@ def main(argv=None) -> int:
     ap.add_argument("--entries", type=int, default=10_000)
     ap.add_argument("--kb", type=int, default=35)
     ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--memo-file", type=Path, help="another version of pipeline/memo.py to time")
+    ap.add_argument("--memo-file", type=Path, help="another version of pipeline/rebuild/memo.py to time")
     args = ap.parse_args(argv)
     if args.memo_file:
         spec = importlib.util.spec_from_file_location("memo_under_test", args.memo_file)
         mod = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(mod)
     else:
-        import pipeline.memo as mod
+        import pipeline.rebuild.memo as mod
     res = bench(mod, args.entries, args.kb, args.repeat)
-    print(f"memo {args.memo_file or 'pipeline/memo.py'}: {args.entries} entries of {args.kb} KB")
+    print(f"memo {args.memo_file or 'pipeline/rebuild/memo.py'}: {args.entries} entries of {args.kb} KB")
     for k, v in res.items():
         print(f"  {k:18} {v:8.3f}" + ("" if k.endswith("MB") else " s"))
     return 0

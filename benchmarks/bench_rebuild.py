@@ -70,8 +70,8 @@ def main(argv=None) -> int:
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
 
-    from pipeline.layout import discover_runs
-    from pipeline.rebuild import rebuild
+    from pipeline.raw.layout import discover_runs
+    from pipeline.rebuild.flow import rebuild
 
     source = args.source
     if source == "simulator":

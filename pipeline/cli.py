@@ -95,7 +95,7 @@ def rebuild(raw, warehouse, jobs, full, quiet, executor, scheduler, wait_s, no_r
     mass delete refused (--allow-mass-delete); 3 or more: failed (also when the morning report cannot be rendered), previous warehouse and
     report untouched (4: another rebuild is running).
     """
-    from pipeline.rebuild import RebuildError, rebuild as do_rebuild
+    from pipeline.rebuild.flow import RebuildError, rebuild as do_rebuild
 
     if not raw.is_dir():
         raise click.UsageError(f"raw folder {raw} does not exist")
@@ -116,7 +116,7 @@ def _query_error(exc, command: str = "query") -> None:
     """Print a refused or failed query and exit: 2 refused/usage, 3 failed; the line names ``command``."""
     import duckdb
 
-    from pipeline.query import QueryError, QueryLimitError
+    from pipeline.serve.query import QueryError, QueryLimitError
 
     if isinstance(exc, QueryLimitError):  # a limit of the door: one line naming it
         click.echo(f"pneubench {command}: {exc}", err=True)
@@ -166,7 +166,7 @@ def query(sql, sql_file, warehouse, fmt, max_rows, max_width, csv_safe, timeout_
     """
     import duckdb
 
-    from pipeline.query import QueryError, QueryLimitError, open_query, read_sql, terminal_width, write_result
+    from pipeline.serve.query import QueryError, QueryLimitError, open_query, read_sql, terminal_width, write_result
 
     if sql is not None and sql_file is not None:
         raise click.UsageError("give the SQL as an argument or with -f, not both")
@@ -192,13 +192,13 @@ def query(sql, sql_file, warehouse, fmt, max_rows, max_width, csv_safe, timeout_
 @warehouse_option
 def tables(warehouse):
     """List the warehouse's tables and views: science first, internal (rebuild) ones last."""
-    from pipeline.query import list_tables
+    from pipeline.serve.query import list_tables
 
     try:
         found = list_tables(warehouse)
     except FileNotFoundError as exc:
         raise click.UsageError(str(exc)) from None
-    from pipeline.query import terminal_width
+    from pipeline.serve.query import terminal_width
     from pipeline.warehouse import INTERNAL_PREFIX
 
     width = max((len(t["name"]) for t in found), default=4)
@@ -220,7 +220,7 @@ def tables(warehouse):
               help="Widest a column gets before its cells wrap (default: fit the terminal; 0: never wrap).")
 def describe(table, warehouse, max_width):
     """Columns of TABLE with their types, units and meaning."""
-    from pipeline.query import QueryError, describe_table, format_table, terminal_width
+    from pipeline.serve.query import QueryError, describe_table, format_table, terminal_width
 
     try:
         comment, cols = describe_table(warehouse, table)
@@ -246,7 +246,7 @@ def plot(run_id, warehouse, channels, output):
     """Plot one run's channels against time (long runs: min/max per pixel column)."""
     import re
 
-    from pipeline.query import QueryError, plot_run
+    from pipeline.serve.query import QueryError, plot_run
 
     output = output or Path("plot-" + re.sub(r"[^A-Za-z0-9._-]+", "_", run_id).strip("._") + ".png")
     try:
@@ -263,7 +263,7 @@ def plot(run_id, warehouse, channels, output):
               help="Folder to copy the figures into.")
 def figures(warehouse, output):
     """Copy the current figures out of their stage folders into OUTPUT (<stage>-<name>.png)."""
-    from pipeline.query import QueryError, copy_figures
+    from pipeline.serve.query import QueryError, copy_figures
 
     try:
         copied = copy_figures(warehouse, output)
@@ -311,8 +311,8 @@ def report(warehouse, wait_s):
     Holds the rebuild lock while it renders (a rebuild cannot swap its database in between);
     exit 4 when a rebuild is running: it writes the report itself when it finishes.
     """
-    from pipeline.rebuild import RebuildError, warehouse_lock
-    from pipeline.report import ReportError, write_report
+    from pipeline.rebuild.flow import RebuildError, warehouse_lock
+    from pipeline.serve.report import ReportError, write_report
     from pipeline.warehouse import DB_NAME
 
     if not (Path(warehouse) / DB_NAME).is_file():
@@ -374,7 +374,7 @@ def demo(ctx, raw, warehouse, jobs, quiet):
     """
     import shlex
 
-    from pipeline.rebuild import RebuildError, check_folders, rebuild as do_rebuild
+    from pipeline.rebuild.flow import RebuildError, check_folders, rebuild as do_rebuild
     from pipeline.simulator.campaign import DemoError, simulate_demo
 
     try:  # before anything is simulated into raw/

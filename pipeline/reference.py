@@ -18,7 +18,7 @@ from pathlib import Path
 
 import duckdb
 
-from pipeline.query import unit_of
+from pipeline.serve.query import unit_of
 from pipeline.warehouse import CONTRACT_ROWS, FILES_TABLE, INTERNAL_TABLES, ddl_comments
 from schemas import ddl_statements
 from schemas.channels import CHANNELS

@@ -122,7 +122,7 @@ def connect_readonly(warehouse: Path, database: Path | None = None, memory_limit
     access is off except that folder, extensions are neither installed nor loaded, and the
     configuration is locked, so no SQL can undo any of it. Writes fail (the database is
     attached read-only; nothing may be written under samples either, see
-    :func:`pipeline.query.check_sql`). The database file itself is not readable as a file
+    :func:`pipeline.serve.query.check_sql`). The database file itself is not readable as a file
     (:func:`_attach_unnamed`); DuckDB's spill files go to a folder private to this process
     (:func:`_private_folder`). DuckDB's memory and its spill files are limited (``memory_limit``,
     ``max_temp_directory_size``: :data:`MEMORY_LIMIT`, :data:`TEMP_LIMIT`).
@@ -252,7 +252,7 @@ def create_samples_views(con: duckdb.DuckDBPyConnection, warehouse: Path, runs: 
     non-canonical channel that is numeric in some files and text in others is in different
     groups, and the join by name makes it VARCHAR (one type per view; DuckDB writes the numbers
     as text, ``'1.5'``), never a conversion error at query time. The paths below the warehouse
-    folder hold no glob character nor backslash (:func:`pipeline.ingest.samples_folder_name`:
+    folder hold no glob character nor backslash (:func:`pipeline.ingest.file.samples_folder_name`:
     DuckDB's file glob takes ``\\`` for a path separator); only the warehouse folder's own glob
     characters are escaped.
     """
@@ -299,7 +299,7 @@ def create_samples_views(con: duckdb.DuckDBPyConnection, warehouse: Path, runs: 
     con.execute(SAMPLES_MACRO)
 
 
-#: SQL of :func:`pipeline.ingest.safe_file_name` of the macro argument ``rid`` (the start of its
+#: SQL of :func:`pipeline.ingest.file.safe_file_name` of the macro argument ``rid`` (the start of its
 #: samples file's name; tests check the two agree).
 SAFE_NAME_SQL = "coalesce(nullif(left(trim(regexp_replace(rid, '[^A-Za-z0-9._-]+', '_', 'g'), '._'), 80), ''), 'run')"
 
@@ -309,7 +309,7 @@ SAFE_NAME_SQL = "coalesce(nullif(left(trim(regexp_replace(rid, '[^A-Za-z0-9._-]+
 #: the run (its safe name, any kind and campaign folder) and keeps the one ``samples_files``
 #: lists for it (an earlier generation's file, kept for its readers, is never read). A run_id
 #: without samples makes DuckDB say "No files found that match the pattern ..."; ``pneubench
-#: query`` turns that into a one-line error naming the cause (``pipeline.query``).
+#: query`` turns that into a one-line error naming the cause (``pipeline.serve.query``).
 SAMPLES_MACRO = (
     "CREATE MACRO samples(rid) AS TABLE "
     f"SELECT m.run_id, s.* EXCLUDE (filename, run_id), m.kind, m.campaign "

@@ -195,7 +195,7 @@ def m_to_mm(x_m):
 
 #: Units of warehouse column-name suffixes (a column's name ends in its unit; longest match wins):
 #: suffix -> (unit, short unit). The long form is for ``describe`` and plots, the short one for
-#: table headers. One table for the catalogue (``pipeline.query``) and the report.
+#: table headers. One table for the catalogue (``pipeline.serve.query``) and the report.
 COLUMN_UNITS: dict[str, tuple[str, str]] = {
     s: (u if isinstance(u, str) else u[0], u if isinstance(u, str) else u[1]) for s, u in {
         "_pa": "Pa", "_bar": ("bar (gauge)", "bar"), "_bar_abs": ("bar (absolute)", "bar abs"), "_m": "m",

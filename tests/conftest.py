@@ -11,6 +11,9 @@ from pathlib import Path
 
 import pytest
 
+#: The project's root folder (holds ``pipeline/``, ``tests/``): the working folder of child processes.
+PROJECT_ROOT = Path(__file__).resolve().parent.parent
+
 
 class RawBuilder:
     """Writes files into a temporary raw tree: ``raw.write("camp/a.csv", text)``."""
@@ -154,10 +157,10 @@ def _holders(func) -> list:
 
 
 def _install_raw_guard() -> list[tuple[object, object]]:
-    """Point ``pipeline.rebuild.rebuild`` and every imported module's name bound to it (test
-    modules' ``from pipeline.rebuild import rebuild``) at the guarded function; returns what
+    """Point ``pipeline.rebuild.flow.rebuild`` and every imported module's name bound to it (test
+    modules' ``from pipeline.rebuild.flow import rebuild``) at the guarded function; returns what
     to put back."""
-    import pipeline.rebuild as rb
+    import pipeline.rebuild.flow as rb
 
     original = getattr(rb.rebuild, "__wrapped_rebuild__", rb.rebuild)
     guarded = guard_raw(original)
@@ -182,7 +185,7 @@ def _raw_is_never_modified():
 @pytest.fixture(autouse=True)
 def _raw_guard_per_test(request, monkeypatch):
     """Guards modules imported after the session started, too (monkeypatch undoes it)."""
-    import pipeline.rebuild as rb
+    import pipeline.rebuild.flow as rb
 
     marker = request.node.get_closest_marker("raw_written")
     _WRITTEN_BY_TEST.clear()

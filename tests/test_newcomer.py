@@ -32,7 +32,7 @@ def test_the_readme_starts_with_one_line_that_installs_and_runs_the_demo():
 
 
 def test_the_handwritten_examples_ingest_into_their_own_campaign(tmp_path):
-    from pipeline.rebuild import rebuild
+    from pipeline.rebuild.flow import rebuild
 
     before = {p.relative_to(REPO / "examples"): p.read_bytes() for p in (REPO / "examples").rglob("*") if p.is_file()}
     summary = rebuild(REPO / "examples", tmp_path / "wh", jobs=1, report=False)

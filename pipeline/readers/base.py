@@ -4,7 +4,7 @@ A reader turns one raw export into a :class:`RawExport`: the file's own column n
 units, its embedded metadata, and a *lazy* stream of Arrow record batches of raw values. It
 does no unit conversion and no validation beyond its format; mapping raw columns onto
 canonical channels, converting units and validating the kind is the ingest's job
-(:mod:`pipeline.ingest`), the same for every format.
+(:mod:`pipeline.ingest.file`), the same for every format.
 """
 from __future__ import annotations
 

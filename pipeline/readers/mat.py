@@ -10,7 +10,7 @@
 * Numeric scalars, char arrays and the fields of a struct ``meta`` are run metadata (char
   arrays become text; whole-number doubles become integers, since MATLAB stores every number
   as a double). A scalar ``Fs`` / ``fs`` / ``sample_rate_hz`` [Hz] or ``dt`` [s] is the time base
-  of a file without a ``t`` vector (applied by :func:`pipeline.ingest.resolve_time_base`).
+  of a file without a ``t`` vector (applied by :func:`pipeline.ingest.file.resolve_time_base`).
 * A struct ``units`` maps a channel name to its unit text (``units.x = 'mm'``). A channel
   without a unit has unit None: ingest rejects it when the channel is canonical.
 * MATLAB objects (``timetable``, ``table``, ``string``, ``datetime``, ...) are MCOS objects

@@ -27,7 +27,7 @@ from types import ModuleType
 import pandas as pd
 import pyarrow.parquet as pq
 
-from pipeline.layout import Problem
+from pipeline.raw.layout import Problem
 from pipeline.progress import Progress
 
 
@@ -113,7 +113,7 @@ class StageContext:
     jobs: int = 1
     progress: Progress = field(default_factory=Progress)
     mapper: Callable | None = None
-    #: per-item results kept between rebuilds (``pipeline.memo.Memo``; the rebuild sets one per stage)
+    #: per-item results kept between rebuilds (``pipeline.rebuild.memo.Memo``; the rebuild sets one per stage)
     memo: object | None = None
 
     def runs_of(self, *kinds: str) -> pd.DataFrame:

@@ -3,7 +3,7 @@
 Per durability run (streamed from its samples Parquet in batches, bounded memory, in parallel
 through ``ctx.map``): distance, strokes, duration and a per-stroke summary
 (:mod:`analyses.durability`). The hose logbooks (every ``hoses.csv`` under raw/, merged across
-campaigns, :mod:`pipeline.logbook`) joined with those runs give ``hose_life``; per (hose_type,
+campaigns, :mod:`pipeline.raw.logbook`) joined with those runs give ``hose_life``; per (hose_type,
 adjustment) a censored Weibull with B10 and likelihood-ratio bounds (``service_life``), Kaplan-
 Meier curves (``hose_survival``) and, per hose type, the likelihood-ratio test of force-set
 against distance-set rollers (``service_life_test``). Leakage runs naming a hose are placed at the
@@ -17,7 +17,7 @@ plot, Kaplan-Meier curves, leak vs distance, distance per hose.
 Decisions
 ---------
 * How runs are matched to hoses, reinstallation, odometer vs runs (2 % warning, in
-  ``hose_life.warnings``) and which logbook rows are quarantined: see :mod:`pipeline.logbook`.
+  ``hose_life.warnings``) and which logbook rows are quarantined: see :mod:`pipeline.raw.logbook`.
 * Service life, KM and the LR test use hoses with a known, positive distance: a running hose
   that has not moved yet, or a failed/removed hose without runs or odometer reading (it carries
   a warning in ``hose_life``), is left out; ``n_hoses`` counts the hoses used.
@@ -38,8 +38,8 @@ from analyses.durability import StrokeCounter, stroke_deadband, strokes_note
 from analyses.quality import describe_sensor_at_rest
 from analyses.service_life import (b10, kaplan_meier, plot_hose_distances, plot_kaplan_meier, plot_leak_growth,
                                    plot_weibull_probability, weibull_fit, weibull_lr_test)
-from pipeline.logbook import hose_distance_at, hose_life, match_runs, merge_logbooks, read_logbooks
-from pipeline.prefetch import prefetch
+from pipeline.raw.logbook import hose_distance_at, hose_life, match_runs, merge_logbooks, read_logbooks
+from pipeline.ingest.prefetch import prefetch
 from pipeline.stages import StageContext, StageOutput
 
 NAME = "durability"

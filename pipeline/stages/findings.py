@@ -20,7 +20,7 @@ import numpy as np
 import pandas as pd
 import scipy  # its submodules load on first use: a rebuild that reuses every stage never pays for them
 
-from pipeline.papers import PLA_CITATION, PLPA_CITATION
+from schemas.papers import PLA_CITATION, PLPA_CITATION
 from pipeline.stages import StageContext, StageOutput
 
 NAME = "findings"

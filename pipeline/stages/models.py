@@ -26,7 +26,7 @@ from analyses import pla_spring as spring
 from analyses import pressure_dynamics as pdyn
 from analyses import step_response as stepr
 from analyses.quality import sensor_from_params
-from pipeline.papers import PLA_CITATION, PLPA_CITATION
+from schemas.papers import PLA_CITATION, PLPA_CITATION
 from pipeline.stages import StageContext, StageOutput, read_samples
 
 NAME = "models"

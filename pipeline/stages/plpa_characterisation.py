@@ -39,7 +39,7 @@ from analyses import friction_dynamic as fd
 from analyses import leakage as lk
 from analyses import viscous_friction as vf
 from analyses.quality import sensor_from_params
-from pipeline.papers import PLPA_CITATION
+from schemas.papers import PLPA_CITATION
 from pipeline.stages import StageContext, StageOutput
 
 NAME = "plpa_characterisation"

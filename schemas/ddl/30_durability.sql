@@ -1,5 +1,5 @@
 -- Durability and hose service life (pipeline/stages/durability.py, analyses/durability.py,
--- analyses/service_life.py, pipeline/logbook.py). Contract columns first (warehouse.md), then ours.
+-- analyses/service_life.py, pipeline/raw/logbook.py). Contract columns first (warehouse.md), then ours.
 
 -- One row per durability run. Distance = sum of stroke lengths between turning points found
 -- with a reversal deadband (deadband_mm); strokes are one-way travels (a cycle is two).

@@ -1,5 +1,5 @@
 -- The rebuild itself: what the warehouse was built from and what changed in the last rebuild
--- (pipeline/rebuild.py, pipeline/state.py). Built inside the same database file, so it is
+-- (pipeline/rebuild/flow.py, pipeline/rebuild/state.py). Built inside the same database file, so it is
 -- swapped in atomically with the data it describes.
 
 -- One row per rebuild (this one last; earlier rows carried over from the previous warehouse).
@@ -41,7 +41,7 @@ CREATE TABLE rebuild_inputs (
 CREATE VIEW rebuild_changes AS
     SELECT * FROM rebuild_inputs WHERE status <> 'unchanged' OR quarantined ORDER BY status, source_path;
 
--- Incremental state: one record per raw input (pipeline/state.py).
+-- Incremental state: one record per raw input (pipeline/rebuild/state.py).
 CREATE TABLE ingest_state (
     source_path     VARCHAR NOT NULL,
     role            VARCHAR,

@@ -1,4 +1,4 @@
--- Files of earlier warehouses kept for readers that still have them open (pipeline/rebuild.py).
+-- Files of earlier warehouses kept for readers that still have them open (pipeline/rebuild/flow.py).
 -- A samples file or stage folder that the live warehouse no longer uses is kept for the
 -- retention period (`pneubench rebuild --keep-superseded HOURS`, default 24) counted from the
 -- rebuild that stopped using it, then collected.

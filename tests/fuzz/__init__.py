@@ -9,7 +9,7 @@ from ``random.Random(f"{s}:{i}")`` only, so it is the same whatever the batch it
 truncation, chunk duplication, header-field tweaks, huge numbers written over (size) fields
 and long runs of delimiters / line breaks.
 
-Each mutant is ingested as the nightly rebuild does it (:func:`pipeline.ingest.ingest_file`
+Each mutant is ingested as the nightly rebuild does it (:func:`pipeline.ingest.file.ingest_file`
 on a raw tree ``raw/fuzz/<name>``) in a child process with an address-space limit
 (``RLIMIT_AS``, :data:`MEMORY_LIMIT`) and a per-mutant timeout (:data:`TIMEOUT_S`). Outcomes:
 
@@ -222,8 +222,8 @@ def child_main() -> None:
     import resource
 
     resource.setrlimit(resource.RLIMIT_AS, (MEMORY_LIMIT, MEMORY_LIMIT))
-    from pipeline.ingest import ingest_file
-    from pipeline.layout import RawTree
+    from pipeline.ingest.file import ingest_file
+    from pipeline.raw.layout import RawTree
 
     raw, warehouse = Path(sys.argv[-2]), Path(sys.argv[-1])
     tree = RawTree(raw)

@@ -7,8 +7,8 @@ from pathlib import Path
 import duckdb
 import pytest
 
-from pipeline.query import run_query
-from pipeline.rebuild import rebuild
+from pipeline.serve.query import run_query
+from pipeline.rebuild.flow import rebuild
 from pipeline.warehouse import DB_NAME, ROOT_VARIABLE
 from tests.conftest import STEP_META, RawBuilder
 
@@ -161,7 +161,7 @@ def test_one_run_query_opens_only_that_runs_file(tmp_path):
 @pytest.mark.parametrize("run_id", ["c/plain", "c/with space", "c/..dots..", "c/_x_", "c/été-ü", "c/" + "y" * 100,
                                     "c/a'b", "c/[x]*?"])
 def test_the_safe_name_in_sql_is_the_ingests(run_id):
-    from pipeline.ingest import safe_file_name
+    from pipeline.ingest.file import safe_file_name
     from pipeline.warehouse import SAFE_NAME_SQL
 
     con = duckdb.connect()
@@ -194,7 +194,7 @@ def test_the_samples_macro_says_in_one_line_when_no_run_has_that_id(tmp_path):
     from click.testing import CliRunner
 
     from pipeline.cli import main
-    from pipeline.query import QueryError, open_query
+    from pipeline.serve.query import QueryError, open_query
 
     raw = RawBuilder(tmp_path / "raw")
     wh = tmp_path / "wh"

@@ -62,8 +62,8 @@ def test_display_convention_bar_mm_l_min_from_si_columns():
 
 
 def test_one_unit_table_for_describe_and_the_report():
-    import pipeline.query as q
-    import pipeline.report as r
+    import pipeline.serve.query as q
+    import pipeline.serve.report as r
     from schemas.units import COLUMN_UNITS
 
     assert q.unit_of("leak_l_min") == "l/min (ANR)" and r.split_unit("leak_l_min") == ("leak", "l/min")

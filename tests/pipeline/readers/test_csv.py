@@ -5,8 +5,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from pipeline.ingest import ingest_file
-from pipeline.layout import RawTree
+from pipeline.ingest.file import ingest_file
+from pipeline.raw.layout import RawTree
 from pipeline.readers import ReaderError, read_export
 from pipeline.readers import csv as csv_module
 

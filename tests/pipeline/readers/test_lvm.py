@@ -4,8 +4,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from pipeline.ingest import ingest_file
-from pipeline.layout import RawTree
+from pipeline.ingest.file import ingest_file
+from pipeline.raw.layout import RawTree
 from pipeline.readers import ReaderError, read_export
 from pipeline.readers import lvm as lvm_module
 from tests.pipeline.readers.generators import LvmSegment, lvm_bytes

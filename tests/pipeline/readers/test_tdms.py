@@ -16,8 +16,8 @@ import pytest
 from nptdms import ChannelObject, GroupObject, RootObject, TdmsWriter
 
 import pipeline.readers.tdms as tdms_reader
-from pipeline.ingest import ingest_file
-from pipeline.layout import RawTree
+from pipeline.ingest.file import ingest_file
+from pipeline.raw.layout import RawTree
 from pipeline.readers import ReaderError, read_export
 from pipeline.readers.tdms import read_tdms
 from schemas.units import lookup_unit

@@ -27,7 +27,7 @@ def _reader_missing(fmt: str) -> bool:
 
 @pytest.fixture(scope="module")
 def built(tmp_path_factory):
-    from pipeline.rebuild import rebuild
+    from pipeline.rebuild.flow import rebuild
 
     root = tmp_path_factory.mktemp("campaign")
     raw, wh = root / "raw", root / "warehouse"

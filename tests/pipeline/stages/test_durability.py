@@ -189,7 +189,7 @@ def test_without_leakage_map_no_growth_rows_and_broken_run_gives_nulls(tmp_path)
 
 
 def test_rebuild_fills_tables_and_views(raw, warehouse):
-    from pipeline.rebuild import rebuild
+    from pipeline.rebuild.flow import rebuild
 
     sim = simulate_durability(hose_id="H1", distance_m=5.0, rng=1, stroke_m=0.1, dwell_s=0.05, fs_hz=200.0)
     cols = {"t[s]": sim.data["t_s"].tolist(), "x[mm]": (sim.data["x_m"] * 1e3).round(3).tolist(),
@@ -229,7 +229,7 @@ def test_simulated_campaigns_hose_life_matches_truth(tmp_path, monkeypatch):
     import json
 
     from pipeline import stages as registry
-    from pipeline.rebuild import rebuild
+    from pipeline.rebuild.flow import rebuild
     from pipeline.simulator.campaign import simulate_campaign
 
     raw = tmp_path / "raw"

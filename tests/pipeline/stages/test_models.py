@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from pipeline.rebuild import rebuild
+from pipeline.rebuild.flow import rebuild
 from tests.conftest import query
 from pipeline.simulator import (simulate_identification, simulate_pressure_step, simulate_spring,
                                 simulate_step)

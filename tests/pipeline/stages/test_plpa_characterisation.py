@@ -7,7 +7,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from pipeline.rebuild import rebuild
+from pipeline.rebuild.flow import rebuild
 from pipeline.stages import plpa_characterisation as stage
 
 START = "2025-03-03T08:00:00"

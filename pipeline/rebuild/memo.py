@@ -1,0 +1,348 @@
+"""Per-item memo of the stages' per-run work: a changed run costs its own analysis, not its stage's.
+
+The stage cache (``pipeline/rebuild/state.py``) re-runs a whole stage when any run it reads changed. Most
+of a stage's time is its per-run work, done through ``StageContext.map(func, items)``; the memo
+keeps the result of every item so that a re-run stage computes only the items that are new.
+
+Key
+    ``sha256`` of the function (module and qualified name), the code version of its module and
+    every project module it imports (:func:`pipeline.rebuild.state.stage_code_version`), the Python and
+    numerical libraries' versions, and a canonical JSON of the item (``sort_keys``; tuples kept
+    apart from lists; strings naming files under the warehouse stored relative to it, so a
+    moved warehouse still hits). Samples file names are content-addressed (source bytes,
+    metadata, ingest code), so an item names its input completely. An item that cannot be
+    serialised canonically (objects, non-string dict keys) is computed and not memoised.
+Storage
+    ``memo/<stage>/<xx>.pkl`` in the warehouse, ``xx`` the first two hex digits of the keys it
+    holds (at most 256 shards per stage): ``{key: pickled result}`` of the items of the stage's
+    last run only. ``map`` reads only the shards of the keys it is asked for. ``save`` keeps
+    exactly the entries this run used: it rewrites (temp file, ``os.replace``) only the shards
+    whose set of entries changed (new keys, or keys no longer used), leaves the others untouched,
+    and deletes the shard files left with no entry, also those no key was asked for (their
+    entries are all unused: deleted without being read); so results of runs that are gone
+    disappear with the next run of their stage, and one changed run rewrites one shard. A stage
+    whose cached outputs are reused keeps its memo folder as it is (its items did not change). A
+    memo folder whose stage has no folder the warehouse still keeps is collected, and so are the
+    whole-stage files of the first layout (``memo/<stage>.pkl``, never read)
+    (:func:`pipeline.rebuild.flow.collect_garbage`). A missing, damaged or unreadable shard file, or
+    entry, is a miss: the item is computed again, never a failure.
+Trust
+    The values are pickles: the memo is the pipeline's own output, read only from the warehouse
+    the rebuild writes (never through a symlink), so the warehouse must be writable only by the
+    account that runs the rebuild (``docs/security.md``).
+
+A ``--full`` rebuild does not read the memo (it computes every item) but writes it. Analyses run
+without the rebuild (a plain :class:`pipeline.stages.StageContext`) have no memo.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import pickle
+import re
+import stat as stat_mod
+import sys
+from collections.abc import Callable
+from functools import lru_cache
+from pathlib import Path
+
+#: Folder of the memo, relative to the warehouse: one folder per stage.
+MEMO_DIR = "memo"
+#: Bump when the key or the file layout changes (old files are then misses).
+FORMAT = 2
+#: A stage's name, and so its memo folder's (``memo/<stage>/``).
+STAGE_NAME = re.compile(r"[a-z_][a-z0-9_]*")
+#: A shard file in a stage's folder (``<xx>.pkl``, ``xx`` the keys' first two hex digits) and
+#: its temp name (``.<xx>.pkl.tmp-<pid>``).
+SHARD_FILE = re.compile(r"[0-9a-f]{2}\.pkl")
+SHARD_TMP = re.compile(r"\.[0-9a-f]{2}\.pkl\.tmp-[0-9]+")
+SHARD_CHARS = 2
+#: The first layout (format 1): one file per stage, ``memo/<stage>.pkl``, and its temp name;
+#: never read, deleted by the stage's next save and by the clean-up.
+LEGACY_FILE = re.compile(r"([a-z_][a-z0-9_]*)\.pkl")
+LEGACY_TMP = re.compile(r"\.[a-z_][a-z0-9_]*\.pkl\.tmp-[0-9]+")
+_KEY = re.compile(r"[0-9a-f]{64}")
+_NOFOLLOW = getattr(os, "O_NOFOLLOW", 0)
+_NONBLOCK = getattr(os, "O_NONBLOCK", 0)  # a FIFO in a shard's place does not block the open
+
+
+class _NotCanonical(Exception):
+    pass
+
+
+@lru_cache(maxsize=1)
+def environment() -> str:
+    """Python and the numerical libraries a result may depend on (part of every key)."""
+    parts = [f"python {sys.version_info[0]}.{sys.version_info[1]}.{sys.version_info[2]}"]
+    for name in ("numpy", "pandas", "scipy", "pyarrow"):
+        mod = sys.modules.get(name)
+        if mod is None:
+            try:
+                mod = __import__(name)
+            except ImportError:
+                parts.append(f"{name} -")
+                continue
+        parts.append(f"{name} {getattr(mod, '__version__', '?')}")
+    return "; ".join(parts)
+
+
+def code_version(func: Callable) -> str | None:
+    """Version of ``func``'s module and the project code it imports; None: not memoisable."""
+    from pipeline.rebuild.state import stage_code_version
+
+    mod = sys.modules.get(getattr(func, "__module__", None) or "")
+    file = getattr(mod, "__file__", None)
+    if not file:
+        return None
+    return stage_code_version(file)
+
+
+def _canonical(value, prefix: str):
+    """``value`` as JSON-able data with unambiguous types; raises :class:`_NotCanonical`."""
+    if value is None or isinstance(value, bool):
+        return value
+    if isinstance(value, str):
+        return {"wh": value[len(prefix):]} if value.startswith(prefix) else value
+    if isinstance(value, int):
+        return value
+    if isinstance(value, float):
+        return {"float": repr(float(value))}  # exact, NaN and -0.0 included
+    if isinstance(value, os.PathLike):
+        return {"path": _canonical(os.fspath(value), prefix)}
+    if isinstance(value, tuple):
+        return {"tuple": [_canonical(v, prefix) for v in value]}
+    if isinstance(value, list):
+        return [_canonical(v, prefix) for v in value]
+    if isinstance(value, dict):
+        if not all(isinstance(k, str) for k in value):
+            raise _NotCanonical("dict with keys that are not strings")
+        return {"dict": {k: _canonical(v, prefix) for k, v in value.items()}}
+    raise _NotCanonical(type(value).__name__)
+
+
+def item_key(func: Callable, item, warehouse: str | Path) -> str | None:
+    """The memo key of ``func(item)``, or None when it cannot be memoised."""
+    qualname = getattr(func, "__qualname__", "") or ""
+    module = getattr(func, "__module__", "") or ""
+    if not qualname or not module or "<" in qualname:  # lambdas, local functions
+        return None
+    version = code_version(func)
+    if version is None:
+        return None
+    prefix = os.fspath(warehouse).rstrip(os.sep) + os.sep
+    try:
+        blob = json.dumps({"format": FORMAT, "func": f"{module}:{qualname}", "code": version, "env": environment(),
+                           "item": _canonical(item, prefix)}, sort_keys=True, separators=(",", ":"))
+    except (_NotCanonical, ValueError, TypeError, RecursionError):
+        return None
+    return hashlib.sha256(blob.encode()).hexdigest()
+
+
+def _real_dir(path: Path) -> bool:
+    try:
+        return stat_mod.S_ISDIR(os.lstat(path).st_mode)
+    except OSError:
+        return False
+
+
+def _regular_file(path: Path) -> bool:
+    try:
+        return stat_mod.S_ISREG(os.lstat(path).st_mode)
+    except OSError:
+        return False
+
+
+def shard_of(key: str) -> str:
+    """The shard a key is stored in: its first two hex digits (256 shards)."""
+    return key[:SHARD_CHARS]
+
+
+class Memo:
+    """The memo of one stage: ``map`` computes the items it has no result for.
+
+    Parameters
+    ----------
+    warehouse : Path
+        The warehouse; the files are ``<warehouse>/memo/<stage>/<xx>.pkl``.
+    stage : str
+        The stage's name.
+    read : bool
+        Use the stored results (False for ``--full``: everything is computed, every shard written).
+    """
+
+    def __init__(self, warehouse: str | Path, stage: str, read: bool = True):
+        if not STAGE_NAME.fullmatch(stage):
+            raise ValueError(f"not a stage name: {stage!r}")
+        self.warehouse = Path(warehouse)
+        self.stage = stage
+        self.read = read
+        self.folder = self.warehouse / MEMO_DIR / stage
+        #: shard -> its stored entries, for the shards read so far (a shard is read once, when a
+        #: key in it is first asked for)
+        self._stored: dict[str, dict[str, bytes]] = {}
+        #: shards whose file holds something else than ``_stored[shard]`` (damaged, foreign,
+        #: entries of another shard): rewritten by ``save`` even when the keys are the same
+        self._unclean: set[str] = set()
+        #: shards to which ``map`` added a computed result
+        self._computed_in: set[str] = set()
+        self._new: dict[str, bytes] = {}
+        #: items taken from the memo / computed / computed but not memoised
+        self.hits = self.computed = self.unkeyed = 0
+        self.used = False
+
+    def shard_path(self, shard: str) -> Path:
+        return self.folder / f"{shard}.pkl"
+
+    def _readable(self) -> bool:
+        return _real_dir(self.warehouse / MEMO_DIR) and _real_dir(self.folder)
+
+    # -- reading ---------------------------------------------------------------------------
+    def _load_shards(self, shards) -> None:
+        todo = [s for s in shards if s not in self._stored]
+        if not todo:
+            return
+        readable = self.read and self._readable()
+        for shard in sorted(todo):
+            self._stored[shard] = self._load(shard) if readable else {}
+
+    def _load(self, shard: str) -> dict[str, bytes]:
+        """The stored entries of one shard; empty when its file is missing, damaged, not a
+        regular file or not the memo's own."""
+        try:
+            fd = os.open(self.shard_path(shard), os.O_RDONLY | _NOFOLLOW | _NONBLOCK)
+        except OSError:
+            return {}  # missing, a symlink
+        try:
+            with os.fdopen(fd, "rb") as fh:
+                if not stat_mod.S_ISREG(os.fstat(fh.fileno()).st_mode):
+                    self._unclean.add(shard)
+                    return {}
+                data = pickle.load(fh)
+        except Exception:  # damaged, a pickle of another version: recompute
+            self._unclean.add(shard)
+            return {}
+        if not (isinstance(data, dict) and data.get("format") == FORMAT and data.get("stage") == self.stage
+                and data.get("shard") == shard and isinstance(data.get("entries"), dict)):
+            self._unclean.add(shard)
+            return {}
+        entries = {k: v for k, v in data["entries"].items()
+                   if isinstance(k, str) and _KEY.fullmatch(k) and k.startswith(shard) and isinstance(v, bytes)}
+        if len(entries) != len(data["entries"]):
+            self._unclean.add(shard)
+        return entries
+
+    # -- the map -----------------------------------------------------------------------------
+    def map(self, compute: Callable, func: Callable, items: list, label: str = "") -> list:
+        """``compute(func, items_to_do, label)`` for the items without a stored result; results
+        in item order, stored ones unpickled afresh (a caller may modify what it gets). Only the
+        shards of the items' keys are read."""
+        self.used = True
+        keys = [item_key(func, it, self.warehouse) for it in items]
+        self._load_shards({shard_of(k) for k in keys if k is not None})
+        out: list = [None] * len(items)
+        todo: list[int] = []
+        for i, k in enumerate(keys):
+            blob = self._stored[shard_of(k)].get(k) if k is not None else None
+            if blob is not None:
+                try:
+                    out[i] = pickle.loads(blob)
+                except Exception:  # a damaged entry: computed again
+                    todo.append(i)
+                    continue
+                self._new[k] = blob
+                self.hits += 1
+            else:
+                todo.append(i)
+        if todo:
+            results = compute(func, [items[i] for i in todo], label)
+            for i, res in zip(todo, results):
+                out[i] = res
+                self.computed += 1
+                k = keys[i]
+                if k is None:
+                    self.unkeyed += 1
+                    continue
+                try:
+                    self._new[k] = pickle.dumps(res, protocol=pickle.HIGHEST_PROTOCOL)
+                except Exception:  # a result that cannot be pickled is simply not kept
+                    self.unkeyed += 1
+                    continue
+                self._computed_in.add(shard_of(k))
+        return out
+
+    # -- writing -----------------------------------------------------------------------------
+    def _unchanged(self, shard: str, entries: dict[str, bytes]) -> bool:
+        """Whether the shard's file already holds exactly ``entries`` (the same keys, every value
+        taken from it, nothing else in it)."""
+        stored = self._stored.get(shard)
+        return (stored is not None and shard not in self._unclean and shard not in self._computed_in
+                and stored.keys() == entries.keys())
+
+    def save(self) -> None:
+        """Keep exactly the entries used by this run of the stage: rewrite (temp file, then
+        ``os.replace``) only the shards whose entries differ from their file's, delete the shard
+        files left with none (without reading them), and the stage's file of the first layout.
+        A stage without any memoised item leaves nothing. Failing to write is not an error."""
+        memo = self.warehouse / MEMO_DIR
+        by_shard: dict[str, dict[str, bytes]] = {}
+        for k, blob in self._new.items():
+            by_shard.setdefault(shard_of(k), {})[k] = blob
+        try:
+            if not by_shard and not _real_dir(memo):
+                return
+            if by_shard:
+                memo.mkdir(exist_ok=True)
+                if not _real_dir(memo):
+                    return
+                self.folder.mkdir(exist_ok=True)
+            legacy = memo / f"{self.stage}.pkl"  # the first layout's whole-stage file: dead weight
+            if _regular_file(legacy):
+                legacy.unlink()
+            if not _real_dir(self.folder):
+                return
+            with os.scandir(self.folder) as it:
+                on_disk = {e.name[:SHARD_CHARS] for e in it
+                           if SHARD_FILE.fullmatch(e.name) and e.is_file(follow_symlinks=False)}
+        except OSError:
+            return
+        for shard in sorted(on_disk - by_shard.keys()):  # only entries no longer used
+            try:
+                self.shard_path(shard).unlink()
+            except OSError:
+                pass
+        for shard, entries in sorted(by_shard.items()):
+            if shard in on_disk and self._unchanged(shard, entries):
+                continue
+            self._write(shard, entries)
+        if not by_shard:
+            try:
+                self.folder.rmdir()
+            except OSError:
+                pass  # it holds something the memo did not write
+
+    def _write(self, shard: str, entries: dict[str, bytes]) -> None:
+        path = self.shard_path(shard)
+        if os.path.lexists(path) and not _regular_file(path):
+            return  # a symlink or a folder in its place: left alone (the items are misses)
+        tmp = self.folder / f".{shard}.pkl.tmp-{os.getpid()}"
+        try:
+            tmp.unlink(missing_ok=True)
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | _NOFOLLOW, 0o666)
+            with os.fdopen(fd, "wb") as fh:
+                pickle.dump({"format": FORMAT, "stage": self.stage, "shard": shard, "entries": entries}, fh,
+                            protocol=pickle.HIGHEST_PROTOCOL)
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.replace(tmp, path)
+        except OSError:
+            try:
+                tmp.unlink()
+            except OSError:
+                pass
+
+    def summary(self) -> str:
+        """``"per-run: N from the memo, M computed"`` (empty when the stage mapped nothing)."""
+        if not self.used:
+            return ""
+        return f"per-run results: {self.hits} from the memo, {self.computed} computed"

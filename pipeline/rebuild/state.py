@@ -1,0 +1,501 @@
+"""Incremental state of the rebuild: what each raw file and each analysis stage was built from.
+
+The state lives *inside* the warehouse database (tables ``ingest_state`` and ``stage_cache``,
+DDL in ``schemas/ddl/96_rebuild.sql``), so it is swapped in atomically with the data it
+describes: after a crash the state and the warehouse still agree.
+
+Raw files
+    One record per input file under raw/: its stat fingerprint ``(size, mtime_ns, inode)``, the
+    SHA-256 of its content, a hash of the metadata that applies to it from outside the file
+    (the merged ``rig.toml`` and its ``manifest.csv`` rows) and the code version of ingest.
+    A run file is *unchanged* when all of these match the previous record; its runs row (or
+    its quarantine reason) is then taken from the record and the file is not read at all. When
+    only the stat fingerprint differs the file is hashed (a ``touch`` re-ingests nothing).
+Stages
+    A stage's outputs are cached in an immutable folder ``stages/<name>/<key>/`` keyed by a
+    hash of the stage's code, the runs of every kind it reads, the hose logbooks (for stages
+    that read them) and the content of the earlier stages' tables it read. It re-runs when any
+    of them changed.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+import time
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from pipeline.versions import INGEST_VERSION, ROOT, hash_sources, ingest_code_version  # noqa: F401 (re-exported)
+from pipeline.raw.layout import ConfigError, RawTree
+
+if TYPE_CHECKING:  # pandas and the ingest are imported where used: a no-op rebuild needs neither
+    import pandas as pd
+
+#: Raw files that are not runs but change what the runs mean (their changes are reported).
+SIDE_FILES = {"manifest.csv": "manifest", "rig.toml": "rig", "hoses.csv": "logbook"}
+
+#: A file modified this recently is hashed again next time (mtime granularity, "racy" files).
+RACY_S = 2.0
+
+_ROOT = ROOT
+
+
+def _hash_sources(paths: list[Path]) -> str:
+    return hash_sources(paths, _ROOT)
+
+
+#: Top-level packages of this project: a stage's version covers what it imports from them.
+_PROJECT_PACKAGES = ("pipeline", "analyses", "schemas")
+
+
+_IMPORT = re.compile(r"^[ \t]*(?:from[ \t]+([\w.]+)[ \t]+import[ \t]+(\([^)]*\)|[^\n#]*)|import[ \t]+([^\n#]*))",
+                     re.MULTILINE)
+
+
+@lru_cache(maxsize=None)
+def _direct_imports(module_file: Path) -> tuple[Path, ...]:
+    """Project source files a file imports (at any indentation: lazy imports count too)."""
+    out = []
+    for m in _IMPORT.finditer(module_file.read_text(encoding="utf-8")):
+        if m.group(1):
+            if m.group(1).startswith("."):
+                continue
+            names = [m.group(1)] + [f"{m.group(1)}.{n.split()[0]}" for n in m.group(2).strip("()").split(",")
+                                    if n.strip()]
+        else:
+            names = [n.split()[0] for n in m.group(3).split(",") if n.strip()]
+        for name in names:
+            if name.split(".")[0] not in _PROJECT_PACKAGES:
+                continue
+            base = _ROOT.joinpath(*name.split("."))
+            out += [c.resolve() for c in (base.with_suffix(".py"), base / "__init__.py") if c.is_file()]
+    return tuple(out)
+
+
+def project_imports(module_file: Path) -> set[Path]:
+    """Source files of this project that ``module_file`` imports, transitively (read as text,
+    nothing is imported), the file itself included."""
+    return set(_project_imports(Path(module_file)))
+
+
+@lru_cache(maxsize=None)
+def _project_imports(module_file: Path) -> frozenset[Path]:
+    seen: set[Path] = set()
+    todo = [Path(module_file).resolve()]
+    while todo:
+        f = todo.pop()
+        if f in seen or not f.is_file():
+            continue
+        seen.add(f)
+        todo += _direct_imports(f)
+    return frozenset(seen)
+
+
+@lru_cache(maxsize=None)
+def stage_code_version(module_file: str) -> str:
+    """Version of a stage: its module, the stage framework, every ``analyses`` module and
+    every project module any of them imports (e.g. ``pipeline.raw.logbook``, ``schemas.units``)."""
+    roots = [Path(module_file), *_framework_sources()]
+    files = set().union(*(_project_imports(f) for f in roots if f.is_file()))
+    return _hash_sources(sorted(files))
+
+
+@lru_cache(maxsize=1)
+def _framework_sources() -> tuple[Path, ...]:
+    """What every stage's version covers besides its own module: the stage framework and the analyses."""
+    return (_ROOT / "pipeline" / "stages" / "__init__.py", *sorted(_ROOT.glob("analyses/**/*.py")))
+
+
+def stat_key(st: os.stat_result) -> tuple[int, int, int]:
+    """``(size, mtime_ns, inode)``, the fingerprint git and rsync trust too: bytes rewritten in
+    place at the same size with the old mtime put back are not noticed (``--full`` hashes
+    every file)."""
+    return int(st.st_size), int(st.st_mtime_ns), int(st.st_ino)
+
+
+def metadata_hash(tree: RawTree, path: Path) -> str:
+    """Hash of the metadata that applies to a run from outside the file (rig.toml, manifests)."""
+    try:
+        # json.dumps({"rig": ..., "manifest": ..., "parts": ...}, sort_keys=True), built from the
+        # rig part's JSON made once per folder (10,000 runs: 2 s -> 0.2 s)
+        rig = tree.rig_json(path)
+        text = '{"manifest": ' + json.dumps(tree.manifest_metadata(path), sort_keys=True, default=str)
+        parts = tree.manifest_parts(path)  # rows for one sheet / group (`book.xlsx#Sheet2`)
+        if parts:
+            text += ', "parts": ' + json.dumps(parts, sort_keys=True, default=str)
+        text += ', "rig": ' + rig + "}"
+    except ConfigError as exc:
+        text = json.dumps({"error": str(exc)}, sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:32]
+
+
+@dataclass
+class FileRecord:
+    """The state of one raw input file."""
+
+    source_path: str
+    role: str                      # run, manifest, rig, logbook
+    size_bytes: int
+    mtime_ns: int
+    inode: int
+    source_sha256: str | None
+    meta_hash: str | None = None
+    code_version: str | None = None
+    result: dict | None = None     # {"run": runs row, "channels": [...]} for an ingested run, or
+    #                                {"parts": [{"run", "channels"} or {"error"}, ...]} for a file of
+    #                                several runs (sheets / MDF groups, see pipeline.ingest.file.parts_mode)
+    error: str | None = None       # quarantine reason for a run file that could not be used
+    #: samples files of the record's runs (read with the record; None: take them from ``result``)
+    samples: tuple[str, ...] | None = field(default=None, compare=False, repr=False)
+
+    def __getattr__(self, name):
+        # a record read back from the warehouse decodes its ``result`` on first use: a no-op
+        # rebuild of 10,000 files never needs it (0.3 s of JSON)
+        if name == "result" and "_result_json" in self.__dict__:
+            text = self.__dict__.pop("_result_json")
+            self.result = json.loads(text) if text else None
+            return self.result
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+
+    @classmethod
+    def stored(cls, source_path, role, size_bytes, mtime_ns, inode, source_sha256, meta_hash, code_version,
+               result_json: str | None, error: str | None, samples: list | None = None) -> "FileRecord":
+        """A record as ``ingest_state`` holds it, its ``result`` JSON decoded when first used."""
+        rec = cls(source_path, role, size_bytes, mtime_ns, inode, source_sha256, meta_hash, code_version,
+                  None, error, tuple(samples) if samples is not None else None)
+        del rec.result
+        rec._result_json = result_json
+        return rec
+
+    def samples_paths(self) -> list[str]:
+        """Samples files (relative to the warehouse) of the runs this record holds."""
+        if self.samples is not None:
+            return list(self.samples)
+        return [r.get("samples_path") for r in result_runs(self.result)]
+
+    def as_row(self) -> dict:
+        return {"source_path": self.source_path, "role": self.role, "size_bytes": self.size_bytes,
+                "mtime_ns": self.mtime_ns, "inode": self.inode, "source_sha256": self.source_sha256,
+                "meta_hash": self.meta_hash, "code_version": self.code_version,
+                "result": json.dumps(self.result, sort_keys=True) if self.result is not None else None,
+                "error": self.error, "samples_paths": self.samples_paths() if self.role == "run" else None}
+
+
+# ``result`` has a default in __init__ but no class attribute, so that a record made by
+# FileRecord.stored() without it reaches __getattr__ (and decodes its JSON) on first use
+del FileRecord.result
+
+
+@dataclass
+class StageRecord:
+    """A stage's cached outputs from the previous rebuild."""
+
+    stage: str
+    input_key: str
+    folder: str
+    kinds_read: list[str] = field(default_factory=list)
+    all_runs_read: bool = False
+    results_read: dict[str, str] = field(default_factory=dict)
+
+    def as_row(self) -> dict:
+        return {"stage": self.stage, "input_key": self.input_key, "folder": self.folder,
+                "kinds_read": sorted(self.kinds_read), "all_runs_read": self.all_runs_read,
+                "results_read": json.dumps(self.results_read, sort_keys=True)}
+
+
+@dataclass
+class PreviousState:
+    """What the live warehouse was built from (empty when there is none)."""
+
+    files: dict[str, FileRecord] = field(default_factory=dict)
+    stages: dict[str, StageRecord] = field(default_factory=dict)
+    samples: set[str] = field(default_factory=set)
+    stage_folders: set[str] = field(default_factory=set)
+    findings: dict[str, bool | None] = field(default_factory=dict)
+    #: finding_id -> (change, changed_at) of the previous warehouse (sticky alerts)
+    finding_changes: dict[str, tuple] = field(default_factory=dict)
+    generation: str | None = None
+    #: ``rebuild_log`` of the live warehouse, read when first asked for (:attr:`history`)
+    history_loader: object = field(default=None, repr=False, compare=False)
+    #: files of earlier warehouses still kept for their readers: path -> superseded at [s since epoch]
+    superseded: dict[str, float] = field(default_factory=dict)
+    #: :func:`pipeline.rebuild.flow.inputs_key` of the last rebuild (None before the column existed)
+    inputs_key: str | None = None
+
+    @property
+    def history(self) -> "pd.DataFrame | None":
+        """``rebuild_log`` of the live warehouse as a DataFrame (None without one)."""
+        if "_history" not in self.__dict__:
+            self.__dict__["_history"] = self.history_loader() if callable(self.history_loader) else None
+        return self.__dict__["_history"]
+
+
+def log_order(columns) -> str:
+    """``ORDER BY`` of ``rebuild_log``, the last rebuild first: by ``seq`` (a log from before the
+    column: by its stored order, the order rebuilds appended it)."""
+    return "seq DESC NULLS LAST" if "seq" in set(columns) else "rowid DESC"
+
+
+def load_previous(warehouse: Path) -> PreviousState:
+    """Read the state of the live warehouse; an unreadable or missing one gives an empty state."""
+    from pipeline.warehouse import connect_readonly
+
+    prev = PreviousState()
+    try:
+        con = connect_readonly(warehouse)
+    except Exception:
+        return prev
+    try:
+        tables = {r[0] for r in con.execute("SELECT table_name FROM duckdb_tables()").fetchall()}
+        if "runs" in tables:
+            prev.samples = {r[0] for r in con.execute("SELECT samples_path FROM runs").fetchall() if r[0]}
+        if "ingest_state" in tables:
+            # a record's JSON is decoded only if the record is used (FileRecord.stored); its
+            # samples files are a column of their own (None in a warehouse from before it)
+            cols = {r[0] for r in con.execute("DESCRIBE ingest_state").fetchall()}
+            samples = "samples_paths" if "samples_paths" in cols else "NULL"
+            for row in con.execute("SELECT source_path, role, size_bytes, mtime_ns, inode, source_sha256, meta_hash, "
+                                   f"code_version, result, error, {samples} FROM ingest_state").fetchall():
+                rec = FileRecord.stored(*row[:10], samples=row[10])
+                prev.files[rec.source_path] = rec
+        if "stage_cache" in tables:
+            for stage, key, folder, kinds, all_runs, results in con.execute(
+                    "SELECT stage, input_key, folder, kinds_read, all_runs_read, results_read FROM stage_cache").fetchall():
+                prev.stages[stage] = StageRecord(stage, key, folder, list(kinds or []), bool(all_runs),
+                                                 json.loads(results) if results else {})
+                prev.stage_folders.add(folder)
+        if "findings" in tables:
+            prev.findings = dict(con.execute("SELECT finding_id, holds FROM findings").fetchall())
+            cols = {r[0] for r in con.execute("DESCRIBE findings").fetchall()}
+            if {"change", "changed_at"} <= cols:
+                prev.finding_changes = {fid: (ch, at) for fid, ch, at in con.execute(
+                    "SELECT finding_id, change, changed_at FROM findings").fetchall()}
+        if "superseded_files" in tables:
+            prev.superseded = {p: float(at) for p, at in con.execute(
+                "SELECT path, epoch_us(superseded_at) / 1e6 FROM superseded_files").fetchall()}
+        if "rebuild_log" in tables:
+            cols = {r[0] for r in con.execute("DESCRIBE rebuild_log").fetchall()}
+            # the last rebuild by its number, never by its clock (set back by NTP, a battery)
+            last = con.execute(f"SELECT generation, {'inputs_key' if 'inputs_key' in cols else 'NULL'} "
+                               f"FROM rebuild_log ORDER BY {log_order(cols)} LIMIT 1").fetchone()
+            if last is not None:
+                prev.generation = str(last[0])
+                prev.inputs_key = last[1] if isinstance(last[1], str) else None
+
+            def history(warehouse=warehouse):
+                # the rebuild holds the warehouse's lock: the live database is the one read above
+                c = connect_readonly(warehouse)
+                try:
+                    return c.sql("SELECT * FROM rebuild_log").to_arrow_table().to_pandas()
+                finally:
+                    c.close()
+
+            prev.history_loader = history
+    except Exception:
+        # A warehouse from an older version: no usable state, everything is rebuilt.
+        return PreviousState(samples=prev.samples, stage_folders=prev.stage_folders, superseded=prev.superseded)
+    finally:
+        con.close()
+    return prev
+
+
+# -- planning the ingest ---------------------------------------------------------------------
+@dataclass
+class FilePlan:
+    """What to do with one run file."""
+
+    path: Path
+    rel: str
+    stat: tuple[int, int, int]
+    meta_hash: str
+    status: str                    # new, changed, unchanged (decided), or "check" (hash it)
+    reason: str = ""               # content, metadata, code, full
+    previous: FileRecord | None = None
+
+
+def plan_runs(tree: RawTree, files: list[Path], prev: PreviousState, code_version: str,
+              warehouse: Path, full: bool = False) -> list[FilePlan]:
+    """Decide per run file: unchanged (reuse its record), or to be hashed / ingested.
+
+    Cheap: one ``stat`` per file and the metadata hash (rig.toml and manifests are parsed once
+    per folder); no file is opened here.
+    """
+    plans = []
+    root = os.fspath(warehouse)
+    listed: dict[str, set[str]] = {}
+
+    def present(rel: str | None) -> bool:
+        """A samples file is there: its folder is listed once (10,000 files: one scandir per
+        folder instead of a stat per file, 0.6 s -> 0.02 s on a cold cache)."""
+        if rel is None:
+            return False
+        folder, _, name = rel.rpartition("/")
+        names = listed.get(folder)
+        if names is None:
+            try:
+                with os.scandir(os.path.join(root, folder)) as it:
+                    names = {e.name for e in it if e.is_file(follow_symlinks=False)}
+            except OSError:
+                names = set()
+            listed[folder] = names
+        return name in names
+
+    for path in files:
+        rel = tree.rel(path)
+        st = stat_key(os.stat(path))
+        mh = metadata_hash(tree, path)
+        old = prev.files.get(rel)
+        if old is None or old.role != "run":
+            plans.append(FilePlan(path, rel, st, mh, "new", "", old))
+            continue
+        if full:
+            plans.append(FilePlan(path, rel, st, mh, "check", "full", old))
+            continue
+        same_stat = (old.size_bytes, old.mtime_ns, old.inode) == st
+        same_ctx = old.meta_hash == mh and old.code_version == code_version
+        samples_ok = all(present(p) for p in old.samples_paths())
+        if same_stat and same_ctx and samples_ok:
+            plans.append(FilePlan(path, rel, st, mh, "unchanged", "", old))
+        else:
+            reason = ("metadata" if old.meta_hash != mh else "code" if old.code_version != code_version
+                      else "samples" if not samples_ok else "content")
+            plans.append(FilePlan(path, rel, st, mh, "check", reason, old))
+    return plans
+
+
+def result_runs(result: dict | None) -> list[dict]:
+    """The runs rows of a file's state record ``result`` (none, one, or one per part)."""
+    if result is None:
+        return []
+    if "parts" in result:
+        return [p["run"] for p in result["parts"] if p.get("run") is not None]
+    return [result["run"]]
+
+
+def record_result(res) -> dict | None:
+    """A file's :class:`pipeline.ingest.file.IngestResult` as its state record's ``result``."""
+    if res.parts is not None:
+        return {"parts": [{"run": p.run, "channels": p.channels} if p.run is not None else {"error": p.error}
+                          for p in res.parts]}
+    return {"run": res.run, "channels": res.channels} if res.run is not None else None
+
+
+def record_for(plan: FilePlan, sha: str | None, code_version: str, result: dict | None, error: str | None,
+               now: float | None = None, retry: bool = False) -> FileRecord:
+    """The new state record of a run file. A racy mtime, or ``retry`` (the file changed while
+    it was read, or its reader crashed), is stored as -1: the next rebuild looks at it again."""
+    size, mtime_ns, inode = plan.stat
+    now = time.time() if now is None else now
+    if retry or now - mtime_ns / 1e9 < RACY_S:
+        mtime_ns = -1
+    return FileRecord(plan.rel, "run", size, mtime_ns, inode, sha, plan.meta_hash, code_version, result, error)
+
+
+def side_files(tree: RawTree) -> list[Path]:
+    """manifest.csv, rig.toml and hoses.csv files of the raw tree that can be read (hidden
+    folders skipped; the walk of :func:`pipeline.raw.layout.walk_raw`)."""
+    return [p for p in tree.listing().side if p.name.lower() in SIDE_FILES]
+
+
+def side_records(tree: RawTree, prev: PreviousState) -> tuple[list[FileRecord], list[dict]]:
+    """State records of the side files and their change rows (new / changed / unchanged)."""
+    records, changes = [], []
+    now = time.time()
+    for p in side_files(tree):
+        rel = tree.rel(p)
+        st = stat_key(p.stat())
+        old = prev.files.get(rel)
+        if old is not None and (old.size_bytes, old.mtime_ns, old.inode) == st:
+            sha = old.source_sha256
+        else:
+            from pipeline.ingest.file import sha256_file
+            from pipeline.raw.rawfile import open_raw
+
+            try:  # hashed through one descriptor, no symlink out of raw/ followed (pipeline.raw.rawfile)
+                with open_raw(tree.root, p) as opened:
+                    sha = sha256_file(opened.source)
+            except OSError:
+                sha = None  # not read: reading it for its metadata says why (a quarantine row)
+        mtime = st[1] if now - st[1] / 1e9 >= RACY_S else -1
+        records.append(FileRecord(rel, SIDE_FILES[p.name.lower()], st[0], mtime, st[2], sha))
+        status = "new" if old is None else ("unchanged" if old.source_sha256 == sha else "changed")
+        changes.append({"source_path": rel, "role": SIDE_FILES[p.name.lower()], "status": status,
+                        "reason": "content" if status == "changed" else None})
+    return records, changes
+
+
+def logbook_hash(records: list[FileRecord]) -> str:
+    """Hash of every hose logbook's path and content."""
+    blob = sorted((r.source_path, r.source_sha256) for r in records if r.role == "logbook")
+    return hashlib.sha256(json.dumps(blob).encode()).hexdigest()[:32]
+
+
+# -- stage keys -------------------------------------------------------------------------------
+def runs_fingerprint(runs: list[dict], kinds: set[str] | None) -> str:
+    """Hash of the runs rows of some kinds (all kinds when ``kinds`` is None)."""
+    h = hashlib.sha256()
+    for r in sorted(runs, key=lambda r: r["run_id"]):
+        if kinds is None or r["kind"] in kinds:
+            h.update(json.dumps(r, sort_keys=True, default=str).encode())
+    return h.hexdigest()[:32]
+
+
+def frame_hash(df: pd.DataFrame | None) -> str:
+    """Content hash of a DataFrame (columns, types and values)."""
+    import pandas as pd
+
+    if df is None:
+        return "absent"
+    h = hashlib.sha256(json.dumps([[str(c), str(t)] for c, t in df.dtypes.items()]).encode())
+    if len(df) == 0:  # no values to hash (hash_pandas_object would add no bytes): ~1 ms saved per table
+        return h.hexdigest()[:32]
+    try:
+        h.update(pd.util.hash_pandas_object(df, index=False).to_numpy().tobytes())
+    except TypeError:
+        h.update(df.to_json(orient="split", index=False, date_format="iso", default_handler=str).encode())
+    return h.hexdigest()[:32]
+
+
+def stage_input_key(name: str, code: str, runs: list[dict], kinds: set[str], all_runs: bool,
+                    logbooks: str | None) -> str:
+    blob = {"stage": name, "code": code, "runs": runs_fingerprint(runs, None if all_runs else kinds),
+            "kinds": sorted(kinds), "all": all_runs, "logbooks": logbooks}
+    return hashlib.sha256(json.dumps(blob, sort_keys=True).encode()).hexdigest()[:32]
+
+
+# -- files of earlier warehouses ------------------------------------------------------------------
+#: Default retention of superseded samples files and stage folders [h].
+KEEP_SUPERSEDED_H = 24.0
+
+
+def superseded_files(prev: PreviousState, in_use: set[str], now: float,
+                     keep_h: float) -> tuple[dict[str, float], set[str]]:
+    """Which files of earlier warehouses to keep for their readers, and which to collect.
+
+    Parameters
+    ----------
+    prev : PreviousState
+        The live warehouse's files (``samples``, ``stage_folders``) and the files it kept
+        (``superseded``, with the time each was superseded).
+    in_use : set of str
+        Files the new warehouse uses (paths relative to the warehouse).
+    now : float
+        The rebuild's clock [s since epoch].
+    keep_h : float
+        Retention [h]: a file is kept this long after the first rebuild that stopped using it.
+
+    Returns
+    -------
+    (kept, expired)
+        ``kept``: path -> superseded at [s since epoch] (recorded in the new warehouse);
+        ``expired``: paths whose retention has passed (to be collected).
+    """
+    superseded = {p: at for p, at in prev.superseded.items() if p not in in_use}
+    for p in sorted((prev.samples | prev.stage_folders) - in_use):
+        superseded.setdefault(p, now)
+    expired = {p for p, at in superseded.items() if now - at >= keep_h * 3600.0}
+    return {p: at for p, at in superseded.items() if p not in expired}, expired

@@ -1,0 +1,2 @@
+"""The read-only side: the SQL door (``query``), its output formats, the morning report and
+the run pages."""

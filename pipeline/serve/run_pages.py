@@ -1,0 +1,317 @@
+"""The channels of one run as a static SVG plot, for the report's per-run pages.
+
+Long runs (an 8 h durability run holds ~29 M samples) are drawn from their minimum and maximum
+per pixel column, read from the samples Parquet in batches: the plot shows every excursion of the
+signal at a memory cost of one batch. Nothing here writes files or imports the report; the
+report (``pipeline/serve/report.py``) places the SVG in a page.
+"""
+from __future__ import annotations
+
+import hashlib
+import html
+import re
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # imported by the functions that draw: page_name() needs neither
+    import numpy as np
+
+#: Pixel columns of a plot (one min/max pair per column).
+WIDTH = 880
+#: Height of one channel's panel [px].
+PANEL_H = 110
+#: Rows read from Parquet at a time.
+BATCH_ROWS = 1_000_000
+#: Longest run drawn with its time axis in seconds; past it the axis reads h:mm:ss. [s]
+CLOCK_AFTER_S = 3600.0
+#: Steps of an h:mm:ss axis. [s]
+CLOCK_STEPS = (1, 2, 5, 10, 15, 30, 60, 120, 300, 600, 900, 1800, 3600, 7200, 10800, 21600, 43200, 86400)
+#: Most events drawn on one page (a run with more shows the first ones and says so).
+MAX_EVENTS = 400
+#: What the analyses saw, drawn on the traces: event kind -> (legend text, colour).
+EVENT_STYLE = {"onset": ("breakaway onset", "#d62728"), "pass": ("constant-velocity pass", "#2ca02c"),
+               "plateau": ("pressure plateau (steady part)", "#ff7f0e"), "step": ("set-point step", "#9467bd")}
+COLOURS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#17becf", "#7f7f7f")
+
+
+def page_name(run_id: str) -> str:
+    """File name of a run's page: a readable slug of the id plus a hash of it (ids differing only
+    in characters the slug drops, or in case, still get different pages)."""
+    slug = re.sub(r"[^A-Za-z0-9._-]+", "_", str(run_id)).strip("._")[:80] or "run"
+    return f"{slug}-{hashlib.sha256(str(run_id).encode('utf-8')).hexdigest()[:8]}.html"
+
+
+def downsample_minmax(path: str | Path, columns: list[str], n_rows: int, width: int = WIDTH) -> dict:
+    """Minimum and maximum of each column per pixel column, streamed from a Parquet file.
+
+    Parameters
+    ----------
+    path : path-like
+        Samples Parquet file.
+    columns : list of str
+        Columns to reduce (``t_s`` is always read for the time axis).
+    n_rows : int
+        Rows of the file (bins are by row index: bin = row * width // n_rows).
+    width : int
+        Number of bins.
+
+    Returns
+    -------
+    dict
+        ``{"t_s": (t_min, t_max), column: (min array, max array), ...}``; bins without samples are NaN.
+    """
+    import numpy as np
+    import pyarrow.parquet as pq
+
+    pf = pq.ParquetFile(path)
+    have = [c for c in columns if c in pf.schema_arrow.names]
+    n_rows = max(int(n_rows or pf.metadata.num_rows), 1)
+    width = max(1, min(width, n_rows))
+    lo = {c: np.full(width, np.inf) for c in have}
+    hi = {c: np.full(width, -np.inf) for c in have}
+    t_first = t_last = None
+    start = 0
+    read = have + (["t_s"] if "t_s" in pf.schema_arrow.names else [])
+    for batch in pf.iter_batches(batch_size=BATCH_ROWS, columns=read):
+        n = batch.num_rows
+        if n == 0:
+            continue
+        bins = (np.arange(start, start + n, dtype=np.int64) * width) // n_rows
+        bins = np.minimum(bins, width - 1)
+        cuts = np.flatnonzero(np.diff(bins)) + 1
+        idx = np.concatenate(([0], cuts))
+        ub = bins[idx]
+        for c in have:
+            v = batch.column(c).to_numpy(zero_copy_only=False).astype(float)
+            v = np.where(np.isfinite(v), v, np.nan)
+            with np.errstate(invalid="ignore"):
+                mn = np.fmin.reduceat(v, idx)
+                mx = np.fmax.reduceat(v, idx)
+            lo[c][ub] = np.fmin(lo[c][ub], mn)
+            hi[c][ub] = np.fmax(hi[c][ub], mx)
+        if "t_s" in batch.schema.names:
+            t = batch.column("t_s").to_numpy(zero_copy_only=False)
+            t_first = float(t[0]) if t_first is None else t_first
+            t_last = float(t[-1])
+        start += n
+    out: dict = {"t_s": (t_first, t_last)}
+    for c in have:
+        a, b = lo[c], hi[c]
+        a[~np.isfinite(a)] = np.nan
+        b[~np.isfinite(b)] = np.nan
+        out[c] = (a, b)
+    return out
+
+
+def _display(column: str, values: np.ndarray) -> tuple[np.ndarray, str, str]:
+    """Values in the report's display units (:func:`schemas.units.to_display`): (values, label, unit)."""
+    from schemas.units import to_display
+
+    return to_display(column, values)
+
+
+def _tick(v: float) -> str:
+    return f"{v:.6g}"
+
+
+def hms(t: float, decimals: int = 0) -> str:
+    """Seconds as ``h:mm:ss`` (``11250`` -> ``3:07:30``), negative with a sign."""
+    sign = "-" if t < 0 else ""
+    t = round(abs(float(t)), decimals)
+    h, rest = divmod(t, 3600.0)
+    m, sec = divmod(rest, 60.0)
+    width = 2 + (decimals + 1 if decimals else 0)
+    return f"{sign}{int(h)}:{int(m):02d}:{sec:0{width}.{decimals}f}"
+
+
+def number_labels(ticks) -> list[str]:
+    """Tick values in one format, as few decimals as they need (``0, 0.5, 1`` -> ``0.0, 0.5, 1.0``)."""
+    import numpy as np
+
+    ticks = [float(v) for v in ticks]
+    if not ticks:
+        return []
+    big = max(abs(v) for v in ticks)
+    step = min((abs(b - a) for a, b in zip(ticks, ticks[1:]) if b != a), default=big or 1.0)
+    if big >= 1e6 or step < 1e-4:
+        return [f"{v:.3g}" for v in ticks]
+    d = next((d for d in range(7) if all(abs(round(v, d) - v) <= step * 1e-6 for v in ticks)), 6)
+    labels = [f"{v:.{d}f}" for v in ticks]
+    return [t.lstrip("-") if float(t) == 0 else t for t in labels]
+
+
+def value_ticks(vmin: float, vmax: float, n: int = 4) -> list[float]:
+    """Round tick values inside [vmin, vmax] (matplotlib's MaxNLocator)."""
+    from matplotlib.ticker import MaxNLocator
+
+    if not vmax > vmin:
+        return [vmin]
+    tol = (vmax - vmin) * 1e-9
+    ticks = MaxNLocator(nbins=n, steps=[1, 2, 2.5, 5, 10]).tick_values(vmin, vmax)
+    return [float(v) for v in ticks if vmin - tol <= v <= vmax + tol]
+
+
+def time_ticks(t0: float, t1: float, n: int = 8) -> tuple[list[float], list[str], str]:
+    """Ticks of a time axis: (positions [s], labels, unit). In seconds up to
+    :data:`CLOCK_AFTER_S`, past it in ``h:mm:ss`` on whole seconds, minutes or hours."""
+    import math
+
+    if not t1 > t0:
+        return [t0], number_labels([t0]), "s"
+    if max(abs(t0), abs(t1)) <= CLOCK_AFTER_S:
+        ticks = value_ticks(t0, t1, n)
+        return ticks, number_labels(ticks), "s"
+    step = next((s for s in CLOCK_STEPS if (t1 - t0) / s <= n), None)
+    if step is None:
+        step = 86400 * math.ceil((t1 - t0) / n / 86400)
+    ticks = [k * step for k in range(math.ceil(t0 / step), math.floor(t1 / step) + 1)]
+    if len(ticks) < 2:
+        return [t0, t1], [hms(t0, 1), hms(t1, 1)], "h:mm:ss"
+    return [float(v) for v in ticks], [hms(v) for v in ticks], "h:mm:ss"
+
+
+def run_events(results) -> list[tuple[str, float, float | None, str]]:
+    """The events the analyses found in a run, from its result rows.
+
+    ``results``: ``(table, columns, row)`` per result row (what the run page shows). Returns
+    ``(kind, t_start [s], t_end [s] or None for an instant, text)`` in time order, kinds of
+    :data:`EVENT_STYLE`: breakaway onsets (``breakaway.onset_t_s``), constant-velocity passes
+    (``viscous_points``), the steady part of pressure plateaus (``leakage_map``), set-point steps
+    (``step_response`` / ``pressure_steps.t_step_s``).
+    """
+    import math
+
+    def num(v):
+        try:
+            v = float(v)
+        except (TypeError, ValueError):
+            return None
+        return v if math.isfinite(v) else None
+
+    out = []
+    for table, cols, row in results:
+        r = dict(zip(cols, row))
+        if table == "breakaway" and num(r.get("onset_t_s")) is not None:
+            out.append(("onset", num(r["onset_t_s"]), None, f"breakaway onset {r.get('direction') or ''}".rstrip()))
+        elif table in ("viscous_points", "leakage_map"):
+            a, b = num(r.get("t_start_s")), num(r.get("t_end_s"))
+            if a is not None and b is not None:
+                kind = "pass" if table == "viscous_points" else "plateau"
+                idx = r.get("pass_index") if kind == "pass" else r.get("plateau")
+                text = f"{EVENT_STYLE[kind][0]} {'' if idx is None else idx}".rstrip()
+                out.append((kind, min(a, b), max(a, b), text))
+        elif table in ("step_response", "pressure_steps") and num(r.get("t_step_s")) is not None:
+            where = r.get("chamber") or ""
+            out.append(("step", num(r["t_step_s"]), None, f"set-point step {where}".rstrip()))
+    return sorted(out, key=lambda e: (e[1], e[0]))
+
+
+def channels_svg(bands: dict, title: str = "", events=None) -> str:
+    """One SVG with a panel per channel: the min/max band per pixel column, time axis below.
+
+    ``bands`` is the output of :func:`downsample_minmax`; values are shown in the report's units
+    (:func:`schemas.units.to_display`) on round ticks, time in s or h:mm:ss past an hour.
+    ``events``: :func:`run_events`, drawn on every panel (spans and lines) with a legend.
+    Returns "" when there is nothing to draw.
+    """
+    import numpy as np
+
+    chans = [c for c in bands if c != "t_s"]
+    if not chans:
+        return ""
+    t0, t1 = bands["t_s"]
+    have_t = t0 is not None and t1 is not None and t1 > t0
+    events = [e for e in (events or []) if have_t and e[1] <= t1 and (e[2] if e[2] is not None else e[1]) >= t0]
+    dropped = max(len(events) - MAX_EVENTS, 0)
+    events = events[:MAX_EVENTS]
+    kinds = [k for k in EVENT_STYLE if any(e[0] == k for e in events)]
+    left, right = 70, 10
+    top = 8 + (20 if kinds else 0)
+    w = WIDTH + left + right
+    h = top + len(chans) * (PANEL_H + 14) + 34
+    parts = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" viewBox="0 0 {w} {h}" '
+             f'role="img" aria-label="{html.escape(title, quote=True)}" style="max-width:100%;height:auto" '
+             'font-family="sans-serif">',
+             '<rect width="100%" height="100%" fill="#fff"/>']
+
+    def tx(t):
+        return left + (t - t0) / (t1 - t0) * WIDTH
+
+    if kinds:  # legend: what the analysis saw
+        x = left
+        for k in kinds:
+            text, col = EVENT_STYLE[k]
+            n_k = sum(e[0] == k for e in events)
+            label = html.escape(f"{text} ({n_k})")
+            if any(e[0] == k and e[2] is not None for e in events):
+                parts.append(f'<rect x="{x}" y="6" width="14" height="10" fill="{col}" fill-opacity="0.25" '
+                             f'stroke="{col}"/>')
+            else:
+                parts.append(f'<line x1="{x + 7}" y1="5" x2="{x + 7}" y2="17" stroke="{col}" stroke-width="2" '
+                             'stroke-dasharray="4 2"/>')
+            parts.append(f'<text x="{x + 18}" y="15" font-size="11" fill="#1d2330">{label}</text>')
+            x += 30 + 6.5 * len(label)
+        if dropped:
+            parts.append(f'<text x="{x}" y="15" font-size="11" fill="#5b6475">'
+                         f'(first {MAX_EVENTS} drawn, {dropped} more in the tables)</text>')
+    tticks, tlabels, tunit = time_ticks(t0, t1) if have_t else ([], [], "s")
+    for k, c in enumerate(chans):
+        lo, hi = bands[c]
+        lo, name, unit = _display(c, lo)
+        hi, _, _ = _display(c, hi)
+        y0 = top + k * (PANEL_H + 14)
+        parts.append(f'<rect x="{left}" y="{y0}" width="{WIDTH}" height="{PANEL_H}" fill="none" stroke="#c5cad3"/>')
+        for t in tticks:  # time grid
+            parts.append(f'<line x1="{tx(t):.1f}" y1="{y0}" x2="{tx(t):.1f}" y2="{y0 + PANEL_H}" stroke="#eceef2"/>')
+        for kind, a, b, text in events:
+            col = EVENT_STYLE[kind][1]
+            tip = f"<title>{html.escape(text)}: " + (f"{_tick(a)} to {_tick(b)} s" if b is not None else
+                                                     f"{_tick(a)} s") + "</title>"
+            if b is not None:
+                xa, xb = tx(max(a, t0)), tx(min(b, t1))
+                parts.append(f'<rect x="{xa:.1f}" y="{y0}" width="{max(xb - xa, 1.0):.1f}" height="{PANEL_H}" '
+                             f'fill="{col}" fill-opacity="0.16">{tip}</rect>')
+            else:
+                parts.append(f'<line x1="{tx(a):.1f}" y1="{y0}" x2="{tx(a):.1f}" y2="{y0 + PANEL_H}" stroke="{col}" '
+                             f'stroke-width="1.5" stroke-dasharray="4 2">{tip}</line>')
+        ok = np.isfinite(lo) & np.isfinite(hi)
+        label = html.escape(f"{name} [{unit}]" if unit else name)
+        if not ok.any():
+            parts.append(f'<text x="{left + 6}" y="{y0 + 13}" font-size="12" fill="#1d2330">{label}</text>')
+            parts.append(f'<text x="{left + 6}" y="{y0 + 30}" font-size="11" fill="#5b6475">no finite samples</text>')
+            continue
+        vmin, vmax = float(np.nanmin(lo[ok])), float(np.nanmax(hi[ok]))
+        span = vmax - vmin or max(abs(vmax), 1.0) * 1e-3
+        n = lo.size
+        xs = left + (np.arange(n) + 0.5) * WIDTH / n
+
+        def y(v):
+            return y0 + PANEL_H - 4 - (v - vmin) / span * (PANEL_H - 20)
+
+        yticks = value_ticks(vmin, vmax) if vmax > vmin else [vmin]
+        for v, text in zip(yticks, number_labels(yticks)):
+            parts.append(f'<line x1="{left - 3}" y1="{y(v):.1f}" x2="{left + WIDTH}" y2="{y(v):.1f}" '
+                         'stroke="#eceef2"/>')
+            parts.append(f'<text x="{left - 5}" y="{y(v) + 3.5:.1f}" font-size="10" text-anchor="end" '
+                         f'fill="#5b6475">{text}</text>')
+        idx = np.flatnonzero(ok)
+        upper = " ".join(f"{xs[i]:.1f},{y(hi[i]):.1f}" for i in idx)
+        lower = " ".join(f"{xs[i]:.1f},{y(lo[i]):.1f}" for i in idx[::-1])
+        col = COLOURS[k % len(COLOURS)]
+        extremes = html.escape(f"{name}: {_tick(vmin)} to {_tick(vmax)}" + (f" {unit}" if unit else ""))
+        parts.append(f'<polygon points="{upper} {lower}" fill="{col}" fill-opacity="0.35" stroke="{col}" '
+                     f'stroke-width="1" stroke-linejoin="round"><title>{extremes}</title></polygon>')
+        parts.append(f'<text x="{left + 6}" y="{y0 + 13}" font-size="12" fill="#1d2330" stroke="#fff" '
+                     f'stroke-width="3" paint-order="stroke">{label}</text>')
+    yb = top + len(chans) * (PANEL_H + 14) - 14
+    for t, text in zip(tticks, tlabels):
+        parts.append(f'<line x1="{tx(t):.1f}" y1="{yb}" x2="{tx(t):.1f}" y2="{yb + 4}" stroke="#5b6475"/>')
+        parts.append(f'<text x="{tx(t):.1f}" y="{yb + 15}" font-size="10" text-anchor="middle" fill="#5b6475">'
+                     f'{text}</text>')
+    if have_t:
+        parts.append(f'<text x="{left + WIDTH}" y="{h - 4}" font-size="11" text-anchor="end" fill="#5b6475">'
+                     f't [{tunit}]</text>')
+    elif t0 is not None:
+        parts.append(f'<text x="{left}" y="{h - 4}" font-size="11" fill="#5b6475">t = {_tick(t0)} s</text>')
+    parts.append("</svg>")
+    return "".join(parts)
