@@ -59,7 +59,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pipeline.raw.layout import Problem, display_name, walk_raw
+from pipeline.raw.problems import Problem, display_name
+from pipeline.raw.walk import walk_raw
 from pipeline.raw.rawfile import read_raw_bytes
 from pipeline.readers.base import SideCsvError, side_csv_rows
 
@@ -80,7 +81,7 @@ HOSE_COLUMNS = ["hose_id", "hose_type", "adjustment", "z_rollers_mm", "spring_fo
 
 def find_logbooks(raw: Path) -> list[Path]:
     """Every readable ``hoses.csv`` under ``raw`` (dotted folders skipped, no folder symlink
-    followed, a symlink from outside raw/ not read: :func:`pipeline.raw.layout.walk_raw`, whose
+    followed, a symlink from outside raw/ not read: :func:`pipeline.raw.walk.walk_raw`, whose
     quarantine rows the rebuild reports), sorted by relative path."""
     return [p for p in walk_raw(Path(raw)).side if p.name.lower() == LOGBOOK_NAME]
 
