@@ -195,7 +195,7 @@ def run_approach(fmt: str, name: str, src: Path, out: Path) -> dict:
     t0 = time.perf_counter()
     if name == "pneubench":
         from pipeline.ingest.file import ingest_file
-        from pipeline.raw.layout import RawTree
+        from pipeline.raw.tree import RawTree
 
         res = ingest_file(RawTree(src.parent.parent), src, out / "warehouse", reuse=False)
         if res.error:

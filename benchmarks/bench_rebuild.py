@@ -70,7 +70,7 @@ def main(argv=None) -> int:
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
 
-    from pipeline.raw.layout import discover_runs
+    from pipeline.raw.tree import discover_runs
     from pipeline.rebuild.flow import rebuild
 
     source = args.source

@@ -25,7 +25,8 @@ import pyarrow.parquet as pq
 from pipeline import versions as code_version_mod
 from pipeline.versions import INGEST_VERSION  # noqa: F401 (re-exported)
 from pipeline.ingest.derived import DerivedError, Expression, parse_expression
-from pipeline.raw.layout import ConfigError, RawTree, display_name
+from pipeline.raw.problems import ConfigError, display_name
+from pipeline.raw.tree import RawTree
 from pipeline.ingest.prefetch import prefetch
 from pipeline.raw.rawfile import RawFile, RawOpenError, open_raw
 from pipeline.readers import RawColumn, ReaderError, list_parts, parts_keys, read_export

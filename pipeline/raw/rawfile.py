@@ -1,6 +1,6 @@
 """Opening a file of raw/ once, without following a symlink out of raw/, and reading only that.
 
-raw/ is listed first (:func:`pipeline.raw.layout.walk_raw`, where symlinks are checked) and its
+raw/ is listed first (:func:`pipeline.raw.walk.walk_raw`, where symlinks are checked) and its
 files are read later, in worker processes. A file replaced by a symlink to a file outside raw/
 between the two must not be read (issue 21). So a file is opened once, here, and every later
 read (its hash, the reader, a library that wants a path) goes through that descriptor:
@@ -26,6 +26,7 @@ read (its hash, the reader, a library that wants a path) goes through that descr
 from __future__ import annotations
 
 import errno
+import multiprocessing.util
 import os
 import shutil
 import stat
@@ -48,14 +49,12 @@ _LINKS_LOCK = threading.Lock()
 def _take_slot() -> str:
     with _LINKS_LOCK:
         if _LINKS["pid"] != os.getpid():
-            from multiprocessing import util
-
             shm = "/dev/shm" if os.path.isdir("/dev/shm") and os.access("/dev/shm", os.W_OK) else None
             _remove_stale(shm or tempfile.gettempdir())
             folder = tempfile.mkdtemp(prefix=f"pneubench-open-{os.getpid()}-", dir=shm)
             _LINKS.update(pid=os.getpid(), dir=folder, free=[], n=0)
             # at exit, also of a worker of a multiprocessing pool (which skips atexit)
-            util.Finalize(None, shutil.rmtree, args=(folder, True), exitpriority=0)
+            multiprocessing.util.Finalize(None, shutil.rmtree, args=(folder, True), exitpriority=0)
         if _LINKS["free"]:
             return _LINKS["free"].pop()
         _LINKS["n"] += 1

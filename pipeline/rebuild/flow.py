@@ -37,7 +37,9 @@ from typing import TYPE_CHECKING
 
 from pipeline.rebuild.executors import CRASH_REASON, STUCK_REASON, Executor, default_jobs, forked_pool, make_executor
 from pipeline.rebuild.executors import _kill_workers  # stop the figure worker of an interrupted rebuild
-from pipeline.raw.layout import Problem, RawTree, discover_runs, skip_reason
+from pipeline.raw.problems import Problem
+from pipeline.raw.tree import RawTree, discover_runs
+from pipeline.raw.walk import skip_reason
 from pipeline.rebuild.memo import LEGACY_FILE, LEGACY_TMP, MEMO_DIR, SHARD_FILE, SHARD_TMP, STAGE_NAME, Memo
 from pipeline.readers import READERS
 from pipeline.progress import Progress

@@ -30,7 +30,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from pipeline.versions import INGEST_VERSION, ROOT, hash_sources, ingest_code_version  # noqa: F401 (re-exported)
-from pipeline.raw.layout import ConfigError, RawTree
+from pipeline.raw.problems import ConfigError
+from pipeline.raw.tree import RawTree
 
 if TYPE_CHECKING:  # pandas and the ingest are imported where used: a no-op rebuild needs neither
     import pandas as pd
@@ -397,7 +398,7 @@ def record_for(plan: FilePlan, sha: str | None, code_version: str, result: dict 
 
 def side_files(tree: RawTree) -> list[Path]:
     """manifest.csv, rig.toml and hoses.csv files of the raw tree that can be read (hidden
-    folders skipped; the walk of :func:`pipeline.raw.layout.walk_raw`)."""
+    folders skipped; the walk of :func:`pipeline.raw.walk.walk_raw`)."""
     return [p for p in tree.listing().side if p.name.lower() in SIDE_FILES]
 
 

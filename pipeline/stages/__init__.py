@@ -27,7 +27,7 @@ from types import ModuleType
 import pandas as pd
 import pyarrow.parquet as pq
 
-from pipeline.raw.layout import Problem
+from pipeline.raw.problems import Problem
 from pipeline.progress import Progress
 
 

@@ -35,10 +35,11 @@ import pandas as pd
 import pyarrow.parquet as pq
 
 from analyses.durability import StrokeCounter, stroke_deadband, strokes_note
+from analyses.hose_life import hose_distance_at, hose_life, match_runs
 from analyses.quality import describe_sensor_at_rest
 from analyses.service_life import (b10, kaplan_meier, plot_hose_distances, plot_kaplan_meier, plot_leak_growth,
                                    plot_weibull_probability, weibull_fit, weibull_lr_test)
-from pipeline.raw.logbook import hose_distance_at, hose_life, match_runs, merge_logbooks, read_logbooks
+from pipeline.raw.logbook import merge_logbooks, read_logbooks
 from pipeline.ingest.prefetch import prefetch
 from pipeline.stages import StageContext, StageOutput
 

@@ -223,7 +223,7 @@ def child_main() -> None:
 
     resource.setrlimit(resource.RLIMIT_AS, (MEMORY_LIMIT, MEMORY_LIMIT))
     from pipeline.ingest.file import ingest_file
-    from pipeline.raw.layout import RawTree
+    from pipeline.raw.tree import RawTree
 
     raw, warehouse = Path(sys.argv[-2]), Path(sys.argv[-1])
     tree = RawTree(raw)

@@ -6,7 +6,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from pipeline.ingest.file import ingest_file
-from pipeline.raw.layout import RawTree
+from pipeline.raw.tree import RawTree
 from tests.conftest import STEP_META
 from tests.pipeline.readers.generators import xlsx_workbook
 

@@ -10,8 +10,8 @@ import pandas as pd
 import pyarrow.parquet as pq
 import pytest
 
-import pipeline.raw.layout as layout
 import pipeline.raw.logbook as logbook
+import pipeline.raw.tree as raw_tree
 import pipeline.rebuild.flow as rb
 from pipeline.ingest.file import sha256_file
 from pipeline.raw.rawfile import RawOpenError, open_raw
@@ -148,7 +148,7 @@ def test_side_files_swapped_for_links_out_of_raw_after_the_walk_are_not_read(raw
 
         monkeypatch.setattr(module, "walk_raw", walk)
 
-    walk_then_swap(layout, ["c1/manifest.csv", "c2/rig.toml"])
+    walk_then_swap(raw_tree, ["c1/manifest.csv", "c2/rig.toml"])
     walk_then_swap(logbook, ["c3/hoses.csv"])
     assert rebuild(raw.root, warehouse, jobs=1).exit_code == EXIT_QUARANTINED
     q = dict(query(warehouse, "SELECT source_path, error FROM quarantine WHERE source_path NOT LIKE '%/a.csv'"))

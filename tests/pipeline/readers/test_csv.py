@@ -6,7 +6,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from pipeline.ingest.file import ingest_file
-from pipeline.raw.layout import RawTree
+from pipeline.raw.tree import RawTree
 from pipeline.readers import ReaderError, read_export
 from pipeline.readers import csv as csv_module
 

@@ -5,7 +5,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from pipeline.ingest.file import ingest_file
-from pipeline.raw.layout import RawTree
+from pipeline.raw.tree import RawTree
 from pipeline.readers import ReaderError, read_export
 from pipeline.readers import mat as mat_module
 from tests.pipeline.readers.generators import mat_v5, mat_v5_with_object, mat_v73

@@ -303,7 +303,7 @@ def test_refused_list_longer_than_the_limit_and_read_within_it(tmp_path, monkeyp
 
 def test_can_logger_bus_log_is_one_quarantine_line_and_a_signal_log_beside_it_ingests(raw, warehouse):
     from pipeline.ingest.file import ingest_file
-    from pipeline.raw.layout import RawTree
+    from pipeline.raw.tree import RawTree
 
     raw.write("c/rig.toml", '[metadata]\nkind = "timeseries"\nrig = "can-1"\n')
     can = mf4_can_bus_log(raw.root / "c" / "can.mf4")

@@ -17,7 +17,7 @@ from nptdms import ChannelObject, GroupObject, RootObject, TdmsWriter
 
 import pipeline.readers.tdms as tdms_reader
 from pipeline.ingest.file import ingest_file
-from pipeline.raw.layout import RawTree
+from pipeline.raw.tree import RawTree
 from pipeline.readers import ReaderError, read_export
 from pipeline.readers.tdms import read_tdms
 from schemas.units import lookup_unit

@@ -7,7 +7,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from pipeline.ingest.file import ingest_file
-from pipeline.raw.layout import RawTree, discover_runs
+from pipeline.raw.tree import RawTree, discover_runs
 from pipeline.simulator import foreign, pla, plpa
 from pipeline.simulator.base import HOSE_AREA_M2
 from pipeline.simulator.campaign import simulate_campaign
