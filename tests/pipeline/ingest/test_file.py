@@ -222,7 +222,7 @@ def test_tdms_root_group_beats_rig_toml_group(raw, warehouse):
 
 
 def test_reader_warnings_raised_while_reading_data_reach_the_run(raw, warehouse, monkeypatch):
-    import pipeline.ingest.file as ingest_mod
+    import pipeline.raw.metadata as ingest_mod
 
     real = ingest_mod.read_export
 
@@ -249,7 +249,7 @@ def test_q_unit_with_milli_mega_case_swapped(raw, warehouse):
 
 def test_q_reader_crash_is_one_line_naming_the_error(raw, warehouse, monkeypatch):
     # a library raising something unexpected on a corrupt file (h5py raises RuntimeError)
-    import pipeline.ingest.file as ingest_mod
+    import pipeline.raw.metadata as ingest_mod
 
     def corrupt(*a, **k):
         raise RuntimeError("Link iteration failed (actual len exceeds EOA)\nsecond line")
@@ -325,7 +325,7 @@ def _cols(names):
 def test_map_columns_identical_names_get_consecutive_suffixes():
     """4,096 columns named `a` -> a, a_2 ... a_4096 (the next free suffix per name is kept in a
     dict, so the de-duplication is one pass, not a search from _2 for every column)."""
-    from pipeline.ingest.file import map_columns
+    from pipeline.ingest.columns import map_columns
     from pipeline.readers.base import MAX_CHANNELS
 
     maps = map_columns(_cols(["a"] * MAX_CHANNELS), {})
@@ -333,13 +333,13 @@ def test_map_columns_identical_names_get_consecutive_suffixes():
 
 
 def test_map_columns_suffix_skips_a_name_already_taken():
-    from pipeline.ingest.file import map_columns
+    from pipeline.ingest.columns import map_columns
 
     assert [m.column for m in map_columns(_cols(["a", "a_2", "A", "a", "a-3"]), {})] == ["a", "a_2", "a_3", "a_4", "a_3_2"]
 
 
 def test_map_columns_refuses_more_columns_than_the_limit():
-    from pipeline.ingest.file import IngestError, map_columns
+    from pipeline.ingest.columns import IngestError, map_columns
     from pipeline.readers.base import MAX_CHANNELS
 
     with pytest.raises(IngestError, match=f"^{MAX_CHANNELS + 1} columns: more than the limit of {MAX_CHANNELS} channels"):
@@ -568,7 +568,7 @@ def test_q_derived_time_and_a_stated_rate_conflict(raw, warehouse):
 
 
 def test_q_too_many_derived_channels(raw, warehouse):
-    from pipeline.ingest.file import MAX_DERIVED
+    from pipeline.ingest.derived import MAX_DERIVED
 
     raw.write("c/rig.toml", "[derived]\n" + "".join(f'd{i} = "x * {i}"\n' for i in range(MAX_DERIVED + 1)))
     raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
