@@ -116,6 +116,7 @@ def parse_expression(text) -> Expression:
 
 
 def _literal_number(node) -> float | None:
+    """The value of a numeric literal node (``2``, ``-0.5``), else None."""
     if isinstance(node, ast.Constant) and isinstance(node.value, (int, float)) and not isinstance(node.value, bool):
         return float(node.value)
     if isinstance(node, ast.UnaryOp) and isinstance(node.op, (ast.USub, ast.UAdd)):
@@ -125,6 +126,7 @@ def _literal_number(node) -> float | None:
 
 
 def _check(node, depth: int, names: list, text: str) -> None:
+    """Walk ``node`` against the whitelist (module docstring); the names it reads go to ``names``."""
     where = f"in `{text[:60]}`"
     if depth > MAX_DEPTH:
         raise DerivedError(f"expression nested deeper than {MAX_DEPTH} levels")
@@ -168,6 +170,7 @@ def _check(node, depth: int, names: list, text: str) -> None:
 
 
 def _eval(node, values: dict):
+    """Evaluate a checked node on ``values`` (name -> array or float)."""
     if isinstance(node, ast.Constant):
         return float(node.value)
     if isinstance(node, ast.Name):

@@ -45,6 +45,7 @@ class BackgroundHash:
         self._thread.start()
 
     def _run(self, path):
+        """The thread: hash ``path``, keep the hash (or the error) and the bytes hashed."""
         counted: list[int] = []
         try:
             self._out["sha"] = sha256_file(path, stop=self._stop, counted=counted)

@@ -31,6 +31,7 @@ class TimeBase:
 
     @property
     def stated_rate_hz(self) -> float:
+        """The stated rate, or ``1 / dt_s``. [Hz]"""
         return self.rate_hz if self.rate_hz is not None else 1.0 / self.dt_s
 
     def times(self, row0: int, n: int) -> np.ndarray:
@@ -41,6 +42,7 @@ class TimeBase:
 
 
 def _positive(value, what: str) -> float:
+    """``value`` as a positive finite float; an IngestError naming ``what`` otherwise."""
     try:
         v = float(value)
     except (TypeError, ValueError):
@@ -79,6 +81,7 @@ class TimeCheck:
         self.dt_sample: np.ndarray | None = None
 
     def update(self, t: np.ndarray) -> None:
+        """Check the next batch's times [s] (rows numbered from the file's first data row)."""
         if t.size == 0:
             return
         bad = np.flatnonzero(~np.isfinite(t))
@@ -100,6 +103,7 @@ class TimeCheck:
 
     @property
     def sample_rate_hz(self) -> float | None:
+        """1 / the median positive time step of the first 100,000 steps [Hz]; None without one."""
         if self.dt_sample is None:
             return None
         pos = self.dt_sample[self.dt_sample > 0]

@@ -2,9 +2,10 @@
 import pyarrow.parquet as pq
 import pytest
 
-from pipeline.ingest.columns import map_export_columns
+from pipeline.ingest.columns import map_columns, map_export_columns
+from pipeline.ingest.result import IngestError
 from pipeline.readers import RawColumn
-
+from pipeline.readers.base import MAX_CHANNELS
 from tests.conftest import STEP_META
 from tests.pipeline.ingest.helpers import T, ingest, quarantine, samples_of
 
@@ -61,31 +62,22 @@ def test_non_canonical_names_that_sanitise_alike_are_both_kept(raw, warehouse):
 
 # -- column mapping: linear, with a channel limit ---------------------------------------------
 def _cols(names):
-    from pipeline.readers import RawColumn
-
+    """Raw columns of these names, without units."""
     return [RawColumn(key=f"c{i + 1}", name=n, unit=None, index=i + 1) for i, n in enumerate(names)]
 
 
 def test_map_columns_identical_names_get_consecutive_suffixes():
     """4,096 columns named `a` -> a, a_2 ... a_4096 (the next free suffix per name is kept in a
     dict, so the de-duplication is one pass, not a search from _2 for every column)."""
-    from pipeline.ingest.columns import map_columns
-    from pipeline.readers.base import MAX_CHANNELS
-
     maps = map_columns(_cols(["a"] * MAX_CHANNELS), {})
     assert [m.column for m in maps] == ["a"] + [f"a_{k}" for k in range(2, MAX_CHANNELS + 1)]
 
 
 def test_map_columns_suffix_skips_a_name_already_taken():
-    from pipeline.ingest.columns import map_columns
-
     assert [m.column for m in map_columns(_cols(["a", "a_2", "A", "a", "a-3"]), {})] == ["a", "a_2", "a_3", "a_4", "a_3_2"]
 
 
 def test_map_columns_refuses_more_columns_than_the_limit():
-    from pipeline.ingest.columns import IngestError, map_columns
-    from pipeline.readers.base import MAX_CHANNELS
-
     with pytest.raises(IngestError, match=f"^{MAX_CHANNELS + 1} columns: more than the limit of {MAX_CHANNELS} channels"):
         map_columns(_cols(["a"] * (MAX_CHANNELS + 1)), {})
 

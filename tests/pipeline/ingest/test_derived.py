@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from pipeline.ingest.derived import MAX_DEPTH, MAX_LENGTH, DerivedError, parse_expression
+from pipeline.ingest.derived import MAX_DEPTH, MAX_DERIVED, MAX_LENGTH, DerivedError, parse_expression
 from tests.conftest import STEP_META
 from tests.pipeline.ingest.helpers import T, VISCOUS, ingest, quarantine, samples_of
 
@@ -144,8 +144,6 @@ def test_q_derived_time_and_a_stated_rate_conflict(raw, warehouse):
 
 
 def test_q_too_many_derived_channels(raw, warehouse):
-    from pipeline.ingest.derived import MAX_DERIVED
-
     raw.write("c/rig.toml", "[derived]\n" + "".join(f'd{i} = "x * {i}"\n' for i in range(MAX_DERIVED + 1)))
     raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
     assert f"at most {MAX_DERIVED}" in quarantine(raw, warehouse)
