@@ -105,10 +105,8 @@ def ingest_file(tree: RawTree, path: Path, warehouse: Path, reuse: bool = True,
         return result
     if keys is not None:
         return _ingest_parts(job, result, keys, sha256)
-    hashed: list = []
     try:
-        result.run, result.channels = _ingest(job, sha256, hashed)
-        result.bytes_hashed = hashed[0] if hashed else None
+        result.run, result.channels, result.bytes_hashed = _ingest(job, sha256)
     except Exception as exc:  # noqa: BLE001
         # A reader or library (scipy, h5py, npTDMS, pyarrow) tripped over malformed input:
         # still one line, never a crash of the rebuild.
@@ -150,17 +148,26 @@ def _ingest_parts(job: _Job, result: IngestResult, keys: tuple[str, str], sha: s
     return result
 
 
-def _ingest(job: _Job, sha: str | None, bytes_hashed: list) -> tuple[dict, list[dict]]:
-    """Ingest a file of one run; a file not hashed yet is hashed while it is read
-    (``bytes_hashed`` gets the bytes hashed [B])."""
+def _ingest(job: _Job, sha: str | None) -> tuple[dict, list[dict], int | None]:
+    """Ingest a file of one run; a file not hashed yet is hashed while it is read.
+
+    Returns
+    -------
+    run : dict
+        The runs row.
+    channels : list of dict
+        The channels rows.
+    bytes_hashed : int or None
+        The bytes the ingest hashed itself [B] (None when ``sha`` was given).
+    """
     _check_file(job)
     hashing = None if sha else BackgroundHash(job.src)
     try:
-        return _ingest_run(job, sha, hashing)
+        run, channels = _ingest_run(job, sha, hashing)
     finally:
         if hashing is not None:
             hashing.cancel()
-            bytes_hashed.append(hashing.n_bytes)
+    return run, channels, None if hashing is None else hashing.n_bytes
 
 
 def _ingest_run(job: _Job, sha: str | None, hashing: BackgroundHash | None,
