@@ -20,6 +20,7 @@ BENCHMARKS = {
     "cli": ([], ["--quick"]),  # whole pneubench commands as processes against whole-process baselines
     "scale": ([], ["--runs", "300,1000"]),  # the cost curve to 10,000 runs
     "memo": ([], ["--entries", "1000"]),  # the per-run memo's own cost: one change out of 10,000
+    "versions": ([], ["--runs", "300", "--repeat", "2"]),  # before / after a change (--ref main~1), same run
 }
 
 

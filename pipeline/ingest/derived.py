@@ -16,6 +16,8 @@ parsing nor evaluation can be made to run away.
 
 The checked expression is evaluated with numpy on whole arrays (one record batch at a time);
 names resolve to channel arrays first, then to numeric metadata values (scalars).
+:func:`plan_derived` checks a rig.toml's ``[derived]`` table against one run: which channels it
+can compute, from which columns and metadata (:class:`DerivedChannel`).
 """
 from __future__ import annotations
 
@@ -24,6 +26,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+
+from pipeline.ingest.columns import ColumnMap
+from pipeline.ingest.result import IngestError
+from schemas.channels import CHANNELS, canonical_name, noncanonical_column, sanitise_name
 
 #: Longest expression accepted. [characters]
 MAX_LENGTH = 500
@@ -110,6 +116,7 @@ def parse_expression(text) -> Expression:
 
 
 def _literal_number(node) -> float | None:
+    """The value of a numeric literal node (``2``, ``-0.5``), else None."""
     if isinstance(node, ast.Constant) and isinstance(node.value, (int, float)) and not isinstance(node.value, bool):
         return float(node.value)
     if isinstance(node, ast.UnaryOp) and isinstance(node.op, (ast.USub, ast.UAdd)):
@@ -119,6 +126,7 @@ def _literal_number(node) -> float | None:
 
 
 def _check(node, depth: int, names: list, text: str) -> None:
+    """Walk ``node`` against the whitelist (module docstring); the names it reads go to ``names``."""
     where = f"in `{text[:60]}`"
     if depth > MAX_DEPTH:
         raise DerivedError(f"expression nested deeper than {MAX_DEPTH} levels")
@@ -162,6 +170,7 @@ def _check(node, depth: int, names: list, text: str) -> None:
 
 
 def _eval(node, values: dict):
+    """Evaluate a checked node on ``values`` (name -> array or float)."""
     if isinstance(node, ast.Constant):
         return float(node.value)
     if isinstance(node, ast.Name):
@@ -180,4 +189,90 @@ def _eval(node, values: dict):
     raise DerivedError(f"{type(node).__name__} not allowed")  # unreachable after _check
 
 
-__all__ = ["DerivedError", "Expression", "parse_expression", "MAX_LENGTH", "MAX_DEPTH", "MAX_POWER"]
+
+# -- a rig.toml's [derived] table against one run -----------------------------------------------
+#: Most derived channels a rig.toml may state (rig.toml is untrusted: bounded work per batch).
+MAX_DERIVED = 64
+
+
+@dataclass
+class DerivedChannel:
+    """A rig.toml ``[derived]`` channel of one run: its column and where each name comes from."""
+
+    name: str
+    channel: str | None
+    column: str
+    unit: str | None
+    expression: Expression
+    inputs: dict            # name -> samples column (str) or metadata value (float)
+
+    def describe(self) -> dict:
+        """The channel as a ``channels`` table row (without ``run_id``)."""
+        return {"column": self.column, "channel": self.channel, "raw_name": f"= {self.expression.text}",
+                "raw_unit": None, "unit": self.unit, "type": "DOUBLE"}
+
+
+def plan_derived(derived_cfg: dict, maps: list[ColumnMap], meta: dict,
+                 time_column: bool) -> tuple[list[DerivedChannel], list[str]]:
+    """Check rig.toml ``[derived]`` against a run: which channels it can compute.
+
+    Names in an expression are, in this order: canonical channels (in SI), non-canonical
+    channels by their sanitised raw name (as recorded), channels derived before it, numeric
+    metadata values. A derived channel whose names the run does not have is skipped with a
+    warning (its rig.toml may serve other files); a derived canonical channel that the file
+    also carries is an error.
+    """
+    names: dict = {}
+    for key, v in meta.items():
+        if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(float(v)):
+            names[key] = float(v)
+    for m in maps:
+        if m.numeric and m.channel is None:
+            alias = sanitise_name(m.raw_name)
+            if canonical_name(alias) is None:   # a look-alike `F[g]` is `f_g`, never `f`
+                names[alias] = m.column
+            names[m.column] = m.column
+    for m in maps:
+        if m.channel is not None:
+            names[m.channel] = m.column
+    if time_column:
+        names["t"] = "t_s"
+    taken = {m.column for m in maps} | ({"t_s"} if time_column else set())
+    if len(derived_cfg or {}) > MAX_DERIVED:
+        raise IngestError(f"rig.toml [derived] has {len(derived_cfg)} channels (at most {MAX_DERIVED})")
+    out, warnings = [], []
+    for name, entry in (derived_cfg or {}).items():
+        unit = None
+        text = entry
+        if isinstance(entry, dict):
+            unknown = sorted(set(entry) - {"expr", "unit"})
+            if unknown or "expr" not in entry:
+                raise IngestError(f"rig.toml [derived] `{name}` must be an expression or a table with `expr` "
+                                  "(and optional `unit`)")
+            text, unit = entry["expr"], entry.get("unit")
+        try:
+            expr = parse_expression(text)
+        except DerivedError as exc:
+            raise IngestError(f"rig.toml [derived] `{name}`: {exc}") from None
+        channel = canonical_name(name)
+        if channel is not None:
+            column, unit = CHANNELS[channel].column, CHANNELS[channel].si_unit
+        else:
+            column = noncanonical_column(name, unit)
+        if column in taken:
+            raise IngestError(f"rig.toml [derived] `{name}`: the file already has channel `{channel or column}`")
+        missing = [k for k in expr.names if k not in names]
+        if missing:
+            warnings.append(f"derived channel `{name}` not computed: no channel or numeric metadata "
+                            + ", ".join(f"`{k}`" for k in missing))
+            continue
+        out.append(DerivedChannel(name, channel, column, None if unit is None else str(unit), expr,
+                                  {k: names[k] for k in expr.names}))
+        taken.add(column)
+        names[channel or sanitise_name(name)] = column
+        names[column] = column
+    return out, warnings
+
+
+__all__ = ["DerivedError", "DerivedChannel", "Expression", "parse_expression", "plan_derived", "MAX_LENGTH",
+           "MAX_DEPTH", "MAX_POWER", "MAX_DERIVED"]

@@ -1,6 +1,9 @@
 """Batches produced in a background thread while the caller works on the previous one."""
 from __future__ import annotations
 
+import queue
+import threading
+
 
 def prefetch(batches, depth: int = 2):
     """Iterate ``batches`` in a background thread, ``depth`` batches ahead (bounded memory).
@@ -9,10 +12,19 @@ def prefetch(batches, depth: int = 2):
     the GIL) overlaps with the caller's work on the current one: converting and writing it in the
     ingest, counting strokes in the durability stage. Exceptions reach the caller unchanged;
     closing the generator early stops the thread (and closes ``batches``).
-    """
-    import queue
-    import threading
 
+    Parameters
+    ----------
+    batches : iterable
+        Record batches (or anything) produced by a generator or reader.
+    depth : int
+        How many items are made ahead of the caller.
+
+    Yields
+    ------
+    object
+        The items of ``batches``, in order.
+    """
     q: queue.Queue = queue.Queue(maxsize=depth)
     stop = threading.Event()
     done = object()

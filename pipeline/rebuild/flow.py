@@ -57,15 +57,15 @@ if TYPE_CHECKING:
     import pandas as pd
 
     from pipeline import stages as stage_registry
-    from pipeline.ingest.file import IngestResult
+    from pipeline.ingest.result import IngestResult
 
 # pandas, pyarrow, numpy and the analyses are imported by the functions that use them, not here:
 # a no-op rebuild needs none of them (~0.5 s of a 10,000-run no-op's 2 s budget; issue 14).
 
 
 def sha256_file(path, *args, **kwargs):
-    """:func:`pipeline.ingest.file.sha256_file` (imported when a file is first hashed)."""
-    from pipeline.ingest.file import sha256_file as _sha256_file
+    """:func:`pipeline.ingest.hashing.sha256_file` (imported when a file is first hashed)."""
+    from pipeline.ingest.hashing import sha256_file as _sha256_file
 
     return _sha256_file(path, *args, **kwargs)
 
@@ -219,7 +219,7 @@ STUCK = f"cannot read file: {STUCK_REASON}"  # a reader stopped at its time limi
 
 
 def _unreadable(tree: RawTree, path: Path, error: str, transient: bool = False) -> IngestResult:
-    from pipeline.ingest.file import IngestResult
+    from pipeline.ingest.result import IngestResult
 
     return IngestResult(source_path=tree.rel(path), campaign=tree.campaign(path), error=error, transient=transient)
 
@@ -340,7 +340,7 @@ def _ingest_crashed(args, reason: str) -> dict:
 
 
 def _result_from_record(rec: FileRecord, tree: RawTree, path: Path) -> IngestResult:
-    from pipeline.ingest.file import IngestResult
+    from pipeline.ingest.result import IngestResult
 
     res = IngestResult(source_path=rec.source_path, campaign=tree.campaign(path))
     if rec.result is not None and "parts" in rec.result:  # a file of several runs

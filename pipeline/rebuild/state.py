@@ -413,7 +413,7 @@ def side_records(tree: RawTree, prev: PreviousState) -> tuple[list[FileRecord], 
         if old is not None and (old.size_bytes, old.mtime_ns, old.inode) == st:
             sha = old.source_sha256
         else:
-            from pipeline.ingest.file import sha256_file
+            from pipeline.ingest.hashing import sha256_file
             from pipeline.raw.rawfile import open_raw
 
             try:  # hashed through one descriptor, no symlink out of raw/ followed (pipeline.raw.rawfile)

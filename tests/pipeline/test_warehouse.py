@@ -161,7 +161,7 @@ def test_one_run_query_opens_only_that_runs_file(tmp_path):
 @pytest.mark.parametrize("run_id", ["c/plain", "c/with space", "c/..dots..", "c/_x_", "c/été-ü", "c/" + "y" * 100,
                                     "c/a'b", "c/[x]*?"])
 def test_the_safe_name_in_sql_is_the_ingests(run_id):
-    from pipeline.ingest.file import safe_file_name
+    from pipeline.ingest.samples import safe_file_name
     from pipeline.warehouse import SAFE_NAME_SQL
 
     con = duckdb.connect()

@@ -13,7 +13,7 @@ import pytest
 import pipeline.raw.logbook as logbook
 import pipeline.raw.tree as raw_tree
 import pipeline.rebuild.flow as rb
-from pipeline.ingest.file import sha256_file
+from pipeline.ingest.hashing import sha256_file
 from pipeline.raw.rawfile import RawOpenError, open_raw
 from pipeline.readers import list_parts, read_export
 from pipeline.rebuild.flow import EXIT_QUARANTINED, rebuild

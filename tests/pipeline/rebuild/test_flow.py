@@ -282,7 +282,7 @@ def test_a_reader_that_segfaults_with_one_job_quarantines_its_file_and_the_rest_
     # C code (scipy's loadmat on a corrupt MAT file did this) costs one file, not the rebuild
     import os
 
-    import pipeline.ingest.file as ing
+    import pipeline.raw.metadata as ing
     from pipeline.rebuild.flow import CRASHED
     from tests.conftest import segfault
 

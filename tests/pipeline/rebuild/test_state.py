@@ -271,7 +271,7 @@ def test_project_imports_follows_imports_transitively(tmp_path, monkeypatch):
 
 def test_a_new_file_is_hashed_once(raw, warehouse, monkeypatch, tmp_path):
     # a new file is hashed by ingest while it parses it; a touched one by the rebuild, to decide
-    import pipeline.ingest.file as ing
+    import pipeline.ingest.hashing as ing
 
     log = ReadLog(tmp_path / "calls.jsonl")
     real = ing.sha256_file
@@ -337,7 +337,7 @@ def test_a_retried_file_is_read_again_not_taken_from_a_samples_file_of_the_same_
 
 
 def test_a_file_that_cannot_be_opened_is_tried_again_next_time(raw, warehouse, monkeypatch):
-    import pipeline.ingest.file as ing
+    import pipeline.raw.metadata as ing
 
     step(raw, "c/a.csv")
     age(raw.root)
@@ -362,7 +362,7 @@ def test_a_file_growing_while_its_reader_reads_it_is_not_published_and_is_read_n
     # with the changes) and read whole at the next rebuild.
     import hashlib
 
-    import pipeline.ingest.file as ing
+    import pipeline.raw.metadata as ing
 
     step(raw, "c/a.csv")
     step(raw, "c/b.csv")
@@ -453,7 +453,7 @@ def test_a_workbook_of_sheets_is_one_state_record_reused_read_by_its_bytes(raw, 
 
 
 def test_result_runs_and_record_result_round_trip_parts():
-    from pipeline.ingest.file import IngestResult
+    from pipeline.ingest.result import IngestResult
     from pipeline.rebuild.state import record_result, result_runs
 
     single = IngestResult("c/a.csv", "c", run={"run_id": "c/a", "samples_path": "s/a.parquet"}, channels=[{"c": 1}])

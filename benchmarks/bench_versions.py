@@ -1,0 +1,137 @@
+"""Before and after a change of the code, in one run: the commands a user waits for, timed as
+whole processes of both versions on the same raw tree, alternating.
+
+One command::
+
+    python -m benchmarks versions                                  # --ref main~1, 10,000 runs
+    python -m benchmarks.bench_versions --ref 8789976 --runs 1000  # a quick look
+
+The reference version is exported with ``git archive`` (as :mod:`benchmarks.same_behaviour`
+does) and run with this interpreter and these libraries, so only the code differs. The campaign
+is :mod:`benchmarks.bench_scale`'s (``benchmarks/_data/scale-N/``, reused when present). Each
+version builds its own warehouse from it once (``full``, timed), then, alternating before/after
+so that a change of the machine's load hits both alike (medians of ``--repeat``):
+
+* ``noop``: the same raw/ again;
+* ``one file``: one run file's bytes changed (a newline appended), rebuilt, then put back and
+  rebuilt again (untimed) so that both versions start the next round from the same state;
+* ``query start-up``: ``pneubench query "SELECT 1"`` (imports, the read-only door, the format);
+* ``one-run query``: one run's samples through the view, as ``bench_scale`` times it.
+
+Prints a table with the ratio after / before for each, and exits 1 when a median got slower by
+more than ``--tolerance`` (default 15 %, about the spread of repeated runs on a shared machine)
+and by more than 50 ms.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+from benchmarks.bench_scale import DATA, _age, make_campaign
+from benchmarks.proc import measure
+from benchmarks.same_behaviour import export
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def command(tree: Path) -> list[str]:
+    """``pneubench`` of the code under ``tree``, with this interpreter."""
+    return [sys.executable, "-c", f"import sys; sys.path.insert(0, {str(tree)!r}); "
+            "from pipeline.cli import main; main()"]
+
+
+def _env(tree: Path) -> dict:
+    env = dict(os.environ, PYTHONPATH=str(tree))
+    env.pop("PNEUBENCH_RAW", None)
+    env.pop("PNEUBENCH_WAREHOUSE", None)
+    return env
+
+
+def _timed(tree: Path, *args: str) -> float:
+    m = measure([*command(tree), *args], cwd=tree, env=_env(tree))
+    if m.exit_code != 0:
+        raise SystemExit(f"{tree}: pneubench {' '.join(args[:1])} exited {m.exit_code}: {m.stderr.strip()[-300:]}")
+    return m.wall_s
+
+
+def run(ref: str, runs: int, repeat: int, seed: int) -> dict:
+    raw = make_campaign(DATA / f"scale-{runs}", runs, seed)
+    _age(raw)
+    work = Path(tempfile.mkdtemp(prefix="pneubench-versions-"))
+    try:
+        trees = {"before": export(ref, work / "before"), "after": ROOT}
+        wh = {name: work / f"warehouse-{name}" for name in trees}
+        rebuild = {name: ["rebuild", "--raw", str(raw), "--warehouse", str(wh[name]), "-q"] for name in trees}
+        times: dict[str, dict[str, list[float]]] = {name: {} for name in trees}
+
+        def add(name, what, seconds):
+            times[name].setdefault(what, []).append(seconds)
+
+        for name, tree in trees.items():
+            add(name, "full", _timed(tree, *rebuild[name]))
+            print(f"  {name}: full rebuild {times[name]['full'][0]:.1f} s", flush=True)
+        victim = next(p for p in sorted(raw.rglob("*.csv")) if p.name not in ("manifest.csv", "hoses.csv"))
+        original = victim.read_bytes()
+        query = {name: ["query", "--warehouse", str(wh[name]), "--format", "csv"] for name in trees}
+        run_id = measure([*command(ROOT), *query["after"], "SELECT min(run_id) FROM runs WHERE samples_path IS NOT NULL"],
+                         cwd=ROOT, env=_env(ROOT)).stdout.splitlines()[1].strip()
+        kind = measure([*command(ROOT), *query["after"], f"SELECT kind FROM runs WHERE run_id = '{run_id}'"],
+                       cwd=ROOT, env=_env(ROOT)).stdout.splitlines()[1].strip()
+        for i in range(repeat):
+            order = list(trees) if i % 2 == 0 else list(reversed(trees))
+            for name in order:
+                tree = trees[name]
+                add(name, "noop", _timed(tree, *rebuild[name]))
+                victim.write_bytes(original + b"\n")
+                try:
+                    add(name, "one file", _timed(tree, *rebuild[name]))
+                finally:
+                    victim.write_bytes(original)
+                    _age(raw)
+                _timed(tree, *rebuild[name])
+                add(name, "query start-up", _timed(tree, *query[name], "SELECT 1"))
+                add(name, "one-run query", _timed(tree, *query[name],
+                                                  f"SELECT * FROM samples_{kind} WHERE run_id = '{run_id}'"))
+        return {name: {what: statistics.median(v) for what, v in t.items()} for name, t in times.items()}
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--ref", default="main~1", help="the version before (a commit, branch or tag)")
+    ap.add_argument("--runs", type=int, default=10000, help="campaign size")
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--seed", type=int, default=7)
+    ap.add_argument("--tolerance", type=float, default=0.15)
+    ap.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args(argv)
+    rev = subprocess.run(["git", "rev-parse", "--short", args.ref], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+    print(f"before: {args.ref} ({rev}); after: this checkout; {args.runs} runs, {os.cpu_count()} cores; "
+          f"load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}", flush=True)
+    med = run(args.ref, args.runs, args.repeat, args.seed)
+    print(f"\n| command ({args.runs:,} runs) | before [s] | after [s] | after / before |")
+    print("|---|---|---|---|")
+    slower = []
+    for what in med["before"]:
+        b, a = med["before"][what], med["after"][what]
+        print(f"| {what} | {b:.3f} | {a:.3f} | {a / b:.2f} |")
+        if what != "full" and a > b * (1 + args.tolerance) and a - b > 0.05:
+            slower.append(what)
+    print(f"load average after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+    if args.json:
+        args.json.write_text(json.dumps({"ref": rev, "runs": args.runs, "medians": med}, indent=1))
+    if slower:
+        print(f"SLOWER: {', '.join(slower)}")
+    return 1 if slower else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
