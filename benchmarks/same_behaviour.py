@@ -13,8 +13,10 @@ is compared too) and rebuilds it into its own warehouse as a process (``-q --job
   ``EXCEPT ALL`` both ways over every table, both databases attached read-only); columns that
   name the code or the moment (:data:`VOLATILE`: a generation id, timestamps, code versions and
   the hashed stage-folder names derived from them) are left out and listed;
-- **samples**: every run's samples Parquet file, byte for byte, matched by run_id (a file's
-  name carries a key that hashes the ingest code version, so paths are compared with it masked);
+- **samples**: every run's samples Parquet file matched by run_id: schema, every column's value
+  buffers, row groups and the footer's metadata, byte for byte, except the file key (it hashes
+  the ingest code version, so a refactor of the ingest renames every file and the footer names
+  its own path): masked in paths and footers;
 - **figures**: every stage figure's PNG bytes, by (stage, name);
 - **report**: ``report/index.html`` and every run page, after masking the build's time and
   durations;
@@ -163,8 +165,33 @@ def compare_tables(db_a: Path, db_b: Path) -> tuple[list[str], list[str]]:
     return diffs, left_out
 
 
+def samples_digest(path: Path) -> str:
+    """Digest of a samples Parquet file as a reader sees it: its schema, every column's values
+    and the footer's key-value metadata, with the file key (which hashes the ingest code
+    version, :data:`_KEY`) masked in the footer (it names the file's own path)."""
+    import pyarrow.parquet as pq
+
+    f = pq.ParquetFile(path)
+    h = hashlib.sha256()
+    # ARROW:schema is the serialised schema (metadata included): compared below, key masked
+    meta = {k.decode(): re.sub(_KEY, "-<key>.parquet", v.decode()) for k, v in (f.metadata.metadata or {}).items()
+            if k != b"ARROW:schema"}
+    h.update(repr(sorted(meta.items())).encode())
+    h.update(re.sub(_KEY, "-<key>.parquet", f.schema_arrow.to_string(show_schema_metadata=True, truncate_metadata=False)).encode())
+    for i in range(f.num_row_groups):  # the layout a reader meets: rows, codecs, encodings per chunk
+        rg = f.metadata.row_group(i)
+        h.update(repr([rg.num_rows] + [(rg.column(j).compression, rg.column(j).encodings)
+                                       for j in range(rg.num_columns)]).encode())
+    table = f.read()
+    for name in table.column_names:
+        for chunk in table[name].combine_chunks().buffers():
+            h.update(b"" if chunk is None else chunk.to_pybytes())
+    return h.hexdigest()
+
+
 def compare_samples(wa: Path, wb: Path) -> list[str]:
-    """Every run's samples Parquet bytes, matched by run_id through each database's ``runs``."""
+    """Every run's samples Parquet file (schema, values, row groups and footer metadata, the
+    file key masked: :func:`samples_digest`), matched by run_id through each database's ``runs``."""
     import duckdb
 
     def digests(wh: Path) -> dict[str, str]:
@@ -173,7 +200,7 @@ def compare_samples(wa: Path, wb: Path) -> list[str]:
             rows = con.execute("SELECT run_id, samples_path FROM runs").fetchall()
         finally:
             con.close()
-        return {r: hashlib.sha256((wh / p).read_bytes()).hexdigest() if p else "" for r, p in rows}
+        return {r: samples_digest(wh / p) if p else "" for r, p in rows}
 
     da, db = digests(wa), digests(wb)
     diff = sorted(k for k in set(da) | set(db) if da.get(k) != db.get(k))

@@ -59,20 +59,38 @@ def _runs_db(wh: Path, paths: dict[str, bytes]) -> Path:
     return wh
 
 
+def _samples(rel: str, values: list[float], compression: str = "zstd") -> bytes:
+    """A samples file as the ingest writes one: a column and a footer that names its own path."""
+    import io
+    import json
+
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    table = pa.table({"t_s": pa.array(values, pa.float64())})
+    table = table.replace_schema_metadata({"pneubench": json.dumps({"samples_path": rel})})
+    buf = io.BytesIO()
+    pq.write_table(table, buf, compression=compression)
+    return buf.getvalue()
+
+
 def test_samples_renamed_by_a_new_ingest_code_version_are_the_same_and_changed_bytes_are_not(tmp_path):
     from benchmarks.same_behaviour import compare_samples
 
-    a = _runs_db(tmp_path / "a", {"samples/c/r1-0123456789abcdef.parquet": b"one",
-                                  "samples/c/r2-1111111111111111.parquet": b"two"})
-    b = _runs_db(tmp_path / "b", {"samples/c/r1-fedcba9876543210.parquet": b"one",
-                                  "samples/c/r2-2222222222222222.parquet": b"two"})
+    def tree(name, files):
+        return _runs_db(tmp_path / name, {rel: _samples(rel, *args) for rel, args in files.items()})
+
+    a = tree("a", {"samples/c/r1-0123456789abcdef.parquet": ([1.0],), "samples/c/r2-1111111111111111.parquet": ([2.0],)})
+    b = tree("b", {"samples/c/r1-fedcba9876543210.parquet": ([1.0],), "samples/c/r2-2222222222222222.parquet": ([2.0],)})
     assert compare_samples(a, b) == []
     assert compare_tables(a / "pneubench.duckdb", b / "pneubench.duckdb") == ([], [])
-    c = _runs_db(tmp_path / "c", {"samples/c/r1-0123456789abcdef.parquet": b"one",
-                                  "samples/c/r2-1111111111111111.parquet": b"TWO"})
+    c = tree("c", {"samples/c/r1-0123456789abcdef.parquet": ([1.0],), "samples/c/r2-1111111111111111.parquet": ([2.5],)})
     assert compare_samples(a, c) == ["samples: 1 of 2 runs differ, e.g. ['r2']"]
-    d = _runs_db(tmp_path / "d", {"samples/c/r1-0123456789abcdef.parquet": b"one",
-                                  "samples/other/r2-1111111111111111.parquet": b"two"})
+    e = tree("e", {"samples/c/r1-0123456789abcdef.parquet": ([1.0], "snappy"),
+                   "samples/c/r2-1111111111111111.parquet": ([2.0],)})
+    assert compare_samples(a, e) == ["samples: 1 of 2 runs differ, e.g. ['r1']"]  # same values, other codec
+    d = tree("d", {"samples/c/r1-0123456789abcdef.parquet": ([1.0],),
+                   "samples/other/r2-1111111111111111.parquet": ([2.0],)})
     diffs, _ = compare_tables(a / "pneubench.duckdb", d / "pneubench.duckdb")
     assert diffs == ["ingest_state: 1 rows only before, 1 only after (columns ['result', 'samples_paths'])",
                      "runs: 1 rows only before, 1 only after (columns ['samples_path'])"]
