@@ -38,7 +38,7 @@ from pipeline.progress import Progress
 from pipeline.simulator import durability as dur
 from pipeline.simulator import foreign, pla, plpa
 from pipeline.simulator.base import HOSE_AREA_M2, P_ATM_PA, jsonable
-from pipeline.simulator.hoses import plan_hoses
+from pipeline.simulator.hoses import HOSES_COLUMNS, plan_hoses
 from pipeline.simulator.plan import Planner, RunPlan
 from pipeline.simulator.profiles import PROFILES, Profile
 from pipeline.simulator.runs import EMBED_ORDER, write_run
@@ -109,11 +109,8 @@ def _to_count(pl: Planner, runs: int, n_dur: int) -> None:
 
 
 # -- writing -----------------------------------------------------------------------------------
-HOSES_COLUMNS = ["hose_id", "event", "at", "hose_type", "adjustment", "z_rollers_mm", "spring_force_n",
-                 "failure_mode", "wall_thickness_mm", "distance_km", "notes"]
-
-
 def _csv_text(rows: list[dict], columns: list[str]) -> str:
+    """Rows as CSV text under ``columns`` (None empty, floats as ``repr``)."""
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=columns, lineterminator="\n", extrasaction="ignore")
     w.writeheader()

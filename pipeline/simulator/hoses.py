@@ -19,6 +19,9 @@ from pipeline.simulator.plan import Planner, RunSpec, iso
 from pipeline.simulator.profiles import Profile
 
 HOSE_TYPE = "FLEXIGOM AIR"
+#: The columns of a campaign's ``hoses.csv`` (the logbook events' fields).
+HOSES_COLUMNS = ["hose_id", "event", "at", "hose_type", "adjustment", "z_rollers_mm", "spring_force_n",
+                 "failure_mode", "wall_thickness_mm", "distance_km", "notes"]
 
 
 @dataclass(frozen=True)

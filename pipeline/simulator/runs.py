@@ -93,6 +93,7 @@ def write_run(out_dir: Path, plan: RunPlan, seed: int, chunk_rows: int = 2_000_0
 
 
 def _ordered(meta: dict) -> dict:
+    """``meta`` with the :data:`EMBED_ORDER` keys first, the others sorted."""
     head = {k: meta[k] for k in EMBED_ORDER if k in meta}
     return {**head, **{k: meta[k] for k in sorted(meta) if k not in head}}
 
@@ -108,6 +109,7 @@ def _manifest_row(meta: dict, variant: dict) -> dict:
 
 
 def _variant_columns(kind_columns: list[str], variant: dict) -> list[ColumnOut]:
+    """The export columns of a variant: its raw units and names over the canonical ones."""
     return default_columns(kind_columns, variant.get("units"), variant.get("names"))
 
 

@@ -9,6 +9,10 @@ with the shortest text that round-trips, so ingest gives back the SI values to f
 Columns that are not canonical (e.g. ``temperature_degc`` exported as ``temperature[degC]``) are
 written as they are: ingest keeps them unconverted under ``<sanitised name>_<unit suffix>``, with
 their unit recorded.
+
+A format's layout is given by keyword (``write_csv(path, data, columns, meta, delimiter=";")``):
+the keywords are the fields of its options dataclass (:class:`CsvOptions`, :class:`LvmOptions`,
+:class:`TdmsOptions`), so the campaign's variants can keep them as plain dicts.
 """
 from __future__ import annotations
 

@@ -6,7 +6,7 @@ import dataclasses
 
 import pytest
 
-from pipeline.simulator.hoses import HOSE_TYPE, LoggedHose, plan_hoses
+from pipeline.simulator.hoses import HOSE_TYPE, HOSES_COLUMNS, LoggedHose, plan_hoses
 from pipeline.simulator.plan import Planner
 from pipeline.simulator.profiles import PROFILES
 
@@ -62,3 +62,9 @@ def test_logged_hose_fields_are_frozen():
     hose = LoggedHose("H101", "distance", 0, "durability-2025", True, 30.0, 30.0, "failed")
     with pytest.raises(dataclasses.FrozenInstanceError):
         hose.outcome = "removed"
+
+
+def test_hoses_csv_has_a_column_for_every_event_field():
+    pl = _planned()
+    fields = {k for book in pl.logbooks.values() for row in book for k in row}
+    assert fields <= set(HOSES_COLUMNS) and {"wall_thickness_mm", "failure_mode", "notes"} <= fields
