@@ -36,7 +36,7 @@ DATA = Path(__file__).resolve().parent / "_data"
 
 def full_profile_km() -> float:
     """Distance of one durability run of the simulator's ``full`` profile [km] (10 km, ~8 h)."""
-    from pipeline.simulator.campaign import PROFILES
+    from pipeline.simulator.profiles import PROFILES
 
     return PROFILES["full"].dur_run_km
 

@@ -62,8 +62,9 @@ import numpy as np
 import pandas as pd
 
 from pipeline.simulator import pla, plpa
-from pipeline.simulator.base import HOSE_AREA_M2, SimRun, jsonable, time_vector
-from pipeline.simulator.writers import ColumnOut, _meta_text, write_csv, write_lvm, write_mat, write_tdms
+from pipeline.simulator.base import HOSE_AREA_M2, SimRun, jsonable, make_rng, quantise, time_vector
+from pipeline.simulator.writers import ColumnOut, meta_text, write_csv, write_lvm, write_mat, write_tdms
+from schemas.channels import CHANNELS, noncanonical_column
 
 CAMPAIGN = "foreign-2026"
 START = datetime(2026, 2, 2, 9, 0, 0)
@@ -201,33 +202,49 @@ def _drop_samples(data: pd.DataFrame, column: str, share: float, rng: np.random.
     return out
 
 
-def _ventilator(rng: np.random.Generator, fs_hz: float, breaths: int, peep_pa: float, pip_pa: float, ramp_s: float,
-                insp_s: float, exp_s: float, tau_s: float, noise_pa: float) -> SimRun:
+@dataclass(frozen=True)
+class Ventilator:
+    """A ventilator's breaths: set-point PEEP ``peep_pa`` held ``exp_s``, a ramp of ``ramp_s`` to PIP
+    ``pip_pa`` held until ``insp_s`` after the ramp's start; the pressure lags the set-point by
+    ``tau_s`` with white noise ``noise_pa``, logged at ``fs_hz``. [Pa gauge, s, Hz]"""
+
+    fs_hz: float
+    breaths: int
+    peep_pa: float
+    pip_pa: float
+    ramp_s: float
+    insp_s: float
+    exp_s: float
+    tau_s: float
+    noise_pa: float
+
+
+def _ventilator(rng: np.random.Generator, v: Ventilator) -> SimRun:
     """A ventilator's pressure loop: the set-point holds PEEP for ``exp_s``, rises to PIP over ``ramp_s``
     in one-sample plateaus (a new value every sample), holds PIP until ``insp_s`` after the ramp's
     start, drops to PEEP; the pressure follows it as a first-order lag ``tau_s`` (exact for a set-point
     held over each sample), with white noise ``noise_pa``, logged at 1 Pa. [Pa gauge]"""
-    n_exp, n_ramp, n_insp = (int(round(v * fs_hz)) for v in (exp_s, ramp_s, insp_s))
-    ramp = peep_pa + (pip_pa - peep_pa) * np.arange(1, n_ramp + 1) / n_ramp
-    breath = np.concatenate([np.full(n_exp, peep_pa), ramp, np.full(n_insp - n_ramp, pip_pa)])
-    ref = np.round(np.concatenate([np.tile(breath, breaths), np.full(n_exp, peep_pa)]), 6)
-    t = time_vector(ref.size, fs_hz)
-    alpha = np.exp(-1.0 / (fs_hz * tau_s))
+    n_exp, n_ramp, n_insp = (int(round(d * v.fs_hz)) for d in (v.exp_s, v.ramp_s, v.insp_s))
+    ramp = v.peep_pa + (v.pip_pa - v.peep_pa) * np.arange(1, n_ramp + 1) / n_ramp
+    breath = np.concatenate([np.full(n_exp, v.peep_pa), ramp, np.full(n_insp - n_ramp, v.pip_pa)])
+    ref = np.round(np.concatenate([np.tile(breath, v.breaths), np.full(n_exp, v.peep_pa)]), 6)
+    t = time_vector(ref.size, v.fs_hz)
+    alpha = np.exp(-1.0 / (v.fs_hz * v.tau_s))
     p = np.empty(ref.size)
-    p[0] = peep_pa
+    p[0] = v.peep_pa
     for i in range(1, ref.size):
         p[i] = ref[i - 1] + (p[i - 1] - ref[i - 1]) * alpha
     steps = []
-    for k in range(breaths):
-        t0 = (k * breath.size + n_exp) / fs_hz
-        steps.append({"t_step_s": t0, "p_from_pa": peep_pa, "p_to_pa": pip_pa, "direction": "charge",
-                      "ramp_s": ramp_s})
-        steps.append({"t_step_s": t0 + insp_s, "p_from_pa": pip_pa, "p_to_pa": peep_pa, "direction": "discharge",
-                      "ramp_s": 0.0})
-    data = pd.DataFrame({"t_s": t, "p_pa": np.round(p + rng.normal(0.0, noise_pa, p.size)), "p_ref_pa": ref})
+    for k in range(v.breaths):
+        t0 = (k * breath.size + n_exp) / v.fs_hz
+        steps.append({"t_step_s": t0, "p_from_pa": v.peep_pa, "p_to_pa": v.pip_pa, "direction": "charge",
+                      "ramp_s": v.ramp_s})
+        steps.append({"t_step_s": t0 + v.insp_s, "p_from_pa": v.pip_pa, "p_to_pa": v.peep_pa,
+                      "direction": "discharge", "ramp_s": 0.0})
+    data = pd.DataFrame({"t_s": t, "p_pa": np.round(p + rng.normal(0.0, v.noise_pa, p.size)), "p_ref_pa": ref})
     meta = {"kind": "pressure_step", "chamber": "front"}
-    truth = {"kind": "pressure_step", "chamber": "front", "model": "first_order", "tau_s": tau_s, "noise_pa": noise_pa,
-             "fs_hz": fs_hz, "steps": steps}
+    truth = {"kind": "pressure_step", "chamber": "front", "model": "first_order", "tau_s": v.tau_s,
+             "noise_pa": v.noise_pa, "fs_hz": v.fs_hz, "steps": steps}
     return SimRun(data, meta, truth)
 
 
@@ -288,8 +305,6 @@ def linear_drive(rng=None, *, force_lead_s: float = 0.0, **overrides) -> SimRun:
     (``moving_mass_kg``, ``fc_n``, ``ka_n_s_m``, ``force_offset_n``, ``force_lead_s``) and ``lag_s``
     (the lag as :func:`analyses.friction_dynamic.friction_dynamic` reports it: ``-force_lead_s``).
     """
-    from pipeline.simulator.base import make_rng, quantise
-
     p = {**LINEAR_DRIVE, **overrides}
     rng = make_rng(rng)
     n = int(round(p["duration_s"] * p["fs_hz"]))
@@ -348,7 +363,7 @@ def _write_logger_csv(path: Path, frame: pd.DataFrame, columns: list[ColumnOut],
     """The script's CSV: ``# key: value`` lines, ``# <comment>`` right above the header, the header
     as :data:`LOGGER_HEADERS`, then the rows exactly as :func:`write_csv` writes them."""
     write_csv(path, frame, columns, None, header=False)
-    head = [f"# {k}: {_meta_text(v)}" for k, v in metadata.items()] + [f"# {comment}"]
+    head = [f"# {k}: {meta_text(v)}" for k, v in metadata.items()] + [f"# {comment}"]
     head.append(",".join(LOGGER_HEADERS[c.column] for c in columns))
     path.write_bytes(("\n".join(head) + "\n").encode("utf-8") + path.read_bytes())
 
@@ -358,7 +373,7 @@ def simulate(run: ForeignRun, seed: int) -> SimRun:
     load-cell run's ``f_n`` is the derived drive force, ``f_cell_n`` the cell's reading)."""
     rng = np.random.default_rng([int(seed), 1000 + run.index])
     if run.stem == "ventilator-ramp":
-        return _ventilator(rng, **run.sim)
+        return _ventilator(rng, Ventilator(**run.sim))
     if run.folder == "lineardrive":
         return linear_drive(rng, **run.sim)
     if run.kind == "viscous":
@@ -431,8 +446,6 @@ def write_run(out_dir: Path, run: ForeignRun, seed: int) -> dict:
 
 def _expected_columns(run: ForeignRun) -> dict:
     """Samples columns and their stored units, as ingest must write them."""
-    from schemas.channels import CHANNELS, noncanonical_column
-
     by_column = {c.column: c for c in CHANNELS.values()}
     out = {"t_s": "s"}
     for c in _export_columns(run):

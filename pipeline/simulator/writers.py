@@ -9,18 +9,28 @@ with the shortest text that round-trips, so ingest gives back the SI values to f
 Columns that are not canonical (e.g. ``temperature_degc`` exported as ``temperature[degC]``) are
 written as they are: ingest keeps them unconverted under ``<sanitised name>_<unit suffix>``, with
 their unit recorded.
+
+A format's layout is given by keyword (``write_csv(path, data, columns, meta, delimiter=";")``):
+the keywords are the fields of its options dataclass (:class:`CsvOptions`, :class:`LvmOptions`,
+:class:`TdmsOptions`), so the campaign's variants can keep them as plain dicts.
 """
 from __future__ import annotations
 
 import io
+import zipfile
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
+from datetime import datetime, timezone
 from pathlib import Path
+from xml.sax.saxutils import escape, quoteattr
 
 import numpy as np
 import pandas as pd
 import pyarrow as pa
 import pyarrow.csv as pacsv
+from asammdf import MDF, Signal
+from nptdms import ChannelObject, GroupObject, RootObject, TdmsWriter
+from scipy.io import savemat
 
 from schemas.channels import CHANNELS
 from schemas.units import P_ATM_DEFAULT_PA, lookup_unit
@@ -100,36 +110,52 @@ def _text_block(table: pa.Table, delimiter: str, decimal: str = ".") -> bytes:
     return data
 
 
-def _meta_text(value) -> str:
+def meta_text(value) -> str:
+    """A metadata value as the text a file header carries."""
     if isinstance(value, float) and value.is_integer() and abs(value) < 1e15:
         return repr(value)
     return str(value)
 
 
-def write_csv(path, data, columns: list[ColumnOut], metadata: dict | None = None, *, delimiter: str = ",",
-              decimal: str = ".", header: bool = True, p_atm_pa: float = P_ATM_DEFAULT_PA,
-              newline: str = "\n") -> Path:
-    """CSV / TXT: ``# key: value`` metadata lines, a ``name[unit]`` header row, data.
+@dataclass(frozen=True)
+class CsvOptions:
+    """How :func:`write_csv` lays out a text export.
 
     ``decimal=","`` needs ``delimiter`` ``;`` or tab (European spreadsheet export).
-    ``header=False`` writes data only (``rig.toml`` must describe the columns).
+    ``header=False`` writes data only (``rig.toml`` must describe the columns). ``p_atm_pa``:
+    the atmosphere absolute units are written against [Pa].
     """
-    if decimal == "," and delimiter == ",":
+
+    delimiter: str = ","
+    decimal: str = "."
+    header: bool = True
+    p_atm_pa: float = P_ATM_DEFAULT_PA
+    newline: str = "\n"
+
+
+def write_csv(path, data, columns: list[ColumnOut], metadata: dict | None = None, **options) -> Path:
+    """CSV / TXT: ``# key: value`` metadata lines, a ``name[unit]`` header row, data.
+
+    ``options`` are the fields of :class:`CsvOptions` (``delimiter``, ``decimal``, ``header``,
+    ``p_atm_pa``, ``newline``).
+    """
+    o = CsvOptions(**options)
+    if o.decimal == "," and o.delimiter == ",":
         raise ValueError("a decimal comma needs ';' or tab as delimiter")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "wb") as fh:
         head = []
         if metadata:
-            head += [f"# {k}: {_meta_text(v)}" for k, v in metadata.items()]
-        if header:
-            head.append(delimiter.join(f"{c.name}[{c.unit}]" for c in columns))
+            head += [f"# {k}: {meta_text(v)}" for k, v in metadata.items()]
+        if o.header:
+            head.append(o.delimiter.join(f"{c.name}[{c.unit}]" for c in columns))
         if head:
-            fh.write((newline.join(head) + newline).encode("utf-8"))
+            fh.write((o.newline.join(head) + o.newline).encode("utf-8"))
         for frame in _frames(data):
-            block = _text_block(_raw_table(frame, columns, p_atm_pa), delimiter, decimal)
-            if newline != "\n":
-                block = block.replace(b"\n", newline.encode())
+            block = _text_block(_raw_table(frame, columns, o.p_atm_pa), o.delimiter, o.decimal)
+            if o.newline != "\n":
+                block = block.replace(b"\n", o.newline.encode())
             fh.write(block)
     return path
 
@@ -138,57 +164,89 @@ def _lvm_number(v: float) -> str:
     return f"{v:.16E}".replace("E+00", "E+0").replace("E-00", "E-0")
 
 
-def write_lvm(path, data, columns: list[ColumnOut], metadata: dict | None = None, *, x_columns: str = "One",
-              segments: int = 1, p_atm_pa: float = P_ATM_DEFAULT_PA, date: str = "2025/03/03",
-              time: str = "08:00:00.000000", fs_hz: float | None = None) -> Path:
+@dataclass(frozen=True)
+class LvmOptions:
+    """How :func:`write_lvm` lays out an LVM file.
+
+    ``x_columns="One"`` writes the time column ``X_Value`` (needs a ``t_s`` column, not in
+    ``columns``); ``"No"`` leaves the X field of every row empty, as LabVIEW does (time from
+    ``X0`` + k ``Delta_X``; give ``fs_hz`` [Hz]). ``segments`` splits the samples into that many
+    segments, each with its own header. ``date`` (``YYYY/MM/DD``) and ``time`` are the headers'
+    start; ``p_atm_pa``: the atmosphere absolute units are written against [Pa].
+    """
+
+    x_columns: str = "One"
+    segments: int = 1
+    p_atm_pa: float = P_ATM_DEFAULT_PA
+    date: str = "2025/03/03"
+    time: str = "08:00:00.000000"
+    fs_hz: float | None = None
+
+
+def write_lvm(path, data, columns: list[ColumnOut], metadata: dict | None = None, **options) -> Path:
     """LVM as LabVIEW's *Write To Measurement File* writes it (tab separated, ``.`` decimal).
 
     The file header's ``Description`` carries the metadata as ``key=value`` pairs joined by
-    ``;``. ``x_columns="One"`` writes the time column ``X_Value`` (needs a ``t_s`` column, not in
-    ``columns``); ``"No"`` leaves the X field of every row empty, as LabVIEW does (time from
-    ``X0`` + k ``Delta_X``; give ``fs_hz``).
-    ``segments`` splits the samples into that many segments, each with its own header.
+    ``;``. ``options`` are the fields of :class:`LvmOptions` (``x_columns``, ``segments``,
+    ``p_atm_pa``, ``date``, ``time``, ``fs_hz``).
     """
+    o = LvmOptions(**options)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     frame = pd.concat(list(_frames(data)), ignore_index=True)
     n = len(frame)
     t = frame["t_s"].to_numpy()
-    dt = (1.0 / fs_hz) if fs_hz else (float(np.round(1.0 / np.median(np.diff(t)), 6)) ** -1 if n > 1 else 1.0)
-    nch = len(columns)
-    lines = ["LabVIEW Measurement\t", "Writer_Version\t2", "Reader_Version\t2", "Separator\tTab",
-             "Decimal_Separator\t.", "Multi_Headings\tNo", f"X_Columns\t{x_columns}", "Time_Pref\tRelative",
-             f"Operator\t{(metadata or {}).get('operator', 'lab')}", f"Date\t{date}", f"Time\t{time}"]
-    if metadata:
-        lines.append("Description\t" + ";".join(f"{k}={_meta_text(v)}" for k, v in metadata.items()))
-    lines += ["***End_of_Header***", "\t"]
-    bounds = np.linspace(0, n, segments + 1).round().astype(int)
+    dt = (1.0 / o.fs_hz) if o.fs_hz else (float(np.round(1.0 / np.median(np.diff(t)), 6)) ** -1 if n > 1 else 1.0)
+    bounds = np.linspace(0, n, o.segments + 1).round().astype(int)
     with open(path, "wb") as fh:
-        fh.write(("\r\n".join(lines) + "\r\n").encode("utf-8"))
-        for s in range(segments):
+        fh.write(_lvm_file_header(metadata, o))
+        for s in range(o.segments):
             a, b = int(bounds[s]), int(bounds[s + 1])
             part = frame.iloc[a:b]
             x0 = float(t[a]) if b > a else 0.0
-            rep = lambda v: "\t".join([v] * nch)  # noqa: E731
-            seg = [f"Channels\t{nch}\t", "Samples\t" + rep(str(b - a)), "Date\t" + rep(date), "Time\t" + rep(time),
-                   "Y_Unit_Label\t" + "\t".join(c.unit for c in columns), "X_Dimension\t" + rep("Time"),
-                   "X_Unit_Label\t" + rep("s"), "X0\t" + rep(_lvm_number(x0)), "Delta_X\t" + rep(repr(dt)),
-                   "***End_of_Header***"]
-            names = "\t".join(c.name for c in columns)
-            seg.append("X_Value\t" + names + "\tComment")
-            fh.write(("\r\n".join(seg) + "\r\n").encode("utf-8"))
-            table = _raw_table(part, columns, p_atm_pa)
-            if x_columns == "One":
-                table = pa.table([pa.array(part["t_s"].to_numpy())] + table.columns,
-                                 names=["t"] + table.column_names)
-                fh.write(_text_block(table, "\t").replace(b"\n", b"\r\n"))
-            else:  # LabVIEW leaves the X field of every data row empty
-                block = _text_block(table, "\t")
-                if block:
-                    fh.write(b"\t" + block[:-1].replace(b"\n", b"\r\n\t") + b"\r\n")
-            if s + 1 < segments:
+            fh.write(_lvm_segment_header(columns, b - a, x0, dt, o))
+            fh.write(_lvm_rows(part, columns, o))
+            if s + 1 < o.segments:
                 fh.write(b"\r\n")
     return path
+
+
+def _lvm_file_header(metadata: dict | None, o: LvmOptions) -> bytes:
+    """The LVM file header, metadata in its ``Description``, up to the first segment."""
+    lines = ["LabVIEW Measurement\t", "Writer_Version\t2", "Reader_Version\t2", "Separator\tTab",
+             "Decimal_Separator\t.", "Multi_Headings\tNo", f"X_Columns\t{o.x_columns}", "Time_Pref\tRelative",
+             f"Operator\t{(metadata or {}).get('operator', 'lab')}", f"Date\t{o.date}", f"Time\t{o.time}"]
+    if metadata:
+        lines.append("Description\t" + ";".join(f"{k}={meta_text(v)}" for k, v in metadata.items()))
+    lines += ["***End_of_Header***", "\t"]
+    return ("\r\n".join(lines) + "\r\n").encode("utf-8")
+
+
+def _lvm_segment_header(columns: list[ColumnOut], n: int, x0: float, dt: float, o: LvmOptions) -> bytes:
+    """A segment's header: ``n`` samples per channel from ``x0`` [s] every ``dt`` [s], the names row."""
+    nch = len(columns)
+    rep = lambda v: "\t".join([v] * nch)  # noqa: E731
+    seg = [f"Channels\t{nch}\t", "Samples\t" + rep(str(n)), "Date\t" + rep(o.date), "Time\t" + rep(o.time),
+           "Y_Unit_Label\t" + "\t".join(c.unit for c in columns), "X_Dimension\t" + rep("Time"),
+           "X_Unit_Label\t" + rep("s"), "X0\t" + rep(_lvm_number(x0)), "Delta_X\t" + rep(repr(dt)),
+           "***End_of_Header***"]
+    names = "\t".join(c.name for c in columns)
+    seg.append("X_Value\t" + names + "\tComment")
+    return ("\r\n".join(seg) + "\r\n").encode("utf-8")
+
+
+def _lvm_rows(part: pd.DataFrame, columns: list[ColumnOut], o: LvmOptions) -> bytes:
+    """A segment's data rows (CRLF), with the time as ``X_Value`` or the X field left empty."""
+    table = _raw_table(part, columns, o.p_atm_pa)
+    if o.x_columns == "One":
+        table = pa.table([pa.array(part["t_s"].to_numpy())] + table.columns,
+                         names=["t"] + table.column_names)
+        return _text_block(table, "\t").replace(b"\n", b"\r\n")
+    # LabVIEW leaves the X field of every data row empty
+    block = _text_block(table, "\t")
+    if block:
+        return b"\t" + block[:-1].replace(b"\n", b"\r\n\t") + b"\r\n"
+    return b""
 
 
 def _tdms_value(v):
@@ -199,44 +257,61 @@ def _tdms_value(v):
     return v
 
 
-def write_tdms(path, data, columns: list[ColumnOut], metadata: dict | None = None, *, group: str = "Data",
-               waveform: bool = False, fs_hz: float | None = None, extra_group: str | None = None,
-               p_atm_pa: float = P_ATM_DEFAULT_PA) -> Path:
+@dataclass(frozen=True)
+class TdmsOptions:
+    """How :func:`write_tdms` lays out a TDMS file.
+
+    ``group``: the data group's name. ``waveform=True`` writes no time channel:
+    ``wf_increment`` = 1/``fs_hz`` [Hz] and ``wf_start_offset`` = 0 carry the timing.
+    ``extra_group`` adds a second group (a settings log) before the data group; the metadata then
+    needs ``group`` naming the data group. ``p_atm_pa``: the atmosphere absolute units are written
+    against [Pa].
+    """
+
+    group: str = "Data"
+    waveform: bool = False
+    fs_hz: float | None = None
+    extra_group: str | None = None
+    p_atm_pa: float = P_ATM_DEFAULT_PA
+
+
+def write_tdms(path, data, columns: list[ColumnOut], metadata: dict | None = None, **options) -> Path:
     """TDMS with nptdms: metadata as root properties, ``unit_string`` per channel.
 
-    ``waveform=True`` writes no time channel: ``wf_increment`` = 1/fs and ``wf_start_offset`` = 0
-    carry the timing. Each chunk of ``data`` becomes one TDMS segment (bounded memory).
-    ``extra_group`` adds a second group (a settings log) before the data group; the metadata
-    then needs ``group`` naming the data group.
+    Each chunk of ``data`` becomes one TDMS segment (bounded memory). ``options`` are the fields
+    of :class:`TdmsOptions` (``group``, ``waveform``, ``fs_hz``, ``extra_group``, ``p_atm_pa``).
     """
-    from nptdms import ChannelObject, GroupObject, RootObject, TdmsWriter
-
+    o = TdmsOptions(**options)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     first = True
     with TdmsWriter(str(path)) as writer:
         for frame in _frames(data):
-            objs = []
-            if first:
-                objs.append(RootObject(properties={k: _tdms_value(v) for k, v in (metadata or {}).items()}))
-                if extra_group:
-                    objs.append(GroupObject(extra_group, properties={"description": "valve settings"}))
-                    objs.append(ChannelObject(extra_group, "valve_gain", np.array([1.0, 1.0]),
-                                              properties={"unit_string": "V"}))
-                objs.append(GroupObject(group, properties={}))
-            if not waveform:
+            objs = _tdms_head(metadata, o) if first else []
+            if not o.waveform:
                 props = {"unit_string": "s"} if first else {}
-                objs.append(ChannelObject(group, "t", frame["t_s"].to_numpy(), properties=props))
+                objs.append(ChannelObject(o.group, "t", frame["t_s"].to_numpy(), properties=props))
             for c in columns:
                 props = {}
                 if first:
                     props = {"unit_string": c.unit}
-                    if waveform:
-                        props.update(wf_increment=1.0 / fs_hz, wf_start_offset=0.0, wf_samples=len(frame))
-                objs.append(ChannelObject(group, c.name, _raw_values(frame, c, p_atm_pa), properties=props))
+                    if o.waveform:
+                        props.update(wf_increment=1.0 / o.fs_hz, wf_start_offset=0.0, wf_samples=len(frame))
+                objs.append(ChannelObject(o.group, c.name, _raw_values(frame, c, o.p_atm_pa), properties=props))
             writer.write_segment(objs)
             first = False
     return path
+
+
+def _tdms_head(metadata: dict | None, o: TdmsOptions) -> list:
+    """The first segment's root (the metadata), the settings group if any, and the data group."""
+    objs = [RootObject(properties={k: _tdms_value(v) for k, v in (metadata or {}).items()})]
+    if o.extra_group:
+        objs.append(GroupObject(o.extra_group, properties={"description": "valve settings"}))
+        objs.append(ChannelObject(o.extra_group, "valve_gain", np.array([1.0, 1.0]),
+                                  properties={"unit_string": "V"}))
+    objs.append(GroupObject(o.group, properties={}))
+    return objs
 
 
 def write_mat(path, data, columns: list[ColumnOut], metadata: dict | None = None, *, scalars: bool = False,
@@ -245,8 +320,6 @@ def write_mat(path, data, columns: list[ColumnOut], metadata: dict | None = None
 
     ``scalars=True`` stores numeric metadata as top-level scalars instead of ``meta`` fields.
     """
-    from scipy.io import savemat
-
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     frame = pd.concat(list(_frames(data)), ignore_index=True)
@@ -278,8 +351,6 @@ def write_mat(path, data, columns: list[ColumnOut], metadata: dict | None = None
 
 
 def _xml_cell(ref: str, v) -> str:
-    from xml.sax.saxutils import escape
-
     if isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool):
         return f'<c r="{ref}"><v>{float(v)!r}</v></c>' if np.isfinite(v) else ""
     return f'<c r="{ref}" t="inlineStr"><is><t>{escape(str(v))}</t></is></c>'
@@ -312,8 +383,6 @@ def write_xlsx(path, data, columns: list[ColumnOut], metadata: dict | None = Non
     Written directly as Office Open XML (a zip of a few XML parts) with fixed zip time stamps,
     so the same run gives the same bytes. Excel holds at most 1,048,576 rows per sheet.
     """
-    import zipfile
-
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     frame = pd.concat(list(_frames(data)), ignore_index=True)
@@ -372,10 +441,6 @@ def write_mf4(path, data, columns: list[ColumnOut], metadata: dict | None = None
     master channel, metadata as MDF 4 ``common_properties`` of the header comment, ``started_at`` as the
     header's start time. The file history's time stamp is set to the start time too, so the same
     run gives the same bytes."""
-    from datetime import datetime, timezone
-
-    from asammdf import MDF, Signal
-
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     frame = pd.concat(list(_frames(data)), ignore_index=True)
@@ -387,10 +452,8 @@ def write_mf4(path, data, columns: list[ColumnOut], metadata: dict | None = None
         start = datetime.fromisoformat(str(meta["started_at"])).replace(tzinfo=timezone.utc)
     mdf = MDF(version="4.10")
     mdf.header.start_time = start
-    from xml.sax.saxutils import escape, quoteattr
-
     mdf.header.comment = ("<HDcomment><TX>pneubench simulator</TX><common_properties>"
-                          + "".join(f"<e name={quoteattr(str(k))}>{escape(_meta_text(v))}</e>" for k, v in meta.items())
+                          + "".join(f"<e name={quoteattr(str(k))}>{escape(meta_text(v))}</e>" for k, v in meta.items())
                           + "</common_properties></HDcomment>")
     mdf.append(sigs, acq_name=group, comment="")
     mdf.save(path, overwrite=True)
@@ -402,6 +465,3 @@ def write_mf4(path, data, columns: list[ColumnOut], metadata: dict | None = None
     path.write_bytes(bytes(blob))
     return path
 
-
-WRITERS = {"csv": write_csv, "txt": write_csv, "lvm": write_lvm, "tdms": write_tdms, "mat": write_mat,
-           "xlsx": write_xlsx, "mf4": write_mf4}

@@ -10,15 +10,27 @@ from pathlib import Path
 
 import duckdb
 import numpy as np
+import pandas as pd
 import pyarrow.parquet as pq
 import pytest
 
-from pipeline.simulator.campaign import VARIANTS, generate, plan_campaign, simulate_campaign
+from pipeline.simulator.base import SimRun
+from pipeline.simulator.campaign import plan_campaign, simulate_campaign
+from pipeline.simulator.runs import channels_of, simulate_plan
+from pipeline.simulator.variants import VARIANTS
 from pipeline.warehouse import connect_readonly
 
 SEED = 3
 MINI_PLANS, _ = plan_campaign(SEED, "mini")
 READER_MODULE = {"csv": "csv", "txt": "csv", "lvm": "lvm", "tdms": "tdms", "mat": "mat", "xlsx": "excel", "mf4": "mdf"}
+
+
+def _meant(plan) -> SimRun:
+    """What ingest must give back for a plan's file: the simulated samples (all chunks) in the
+    columns the file carries, and the metadata and truth written with it."""
+    frames, meta, truth = simulate_plan(plan, SEED)
+    data = frames if isinstance(frames, pd.DataFrame) else pd.concat(list(frames), ignore_index=True)
+    return SimRun(data[["t_s"] + channels_of(plan)], meta, truth)
 
 
 def _reader_missing(fmt: str) -> bool:
@@ -66,7 +78,7 @@ def test_ingested_samples_equal_simulated(built, case):
     samples_path, params, source = runs[plan.run_id]
     assert source == plan.rel_path
     table = pq.read_table(wh / samples_path)
-    meant = generate(plan, SEED)
+    meant = _meant(plan)
     assert len(table) == len(meant.data)
     for col in meant.data.columns:
         got = table.column(col).to_numpy()
@@ -181,7 +193,7 @@ def test_timeseries_logger_keeps_non_canonical_channels_with_their_units(built):
         table = pq.read_table(wh / runs[plan.run_id][0])
         units = {f.name: (f.metadata or {}).get(b"unit", b"").decode() for f in table.schema}
         assert units["temperature_degc"] == "degC" and units["rel_humidity_pct"] == "%"
-        meant = generate(plan, SEED).data
+        meant = _meant(plan).data
         for col, stats in t["channels"].items():
             got = table.column(col).to_numpy()
             if col == "p_supply_pa":                               # bar -> Pa: float precision
