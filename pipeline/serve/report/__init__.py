@@ -22,10 +22,10 @@ symlink to it, replaced by one rename).
 
 The modules, from the bottom up:
 
+- :mod:`~pipeline.serve.report.folders`: the report folder's file names (run pages, own files);
 - :mod:`~pipeline.serve.report.markup`: style sheet, escaping, numbers and units as text;
-- :mod:`~pipeline.serve.report.folders`: the report folder's file names (run pages, cache);
-- :mod:`~pipeline.serve.report.tables`: rows as an HTML table (units, formats, leak floors);
 - :mod:`~pipeline.serve.report.db`: the warehouse database as the report reads it;
+- :mod:`~pipeline.serve.report.tables`: rows as an HTML table (units, formats, leak floors);
 - :mod:`~pipeline.serve.report.sections`: the findings, the last rebuild, the contents;
 - :mod:`~pipeline.serve.report.summaries`: per analysis, the summary and the papers' values;
 - :mod:`~pipeline.serve.report.results`: per paper its figures, summaries and rows (``LAYOUT``);

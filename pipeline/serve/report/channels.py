@@ -100,6 +100,7 @@ def downsample_minmax(path: str | Path, columns: list[str], n_rows: int, width: 
 
 
 def _tick(v: float) -> str:
+    """A value as tick text (6 significant digits)."""
     return f"{v:.6g}"
 
 

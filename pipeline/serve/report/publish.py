@@ -63,6 +63,7 @@ def remove_report_folder(folder: Path, live: Path | None = None) -> None:
 
 
 def _same_file(a, b) -> bool:
+    """Whether ``a`` and ``b`` are the same file (False when either is missing)."""
     try:
         return os.path.samefile(a, b)
     except OSError:
@@ -70,6 +71,7 @@ def _same_file(a, b) -> bool:
 
 
 def _folder_generation(folder: Path) -> str | None:
+    """The generation a report folder was rendered from (None: not known)."""
     try:
         return (folder / GENERATION_FILE).read_text(encoding="utf-8").strip() or None
     except OSError:
@@ -148,6 +150,7 @@ def _publish_by_rename(warehouse: Path, staged: Path) -> Path:
 
 
 def _remove_old_folders(warehouse: Path, keep: str | None, live: Path | None = None) -> None:
+    """Remove every report folder but ``keep`` (files of others go into ``live``) and stray link temps."""
     live = live or (warehouse / keep if keep else None)
     for entry in scandir(warehouse):
         if entry.name != keep and entry.is_dir(follow_symlinks=False) and \

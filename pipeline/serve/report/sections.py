@@ -22,6 +22,7 @@ ALERT_CHANGES = ("overturned", "now holds", "no longer checkable")
 
 
 def _unit(unit) -> str:
+    """A finding's unit as text (none for a plain number)."""
     return "" if unit in (None, "1") else esc(unit)
 
 
@@ -38,16 +39,19 @@ def _linkify(text, run_ids: set[str]) -> str:
 
 
 def _holds_cell(holds) -> str:
+    """A finding's result cell: holds, does not hold, no data."""
     if holds is None:
         return '<td class="nodata">no data</td>'
     return '<td class="ok">holds</td>' if holds else '<td class="bad">does not hold</td>'
 
 
 def _when(at) -> str:
+    """A moment in UTC to the second (a dash when there is none)."""
     return fmt(at.astimezone(timezone.utc).replace(microsecond=0)) if isinstance(at, datetime) else "—"
 
 
 def _change_note(change, at) -> str:
+    """A finding's last change and when it was (none without one)."""
     if not change:
         return ""
     return f"<br><b>{esc(change)}</b>" + (f" {_when(at)}" if at is not None else "")

@@ -15,6 +15,7 @@ from schemas.papers import (NRMSE_LIMIT_PCT, PLA_TABLE1, PLA_TABLE2, PLA_TABLE3_
 
 
 def _mean_se(values) -> tuple[float | None, float | None, int]:
+    """(mean, standard error, n) of the finite values (the error needs two)."""
     v = [float(x) for x in values if x is not None and not (isinstance(x, float) and math.isnan(x))]
     if not v:
         return None, None, 0
@@ -50,6 +51,7 @@ def _cmp_row(label: str, unit: str, paper, measured, unc, how: str = "", judge: 
 
 
 def _cmp_table(caption: str, rows: list[str]) -> str:
+    """A paper-vs-lab table with ``caption`` and its rows of :func:`_cmp_row`."""
     return (f'<div class="wrap"><table class="paper"><caption style="text-align:left;font-weight:600;padding:4px 0">'
             f"{esc(caption)}</caption><thead><tr><th>quantity</th><th>unit</th><th>paper</th>"
             "<th>measured ± std. uncertainty</th><th>difference<br><small>measured − paper</small></th>"
@@ -57,12 +59,14 @@ def _cmp_table(caption: str, rows: list[str]) -> str:
 
 
 def _q(db: ReportDB, sql: str, *tables: str) -> list[tuple]:
+    """The rows of ``sql``, none when one of ``tables`` is not there."""
     if not all(db.has(t) for t in tables):
         return []
     return db.con.execute(sql).fetchall()
 
 
 def summary_identification(db: ReportDB) -> str:
+    """PLPA Table 2: the identified plant parameters, paper vs lab."""
     rows = _q(db, "SELECT wn_rad_s, zeta, k_lin_m_v_s FROM identification", "identification")
     if not rows:
         return ""
@@ -77,6 +81,7 @@ def summary_identification(db: ReportDB) -> str:
 
 
 def summary_breakaway(db: ReportDB) -> str:
+    """PLPA Fig. 12: breakaway forces and their ratio, paper vs lab, with the mean force per backpressure."""
     out = []
     r0 = _q(db, "SELECT breakaway_force_n FROM breakaway WHERE backpressure_bar < 0.5", "breakaway")
     r1 = _q(db, "SELECT breakaway_force_n FROM breakaway WHERE backpressure_bar >= 0.5", "breakaway")
@@ -108,6 +113,7 @@ def summary_breakaway(db: ReportDB) -> str:
 
 
 def summary_step(db: ReportDB) -> str:
+    """PLPA Fig. 15: the closed-loop step, paper vs lab."""
     rows = _q(db, "SELECT overshoot_pct, settling_time_s, steady_state_error_mm FROM step_response", "step_response")
     if not rows:
         return ""
@@ -158,6 +164,7 @@ def summary_leakage(db: ReportDB) -> str:
 
 
 def summary_viscous(db: ReportDB) -> str:
+    """The Coulomb + viscous fits per backpressure and direction, and the transition near zero velocity."""
     if not db.has("viscous_fits"):
         return ""
     want = [c for c in ("backpressure_bar", "direction", "coulomb_n", "coulomb_se_n", "viscous_n_s_m",
@@ -178,6 +185,7 @@ def summary_spring(db: ReportDB) -> str:
 
 
 def _spring_parameters(db: ReportDB) -> str:
+    """PLA Table 1: the spring model's parameters per chamber, paper vs lab."""
     fits = {r[0]: r[1:] for r in _q(db, "SELECT chamber, n_polytropic, ae_m2, epsilon_m2, delta_n_m, n_tests "
                                         "FROM spring_fits", "spring_fits")}
     se_cols = {c: next((x for x in db.columns("spring_fits") if x.startswith(c.split("_")[0] + "_se")), None)
@@ -201,6 +209,7 @@ def _spring_parameters(db: ReportDB) -> str:
 
 
 def _spring_nrmse(db: ReportDB) -> str:
+    """PLA Table 3: the spring model's NRMSE range per chamber and how many tests reach the paper's bound."""
     nr = _q(db, "SELECT chamber, min(nrmse_pct), max(nrmse_pct), count(nrmse_pct), "
                 f"count(*) FILTER (WHERE nrmse_pct >= {NRMSE_LIMIT_PCT}) "
                 "FROM spring_tests GROUP BY chamber ORDER BY chamber", "spring_tests")
@@ -217,6 +226,7 @@ def _spring_nrmse(db: ReportDB) -> str:
 
 
 def summary_pressure(db: ReportDB) -> str:
+    """PLA Table 2: pressure dynamics per chamber and direction, paper vs lab, and per part and age."""
     grouped = db.has("pressure_dynamics") and "level" in db.columns("pressure_dynamics")
     # the paper's PLA chambers, one pooled row per rig (level 'rig'); other rigs' chambers are not the paper's
     if grouped:
@@ -250,6 +260,7 @@ def summary_pressure(db: ReportDB) -> str:
 
 
 def summary_service_life(db: ReportDB) -> str:
+    """Weibull life and B10 per hose type and roller adjustment, and the test between them."""
     if not db.has("service_life"):
         return ""
     want = [c for c in ("hose_type", "adjustment", "n_hoses", "n_failed", "n_suspended", "weibull_shape",
@@ -264,6 +275,7 @@ def summary_service_life(db: ReportDB) -> str:
 
 
 def summary_hoses(db: ReportDB) -> str:
+    """Every hose: its setting, status, failure mode and distance."""
     if not db.has("hose_life"):
         return ""
     want = [c for c in ("hose_id", "adjustment", "z_rollers_mm", "spring_force_n", "status", "failure_mode",

@@ -15,11 +15,13 @@ MAX_ROWS = 30
 
 
 def _th(column: str) -> str:
+    """A header cell: the column's name in words and its unit."""
     name, unit = split_unit(column)
     return f"<th>{esc(name)}" + (f"<br><small>[{esc(unit)}]</small>" if unit else "") + "</th>"
 
 
 def _cell(column: str, value, links, number=None) -> str:
+    """A body cell: run ids linked (``links``), sensors in display units, numbers in ``number``'s format."""
     if column == "run_id" and isinstance(value, str) and (links is True or (links and value in links)):
         return f'<td><a href="{esc(run_href(value))}">{esc(value)}</a></td>'
     if column == "sensors" and isinstance(value, str):  # stored in SI; shown in the report's units
@@ -86,6 +88,7 @@ def column_format(values, sig: int = 4):
 
 
 def _row_floor(columns: list[str], row: tuple) -> float | None:
+    """The flow sensor's floor of a row [l/min ANR] (None when it states none)."""
     if FLOOR_COLUMN in columns:
         v = row[columns.index(FLOOR_COLUMN)]
         return float(v) if isinstance(v, (int, float)) and math.isfinite(v) and v > 0 else None
@@ -93,6 +96,7 @@ def _row_floor(columns: list[str], row: tuple) -> float | None:
 
 
 def _under_floor(value, floor) -> bool:
+    """Whether ``value`` is a finite number under ``floor``."""
     return floor is not None and isinstance(value, (int, float)) and not isinstance(value, bool) \
         and math.isfinite(value) and abs(value) < floor
 
