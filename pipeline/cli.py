@@ -312,7 +312,7 @@ def report(warehouse, wait_s):
     exit 4 when a rebuild is running: it writes the report itself when it finishes.
     """
     from pipeline.rebuild.flow import RebuildError, warehouse_lock
-    from pipeline.serve.report import ReportError, write_report
+    from pipeline.serve.report.render import ReportError, write_report
     from pipeline.warehouse import DB_NAME
 
     if not (Path(warehouse) / DB_NAME).is_file():

@@ -1264,7 +1264,7 @@ def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, r
                     started_at, t0, lock_fd: int, keep_h: float, clock,
                     allow_mass_delete: bool = False) -> RebuildSummary:
     clean_debris(warehouse)
-    from pipeline.serve.report import settle_report
+    from pipeline.serve.report.publish import settle_report
     settle_report(warehouse)  # a report staged by a rebuild killed after its database swap goes in
     prev = load_previous(warehouse)
     tree = RawTree(raw)
@@ -1422,14 +1422,14 @@ def swap_in_new_database(warehouse: Path, write, report: bool, run_pages: str = 
 
     Any failure before the swap removes the temporary database and staged page and raises
     :class:`RebuildError`: the previous warehouse and its report are kept (the two always agree).
-    ``run_pages`` as for :func:`pipeline.serve.report.render_report`.
+    ``run_pages`` as for :func:`pipeline.serve.report.render.render_report`.
     """
     tmp_db = warehouse / f".{DB_NAME}.tmp-{os.getpid()}"
     page = None  # the morning report (index and run pages), a folder beside the live one: from the new database
     try:
         write(tmp_db)
         if report:  # before the swap: a failure keeps the previous warehouse and its report
-            from pipeline.serve.report import stage_report
+            from pipeline.serve.report.render import stage_report
             try:
                 page = stage_report(warehouse, database=tmp_db, run_pages=run_pages)
             except Exception as exc:
@@ -1442,7 +1442,7 @@ def swap_in_new_database(warehouse: Path, write, report: bool, run_pages: str = 
         tmp_db.unlink(missing_ok=True)
         Path(f"{tmp_db}.wal").unlink(missing_ok=True)
         if page is not None:
-            from pipeline.serve.report import remove_report_folder
+            from pipeline.serve.report.publish import remove_report_folder
             remove_report_folder(page)
         if isinstance(exc, RebuildError):
             raise
@@ -1450,7 +1450,7 @@ def swap_in_new_database(warehouse: Path, write, report: bool, run_pages: str = 
     published = None
     _crash_point("between_swaps")  # killed here: the next rebuild or report publishes the staged report
     if page is not None:  # straight after the swap: the report follows the warehouse it describes
-        from pipeline.serve.report import publish_report
+        from pipeline.serve.report.publish import publish_report
         published = publish_report(warehouse, page)
     _crash_point("after_swap")
     return published

@@ -876,7 +876,7 @@ def run_traces(warehouse: str | Path, run_id: str, channels: list[str] | None = 
     return kind, traces
 
 
-#: Result tables whose rows name events of a run (see :func:`pipeline.serve.run_pages.run_events`).
+#: Result tables whose rows name events of a run (see :func:`pipeline.serve.report.channels.run_events`).
 EVENT_TABLES = ("breakaway", "viscous_points", "leakage_map", "step_response", "pressure_steps")
 
 
@@ -918,7 +918,7 @@ def plot_run(warehouse: str | Path, run_id: str, out: str | Path, channels: list
                              figsize=(width_px / dpi, 1.0 + 1.6 * len(traces)), dpi=dpi)
     from matplotlib.ticker import FixedLocator, FuncFormatter
 
-    from pipeline.serve.run_pages import EVENT_STYLE, MAX_EVENTS, hms, run_events, time_ticks
+    from pipeline.serve.report.channels import EVENT_STYLE, MAX_EVENTS, hms, run_events, time_ticks
     from schemas.units import to_display
 
     events = run_events(run_result_rows(warehouse, run_id))[:MAX_EVENTS]  # what the analyses saw

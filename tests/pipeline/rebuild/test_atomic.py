@@ -272,7 +272,7 @@ def report_agrees(warehouse):
 
 
 def pages_of(runs):
-    from pipeline.serve.run_pages import page_name
+    from pipeline.serve.report.folders import page_name
 
     return {page_name(r) for r in runs}
 
@@ -314,7 +314,7 @@ def test_a_report_that_started_before_a_rebuilds_swap_cannot_put_yesterdays_back
     for it (or exits 4 without --wait) and the report it then publishes is its own."""
     from click.testing import CliRunner
 
-    import pipeline.serve.report as rp
+    import pipeline.serve.report.render as rp
     from pipeline.cli import main
 
     step(raw, "c/a.csv")

@@ -144,7 +144,7 @@ def test_a_report_that_cannot_be_rendered_fails_the_rebuild_and_keeps_warehouse_
                                                                                           monkeypatch):
     from click.testing import CliRunner
 
-    import pipeline.serve.report as rp
+    import pipeline.serve.report.render as rp
     from pipeline.cli import main
 
     raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})

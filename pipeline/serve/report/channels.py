@@ -2,19 +2,22 @@
 
 Long runs (an 8 h durability run holds ~29 M samples) are drawn from their minimum and maximum
 per pixel column, read from the samples Parquet in batches: the plot shows every excursion of the
-signal at a memory cost of one batch. Nothing here writes files or imports the report; the
-report (``pipeline/serve/report.py``) places the SVG in a page.
+signal at a memory cost of one batch. Nothing here writes files; the run pages
+(:mod:`pipeline.serve.report.pages`) place the SVG in a page, and ``pneubench plot`` draws its
+axes and events the same way (:func:`time_ticks`, :func:`run_events`).
 """
 from __future__ import annotations
 
-import hashlib
 import html
-import re
+import math
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-if TYPE_CHECKING:  # imported by the functions that draw: page_name() needs neither
-    import numpy as np
+from schemas.units import to_display
+
+if TYPE_CHECKING:  # numpy, pyarrow and matplotlib are imported by the functions that draw: kept off
+    import numpy as np  # the paths that only publish a report (the no-op rebuild) or name its pages
 
 #: Pixel columns of a plot (one min/max pair per column).
 WIDTH = 880
@@ -32,13 +35,6 @@ MAX_EVENTS = 400
 EVENT_STYLE = {"onset": ("breakaway onset", "#d62728"), "pass": ("constant-velocity pass", "#2ca02c"),
                "plateau": ("pressure plateau (steady part)", "#ff7f0e"), "step": ("set-point step", "#9467bd")}
 COLOURS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#17becf", "#7f7f7f")
-
-
-def page_name(run_id: str) -> str:
-    """File name of a run's page: a readable slug of the id plus a hash of it (ids differing only
-    in characters the slug drops, or in case, still get different pages)."""
-    slug = re.sub(r"[^A-Za-z0-9._-]+", "_", str(run_id)).strip("._")[:80] or "run"
-    return f"{slug}-{hashlib.sha256(str(run_id).encode('utf-8')).hexdigest()[:8]}.html"
 
 
 def downsample_minmax(path: str | Path, columns: list[str], n_rows: int, width: int = WIDTH) -> dict:
@@ -103,14 +99,8 @@ def downsample_minmax(path: str | Path, columns: list[str], n_rows: int, width: 
     return out
 
 
-def _display(column: str, values: np.ndarray) -> tuple[np.ndarray, str, str]:
-    """Values in the report's display units (:func:`schemas.units.to_display`): (values, label, unit)."""
-    from schemas.units import to_display
-
-    return to_display(column, values)
-
-
 def _tick(v: float) -> str:
+    """A value as tick text (6 significant digits)."""
     return f"{v:.6g}"
 
 
@@ -126,8 +116,6 @@ def hms(t: float, decimals: int = 0) -> str:
 
 def number_labels(ticks) -> list[str]:
     """Tick values in one format, as few decimals as they need (``0, 0.5, 1`` -> ``0.0, 0.5, 1.0``)."""
-    import numpy as np
-
     ticks = [float(v) for v in ticks]
     if not ticks:
         return []
@@ -154,8 +142,6 @@ def value_ticks(vmin: float, vmax: float, n: int = 4) -> list[float]:
 def time_ticks(t0: float, t1: float, n: int = 8) -> tuple[list[float], list[str], str]:
     """Ticks of a time axis: (positions [s], labels, unit). In seconds up to
     :data:`CLOCK_AFTER_S`, past it in ``h:mm:ss`` on whole seconds, minutes or hours."""
-    import math
-
     if not t1 > t0:
         return [t0], number_labels([t0]), "s"
     if max(abs(t0), abs(t1)) <= CLOCK_AFTER_S:
@@ -179,8 +165,6 @@ def run_events(results) -> list[tuple[str, float, float | None, str]]:
     (``viscous_points``), the steady part of pressure plateaus (``leakage_map``), set-point steps
     (``step_response`` / ``pressure_steps.t_step_s``).
     """
-    import math
-
     def num(v):
         try:
             v = float(v)
@@ -206,6 +190,28 @@ def run_events(results) -> list[tuple[str, float, float | None, str]]:
     return sorted(out, key=lambda e: (e[1], e[0]))
 
 
+#: Margins of the plot left of the panels (value ticks) and right of them. [px]
+LEFT, RIGHT = 70, 10
+
+
+@dataclass(frozen=True)
+class _Frame:
+    """Where a plot's panels are: time span ``t0``..``t1`` [s] across :data:`WIDTH` px from
+    :data:`LEFT`, the first panel's top at ``top`` [px]."""
+
+    t0: float
+    t1: float
+    top: int
+
+    def x(self, t: float) -> float:
+        """Pixel column of time ``t`` [s]."""
+        return LEFT + (t - self.t0) / (self.t1 - self.t0) * WIDTH
+
+    def panel_top(self, k: int) -> int:
+        """Top of the ``k``-th channel's panel [px]."""
+        return self.top + k * (PANEL_H + 14)
+
+
 def channels_svg(bands: dict, title: str = "", events=None) -> str:
     """One SVG with a panel per channel: the min/max band per pixel column, time axis below.
 
@@ -214,8 +220,6 @@ def channels_svg(bands: dict, title: str = "", events=None) -> str:
     ``events``: :func:`run_events`, drawn on every panel (spans and lines) with a legend.
     Returns "" when there is nothing to draw.
     """
-    import numpy as np
-
     chans = [c for c in bands if c != "t_s"]
     if not chans:
         return ""
@@ -225,93 +229,123 @@ def channels_svg(bands: dict, title: str = "", events=None) -> str:
     dropped = max(len(events) - MAX_EVENTS, 0)
     events = events[:MAX_EVENTS]
     kinds = [k for k in EVENT_STYLE if any(e[0] == k for e in events)]
-    left, right = 70, 10
-    top = 8 + (20 if kinds else 0)
-    w = WIDTH + left + right
-    h = top + len(chans) * (PANEL_H + 14) + 34
+    frame = _Frame(t0, t1, 8 + (20 if kinds else 0))
+    w = WIDTH + LEFT + RIGHT
+    h = frame.top + len(chans) * (PANEL_H + 14) + 34
     parts = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" viewBox="0 0 {w} {h}" '
              f'role="img" aria-label="{html.escape(title, quote=True)}" style="max-width:100%;height:auto" '
              'font-family="sans-serif">',
              '<rect width="100%" height="100%" fill="#fff"/>']
-
-    def tx(t):
-        return left + (t - t0) / (t1 - t0) * WIDTH
-
     if kinds:  # legend: what the analysis saw
-        x = left
-        for k in kinds:
-            text, col = EVENT_STYLE[k]
-            n_k = sum(e[0] == k for e in events)
-            label = html.escape(f"{text} ({n_k})")
-            if any(e[0] == k and e[2] is not None for e in events):
-                parts.append(f'<rect x="{x}" y="6" width="14" height="10" fill="{col}" fill-opacity="0.25" '
-                             f'stroke="{col}"/>')
-            else:
-                parts.append(f'<line x1="{x + 7}" y1="5" x2="{x + 7}" y2="17" stroke="{col}" stroke-width="2" '
-                             'stroke-dasharray="4 2"/>')
-            parts.append(f'<text x="{x + 18}" y="15" font-size="11" fill="#1d2330">{label}</text>')
-            x += 30 + 6.5 * len(label)
-        if dropped:
-            parts.append(f'<text x="{x}" y="15" font-size="11" fill="#5b6475">'
-                         f'(first {MAX_EVENTS} drawn, {dropped} more in the tables)</text>')
+        parts += _legend(kinds, events, dropped)
     tticks, tlabels, tunit = time_ticks(t0, t1) if have_t else ([], [], "s")
     for k, c in enumerate(chans):
-        lo, hi = bands[c]
-        lo, name, unit = _display(c, lo)
-        hi, _, _ = _display(c, hi)
-        y0 = top + k * (PANEL_H + 14)
-        parts.append(f'<rect x="{left}" y="{y0}" width="{WIDTH}" height="{PANEL_H}" fill="none" stroke="#c5cad3"/>')
-        for t in tticks:  # time grid
-            parts.append(f'<line x1="{tx(t):.1f}" y1="{y0}" x2="{tx(t):.1f}" y2="{y0 + PANEL_H}" stroke="#eceef2"/>')
-        for kind, a, b, text in events:
-            col = EVENT_STYLE[kind][1]
-            tip = f"<title>{html.escape(text)}: " + (f"{_tick(a)} to {_tick(b)} s" if b is not None else
-                                                     f"{_tick(a)} s") + "</title>"
-            if b is not None:
-                xa, xb = tx(max(a, t0)), tx(min(b, t1))
-                parts.append(f'<rect x="{xa:.1f}" y="{y0}" width="{max(xb - xa, 1.0):.1f}" height="{PANEL_H}" '
-                             f'fill="{col}" fill-opacity="0.16">{tip}</rect>')
-            else:
-                parts.append(f'<line x1="{tx(a):.1f}" y1="{y0}" x2="{tx(a):.1f}" y2="{y0 + PANEL_H}" stroke="{col}" '
-                             f'stroke-width="1.5" stroke-dasharray="4 2">{tip}</line>')
-        ok = np.isfinite(lo) & np.isfinite(hi)
-        label = html.escape(f"{name} [{unit}]" if unit else name)
-        if not ok.any():
-            parts.append(f'<text x="{left + 6}" y="{y0 + 13}" font-size="12" fill="#1d2330">{label}</text>')
-            parts.append(f'<text x="{left + 6}" y="{y0 + 30}" font-size="11" fill="#5b6475">no finite samples</text>')
-            continue
-        vmin, vmax = float(np.nanmin(lo[ok])), float(np.nanmax(hi[ok]))
-        span = vmax - vmin or max(abs(vmax), 1.0) * 1e-3
-        n = lo.size
-        xs = left + (np.arange(n) + 0.5) * WIDTH / n
-
-        def y(v):
-            return y0 + PANEL_H - 4 - (v - vmin) / span * (PANEL_H - 20)
-
-        yticks = value_ticks(vmin, vmax) if vmax > vmin else [vmin]
-        for v, text in zip(yticks, number_labels(yticks)):
-            parts.append(f'<line x1="{left - 3}" y1="{y(v):.1f}" x2="{left + WIDTH}" y2="{y(v):.1f}" '
-                         'stroke="#eceef2"/>')
-            parts.append(f'<text x="{left - 5}" y="{y(v) + 3.5:.1f}" font-size="10" text-anchor="end" '
-                         f'fill="#5b6475">{text}</text>')
-        idx = np.flatnonzero(ok)
-        upper = " ".join(f"{xs[i]:.1f},{y(hi[i]):.1f}" for i in idx)
-        lower = " ".join(f"{xs[i]:.1f},{y(lo[i]):.1f}" for i in idx[::-1])
-        col = COLOURS[k % len(COLOURS)]
-        extremes = html.escape(f"{name}: {_tick(vmin)} to {_tick(vmax)}" + (f" {unit}" if unit else ""))
-        parts.append(f'<polygon points="{upper} {lower}" fill="{col}" fill-opacity="0.35" stroke="{col}" '
-                     f'stroke-width="1" stroke-linejoin="round"><title>{extremes}</title></polygon>')
-        parts.append(f'<text x="{left + 6}" y="{y0 + 13}" font-size="12" fill="#1d2330" stroke="#fff" '
-                     f'stroke-width="3" paint-order="stroke">{label}</text>')
-    yb = top + len(chans) * (PANEL_H + 14) - 14
-    for t, text in zip(tticks, tlabels):
-        parts.append(f'<line x1="{tx(t):.1f}" y1="{yb}" x2="{tx(t):.1f}" y2="{yb + 4}" stroke="#5b6475"/>')
-        parts.append(f'<text x="{tx(t):.1f}" y="{yb + 15}" font-size="10" text-anchor="middle" fill="#5b6475">'
-                     f'{text}</text>')
-    if have_t:
-        parts.append(f'<text x="{left + WIDTH}" y="{h - 4}" font-size="11" text-anchor="end" fill="#5b6475">'
-                     f't [{tunit}]</text>')
-    elif t0 is not None:
-        parts.append(f'<text x="{left}" y="{h - 4}" font-size="11" fill="#5b6475">t = {_tick(t0)} s</text>')
+        parts += _panel(frame, k, c, bands[c], tticks, events)
+    parts += _time_axis(frame, len(chans), h, (tticks, tlabels, tunit) if have_t else None)
     parts.append("</svg>")
     return "".join(parts)
+
+
+def _legend(kinds: list[str], events: list, dropped: int) -> list[str]:
+    """The legend above the panels: each kind of event drawn, with how many (and how many not)."""
+    parts = []
+    x = LEFT
+    for k in kinds:
+        text, col = EVENT_STYLE[k]
+        n_k = sum(e[0] == k for e in events)
+        label = html.escape(f"{text} ({n_k})")
+        if any(e[0] == k and e[2] is not None for e in events):
+            parts.append(f'<rect x="{x}" y="6" width="14" height="10" fill="{col}" fill-opacity="0.25" '
+                         f'stroke="{col}"/>')
+        else:
+            parts.append(f'<line x1="{x + 7}" y1="5" x2="{x + 7}" y2="17" stroke="{col}" stroke-width="2" '
+                         'stroke-dasharray="4 2"/>')
+        parts.append(f'<text x="{x + 18}" y="15" font-size="11" fill="#1d2330">{label}</text>')
+        x += 30 + 6.5 * len(label)
+    if dropped:
+        parts.append(f'<text x="{x}" y="15" font-size="11" fill="#5b6475">'
+                     f'(first {MAX_EVENTS} drawn, {dropped} more in the tables)</text>')
+    return parts
+
+
+def _panel(frame: _Frame, k: int, column: str, band: tuple, tticks: list[float], events: list) -> list[str]:
+    """The ``k``-th channel's panel: frame, time grid, events, then its min/max band on round ticks."""
+    lo, hi = band
+    lo, name, unit = to_display(column, lo)
+    hi, _, _ = to_display(column, hi)
+    y0 = frame.panel_top(k)
+    parts = [f'<rect x="{LEFT}" y="{y0}" width="{WIDTH}" height="{PANEL_H}" fill="none" stroke="#c5cad3"/>']
+    for t in tticks:  # time grid
+        parts.append(f'<line x1="{frame.x(t):.1f}" y1="{y0}" x2="{frame.x(t):.1f}" y2="{y0 + PANEL_H}" stroke="#eceef2"/>')
+    parts += _event_marks(frame, y0, events)
+    return parts + _band(y0, COLOURS[k % len(COLOURS)], (lo, hi), name, unit)
+
+
+def _event_marks(frame: _Frame, y0: int, events: list) -> list[str]:
+    """The events on one panel: a shaded span each, or a dashed line for an instant."""
+    parts = []
+    for kind, a, b, text in events:
+        col = EVENT_STYLE[kind][1]
+        tip = f"<title>{html.escape(text)}: " + (f"{_tick(a)} to {_tick(b)} s" if b is not None else
+                                                 f"{_tick(a)} s") + "</title>"
+        if b is not None:
+            xa, xb = frame.x(max(a, frame.t0)), frame.x(min(b, frame.t1))
+            parts.append(f'<rect x="{xa:.1f}" y="{y0}" width="{max(xb - xa, 1.0):.1f}" height="{PANEL_H}" '
+                         f'fill="{col}" fill-opacity="0.16">{tip}</rect>')
+        else:
+            parts.append(f'<line x1="{frame.x(a):.1f}" y1="{y0}" x2="{frame.x(a):.1f}" y2="{y0 + PANEL_H}" '
+                         f'stroke="{col}" stroke-width="1.5" stroke-dasharray="4 2">{tip}</line>')
+    return parts
+
+
+def _band(y0: int, col: str, band: tuple, name: str, unit: str) -> list[str]:
+    """A channel's min/max band (display units) in its panel at ``y0``, with value ticks and label."""
+    import numpy as np
+
+    lo, hi = band
+    ok = np.isfinite(lo) & np.isfinite(hi)
+    label = html.escape(f"{name} [{unit}]" if unit else name)
+    if not ok.any():
+        return [f'<text x="{LEFT + 6}" y="{y0 + 13}" font-size="12" fill="#1d2330">{label}</text>',
+                f'<text x="{LEFT + 6}" y="{y0 + 30}" font-size="11" fill="#5b6475">no finite samples</text>']
+    vmin, vmax = float(np.nanmin(lo[ok])), float(np.nanmax(hi[ok]))
+    span = vmax - vmin or max(abs(vmax), 1.0) * 1e-3
+    n = lo.size
+    xs = LEFT + (np.arange(n) + 0.5) * WIDTH / n
+
+    def y(v):
+        return y0 + PANEL_H - 4 - (v - vmin) / span * (PANEL_H - 20)
+
+    parts = []
+    yticks = value_ticks(vmin, vmax) if vmax > vmin else [vmin]
+    for v, text in zip(yticks, number_labels(yticks)):
+        parts.append(f'<line x1="{LEFT - 3}" y1="{y(v):.1f}" x2="{LEFT + WIDTH}" y2="{y(v):.1f}" '
+                     'stroke="#eceef2"/>')
+        parts.append(f'<text x="{LEFT - 5}" y="{y(v) + 3.5:.1f}" font-size="10" text-anchor="end" '
+                     f'fill="#5b6475">{text}</text>')
+    idx = np.flatnonzero(ok)
+    upper = " ".join(f"{xs[i]:.1f},{y(hi[i]):.1f}" for i in idx)
+    lower = " ".join(f"{xs[i]:.1f},{y(lo[i]):.1f}" for i in idx[::-1])
+    extremes = html.escape(f"{name}: {_tick(vmin)} to {_tick(vmax)}" + (f" {unit}" if unit else ""))
+    parts.append(f'<polygon points="{upper} {lower}" fill="{col}" fill-opacity="0.35" stroke="{col}" '
+                 f'stroke-width="1" stroke-linejoin="round"><title>{extremes}</title></polygon>')
+    parts.append(f'<text x="{LEFT + 6}" y="{y0 + 13}" font-size="12" fill="#1d2330" stroke="#fff" '
+                 f'stroke-width="3" paint-order="stroke">{label}</text>')
+    return parts
+
+
+def _time_axis(frame: _Frame, n_panels: int, h: int, ticks: tuple | None) -> list[str]:
+    """The time axis under the panels (``ticks``: :func:`time_ticks`), or the one instant there is."""
+    tticks, tlabels, tunit = ticks if ticks is not None else ([], [], "s")
+    yb = frame.panel_top(n_panels) - 14
+    parts = []
+    for t, text in zip(tticks, tlabels):
+        parts.append(f'<line x1="{frame.x(t):.1f}" y1="{yb}" x2="{frame.x(t):.1f}" y2="{yb + 4}" stroke="#5b6475"/>')
+        parts.append(f'<text x="{frame.x(t):.1f}" y="{yb + 15}" font-size="10" text-anchor="middle" fill="#5b6475">'
+                     f'{text}</text>')
+    if ticks is not None:
+        parts.append(f'<text x="{LEFT + WIDTH}" y="{h - 4}" font-size="11" text-anchor="end" fill="#5b6475">'
+                     f't [{tunit}]</text>')
+    elif frame.t0 is not None:
+        parts.append(f'<text x="{LEFT}" y="{h - 4}" font-size="11" fill="#5b6475">t = {_tick(frame.t0)} s</text>')
+    return parts

@@ -1,0 +1,46 @@
+"""The parts cache: the report's parts that depend on the data only (the results sections with
+their contents entries, the index of runs), kept in the report folder under the inputs key of the
+rebuild that rendered them. Equal keys mean equal result tables (the rebuild is deterministic), so
+the next report with the same key takes them as they are (the no-op rebuild)."""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+from pipeline.serve.report.db import ReportDB
+from pipeline.serve.report.folders import REPORT_DIR
+
+#: The cache file in a report folder.
+PARTS_CACHE = ".parts-cache.json"
+
+
+def cached_parts(db: ReportDB, warehouse: Path) -> tuple[str, list, str] | None:
+    """(results HTML, contents entries, runs index HTML) of the live report when its key is the
+    database's; None otherwise (no key, no cache, another key, a damaged file)."""
+    key = db.inputs_key()
+    if key is None:
+        return None
+    try:
+        data = json.loads((Path(warehouse) / REPORT_DIR / PARTS_CACHE).read_text(encoding="utf-8"))
+        if data.get("key") != key:
+            return None
+        toc = [(a, t, [tuple(x) for x in sub]) for a, t, sub in data["toc"]]
+        return str(data["results"]), toc, str(data["runs_index"])
+    except (OSError, ValueError, TypeError, KeyError):
+        return None  # none yet, or damaged: rendered anew
+
+
+def cache_parts(db: ReportDB, folder: Path, results: str, toc: list, runs_index: str) -> None:
+    """Keep the parts in the new report ``folder`` under the database's inputs key (none without one)."""
+    key = db.inputs_key()
+    if key is None:
+        return
+    tmp = folder / f".parts-cache.tmp-{os.getpid()}"
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        tmp.write_text(json.dumps({"key": key, "results": results, "toc": toc, "runs_index": runs_index}),
+                       encoding="utf-8")
+        os.replace(tmp, folder / PARTS_CACHE)
+    except OSError:
+        tmp.unlink(missing_ok=True)  # a cache only: the report itself is unaffected

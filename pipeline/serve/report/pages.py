@@ -1,0 +1,193 @@
+"""The run pages (``report/runs/<safe id>.html``: a run's channels, metadata, warnings and the
+result rows derived from it) and the report's index of runs that links to them.
+
+A page is drawn again only when its inputs changed: its key (samples file, source hash, results,
+warnings, parameters, :data:`RUN_PAGE_VERSION`) is in its first line, and a page with the same key
+is taken over from the live report (a hard link).
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from pathlib import Path
+
+from pipeline.serve.report.channels import channels_svg, downsample_minmax, run_events
+from pipeline.serve.report.db import ReportDB
+from pipeline.serve.report.folders import OWN_PAGE, REPORT_DIR, link_or_copy, page_name, scandir
+from pipeline.serve.report.markup import CSS, esc, fmt, one_line_error, run_href
+from pipeline.serve.report.tables import html_table
+
+#: Bumped when the run pages' layout changes (cached pages are then drawn again).
+RUN_PAGE_VERSION = "2"
+
+
+def _run_results(db: ReportDB) -> dict[str, list[tuple[str, list[str], list[tuple]]]]:
+    """Per run id: (table, columns, rows) of every result table with a ``run_id`` column."""
+    out: dict[str, list] = {}
+    skip = {"runs", "channels", "rebuild_inputs", "ingest_state", "durability_strokes",
+            "rebuild_changes"}  # bookkeeping: after a --full rebuild every run is "changed", every page redrawn
+    for t in sorted(db.tables):
+        if t in skip or t.startswith("samples_") or "run_id" not in db.columns(t):
+            continue
+        cols, rows = db.rows(f'SELECT * FROM "{t}" ORDER BY run_id')
+        k = cols.index("run_id")
+        for r in rows:
+            out.setdefault(r[k], []).append((t, cols, r))
+    return out
+
+
+def _run_page(run: dict, results: list, svg: str, key: str) -> str:
+    """A run's page: channels (``svg``), metadata, warnings and result rows; ``key`` in its first line."""
+    warns = run.get("warnings") or []
+    warn_html = ("<ul>" + "".join(f"<li>{esc(w)}</li>" for w in warns) + "</ul>") if warns else \
+        '<p class="meta">none</p>'
+    rid = esc(run["run_id"])
+    return "\n".join([
+        f"<!DOCTYPE html><!-- key: {key} -->", '<html lang="en"><head><meta charset="utf-8">',
+        '<meta name="viewport" content="width=device-width, initial-scale=1">',
+        f"<title>run {rid}: pneubench</title><style>{CSS}</style></head><body>",
+        '<p><a href="../index.html">← morning report</a></p>', f"<h1>Run {rid}</h1>",
+        '<section id="channels"><h2>Channels</h2>',
+        svg or '<p class="nodata">samples not available</p>',
+        '<p class="meta">Each channel drawn from its minimum and maximum per pixel column (every excursion is '
+        "visible however long the run); pressures in bar gauge, positions in mm, flows in l/min ANR; shaded and "
+        "dashed: what the analyses found (their rows are below).</p></section>",
+        f'<section id="metadata"><h2>Metadata</h2><div class="wrap"><table>{_metadata(run)}</table></div></section>',
+        f'<section id="warnings"><h2>Warnings ({len(warns)})</h2>{warn_html}</section>',
+        f'<section id="results"><h2>Results derived from this run</h2>{_results(results)}</section>',
+        "</body></html>"])
+
+
+def _metadata(run: dict) -> str:
+    """The rows of a run's metadata table: its ``runs`` columns, then each of its parameters."""
+    params = run.get("params")
+    if isinstance(params, str):
+        try:
+            params = json.loads(params)
+        except ValueError:
+            params = {"params": params}
+    meta_rows = [(k, run.get(k)) for k in ("kind", "campaign", "rig", "started_at", "source_path", "format",
+                                            "n_samples", "sample_rate_hz", "duration_s")]
+    meta_rows += [(f"params.{k}", v) for k, v in sorted((params or {}).items())]
+    return "".join(f"<tr><th>{esc(k)}</th><td>{fmt(v)}</td></tr>" for k, v in meta_rows)
+
+
+def _results(results: list) -> str:
+    """A run's result rows, a table per result table."""
+    by_table: dict[str, tuple[list[str], list[tuple]]] = {}
+    for t, cols, r in results:
+        by_table.setdefault(t, (cols, []))[1].append(r)
+    return "".join(f"<h3>{esc(t)} ({len(rows)} rows)</h3>" + html_table(cols, rows, 50, links=False)
+                   for t, (cols, rows) in sorted(by_table.items())) or '<p class="meta">no result rows</p>'
+
+
+def write_run_pages(db: ReportDB, warehouse: Path, folder: Path | None = None, previous: Path | None = None) -> int:
+    """Write ``report/runs/<safe id>.html`` for every run; returns how many were drawn anew.
+
+    A page whose inputs (samples file, source hash, results, warnings, layout version) are
+    unchanged is kept (its key is in its first line), so a nightly rebuild redraws only the
+    runs that changed. Pages of runs no longer in the warehouse are removed. ``previous``: the
+    live report's run pages, an unchanged one is linked (or copied) from there into ``folder``.
+    """
+    if not db.has("runs"):
+        return 0
+    folder = folder or (Path(warehouse) / REPORT_DIR / "runs")
+    folder.mkdir(parents=True, exist_ok=True)
+    results = _run_results(db)
+    channels = {}
+    if db.has("channels"):
+        for rid, col in db.con.execute('SELECT run_id, "column" FROM channels ORDER BY run_id, "column"').fetchall():
+            channels.setdefault(rid, []).append(col)
+    cols, rows = db.rows("SELECT * FROM runs ORDER BY run_id")
+    keep, drawn = set(), 0
+    for row in rows:
+        run = dict(zip(cols, row))
+        rid = run["run_id"]
+        name = page_name(rid)
+        keep.add(name)
+        res = results.get(rid, [])
+        key = _page_key(run, res)
+        page = folder / name
+        if _take_over(page if previous is None else previous / name, page, key):
+            continue
+        svg = _draw_channels(Path(warehouse), run, channels.get(rid, []), res)
+        tmp = folder / f".{name}.tmp-{os.getpid()}"
+        tmp.write_text(_run_page(run, res, svg, key), encoding="utf-8")
+        os.replace(tmp, page)
+        drawn += 1
+    for old in folder.glob("*.html"):
+        if old.name not in keep:
+            old.unlink(missing_ok=True)
+    return drawn
+
+
+def _page_key(run: dict, results: list) -> str:
+    """The key of a run's page: everything it shows (a page with this key need not be drawn again)."""
+    return hashlib.sha256(json.dumps([RUN_PAGE_VERSION, run.get("samples_path"), run.get("source_sha256"),
+                                      [(t, c, r) for t, c, r in results], run.get("warnings"), run.get("params")],
+                                     default=str).encode()).hexdigest()[:24]
+
+
+def _take_over(old: Path, page: Path, key: str) -> bool:
+    """Whether the page ``old`` has ``key`` (then it is ``page``, linked or copied there when elsewhere)."""
+    try:
+        with open(old, encoding="utf-8") as fh:
+            if f"<!-- key: {key} -->" in fh.readline():
+                if old != page:
+                    link_or_copy(old, page)
+                return True
+    except OSError:
+        pass
+    return False
+
+
+def _draw_channels(warehouse: Path, run: dict, columns: list[str], results: list) -> str:
+    """The run's channels as SVG with the events of its ``results`` ("" without a samples file)."""
+    samples = (warehouse / run["samples_path"]) if run.get("samples_path") else None
+    if samples is None or not samples.is_file():
+        return ""
+    chans = [c for c in columns if c not in ("t_s", "run_id")]
+    try:
+        return channels_svg(downsample_minmax(samples, chans, run.get("n_samples") or 0), f"channels of {run['run_id']}",
+                            run_events(results))
+    except Exception as exc:  # a damaged samples file must not cost the whole report
+        return f'<p class="nodata">channels could not be drawn: {esc(one_line_error(exc))}</p>'
+
+
+def carry_pages(src: Path, dst: Path) -> None:
+    """Every run page of ``src`` into ``dst`` (the no-op rebuild: the same pages again)."""
+    dst.mkdir(parents=True, exist_ok=True)
+    for entry in scandir(src):  # plain strings: a no-op rebuild of 10,000 runs does this 10,000 times
+        if ".tmp-" not in entry.name and OWN_PAGE.fullmatch(entry.name) and entry.is_file(follow_symlinks=False):
+            link_or_copy(entry.path, os.path.join(dst, entry.name))
+
+
+def run_pages_present(db: ReportDB, warehouse: Path) -> bool:
+    """Whether ``report/runs/`` holds exactly one page per run of the database."""
+    folder = Path(warehouse) / REPORT_DIR / "runs"
+    try:
+        have = {n for n in os.listdir(folder) if n.endswith(".html")}
+    except OSError:
+        return False
+    want = {page_name(r) for (r,) in db.con.execute("SELECT run_id FROM runs").fetchall()} if db.has("runs") else set()
+    return have == want
+
+
+def runs_index(db: ReportDB) -> str:
+    """Every run per campaign and kind, each linked to its page."""
+    if not db.has("runs") or db.count("runs") == 0:
+        return '<section id="runs"><h2>Runs</h2><p class="nodata">no runs</p></section>'
+    rows = db.con.execute("SELECT campaign, kind, run_id, len(warnings) FROM runs ORDER BY campaign, kind, run_id").fetchall()
+    groups: dict[tuple, list] = {}
+    for camp, kind, rid, nw in rows:
+        groups.setdefault((camp, kind), []).append((rid, nw))
+    out = ['<section id="runs"><h2>Runs</h2><p class="meta">Each run has a page with its channels, metadata, '
+           "warnings and the results derived from it.</p>"]
+    for (camp, kind), runs in groups.items():
+        links = ", ".join(f'<a href="{esc(run_href(r))}">{esc(r)}</a>' + (f" ({n} warning{'s' if n != 1 else ''})"
+                                                                          if n else "") for r, n in runs)
+        out.append(f"<details><summary><b>{esc(camp)}</b> · {esc(kind)} ({len(runs)} runs)</summary>"
+                   f'<p style="font-size:.88em">{links}</p></details>')
+    out.append("</section>")
+    return "".join(out)
