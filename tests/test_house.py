@@ -19,7 +19,6 @@ MAX_PARAMETERS = 8
 #: Files that may be longer than MAX_FILE_LINES, and why.
 LONG_FILES = {
     "pipeline/readers/lvm.py": "the LabVIEW measurement format: header grammar, segments, both decimal marks",
-    "pipeline/readers/mat.py": "MATLAB v5 element parsing (compressed, sparse, nested) beside v7.3/HDF5",
 }
 
 #: Where long functions and long parameter lists are allowed: numeric kernels and physics,
