@@ -67,6 +67,7 @@ import numpy as np
 import pyarrow as pa
 
 from pipeline.readers.base import MAX_CHANNELS, MAX_LINE_BYTES, RawColumn, RawExport, ReaderError
+from pipeline.readers.csv import read_csv
 from schemas.channels import canonical_name
 
 FORMAT = "lvm"
@@ -467,8 +468,6 @@ def read_lvm(path: str | Path, read: dict | None = None, hints: dict | None = No
     with open(path, "rb") as fh:
         start = fh.read(64)
     if not _decode(start)[0].lstrip("\ufeff").startswith(_MAGIC):
-        from pipeline.readers.csv import read_csv
-
         export = read_csv(path, read, hints)
         export.format = FORMAT
         return export
@@ -515,7 +514,7 @@ def read_lvm(path: str | Path, read: dict | None = None, hints: dict | None = No
         try:
             lvm2 = _Lvm(path)
             lvm2.read_file_header(sc)
-            yield from _stream(lvm2, sc, first, columns, own_t, keep_comment, export.warnings)
+            yield from _stream(_Stream(lvm2, columns, own_t, keep_comment), sc, first, export.warnings)
         finally:
             sc.close()
 
@@ -542,42 +541,37 @@ class _SegState:
     offset: float | None = None    # added to this segment's times
 
 
-def _stream(lvm: _Lvm, sc: _Scanner, first: _Segment, columns: list[RawColumn], own_t: bool,
-            keep_comment: bool, warnings: list[str]) -> Iterator[pa.RecordBatch]:
-    first_names = [first.names[c] for c in first.channel_cols]
-    first_units = [first.field_at("Y_Unit_Label", c) for c in first.channel_cols]
-    t_unit = lvm.x_unit(first)
-    clock = _Clock()
+@dataclass
+class _Stream:
+    """What every block of a file's data is read with: the headers, the export's columns,
+    whether a channel ``t`` gives the time, whether the comment column is kept, and the clock
+    that carries time across segments."""
+
+    lvm: _Lvm
+    columns: list[RawColumn]
+    own_t: bool
+    keep_comment: bool
+    clock: _Clock = field(default_factory=_Clock)
+
+
+def _stream(ctx: _Stream, sc: _Scanner, first: _Segment, warnings: list[str]) -> Iterator[pa.RecordBatch]:
+    """Every segment's data blocks as record batches; a later segment must have the first's
+    channels (in any order) and units. A segment with fewer rows than its header's ``Samples``
+    adds a warning."""
+    lvm = ctx.lvm
     number = 0
     while True:
         number += 1
         seg = lvm.read_segment_header(sc, number)
         if seg is None:
             break
-        names = [seg.names[c] for c in seg.channel_cols]
-        if names == first_names:
-            order = list(seg.channel_cols)
-        elif sorted(names) == sorted(first_names) and len(set(names)) == len(names):
-            where = dict(zip(names, seg.channel_cols))        # one pass, not names.index per channel
-            order = [where[n] for n in first_names]
-        else:
-            raise ReaderError(f"line {seg.line}: segment {number} has channels {names} where segment 1 has "
-                              f"{first_names}")
-        for n, u0, c in zip(first_names, first_units, order):
-            u = seg.field_at("Y_Unit_Label", c)
-            if u and u0 and u != u0:
-                raise ReaderError(f"line {seg.line}: unit of `{n}` changes from {u0!r} to {u!r} in segment {number}")
-        if seg.fields.get("X_Unit_Label") and lvm.x_unit(seg) != t_unit:
-            raise ReaderError(f"line {seg.line}: X_Unit_Label changes from {t_unit!r} to {lvm.x_unit(seg)!r} "
-                              f"in segment {number}")
-        keys = {f"c{c0 + 1}": c for c0, c in zip(first.channel_cols, order)}
-        st = _SegState(seg, keys)
+        st = _SegState(seg, _segment_keys(lvm, first, seg, number))
         st.x0, st.dx = lvm.timing(seg, lvm.live_channels(seg))
         while True:
             block = sc.data_block()
             if block is None or not block[0]:
                 break
-            batch = _parse_block(lvm, st, block[0], block[1], columns, own_t, keep_comment, clock, number)
+            batch = _parse_block(ctx, st, block[0], block[1])
             if batch is not None:
                 yield batch
         expected = lvm.samples(seg)
@@ -588,15 +582,39 @@ def _stream(lvm: _Lvm, sc: _Scanner, first: _Segment, columns: list[RawColumn], 
             break
 
 
+def _segment_keys(lvm: _Lvm, first: _Segment, seg: _Segment, number: int) -> dict[str, int]:
+    """Column key -> index in segment ``seg``'s column row, for the channels of the ``first``
+    segment; refused when ``seg`` has other channels, or changes a unit or the X unit."""
+    first_names = [first.names[c] for c in first.channel_cols]
+    first_units = [first.field_at("Y_Unit_Label", c) for c in first.channel_cols]
+    t_unit = lvm.x_unit(first)
+    names = [seg.names[c] for c in seg.channel_cols]
+    if names == first_names:
+        order = list(seg.channel_cols)
+    elif sorted(names) == sorted(first_names) and len(set(names)) == len(names):
+        where = dict(zip(names, seg.channel_cols))        # one pass, not names.index per channel
+        order = [where[n] for n in first_names]
+    else:
+        raise ReaderError(f"line {seg.line}: segment {number} has channels {names} where segment 1 has "
+                          f"{first_names}")
+    for n, u0, c in zip(first_names, first_units, order):
+        u = seg.field_at("Y_Unit_Label", c)
+        if u and u0 and u != u0:
+            raise ReaderError(f"line {seg.line}: unit of `{n}` changes from {u0!r} to {u!r} in segment {number}")
+    if seg.fields.get("X_Unit_Label") and lvm.x_unit(seg) != t_unit:
+        raise ReaderError(f"line {seg.line}: X_Unit_Label changes from {t_unit!r} to {lvm.x_unit(seg)!r} "
+                          f"in segment {number}")
+    return {f"c{c0 + 1}": c for c0, c in zip(first.channel_cols, order)}
+
+
 # Lines of separators only, each matched from the line break before it (literal prefix: fast).
 _BLANK_LINES = {"\t": re.compile(r"\n[\t \r]*(?=\n)"), ",": re.compile(r"\n[, \r]*(?=\n)")}
 
 
-def _parse_block(lvm: _Lvm, st: _SegState, text: str, line0: int, columns: list[RawColumn], own_t: bool,
-                 keep_comment: bool, clock: _Clock, number: int) -> pa.RecordBatch | None:
-    import pandas as pd
-
-    seg = st.seg
+def _parse_block(ctx: _Stream, st: _SegState, text: str, line0: int) -> pa.RecordBatch | None:
+    """One block of data lines (``text``, from line ``line0``) of the segment ``st`` as a record
+    batch of the export's columns; None when the block holds no samples."""
+    lvm, seg = ctx.lvm, st.seg
     # Lines of separators only (LabVIEW writes one between segments) are not samples.
     clean = _BLANK_LINES[lvm.sep].sub("", "\n" + text)[1:]
     if not clean.strip():
@@ -604,17 +622,45 @@ def _parse_block(lvm: _Lvm, st: _SegState, text: str, line0: int, columns: list[
     if st.shift is None:
         st.shift = _row_shift(lvm, clean.split("\n", 1)[0])
     width = len(seg.names) + 4
-    numeric = sorted({st.keys[c.key] - st.shift for c in columns if c.key in st.keys}
-                     | ({seg.x_cols[0] - st.shift} if seg.x_cols and not own_t and lvm.x_columns != "No" else set())
-                     | ({x - st.shift for x in seg.x_cols[1:]} if lvm.x_columns == "Multi" and not own_t else set()))
+    numeric = sorted({st.keys[c.key] - st.shift for c in ctx.columns if c.key in st.keys}
+                     | ({seg.x_cols[0] - st.shift} if seg.x_cols and not ctx.own_t and lvm.x_columns != "No" else set())
+                     | ({x - st.shift for x in seg.x_cols[1:]} if lvm.x_columns == "Multi" and not ctx.own_t else set()))
     numeric = [i for i in numeric if 0 <= i < width]
-    comment = seg.comment_col - st.shift if keep_comment and seg.comment_col is not None else None
+    comment = seg.comment_col - st.shift if ctx.keep_comment and seg.comment_col is not None else None
+    df = _read_frame(lvm, st, clean, (text, line0), numeric, comment)
+    n = len(df)
+    arrays: dict[str, pa.Array] = {}
+    if not ctx.own_t:
+        arrays["t"] = pa.array(_block_time(ctx, st, df, text, line0), type=pa.float64())
+    for c in ctx.columns:
+        if c.key in st.keys:
+            arrays[c.key] = pa.array(_field_values(df, st, st.keys[c.key]), type=pa.float64())
+    if ctx.keep_comment:
+        if comment is not None:
+            s = df[f"f{comment}"]
+            s = s.where(s.notna() & (s.astype(str).str.strip() != ""), None)
+            arrays[_COMMENT_NAME] = pa.array(s.to_numpy(dtype=object), type=pa.string(), from_pandas=True)
+        else:
+            arrays[_COMMENT_NAME] = pa.nulls(n, pa.string())
+    st.rows += n
+    return pa.RecordBatch.from_arrays([arrays[c.key] for c in ctx.columns], names=[c.key for c in ctx.columns])
+
+
+def _read_frame(lvm: _Lvm, st: _SegState, clean: str, block: tuple[str, int], numeric: list[int],
+                comment: int | None):
+    """The data lines ``clean`` (``block``: the block's text as read and its first line, for
+    messages) parsed by pandas into fields ``f0``, ``f1`` ...; a bad value or field count is a
+    ReaderError naming its line."""
+    import pandas as pd   # heavy: imported when the first block is parsed, not when a worker loads the readers
+
+    text, line0 = block
+    seg = st.seg
     # Numbers are left to pandas' type inference: an explicit float64 dtype would ignore the
     # decimal comma. A numeric column that comes back as text holds a bad value.
     dtype = {f"f{comment}": str} if comment is not None else None
     # No usecols: pandas then refuses rows shorter than the names (trailing empty fields
     # are not written by LabVIEW); a few spare names absorb trailing separators.
-    opts = dict(sep=lvm.sep, header=None, names=[f"f{i}" for i in range(width)], index_col=False,
+    opts = dict(sep=lvm.sep, header=None, names=[f"f{i}" for i in range(len(seg.names) + 4)], index_col=False,
                 decimal=lvm.decimal, engine="c", skip_blank_lines=True)
     try:
         df = pd.read_csv(io.StringIO(clean), dtype=dtype, **opts)
@@ -626,58 +672,51 @@ def _parse_block(lvm: _Lvm, st: _SegState, text: str, line0: int, columns: list[
             raise ReaderError(f"line {line0 + k - 1}: {m.group(3)} fields where the column row has "
                               f"{len(seg.names)}") from None
         _raise_bad_value(lvm, st, text, line0, numeric)
-        raise ReaderError(f"segment {number}: cannot parse data: {msg}") from None
-    n = len(df)
+        raise ReaderError(f"segment {seg.number}: cannot parse data: {msg}") from None
     for i in numeric:
         if f"f{i}" in df and df[f"f{i}"].dtype.kind not in "fiub":
             _raise_bad_value(lvm, st, text, line0, [i])
-            raise ReaderError(f"segment {number}: column {i + st.shift + 1} is not numeric")
+            raise ReaderError(f"segment {seg.number}: column {i + st.shift + 1} is not numeric")
+    return df
 
-    def values(i: int) -> np.ndarray:
-        j = i - st.shift
-        if f"f{j}" in df:
-            return df[f"f{j}"].to_numpy(dtype=np.float64)
-        return np.full(n, np.nan)
 
-    arrays: dict[str, pa.Array] = {}
-    if not own_t:
-        if lvm.x_columns == "No":
-            if st.dx is None:
-                raise ReaderError(f"line {seg.line}: X_Columns is No but segment {number} has no Delta_X")
-            t = st.x0 + np.arange(st.rows, st.rows + n, dtype=np.float64) * st.dx
-        else:
-            t = values(seg.x_cols[0])
-            if lvm.x_columns == "Multi":
-                for xc in seg.x_cols[1:]:
-                    other = values(xc)
-                    ok = np.isnan(other) | np.isclose(other, t, rtol=1e-9, atol=0.0)
-                    if not ok.all():
-                        k = _text_line(text, int(np.flatnonzero(~ok)[0]), lvm.sep)
-                        ch = seg.names[xc + 1] if xc + 1 < len(seg.names) else f"column {xc + 1}"
-                        raise ReaderError(
-                            f"line {line0 + k - 1}: the X column of `{ch}` ({other[~ok][0]:g}) disagrees with the "
-                            f"first X column ({t[~ok][0]:g}); channels with different timing cannot share one "
-                            "time column")
-        if st.offset is None:
-            st.offset = _segment_offset(lvm, st, clock, t)
-        if st.offset:
-            t = t + st.offset
-        finite = t[np.isfinite(t)]
-        if finite.size:
-            clock.last = float(finite.max())
-        arrays["t"] = pa.array(t, type=pa.float64())
-    for c in columns:
-        if c.key in st.keys:
-            arrays[c.key] = pa.array(values(st.keys[c.key]), type=pa.float64())
-    if keep_comment:
-        if comment is not None:
-            s = df[f"f{comment}"]
-            s = s.where(s.notna() & (s.astype(str).str.strip() != ""), None)
-            arrays[_COMMENT_NAME] = pa.array(s.to_numpy(dtype=object), type=pa.string(), from_pandas=True)
-        else:
-            arrays[_COMMENT_NAME] = pa.nulls(n, pa.string())
-    st.rows += n
-    return pa.RecordBatch.from_arrays([arrays[c.key] for c in columns], names=[c.key for c in columns])
+def _field_values(df, st: _SegState, i: int) -> np.ndarray:
+    """Column ``i`` of the column row as floats (NaN where the rows have no such field)."""
+    j = i - st.shift
+    if f"f{j}" in df:
+        return df[f"f{j}"].to_numpy(dtype=np.float64)
+    return np.full(len(df), np.nan)
+
+
+def _block_time(ctx: _Stream, st: _SegState, df, text: str, line0: int) -> np.ndarray:
+    """The block's times: ``X0 + i * Delta_X`` (``X_Columns = No``) or the first X column (the
+    others must agree with it), moved on by the segment's offset; the clock keeps the last."""
+    lvm, seg, n = ctx.lvm, st.seg, len(df)
+    if lvm.x_columns == "No":
+        if st.dx is None:
+            raise ReaderError(f"line {seg.line}: X_Columns is No but segment {seg.number} has no Delta_X")
+        t = st.x0 + np.arange(st.rows, st.rows + n, dtype=np.float64) * st.dx
+    else:
+        t = _field_values(df, st, seg.x_cols[0])
+        if lvm.x_columns == "Multi":
+            for xc in seg.x_cols[1:]:
+                other = _field_values(df, st, xc)
+                ok = np.isnan(other) | np.isclose(other, t, rtol=1e-9, atol=0.0)
+                if not ok.all():
+                    k = _text_line(text, int(np.flatnonzero(~ok)[0]), lvm.sep)
+                    ch = seg.names[xc + 1] if xc + 1 < len(seg.names) else f"column {xc + 1}"
+                    raise ReaderError(
+                        f"line {line0 + k - 1}: the X column of `{ch}` ({other[~ok][0]:g}) disagrees with the "
+                        f"first X column ({t[~ok][0]:g}); channels with different timing cannot share one "
+                        "time column")
+    if st.offset is None:
+        st.offset = _segment_offset(lvm, st, ctx.clock, t)
+    if st.offset:
+        t = t + st.offset
+    finite = t[np.isfinite(t)]
+    if finite.size:
+        ctx.clock.last = float(finite.max())
+    return t
 
 
 def _segment_offset(lvm: _Lvm, st: _SegState, clock: _Clock, t: np.ndarray) -> float:
