@@ -460,6 +460,7 @@ _NULLS = {"", "nan", "NaN", "NAN", "NA", "N/A", "null", "NULL", "-nan", "inf", "
 
 
 def _is_number(text: str, decimal: str) -> bool:
+    """Whether a cell is a number (or a null such as ``nan``) under the decimal mark."""
     if text in _NULLS:
         return True
     try:

@@ -111,6 +111,7 @@ def list_parts(path: str | Path) -> list[str]:
 
 
 def _pick_sheet(wb, selector) -> str:
+    """The name of the sheet ``selector`` names (a name or a 0-based index), else the first sheet not named ``meta``."""
     names = list(wb.sheet_names)
     if not names:
         raise ReaderError("workbook has no sheets")
@@ -138,6 +139,7 @@ _CHUNK = 4 << 20
 
 
 def _col_number(letters: bytes) -> int:
+    """A column's letters as its 1-based number (``A`` -> 1, ``AA`` -> 27)."""
     n = 0
     for ch in letters.upper():
         n = 26 * n + ch - 64
@@ -284,6 +286,8 @@ def _check_sheet_extent(path: Path, names: list[str]) -> None:
 
 
 def _check_extents(zf: zipfile.ZipFile, names: list[str], size: int) -> None:
+    """Refuse a sheet among ``names`` whose grid (or XML) is larger than ``inflate_cap(size)`` allows
+    (see :func:`_check_sheet_extent`)."""
     cap = inflate_cap(size)
     parts = _sheet_parts(zf, names)
     parts = {n: m for n, m in parts.items() if m in zf.NameToInfo}
@@ -309,6 +313,7 @@ def _check_extents(zf: zipfile.ZipFile, names: list[str], size: int) -> None:
 
 
 def _sheet_kind(wb, name: str) -> str:
+    """The kind of sheet ``name`` as calamine names it (``WorkSheet``, ``ChartSheet``, ...)."""
     for meta in wb.sheets_metadata:
         if meta.name == name:
             return str(meta.typ).rsplit(".", 1)[-1]
@@ -316,6 +321,7 @@ def _sheet_kind(wb, name: str) -> str:
 
 
 def _is_empty(v) -> bool:
+    """Whether a cell is empty (None or blank text)."""
     return v is None or (isinstance(v, str) and not v.strip())
 
 
@@ -342,6 +348,7 @@ def _sheet_rows(wb, name: str) -> list[list]:
 
 
 def _meta_sheet(wb) -> dict:
+    """The ``meta`` sheet's key / value rows as metadata (empty without such a sheet)."""
     for name in wb.sheet_names:
         if name.strip().casefold() == "meta":
             out = {}
@@ -353,6 +360,7 @@ def _meta_sheet(wb) -> dict:
 
 
 def _meta_value(v):
+    """A ``meta`` cell as plain metadata: ISO text for dates, whole numbers as int."""
     if isinstance(v, (dt.datetime, dt.date)):
         return v.isoformat()
     if isinstance(v, float) and v.is_integer() and abs(v) < 2 ** 53:
@@ -361,10 +369,12 @@ def _meta_value(v):
 
 
 def _is_number(v) -> bool:
+    """Whether a cell holds a number (a logical cell too)."""
     return isinstance(v, (int, float))  # bool is an int: a logical cell is 0 / 1
 
 
 def _row_number(read: dict, key: str) -> int | None:
+    """The 1-based row number ``read[key]`` (None when not given); refused when not a row number."""
     v = read.get(key)
     if v is None:
         return None
@@ -378,6 +388,7 @@ def _row_number(read: dict, key: str) -> int | None:
 
 
 def _as_datetime(v) -> dt.datetime | None:
+    """A date or date-time cell as a datetime (a date at midnight); None for anything else."""
     if isinstance(v, dt.datetime):
         return v
     if isinstance(v, dt.date):

@@ -183,6 +183,8 @@ class _Clock:
 
 @dataclass
 class _SegState:
+    """How far one segment has been read: its keys, rows so far, row shift, timing and time offset."""
+
     seg: Segment
     keys: dict[str, int]           # column key -> index in the segment's column row
     rows: int = 0
@@ -273,9 +275,10 @@ def _parse_block(ctx: _Stream, st: _SegState, text: str, line0: int) -> pa.Recor
     if st.shift is None:
         st.shift = row_shift(lvm, clean.split("\n", 1)[0])
     width = len(seg.names) + 4
+    own_t = ctx.own_t
     numeric = sorted({st.keys[c.key] - st.shift for c in ctx.columns if c.key in st.keys}
-                     | ({seg.x_cols[0] - st.shift} if seg.x_cols and not ctx.own_t and lvm.x_columns != "No" else set())
-                     | ({x - st.shift for x in seg.x_cols[1:]} if lvm.x_columns == "Multi" and not ctx.own_t else set()))
+                     | ({seg.x_cols[0] - st.shift} if seg.x_cols and not own_t and lvm.x_columns != "No" else set())
+                     | ({x - st.shift for x in seg.x_cols[1:]} if lvm.x_columns == "Multi" and not own_t else set()))
     numeric = [i for i in numeric if 0 <= i < width]
     comment = seg.comment_col - st.shift if ctx.keep_comment and seg.comment_col is not None else None
     df = _read_frame(lvm, st, clean, (text, line0), numeric, comment)

@@ -27,8 +27,9 @@
   that inflates to more than :func:`pipeline.readers.base.inflate_cap` of its size (a
   decompression bomb), declares sizes or dimensions its bytes cannot hold, nests arrays too
   deep, uses unknown data types or arrays that lack the parts their class announces (scipy
-  allocates what a file declares and crashes on some malformed arrays). v7.3 datasets are checked the same way (shape x item
-  size against the cap) before they are read, and HDF5 links are never followed.
+  allocates what a file declares and crashes on some malformed arrays). v7.3 datasets are
+  checked the same way (shape x item size against the cap) before they are read, and HDF5
+  links are never followed.
 """
 from __future__ import annotations
 
@@ -72,6 +73,7 @@ def reexport_hint(name: str, cls: str, stem: str) -> str:
 
 
 def _is_v73(path: Path) -> bool:
+    """Whether a ``.mat`` file is HDF5 (MATLAB v7.3): the HDF5 signature at 0 or 512, or a v7.3 text header."""
     with open(path, "rb") as fh:
         head = fh.read(128)
         fh.seek(512)
@@ -103,9 +105,11 @@ class _Collect:
         self.warnings: list[str] = []
 
     def refuse_object(self, name: str, cls: str):
+        """Refuse the file: variable ``name`` is a MATLAB object of class ``cls`` (a re-export hint)."""
         raise ReaderError(reexport_hint(name, cls, self.path.stem))
 
     def export(self, batches) -> RawExport:
+        """The RawExport of the channels gathered (all of one length), reading ``batches``."""
         if not self.channels:
             raise ReaderError("no channel: the file has no numeric vector (N x 1 or 1 x N, N > 1)")
         check_channel_count(len(self.channels), "channels (numeric vectors)")
@@ -122,6 +126,7 @@ class _Collect:
         return RawExport(format=FORMAT, columns=columns, metadata=self.meta, batches=batches, warnings=self.warnings)
 
     def _unit(self, name: str, folded: dict) -> str | None:
+        """A channel's unit from ``units`` (case-insensitive), else its matrix variable's unit."""
         unit = self.units.get(name, folded.get(name.casefold()))
         if unit is None and name in self.parts:
             var = self.parts[name][0]
@@ -278,11 +283,14 @@ def _v5_batches(col: _Collect, data: dict, arrays: dict) -> Iterator[pa.RecordBa
 
 # -- v7.3 (HDF5) ---------------------------------------------------------------------------
 def _cls(obj) -> str:
+    """An HDF5 object's ``MATLAB_class`` attribute as text (``""`` without one)."""
     c = obj.attrs.get("MATLAB_class", b"")
     return c.decode("ascii", "replace") if isinstance(c, bytes) else str(c)
 
 
 def _h5_value(ds):
+    """A small v7.3 dataset as a metadata value: text for chars, a plain number or list; None for an
+    empty or complex one."""
     cls = _cls(ds)
     if "MATLAB_empty" in ds.attrs and int(np.asarray(ds.attrs["MATLAB_empty"]).ravel()[0]):
         return None
@@ -322,6 +330,7 @@ def _check_h5_size(obj, name: str, file_size: int) -> None:
 
 
 def _read_v73(path: Path) -> RawExport:
+    """Read a MAT v7.3 (HDF5) file; h5py's errors on a corrupt file become a one-line ReaderError."""
     try:
         return _read_v73_unchecked(path)
     except ReaderError:
@@ -331,6 +340,7 @@ def _read_v73(path: Path) -> RawExport:
 
 
 def _first_line(exc: BaseException) -> str:
+    """The first line of an exception's message (at most 200 characters)."""
     lines = str(exc).strip().splitlines()
     return lines[0][:200] if lines else ""
 

@@ -74,6 +74,7 @@ class _Source:
                 return out
 
     def read(self, n: int) -> bytes:
+        """The next ``n`` bytes of content (an element that ends early is :class:`_Bad`)."""
         while len(self.buf) < n:
             piece = self._piece()
             if not piece:
@@ -84,6 +85,7 @@ class _Source:
         return out
 
     def skip(self, n: int) -> None:
+        """Skip ``n`` bytes of content (dropped as they come)."""
         k = min(n, len(self.buf))
         self.buf, self.pos, n = self.buf[k:], self.pos + k, n - k
         if n and not self.compressed:

@@ -189,6 +189,7 @@ class _Opened:
         self.mdf.configure(read_fragment_size=READ_FRAGMENT_BYTES)
 
     def close(self) -> None:
+        """Close the MDF and its file."""
         try:
             self.mdf.close()
         finally:
@@ -196,10 +197,12 @@ class _Opened:
 
 
 def _open(path: Path) -> _Opened:
+    """The MDF file at ``path`` opened for reading (see :class:`_Opened`)."""
     return _Opened(path)
 
 
 def _text(elem) -> str:
+    """The text of an XML element and its children (``""`` for None)."""
     return "".join(elem.itertext()) if elem is not None else ""
 
 
@@ -242,6 +245,7 @@ def _groups(mdf) -> list[tuple[int, str, int]]:
 
 
 def _is_bus_log(mdf, index: int) -> bool:
+    """Whether channel group ``index`` is a bus log: flagged a bus event, or holding frame channels."""
     g = mdf.groups[index]
     if int(getattr(g.channel_group, "flags", 0) or 0) & _CG_BUS_EVENT:
         return True
@@ -307,6 +311,8 @@ def list_parts(path: str | Path) -> list[str]:
 
 
 def _pick_group(mdf, selector) -> tuple[int, str, int]:
+    """``(index, acquisition name, records)`` of the group ``selector`` names (a name or a 0-based
+    index), else of the only group with data."""
     groups = _groups(mdf)
     listing = ", ".join(f"{i} {name!r}" if name else str(i) for i, name, _ in groups)
     if selector is None or str(selector).strip() == "":

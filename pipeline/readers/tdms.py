@@ -130,6 +130,7 @@ class _BoundedReader(io.BufferedReader):
         self.stored = _stored_bytes(self.fileno(), self._size)
 
     def read(self, size: int | None = -1) -> bytes:
+        """Read at most the bytes left in the file (see the class docstring)."""
         if size is not None and size > 1 << 16:          # small reads cannot allocate much: no tell()
             size = max(0, min(size, self._size - self.tell()))
             if size == 0:
@@ -226,6 +227,8 @@ def _check_lead_in(path: Path) -> None:
 
 @dataclass
 class _Col:
+    """One output column: its RawColumn, how it is read (``kind``), its TDMS channel and start (``t0``)."""
+
     raw: RawColumn
     kind: str             # "number", "string", "timestamp", "elapsed" (timestamp t), "wf_time", "empty"
     channel: str | None   # TDMS channel name (None for the synthesised time)
@@ -375,6 +378,7 @@ def _add_time(found: _Channels, metadata: dict) -> None:
 
 
 def _select_group(tdms, hints: dict, root: dict):
+    """The group the ``group`` key names (``hints`` first, then the root properties), else the only group."""
     groups = tdms.groups()
     names = [g.name for g in groups]
     wanted = _lookup(hints, "group")
@@ -424,6 +428,7 @@ def _largest_chunk(tdms) -> int:
 
 # -- reading -------------------------------------------------------------------------------
 def _source(group, col: _Col) -> _Source:
+    """How column ``col`` is read from ``group`` (see :class:`_Col` for the kinds)."""
     key = col.raw.key
     if col.kind == "wf_time":
         off, inc = col.t0
@@ -449,6 +454,7 @@ def _source(group, col: _Col) -> _Source:
 
 # -- values --------------------------------------------------------------------------------
 def _iso(value: np.datetime64) -> str:
+    """A timestamp as ISO 8601 UTC text with microseconds."""
     return np.datetime_as_string(value.astype("datetime64[us]"), unit="us") + "+00:00"
 
 
@@ -466,6 +472,7 @@ def _plain(value):
 
 
 def _text(value) -> str | None:
+    """A property as stripped text; None when missing or blank."""
     if value is None:
         return None
     text = str(value).strip()
@@ -473,6 +480,7 @@ def _text(value) -> str | None:
 
 
 def _number(value) -> float | None:
+    """A property as a float; None when it is not a number."""
     try:
         return float(value)
     except (TypeError, ValueError):
@@ -480,6 +488,7 @@ def _number(value) -> float | None:
 
 
 def _lookup(meta: dict, key: str):
+    """The value of ``key`` in ``meta`` (keys compared stripped and case-folded), None when missing or blank."""
     for k, v in meta.items():
         if str(k).strip().casefold() == key and v is not None and str(v).strip() != "":
             return v
@@ -487,6 +496,7 @@ def _lookup(meta: dict, key: str):
 
 
 def _first_line(exc: BaseException) -> str:
+    """The first line of a npTDMS exception (named when it has no words), at most 200 characters."""
     text = str(exc).strip().splitlines()
     line = text[0] if text else ""
     if not any(c.isalpha() for c in line):  # KeyError(119) says "119": name the error instead
