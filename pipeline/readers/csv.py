@@ -45,6 +45,95 @@ _DELIMITERS = {",": ",", ";": ";", "\t": "\t", "tab": "\t", "\\t": "\t", "whites
 _LINE_BREAK = re.compile(r"\r\n|\r|\n")
 
 
+def read_csv(path: str | Path, read: dict | None = None, hints: dict | None = None) -> RawExport:
+    """Open a CSV / TXT export.
+
+    Parameters
+    ----------
+    path : path-like
+        The export.
+    read : dict, optional
+        The ``[read]`` table of the applicable ``rig.toml``: ``delimiter``, ``decimal``,
+        ``skip_rows``, ``header``.
+    hints : dict, optional
+        Unused; accepted for the common reader signature.
+
+    Returns
+    -------
+    RawExport
+    """
+    path = Path(path)
+    read = dict(read or {})
+    metadata: dict = {}
+    head = _open_head(path, read, metadata)
+    samples = [ln for ln in head.lines[head.data_start:head.data_start + 20] if ln.strip()]
+    dialect = _dialect(read, head, samples)
+    rows = [dialect.split(s) for s in samples]     # split once: header parsing stays linear in the width
+    names = _header_names(head, dialect, rows)
+    columns, keys = _columns(names, rows, head.has_header, dialect.decimal)
+    data = _Data(path, head.encoding, head.data_start, keys, columns, dialect)
+    return RawExport(format=FORMAT, columns=columns, metadata=metadata, batches=lambda: _batches(data))
+
+
+@dataclass(frozen=True)
+class _Dialect:
+    """How the data lines are cut: ``delimiter`` (a character or ``"whitespace"``) and the
+    ``decimal`` mark (``"."`` or ``","``)."""
+
+    delimiter: str
+    decimal: str
+
+    def split(self, line: str) -> list[str]:
+        """The fields of one line."""
+        if self.delimiter == "whitespace":
+            return line.split()
+        return next(_csv.reader([line], delimiter=self.delimiter), [])   # honours quoted fields
+
+
+@dataclass(frozen=True)
+class _Head:
+    """The head of the file as opened: its lines, whether they are the whole file, and where
+    the header / data start in them."""
+
+    lines: list[str]
+    encoding: str
+    has_header: bool
+    header_line: str | None
+    data_start: int          # index of the first data line = physical lines before it
+
+
+@dataclass(frozen=True)
+class _Data:
+    """What streaming the data needs: the file, its encoding, the lines before the data, the
+    parser's column names (``c1`` ...), the columns read and the dialect."""
+
+    path: Path
+    encoding: str
+    lines_before: int
+    keys: list[str]
+    columns: list[RawColumn]
+    dialect: _Dialect
+
+
+def _open_head(path: Path, read: dict, metadata: dict) -> _Head:
+    """Read the head of the file: leading ``#`` lines into ``metadata``, ``skip_rows`` skipped,
+    then where the header (if any) and the data start."""
+    lines, encoding, complete = _head_lines(path)
+    i = 0
+    # Leading "# key: value" lines (blank lines between them are allowed); other "#" lines are
+    # comments, kept whole under "comments".
+    while i < len(lines) and (lines[i].lstrip().startswith("#") or not lines[i].strip()):
+        if lines[i].lstrip().startswith("#"):
+            add_comment_line(lines[i].lstrip()[1:], metadata)
+        i += 1
+    skip = int(read.get("skip_rows", 0) or 0)
+    i += skip
+    has_header = bool(read.get("header", True))
+    if i >= len(lines):
+        raise ReaderError("no header or data rows" if complete else f"no header within the first {HEAD_BYTES} bytes")
+    return _Head(lines, encoding, has_header, lines[i] if has_header else None, i + 1 if has_header else i)
+
+
 def _head_lines(path: Path) -> tuple[list[str], str, bool]:
     """The first :data:`HEAD_BYTES` as ``(lines, encoding, whether that is the whole file)``; a
     last line the read may have cut is left out."""
@@ -58,6 +147,27 @@ def _head_lines(path: Path) -> tuple[list[str], str, bool]:
     if not complete and lines:
         lines = lines[:-1]  # the last line may be cut
     return lines, encoding, complete
+
+
+def _dialect(read: dict, head: _Head, samples: list[str]) -> _Dialect:
+    """Delimiter and decimal mark: ``rig.toml`` ``[read]`` where it says, else detected from
+    the header and the data rows of the head."""
+    delim_opt = read.get("delimiter")
+    if delim_opt is not None and delim_opt not in _DELIMITERS:
+        raise ReaderError(f"rig.toml delimiter {delim_opt!r} is not one of ',' ';' '\\t' 'whitespace'")
+    head_rows = [ln for ln in head.lines[head.data_start:] if ln.strip()]   # every data row of the head: the decimal
+    if delim_opt is not None:
+        delimiter = _DELIMITERS[delim_opt]
+    else:
+        header_line = head.header_line
+        delimiter = _detect_delimiter(header_line if header_line is not None else (samples[0] if samples else ""),
+                                      samples)
+    decimal = read.get("decimal") or _detect_decimal(delimiter, head_rows, head.header_line)
+    if decimal not in (".", ","):
+        raise ReaderError(f"rig.toml decimal {decimal!r} is not '.' or ','")
+    if decimal == "," and delimiter == ",":
+        raise ReaderError("decimal comma with a comma delimiter cannot be parsed")
+    return _Dialect(delimiter, decimal)
 
 
 def _detect_delimiter(header: str, samples: list[str]) -> str:
@@ -198,116 +308,6 @@ def _decide_decimal(first: dict[str, tuple[str, str]]) -> str:
                           "rows decides; set rig.toml [read] decimal = \",\" if it is a decimal comma, or export "
                           "without thousands separators")
     return "."
-
-
-@dataclass(frozen=True)
-class _Dialect:
-    """How the data lines are cut: ``delimiter`` (a character or ``"whitespace"``) and the
-    ``decimal`` mark (``"."`` or ``","``)."""
-
-    delimiter: str
-    decimal: str
-
-    def split(self, line: str) -> list[str]:
-        """The fields of one line."""
-        if self.delimiter == "whitespace":
-            return line.split()
-        return next(_csv.reader([line], delimiter=self.delimiter), [])   # honours quoted fields
-
-
-@dataclass(frozen=True)
-class _Head:
-    """The head of the file as opened: its lines, whether they are the whole file, and where
-    the header / data start in them."""
-
-    lines: list[str]
-    encoding: str
-    has_header: bool
-    header_line: str | None
-    data_start: int          # index of the first data line = physical lines before it
-
-
-@dataclass(frozen=True)
-class _Data:
-    """What streaming the data needs: the file, its encoding, the lines before the data, the
-    parser's column names (``c1`` ...), the columns read and the dialect."""
-
-    path: Path
-    encoding: str
-    lines_before: int
-    keys: list[str]
-    columns: list[RawColumn]
-    dialect: _Dialect
-
-
-def read_csv(path: str | Path, read: dict | None = None, hints: dict | None = None) -> RawExport:
-    """Open a CSV / TXT export.
-
-    Parameters
-    ----------
-    path : path-like
-        The export.
-    read : dict, optional
-        The ``[read]`` table of the applicable ``rig.toml``: ``delimiter``, ``decimal``,
-        ``skip_rows``, ``header``.
-    hints : dict, optional
-        Unused; accepted for the common reader signature.
-
-    Returns
-    -------
-    RawExport
-    """
-    path = Path(path)
-    read = dict(read or {})
-    metadata: dict = {}
-    head = _open_head(path, read, metadata)
-    samples = [ln for ln in head.lines[head.data_start:head.data_start + 20] if ln.strip()]
-    dialect = _dialect(read, head, samples)
-    rows = [dialect.split(s) for s in samples]     # split once: header parsing stays linear in the width
-    names = _header_names(head, dialect, rows)
-    columns, keys = _columns(names, rows, head.has_header, dialect.decimal)
-    data = _Data(path, head.encoding, head.data_start, keys, columns, dialect)
-    return RawExport(format=FORMAT, columns=columns, metadata=metadata, batches=lambda: _batches(data))
-
-
-def _open_head(path: Path, read: dict, metadata: dict) -> _Head:
-    """Read the head of the file: leading ``#`` lines into ``metadata``, ``skip_rows`` skipped,
-    then where the header (if any) and the data start."""
-    lines, encoding, complete = _head_lines(path)
-    i = 0
-    # Leading "# key: value" lines (blank lines between them are allowed); other "#" lines are
-    # comments, kept whole under "comments".
-    while i < len(lines) and (lines[i].lstrip().startswith("#") or not lines[i].strip()):
-        if lines[i].lstrip().startswith("#"):
-            add_comment_line(lines[i].lstrip()[1:], metadata)
-        i += 1
-    skip = int(read.get("skip_rows", 0) or 0)
-    i += skip
-    has_header = bool(read.get("header", True))
-    if i >= len(lines):
-        raise ReaderError("no header or data rows" if complete else f"no header within the first {HEAD_BYTES} bytes")
-    return _Head(lines, encoding, has_header, lines[i] if has_header else None, i + 1 if has_header else i)
-
-
-def _dialect(read: dict, head: _Head, samples: list[str]) -> _Dialect:
-    """Delimiter and decimal mark: ``rig.toml`` ``[read]`` where it says, else detected from
-    the header and the data rows of the head."""
-    delim_opt = read.get("delimiter")
-    if delim_opt is not None and delim_opt not in _DELIMITERS:
-        raise ReaderError(f"rig.toml delimiter {delim_opt!r} is not one of ',' ';' '\\t' 'whitespace'")
-    head_rows = [ln for ln in head.lines[head.data_start:] if ln.strip()]   # every data row of the head: the decimal
-    if delim_opt is not None:
-        delimiter = _DELIMITERS[delim_opt]
-    else:
-        header_line = head.header_line
-        delimiter = _detect_delimiter(header_line if header_line is not None else (samples[0] if samples else ""),
-                                      samples)
-    decimal = read.get("decimal") or _detect_decimal(delimiter, head_rows, head.header_line)
-    if decimal not in (".", ","):
-        raise ReaderError(f"rig.toml decimal {decimal!r} is not '.' or ','")
-    if decimal == "," and delimiter == ",":
-        raise ReaderError("decimal comma with a comma delimiter cannot be parsed")
-    return _Dialect(delimiter, decimal)
 
 
 def _header_names(head: _Head, dialect: _Dialect, rows: list[list[str]]) -> list[str]:
