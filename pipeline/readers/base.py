@@ -8,6 +8,8 @@ canonical channels, converting units and validating the kind is the ingest's job
 """
 from __future__ import annotations
 
+import csv
+import io
 import re
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -188,9 +190,6 @@ def side_csv_rows(data: bytes) -> Iterator[tuple[int, int, list[str]]]:
     the file. Raises :class:`SideCsvError` for a NUL byte (a binary or UTF-16 file), an unclosed
     quote, a field over the csv module's limit, or any other CSV syntax error.
     """
-    import csv
-    import io
-
     if b"\x00" in data:
         raise SideCsvError("NUL byte (a binary or UTF-16 file?); save it as UTF-8 CSV",
                            data[: data.index(b"\x00")].count(b"\n") + 1)

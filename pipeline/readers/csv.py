@@ -17,8 +17,11 @@ whitespace-separated files go through pandas' C parser in chunks.
 from __future__ import annotations
 
 import csv as _csv
+import os
 import re
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
 
 import pyarrow as pa
@@ -42,7 +45,98 @@ _DELIMITERS = {",": ",", ";": ";", "\t": "\t", "tab": "\t", "\\t": "\t", "whites
 _LINE_BREAK = re.compile(r"\r\n|\r|\n")
 
 
+def read_csv(path: str | Path, read: dict | None = None, hints: dict | None = None) -> RawExport:
+    """Open a CSV / TXT export.
+
+    Parameters
+    ----------
+    path : path-like
+        The export.
+    read : dict, optional
+        The ``[read]`` table of the applicable ``rig.toml``: ``delimiter``, ``decimal``,
+        ``skip_rows``, ``header``.
+    hints : dict, optional
+        Unused; accepted for the common reader signature.
+
+    Returns
+    -------
+    RawExport
+    """
+    path = Path(path)
+    read = dict(read or {})
+    metadata: dict = {}
+    head = _open_head(path, read, metadata)
+    samples = [ln for ln in head.lines[head.data_start:head.data_start + 20] if ln.strip()]
+    dialect = _dialect(read, head, samples)
+    rows = [dialect.split(s) for s in samples]     # split once: header parsing stays linear in the width
+    names = _header_names(head, dialect, rows)
+    columns, keys = _columns(names, rows, head.has_header, dialect.decimal)
+    data = _Data(path, head.encoding, head.data_start, keys, columns, dialect)
+    return RawExport(format=FORMAT, columns=columns, metadata=metadata, batches=lambda: _batches(data))
+
+
+@dataclass(frozen=True)
+class _Dialect:
+    """How the data lines are cut: ``delimiter`` (a character or ``"whitespace"``) and the
+    ``decimal`` mark (``"."`` or ``","``)."""
+
+    delimiter: str
+    decimal: str
+
+    def split(self, line: str) -> list[str]:
+        """The fields of one line."""
+        if self.delimiter == "whitespace":
+            return line.split()
+        return next(_csv.reader([line], delimiter=self.delimiter), [])   # honours quoted fields
+
+
+@dataclass(frozen=True)
+class _Head:
+    """The head of the file as opened: its lines, whether they are the whole file, and where
+    the header / data start in them."""
+
+    lines: list[str]
+    encoding: str
+    has_header: bool
+    header_line: str | None
+    data_start: int          # index of the first data line = physical lines before it
+
+
+@dataclass(frozen=True)
+class _Data:
+    """What streaming the data needs: the file, its encoding, the lines before the data, the
+    parser's column names (``c1`` ...), the columns read and the dialect."""
+
+    path: Path
+    encoding: str
+    lines_before: int
+    keys: list[str]
+    columns: list[RawColumn]
+    dialect: _Dialect
+
+
+def _open_head(path: Path, read: dict, metadata: dict) -> _Head:
+    """Read the head of the file: leading ``#`` lines into ``metadata``, ``skip_rows`` skipped,
+    then where the header (if any) and the data start."""
+    lines, encoding, complete = _head_lines(path)
+    i = 0
+    # Leading "# key: value" lines (blank lines between them are allowed); other "#" lines are
+    # comments, kept whole under "comments".
+    while i < len(lines) and (lines[i].lstrip().startswith("#") or not lines[i].strip()):
+        if lines[i].lstrip().startswith("#"):
+            add_comment_line(lines[i].lstrip()[1:], metadata)
+        i += 1
+    skip = int(read.get("skip_rows", 0) or 0)
+    i += skip
+    has_header = bool(read.get("header", True))
+    if i >= len(lines):
+        raise ReaderError("no header or data rows" if complete else f"no header within the first {HEAD_BYTES} bytes")
+    return _Head(lines, encoding, has_header, lines[i] if has_header else None, i + 1 if has_header else i)
+
+
 def _head_lines(path: Path) -> tuple[list[str], str, bool]:
+    """The first :data:`HEAD_BYTES` as ``(lines, encoding, whether that is the whole file)``; a
+    last line the read may have cut is left out."""
     with open(path, "rb") as fh:
         data = fh.read(HEAD_BYTES)
         complete = len(data) < HEAD_BYTES
@@ -55,7 +149,29 @@ def _head_lines(path: Path) -> tuple[list[str], str, bool]:
     return lines, encoding, complete
 
 
+def _dialect(read: dict, head: _Head, samples: list[str]) -> _Dialect:
+    """Delimiter and decimal mark: ``rig.toml`` ``[read]`` where it says, else detected from
+    the header and the data rows of the head."""
+    delim_opt = read.get("delimiter")
+    if delim_opt is not None and delim_opt not in _DELIMITERS:
+        raise ReaderError(f"rig.toml delimiter {delim_opt!r} is not one of ',' ';' '\\t' 'whitespace'")
+    head_rows = [ln for ln in head.lines[head.data_start:] if ln.strip()]   # every data row of the head: the decimal
+    if delim_opt is not None:
+        delimiter = _DELIMITERS[delim_opt]
+    else:
+        header_line = head.header_line
+        delimiter = _detect_delimiter(header_line if header_line is not None else (samples[0] if samples else ""),
+                                      samples)
+    decimal = read.get("decimal") or _detect_decimal(delimiter, head_rows, head.header_line)
+    if decimal not in (".", ","):
+        raise ReaderError(f"rig.toml decimal {decimal!r} is not '.' or ','")
+    if decimal == "," and delimiter == ",":
+        raise ReaderError("decimal comma with a comma delimiter cannot be parsed")
+    return _Dialect(delimiter, decimal)
+
+
 def _detect_delimiter(header: str, samples: list[str]) -> str:
+    """The one of tab, ``;`` and ``,`` that the header has and most sample rows have as often."""
     best, best_score = ",", -1
     # On a tie ";" and tab win: with them a "," is a decimal comma ("0;1,5").
     for cand in ("\t", ";", ","):
@@ -92,6 +208,13 @@ def _detect_decimal(delimiter: str, samples: list[str], header: str | None = Non
     """
     if delimiter in (",",):
         return "."
+    by_column, names = _cells_by_column(delimiter, samples, header)
+    return _decide_decimal(_decimal_evidence(by_column, names))
+
+
+def _cells_by_column(delimiter: str, samples: list[str], header: str | None) -> tuple[dict[int, list[str]], list[str]]:
+    """The non-null cells of ``samples`` by 0-based column, and the header's names (``[]``
+    without a header), split at ``delimiter``."""
     if delimiter == "whitespace":
         table = [s.split() for s in samples]
         names = header.split() if header is not None else []
@@ -104,37 +227,51 @@ def _detect_decimal(delimiter: str, samples: list[str], header: str | None = Non
             cell = cell.strip()
             if cell and cell not in _NULLS:
                 by_column.setdefault(k, []).append(cell)
+    return by_column, names
+
+
+def _decimal_evidence(by_column: dict[int, list[str]], names: list[str]) -> dict[str, tuple[str, str]]:
+    """What the numeric columns say of the decimal mark: evidence (``"comma decimal"``, ``"dot
+    groups"``, ``"comma groups beside 998"``, ...) -> its first ``(value, column name)``."""
     first: dict[str, tuple[str, str]] = {}   # evidence -> (value, column)
-
-    def note(what: str, value: str, column: str) -> None:
-        first.setdefault(what, (value, column))
-
     for k, cells in sorted(by_column.items()):
         if not all(_NUMBER_CELL.match(c) for c in cells):
             continue  # a text column (or an empty one): it does not vote
         column = (split_name_unit(names[k])[0] if k < len(names) and names[k].strip() else "") or str(k + 1)
         integer = next((c for c in cells if _INTEGER.match(c)), None)
         for c in cells:
-            comma, dot = "," in c, "." in c
-            if comma and dot:
-                note("both", c, column)
-            elif comma:
-                if c.count(",") > 1:
-                    note("comma groups", c, column)
-                elif not _GROUPED[","].match(c):
-                    note("comma decimal", c, column)
-                elif integer is not None and c.endswith("0"):
-                    note("comma groups beside " + integer, c, column)
-                else:
-                    note("comma ambiguous", c, column)
-            elif dot:
-                if c.count(".") > 1:
-                    note("dot groups", c, column)
-                elif not _GROUPED["."].match(c):
-                    note("dot decimal", c, column)
-                else:
-                    note("dot ambiguous", c, column)
+            what = _cell_evidence(c, integer)
+            if what is not None:
+                first.setdefault(what, (c, column))
+    return first
 
+
+def _cell_evidence(c: str, integer: str | None) -> str | None:
+    """What one numeric cell says of the decimal mark (None: nothing); ``integer`` is the first
+    whole number of its column, if any."""
+    comma, dot = "," in c, "." in c
+    if comma and dot:
+        return "both"
+    if comma:
+        if c.count(",") > 1:
+            return "comma groups"
+        if not _GROUPED[","].match(c):
+            return "comma decimal"
+        if integer is not None and c.endswith("0"):
+            return "comma groups beside " + integer
+        return "comma ambiguous"
+    if dot:
+        if c.count(".") > 1:
+            return "dot groups"
+        if not _GROUPED["."].match(c):
+            return "dot decimal"
+        return "dot ambiguous"
+    return None
+
+
+def _decide_decimal(first: dict[str, tuple[str, str]]) -> str:
+    """The decimal mark the evidence of :func:`_decimal_evidence` allows, else a ReaderError
+    naming the value and column that make the file ambiguous."""
     def at(what: str) -> str:
         value, column = first[what]
         return f"`{value}` in column `{column}`"
@@ -173,68 +310,13 @@ def _detect_decimal(delimiter: str, samples: list[str], header: str | None = Non
     return "."
 
 
-def read_csv(path: str | Path, read: dict | None = None, hints: dict | None = None) -> RawExport:
-    """Open a CSV / TXT export.
-
-    Parameters
-    ----------
-    path : path-like
-        The export.
-    read : dict, optional
-        The ``[read]`` table of the applicable ``rig.toml``: ``delimiter``, ``decimal``,
-        ``skip_rows``, ``header``.
-    hints : dict, optional
-        Unused; accepted for the common reader signature.
-
-    Returns
-    -------
-    RawExport
-    """
-    path = Path(path)
-    read = dict(read or {})
-    lines, encoding, complete = _head_lines(path)
-    metadata: dict = {}
-    i = 0
-    # Leading "# key: value" lines (blank lines between them are allowed); other "#" lines are
-    # comments, kept whole under "comments".
-    while i < len(lines) and (lines[i].lstrip().startswith("#") or not lines[i].strip()):
-        if lines[i].lstrip().startswith("#"):
-            add_comment_line(lines[i].lstrip()[1:], metadata)
-        i += 1
-    skip = int(read.get("skip_rows", 0) or 0)
-    i += skip
-    has_header = bool(read.get("header", True))
-    if i >= len(lines):
-        raise ReaderError("no header or data rows" if complete else f"no header within the first {HEAD_BYTES} bytes")
-
-    delim_opt = read.get("delimiter")
-    if delim_opt is not None and delim_opt not in _DELIMITERS:
-        raise ReaderError(f"rig.toml delimiter {delim_opt!r} is not one of ',' ';' '\\t' 'whitespace'")
-    header_line = lines[i] if has_header else None
-    data_start = i + 1 if has_header else i
-    samples = [ln for ln in lines[data_start:data_start + 20] if ln.strip()]
-    head_rows = [ln for ln in lines[data_start:] if ln.strip()]   # every data row of the head: the decimal
-    if delim_opt is not None:
-        delimiter = _DELIMITERS[delim_opt]
-    else:
-        delimiter = _detect_delimiter(header_line if header_line is not None else (samples[0] if samples else ""),
-                                      samples)
-    decimal = read.get("decimal") or _detect_decimal(delimiter, head_rows, header_line)
-    if decimal not in (".", ","):
-        raise ReaderError(f"rig.toml decimal {decimal!r} is not '.' or ','")
-    if decimal == "," and delimiter == ",":
-        raise ReaderError("decimal comma with a comma delimiter cannot be parsed")
-
-    def split(line: str) -> list[str]:
-        if delimiter == "whitespace":
-            return line.split()
-        return next(_csv.reader([line], delimiter=delimiter), [])   # honours quoted fields
-
-    rows = [split(s) for s in samples]     # split once: header parsing stays linear in the width
+def _header_names(head: _Head, dialect: _Dialect, rows: list[list[str]]) -> list[str]:
+    """The header's column names (``"1"``, ``"2"`` ... without a header); ``""`` for an
+    unnamed column the rows fill with nothing but a trailing delimiter."""
     width = max((len(r) for r in rows), default=0)
     check_channel_count(width, "columns in the first data rows")
-    if has_header:
-        names = [h.strip() for h in split(header_line)]
+    if head.has_header:
+        names = [h.strip() for h in dialect.split(head.header_line)]
         check_channel_count(len(names), "columns in the header")
         # Rows that end with a delimiter the header does not have: extra, unnamed columns.
         if width > len(names) and all(not f.strip() for row in rows for f in row[len(names):]):
@@ -243,7 +325,13 @@ def read_csv(path: str | Path, read: dict | None = None, hints: dict | None = No
         names = [str(k + 1) for k in range(width)]
     if not names or all(not n for n in names):
         raise ReaderError("empty header row")
+    return names
 
+
+def _columns(names: list[str], rows: list[list[str]], has_header: bool,
+             decimal: str) -> tuple[list[RawColumn], list[str]]:
+    """The export's columns (unnamed empty ones left out) and the parser's names for every
+    column of the file (``c1``, ``c2`` ...)."""
     columns: list[RawColumn] = []
     keys: list[str] = []
     for k, header in enumerate(names):
@@ -258,39 +346,39 @@ def read_csv(path: str | Path, read: dict | None = None, hints: dict | None = No
         dtype = "float" if numeric else "string"
         columns.append(RawColumn(key=key, name=name, unit=unit, index=k + 1, dtype=dtype,
                                  header=header if has_header else None))
-    # Physical lines before the first data row (comment lines, skipped rows, header).
-    lines_before = data_start
+    return columns, keys
 
-    def batches() -> Iterator[pa.RecordBatch]:
-        if delimiter == "whitespace":
-            try:
-                yield from _whitespace_batches(path, keys, columns, lines_before, encoding, decimal)
-            except ReaderError:
-                found = _find_bad_line(path, encoding, lines_before, split, decimal, columns, len(keys))
-                if found:
-                    raise ReaderError(found) from None
-                raise
-            return
-        ropts = pacsv.ReadOptions(skip_rows=lines_before, column_names=keys, block_size=BLOCK_BYTES,
-                                  encoding="utf8" if encoding.startswith("utf-8") else encoding)
-        popts = pacsv.ParseOptions(delimiter=delimiter, invalid_row_handler=None)
-        copts = pacsv.ConvertOptions(include_columns=[c.key for c in columns], decimal_point=decimal,
-                                     column_types={c.key: pa.float64() if c.dtype == "float" else pa.string()
-                                                   for c in columns},
-                                     strings_can_be_null=True)
+
+def _batches(data: _Data) -> Iterator[pa.RecordBatch]:
+    """The data as record batches; a parse error becomes a ReaderError naming the line."""
+    if data.dialect.delimiter == "whitespace":
         try:
-            start = _data_offset(path, lines_before) if encoding.startswith("utf-8") else None
-            if start is not None:  # the common case: parse blocks of lines in parallel
-                yield from _parallel_batches(path, start, keys, popts, copts)
-                return
-            reader = pacsv.open_csv(path, read_options=ropts, parse_options=popts, convert_options=copts)
-            for batch in reader:
-                yield batch
-        except pa.ArrowInvalid as exc:
-            found = _find_bad_line(path, encoding, lines_before, split, decimal, columns, len(keys))
-            raise ReaderError(found or _explain_arrow_error(str(exc), lines_before)) from None
-
-    return RawExport(format=FORMAT, columns=columns, metadata=metadata, batches=batches)
+            yield from _whitespace_batches(data)
+        except ReaderError:
+            found = _find_bad_line(data)
+            if found:
+                raise ReaderError(found) from None
+            raise
+        return
+    encoding, decimal = data.encoding, data.dialect.decimal
+    ropts = pacsv.ReadOptions(skip_rows=data.lines_before, column_names=data.keys, block_size=BLOCK_BYTES,
+                              encoding="utf8" if encoding.startswith("utf-8") else encoding)
+    popts = pacsv.ParseOptions(delimiter=data.dialect.delimiter, invalid_row_handler=None)
+    copts = pacsv.ConvertOptions(include_columns=[c.key for c in data.columns], decimal_point=decimal,
+                                 column_types={c.key: pa.float64() if c.dtype == "float" else pa.string()
+                                               for c in data.columns},
+                                 strings_can_be_null=True)
+    try:
+        start = _data_offset(data.path, data.lines_before) if encoding.startswith("utf-8") else None
+        if start is not None:  # the common case: parse blocks of lines in parallel
+            yield from _parallel_batches(data.path, start, data.keys, popts, copts)
+            return
+        reader = pacsv.open_csv(data.path, read_options=ropts, parse_options=popts, convert_options=copts)
+        for batch in reader:
+            yield batch
+    except pa.ArrowInvalid as exc:
+        found = _find_bad_line(data)
+        raise ReaderError(found or _explain_arrow_error(str(exc), data.lines_before)) from None
 
 
 def _data_offset(path: Path, lines_before: int) -> int | None:
@@ -314,9 +402,6 @@ def _parallel_batches(path: Path, start: int, keys: list[str], popts, copts) -> 
 
     Memory stays bounded: at most ``workers + 1`` blocks are read ahead.
     """
-    import os
-    from concurrent.futures import ThreadPoolExecutor
-
     workers = max(1, min(4, os.cpu_count() or 1))
 
     def parse(block: bytes) -> pa.Table:
@@ -354,13 +439,16 @@ def _parallel_batches(path: Path, start: int, keys: list[str], popts, copts) -> 
         pool.shutdown(wait=True, cancel_futures=True)
 
 
-def _whitespace_batches(path, keys, columns, lines_before, encoding, decimal) -> Iterator[pa.RecordBatch]:
-    import pandas as pd
+def _whitespace_batches(data: _Data) -> Iterator[pa.RecordBatch]:
+    """A whitespace-separated file's data through pandas' C parser, in chunks of 2**20 rows."""
+    import pandas as pd   # only blank-separated files need it: kept off the import of every CSV worker
 
+    columns, encoding = data.columns, data.encoding
     wanted = [c.key for c in columns]
     try:
-        chunks = pd.read_csv(path, sep=r"\s+", header=None, names=keys, skiprows=lines_before,
-                             usecols=wanted, dtype={c.key: "float64" if c.dtype == "float" else "string" for c in columns}, decimal=decimal, chunksize=1 << 20,
+        chunks = pd.read_csv(data.path, sep=r"\s+", header=None, names=data.keys, skiprows=data.lines_before,
+                             usecols=wanted, dtype={c.key: "float64" if c.dtype == "float" else "string" for c in columns},
+                             decimal=data.dialect.decimal, chunksize=1 << 20,
                              encoding="utf-8" if encoding.startswith("utf-8") else encoding, engine="c")
         for chunk in chunks:
             yield pa.RecordBatch.from_pandas(chunk, preserve_index=False)
@@ -372,6 +460,7 @@ _NULLS = {"", "nan", "NaN", "NAN", "NA", "N/A", "null", "NULL", "-nan", "inf", "
 
 
 def _is_number(text: str, decimal: str) -> bool:
+    """Whether a cell is a number (or a null such as ``nan``) under the decimal mark."""
     if text in _NULLS:
         return True
     try:
@@ -381,22 +470,23 @@ def _is_number(text: str, decimal: str) -> bool:
         return False
 
 
-def _find_bad_line(path, encoding, lines_before, split, decimal, columns, width) -> str | None:
+def _find_bad_line(data: _Data) -> str | None:
     """Scan the data for the first row the parser refused: a bad number or a wrong field count.
 
     Only run after a parse error, so the normal path stays fast. Returns the one-line message
     naming the (1-based, physical) line, or None when nothing is found.
     """
-    floats = [c for c in columns if c.dtype == "float"]
-    enc = "utf-8-sig" if encoding.startswith("utf-8") else encoding
-    with open(path, encoding=enc, errors="replace", newline=None) as fh:
+    floats = [c for c in data.columns if c.dtype == "float"]
+    width, decimal = len(data.keys), data.dialect.decimal
+    enc = "utf-8-sig" if data.encoding.startswith("utf-8") else data.encoding
+    with open(data.path, encoding=enc, errors="replace", newline=None) as fh:
         for lineno, line in enumerate(fh, start=1):
-            if lineno <= lines_before:
+            if lineno <= data.lines_before:
                 continue
             line = line.rstrip("\n")
             if not line.strip():
                 continue
-            fields = split(line)
+            fields = data.dialect.split(line)
             if len(fields) > width:
                 return f"line {lineno}: {len(fields)} fields where the header has {width}: {line[:60]!r}"
             for c in floats:

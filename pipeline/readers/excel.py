@@ -41,9 +41,11 @@ import datetime as dt
 import math
 import posixpath
 import re
+import xml.etree.ElementTree as ET
 import zipfile
 import zlib
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -68,7 +70,8 @@ _PASSWORD_HINT = "open it in the spreadsheet program and save it without a passw
 
 
 def _open_workbook(path: Path):
-    import python_calamine as pc
+    """The workbook opened by calamine; refused in one line when encrypted or unreadable."""
+    import python_calamine as pc   # a compiled reader: imported only when a workbook is opened
 
     with open(path, "rb") as fh:
         head = fh.read(8)
@@ -108,6 +111,7 @@ def list_parts(path: str | Path) -> list[str]:
 
 
 def _pick_sheet(wb, selector) -> str:
+    """The name of the sheet ``selector`` names (a name or a 0-based index), else the first sheet not named ``meta``."""
     names = list(wb.sheet_names)
     if not names:
         raise ReaderError("workbook has no sheets")
@@ -135,6 +139,7 @@ _CHUNK = 4 << 20
 
 
 def _col_number(letters: bytes) -> int:
+    """A column's letters as its 1-based number (``A`` -> 1, ``AA`` -> 27)."""
     n = 0
     for ch in letters.upper():
         n = 26 * n + ch - 64
@@ -144,8 +149,6 @@ def _col_number(letters: bytes) -> int:
 def _sheet_parts(zf: zipfile.ZipFile, names: list[str]) -> dict[str, str]:
     """Zip member of each named worksheet (workbook.xml -> its relationships); a name that cannot
     be mapped is left out."""
-    import xml.etree.ElementTree as ET
-
     def xml(member):
         with zf.open(member) as fh:
             data = fh.read(MAX_LINE_BYTES + 1)
@@ -283,6 +286,8 @@ def _check_sheet_extent(path: Path, names: list[str]) -> None:
 
 
 def _check_extents(zf: zipfile.ZipFile, names: list[str], size: int) -> None:
+    """Refuse a sheet among ``names`` whose grid (or XML) is larger than ``inflate_cap(size)`` allows
+    (see :func:`_check_sheet_extent`)."""
     cap = inflate_cap(size)
     parts = _sheet_parts(zf, names)
     parts = {n: m for n, m in parts.items() if m in zf.NameToInfo}
@@ -308,6 +313,7 @@ def _check_extents(zf: zipfile.ZipFile, names: list[str], size: int) -> None:
 
 
 def _sheet_kind(wb, name: str) -> str:
+    """The kind of sheet ``name`` as calamine names it (``WorkSheet``, ``ChartSheet``, ...)."""
     for meta in wb.sheets_metadata:
         if meta.name == name:
             return str(meta.typ).rsplit(".", 1)[-1]
@@ -315,6 +321,7 @@ def _sheet_kind(wb, name: str) -> str:
 
 
 def _is_empty(v) -> bool:
+    """Whether a cell is empty (None or blank text)."""
     return v is None or (isinstance(v, str) and not v.strip())
 
 
@@ -341,6 +348,7 @@ def _sheet_rows(wb, name: str) -> list[list]:
 
 
 def _meta_sheet(wb) -> dict:
+    """The ``meta`` sheet's key / value rows as metadata (empty without such a sheet)."""
     for name in wb.sheet_names:
         if name.strip().casefold() == "meta":
             out = {}
@@ -352,6 +360,7 @@ def _meta_sheet(wb) -> dict:
 
 
 def _meta_value(v):
+    """A ``meta`` cell as plain metadata: ISO text for dates, whole numbers as int."""
     if isinstance(v, (dt.datetime, dt.date)):
         return v.isoformat()
     if isinstance(v, float) and v.is_integer() and abs(v) < 2 ** 53:
@@ -360,10 +369,12 @@ def _meta_value(v):
 
 
 def _is_number(v) -> bool:
+    """Whether a cell holds a number (a logical cell too)."""
     return isinstance(v, (int, float))  # bool is an int: a logical cell is 0 / 1
 
 
 def _row_number(read: dict, key: str) -> int | None:
+    """The 1-based row number ``read[key]`` (None when not given); refused when not a row number."""
     v = read.get(key)
     if v is None:
         return None
@@ -377,6 +388,7 @@ def _row_number(read: dict, key: str) -> int | None:
 
 
 def _as_datetime(v) -> dt.datetime | None:
+    """A date or date-time cell as a datetime (a date at midnight); None for anything else."""
     if isinstance(v, dt.datetime):
         return v
     if isinstance(v, dt.date):
@@ -434,6 +446,24 @@ def read_excel(path: str | Path, read: dict | None = None, hints: dict | None = 
     path = Path(path)
     read = dict(read or {})
     hints = dict(hints or {})
+    wb, name, rows = _open_sheet(path, read, hints)
+    metadata, i = _sheet_metadata(wb, name, rows, read)
+    layout = _layout(name, rows, read, i)
+    columns, arrays = _columns(name, layout, metadata)
+    metadata.setdefault("sheet", name)
+    keys = [c.key for c in columns]
+    n = len(layout.data)
+
+    def batches() -> Iterator[pa.RecordBatch]:
+        for a in range(0, n, BATCH_ROWS):
+            yield pa.RecordBatch.from_arrays([arr.slice(a, BATCH_ROWS) for arr in arrays], names=keys)
+
+    return RawExport(format=FORMAT, columns=columns, metadata=metadata, batches=batches, warnings=[])
+
+
+def _open_sheet(path: Path, read: dict, hints: dict) -> tuple[object, str, list[list]]:
+    """The workbook, the name of the run's sheet and its cells as rows (trimmed); refused when
+    that sheet is a chart sheet, too large a grid (:func:`_check_sheet_extent`) or empty."""
     wb = _open_workbook(path)
     name = _pick_sheet(wb, hints.get("sheet", read.get("sheet")))
     if _sheet_kind(wb, name) != "WorkSheet":
@@ -443,7 +473,12 @@ def read_excel(path: str | Path, read: dict | None = None, hints: dict | None = 
     rows = _sheet_rows(wb, name)
     if not rows:
         raise ReaderError(f"sheet {name!r} is empty (no cells with values)")
+    return wb, name, rows
 
+
+def _sheet_metadata(wb, name: str, rows: list[list], read: dict) -> tuple[dict, int]:
+    """The run's metadata (the ``meta`` sheet and the sheet's own ``# key: value`` cells, in the
+    precedence the module docstring gives) and the index of the first row after those cells."""
     metadata = _meta_sheet(wb)
     # one run per sheet: a sheet's own `# key: value` cells beat the workbook's `meta` sheet
     own: dict | None = {} if str(read.get(PARTS_KEY, "")).strip().casefold() == "all" else None
@@ -468,6 +503,23 @@ def read_excel(path: str | Path, read: dict | None = None, hints: dict | None = 
         if shared and not any(str(k).strip().casefold() == "run_id" for k in own):
             metadata[shared[-1]] = f"{metadata[shared[-1]]}/{name}"
         metadata.update(own)
+    return metadata, i
+
+
+@dataclass(frozen=True)
+class _Layout:
+    """Where a sheet's table is: the header row (0-based index ``h`` and its cells), the units
+    row's cells (None without one) and the data rows."""
+
+    h: int
+    header: list
+    units: list | None
+    data: list[list]
+
+
+def _layout(name: str, rows: list[list], read: dict, i: int) -> _Layout:
+    """Header row, units row and data rows of a sheet whose metadata cells end before row
+    index ``i`` (``[read] skip_rows``, ``header_row``, ``units_row`` applied)."""
     header_row = _row_number(read, "header_row")
     units_row = _row_number(read, "units_row")
     h = header_row - 1 if header_row else i + int(read.get("skip_rows", 0) or 0)
@@ -487,20 +539,24 @@ def read_excel(path: str | Path, read: dict | None = None, hints: dict | None = 
     data = rows[start:]
     if not data:
         raise ReaderError(f"sheet {name!r} has a header (row {h + 1}) but no data rows with numbers")
+    return _Layout(h, header, units, data)
 
+
+def _columns(name: str, layout: _Layout, metadata: dict) -> tuple[list[RawColumn], list[pa.Array]]:
+    """The sheet's named columns and their values; the first date-time of a time column gives
+    ``metadata["started_at"]`` when it has none."""
     columns: list[RawColumn] = []
     arrays: list[pa.Array] = []
-    warnings: list[str] = []
-    by_column = [list(c) for c in zip(*data)]
-    for j, cell in enumerate(header):
+    by_column = [list(c) for c in zip(*layout.data)]
+    for j, cell in enumerate(layout.header):
         if _is_empty(cell):
             if all(_is_empty(v) for v in by_column[j]):
                 continue
-            raise ReaderError(f"sheet {name!r}: column {j + 1} has data but no name in the header (row {h + 1})")
+            raise ReaderError(f"sheet {name!r}: column {j + 1} has data but no name in the header (row {layout.h + 1})")
         text = str(cell).strip()
         cname, unit = split_name_unit(text)
-        if units is not None and not _is_empty(units[j]):
-            unit = str(units[j]).strip()
+        if layout.units is not None and not _is_empty(layout.units[j]):
+            unit = str(layout.units[j]).strip()
         kind, arr, first_stamp = _column(by_column[j])
         if kind in ("datetime", "duration"):
             unit = "s"
@@ -511,12 +567,4 @@ def read_excel(path: str | Path, read: dict | None = None, hints: dict | None = 
         arrays.append(arr)
     if not columns:
         raise ReaderError(f"sheet {name!r} has no named columns")
-    metadata.setdefault("sheet", name)
-    keys = [c.key for c in columns]
-    n = len(data)
-
-    def batches() -> Iterator[pa.RecordBatch]:
-        for a in range(0, n, BATCH_ROWS):
-            yield pa.RecordBatch.from_arrays([arr.slice(a, BATCH_ROWS) for arr in arrays], names=keys)
-
-    return RawExport(format=FORMAT, columns=columns, metadata=metadata, batches=batches, warnings=warnings)
+    return columns, arrays

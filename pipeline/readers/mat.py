@@ -22,19 +22,18 @@
   and structs as groups; ``#refs#`` / ``#subsystem#`` are MATLAB's bookkeeping. Channels are
   read in slices, so a large v7.3 file streams in bounded memory; v5/v7 files are loaded whole
   by scipy (the format has no partial reads) and then yielded in batches.
-* Untrusted bytes: before scipy sees a v5/v7 file, :func:`check_v5` walks its elements
-  (compressed ones inflated in 1 MiB steps and dropped) and refuses a file that inflates to more
-  than :func:`pipeline.readers.base.inflate_cap` of its size (a decompression bomb), declares
-  sizes or dimensions its bytes cannot hold, nests arrays too deep, uses unknown data types or
-  arrays that lack the parts their class announces (scipy allocates what a file declares and
-  crashes on some malformed arrays). v7.3 datasets are checked the same way (shape x item
-  size against the cap) before they are read, and HDF5 links are never followed.
+* Untrusted bytes: before scipy sees a v5/v7 file, :func:`pipeline.readers.mat_elements.check_v5`
+  walks its elements (compressed ones inflated in 1 MiB steps and dropped) and refuses a file
+  that inflates to more than :func:`pipeline.readers.base.inflate_cap` of its size (a
+  decompression bomb), declares sizes or dimensions its bytes cannot hold, nests arrays too
+  deep, uses unknown data types or arrays that lack the parts their class announces (scipy
+  allocates what a file declares and crashes on some malformed arrays). v7.3 datasets are
+  checked the same way (shape x item size against the cap) before they are read, and HDF5
+  links are never followed.
 """
 from __future__ import annotations
 
 import math
-import struct
-import zlib
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -43,6 +42,7 @@ import pyarrow as pa
 
 from pipeline.readers.base import (INFLATE_CEILING_BYTES, INFLATE_FLOOR_BYTES, MAX_INFLATE_RATIO, RawColumn,
                                    RawExport, ReaderError, check_channel_count, inflate_cap, mib)
+from pipeline.readers.mat_elements import check_v5
 
 FORMAT = "mat"
 EXTENSIONS = (".mat",)
@@ -73,6 +73,7 @@ def reexport_hint(name: str, cls: str, stem: str) -> str:
 
 
 def _is_v73(path: Path) -> bool:
+    """Whether a ``.mat`` file is HDF5 (MATLAB v7.3): the HDF5 signature at 0 or 512, or a v7.3 text header."""
     with open(path, "rb") as fh:
         head = fh.read(128)
         fh.seek(512)
@@ -104,9 +105,11 @@ class _Collect:
         self.warnings: list[str] = []
 
     def refuse_object(self, name: str, cls: str):
+        """Refuse the file: variable ``name`` is a MATLAB object of class ``cls`` (a re-export hint)."""
         raise ReaderError(reexport_hint(name, cls, self.path.stem))
 
     def export(self, batches) -> RawExport:
+        """The RawExport of the channels gathered (all of one length), reading ``batches``."""
         if not self.channels:
             raise ReaderError("no channel: the file has no numeric vector (N x 1 or 1 x N, N > 1)")
         check_channel_count(len(self.channels), "channels (numeric vectors)")
@@ -123,6 +126,7 @@ class _Collect:
         return RawExport(format=FORMAT, columns=columns, metadata=self.meta, batches=batches, warnings=self.warnings)
 
     def _unit(self, name: str, folded: dict) -> str | None:
+        """A channel's unit from ``units`` (case-insensitive), else its matrix variable's unit."""
         unit = self.units.get(name, folded.get(name.casefold()))
         if unit is None and name in self.parts:
             var = self.parts[name][0]
@@ -144,268 +148,13 @@ class _Collect:
         return True
 
 
-# -- v5 / v7: the element structure, checked before scipy allocates anything ---------------
-_MI_MATRIX, _MI_COMPRESSED, _MI_INT32, _MI_UINT32 = 14, 15, 5, 6
-_MX_CELL, _MX_STRUCT, _MX_OBJECT, _MX_CHAR, _MX_SPARSE, _MX_OPAQUE = 1, 2, 3, 4, 5, 17
-_NUMERIC = set(range(6, 16))                 # double, single, int8 ... uint64
-#: miINT8 ... miUINT32, miSINGLE, miDOUBLE, miINT64, miUINT64, miUTF8, miUTF16, miUTF32.
-_DATA_TYPES = {1, 2, 3, 4, 5, 6, 7, 9, 12, 13, 16, 17, 18}
-_CLASSES = {1, 2, 3, 4, 5, 16, 17} | _NUMERIC
-#: Deepest nesting of arrays (cells in cells, struct fields) read.
-MAX_DEPTH = 64
-#: Most arrays (variables, cells, struct fields) in one file: each becomes a Python object.
-MAX_ARRAYS = 100_000
-#: Bytes inflated per step (``zlib.decompressobj(...).decompress(data, max_length)``).
-_INFLATE_STEP = 1 << 20
-
-
-class _Bad(Exception):
-    """The element structure is not a MAT v5 file's (message: what is wrong)."""
-
-
-class _Source:
-    """The bytes of one top-level element's content, read sequentially: straight from the file,
-    or inflated step by step (at most :data:`_INFLATE_STEP` at a time) with every inflated byte
-    counted against ``budget``. Skipped bytes are dropped as they come: memory stays at a step."""
-
-    def __init__(self, fh, nbytes: int, compressed: bool, budget: list[int]):
-        self.fh, self.left, self.compressed, self.budget = fh, nbytes, compressed, budget
-        self.pos = 0               # content bytes consumed
-        self.buf = b""
-        self.z = zlib.decompressobj() if compressed else None
-        self.tail = b""
-
-    def _piece(self) -> bytes:
-        """The next piece of content (b"" at its end)."""
-        if not self.compressed:
-            data = self.fh.read(min(self.left, _INFLATE_STEP)) if self.left > 0 else b""
-            self.left -= len(data)
-            return data
-        while True:
-            if not self.tail:
-                if self.left <= 0 or self.z.eof:
-                    return b""
-                self.tail = self.fh.read(min(self.left, 1 << 18))
-                if not self.tail:
-                    return b""
-                self.left -= len(self.tail)
-            try:
-                out = self.z.decompress(self.tail, _INFLATE_STEP)
-            except zlib.error as exc:
-                raise _Bad(f"compressed data is corrupt ({exc})") from None
-            self.tail = b"" if self.z.eof else self.z.unconsumed_tail
-            if out:
-                self.budget[0] -= len(out)
-                if self.budget[0] < 0:
-                    raise _Bomb()
-                return out
-
-    def read(self, n: int) -> bytes:
-        while len(self.buf) < n:
-            piece = self._piece()
-            if not piece:
-                raise _Bad("an element ends early")
-            self.buf += piece
-        out, self.buf = self.buf[:n], self.buf[n:]
-        self.pos += n
-        return out
-
-    def skip(self, n: int) -> None:
-        k = min(n, len(self.buf))
-        self.buf, self.pos, n = self.buf[k:], self.pos + k, n - k
-        if n and not self.compressed:
-            if n > self.left:
-                raise _Bad("an element ends early")
-            self.fh.seek(n, 1)
-            self.left -= n
-            self.pos += n
-            return
-        while n:
-            piece = self._piece()
-            if not piece:
-                raise _Bad("an element ends early")
-            if len(piece) > n:
-                self.buf = piece[n:]
-                self.pos += n
-                return
-            self.pos += len(piece)
-            n -= len(piece)
-
-
-class _Bomb(Exception):
-    """More inflated bytes than the file may honestly hold."""
-
-
-class _V5Walk:
-    """Walks every element of a v5 file (see the MAT-File Format, "Data Element Format")."""
-
-    def __init__(self, order: str):
-        self.order = order
-        self.arrays = 0
-
-    def tag(self, src: _Source, end: int) -> tuple[int, int, bytes | None]:
-        """``(type, nbytes, data)`` of the next element inside ``[src.pos, end)``; ``data`` is the
-        content of a small data element (None for a normal element, whose content follows)."""
-        if end - src.pos < 8:
-            raise _Bad("an element tag is cut short")
-        raw = src.read(8)
-        w1, w2 = struct.unpack(self.order + "II", raw)
-        if w1 >> 16:                                     # small data element: 4 bytes of data inside
-            size = w1 >> 16
-            if size > 4:
-                raise _Bad(f"a small data element claims {size} bytes (at most 4)")
-            if w1 & 0xFFFF not in _DATA_TYPES:
-                raise _Bad(f"unknown data type {w1 & 0xFFFF}")
-            return w1 & 0xFFFF, size, raw[4:4 + size]
-        if w1 not in _DATA_TYPES and w1 not in (_MI_MATRIX, _MI_COMPRESSED):
-            raise _Bad(f"unknown data type {w1}")      # scipy segfaults on some (found by tests/fuzz)
-        if w2 > end - src.pos:
-            raise _Bad(f"an element declares {w2} bytes where its container has {end - src.pos} left")
-        return w1, w2, None
-
-    def elements(self, src: _Source, end: int, depth: int) -> list[tuple[int, int, bytes | None]]:
-        """The elements of a container's content up to ``end`` (nested arrays walked too):
-        ``(type, nbytes, data)`` each, ``data`` kept for elements of at most 8 bytes."""
-        out = []
-        while end - src.pos >= 8:
-            mtype, size, data = self.tag(src, end)
-            if data is None:
-                if mtype == _MI_MATRIX:
-                    self.matrix(src, size, depth + 1)
-                elif mtype == _MI_COMPRESSED:
-                    raise _Bad("compressed data inside an array")
-                elif size <= 8:
-                    data = src.read(size)
-                else:
-                    src.skip(size)
-                src.skip(min((-size) % 8, end - src.pos))
-            out.append((mtype, size, data))
-        src.skip(end - src.pos)
-        return out
-
-    def matrix(self, src: _Source, size: int, depth: int) -> None:
-        """One miMATRIX element's content: flags, dimensions, name, data or nested arrays, as
-        many as the class and flags say (scipy reads what they say, past the array's end, and
-        crashes on some such files: a complex flag without an imaginary part is a segfault)."""
-        self.arrays += 1
-        if self.arrays > MAX_ARRAYS:
-            raise _Bad(f"more than {MAX_ARRAYS} arrays (variables, cells, struct fields)")
-        if depth > MAX_DEPTH:
-            raise _Bad(f"arrays nested more than {MAX_DEPTH} deep")
-        if size == 0:
-            return                                        # an empty cell / field
-        end = src.pos + size
-        mtype, n, data = self.tag(src, end)
-        if mtype != _MI_UINT32 or n != 8 or data is not None:
-            raise _Bad("an array does not start with its flags")
-        flags = struct.unpack(self.order + "II", src.read(8))[0]
-        cls, complex_ = flags & 0xFF, bool(flags & 0x0800)
-        if cls not in _CLASSES:
-            raise _Bad(f"unknown array class {cls}")
-        count = 1
-        if cls != _MX_OPAQUE:
-            mtype, n, data = self.tag(src, end)
-            if mtype != _MI_INT32 or data is not None or n < 8 or n % 4:
-                raise _Bad("an array has no dimensions")
-            if n > 4 * MAX_DEPTH:
-                raise _Bad(f"an array has {n // 4} dimensions")
-            dims = struct.unpack(self.order + f"{n // 4}i", src.read(n))
-            src.skip(min((-n) % 8, end - src.pos))
-            if min(dims) < 0:
-                raise _Bad(f"an array has a negative dimension {' x '.join(map(str, dims))}")
-            count = math.prod(dims)
-            # Every element takes at least a byte of data (8 for a cell / struct element, a
-            # nested array): dimensions beyond that are a lie scipy would allocate for.
-            per = 8 if cls in (_MX_CELL, _MX_STRUCT, _MX_OBJECT) else 1
-            if cls != _MX_SPARSE and count * per > size:
-                raise _Bad(f"an array declares {' x '.join(map(str, dims))} elements in {size} bytes")
-        parts = self.elements(src, end, depth)
-        self._check_parts(cls, complex_, count, parts)
-
-    def _check_parts(self, cls: int, complex_: bool, count: int, parts: list) -> None:
-        """The elements after the dimensions are the ones the class and flags announce."""
-        kinds = [t for t, _, _ in parts]
-        if not parts or kinds[0] != 1:
-            raise _Bad("an array has no name (miINT8)")
-        if cls in _NUMERIC or cls == _MX_CHAR:
-            want = 2 + (complex_ and cls != _MX_CHAR)     # name, real part (, imaginary part)
-            if len(parts) != want or _MI_MATRIX in kinds:
-                raise _Bad(f"a {'complex ' if complex_ else ''}numeric array has {len(parts) - 1} data "
-                           f"elements (expected {want - 1})")
-        elif cls == _MX_SPARSE:
-            if len(parts) < 4 + complex_ or _MI_MATRIX in kinds:
-                raise _Bad("a sparse array lacks its indices or values")
-        elif cls == _MX_CELL:
-            if len(parts) != 1 + count or any(t != _MI_MATRIX for t in kinds[1:]):
-                raise _Bad(f"a cell array of {count} cells holds {kinds[1:].count(_MI_MATRIX)} arrays")
-        elif cls in (_MX_STRUCT, _MX_OBJECT):
-            head = 3 if cls == _MX_STRUCT else 4           # name, (class name,) field name length, names
-            if len(parts) < head or parts[head - 2][2] is None:
-                raise _Bad("a struct has no field names")
-            length = struct.unpack(self.order + "i", parts[head - 2][2].ljust(4, b"\0"))[0]
-            if length <= 0:
-                raise _Bad(f"a struct has field names of length {length}")
-            fields = parts[head - 1][1] // length
-            if len(parts) != head + count * fields or any(t != _MI_MATRIX for t in kinds[head:]):
-                raise _Bad(f"a struct of {count} x {fields} fields holds {kinds[head:].count(_MI_MATRIX)} arrays")
-        else:                                              # function handle, opaque object
-            if _MI_MATRIX not in kinds:
-                raise _Bad("a function handle / object holds no array")
-
-
-def check_v5(path: Path) -> None:
-    """Walk a MAT v5 / v7 file's elements before scipy reads it; refuse (ReaderError) a file
-    that is not one, whose declared sizes exceed what holds them, or whose compressed elements
-    inflate to more than :func:`pipeline.readers.base.inflate_cap` of its size (a
-    decompression bomb). Compressed data are inflated step by step and dropped, so this
-    needs no more memory than one step, and it stops as soon as the cap is passed."""
-    size = path.stat().st_size
-    cap = inflate_cap(size)
-    budget = [cap]
-    with open(path, "rb") as fh:
-        head = fh.read(128)
-        if len(head) < 128 or 0 in head[:4] or head[126:128] not in (b"IM", b"MI"):
-            raise ReaderError("not a MAT file (no MAT v5/v7 header or HDF5 signature; MAT v4 is not read)")
-        order = "<" if head[126:128] == b"IM" else ">"
-        version = struct.unpack(order + "H", head[124:126])[0]
-        if version != 0x0100:
-            raise ReaderError(f"not a MAT file (header version 0x{version:04x}, expected 0x0100 for v5/v7)")
-        walk = _V5Walk(order)
-        pos = 128
-        while pos < size:
-            if size - pos < 8:
-                raise ReaderError(f"MAT file ends inside an element tag at byte {pos}")
-            mtype, nbytes = struct.unpack(order + "II", fh.read(8))
-            if mtype not in (_MI_MATRIX, _MI_COMPRESSED) or nbytes == 0:
-                raise ReaderError(f"not a readable MAT file: element at byte {pos} has type {mtype} and "
-                                  f"{nbytes} bytes (expected a variable: miMATRIX or miCOMPRESSED)")
-            if nbytes > size - pos - 8:
-                raise ReaderError(f"MAT file cut short: the variable at byte {pos} declares {nbytes} bytes, "
-                                  f"the file has {size - pos - 8} left")
-            src = _Source(fh, nbytes, mtype == _MI_COMPRESSED, budget)
-            try:
-                if mtype == _MI_MATRIX:
-                    walk.matrix(src, nbytes, 1)
-                else:
-                    inner = 1 << 62
-                    t, n, small = walk.tag(src, inner)
-                    if t != _MI_MATRIX or small is not None:
-                        raise _Bad(f"compressed element holds type {t}, not an array")
-                    walk.matrix(src, n, 1)
-            except _Bomb:
-                raise ReaderError(f"MAT file of {mib(size)} inflates to more than {mib(cap)} (limit: "
-                                  f"{MAX_INFLATE_RATIO} x the file size, at least {mib(INFLATE_FLOOR_BYTES)}, "
-                                  f"at most {mib(INFLATE_CEILING_BYTES)}): a decompression bomb?") from None
-            except _Bad as exc:
-                raise ReaderError(f"not a readable MAT file: variable at byte {pos}: {exc}") from None
-            pos += 8 + nbytes
-            fh.seek(pos)
-
-
 # -- v5 / v7 -------------------------------------------------------------------------------
+# scipy.io is heavy (over a second to import): the functions of this section import it when a
+# v5 / v7 file is read, not when a worker loads the readers.
 def _read_v5(path: Path) -> RawExport:
+    """Read a MAT v5 / v7 file: walked by :func:`check_v5`, then loaded whole by scipy (a v7.3
+    file scipy does not read goes to :func:`_read_v73`)."""
     from scipy.io import loadmat
-    from scipy.io.matlab import MatlabFunction, MatlabObject, MatlabOpaque, mat_struct
 
     check_v5(path)
     try:
@@ -416,106 +165,132 @@ def _read_v5(path: Path) -> RawExport:
         raise ReaderError(f"not a readable MAT file: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
                           ) from None
     col = _Collect(path)
-
-    def opaque_info(v, key) -> tuple[str, str]:
-        names = v.dtype.names or ()
-        rec = v.ravel()[0] if v.size else None
-
-        def get(*fields):
-            for f in fields:
-                if rec is not None and f in names:
-                    x = rec[f]
-                    return x.decode("latin-1") if isinstance(x, bytes) else str(x)
-            return None
-        return get("_VarName", "s0") or key, get("_Class", "s2") or "object"
-
-    def unwrap(v):
-        """A 1 x 1 object array (struct, cell element) -> its content."""
-        while isinstance(v, np.ndarray) and v.dtype == object and v.size == 1 and not isinstance(v, MatlabOpaque):
-            v = v.ravel()[0]
-        return v
-
-    def value(v, where: str):
-        v = unwrap(v)
-        if isinstance(v, MatlabOpaque):
-            col.refuse_object(where, opaque_info(v, where)[1])
-        if isinstance(v, MatlabObject):
-            col.refuse_object(where, getattr(v, "classname", "object"))
-        if isinstance(v, str):
-            return v
-        if isinstance(v, np.ndarray) and v.dtype.kind in "US":
-            return "".join(str(x) for x in v.ravel())
-        if isinstance(v, np.ndarray) and v.dtype.kind in "biuf" and v.size <= 1 and v.ndim <= 2:
-            return _scalar(v) if v.size else None
-        if isinstance(v, np.ndarray) and v.dtype.kind in "biuf":
-            return _scalar(v)
-        return str(v)
-
     for key, v in data.items():
         if key.startswith("__"):
             continue
-        if isinstance(v, MatlabOpaque):
-            name, cls = opaque_info(v, key)
-            col.refuse_object(name, cls)
-        if isinstance(v, MatlabObject):
-            col.refuse_object(key, getattr(v, "classname", "object"))
-        if isinstance(v, MatlabFunction):
-            col.warnings.append(f"variable `{key}` (function handle) ignored")
-            continue
-        u = unwrap(v)
-        if isinstance(u, mat_struct):
-            fields = {f: getattr(u, f) for f in u._fieldnames}
-            if key == "meta":
-                for f, fv in fields.items():
-                    col.meta[f] = value(fv, f"meta.{f}")
-            elif key == "units":
-                for f, fv in fields.items():
-                    uv = value(fv, f"units.{f}")
-                    if uv is not None and str(uv).strip():
-                        col.units[f] = str(uv)
-            else:
-                col.warnings.append(f"struct `{key}` ignored (only `meta` and `units` structs are read)")
-            continue
-        if isinstance(v, np.ndarray) and v.dtype.kind in "US":
-            col.meta[key] = value(v, key)
-            continue
-        if not isinstance(v, np.ndarray) or v.dtype.kind not in "biufc":
-            col.warnings.append(f"variable `{key}` ({type(v).__name__}) ignored")
-            continue
-        if v.dtype.kind == "c":
-            col.warnings.append(f"variable `{key}` (complex) ignored")
-            continue
-        shape = v.shape
-        if v.size == 0:
-            continue
-        if v.size == 1:
-            col.meta[key] = _scalar(v)
-        elif v.ndim == 2 and min(shape) == 1 or v.ndim == 1:
-            col.channels[key] = v.size
-        elif v.ndim == 2:
-            col.matrix(key, shape)
-        else:
-            col.warnings.append(f"variable `{key}` ({' x '.join(map(str, shape))} matrix) ignored")
+        _take_v5_variable(col, key, v)
     arrays = {k: data[k] for k in col.channels if k not in col.parts}
+    return col.export(lambda: _v5_batches(col, data, arrays))
 
-    def batches() -> Iterator[pa.RecordBatch]:
-        n = next(iter(col.channels.values()))
-        flat = {k: (np.asarray(data[col.parts[k][0]]).take(col.parts[k][1], axis=1 - col.parts[k][2])
-                    if k in col.parts else np.asarray(arrays[k]).reshape(-1)) for k in col.channels}
-        for i in range(0, n, BATCH_ROWS):
-            yield pa.RecordBatch.from_arrays(
-                [pa.array(flat[k][i:i + BATCH_ROWS].astype(np.float64)) for k in flat], names=list(flat))
 
-    return col.export(batches)
+def _take_v5_variable(col: _Collect, key: str, v) -> None:
+    """One variable as scipy loaded it: a channel, metadata, ``meta`` / ``units``, a warning, or
+    a refusal (MATLAB objects)."""
+    from scipy.io.matlab import MatlabFunction, MatlabObject, MatlabOpaque, mat_struct
+
+    if isinstance(v, MatlabOpaque):
+        name, cls = _opaque_info(v, key)
+        col.refuse_object(name, cls)
+    if isinstance(v, MatlabObject):
+        col.refuse_object(key, getattr(v, "classname", "object"))
+    if isinstance(v, MatlabFunction):
+        col.warnings.append(f"variable `{key}` (function handle) ignored")
+        return
+    u = _unwrap(v)
+    if isinstance(u, mat_struct):
+        _take_v5_struct(col, key, {f: getattr(u, f) for f in u._fieldnames})
+        return
+    if isinstance(v, np.ndarray) and v.dtype.kind in "US":
+        col.meta[key] = _v5_value(col, v, key)
+        return
+    if not isinstance(v, np.ndarray) or v.dtype.kind not in "biufc":
+        col.warnings.append(f"variable `{key}` ({type(v).__name__}) ignored")
+        return
+    if v.dtype.kind == "c":
+        col.warnings.append(f"variable `{key}` (complex) ignored")
+        return
+    shape = v.shape
+    if v.size == 0:
+        return
+    if v.size == 1:
+        col.meta[key] = _scalar(v)
+    elif v.ndim == 2 and min(shape) == 1 or v.ndim == 1:
+        col.channels[key] = v.size
+    elif v.ndim == 2:
+        col.matrix(key, shape)
+    else:
+        col.warnings.append(f"variable `{key}` ({' x '.join(map(str, shape))} matrix) ignored")
+
+
+def _take_v5_struct(col: _Collect, key: str, fields: dict) -> None:
+    """A struct variable's fields: ``meta`` is metadata, ``units`` the channels' units; another
+    struct is ignored with a warning."""
+    if key == "meta":
+        for f, fv in fields.items():
+            col.meta[f] = _v5_value(col, fv, f"meta.{f}")
+    elif key == "units":
+        for f, fv in fields.items():
+            uv = _v5_value(col, fv, f"units.{f}")
+            if uv is not None and str(uv).strip():
+                col.units[f] = str(uv)
+    else:
+        col.warnings.append(f"struct `{key}` ignored (only `meta` and `units` structs are read)")
+
+
+def _opaque_info(v, key: str) -> tuple[str, str]:
+    """``(variable name, class)`` of a MATLAB object (``MatlabOpaque``) variable ``key``."""
+    names = v.dtype.names or ()
+    rec = v.ravel()[0] if v.size else None
+
+    def get(*fields):
+        for f in fields:
+            if rec is not None and f in names:
+                x = rec[f]
+                return x.decode("latin-1") if isinstance(x, bytes) else str(x)
+        return None
+    return get("_VarName", "s0") or key, get("_Class", "s2") or "object"
+
+
+def _unwrap(v):
+    """A 1 x 1 object array (struct, cell element) -> its content."""
+    from scipy.io.matlab import MatlabOpaque
+
+    while isinstance(v, np.ndarray) and v.dtype == object and v.size == 1 and not isinstance(v, MatlabOpaque):
+        v = v.ravel()[0]
+    return v
+
+
+def _v5_value(col: _Collect, v, where: str):
+    """A metadata value (a ``meta`` / ``units`` field, a char array) as plain Python: text, a
+    number, a list of numbers; a MATLAB object at ``where`` is refused."""
+    from scipy.io.matlab import MatlabObject, MatlabOpaque
+
+    v = _unwrap(v)
+    if isinstance(v, MatlabOpaque):
+        col.refuse_object(where, _opaque_info(v, where)[1])
+    if isinstance(v, MatlabObject):
+        col.refuse_object(where, getattr(v, "classname", "object"))
+    if isinstance(v, str):
+        return v
+    if isinstance(v, np.ndarray) and v.dtype.kind in "US":
+        return "".join(str(x) for x in v.ravel())
+    if isinstance(v, np.ndarray) and v.dtype.kind in "biuf" and v.size <= 1 and v.ndim <= 2:
+        return _scalar(v) if v.size else None
+    if isinstance(v, np.ndarray) and v.dtype.kind in "biuf":
+        return _scalar(v)
+    return str(v)
+
+
+def _v5_batches(col: _Collect, data: dict, arrays: dict) -> Iterator[pa.RecordBatch]:
+    """The channels of a loaded v5 file in record batches of :data:`BATCH_ROWS` rows."""
+    n = next(iter(col.channels.values()))
+    flat = {k: (np.asarray(data[col.parts[k][0]]).take(col.parts[k][1], axis=1 - col.parts[k][2])
+                if k in col.parts else np.asarray(arrays[k]).reshape(-1)) for k in col.channels}
+    for i in range(0, n, BATCH_ROWS):
+        yield pa.RecordBatch.from_arrays(
+            [pa.array(flat[k][i:i + BATCH_ROWS].astype(np.float64)) for k in flat], names=list(flat))
 
 
 # -- v7.3 (HDF5) ---------------------------------------------------------------------------
 def _cls(obj) -> str:
+    """An HDF5 object's ``MATLAB_class`` attribute as text (``""`` without one)."""
     c = obj.attrs.get("MATLAB_class", b"")
     return c.decode("ascii", "replace") if isinstance(c, bytes) else str(c)
 
 
 def _h5_value(ds):
+    """A small v7.3 dataset as a metadata value: text for chars, a plain number or list; None for an
+    empty or complex one."""
     cls = _cls(ds)
     if "MATLAB_empty" in ds.attrs and int(np.asarray(ds.attrs["MATLAB_empty"]).ravel()[0]):
         return None
@@ -555,6 +330,7 @@ def _check_h5_size(obj, name: str, file_size: int) -> None:
 
 
 def _read_v73(path: Path) -> RawExport:
+    """Read a MAT v7.3 (HDF5) file; h5py's errors on a corrupt file become a one-line ReaderError."""
     try:
         return _read_v73_unchecked(path)
     except ReaderError:
@@ -564,11 +340,16 @@ def _read_v73(path: Path) -> RawExport:
 
 
 def _first_line(exc: BaseException) -> str:
+    """The first line of an exception's message (at most 200 characters)."""
     lines = str(exc).strip().splitlines()
     return lines[0][:200] if lines else ""
 
 
+# h5py is imported by the functions of this section when a v7.3 file is read, not when a
+# worker loads the readers.
 def _read_v73_unchecked(path: Path) -> RawExport:
+    """Read a MAT v7.3 (HDF5) file: its variables now, its channels in slices as batches are
+    taken. HDF5 links are never followed."""
     import h5py
 
     col = _Collect(path)
@@ -585,99 +366,126 @@ def _read_v73_unchecked(path: Path) -> RawExport:
             if not isinstance(f.get(key, getlink=True), h5py.HardLink):
                 col.warnings.append(f"variable `{key}` (an HDF5 link) ignored")   # never follow a link out
                 continue
-            obj = f[key]
-            cls = _cls(obj)
-            if "MATLAB_object_decode" in obj.attrs or (cls and cls not in _NUMERIC_CLASSES | {"char", "struct", "cell"}):
-                col.refuse_object(key, cls or "object")
-            if isinstance(obj, h5py.Group):
-                if cls != "struct" or "MATLAB_sparse" in obj.attrs:
-                    col.warnings.append(f"variable `{key}` ({cls or 'group'}) ignored")
-                elif key in ("meta", "units"):
-                    for field_name in obj:
-                        if not isinstance(obj.get(field_name, getlink=True), h5py.HardLink):
-                            col.warnings.append(f"field `{key}.{field_name}` (an HDF5 link) ignored")
-                            continue
-                        fobj = obj[field_name]
-                        fcls = _cls(fobj)
-                        if "MATLAB_object_decode" in fobj.attrs or fcls not in _NUMERIC_CLASSES | {"char"}:
-                            if fcls and fcls not in _NUMERIC_CLASSES | {"char", "struct", "cell"}:
-                                col.refuse_object(f"{key}.{field_name}", fcls)
-                            col.warnings.append(f"field `{key}.{field_name}` ({fcls}) ignored")
-                            continue
-                        if isinstance(fobj, h5py.Group):
-                            col.warnings.append(f"field `{key}.{field_name}` (group) ignored")
-                            continue
-                        _check_h5_storage(fobj, f"{key}.{field_name}")
-                        _check_h5_size(fobj, f"{key}.{field_name}", file_size)
-                        v = _h5_value(fobj)
-                        if key == "meta":
-                            col.meta[field_name] = v
-                        elif v is not None and str(v).strip():
-                            col.units[field_name] = str(v)
-                else:
-                    col.warnings.append(f"struct `{key}` ignored (only `meta` and `units` structs are read)")
-                continue
-            if cls == "cell" or (cls and cls not in _NUMERIC_CLASSES | {"char"}):
-                col.warnings.append(f"variable `{key}` ({cls}) ignored")
-                continue
-            if "MATLAB_empty" in obj.attrs and int(np.asarray(obj.attrs["MATLAB_empty"]).ravel()[0]):
-                continue
-            if not isinstance(obj, h5py.Dataset):
-                col.warnings.append(f"variable `{key}` ({type(obj).__name__}) ignored")
-                continue
-            _check_h5_storage(obj, key)
-            _check_h5_size(obj, key, file_size)
-            if cls == "char":
-                col.meta[key] = _h5_value(obj)
-                continue
-            if obj.dtype.names:
-                col.warnings.append(f"variable `{key}` (complex) ignored")
-                continue
-            shape = obj.shape
-            size = int(np.prod(shape)) if shape else 1
-            if size == 1:
-                col.meta[key] = _h5_value(obj)
-            elif len(shape) == 1 or (len(shape) == 2 and min(shape) == 1):
-                col.channels[key] = size
-                datasets[key] = key
-            elif len(shape) == 2 and col.matrix(key, tuple(reversed(shape))):   # MATLAB shape
-                pass
-            else:
-                col.warnings.append(f"variable `{key}` ({' x '.join(map(str, reversed(shape)))} matrix) ignored")
+            _take_v73_variable(col, f[key], key, file_size, datasets)
+    return col.export(lambda: _v73_batches(path, col, datasets))
 
-    def batches() -> Iterator[pa.RecordBatch]:
-        try:
-            yield from _v73_batches()
-        except ReaderError:
-            raise
-        except Exception as exc:  # noqa: BLE001 - h5py on corrupt chunks
-            raise ReaderError(f"cannot read MAT v7.3 data: {type(exc).__name__}: {_first_line(exc)}") from None
 
-    def _v73_batches() -> Iterator[pa.RecordBatch]:
-        n = next(iter(col.channels.values()))
-        with h5py.File(path, "r") as h:
-            ds = {k: h[k] for k in datasets}
-            for i in range(0, n, BATCH_ROWS):
-                j = min(n, i + BATCH_ROWS)
-                arrays = []
-                for name in col.channels:
-                    if name in col.parts:     # HDF5 holds the MATLAB array transposed
-                        var, c, axis = col.parts[name]
-                        d = h[var]
-                        part = d[c, i:j] if axis == 0 else d[i:j, c]
-                        arrays.append(pa.array(np.asarray(part, dtype=np.float64)))
-                        continue
-                    d = ds[name]
-                    if len(d.shape) == 1:
-                        part = d[i:j]
-                    elif d.shape[0] == 1:
-                        part = d[0, i:j]
-                    else:
-                        part = d[i:j, 0]
-                    arrays.append(pa.array(np.asarray(part, dtype=np.float64)))
-                yield pa.RecordBatch.from_arrays(arrays, names=list(col.channels))
+def _take_v73_variable(col: _Collect, obj, key: str, file_size: int, datasets: dict[str, str]) -> None:
+    """One top-level HDF5 object: a channel (its dataset then noted in ``datasets``), metadata,
+    ``meta`` / ``units``, a warning, or a refusal (MATLAB objects, data in other files, sizes
+    past the cap)."""
+    import h5py
 
-    return col.export(batches)
+    cls = _cls(obj)
+    if "MATLAB_object_decode" in obj.attrs or (cls and cls not in _NUMERIC_CLASSES | {"char", "struct", "cell"}):
+        col.refuse_object(key, cls or "object")
+    if isinstance(obj, h5py.Group):
+        _take_v73_group(col, obj, key, cls, file_size)
+        return
+    if cls == "cell" or (cls and cls not in _NUMERIC_CLASSES | {"char"}):
+        col.warnings.append(f"variable `{key}` ({cls}) ignored")
+        return
+    if "MATLAB_empty" in obj.attrs and int(np.asarray(obj.attrs["MATLAB_empty"]).ravel()[0]):
+        return
+    if not isinstance(obj, h5py.Dataset):
+        col.warnings.append(f"variable `{key}` ({type(obj).__name__}) ignored")
+        return
+    _check_h5_storage(obj, key)
+    _check_h5_size(obj, key, file_size)
+    if cls == "char":
+        col.meta[key] = _h5_value(obj)
+        return
+    if obj.dtype.names:
+        col.warnings.append(f"variable `{key}` (complex) ignored")
+        return
+    shape = obj.shape
+    size = int(np.prod(shape)) if shape else 1
+    if size == 1:
+        col.meta[key] = _h5_value(obj)
+    elif len(shape) == 1 or (len(shape) == 2 and min(shape) == 1):
+        col.channels[key] = size
+        datasets[key] = key
+    elif len(shape) == 2 and col.matrix(key, tuple(reversed(shape))):   # MATLAB shape
+        pass
+    else:
+        col.warnings.append(f"variable `{key}` ({' x '.join(map(str, reversed(shape)))} matrix) ignored")
+
+
+def _take_v73_group(col: _Collect, obj, key: str, cls: str, file_size: int) -> None:
+    """A group (a MATLAB struct): the fields of ``meta`` / ``units``; other groups are ignored
+    with a warning."""
+    if cls != "struct" or "MATLAB_sparse" in obj.attrs:
+        col.warnings.append(f"variable `{key}` ({cls or 'group'}) ignored")
+    elif key in ("meta", "units"):
+        for field_name in obj:
+            _take_v73_field(col, obj, key, field_name, file_size)
+    else:
+        col.warnings.append(f"struct `{key}` ignored (only `meta` and `units` structs are read)")
+
+
+def _take_v73_field(col: _Collect, obj, key: str, field_name: str, file_size: int) -> None:
+    """One field of the ``meta`` or ``units`` struct ``obj``: a metadata value or a unit."""
+    import h5py
+
+    if not isinstance(obj.get(field_name, getlink=True), h5py.HardLink):
+        col.warnings.append(f"field `{key}.{field_name}` (an HDF5 link) ignored")
+        return
+    fobj = obj[field_name]
+    fcls = _cls(fobj)
+    if "MATLAB_object_decode" in fobj.attrs or fcls not in _NUMERIC_CLASSES | {"char"}:
+        if fcls and fcls not in _NUMERIC_CLASSES | {"char", "struct", "cell"}:
+            col.refuse_object(f"{key}.{field_name}", fcls)
+        col.warnings.append(f"field `{key}.{field_name}` ({fcls}) ignored")
+        return
+    if isinstance(fobj, h5py.Group):
+        col.warnings.append(f"field `{key}.{field_name}` (group) ignored")
+        return
+    _check_h5_storage(fobj, f"{key}.{field_name}")
+    _check_h5_size(fobj, f"{key}.{field_name}", file_size)
+    v = _h5_value(fobj)
+    if key == "meta":
+        col.meta[field_name] = v
+    elif v is not None and str(v).strip():
+        col.units[field_name] = str(v)
+
+
+def _v73_batches(path: Path, col: _Collect, datasets: dict[str, str]) -> Iterator[pa.RecordBatch]:
+    """The channels of a v7.3 file in record batches; h5py's errors on corrupt chunks become a
+    ReaderError."""
+    try:
+        yield from _v73_slices(path, col, datasets)
+    except ReaderError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - h5py on corrupt chunks
+        raise ReaderError(f"cannot read MAT v7.3 data: {type(exc).__name__}: {_first_line(exc)}") from None
+
+
+def _v73_slices(path: Path, col: _Collect, datasets: dict[str, str]) -> Iterator[pa.RecordBatch]:
+    """Slices of :data:`BATCH_ROWS` rows of every channel, read from the file opened again."""
+    import h5py
+
+    n = next(iter(col.channels.values()))
+    with h5py.File(path, "r") as h:
+        ds = {k: h[k] for k in datasets}
+        for i in range(0, n, BATCH_ROWS):
+            j = min(n, i + BATCH_ROWS)
+            arrays = [pa.array(np.asarray(_v73_slice(h, ds, col, name, i, j), dtype=np.float64))
+                      for name in col.channels]
+            yield pa.RecordBatch.from_arrays(arrays, names=list(col.channels))
+
+
+def _v73_slice(h, ds: dict, col: _Collect, name: str, i: int, j: int):
+    """Rows ``i`` to ``j`` of channel ``name`` (HDF5 holds the MATLAB array transposed)."""
+    if name in col.parts:
+        var, c, axis = col.parts[name]
+        d = h[var]
+        return d[c, i:j] if axis == 0 else d[i:j, c]
+    d = ds[name]
+    if len(d.shape) == 1:
+        return d[i:j]
+    if d.shape[0] == 1:
+        return d[0, i:j]
+    return d[i:j, 0]
 
 
 def read_mat(path: str | Path, read: dict | None = None, hints: dict | None = None) -> RawExport:

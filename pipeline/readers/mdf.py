@@ -29,8 +29,12 @@ its ``iter_get`` does) and yielded in record batches, so a large file streams in
 from __future__ import annotations
 
 import re
+import shutil
+import struct
+import tempfile
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -66,8 +70,6 @@ def check_block_links(fh) -> None:
     to an earlier block kept a worker busy forever (found by ``tests/fuzz``). The walk mirrors
     asammdf's: MDF 4 links are 8 bytes (first DG at 88; next at +24, first child at +32), MDF 3
     links 4 bytes (first DG at 68; next at +4, first child at +8)."""
-    import struct
-
     size = fh.seek(0, 2)
     fh.seek(64)
     head = fh.read(4)
@@ -143,9 +145,6 @@ def is_unfinalised(fh) -> bool:
 def _private_copy(fh):
     """A writable temporary copy of ``fh`` (deleted when closed): asammdf finalises it there,
     never in raw/."""
-    import shutil
-    import tempfile
-
     copy = tempfile.TemporaryFile()
     try:
         fh.seek(0)
@@ -167,7 +166,7 @@ class _Opened:
     ``UnsupportedOperation: write`` (a CAN logger's MF4, issue 25)."""
 
     def __init__(self, path: Path):
-        from asammdf import MDF
+        from asammdf import MDF   # heavy (seconds to import): only when an MDF file is opened
 
         self.fh = open(path, "rb")
         try:
@@ -190,6 +189,7 @@ class _Opened:
         self.mdf.configure(read_fragment_size=READ_FRAGMENT_BYTES)
 
     def close(self) -> None:
+        """Close the MDF and its file."""
         try:
             self.mdf.close()
         finally:
@@ -197,10 +197,12 @@ class _Opened:
 
 
 def _open(path: Path) -> _Opened:
+    """The MDF file at ``path`` opened for reading (see :class:`_Opened`)."""
     return _Opened(path)
 
 
 def _text(elem) -> str:
+    """The text of an XML element and its children (``""`` for None)."""
     return "".join(elem.itertext()) if elem is not None else ""
 
 
@@ -243,6 +245,7 @@ def _groups(mdf) -> list[tuple[int, str, int]]:
 
 
 def _is_bus_log(mdf, index: int) -> bool:
+    """Whether channel group ``index`` is a bus log: flagged a bus event, or holding frame channels."""
     g = mdf.groups[index]
     if int(getattr(g.channel_group, "flags", 0) or 0) & _CG_BUS_EVENT:
         return True
@@ -308,6 +311,8 @@ def list_parts(path: str | Path) -> list[str]:
 
 
 def _pick_group(mdf, selector) -> tuple[int, str, int]:
+    """``(index, acquisition name, records)`` of the group ``selector`` names (a name or a 0-based
+    index), else of the only group with data."""
     groups = _groups(mdf)
     listing = ", ".join(f"{i} {name!r}" if name else str(i) for i, name, _ in groups)
     if selector is None or str(selector).strip() == "":
@@ -351,101 +356,150 @@ def read_mdf(path: str | Path, read: dict | None = None, hints: dict | None = No
     opened = _open(path)
     mdf = opened.mdf
     try:
-        selector = hints.get("group", read.get("group"))
-        if selector is None or str(selector).strip() == "":
-            # a logger's file of data, error and remote frames: a bus log, not a choice of groups
-            logs = [i for i, _, _ in _groups(mdf) if _is_bus_log(mdf, i)]
-            if len(logs) > 1 and len(logs) == len(_groups(mdf)):
-                raise ReaderError(_bus_log_refusal(mdf, logs[0]))
-        index, acq_name, n_records = _pick_group(mdf, selector)
-        if _is_bus_log(mdf, index):
-            raise ReaderError(_bus_log_refusal(mdf, index))
-        master = mdf.masters_db.get(index)
-        if master is None:
-            raise ReaderError(f"channel group {index} has no master (time) channel")
-        check_record_layout(mdf, index)
-        group = mdf.groups[index]
-        mch = group.channels[master]
-        sync = getattr(mch, "sync_type", _SYNC_TIME)
-        if mdf.version >= "4.00" and sync not in (0, _SYNC_TIME):
-            raise ReaderError(f"channel group {index}: the master channel `{mch.name}` is not a time "
-                              f"(sync type {sync}: angle or distance); pneubench needs time")
-        metadata = parse_header_comment(getattr(mdf.header, "comment", "") or "")
-        start = getattr(mdf.header, "start_time", None)
-        if "started_at" not in metadata and start is not None:
-            metadata["started_at"] = start.isoformat()
-        if str(read.get(PARTS_KEY, "")).strip().casefold() == "all":
-            # one run per group: the header's run_id is the file's, each group's is `<run_id>/<group>`
-            for k in [k for k in metadata if k.strip().casefold() == "run_id"]:
-                metadata[k] = f"{metadata[k]}/{hints.get(PART_KEY, acq_name or index)}"
-        metadata.setdefault("group", acq_name or str(index))
-
+        index, acq_name, _records = _select_group(mdf, hints.get("group", read.get("group")))
+        master, mch = _time_master(mdf, index)
+        metadata = _metadata(mdf, read, hints, index, acq_name)
         warnings: list[str] = []
-        columns = [RawColumn(key="c_master", name="t", unit=(mch.unit or "s").strip() or "s", index=1)]
-        fetch: list[tuple[str, str, int]] = []  # (key, channel name, channel index)
-        for ci, ch in enumerate(group.channels):
-            if ci == master:
-                continue
-            try:
-                probe = mdf.get(ch.name, index, ci, record_offset=0, record_count=1)
-            except Exception as exc:
-                warnings.append(f"MDF channel `{ch.name}` skipped: cannot be read ({type(exc).__name__})")
-                continue
-            samples = probe.samples
-            if samples.ndim != 1 or samples.dtype.names:
-                warnings.append(f"MDF channel `{ch.name}` skipped: arrays and structures are not channels")
-                continue
-            kind = samples.dtype.kind
-            dtype = "string" if kind in "SUO" else "float"
-            if kind not in "SUObiuf":
-                warnings.append(f"MDF channel `{ch.name}` skipped: samples of type {samples.dtype} are not numbers")
-                continue
-            unit = (probe.unit or ch.unit or "").strip() or None
-            key = f"c{ci}"
-            columns.append(RawColumn(key=key, name=ch.name, unit=unit, index=ci + 1, dtype=dtype))
-            fetch.append((key, ch.name, ci))
+        plan = _plan_channels(mdf, index, master, mch, warnings)
     except ReaderError:
         raise
     except Exception as exc:
         raise ReaderError(f"MDF file cannot be read: {exc_text(exc)}") from None
     finally:
         opened.close()  # batches() opens the file again: nothing stays open between the two
-    kinds = {c.key: c.dtype for c in columns}
+    return RawExport(format=FORMAT, columns=plan.columns, metadata=metadata, batches=lambda: _batches(path, plan),
+                     warnings=warnings)
 
-    def batches() -> Iterator[pa.RecordBatch]:
-        opened = _open(path)
-        mdf = opened.mdf
-        offset = 0
+
+def _select_group(mdf, selector) -> tuple[int, str, int]:
+    """``(index, acquisition name, records)`` of the run's channel group; a bus log is refused
+    (a file of bus-log groups only, without a ``group`` key, is one bus log)."""
+    if selector is None or str(selector).strip() == "":
+        # a logger's file of data, error and remote frames: a bus log, not a choice of groups
+        logs = [i for i, _, _ in _groups(mdf) if _is_bus_log(mdf, i)]
+        if len(logs) > 1 and len(logs) == len(_groups(mdf)):
+            raise ReaderError(_bus_log_refusal(mdf, logs[0]))
+    index, acq_name, n_records = _pick_group(mdf, selector)
+    if _is_bus_log(mdf, index):
+        raise ReaderError(_bus_log_refusal(mdf, index))
+    return index, acq_name, n_records
+
+
+def _time_master(mdf, index: int) -> tuple[int, object]:
+    """``(channel index, channel)`` of group ``index``'s master, refused when there is none,
+    when the group's records are damaged or when the master is not a time."""
+    master = mdf.masters_db.get(index)
+    if master is None:
+        raise ReaderError(f"channel group {index} has no master (time) channel")
+    check_record_layout(mdf, index)
+    mch = mdf.groups[index].channels[master]
+    sync = getattr(mch, "sync_type", _SYNC_TIME)
+    if mdf.version >= "4.00" and sync not in (0, _SYNC_TIME):
+        raise ReaderError(f"channel group {index}: the master channel `{mch.name}` is not a time "
+                          f"(sync type {sync}: angle or distance); pneubench needs time")
+    return master, mch
+
+
+def _metadata(mdf, read: dict, hints: dict, index: int, acq_name: str) -> dict:
+    """Run metadata: the header comment, ``started_at`` from the header's start time, and the
+    ``group`` read (``run_id`` made ``<run_id>/<group>`` with ``groups = "all"``)."""
+    metadata = parse_header_comment(getattr(mdf.header, "comment", "") or "")
+    start = getattr(mdf.header, "start_time", None)
+    if "started_at" not in metadata and start is not None:
+        metadata["started_at"] = start.isoformat()
+    if str(read.get(PARTS_KEY, "")).strip().casefold() == "all":
+        # one run per group: the header's run_id is the file's, each group's is `<run_id>/<group>`
+        for k in [k for k in metadata if k.strip().casefold() == "run_id"]:
+            metadata[k] = f"{metadata[k]}/{hints.get(PART_KEY, acq_name or index)}"
+    metadata.setdefault("group", acq_name or str(index))
+    return metadata
+
+
+@dataclass(frozen=True)
+class _Plan:
+    """What to read of group ``index``: the export's columns (``c_master`` first) and the data
+    channels as ``(key, channel name, channel index)``."""
+
+    index: int
+    columns: list[RawColumn]
+    fetch: list[tuple[str, str, int]]
+
+
+def _plan_channels(mdf, index: int, master: int, mch, warnings: list[str]) -> _Plan:
+    """The group's time and its data channels, each probed by reading its first record:
+    arrays, structures and samples that are not numbers or text are skipped with a warning."""
+    columns = [RawColumn(key="c_master", name="t", unit=(mch.unit or "s").strip() or "s", index=1)]
+    fetch: list[tuple[str, str, int]] = []  # (key, channel name, channel index)
+    for ci, ch in enumerate(mdf.groups[index].channels):
+        if ci == master:
+            continue
         try:
-            # asammdf's own chunking (as its public iter_get does): the group's data blocks in
-            # fragments of bounded size, every channel decoded from the same fragment. Reading by
-            # record_offset instead re-scans the blocks for every slice (and fails on some files).
-            fragments = mdf._mdf._load_data(mdf.groups[index])
-            while True:
-                try:
-                    fragment = next(fragments, None)
-                    if fragment is None:
-                        break
-                    t = mdf.get_master(index, data=fragment)
-                    arrays = {"c_master": np.asarray(t, dtype=float)}
-                    for key, _name, ci in fetch:
-                        arrays[key] = mdf.get(group=index, index=ci, data=fragment, samples_only=True,
-                                              ignore_invalidation_bits=True)[0]
-                except Exception as exc:
-                    raise ReaderError(f"MDF samples cannot be read at record {offset}: {exc_text(exc)}") from None
-                n = len(arrays["c_master"])
-                for a in range(0, n, BATCH_ROWS):
-                    out = []
-                    for c in columns:
-                        part = arrays[c.key][a:a + BATCH_ROWS]
-                        if kinds[c.key] == "string":
-                            out.append(pa.array([v.decode("utf-8", "replace") if isinstance(v, bytes) else str(v)
-                                                 for v in part], type=pa.string()))
-                        else:
-                            out.append(pa.array(np.asarray(part, dtype=float)))
-                    yield pa.RecordBatch.from_arrays(out, names=[c.key for c in columns])
-                offset += n
-        finally:
-            opened.close()
+            probe = mdf.get(ch.name, index, ci, record_offset=0, record_count=1)
+        except Exception as exc:
+            warnings.append(f"MDF channel `{ch.name}` skipped: cannot be read ({type(exc).__name__})")
+            continue
+        samples = probe.samples
+        if samples.ndim != 1 or samples.dtype.names:
+            warnings.append(f"MDF channel `{ch.name}` skipped: arrays and structures are not channels")
+            continue
+        kind = samples.dtype.kind
+        dtype = "string" if kind in "SUO" else "float"
+        if kind not in "SUObiuf":
+            warnings.append(f"MDF channel `{ch.name}` skipped: samples of type {samples.dtype} are not numbers")
+            continue
+        unit = (probe.unit or ch.unit or "").strip() or None
+        key = f"c{ci}"
+        columns.append(RawColumn(key=key, name=ch.name, unit=unit, index=ci + 1, dtype=dtype))
+        fetch.append((key, ch.name, ci))
+    return _Plan(index, columns, fetch)
 
-    return RawExport(format=FORMAT, columns=columns, metadata=metadata, batches=batches, warnings=warnings)
+
+def _batches(path: Path, plan: _Plan) -> Iterator[pa.RecordBatch]:
+    """The group's samples as record batches of at most :data:`BATCH_ROWS` rows, read fragment
+    by fragment of its data blocks from the file opened again."""
+    opened = _open(path)
+    mdf = opened.mdf
+    offset = 0
+    try:
+        # asammdf's own chunking (as its public iter_get does): the group's data blocks in
+        # fragments of bounded size, every channel decoded from the same fragment. Reading by
+        # record_offset instead re-scans the blocks for every slice (and fails on some files).
+        fragments = mdf._mdf._load_data(mdf.groups[plan.index])
+        while True:
+            try:
+                fragment = next(fragments, None)
+                if fragment is None:
+                    break
+                arrays = _decode_fragment(mdf, plan, fragment)
+            except Exception as exc:
+                raise ReaderError(f"MDF samples cannot be read at record {offset}: {exc_text(exc)}") from None
+            n = len(arrays["c_master"])
+            for a in range(0, n, BATCH_ROWS):
+                yield _batch(plan.columns, arrays, a)
+            offset += n
+    finally:
+        opened.close()
+
+
+def _decode_fragment(mdf, plan: _Plan, fragment) -> dict[str, np.ndarray]:
+    """Every column's samples in one fragment of the group's data: column key -> samples."""
+    t = mdf.get_master(plan.index, data=fragment)
+    arrays = {"c_master": np.asarray(t, dtype=float)}
+    for key, _name, ci in plan.fetch:
+        arrays[key] = mdf.get(group=plan.index, index=ci, data=fragment, samples_only=True,
+                              ignore_invalidation_bits=True)[0]
+    return arrays
+
+
+def _batch(columns: list[RawColumn], arrays: dict[str, np.ndarray], a: int) -> pa.RecordBatch:
+    """Rows ``a`` to ``a + BATCH_ROWS`` of a fragment's samples as a record batch (text columns
+    decoded as UTF-8)."""
+    out = []
+    for c in columns:
+        part = arrays[c.key][a:a + BATCH_ROWS]
+        if c.dtype == "string":
+            out.append(pa.array([v.decode("utf-8", "replace") if isinstance(v, bytes) else str(v)
+                                 for v in part], type=pa.string()))
+        else:
+            out.append(pa.array(np.asarray(part, dtype=float)))
+    return pa.RecordBatch.from_arrays(out, names=[c.key for c in columns])

@@ -43,7 +43,7 @@ import math
 import os
 import struct
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -93,13 +93,13 @@ def read_tdms(path: str | Path, read: dict | None = None, hints: dict | None = N
     opened = _open(path)
     with opened as tdms:
         plan = _plan(tdms, hints or {}, path.stat().st_size, opened.fh.stored)
-        columns, metadata, warnings, n_rows, group_name = plan
+        columns, n_rows = plan.columns, plan.n_rows
         # npTDMS reads whole raw-data chunks: never re-read a big chunk once per batch.
         rows_per_batch = max(1, min(n_rows, max(BATCH_ROWS, _largest_chunk(tdms))))
 
     def batches() -> Iterator[pa.RecordBatch]:
         with _open(path) as tdms:
-            group = tdms[group_name]
+            group = tdms[plan.group_name]
             sources = [_source(group, c) for c in columns]
             try:
                 for start in range(0, n_rows, rows_per_batch):
@@ -111,8 +111,8 @@ def read_tdms(path: str | Path, read: dict | None = None, hints: dict | None = N
             except Exception as exc:  # noqa: BLE001 - npTDMS raises many kinds on malformed data
                 raise ReaderError(f"cannot read TDMS data: {_first_line(exc)}") from None
 
-    return RawExport(format=FORMAT, columns=[c.raw for c in columns], metadata=metadata,
-                     batches=batches, warnings=warnings)
+    return RawExport(format=FORMAT, columns=[c.raw for c in columns], metadata=plan.metadata,
+                     batches=batches, warnings=plan.warnings)
 
 
 # -- opening and planning ------------------------------------------------------------------
@@ -130,6 +130,7 @@ class _BoundedReader(io.BufferedReader):
         self.stored = _stored_bytes(self.fileno(), self._size)
 
     def read(self, size: int | None = -1) -> bytes:
+        """Read at most the bytes left in the file (see the class docstring)."""
         if size is not None and size > 1 << 16:          # small reads cannot allocate much: no tell()
             size = max(0, min(size, self._size - self.tell()))
             if size == 0:
@@ -176,7 +177,7 @@ class _open:
         self.fh = None
 
     def __enter__(self):
-        from nptdms import TdmsFile
+        from nptdms import TdmsFile   # heavy: imported only when a TDMS file is opened
 
         _check_lead_in(self.path)
         log = logging.getLogger("nptdms")
@@ -226,66 +227,114 @@ def _check_lead_in(path: Path) -> None:
 
 @dataclass
 class _Col:
+    """One output column: its RawColumn, how it is read (``kind``), its TDMS channel and start (``t0``)."""
+
     raw: RawColumn
     kind: str             # "number", "string", "timestamp", "elapsed" (timestamp t), "wf_time", "empty"
     channel: str | None   # TDMS channel name (None for the synthesised time)
     t0: object = None     # elapsed: first timestamp; wf_time: (offset, increment)
 
 
-def _plan(tdms, hints: dict, file_size: int, stored: int | None = None):
+@dataclass(frozen=True)
+class _Plan:
+    """What a TDMS export is: its columns, metadata and warnings, the rows every column has and
+    the group they come from."""
+
+    columns: list[_Col]
+    metadata: dict
+    warnings: list[str]
+    n_rows: int
+    group_name: str
+
+
+@dataclass
+class _Channels:
+    """What the channels of the group say, gathered in one pass: the columns, each channel's
+    length, the channel named ``t``, the first waveform properties and a timestamp ``t``'s
+    first value (as ISO text)."""
+
+    cols: list[_Col] = field(default_factory=list)
+    lengths: dict[str, int] = field(default_factory=dict)
+    time_channel: str | None = None
+    wf: object = None
+    first_time: object = None
+
+
+def _plan(tdms, hints: dict, file_size: int, stored: int | None = None) -> _Plan:
+    """Plan the export of an opened TDMS file: the group, its channels, the rows and the time."""
     root = dict(tdms.properties)
     metadata = {str(k): _plain(v) for k, v in root.items()}
     group = _select_group(tdms, hints, metadata)
     warnings: list[str] = []
-    cols: list[_Col] = []
-    lengths: dict[str, int] = {}
-    time_channel = None
-    wf = None
-    first_time = None
+    found = _channel_columns(group, file_size, warnings)
+    if not found.cols:
+        raise ReaderError(f"TDMS group `{group.name}` has no channels")
+    if not found.lengths:
+        raise ReaderError(f"TDMS group `{group.name}` has no data")
+    _check_sparse(group, found.lengths, file_size, stored)
+    n_rows = _row_count(tdms, group, found.lengths, warnings)
+    _add_time(found, metadata)
+    return _Plan(found.cols, metadata, warnings, n_rows, group.name)
+
+
+def _channel_columns(group, file_size: int, warnings: list[str]) -> _Channels:
+    """One column per channel of ``group`` (unit, kind, length); channels of other types are
+    skipped with a warning."""
+    found = _Channels()
     check_channel_count(len(group.channels()), f"channels in TDMS group `{group.name}`")
     for index, ch in enumerate(group.channels(), start=1):
         name = ch.name
         unit = _text(ch.properties.get("unit_string"))
         if unit is None:
             name, unit = split_name_unit(ch.name) if ch.name.rstrip().endswith("]") else (ch.name, None)
-        key = f"c{index}"
         n = len(ch)
         if n > file_size:   # every value takes at least one byte of the file
             raise ReaderError(f"TDMS channel `{ch.name}` declares {n} values in a file of {file_size} bytes "
                               "(corrupt metadata)")
-        dtype = np.dtype(ch.dtype) if ch.dtype is not None else np.dtype(object)
         is_t = name.strip().casefold() == "t"
-        if n == 0:
-            kind = "empty"
-        elif np.issubdtype(dtype, np.datetime64):
-            kind = "elapsed" if is_t else "timestamp"
-        elif dtype == np.dtype(object) or dtype.kind in "US":
-            kind = "string"
-        elif dtype.kind in "biuf":
-            kind = "number"
-        else:
-            warnings.append(f"TDMS channel `{ch.name}` of type {dtype} skipped (not numbers, text or timestamps)")
+        kind = _channel_kind(ch, n, is_t)
+        if kind is None:
+            warnings.append(f"TDMS channel `{ch.name}` of type {_dtype(ch)} skipped (not numbers, text or timestamps)")
             continue
         t0 = None
         if kind == "elapsed":
             t0 = ch.read_data(0, 1)[0]
             unit = "s"
-            first_time = _plain(t0)
-        raw = RawColumn(key=key, name=name, unit=unit, index=index,
+            found.first_time = _plain(t0)
+        raw = RawColumn(key=f"c{index}", name=name, unit=unit, index=index,
                         dtype="string" if kind in ("string", "timestamp") else "float", header=ch.name)
-        cols.append(_Col(raw, kind, ch.name, t0))
+        found.cols.append(_Col(raw, kind, ch.name, t0))
         if n:
-            lengths[ch.name] = n
+            found.lengths[ch.name] = n
         if is_t:
-            time_channel = ch.name
-        if wf is None and "wf_increment" in ch.properties and n:
-            wf = ch.properties
-    if not cols:
-        raise ReaderError(f"TDMS group `{group.name}` has no channels")
-    if not lengths:
-        raise ReaderError(f"TDMS group `{group.name}` has no data")
-    # A sparse file: what its channels declare must come from the bytes it stores, as for
-    # compressed data (inflate_cap), not from holes that read back as zeros.
+            found.time_channel = ch.name
+        if found.wf is None and "wf_increment" in ch.properties and n:
+            found.wf = ch.properties
+    return found
+
+
+def _dtype(ch) -> np.dtype:
+    """A channel's numpy dtype (object when npTDMS gives none)."""
+    return np.dtype(ch.dtype) if ch.dtype is not None else np.dtype(object)
+
+
+def _channel_kind(ch, n: int, is_t: bool) -> str | None:
+    """How a channel of ``n`` values is read (see :class:`_Col`); None for a type not read."""
+    dtype = _dtype(ch)
+    if n == 0:
+        return "empty"
+    if np.issubdtype(dtype, np.datetime64):
+        return "elapsed" if is_t else "timestamp"
+    if dtype == np.dtype(object) or dtype.kind in "US":
+        return "string"
+    if dtype.kind in "biuf":
+        return "number"
+    return None
+
+
+def _check_sparse(group, lengths: dict[str, int], file_size: int, stored: int | None) -> None:
+    """A sparse file: what its channels declare must come from the bytes it stores, as for
+    compressed data (inflate_cap), not from holes that read back as zeros."""
     stored = file_size if stored is None else stored
     declared = sum(n * max(4, np.dtype(group[k].dtype or object).itemsize) for k, n in lengths.items())
     if stored < file_size and declared > max(stored, inflate_cap(stored)):
@@ -293,7 +342,10 @@ def _plan(tdms, hints: dict, file_size: int, stored: int | None = None):
                           f"stores {stored:,} bytes of its {mib(file_size)} (a sparse file whose holes read as zeros): "
                           f"more than the {mib(inflate_cap(stored))} it may declare")
 
-    # Rows: every channel as long as the others; a crash may cut the last segment short.
+
+def _row_count(tdms, group, lengths: dict[str, int], warnings: list[str]) -> int:
+    """Rows: every channel as long as the others; a crash may cut the last segment short (then
+    the complete rows, with a warning)."""
     n_rows = min(lengths.values())
     truncated = _truncated(tdms)
     if len(set(lengths.values())) > 1 and not truncated:
@@ -303,25 +355,30 @@ def _plan(tdms, hints: dict, file_size: int, stored: int | None = None):
         dropped = sum(lengths.values()) - n_rows * len(lengths)
         warnings.append(f"TDMS file truncated (final segment incomplete): ingested the first {n_rows} "
                         f"complete samples, dropped {dropped} trailing values")
+    return n_rows
 
-    # Time: a channel `t` wins; else waveform timing.
-    if time_channel is None and wf is not None:
+
+def _add_time(found: _Channels, metadata: dict) -> None:
+    """Time: a channel ``t`` wins; else a ``t`` column from waveform timing. ``started_at`` from
+    the waveform start time or the first timestamp of ``t``, unless the metadata give it."""
+    wf = found.wf
+    if found.time_channel is None and wf is not None:
         inc = _number(wf.get("wf_increment"))
         off = _number(wf.get("wf_start_offset", 0.0))
         if inc is None or not inc > 0:
             raise ReaderError(f"TDMS waveform property wf_increment is not a positive number: {wf.get('wf_increment')!r}")
-        cols.append(_Col(RawColumn(key="t", name="t", unit="s", index=len(cols) + 1), "wf_time", None,
-                         (off or 0.0, inc)))
+        found.cols.append(_Col(RawColumn(key="t", name="t", unit="s", index=len(found.cols) + 1), "wf_time", None,
+                               (off or 0.0, inc)))
     if wf is not None and not any(k.strip().casefold() == "started_at" for k in metadata):
         start = wf.get("wf_start_time")
         if isinstance(start, np.datetime64) and start.astype("datetime64[us]") != _TDMS_EPOCH:
             metadata["started_at"] = _plain(start)
-    if first_time is not None and not any(k.strip().casefold() == "started_at" for k in metadata):
-        metadata["started_at"] = first_time
-    return cols, metadata, warnings, n_rows, group.name
+    if found.first_time is not None and not any(k.strip().casefold() == "started_at" for k in metadata):
+        metadata["started_at"] = found.first_time
 
 
 def _select_group(tdms, hints: dict, root: dict):
+    """The group the ``group`` key names (``hints`` first, then the root properties), else the only group."""
     groups = tdms.groups()
     names = [g.name for g in groups]
     wanted = _lookup(hints, "group")
@@ -371,6 +428,7 @@ def _largest_chunk(tdms) -> int:
 
 # -- reading -------------------------------------------------------------------------------
 def _source(group, col: _Col) -> _Source:
+    """How column ``col`` is read from ``group`` (see :class:`_Col` for the kinds)."""
     key = col.raw.key
     if col.kind == "wf_time":
         off, inc = col.t0
@@ -396,6 +454,7 @@ def _source(group, col: _Col) -> _Source:
 
 # -- values --------------------------------------------------------------------------------
 def _iso(value: np.datetime64) -> str:
+    """A timestamp as ISO 8601 UTC text with microseconds."""
     return np.datetime_as_string(value.astype("datetime64[us]"), unit="us") + "+00:00"
 
 
@@ -413,6 +472,7 @@ def _plain(value):
 
 
 def _text(value) -> str | None:
+    """A property as stripped text; None when missing or blank."""
     if value is None:
         return None
     text = str(value).strip()
@@ -420,6 +480,7 @@ def _text(value) -> str | None:
 
 
 def _number(value) -> float | None:
+    """A property as a float; None when it is not a number."""
     try:
         return float(value)
     except (TypeError, ValueError):
@@ -427,6 +488,7 @@ def _number(value) -> float | None:
 
 
 def _lookup(meta: dict, key: str):
+    """The value of ``key`` in ``meta`` (keys compared stripped and case-folded), None when missing or blank."""
     for k, v in meta.items():
         if str(k).strip().casefold() == key and v is not None and str(v).strip() != "":
             return v
@@ -434,6 +496,7 @@ def _lookup(meta: dict, key: str):
 
 
 def _first_line(exc: BaseException) -> str:
+    """The first line of a npTDMS exception (named when it has no words), at most 200 characters."""
     text = str(exc).strip().splitlines()
     line = text[0] if text else ""
     if not any(c.isalpha() for c in line):  # KeyError(119) says "119": name the error instead

@@ -30,6 +30,8 @@ from __future__ import annotations
 import json
 import os
 import random
+import re
+import resource
 import select
 import shutil
 import subprocess
@@ -56,6 +58,9 @@ _ROOT = Path(__file__).resolve().parents[2]
 
 
 # -- seeds ---------------------------------------------------------------------------------
+# The seeds' writers (numpy, pandas, scipy, the simulator) are imported by the functions that
+# write seeds, not at the top: the fuzz child imports this package too, and everything it maps
+# counts against its address-space limit (MEMORY_LIMIT).
 def _frame(n: int = 24):
     import numpy as np
     import pandas as pd
@@ -219,9 +224,8 @@ def classify(run: bool, error: str | None) -> str:
 # -- child ---------------------------------------------------------------------------------
 def child_main() -> None:
     """Read mutant paths (one per stdin line), ingest each, answer one JSON line per mutant."""
-    import resource
-
     resource.setrlimit(resource.RLIMIT_AS, (MEMORY_LIMIT, MEMORY_LIMIT))
+    # imported after the limit is set: what the ingest maps counts against it
     from pipeline.ingest.file import ingest_file
     from pipeline.raw.tree import RawTree
 
@@ -357,8 +361,6 @@ def run(n: int, seed: int, save: bool = True, timeout: float = TIMEOUT_S, log=No
 
 def _shape(reason: str | None) -> str:
     """A reason with its numbers and quoted values blanked, to count kinds of reasons."""
-    import re
-
     text = re.sub(r"`[^`]*`|'[^']*'|\"[^\"]*\"", "_", reason or "")
     return re.sub(r"\d+(\.\d+)?", "N", text)[:90]
 

@@ -10,16 +10,14 @@ import argparse
 import sys
 from pathlib import Path
 
+from tests.fuzz import FINDINGS, TIMEOUT_S, child_main, replay, run
+
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv and argv[0] == "--child":
-        from tests.fuzz import child_main
-
         child_main()
         return 0
-    from tests.fuzz import FINDINGS, TIMEOUT_S, replay, run
-
     parser = argparse.ArgumentParser(prog="python -m tests.fuzz", description=__doc__.splitlines()[0])
     parser.add_argument("--mutants", type=int, default=2000)
     parser.add_argument("--seed", type=int, default=7)
