@@ -152,22 +152,6 @@ def default_jobs(jobs: int | None) -> int:
     return max(1, int(jobs or os.cpu_count() or 1))
 
 
-def preload_modules() -> list[str]:
-    """Modules a worker of the stages needs (stages, analyses). The local pools are forked from
-    the rebuild, which has imported them already; kept for executors that start cold."""
-    import pkgutil
-
-    mods = ["numpy", "pandas", "pyarrow.parquet", "scipy.optimize", "scipy.signal", "scipy.stats",
-            "matplotlib.pyplot"]
-    try:
-        from pipeline import stages
-
-        mods += [f"pipeline.stages.{m.name}" for m in pkgutil.iter_modules(stages.__path__) if not m.name.startswith("_")]
-    except ImportError:  # pragma: no cover
-        pass
-    return mods
-
-
 class LocalExecutor(Executor):
     """A pool of ``jobs`` worker processes on this machine.
 

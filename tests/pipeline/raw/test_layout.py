@@ -11,7 +11,8 @@ import pytest
 
 from pipeline.raw.layout import MAX_RIG_BYTES, PATH_MAX, RawTree, display_name, walk_raw
 from pipeline.progress import Progress
-from pipeline.rebuild.flow import EXIT_QUARANTINED, rebuild
+from pipeline.rebuild.flow import rebuild
+from pipeline.rebuild.options import EXIT_QUARANTINED
 from tests.conftest import STEP_META, query
 
 T = [0.0, 0.1, 0.2, 0.3]
