@@ -154,7 +154,7 @@ class PreviousState:
     history_loader: object = field(default=None, repr=False, compare=False)
     #: files of earlier warehouses still kept for their readers: path -> superseded at [s since epoch]
     superseded: dict[str, float] = field(default_factory=dict)
-    #: :func:`pipeline.rebuild.flow.inputs_key` of the last rebuild (None before the column existed)
+    #: :func:`pipeline.rebuild.noop.inputs_key` of the last rebuild (None before the column existed)
     inputs_key: str | None = None
 
     @property
