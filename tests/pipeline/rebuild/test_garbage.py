@@ -54,3 +54,19 @@ def test_the_clean_up_deletes_only_files_the_warehouse_wrote(raw, warehouse, tmp
     assert raw_snapshot(outside) == outside_before
     assert not orphan.exists() and not debris.exists()
     assert q(warehouse, "SELECT count(*) FROM runs") == [(2,)]
+
+
+def test_the_first_layouts_files_are_left_alone_as_foreign(tmp_path):
+    # issue 22: the clean-up of the layout before generations (figures/<stage>/<name>.png,
+    # memo/<stage>.pkl) is gone; such files are now foreign, like any name the warehouse does not write
+    from pipeline.rebuild.garbage import clean_debris, collect_garbage
+
+    old = [tmp_path / "figures" / "models" / "fit.png", tmp_path / "memo" / "models.pkl",
+           tmp_path / "memo" / ".models.pkl.tmp-12"]
+    gone = [tmp_path / "memo" / "models" / "ab.pkl", tmp_path / f".pneubench.duckdb.tmp-{os.getpid()}"]
+    for p in old + gone:
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_bytes(b"x")
+    clean_debris(tmp_path)
+    collect_garbage(tmp_path, set(), set())
+    assert all(p.exists() for p in old) and not any(p.exists() for p in gone)
