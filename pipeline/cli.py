@@ -76,7 +76,7 @@ def main():
               help="Where per-file ingest and per-run analyses run.")
 @click.option("--scheduler", metavar="ADDR", default=None,
               help="Dask scheduler address (tcp://host:8786); without it --executor dask starts a local cluster.")
-@click.option("--wait", "wait_s", type=click.FloatRange(min=0), default=0, show_default=True, metavar="SECONDS",
+@click.option("--wait", "lock_wait_s", type=click.FloatRange(min=0), default=0, show_default=True, metavar="SECONDS",
               help="Wait this long for another rebuild of the same warehouse to finish (else exit 4).")
 @click.option("--no-report", is_flag=True, help="Do not write the morning report (warehouse/report/index.html).")
 @click.option("--keep-superseded", "keep_superseded_h", type=click.FloatRange(min=0), default=None, metavar="HOURS",
@@ -87,25 +87,25 @@ def main():
               help="Go on when every run, or more than half of them (at least 5), would be deleted because "
                    "their raw files are gone; without it such a rebuild exits 2 and keeps the warehouse "
                    "(or $PNEUBENCH_ALLOW_MASS_DELETE=1).")
-def rebuild(raw, warehouse, jobs, full, quiet, executor, scheduler, wait_s, no_report, keep_superseded_h,
-            allow_mass_delete):
+def rebuild(raw, warehouse, quiet, no_report, **options):
     """Ingest new or changed raw files, re-run analyses, swap in the new warehouse.
 
     Exit 0: everything used; 1: warehouse built, some inputs quarantined; 2: usage error, or a
     mass delete refused (--allow-mass-delete); 3 or more: failed (also when the morning report cannot be rendered), previous warehouse and
     report untouched (4: another rebuild is running).
     """
-    from pipeline.rebuild.flow import RebuildError, rebuild as do_rebuild
+    # the rebuild is imported by its commands, not here: `pneubench query` starts without it
+    from pipeline.rebuild.flow import rebuild as do_rebuild
+    from pipeline.rebuild.options import RebuildError, RebuildOptions
 
     if not raw.is_dir():
         raise click.UsageError(f"raw folder {raw} does not exist")
-    if scheduler and executor != "dask":
+    if options["scheduler"] and options["executor"] != "dask":
         raise click.UsageError("--scheduler goes with --executor dask")
     try:
         with _interruptible("rebuild"):
-            summary = do_rebuild(raw, warehouse, jobs=jobs, full=full, progress=for_stream(sys.stderr, quiet),
-                                 lock_wait_s=wait_s, executor=executor, scheduler=scheduler, report=not no_report,
-                                 keep_superseded_h=keep_superseded_h, allow_mass_delete=allow_mass_delete)
+            summary = do_rebuild(raw, warehouse, RebuildOptions(report=not no_report, **options),
+                                 progress=for_stream(sys.stderr, quiet))
     except RebuildError as exc:
         click.echo(f"pneubench rebuild: {exc}", err=True)
         sys.exit(exc.exit_code)
@@ -311,7 +311,8 @@ def report(warehouse, wait_s):
     Holds the rebuild lock while it renders (a rebuild cannot swap its database in between);
     exit 4 when a rebuild is running: it writes the report itself when it finishes.
     """
-    from pipeline.rebuild.flow import RebuildError, warehouse_lock
+    from pipeline.rebuild.options import RebuildError
+    from pipeline.rebuild.publish import warehouse_lock
     from pipeline.serve.report.render import ReportError, write_report
     from pipeline.warehouse import DB_NAME
 
@@ -374,7 +375,8 @@ def demo(ctx, raw, warehouse, jobs, quiet):
     """
     import shlex
 
-    from pipeline.rebuild.flow import RebuildError, check_folders, rebuild as do_rebuild
+    from pipeline.rebuild.flow import check_folders, rebuild as do_rebuild
+    from pipeline.rebuild.options import RebuildError
     from pipeline.simulator.campaign import DemoError, simulate_demo
 
     try:  # before anything is simulated into raw/

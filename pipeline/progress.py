@@ -26,9 +26,6 @@ class Progress:
     def _update(self, task: "_Task") -> None:
         pass
 
-    def _done(self, task: "_Task") -> None:
-        pass
-
 
 class _Task:
     def __init__(self, owner: Progress, name: str, total: int):

@@ -488,3 +488,35 @@ def comment_statements(con: duckdb.DuckDBPyConnection) -> list[str]:
             if text and (table, col) in columns:
                 out.append(f"COMMENT ON COLUMN \"{table}\".\"{col}\" IS {_sql_str(text)}")
     return out
+
+
+# -- every name the warehouse writes ---------------------------------------------------------------
+# The clean-up (pipeline/rebuild/garbage.py) deletes only what the warehouse itself wrote: a file
+# is a candidate when it lies in the warehouse's own folders (never through a symlink) AND its
+# name is one of these, which the writers use. Anything else found there (a raw tree placed there
+# by mistake, a user's notes) is left alone. A writer that changes a name changes it here too.
+
+#: A samples file, ``samples/kind=<kind>/campaign=<campaign>/<safe run>-<key>.parquet`` (the ingest).
+SAMPLES_FILE = re.compile(r"[A-Za-z0-9._-]{1,80}-[0-9a-f]{16}\.parquet")
+#: A samples file being written (the ingest's temporary name beside it).
+SAMPLES_TMP = re.compile(r"\.[A-Za-z0-9._-]{1,80}\.[0-9]+\.[0-9a-f]{12}\.tmp")
+#: A stage's name: its folder ``stages/<stage>/`` and its memo folder ``memo/<stage>/``.
+STAGE_NAME = re.compile(r"[a-z_][a-z0-9_]*")
+#: A stage output folder's key, ``stages/<stage>/<key>/``.
+STAGE_KEY = re.compile(r"[0-9a-f]{20}")
+#: A stage output folder being written, ``stages/.tmp-<stage>-<key>-<pid>/``.
+STAGE_TMP = re.compile(r"\.tmp-([a-z_][a-z0-9_]*)-[0-9a-f]{20}-[0-9]+")
+#: A table of a stage output folder, ``tables/<table>.parquet``.
+STAGE_TABLE = re.compile(r"[A-Za-z0-9_]+\.parquet")
+#: A stage output folder's description, ``output.json``.
+STAGE_OUTPUT = re.compile(r"output\.json")
+#: A figure, ``stages/<stage>/<key>/figures/<name>.png``.
+FIGURE = re.compile(r"[A-Za-z0-9._-]+\.png")
+#: The database being written beside the live one, ``.pneubench.duckdb.tmp-<pid>`` (and its WAL).
+DB_TMP = re.compile(re.escape(f".{DB_NAME}.tmp-") + r"[0-9]+(\.wal)?")
+#: A morning report being written, ``report/.index.html.tmp-<pid>`` or ``report/.parts-cache.tmp-<pid>``.
+REPORT_TMP = re.compile(r"\.(index\.html|parts-cache)\.tmp-[0-9]+")
+#: A memo shard, ``memo/<stage>/<xx>.pkl`` (``xx`` the first two hex digits of the keys it holds) ...
+SHARD_FILE = re.compile(r"[0-9a-f]{2}\.pkl")
+#: ... and the shard being written, ``memo/<stage>/.<xx>.pkl.tmp-<pid>``.
+SHARD_TMP = re.compile(r"\.[0-9a-f]{2}\.pkl\.tmp-[0-9]+")

@@ -28,6 +28,7 @@ import importlib
 import multiprocessing
 import os
 import signal
+import threading
 import time
 from collections.abc import Callable, Iterable
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -95,8 +96,6 @@ def _watch_parent(pid: int, every_s: float = 0.2) -> None:
     A worker blocked on its task queue would otherwise live on, holding the rebuild's stdout,
     stderr and any file it had open.
     """
-    import threading
-
     def alive() -> bool:
         try:
             os.kill(pid, 0)
@@ -150,22 +149,6 @@ def _kill_workers(pool: ProcessPoolExecutor) -> None:
 def default_jobs(jobs: int | None) -> int:
     """``jobs``, or every core when None."""
     return max(1, int(jobs or os.cpu_count() or 1))
-
-
-def preload_modules() -> list[str]:
-    """Modules a worker of the stages needs (stages, analyses). The local pools are forked from
-    the rebuild, which has imported them already; kept for executors that start cold."""
-    import pkgutil
-
-    mods = ["numpy", "pandas", "pyarrow.parquet", "scipy.optimize", "scipy.signal", "scipy.stats",
-            "matplotlib.pyplot"]
-    try:
-        from pipeline import stages
-
-        mods += [f"pipeline.stages.{m.name}" for m in pkgutil.iter_modules(stages.__path__) if not m.name.startswith("_")]
-    except ImportError:  # pragma: no cover
-        pass
-    return mods
 
 
 class LocalExecutor(Executor):
@@ -369,7 +352,7 @@ class DaskExecutor(Executor):
     name = "dask"
 
     def __init__(self, address: str | None = None, jobs: int | None = None, client=None):
-        try:
+        try:  # an optional dependency, imported only by the executor that needs it (~1 s)
             from distributed import Client, LocalCluster
         except ImportError as exc:  # pragma: no cover - depends on the installation
             raise RuntimeError("the dask executor needs dask.distributed: pip install 'pneubench[dask]'") from exc
@@ -387,7 +370,7 @@ class DaskExecutor(Executor):
 
     def map(self, func, items, label="", progress=None, on_crash: Callable | None = None, preload=(),
             while_waiting=None, time_limit=None):
-        from distributed import KilledWorker, as_completed
+        from distributed import KilledWorker, as_completed  # optional (pneubench[dask]), as in __init__
 
         items = list(items)
         progress = progress or Progress()

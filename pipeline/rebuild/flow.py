@@ -1,55 +1,60 @@
 """The rebuild: ingest raw/, run the analysis stages, swap in a new warehouse.
 
+:func:`rebuild` reads top-down: plan (what changed since the live warehouse) -> ingest (the files
+to read, in worker processes) -> stages (run, or their cached outputs reused) -> assemble (every
+table of the new database) -> publish (database and morning report swapped in, garbage collected).
+
 Incremental (``pipeline/rebuild/state.py``): a run file whose content, applicable metadata and ingest
 code are unchanged is not read again; a stage whose inputs are unchanged is not run again (its
 cached outputs are reused). ``full=True`` rebuilds everything. Either way the result is the same.
+When nothing changed at all, the live database is carried over (``pipeline/rebuild/noop.py``).
 
-Atomic: everything the new database refers to is written first into immutable,
-content-addressed files (``samples/.../<run>-<key>.parquet``, ``stages/<stage>/<key>/``); then the
-database is built under a temporary name and swapped in with one ``os.replace``. A reader opening
-``pneubench.duckdb`` sees the previous complete warehouse or the new one. Files of the previous
-generation are kept (a reader may still be using them); older ones are collected. The incremental
-state lives inside the database, so it always matches the data it describes. ``kill -9`` at any
-point leaves the previous warehouse as it was; the next rebuild removes the debris.
+Atomic (``pipeline/rebuild/publish.py``): everything the new database refers to is written first
+into immutable, content-addressed files (``samples/.../<run>-<key>.parquet``,
+``stages/<stage>/<key>/``); then the database is built under a temporary name and swapped in with
+one ``os.replace``. Files of the previous generation are kept (a reader may still be using them);
+older ones are collected (``pipeline/rebuild/garbage.py``). The incremental state lives inside the
+database, so it always matches the data it describes. ``kill -9`` at any point leaves the previous
+warehouse as it was; the next rebuild removes the debris.
 
-Exit codes (warehouse.md): 0 everything used; 1 warehouse built, some inputs quarantined;
-2 usage error; anything else: failed, the previous warehouse untouched (3 failed, 4 another
-rebuild holds the lock). The morning report is rendered from the new database before the swap,
-so a report that cannot be rendered is a failure too (3), with the previous warehouse and its
-report kept: the two always agree.
+Exit codes (``pipeline/rebuild/options.py``, warehouse.md): 0 everything used; 1 warehouse built,
+some inputs quarantined; 2 usage error; anything else: failed, the previous warehouse untouched
+(3 failed, 4 another rebuild holds the lock). A report that cannot be rendered is a failure too (3).
 """
 from __future__ import annotations
 
-import fcntl
 import json
 import logging
 import os
-import re
 import shutil
-import signal
-import stat as stat_mod
 import time
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from pipeline.rebuild.executors import CRASH_REASON, STUCK_REASON, Executor, default_jobs, forked_pool, make_executor
-from pipeline.rebuild.executors import _kill_workers  # stop the figure worker of an interrupted rebuild
+from pipeline.progress import Progress
 from pipeline.raw.problems import Problem
 from pipeline.raw.tree import RawTree, discover_runs
 from pipeline.raw.walk import skip_reason
-from pipeline.rebuild.memo import LEGACY_FILE, LEGACY_TMP, MEMO_DIR, SHARD_FILE, SHARD_TMP, STAGE_NAME, Memo
 from pipeline.readers import READERS
-from pipeline.progress import Progress
-from pipeline.versions import project_code_version
-from pipeline.rebuild.state import (KEEP_SUPERSEDED_H, FilePlan, FileRecord, PreviousState, StageRecord, frame_hash,
-                            ingest_code_version, load_previous, logbook_hash, plan_runs, record_for, side_records,
-                            stage_code_version, stage_input_key, superseded_files)
-from pipeline.warehouse import DB_NAME, build_database, runs_frame, swap_in
-from schemas.kind_names import KIND_NAMES  # not schemas.kinds: a no-op needs no pyarrow
-from pipeline.rebuild.state import record_result  # files of several runs (kept apart for the merge)
+from pipeline.rebuild.executors import Executor, default_jobs, forked_pool, make_executor
+from pipeline.rebuild.executors import _kill_workers  # stop the figure worker of an interrupted rebuild
+from pipeline.rebuild.garbage import clean_debris, collect_garbage, remove_stage_folder, split_kept
+from pipeline.rebuild.history import append_log, compare_findings
+from pipeline.rebuild.ingest_tasks import deduplicate, ingest_incremental
+from pipeline.rebuild.memo import Memo
+from pipeline.rebuild.noop import inputs_key, nothing_changed, rebuild_noop
+from pipeline.rebuild.options import (EXIT_USAGE, RebuildError, RebuildOptions, RebuildRun, RebuildSummary,
+                                      keep_superseded_h)
+from pipeline.rebuild.publish import (check_mass_delete, clean_after_failure, crash_point, live_database,
+                                      swap_in_new_database, warehouse_lock)
+from pipeline.rebuild.state import (FilePlan, FileRecord, PreviousState, StageRecord, frame_hash, load_previous,
+                                    logbook_hash, plan_runs, side_records, stage_input_key, superseded_files)
+from pipeline.serve.report.publish import settle_report
+from pipeline.versions import ingest_code_version, stage_code_version
+from pipeline.warehouse import build_database, runs_frame
 
 log = logging.getLogger("pneubench")
 
@@ -61,121 +66,6 @@ if TYPE_CHECKING:
 
 # pandas, pyarrow, numpy and the analyses are imported by the functions that use them, not here:
 # a no-op rebuild needs none of them (~0.5 s of a 10,000-run no-op's 2 s budget; issue 14).
-
-
-def sha256_file(path, *args, **kwargs):
-    """:func:`pipeline.ingest.hashing.sha256_file` (imported when a file is first hashed)."""
-    from pipeline.ingest.hashing import sha256_file as _sha256_file
-
-    return _sha256_file(path, *args, **kwargs)
-
-
-def ingest_file(tree, path, *args, **kwargs):
-    """:func:`pipeline.ingest.file.ingest_file` (imported when a file is first read)."""
-    from pipeline.ingest.file import ingest_file as _ingest_file
-
-    return _ingest_file(tree, path, *args, **kwargs)
-
-EXIT_OK, EXIT_QUARANTINED, EXIT_USAGE, EXIT_FAILED, EXIT_LOCKED = 0, 1, 2, 3, 4
-
-#: Test hook: ``PNEUBENCH_CRASH_AT=<point>`` kills the rebuild with SIGKILL at that point.
-CRASH_POINTS = ("after_ingest", "after_stages", "before_swap", "between_swaps", "after_swap")
-
-#: Rows of ``rebuild_log`` carried from one warehouse to the next.
-HISTORY_ROWS = 200
-
-#: A rebuild that would drop more than this share of the live warehouse's runs (their raw files
-#: gone: a share not mounted, a raw/ moved) is refused (exit 2) unless it is allowed...
-MASS_DELETE_SHARE = 0.5
-#: ... when it drops at least this many runs; one that drops every run is refused whatever their number.
-MASS_DELETE_MIN_RUNS = 5
-
-
-class RebuildError(Exception):
-    """The rebuild failed; the previous warehouse is untouched. ``exit_code`` says how."""
-
-    def __init__(self, message: str, exit_code: int = EXIT_FAILED):
-        super().__init__(message)
-        self.exit_code = exit_code
-
-
-@dataclass
-class RebuildSummary:
-    """What a rebuild did."""
-
-    raw: Path
-    warehouse: Path
-    n_files: int = 0
-    n_runs: int = 0
-    quarantine: list[Problem] = field(default_factory=list)
-    seconds: float = 0.0
-    tables: dict[str, int] = field(default_factory=dict)
-    generation: str = ""
-    mode: str = "incremental"
-    n_new: int = 0
-    n_changed: int = 0
-    n_deleted: int = 0
-    n_unchanged: int = 0
-    stages_run: list[str] = field(default_factory=list)
-    stages_reused: list[str] = field(default_factory=list)
-    report: Path | None = None
-
-    @property
-    def exit_code(self) -> int:
-        return EXIT_QUARANTINED if self.quarantine else EXIT_OK
-
-
-def _crash_point(name: str, sig: int = signal.SIGKILL) -> None:
-    """Test-only: die by ``sig`` here when ``PNEUBENCH_CRASH_AT`` names this point
-    (``PNEUBENCH_CRASH_SIGNAL=SIGSTOP``: stop instead, as a reader stuck in a loop would)."""
-    if os.environ.get("PNEUBENCH_CRASH_AT") == name:
-        other = os.environ.get("PNEUBENCH_CRASH_SIGNAL")
-        os.kill(os.getpid(), getattr(signal, other) if other in ("SIGSTOP", "SIGSEGV", "SIGKILL") else sig)
-
-
-@contextmanager
-def warehouse_lock(warehouse: Path, wait_s: float = 0.0, on_wait=None):
-    """Hold the warehouse's rebuild lock; a second rebuild waits ``wait_s`` then gives up.
-
-    ``flock`` on ``.rebuild.lock``: the kernel releases it when the holder dies, even by
-    ``kill -9`` (worker processes are started by a fork server and do not inherit it). The
-    holder writes ``<pid> on <host> since <time>`` into it; ``on_wait(text)`` is called once,
-    naming the holder, when a rebuild starts waiting for it.
-    """
-    import socket
-
-    lock_path = Path(warehouse) / ".rebuild.lock"
-    try:
-        fh = open(lock_path, "a+")
-    except OSError as exc:
-        raise RebuildError(f"cannot open the rebuild lock {lock_path}: {exc.strerror or exc}") from None
-    deadline = time.monotonic() + max(0.0, wait_s)
-    while True:
-        try:
-            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            break
-        except BlockingIOError:
-            fh.seek(0)
-            holder = fh.read().strip() or "unknown"
-            if time.monotonic() >= deadline:
-                fh.close()
-                waited = f" after waiting {wait_s:g} s" if wait_s > 0 else ""
-                raise RebuildError(f"another rebuild is running on {warehouse} (pid {holder}){waited}; "
-                                   "try again when it has finished, or use --wait SECONDS", EXIT_LOCKED) from None
-            if on_wait is not None:
-                on_wait(f"waiting up to {wait_s:g} s for another rebuild of {warehouse} to finish (pid {holder})")
-                on_wait = None
-            time.sleep(0.1)
-    try:
-        fh.seek(0)
-        fh.truncate()
-        since = datetime.now(timezone.utc).astimezone().isoformat(timespec="seconds")
-        fh.write(f"{os.getpid()} on {socket.gethostname()} since {since}")
-        fh.flush()
-        yield fh
-    finally:
-        fcntl.flock(fh, fcntl.LOCK_UN)
-        fh.close()
 
 
 def check_folders(raw: str | Path, warehouse: str | Path) -> None:
@@ -200,161 +90,6 @@ def check_folders(raw: str | Path, warehouse: str | Path) -> None:
                        EXIT_USAGE)
 
 
-# -- ingest ------------------------------------------------------------------------------------
-_TREES: dict[tuple[str, str], RawTree] = {}
-
-
-def _tree(raw: str, token: str) -> RawTree:
-    """One parsed raw tree per (raw folder, rebuild) in each worker process."""
-    tree = _TREES.get((raw, token))
-    if tree is None:
-        _TREES.clear()
-        tree = _TREES[(raw, token)] = RawTree(Path(raw))
-    return tree
-
-
-#: The quarantine reason of a file whose reader's worker process died.
-CRASHED = f"cannot read file: {CRASH_REASON}"
-STUCK = f"cannot read file: {STUCK_REASON}"  # a reader stopped at its time limit: tried once more, as a crash
-
-
-def _unreadable(tree: RawTree, path: Path, error: str, transient: bool = False) -> IngestResult:
-    from pipeline.ingest.result import IngestResult
-
-    return IngestResult(source_path=tree.rel(path), campaign=tree.campaign(path), error=error, transient=transient)
-
-
-#: The reason a file is set aside for this night: it changed while it was read (a bench still
-#: writing it). Not a lasting quarantine: the next rebuild reads it again.
-CHANGED_WHILE_READ = "file changed while it was read; will be read again at the next rebuild"
-
-
-def _stat_or_none(path: Path) -> tuple[int, int, int] | None:
-    """``(size, mtime_ns, inode)`` of a file, None when it cannot be stat'ed."""
-    try:
-        st = os.stat(path)
-    except OSError:
-        return None
-    return st.st_size, st.st_mtime_ns, st.st_ino
-
-
-def _ingest_task(args) -> dict:
-    """Worker task: open the file once (:func:`pipeline.raw.rawfile.open_raw`: no symlink out of raw/
-    followed, a regular file, the inode the scan saw), then :func:`_ingest_opened`. A file that
-    cannot be opened so is quarantined for this night with the reason and looked at again next time."""
-    from pipeline.raw.rawfile import RawOpenError, open_raw
-
-    raw, token, path, warehouse, reuse, prev, code = args[:7]
-    seen = args[7] if len(args) > 7 else None  # the inode the scan saw
-    path, tree = Path(path), _tree(raw, token)
-    try:
-        opened = open_raw(tree.root, path, inode=seen)
-        try:
-            opened.source  # the readers' link to the descriptor; no link, no read (never by name)
-        except OSError:
-            opened.close()
-            raise
-    except OSError as exc:
-        why = str(exc) if isinstance(exc, RawOpenError) else f"cannot read file: {type(exc).__name__}: {exc}"
-        return {"sha": None, "reused": False, "result": _unreadable(tree, path, why, transient=True), "retry": True}
-    with opened:
-        return _ingest_opened(args, opened)
-
-
-def _ingest_opened(args, opened) -> dict:
-    """Worker task: a file whose stat alone changed is hashed and keeps its previous record when
-    its bytes are the same; any other file is ingested (and hashed while it is parsed).
-
-    Returns ``{"sha", "reused", "result"}``, with ``"retry": True`` when the next rebuild must
-    look at the file again: it could not be opened (permissions, a share away), or it changed
-    while it was read. A file whose size, mtime or inode differ after reading from before, or
-    whose hash was not computed over exactly the bytes it had, is not published: its result is
-    the one-line :data:`CHANGED_WHILE_READ` (its hash and its samples may be of different bytes).
-    """
-    raw, token, path, warehouse, reuse, prev, code = args[:7]
-    path, tree = Path(path), _tree(raw, token)
-    before = _stat_or_none(opened.source)  # the opened file's; after reading, the name's must match it
-    sha = None
-    hashed: list[int] = []
-    if prev is not None:  # only the stat changed: the same bytes keep their record
-        if prev["sha"] is None:
-            reuse = False  # its last read was not trustworthy: a samples file named by its hash may be stale
-        try:
-            sha = sha256_file(opened.source, counted=hashed)
-        except OSError as exc:
-            res = _unreadable(tree, path, f"cannot read file: {type(exc).__name__}: {exc}", transient=True)
-            return {"sha": None, "reused": False, "result": res, "retry": True}
-        if prev["sha"] == sha and before is not None and _stat_or_none(path) == before and hashed == [before[0]]:
-            return {"sha": sha, "reused": True, "result": None}
-    _crash_point(f"ingest:{tree.rel(path)}", signal.SIGSEGV)  # a reader crashing in C code
-    res = ingest_file(tree, path, Path(warehouse), reuse=reuse, sha256=sha, code_version=code, opened=opened)
-    if res.bytes_hashed is not None:
-        hashed = [res.bytes_hashed]
-    if before is not None and not res.transient and (
-            _stat_or_none(path) != before or (hashed and hashed != [before[0]])):
-        return {"sha": None, "reused": False, "result": _unreadable(tree, path, CHANGED_WHILE_READ, transient=True),
-                "retry": True}
-    if res.transient or before is None:
-        return {"sha": None, "reused": False, "result": res, "retry": True}
-    if res.run is not None:
-        sha = res.run["source_sha256"]
-    elif res.parts is not None:  # a file of several runs (sheets, MDF groups)
-        sha = res.sha256
-    elif sha is None:  # quarantined before its hash was done: record it, or the next rebuild re-reads it
-        try:
-            sha = sha256_file(opened.source)
-        except OSError:
-            pass
-    return {"sha": sha, "reused": False, "result": res}
-
-
-def _read_time_limit(args) -> float:
-    """Seconds an ingest task may run (``pipeline.readers.base.read_time_limit`` of its file)."""
-    from pipeline.readers.base import read_time_limit
-
-    try:
-        size = os.stat(args[2]).st_size
-    except OSError:
-        size = 0
-    return read_time_limit(size)
-
-
-def _ingest_crashed(args, reason: str) -> dict:
-    """Result of an ingest task whose worker process died: the file is quarantined.
-
-    A first crash may pass (killed for memory): the next rebuild tries the file once more. A file
-    that crashed its reader twice is hashed here (hashing cannot crash) and stays quarantined
-    until its bytes change.
-    """
-    from pipeline.raw.rawfile import open_raw
-
-    raw, token, path, warehouse, reuse, prev, code = args[:7]
-    res = _unreadable(_tree(raw, token), Path(path), f"cannot read file: {reason}")
-    if prev is not None and prev.get("crashed"):
-        try:
-            with open_raw(_tree(raw, token).root, path) as opened:
-                return {"sha": sha256_file(opened.source), "reused": False, "result": res}
-        except OSError:
-            pass
-    return {"sha": None, "reused": False, "result": res, "retry": True}
-
-
-def _result_from_record(rec: FileRecord, tree: RawTree, path: Path) -> IngestResult:
-    from pipeline.ingest.result import IngestResult
-
-    res = IngestResult(source_path=rec.source_path, campaign=tree.campaign(path))
-    if rec.result is not None and "parts" in rec.result:  # a file of several runs
-        res.sha256 = rec.source_sha256
-        res.parts = [IngestResult(source_path=rec.source_path, campaign=res.campaign, run=p.get("run"),
-                                  channels=p.get("channels") or [], error=p.get("error"))
-                     for p in rec.result["parts"]]
-    elif rec.result is not None:
-        res.run, res.channels = rec.result["run"], rec.result["channels"]
-    else:
-        res.error = rec.error
-    return res
-
-
 def _import_for_stages() -> None:
     """What the stages need (pandas, the analyses): imported while the readers' workers work (they
     are forked first and import the readers themselves), and in any case before the stages' own
@@ -366,73 +101,6 @@ def _import_for_stages() -> None:
     from pipeline import stages
 
     stages.discover()
-
-
-def ingest_incremental(tree: RawTree, plans: list[FilePlan], warehouse: Path, executor: Executor,
-                       progress: Progress, code_version: str, full: bool, token: str,
-                       while_waiting=None) -> tuple[list[IngestResult], list[FileRecord]]:
-    """Ingest what the plans say; reuse the previous records of unchanged files. ``while_waiting``:
-    the caller's own work, done while the first files are read (``Executor.map``)."""
-    results: dict[str, IngestResult] = {}
-    records: dict[str, FileRecord] = {}
-    todo = []
-    for p in plans:
-        if p.status == "unchanged":
-            results[p.rel] = _result_from_record(p.previous, tree, p.path)
-            rec = p.previous
-            records[p.rel] = rec
-        else:
-            prev = None
-            if p.previous is not None and p.status == "check" and p.reason == "content":
-                # only the stat changed: a file with the same bytes keeps its record
-                prev = {"sha": p.previous.source_sha256,
-                        "crashed": p.previous.error == CRASHED or (p.previous.error or "").startswith(STUCK)}
-            todo.append((p, (str(tree.root), token, str(p.path), str(warehouse), not full, prev, code_version,
-                             p.stat[2])))  # the inode the scan saw: another file there is not read
-    if todo:
-        progress.message(f"ingest: {len(todo)} of {len(plans)} run files to read")
-    # forked local workers inherit the parsed raw tree and the readers of the formats present
-    _TREES.clear()
-    _TREES[(str(tree.root), token)] = tree
-    readers = sorted({READERS[p.path.suffix.lower()].split(":")[0] for p, _ in todo
-                      if p.path.suffix.lower() in READERS})
-    outs = executor.map(_ingest_task, [a for _, a in todo], "ingest", progress, on_crash=_ingest_crashed,
-                        preload=readers, while_waiting=while_waiting, time_limit=_read_time_limit)
-    now = time.time()
-    for (p, _), out in zip(todo, outs):
-        if out["reused"]:
-            p.status = "unchanged"
-            results[p.rel] = _result_from_record(p.previous, tree, p.path)
-            old = p.previous
-            records[p.rel] = record_for(p, out["sha"], code_version, old.result, old.error, now)
-            continue
-        res: IngestResult = out["result"]
-        if p.status == "check":
-            p.status = "changed"
-        results[p.rel] = res
-        result = record_result(res)
-        records[p.rel] = record_for(p, out["sha"], code_version, result, res.error, now, retry=out.get("retry", False))
-    order = [p.rel for p in plans]
-    return [results[r] for r in order], [records[r] for r in order]
-
-
-def deduplicate(results: list[IngestResult]) -> tuple[list[dict], list[dict], list[Problem]]:
-    """Runs, channel rows and quarantine rows; a repeated run_id is quarantined (first path wins)."""
-    runs, channels, problems = [], [], []
-    owner: dict[str, str] = {}
-    flat = [p for r in results for p in (r.parts if r.parts is not None else [r])]  # a file of several runs
-    for r in sorted(flat, key=lambda r: r.source_path):
-        if r.error is not None:
-            problems.append(Problem(r.source_path, r.error))
-            continue
-        rid = r.run["run_id"]
-        if rid in owner:
-            problems.append(Problem(r.source_path, f"duplicate run_id `{rid}`, already used by `{owner[rid]}`"))
-            continue
-        owner[rid] = r.source_path
-        runs.append(r.run)
-        channels += r.channels
-    return runs, channels, problems
 
 
 # -- stages ------------------------------------------------------------------------------------
@@ -877,213 +545,228 @@ def run_stages(ctx: stage_registry.StageContext, progress: Progress):
     return tables, figures, captions, problems, warnings
 
 
-# -- findings against the previous warehouse -----------------------------------------------------
-def compare_findings(findings: pd.DataFrame, previous: dict[str, bool | None], had_previous: bool,
-                     previous_changes: dict[str, tuple] | None = None, now: datetime | None = None) -> pd.DataFrame:
-    """Add ``previous_holds``, ``change`` (overturned, now holds, ...) and ``changed_at`` to the findings.
+# -- the rebuild: plan -> ingest -> stages -> assemble -> publish -----------------------------------
+def rebuild(raw: str | Path, warehouse: str | Path, options: RebuildOptions | None = None,
+            progress: Progress | None = None, **overrides) -> RebuildSummary:
+    """Ingest ``raw``, run the analyses and swap in a new warehouse (incrementally).
 
-    ``change`` / ``changed_at`` are sticky: when ``holds`` differs from the previous warehouse they
-    are the new change and ``now`` (the rebuild's start); while ``holds`` stays the same they are
-    carried over from the previous warehouse (``previous_changes``: {finding_id: (change,
-    changed_at)}), so a second rebuild in the same night does not clear an overturned finding.
+    Parameters
+    ----------
+    raw : path-like
+        The raw tree (never modified).
+    warehouse : path-like
+        The warehouse folder (created if missing).
+    options : RebuildOptions, optional
+        How the rebuild runs (default: all cores, incremental, local executor, with the report).
+    progress : Progress, optional
+        Where progress goes (silent by default).
+    **overrides
+        Fields of :class:`RebuildOptions` to set (``rebuild(raw, warehouse, jobs=1, full=True)``).
+
+    Returns
+    -------
+    RebuildSummary
+
+    Raises
+    ------
+    RebuildError
+        When the rebuild fails (also when its report cannot be rendered); the previous
+        warehouse and its report are left as they were.
     """
-    import pandas as pd
-
-    if findings is None or findings.empty:
-        return findings
-    now = now or datetime.now(timezone.utc)
-    previous_changes = previous_changes or {}
-    df = findings.copy()
-    prev_holds, change, changed_at = [], [], []
-    for fid, holds in zip(df["finding_id"], df["holds"]):
-        holds = None if pd.isna(holds) else bool(holds)
-        before = previous.get(fid) if fid in previous else None
-        before = None if before is None or pd.isna(before) else bool(before)
-        prev_holds.append(before)
-        if not had_previous or fid not in previous:
-            new = None
-        elif before is True and holds is False:
-            new = "overturned"
-        elif before is False and holds is True:
-            new = "now holds"
-        elif before is None and holds is not None:
-            new = "new data"
-        elif before is not None and holds is None:
-            new = "no longer checkable"
-        else:
-            new = None
-        if new is not None:
-            change.append(new)
-            changed_at.append(now)
-        elif had_previous and fid in previous:  # holds unchanged: keep the last change and its time
-            ch, at = previous_changes.get(fid, (None, None))
-            ok = ch is not None and at is not None and not pd.isna(ch) and not pd.isna(at)
-            change.append(ch if ok else None)
-            changed_at.append(at if ok else None)
-        else:
-            change.append(None)
-            changed_at.append(None)
-    df["previous_holds"] = pd.array(prev_holds, dtype="boolean")
-    df["change"] = pd.array(change, dtype="string")
-    df["changed_at"] = pd.to_datetime(pd.Series(changed_at, index=df.index, dtype=object), utc=True)
-    return df
-
-
-# -- garbage ---------------------------------------------------------------------------------------
-# The clean-up deletes only what the warehouse itself wrote: a file is a candidate when it lies
-# in the warehouse's own folders (never through a symlink) AND its name is one the writer uses.
-# Anything else found there (a raw tree placed there by mistake, a user's notes) is left alone.
-_SAMPLES_FILE = re.compile(r"[A-Za-z0-9._-]{1,80}-[0-9a-f]{16}\.parquet")      # ingest: <safe run>-<key>.parquet
-_SAMPLES_TMP = re.compile(r"\.[A-Za-z0-9._-]{1,80}\.[0-9]+\.[0-9a-f]{12}\.tmp")  # ingest's temp name
-_STAGE_NAME = re.compile(r"[a-z_][a-z0-9_]*")
-_STAGE_KEY = re.compile(r"[0-9a-f]{20}")
-_STAGE_TMP = re.compile(r"\.tmp-([a-z_][a-z0-9_]*)-[0-9a-f]{20}-[0-9]+")
-_DB_TMP = re.compile(re.escape(f".{DB_NAME}.tmp-") + r"[0-9]+(\.wal)?")
-_REPORT_TMP = re.compile(r"\.(index\.html|parts-cache)\.tmp-[0-9]+")
-_FIGURE = re.compile(r"[A-Za-z0-9._-]+\.png")
-
-
-def _real_dir(path: Path) -> bool:
-    """A folder that is not a symlink (the clean-up never follows one)."""
+    options = replace(options or RebuildOptions(), **overrides)
+    t0 = time.monotonic()
+    started_at = datetime.now(timezone.utc)
+    progress = progress or Progress()
+    raw, warehouse = Path(raw), Path(warehouse)
+    if not raw.is_dir():
+        raise RebuildError(f"raw folder {raw} does not exist", EXIT_USAGE)
+    check_folders(raw, warehouse)
+    options = replace(options, keep_superseded_h=keep_superseded_h(options.keep_superseded_h),
+                      jobs=options.jobs or os.cpu_count() or 1, clock=options.clock or time.time)
     try:
-        return stat_mod.S_ISDIR(os.lstat(path).st_mode)
-    except OSError:
-        return False
+        warehouse.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise RebuildError(f"cannot create warehouse folder {warehouse}: {exc.strerror or exc}") from None
+    generation = _generation()
+    summary = RebuildSummary(raw=raw, warehouse=warehouse, generation=generation,
+                             mode="full" if options.full else "incremental")
+    with warehouse_lock(warehouse, options.lock_wait_s, progress.message) as lock:
+        live = live_database(warehouse)
+        run = RebuildRun(raw, warehouse, options, progress, generation, started_at, t0, summary, lock.fileno())
+        try:
+            return _rebuild_locked(run)
+        except BaseException as exc:  # failed or interrupted (KeyboardInterrupt: re-raised as it is)
+            if not (isinstance(exc, RebuildError) and exc.exit_code == EXIT_USAGE):  # refused: nothing written
+                clean_after_failure(warehouse, live)
+            if isinstance(exc, KeyboardInterrupt):  # for the caller's message: which warehouse is live
+                exc.swapped = live_database(warehouse) != live
+            if isinstance(exc, RebuildError) or not isinstance(exc, Exception):
+                raise
+            log.exception("rebuild failed")  # anything unexpected: exit 3, never 1 (= "quarantined")
+            raise RebuildError(f"rebuild failed: {type(exc).__name__}: {exc}") from exc
 
 
-def _entries(folder: Path):
-    """(name, path, is_dir, is_file) of a folder's entries, symlinks neither dir nor file."""
-    try:
-        with os.scandir(folder) as it:
-            ents = sorted(it, key=lambda e: e.name)
-    except OSError:
-        return []
-    return [(e.name, Path(e.path), e.is_dir(follow_symlinks=False), e.is_file(follow_symlinks=False)) for e in ents]
-
-
-def _file_names(folder: Path) -> list[str]:
-    """Names of a folder's regular files (not symlinks), sorted; no Path per entry (a samples
-    folder holds thousands)."""
-    try:
-        with os.scandir(folder) as it:
-            return sorted(e.name for e in it if e.is_file(follow_symlinks=False))
-    except OSError:
-        return []
-
-
-def _unlink_if(path: Path, is_file: bool, pattern: re.Pattern) -> None:
-    if is_file and pattern.fullmatch(path.name):
-        path.unlink(missing_ok=True)
-
-
-def _rmdir(path: Path) -> None:
-    try:
-        path.rmdir()
-    except OSError:
-        pass  # not empty: it holds something the warehouse did not write
-
-
-def remove_stage_folder(folder: Path) -> None:
-    """Delete a stage output folder the way ``_save_stage_folder`` wrote it (``output.json``,
-    ``tables/*.parquet``, ``figures/*.png``); anything else in it stays, and so does the folder."""
-    if not _real_dir(folder):
-        return
-    for sub, pattern in (("tables", re.compile(r"[A-Za-z0-9_]+\.parquet")), ("figures", _FIGURE)):
-        if _real_dir(folder / sub):
-            for _name, path, _is_dir, is_file in _entries(folder / sub):
-                _unlink_if(path, is_file, pattern)
-            _rmdir(folder / sub)
-    for _name, path, _is_dir, is_file in _entries(folder):
-        _unlink_if(path, is_file, re.compile(r"output\.json"))
-    _rmdir(folder)
-
-
-def _samples_folders(warehouse: Path):
-    """``samples/kind=<kind>/campaign=<campaign>/`` folders (real folders only)."""
-    samples = warehouse / "samples"
-    if not _real_dir(samples):
-        return
-    for kname, kdir, kis_dir, _ in _entries(samples):
-        if not (kis_dir and kname.startswith("kind=") and kname[5:] in KIND_NAMES):
-            continue
-        for cname, cdir, cis_dir, _ in _entries(kdir):
-            if cis_dir and cname.startswith("campaign="):
-                yield kdir, cdir
-
-
-def clean_debris(warehouse: Path) -> None:
-    """Remove what a killed rebuild left behind (temp databases, temp stage folders, temp samples
-    and report files), by the writers' own temp names only."""
-    for _name, path, _is_dir, is_file in _entries(warehouse):
-        _unlink_if(path, is_file, _DB_TMP)
-    if _real_dir(warehouse / "stages"):
-        for name, path, is_dir, _ in _entries(warehouse / "stages"):
-            if is_dir and _STAGE_TMP.fullmatch(name):
-                remove_stage_folder(path)
-    if _real_dir(warehouse / "report"):
-        for _name, path, _is_dir, is_file in _entries(warehouse / "report"):
-            _unlink_if(path, is_file, _REPORT_TMP)
-    for _kdir, cdir in _samples_folders(warehouse):
-        for name in _file_names(cdir):
-            if _SAMPLES_TMP.fullmatch(name):
-                (cdir / name).unlink(missing_ok=True)
-    if _real_dir(warehouse / MEMO_DIR):
-        for name, path, is_dir, is_file in _entries(warehouse / MEMO_DIR):
-            _unlink_if(path, is_file, LEGACY_TMP)
-            if is_dir and STAGE_NAME.fullmatch(name):
-                for _name, spath, _is_dir, s_is_file in _entries(path):
-                    _unlink_if(spath, s_is_file, SHARD_TMP)
-
-
-def collect_garbage(warehouse: Path, keep_samples: set[str], keep_stages: set[str]) -> None:
-    """Delete samples files and stage folders the warehouse wrote that are not in ``keep_*``
-    (paths relative to the warehouse). Only writer-named files in the writer's folders go."""
-    for kdir, cdir in list(_samples_folders(warehouse)):
-        rel_dir = f"samples/{kdir.name}/{cdir.name}/"
-        for name in _file_names(cdir):
-            if _SAMPLES_FILE.fullmatch(name) and rel_dir + name not in keep_samples:
-                (cdir / name).unlink(missing_ok=True)
-        _rmdir(cdir)
-        _rmdir(kdir)
-    stages = warehouse / "stages"
-    if _real_dir(stages):
-        for sname, sdir, s_is_dir, _ in _entries(stages):
-            if not (s_is_dir and _STAGE_NAME.fullmatch(sname)):
-                continue
-            for kname, kdir, k_is_dir, _ in _entries(sdir):
-                if k_is_dir and _STAGE_KEY.fullmatch(kname) and f"stages/{sname}/{kname}" not in keep_stages:
-                    remove_stage_folder(kdir)
-            _rmdir(sdir)
-    # a stage's per-item memo (memo/<stage>/<xx>.pkl) goes with the last of its stage folders
-    # that is kept; the first layout's whole-stage files (memo/<stage>.pkl) are never read: all go
-    memo = warehouse / MEMO_DIR
-    if _real_dir(memo):
-        live = {p.split("/")[1] for p in keep_stages if p.startswith("stages/") and p.count("/") >= 2}
-        for name, path, is_dir, is_file in _entries(memo):
-            _unlink_if(path, is_file, LEGACY_FILE)
-            if is_dir and STAGE_NAME.fullmatch(name) and name not in live:
-                for _name, spath, _is_dir, s_is_file in _entries(path):
-                    _unlink_if(spath, s_is_file, SHARD_FILE)
-                    _unlink_if(spath, s_is_file, SHARD_TMP)
-                _rmdir(path)
-        _rmdir(memo)
-    legacy = warehouse / "figures"  # figures of the first layout (before generations): <stage>/<name>.png
-    if _real_dir(legacy) and not any(p.startswith("figures/") for p in keep_stages):
-        for sname, sdir, s_is_dir, _ in _entries(legacy):
-            if s_is_dir and _STAGE_NAME.fullmatch(sname):
-                for _name, path, _is_dir, is_file in _entries(sdir):
-                    _unlink_if(path, is_file, _FIGURE)
-                _rmdir(sdir)
-        _rmdir(legacy)
-
-
-# -- the rebuild -----------------------------------------------------------------------------------
 def _generation() -> str:
     return datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%S.%fZ") + f"-{os.getpid()}"
 
 
+def _rebuild_locked(run: RebuildRun) -> RebuildSummary:
+    """The rebuild under its lock: the no-op when nothing changed, else every step."""
+    plan = _plan(run)
+    summary = run.summary
+    if not run.options.full and nothing_changed(plan.prev, plan.plans, plan.side, plan.key, run.warehouse):
+        summary.mode = "no-op"
+        run.progress.message(f"rebuild {run.generation} (no-op): {len(plan.files)} run files under {run.raw}, "
+                             "nothing changed since the last rebuild: its database is carried over")
+        return rebuild_noop(run, plan.prev, plan.plans, plan.key)
+    n_quick = sum(p.status == "unchanged" for p in plan.plans)
+    run.progress.message(f"rebuild {run.generation} ({summary.mode}): {len(plan.files)} run files under "
+                         f"{run.raw}, {n_quick} unchanged at a glance")
+    ex = _start_executor(run)
+    with FigureDrawer(run.options.jobs if run.options.executor == "local" else 1, close_fds=(run.lock_fd,)) as drawer:
+        with ex:
+            ingested = _ingest(run, plan, ex)
+            staged = _stages(run, plan, ingested, ex, drawer)
+        crash_point("after_stages")
+        tables, keep = _assemble(run, plan, ingested, staged, ex.name)
+        _publish(run, plan, tables, keep, drawer)
+    summary.tables = {k: len(v) for k, v in tables.items()}
+    if summary.report is not None:
+        run.progress.message(f"report: {summary.report}")
+    summary.seconds = time.monotonic() - run.t0
+    summary.report_quarantine(run.progress)
+    run.progress.message(f"rebuild: {summary.n_runs} runs ({summary.n_new} new, {summary.n_changed} changed, "
+                         f"{summary.n_deleted} deleted, {summary.n_unchanged} unchanged), "
+                         f"{len(summary.quarantine)} quarantined, stages run: {', '.join(staged.ran) or 'none'}, "
+                         f"{summary.seconds:.1f} s")
+    return summary
+
+
+# -- plan ------------------------------------------------------------------------------------------
+@dataclass
+class _Plan:
+    """What the rebuild found: the live warehouse's state, the raw tree and what changed in it."""
+
+    prev: PreviousState
+    tree: RawTree
+    files: list[Path]          # run files
+    ignored: list[Path]        # files that are not bench exports
+    code: str                  # the ingest code version
+    plans: list[FilePlan]      # per run file: new, changed, unchanged or to check
+    side: list[FileRecord]     # manifests, rig.toml, logbooks
+    side_changes: list[dict]   # their rows of rebuild_inputs
+    key: str                   # :func:`pipeline.rebuild.noop.inputs_key`
+
+
+def _plan(run: RebuildRun) -> _Plan:
+    """Clean up after a killed rebuild, read the live warehouse's state, walk raw/ and plan what to
+    read; refuse a mass delete (exit 2) before anything is written."""
+    warehouse, progress = run.warehouse, run.progress
+    clean_debris(warehouse)
+    settle_report(warehouse)  # a report staged by a rebuild killed after its database swap goes in
+    prev = load_previous(warehouse)
+    tree = RawTree(run.raw)
+    tree.scan_rigs()
+    tree.scan_manifests()
+    ignored: list[Path] = []
+    files = discover_runs(tree, ignored)
+    run.summary.n_files = len(files)
+    if ignored:
+        names = ", ".join(tree.rel(p) for p in ignored[:5]) + (", ..." if len(ignored) > 5 else "")
+        progress.message(f"ignored {len(ignored)} file(s) that are not bench exports "
+                         f"({', '.join(sorted(READERS))}): {names}")
+    for rel, why in tree.listing().skipped:  # symlink aliases of files read under their own path
+        progress.message(f"skipped {rel}: {why}")
+    code = ingest_code_version()
+    plans = plan_runs(tree, files, prev, code, warehouse, run.options.full)
+    side, side_changes = side_records(tree, prev)
+    if not run.options.allow_mass_delete:
+        check_mass_delete(prev, plans)
+    key = inputs_key(tree, code, plans, side, ignored)
+    return _Plan(prev, tree, files, ignored, code, plans, side, side_changes, key)
+
+
+# -- ingest ----------------------------------------------------------------------------------------
+@dataclass
+class _Ingested:
+    """What the ingest gave: per run file its result and record; the runs, channels and problems."""
+
+    results: list[IngestResult]
+    records: list[FileRecord]
+    runs: list[dict]
+    channels: list[dict]
+    problems: list[Problem]   # the raw tree's and the files' (stages' are added by _assemble)
+    runs_df: pd.DataFrame
+
+
+def _start_executor(run: RebuildRun) -> Executor:
+    try:
+        return make_executor(run.options.executor, run.options.jobs, run.options.scheduler,
+                             close_in_workers=(run.lock_fd,))
+    except Exception as exc:
+        raise RebuildError(f"cannot start the {run.options.executor} executor: {type(exc).__name__}: {exc}") from exc
+
+
+def _ingest(run: RebuildRun, plan: _Plan, ex: Executor) -> _Ingested:
+    """Read the new and changed files (the stages' imports done meanwhile); deduplicate the runs."""
+    results, records = ingest_incremental(run, plan.tree, plan.plans, ex, plan.code, while_waiting=_import_for_stages)
+    crash_point("after_ingest")
+    runs, channels, problems = deduplicate(results)
+    return _Ingested(results, records, runs, channels, plan.tree.problems + problems, runs_frame(runs))
+
+
+# -- stages ----------------------------------------------------------------------------------------
+def _stages(run: RebuildRun, plan: _Plan, ingested: _Ingested, ex: Executor, drawer: FigureDrawer) -> StageResults:
+    """Run the stages whose inputs changed, reuse the others' outputs (:func:`run_stages_cached`)."""
+    runs, runs_df = ingested.runs, ingested.runs_df
+    ctx_args = dict(raw=plan.tree.root, warehouse=run.warehouse,
+                    runs=runs_df.assign(params=[r["params"] for r in runs]) if runs else runs_df,
+                    jobs=run.options.jobs, progress=run.progress, mapper=ex.mapper(run.progress))
+    return run_stages_cached(ctx_args, runs, plan.prev, run.warehouse, run.options.full, logbook_hash(plan.side),
+                             run.progress, run.generation, drawer)
+
+
+# -- assemble --------------------------------------------------------------------------------------
+def _assemble(run: RebuildRun, plan: _Plan, ingested: _Ingested, staged: StageResults,
+              executor: str) -> tuple[dict[str, pd.DataFrame], set[str]]:
+    """Every table of the new database, and the files it keeps (in use, or superseded and kept
+    for the readers of earlier warehouses); fills in ``run.summary``."""
+    import pandas as pd  # the incremental path: what the no-op does without
+
+    summary, prev, runs_df = run.summary, plan.prev, ingested.runs_df
+    problems = ingested.problems + staged.problems
+    if staged.warnings and not runs_df.empty:
+        runs_df["warnings"] = [list(w) + staged.warnings.get(rid, [])
+                               for rid, w in zip(runs_df["run_id"], runs_df["warnings"])]
+    stage_tables = dict(staged.tables)
+    if "findings" in stage_tables:
+        stage_tables["findings"] = compare_findings(stage_tables["findings"], prev.findings,
+                                                    prev.generation is not None, prev.finding_changes, run.started_at)
+    seen = {p.rel for p in plan.plans} | {r.source_path for r in plan.side}
+    inputs = _inputs_table(plan.plans, plan.side_changes, prev, seen, problems, ingested.results)
+    _count_inputs(summary, inputs)
+    summary.n_runs = len(ingested.runs)
+    summary.quarantine = problems
+    summary.stages_run, summary.stages_reused = staged.ran, staged.reused
+    history = append_log(prev.history, _log_row(run, plan, executor, len(ingested.runs), staged))
+    in_use = set(runs_df.get("samples_path", [])) | {r.folder for r in staged.records}
+    kept, _expired = superseded_files(prev, in_use, run.options.clock(), run.options.keep_superseded_h)
+    tables = {
+        "runs": runs_df, "quarantine": _quarantine_frame(problems), "channels": pd.DataFrame(ingested.channels),
+        "skipped_files": _skipped_files(plan.tree, plan.ignored),
+        "figures": pd.DataFrame(staged.figures, columns=["stage", "name", "path", "caption"]),
+        **stage_tables,
+        "rebuild_log": history, "rebuild_inputs": inputs,
+        "ingest_state": pd.DataFrame([r.as_row() for r in ingested.records + plan.side]),
+        "stage_cache": pd.DataFrame([r.as_row() for r in staged.records]),
+        "superseded_files": _superseded_frame(kept),
+    }
+    return tables, in_use | set(kept)
+
+
 def _inputs_table(plans: list[FilePlan], side_changes: list[dict], prev: PreviousState, seen: set[str],
                   problems: list[Problem], results: list[IngestResult]) -> pd.DataFrame:
+    """``rebuild_inputs``: every input file, its status (new, changed, unchanged, deleted) and error."""
     import pandas as pd
 
     errors: dict[str, list[str]] = {}
@@ -1109,455 +792,77 @@ def _inputs_table(plans: list[FilePlan], side_changes: list[dict], prev: Previou
     return df.sort_values("source_path", kind="stable").reset_index(drop=True)
 
 
-def rebuild(raw: str | Path, warehouse: str | Path, jobs: int | None = None, full: bool = False,
-            progress: Progress | None = None, lock_wait_s: float = 0.0, executor: str = "local",
-            scheduler: str | None = None, report: bool = True, keep_superseded_h: float | None = None,
-            clock=None, allow_mass_delete: bool = False) -> RebuildSummary:
-    """Ingest ``raw``, run the analyses and swap in a new warehouse (incrementally).
-
-    Parameters
-    ----------
-    raw : path-like
-        The raw tree (never modified).
-    warehouse : path-like
-        The warehouse folder (created if missing).
-    jobs : int, optional
-        Worker processes; default all cores.
-    full : bool
-        Re-ingest every file and re-run every stage, ignoring the incremental state.
-    progress : Progress, optional
-        Where progress goes (silent by default).
-    lock_wait_s : float
-        How long to wait for another rebuild of the same warehouse to finish [s].
-    executor : {"local", "dask"}
-        Where per-file ingest and per-run analyses run.
-    scheduler : str, optional
-        Dask scheduler address (``tcp://host:8786``); without one a local cluster is started.
-    report : bool
-        Write the morning report ``report/index.html``.
-    keep_superseded_h : float, optional
-        How long samples files and stage folders that the new warehouse no longer uses are kept
-        for readers that still have an earlier warehouse open [h]; 0 collects them at once.
-        Default ``$PNEUBENCH_KEEP_SUPERSEDED_H``, else 24.
-    clock : callable, optional
-        ``clock() -> float``, the time [s since epoch] superseded files are stamped and aged
-        with (default ``time.time``; tests pass a fake one).
-    allow_mass_delete : bool
-        Go on when the rebuild would drop every run of the live warehouse, or more than
-        :data:`MASS_DELETE_SHARE` of them and at least :data:`MASS_DELETE_MIN_RUNS` (their raw
-        files gone). Without it such a rebuild is refused before anything is written
-        (:class:`RebuildError`, exit 2): an empty or unmounted raw/ must not empty the warehouse.
-
-    Returns
-    -------
-    RebuildSummary
-
-    Raises
-    ------
-    RebuildError
-        When the rebuild fails (also when its report cannot be rendered); the previous
-        warehouse and its report are left as they were.
-    """
-    t0 = time.monotonic()
-    started_at = datetime.now(timezone.utc)
-    progress = progress or Progress()
-    raw, warehouse = Path(raw), Path(warehouse)
-    if not raw.is_dir():
-        raise RebuildError(f"raw folder {raw} does not exist", EXIT_USAGE)
-    check_folders(raw, warehouse)
-    keep_h = _keep_superseded_h(keep_superseded_h)
-    jobs = jobs or os.cpu_count() or 1
-    try:
-        warehouse.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise RebuildError(f"cannot create warehouse folder {warehouse}: {exc.strerror or exc}") from None
-    generation = _generation()
-    summary = RebuildSummary(raw=raw, warehouse=warehouse, generation=generation,
-                             mode="full" if full else "incremental")
-    with warehouse_lock(warehouse, lock_wait_s, progress.message) as lock:
-        live = _live_database(warehouse)
-        try:
-            return _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, report,
-                                   generation, summary, started_at, t0, lock.fileno(), keep_h, clock or time.time,
-                                   allow_mass_delete)
-        except BaseException as exc:  # failed or interrupted (KeyboardInterrupt: re-raised as it is)
-            if not (isinstance(exc, RebuildError) and exc.exit_code == EXIT_USAGE):  # refused: nothing written
-                clean_after_failure(warehouse, live)
-            if isinstance(exc, KeyboardInterrupt):  # for the caller's message: which warehouse is live
-                exc.swapped = _live_database(warehouse) != live
-            if isinstance(exc, RebuildError) or not isinstance(exc, Exception):
-                raise
-            log.exception("rebuild failed")  # anything unexpected: exit 3, never 1 (= "quarantined")
-            raise RebuildError(f"rebuild failed: {type(exc).__name__}: {exc}") from exc
+def _count_inputs(summary: RebuildSummary, inputs: pd.DataFrame) -> None:
+    """The summary's counts of run files by status."""
+    runs = inputs["role"] == "run"
+    summary.n_new = int(((inputs["status"] == "new") & runs).sum())
+    summary.n_changed = int(((inputs["status"] == "changed") & runs).sum())
+    summary.n_deleted = int(((inputs["status"] == "deleted") & runs).sum())
+    summary.n_unchanged = int(((inputs["status"] == "unchanged") & runs).sum())
 
 
-def _live_database(warehouse: Path) -> tuple[int, int, int] | None:
-    """(inode, mtime, size) of the live database, None without one: the swap changes it."""
-    try:
-        st = os.stat(warehouse / DB_NAME)
-    except OSError:
-        return None
-    return st.st_ino, st.st_mtime_ns, st.st_size
+def _log_row(run: RebuildRun, plan: _Plan, executor: str, n_runs: int, staged: StageResults) -> dict:
+    """This rebuild's row of ``rebuild_log`` (its ``seq`` is given by :func:`append_log`)."""
+    s = run.summary
+    return {"generation": run.generation, "started_at": run.started_at, "finished_at": datetime.now(timezone.utc),
+            "duration_s": time.monotonic() - run.t0, "mode": s.mode, "executor": executor,
+            "n_files": len(plan.files), "n_runs": n_runs, "n_new": s.n_new, "n_changed": s.n_changed,
+            "n_deleted": s.n_deleted, "n_unchanged": s.n_unchanged, "n_quarantined": len(s.quarantine),
+            "stages_run": staged.ran, "stages_reused": staged.reused, "exit_code": s.exit_code,
+            "inputs_key": plan.key}
 
 
-def clean_after_failure(warehouse: Path, live: tuple[int, int, int] | None) -> None:
-    """Remove what a rebuild that failed (a full disk) or was interrupted before its swap wrote:
-    its temporary files (:func:`clean_debris`), and the samples files, stage folders and memo
-    files that the live warehouse neither uses nor keeps for its readers (``superseded_files``).
-    ``live``: :func:`_live_database` when the rebuild started; when it differs now the new
-    warehouse is in place and only temporary files go. Called under the rebuild lock, after the
-    worker processes are gone; never raises (the rebuild's own error is the one reported)."""
-    try:
-        clean_debris(warehouse)
-        if _live_database(warehouse) != live:
-            return
-        prev = load_previous(warehouse)
-        if live is not None and prev.generation is None:  # the live database could not be read: keep all
-            return
-        collect_garbage(warehouse, *_split_kept(prev.samples | prev.stage_folders | set(prev.superseded)))
-    except Exception:  # pragma: no cover - the clean-up of a failure must not hide the failure
-        log.exception("clean-up after a failed rebuild failed")
+def _quarantine_frame(problems: list[Problem]) -> pd.DataFrame:
+    import pandas as pd
+
+    return pd.DataFrame([{"source_path": p.source_path, "error": p.error, "line": p.line,
+                          "campaign": p.source_path.split("/")[0] if "/" in p.source_path else None,
+                          "stage": p.stage} for p in problems],
+                        columns=["source_path", "error", "line", "campaign", "stage"])
 
 
-def check_mass_delete(prev: PreviousState, plans: list[FilePlan]) -> None:
-    """Refuse (exit 2) a rebuild that would drop every run of the live warehouse, or more than
-    :data:`MASS_DELETE_SHARE` of them and at least :data:`MASS_DELETE_MIN_RUNS`, because their raw
-    files are no longer listed (raw/ empty, moved, or a share not mounted). Called before anything
-    is written; a first build (no runs yet) never is one."""
-    live = prev.samples  # the samples file of every run the live warehouse publishes
-    if not live:
-        return
-    listed = {p.rel for p in plans}
-    gone = [(rel, [s for s in rec.samples_paths() if s in live]) for rel, rec in sorted(prev.files.items())
-            if rec.role == "run" and rel not in listed]
-    gone = [(rel, runs) for rel, runs in gone if runs]
-    lost = sum(len(runs) for _rel, runs in gone)
-    if lost < len(live) and not (lost > MASS_DELETE_SHARE * len(live) and lost >= MASS_DELETE_MIN_RUNS):
-        return
-    names = ", ".join(rel for rel, _ in gone[:3]) + (", ..." if len(gone) > 3 else "")
-    raise RebuildError(
-        f"refusing to delete {lost} of the warehouse's {len(live)} runs: their raw files are gone ({names}); "
-        "is raw/ empty, moved, or a share not mounted? The previous warehouse and report are kept. If the "
-        "deletion is intended, run again with --allow-mass-delete (or PNEUBENCH_ALLOW_MASS_DELETE=1)", EXIT_USAGE)
+def _skipped_files(tree: RawTree, ignored: list[Path]) -> pd.DataFrame:
+    """``skipped_files``: files that are not bench exports, and symlink aliases of files read."""
+    import pandas as pd
+
+    return pd.DataFrame(
+        [{"source_path": tree.rel(p), "campaign": tree.campaign(p), "reason": skip_reason(p)} for p in ignored]
+        + [{"source_path": rel, "campaign": rel.split("/")[0] if "/" in rel else None, "reason": why}
+           for rel, why in tree.listing().skipped], columns=["source_path", "campaign", "reason"])
 
 
-def _keep_superseded_h(value: float | None) -> float:
-    """The retention of superseded files [h]: ``value``, else ``$PNEUBENCH_KEEP_SUPERSEDED_H``, else 24."""
-    import math
+def _superseded_frame(kept: dict[str, float]) -> pd.DataFrame:
+    """``superseded_files``: path and when it was superseded [s since epoch -> UTC time]."""
+    import pandas as pd
 
-    source = "--keep-superseded"
-    if value is None:
-        env = os.environ.get("PNEUBENCH_KEEP_SUPERSEDED_H", "").strip()
-        if not env:
-            return KEEP_SUPERSEDED_H
-        source = "PNEUBENCH_KEEP_SUPERSEDED_H"
-        try:
-            value = float(env)
-        except ValueError:
-            raise RebuildError(f"{source}={env!r} is not a number of hours", EXIT_USAGE) from None
-    if not (math.isfinite(value) and value >= 0):
-        raise RebuildError(f"{source} must be a number of hours >= 0, got {value!r}", EXIT_USAGE)
-    return float(value)
+    kept_paths = sorted(kept)
+    return pd.DataFrame({
+        "path": pd.Series(kept_paths, dtype="string"),
+        # whole microseconds, as DuckDB stores them: a time carried from rebuild to rebuild never drifts
+        "superseded_at": pd.to_datetime(pd.Series([round(kept[p] * 1e6) for p in kept_paths], dtype="int64"),
+                                        unit="us", utc=True)})
 
 
-def _rebuild_locked(raw, warehouse, jobs, full, progress, executor, scheduler, report, generation, summary,
-                    started_at, t0, lock_fd: int, keep_h: float, clock,
-                    allow_mass_delete: bool = False) -> RebuildSummary:
-    clean_debris(warehouse)
-    from pipeline.serve.report.publish import settle_report
-    settle_report(warehouse)  # a report staged by a rebuild killed after its database swap goes in
-    prev = load_previous(warehouse)
-    tree = RawTree(raw)
-    tree.scan_rigs()
-    tree.scan_manifests()
-    ignored: list[Path] = []
-    files = discover_runs(tree, ignored)
-    summary.n_files = len(files)
-    if ignored:
-        names = ", ".join(tree.rel(p) for p in ignored[:5]) + (", ..." if len(ignored) > 5 else "")
-        progress.message(f"ignored {len(ignored)} file(s) that are not bench exports "
-                         f"({', '.join(sorted(READERS))}): {names}")
-    for rel, why in tree.listing().skipped:  # symlink aliases of files read under their own path
-        progress.message(f"skipped {rel}: {why}")
-    code = ingest_code_version()
-    plans = plan_runs(tree, files, prev, code, warehouse, full)
-    side, side_changes = side_records(tree, prev)
-    n_quick = sum(p.status == "unchanged" for p in plans)
-    if not allow_mass_delete:
-        check_mass_delete(prev, plans)
-    key = inputs_key(tree, code, plans, side, ignored)
-    if not full and nothing_changed(prev, plans, side, key, warehouse):
-        summary.mode = "no-op"
-        progress.message(f"rebuild {generation} (no-op): {len(files)} run files under {raw}, nothing changed "
-                         "since the last rebuild: its database is carried over")
-        return _rebuild_noop(warehouse, prev, plans, key, executor, report, generation, summary, started_at, t0,
-                             keep_h, clock, progress)
-    progress.message(f"rebuild {generation} ({summary.mode}): {len(files)} run files under {raw}, "
-                     f"{n_quick} unchanged at a glance")
-    try:
-        ex = make_executor(executor, jobs, scheduler, close_in_workers=(lock_fd,))
-    except Exception as exc:
-        raise RebuildError(f"cannot start the {executor} executor: {type(exc).__name__}: {exc}") from exc
-    with FigureDrawer(jobs if executor == "local" else 1, close_fds=(lock_fd,)) as drawer:
-        with ex:
-            results, records = ingest_incremental(tree, plans, warehouse, ex, progress, code, full, generation,
-                                                  while_waiting=_import_for_stages)
-            import pandas as pd  # the incremental path: what the no-op does without
-            _crash_point("after_ingest")
-            runs, channels, problems = deduplicate(results)
-            problems = tree.problems + problems
-            runs_df = runs_frame(runs)
-            ctx_args = dict(raw=tree.root, warehouse=warehouse,
-                            runs=runs_df.assign(params=[r["params"] for r in runs]) if runs else runs_df,
-                            jobs=jobs, progress=progress, mapper=ex.mapper(progress))
-            staged = run_stages_cached(ctx_args, runs, prev, warehouse, full, logbook_hash(side), progress,
-                                       generation, drawer)
-        _crash_point("after_stages")
-        problems += staged.problems
-        if staged.warnings and not runs_df.empty:
-            runs_df["warnings"] = [list(w) + staged.warnings.get(rid, [])
-                                   for rid, w in zip(runs_df["run_id"], runs_df["warnings"])]
-        quarantine = pd.DataFrame([{"source_path": p.source_path, "error": p.error, "line": p.line,
-                                    "campaign": p.source_path.split("/")[0] if "/" in p.source_path else None,
-                                    "stage": p.stage} for p in problems],
-                                  columns=["source_path", "error", "line", "campaign", "stage"])
-        stage_tables = dict(staged.tables)
-        if "findings" in stage_tables:
-            stage_tables["findings"] = compare_findings(stage_tables["findings"], prev.findings,
-                                                        prev.generation is not None, prev.finding_changes, started_at)
-        seen = {p.rel for p in plans} | {r.source_path for r in side}
-        inputs = _inputs_table(plans, side_changes, prev, seen, problems, results)
-        summary.n_new = int(((inputs["status"] == "new") & (inputs["role"] == "run")).sum())
-        summary.n_changed = int(((inputs["status"] == "changed") & (inputs["role"] == "run")).sum())
-        summary.n_deleted = int(((inputs["status"] == "deleted") & (inputs["role"] == "run")).sum())
-        summary.n_unchanged = int(((inputs["status"] == "unchanged") & (inputs["role"] == "run")).sum())
-        summary.n_runs = len(runs)
-        summary.quarantine = problems
-        summary.stages_run, summary.stages_reused = staged.ran, staged.reused
-        log_row = pd.DataFrame([{
-            "generation": generation, "started_at": started_at, "finished_at": datetime.now(timezone.utc),
-            "duration_s": time.monotonic() - t0, "mode": summary.mode, "executor": ex.name,
-            "n_files": len(files), "n_runs": len(runs), "n_new": summary.n_new, "n_changed": summary.n_changed,
-            "n_deleted": summary.n_deleted, "n_unchanged": summary.n_unchanged, "n_quarantined": len(problems),
-            "stages_run": staged.ran, "stages_reused": staged.reused, "exit_code": summary.exit_code,
-            "inputs_key": key}])
-        old_log = numbered_history(prev.history)
-        in_use = set(runs_df.get("samples_path", [])) | {r.folder for r in staged.records}
-        kept, _expired = superseded_files(prev, in_use, clock(), keep_h)
-        kept_paths = sorted(kept)
-        superseded = pd.DataFrame({
-            "path": pd.Series(kept_paths, dtype="string"),
-            # whole microseconds, as DuckDB stores them: a time carried from rebuild to rebuild never drifts
-            "superseded_at": pd.to_datetime(pd.Series([round(kept[p] * 1e6) for p in kept_paths], dtype="int64"),
-                                            unit="us", utc=True)})
-        log_row["seq"] = int(old_log["seq"].max()) + 1 if old_log is not None else 1
-        history = log_row
-        if old_log is not None:
-            history = pd.concat([old_log.tail(HISTORY_ROWS - 1), log_row], ignore_index=True)
-        all_tables = {
-            "runs": runs_df, "quarantine": quarantine, "channels": pd.DataFrame(channels),
-            "skipped_files": pd.DataFrame(
-                [{"source_path": tree.rel(p), "campaign": tree.campaign(p), "reason": skip_reason(p)} for p in ignored]
-                + [{"source_path": rel, "campaign": rel.split("/")[0] if "/" in rel else None, "reason": why}
-                   for rel, why in tree.listing().skipped], columns=["source_path", "campaign", "reason"]),
-            "figures": pd.DataFrame(staged.figures, columns=["stage", "name", "path", "caption"]),
-            **stage_tables,
-            "rebuild_log": history, "rebuild_inputs": inputs,
-            "ingest_state": pd.DataFrame([r.as_row() for r in records + side]),
-            "stage_cache": pd.DataFrame([r.as_row() for r in staged.records]),
-            "superseded_files": superseded,
-        }
-        progress.message(f"warehouse: writing {len(all_tables)} tables")
+# -- publish ---------------------------------------------------------------------------------------
+def _publish(run: RebuildRun, plan: _Plan, tables: dict[str, pd.DataFrame], keep: set[str],
+             drawer: FigureDrawer) -> None:
+    """Write the database (the figures drawn beside it put in place), swap it and its report in,
+    and collect what neither warehouse uses nor keeps, before and after."""
+    warehouse, progress, prev = run.warehouse, run.progress, plan.prev
+    progress.message(f"warehouse: writing {len(tables)} tables")
 
-        def write(tmp_db):
-            build_database(tmp_db, warehouse, all_tables, runs_df)
-            waited = time.monotonic()
-            n_aside = drawer.finish()  # the figures drawn beside the database, their stage folders put in place
-            if n_aside:
-                progress.message(f"figures: {n_aside} drawn in a worker beside the stages and the database "
-                                 f"(waited {_seconds(time.monotonic() - waited)} for them)")
+    def write(tmp_db):
+        build_database(tmp_db, warehouse, tables, tables["runs"])
+        waited = time.monotonic()
+        n_aside = drawer.finish()  # the figures drawn beside the database, their stage folders put in place
+        if n_aside:
+            progress.message(f"figures: {n_aside} drawn in a worker beside the stages and the database "
+                             f"(waited {_seconds(time.monotonic() - waited)} for them)")
 
-        # before the new database is written, what neither warehouse uses nor keeps goes (files past
-        # their retention, what a killed night left): a nearly full disk gets that room back first
-        collect_garbage(warehouse, *_split_kept(in_use | set(kept) | prev.samples | prev.stage_folders))
-        summary.report = swap_in_new_database(warehouse, write, report)
-        # files the new warehouse uses, and those of earlier ones still within their retention
-        # (a reader that opened an earlier warehouse keeps reading its samples)
-        keep = in_use | set(kept)
-        collect_garbage(warehouse, *_split_kept(keep))
-    summary.tables = {k: len(v) for k, v in all_tables.items()}
-    if summary.report is not None:
-        progress.message(f"report: {summary.report}")
-    summary.seconds = time.monotonic() - t0
-    _report_quarantine(problems, progress)
-    progress.message(f"rebuild: {summary.n_runs} runs ({summary.n_new} new, {summary.n_changed} changed, "
-                     f"{summary.n_deleted} deleted, {summary.n_unchanged} unchanged), {len(problems)} quarantined, "
-                     f"stages run: {', '.join(staged.ran) or 'none'}, {summary.seconds:.1f} s")
-    return summary
-
-
-def numbered_history(history: pd.DataFrame | None) -> pd.DataFrame | None:
-    """``rebuild_log`` of the previous warehouse with its ``seq`` (None when empty). A log from
-    before the column is numbered 1, 2, ... in its stored order (the order rebuilds appended it)."""
-    if history is None or history.empty:
-        return None
-    if "seq" not in history.columns or history["seq"].isna().any():
-        history = history.assign(seq=range(1, len(history) + 1))
-    return history
-
-
-def _split_kept(keep: set[str]) -> tuple[set[str], set[str]]:
-    """Paths to keep (relative to the warehouse) as (samples files, stage folders and the rest)."""
-    return {p for p in keep if p.startswith("samples/")}, {p for p in keep if not p.startswith("samples/")}
-
-
-def _report_quarantine(problems: list[Problem], progress: Progress) -> None:
-    for p in problems:
-        where = f"{p.source_path}:{p.line}" if p.line else p.source_path
-        progress.message(f"quarantined {where}: {p.error}")
-
-def swap_in_new_database(warehouse: Path, write, report: bool, run_pages: str = "update") -> Path | None:
-    """Write the new database under a temporary name (``write(tmp_db)``), render the morning
-    report from it, swap the database in, then publish the report; returns the report's path.
-
-    Any failure before the swap removes the temporary database and staged page and raises
-    :class:`RebuildError`: the previous warehouse and its report are kept (the two always agree).
-    ``run_pages`` as for :func:`pipeline.serve.report.render.render_report`.
-    """
-    tmp_db = warehouse / f".{DB_NAME}.tmp-{os.getpid()}"
-    page = None  # the morning report (index and run pages), a folder beside the live one: from the new database
-    try:
-        write(tmp_db)
-        if report:  # before the swap: a failure keeps the previous warehouse and its report
-            from pipeline.serve.report.render import stage_report
-            try:
-                page = stage_report(warehouse, database=tmp_db, run_pages=run_pages)
-            except Exception as exc:
-                log.exception("report failed")
-                raise RebuildError(f"the morning report could not be written: {type(exc).__name__}: "
-                                   f"{' '.join(str(exc).split())}; the previous warehouse and report are kept") from exc
-        _crash_point("before_swap")
-        swap_in(tmp_db, warehouse / DB_NAME)
-    except Exception as exc:
-        tmp_db.unlink(missing_ok=True)
-        Path(f"{tmp_db}.wal").unlink(missing_ok=True)
-        if page is not None:
-            from pipeline.serve.report.publish import remove_report_folder
-            remove_report_folder(page)
-        if isinstance(exc, RebuildError):
-            raise
-        raise RebuildError(f"could not write the warehouse: {type(exc).__name__}: {exc}") from exc
-    published = None
-    _crash_point("between_swaps")  # killed here: the next rebuild or report publishes the staged report
-    if page is not None:  # straight after the swap: the report follows the warehouse it describes
-        from pipeline.serve.report.publish import publish_report
-        published = publish_report(warehouse, page)
-    _crash_point("after_swap")
-    return published
-
-
-# -- the no-op fast path ---------------------------------------------------------------------------
-def inputs_key(tree: RawTree, code: str, plans: list[FilePlan], side: list[FileRecord], ignored: list[Path]) -> str:
-    """Fingerprint of everything a rebuild reads: every run file's path, ``(size, mtime, inode)``
-    and applicable metadata, every side file's path and stat, the files ignored or skipped, the
-    raw tree's own problems (links, manifests, rig.toml) and the version of all the project's
-    code. Equal keys with no file in doubt (:func:`nothing_changed`) mean the rebuild would write
-    the same database again."""
-    import hashlib
-
-    blob = {
-        "code": [code, project_code_version()],
-        "runs": [[p.rel, *p.stat, p.meta_hash] for p in plans],
-        "side": [[r.source_path, r.role, r.size_bytes, r.mtime_ns, r.inode, r.source_sha256] for r in side],
-        "ignored": [tree.rel(p) for p in ignored],
-        "skipped": [list(x) for x in tree.listing().skipped],
-        "problems": [[p.source_path, p.error, p.line, p.stage] for p in tree.problems],
-    }
-    return hashlib.sha256(json.dumps(blob, sort_keys=True, default=str).encode()).hexdigest()[:32]
-
-
-def nothing_changed(prev: PreviousState, plans: list[FilePlan], side: list[FileRecord], key: str,
-                    warehouse: Path) -> bool:
-    """Whether the live warehouse is exactly what this rebuild would write, bookkeeping aside.
-
-    True when the previous rebuild saw the same inputs (same :func:`inputs_key`), every run file
-    is unchanged at a glance (same stat, metadata and ingest code, samples file present, no
-    racy mtime), every side file has the stat its record holds, and every stage's cached
-    output is there and was cacheable. Anything in doubt gives False: the full incremental path.
-    """
-    if prev.generation is None or prev.inputs_key != key or not (warehouse / DB_NAME).is_file():
-        return False
-    if any(p.status != "unchanged" for p in plans) or len(prev.files) != len(plans) + len(side):
-        return False
-    for r in side:
-        old = prev.files.get(r.source_path)
-        if old is None or old.mtime_ns < 0 or (old.size_bytes, old.mtime_ns, old.inode) != \
-                (r.size_bytes, r.mtime_ns, r.inode) or old.source_sha256 != r.source_sha256:
-            return False
-    if not prev.stages:
-        return False
-    return all(s.input_key != "uncacheable" and (warehouse / s.folder / "output.json").is_file()
-               for s in prev.stages.values())
-
-
-def _rebuild_noop(warehouse: Path, prev: PreviousState, plans: list[FilePlan], key: str, executor: str,
-                  report: bool, generation: str, summary: RebuildSummary, started_at: datetime, t0: float,
-                  keep_h: float, clock, progress: Progress) -> RebuildSummary:
-    """Nothing changed: the previous database is copied and only the rebuild's bookkeeping is
-    brought up to date, as the incremental path would have written it (``rebuild_log`` gets this
-    rebuild's row; ``rebuild_inputs`` says every input is unchanged; ``findings`` carry their
-    last change; ``superseded_files`` drops what has expired). The report is rendered anew (it
-    states the time and the last rebuild) without redrawing run pages whose inputs are the
-    same. Same swap, same crash safety as a full rebuild."""
-    import duckdb
-
-    in_use = prev.samples | prev.stage_folders
-    kept, expired = superseded_files(prev, in_use, clock(), keep_h)
-
-    def carry_over(tmp_db: Path) -> None:
-        shutil.copyfile(warehouse / DB_NAME, tmp_db)
-        con = duckdb.connect(str(tmp_db))
-        try:
-            con.execute("SET TimeZone = 'UTC'")
-            con.execute("DELETE FROM rebuild_inputs WHERE status = 'deleted'")
-            con.execute("UPDATE rebuild_inputs SET status = 'unchanged', reason = NULL WHERE status <> 'unchanged'")
-            # compare_findings with every finding holding as before: the last change is carried over
-            con.execute("UPDATE findings SET previous_holds = holds, "
-                        "change = CASE WHEN change IS NOT NULL AND changed_at IS NOT NULL THEN change END, "
-                        "changed_at = CASE WHEN change IS NOT NULL AND changed_at IS NOT NULL THEN changed_at END")
-            if expired:
-                con.executemany("DELETE FROM superseded_files WHERE path = ?", [[p] for p in sorted(expired)])
-            problems = [Problem(s, e, ln, st) for s, e, ln, st in con.execute(
-                "SELECT source_path, error, line, stage FROM quarantine").fetchall()]
-            n_runs = con.execute("SELECT count(*) FROM runs").fetchone()[0]
-            stages = [r[0] for r in con.execute("SELECT stage FROM stage_cache").fetchall()]
-            summary.n_files = len(plans)
-            summary.n_runs, summary.n_unchanged, summary.quarantine = n_runs, len(plans), problems
-            summary.stages_reused = stages
-            row = {"generation": generation, "started_at": started_at, "finished_at": datetime.now(timezone.utc),
-                   "duration_s": time.monotonic() - t0, "mode": "no-op", "executor": executor,
-                   "n_files": len(plans), "n_runs": n_runs, "n_new": 0, "n_changed": 0, "n_deleted": 0,
-                   "n_unchanged": len(plans), "n_quarantined": len(problems), "stages_run": [],
-                   "stages_reused": stages, "exit_code": summary.exit_code, "inputs_key": key,
-                   "seq": con.execute("SELECT coalesce(max(seq), 0) + 1 FROM rebuild_log").fetchone()[0]}
-            con.execute(f"INSERT INTO rebuild_log ({', '.join(row)}) VALUES ({', '.join('?' * len(row))})",
-                        list(row.values()))
-            con.execute("DELETE FROM rebuild_log WHERE rowid NOT IN "
-                        f"(SELECT rowid FROM rebuild_log ORDER BY rowid DESC LIMIT {HISTORY_ROWS})")
-            summary.tables = {t: con.execute(f'SELECT count(*) FROM "{t}"').fetchone()[0] for (t,) in con.execute(
-                "SELECT table_name FROM duckdb_tables() WHERE schema_name = 'main' ORDER BY table_name").fetchall()}
-            con.execute("CHECKPOINT")
-        finally:
-            con.close()
-
-    collect_garbage(warehouse, *_split_kept(in_use | set(kept)))  # before the copy: room on a nearly full disk
-    summary.report = swap_in_new_database(warehouse, carry_over, report, run_pages="missing")
-    keep = in_use | set(kept)
-    collect_garbage(warehouse, *_split_kept(keep))
-    summary.seconds = time.monotonic() - t0
-    if summary.report is not None:
-        progress.message(f"report: {summary.report}")
-    _report_quarantine(summary.quarantine, progress)
-    progress.message(f"rebuild: {summary.n_runs} runs (0 new, 0 changed, 0 deleted, {summary.n_unchanged} unchanged: "
-                     f"a no-op), {len(summary.quarantine)} quarantined, stages run: none, {summary.seconds:.1f} s")
-    return summary
+    # before the new database is written, what neither warehouse uses nor keeps goes (files past
+    # their retention, what a killed night left): a nearly full disk gets that room back first
+    collect_garbage(warehouse, *split_kept(keep | prev.samples | prev.stage_folders))
+    run.summary.report = swap_in_new_database(warehouse, write, run.options.report)
+    # files the new warehouse uses, and those of earlier ones still within their retention
+    # (a reader that opened an earlier warehouse keeps reading its samples)
+    collect_garbage(warehouse, *split_kept(keep))

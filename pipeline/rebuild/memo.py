@@ -6,7 +6,7 @@ keeps the result of every item so that a re-run stage computes only the items th
 
 Key
     ``sha256`` of the function (module and qualified name), the code version of its module and
-    every project module it imports (:func:`pipeline.rebuild.state.stage_code_version`), the Python and
+    every project module it imports (:func:`pipeline.versions.stage_code_version`), the Python and
     numerical libraries' versions, and a canonical JSON of the item (``sort_keys``; tuples kept
     apart from lists; strings naming files under the warehouse stored relative to it, so a
     moved warehouse still hits). Samples file names are content-addressed (source bytes,
@@ -22,9 +22,8 @@ Storage
     entries are all unused: deleted without being read); so results of runs that are gone
     disappear with the next run of their stage, and one changed run rewrites one shard. A stage
     whose cached outputs are reused keeps its memo folder as it is (its items did not change). A
-    memo folder whose stage has no folder the warehouse still keeps is collected, and so are the
-    whole-stage files of the first layout (``memo/<stage>.pkl``, never read)
-    (:func:`pipeline.rebuild.flow.collect_garbage`). A missing, damaged or unreadable shard file, or
+    memo folder whose stage has no folder the warehouse still keeps is collected
+    (:func:`pipeline.rebuild.garbage.collect_garbage`). A missing, damaged or unreadable shard file, or
     entry, is a miss: the item is computed again, never a failure.
 Trust
     The values are pickles: the memo is the pipeline's own output, read only from the warehouse
@@ -47,21 +46,15 @@ from collections.abc import Callable
 from functools import lru_cache
 from pathlib import Path
 
+from pipeline.versions import function_code_version
+from pipeline.warehouse import SHARD_FILE, STAGE_NAME
+
 #: Folder of the memo, relative to the warehouse: one folder per stage.
 MEMO_DIR = "memo"
 #: Bump when the key or the file layout changes (old files are then misses).
 FORMAT = 2
-#: A stage's name, and so its memo folder's (``memo/<stage>/``).
-STAGE_NAME = re.compile(r"[a-z_][a-z0-9_]*")
-#: A shard file in a stage's folder (``<xx>.pkl``, ``xx`` the keys' first two hex digits) and
-#: its temp name (``.<xx>.pkl.tmp-<pid>``).
-SHARD_FILE = re.compile(r"[0-9a-f]{2}\.pkl")
-SHARD_TMP = re.compile(r"\.[0-9a-f]{2}\.pkl\.tmp-[0-9]+")
+#: Hex digits of a key that name its shard file (``memo/<stage>/<xx>.pkl``: at most 256 shards).
 SHARD_CHARS = 2
-#: The first layout (format 1): one file per stage, ``memo/<stage>.pkl``, and its temp name;
-#: never read, deleted by the stage's next save and by the clean-up.
-LEGACY_FILE = re.compile(r"([a-z_][a-z0-9_]*)\.pkl")
-LEGACY_TMP = re.compile(r"\.[a-z_][a-z0-9_]*\.pkl\.tmp-[0-9]+")
 _KEY = re.compile(r"[0-9a-f]{64}")
 _NOFOLLOW = getattr(os, "O_NOFOLLOW", 0)
 _NONBLOCK = getattr(os, "O_NONBLOCK", 0)  # a FIFO in a shard's place does not block the open
@@ -85,17 +78,6 @@ def environment() -> str:
                 continue
         parts.append(f"{name} {getattr(mod, '__version__', '?')}")
     return "; ".join(parts)
-
-
-def code_version(func: Callable) -> str | None:
-    """Version of ``func``'s module and the project code it imports; None: not memoisable."""
-    from pipeline.rebuild.state import stage_code_version
-
-    mod = sys.modules.get(getattr(func, "__module__", None) or "")
-    file = getattr(mod, "__file__", None)
-    if not file:
-        return None
-    return stage_code_version(file)
 
 
 def _canonical(value, prefix: str):
@@ -127,7 +109,7 @@ def item_key(func: Callable, item, warehouse: str | Path) -> str | None:
     module = getattr(func, "__module__", "") or ""
     if not qualname or not module or "<" in qualname:  # lambdas, local functions
         return None
-    version = code_version(func)
+    version = function_code_version(func)
     if version is None:
         return None
     prefix = os.fspath(warehouse).rstrip(os.sep) + os.sep
@@ -282,8 +264,7 @@ class Memo:
     def save(self) -> None:
         """Keep exactly the entries used by this run of the stage: rewrite (temp file, then
         ``os.replace``) only the shards whose entries differ from their file's, delete the shard
-        files left with none (without reading them), and the stage's file of the first layout.
-        A stage without any memoised item leaves nothing. Failing to write is not an error."""
+        files left with none (without reading them). A stage without any memoised item leaves nothing. Failing to write is not an error."""
         memo = self.warehouse / MEMO_DIR
         by_shard: dict[str, dict[str, bytes]] = {}
         for k, blob in self._new.items():
@@ -296,9 +277,6 @@ class Memo:
                 if not _real_dir(memo):
                     return
                 self.folder.mkdir(exist_ok=True)
-            legacy = memo / f"{self.stage}.pkl"  # the first layout's whole-stage file: dead weight
-            if _regular_file(legacy):
-                legacy.unlink()
             if not _real_dir(self.folder):
                 return
             with os.scandir(self.folder) as it:

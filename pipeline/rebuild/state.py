@@ -22,16 +22,15 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import re
 import time
 from dataclasses import dataclass, field
-from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from pipeline.versions import INGEST_VERSION, ROOT, hash_sources, ingest_code_version  # noqa: F401 (re-exported)
 from pipeline.raw.problems import ConfigError
+from pipeline.raw.rawfile import open_raw
 from pipeline.raw.tree import RawTree
+from pipeline.warehouse import connect_readonly
 
 if TYPE_CHECKING:  # pandas and the ingest are imported where used: a no-op rebuild needs neither
     import pandas as pd
@@ -41,75 +40,6 @@ SIDE_FILES = {"manifest.csv": "manifest", "rig.toml": "rig", "hoses.csv": "logbo
 
 #: A file modified this recently is hashed again next time (mtime granularity, "racy" files).
 RACY_S = 2.0
-
-_ROOT = ROOT
-
-
-def _hash_sources(paths: list[Path]) -> str:
-    return hash_sources(paths, _ROOT)
-
-
-#: Top-level packages of this project: a stage's version covers what it imports from them.
-_PROJECT_PACKAGES = ("pipeline", "analyses", "schemas")
-
-
-_IMPORT = re.compile(r"^[ \t]*(?:from[ \t]+([\w.]+)[ \t]+import[ \t]+(\([^)]*\)|[^\n#]*)|import[ \t]+([^\n#]*))",
-                     re.MULTILINE)
-
-
-@lru_cache(maxsize=None)
-def _direct_imports(module_file: Path) -> tuple[Path, ...]:
-    """Project source files a file imports (at any indentation: lazy imports count too)."""
-    out = []
-    for m in _IMPORT.finditer(module_file.read_text(encoding="utf-8")):
-        if m.group(1):
-            if m.group(1).startswith("."):
-                continue
-            names = [m.group(1)] + [f"{m.group(1)}.{n.split()[0]}" for n in m.group(2).strip("()").split(",")
-                                    if n.strip()]
-        else:
-            names = [n.split()[0] for n in m.group(3).split(",") if n.strip()]
-        for name in names:
-            if name.split(".")[0] not in _PROJECT_PACKAGES:
-                continue
-            base = _ROOT.joinpath(*name.split("."))
-            out += [c.resolve() for c in (base.with_suffix(".py"), base / "__init__.py") if c.is_file()]
-    return tuple(out)
-
-
-def project_imports(module_file: Path) -> set[Path]:
-    """Source files of this project that ``module_file`` imports, transitively (read as text,
-    nothing is imported), the file itself included."""
-    return set(_project_imports(Path(module_file)))
-
-
-@lru_cache(maxsize=None)
-def _project_imports(module_file: Path) -> frozenset[Path]:
-    seen: set[Path] = set()
-    todo = [Path(module_file).resolve()]
-    while todo:
-        f = todo.pop()
-        if f in seen or not f.is_file():
-            continue
-        seen.add(f)
-        todo += _direct_imports(f)
-    return frozenset(seen)
-
-
-@lru_cache(maxsize=None)
-def stage_code_version(module_file: str) -> str:
-    """Version of a stage: its module, the stage framework, every ``analyses`` module and
-    every project module any of them imports (e.g. ``pipeline.raw.logbook``, ``schemas.units``)."""
-    roots = [Path(module_file), *_framework_sources()]
-    files = set().union(*(_project_imports(f) for f in roots if f.is_file()))
-    return _hash_sources(sorted(files))
-
-
-@lru_cache(maxsize=1)
-def _framework_sources() -> tuple[Path, ...]:
-    """What every stage's version covers besides its own module: the stage framework and the analyses."""
-    return (_ROOT / "pipeline" / "stages" / "__init__.py", *sorted(_ROOT.glob("analyses/**/*.py")))
-
 
 def stat_key(st: os.stat_result) -> tuple[int, int, int]:
     """``(size, mtime_ns, inode)``, the fingerprint git and rsync trust too: bytes rewritten in
@@ -163,11 +93,12 @@ class FileRecord:
         raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
     @classmethod
-    def stored(cls, source_path, role, size_bytes, mtime_ns, inode, source_sha256, meta_hash, code_version,
-               result_json: str | None, error: str | None, samples: list | None = None) -> "FileRecord":
-        """A record as ``ingest_state`` holds it, its ``result`` JSON decoded when first used."""
-        rec = cls(source_path, role, size_bytes, mtime_ns, inode, source_sha256, meta_hash, code_version,
-                  None, error, tuple(samples) if samples is not None else None)
+    def stored(cls, row: tuple) -> "FileRecord":
+        """A record from a row of ``ingest_state`` (``source_path, role, size_bytes, mtime_ns, inode,
+        source_sha256, meta_hash, code_version, result, error, samples_paths``), its ``result``
+        JSON decoded when first used."""
+        *fields, result_json, error, samples = row
+        rec = cls(*fields, None, error, tuple(samples) if samples is not None else None)
         del rec.result
         rec._result_json = result_json
         return rec
@@ -224,7 +155,7 @@ class PreviousState:
     history_loader: object = field(default=None, repr=False, compare=False)
     #: files of earlier warehouses still kept for their readers: path -> superseded at [s since epoch]
     superseded: dict[str, float] = field(default_factory=dict)
-    #: :func:`pipeline.rebuild.flow.inputs_key` of the last rebuild (None before the column existed)
+    #: :func:`pipeline.rebuild.noop.inputs_key` of the last rebuild (None before the column existed)
     inputs_key: str | None = None
 
     @property
@@ -243,8 +174,6 @@ def log_order(columns) -> str:
 
 def load_previous(warehouse: Path) -> PreviousState:
     """Read the state of the live warehouse; an unreadable or missing one gives an empty state."""
-    from pipeline.warehouse import connect_readonly
-
     prev = PreviousState()
     try:
         con = connect_readonly(warehouse)
@@ -261,7 +190,7 @@ def load_previous(warehouse: Path) -> PreviousState:
             samples = "samples_paths" if "samples_paths" in cols else "NULL"
             for row in con.execute("SELECT source_path, role, size_bytes, mtime_ns, inode, source_sha256, meta_hash, "
                                    f"code_version, result, error, {samples} FROM ingest_state").fetchall():
-                rec = FileRecord.stored(*row[:10], samples=row[10])
+                rec = FileRecord.stored(row)
                 prev.files[rec.source_path] = rec
         if "stage_cache" in tables:
             for stage, key, folder, kinds, all_runs, results in con.execute(
@@ -414,7 +343,6 @@ def side_records(tree: RawTree, prev: PreviousState) -> tuple[list[FileRecord], 
             sha = old.source_sha256
         else:
             from pipeline.ingest.hashing import sha256_file
-            from pipeline.raw.rawfile import open_raw
 
             try:  # hashed through one descriptor, no symlink out of raw/ followed (pipeline.raw.rawfile)
                 with open_raw(tree.root, p) as opened:

@@ -7,7 +7,8 @@ import stat
 import pytest
 
 from pipeline.progress import Progress
-from pipeline.rebuild.flow import EXIT_QUARANTINED, rebuild
+from pipeline.rebuild.flow import rebuild
+from pipeline.rebuild.options import EXIT_QUARANTINED
 from tests.conftest import STEP_META, query
 
 T = [0.0, 0.1, 0.2, 0.3]

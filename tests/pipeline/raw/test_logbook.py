@@ -150,7 +150,8 @@ def test_an_odometer_that_goes_down_is_flagged(raw):
 
 
 def test_careless_logbooks_in_a_rebuild_are_quarantine_lines_and_hose_warnings(raw, tmp_path):
-    from pipeline.rebuild.flow import EXIT_QUARANTINED, rebuild
+    from pipeline.rebuild.flow import rebuild
+    from pipeline.rebuild.options import EXIT_QUARANTINED
     from tests.conftest import STEP_META, query
 
     raw.csv("a/run.csv", STEP_META, {"t[s]": [0.0, 0.1], "x[m]": [0.0, 0.1], "x_ref[m]": [0.1, 0.1]})

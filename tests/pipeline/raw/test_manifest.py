@@ -3,7 +3,8 @@ every run under it waits), rows that name no usable file, and rows for one sheet
 import pytest
 
 from pipeline.raw.tree import RawTree
-from pipeline.rebuild.flow import EXIT_QUARANTINED, rebuild
+from pipeline.rebuild.flow import rebuild
+from pipeline.rebuild.options import EXIT_QUARANTINED
 from tests.conftest import STEP_META, query
 from tests.pipeline.raw.conftest import COLS, rebuild_checked
 

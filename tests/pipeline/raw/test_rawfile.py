@@ -16,7 +16,8 @@ import pipeline.rebuild.flow as rb
 from pipeline.ingest.hashing import sha256_file
 from pipeline.raw.rawfile import RawOpenError, open_raw
 from pipeline.readers import list_parts, read_export
-from pipeline.rebuild.flow import EXIT_QUARANTINED, rebuild
+from pipeline.rebuild.flow import rebuild
+from pipeline.rebuild.options import EXIT_QUARANTINED
 from pipeline.simulator import writers
 from tests.conftest import PROJECT_ROOT, STEP_META, query
 from tests.pipeline.readers.generators import mat_v73

@@ -8,7 +8,8 @@ import pyarrow.parquet as pq
 
 from pipeline.raw.tree import RawTree
 from pipeline.raw.walk import PATH_MAX, walk_raw
-from pipeline.rebuild.flow import EXIT_QUARANTINED, rebuild
+from pipeline.rebuild.flow import rebuild
+from pipeline.rebuild.options import EXIT_QUARANTINED
 from tests.conftest import STEP_META, query
 from tests.pipeline.raw.conftest import COLS, Messages, rebuild_checked
 

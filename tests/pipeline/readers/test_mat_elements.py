@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from pipeline.ingest.file import ingest_file
-from pipeline.raw.layout import RawTree
+from pipeline.raw.tree import RawTree
 from pipeline.readers import ReaderError, read_export
 from pipeline.readers import mat_elements
 from pipeline.readers.base import INFLATE_FLOOR_BYTES, inflate_cap

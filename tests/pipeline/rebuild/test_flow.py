@@ -1,7 +1,8 @@
 """The rebuild end to end: runs, quarantine, views, exit codes, and the previous warehouse kept on failure."""
 import pytest
 
-from pipeline.rebuild.flow import EXIT_OK, EXIT_QUARANTINED, RebuildError, rebuild
+from pipeline.rebuild.flow import rebuild
+from pipeline.rebuild.options import EXIT_OK, EXIT_QUARANTINED, RebuildError
 from tests.conftest import STEP_META, query
 
 T = [0.0, 0.1, 0.2, 0.3]
@@ -139,7 +140,6 @@ def test_files_that_are_not_runs_are_skipped(raw, warehouse):
     assert q(warehouse, "SELECT source_path FROM runs") == [("c/a.csv",)]
 
 
-
 def test_a_report_that_cannot_be_rendered_fails_the_rebuild_and_keeps_warehouse_and_report(raw, warehouse,
                                                                                           monkeypatch):
     from click.testing import CliRunner
@@ -228,107 +228,6 @@ def test_overlapping_raw_and_warehouse_are_a_usage_error_before_anything_is_writ
     assert raw_snapshot(tmp_path / "X") == before  # nothing written, nothing deleted (no demo/, no lock)
 
 
-def test_the_clean_up_deletes_only_files_the_warehouse_wrote(raw, warehouse, tmp_path):
-    import os
-
-    from tests.conftest import raw_snapshot
-
-    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
-    rebuild(raw.root, warehouse, jobs=1)
-    camp = warehouse / "samples" / "kind=step" / "campaign=c"
-    # a raw tree copied where the clean-up looks, foreign names in the warehouse's own folders,
-    # and a symlink out of the warehouse onto a tree of writer-like names
-    outside = tmp_path / "elsewhere"
-    outside.mkdir()
-    (outside / "x-0123456789abcdef.parquet").write_bytes(b"someone's data")
-    foreign = {
-        "samples/kind=step/campaign=c/b.csv": b"t,x\n0,1\n",
-        "samples/kind=step/campaign=c/notes.txt": b"mine",
-        "samples/kind=step/campaign=c/run-12.parquet": b"not a writer name",
-        "samples/kind=step/campaign=c/sub/z-0123456789abcdef.parquet": b"one folder too deep",
-        "samples/c/a.csv": b"a raw tree under samples/",
-        "samples/kind=nope/campaign=c/q-0123456789abcdef.parquet": b"not a kind",
-        "stages/models/0123456789abcdef0123/tables/data.csv": b"foreign",
-        "stages/models/0123456789abcdef0123/output.json.bak": b"foreign",
-        "stages/Not-A-Stage/0123456789abcdef0123/output.json": b"{}",
-        "stages/.tmp-notes/readme.txt": b"foreign",
-        "report/.keep.tmp": b"foreign",
-        ".pneubench.duckdb.tmp-old": b"foreign",
-        "figures/readme.txt": b"foreign",
-    }
-    for rel, data in foreign.items():
-        (warehouse / rel).parent.mkdir(parents=True, exist_ok=True)
-        (warehouse / rel).write_bytes(data)
-    os.symlink(outside, warehouse / "samples" / "kind=step" / "campaign=linked")
-    orphan = camp / "zz-0123456789abcdef.parquet"       # writer-named, used by no warehouse: collected
-    orphan.write_bytes(b"stale")
-    debris = camp / ".a.123.0123456789ab.tmp"             # a killed writer's temp file: collected
-    debris.write_bytes(b"partial")
-    outside_before = raw_snapshot(outside)
-    raw.csv("c/b.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": [1.0] * 4})
-    assert rebuild(raw.root, warehouse, jobs=1).exit_code == EXIT_OK
-    rebuild(raw.root, warehouse, jobs=1)
-    for rel, data in foreign.items():
-        assert (warehouse / rel).read_bytes() == data, rel
-    assert raw_snapshot(outside) == outside_before
-    assert not orphan.exists() and not debris.exists()
-    assert q(warehouse, "SELECT count(*) FROM runs") == [(2,)]
-
-
-# -- readers of untrusted bytes never run in the rebuild's process --------------------------------
-def test_a_reader_that_segfaults_with_one_job_quarantines_its_file_and_the_rest_ingests(raw, warehouse,
-                                                                                       monkeypatch):
-    # a 1-core server is --jobs 1: the reader still runs in a worker process, so a segfault in
-    # C code (scipy's loadmat on a corrupt MAT file did this) costs one file, not the rebuild
-    import os
-
-    import pipeline.raw.metadata as ing
-    from pipeline.rebuild.flow import CRASHED
-    from tests.conftest import segfault
-
-    real = ing.read_export
-
-    def reader(path, *a, **k):
-        if "segv" in os.path.basename(path):
-            segfault()
-        return real(path, *a, **k)
-
-    monkeypatch.setattr(ing, "read_export", reader)
-    for name in ("a", "b_segv", "c"):
-        raw.csv(f"c/{name}.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
-    parent = os.getpid()
-    summary = rebuild(raw.root, warehouse, jobs=1)
-    assert os.getpid() == parent and summary.exit_code == EXIT_QUARANTINED
-    assert [(p.source_path, p.error) for p in summary.quarantine] == [("c/b_segv.csv", CRASHED)]
-    assert q(warehouse, "SELECT run_id FROM runs ORDER BY 1") == [("c/a",), ("c/c",)]
-
-
-def test_ingest_starts_one_worker_process_for_one_job_and_none_when_nothing_is_read(raw, warehouse, monkeypatch):
-    import os
-    import time
-
-    forks = []
-    real_fork = os.fork
-
-    def counting_fork():
-        pid = real_fork()
-        if pid:
-            forks.append(pid)
-        return pid
-
-    monkeypatch.setattr(os, "fork", counting_fork)
-    for name in "abcd":
-        raw.csv(f"c/{name}.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
-    past = time.time() - 3600  # files written this second are hashed again next time ("racy")
-    for p in raw.root.rglob("*.csv"):
-        os.utime(p, (past, past))
-    rebuild(raw.root, warehouse, jobs=1)
-    assert len(forks) == 1  # one reader worker for four files; the stages run in this process
-    forks.clear()
-    assert rebuild(raw.root, warehouse, jobs=1).n_unchanged == 4
-    assert forks == []  # a no-op rebuild starts no process
-
-
 # -- readers of an earlier warehouse keep their samples for the retention period -------------------
 class FakeClock:
     def __init__(self, t):
@@ -396,27 +295,6 @@ def test_a_connection_opened_before_two_rebuilds_still_reads_its_samples_until_t
         reader.stdin.close()
         reader.wait(timeout=60)
     assert (warehouse / q(warehouse, "SELECT samples_path FROM runs")[0][0]).is_file()
-
-
-def test_keep_superseded_option_and_environment(raw, warehouse, monkeypatch):
-    from click.testing import CliRunner
-
-    from pipeline.cli import main
-
-    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
-    args = ["rebuild", "--raw", str(raw.root), "--warehouse", str(warehouse), "--jobs", "1", "--no-report"]
-    assert CliRunner().invoke(main, args).exit_code == 0
-    first = q(warehouse, "SELECT samples_path FROM runs")[0][0]
-    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": [1.0] * 4, "x_ref[m]": T})
-    monkeypatch.setenv("PNEUBENCH_KEEP_SUPERSEDED_H", "soon")
-    res = CliRunner().invoke(main, args)
-    assert res.exit_code == 2 and "--keep-superseded" in res.output and "soon" in res.output
-    with pytest.raises(RebuildError, match="PNEUBENCH_KEEP_SUPERSEDED_H='soon' is not a number") as err:
-        rebuild(raw.root, warehouse, jobs=1)
-    assert err.value.exit_code == 2
-    monkeypatch.setenv("PNEUBENCH_KEEP_SUPERSEDED_H", "24")
-    assert CliRunner().invoke(main, [*args, "--keep-superseded", "0"]).exit_code == 0  # the option wins
-    assert not (warehouse / first).exists()
 
 
 def test_a_stage_table_without_rows_is_kept_as_dtypes_and_loads_as_its_parquet_file_would(tmp_path, monkeypatch):
@@ -601,60 +479,3 @@ def test_a_rebuild_draws_the_same_figures_with_jobs_2_as_with_jobs_1(raw, tmp_pa
     assert figs[2] == figs[1]
 
 
-def _tree_listing(folder):
-    """Every path under ``folder`` with its bytes' hash (the lock file aside: it holds the pid)."""
-    import hashlib
-
-    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest() if p.is_file() else None
-            for p in sorted(folder.rglob("*")) if p.name != ".rebuild.lock"}
-
-
-def _steps(raw, names):
-    for n in names:
-        raw.csv(f"c/{n}.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
-
-
-def test_an_empty_raw_tree_is_refused_before_anything_is_written_unless_allowed(raw, warehouse, tmp_path):
-    # issue 21.1: an unmounted share (an empty raw/) emptied the warehouse with exit 0
-    _steps(raw, "abcdefgh")
-    assert rebuild(raw.root, warehouse, jobs=1).n_runs == 8
-    before = _tree_listing(warehouse)
-    empty = tmp_path / "mountpoint"
-    empty.mkdir()
-    with pytest.raises(RebuildError) as err:
-        rebuild(empty, warehouse, jobs=1)
-    assert err.value.exit_code == 2
-    assert "refusing to delete 8 of the warehouse's 8 runs" in str(err.value)
-    assert "c/a.csv, c/b.csv, c/c.csv, ..." in str(err.value) and "--allow-mass-delete" in str(err.value)
-    assert _tree_listing(warehouse) == before  # database, report, samples, stages: as they were
-    # more than half of the runs (and at least MASS_DELETE_MIN_RUNS): refused too
-    for n in "abcde":
-        (raw.root / f"c/{n}.csv").unlink()
-    with pytest.raises(RebuildError, match="refusing to delete 5 of the warehouse's 8 runs"):
-        rebuild(raw.root, warehouse, jobs=1)
-    assert _tree_listing(warehouse) == before
-    # intended: allowed
-    s = rebuild(empty, warehouse, jobs=1, allow_mass_delete=True)
-    assert (s.n_runs, s.n_deleted, s.exit_code) == (0, 8, EXIT_OK)
-    assert query(warehouse, "SELECT count(*) FROM runs") == [(0,)]
-
-
-def test_deleting_half_the_runs_or_fewer_than_five_goes_on_and_a_first_empty_build_is_no_mass_delete(raw, tmp_path):
-    empty = tmp_path / "empty"
-    empty.mkdir()
-    s = rebuild(empty, tmp_path / "w0", jobs=1)  # a first build of nothing deletes nothing
-    assert (s.n_runs, s.exit_code) == (0, EXIT_OK)
-    _steps(raw, "abcdefgh")
-    wh = tmp_path / "w1"
-    rebuild(raw.root, wh, jobs=1)
-    for n in "abcd":  # exactly half
-        (raw.root / f"c/{n}.csv").unlink()
-    s = rebuild(raw.root, wh, jobs=1)
-    assert (s.n_runs, s.n_deleted) == (4, 4)
-    for n in "efg":  # 3 of 4: more than half, but fewer than MASS_DELETE_MIN_RUNS
-        (raw.root / f"c/{n}.csv").unlink()
-    s = rebuild(raw.root, wh, jobs=1)
-    assert (s.n_runs, s.n_deleted) == (1, 3)
-    (raw.root / "c/h.csv").unlink()  # the last run: all of them, refused whatever their number
-    with pytest.raises(RebuildError, match="refusing to delete 1 of the warehouse's 1 runs"):
-        rebuild(raw.root, wh, jobs=1)

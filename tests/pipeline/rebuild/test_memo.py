@@ -10,7 +10,8 @@ from pathlib import Path
 
 import pipeline.rebuild.memo as memo_mod
 import pipeline.rebuild.flow as rb
-import pipeline.rebuild.state as state_mod
+import pipeline.rebuild.noop as noop_mod
+import pipeline.versions as versions_mod
 from pipeline.rebuild.memo import Memo, item_key
 from pipeline.rebuild.flow import rebuild
 from pipeline.stages import StageContext
@@ -117,7 +118,7 @@ def _double(item):
 def test_the_key_changes_with_the_code_version(tmp_path, monkeypatch):
     item = ("breakaway", "c/b", "samples/x.parquet", {})
     before = item_key(plpa.analyse_run, item, tmp_path)
-    monkeypatch.setattr(memo_mod, "code_version", lambda func: "edited")
+    monkeypatch.setattr(memo_mod, "function_code_version", lambda func: "edited")
     assert item_key(plpa.analyse_run, item, tmp_path) != before
 
 
@@ -297,16 +298,17 @@ def test_a_full_rebuild_writes_every_shard_and_drops_the_others_unread(tmp_path,
     assert len(stored(tmp_path, "s")) == 100
 
 
-def test_the_first_layouts_whole_stage_file_is_not_read_and_goes_with_the_next_save(tmp_path):
+def test_the_first_layouts_whole_stage_file_is_not_read(tmp_path):
+    # issue 22: the first layout's clean-up is gone (no warehouse of that layout is left); its
+    # file is never read, and left alone like any file the memo does not write
     m = _memo_run(tmp_path, [1, 2])
     old = tmp_path / "memo" / "s.pkl"
     old.write_bytes(pickle.dumps({"format": 1, "stage": "s", "entries": {
         item_key(_double, 3, tmp_path): pickle.dumps(-1)}}))
     m = _memo_run(tmp_path, [1, 2, 3])
-    assert (m.hits, m.computed) == (2, 1) and not old.exists()
-    old.write_bytes(b"x")  # also when the stage no longer has any item
+    assert (m.hits, m.computed) == (2, 1) and old.exists()
     _memo_run(tmp_path, [])
-    assert sorted(os.listdir(tmp_path / "memo")) == []
+    assert sorted(os.listdir(tmp_path / "memo")) == ["s.pkl"]
 
 
 def test_a_symlinked_stage_folder_or_shard_file_is_neither_read_nor_written(tmp_path):
@@ -362,16 +364,15 @@ def test_one_changed_run_computes_only_its_item_and_equals_a_full_rebuild(raw, t
 def test_a_code_change_of_the_analysis_recomputes_every_item(raw, warehouse, stages_of, monkeypatch):
     campaign(raw)
     rebuild(raw.root, warehouse, jobs=1)
-    real = state_mod.stage_code_version
+    real = versions_mod.stage_code_version
 
     def edited(module_file):
         return real(module_file) + ("-edited" if module_file.endswith("plpa_characterisation.py") else "")
 
-    monkeypatch.setattr(state_mod, "stage_code_version", edited)  # what the memo keys use
-    monkeypatch.setattr(rb, "stage_code_version", edited)         # what the stage cache uses
-    if hasattr(rb, "project_code_version"):                       # what the no-op fast path uses
-        real_project = rb.project_code_version
-        monkeypatch.setattr(rb, "project_code_version", lambda: real_project() + "-edited")
+    monkeypatch.setattr(versions_mod, "stage_code_version", edited)  # what the memo keys use
+    monkeypatch.setattr(rb, "stage_code_version", edited)            # what the stage cache uses
+    real_project = noop_mod.project_code_version                     # what the no-op fast path uses
+    monkeypatch.setattr(noop_mod, "project_code_version", lambda: real_project() + "-edited")
     s = rebuild(raw.root, warehouse, jobs=1)
     assert s.stages_run == ["plpa_characterisation"]
     assert counts(stages_of[-1], "plpa_characterisation") == (0, 4)
@@ -415,23 +416,21 @@ def test_memo_entries_of_runs_that_are_gone_are_not_kept(raw, warehouse, stages_
     assert shard_files(warehouse, "models")
 
 
-def test_the_clean_up_collects_memo_folders_of_gone_stages_old_layout_files_and_temp_files_only(raw, warehouse,
-                                                                                               tmp_path):
+def test_the_clean_up_collects_memo_folders_of_gone_stages_and_temp_files_only(raw, warehouse, tmp_path):
     step(raw, "c/a.csv")
     age(raw.root)
     rebuild(raw.root, warehouse, jobs=1)
     memo = warehouse / "memo"
     collected = [memo / "zz_removed_stage" / "ab.pkl",       # a stage that no longer exists
                  memo / "zz_removed_stage" / ".ab.pkl.tmp-1",
-                 memo / "models.pkl",                         # the first layout's whole-stage file
-                 memo / "zz_removed_stage.pkl",
-                 memo / ".models.pkl.tmp-12345",              # killed rebuilds' temp files
-                 memo / "models" / ".ab.pkl.tmp-12345"]
+                 memo / "models" / ".ab.pkl.tmp-12345"]      # a killed rebuild's temp file
     (memo / "zz_removed_stage").mkdir()
     (memo / "zz_empty_stage").mkdir()                         # an empty folder of a gone stage
     for p in collected:
         p.write_bytes(b"x")
     foreign = {memo / "notes.txt": b"mine", memo / "Models.PKL": b"not a writer name",
+               # the first layout's whole-stage files: no longer collected (issue 22)
+               memo / "models.pkl": b"x", memo / "zz_removed_stage.pkl": b"x", memo / ".models.pkl.tmp-12345": b"x",
                memo / "models" / "notes.txt": b"mine", memo / "models" / "abc.pkl": b"not a shard name",
                memo / "Other" / "ab.pkl": b"not a stage folder name",
                memo / "zz_kept_stage" / "ab.pkl.bak": b"not a shard name"}

@@ -2,18 +2,17 @@
 only when their inputs changed, and the result equals a full rebuild table by table."""
 import json
 import os
-import re
 import time
 from pathlib import Path
 
 import pandas as pd
 import pytest
 
-import pipeline.rebuild.flow as rb
+import pipeline.rebuild.ingest_tasks as tasks
 from pipeline.rebuild.flow import rebuild
 from pipeline.stages import StageOutput
 from pipeline.warehouse import connect_readonly
-from tests.conftest import PROJECT_ROOT, STEP_META, query
+from tests.conftest import STEP_META, query
 
 T = [0.0, 0.1, 0.2, 0.3]
 REBUILD_ONLY = {"rebuild_log", "rebuild_inputs", "ingest_state", "stage_cache", "superseded_files"}
@@ -83,9 +82,9 @@ class ReadLog:
 def counting(monkeypatch, tmp_path):
     """Count files read (hashed or ingested) by the rebuild, in whatever process reads them."""
     seen = ReadLog(tmp_path / "reads.jsonl")
-    real_sha, real_ingest = rb.sha256_file, rb.ingest_file
-    monkeypatch.setattr(rb, "sha256_file", lambda p, *a, **k: seen.record("sha", p.name) or real_sha(p, *a, **k))
-    monkeypatch.setattr(rb, "ingest_file",
+    real_sha, real_ingest = tasks.sha256_file, tasks.ingest_file
+    monkeypatch.setattr(tasks, "sha256_file", lambda p, *a, **k: seen.record("sha", p.name) or real_sha(p, *a, **k))
+    monkeypatch.setattr(tasks, "ingest_file",
                         lambda t, p, *a, **k: seen.record("ingest", p.name) or real_ingest(t, p, *a, **k))
     return seen
 
@@ -243,161 +242,6 @@ def test_incremental_equals_full_table_by_table(raw, tmp_path):
     assert len(a["runs"]) == 5 and len(a["quarantine"]) == 1
 
 
-def test_a_stage_version_covers_the_project_modules_it_imports():
-    # the durability stage reads hose logbooks through pipeline.raw.logbook: a change there must
-    # re-run it (incremental == full), as must a unit change under an analysis (schemas.units)
-    from pipeline.rebuild.state import _ROOT, project_imports
-
-    files = {f.relative_to(_ROOT).as_posix() for f in project_imports(_ROOT / "pipeline/stages/durability.py")}
-    assert {"pipeline/stages/durability.py", "pipeline/raw/logbook.py", "analyses/service_life.py",
-            "analyses/durability.py"} <= files
-    files = {f.relative_to(_ROOT).as_posix() for f in project_imports(_ROOT / "analyses/leakage.py")}
-    assert "schemas/units.py" in files
-    assert not any(f.startswith(("numpy", "pandas")) for f in files)
-
-
-def test_project_imports_follows_imports_transitively(tmp_path, monkeypatch):
-    import pipeline.rebuild.state as state
-
-    (tmp_path / "pipeline").mkdir()
-    (tmp_path / "pipeline" / "a.py").write_text("import numpy\nfrom pipeline.b import thing\n")
-    (tmp_path / "pipeline" / "b.py").write_text("from pipeline import c\nthing = 1\n")
-    (tmp_path / "pipeline" / "c.py").write_text("x = 1\n")
-    (tmp_path / "pipeline" / "d.py").write_text("x = 2\n")
-    monkeypatch.setattr(state, "_ROOT", tmp_path)
-    got = {f.name for f in state.project_imports(tmp_path / "pipeline" / "a.py")}
-    assert got == {"a.py", "b.py", "c.py"}
-
-
-def test_a_new_file_is_hashed_once(raw, warehouse, monkeypatch, tmp_path):
-    # a new file is hashed by ingest while it parses it; a touched one by the rebuild, to decide
-    import pipeline.ingest.hashing as ing
-
-    log = ReadLog(tmp_path / "calls.jsonl")
-    real = ing.sha256_file
-    for mod in (rb, ing):
-        monkeypatch.setattr(mod, "sha256_file", lambda p, *a, **k: log.record("sha", p.name) or real(p, *a, **k))
-    step(raw, "c/a.csv")
-    rebuild(raw.root, warehouse, jobs=1)
-    assert log["sha"].count("a.csv") == 1
-    assert q(warehouse, "SELECT source_sha256 FROM runs") == [(real(raw.root / "c" / "a.csv"),)]
-    # touched with other bytes: the rebuild hashes it to decide and ingest reuses that hash
-    log.clear()
-    age(raw.root)
-    step(raw, "c/a.csv", scale=2.0)
-    rebuild(raw.root, warehouse, jobs=1)
-    assert log["sha"].count("a.csv") == 1
-    assert q(warehouse, "SELECT source_sha256 FROM runs") == [(real(raw.root / "c" / "a.csv"),)]
-
-
-@pytest.mark.raw_written("c/a.csv")
-def test_a_file_written_while_it_is_read_is_read_again_next_time(raw, warehouse, monkeypatch):
-    # its hash and its samples may be of different bytes: the record says "look again"
-    step(raw, "c/a.csv")
-    age(raw.root)
-    real = rb.ingest_file
-
-    def ingest_while_the_bench_writes(tree, path, *a, **k):
-        res = real(tree, path, *a, **k)
-        step(raw, "c/a.csv", scale=2.0)  # the DAQ rewrites the file meanwhile
-        return res
-
-    monkeypatch.setattr(rb, "ingest_file", ingest_while_the_bench_writes)
-    first = rebuild(raw.root, warehouse, jobs=1)
-    monkeypatch.undo()
-    assert [(p.source_path, p.error) for p in first.quarantine] == [("c/a.csv", rb.CHANGED_WHILE_READ)]
-    assert q(warehouse, "SELECT count(*) FROM runs") == [(0,)]  # not published this night
-    assert q(warehouse, "SELECT mtime_ns, source_sha256 FROM ingest_state WHERE role = 'run'") == [(-1, None)]
-    second = rebuild(raw.root, warehouse, jobs=1)
-    assert second.n_changed == 1 and second.exit_code == 0
-    assert q(warehouse, "SELECT max(x_m) FROM samples_step") == [(pytest.approx(0.006),)]
-
-
-@pytest.mark.raw_written("c/a.csv")
-def test_a_retried_file_is_read_again_not_taken_from_a_samples_file_of_the_same_name(raw, warehouse, monkeypatch,
-                                                                                     tmp_path):
-    # the racy read's samples may carry the new bytes' name with the old bytes' data: the
-    # re-check must not reuse them
-    step(raw, "c/a.csv")
-    age(raw.root)
-    real = rb.ingest_file
-    seen = ReadLog(tmp_path / "seen.jsonl")
-
-    def ingest_while_the_bench_writes(tree, path, *a, **k):
-        seen.record("reuse", k.get("reuse"))
-        res = real(tree, path, *a, **k)
-        if len(seen["reuse"]) == 1:
-            step(raw, "c/a.csv", scale=2.0)
-        return res
-
-    monkeypatch.setattr(rb, "ingest_file", ingest_while_the_bench_writes)
-    rebuild(raw.root, warehouse, jobs=1)
-    rebuild(raw.root, warehouse, jobs=1)
-    assert seen["reuse"] == [True, False]
-
-
-def test_a_file_that_cannot_be_opened_is_tried_again_next_time(raw, warehouse, monkeypatch):
-    import pipeline.raw.metadata as ing
-
-    step(raw, "c/a.csv")
-    age(raw.root)
-    real = ing.read_export
-
-    def locked(*a, **k):
-        raise PermissionError(13, "Permission denied")
-
-    monkeypatch.setattr(ing, "read_export", locked)
-    first = rebuild(raw.root, warehouse, jobs=1)
-    assert [p.error for p in first.quarantine] == ["cannot read file: PermissionError: [Errno 13] Permission denied"]
-    monkeypatch.setattr(ing, "read_export", real)  # chmod fixed it: the stat did not change
-    second = rebuild(raw.root, warehouse, jobs=1)
-    assert second.quarantine == [] and q(warehouse, "SELECT count(*) FROM runs") == [(1,)]
-
-
-@pytest.mark.raw_written("c/a.csv")
-def test_a_file_growing_while_its_reader_reads_it_is_not_published_and_is_read_next_time(raw, warehouse,
-                                                                                       monkeypatch):
-    # a bench still writing: the reader sees part of the file; publishing it would give a partial
-    # run with a source_sha256 of neither version. It is set aside for the night (exit 1, listed
-    # with the changes) and read whole at the next rebuild.
-    import hashlib
-
-    import pipeline.raw.metadata as ing
-
-    step(raw, "c/a.csv")
-    step(raw, "c/b.csv")
-    age(raw.root)
-    real = ing.read_export
-
-    def reader_while_the_bench_appends(path, *a, **k):
-        export = real(path, *a, **k)
-        if path.name != "a.csv":
-            return export
-        batches = export.batches
-
-        def growing():
-            for i, batch in enumerate(batches()):
-                if i == 0:
-                    with open(path, "a") as fh:
-                        fh.write("0.4,4.0,3\n0.5,5.0,3\n")
-                yield batch
-        export.batches = growing
-        return export
-
-    monkeypatch.setattr(ing, "read_export", reader_while_the_bench_appends)
-    first = rebuild(raw.root, warehouse, jobs=1)
-    monkeypatch.undo()
-    assert first.exit_code == 1
-    assert [(p.source_path, p.error) for p in first.quarantine] == [("c/a.csv", rb.CHANGED_WHILE_READ)]
-    assert q(warehouse, "SELECT run_id FROM runs") == [("c/b",)]
-    assert q(warehouse, "SELECT source_path, status, quarantined, error FROM rebuild_changes "
-                        "WHERE source_path = 'c/a.csv'") == [("c/a.csv", "new", True, rb.CHANGED_WHILE_READ)]
-    second = rebuild(raw.root, warehouse, jobs=1)
-    assert second.exit_code == 0 and second.quarantine == []
-    whole = hashlib.sha256((raw.root / "c/a.csv").read_bytes()).hexdigest()
-    assert q(warehouse, "SELECT n_samples, source_sha256 FROM runs WHERE run_id = 'c/a'") == [(6, whole)]
-
-
 def test_superseded_files_are_kept_for_the_retention_then_expire():
     from pipeline.rebuild.state import PreviousState, superseded_files
 
@@ -467,133 +311,3 @@ def test_result_runs_and_record_result_round_trip_parts():
     assert result_runs(rec) == [{"run_id": "c/b/A"}]
 
 
-# -- the no-op fast path -----------------------------------------------------------------------------
-#: Columns that differ between two rebuilds of the same inputs by nature (the clock, the process).
-CLOCK_COLUMNS = {"generation", "started_at", "finished_at", "duration_s", "mode"}
-
-
-def _everything(warehouse):
-    """Every table of the warehouse, bookkeeping included, rows sorted; the clock columns of
-    rebuild_log left out."""
-    con = connect_readonly(warehouse)
-    try:
-        out = {}
-        for (t,) in con.execute("SELECT table_name FROM duckdb_tables() ORDER BY 1").fetchall():
-            cols = [r[0] for r in con.execute(f'DESCRIBE "{t}"').fetchall()]
-            if t == "rebuild_log":
-                cols = [c for c in cols if c not in CLOCK_COLUMNS]
-            out[t] = con.execute(f'SELECT {", ".join(chr(34) + c + chr(34) for c in cols)} FROM "{t}" '
-                                 "ORDER BY ALL").fetchall()
-        # a view's SQL as DuckDB prints it back; EXCLUDE is a set, printed in either order
-        out["views"] = [(v, re.sub(r"EXCLUDE \(([^)]*)\)", lambda m: ", ".join(sorted(m.group(1).split(", "))), sql))
-                        for v, sql in con.execute("SELECT view_name, sql FROM duckdb_views() WHERE NOT internal "
-                                                  "ORDER BY 1").fetchall()]
-        return out
-    finally:
-        con.close()
-
-
-def _campaign_with_changes(raw, warehouse):
-    """A warehouse whose last rebuild saw new, changed, deleted and quarantined inputs, a logbook
-    and a superseded samples file: every bookkeeping column has something to carry or reset."""
-    for i in range(3):
-        step(raw, f"c/a{i}.csv", scale=1 + i)
-    raw.csv("c/b.csv", BREAK, {"t[s]": T, "p_a[bar]": T, "p_b[bar]": T, "x[mm]": T})
-    raw.write("c/hoses.csv", "hose_id,event,at,hose_type,adjustment,spring_force_n\n"
-                             "H1,installed,2026-01-01T00:00:00,FLEXIGOM AIR,force,858\n")
-    age(raw.root)
-    rebuild(raw.root, warehouse, jobs=1)
-    step(raw, "c/a1.csv", scale=7.0)
-    (raw.root / "c/a2.csv").unlink()
-    raw.csv("c/bad.csv", STEP_META, {"t[s]": T, "x[furlong]": T, "x_ref[mm]": T})
-    raw.write("c/manifest.csv", "file,notes\na0.csv,checked\n")
-    raw.write("c/notes.txt", "not an export\n")
-    age(raw.root)
-    s = rebuild(raw.root, warehouse, jobs=1)
-    assert s.mode == "incremental" and s.n_changed and s.n_deleted
-
-
-def test_a_noop_rebuild_carries_the_database_over_exactly_as_the_incremental_path_writes_it(raw, tmp_path,
-                                                                                           monkeypatch):
-    import shutil
-
-    fast, slow = tmp_path / "fast", tmp_path / "slow"
-    _campaign_with_changes(raw, fast)
-    shutil.copytree(fast, slow)
-    now = time.time()
-    a = rebuild(raw.root, fast, jobs=1, clock=lambda: now)
-    monkeypatch.setattr(rb, "nothing_changed", lambda *args: False)
-    b = rebuild(raw.root, slow, jobs=1, clock=lambda: now)
-    assert (a.mode, b.mode) == ("no-op", "incremental")
-    assert b.stages_run == []  # the incremental path reused every stage too: the same work, done slowly
-    for attr in ("n_files", "n_runs", "n_new", "n_changed", "n_deleted", "n_unchanged", "exit_code", "stages_run"):
-        assert getattr(a, attr) == getattr(b, attr), attr
-    assert sorted(a.stages_reused) == sorted(b.stages_reused)
-    assert [p.error for p in a.quarantine] == [p.error for p in b.quarantine] and a.exit_code == 1
-    ta, tb = _everything(fast), _everything(slow)
-    assert set(ta) == set(tb)
-    for t in ta:
-        assert ta[t] == tb[t], t
-    assert q(fast, "SELECT count(*) FROM rebuild_inputs WHERE status <> 'unchanged'") == [(0,)]
-    assert q(fast, "SELECT mode FROM rebuild_log ORDER BY finished_at DESC LIMIT 1") == [("no-op",)]
-    assert (fast / "report" / "index.html").is_file()
-    html = (fast / "report" / "index.html").read_text()
-    assert "no-op rebuild" in html and a.generation in html
-
-
-@pytest.mark.parametrize("change", ["touch a run file", "new run file", "delete a run file", "new ignored file",
-                                    "manifest", "rig.toml", "logbook", "code", "stage folder gone", "--full"])
-def test_anything_that_may_change_the_warehouse_takes_the_incremental_path(raw, warehouse, monkeypatch, change):
-    step(raw, "c/a.csv")
-    step(raw, "c/b.csv")
-    raw.write("c/hoses.csv", "hose_id,event,at,hose_type,adjustment,spring_force_n\n"
-                             "H1,installed,2026-01-01T00:00:00,FLEXIGOM AIR,force,858\n")
-    age(raw.root)
-    rebuild(raw.root, warehouse, jobs=1)
-    assert rebuild(raw.root, warehouse, jobs=1).mode == "no-op"
-    full = False
-    if change == "touch a run file":
-        os.utime(raw.root / "c/a.csv", (time.time() - 600, time.time() - 600))
-    elif change == "new run file":
-        step(raw, "c/c.csv")
-    elif change == "delete a run file":
-        (raw.root / "c/b.csv").unlink()
-    elif change == "new ignored file":
-        raw.write("c/readme.md", "notes\n")
-    elif change == "manifest":
-        raw.write("c/manifest.csv", "file,operator\na.csv,ana\n")
-    elif change == "rig.toml":
-        raw.write("c/rig.toml", '[metadata]\nrig = "plpa-2"\n')
-    elif change == "logbook":
-        raw.write("c/hoses.csv", "hose_id,event,at,hose_type,adjustment,spring_force_n\n"
-                                 "H1,installed,2026-01-02T00:00:00,FLEXIGOM AIR,force,858\n")
-    elif change == "code":
-        import pipeline.versions as cv
-        monkeypatch.setattr(rb, "project_code_version", lambda: "another-version")
-    elif change == "stage folder gone":
-        folder = q(warehouse, "SELECT folder FROM stage_cache LIMIT 1")[0][0]
-        (warehouse / folder / "output.json").unlink()
-    elif change == "--full":
-        full = True
-    age(raw.root, 1200)
-    s = rebuild(raw.root, warehouse, jobs=1, full=full)
-    assert s.mode == ("full" if full else "incremental"), change
-    assert rebuild(raw.root, warehouse, jobs=1).mode == "no-op"  # and the next night is a no-op again
-
-
-def test_a_noop_rebuild_killed_before_its_swap_leaves_the_warehouse_as_it_was(raw, warehouse):
-    import subprocess
-    import sys
-
-    step(raw, "c/a.csv")
-    age(raw.root)
-    rebuild(raw.root, warehouse, jobs=1)
-    before = _everything(warehouse)
-    code = ("import sys; from pipeline.rebuild.flow import rebuild; "
-            "rebuild(sys.argv[1], sys.argv[2], jobs=1)")
-    env = {**os.environ, "PNEUBENCH_CRASH_AT": "before_swap", "PYTHONPATH": str(PROJECT_ROOT)}
-    p = subprocess.run([sys.executable, "-c", code, str(raw.root), str(warehouse)], env=env, capture_output=True)
-    assert p.returncode == -9
-    assert _everything(warehouse) == before
-    s = rebuild(raw.root, warehouse, jobs=1)  # the debris is cleaned, the no-op goes through
-    assert s.mode == "no-op" and not list(warehouse.glob(".*.tmp-*"))

@@ -4,7 +4,7 @@ import pandas as pd
 import pytest
 
 from analyses import breakaway as bk
-from pipeline.rebuild.flow import compare_findings
+from pipeline.rebuild.history import compare_findings
 from pipeline.stages import StageContext
 from pipeline.stages import findings as fs
 

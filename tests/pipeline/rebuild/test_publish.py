@@ -1,4 +1,5 @@
-"""Atomic and safe: readers during a rebuild, kill -9 at several points, concurrent rebuilds."""
+"""Publishing a new warehouse, atomic and safe: readers during a rebuild, kill -9 at several points,
+concurrent rebuilds (the lock), worker crashes, a full disk, and a mass delete refused."""
 import json
 import os
 import random
@@ -11,9 +12,11 @@ import time
 import duckdb
 import pytest
 
-from pipeline.rebuild.flow import EXIT_LOCKED, rebuild, warehouse_lock
+from pipeline.rebuild.flow import rebuild
+from pipeline.rebuild.options import EXIT_LOCKED, EXIT_OK, RebuildError
+from pipeline.rebuild.publish import warehouse_lock
 from pipeline.warehouse import connect_readonly
-from tests.conftest import STEP_META, assert_raw_unchanged, raw_snapshot
+from tests.conftest import STEP_META, assert_raw_unchanged, query, raw_snapshot
 
 T = [0.0, 0.1, 0.2, 0.3]
 CLI = [sys.executable, "-c", "from pipeline.cli import main; main()"]
@@ -385,13 +388,13 @@ def test_a_full_disk_while_the_database_is_written_leaves_nothing_and_the_next_n
     import errno
 
     import pipeline.rebuild.flow as rb
-    from pipeline.rebuild.flow import RebuildError
+    import pipeline.rebuild.publish as publish
 
     step(raw, "c/a.csv")
     rebuild(raw.root, warehouse, jobs=2)
     before, listed = state(warehouse), _listing(warehouse)
     step(raw, "c/b.csv", n=6)
-    real_build, real_swap = rb.build_database, rb.swap_in
+    real_build, real_swap = rb.build_database, publish.swap_in
 
     def full_disk_build(path, *args, **kwargs):
         real_build(path, *args, **kwargs) if where == "swap" else path.write_bytes(b"\0" * 4096)
@@ -403,14 +406,14 @@ def test_a_full_disk_while_the_database_is_written_leaves_nothing_and_the_next_n
     monkeypatch.setattr(rb, "build_database", full_disk_build)
     if where == "swap":
         monkeypatch.setattr(rb, "build_database", real_build)
-        monkeypatch.setattr(rb, "swap_in", full_disk_swap)
+        monkeypatch.setattr(publish, "swap_in", full_disk_swap)
     with pytest.raises(RebuildError, match="No space left on device") as err:
         rebuild(raw.root, warehouse, jobs=2)
     assert err.value.exit_code == 3
     assert state(warehouse) == before
     assert _listing(warehouse) == listed  # nothing the failed night wrote is left (samples, stages, memo, temp)
     monkeypatch.setattr(rb, "build_database", real_build)
-    monkeypatch.setattr(rb, "swap_in", real_swap)
+    monkeypatch.setattr(publish, "swap_in", real_swap)
     s = rebuild(raw.root, warehouse, jobs=2, **next_night)  # the next night recovers by itself
     assert s.exit_code == 0
     assert state(warehouse) == (("c/a", "c/b"), 10)
@@ -509,6 +512,7 @@ def test_files_past_their_retention_are_collected_before_the_database_is_written
     import errno
 
     import pipeline.rebuild.flow as rb
+    import pipeline.rebuild.noop as noop_mod
 
     a = step(raw, "c/a.csv")
     os.utime(a, ns=(a.stat().st_atime_ns, a.stat().st_mtime_ns - 10**10))  # not racy either, however fast the nights
@@ -521,7 +525,7 @@ def test_files_past_their_retention_are_collected_before_the_database_is_written
     assert all(p.exists() for p in old_b)
     if not noop:
         step(raw, "c/c.csv", n=5)
-    real_build, real_copy = rb.build_database, rb.shutil.copyfile
+    real_build, real_copy = rb.build_database, noop_mod.shutil.copyfile
 
     def needs_room(*args, **kwargs):
         if any(p.exists() for p in old_b):
@@ -529,7 +533,7 @@ def test_files_past_their_retention_are_collected_before_the_database_is_written
         return (real_copy if len(args) == 2 and not kwargs else real_build)(*args, **kwargs)
 
     monkeypatch.setattr(rb, "build_database", needs_room)
-    monkeypatch.setattr(rb.shutil, "copyfile", needs_room)
+    monkeypatch.setattr(noop_mod.shutil, "copyfile", needs_room)
     s = rebuild(raw.root, warehouse, jobs=1, keep_superseded_h=0)
     assert s.exit_code == 0 and s.mode == ("no-op" if noop else "incremental")
     assert state(warehouse)[0] == (("c/a", "c/b") if noop else ("c/a", "c/b", "c/c"))
@@ -566,3 +570,63 @@ def test_a_waiting_rebuild_says_once_whose_lock_it_waits_for(raw, warehouse):
     assert who in res.stderr.splitlines()[-1] and "after waiting 1.5 s" in res.stderr.splitlines()[-1]
     res = cli_rebuild(raw.root, warehouse, "--wait", "60")
     assert res.returncode == 0 and "waiting up to" not in res.stderr, res.stderr
+
+
+# -- a mass delete is refused (issue 21.1) --------------------------------------------------------
+def _tree_listing(folder):
+    """Every path under ``folder`` with its bytes' hash (the lock file aside: it holds the pid)."""
+    import hashlib
+
+    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest() if p.is_file() else None
+            for p in sorted(folder.rglob("*")) if p.name != ".rebuild.lock"}
+
+
+def _steps(raw, names):
+    for n in names:
+        raw.csv(f"c/{n}.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+
+
+def test_an_empty_raw_tree_is_refused_before_anything_is_written_unless_allowed(raw, warehouse, tmp_path):
+    # issue 21.1: an unmounted share (an empty raw/) emptied the warehouse with exit 0
+    _steps(raw, "abcdefgh")
+    assert rebuild(raw.root, warehouse, jobs=1).n_runs == 8
+    before = _tree_listing(warehouse)
+    empty = tmp_path / "mountpoint"
+    empty.mkdir()
+    with pytest.raises(RebuildError) as err:
+        rebuild(empty, warehouse, jobs=1)
+    assert err.value.exit_code == 2
+    assert "refusing to delete 8 of the warehouse's 8 runs" in str(err.value)
+    assert "c/a.csv, c/b.csv, c/c.csv, ..." in str(err.value) and "--allow-mass-delete" in str(err.value)
+    assert _tree_listing(warehouse) == before  # database, report, samples, stages: as they were
+    # more than half of the runs (and at least MASS_DELETE_MIN_RUNS): refused too
+    for n in "abcde":
+        (raw.root / f"c/{n}.csv").unlink()
+    with pytest.raises(RebuildError, match="refusing to delete 5 of the warehouse's 8 runs"):
+        rebuild(raw.root, warehouse, jobs=1)
+    assert _tree_listing(warehouse) == before
+    # intended: allowed
+    s = rebuild(empty, warehouse, jobs=1, allow_mass_delete=True)
+    assert (s.n_runs, s.n_deleted, s.exit_code) == (0, 8, EXIT_OK)
+    assert query(warehouse, "SELECT count(*) FROM runs") == [(0,)]
+
+
+def test_deleting_half_the_runs_or_fewer_than_five_goes_on_and_a_first_empty_build_is_no_mass_delete(raw, tmp_path):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    s = rebuild(empty, tmp_path / "w0", jobs=1)  # a first build of nothing deletes nothing
+    assert (s.n_runs, s.exit_code) == (0, EXIT_OK)
+    _steps(raw, "abcdefgh")
+    wh = tmp_path / "w1"
+    rebuild(raw.root, wh, jobs=1)
+    for n in "abcd":  # exactly half
+        (raw.root / f"c/{n}.csv").unlink()
+    s = rebuild(raw.root, wh, jobs=1)
+    assert (s.n_runs, s.n_deleted) == (4, 4)
+    for n in "efg":  # 3 of 4: more than half, but fewer than MASS_DELETE_MIN_RUNS
+        (raw.root / f"c/{n}.csv").unlink()
+    s = rebuild(raw.root, wh, jobs=1)
+    assert (s.n_runs, s.n_deleted) == (1, 3)
+    (raw.root / "c/h.csv").unlink()  # the last run: all of them, refused whatever their number
+    with pytest.raises(RebuildError, match="refusing to delete 1 of the warehouse's 1 runs"):
+        rebuild(raw.root, wh, jobs=1)

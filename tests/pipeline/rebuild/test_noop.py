@@ -1,0 +1,146 @@
+"""The no-op fast path: a rebuild whose inputs and code are unchanged carries the database over,
+exactly as the incremental path would have written it."""
+import os
+import re
+import time
+
+import pytest
+
+import pipeline.rebuild.flow as rb
+import pipeline.rebuild.noop as noop
+from pipeline.rebuild.flow import rebuild
+from pipeline.warehouse import connect_readonly
+from tests.conftest import PROJECT_ROOT, STEP_META
+from tests.pipeline.rebuild.test_state import BREAK, T, age, q, step
+
+
+# -- the no-op fast path -----------------------------------------------------------------------------
+#: Columns that differ between two rebuilds of the same inputs by nature (the clock, the process).
+CLOCK_COLUMNS = {"generation", "started_at", "finished_at", "duration_s", "mode"}
+
+
+def _everything(warehouse):
+    """Every table of the warehouse, bookkeeping included, rows sorted; the clock columns of
+    rebuild_log left out."""
+    con = connect_readonly(warehouse)
+    try:
+        out = {}
+        for (t,) in con.execute("SELECT table_name FROM duckdb_tables() ORDER BY 1").fetchall():
+            cols = [r[0] for r in con.execute(f'DESCRIBE "{t}"').fetchall()]
+            if t == "rebuild_log":
+                cols = [c for c in cols if c not in CLOCK_COLUMNS]
+            out[t] = con.execute(f'SELECT {", ".join(chr(34) + c + chr(34) for c in cols)} FROM "{t}" '
+                                 "ORDER BY ALL").fetchall()
+        # a view's SQL as DuckDB prints it back; EXCLUDE is a set, printed in either order
+        out["views"] = [(v, re.sub(r"EXCLUDE \(([^)]*)\)", lambda m: ", ".join(sorted(m.group(1).split(", "))), sql))
+                        for v, sql in con.execute("SELECT view_name, sql FROM duckdb_views() WHERE NOT internal "
+                                                  "ORDER BY 1").fetchall()]
+        return out
+    finally:
+        con.close()
+
+
+def _campaign_with_changes(raw, warehouse):
+    """A warehouse whose last rebuild saw new, changed, deleted and quarantined inputs, a logbook
+    and a superseded samples file: every bookkeeping column has something to carry or reset."""
+    for i in range(3):
+        step(raw, f"c/a{i}.csv", scale=1 + i)
+    raw.csv("c/b.csv", BREAK, {"t[s]": T, "p_a[bar]": T, "p_b[bar]": T, "x[mm]": T})
+    raw.write("c/hoses.csv", "hose_id,event,at,hose_type,adjustment,spring_force_n\n"
+                             "H1,installed,2026-01-01T00:00:00,FLEXIGOM AIR,force,858\n")
+    age(raw.root)
+    rebuild(raw.root, warehouse, jobs=1)
+    step(raw, "c/a1.csv", scale=7.0)
+    (raw.root / "c/a2.csv").unlink()
+    raw.csv("c/bad.csv", STEP_META, {"t[s]": T, "x[furlong]": T, "x_ref[mm]": T})
+    raw.write("c/manifest.csv", "file,notes\na0.csv,checked\n")
+    raw.write("c/notes.txt", "not an export\n")
+    age(raw.root)
+    s = rebuild(raw.root, warehouse, jobs=1)
+    assert s.mode == "incremental" and s.n_changed and s.n_deleted
+
+
+def test_a_noop_rebuild_carries_the_database_over_exactly_as_the_incremental_path_writes_it(raw, tmp_path,
+                                                                                           monkeypatch):
+    import shutil
+
+    fast, slow = tmp_path / "fast", tmp_path / "slow"
+    _campaign_with_changes(raw, fast)
+    shutil.copytree(fast, slow)
+    now = time.time()
+    a = rebuild(raw.root, fast, jobs=1, clock=lambda: now)
+    monkeypatch.setattr(rb, "nothing_changed", lambda *args: False)
+    b = rebuild(raw.root, slow, jobs=1, clock=lambda: now)
+    assert (a.mode, b.mode) == ("no-op", "incremental")
+    assert b.stages_run == []  # the incremental path reused every stage too: the same work, done slowly
+    for attr in ("n_files", "n_runs", "n_new", "n_changed", "n_deleted", "n_unchanged", "exit_code", "stages_run"):
+        assert getattr(a, attr) == getattr(b, attr), attr
+    assert sorted(a.stages_reused) == sorted(b.stages_reused)
+    assert [p.error for p in a.quarantine] == [p.error for p in b.quarantine] and a.exit_code == 1
+    ta, tb = _everything(fast), _everything(slow)
+    assert set(ta) == set(tb)
+    for t in ta:
+        assert ta[t] == tb[t], t
+    assert q(fast, "SELECT count(*) FROM rebuild_inputs WHERE status <> 'unchanged'") == [(0,)]
+    assert q(fast, "SELECT mode FROM rebuild_log ORDER BY finished_at DESC LIMIT 1") == [("no-op",)]
+    assert (fast / "report" / "index.html").is_file()
+    html = (fast / "report" / "index.html").read_text()
+    assert "no-op rebuild" in html and a.generation in html
+
+
+@pytest.mark.parametrize("change", ["touch a run file", "new run file", "delete a run file", "new ignored file",
+                                    "manifest", "rig.toml", "logbook", "code", "stage folder gone", "--full"])
+def test_anything_that_may_change_the_warehouse_takes_the_incremental_path(raw, warehouse, monkeypatch, change):
+    step(raw, "c/a.csv")
+    step(raw, "c/b.csv")
+    raw.write("c/hoses.csv", "hose_id,event,at,hose_type,adjustment,spring_force_n\n"
+                             "H1,installed,2026-01-01T00:00:00,FLEXIGOM AIR,force,858\n")
+    age(raw.root)
+    rebuild(raw.root, warehouse, jobs=1)
+    assert rebuild(raw.root, warehouse, jobs=1).mode == "no-op"
+    full = False
+    if change == "touch a run file":
+        os.utime(raw.root / "c/a.csv", (time.time() - 600, time.time() - 600))
+    elif change == "new run file":
+        step(raw, "c/c.csv")
+    elif change == "delete a run file":
+        (raw.root / "c/b.csv").unlink()
+    elif change == "new ignored file":
+        raw.write("c/readme.md", "notes\n")
+    elif change == "manifest":
+        raw.write("c/manifest.csv", "file,operator\na.csv,ana\n")
+    elif change == "rig.toml":
+        raw.write("c/rig.toml", '[metadata]\nrig = "plpa-2"\n')
+    elif change == "logbook":
+        raw.write("c/hoses.csv", "hose_id,event,at,hose_type,adjustment,spring_force_n\n"
+                                 "H1,installed,2026-01-02T00:00:00,FLEXIGOM AIR,force,858\n")
+    elif change == "code":
+        import pipeline.versions as cv
+        monkeypatch.setattr(noop, "project_code_version", lambda: "another-version")
+    elif change == "stage folder gone":
+        folder = q(warehouse, "SELECT folder FROM stage_cache LIMIT 1")[0][0]
+        (warehouse / folder / "output.json").unlink()
+    elif change == "--full":
+        full = True
+    age(raw.root, 1200)
+    s = rebuild(raw.root, warehouse, jobs=1, full=full)
+    assert s.mode == ("full" if full else "incremental"), change
+    assert rebuild(raw.root, warehouse, jobs=1).mode == "no-op"  # and the next night is a no-op again
+
+
+def test_a_noop_rebuild_killed_before_its_swap_leaves_the_warehouse_as_it_was(raw, warehouse):
+    import subprocess
+    import sys
+
+    step(raw, "c/a.csv")
+    age(raw.root)
+    rebuild(raw.root, warehouse, jobs=1)
+    before = _everything(warehouse)
+    code = ("import sys; from pipeline.rebuild.flow import rebuild; "
+            "rebuild(sys.argv[1], sys.argv[2], jobs=1)")
+    env = {**os.environ, "PNEUBENCH_CRASH_AT": "before_swap", "PYTHONPATH": str(PROJECT_ROOT)}
+    p = subprocess.run([sys.executable, "-c", code, str(raw.root), str(warehouse)], env=env, capture_output=True)
+    assert p.returncode == -9
+    assert _everything(warehouse) == before
+    s = rebuild(raw.root, warehouse, jobs=1)  # the debris is cleaned, the no-op goes through
+    assert s.mode == "no-op" and not list(warehouse.glob(".*.tmp-*"))
