@@ -92,10 +92,22 @@ def duration_text(s: float) -> str:
 
 
 def run_stages_cached(inputs: StageInputs, progress: Progress, drawer: FigureDrawer | None = None) -> StageResults:
-    """Run every stage in order, or reuse its cached outputs when its inputs are unchanged.
+    """Run every stage after the stages it reads, or reuse its stored outputs when what it declared is unchanged.
 
-    With a ``drawer``, figures may still be being drawn when this returns: the caller calls
-    ``drawer.finish()`` before it publishes the stage folders (without one, they are drawn here).
+    Parameters
+    ----------
+    inputs : StageInputs
+        What the stages read, and the previous rebuild's stage records.
+    progress : Progress
+        Where the stages report (one message per stage).
+    drawer : FigureDrawer or None
+        Draws the figures; None: a drawer of its own, finished (every figure drawn) before this returns.
+
+    Returns
+    -------
+    StageResults
+        With a ``drawer``, figures may still be being drawn: the caller calls ``drawer.finish()``
+        before it publishes the stage folders.
 
     Raises
     ------

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pipeline.rebuild.memo as memo_mod
 import pipeline.rebuild.flow as rb
+import pipeline.rebuild.stage_runner as runner
 import pipeline.rebuild.state as state_mod
 from pipeline.rebuild.memo import Memo, item_key
 from pipeline.rebuild.flow import rebuild
@@ -368,7 +369,7 @@ def test_a_code_change_of_the_analysis_recomputes_every_item(raw, warehouse, sta
         return real(module_file) + ("-edited" if module_file.endswith("plpa_characterisation.py") else "")
 
     monkeypatch.setattr(state_mod, "stage_code_version", edited)  # what the memo keys use
-    monkeypatch.setattr(rb, "stage_code_version", edited)         # what the stage cache uses
+    monkeypatch.setattr(runner, "stage_code_version", edited)     # what the stage cache uses
     if hasattr(rb, "project_code_version"):                       # what the no-op fast path uses
         real_project = rb.project_code_version
         monkeypatch.setattr(rb, "project_code_version", lambda: real_project() + "-edited")
