@@ -27,6 +27,8 @@ from pipeline.rebuild.state import PreviousState, StageRecord, frame_hash, stage
 if TYPE_CHECKING:
     import pandas as pd
 
+    from pipeline.stages import Reads
+
 # pandas and the stage framework (which imports pandas and, through the stages, the analyses) are
 # imported by the function that runs the stages: a no-op rebuild imports this module and needs none.
 
@@ -131,13 +133,15 @@ def run_stages_cached(inputs: StageInputs, progress: Progress, drawer: FigureDra
     with progress.task("stages", len(mods)) as task:
         for mod in mods:
             t0 = time.monotonic()
-            record = _reusable(mod, codes[mod.NAME], inputs, res)
+            reads = stages.reads_of(mod)
+            key = _input_key(mod.NAME, codes[mod.NAME], reads, inputs)
+            record = _reusable(mod.NAME, key, _tables_read(reads, res), inputs)
             if record is not None:
                 loaded = load_stage_folder(inputs.warehouse, record.folder, mod.NAME)
                 res.reused.append(mod.NAME)
                 how = "reused"
             else:
-                record, loaded = _run_stage(mod, codes[mod.NAME], inputs, res, drawer, progress)
+                record, loaded = _run_stage(mod, reads, key, inputs, res, drawer, progress)
                 res.ran.append(mod.NAME)
                 how = "ran"
             res.records.append(record)
@@ -151,41 +155,36 @@ def run_stages_cached(inputs: StageInputs, progress: Progress, drawer: FigureDra
     return res
 
 
-def _input_key(mod, code: str, inputs: StageInputs) -> str:
+def _input_key(name: str, code: str, reads: Reads, inputs: StageInputs) -> str:
     """A stage's input key: its code, the runs of the kinds it reads, the logbooks if it reads them."""
-    from pipeline import stages
-
-    reads = stages.reads_of(mod)
-    return stage_input_key(mod.NAME, code, inputs.runs, set(reads.kinds), False,
-                           inputs.logbooks if reads.logbooks else None)
+    return stage_input_key(name, code, inputs.runs, set(reads.kinds), False, inputs.logbooks if reads.logbooks else None)
 
 
-def _tables_read(mod, res: StageResults) -> dict[str, str]:
+def _tables_read(reads: Reads, res: StageResults) -> dict[str, str]:
     """Content hash of each earlier table a stage reads (``"absent"`` for one no stage wrote)."""
-    from pipeline import stages
-
-    return {t: frame_hash(res.tables.get(t)) for t in sorted(stages.reads_of(mod).tables)}
+    return {t: frame_hash(res.tables.get(t)) for t in sorted(reads.tables)}
 
 
-def _reusable(mod, code: str, inputs: StageInputs, res: StageResults) -> StageRecord | None:
-    """The previous rebuild's record of a stage when its outputs can be reused, else None."""
-    old = inputs.previous.stages.get(mod.NAME)
+def _reusable(name: str, key: str, tables_read: dict[str, str], inputs: StageInputs) -> StageRecord | None:
+    """The previous rebuild's record of a stage when its outputs can be reused (same input key, same
+    tables read, its folder still there), else None."""
+    old = inputs.previous.stages.get(name)
     if inputs.full or old is None:
         return None
-    if (_input_key(mod, code, inputs) == old.input_key and (inputs.warehouse / old.folder / "output.json").is_file()
-            and _tables_read(mod, res) == old.results_read):
+    if (key == old.input_key and (inputs.warehouse / old.folder / "output.json").is_file()
+            and tables_read == old.results_read):
         return old
     return None
 
 
-def _run_stage(mod, code: str, inputs: StageInputs, res: StageResults, drawer: FigureDrawer,
+def _run_stage(mod, reads: Reads, key: str, inputs: StageInputs, res: StageResults, drawer: FigureDrawer,
                progress: Progress) -> tuple[StageRecord, tuple]:
     """Run a stage on what it declared, store its outputs; its record and its outputs as stored."""
     from pipeline import stages
 
     from pipeline.rebuild.flow import RebuildError  # in flow.py until the merge (a circle till then)
 
-    name, reads = mod.NAME, stages.reads_of(mod)
+    name = mod.NAME
     drawer.warm()
     # per-run results of earlier rebuilds (not read by --full, written either way)
     memo = res.memos[name] = Memo(inputs.warehouse, name, read=not inputs.full)
@@ -197,7 +196,7 @@ def _run_stage(mod, code: str, inputs: StageInputs, res: StageResults, drawer: F
     except Exception as exc:  # a bug in an analysis: fail, keep the previous warehouse
         raise RebuildError(f"stage {name} failed: {type(exc).__name__}: {exc}") from exc
     memo.save()
-    key, read = _input_key(mod, code, inputs), _tables_read(mod, res)
+    read = _tables_read(reads, res)
     # --full writes a fresh folder (never trusts an existing one); incremental runs reuse a folder
     # with the same inputs (stages are deterministic)
     salt = inputs.generation if inputs.full else ""

@@ -21,6 +21,10 @@ import numpy as np
 import pandas as pd
 import scipy  # its submodules load on first use: a rebuild that reuses every stage never pays for them
 
+from analyses import breakaway as bk
+from analyses import service_life as sl
+from analyses import viscous_friction as vfr
+from analyses.leakage import LEAK_THRESHOLD_L_MIN, characterisation_rows
 from schemas.papers import (PLA_CITATION, PLA_NRMSE_LIMIT_PCT, PLPA_BREAKAWAY_RATIO_BAND, PLPA_CITATION,
                             PLPA_SPRING_FORCE_MAX_N)
 from pipeline.stages import Reads, StageContext, StageOutput, UndeclaredRead
@@ -83,7 +87,6 @@ def _breakaway_stat(ctx: StageContext, finding: str) -> tuple[dict | None, str]:
     events = _table(ctx, "breakaway")
     if events is None:
         return None, "breakaway"
-    from analyses import breakaway as bk
     func = bk.backpressure_ratio if finding == "backpressure_ratio" else bk.force_rate_slope
     r = func(events, None, 0.95)
     return {**r, "confidence": 0.95}, "breakaway"
@@ -139,9 +142,7 @@ def breakaway_rate(ctx: StageContext) -> dict:
 
 # -- leakage (seed 000, section 3.1) -------------------------------------------------------------------
 def leak_free(ctx: StageContext, pct: float, up_to_bar: float) -> dict:
-    from analyses.leakage import LEAK_THRESHOLD_L_MIN as threshold
-    from analyses.leakage import characterisation_rows
-
+    threshold = LEAK_THRESHOLD_L_MIN
     claim = Claim(f"no_leak_{int(pct)}pct_{int(up_to_bar)}bar",
                   f"No leak up to {up_to_bar:g} bar with the rollers set to >= {pct:g} % spring force", PLPA, "l/min",
                   f"largest plateau leak up to {up_to_bar:g} bar below {threshold:g} l/min (ANR)")
@@ -236,7 +237,6 @@ def stribeck(ctx: StageContext) -> dict:
         pts = _table(ctx, "viscous_points")
         if pts is None:
             return _row(claim, "viscous_transition")
-        from analyses import viscous_friction as vfr
         vt = vfr.viscous_transition(pts)
         source = "viscous_points"
         if vt.empty:
@@ -322,8 +322,6 @@ def force_outlives_distance(ctx: StageContext) -> dict:
                   "Hoses with force-set rollers outlive hoses with distance-set rollers", PLPA, "ratio",
                   f"Weibull characteristic life force / distance > 1 and the lives differ (LR test p < {ALPHA:g}), "
                   "in every hose type tested both ways")
-    from analyses import service_life as sl
-
     hl = _table(ctx, "hose_life")
     test = _table(ctx, "service_life_test")
     if test is not None and {"scale_force_km", "scale_distance_km", "p_value"} <= set(test.columns):
@@ -370,7 +368,6 @@ def force_outlives_distance(ctx: StageContext) -> dict:
 
 def _ratio_uncertainty(groups, fits, ratio) -> float | None:
     """Standard uncertainty of the scale ratio (delta method, observed information of each fit)."""
-    from analyses import service_life as sl
 
     var = 0.0
     for k, (x, f) in groups.items():
