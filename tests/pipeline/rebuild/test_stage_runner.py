@@ -138,3 +138,34 @@ def test_the_real_stages_run_in_the_order_they_always_had(raw, warehouse):
 
 def test_durations_read_in_ms_below_a_second():
     assert duration_text(0.0123) == "12 ms" and duration_text(3.44) == "3.4 s"
+
+
+class TableReader:
+    """Reads the ``breakaway`` table of an earlier stage, no runs; counts its calls."""
+    NAME, READS, WRITES = "zz_table_reader", Reads(tables=("breakaway",)), ("zz_breakaways",)
+    calls = 0
+
+    @classmethod
+    def run(cls, ctx):
+        cls.calls += 1
+        return StageOutput(tables={"zz_breakaways": pd.DataFrame({"n": [len(ctx.results["breakaway"])]})})
+
+
+def test_a_stage_reruns_when_a_table_it_reads_changes_and_only_then(raw, warehouse, monkeypatch):
+    real = st.discover
+    monkeypatch.setattr(st, "discover", lambda: [*real(), TableReader])
+    step(raw, "c/a.csv")
+    raw.csv("c/b.csv", BREAK, {"t[s]": T, "p_a[bar]": T, "p_b[bar]": T, "x[mm]": T})
+    age(raw.root)
+    TableReader.calls = 0
+    rebuild(raw.root, warehouse, jobs=1)
+    assert TableReader.calls == 1
+    step(raw, "c/c.csv")  # another step run: not what it reads
+    s = rebuild(raw.root, warehouse, jobs=1)
+    assert TableReader.calls == 1 and "zz_table_reader" in s.stages_reused
+    raw.csv("c/d.csv", BREAK, {"t[s]": T, "p_a[bar]": T, "p_b[bar]": T, "x[mm]": T})  # one more breakaway row
+    s = rebuild(raw.root, warehouse, jobs=1)
+    assert TableReader.calls == 2 and "zz_table_reader" in s.stages_run
+    assert q(warehouse, "SELECT n FROM zz_breakaways") == [(2,)]
+    assert q(warehouse, "SELECT results_read FROM stage_cache WHERE stage = 'zz_table_reader'")[0][0].startswith(
+        '{"breakaway": ')
