@@ -23,13 +23,10 @@ some inputs quarantined; 2 usage error; anything else: failed, the previous ware
 """
 from __future__ import annotations
 
-import json
 import logging
 import os
-import shutil
 import time
-from contextlib import contextmanager
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -39,21 +36,21 @@ from pipeline.raw.problems import Problem
 from pipeline.raw.tree import RawTree, discover_runs
 from pipeline.raw.walk import skip_reason
 from pipeline.readers import READERS
-from pipeline.rebuild.executors import Executor, default_jobs, forked_pool, make_executor
-from pipeline.rebuild.executors import _kill_workers  # stop the figure worker of an interrupted rebuild
-from pipeline.rebuild.garbage import clean_debris, collect_garbage, remove_stage_folder, split_kept
+from pipeline.rebuild.executors import Executor, make_executor
+from pipeline.rebuild.garbage import clean_debris, collect_garbage, split_kept
 from pipeline.rebuild.history import append_log, compare_findings
 from pipeline.rebuild.ingest_tasks import deduplicate, ingest_incremental
-from pipeline.rebuild.memo import Memo
 from pipeline.rebuild.noop import inputs_key, nothing_changed, rebuild_noop
 from pipeline.rebuild.options import (EXIT_USAGE, RebuildError, RebuildOptions, RebuildRun, RebuildSummary,
                                       keep_superseded_h)
 from pipeline.rebuild.publish import (check_mass_delete, clean_after_failure, crash_point, live_database,
                                       swap_in_new_database, warehouse_lock)
-from pipeline.rebuild.state import (FilePlan, FileRecord, PreviousState, StageRecord, frame_hash, load_previous,
-                                    logbook_hash, plan_runs, side_records, stage_input_key, superseded_files)
+from pipeline.rebuild.stage_runner import StageInputs, StageResults, duration_text, run_stages_cached
+from pipeline.rebuild.stage_store import FigureDrawer
+from pipeline.rebuild.state import (FilePlan, FileRecord, PreviousState, load_previous, logbook_hash, plan_runs,
+                                    side_records, superseded_files)
 from pipeline.serve.report.publish import settle_report
-from pipeline.versions import ingest_code_version, stage_code_version
+from pipeline.versions import ingest_code_version
 from pipeline.warehouse import build_database, runs_frame
 
 log = logging.getLogger("pneubench")
@@ -61,7 +58,6 @@ log = logging.getLogger("pneubench")
 if TYPE_CHECKING:
     import pandas as pd
 
-    from pipeline import stages as stage_registry
     from pipeline.ingest.result import IngestResult
 
 # pandas, pyarrow, numpy and the analyses are imported by the functions that use them, not here:
@@ -101,448 +97,6 @@ def _import_for_stages() -> None:
     from pipeline import stages
 
     stages.discover()
-
-
-# -- stages ------------------------------------------------------------------------------------
-class _TrackedResults(dict):
-    """``ctx.results`` that remembers which earlier tables a stage looked at."""
-
-    def __init__(self, *a, **kw):
-        super().__init__(*a, **kw)
-        self.read: set[str] = set()
-
-    def __getitem__(self, k):
-        self.read.add(k)
-        return super().__getitem__(k)
-
-    def get(self, k, default=None):
-        self.read.add(k)
-        return super().get(k, default)
-
-    def __contains__(self, k):
-        self.read.add(k)
-        return super().__contains__(k)
-
-    def _all(self):
-        self.read.update(super().keys())
-
-    def keys(self):
-        self._all()
-        return super().keys()
-
-    def values(self):
-        self._all()
-        return super().values()
-
-    def items(self):
-        self._all()
-        return super().items()
-
-    def __iter__(self):
-        self._all()
-        return super().__iter__()
-
-
-def _tracked_context(**kwargs):
-    """A :class:`_TrackedContext` (its class made on first use: it subclasses the stages'
-    StageContext, whose module imports pandas)."""
-    global _TrackedContext
-    if _TrackedContext is None:
-        _TrackedContext = _make_tracked_context()
-    return _TrackedContext(**kwargs)
-
-
-_TrackedContext = None
-
-
-def _make_tracked_context():
-    from pipeline import stages as stage_registry
-
-    class _TrackedContext(stage_registry.StageContext):
-        """A StageContext that remembers which kinds of runs a stage read (for its cache key)."""
-
-        @property
-        def runs(self):
-            if not self.__dict__.get("_inside", 0):
-                self.__dict__["all_runs_read"] = True
-            return self.__dict__["_runs"]
-
-        @runs.setter
-        def runs(self, value):
-            self.__dict__["_runs"] = value
-
-        @contextmanager
-        def _internal(self):
-            self.__dict__["_inside"] = self.__dict__.get("_inside", 0) + 1
-            try:
-                yield
-            finally:
-                self.__dict__["_inside"] -= 1
-
-        @property
-        def kinds_read(self) -> set[str]:
-            return self.__dict__.setdefault("_kinds_read", set())
-
-        def runs_of(self, *kinds):
-            self.kinds_read.update(kinds)
-            with self._internal():
-                return super().runs_of(*kinds)
-
-        def samples_file(self, run_id):
-            with self._internal():
-                return super().samples_file(run_id)
-
-    return _TrackedContext
-
-
-def _reads_logbooks(mod) -> bool:
-    return bool(getattr(mod, "READS_LOGBOOKS", False)) or "durability" in tuple(getattr(mod, "KINDS", ()))
-
-
-@dataclass
-class StageResults:
-    tables: dict[str, pd.DataFrame] = field(default_factory=dict)
-    figures: list[dict] = field(default_factory=list)
-    problems: list[Problem] = field(default_factory=list)
-    warnings: dict[str, list[str]] = field(default_factory=dict)
-    records: list[StageRecord] = field(default_factory=list)
-    ran: list[str] = field(default_factory=list)
-    reused: list[str] = field(default_factory=list)
-    #: per stage that ran: its per-item memo (hits, computed items)
-    memos: dict[str, Memo] = field(default_factory=dict)
-
-
-def _save_figure(fig, path: Path) -> None:
-    """Save a stage figure (a matplotlib Figure or a ``FigureRecipe``) as PNG, byte for byte the
-    same for the same figure (no software or date in the metadata)."""
-    from pipeline import stages as stage_registry
-
-    fig = stage_registry.figure_of(fig)
-    fig.savefig(path, dpi=110, metadata={"Software": None})
-
-
-def _warm_figures() -> None:
-    """Import what drawing a figure needs (in the drawing worker, while the stages run)."""
-    import matplotlib.backends.backend_agg  # noqa: F401
-    import matplotlib.figure  # noqa: F401
-
-
-class FigureDrawer:
-    """Draws the stages' figures into their stage folders, off the rebuild's critical path.
-
-    With ``jobs`` > 1, each figure (a ``FigureRecipe``) is drawn in one worker process forked
-    from the rebuild, while this process goes on with the next stages and the database; with
-    ``jobs`` 1 (or a figure already drawn), here, at once. A stage folder is written under its
-    temporary name and renamed into place only when its figures are all drawn (:meth:`finish`,
-    before the new database is swapped in), so a folder under its final name always holds every
-    figure its ``output.json`` lists, whenever the rebuild is killed. A figure that fails fails
-    the rebuild, as a failing stage does. Use it as a context manager (the worker is closed).
-    """
-
-    def __init__(self, jobs: int | None = 1, close_fds: tuple[int, ...] = ()):
-        self.jobs = default_jobs(jobs)
-        self.close_fds = tuple(close_fds)
-        self._pool = None
-        self._pending: list[tuple[object, str, str]] = []  # (future, stage, figure name)
-        self._folders: list[tuple[Path, Path]] = []  # (temporary folder, final folder)
-
-    def _submit(self, func, *args):
-        if self.jobs <= 1:
-            return None
-        if self._pool is None:
-            self._pool = forked_pool(1, self.close_fds)
-        return self._pool.submit(func, *args)
-
-    def warm(self) -> None:
-        """Start the drawing worker and its matplotlib import now (a stage is about to run)."""
-        if self._pool is None:
-            self._submit(_warm_figures)
-
-    def draw(self, stage: str, name: str, fig, path: Path) -> None:
-        from pipeline import stages as stage_registry
-
-        fut = self._submit(_save_figure, fig, path) if isinstance(fig, stage_registry.FigureRecipe) else None
-        if fut is None:
-            _save_figure(fig, path)
-        else:
-            self._pending.append((fut, stage, name))
-
-    @property
-    def busy(self) -> bool:
-        return bool(self._pending)
-
-    def publish(self, tmp: Path, final: Path) -> None:
-        """Rename ``tmp`` to ``final`` once the figures drawn into it are done."""
-        self._folders.append((tmp, final))
-
-    def finish(self) -> int:
-        """Wait for every figure; then put the stage folders in place. Returns how many figures
-        were drawn in the worker."""
-        pending, self._pending = self._pending, []
-        failed = None
-        for fut, stage, name in pending:
-            try:
-                fut.result()
-            except Exception as exc:  # a bug in a plot function, or its worker died
-                failed = failed or RebuildError(f"stage {stage} failed: figure {name}: {type(exc).__name__}: {exc}")
-        folders, self._folders = self._folders, []
-        if failed is not None:
-            for tmp, _final in folders:
-                shutil.rmtree(tmp, ignore_errors=True)
-            raise failed
-        for tmp, final in folders:
-            _place_stage_folder(tmp, final)
-        return len(pending)
-
-    def close(self) -> None:
-        if self._pool is not None:
-            self._pool.shutdown(wait=True, cancel_futures=True)
-            self._pool = None
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, exc_type, *exc):
-        if self._pool is not None and exc_type is not None and not issubclass(exc_type, Exception):
-            _kill_workers(self._pool)  # interrupted: not after the figure it is drawing
-        self.close()
-        return False
-
-
-def _place_stage_folder(tmp: Path, final: Path) -> None:
-    if final.exists():  # damaged (its output.json gone), or tables that could not be stored
-        remove_stage_folder(final)
-    final.parent.mkdir(parents=True, exist_ok=True)  # the collection before the database removes empty folders
-    os.replace(tmp, final)
-
-
-def _save_stage_folder(warehouse: Path, name: str, folder_key: str, out: stage_registry.StageOutput,
-                       drawer: FigureDrawer | None = None) -> tuple[str, bool, Path]:
-    """Write a stage's outputs to ``stages/<name>/<key>/`` (temp folder, then one rename).
-
-    Returns (folder relative to the warehouse, whether the tables could be cached, the folder
-    that holds them now). With a ``drawer``, figures may still be being drawn into a temporary
-    folder, which the drawer renames into place (:meth:`FigureDrawer.finish`).
-    """
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
-    rel = f"stages/{name}/{folder_key}"
-    final = warehouse / rel
-    tmp = warehouse / "stages" / f".tmp-{name}-{folder_key}-{os.getpid()}"
-    if final.exists() and (final / "output.json").is_file() and _cacheable_tables(out):
-        # same inputs, same outputs (stages are deterministic): keep the folder a live warehouse
-        # may use, and draw nothing
-        return rel, True, final
-    shutil.rmtree(tmp, ignore_errors=True)
-    (tmp / "tables").mkdir(parents=True)
-    (tmp / "figures").mkdir()
-    cacheable = True
-    empty = {}  # a table without rows is kept as its columns' dtypes in output.json, not a Parquet file
-    for table, df in out.tables.items():
-        try:
-            arrow = pa.Table.from_pandas(df.reset_index(drop=True), preserve_index=False)
-            columns = _empty_columns(arrow) if arrow.num_rows == 0 else None
-            if columns is not None:
-                empty[table] = columns
-                continue
-            pq.write_table(arrow, tmp / "tables" / f"{table}.parquet")
-        except (pa.ArrowException, TypeError, ValueError):
-            cacheable = False
-    drawer = drawer or FigureDrawer()
-    figures = {}
-    for fname, fig in sorted(out.figures.items()):
-        file = f"{fname}.png"
-        drawer.draw(name, fname, fig, tmp / "figures" / file)
-        figures[fname] = {"file": file, "caption": out.captions.get(fname, "")}
-    meta = {"tables": sorted(out.tables), "empty": empty, "figures": figures, "cacheable": cacheable,
-            "problems": [{"source_path": p.source_path, "error": p.error, "line": p.line, "stage": p.stage}
-                         for p in out.problems],
-            "warnings": {k: list(v) for k, v in sorted(out.warnings.items())}}
-    (tmp / "output.json").write_text(json.dumps(meta, sort_keys=True, default=str))
-    final.parent.mkdir(parents=True, exist_ok=True)
-    drawer.publish(tmp, final)
-    if drawer.busy:
-        return rel, cacheable, tmp
-    drawer.finish()
-    return rel, cacheable, final
-
-
-def _cacheable_tables(out: stage_registry.StageOutput) -> bool:
-    """Whether every table of ``out`` can be stored as Parquet (and so read back from a folder)."""
-    import pyarrow as pa
-
-    try:
-        for df in out.tables.values():
-            pa.Schema.from_pandas(df, preserve_index=False)
-    except (pa.ArrowException, TypeError, ValueError):
-        return False
-    return True
-
-
-def _empty_frame(columns: list) -> pd.DataFrame:
-    """The DataFrame ``pd.read_parquet`` gives for a table without rows, from its ``[[column, dtype]]``."""
-    import pandas as pd
-
-    return pd.DataFrame({c: pd.array([], dtype=d) for c, d in columns}, index=pd.RangeIndex(0), copy=False)
-
-
-def _empty_columns(arrow) -> list | None:
-    """``[[column, dtype]]`` of a table without rows, when :func:`_empty_frame` rebuilds exactly the
-    frame its Parquet file would read back as; else None (the table is written as Parquet)."""
-    import io
-
-    import pandas as pd
-    import pyarrow.parquet as pq
-
-    buf = io.BytesIO()  # the round trip itself (Parquet has no second unit, for one: s comes back as ms)
-    pq.write_table(arrow, buf)
-    back = pd.read_parquet(io.BytesIO(buf.getvalue()))
-    columns = [[c, str(d)] for c, d in back.dtypes.items()]
-    if not all(isinstance(c, str) for c, _ in columns) or len(set(back.columns)) != len(columns):
-        return None
-    try:
-        again = _empty_frame(columns)
-    except (TypeError, ValueError):
-        return None
-    same = list(again.columns) == list(back.columns) and [repr(d) for d in again.dtypes] == [repr(d) for d in back.dtypes]
-    return columns if same else None  # repr, not ==: a category dtype equals "category" whatever its categories
-
-
-def _load_stage_folder(warehouse: Path, rel: str, stage: str, fresh: stage_registry.StageOutput | None = None,
-                       folder: Path | None = None):
-    """(tables, figure rows, problems, warnings) of a stage folder (``rel``; read from ``folder``
-    when it is still under its temporary name)."""
-    import pandas as pd
-
-    folder = folder or warehouse / rel
-    meta = json.loads((folder / "output.json").read_text())
-    empty = meta.get("empty") or {}
-    tables = {}
-    for t in meta["tables"]:
-        f = folder / "tables" / f"{t}.parquet"
-        if t in empty:  # no rows: its dtypes were checked to come back exactly as from Parquet
-            tables[t] = _empty_frame(empty[t])
-        else:
-            tables[t] = pd.read_parquet(f) if f.is_file() and meta.get("cacheable", True) else fresh.tables[t]
-    figures = [{"stage": stage, "name": n, "path": f"{rel}/figures/{v['file']}", "caption": v["caption"]}
-               for n, v in sorted(meta["figures"].items())]
-    problems = [Problem(p["source_path"], p["error"], p["line"], p.get("stage") or stage) for p in meta["problems"]]
-    return tables, figures, problems, meta["warnings"]
-
-
-def _seconds(s: float) -> str:
-    """``"12 ms"`` below a second (a stage that is only reused), else ``"3.4 s"``."""
-    return f"{s * 1e3:.0f} ms" if s < 1 else f"{s:.1f} s"
-
-
-def run_stages_cached(ctx_args: dict, runs: list[dict], prev: PreviousState, warehouse: Path, full: bool,
-                      logbooks: str, progress: Progress, generation: str = "",
-                      drawer: FigureDrawer | None = None) -> StageResults:
-    """Run every stage in order, or reuse its cached outputs when its inputs are unchanged.
-
-    With a ``drawer``, figures may still be being drawn when this returns: the caller calls
-    ``drawer.finish()`` before it publishes the stage folders (without one, they are drawn here)."""
-    import pandas as pd
-
-    from pipeline import stages as stage_registry
-
-    import hashlib
-
-    res = StageResults()
-    own_drawer = drawer is None
-    drawer = drawer or FigureDrawer()
-    mods = stage_registry.discover()
-    # every stage's code version up front: the project's sources are read and hashed once for all
-    codes = {mod.NAME: stage_code_version(getattr(mod, "__file__", None) or mod.NAME) for mod in mods}
-    with progress.task("stages", len(mods)) as task:
-        for mod in mods:
-            t0 = time.monotonic()
-            name = mod.NAME
-            code = codes[name]
-            declared = set(getattr(mod, "KINDS", ()) or ())
-            logb = logbooks if _reads_logbooks(mod) else None
-            old = prev.stages.get(name)
-            hit = None
-            if not full and old is not None:
-                key = stage_input_key(name, code, runs, declared | set(old.kinds_read), old.all_runs_read, logb)
-                if (key == old.input_key and (warehouse / old.folder / "output.json").is_file()
-                        and all(frame_hash(res.tables.get(t)) == h for t, h in old.results_read.items())):
-                    hit = old
-            if hit is not None:
-                record = hit
-                tables, figures, problems, warnings = _load_stage_folder(warehouse, hit.folder, name)
-                res.reused.append(name)
-                how = "reused"
-            else:
-                drawer.warm()
-                results = _TrackedResults(res.tables)
-                ctx = _tracked_context(**ctx_args)
-                ctx.results = results
-                # per-run results of earlier rebuilds (not read by --full, written either way)
-                ctx.memo = memo = res.memos[name] = Memo(warehouse, name, read=not full)
-                try:
-                    out = mod.run(ctx)
-                except Exception as exc:  # a bug in an analysis: fail, keep the previous warehouse
-                    raise RebuildError(f"stage {name} failed: {type(exc).__name__}: {exc}") from exc
-                memo.save()
-                kinds = declared | ctx.kinds_read
-                all_runs = bool(ctx.__dict__.get("all_runs_read"))
-                read = {t: frame_hash(res.tables.get(t)) for t in sorted(results.read)}
-                key = stage_input_key(name, code, runs, kinds, all_runs, logb)
-                # --full writes a fresh folder (never trusts an existing one); incremental runs reuse
-                # a folder with the same inputs (stages are deterministic)
-                salt = generation if full else ""
-                folder_key = hashlib.sha256(json.dumps([key, read, salt], sort_keys=True).encode()).hexdigest()[:20]
-                rel, cacheable, now_in = _save_stage_folder(warehouse, name, folder_key, out, drawer)
-                record = StageRecord(name, key if cacheable else "uncacheable", rel, sorted(kinds), all_runs, read)
-                tables, figures, problems, warnings = _load_stage_folder(warehouse, rel, name, out, now_in)
-                res.ran.append(name)
-                how = "ran"
-            res.records.append(record)
-            tables = stage_registry.add_run_columns(tables, ctx_args["runs"])  # campaign, hose_id, campaigns
-            for t, df in tables.items():
-                res.tables[t] = df if t not in res.tables else pd.concat([res.tables[t], df], ignore_index=True)
-            res.figures += figures
-            res.problems += problems
-            for rid, ws in warnings.items():
-                res.warnings.setdefault(rid, []).extend(ws)
-            memo_note = res.memos[name].summary() if name in res.memos else ""
-            progress.message(f"stage {name} {how}: " + ", ".join(f"{k} {len(v)} rows" for k, v in tables.items())
-                             + f" ({_seconds(time.monotonic() - t0)}{'; ' + memo_note if memo_note else ''})")
-            task.advance()
-    if own_drawer:
-        drawer.finish()
-    return res
-
-
-def run_stages(ctx: stage_registry.StageContext, progress: Progress):
-    """Run every stage in order without any cache; returns (tables, figures, captions, problems, warnings)."""
-    import pandas as pd
-
-    from pipeline import stages as stage_registry
-
-    tables: dict[str, pd.DataFrame] = {}
-    figures: dict[tuple[str, str], object] = {}
-    captions: dict[tuple[str, str], str] = {}
-    problems: list[Problem] = []
-    warnings: dict[str, list[str]] = {}
-    for mod in stage_registry.discover():
-        ctx.results = tables
-        try:
-            out = mod.run(ctx)
-        except Exception as exc:
-            raise RebuildError(f"stage {mod.NAME} failed: {type(exc).__name__}: {exc}") from exc
-        for name, df in out.tables.items():
-            tables[name] = df if name not in tables else pd.concat([tables[name], df], ignore_index=True)
-        for name, fig in out.figures.items():
-            figures[(mod.NAME, name)] = stage_registry.figure_of(fig)
-            if name in out.captions:
-                captions[(mod.NAME, name)] = out.captions[name]
-        problems += out.problems
-        for rid, ws in out.warnings.items():
-            warnings.setdefault(rid, []).extend(ws)
-    return tables, figures, captions, problems, warnings
 
 
 # -- the rebuild: plan -> ingest -> stages -> assemble -> publish -----------------------------------
@@ -719,11 +273,11 @@ def _ingest(run: RebuildRun, plan: _Plan, ex: Executor) -> _Ingested:
 def _stages(run: RebuildRun, plan: _Plan, ingested: _Ingested, ex: Executor, drawer: FigureDrawer) -> StageResults:
     """Run the stages whose inputs changed, reuse the others' outputs (:func:`run_stages_cached`)."""
     runs, runs_df = ingested.runs, ingested.runs_df
-    ctx_args = dict(raw=plan.tree.root, warehouse=run.warehouse,
-                    runs=runs_df.assign(params=[r["params"] for r in runs]) if runs else runs_df,
-                    jobs=run.options.jobs, progress=run.progress, mapper=ex.mapper(run.progress))
-    return run_stages_cached(ctx_args, runs, plan.prev, run.warehouse, run.options.full, logbook_hash(plan.side),
-                             run.progress, run.generation, drawer)
+    inputs = StageInputs(raw=plan.tree.root, warehouse=run.warehouse, runs=runs,
+                         runs_frame=runs_df.assign(params=[r["params"] for r in runs]) if runs else runs_df,
+                         previous=plan.prev, logbooks=logbook_hash(plan.side), full=run.options.full,
+                         generation=run.generation, jobs=run.options.jobs, mapper=ex.mapper(run.progress))
+    return run_stages_cached(inputs, run.progress, drawer)
 
 
 # -- assemble --------------------------------------------------------------------------------------
@@ -857,7 +411,7 @@ def _publish(run: RebuildRun, plan: _Plan, tables: dict[str, pd.DataFrame], keep
         n_aside = drawer.finish()  # the figures drawn beside the database, their stage folders put in place
         if n_aside:
             progress.message(f"figures: {n_aside} drawn in a worker beside the stages and the database "
-                             f"(waited {_seconds(time.monotonic() - waited)} for them)")
+                             f"(waited {duration_text(time.monotonic() - waited)} for them)")
 
     # before the new database is written, what neither warehouse uses nor keeps goes (files past
     # their retention, what a killed night left): a nearly full disk gets that room back first

@@ -41,13 +41,12 @@ from analyses.service_life import (b10, kaplan_meier, plot_hose_distances, plot_
                                    plot_weibull_probability, weibull_fit, weibull_lr_test)
 from pipeline.raw.logbook import merge_logbooks, read_logbooks
 from pipeline.ingest.prefetch import prefetch
-from pipeline.stages import StageContext, StageOutput
+from pipeline.stages import Reads, StageContext, StageOutput
+from pipeline.stages.values import finite_float
 
 NAME = "durability"
-ORDER = 30
-KINDS = ("durability", "leakage")
-READS_LOGBOOKS = True
-TABLES = ("durability_runs", "durability_strokes", "hose_life", "service_life", "hose_survival",
+READS = Reads(kinds=("durability", "leakage"), tables=("leakage_map",), logbooks=True)
+WRITES = ("durability_runs", "durability_strokes", "hose_life", "service_life", "hose_survival",
           "service_life_test", "hose_leak_growth")
 
 CONFIDENCE = 0.90
@@ -103,7 +102,7 @@ def analyse_run(item) -> dict:
             return {"error": "no t_s/x_m columns in the samples"}
         cols = [c for c in COLUMNS if c in names]
         have_dp = "p_a_pa" in names and "p_b_pa" in names
-        stated = {k: _float(_param(params, f"sensor_x_{k}")) for k in ("resolution", "noise")}
+        stated = {k: finite_float(_param(params, f"sensor_x_{k}")) for k in ("resolution", "noise")}
         stated = {k: v for k, v in stated.items() if v is not None and v >= 0}
         xs = _x_sample(pf) if len(stated) < 2 else np.empty(0)
         xs = xs[np.isfinite(xs)]
@@ -132,14 +131,6 @@ def _param(params, key):
     return None
 
 
-def _float(v):
-    try:
-        f = float(v)
-    except (TypeError, ValueError):
-        return None
-    return f if math.isfinite(f) else None
-
-
 def durability_runs(ctx: StageContext, out: StageOutput) -> tuple[pd.DataFrame, pd.DataFrame]:
     """``durability_runs`` and ``durability_strokes`` for every durability run."""
     runs = ctx.runs_of("durability")
@@ -153,7 +144,7 @@ def durability_runs(ctx: StageContext, out: StageOutput) -> tuple[pd.DataFrame, 
         rid, params = run["run_id"], run.get("params")
         hose = _param(params, "hose_id")
         hose = None if hose is None else str(hose)
-        area = _float(_param(params, "hose_area_m2"))
+        area = finite_float(_param(params, "hose_area_m2"))
         row = {"run_id": rid, "hose_id": hose, "campaign": run.get("campaign"), "started_at": run.get("started_at"),
                "deadband_mm": res["deadband_m"] * 1e3 if "deadband_m" in res else None, "note": None}
         if "error" in res:

@@ -14,7 +14,6 @@ A run that cannot be analysed gives NULLs and a warning on the run, never an exc
 """
 from __future__ import annotations
 
-import json
 import math
 import re
 
@@ -27,12 +26,12 @@ from analyses import pressure_dynamics as pdyn
 from analyses import step_response as stepr
 from analyses.quality import sensor_from_params
 from schemas.papers import PLA_CITATION, PLPA_CITATION
-from pipeline.stages import StageContext, StageOutput, read_samples
+from pipeline.stages import Reads, StageContext, StageOutput, read_samples
+from pipeline.stages.values import finite_float, run_params
 
 NAME = "models"
-ORDER = 20
-KINDS = ("identification", "step", "spring", "pressure_step")
-TABLES = ("identification", "step_response", "spring_fits", "spring_tests", "spring_loop_energy",
+READS = Reads(kinds=("identification", "step", "spring", "pressure_step"))
+WRITES = ("identification", "step_response", "spring_fits", "spring_tests", "spring_loop_energy",
           "pressure_dynamics", "pressure_steps")
 
 #: Text columns of the tables (the others are numbers).
@@ -60,32 +59,8 @@ PSTEP_COLS = ["run_id", "chamber", "direction", "t_step_s", "p_from_bar", "p_to_
               "note"]
 
 
-def _num(value, default=None):
-    """A metadata value as a finite float, else ``default``."""
-    try:
-        out = float(value)
-    except (TypeError, ValueError):
-        return default
-    return out if math.isfinite(out) else default
-
-
-def _params(value) -> dict:
-    if isinstance(value, dict):
-        return value
-    if isinstance(value, str):
-        try:
-            return json.loads(value)
-        except ValueError:
-            return {}
-    return {}
-
-
 def _missing(df: pd.DataFrame, cols) -> list[str]:
     return [c for c in cols if c not in df.columns or df[c].isna().all()]
-
-
-def _nan(v):
-    return None if v is None or (isinstance(v, float) and not math.isfinite(v)) else v
 
 
 # -- per run -----------------------------------------------------------------------------------
@@ -118,8 +93,8 @@ def analyse_run(item: tuple) -> dict:
 
 
 def _identification(run_id, path, params):
-    kp = _num(params.get("kp_v_m"))
-    rate = _num(params.get("id_sample_rate_hz"), 50.0)
+    kp = finite_float(params.get("kp_v_m"))
+    rate = finite_float(params.get("id_sample_rate_hz"), 50.0)
     row = {"run_id": run_id, "wn_rad_s": None, "zeta": None, "k_lin_m_v_s": None, "fit_pct": None,
            "kp_v_m": kp, "id_sample_rate_hz": rate, "n_samples_id": None, "note": None}
     df = read_samples(path, ["t_s", "x_m", "u_d_v", "x_ref_m"])
@@ -137,9 +112,9 @@ def _identification(run_id, path, params):
                                      ud_sensor=sensor_from_params(params, "u_d", ud))
     row["n_samples_id"] = len(res.x_m)
     if not res.ok:
-        row.update(note=res.note or res.message, fit_pct=_nan(res.fit_pct))
+        row.update(note=res.note or res.message, fit_pct=finite_float(res.fit_pct))
         return [row], [f"{NAME}: identification: {res.note or res.message}; not identified"], None
-    row.update(wn_rad_s=res.wn_rad_s, zeta=res.zeta, k_lin_m_v_s=res.k_lin_m_v_s, fit_pct=_nan(res.fit_pct),
+    row.update(wn_rad_s=res.wn_rad_s, zeta=res.zeta, k_lin_m_v_s=res.k_lin_m_v_s, fit_pct=finite_float(res.fit_pct),
                id_sample_rate_hz=1.0 / res.dt_s)
     warns = [f"{NAME}: identification: {res.message}"] if res.message else []
     return [row], warns, res
@@ -162,9 +137,9 @@ def _step(run_id, path, params):
         return [null], [f"{NAME}: no step of the reference found; no step metrics"], None
     rows, curves, warns = [], [], []
     for s in m.itertuples(index=False):
-        rows.append({"run_id": run_id, "step_mm": s.step_mm, "overshoot_pct": _nan(s.overshoot_pct),
-                     "settling_time_s": _nan(s.settling_time_s), "rise_time_s": _nan(s.rise_time_s),
-                     "steady_state_error_mm": _nan(s.steady_state_error_mm), "t_step_s": s.t_step_s,
+        rows.append({"run_id": run_id, "step_mm": s.step_mm, "overshoot_pct": finite_float(s.overshoot_pct),
+                     "settling_time_s": finite_float(s.settling_time_s), "rise_time_s": finite_float(s.rise_time_s),
+                     "steady_state_error_mm": finite_float(s.steady_state_error_mm), "t_step_s": s.t_step_s,
                      "settled": bool(s.settled), "note": s.note})
         if s.note:
             warns.append(f"{NAME}: step at t={s.t_step_s:g} s: {s.note}")
@@ -182,7 +157,7 @@ def _step(run_id, path, params):
 def _spring(run_id, path, params):
     chamber = str(params.get("chamber") or "").strip().lower()
     null = {"run_id": run_id, "chamber": chamber or None, "p0_bar_abs": None,
-            "amplitude_mm": _num(params.get("amplitude_mm")), "frequency_hz": _num(params.get("frequency_hz")),
+            "amplitude_mm": finite_float(params.get("amplitude_mm")), "frequency_hz": finite_float(params.get("frequency_hz")),
             "nrmse_pct": None, "note": None}
     if chamber not in spring.PRESSURE_SIGN:
         null["note"] = "chamber must be front or rear"
@@ -192,15 +167,15 @@ def _spring(run_id, path, params):
     if miss:
         null["note"] = f"lacks {', '.join(miss)}"
         return [null], [f"{NAME}: spring run lacks {', '.join(miss)}; not fitted"], None
-    amp = _num(params.get("amplitude_mm"))
+    amp = finite_float(params.get("amplitude_mm"))
     d, f = df["d_m"].to_numpy(), df["f_n"].to_numpy()
     run = spring.prepare_spring_run(run_id, df["t_s"].to_numpy(), d, f,
-                                    df["p_pa"].to_numpy(), chamber, _num(params.get("frequency_hz")),
-                                    amp / 1e3 if amp else None, _num(params.get("stroke_mm"), 40.0) / 1e3,
-                                    _num(params.get("p_atm_pa"), spring.P_ATM_PA),
+                                    df["p_pa"].to_numpy(), chamber, finite_float(params.get("frequency_hz")),
+                                    amp / 1e3 if amp else None, finite_float(params.get("stroke_mm"), 40.0) / 1e3,
+                                    finite_float(params.get("p_atm_pa"), spring.P_ATM_PA),
                                     d_sensor=sensor_from_params(params, "d", d),
                                     f_sensor=sensor_from_params(params, "f", f))
-    null["p0_bar_abs"] = _nan(run.p0_abs / 1e5) if np.isfinite(run.p0_abs) else None
+    null["p0_bar_abs"] = finite_float(run.p0_abs / 1e5) if np.isfinite(run.p0_abs) else None
     if not run.ok:
         null["note"] = run.message
         return [null], [f"{NAME}: spring run: {run.message}; not fitted"], None
@@ -264,13 +239,13 @@ def _frame(rows, cols, ints=(), bools=()) -> pd.DataFrame:
 
 
 def run(ctx: StageContext) -> StageOutput:
-    """Identification, step metrics, spring fits and pressure dynamics of every run of KINDS."""
+    """Identification, step metrics, spring fits and pressure dynamics of every run of the kinds it reads."""
     out = StageOutput()
-    runs = ctx.runs_of(*KINDS)
-    items = [(r.kind, r.run_id, str(ctx.samples_file(r.run_id)), _params(r.params))
+    runs = ctx.runs_of(*READS.kinds)
+    items = [(r.kind, r.run_id, str(ctx.samples_file(r.run_id)), run_params(r.params))
              for r in runs.itertuples(index=False)] if not runs.empty else []
     results = ctx.map(analyse_run, items, label=NAME) if items else []
-    by_kind: dict[str, list[dict]] = {k: [] for k in KINDS}
+    by_kind: dict[str, list[dict]] = {k: [] for k in READS.kinds}
     for res in results:
         by_kind[res["kind"]].append(res)
         for w in res["warnings"]:
@@ -329,15 +304,15 @@ def _spring_outputs(ctx, out, results):
                          "max_nrmse_pct": max(nr) if nr else None, "note": fit.note,
                          **{f"seed_{k}": seeds.get(k) for k in ("n_polytropic", "ae_m2", "epsilon_m2", "delta_n_m")}})
         for p in group:
-            rows[p.run_id]["nrmse_pct"] = _nan(fit.nrmse_pct.get(p.run_id))
+            rows[p.run_id]["nrmse_pct"] = finite_float(fit.nrmse_pct.get(p.run_id))
             rows[p.run_id]["note"] = fit.test_notes.get(p.run_id) or (
                 None if fit.ok else f"the {chamber} chamber's fit is not reported: {fit.note or fit.message}")
             model_u = spring.model_loop_energy(p, fit) if fit.ok else float("nan")
             energy.append({"run_id": p.run_id, "chamber": chamber, "p0_bar_abs": p.p0_abs / 1e5,
                            "amplitude_mm": p.amplitude_m * 1e3, "frequency_hz": p.frequency_hz,
-                           "n_cycles": p.cycles, "loop_energy_j": _nan(p.loop_energy_j),
-                           "model_loop_energy_j": _nan(model_u),
-                           "structural_energy_j": _nan(math.pi * fit.delta_n_m * p.amplitude_m ** 2)})
+                           "n_cycles": p.cycles, "loop_energy_j": finite_float(p.loop_energy_j),
+                           "model_loop_energy_j": finite_float(model_u),
+                           "structural_energy_j": finite_float(math.pi * fit.delta_n_m * p.amplitude_m ** 2)})
     out.tables["spring_fits"] = _frame(fit_rows, FIT_COLS, ints=("n_tests",))
     out.tables["spring_tests"] = _frame([rows[k] for k in sorted(rows)], TEST_COLS)
     out.tables["spring_loop_energy"] = _frame(energy, ENERGY_COLS, ints=("n_cycles",))
@@ -360,12 +335,12 @@ def _run_parts(ctx) -> dict:
     runs = ctx.runs_of("pressure_step")
     out = {}
     for r in (runs.itertuples(index=False) if not runs.empty else ()):
-        params = _params(getattr(r, "params", None))
+        params = run_params(getattr(r, "params", None))
         valve, hose = (str(params.get(k) or "").strip() or None for k in ("valve_id", "hose_id"))
         kind = "valve" if valve else "hose" if hose else None
         out[r.run_id] = pdyn.RunPart(str(getattr(r, "campaign", "") or ""), str(getattr(r, "rig", "") or ""),
-                                     kind, valve or hose, _num(params.get("age_h")) if kind else None,
-                                     _num(params.get("distance_km")) if kind else None)
+                                     kind, valve or hose, finite_float(params.get("age_h")) if kind else None,
+                                     finite_float(params.get("distance_km")) if kind else None)
     return out
 
 
@@ -379,6 +354,17 @@ def _group_label(g) -> str:
 
 
 def _pressure_outputs(ctx, out, results):
+    """``pressure_dynamics`` and ``pressure_steps``, and their figures, from the pressure_step runs' steps."""
+    grouped, fits = _pressure_fits(ctx, results)
+    _pressure_tables(out, grouped, fits)
+    _draw_rig_pressures(out, grouped, fits)
+    _draw_part_pressures(out, grouped, fits)
+    _draw_pressure_ageing(out)
+
+
+def _pressure_fits(ctx, results) -> tuple[dict, dict]:
+    """The steps grouped (:class:`analyses.pressure_dynamics.StepGroup` -> steps, by its sort key) and
+    each group's :class:`analyses.pressure_dynamics.PressureFit`."""
     steps = [s for r in results if r["extra"] for s in r["extra"]]
     parts = _run_parts(ctx)
     grouped = pdyn.group_pressure_steps(steps, parts)
@@ -393,6 +379,11 @@ def _pressure_outputs(ctx, out, results):
     for g in grouped:
         fits.setdefault(g, pdyn.PressureFit(g.chamber, g.direction, message="no steps",
                                             note=f"no {g.direction} step in the runs"))
+    return grouped, fits
+
+
+def _pressure_tables(out, grouped, fits) -> None:
+    """The rows of ``pressure_dynamics`` (one per group) and ``pressure_steps`` (each step in its finest group)."""
     changes = pdyn.age_changes(fits)
     finest = {}   # (run_id, direction) -> its finest group (the part's age when it names one)
     for g, group in grouped.items():
@@ -407,12 +398,12 @@ def _pressure_outputs(ctx, out, results):
             for rid in mine:
                 out.warn(rid, f"{NAME}: pressure dynamics {_group_label(g)} not reported: {f.note or f.message}")
         ch = changes.get(g, {})
-        rows.append({"chamber": g.chamber, "direction": g.direction, "wn_rad_s": _nan(f.wn_rad_s),
-                     "zeta": _nan(f.zeta), "nrmse_pct": _nan(f.nrmse_pct), "n_steps": f.n_steps,
-                     "tau_s": _nan(f.tau_s), "model": f.model, "note": f.note, "level": g.level,
+        rows.append({"chamber": g.chamber, "direction": g.direction, "wn_rad_s": finite_float(f.wn_rad_s),
+                     "zeta": finite_float(f.zeta), "nrmse_pct": finite_float(f.nrmse_pct), "n_steps": f.n_steps,
+                     "tau_s": finite_float(f.tau_s), "model": f.model, "note": f.note, "level": g.level,
                      "campaign": g.campaign, "rig": g.rig, "part_kind": g.part_kind, "part_id": g.part_id,
                      "part_age_h": g.age_h, "part_distance_km": g.distance_km,
-                     **{k: _nan(ch.get(k)) for k in ("wn_change_pct", "zeta_change_pct", "tau_change_pct")},
+                     **{k: finite_float(ch.get(k)) for k in ("wn_change_pct", "zeta_change_pct", "tau_change_pct")},
                      "campaigns": [g.campaign], "n_runs": len({s.run_id for s in group})})
         for s, nr in zip(group, f.step_nrmse_pct or [None] * len(group)):
             if finest.get((s.run_id, g.direction)) != g:
@@ -420,10 +411,14 @@ def _pressure_outputs(ctx, out, results):
             note = s.note or (None if f.ok else f"the {_group_label(g)} fit is not reported")
             step_rows.append({"run_id": s.run_id, "chamber": g.chamber, "direction": g.direction,
                               "t_step_s": s.t_step_s, "p_from_bar": s.p_ref_before_pa / 1e5,
-                              "p_to_bar": s.p_ref_pa / 1e5, "nrmse_pct": _nan(nr),
+                              "p_to_bar": s.p_ref_pa / 1e5, "nrmse_pct": finite_float(nr),
                               "p_start_bar": s.p_start_pa / 1e5, "note": note})
     out.tables["pressure_dynamics"] = _frame(rows, PD_COLS, ints=("n_steps", "n_runs"))
     out.tables["pressure_steps"] = _frame(sorted(step_rows, key=lambda r: (r["run_id"], r["t_step_s"])), PSTEP_COLS)
+
+
+def _draw_rig_pressures(out, grouped, fits) -> None:
+    """Per rig and chamber: every step of the rig pooled, measured vs the chosen models."""
     rigs = sorted({(g.campaign, g.rig, g.chamber) for g in grouped if g.level == "rig"})
     for campaign, rig, c in rigs:
         mine = [g for g in grouped if g.level == "rig" and (g.campaign, g.rig, g.chamber) == (campaign, rig, c)]
@@ -440,6 +435,10 @@ def _pressure_outputs(ctx, out, results):
                                   "model chosen per direction by BIC: first order or the second order of Eq. 11 "
                                   f"({PLA_CITATION}, Fig. 14, Table 2), every step of the rig pooled (level 'rig'). Grey: "
                                   "steps too small for the pressure sensor.")
+
+
+def _draw_part_pressures(out, grouped, fits) -> None:
+    """Per part under test and age (at most MAX_PART_FIGURES): measured vs the part's own models."""
     parts = sorted({(g.campaign, g.rig, g.chamber, g.part_kind, g.part_id, g.age_h, g.distance_km)
                     for g in grouped if g.level == "part"}, key=lambda k: pdyn.StepGroup("part", *k[:3], "", *k[3:])
                    .sort_key())
@@ -462,6 +461,10 @@ def _pressure_outputs(ctx, out, results):
                  title=f"{g0.chamber} chamber, {label}: measured vs the chosen model (first order or Eq. 11)")
         out.captions[name] = (f"{g0.chamber} chamber, {label}: pressure (bar gauge) after set-point steps, measured "
                               "vs the model fitted to this part at this age alone (level 'part').")
+
+
+def _draw_pressure_ageing(out) -> None:
+    """wn, zeta and tau of each part against its age, when any part was fitted at an age."""
     table = out.tables["pressure_dynamics"]
     aged = table[(table["level"] == "part") & (table["part_age_h"].notna() | table["part_distance_km"].notna())
                  & (table["wn_rad_s"].notna() | table["tau_s"].notna())]

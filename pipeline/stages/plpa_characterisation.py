@@ -28,7 +28,6 @@ A run that cannot be analysed gives no plateau / pass rows (leakage, viscous) or
 """
 from __future__ import annotations
 
-import json
 import math
 
 import pandas as pd
@@ -40,12 +39,12 @@ from analyses import leakage as lk
 from analyses import viscous_friction as vf
 from analyses.quality import sensor_from_params
 from schemas.papers import PLPA_CITATION
-from pipeline.stages import StageContext, StageOutput
+from pipeline.stages import Reads, StageContext, StageOutput
+from pipeline.stages.values import finite_float, run_params
 
 NAME = "plpa_characterisation"
-ORDER = 10
-KINDS = ("leakage", "breakaway", "viscous")
-TABLES = ("leakage_map", "seal_envelope", "breakaway", "breakaway_summary", "breakaway_findings",
+READS = Reads(kinds=("leakage", "breakaway", "viscous"))
+WRITES = ("leakage_map", "seal_envelope", "breakaway", "breakaway_summary", "breakaway_findings",
           "viscous_points", "viscous_fits", "viscous_transition", "friction_dynamic")
 
 #: Seal-envelope leak threshold; a run or rig.toml may not override it (it is a lab-wide choice). [l/min ANR]
@@ -64,15 +63,6 @@ VISCOUS_COLS = ["run_id", "backpressure_bar", "velocity_m_s", "friction_n", "dir
 DYNAMIC_COLS = ["run_id", "backpressure_bar", "mass_kg", "coulomb_n", "viscous_n_s_m", "offset_n", "mass_se_kg",
                 "coulomb_se_n", "viscous_se_n_s_m", "offset_se_n", "nrmse_pct", "n_samples", "cond", "cutoff_hz",
                 "lag_s", "lag_se_s", "force_source", "x_resolution_m", "x_noise_m", "sensor_source", "note"]
-
-
-def _num(value):
-    """A metadata value as float, or None."""
-    try:
-        out = float(value)
-    except (TypeError, ValueError):
-        return None
-    return out if math.isfinite(out) else None
 
 
 def _read(path: str, columns=None) -> pd.DataFrame:
@@ -108,8 +98,8 @@ def analyse_run(item: tuple) -> dict:
             rows, dynamic, warns, missing = _viscous(run_id, path, params)
     except Exception as exc:  # an unforeseen input: NULLs and a warning, never a failed rebuild
         rows = [{"run_id": run_id, "direction": params.get("direction"),
-                 "backpressure_bar": _num(params.get("backpressure_bar")),
-                 "force_rate_n_s": _num(params.get("force_rate_n_s")), "breakaway_force_n": None}] \
+                 "backpressure_bar": finite_float(params.get("backpressure_bar")),
+                 "force_rate_n_s": finite_float(params.get("force_rate_n_s")), "breakaway_force_n": None}] \
             if kind == "breakaway" else []
         warns = [f"{NAME}: {kind} analysis failed: {type(exc).__name__}: {exc}"]
     return {"kind": kind, "run_id": run_id, "rows": rows, "dynamic": dynamic, "warnings": warns, "missing": missing}
@@ -133,18 +123,18 @@ def _leakage(run_id, path, params):
     if plat.empty:
         return [], [f"{NAME}: no steady pressure plateau found in the leakage run"]
     setting = {"run_id": run_id, "hose_id": params.get("hose_id"), "chamber": params.get("chamber"),
-               "adjustment": params.get("adjustment"), "z_rollers_mm": _num(params.get("z_rollers_mm")),
-               "spring_force_n": _num(params.get("spring_force_n")),
+               "adjustment": params.get("adjustment"), "z_rollers_mm": finite_float(params.get("z_rollers_mm")),
+               "spring_force_n": finite_float(params.get("spring_force_n")),
                "sensors": f"p_supply: {sp.describe()} Pa; q_leak: {sq.describe()} kg/s"}
     return [{**setting, **r} for r in plat.to_dict("records")], []
 
 
 def _breakaway(run_id, path, params):
     row = {"run_id": run_id, "direction": params.get("direction"),
-           "backpressure_bar": _num(params.get("backpressure_bar")),
-           "force_rate_n_s": _num(params.get("force_rate_n_s")), "breakaway_force_n": None,
+           "backpressure_bar": finite_float(params.get("backpressure_bar")),
+           "force_rate_n_s": finite_float(params.get("force_rate_n_s")), "breakaway_force_n": None,
            "onset_t_s": None, "measured_rate_n_s": None, "measured_rate_se_n_s": None, "note": None}
-    area = _num(params.get("hose_area_m2"))
+    area = finite_float(params.get("hose_area_m2"))
     if row["direction"] not in ("P", "N"):
         row["note"] = "no direction P/N"
         return [row], [f"{NAME}: breakaway run without direction P/N; no breakaway force"]
@@ -165,11 +155,11 @@ def _breakaway(run_id, path, params):
 
 def _viscous(run_id, path, params):
     df = _read(path, ["t_s", "x_m", "p_a_pa", "p_b_pa", "f_n"])
-    bp = _num(params.get("backpressure_bar"))
+    bp = finite_float(params.get("backpressure_bar"))
     if not {"t_s", "x_m"} <= set(df.columns):
         return [], [], [f"{NAME}: viscous run lacks t or x; no passes"], []
     try:
-        force = vf.friction_from_run(df, _num(params.get("hose_area_m2")))
+        force = vf.friction_from_run(df, finite_float(params.get("hose_area_m2")))
     except ValueError as exc:
         return [], [], [f"{NAME}: viscous run: {exc}; no passes"], []
     source = "f" if "f_n" in df.columns and df["f_n"].notna().any() else "pressures"
@@ -180,7 +170,7 @@ def _viscous(run_id, path, params):
     else:
         a = sensor_from_params(params, "p_a", df["p_a_pa"].to_numpy(float))
         b = sensor_from_params(params, "p_b", df["p_b_pa"].to_numpy(float))
-        area = _num(params.get("hose_area_m2"))
+        area = finite_float(params.get("hose_area_m2"))
         fsens = type(a)(resolution=area * max(a.resolution, b.resolution),
                         noise=area * math.hypot(a.noise, b.noise), source=a.source)
     common = {"run_id": run_id, "backpressure_bar": bp, "force_source": source, **_sensor_cols(sensor)}
@@ -206,27 +196,16 @@ def _frame(rows: list[dict], cols: list[str]) -> pd.DataFrame:
     return df
 
 
-def _params(value) -> dict:
-    if isinstance(value, dict):
-        return value
-    if isinstance(value, str):
-        try:
-            return json.loads(value)
-        except ValueError:
-            return {}
-    return {}
-
-
 def run(ctx: StageContext) -> StageOutput:
     """Analyse every leakage, breakaway and viscous run; tables and Figs. 9, 10, 12, 13, 14."""
     out = StageOutput()
-    runs = ctx.runs_of(*KINDS)
+    runs = ctx.runs_of(*READS.kinds)
     items = []
     if not runs.empty:
         for r in runs.itertuples(index=False):
-            items.append((r.kind, r.run_id, str(ctx.samples_file(r.run_id)), _params(r.params)))
+            items.append((r.kind, r.run_id, str(ctx.samples_file(r.run_id)), run_params(r.params)))
     results = ctx.map(analyse_run, items, label=NAME) if items else []
-    rows = {k: [] for k in KINDS}
+    rows = {k: [] for k in READS.kinds}
     dynamic, missing = [], []
     for res in results:
         rows[res["kind"]] += res["rows"]

@@ -338,7 +338,7 @@ def test_the_accelerometer_run_is_a_timeseries_with_its_f_g_column(foreign):
     # it is no force: no analysis takes it up
     from pipeline.stages import discover
 
-    for table in (t for stage in discover() for t in stage.TABLES):
+    for table in (t for stage in discover() for t in stage.WRITES):
         if "run_id" in _columns(wh, table):
             assert _q(wh, f'SELECT count(*) AS n FROM "{table}" WHERE run_id = ?', [run_id])["n"].item() == 0, table
 

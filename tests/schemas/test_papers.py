@@ -1,5 +1,9 @@
-"""The papers' values: each the one docs/physics.md marks *paper*."""
-from schemas.papers import (NRMSE_LIMIT_PCT, PLA_TABLE1, PLA_TABLE2, PLA_TABLE3_NRMSE_MAX_PCT,
+"""Every paper value and limit has one home, schemas/papers.py: each the one docs/physics.md marks
+*paper*; the findings, the analyses and the report use it."""
+from analyses import pla_spring, pressure_dynamics
+from pipeline.stages import findings
+from schemas import papers
+from schemas.papers import (PLA_NRMSE_LIMIT_PCT, PLA_TABLE1, PLA_TABLE2, PLA_TABLE3_NRMSE_MAX_PCT,
                             PLA_TABLE3_NRMSE_MIN_PCT, PLPA_FIG12, PLPA_FIG15, PLPA_TABLE2)
 from tests.conftest import PROJECT_ROOT
 
@@ -28,4 +32,17 @@ def test_the_reports_paper_values_are_those_docs_physics_marks_paper():
     assert (f"wn = {charge['wn_rad_s']:g} rad/s for charge and discharge, xi = {charge['zeta']:.2f} charge, "
             f"{discharge['zeta']:.2f} discharge (*paper*)") in doc
     assert (f"NRMSE of the fitted model {PLA_TABLE3_NRMSE_MIN_PCT:g}-{PLA_TABLE3_NRMSE_MAX_PCT:g} %, "
-            f"all below {NRMSE_LIMIT_PCT:g} %") in doc
+            f"all below {PLA_NRMSE_LIMIT_PCT:g} %") in doc
+
+
+def test_the_papers_nrmse_limit_is_the_one_the_analyses_hold_their_fits_to():
+    assert papers.PLA_NRMSE_LIMIT_PCT == 2.5
+    assert pla_spring.NRMSE_LIMIT_PCT is papers.PLA_NRMSE_LIMIT_PCT
+    assert pressure_dynamics.NRMSE_LIMIT_PCT is papers.PLA_NRMSE_LIMIT_PCT
+
+
+def test_the_findings_cite_the_papers_and_keep_no_paper_value_of_their_own():
+    assert findings.PLPA == f"PLPA: {papers.PLPA_CITATION}" and findings.PLA == f"PLA: {papers.PLA_CITATION}"
+    assert papers.PLPA_BREAKAWAY_RATIO_BAND == (1.5, 2.5) and papers.PLPA_SPRING_FORCE_MAX_N == 1300.0
+    for name in ("RATIO_BAND", "NRMSE_MAX_PCT", "SPRING_FORCE_MAX_N"):
+        assert not hasattr(findings, name)

@@ -60,10 +60,10 @@ def _img(warehouse: Path, rel: str) -> str:
 
 
 def _stage_tables() -> dict[str, tuple[list[str], dict]]:
-    """Per stage: its TABLES and optional KEY_TABLES (figure name -> table)."""
+    """Per stage: its WRITES and optional KEY_TABLES (figure name -> table)."""
     try:
         from pipeline import stages  # every stage module and its analyses: only when a figure is of no paper
-        return {m.NAME: (list(getattr(m, "TABLES", ())), dict(getattr(m, "KEY_TABLES", {}) or {}))
+        return {m.NAME: (list(getattr(m, "WRITES", ())), dict(getattr(m, "KEY_TABLES", {}) or {}))
                 for m in stages.discover()}
     except Exception:
         return {}

@@ -10,7 +10,7 @@ import math
 from pipeline.serve.report.db import ReportDB
 from pipeline.serve.report.markup import esc, fmt
 from pipeline.serve.report.tables import FLOOR_COLUMN, flow_floor_l_min, html_table
-from schemas.papers import (NRMSE_LIMIT_PCT, PLA_TABLE1, PLA_TABLE2, PLA_TABLE3_NRMSE_MAX_PCT,
+from schemas.papers import (PLA_NRMSE_LIMIT_PCT, PLA_TABLE1, PLA_TABLE2, PLA_TABLE3_NRMSE_MAX_PCT,
                             PLA_TABLE3_NRMSE_MIN_PCT, PLPA_FIG12, PLPA_FIG15, PLPA_TABLE2)
 
 
@@ -211,7 +211,7 @@ def _spring_parameters(db: ReportDB) -> str:
 def _spring_nrmse(db: ReportDB) -> str:
     """PLA Table 3: the spring model's NRMSE range per chamber and how many tests reach the paper's bound."""
     nr = _q(db, "SELECT chamber, min(nrmse_pct), max(nrmse_pct), count(nrmse_pct), "
-                f"count(*) FILTER (WHERE nrmse_pct >= {NRMSE_LIMIT_PCT}) "
+                f"count(*) FILTER (WHERE nrmse_pct >= {PLA_NRMSE_LIMIT_PCT}) "
                 "FROM spring_tests GROUP BY chamber ORDER BY chamber", "spring_tests")
     if not nr:
         return ""
@@ -220,7 +220,7 @@ def _spring_nrmse(db: ReportDB) -> str:
         rows.append(_cmp_row(f"{chamber}: smallest NRMSE", "%", PLA_TABLE3_NRMSE_MIN_PCT, lo, None, f"{n} spring tests",
                              judge=False))
         rows.append(_cmp_row(f"{chamber}: largest NRMSE", "%", PLA_TABLE3_NRMSE_MAX_PCT, hi, None,
-                             f"{above} of {n} tests at or above {NRMSE_LIMIT_PCT:g} % (the paper's bound)",
+                             f"{above} of {n} tests at or above {PLA_NRMSE_LIMIT_PCT:g} % (the paper's bound)",
                              judge=False))
     return _cmp_table("PLA Table 3: NRMSE of the spring model over the 120 tests, paper range vs lab", rows)
 

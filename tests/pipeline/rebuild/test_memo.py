@@ -11,6 +11,7 @@ from pathlib import Path
 import pipeline.rebuild.memo as memo_mod
 import pipeline.rebuild.flow as rb
 import pipeline.rebuild.noop as noop_mod
+import pipeline.rebuild.stage_runner as runner
 import pipeline.versions as versions_mod
 from pipeline.rebuild.memo import Memo, item_key
 from pipeline.rebuild.flow import rebuild
@@ -370,7 +371,7 @@ def test_a_code_change_of_the_analysis_recomputes_every_item(raw, warehouse, sta
         return real(module_file) + ("-edited" if module_file.endswith("plpa_characterisation.py") else "")
 
     monkeypatch.setattr(versions_mod, "stage_code_version", edited)  # what the memo keys use
-    monkeypatch.setattr(rb, "stage_code_version", edited)            # what the stage cache uses
+    monkeypatch.setattr(runner, "stage_code_version", edited)        # what the stage cache uses
     real_project = noop_mod.project_code_version                     # what the no-op fast path uses
     monkeypatch.setattr(noop_mod, "project_code_version", lambda: real_project() + "-edited")
     s = rebuild(raw.root, warehouse, jobs=1)

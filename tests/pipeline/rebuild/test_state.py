@@ -5,12 +5,10 @@ import os
 import time
 from pathlib import Path
 
-import pandas as pd
 import pytest
 
 import pipeline.rebuild.ingest_tasks as tasks
 from pipeline.rebuild.flow import rebuild
-from pipeline.stages import StageOutput
 from pipeline.warehouse import connect_readonly
 from tests.conftest import STEP_META, query
 
@@ -168,56 +166,6 @@ def test_quarantined_file_stays_quarantined_without_being_read(raw, warehouse, c
     assert counting["ingest"] == [] and b.exit_code == a.exit_code == 1
     assert [p.error for p in b.quarantine] == [p.error for p in a.quarantine]
     assert q(warehouse, "SELECT source_path, quarantined FROM rebuild_changes") == [("c/bad.csv", True)]
-
-
-class CountingStage:
-    """A stage reading step runs and the earlier tables; counts its runs."""
-    NAME, ORDER, KINDS, TABLES = "zz_count", 95, ("step",), ("zz_count",)
-    calls = 0
-
-    @classmethod
-    def run(cls, ctx):
-        cls.calls += 1
-        n = len(ctx.runs_of("step"))
-        return StageOutput(tables={"zz_count": pd.DataFrame({"n_step_runs": [n]})})
-
-
-def test_stage_reruns_only_when_its_kinds_change(raw, warehouse, monkeypatch):
-    import pipeline.stages as st
-    real = st.discover
-    monkeypatch.setattr(st, "discover", lambda: [*real(), CountingStage])
-    step(raw, "c/a.csv")
-    raw.csv("c/b.csv", BREAK, {"t[s]": T, "p_a[bar]": T, "p_b[bar]": T, "x[mm]": T})
-    age(raw.root)
-    CountingStage.calls = 0
-    rebuild(raw.root, warehouse, jobs=1)
-    rebuild(raw.root, warehouse, jobs=1)
-    assert CountingStage.calls == 1
-    raw.csv("c/b.csv", BREAK, {"t[s]": T, "p_a[bar]": [1, 2, 3, 4], "p_b[bar]": T, "x[mm]": T})  # other kind
-    s = rebuild(raw.root, warehouse, jobs=1)
-    assert CountingStage.calls == 1 and "zz_count" in s.stages_reused
-    assert "plpa_characterisation" in s.stages_run
-    step(raw, "c/c.csv")
-    rebuild(raw.root, warehouse, jobs=1)
-    assert CountingStage.calls == 2
-    assert q(warehouse, "SELECT n_step_runs FROM zz_count") == [(2,)]
-    rebuild(raw.root, warehouse, jobs=1, full=True)
-    assert CountingStage.calls == 3
-
-
-def test_logbook_change_reruns_durability_only(raw, warehouse):
-    step(raw, "c/a.csv")
-    raw.write("c/hoses.csv", "hose_id,event,at,hose_type,adjustment,spring_force_n\n"
-                             "H1,installed,2026-01-01T00:00:00,FLEXIGOM AIR,force,858\n")
-    age(raw.root)
-    rebuild(raw.root, warehouse, jobs=1)
-    raw.write("c/hoses.csv", "hose_id,event,at,hose_type,adjustment,spring_force_n,failure_mode,distance_km\n"
-                             "H1,installed,2026-01-01T00:00:00,FLEXIGOM AIR,force,858,,\n"
-                             "H1,failed,2026-02-01T00:00:00,,,,rupture,80\n")
-    s = rebuild(raw.root, warehouse, jobs=1)
-    assert "durability" in s.stages_run and "plpa_characterisation" in s.stages_reused
-    assert q(warehouse, "SELECT status FROM rebuild_changes WHERE source_path = 'c/hoses.csv'") == [("changed",)]
-    assert q(warehouse, "SELECT hose_id, status FROM hose_life") == [("H1", "failed")]
 
 
 def test_incremental_equals_full_table_by_table(raw, tmp_path):

@@ -258,3 +258,25 @@ def test_stribeck_finding_without_any_amplitude_keeps_the_dip_test():
     row = fs.stribeck(ctx_with(viscous_transition=trans))
     assert row["holds"] is True and row["measured"] is None and row["p_value"] == pytest.approx(0.8)
     assert "no Stribeck amplitude" in row["detail"]
+
+
+def test_a_check_that_reads_a_table_the_stage_did_not_declare_fails_the_stage_not_the_finding(monkeypatch):
+    """A check raising gives its row "could not be computed"; an undeclared read is the stage's
+    bug and goes through (the rebuild fails), and every table the checks read is declared."""
+    from pipeline.stages import DeclaredContext, UndeclaredRead
+
+    ctx = DeclaredContext("findings", fs.READS, raw=None, warehouse=None, runs=pd.DataFrame(),
+                          results={"breakaway": breakaway_events()})
+    assert len(by_id(ctx)) == len(fs.CHECKS)  # the real checks read only what READS declares
+    monkeypatch.setattr(fs, "CHECKS", (("breakaway_0bar_twice", lambda c: fs._table(c, "zz_undeclared")),))
+    with pytest.raises(UndeclaredRead, match="stage findings read table 'zz_undeclared'"):
+        fs.run(ctx)
+
+
+def test_the_findings_take_the_papers_values_from_schemas_papers():
+    from schemas import papers
+
+    rows = by_id(ctx_with())
+    assert rows["breakaway_0bar_twice"]["criterion"] == "ratio of means within 1.5-2.5"
+    assert rows["spring_nrmse_below_2_5pct"]["criterion"] == "largest NRMSE of the spring tests < 2.5 %"
+    assert papers.PLPA_BREAKAWAY_RATIO_BAND == (1.5, 2.5) and papers.PLA_NRMSE_LIMIT_PCT == 2.5

@@ -23,7 +23,7 @@ EVIL = '<script>alert("pwned")</script>'
 
 class PictureStage:
     """A stage with a figure and its key table, whose text comes from raw metadata."""
-    NAME, ORDER, KINDS, TABLES = "zz_pictures", 80, ("step",), ("zz_curve",)
+    NAME, READS, WRITES = "zz_pictures", st.Reads(kinds=("step",)), ("zz_curve",)
     KEY_TABLES = {"curve": "zz_curve"}
 
     @staticmethod
@@ -39,8 +39,8 @@ class PictureStage:
 
 def flip(holds):
     def check(ctx):
-        return fs._row("breakaway_0bar_twice", "Breakaway at 0 bar is about twice that at >= 1 bar", fs.PLPA, "1",
-                       "ratio 1.5-2.5", "breakaway", 2.0 if holds else 1.0, 0.05, holds, 30, None, "test")
+        return fs._row(fs.Claim("breakaway_0bar_twice", "Breakaway at 0 bar is about twice that at >= 1 bar", fs.PLPA,
+                                "1", "ratio 1.5-2.5"), "breakaway", 2.0 if holds else 1.0, 0.05, holds, 30, None, "test")
     return check
 
 

@@ -44,15 +44,15 @@ def test_the_spring_tests_at_or_above_the_papers_nrmse_bound_are_counted_with_th
 
     from pipeline.serve.report.db import ReportDB
     from pipeline.serve.report.summaries import summary_spring
-    from schemas.papers import NRMSE_LIMIT_PCT, PLA_TABLE3_NRMSE_MAX_PCT, PLA_TABLE3_NRMSE_MIN_PCT
+    from schemas.papers import PLA_NRMSE_LIMIT_PCT, PLA_TABLE3_NRMSE_MAX_PCT, PLA_TABLE3_NRMSE_MIN_PCT
 
     con = duckdb.connect()
     con.execute("CREATE TABLE spring_tests (chamber VARCHAR, nrmse_pct DOUBLE)")
     con.execute("INSERT INTO spring_tests VALUES ('front', 1.2), ('front', ?), ('front', 3.1), ('rear', NULL)",
-                [NRMSE_LIMIT_PCT])
+                [PLA_NRMSE_LIMIT_PCT])
     html = summary_spring(ReportDB(con))
     assert "PLA Table 3" in html and "PLA Table 1" not in html  # no spring_fits: no Table 1
-    assert f"2 of 3 tests at or above {NRMSE_LIMIT_PCT:g} % (the paper&#x27;s bound)" in html  # escaped
+    assert f"2 of 3 tests at or above {PLA_NRMSE_LIMIT_PCT:g} % (the paper&#x27;s bound)" in html  # escaped
     assert "0 of 0 tests at or above" in html
     rows = {r[0]: r for r in table_cells(html)}
     assert rows["front: smallest NRMSE"][2:4] == [f"{PLA_TABLE3_NRMSE_MIN_PCT:g}", "1.2"]

@@ -1,0 +1,222 @@
+"""Runs the analysis stages of a rebuild, each after the stages it reads, or reuses its stored outputs.
+
+At start-up the stages are ordered from their declarations (``READS`` / ``WRITES``,
+:func:`pipeline.stages.registry.run_order`), which must not read each other in a circle. A stage
+whose input key (its code, the runs of the kinds it reads, the logbooks when it reads them) and
+the tables it reads are unchanged since the previous rebuild is not run: its stored folder
+(:mod:`pipeline.rebuild.stage_store`) is loaded instead. A stage that runs gets a context holding
+only what it declared (:class:`pipeline.stages.DeclaredContext`): an undeclared read fails the
+rebuild, since its key would not cover it.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from pipeline.progress import Progress
+from pipeline.raw.problems import Problem
+from pipeline.rebuild.memo import Memo
+from pipeline.rebuild.stage_store import FigureDrawer, load_stage_folder, save_stage_folder
+from pipeline.rebuild.state import PreviousState, StageRecord, frame_hash, stage_input_key
+from pipeline.versions import stage_code_version
+from pipeline.rebuild.options import RebuildError
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+    from pipeline.stages import Reads
+
+# pandas and the stage framework (which imports pandas and, through the stages, the analyses) are
+# imported by the function that runs the stages: a no-op rebuild imports this module and needs none.
+
+
+@dataclass(frozen=True)
+class StageInputs:
+    """What the stages of one rebuild read, and how their outputs are cached.
+
+    Attributes
+    ----------
+    raw : Path
+        The raw tree (the hose logbooks in it).
+    warehouse : Path
+        The warehouse folder (samples files, stage folders, memos).
+    runs : list of dict
+        The rebuild's runs rows, as hashed into the stages' input keys.
+    runs_frame : DataFrame
+        The same rows as the stages read them (``params`` a dict per row).
+    previous : PreviousState
+        The live warehouse's stage records (what may be reused).
+    logbooks : str
+        Hash of the hose logbooks (:func:`pipeline.rebuild.state.logbook_hash`).
+    full : bool
+        Run every stage, trusting no stored folder nor memo.
+    generation : str
+        The rebuild's generation (salts the folders of a full rebuild).
+    jobs : int
+        Worker processes for a stage's per-item work.
+    mapper : callable or None
+        The executor's ``map`` for a stage's per-item work (None: local processes).
+    """
+
+    raw: Path
+    warehouse: Path
+    runs: list[dict]
+    runs_frame: pd.DataFrame
+    previous: PreviousState
+    logbooks: str
+    full: bool = False
+    generation: str = ""
+    jobs: int = 1
+    mapper: Callable | None = None
+
+
+@dataclass
+class StageResults:
+    """Every stage's outputs, as the new database takes them."""
+
+    tables: dict[str, pd.DataFrame] = field(default_factory=dict)
+    figures: list[dict] = field(default_factory=list)
+    problems: list[Problem] = field(default_factory=list)
+    warnings: dict[str, list[str]] = field(default_factory=dict)
+    records: list[StageRecord] = field(default_factory=list)
+    ran: list[str] = field(default_factory=list)
+    reused: list[str] = field(default_factory=list)
+    #: per stage that ran: its per-item memo (hits, computed items)
+    memos: dict[str, Memo] = field(default_factory=dict)
+
+
+def duration_text(s: float) -> str:
+    """``"12 ms"`` below a second (a stage that is only reused), else ``"3.4 s"``."""
+    return f"{s * 1e3:.0f} ms" if s < 1 else f"{s:.1f} s"
+
+
+def run_stages_cached(inputs: StageInputs, progress: Progress, drawer: FigureDrawer | None = None) -> StageResults:
+    """Run every stage after the stages it reads, or reuse its stored outputs when what it declared is unchanged.
+
+    Parameters
+    ----------
+    inputs : StageInputs
+        What the stages read, and the previous rebuild's stage records.
+    progress : Progress
+        Where the stages report (one message per stage).
+    drawer : FigureDrawer or None
+        Draws the figures; None: a drawer of its own, finished (every figure drawn) before this returns.
+
+    Returns
+    -------
+    StageResults
+        With a ``drawer``, figures may still be being drawn: the caller calls ``drawer.finish()``
+        before it publishes the stage folders.
+
+    Raises
+    ------
+    RebuildError
+        A stage failed (or read what it did not declare), or the stages' declarations read each
+        other in a circle.
+    """
+    from pipeline import stages
+
+    try:
+        mods = stages.run_order(stages.discover())
+    except stages.StageCircle as exc:
+        raise RebuildError(str(exc)) from exc
+    res = StageResults()
+    own_drawer = drawer is None
+    drawer = drawer or FigureDrawer()
+    # every stage's code version up front: the project's sources are read and hashed once for all
+    codes = {mod.NAME: stage_code_version(getattr(mod, "__file__", None) or mod.NAME) for mod in mods}
+    with progress.task("stages", len(mods)) as task:
+        for mod in mods:
+            t0 = time.monotonic()
+            reads = stages.reads_of(mod)
+            key = _input_key(mod.NAME, codes[mod.NAME], reads, inputs)
+            record = _reusable(mod.NAME, key, _tables_read(reads, res), inputs)
+            if record is not None:
+                loaded = load_stage_folder(inputs.warehouse, record.folder, mod.NAME)
+                res.reused.append(mod.NAME)
+                how = "reused"
+            else:
+                record, loaded = _run_stage(mod, reads, key, inputs, res, drawer, progress)
+                res.ran.append(mod.NAME)
+                how = "ran"
+            res.records.append(record)
+            tables = _collect(res, loaded, inputs.runs_frame)
+            memo_note = res.memos[mod.NAME].summary() if mod.NAME in res.memos else ""
+            progress.message(f"stage {mod.NAME} {how}: " + ", ".join(f"{k} {len(v)} rows" for k, v in tables.items())
+                             + f" ({duration_text(time.monotonic() - t0)}{'; ' + memo_note if memo_note else ''})")
+            task.advance()
+    if own_drawer:
+        drawer.finish()
+    return res
+
+
+def _input_key(name: str, code: str, reads: Reads, inputs: StageInputs) -> str:
+    """A stage's input key: its code, the runs of the kinds it reads, the logbooks if it reads them."""
+    return stage_input_key(name, code, inputs.runs, set(reads.kinds), False, inputs.logbooks if reads.logbooks else None)
+
+
+def _tables_read(reads: Reads, res: StageResults) -> dict[str, str]:
+    """Content hash of each earlier table a stage reads (``"absent"`` for one no stage wrote)."""
+    return {t: frame_hash(res.tables.get(t)) for t in sorted(reads.tables)}
+
+
+def _reusable(name: str, key: str, tables_read: dict[str, str], inputs: StageInputs) -> StageRecord | None:
+    """The previous rebuild's record of a stage when its outputs can be reused (same input key, same
+    tables read, its folder still there), else None."""
+    old = inputs.previous.stages.get(name)
+    if inputs.full or old is None:
+        return None
+    if (key == old.input_key and (inputs.warehouse / old.folder / "output.json").is_file()
+            and tables_read == old.results_read):
+        return old
+    return None
+
+
+def _run_stage(mod, reads: Reads, key: str, inputs: StageInputs, res: StageResults, drawer: FigureDrawer,
+               progress: Progress) -> tuple[StageRecord, tuple]:
+    """Run a stage on what it declared, store its outputs; its record and its outputs as stored."""
+    from pipeline import stages
+
+
+    name = mod.NAME
+    drawer.warm()
+    # per-run results of earlier rebuilds (not read by --full, written either way)
+    memo = res.memos[name] = Memo(inputs.warehouse, name, read=not inputs.full)
+    ctx = stages.DeclaredContext(name, reads, raw=inputs.raw, warehouse=inputs.warehouse, runs=inputs.runs_frame,
+                                 results=res.tables, jobs=inputs.jobs, progress=progress, mapper=inputs.mapper,
+                                 memo=memo)
+    try:
+        out = mod.run(ctx)
+    except Exception as exc:  # a bug in an analysis: fail, keep the previous warehouse
+        raise RebuildError(f"stage {name} failed: {type(exc).__name__}: {exc}") from exc
+    memo.save()
+    read = _tables_read(reads, res)
+    # --full writes a fresh folder (never trusts an existing one); incremental runs reuse a folder
+    # with the same inputs (stages are deterministic)
+    salt = inputs.generation if inputs.full else ""
+    folder_key = hashlib.sha256(json.dumps([key, read, salt], sort_keys=True).encode()).hexdigest()[:20]
+    rel, cacheable, now_in = save_stage_folder(inputs.warehouse, name, folder_key, out, drawer)
+    record = StageRecord(name, key if cacheable else "uncacheable", rel, sorted(reads.kinds), False, read)
+    return record, load_stage_folder(inputs.warehouse, rel, name, out, now_in)
+
+
+def _collect(res: StageResults, loaded: tuple, runs_frame: pd.DataFrame) -> dict[str, pd.DataFrame]:
+    """Add a stage's loaded outputs (tables with their run columns, figures, problems, warnings) to ``res``."""
+    import pandas as pd
+
+    from pipeline import stages
+
+    tables, figures, problems, warnings = loaded
+    tables = stages.add_run_columns(tables, runs_frame)  # campaign, hose_id, campaigns
+    for t, df in tables.items():
+        res.tables[t] = df if t not in res.tables else pd.concat([res.tables[t], df], ignore_index=True)
+    res.figures += figures
+    res.problems += problems
+    for rid, ws in warnings.items():
+        res.warnings.setdefault(rid, []).extend(ws)
+    return tables

@@ -1,0 +1,171 @@
+"""The stage runner: stages run in the order their declarations give, re-run only when what they
+declared changed (run kinds, tables, logbooks), refuse a circle, and fail on an undeclared read."""
+import pandas as pd
+import pytest
+
+import pipeline.stages as st
+from pipeline.rebuild.flow import RebuildError, rebuild
+from pipeline.rebuild.stage_runner import duration_text
+from pipeline.stages import Reads, StageOutput
+from tests.conftest import query
+from tests.pipeline.rebuild.test_state import BREAK, T, age, step
+
+q = query
+
+
+class CountingStage:
+    """A stage reading step runs; counts its runs."""
+    NAME, READS, WRITES = "zz_count", Reads(kinds=("step",)), ("zz_count",)
+    calls = 0
+
+    @classmethod
+    def run(cls, ctx):
+        cls.calls += 1
+        n = len(ctx.runs_of("step"))
+        return StageOutput(tables={"zz_count": pd.DataFrame({"n_step_runs": [n]})})
+
+
+def test_stage_reruns_only_when_its_kinds_change(raw, warehouse, monkeypatch):
+    real = st.discover
+    monkeypatch.setattr(st, "discover", lambda: [*real(), CountingStage])
+    step(raw, "c/a.csv")
+    raw.csv("c/b.csv", BREAK, {"t[s]": T, "p_a[bar]": T, "p_b[bar]": T, "x[mm]": T})
+    age(raw.root)
+    CountingStage.calls = 0
+    rebuild(raw.root, warehouse, jobs=1)
+    rebuild(raw.root, warehouse, jobs=1)
+    assert CountingStage.calls == 1
+    raw.csv("c/b.csv", BREAK, {"t[s]": T, "p_a[bar]": [1, 2, 3, 4], "p_b[bar]": T, "x[mm]": T})  # other kind
+    s = rebuild(raw.root, warehouse, jobs=1)
+    assert CountingStage.calls == 1 and "zz_count" in s.stages_reused
+    assert "plpa_characterisation" in s.stages_run
+    step(raw, "c/c.csv")
+    rebuild(raw.root, warehouse, jobs=1)
+    assert CountingStage.calls == 2
+    assert q(warehouse, "SELECT n_step_runs FROM zz_count") == [(2,)]
+    rebuild(raw.root, warehouse, jobs=1, full=True)
+    assert CountingStage.calls == 3
+
+
+def test_logbook_change_reruns_durability_only(raw, warehouse):
+    step(raw, "c/a.csv")
+    raw.write("c/hoses.csv", "hose_id,event,at,hose_type,adjustment,spring_force_n\n"
+                             "H1,installed,2026-01-01T00:00:00,FLEXIGOM AIR,force,858\n")
+    age(raw.root)
+    rebuild(raw.root, warehouse, jobs=1)
+    raw.write("c/hoses.csv", "hose_id,event,at,hose_type,adjustment,spring_force_n,failure_mode,distance_km\n"
+                             "H1,installed,2026-01-01T00:00:00,FLEXIGOM AIR,force,858,,\n"
+                             "H1,failed,2026-02-01T00:00:00,,,,rupture,80\n")
+    s = rebuild(raw.root, warehouse, jobs=1)
+    assert "durability" in s.stages_run and "plpa_characterisation" in s.stages_reused
+    assert q(warehouse, "SELECT status FROM rebuild_changes WHERE source_path = 'c/hoses.csv'") == [("changed",)]
+    assert q(warehouse, "SELECT hose_id, status FROM hose_life") == [("H1", "failed")]
+
+
+class SneakyStage:
+    """Declares step runs; reads what ``read`` says (set by the test)."""
+    NAME, READS, WRITES = "zz_sneaky", Reads(kinds=("step",)), ("zz_sneaky",)
+    read = None
+
+    @classmethod
+    def run(cls, ctx):
+        cls.read(ctx)
+        return StageOutput(tables={"zz_sneaky": pd.DataFrame({"n": [len(ctx.runs_of("step"))]})})
+
+
+@pytest.mark.parametrize("read, what", [
+    (lambda ctx: ctx.results.get("leakage_map"), "table 'leakage_map'"),
+    (lambda ctx: "breakaway" in ctx.results, "table 'breakaway'"),
+    (lambda ctx: ctx.runs_of("breakaway"), "runs of kind breakaway"),
+    (lambda ctx: ctx.raw, "raw/ \\(the hose logbooks\\)"),
+])
+def test_a_stage_that_reads_what_it_did_not_declare_fails_the_rebuild(raw, warehouse, monkeypatch, read, what):
+    step(raw, "c/a.csv")
+    rebuild(raw.root, warehouse, jobs=1)
+    before = q(warehouse, "SELECT generation FROM rebuild_log")
+    monkeypatch.setattr(SneakyStage, "read", staticmethod(read))
+    real = st.discover
+    monkeypatch.setattr(st, "discover", lambda: [*real(), SneakyStage])
+    step(raw, "c/b.csv")
+    with pytest.raises(RebuildError, match=f"stage zz_sneaky failed: UndeclaredRead: stage zz_sneaky read {what}, "
+                                           "which its READS does not declare"):
+        rebuild(raw.root, warehouse, jobs=1)
+    assert q(warehouse, "SELECT generation FROM rebuild_log") == before  # the previous warehouse stays
+
+
+def test_a_declared_read_runs_and_sees_only_its_kinds(raw, warehouse, monkeypatch):
+    seen = {}
+    monkeypatch.setattr(SneakyStage, "read", staticmethod(lambda ctx: seen.update(kinds=set(ctx.runs["kind"]))))
+    real = st.discover
+    monkeypatch.setattr(st, "discover", lambda: [*real(), SneakyStage])
+    step(raw, "c/a.csv")
+    raw.csv("c/b.csv", BREAK, {"t[s]": T, "p_a[bar]": T, "p_b[bar]": T, "x[mm]": T})
+    s = rebuild(raw.root, warehouse, jobs=1)
+    assert "zz_sneaky" in s.stages_run and seen["kinds"] == {"step"}
+    assert q(warehouse, "SELECT n FROM zz_sneaky") == [(1,)]
+
+
+class First:
+    NAME, READS, WRITES = "zz_first", Reads(tables=("zz_second_t",)), ("zz_first_t",)
+
+    @staticmethod
+    def run(ctx):
+        return StageOutput()
+
+
+class Second:
+    NAME, READS, WRITES = "zz_second", Reads(tables=("zz_first_t",)), ("zz_second_t",)
+
+    @staticmethod
+    def run(ctx):
+        return StageOutput()
+
+
+def test_stages_that_read_each_other_in_a_circle_are_refused_before_any_stage_runs(raw, warehouse, monkeypatch):
+    step(raw, "c/a.csv")
+    real = st.discover
+    monkeypatch.setattr(st, "discover", lambda: [*real(), First, Second])
+    with pytest.raises(RebuildError, match="^stages read each other's tables in a circle: "
+                                           "zz_first reads from zz_second reads from zz_first$"):
+        rebuild(raw.root, warehouse, jobs=1)
+
+
+def test_the_real_stages_run_in_the_order_they_always_had(raw, warehouse):
+    step(raw, "c/a.csv")
+    s = rebuild(raw.root, warehouse, jobs=1)
+    assert s.stages_run == ["plpa_characterisation", "models", "durability", "findings"]
+
+
+def test_durations_read_in_ms_below_a_second():
+    assert duration_text(0.0123) == "12 ms" and duration_text(3.44) == "3.4 s"
+
+
+class TableReader:
+    """Reads the ``breakaway`` table of an earlier stage, no runs; counts its calls."""
+    NAME, READS, WRITES = "zz_table_reader", Reads(tables=("breakaway",)), ("zz_breakaways",)
+    calls = 0
+
+    @classmethod
+    def run(cls, ctx):
+        cls.calls += 1
+        return StageOutput(tables={"zz_breakaways": pd.DataFrame({"n": [len(ctx.results["breakaway"])]})})
+
+
+def test_a_stage_reruns_when_a_table_it_reads_changes_and_only_then(raw, warehouse, monkeypatch):
+    real = st.discover
+    monkeypatch.setattr(st, "discover", lambda: [*real(), TableReader])
+    step(raw, "c/a.csv")
+    raw.csv("c/b.csv", BREAK, {"t[s]": T, "p_a[bar]": T, "p_b[bar]": T, "x[mm]": T})
+    age(raw.root)
+    TableReader.calls = 0
+    rebuild(raw.root, warehouse, jobs=1)
+    assert TableReader.calls == 1
+    step(raw, "c/c.csv")  # another step run: not what it reads
+    s = rebuild(raw.root, warehouse, jobs=1)
+    assert TableReader.calls == 1 and "zz_table_reader" in s.stages_reused
+    raw.csv("c/d.csv", BREAK, {"t[s]": T, "p_a[bar]": T, "p_b[bar]": T, "x[mm]": T})  # one more breakaway row
+    s = rebuild(raw.root, warehouse, jobs=1)
+    assert TableReader.calls == 2 and "zz_table_reader" in s.stages_run
+    assert q(warehouse, "SELECT n FROM zz_breakaways") == [(2,)]
+    assert q(warehouse, "SELECT results_read FROM stage_cache WHERE stage = 'zz_table_reader'")[0][0].startswith(
+        '{"breakaway": ')

@@ -1,0 +1,187 @@
+"""A stage's folder written and read back: tables (those without rows kept as dtypes), figures
+drawn beside the rebuild (FigureDrawer) and placed only when complete, an existing folder reused."""
+import pytest
+
+import pipeline.rebuild.stage_runner as runner
+import pipeline.rebuild.stage_store as store
+from pipeline.rebuild.flow import RebuildError, rebuild
+from tests.conftest import STEP_META, query
+
+T = [0.0, 0.1, 0.2, 0.3]
+
+
+def test_a_stage_table_without_rows_is_kept_as_dtypes_and_loads_as_its_parquet_file_would(tmp_path, monkeypatch):
+    """A table without rows is stored as its columns' dtypes in ``output.json`` (no Parquet file to
+    write and read back: a stage with nothing to do costs milliseconds), and loads exactly as the
+    Parquet file would have; a dtype its name does not rebuild exactly still goes to Parquet."""
+    import json
+
+    import pandas as pd
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from pipeline.stages import StageOutput
+
+    empty = pd.DataFrame({
+        "run_id": pd.Series([], dtype="str"), "x": pd.Series([], dtype="float64"), "n": pd.Series([], dtype="Int64"),
+        "k": pd.Series([], dtype="int64"), "ok": pd.Series([], dtype="boolean"), "flag": pd.Series([], dtype="bool"),
+        "note": pd.Series([], dtype="string"), "anything": pd.Series([], dtype=object),
+        "at": pd.Series([], dtype="datetime64[ns, UTC]"), "naive": pd.Series([], dtype="datetime64[s]"),
+        "cat": pd.Series([], dtype=pd.CategoricalDtype(["a", "b"]))})
+    full = pd.DataFrame({"run_id": ["a"], "x": [1.5]})
+
+    def saved_and_loaded(out: StageOutput, key: str):
+        rel, cacheable, now_in = store.save_stage_folder(tmp_path, "demo", key, out)
+        assert now_in == tmp_path / rel  # no figure to draw: in place at once
+        assert cacheable
+        folder = tmp_path / rel
+        tables, *_ = store.load_stage_folder(tmp_path, rel, "demo")
+        for name, df in out.tables.items():  # what the Parquet file would give
+            pq.write_table(pa.Table.from_pandas(df, preserve_index=False), tmp_path / f"{name}.parquet")
+            pd.testing.assert_frame_equal(tables[name], pd.read_parquet(tmp_path / f"{name}.parquet"),
+                                          check_index_type=True)
+        return sorted(p.name for p in (folder / "tables").iterdir()), json.loads((folder / "output.json").read_text())
+
+    files, meta = saved_and_loaded(StageOutput(tables={"empty": empty, "full": full}), "0" * 20)
+    assert files == ["full.parquet"] and list(meta["empty"]) == ["empty"]
+    assert dict(meta["empty"]["empty"])["naive"] == "datetime64[ms]"  # Parquet's unit, not the frame's
+    real = store._empty_frame
+    monkeypatch.setattr(store, "_empty_frame", lambda cols: real(cols).astype({"x": "float32"}) if
+                        "x" in dict(cols) else real(cols))  # a name that does not rebuild its dtype
+    files, meta = saved_and_loaded(StageOutput(tables={"empty": empty, "full": full}), "1" * 20)
+    assert files == ["empty.parquet", "full.parquet"] and meta["empty"] == {}
+
+
+def test_every_stage_loads_the_same_tables_with_or_without_empty_tables_kept_as_dtypes(raw, tmp_path, monkeypatch):
+    """The whole rebuild: every stage's tables (most of them empty on a small tree) load equal to
+    what the Parquet files gave before tables without rows were kept as dtypes."""
+    import pandas as pd
+
+
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[mm]": [0, 1, 2, 3], "x_ref[mm]": [3] * 4})
+    loaded: dict[str, dict] = {}
+    real = runner.load_stage_folder
+
+    def spy(warehouse, rel, stage, fresh=None, folder=None):
+        got = real(warehouse, rel, stage, fresh, folder)
+        loaded.setdefault(warehouse.name, {})[stage] = got[0]
+        return got
+
+    monkeypatch.setattr(runner, "load_stage_folder", spy)
+    rebuild(raw.root, tmp_path / "as-dtypes", jobs=1, report=False)
+    monkeypatch.setattr(store, "_empty_columns", lambda arrow: None)  # every table as Parquet, as before
+    rebuild(raw.root, tmp_path / "as-parquet", jobs=1, report=False)
+    a, b = loaded["as-dtypes"], loaded["as-parquet"]
+    assert sorted(a) == sorted(b) and sum(len(t) for t in a.values()) > 10
+    n_empty = 0
+    for stage in a:
+        assert sorted(a[stage]) == sorted(b[stage])
+        for name in a[stage]:
+            pd.testing.assert_frame_equal(a[stage][name], b[stage][name], check_index_type=True)
+            n_empty += a[stage][name].empty
+    assert n_empty > 10
+
+
+# -- figures drawn beside the rebuild (FigureDrawer) -----------------------------------------------
+def tiny_plot(label: str, pid_file: str | None = None, fail: bool = False):
+    """A module-level plot function for recipes: a small figure; notes the drawing process's pid."""
+    import os
+
+    from matplotlib.figure import Figure
+
+    if fail:
+        raise ValueError(f"cannot draw {label}")
+    if pid_file:
+        with open(pid_file, "a") as fh:
+            fh.write(f"{os.getpid()}\n")
+    fig = Figure(figsize=(2, 1.5))
+    ax = fig.add_subplot()
+    ax.plot([0, 1, 2], [0, 1, 4])
+    ax.set_title(label)
+    return fig
+
+
+def _drawn(tmp_path, jobs, recipes, stage="demo"):
+    """Draw ``recipes`` ({name: FigureRecipe}) with a FigureDrawer into a stage folder."""
+
+    tmp, final = tmp_path / f".tmp-{stage}-{'0' * 20}-1", tmp_path / stage
+    (tmp / "figures").mkdir(parents=True)
+    with store.FigureDrawer(jobs) as drawer:
+        for name, recipe in recipes.items():
+            drawer.draw(stage, name, recipe, tmp / "figures" / f"{name}.png")
+        drawer.publish(tmp, final)
+        placed_before_finish = final.exists()
+        drawer.finish()
+    return placed_before_finish, final
+
+
+def test_figures_drawn_in_a_worker_are_the_bytes_drawn_at_once_and_placed_only_when_done(tmp_path):
+    import os
+
+    from pipeline.stages import FigureRecipe
+
+    pids = tmp_path / "pids.txt"
+    recipes = {n: FigureRecipe(tiny_plot, (n, str(pids))) for n in ("a", "b")}
+    early, aside = _drawn(tmp_path / "aside", 2, recipes)
+    drawers = {int(p) for p in pids.read_text().split()}
+    assert not early  # the folder is put in place by finish(), after its figures
+    assert drawers and os.getpid() not in drawers  # drawn in the worker process
+    pids.unlink()
+    early, here = _drawn(tmp_path / "here", 1, recipes)
+    assert not early and {int(p) for p in pids.read_text().split()} == {os.getpid()}  # --jobs 1: here
+    for n in recipes:
+        assert (aside / "figures" / f"{n}.png").read_bytes() == (here / "figures" / f"{n}.png").read_bytes()
+
+
+def test_a_figure_that_fails_fails_the_rebuild_and_places_no_folder(tmp_path):
+    from pipeline.stages import FigureRecipe
+
+    for jobs in (1, 2):
+        root = tmp_path / f"jobs{jobs}"
+        recipes = {"ok": FigureRecipe(tiny_plot, ("ok",)), "bad": FigureRecipe(tiny_plot, ("bad",), {"fail": True})}
+        with pytest.raises((RebuildError, ValueError), match="bad"):
+            _drawn(root, jobs, recipes)
+        assert not (root / "demo").exists()
+        if jobs > 1:  # the worker's error names the stage and the figure; the temporary folder is gone
+            assert not list(root.glob(".tmp-*"))
+
+
+def test_a_stage_folder_that_exists_is_reused_without_drawing(tmp_path):
+    import pandas as pd
+
+    from pipeline.stages import StageOutput
+
+    pids = tmp_path / "pids.txt"
+    out = StageOutput(tables={"t": pd.DataFrame({"run_id": ["a"], "x": [1.0]})})
+    out.draw("fig", tiny_plot, "fig", str(pids), caption="A figure.")
+    with store.FigureDrawer(2) as drawer:
+        rel, cacheable, now_in = store.save_stage_folder(tmp_path, "demo", "2" * 20, out, drawer)
+        assert now_in != tmp_path / rel and not (tmp_path / rel).exists()  # being drawn
+        drawer.finish()
+    assert (tmp_path / rel / "figures" / "fig.png").is_file() and pids.read_text().count("\n") == 1
+    _tables, figures, *_ = store.load_stage_folder(tmp_path, rel, "demo")
+    assert figures == [{"stage": "demo", "name": "fig", "path": f"{rel}/figures/fig.png", "caption": "A figure."}]
+    again = store.save_stage_folder(tmp_path, "demo", "2" * 20, out, store.FigureDrawer(2))
+    assert again == (rel, True, tmp_path / rel) and pids.read_text().count("\n") == 1  # not drawn again
+
+
+def test_a_rebuild_draws_the_same_figures_with_jobs_2_as_with_jobs_1(raw, tmp_path):
+    from pipeline.simulator import simulate_durability
+
+    sim = simulate_durability(hose_id="H1", distance_m=5.0, rng=1, stroke_m=0.1, dwell_s=0.05, fs_hz=200.0)
+    cols = {"t[s]": sim.data["t_s"].tolist(), "x[mm]": (sim.data["x_m"] * 1e3).round(3).tolist(),
+            "p_a[Pa]": sim.data["p_a_pa"].tolist(), "p_b[Pa]": sim.data["p_b_pa"].tolist()}
+    raw.csv("c/d1.csv", {"kind": "durability", "rig": "plpa-1", "hose_id": "H1",
+                         "started_at": "2026-01-02T08:00:00"}, cols)
+    raw.write("c/hoses.csv", "hose_id,event,at,hose_type,adjustment,z_rollers_mm,spring_force_n,failure_mode,"
+                             "wall_thickness_mm,distance_km,notes\nH1,installed,2026-01-01T00:00,FLEX,force,,866,,,,\n")
+    figs = {}
+    for jobs in (1, 2):
+        wh = tmp_path / f"wh{jobs}"
+        summary = rebuild(raw.root, wh, jobs=jobs, report=False)
+        assert summary.exit_code == 0, summary.quarantine
+        rows = query(wh, "SELECT stage, name, path FROM figures ORDER BY stage, name")
+        figs[jobs] = {(s, n): (wh / p).read_bytes() for s, n, p in rows}
+        assert not list((wh / "stages").glob(".tmp-*"))
+    assert ("durability", "hose_distance") in figs[1]
+    assert figs[2] == figs[1]
