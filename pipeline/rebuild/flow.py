@@ -45,7 +45,8 @@ from pipeline.versions import project_code_version
 from pipeline.rebuild.state import (KEEP_SUPERSEDED_H, FilePlan, FileRecord, PreviousState, StageRecord, frame_hash,
                             ingest_code_version, load_previous, logbook_hash, plan_runs, record_for, side_records,
                             stage_code_version, stage_input_key, superseded_files)
-from pipeline.warehouse import DB_NAME, build_database, runs_frame, swap_in
+from pipeline.rebuild.assemble import build_database, runs_frame, swap_in
+from pipeline.warehouse import DB_NAME
 from schemas.kind_names import KIND_NAMES  # not schemas.kinds: a no-op needs no pyarrow
 from pipeline.rebuild.state import record_result  # files of several runs (kept apart for the merge)
 

@@ -242,7 +242,7 @@ def log_order(columns) -> str:
 
 def load_previous(warehouse: Path) -> PreviousState:
     """Read the state of the live warehouse; an unreadable or missing one gives an empty state."""
-    from pipeline.warehouse import connect_readonly
+    from pipeline.serve.door import connect_readonly
 
     prev = PreviousState()
     try:

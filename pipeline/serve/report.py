@@ -37,7 +37,7 @@ from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
 from schemas.papers import PLA_CITATION, PLPA_CITATION
-from pipeline.warehouse import DB_NAME, connect_readonly
+from pipeline.serve.door import connect_readonly
 from schemas.units import COLUMN_UNITS, display_sensors_text
 
 MAX_ROWS = 30          # rows of a key table shown
@@ -419,7 +419,7 @@ def _csv_uri(columns: list[str], rows: list[tuple]) -> str:
     import csv
     import io
 
-    from pipeline.serve.query import neutralise_cell
+    from pipeline.serve.formats import neutralise_cell
 
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")

@@ -12,7 +12,7 @@ import duckdb
 import pytest
 
 from pipeline.rebuild.flow import EXIT_LOCKED, rebuild, warehouse_lock
-from pipeline.warehouse import connect_readonly
+from pipeline.serve.door import connect_readonly
 from tests.conftest import STEP_META, assert_raw_unchanged, raw_snapshot
 
 T = [0.0, 0.1, 0.2, 0.3]

@@ -12,7 +12,7 @@ import pytest
 import pipeline.rebuild.flow as rb
 from pipeline.rebuild.flow import rebuild
 from pipeline.stages import StageOutput
-from pipeline.warehouse import connect_readonly
+from pipeline.serve.door import connect_readonly
 from tests.conftest import PROJECT_ROOT, STEP_META, query
 
 T = [0.0, 0.1, 0.2, 0.3]

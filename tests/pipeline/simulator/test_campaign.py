@@ -14,7 +14,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from pipeline.simulator.campaign import VARIANTS, generate, plan_campaign, simulate_campaign
-from pipeline.warehouse import connect_readonly
+from pipeline.serve.door import connect_readonly
 
 SEED = 3
 MINI_PLANS, _ = plan_campaign(SEED, "mini")
