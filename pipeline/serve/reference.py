@@ -83,6 +83,7 @@ def column_meaning(column: str, described: dict[str, str]) -> str | None:
             return text.format(head + unit)
     return None
 
+
 DOC = Path(__file__).resolve().parents[2] / "docs" / "warehouse.md"
 
 
@@ -113,6 +114,7 @@ RUNTIME_TABLES = {
 
 
 def _cell(text: str | None) -> str:
+    """``text`` for one cell of a Markdown table (``|`` escaped, on one line)."""
     return (text or "").replace("|", "\\|").replace("\n", " ").strip()
 
 
@@ -169,6 +171,8 @@ def replace_block(text: str, block: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Rewrite the generated block of :data:`DOC`; with ``--check`` only say whether it is out of
+    date. Returns the exit code: 0, or 1 when ``--check`` finds the block out of date."""
     argv = sys.argv[1:] if argv is None else argv
     text = DOC.read_text(encoding="utf-8")
     new = replace_block(text, tables_markdown())

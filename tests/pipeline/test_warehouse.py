@@ -106,3 +106,27 @@ def test_plain_duckdb_client_needs_the_variable_and_says_so(tmp_path, monkeypatc
         assert con.execute("SELECT count(*) FROM runs").fetchone() == (1,)
     finally:
         con.close()
+
+
+def test_glob_escape_in_python_and_in_sql_agree():
+    """The door allows the glob-escaped samples folder and the views list glob-escaped paths: the
+    two escapes must be the same, else a warehouse under ``wh[1]`` could not read its own files."""
+    from pipeline.warehouse import ROOT_SQL, glob_escape
+
+    folder = "/lab/wh[1]/a*b?c"
+    assert glob_escape(folder) == "/lab/wh[[]1]/a[*]b[?]c"
+    con = duckdb.connect()
+    try:
+        con.execute(f"SET VARIABLE {ROOT_VARIABLE} = ?", [folder])
+        assert con.execute(f"SELECT {ROOT_SQL}").fetchone()[0] == glob_escape(folder)
+    finally:
+        con.close()
+
+
+def test_ddl_comments_give_a_tables_block_and_its_columns_lines():
+    from pipeline.warehouse import CONTRACT_ROWS, INTERNAL_TABLES, ddl_comments
+
+    described = ddl_comments()
+    assert described["runs"]["columns"]["campaign"] == "first folder under raw/"
+    assert set(INTERNAL_TABLES) - {"samples_files"} <= set(described)  # every internal table is in the DDL
+    assert all(isinstance(v, str) and v for v in CONTRACT_ROWS.values())
