@@ -3,9 +3,11 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 import signal
 import sys
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
 import click
@@ -112,6 +114,10 @@ def rebuild(raw, warehouse, quiet, no_report, **options):
     sys.exit(summary.exit_code)
 
 
+# The door's commands (query, tables, describe, plot, figures) import pipeline.serve where they run:
+# it imports duckdb (and plot matplotlib), which `pneubench --help`, `schedule` and `simulate` do without.
+
+
 def _query_error(exc, command: str = "query") -> None:
     """Print a refused or failed query and exit: 2 refused/usage, 3 failed; the line names ``command``."""
     import duckdb
@@ -156,7 +162,7 @@ def _query_error(exc, command: str = "query") -> None:
                    "disk or the statement fails.")
 @click.option("--temp-limit", default=None, metavar="SIZE",
               help="DuckDB's spill files in all (default 10GB, or $PNEUBENCH_QUERY_TEMP_LIMIT).")
-def query(sql, sql_file, warehouse, fmt, max_rows, max_width, csv_safe, timeout_s, memory_limit, temp_limit):
+def query(sql, sql_file, warehouse, **options):
     """Run one read-only SQL statement on the warehouse.
 
     \b
@@ -166,40 +172,64 @@ def query(sql, sql_file, warehouse, fmt, max_rows, max_width, csv_safe, timeout_
     """
     import duckdb
 
-    from pipeline.serve.query import QueryError, QueryLimitError, open_query, read_sql, terminal_width, write_result
+    from pipeline.serve.query import QueryError, QueryLimitError, read_sql
 
+    opts = QueryOptions(**options)
     if sql is not None and sql_file is not None:
         raise click.UsageError("give the SQL as an argument or with -f, not both")
-    if csv_safe and fmt != "csv":
+    if opts.csv_safe and opts.fmt != "csv":
         raise click.UsageError("--csv-safe goes with --format csv")
     if sql == "-":
         sql, sql_file = None, sys.stdin
     try:
-        text = read_sql(sql, sql_file)
-        with open_query(warehouse, text, arrow=fmt == "csv", timeout_s=timeout_s, memory_limit=memory_limit,
-                        temp_limit=temp_limit) as result:  # pyarrow only to stream CSV
-            out = sys.stdout
-            width = terminal_width() if fmt in ("auto", "table", "line") and max_width is None else None
-            write_result(result, out, fmt, max_rows=max_rows, width=width, max_width=max_width, csv_safe=csv_safe)
-            out.flush()
+        _write_query(warehouse, read_sql(sql, sql_file), opts)
     except FileNotFoundError as exc:
         raise click.UsageError(str(exc)) from None
     except (QueryError, QueryLimitError, duckdb.Error) as exc:
         _query_error(exc)
 
 
+@dataclass(frozen=True)
+class QueryOptions:
+    """The options of ``pneubench query`` after the SQL and the warehouse: how the result is
+    written (``fmt``, ``max_rows``, ``max_width``, ``csv_safe``) and the limits of its statement
+    (``timeout_s`` [s], ``memory_limit``, ``temp_limit``: DuckDB sizes such as ``2GB``)."""
+
+    fmt: str
+    max_rows: int
+    max_width: int | None
+    csv_safe: bool
+    timeout_s: float | None
+    memory_limit: str | None
+    temp_limit: str | None
+
+
+def _write_query(warehouse: Path, sql: str, opts: QueryOptions) -> None:
+    """Run ``sql`` through the door and stream its result to stdout in ``opts.fmt``."""
+    from pipeline.serve.formats import terminal_width, write_result
+    from pipeline.serve.query import open_query
+
+    with open_query(warehouse, sql, arrow=opts.fmt == "csv", timeout_s=opts.timeout_s, memory_limit=opts.memory_limit,
+                    temp_limit=opts.temp_limit) as result:  # pyarrow only to stream CSV
+        out = sys.stdout
+        width = terminal_width() if opts.fmt in ("auto", "table", "line") and opts.max_width is None else None
+        write_result(result, out, opts.fmt, max_rows=opts.max_rows, width=width, max_width=opts.max_width,
+                     csv_safe=opts.csv_safe)
+        out.flush()
+
+
 @main.command()
 @warehouse_option
 def tables(warehouse):
     """List the warehouse's tables and views: science first, internal (rebuild) ones last."""
-    from pipeline.serve.query import list_tables
+    from pipeline.serve.catalogue import list_tables
+    from pipeline.serve.formats import terminal_width
+    from pipeline.warehouse import INTERNAL_PREFIX
 
     try:
         found = list_tables(warehouse)
     except FileNotFoundError as exc:
         raise click.UsageError(str(exc)) from None
-    from pipeline.serve.query import terminal_width
-    from pipeline.warehouse import INTERNAL_PREFIX
 
     width = max((len(t["name"]) for t in found), default=4)
     room = terminal_width() - width - 16
@@ -220,7 +250,9 @@ def tables(warehouse):
               help="Widest a column gets before its cells wrap (default: fit the terminal; 0: never wrap).")
 def describe(table, warehouse, max_width):
     """Columns of TABLE with their types, units and meaning."""
-    from pipeline.serve.query import QueryError, describe_table, format_table, terminal_width
+    from pipeline.serve.catalogue import describe_table
+    from pipeline.serve.formats import format_table, terminal_width
+    from pipeline.serve.query import QueryError
 
     try:
         comment, cols = describe_table(warehouse, table)
@@ -244,9 +276,8 @@ def describe(table, warehouse, max_width):
               help="Output .png, .svg or .html (default: plot-<run>.png).")
 def plot(run_id, warehouse, channels, output):
     """Plot one run's channels against time (long runs: min/max per pixel column)."""
-    import re
-
-    from pipeline.serve.query import QueryError, plot_run
+    from pipeline.serve.plots import plot_run
+    from pipeline.serve.query import QueryError
 
     output = output or Path("plot-" + re.sub(r"[^A-Za-z0-9._-]+", "_", run_id).strip("._") + ".png")
     try:
@@ -263,7 +294,8 @@ def plot(run_id, warehouse, channels, output):
               help="Folder to copy the figures into.")
 def figures(warehouse, output):
     """Copy the current figures out of their stage folders into OUTPUT (<stage>-<name>.png)."""
-    from pipeline.serve.query import QueryError, copy_figures
+    from pipeline.serve.plots import copy_figures
+    from pipeline.serve.query import QueryError
 
     try:
         copied = copy_figures(warehouse, output)

@@ -58,7 +58,7 @@ STEP_META = {"kind": "step", "started_at": "2026-01-02T03:04:05", "rig": "plpa-1
 
 def query(warehouse: Path, sql: str, frame: bool = False):
     """Rows (or a DataFrame with ``frame=True``) of read-only SQL on a built warehouse."""
-    from pipeline.warehouse import connect_readonly
+    from pipeline.serve.door import connect_readonly
 
     con = connect_readonly(Path(warehouse))
     try:

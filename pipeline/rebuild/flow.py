@@ -39,6 +39,7 @@ from pipeline.readers import READERS
 from pipeline.rebuild.executors import Executor, make_executor
 from pipeline.rebuild.garbage import clean_debris, collect_garbage, split_kept
 from pipeline.rebuild.history import append_log, compare_findings
+from pipeline.rebuild.assemble import build_database, runs_frame
 from pipeline.rebuild.ingest_tasks import deduplicate, ingest_incremental
 from pipeline.rebuild.noop import inputs_key, nothing_changed, rebuild_noop
 from pipeline.rebuild.options import (EXIT_USAGE, RebuildError, RebuildOptions, RebuildRun, RebuildSummary,
@@ -51,7 +52,6 @@ from pipeline.rebuild.state import (FilePlan, FileRecord, PreviousState, load_pr
                                     side_records, superseded_files)
 from pipeline.serve.report.publish import settle_report
 from pipeline.versions import ingest_code_version
-from pipeline.warehouse import build_database, runs_frame
 
 log = logging.getLogger("pneubench")
 

@@ -27,7 +27,8 @@ from pipeline.rebuild.options import EXIT_LOCKED, EXIT_USAGE, RebuildError
 from pipeline.rebuild.state import FilePlan, PreviousState, load_previous
 from pipeline.serve.report.publish import publish_report, remove_report_folder
 from pipeline.serve.report.render import stage_report
-from pipeline.warehouse import DB_NAME, swap_in
+from pipeline.rebuild.assemble import swap_in
+from pipeline.warehouse import DB_NAME
 
 log = logging.getLogger("pneubench")
 

@@ -30,7 +30,8 @@ from typing import TYPE_CHECKING
 from pipeline.raw.problems import ConfigError
 from pipeline.raw.rawfile import open_raw
 from pipeline.raw.tree import RawTree
-from pipeline.warehouse import connect_readonly
+from pipeline.serve.door import connect_readonly
+from pipeline.warehouse import log_order
 
 if TYPE_CHECKING:  # pandas and the ingest are imported where used: a no-op rebuild needs neither
     import pandas as pd
@@ -164,12 +165,6 @@ class PreviousState:
         if "_history" not in self.__dict__:
             self.__dict__["_history"] = self.history_loader() if callable(self.history_loader) else None
         return self.__dict__["_history"]
-
-
-def log_order(columns) -> str:
-    """``ORDER BY`` of ``rebuild_log``, the last rebuild first: by ``seq`` (a log from before the
-    column: by its stored order, the order rebuilds appended it)."""
-    return "seq DESC NULLS LAST" if "seq" in set(columns) else "rowid DESC"
 
 
 def load_previous(warehouse: Path) -> PreviousState:

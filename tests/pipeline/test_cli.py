@@ -106,3 +106,12 @@ def test_quiet_dask_rebuild_prints_nothing(raw, warehouse):
     res = _pneubench("rebuild", "-q", "--executor", "dask", "--jobs", "1", "--no-report", "--full",
                      "--raw", raw.root, "--warehouse", warehouse, env={"DASK_LOGGING__DISTRIBUTED": "info"})
     assert res.returncode == 0 and "Scheduler at:" in res.stderr
+
+
+def test_query_options_are_the_query_commands_options_after_the_sql_and_the_warehouse():
+    import dataclasses
+
+    from pipeline.cli import QueryOptions
+
+    names = {p.name for p in main.commands["query"].params} - {"sql", "sql_file", "warehouse"}
+    assert names == {f.name for f in dataclasses.fields(QueryOptions)}

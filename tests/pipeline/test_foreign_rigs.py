@@ -58,7 +58,7 @@ def _rows(wh, sql):
 
 def _q(wh, sql, params):
     """Rows of a parameterised query, as a DataFrame."""
-    from pipeline.warehouse import connect_readonly
+    from pipeline.serve.door import connect_readonly
 
     con = connect_readonly(wh)
     try:

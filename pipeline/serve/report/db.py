@@ -2,7 +2,7 @@
 rows, columns and counts, the run ids, and the last rebuild's generation and inputs key."""
 from __future__ import annotations
 
-from pipeline.rebuild.state import log_order
+from pipeline.warehouse import log_order
 
 
 class ReportDB:

@@ -18,7 +18,7 @@ from pathlib import Path
 from pipeline.serve.report.db import ReportDB
 from pipeline.serve.report.folders import (GENERATION_FILE, OWN_FILE, OWN_PAGE, REPORT_DIR, link_or_copy,
                                            scandir)
-from pipeline.warehouse import connect_readonly
+from pipeline.serve.door import connect_readonly
 
 #: A complete report folder, and one being written (staging names: ``<pid>-<8 hex>``).
 _FOLDER = re.compile(r"\.report-[0-9]+-[0-9a-f]{8}")

@@ -19,7 +19,7 @@ from pipeline.serve.report.pages import carry_pages, run_pages_present, runs_ind
 from pipeline.serve.report.publish import live_generation, publish_report, settle_report, stage_folder
 from pipeline.serve.report.results import results_sections
 from pipeline.serve.report.sections import findings_section, rebuild_line, rebuild_section, toc
-from pipeline.warehouse import connect_readonly
+from pipeline.serve.door import connect_readonly
 
 
 class ReportError(Exception):

@@ -8,7 +8,7 @@ import csv
 import io
 from pathlib import Path
 
-from pipeline.serve.query import neutralise_cell
+from pipeline.serve.formats import neutralise_cell
 from pipeline.serve.report.db import ReportDB
 from pipeline.serve.report.markup import esc
 from pipeline.serve.report.summaries import (summary_breakaway, summary_hoses, summary_identification,

@@ -3,7 +3,7 @@ import pytest
 
 from pipeline.rebuild.executors import CRASH_REASON, DaskExecutor, Executor, LocalExecutor, make_executor
 from pipeline.rebuild.flow import rebuild
-from pipeline.warehouse import connect_readonly
+from pipeline.serve.door import connect_readonly
 from tests.conftest import PROJECT_ROOT, STEP_META
 
 distributed = pytest.importorskip("distributed")

@@ -240,7 +240,7 @@ class FakeClock:
 READER = """
 import sys, duckdb
 from pathlib import Path
-from pipeline.warehouse import connect_readonly
+from pipeline.serve.door import connect_readonly
 con = connect_readonly(Path(sys.argv[1]).parent)
 for line in sys.stdin:
     try:

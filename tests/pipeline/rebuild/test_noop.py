@@ -9,7 +9,7 @@ import pytest
 import pipeline.rebuild.flow as rb
 import pipeline.rebuild.noop as noop
 from pipeline.rebuild.flow import rebuild
-from pipeline.warehouse import connect_readonly
+from pipeline.serve.door import connect_readonly
 from tests.conftest import PROJECT_ROOT, STEP_META
 from tests.pipeline.rebuild.test_state import BREAK, T, age, q, step
 

@@ -15,7 +15,7 @@ import pytest
 from pipeline.rebuild.flow import rebuild
 from pipeline.rebuild.options import EXIT_LOCKED, EXIT_OK, RebuildError
 from pipeline.rebuild.publish import warehouse_lock
-from pipeline.warehouse import connect_readonly
+from pipeline.serve.door import connect_readonly
 from tests.conftest import STEP_META, assert_raw_unchanged, query, raw_snapshot
 
 T = [0.0, 0.1, 0.2, 0.3]

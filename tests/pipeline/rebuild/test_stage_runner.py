@@ -4,7 +4,8 @@ import pandas as pd
 import pytest
 
 import pipeline.stages as st
-from pipeline.rebuild.flow import RebuildError, rebuild
+from pipeline.rebuild.flow import rebuild
+from pipeline.rebuild.options import RebuildError
 from pipeline.rebuild.stage_runner import duration_text
 from pipeline.stages import Reads, StageOutput
 from tests.conftest import query

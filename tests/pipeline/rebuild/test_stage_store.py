@@ -4,7 +4,8 @@ import pytest
 
 import pipeline.rebuild.stage_runner as runner
 import pipeline.rebuild.stage_store as store
-from pipeline.rebuild.flow import RebuildError, rebuild
+from pipeline.rebuild.flow import rebuild
+from pipeline.rebuild.options import RebuildError
 from tests.conftest import STEP_META, query
 
 T = [0.0, 0.1, 0.2, 0.3]

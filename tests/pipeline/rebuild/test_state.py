@@ -9,7 +9,7 @@ import pytest
 
 import pipeline.rebuild.ingest_tasks as tasks
 from pipeline.rebuild.flow import rebuild
-from pipeline.warehouse import connect_readonly
+from pipeline.serve.door import connect_readonly
 from tests.conftest import STEP_META, query
 
 T = [0.0, 0.1, 0.2, 0.3]

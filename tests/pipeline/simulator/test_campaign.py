@@ -18,7 +18,7 @@ from pipeline.simulator.base import SimRun
 from pipeline.simulator.campaign import plan_campaign, simulate_campaign
 from pipeline.simulator.runs import channels_of, simulate_plan
 from pipeline.simulator.variants import VARIANTS
-from pipeline.warehouse import connect_readonly
+from pipeline.serve.door import connect_readonly
 
 SEED = 3
 MINI_PLANS, _ = plan_campaign(SEED, "mini")

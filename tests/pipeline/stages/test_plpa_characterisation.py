@@ -176,7 +176,7 @@ def _table(wh, sql):
 
 
 def test_seal_envelope_macro_at_the_default_threshold_is_the_table(built):
-    from pipeline.warehouse import table_columns
+    from pipeline.rebuild.assemble import table_columns
 
     wh, _, _ = built
     con = duckdb.connect(str(wh / "pneubench.duckdb"), read_only=True)

@@ -5,10 +5,10 @@ import re
 import subprocess
 from pathlib import Path
 
-from pipeline import reference
-from pipeline.warehouse import connect_readonly
+from pipeline.serve import reference
+from pipeline.serve.door import connect_readonly
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def _sections(text: str) -> dict[str, str]:
@@ -18,7 +18,7 @@ def _sections(text: str) -> dict[str, str]:
 
 
 def test_the_table_reference_is_in_step_with_the_ddl():
-    assert reference.main(["--check"]) == 0, "run `python -m pipeline.reference` and commit docs/warehouse.md"
+    assert reference.main(["--check"]) == 0, "run `python -m pipeline.serve.reference` and commit docs/warehouse.md"
 
 
 def test_every_table_and_column_of_a_built_warehouse_is_documented(demo):
@@ -73,7 +73,7 @@ def test_the_project_stands_alone_no_link_leaves_the_repository():
                              text=True, check=True).stdout.split()
     assert tracked
     leaving = [p for p in tracked if "shared/spec" in (ROOT / p).read_text(encoding="utf-8", errors="replace")
-               and p != "tests/pipeline/test_reference.py"]
+               and p != "tests/pipeline/serve/test_reference.py"]
     assert not leaving, f"links to files a clone does not have: {leaving}"
     for doc in ("bench-exports.md", "warehouse.md", "physics.md"):
         assert (ROOT / "docs" / doc).stat().st_size > 2000
