@@ -93,3 +93,51 @@ def test_tests_mirror_the_package(package):
         if not mirror.is_file():
             missing.append(f"{rel} -> {mirror.relative_to(PROJECT_ROOT)}")
     assert not missing, "\n".join(missing)
+
+
+#: What each folder may import (docs/CONTRIBUTING.md, "The map"): the flow runs one way.
+MAY_IMPORT = {
+    "schemas": set(),
+    "analyses": {"schemas"},
+    "pipeline.versions": set(),
+    "pipeline.progress": set(),
+    "pipeline.warehouse": {"schemas"},
+    "pipeline.readers": {"schemas"},
+    "pipeline.raw": {"pipeline.readers", "schemas"},
+    "pipeline.ingest": {"pipeline.raw", "pipeline.readers", "pipeline.versions", "schemas"},
+    "pipeline.stages": {"analyses", "pipeline.ingest", "pipeline.raw", "pipeline.progress", "schemas"},
+    "pipeline.serve": {"pipeline.stages", "pipeline.warehouse", "schemas"},
+    "pipeline.simulator": {"pipeline.progress", "schemas"},
+    "pipeline.schedule": set(),
+    "pipeline.rebuild": {"pipeline.ingest", "pipeline.progress", "pipeline.raw", "pipeline.readers",
+                         "pipeline.serve", "pipeline.stages", "pipeline.versions", "pipeline.warehouse", "schemas"},
+}
+
+
+def _folder(module: str) -> str | None:
+    parts = module.split(".")
+    if parts[0] in ("schemas", "analyses"):
+        return parts[0]
+    if parts[0] != "pipeline" or len(parts) == 1:
+        return None
+    return "pipeline." + parts[1]
+
+
+def test_each_folder_imports_only_the_folders_below_it():
+    wrong = []
+    for f, text in _sources().items():
+        own = _folder(f[:-3].replace("/", "."))
+        if own == "pipeline.cli" or own is None:
+            continue
+        for node in ast.walk(ast.parse(text)):
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                names = [node.module] if node.module != "pipeline" else [f"pipeline.{a.name}" for a in node.names]
+            else:
+                continue
+            for name in names:
+                other = _folder(name)
+                if other and other != own and other not in MAY_IMPORT.get(own, set()):
+                    wrong.append(f"{f}:{node.lineno} {own} imports {name}")
+    assert not wrong, "\n".join(wrong)

@@ -61,9 +61,9 @@ CREATE TABLE stage_cache (
     stage           VARCHAR NOT NULL,
     input_key       VARCHAR NOT NULL,
     folder          VARCHAR NOT NULL,     -- relative to the warehouse
-    kinds_read      VARCHAR[],
-    all_runs_read   BOOLEAN,
-    results_read    JSON                  -- earlier tables read -> content hash
+    kinds_read      VARCHAR[],            -- the kinds of runs the stage declares it reads (READS.kinds)
+    all_runs_read   BOOLEAN,              -- always false since stages declare their reads (kept for old warehouses)
+    results_read    JSON                  -- earlier tables the stage declares it reads (READS.tables) -> content hash
 );
 
 -- The figures of the current warehouse: one row per figure an analysis stage drew.
