@@ -92,15 +92,9 @@ class Manifests:
 
     def _load(self, folder: Path) -> dict[str, dict] | ConfigError:
         tree = self.tree
-        f = folder / "manifest.csv"
-        blocked = tree.entry_problem(f)
-        miscased = tree.miscased(folder, "manifest.csv")
-        if blocked is not None:  # a quarantine row of its own (walk_raw)
-            return ConfigError(f"cannot use {tree.rel(f)}: {blocked}")
-        if miscased is not None:
-            return miscased
-        if not os.path.isfile(f):
-            return {}
+        f = tree.side_file(folder, "manifest.csv")
+        if f is None or isinstance(f, ConfigError):
+            return {} if f is None else f
         try:
             return self._parse(folder, f)
         except _BadManifest as exc:

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import copy
 import json
-import os
 import tomllib
 from pathlib import Path
 
@@ -102,15 +101,9 @@ class RigFiles:
 
     def _load(self, folder: Path) -> dict | ConfigError:
         tree = self.tree
-        f = folder / "rig.toml"
-        blocked = tree.entry_problem(f)
-        miscased = tree.miscased(folder, "rig.toml")
-        if blocked is not None:  # a quarantine row of its own (walk_raw)
-            return ConfigError(f"cannot use {tree.rel(f)}: {blocked}")
-        if miscased is not None:
-            return miscased
-        if not os.path.isfile(f):
-            return {}
+        f = tree.side_file(folder, "rig.toml")
+        if f is None or isinstance(f, ConfigError):
+            return {} if f is None else f
         cfg, msg = read_rig(tree.root, f)
         if msg is None:
             msg = bad_tables(cfg)

@@ -129,6 +129,20 @@ class RawTree:
             self._miscased[key] = err
         return self._miscased[key]
 
+    def side_file(self, folder: Path, name: str) -> Path | ConfigError | None:
+        """The side file ``name`` (``rig.toml``, ``manifest.csv``) of ``folder`` as the rig and
+        manifest readers may use it: its path; None when the folder has none; or the ConfigError
+        that quarantines the runs it applies to (the walk cannot use it, or it is named in
+        another case: :meth:`miscased`, recorded once either way)."""
+        f = folder / name
+        blocked = self.entry_problem(f)
+        miscased = self.miscased(folder, name)
+        if blocked is not None:  # a quarantine row of its own (walk_raw)
+            return ConfigError(f"cannot use {self.rel(f)}: {blocked}")
+        if miscased is not None:
+            return miscased
+        return f if os.path.isfile(f) else None
+
     # -- paths ----------------------------------------------------------------------------------
     def real(self, path: Path) -> Path:
         """The path with its folders resolved but not its last component (a symlink inside raw/

@@ -297,27 +297,6 @@ def test_a_connection_opened_before_two_rebuilds_still_reads_its_samples_until_t
     assert (warehouse / q(warehouse, "SELECT samples_path FROM runs")[0][0]).is_file()
 
 
-def test_keep_superseded_option_and_environment(raw, warehouse, monkeypatch):
-    from click.testing import CliRunner
-
-    from pipeline.cli import main
-
-    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
-    args = ["rebuild", "--raw", str(raw.root), "--warehouse", str(warehouse), "--jobs", "1", "--no-report"]
-    assert CliRunner().invoke(main, args).exit_code == 0
-    first = q(warehouse, "SELECT samples_path FROM runs")[0][0]
-    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": [1.0] * 4, "x_ref[m]": T})
-    monkeypatch.setenv("PNEUBENCH_KEEP_SUPERSEDED_H", "soon")
-    res = CliRunner().invoke(main, args)
-    assert res.exit_code == 2 and "--keep-superseded" in res.output and "soon" in res.output
-    with pytest.raises(RebuildError, match="PNEUBENCH_KEEP_SUPERSEDED_H='soon' is not a number") as err:
-        rebuild(raw.root, warehouse, jobs=1)
-    assert err.value.exit_code == 2
-    monkeypatch.setenv("PNEUBENCH_KEEP_SUPERSEDED_H", "24")
-    assert CliRunner().invoke(main, [*args, "--keep-superseded", "0"]).exit_code == 0  # the option wins
-    assert not (warehouse / first).exists()
-
-
 def _tree_listing(folder):
     """Every path under ``folder`` with its bytes' hash (the lock file aside: it holds the pid)."""
     import hashlib
@@ -330,48 +309,3 @@ def _steps(raw, names):
     for n in names:
         raw.csv(f"c/{n}.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
 
-
-def test_an_empty_raw_tree_is_refused_before_anything_is_written_unless_allowed(raw, warehouse, tmp_path):
-    # issue 21.1: an unmounted share (an empty raw/) emptied the warehouse with exit 0
-    _steps(raw, "abcdefgh")
-    assert rebuild(raw.root, warehouse, jobs=1).n_runs == 8
-    before = _tree_listing(warehouse)
-    empty = tmp_path / "mountpoint"
-    empty.mkdir()
-    with pytest.raises(RebuildError) as err:
-        rebuild(empty, warehouse, jobs=1)
-    assert err.value.exit_code == 2
-    assert "refusing to delete 8 of the warehouse's 8 runs" in str(err.value)
-    assert "c/a.csv, c/b.csv, c/c.csv, ..." in str(err.value) and "--allow-mass-delete" in str(err.value)
-    assert _tree_listing(warehouse) == before  # database, report, samples, stages: as they were
-    # more than half of the runs (and at least MASS_DELETE_MIN_RUNS): refused too
-    for n in "abcde":
-        (raw.root / f"c/{n}.csv").unlink()
-    with pytest.raises(RebuildError, match="refusing to delete 5 of the warehouse's 8 runs"):
-        rebuild(raw.root, warehouse, jobs=1)
-    assert _tree_listing(warehouse) == before
-    # intended: allowed
-    s = rebuild(empty, warehouse, jobs=1, allow_mass_delete=True)
-    assert (s.n_runs, s.n_deleted, s.exit_code) == (0, 8, EXIT_OK)
-    assert query(warehouse, "SELECT count(*) FROM runs") == [(0,)]
-
-
-def test_deleting_half_the_runs_or_fewer_than_five_goes_on_and_a_first_empty_build_is_no_mass_delete(raw, tmp_path):
-    empty = tmp_path / "empty"
-    empty.mkdir()
-    s = rebuild(empty, tmp_path / "w0", jobs=1)  # a first build of nothing deletes nothing
-    assert (s.n_runs, s.exit_code) == (0, EXIT_OK)
-    _steps(raw, "abcdefgh")
-    wh = tmp_path / "w1"
-    rebuild(raw.root, wh, jobs=1)
-    for n in "abcd":  # exactly half
-        (raw.root / f"c/{n}.csv").unlink()
-    s = rebuild(raw.root, wh, jobs=1)
-    assert (s.n_runs, s.n_deleted) == (4, 4)
-    for n in "efg":  # 3 of 4: more than half, but fewer than MASS_DELETE_MIN_RUNS
-        (raw.root / f"c/{n}.csv").unlink()
-    s = rebuild(raw.root, wh, jobs=1)
-    assert (s.n_runs, s.n_deleted) == (1, 3)
-    (raw.root / "c/h.csv").unlink()  # the last run: all of them, refused whatever their number
-    with pytest.raises(RebuildError, match="refusing to delete 1 of the warehouse's 1 runs"):
-        rebuild(raw.root, wh, jobs=1)
