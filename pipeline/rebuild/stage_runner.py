@@ -157,7 +157,7 @@ def run_stages_cached(inputs: StageInputs, progress: Progress, drawer: FigureDra
 
 def _input_key(name: str, code: str, reads: Reads, inputs: StageInputs) -> str:
     """A stage's input key: its code, the runs of the kinds it reads, the logbooks if it reads them."""
-    return stage_input_key(name, code, inputs.runs, set(reads.kinds), False, inputs.logbooks if reads.logbooks else None)
+    return stage_input_key(name, code, inputs.runs, set(reads.kinds), inputs.logbooks if reads.logbooks else None)
 
 
 def _tables_read(reads: Reads, res: StageResults) -> dict[str, str]:

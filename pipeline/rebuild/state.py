@@ -384,10 +384,11 @@ def frame_hash(df: pd.DataFrame | None) -> str:
     return h.hexdigest()[:32]
 
 
-def stage_input_key(name: str, code: str, runs: list[dict], kinds: set[str], all_runs: bool,
-                    logbooks: str | None) -> str:
-    blob = {"stage": name, "code": code, "runs": runs_fingerprint(runs, None if all_runs else kinds),
-            "kinds": sorted(kinds), "all": all_runs, "logbooks": logbooks}
+def stage_input_key(name: str, code: str, runs: list[dict], kinds: set[str], logbooks: str | None) -> str:
+    """Key of a stage's inputs: its code version, the runs of the kinds it declares it reads and
+    the logbooks' hash when it declares it reads them (the tables it reads are compared apart)."""
+    blob = {"stage": name, "code": code, "runs": runs_fingerprint(runs, kinds), "kinds": sorted(kinds),
+            "logbooks": logbooks}
     return hashlib.sha256(json.dumps(blob, sort_keys=True).encode()).hexdigest()[:32]
 
 
