@@ -249,18 +249,27 @@ class MaxInformation:
     looks: int
 
 
+@functools.lru_cache(maxsize=64)
 def inflation_factor(looks: int, alpha: float = 0.05, power: float = 0.8,
                      spending: str = "obrien-fleming") -> tuple[float, float]:
     """``(R, drift)`` of a design with ``looks`` equally spaced looks, computed exactly.
 
     ``drift`` solves P(cross the upper boundary | drift) = ``power``;
-    ``R = (drift / (z_{1-alpha/2} + z_power))^2`` [-].
+    ``R = (drift / (z_{1-alpha/2} + z_power))^2`` [-]. ``R`` is 1 for one look and below ~1.3
+    (O'Brien-Fleming ~1.07, Pocock ~1.29 at a look per failure), so the root is bracketed in
+    ``R`` 0.99..1.69 first.
     """
     t = np.arange(1, looks + 1) / looks
     c = efficacy_boundaries(t, alpha, spending)
     fixed = stats.norm.isf(alpha / 2) + stats.norm.ppf(power)
-    drift = optimize.brentq(lambda d: crossing_probabilities(c, t, d)[0].sum() - power,
-                            0.5 * fixed, 2.0 * fixed, xtol=1e-8)
+
+    def excess(d):
+        return crossing_probabilities(c, t, d)[0].sum() - power
+
+    lo, hi = 0.995 * fixed, 1.3 * fixed
+    if excess(hi) < 0:
+        lo, hi = hi, 3.0 * fixed
+    drift = optimize.brentq(excess, lo, hi, xtol=1e-7)
     return (drift / fixed) ** 2, drift
 
 
