@@ -1,0 +1,154 @@
+"""The sequential verdict: spending functions, exact boundaries against published constants and an
+independent multivariate-normal integration, inflation factors (Jennison & Turnbull 2000), the
+sticky verdict."""
+import math
+
+import numpy as np
+import pytest
+from scipy import optimize, stats
+
+from analyses.sequential import (alpha_spent, crossing_probabilities, efficacy_boundaries, inflation_factor,
+                                 max_information, sequential_verdict)
+
+Z975 = stats.norm.isf(0.025)
+
+
+def test_spending_functions_hand_checked():
+    for family in ("obrien-fleming", "pocock"):
+        assert alpha_spent([0.0, 1.0, 1.7], 0.05, family) == pytest.approx([0.0, 0.05, 0.05], abs=1e-15)
+        assert np.all(np.diff(alpha_spent(np.linspace(0, 1, 50), 0.05, family)) > 0)
+    # O'Brien-Fleming type at t = 1/2: 2 - 2 Phi(1.95996 sqrt 2) = 0.005575; Pocock type 0.05 ln(1 + (e-1)/2)
+    assert alpha_spent(0.5, 0.05, "obrien-fleming") == pytest.approx(2 * stats.norm.sf(Z975 * math.sqrt(2)), rel=1e-12)
+    assert alpha_spent(0.5, 0.05, "obrien-fleming") == pytest.approx(0.005575, abs=1e-6)
+    assert alpha_spent(0.5, 0.05, "pocock") == pytest.approx(0.05 * math.log(1 + (math.e - 1) / 2), rel=1e-12)
+    with pytest.raises(ValueError):
+        alpha_spent(0.5, 0.05, "haybittle")
+
+
+@pytest.mark.parametrize("k,pocock,obf", [(2, 2.178, 1.977), (3, 2.289, 2.004), (4, 2.361, 2.024), (5, 2.413, 2.040)])
+def test_published_pocock_and_obrien_fleming_constants_spend_alpha(k, pocock, obf):
+    """J&T Table 2.1 (Pocock C_P) and 2.3 (O'Brien-Fleming C_B, boundaries C_B sqrt(K/k)) at alpha 0.05:
+    the exact crossing probability of the published (3-decimal) constants is 0.05."""
+    t = np.arange(1, k + 1) / k
+    up, lo = crossing_probabilities(np.full(k, pocock), t)
+    assert up.sum() + lo.sum() == pytest.approx(0.05, abs=3e-4)
+    assert up.sum() == pytest.approx(lo.sum(), rel=1e-9)
+    up, lo = crossing_probabilities(obf * np.sqrt(k / np.arange(1, k + 1)), t)
+    assert up.sum() + lo.sum() == pytest.approx(0.05, abs=3e-4)
+
+
+def test_lan_demets_boundaries_hand_checked():
+    # one look: the fixed-sample 1.96; the first O'Brien-Fleming-type look spends exactly 2 Phi(-z/sqrt t1)
+    assert efficacy_boundaries([1.0]) == pytest.approx([Z975], abs=1e-8)
+    t = np.arange(1, 6) / 5
+    c = efficacy_boundaries(t, 0.05, "obrien-fleming")
+    assert c[0] == pytest.approx(Z975 / math.sqrt(0.2), abs=1e-7)
+    assert np.all(np.diff(c) < 0) and 1.96 < c[-1] < 2.1
+    # Lan-DeMets Pocock type, 5 equal looks, two-sided 0.05: the published 2.438 2.427 2.410 2.397 2.386
+    assert efficacy_boundaries(t, 0.05, "pocock") == pytest.approx([2.438, 2.427, 2.410, 2.397, 2.386], abs=6e-4)
+
+
+def test_crossing_probability_under_no_difference_is_alpha_by_an_independent_integration():
+    """Unequal looks; P(all |Z_k| < c_k) by scipy's multivariate normal CDF with Cov = sqrt(t_j / t_k)."""
+    t = np.array([0.23, 0.61, 1.0])
+    for family in ("obrien-fleming", "pocock"):
+        c = efficacy_boundaries(t, 0.05, family)
+        cov = np.sqrt(np.minimum.outer(t, t) / np.maximum.outer(t, t))
+        inside = stats.multivariate_normal(np.zeros(3), cov).cdf(c, lower_limit=-c)
+        assert 1 - inside == pytest.approx(0.05, abs=2e-4)
+        up, lo = crossing_probabilities(c, t)
+        assert np.cumsum(up + lo) == pytest.approx(alpha_spent(t, 0.05, family), abs=1e-8)
+    # an unfinished test spends only alpha(t) so far
+    up, lo = crossing_probabilities(efficacy_boundaries([0.3, 0.5]), [0.3, 0.5])
+    assert (up + lo).sum() == pytest.approx(alpha_spent(0.5), abs=1e-9)
+
+
+def test_many_looks_still_spend_exactly_alpha():
+    t = np.arange(1, 151) / 150
+    c = efficacy_boundaries(t, 0.05, "pocock")
+    up, lo = crossing_probabilities(c, t)
+    assert (up + lo).sum() == pytest.approx(0.05, abs=1e-6)
+
+
+def test_crossing_under_a_drift_agrees_with_simulated_brownian_motion():
+    rng = np.random.default_rng(7)
+    t = np.array([0.2, 0.45, 0.7, 1.0])
+    c = efficacy_boundaries(t, 0.05, "pocock")
+    drift = 2.9
+    up, _ = crossing_probabilities(c, t, drift)
+    inc = np.diff(np.concatenate([[0], t]))
+    s = np.cumsum(rng.normal(drift * inc, np.sqrt(inc), size=(200_000, 4)), axis=1)
+    z = s / np.sqrt(t)
+    first = np.argmax(np.abs(z) >= c, axis=1)
+    hit = np.abs(z[np.arange(len(z)), first]) >= c[first]
+    sim = np.mean(hit & (z[np.arange(len(z)), first] > 0))
+    assert up.sum() == pytest.approx(sim, abs=4 * math.sqrt(sim * (1 - sim) / len(z)))
+
+
+@pytest.mark.parametrize("k,r_pocock,r_obf", [(2, 1.110, 1.008), (5, 1.229, 1.028)])
+def test_inflation_factors_match_jennison_turnbull(k, r_pocock, r_obf):
+    """J&T Tables 2.4 and 2.6 (alpha 0.05, power 0.8): R for the constant Pocock and O'Brien-Fleming tests."""
+    t = np.arange(1, k + 1) / k
+    fixed = Z975 + stats.norm.ppf(0.8)
+    for c, r in ((np.full(k, {2: 2.178, 5: 2.413}[k]), r_pocock),
+                 ({2: 1.977, 5: 2.040}[k] * np.sqrt(k / np.arange(1, k + 1)), r_obf)):
+        drift = optimize.brentq(lambda d: crossing_probabilities(c, t, d)[0].sum() - 0.8, 1, 5)
+        assert (drift / fixed) ** 2 == pytest.approx(r, abs=2e-3)
+
+
+def test_max_information_hand_checked_and_inflated():
+    fixed = 4 * (Z975 + stats.norm.ppf(0.8)) ** 2 / math.log(1.25) ** 2     # 630.5 failures, shape 1
+    one = max_information(1.25, looks=1)
+    assert one.failures_fixed == pytest.approx(fixed) and one.failures == math.ceil(fixed)
+    assert one.inflation == pytest.approx(1.0, abs=1e-6)
+    assert max_information(1 / 1.25, looks=1).failures == one.failures      # a ratio and its inverse
+    five = max_information(1.25, 0.05, 0.8, "pocock", shape=2.0, looks=5)
+    r, _ = inflation_factor(5, 0.05, 0.8, "pocock")
+    assert five.inflation == pytest.approx(r) and five.failures == math.ceil(r * fixed / 4)
+    every = max_information(1.25, 0.05, 0.8, "obrien-fleming", shape=2.0)
+    assert every.looks == every.failures                                        # a look at every failure
+    assert 1.0 < every.inflation < 1.1 and every.failures > every.failures_fixed
+    with pytest.raises(ValueError):
+        max_information(1.0)
+
+
+def test_verdict_sticks_once_declared():
+    t = np.arange(1, 6) / 5
+    se = np.array([0.1, 0.1, 0.1, 0.05, 0.1])
+    c = efficacy_boundaries(t)
+    est = np.array([0.1, 0.05, c[2] * 0.1 + 0.01, 0.0, -0.5])     # crosses up at look 2, then falls
+    v = sequential_verdict(est, se, t, margin=1.25)
+    assert (v.verdict, v.decided_at) == ("force longer", 2)
+    assert v.crossed == ("", "", "force longer", "no practical difference", "distance longer")
+    assert v.boundary_z == pytest.approx(c)
+    assert v.efficacy_upper == pytest.approx(c * se) and v.rci_lower == pytest.approx(est - c * se)
+    down = sequential_verdict(-est, se, t, margin=1.25)
+    assert (down.verdict, down.decided_at) == ("distance longer", 2)
+
+
+def test_no_practical_difference_when_the_interval_lies_inside_the_margin():
+    t = np.array([0.5, 1.0])
+    v = sequential_verdict([0.01, 0.0], [0.02, 0.02], t, margin=1.25)
+    assert (v.verdict, v.decided_at) == ("no practical difference", 0)
+    lm = math.log(1.25)
+    assert v.futility_upper[0] == pytest.approx(lm - v.boundary_z[0] * 0.02)
+    # wide interval: neither, and the futility range is empty (NaN)
+    w = sequential_verdict([0.05, 0.05], [0.2, 0.2], t, margin=1.25)
+    assert (w.verdict, w.decided_at) == ("undecided", None) and np.isnan(w.futility_upper).all()
+
+
+def test_looks_without_an_estimate_or_new_information_do_not_decide():
+    t = np.array([0.5, 1.0, 1.2, 1.4])      # capped at 1: the last two bring no new information
+    v = sequential_verdict([np.nan, 0.0, 1.0, 1.0], [np.nan, 0.3, 0.1, 0.1], t, margin=1.25)
+    assert v.verdict == "undecided" and v.decided_at is None
+    assert v.crossed == ("", "", "force longer", "force longer")
+    assert v.information_fraction == pytest.approx([0.5, 1, 1, 1])
+    assert v.boundary_z[2] == v.boundary_z[1] == v.boundary_z[3]
+    assert "without an estimate" in v.note and "new information" in v.note
+    with pytest.raises(ValueError):
+        sequential_verdict([0.1, 0.1], [0.1, 0.1], [0.6, 0.5], margin=1.25)
+
+
+def test_calibration_benchmark_quick_passes():
+    from benchmarks.bench_sequential import main
+    assert main(["--quick"]) == 0
