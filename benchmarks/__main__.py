@@ -21,6 +21,7 @@ BENCHMARKS = {
     "scale": ([], ["--runs", "300,1000"]),  # the cost curve to 10,000 runs
     "memo": ([], ["--entries", "1000"]),  # the per-run memo's own cost: one change out of 10,000
     "versions": ([], ["--runs", "300", "--repeat", "2"]),  # before / after a change (--ref main~1), same run
+    "life_effect": ([], ["--quick"]),  # coverage of the life ratio's and shape's 90 % intervals, 480 simulated hose types
 }
 
 
