@@ -36,13 +36,17 @@ Bounds and tests (Meeker & Escobar 1998, sections 8.3 and 17.3)
   lives: ``life_ratio`` is then the ratio of the two adjustments' own B10, its bounds and its
   p-value from the profile likelihood of the four-parameter model (for a trial ratio ``rho`` the
   likelihood is maximised over the distance B10 ``b`` and both shapes with the force B10 at
-  ``rho * b``: :func:`analyses.service_life._profile_quantile_loglik` per adjustment, maximised
-  over ``b``), and ``model`` says ``separate shapes``. ``shape`` and its bounds stay the common-shape
-  fit's (the column's definition).
+  ``rho * b``; per adjustment the shape at a held B10 solves a concave problem exactly, the same
+  profile as :func:`analyses.service_life.weibull_quantile_bounds` finds numerically, tests), and
+  ``model`` says ``separate shapes``. ``shape`` and its bounds stay the common-shape fit's (the
+  column's definition). An interval chosen after this pre-test is conditioned on it: when the
+  true shapes are equal, the test's false alarms cover the true ratio about 30 % of the time
+  (the benchmark counts them apart).
 * ``log_ratio`` and ``se_log_ratio``: the common-shape estimate of ``theta`` and its standard
   error from the observed information (the analytic Hessian of the smallest-extreme-value
-  regression, :func:`common_shape_covariance`): what a group-sequential design reads at each look
-  (Jennison & Turnbull 2000, chapter 13), whatever ``model`` the table reports.
+  regression, ``CommonShapeFit.cov``): what a group-sequential design reads at each look
+  (Jennison & Turnbull 2000, chapter 13), whatever ``model`` the table reports;
+  :func:`common_shape_fit` gives them without the bounds, in a few milliseconds.
 
 Profile-likelihood bounds are used rather than Wald (Fisher-matrix) bounds because with a handful
 of failures the estimators are far from normal; ``benchmarks/bench_life_effect.py`` measures the
@@ -55,6 +59,16 @@ than two failures (no shape can be told), when the common shape's MLE lies at th
 ``SHAPE_BOUNDS``, and for a bound not reached within the search edge (the life ratio within
 ``RATIO_SEARCH`` times the estimate either way, the shape within ``SHAPE_BOUNDS``): that bound is
 NaN, the interval open on that side.
+
+References
+----------
+Meeker, W. Q. & Escobar, L. A. (1998). Statistical Methods for Reliability Data. Wiley.
+Cox, D. R. & Reid, N. (1987). Parameter orthogonality and approximate conditional inference.
+JRSS B 49, 1-39.
+Yang, Z. & Xie, M. (2003). Efficient estimation of the Weibull shape parameter based on a
+modified profile likelihood. J. Statist. Comput. Simul. 73, 115-123.
+Jennison, C. & Turnbull, B. W. (2000). Group Sequential Methods with Applications to Clinical
+Trials. Chapman & Hall/CRC.
 """
 from __future__ import annotations
 
@@ -240,6 +254,7 @@ def _covariance(groups, shape: float, scales: tuple[float, float]) -> np.ndarray
 
 
 def _fit_groups(groups) -> CommonShapeFit:
+    """:func:`common_shape_fit` on the lives already split by adjustment."""
     note = _too_few(groups)
     if note:
         return CommonShapeFit(note=note)
