@@ -143,8 +143,26 @@ def _profile_mle(x: np.ndarray, f: np.ndarray) -> tuple[float, float]:
         raise ValueError(f"the Weibull shape MLE is at the search's {side} bound "
                          f"({SHAPE_BOUNDS[0 if side == 'lower' else 1]:g}): the lives cannot tell a shape")
     k = math.exp(scipy.optimize.brentq(score, lo, hi, xtol=1e-14, rtol=1e-14))
-    scale = s * ((y ** k).sum() / r) ** (1.0 / k)
-    return k, scale
+    return k, weibull_scale_given_shape(k, x, f)
+
+
+def weibull_scale_given_shape(shape: float, life, failed) -> float:
+    """The scale's MLE for a given shape: ``(sum(x^shape) / failures)^(1/shape)`` [unit of life].
+
+    Closed form (the scale's score equation; Meeker & Escobar 1998, section 8.2): it profiles the
+    scale out of the likelihood, which leaves a one-dimensional problem in the shape. Lives are
+    divided by the largest before the power, so that large shapes do not overflow.
+
+    Parameters
+    ----------
+    shape : float
+        Weibull shape [-], > 0.
+    life, failed : array_like
+        Lives [any unit, > 0] and failure flags; at least one failure.
+    """
+    x, f = _as_arrays(life, failed)
+    s = x.max()
+    return float(s * (((x / s) ** shape).sum() / f.sum()) ** (1.0 / shape))
 
 
 def weibull_fit(life, failed) -> WeibullFit:
@@ -230,20 +248,46 @@ def weibull_quantile_bounds(fit: WeibullFit, life, failed, p: float = 0.10,
     def g(logb):
         return 2.0 * (fit.loglik - _profile_quantile_loglik(math.exp(logb), p, x, f, fit.shape)) - crit
 
-    out = []
-    for sign in (-1.0, 1.0):
-        a = math.log(est)
-        step = 0.05
-        bound = _NAN
-        while step < math.log(1e6):
-            b = math.log(est) + sign * step
-            if g(b) > 0:
-                lo, hi = sorted((a, b))
-                bound = math.exp(scipy.optimize.brentq(g, lo, hi, xtol=1e-12))
-                break
-            a, step = b, step * 2.0
-        out.append(bound)
-    return est, out[0], out[1]
+    centre = math.log(est)
+    lo, hi = (math.exp(lr_bound(g, centre, centre + side * math.log(1e6))) for side in (-1.0, 1.0))
+    return est, lo, hi
+
+
+def lr_bound(excess, centre: float, edge: float) -> float:
+    """Where a profile deviance reaches its critical value, searched from the estimate outwards.
+
+    The parameter is stepped from ``centre`` towards ``edge`` by 0.05, 0.1, 0.2, ... (doubling,
+    the last step at ``edge`` itself) until ``excess`` turns positive; the root inside that step
+    is found with ``brentq``. Used for every likelihood-ratio bound (Meeker & Escobar 1998,
+    section 8.3): B10 here, the life ratio and the common shape in :mod:`analyses.life_effect`.
+
+    Parameters
+    ----------
+    excess : callable
+        ``excess(t) = 2 * (loglik_max - loglik_profile(t)) - chi2.ppf(confidence, 1)``, negative
+        at ``centre``; ``t`` is the parameter on the scale searched (a log for positive ones).
+    centre : float
+        The estimate.
+    edge : float
+        The search edge (below or above ``centre``).
+
+    Returns
+    -------
+    float
+        The bound, NaN when the deviance stays below the critical value up to ``edge`` (the data
+        do not bound the parameter on that side).
+    """
+    sign = 1.0 if edge > centre else -1.0
+    span = abs(edge - centre)
+    a, step = centre, 0.05
+    while True:
+        b = centre + sign * min(step, span)
+        if excess(b) > 0:
+            lo, hi = sorted((a, b))
+            return float(scipy.optimize.brentq(excess, lo, hi, xtol=1e-12))
+        if step >= span:
+            return _NAN
+        a, step = b, step * 2.0
 
 
 def b10(life, failed, confidence: float = 0.90) -> dict:
@@ -540,6 +584,7 @@ def plot_hose_distances(hoses: pd.DataFrame):
     return fig
 
 
-__all__ = ["SHAPE_BOUNDS", "WeibullFit", "weibull_fit", "weibull_loglik", "weibull_quantile_bounds", "b10", "weibull_lr_test",
+__all__ = ["SHAPE_BOUNDS", "WeibullFit", "weibull_fit", "weibull_loglik", "weibull_scale_given_shape",
+           "weibull_quantile_bounds", "lr_bound", "b10", "weibull_lr_test",
            "kaplan_meier", "weibull_plotting_positions", "plot_weibull_probability", "plot_kaplan_meier",
            "plot_leak_growth", "plot_hose_distances"]

@@ -22,6 +22,7 @@ BENCHMARKS = {
     "memo": ([], ["--entries", "1000"]),  # the per-run memo's own cost: one change out of 10,000
     "versions": ([], ["--runs", "300", "--repeat", "2"]),  # before / after a change (--ref main~1), same run
     "sequential": ([], ["--quick"]),  # the sequential verdict's error rates, looked at on every failure
+    "life_effect": ([], ["--quick"]),  # coverage of the life ratio's and shape's 90 % intervals, 480 simulated hose types
 }
 
 

@@ -1,0 +1,184 @@
+"""The life effect: common-shape Weibull regression of life on the adjustment, profile bounds,
+LR tests, NaN rules; cross-checked against lifelines' Weibull AFT fit."""
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+import scipy
+
+from analyses.life_effect import COMMON, SEPARATE, LifeEffect, _b10_profile, common_shape_fit, life_effect
+from analyses.service_life import _profile_quantile_loglik, weibull_fit, weibull_loglik
+
+
+def censored_sample(seed, n, ratio, shape, censor_km, scale_km=5000.0):
+    """(life, failed, group): n hoses per adjustment, Type I censored at ``censor_km``."""
+    rng = np.random.default_rng(seed)
+    t = np.r_[scale_km * rng.weibull(shape, n), ratio * scale_km * rng.weibull(shape, n)]
+    return np.minimum(t, censor_km), t <= censor_km, np.r_[np.zeros(n, int), np.ones(n, int)]
+
+
+def test_recovers_a_known_ratio_and_shape_from_large_censored_samples():
+    life, failed, group = censored_sample(1, 1500, ratio=1.6, shape=2.2, censor_km=7000.0)
+    r = life_effect(life, failed, group)
+    assert 0.2 < failed[group == 1].mean() < failed[group == 0].mean() < 0.9  # real censoring in both
+    assert r.life_ratio == pytest.approx(1.6, rel=0.04) and r.shape == pytest.approx(2.2, rel=0.05)
+    assert r.life_ratio_lower < 1.6 < r.life_ratio_upper and r.shape_lower < 2.2 < r.shape_upper
+    assert r.model == COMMON and r.note is None and r.p_value < 1e-10
+    assert r.log_ratio == pytest.approx(math.log(r.life_ratio))
+    # the profile interval is close to the Wald one in large samples: width ~ 2 * 1.645 * se
+    width = math.log(r.life_ratio_upper / r.life_ratio_lower)
+    assert width == pytest.approx(2 * 1.6449 * r.se_log_ratio, rel=0.03)
+    assert (r.n_force, r.n_distance) == (1500, 1500)
+    assert (r.n_failed_force, r.n_failed_distance) == (int(failed[group == 1].sum()), int(failed[group == 0].sum()))
+
+
+def test_equal_lives_give_ratio_one_and_a_large_p_value():
+    life, failed, group = censored_sample(2, 800, ratio=1.0, shape=1.8, censor_km=6000.0)
+    r = life_effect(life, failed, group, confidence=0.999)
+    assert abs(r.log_ratio) < 0.15 and r.life_ratio_lower < 1.0 < r.life_ratio_upper and r.p_value > 0.001
+
+
+def test_exponential_case_has_the_closed_form_ratio():
+    """Each group's own shape score vanishes at 1 (hand-derived conditions), so the common shape is
+    1 and the MLE ratio is the exponential one: (total km / failures) of force over that of distance."""
+    # distance: failures at 1 and a with (a - 1) ln a = 2 (a + 1)
+    a = scipy.optimize.brentq(lambda v: (v - 1) * math.log(v) - 2 * (v + 1), 2.0, 50.0)
+    # force: failures at 1 and 2, a suspension at s; the score at shape 1 of r = 2 failures:
+    #   r + sum(ln x_failed) - r * sum(x ln x) / sum(x) = 0
+    s = scipy.optimize.brentq(lambda v: 2 + math.log(2) - 2 * (2 * math.log(2) + v * math.log(v)) / (3 + v), 2.5, 100)
+    life = np.array([1.0, a, 1.0, 2.0, s])
+    failed = np.array([True, True, True, True, False])
+    group = np.array([0, 0, 1, 1, 1])
+    r = life_effect(life, failed, group)
+    assert r.shape == pytest.approx(1.0, abs=1e-9)
+    assert r.life_ratio == pytest.approx(((3.0 + s) / 2) / ((1.0 + a) / 2), rel=1e-9)
+    assert r.shape_test_p == pytest.approx(1.0, abs=1e-6)  # the separate shapes are both 1 as well
+
+
+def test_force_lives_a_multiple_of_distance_lives_give_that_ratio_exactly():
+    """Hand-checked invariance: force lives = 1.7 x distance lives (same censoring pattern)."""
+    x = np.array([820.0, 1300, 1750, 2100, 2600, 3000, 3000, 3000])
+    f = np.array([1, 1, 1, 1, 1, 0, 0, 0], bool)
+    r = life_effect(np.r_[x, 1.7 * x], np.r_[f, f], np.r_[np.zeros(8, int), np.ones(8, int)])
+    own = weibull_fit(x, f)
+    assert r.life_ratio == pytest.approx(1.7, rel=1e-10)
+    assert r.shape == pytest.approx(own.shape, rel=1e-8)
+    assert r.shape_test_p == pytest.approx(1.0, abs=1e-6) and r.model == COMMON
+    # p-value: LR against one Weibull for both (shape and scale shared)
+    pooled = weibull_fit(np.r_[x, 1.7 * x], np.r_[f, f])
+    ll = 2 * own.loglik - 5 * math.log(1.7)  # the force group's log-likelihood is the distance one's minus r_f ln 1.7
+    assert r.p_value == pytest.approx(scipy.stats.chi2.sf(2 * (ll - pooled.loglik), 1), rel=1e-6)
+
+
+def test_profile_bounds_sit_where_the_deviance_reaches_its_critical_value():
+    life, failed, group = censored_sample(3, 12, ratio=1.5, shape=2.0, censor_km=6500.0)
+    r = life_effect(life, failed, group, confidence=0.90)
+    fit = common_shape_fit(life, failed, group)
+    crit = scipy.stats.chi2.ppf(0.90, 1)
+    d = group == 0
+    for ratio in (r.life_ratio_lower, r.life_ratio_upper):
+        # an independent profile: maximise over (shape, scale_distance) with the ratio held
+        def neg(p, ratio=ratio):
+            k, s = math.exp(p[0]), math.exp(p[1])
+            return -(weibull_loglik(k, s, life[d], failed[d]) + weibull_loglik(k, ratio * s, life[~d], failed[~d]))
+        res = scipy.optimize.minimize(neg, [math.log(fit.shape), math.log(fit.scale_distance)], method="Nelder-Mead",
+                                      options={"xatol": 1e-10, "fatol": 1e-12, "maxiter": 5000})
+        assert 2 * (fit.loglik + res.fun) == pytest.approx(crit, abs=1e-5)
+    wide = life_effect(life, failed, group, confidence=0.99)
+    assert wide.life_ratio_lower < r.life_ratio_lower < r.life_ratio < r.life_ratio_upper < wide.life_ratio_upper
+    assert wide.shape_lower < r.shape_lower < r.shape < r.shape_upper < wide.shape_upper
+
+
+def test_matches_lifelines_weibull_aft_fit():
+    """lifelines' WeibullAFTFitter: log scale = b0 + b1 * force, shape rho = exp(a0): exp(b1) is the
+    life ratio, rho the common shape, se(b1) the standard error of log ratio (observed information)."""
+    lifelines = pytest.importorskip("lifelines")
+    for seed, ratio, shape in ((4, 1.5, 2.5), (5, 1.0, 1.6), (6, 0.8, 3.0)):
+        life, failed, group = censored_sample(seed, 14, ratio, shape, censor_km=6000.0)
+        r = life_effect(life, failed, group)
+        aft = lifelines.WeibullAFTFitter().fit(pd.DataFrame({"T": life, "E": failed.astype(int), "force": group}),
+                                               "T", "E")
+        assert r.life_ratio == pytest.approx(math.exp(aft.params_[("lambda_", "force")]), rel=1e-3)
+        assert r.shape == pytest.approx(math.exp(aft.params_[("rho_", "Intercept")]), rel=1e-3)
+        assert r.se_log_ratio == pytest.approx(aft.standard_errors_[("lambda_", "force")], rel=1e-3)
+        fit = common_shape_fit(life, failed, group)
+        assert fit.scale_distance == pytest.approx(math.exp(aft.params_[("lambda_", "Intercept")]), rel=1e-3)
+        assert fit.loglik == pytest.approx(aft.log_likelihood_, rel=1e-6)
+
+
+def test_different_shapes_switch_to_the_b10_ratio_of_separate_shapes():
+    rng = np.random.default_rng(7)
+    n = 40
+    t = np.r_[5000 * rng.weibull(1.0, n), 7000 * rng.weibull(4.0, n)]
+    life, failed, group = np.minimum(t, 9000.0), t <= 9000.0, np.r_[np.zeros(n, int), np.ones(n, int)]
+    r = life_effect(life, failed, group, alpha=0.05)
+    assert r.shape_test_p < 0.001 and r.model == SEPARATE
+    own = [weibull_fit(life[group == g], failed[group == g]) for g in (0, 1)]
+    assert r.life_ratio == pytest.approx(own[1].quantile(0.1) / own[0].quantile(0.1), rel=1e-6)
+    assert r.life_ratio_lower < r.life_ratio < r.life_ratio_upper
+    # the true B10 ratio: 7000 * c^(1/4) / (5000 * c), c = -ln 0.9
+    c = -math.log(0.9)
+    assert r.life_ratio_lower < 7000 * c ** 0.25 / (5000 * c) < r.life_ratio_upper
+    # the common-shape columns are still the common-shape fit's
+    assert r.log_ratio == pytest.approx(common_shape_fit(life, failed, group).log_ratio)
+    assert r.shape_lower < r.shape < r.shape_upper
+    # alpha below the shape test's p keeps the common shape
+    assert life_effect(life, failed, group, alpha=r.shape_test_p / 2).model == COMMON
+
+
+def test_b10_profile_equals_service_lifes_numeric_profile():
+    x = np.array([3.0, 7, 12, 20, 25, 31])
+    f = np.array([1, 1, 1, 0, 1, 0], bool)
+    k = weibull_fit(x, f).shape
+    for log_b in (0.5, 1.5, 2.0, 2.8):
+        assert _b10_profile(log_b, x, f) == pytest.approx(_profile_quantile_loglik(math.exp(log_b), 0.1, x, f, k),
+                                                          abs=1e-9)
+
+
+def test_fewer_than_two_failures_in_an_adjustment_gives_nan_and_a_note():
+    r = life_effect([100.0, 200, 300, 400, 500, 600], [1, 1, 0, 1, 0, 0], [0, 0, 0, 1, 1, 1])
+    assert isinstance(r, LifeEffect)
+    assert (r.n_distance, r.n_failed_distance, r.n_force, r.n_failed_force) == (3, 2, 3, 1)
+    assert all(math.isnan(v) for v in (r.shape, r.shape_lower, r.life_ratio, r.life_ratio_upper, r.p_value,
+                                       r.shape_test_p, r.log_ratio, r.se_log_ratio))
+    assert r.model is None and r.note == "too few failures to tell a Weibull: force 1 < 2"
+    assert math.isnan(common_shape_fit([100.0, 200, 300, 400, 500, 600], [1, 1, 0, 1, 0, 0],
+                                       [0, 0, 0, 1, 1, 1]).se_log_ratio)
+
+
+def test_a_shape_at_the_search_bound_gives_nan_and_a_note():
+    r = life_effect([100.0, 100, 200, 200], [1, 1, 1, 1], [0, 0, 1, 1])  # ties: the shape runs to infinity
+    assert math.isnan(r.shape) and math.isnan(r.life_ratio) and r.model is None
+    assert "search bound" in r.note
+
+
+def test_a_bound_beyond_the_search_edge_is_nan_with_a_note():
+    # nearly equal lives: the shape's upper bound lies beyond SHAPE_BOUNDS' 1000
+    r = life_effect([1000.0, 1001.5, 1003, 2000, 2003, 2006], [1] * 6, [0, 0, 0, 1, 1, 1])
+    assert r.shape < 1000 and math.isnan(r.shape_upper) and r.shape_lower < r.shape
+    assert r.life_ratio == pytest.approx(2.0, rel=1e-3) and r.life_ratio_lower < 2.0 < r.life_ratio_upper
+    assert r.note == "shape_upper not reached within the search edge: the data do not bound it"
+
+
+def test_bad_groups_are_refused_and_bad_lives_ignored():
+    with pytest.raises(ValueError):
+        life_effect([1.0, 2.0], [1, 1], [0, 2])
+    with pytest.raises(ValueError):
+        life_effect([1.0, 2.0], [1, 1], [0])
+    life, failed, group = censored_sample(8, 10, ratio=1.3, shape=2.0, censor_km=8000.0)
+    r = life_effect(np.r_[life, np.nan, -1.0], np.r_[failed, True, True], np.r_[group, 0, 1])
+    ref = life_effect(life, failed, group)
+    assert (r.n_distance, r.n_force, r.n_failed_force) == (ref.n_distance, ref.n_force, ref.n_failed_force) == (
+        10, 10, int(failed[group == 1].sum()))
+    assert (r.life_ratio, r.life_ratio_upper, r.shape_lower, r.p_value) == (
+        ref.life_ratio, ref.life_ratio_upper, ref.shape_lower, ref.p_value)
+    assert math.isfinite(r.life_ratio)
+
+
+def test_calibration_benchmark_runs_quick(capsys):
+    from benchmarks.bench_life_effect import main
+
+    assert main(["--quick"]) == 0
+    out = capsys.readouterr().out
+    assert "hose types: 40 simulated" in out and "shape, Wald" in out
