@@ -66,7 +66,8 @@ class StageInputs:
         The executor's ``map`` for a stage's per-item work (None: local processes).
     plan : Plan or None
         The lab's test plan (:func:`pipeline.raw.plan.read_plan`); None: read from ``raw`` by
-        :func:`run_stages_cached`.
+        :func:`run_stages_cached`, which adds its quarantine lines to the stages' (given: the
+        caller reports them).
     """
 
     raw: Path
