@@ -180,13 +180,18 @@ def _shown(v) -> str:
     if isinstance(v, (datetime, date, time)):
         return f"the date/time {v.isoformat()}"
     if isinstance(v, str):
-        return json.dumps(v if len(v) <= 40 else v[:40] + "...", ensure_ascii=False)
+        return json.dumps(_cut(v), ensure_ascii=False)
     return repr(v)
+
+
+def _cut(text: str) -> str:
+    """A name or text of the file as a line shows it: its first 40 characters (a line stays one line)."""
+    return text if len(text) <= 40 else text[:40] + "..."
 
 
 def _where(table: str | None) -> str:
     """``[defaults]`` or ``[hose_type."X"]`` as a line names the table."""
-    return "[defaults]" if table is None else f"[hose_type.{json.dumps(table, ensure_ascii=False)}]"
+    return "[defaults]" if table is None else f"[hose_type.{json.dumps(_cut(table), ensure_ascii=False)}]"
 
 
 class _Reading:
@@ -207,7 +212,7 @@ class _Reading:
             if key not in KEYS:
                 close = difflib.get_close_matches(key, list(KEYS), n=1)
                 hint = f"did you mean {close[0]}?" if close else f"expected {', '.join(KEYS)}"
-                self.problem(f"{_where(table)} {key}: unknown key ({hint}); ignored")
+                self.problem(f"{_where(table)} {_cut(key)}: unknown key ({hint}); ignored")
                 continue
             rule, ok, builtin, text = KEYS[key]
             if ok(v):
@@ -242,9 +247,9 @@ class _Reading:
             if key in ("defaults", "hose_type"):
                 continue
             if isinstance(v, dict):
-                self.problem(f"[{key}]: unknown table (expected {_TABLES_TEXT}); ignored")
+                self.problem(f"[{_cut(key)}]: unknown table (expected {_TABLES_TEXT}); ignored")
             else:
-                self.problem(f"{key}: a key outside any table (put it under [defaults] or "
+                self.problem(f"{_cut(key)}: a key outside any table (put it under [defaults] or "
                              '[hose_type."<hose type>"]); ignored')
         return Plan(True, self.defaults, hose_types, f"{self.rel}: {len(hose_types)} hose type table(s)",
                     tuple(self.problems))

@@ -129,10 +129,11 @@ def test_a_bad_value_in_defaults_falls_back_to_the_built_in_also_for_the_hose_ty
     assert plan.for_hose_type("A").margin == 1.25 and plan.for_hose_type("A").sources["margin"] == "built-in"
 
 
-def test_a_long_string_is_shown_cut(raw):
-    plan = plan_of(raw, f'[defaults]\nspending = "{"p" * 500}"\n')
-    (line,) = lines(plan)
-    assert f'got "{"p" * 40}..."' in line and len(line) < 200
+def test_long_strings_and_names_are_shown_cut(raw):
+    plan = plan_of(raw, f'[defaults]\nspending = "{"p" * 500}"\n[hose_type."{"h" * 500}"]\n{"k" * 500} = 1\n')
+    spending, key = lines(plan)
+    assert f'got "{"p" * 40}..."' in spending and len(spending) < 200
+    assert key.startswith(f'plan.toml: [hose_type."{"h" * 40}..."] {"k" * 40}...: unknown key') and len(key) < 300
 
 
 @pytest.mark.parametrize("text, line", [
