@@ -34,14 +34,15 @@ def deep_merge(base: dict, over: dict) -> dict:
 
 
 def read_rig(root: Path, f: Path) -> tuple[dict, str | None]:
-    """One rig.toml parsed, opened from raw/ without following a symlink out of it.
+    """One rig.toml (or the plan.toml, :mod:`pipeline.raw.plan`) parsed, opened from raw/
+    without following a symlink out of it.
 
     Parameters
     ----------
     root : Path
         raw/, resolved.
     f : Path
-        The rig.toml.
+        The rig.toml (its name is the one the size line gives).
 
     Returns
     -------
@@ -52,7 +53,7 @@ def read_rig(root: Path, f: Path) -> tuple[dict, str | None]:
         with open_raw(root, f) as opened:  # no symlink out of raw/ followed since the walk
             size = opened.size
             if size > MAX_RIG_BYTES:
-                return {}, f"{size} bytes, larger than the {MAX_RIG_BYTES} bytes a rig.toml may have"
+                return {}, f"{size} bytes, larger than the {MAX_RIG_BYTES} bytes a {f.name} may have"
             return tomllib.loads(decode_text(opened.read_bytes())[0]), None
     except tomllib.TOMLDecodeError as exc:
         return {}, f"invalid TOML: {exc}"

@@ -12,8 +12,8 @@ line, never a silent skip. Nothing here writes to the raw tree.
   walk reaches, the link is skipped with a note (the run is read once, under the target's own
   path: no duplicate run); otherwise (its target sits in a dotted folder or has a name that is
   not a run's) the target's bytes are read under the link's own path, and the link's folder's
-  rig.toml and manifest apply. The same rules hold for ``rig.toml``, ``manifest.csv`` and
-  ``hoses.csv``: a side file linked from outside raw/ is quarantined and not read (runs under a
+  rig.toml and manifest apply. The same rules hold for ``rig.toml``, ``manifest.csv``,
+  ``hoses.csv`` and ``plan.toml``: a side file linked from outside raw/ is quarantined and not read (runs under a
   quarantined rig.toml or manifest are quarantined too: their metadata cannot be known).
 * **Names that are not UTF-8** (Latin-1 bytes from an SMB share): read like any other file;
   wherever the name is shown or stored (``source_path``, ``run_id``, campaign, quarantine,
@@ -26,6 +26,8 @@ line, never a silent skip. Nothing here writes to the raw tree.
 * **Paths longer than the OS limit** (``PATH_MAX``, 4096 bytes on Linux, including the final
   NUL): quarantined without being opened; a folder that cannot be listed (permissions, a share
   away) is quarantined with the reason.
+* **The plan** (``plan.toml``, :mod:`pipeline.raw.plan`) is a side file at the top of raw/ only;
+  one in a campaign folder is quarantined (it would otherwise be silently not read).
 * **Anything not a regular file** (a FIFO would block the reader forever, a socket, a device)
   is quarantined.
 """
@@ -41,7 +43,10 @@ from pathlib import Path
 from pipeline.raw.problems import Problem, display_name, os_reason
 from pipeline.readers import READERS
 
-NOT_RUNS = {"manifest.csv", "hoses.csv", "rig.toml"}
+NOT_RUNS = {"manifest.csv", "hoses.csv", "rig.toml", "plan.toml"}
+
+#: The lab's test plan (:mod:`pipeline.raw.plan`): a side file at the top of raw/ only.
+TOP_ONLY = "plan.toml"
 
 try:
     #: Longest path the OS opens [bytes], the terminating NUL included.
@@ -56,8 +61,8 @@ def is_run_file(path: Path) -> bool:
 
 
 def is_known_non_run(path: Path) -> bool:
-    """Files the contract names as not runs: manifests, logbooks, rig.toml, TDMS indexes,
-    dotfiles and READMEs."""
+    """Files the contract names as not runs: manifests, logbooks, rig.toml, the plan.toml, TDMS
+    indexes, dotfiles and READMEs."""
     name = path.name
     return (name.startswith(".") or name.upper().startswith("README") or name.lower() in NOT_RUNS
             or name.lower().endswith(".tdms_index"))
@@ -78,7 +83,8 @@ class Listing:
     runs : list of Path
         Run files (regular files, or symlinks read under their own path).
     side : list of Path
-        ``manifest.csv``, ``rig.toml`` and ``hoses.csv`` files that can be read.
+        ``manifest.csv``, ``rig.toml`` and ``hoses.csv`` files that can be read, and the
+        ``plan.toml`` at the top of raw/.
     ignored : list of Path
         Files that are neither runs nor known non-runs (a spreadsheet, a photo).
     skipped : list of (str, str)
@@ -147,6 +153,9 @@ class _Walk:
     def classify(self, p: Path, key: bytes) -> None:
         """File a regular file (or a link read under its own path) as side file, run or ignored."""
         name = p.name
+        if name.lower() == TOP_ONLY and str(p.parent) != self.root:
+            self.problem(str(p), f"a {TOP_ONLY} is read only at the top of raw/ (raw/{TOP_ONLY}); this one is not read")
+            return
         if name.lower() in NOT_RUNS and not name.startswith("."):
             dest = self.out.side
         elif is_run_file(p):
@@ -339,6 +348,8 @@ def check_symlink(path: str, root: str, out: Listing, problem, classify) -> None
     tname = os.path.basename(target)
     same_role = (tname.lower() == os.path.basename(path).lower() if os.path.basename(path).lower() in NOT_RUNS
                  else is_run_file(Path(target)))
+    if tname.lower() == TOP_ONLY and os.path.dirname(target) != root:
+        same_role = False  # a plan.toml deeper down is not read: the link is, under its own path
     if inside and same_role and not tname.startswith("."):
         out.skipped.append((display_name(os.path.relpath(path, root)),
                             f"symlink to {display_name(rel_target)}, which is read under its own path"))

@@ -1,9 +1,11 @@
 """Runs the analysis stages of a rebuild, each after the stages it reads, or reuses its stored outputs.
 
 At start-up the stages are ordered from their declarations (``READS`` / ``WRITES``,
-:func:`pipeline.stages.registry.run_order`), which must not read each other in a circle. A stage
-whose input key (its code, the runs of the kinds it reads, the logbooks when it reads them) and
-the tables it reads are unchanged since the previous rebuild is not run: its stored folder
+:func:`pipeline.stages.registry.run_order`), which must not read each other in a circle, and the
+lab's test plan is read once (``raw/plan.toml``, :func:`pipeline.raw.plan.read_plan`: its
+quarantine lines join the stages' every night the stages run). A stage whose input key (its
+code, the runs of the kinds it reads, the logbooks and the plan when it reads them) and the
+tables it reads are unchanged since the previous rebuild is not run: its stored folder
 (:mod:`pipeline.rebuild.stage_store`) is loaded instead. A stage that runs gets a context holding
 only what it declared (:class:`pipeline.stages.DeclaredContext`): an undeclared read fails the
 rebuild, since its key would not cover it.
@@ -14,7 +16,7 @@ import hashlib
 import json
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -29,6 +31,7 @@ from pipeline.rebuild.options import RebuildError
 if TYPE_CHECKING:
     import pandas as pd
 
+    from pipeline.raw.plan import Plan
     from pipeline.stages import Reads
 
 # pandas and the stage framework (which imports pandas and, through the stages, the analyses) are
@@ -61,6 +64,10 @@ class StageInputs:
         Worker processes for a stage's per-item work.
     mapper : callable or None
         The executor's ``map`` for a stage's per-item work (None: local processes).
+    plan : Plan or None
+        The lab's test plan (:func:`pipeline.raw.plan.read_plan`); None: read from ``raw`` by
+        :func:`run_stages_cached`, which adds its quarantine lines to the stages' (given: the
+        caller reports them).
     """
 
     raw: Path
@@ -73,6 +80,7 @@ class StageInputs:
     generation: str = ""
     jobs: int = 1
     mapper: Callable | None = None
+    plan: Plan | None = None
 
 
 @dataclass
@@ -120,12 +128,17 @@ def run_stages_cached(inputs: StageInputs, progress: Progress, drawer: FigureDra
         other in a circle.
     """
     from pipeline import stages
+    from pipeline.raw.plan import read_plan
+    from pipeline.raw.tree import RawTree
 
     try:
         mods = stages.run_order(stages.discover())
     except stages.StageCircle as exc:
         raise RebuildError(str(exc)) from exc
     res = StageResults()
+    if inputs.plan is None:  # one small file, read once per rebuild; its lines are quarantine rows
+        inputs = replace(inputs, plan=read_plan(RawTree(inputs.raw)))
+        res.problems += inputs.plan.problems
     own_drawer = drawer is None
     drawer = drawer or FigureDrawer()
     # every stage's code version up front: the project's sources are read and hashed once for all
@@ -156,8 +169,9 @@ def run_stages_cached(inputs: StageInputs, progress: Progress, drawer: FigureDra
 
 
 def _input_key(name: str, code: str, reads: Reads, inputs: StageInputs) -> str:
-    """A stage's input key: its code, the runs of the kinds it reads, the logbooks if it reads them."""
-    return stage_input_key(name, code, inputs.runs, set(reads.kinds), inputs.logbooks if reads.logbooks else None)
+    """A stage's input key: its code, the runs of the kinds it reads, the logbooks and the plan if it reads them."""
+    return stage_input_key(name, code, inputs.runs, set(reads.kinds), inputs.logbooks if reads.logbooks else None,
+                           inputs.plan.digest if reads.plan else None)
 
 
 def _tables_read(reads: Reads, res: StageResults) -> dict[str, str]:
@@ -189,7 +203,7 @@ def _run_stage(mod, reads: Reads, key: str, inputs: StageInputs, res: StageResul
     memo = res.memos[name] = Memo(inputs.warehouse, name, read=not inputs.full)
     ctx = stages.DeclaredContext(name, reads, raw=inputs.raw, warehouse=inputs.warehouse, runs=inputs.runs_frame,
                                  results=res.tables, jobs=inputs.jobs, progress=progress, mapper=inputs.mapper,
-                                 memo=memo)
+                                 memo=memo, plan=inputs.plan)
     try:
         out = mod.run(ctx)
     except Exception as exc:  # a bug in an analysis: fail, keep the previous warehouse

@@ -13,9 +13,9 @@ Raw files
     only the stat fingerprint differs the file is hashed (a ``touch`` re-ingests nothing).
 Stages
     A stage's outputs are cached in an immutable folder ``stages/<name>/<key>/`` keyed by a
-    hash of the stage's code, the runs of every kind it reads, the hose logbooks (for stages
-    that read them) and the content of the earlier stages' tables it read. It re-runs when any
-    of them changed.
+    hash of the stage's code, the runs of every kind it reads, the hose logbooks and the test
+    plan (for stages that read them) and the content of the earlier stages' tables it read. It
+    re-runs when any of them changed.
 """
 from __future__ import annotations
 
@@ -37,7 +37,7 @@ if TYPE_CHECKING:  # pandas and the ingest are imported where used: a no-op rebu
     import pandas as pd
 
 #: Raw files that are not runs but change what the runs mean (their changes are reported).
-SIDE_FILES = {"manifest.csv": "manifest", "rig.toml": "rig", "hoses.csv": "logbook"}
+SIDE_FILES = {"manifest.csv": "manifest", "rig.toml": "rig", "hoses.csv": "logbook", "plan.toml": "plan"}
 
 #: A file modified this recently is hashed again next time (mtime granularity, "racy" files).
 RACY_S = 2.0
@@ -70,7 +70,7 @@ class FileRecord:
     """The state of one raw input file."""
 
     source_path: str
-    role: str                      # run, manifest, rig, logbook
+    role: str                      # run, manifest, rig, logbook, plan
     size_bytes: int
     mtime_ns: int
     inode: int
@@ -321,8 +321,8 @@ def record_for(plan: FilePlan, sha: str | None, code_version: str, result: dict 
 
 
 def side_files(tree: RawTree) -> list[Path]:
-    """manifest.csv, rig.toml and hoses.csv files of the raw tree that can be read (hidden
-    folders skipped; the walk of :func:`pipeline.raw.walk.walk_raw`)."""
+    """manifest.csv, rig.toml and hoses.csv files of the raw tree that can be read, and the
+    plan.toml at its top (hidden folders skipped; the walk of :func:`pipeline.raw.walk.walk_raw`)."""
     return [p for p in tree.listing().side if p.name.lower() in SIDE_FILES]
 
 
@@ -384,11 +384,15 @@ def frame_hash(df: pd.DataFrame | None) -> str:
     return h.hexdigest()[:32]
 
 
-def stage_input_key(name: str, code: str, runs: list[dict], kinds: set[str], logbooks: str | None) -> str:
-    """Key of a stage's inputs: its code version, the runs of the kinds it declares it reads and
-    the logbooks' hash when it declares it reads them (the tables it reads are compared apart)."""
+def stage_input_key(name: str, code: str, runs: list[dict], kinds: set[str], logbooks: str | None,
+                    plan: str | None = None) -> str:
+    """A stage's cache key from what it declared: its code version, the runs of the kinds it
+    reads, the logbooks' hash and the plan's (:attr:`pipeline.raw.plan.Plan.digest`; None when
+    not declared). The tables it reads are compared apart."""
     blob = {"stage": name, "code": code, "runs": runs_fingerprint(runs, kinds), "kinds": sorted(kinds),
             "logbooks": logbooks}
+    if plan is not None:  # only then: the keys of stages that do not read the plan stay what they were
+        blob["plan"] = plan
     return hashlib.sha256(json.dumps(blob, sort_keys=True).encode()).hexdigest()[:32]
 
 

@@ -18,6 +18,7 @@ import pandas as pd
 import pyarrow.parquet as pq
 
 from pipeline.progress import Progress
+from pipeline.raw.plan import Plan
 from pipeline.raw.problems import Problem
 from pipeline.stages.registry import Reads
 
@@ -95,6 +96,9 @@ class StageContext:
         The ``runs`` rows of this rebuild; ``params`` is a dict per row.
     results : dict of str to DataFrame
         Tables produced by stages that ran before this one.
+    plan : Plan
+        The lab's test plan (``raw/plan.toml``, :func:`pipeline.raw.plan.read_plan`); without
+        one, built-in defaults and ``present=False``.
     """
 
     raw: Path
@@ -106,6 +110,7 @@ class StageContext:
     mapper: Callable | None = None
     #: per-item results kept between rebuilds (``pipeline.rebuild.memo.Memo``; the rebuild sets one per stage)
     memo: object | None = None
+    plan: Plan = field(default_factory=Plan)
 
     def runs_of(self, *kinds: str) -> pd.DataFrame:
         """Runs of the given kinds, sorted by run_id."""
@@ -208,7 +213,8 @@ class DeclaredContext(StageContext):
 
     ``runs`` holds the runs of the declared kinds (and so :meth:`samples` only theirs),
     ``results`` the declared tables (:class:`DeclaredTables`); :meth:`runs_of` a kind not
-    declared, and ``raw`` (where the hose logbooks are) unless logbooks are declared, raise
+    declared, ``raw`` (where the hose logbooks are) unless logbooks are declared, and ``plan``
+    unless the plan is declared, raise
     :class:`UndeclaredRead`. The stage's cache key hashes exactly what it declared, so a read it
     did not declare could only give a stale result: it fails the rebuild instead.
 
@@ -242,6 +248,18 @@ class DeclaredContext(StageContext):
     @raw.setter
     def raw(self, value: Path) -> None:
         self._raw = value
+
+    @property
+    def plan(self) -> Plan:
+        """The lab's test plan (only when the stage declares ``plan``)."""
+        if not self.reads.plan:
+            raise UndeclaredRead(f"stage {self.stage} read the test plan (raw/plan.toml), which its READS does "
+                                 "not declare")
+        return self._plan
+
+    @plan.setter
+    def plan(self, value: Plan) -> None:
+        self._plan = value
 
     def runs_of(self, *kinds: str) -> pd.DataFrame:
         undeclared = sorted(set(kinds) - set(self.reads.kinds))

@@ -32,11 +32,15 @@ class Reads:
         breaks the ties of :func:`run_order`).
     logbooks : bool
         Whether it reads the hose logbooks under ``raw/``.
+    plan : bool
+        Whether it reads the lab's test plan, ``raw/plan.toml`` (``ctx.plan``,
+        :class:`pipeline.raw.plan.Plan`); it re-runs when what the plan says changes.
     """
 
     kinds: tuple[str, ...] = ()
     tables: tuple[str, ...] = ()
     logbooks: bool = False
+    plan: bool = False
 
 
 class StageCircle(Exception):

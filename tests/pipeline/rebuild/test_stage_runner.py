@@ -63,6 +63,46 @@ def test_logbook_change_reruns_durability_only(raw, warehouse):
     assert q(warehouse, "SELECT hose_id, status FROM hose_life") == [("H1", "failed")]
 
 
+class PlanReader:
+    """Reads the test plan (and step runs); counts its calls, writes a hose type's margin."""
+    NAME, READS, WRITES = "zz_plan_reader", Reads(kinds=("step",), plan=True), ("zz_plan",)
+    calls = 0
+
+    @classmethod
+    def run(cls, ctx):
+        cls.calls += 1
+        s = ctx.plan.for_hose_type("FLEXIGOM AIR")
+        return StageOutput(tables={"zz_plan": pd.DataFrame({"present": [s.present], "margin": [s.margin],
+                                                            "source": [s.sources["margin"]]})})
+
+
+def test_a_stage_that_reads_the_plan_reruns_only_when_what_the_plan_says_changes(raw, warehouse, monkeypatch):
+    real = st.discover
+    monkeypatch.setattr(st, "discover", lambda: [*real(), PlanReader])
+    step(raw, "c/a.csv")
+    age(raw.root)
+    PlanReader.calls = 0
+    rebuild(raw.root, warehouse, jobs=1)
+    assert PlanReader.calls == 1
+    assert q(warehouse, "SELECT present, margin, source FROM zz_plan") == [(False, 1.25, "built-in")]
+    raw.write("plan.toml", '[hose_type."FLEXIGOM AIR"]\nmargin = 1.5\n')
+    s = rebuild(raw.root, warehouse, jobs=1)
+    assert PlanReader.calls == 2 and "zz_plan_reader" in s.stages_run and "plpa_characterisation" in s.stages_reused
+    assert q(warehouse, "SELECT present, margin, source FROM zz_plan") == [(True, 1.5, "hose_type")]
+    raw.write("plan.toml", '# agreed on 2026-01-05\n[hose_type."FLEXIGOM AIR"]\nmargin = 1.5   # force vs distance\n')
+    raw.write("c/hoses.csv", "hose_id,event,at,hose_type,adjustment,spring_force_n\n"
+                             "H1,installed,2026-01-01T00:00:00,FLEXIGOM AIR,force,858\n")  # not declared
+    s = rebuild(raw.root, warehouse, jobs=1)
+    assert PlanReader.calls == 2 and "zz_plan_reader" in s.stages_reused and "durability" in s.stages_run
+    raw.write("plan.toml", '[defaults]\nmargin = 1.3\n')
+    s = rebuild(raw.root, warehouse, jobs=1)
+    assert PlanReader.calls == 3
+    assert q(warehouse, "SELECT present, margin, source FROM zz_plan") == [(True, 1.3, "defaults")]
+    (raw.root / "plan.toml").unlink()
+    rebuild(raw.root, warehouse, jobs=1)
+    assert PlanReader.calls == 4 and q(warehouse, "SELECT present, margin FROM zz_plan") == [(False, 1.25)]
+
+
 class SneakyStage:
     """Declares step runs; reads what ``read`` says (set by the test)."""
     NAME, READS, WRITES = "zz_sneaky", Reads(kinds=("step",)), ("zz_sneaky",)
@@ -79,6 +119,7 @@ class SneakyStage:
     (lambda ctx: "breakaway" in ctx.results, "table 'breakaway'"),
     (lambda ctx: ctx.runs_of("breakaway"), "runs of kind breakaway"),
     (lambda ctx: ctx.raw, "raw/ \\(the hose logbooks\\)"),
+    (lambda ctx: ctx.plan, "the test plan \\(raw/plan.toml\\)"),
 ])
 def test_a_stage_that_reads_what_it_did_not_declare_fails_the_rebuild(raw, warehouse, monkeypatch, read, what):
     step(raw, "c/a.csv")

@@ -157,6 +157,24 @@ def test_rig_toml_change_reingests_the_files_below_it(raw, warehouse, counting):
     # the embedded `rig` is stronger than rig.toml: same value, but the file was re-read
 
 
+def test_a_plan_toml_is_hashed_and_its_changes_reported_without_reingesting_a_run(raw, warehouse, counting):
+    step(raw, "c/a.csv")
+    raw.write("plan.toml", "[defaults]\nmargin = 1.3\n")
+    age(raw.root)
+    rebuild(raw.root, warehouse, jobs=1)
+    assert q(warehouse, "SELECT role, status FROM rebuild_changes WHERE source_path = 'plan.toml'") == [("plan", "new")]
+    assert q(warehouse, "SELECT role, source_sha256 IS NOT NULL FROM ingest_state WHERE source_path = 'plan.toml'") == [
+        ("plan", True)]
+    counting.clear()
+    raw.write("plan.toml", "[defaults]\nmargin = 1.4\n")
+    s = rebuild(raw.root, warehouse, jobs=1)
+    assert s.mode != "no-op" and counting["ingest"] == [] and s.n_unchanged == 1
+    assert q(warehouse, "SELECT role, status, reason FROM rebuild_changes") == [("plan", "changed", "content")]
+    age(raw.root)
+    rebuild(raw.root, warehouse, jobs=1)  # records the aged mtime (a file written this second is hashed again)
+    assert rebuild(raw.root, warehouse, jobs=1).mode == "no-op"
+
+
 def test_quarantined_file_stays_quarantined_without_being_read(raw, warehouse, counting):
     raw.csv("c/bad.csv", STEP_META, {"t[s]": T, "x[furlong]": T, "x_ref[mm]": T})
     age(raw.root)
