@@ -153,19 +153,20 @@ def split_name_unit(header: str) -> tuple[str, str | None]:
     return text, None
 
 
-def decode_text(data: bytes) -> tuple[str, str]:
-    """Decode bytes as UTF-8 (with or without BOM), else Latin-1. Returns (text, encoding)."""
+def decode_text(data: bytes, whole: bool = True) -> tuple[str, str]:
+    """Decode bytes as UTF-8 (with or without BOM), else Latin-1. Returns (text, encoding).
+
+    ``whole``: the bytes are the whole file. False when they are only its first bytes: a UTF-8
+    character cut by the end of such a read is left out and the text is still UTF-8. A whole
+    file whose last bytes are no complete UTF-8 character is Latin-1 (``caf\xe9``), every byte kept.
+    """
     if data.startswith(b"\xef\xbb\xbf"):
         return data[3:].decode("utf-8", errors="replace"), "utf-8-sig"
     try:
         return data.decode("utf-8"), "utf-8"
     except UnicodeDecodeError as exc:
-        # A multi-byte character cut by the end of the buffer is still UTF-8.
-        if exc.start >= len(data) - 3:
-            try:
-                return data[: exc.start].decode("utf-8"), "utf-8"
-            except UnicodeDecodeError:
-                pass
+        if not whole and exc.end == len(data) and exc.reason == "unexpected end of data":
+            return data[: exc.start].decode("utf-8"), "utf-8"  # valid up to the cut character
         return data.decode("latin-1"), "latin-1"
 
 

@@ -140,7 +140,7 @@ def _head_lines(path: Path) -> tuple[list[str], str, bool]:
     with open(path, "rb") as fh:
         data = fh.read(HEAD_BYTES)
         complete = len(data) < HEAD_BYTES
-    text, encoding = decode_text(data)
+    text, encoding = decode_text(data, whole=complete)
     lines = _LINE_BREAK.split(text)
     if lines and lines[-1] == "":
         lines.pop()

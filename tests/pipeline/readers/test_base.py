@@ -26,16 +26,22 @@ def test_split_name_unit(header, expected):
 
 
 # -- text ----------------------------------------------------------------------------------
-@pytest.mark.parametrize("data, expected", [
-    (b"\xef\xbb\xbfa;b", ("a;b", "utf-8-sig")),
-    ("t;é\n".encode(), ("t;é\n", "utf-8")),
-    (b"caf\xe9 ok\n", ("caf\xe9 ok\n", "latin-1")),      # not UTF-8: Latin-1
-    (b"\xc3(ab", ("\xc3(ab", "latin-1")),
-    (b"a\xc3", ("a", "utf-8")),                        # "é" cut by the end of the buffer is still UTF-8
-    (b"", ("", "utf-8")),
+@pytest.mark.parametrize("data, whole, expected", [
+    (b"\xef\xbb\xbfa;b", True, ("a;b", "utf-8-sig")),
+    ("t;é\n".encode(), True, ("t;é\n", "utf-8")),
+    (b"caf\xe9 ok\n", True, ("caf\xe9 ok\n", "latin-1")),      # not UTF-8: Latin-1
+    (b"\xc3(ab", True, ("\xc3(ab", "latin-1")),
+    (b"a\xc3", False, ("a", "utf-8")),                 # the first bytes of a file: "é" cut by the read
+    (b"a\xe2\x82", False, ("a", "utf-8")),             # "€" cut after two of its three bytes
+    (b"a\xc3", True, ("a\xc3", "latin-1")),            # the whole file: nothing was cut, no byte dropped
+    (b"caf\xe9\n", True, ("caf\xe9\n", "latin-1")),    # Latin-1 near the end: no byte lost
+    (b"caf\xe9\n", False, ("caf\xe9\n", "latin-1")),   # ... whether whole or not (\n is no continuation)
+    (b"x;caf\xe9", True, ("x;caf\xe9", "latin-1")),
+    (b"ab\xff", False, ("ab\xff", "latin-1")),          # a byte that starts no UTF-8 character
+    (b"", True, ("", "utf-8")),
 ])
-def test_decode_text(data, expected):
-    assert decode_text(data) == expected
+def test_decode_text(data, whole, expected):
+    assert decode_text(data, whole=whole) == expected
 
 
 @pytest.mark.parametrize("line, expected", [
@@ -125,3 +131,10 @@ def test_mib_and_exc_text_for_messages():
     assert exc_text(KeyError(3)) == "KeyError: 3"
     assert exc_text(ValueError("")) == "ValueError"
     assert exc_text(ValueError("two\n   lines"), limit=7) == "ValueError: two lin"
+
+
+def test_a_latin1_side_file_whose_only_accent_is_on_its_last_line_keeps_it():
+    # a manifest saved by Excel in Latin-1 on a Windows PC: the last note must not lose its end
+    data = "file,notes\na.csv,ok\nb.csv,café\n".encode("latin-1")
+    assert [cells for _first, _last, cells in side_csv_rows(data)] == [["file", "notes"], ["a.csv", "ok"],
+                                                                       ["b.csv", "café"]]
