@@ -13,8 +13,10 @@ version builds its own warehouse from it once (``full``, timed), then, alternati
 so that a change of the machine's load hits both alike (medians of ``--repeat``):
 
 * ``noop``: the same raw/ again;
-* ``one file``: one run file's bytes changed (a newline appended), rebuilt, then put back and
-  rebuilt again (untimed) so that both versions start the next round from the same state;
+* ``one file``: one run file's bytes changed (a newline appended), rebuilt, then put back with its
+  old bytes and mtime and rebuilt again (untimed), so that both versions start the next round
+  from the same state (every file keeps one fixed mtime: a new one would make the other
+  version's next no-op hash every file);
 * ``query start-up``: ``pneubench query "SELECT 1"`` (imports, the read-only door, the format);
 * ``one-run query``: one run's samples through the view, as ``bench_scale`` times it.
 
@@ -32,9 +34,10 @@ import statistics
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
-from benchmarks.bench_scale import DATA, _age, make_campaign
+from benchmarks.bench_scale import DATA, make_campaign
 from benchmarks.proc import measure
 from benchmarks.same_behaviour import export
 
@@ -61,9 +64,18 @@ def _timed(tree: Path, *args: str) -> float:
     return m.wall_s
 
 
+def _age_to(raw: Path, when: float) -> None:
+    """Every file's mtime set to ``when`` (the same moment every time: a file put back after a
+    change has exactly its old stat again, so neither version sees the other's edit)."""
+    for p in raw.rglob("*"):
+        if p.is_file():
+            os.utime(p, (when, when))
+
+
 def run(ref: str, runs: int, repeat: int, seed: int) -> dict:
     raw = make_campaign(DATA / f"scale-{runs}", runs, seed)
-    _age(raw)
+    past = time.time() - 3600  # a night's files, an hour old
+    _age_to(raw, past)
     work = Path(tempfile.mkdtemp(prefix="pneubench-versions-"))
     try:
         trees = {"before": export(ref, work / "before"), "after": ROOT}
@@ -94,7 +106,7 @@ def run(ref: str, runs: int, repeat: int, seed: int) -> dict:
                     add(name, "one file", _timed(tree, *rebuild[name]))
                 finally:
                     victim.write_bytes(original)
-                    _age(raw)
+                    os.utime(victim, (past, past))
                 _timed(tree, *rebuild[name])
                 add(name, "query start-up", _timed(tree, *query[name], "SELECT 1"))
                 add(name, "one-run query", _timed(tree, *query[name],
