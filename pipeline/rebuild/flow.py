@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from pipeline.progress import Progress
+from pipeline.raw.plan import read_plan
 from pipeline.raw.problems import Problem
 from pipeline.raw.tree import RawTree, discover_runs
 from pipeline.raw.walk import skip_reason
@@ -273,11 +274,15 @@ def _ingest(run: RebuildRun, plan: _Plan, ex: Executor) -> _Ingested:
 def _stages(run: RebuildRun, plan: _Plan, ingested: _Ingested, ex: Executor, drawer: FigureDrawer) -> StageResults:
     """Run the stages whose inputs changed, reuse the others' outputs (:func:`run_stages_cached`)."""
     runs, runs_df = ingested.runs, ingested.runs_df
+    lab_plan = read_plan(plan.tree)  # with the tree the plan step walked: raw/ is not walked twice
     inputs = StageInputs(raw=plan.tree.root, warehouse=run.warehouse, runs=runs,
                          runs_frame=runs_df.assign(params=[r["params"] for r in runs]) if runs else runs_df,
                          previous=plan.prev, logbooks=logbook_hash(plan.side), full=run.options.full,
-                         generation=run.generation, jobs=run.options.jobs, mapper=ex.mapper(run.progress))
-    return run_stages_cached(inputs, run.progress, drawer)
+                         generation=run.generation, jobs=run.options.jobs, mapper=ex.mapper(run.progress),
+                         plan=lab_plan)
+    staged = run_stages_cached(inputs, run.progress, drawer)
+    staged.problems += lab_plan.problems  # given to the stages: its lines are ours to report
+    return staged
 
 
 # -- assemble --------------------------------------------------------------------------------------
