@@ -295,17 +295,3 @@ def test_a_connection_opened_before_two_rebuilds_still_reads_its_samples_until_t
         reader.stdin.close()
         reader.wait(timeout=60)
     assert (warehouse / q(warehouse, "SELECT samples_path FROM runs")[0][0]).is_file()
-
-
-def _tree_listing(folder):
-    """Every path under ``folder`` with its bytes' hash (the lock file aside: it holds the pid)."""
-    import hashlib
-
-    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest() if p.is_file() else None
-            for p in sorted(folder.rglob("*")) if p.name != ".rebuild.lock"}
-
-
-def _steps(raw, names):
-    for n in names:
-        raw.csv(f"c/{n}.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
-
