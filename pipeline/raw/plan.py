@@ -97,6 +97,11 @@ KEYS: dict[str, tuple] = {
                 "unset: measured from the durability runs of the last 30 days"),
     "km_per_day": ("a number > 0", lambda v: _number(v) and v > 0, None,
                    "unset: measured from the durability runs of the last 30 days"),
+    # functional failure by leakage (spec bench-exports.md; used by the remaining-life issue)
+    "leak_limit_l_min": ("a number > 0", lambda v: _number(v) and v > 0, None,
+                         "unset: no failure by leakage"),
+    "leak_pressure_bar": ("a number > 0", lambda v: _number(v) and v > 0, None,
+                          "unset: no failure by leakage"),
 }
 
 _TABLES_TEXT = '[defaults] and [hose_type."<hose type>"]'
@@ -118,6 +123,8 @@ class PlanSettings:
     spending: str
     benches: int | None
     km_per_day: float | None
+    leak_limit_l_min: float | None
+    leak_pressure_bar: float | None
     sources: dict[str, str]
 
 

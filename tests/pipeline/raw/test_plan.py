@@ -13,7 +13,8 @@ from tests.conftest import query
 from tests.pipeline.raw.conftest import rebuild_checked
 
 BUILT_IN = {"margin": 1.25, "alpha": 0.05, "power": 0.80, "confidence": 0.90, "max_failures": None,
-            "spending": "obrien-fleming", "benches": None, "km_per_day": None}
+            "spending": "obrien-fleming", "benches": None, "km_per_day": None,
+            "leak_limit_l_min": None, "leak_pressure_bar": None}
 
 
 def plan_of(raw, text: str | None) -> Plan:
@@ -62,7 +63,8 @@ def test_a_hose_types_table_overrides_the_defaults_which_override_the_built_ins(
                          "spending": "pocock", "benches": 2}
     assert s.sources == {"margin": "hose_type", "alpha": "defaults", "power": "built-in", "confidence": "built-in",
                          "max_failures": "hose_type", "spending": "hose_type", "benches": "hose_type",
-                         "km_per_day": "defaults"}
+                         "km_per_day": "defaults", "leak_limit_l_min": "built-in",
+                         "leak_pressure_bar": "built-in"}
     assert s.present and s.hose_type == "FLEXIGOM AIR"
     # a hose type the plan does not name: [defaults] over the built-ins
     other = plan.for_hose_type("NOT NAMED")
@@ -75,6 +77,7 @@ def test_a_hose_types_table_overrides_the_defaults_which_override_the_built_ins(
     ("margin", "1.0001"), ("alpha", "1e-6"), ("alpha", "0.4999"), ("power", "0.5"), ("power", "0.999"),
     ("confidence", "0.501"), ("confidence", "0.99"), ("max_failures", "2"), ("max_failures", str(MAX_FAILURES_LIMIT)),
     ("spending", '"obrien-fleming"'), ("spending", '"pocock"'), ("benches", "1"), ("km_per_day", "0.5"),
+    ("leak_limit_l_min", "2.5"), ("leak_pressure_bar", "6"),  # the spec's leakage failure keys
 ])
 def test_values_at_the_edges_of_their_ranges_are_taken(raw, key, value):
     plan = plan_of(raw, f"[defaults]\n{key} = {value}\n")
@@ -108,6 +111,8 @@ def test_values_at_the_edges_of_their_ranges_are_taken(raw, key, value):
      "the default (unset: measured from the durability runs of the last 30 days)"),
     ("km_per_day", "2026-01-02", "the date/time 2026-01-02", "a number > 0",
      "the default (unset: measured from the durability runs of the last 30 days)"),
+    ("leak_limit_l_min", "0", "0", "a number > 0", "the default (unset: no failure by leakage)"),
+    ("leak_pressure_bar", '"6 bar"', '"6 bar"', "a number > 0", "the default (unset: no failure by leakage)"),
 ])
 def test_a_bad_value_is_one_line_naming_file_table_and_key_and_the_default_is_used(raw, key, value, shown, rule,
                                                                                    instead):
@@ -140,7 +145,7 @@ def test_long_strings_and_names_are_shown_cut(raw):
     ("[defaults]\nmarign = 1.3\n", "[defaults] marign: unknown key (did you mean margin?); ignored"),
     ('[hose_type."A"]\nwhatever = 1\n',
      '[hose_type."A"] whatever: unknown key (expected margin, alpha, power, confidence, max_failures, spending, '
-     "benches, km_per_day); ignored"),
+     "benches, km_per_day, leak_limit_l_min, leak_pressure_bar); ignored"),
     ("[hoses]\nmargin = 1.3\n",
      '[hoses]: unknown table (expected [defaults] and [hose_type."<hose type>"]); ignored'),
     ("margin = 1.3\n[defaults]\n",
