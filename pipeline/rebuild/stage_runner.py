@@ -1,9 +1,9 @@
 """Runs the analysis stages of a rebuild, each after the stages it reads, or reuses its stored outputs.
 
 At start-up the stages are ordered from their declarations (``READS`` / ``WRITES``,
-:func:`pipeline.stages.registry.run_order`), which must not read each other in a circle, and the
-lab's test plan is read once (``raw/plan.toml``, :func:`pipeline.raw.plan.read_plan`: its
-quarantine lines join the stages' every night the stages run). A stage whose input key (its
+:func:`pipeline.stages.registry.run_order`), which must not read each other in a circle. The
+lab's test plan (``raw/plan.toml``) is read once by the caller with the tree it walked and given
+in :class:`StageInputs`. A stage whose input key (its
 code, the runs of the kinds it reads, the logbooks and the plan when it reads them) and the
 tables it reads are unchanged since the previous rebuild is not run: its stored folder
 (:mod:`pipeline.rebuild.stage_store`) is loaded instead. A stage that runs gets a context holding
@@ -16,7 +16,7 @@ import hashlib
 import json
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -64,10 +64,9 @@ class StageInputs:
         Worker processes for a stage's per-item work.
     mapper : callable or None
         The executor's ``map`` for a stage's per-item work (None: local processes).
-    plan : Plan or None
-        The lab's test plan (:func:`pipeline.raw.plan.read_plan`); None: read from ``raw`` by
-        :func:`run_stages_cached`, which adds its quarantine lines to the stages' (given: the
-        caller reports them).
+    plan : Plan
+        The lab's test plan, read once by the caller with the tree it walked
+        (:func:`pipeline.raw.plan.read_plan`; the caller reports its quarantine lines).
     """
 
     raw: Path
@@ -76,11 +75,11 @@ class StageInputs:
     runs_frame: pd.DataFrame
     previous: PreviousState
     logbooks: str
+    plan: Plan
     full: bool = False
     generation: str = ""
     jobs: int = 1
     mapper: Callable | None = None
-    plan: Plan | None = None
 
 
 @dataclass
@@ -128,17 +127,12 @@ def run_stages_cached(inputs: StageInputs, progress: Progress, drawer: FigureDra
         other in a circle.
     """
     from pipeline import stages
-    from pipeline.raw.plan import read_plan
-    from pipeline.raw.tree import RawTree
 
     try:
         mods = stages.run_order(stages.discover())
     except stages.StageCircle as exc:
         raise RebuildError(str(exc)) from exc
     res = StageResults()
-    if inputs.plan is None:  # one small file, read once per rebuild; its lines are quarantine rows
-        inputs = replace(inputs, plan=read_plan(RawTree(inputs.raw)))
-        res.problems += inputs.plan.problems
     own_drawer = drawer is None
     drawer = drawer or FigureDrawer()
     # every stage's code version up front: the project's sources are read and hashed once for all
