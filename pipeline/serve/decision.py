@@ -207,7 +207,8 @@ def verdict_words(d: HoseDecision) -> str:
         m = _num(v.get("margin"))
         band = f"within 1/{m:g}..{m:g}" if m is not None else "within the margin"
         now = f": {ratio_text(est[0])}x ({_interval(est[1], est[2], est[3])})" if est else ""
-        return f"no practical difference for {t} hoses: the force / distance life ratio is {band}{now}{_decided(d, False)}"
+        return (f"no practical difference for {t} hoses: the force / distance life ratio is {band}{now}"
+                f"{_decided(d, False)}")
     shown = (f"force / distance life ratio {ratio_text(est[0])}x ({_interval(est[1], est[2], est[3])})"
              if est else "no estimate of the force / distance life ratio yet")
     if verdict == "undecided":

@@ -57,13 +57,14 @@ def _verdict_table(decisions: list[HoseDecision]) -> str:
         v = d.verdict
         verdict = v.get("verdict") or "—"
         cls = VERDICT_CLASS.get(verdict, "nodata")
-        link = f' <a href="#{_anchor(k)}">looks</a>' if d.looks and k < MAX_LOOK_PLOTS else ""
+        link = f' <a href="#{_anchor(k)}">looks</a>' if k < MAX_LOOK_PLOTS and _drawable(d) else ""
         note = f'<br><span class="meta">{esc(v.get("note"))}</span>' if v.get("note") else ""
         rows.append(f'<tr><td><b>{esc(d.hose_type)}</b>{link}</td><td class="{cls}">{esc(verdict)}</td>'
                     f"<td>{esc(verdict_words(d))}{note}</td><td>{_bar(v.get('information_fraction'))}<br>"
                     f'<span class="meta">{esc(information_words(d))}</span></td><td>{esc(plan_words(d))}</td></tr>')
     return ('<div class="wrap"><table class="decision"><thead><tr><th>hose type</th><th>verdict</th><th>in words</th>'
-            "<th>information</th><th>plan to a verdict</th></tr></thead><tbody>" + "".join(rows) + "</tbody></table></div>")
+            "<th>information</th><th>plan to a verdict</th></tr></thead><tbody>" + "".join(rows)
+            + "</tbody></table></div>")
 
 
 def _bar(fraction) -> str:
@@ -87,12 +88,14 @@ def _looks_figures(decisions: list[HoseDecision]) -> str:
         if png is None:
             continue
         data = base64.b64encode(png).decode("ascii")
-        out.append(f'<figure id="{_anchor(k)}"><img alt="looks of {esc(d.hose_type)}" src="data:image/png;base64,{data}">'
+        out.append(f'<figure id="{_anchor(k)}"><img alt="looks of {esc(d.hose_type)}" '
+                   f'src="data:image/png;base64,{data}">'
                    f"<figcaption><b>{esc(d.hose_type)}</b>: the estimate of the life ratio force / distance at each "
                    "look (failure) with its repeated confidence interval, the efficacy boundaries (crossing one "
                    "declares a longer life) and the futility boundaries (inside both: no practical difference), "
-                   "against the failures, up to the planned maximum.</figcaption></figure>")
-    rest = [d.hose_type for d in decisions[MAX_LOOK_PLOTS:] if d.looks]
+                   "against the failures, up to the planned maximum; the margins dotted. The early looks' boundaries "
+                   "run off the axis.</figcaption></figure>")
+    rest = [d.hose_type for d in decisions[MAX_LOOK_PLOTS:] if _drawable(d)]
     if rest:
         out.append(f'<p class="meta">Looks not drawn for {len(rest)} more hose types ({esc(", ".join(rest))}): '
                    "<code>pneubench decision --hose-type T</code> lists them.</p>")
@@ -111,17 +114,22 @@ def _series(looks: list[dict], column: str) -> list[float]:
     return out
 
 
+def _drawable(d: HoseDecision) -> bool:
+    """Whether a look of ``d`` has an estimate (there is something to draw)."""
+    return any(math.isfinite(r) for r in _series(d.looks, "life_ratio"))
+
+
 def looks_png(d: HoseDecision) -> bytes | None:
     """The looks of one hose type as PNG bytes: the estimate (log axis) with its repeated interval,
     efficacy and futility boundaries and the margins against the failures; None without a look
     that has an estimate."""
-    ratio = _series(d.looks, "life_ratio")
-    if not any(math.isfinite(r) for r in ratio):
+    if not _drawable(d):
         return None
+    ratio = _series(d.looks, "life_ratio")
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(9, 3.6), dpi=100)
+    fig = Figure(figsize=(9, 4), dpi=100)
     FigureCanvasAgg(fig)
     ax = fig.add_subplot(1, 1, 1)
     _draw_looks(ax, d, ratio)
@@ -156,6 +164,7 @@ def _draw_looks(ax, d: HoseDecision, ratio: list[float]) -> None:
         ax.plot([x[deciding]], [ratio[deciding]], "*", color=COLOURS["decides"], ms=13,
                 label=f"decided: {v.get('verdict')}")
     ax.set_yscale("log")
+    ax.set_ylim(*_ratio_window(ratio, margin))
     _ratio_ticks(ax)
     top = v.get("max_failures")
     ax.set_xlim(0, max([*x, float(top) if isinstance(top, (int, float)) else 0.0]) * 1.02 + 0.5)
@@ -163,7 +172,16 @@ def _draw_looks(ax, d: HoseDecision, ratio: list[float]) -> None:
     ax.set_ylabel("life ratio force / distance")
     ax.set_title(f"{d.hose_type}: {v.get('verdict') or 'no verdict'}", fontsize=10)
     ax.grid(alpha=0.3, which="both")
-    ax.legend(fontsize=7, loc="upper left", framealpha=0.85, ncol=2)
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=5, frameon=False)
+
+
+def _ratio_window(ratio: list[float], margin) -> tuple[float, float]:
+    """The y range: the estimates and the margins with room around them (a factor of 2.5 each
+    way); the early looks' boundaries, which can be a hundredfold, run off it."""
+    known = [r for r in ratio if math.isfinite(r)]
+    if isinstance(margin, (int, float)) and math.isfinite(margin) and margin > 1:
+        known += [margin, 1 / margin]
+    return min(known + [1.0]) / 2.5, max(known + [1.0]) * 2.5
 
 
 def _ratio_ticks(ax) -> None:

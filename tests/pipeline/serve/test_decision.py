@@ -46,13 +46,14 @@ DECIDED, OPEN, NO_PLAN, NO_ESTIMATE = "FLEXIGOM AIR", "PU 8x6", "NBR <b>10</b>",
 T0 = datetime(2026, 1, 19, 14, 30, tzinfo=timezone.utc)  # look k at T0 + 3k days: the 14th on 2026-03-02
 
 
-def _looks(hose_type: str, n: int, ratio, decides_at=None, crossed_at=None, top=40) -> list[dict]:
-    """``n`` looks (one failure each) of estimate ``ratio(k)``, O'Brien-Fleming-like boundaries."""
+def _looks(hose_type: str, n: int, ratio, decides_at=None, crossed_at=None, spread=0.8, top=40) -> list[dict]:
+    """``n`` looks (one failure each) of estimate ``ratio(k)`` with standard error ``spread / sqrt(k)``,
+    boundaries falling like O'Brien-Fleming's."""
     rows = []
     for k in range(1, n + 1):
         r = ratio(k)
-        se = 2 / math.sqrt(k) if r is not None else None
-        c = 2.0 * math.sqrt(top / k) if k < top else 2.0
+        se = spread / math.sqrt(k) if r is not None else None
+        c = 2.0 * (top / k) ** 0.25
         fut = (math.log(1.25) - c * se) if se is not None else None
         rows.append({"hose_type": hose_type, "look": k, "event_at": T0 + timedelta(days=3 * k), "hose_id": f"H{k}",
                      "failures": k, "n_hoses": 2 * k + 4, "total_km": 100.0 * k, "information_fraction": k / top,
@@ -72,7 +73,7 @@ def _verdict(hose_type, verdict, failures, ratio, **extra) -> dict:
     row.update(hose_type=hose_type, verdict=verdict, margin=1.25, alpha=0.05, power=0.8, confidence=0.9,
                spending="obrien-fleming", max_failures=40, max_failures_from="design", plan_from="hose_type",
                failures=failures, information_fraction=failures / 40, looks=failures, life_ratio=ratio,
-               se_log_ratio=2 / math.sqrt(max(failures, 1)) if ratio else None)
+               se_log_ratio=0.8 / math.sqrt(max(failures, 1)) if ratio else None)
     row.update(extra)
     return row
 
@@ -102,10 +103,10 @@ def decision_rows() -> dict[str, list[dict]]:
         "life_verdict": [
             _verdict(DECIDED, "force longer", 16, 1.82, decided_at=datetime(2026, 3, 2, 14, 30, tzinfo=timezone.utc),
                      decided_at_look=14, decided_ratio=1.78, decided_lower=1.12, decided_upper=2.83),
-            _verdict(OPEN, "undecided", 29, 1.3),
+            _verdict(OPEN, "undecided", 29, 1.15),
             _verdict(NO_PLAN, "no plan", 12, 1.4, plan_from="built-in", note="no plan.toml: built-in defaults"),
             _verdict(NO_ESTIMATE, "undecided", 1, None, note="fewer than two failures in an adjustment")],
-        "decision_looks": decided_looks + _looks(OPEN, 29, lambda k: 1.3) + _looks(NO_PLAN, 12, lambda k: 1.4,
+        "decision_looks": decided_looks + _looks(OPEN, 29, lambda k: 1.15, spread=0.4) + _looks(NO_PLAN, 12, lambda k: 1.4,
                                                                                    crossed_at=9)
         + _looks(NO_ESTIMATE, 1, lambda k: None),
         "decision_look_hoses": [{"hose_type": DECIDED, "look": 1, "hose_id": "H1", "adjustment": "force",
@@ -237,8 +238,9 @@ def test_the_command_prints_every_hose_type_or_one_with_its_looks(wh, tmp_path):
     assert len(table) == 2 + 16 + 1 and table[-1] == "(16 rows)"
     row = table[15].split()
     assert row[:6] == ["14", "2026-03-02", "H14", "14", "35", "%"] and row[-3:] == ["force", "longer", "yes"]
-    assert row[6] == "1.78" and row[7] == f"{1.78 * math.exp(-2 * math.sqrt(40 / 14) * 2 / math.sqrt(14)):.3g}-" \
-        f"{1.78 * math.exp(2 * math.sqrt(40 / 14) * 2 / math.sqrt(14)):.3g}"
+    half = 2 * (40 / 14) ** 0.25 * 0.8 / math.sqrt(14)  # the boundary's c * se at look 14
+    assert row[6] == "1.78" and row[7] == f"{1.78 * math.exp(-half):.3g}-{1.78 * math.exp(half):.3g}"
+    assert row[8] == f"{math.exp(-half):.3g}-{math.exp(half):.3g}" and math.exp(half) < 1.78  # crossed
     assert "PU 8x6" not in one.output
     bad = CliRunner().invoke(main, ["decision", "--warehouse", str(wh), "--hose-type", "PU 8x7"])
     assert bad.exit_code == 2
