@@ -413,15 +413,21 @@ def _verdict_claim(hose_type: str, v: dict) -> Claim:
                  "'no practical difference' do not hold; undecided or without plan.toml: not yet checkable")
 
 
+def _count(value) -> str:
+    """A count as text (``14``, not ``14.0`` of a float column with NULLs); ``?`` when absent."""
+    x = finite_float(value)
+    return "?" if x is None else f"{x:.0f}"
+
+
 def _verdict_detail(v: dict, e: dict) -> str:
     """How one hose type's verdict was reached, in one line (NULL numbers said to be absent)."""
-    failures, top = v.get("failures"), v.get("max_failures")
+    failures, top = _count(v.get("failures")), _count(v.get("max_failures"))
     parts = [f"verdict '{v.get('verdict')}' after {failures} of {top} failures"
              f" ({v.get('max_failures_from') or 'maximum of unknown origin'}, margin from {v.get('plan_from')})"]
     if v.get("verdict") == "no plan":
         parts.append("no plan.toml: numbers with the built-in defaults, no verdict declared")
     if v.get("decided_at") is not None:
-        parts.append(f"decided at look {v.get('decided_at_look')} ({v['decided_at']:%Y-%m-%d}): ratio "
+        parts.append(f"decided at look {_count(v.get('decided_at_look'))} ({v['decided_at']:%Y-%m-%d}): ratio "
                      f"{finite_float(v.get('decided_ratio')) or float('nan'):.3g}, repeated CI "
                      f"{finite_float(v.get('decided_lower')) or float('nan'):.3g}-"
                      f"{finite_float(v.get('decided_upper')) or float('nan'):.3g}")
@@ -431,8 +437,8 @@ def _verdict_detail(v: dict, e: dict) -> str:
         parts.append(f"life ratio {e['life_ratio']:.3g} ({100 * (finite_float(e.get('confidence')) or 0.9):.0f} % "
                      f"profile-likelihood CI {finite_float(e.get('life_ratio_lower')) or float('nan'):.3g}-"
                      f"{finite_float(e.get('life_ratio_upper')) or float('nan'):.3g}, {e.get('model')}), "
-                     f"{e.get('n_failed_force')}/{e.get('n_force')} force-set and {e.get('n_failed_distance')}/"
-                     f"{e.get('n_distance')} distance-set hoses failed")
+                     f"{_count(e.get('n_failed_force'))}/{_count(e.get('n_force'))} force-set and "
+                     f"{_count(e.get('n_failed_distance'))}/{_count(e.get('n_distance'))} distance-set hoses failed")
     if v.get("note"):
         parts.append(str(v["note"]))
     return "; ".join(parts)
