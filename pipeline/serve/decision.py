@@ -21,8 +21,6 @@ from pathlib import Path
 from pipeline.serve.door import connect_readonly
 from pipeline.serve.query import QueryError
 
-#: The tables the decision is read from (``life_verdict`` drives: one row per hose type).
-DECISION_TABLES = ("life_verdict", "life_effect", "decision_looks", "test_plan")
 #: Verdicts that are declared (they stick: later looks do not change them).
 DECIDED = ("force longer", "distance longer", "no practical difference")
 #: Width of the information bar in the terminal [characters].
@@ -313,13 +311,19 @@ def _block(d: HoseDecision, looks: bool, width: int | None) -> list[str]:
     """The lines of one hose type: verdict, information bar, plan, note, and its looks."""
     from pipeline.serve.formats import format_table
 
-    lines = [f"{d.hose_type}: {verdict_words(d)}",
-             f"  information  {text_bar(d.verdict.get('information_fraction'))} {information_words(d)}",
-             f"  plan         {plan_words(d)}"]
+    import textwrap
+
+    def wrapped(head: str, text: str) -> list[str]:
+        return textwrap.wrap(text, width, initial_indent=head, subsequent_indent=" " * 15) if width else [head + text]
+
+    lines = [*wrapped("", f"{d.hose_type}: {verdict_words(d)}"),
+             *wrapped("  information  ", f"{text_bar(d.verdict.get('information_fraction'))} {information_words(d)}"),
+             *wrapped("  plan         ", plan_words(d))]
     if d.verdict.get("note"):
-        lines.append(f"  note         {d.verdict['note']}")
+        lines += wrapped("  note         ", str(d.verdict["note"]))
     if not looks:
-        lines.append(f"  looks        {len(d.looks)}: pneubench decision --hose-type {_quoted(d.hose_type)} lists them")
+        lines += wrapped("  looks        ", f"{len(d.looks)}: pneubench decision --hose-type {_quoted(d.hose_type)} "
+                                            "lists them")
     elif d.looks:
         types = ["BIGINT" if c in ("look", "failures") else "VARCHAR" for c in LOOK_COLUMNS]
         lines += ["", format_table(list(LOOK_COLUMNS), types, look_rows(d), width=width)]

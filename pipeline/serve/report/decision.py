@@ -20,7 +20,7 @@ from pipeline.serve.report.db import ReportDB
 from pipeline.serve.report.markup import esc
 
 #: Hose types whose looks are drawn (one figure each); the others are listed by name.
-MAX_LOOK_PLOTS = 40
+MAX_LOOK_PLOTS = 20
 #: Colours of the figure: estimate, repeated interval, efficacy, futility, margin.
 COLOURS = {"estimate": "#1f3f8f", "rci": "#9db4e8", "efficacy": "#c62828", "futility": "#2e7d32",
            "margin": "#6b7280", "decides": "#e08a00"}
@@ -171,7 +171,7 @@ def _draw_looks(ax, d: HoseDecision, ratio: list[float]) -> None:
     ax.set_xlabel("failures (both adjustments)")
     ax.set_ylabel("life ratio force / distance")
     ax.set_title(f"{d.hose_type}: {v.get('verdict') or 'no verdict'}", fontsize=10)
-    ax.grid(alpha=0.3, which="both")
+    ax.grid(alpha=0.3)
     ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=5, frameon=False)
 
 

@@ -221,7 +221,10 @@ def test_unknown_hose_type_names_it_and_the_known_ones(wh):
 
 
 def test_the_command_prints_every_hose_type_or_one_with_its_looks(wh, tmp_path):
-    res = CliRunner().invoke(main, ["decision", "--warehouse", str(wh)])
+    narrow = CliRunner().invoke(main, ["decision", "--warehouse", str(wh)], env={"COLUMNS": "72"})
+    assert narrow.exit_code == 0 and max(len(x) for x in narrow.output.splitlines()) <= 72
+    assert narrow.output.splitlines()[1].startswith("               ")  # wrapped under the text, not the heading
+    res = CliRunner().invoke(main, ["decision", "--warehouse", str(wh)], env={"COLUMNS": "400"})
     assert res.exit_code == 0, res.output
     lines = res.output.splitlines()
     assert lines[0].startswith("FLEXIGOM AIR: force-set FLEXIGOM AIR hoses live 1.82x longer")
