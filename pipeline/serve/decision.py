@@ -198,9 +198,12 @@ def verdict_words(d: HoseDecision) -> str:
     if verdict in ("force longer", "distance longer") and est is not None:
         invert = verdict == "distance longer"
         r, lo, hi, label = est
-        who = "distance" if invert else "force"
-        return (f"{who}-set {t} hoses live {ratio_text(1 / r if invert else r)}x longer "
-                f"({_interval(lo, hi, label, invert)}){_decided(d, invert)}")
+        who, x = ("distance", 1 / r) if invert else ("force", r)
+        if x <= 1:  # the verdict stays while the data go on: say so rather than "0.95x longer"
+            return (f"{who}-set {t} hoses live longer (declared), but the estimate has since moved to "
+                    f"{ratio_text(x)}x ({_interval(lo, hi, label, invert)}){_decided(d, invert)}")
+        return (f"{who}-set {t} hoses live {ratio_text(x)}x longer ({_interval(lo, hi, label, invert)})"
+                f"{_decided(d, invert)}")
     if verdict == "no practical difference":
         m = _num(v.get("margin"))
         band = f"within 1/{m:g}..{m:g}" if m is not None else "within the margin"
@@ -217,7 +220,7 @@ def verdict_words(d: HoseDecision) -> str:
                 f"failure's data showed '{crossed['crossed']}'" if crossed else "")
         return (f"no plan.toml: no verdict is declared without the lab's plan (raw/plan.toml); {t} {shown} "
                 f"{_so_far(d)}{seen}")
-    return f"{verdict or 'no verdict'}: {t} {shown} {_so_far(d)}"
+    return f"{verdict or 'no verdict'}: {t} {shown} {_so_far(d)}" + (_decided(d, False) if verdict in DECIDED else "")
 
 
 def information_words(d: HoseDecision) -> str:

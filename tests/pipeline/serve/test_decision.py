@@ -177,6 +177,14 @@ def test_distance_longer_is_said_the_other_way_round_and_no_difference_with_its_
     assert dc.verdict_words(same) == ("no practical difference for FLEXIGOM AIR hoses: the force / distance life ratio "
                                       "is within 1/1.25..1.25: 1.02x (90 % CI 0.93-1.12x); decided on 2026-03-02 at "
                                       "the 14th failure")
+    # a declared verdict stays while the data go on: an estimate that moved back is said as such
+    moved = dc.HoseDecision(d.hose_type, d.verdict, {**d.effect, "life_ratio": 0.97}, d.looks, [])
+    assert dc.verdict_words(moved).startswith("force-set FLEXIGOM AIR hoses live longer (declared), but the estimate "
+                                              "has since moved to 0.97x (90 % CI 1.31-2.53x); decided on 2026-03-02")
+    blank = dc.HoseDecision(d.hose_type, {**d.verdict, "life_ratio": None}, {}, d.looks, [])
+    assert dc.verdict_words(blank) == ("force longer: FLEXIGOM AIR no estimate of the force / distance life ratio yet "
+                                       "after 16 of 40 planned failures; decided on 2026-03-02 at the 14th failure "
+                                       "(then 1.78x, repeated 95 % CI 1.12-2.83x)")
     # without life_effect's estimate the last look's repeated interval is said, named as such
     bare = dc.HoseDecision(d.hose_type, {**d.verdict, "rci_lower": 1.2, "rci_upper": 2.9}, {}, d.looks, [])
     assert dc.verdict_words(bare).startswith("force-set FLEXIGOM AIR hoses live 1.82x longer (repeated 95 % CI 1.2-2.9x)")
