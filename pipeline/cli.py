@@ -114,8 +114,8 @@ def rebuild(raw, warehouse, quiet, no_report, **options):
     sys.exit(summary.exit_code)
 
 
-# The door's commands (query, tables, describe, plot, figures) import pipeline.serve where they run:
-# it imports duckdb (and plot matplotlib), which `pneubench --help`, `schedule` and `simulate` do without.
+# The door's commands (query, tables, describe, plot, decision, figures) import pipeline.serve where they
+# run: it imports duckdb (and plot matplotlib), which `pneubench --help`, `schedule` and `simulate` do without.
 
 
 def _query_error(exc, command: str = "query") -> None:
@@ -286,6 +286,28 @@ def plot(run_id, warehouse, channels, output):
         raise click.UsageError(str(exc)) from None
     except QueryError as exc:
         _query_error(exc, "plot")
+
+
+@main.command()
+@warehouse_option
+@click.option("--hose-type", "hose_type", default=None, metavar="T",
+              help="Only hose type T, with every look (default: every hose type, without the looks).")
+def decision(warehouse, hose_type):
+    """The decision per hose type: force- vs distance-set rollers, the verdict in words, the
+    information fraction, the plan to a verdict (and the looks of one --hose-type).
+
+    Exit 0; 2 for a hose type the warehouse has no decision for (the line names the known ones).
+    """
+    from pipeline.serve.decision import decision_text
+    from pipeline.serve.formats import terminal_width
+    from pipeline.serve.query import QueryError
+
+    try:
+        click.echo(decision_text(warehouse, hose_type, width=terminal_width()))
+    except FileNotFoundError as exc:
+        raise click.UsageError(str(exc)) from None
+    except QueryError as exc:
+        _query_error(exc, "decision")
 
 
 @main.command()

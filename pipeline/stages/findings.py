@@ -1,6 +1,7 @@
 """Stage: the conclusions of the two seed papers, checked on the lab's latest data.
 
-One row per finding in the ``findings`` table (``schemas/ddl/95_findings.sql``): the measured
+One row per finding in the ``findings`` table (``schemas/ddl/95_findings.sql``), and one per hose
+type for the decision (``life_verdict:<hose type>``, :func:`life_verdicts`): the measured
 value, its standard uncertainty, the criterion, and whether it holds (NULL and "no data" when
 nothing measures it). The numbers come from the tables of the earlier stages (``ctx.results``):
 their own statistics are reused (``breakaway_findings``, ``seal_envelope``,
@@ -32,7 +33,8 @@ from pipeline.stages.values import finite_float
 
 NAME = "findings"
 READS = Reads(tables=("breakaway_findings", "breakaway", "leakage_map", "seal_envelope", "viscous_fits",
-                      "viscous_transition", "viscous_points", "spring_tests", "hose_life", "service_life_test"))
+                      "viscous_transition", "viscous_points", "spring_tests", "hose_life", "service_life_test",
+                      "life_verdict", "life_effect"))
 WRITES = ("findings",)
 
 PLPA = f"PLPA: {PLPA_CITATION}"
@@ -392,6 +394,95 @@ def _ratio_uncertainty(groups, fits, ratio) -> float | None:
     return ratio * math.sqrt(var)
 
 
+# -- the decision per hose type (issue 23) ------------------------------------------------------------------
+#: The verdicts that hold / do not hold the claim "force-set hoses live longer"; the others ("undecided",
+#: "no plan") leave it NULL: the sequential test has not declared anything.
+VERDICT_HOLDS = {"force longer": True, "distance longer": False, "no practical difference": False}
+
+
+def _verdict_claim(hose_type: str, v: dict) -> Claim:
+    """The claim of one hose type's verdict finding, with the plan's margin, alpha and spending."""
+    margin, alpha = finite_float(v.get("margin")), finite_float(v.get("alpha"))
+    plan = ", ".join(x for x in (f"margin {margin:g}" if margin is not None else "",
+                                 f"alpha {alpha:g} over all looks" if alpha is not None else "",
+                                 f"{v.get('spending')} spending" if v.get("spending") else "") if x)
+    return Claim(f"life_verdict:{hose_type}",
+                 f"{hose_type} hoses live longer with force-set rollers than with distance-set ones (the decision)",
+                 PLPA, "ratio", "sequential verdict 'force longer': a repeated confidence interval of the life ratio "
+                 f"force / distance above 1 at a look ({plan or 'plan unknown'}); 'distance longer' or "
+                 "'no practical difference' do not hold; undecided or without plan.toml: not yet checkable")
+
+
+def _count(value) -> str:
+    """A count as text (``14``, not ``14.0`` of a float column with NULLs); ``?`` when absent."""
+    x = finite_float(value)
+    return "?" if x is None else f"{x:.0f}"
+
+
+def _verdict_detail(v: dict, e: dict) -> str:
+    """How one hose type's verdict was reached, in one line (NULL numbers said to be absent)."""
+    failures, top = _count(v.get("failures")), _count(v.get("max_failures"))
+    parts = [f"verdict '{v.get('verdict')}' after {failures} of {top} failures"
+             f" ({v.get('max_failures_from') or 'maximum of unknown origin'}, margin from {v.get('plan_from')})"]
+    if v.get("verdict") == "no plan":
+        parts.append("no plan.toml: numbers with the built-in defaults, no verdict declared")
+    if v.get("decided_at") is not None:
+        parts.append(f"decided at look {_count(v.get('decided_at_look'))} ({v['decided_at']:%Y-%m-%d}): ratio "
+                     f"{finite_float(v.get('decided_ratio')) or float('nan'):.3g}, repeated CI "
+                     f"{finite_float(v.get('decided_lower')) or float('nan'):.3g}-"
+                     f"{finite_float(v.get('decided_upper')) or float('nan'):.3g}")
+    if finite_float(e.get("life_ratio")) is None:
+        parts.append("no life ratio: " + str(e.get("note") or v.get("note") or "life_effect has no estimate"))
+    else:
+        parts.append(f"life ratio {e['life_ratio']:.3g} ({100 * (finite_float(e.get('confidence')) or 0.9):.0f} % "
+                     f"profile-likelihood CI {finite_float(e.get('life_ratio_lower')) or float('nan'):.3g}-"
+                     f"{finite_float(e.get('life_ratio_upper')) or float('nan'):.3g}, {e.get('model')}), "
+                     f"{_count(e.get('n_failed_force'))}/{_count(e.get('n_force'))} force-set and "
+                     f"{_count(e.get('n_failed_distance'))}/{_count(e.get('n_distance'))} distance-set hoses failed")
+    if v.get("note"):
+        parts.append(str(v["note"]))
+    return "; ".join(parts)
+
+
+def _verdict_row(v: dict, e: dict) -> dict:
+    """The finding of one hose type's verdict: measured = life_effect's ratio with its standard
+    uncertainty from the profile-likelihood interval (log scale); holds from the verdict."""
+    claim = _verdict_claim(str(v["hose_type"]), v)
+    ratio = finite_float(e.get("life_ratio"))
+    unc = _std_from_ci({"estimate": ratio, "ci_low": e.get("life_ratio_lower"), "ci_high": e.get("life_ratio_upper"),
+                        "confidence": e.get("confidence")}, log=True) if ratio is not None else None
+    return _row(claim, "life_verdict, life_effect", ratio, unc, VERDICT_HOLDS.get(v.get("verdict")),
+                v.get("failures"), None, _verdict_detail(v, e))
+
+
+def _nulls(record: dict) -> dict:
+    """A table row with its missing values (NaN, NaT, pd.NA) as None."""
+    return {k: (None if pd.api.types.is_scalar(x) and not isinstance(x, str) and pd.isna(x) else x)
+            for k, x in record.items()}
+
+
+def life_verdicts(ctx: StageContext) -> list[dict]:
+    """One finding per hose type of ``life_verdict`` (none before the decision stage ran), each
+    computed alone: a hose type whose row cannot be read gives holds NULL and the error."""
+    verdicts = _table(ctx, "life_verdict")
+    if verdicts is None:
+        return []
+    effects = _table(ctx, "life_effect")
+    by_type = ({str(r["hose_type"]): _nulls(r) for r in effects.to_dict("records")} if effects is not None
+               and "hose_type" in effects.columns else {})
+    rows = []
+    for v in sorted(verdicts.to_dict("records"), key=lambda r: str(r["hose_type"])):
+        v = _nulls(v)
+        try:
+            rows.append(_verdict_row(v, by_type.get(str(v["hose_type"]), {})))
+        except UndeclaredRead:
+            raise
+        except Exception as exc:
+            row = _row(_verdict_claim(str(v["hose_type"]), {}), "life_verdict, life_effect")
+            rows.append({**row, "detail": "could not be computed: " + " ".join(f"{type(exc).__name__}: {exc}".split())})
+    return rows
+
+
 #: The checks, each with the finding_id it declares: a check that raises still gives a row under
 #: its own id (holds NULL, the error in detail), so a change of its result stays trackable.
 CHECKS: tuple[tuple[str, Callable[[StageContext], dict]], ...] = (
@@ -429,6 +520,9 @@ def run(ctx: StageContext) -> StageOutput:
         except Exception as exc:  # a finding that cannot be computed is NULL with the error, never a crash
             row = _failed_row(finding_id, check, exc)
         row["ord"] = i + 1
+        rows.append(row)
+    for row in life_verdicts(ctx):  # after the papers' findings, by hose type
+        row["ord"] = len(rows) + 1
         rows.append(row)
     df = pd.DataFrame(rows, columns=COLUMNS)
     df["holds"] = df["holds"].astype("boolean")

@@ -1,5 +1,5 @@
 """The parts cache: the report's parts that depend on the data only (the results sections with
-their contents entries, the index of runs), kept in the report folder under the inputs key of the
+their contents entries, the index of runs, the decision), kept in the report folder under the inputs key of the
 rebuild that rendered them. Equal keys mean equal result tables (the rebuild is deterministic), so
 the next report with the same key takes them as they are (the no-op rebuild)."""
 from __future__ import annotations
@@ -15,9 +15,10 @@ from pipeline.serve.report.folders import REPORT_DIR
 PARTS_CACHE = ".parts-cache.json"
 
 
-def cached_parts(db: ReportDB, warehouse: Path) -> tuple[str, list, str] | None:
-    """(results HTML, contents entries, runs index HTML) of the live report when its key is the
-    database's; None otherwise (no key, no cache, another key, a damaged file)."""
+def cached_parts(db: ReportDB, warehouse: Path) -> tuple[str, list, str, str] | None:
+    """(results HTML, contents entries, runs index HTML, decision HTML) of the live report when its
+    key is the database's; None otherwise (no key, no cache, another key, a damaged file, a cache
+    written before a part was kept)."""
     key = db.inputs_key()
     if key is None:
         return None
@@ -26,12 +27,12 @@ def cached_parts(db: ReportDB, warehouse: Path) -> tuple[str, list, str] | None:
         if data.get("key") != key:
             return None
         toc = [(a, t, [tuple(x) for x in sub]) for a, t, sub in data["toc"]]
-        return str(data["results"]), toc, str(data["runs_index"])
+        return str(data["results"]), toc, str(data["runs_index"]), str(data["decision"])
     except (OSError, ValueError, TypeError, KeyError):
         return None  # none yet, or damaged: rendered anew
 
 
-def cache_parts(db: ReportDB, folder: Path, results: str, toc: list, runs_index: str) -> None:
+def cache_parts(db: ReportDB, folder: Path, results: str, toc: list, runs_index: str, decision: str) -> None:
     """Keep the parts in the new report ``folder`` under the database's inputs key (none without one)."""
     key = db.inputs_key()
     if key is None:
@@ -39,7 +40,8 @@ def cache_parts(db: ReportDB, folder: Path, results: str, toc: list, runs_index:
     tmp = folder / f".parts-cache.tmp-{os.getpid()}"
     try:
         folder.mkdir(parents=True, exist_ok=True)
-        tmp.write_text(json.dumps({"key": key, "results": results, "toc": toc, "runs_index": runs_index}),
+        tmp.write_text(json.dumps({"key": key, "results": results, "toc": toc, "runs_index": runs_index,
+                                   "decision": decision}),
                        encoding="utf-8")
         os.replace(tmp, folder / PARTS_CACHE)
     except OSError:

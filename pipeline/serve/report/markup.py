@@ -27,6 +27,8 @@ nav.toc{border:1px solid #d8dce4;background:#f8f9fb;padding:8px 18px;margin:14px
 nav.toc ul{margin:2px 0;padding-left:18px}nav.toc>ul{padding-left:0;list-style:none}nav.toc li{break-inside:avoid}
 details{margin:6px 0 12px}summary{cursor:pointer;color:#2a4d8f}a{color:#2a4d8f}
 td.diff-ok{color:#16632a}td.diff-bad{color:#9b1c1c;font-weight:600}
+.infobar{display:inline-block;width:180px;height:12px;border:1px solid #9aa3b5;background:#eef0f3;vertical-align:middle}
+.infobar span{display:block;height:100%;background:#2a4d8f}
 """
 
 

@@ -2,8 +2,9 @@
 folder), stage that folder beside the live one, publish it; ``pneubench report``
 (:func:`write_report`) puts a failure page in place of a report it cannot render.
 
-The order of the index: contents, the alert box of changed findings, the findings, the results
-per paper (:mod:`~pipeline.serve.report.results`), the last rebuild, the runs.
+The order of the index: contents, the decision (:mod:`~pipeline.serve.report.decision`), the
+alert box of changed findings, the findings, the results per paper
+(:mod:`~pipeline.serve.report.results`), the last rebuild, the runs.
 """
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ from pathlib import Path
 
 from pipeline.serve.report.cache import cache_parts, cached_parts
 from pipeline.serve.report.db import ReportDB
+from pipeline.serve.report.decision import decision_section
 from pipeline.serve.report.folders import GENERATION_FILE, REPORT_DIR
 from pipeline.serve.report.markup import CSS, esc, one_line_error
 from pipeline.serve.report.pages import carry_pages, run_pages_present, runs_index, write_run_pages
@@ -61,7 +63,7 @@ def render_report(warehouse: str | Path, now: datetime | None = None, database: 
             parts = cached
         else:
             results, entries = results_sections(db, warehouse)
-            parts = (results, entries, runs_index(db))
+            parts = (results, entries, runs_index(db), decision_section(db))
         if folder is not None:
             _fill_folder(db, warehouse, Path(folder), generation, run_pages, parts)
         return _index(db, warehouse, generation, (alert, findings), parts)
@@ -82,11 +84,12 @@ def _fill_folder(db: ReportDB, warehouse: Path, folder: Path, generation: str, r
 
 def _index(db: ReportDB, warehouse: Path, generation: str, findings: tuple[str, str], parts: tuple) -> str:
     """The index page: ``findings`` (alert, section) and the data-only ``parts`` (results,
-    their contents entries, runs index) with the header, contents and last rebuild."""
+    their contents entries, runs index, the decision) with the header, contents and last rebuild."""
     alert, findings_html = findings
-    results, entries, runs = parts
-    contents = ([("overturned", "Findings changed in the last 24 hours", [])] if alert.startswith('<div class="alert"')
-                else []) + [("findings", "Findings of the two papers", [])] + entries + [
+    results, entries, runs, decision = parts
+    contents = [("decision", "The decision", [])] + (
+        [("overturned", "Findings changed in the last 24 hours", [])] if alert.startswith('<div class="alert"')
+        else []) + [("findings", "Findings of the two papers", [])] + entries + [
         ("rebuild", "Last rebuild: inputs and quarantine", []), ("runs", "Runs", [])]
     page = [
         "<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
@@ -96,7 +99,7 @@ def _index(db: ReportDB, warehouse: Path, generation: str, findings: tuple[str, 
         "<h1>pneubench morning report</h1>",
         f'<p class="meta">warehouse {esc(warehouse.resolve())}, generation {esc(generation)}. '
         f"{rebuild_line(db)}</p>",
-        toc(contents), alert, findings_html, results, rebuild_section(db), runs,
+        toc(contents), decision, alert, findings_html, results, rebuild_section(db), runs,
         "</body></html>",
     ]
     return "\n".join(p for p in page if p)

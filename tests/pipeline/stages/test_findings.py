@@ -280,3 +280,88 @@ def test_the_findings_take_the_papers_values_from_schemas_papers():
     assert rows["breakaway_0bar_twice"]["criterion"] == "ratio of means within 1.5-2.5"
     assert rows["spring_nrmse_below_2_5pct"]["criterion"] == "largest NRMSE of the spring tests < 2.5 %"
     assert papers.PLPA_BREAKAWAY_RATIO_BAND == (1.5, 2.5) and papers.PLA_NRMSE_LIMIT_PCT == 2.5
+
+
+def _verdicts():
+    """life_verdict and life_effect rows of five hose types (the contract's columns that the finding reads)."""
+    at = pd.Timestamp("2026-03-02 14:30", tz="UTC")
+    base = {"margin": 1.25, "alpha": 0.05, "power": 0.8, "confidence": 0.9, "spending": "obrien-fleming",
+            "max_failures": 40, "max_failures_from": "design", "plan_from": "hose_type", "note": None,
+            "decided_at": pd.NaT, "decided_at_look": None, "decided_ratio": np.nan, "decided_lower": np.nan,
+            "decided_upper": np.nan}
+    verdict = pd.DataFrame([
+        {**base, "hose_type": "PU 8x6", "verdict": "undecided", "failures": 29},
+        {**base, "hose_type": "FLEXIGOM AIR", "verdict": "force longer", "failures": 16, "decided_at": at,
+         "decided_at_look": 14, "decided_ratio": 1.78, "decided_lower": 1.12, "decided_upper": 2.83},
+        {**base, "hose_type": "NBR 10", "verdict": "no plan", "failures": 12, "plan_from": "built-in"},
+        {**base, "hose_type": "SIL 4", "verdict": "undecided", "failures": 1,
+         "note": "fewer than two failures in an adjustment"},
+        {**base, "hose_type": "EPDM 6", "verdict": "distance longer", "failures": 30, "decided_at": at,
+         "decided_at_look": 25, "decided_ratio": 0.6, "decided_lower": 0.4, "decided_upper": 0.9},
+        {**base, "hose_type": "PVC 12", "verdict": "no practical difference", "failures": 40, "decided_at": at,
+         "decided_at_look": 40, "decided_ratio": 1.01, "decided_lower": 0.9, "decided_upper": 1.13}])
+    effect = pd.DataFrame([
+        {"hose_type": t, "life_ratio": r, "life_ratio_lower": lo, "life_ratio_upper": hi, "confidence": 0.9,
+         "model": "common shape" if r == r else None, "n_force": 10, "n_failed_force": 6, "n_distance": 10,
+         "n_failed_distance": 8, "note": note}
+        for t, r, lo, hi, note in (("FLEXIGOM AIR", 1.82, 1.31, 2.53, None), ("PU 8x6", 1.3, 0.9, 1.9, None),
+                                   ("NBR 10", 1.4, 1.02, np.nan, None),
+                                   ("SIL 4", np.nan, np.nan, np.nan, "fewer than two failures in an adjustment"),
+                                   ("EPDM 6", 0.62, 0.45, 0.85, None), ("PVC 12", 1.0, 0.92, 1.1, None))])
+    return verdict, effect
+
+
+def test_the_decision_is_a_finding_per_hose_type_after_the_papers():
+    verdict, effect = _verdicts()
+    f = by_id(ctx_with(life_verdict=verdict, life_effect=effect))
+    ids = [k for k in f if k.startswith("life_verdict:")]
+    assert ids == [f"life_verdict:{t}" for t in ("EPDM 6", "FLEXIGOM AIR", "NBR 10", "PU 8x6", "PVC 12", "SIL 4")]
+    assert [f[k]["ord"] for k in ids] == list(range(len(fs.CHECKS) + 1, len(fs.CHECKS) + 7))
+    holds = {k.split(":", 1)[1]: (None if pd.isna(f[k]["holds"]) else bool(f[k]["holds"])) for k in ids}
+    assert holds == {"FLEXIGOM AIR": True, "EPDM 6": False, "PVC 12": False, "PU 8x6": None, "NBR 10": None,
+                     "SIL 4": None}
+    row = f["life_verdict:FLEXIGOM AIR"]
+    z = 1.6448536269514722  # two-sided 90 %
+    assert row["measured"] == 1.82 and row["unit"] == "ratio" and row["n"] == 16 and row["paper"] == fs.PLPA
+    assert row["uncertainty"] == pytest.approx(1.82 * (np.log(2.53) - np.log(1.31)) / (2 * z))
+    assert row["statement"] == ("FLEXIGOM AIR hoses live longer with force-set rollers than with distance-set ones "
+                                "(the decision)")
+    assert "margin 1.25, alpha 0.05 over all looks, obrien-fleming spending" in row["criterion"]
+    assert row["detail"].startswith("verdict 'force longer' after 16 of 40 failures (design, margin from hose_type); "
+                                    "decided at look 14 (2026-03-02): ratio 1.78, repeated CI 1.12-2.83; life ratio "
+                                    "1.82 (90 % profile-likelihood CI 1.31-2.53, common shape)")
+    assert pd.isna(row["p_value"]) and row["source_tables"] == "life_verdict, life_effect"
+    # numbers the tables hold as NULL stay NULL, with the reason in the detail
+    sil = f["life_verdict:SIL 4"]
+    assert pd.isna(sil["measured"]) and pd.isna(sil["uncertainty"])
+    assert "no life ratio: fewer than two failures in an adjustment" in sil["detail"]
+    open_bound = f["life_verdict:NBR 10"]
+    assert open_bound["measured"] == 1.4 and pd.isna(open_bound["uncertainty"])
+    assert "no plan.toml: numbers with the built-in defaults, no verdict declared" in open_bound["detail"]
+
+
+def test_a_hose_type_whose_verdict_cannot_be_read_is_null_with_the_error_the_others_stand(monkeypatch):
+    verdict, effect = _verdicts()
+    real = fs._verdict_row
+
+    def broken(v, e):
+        if v["hose_type"] == "PU 8x6":
+            raise ValueError("bad\nrow")
+        return real(v, e)
+
+    monkeypatch.setattr(fs, "_verdict_row", broken)
+    f = by_id(ctx_with(life_verdict=verdict, life_effect=effect))
+    row = f["life_verdict:PU 8x6"]
+    assert pd.isna(row["holds"]) and pd.isna(row["measured"])
+    assert row["detail"] == "could not be computed: ValueError: bad row"
+    assert row["statement"].startswith("PU 8x6 hoses live longer")
+    assert bool(f["life_verdict:FLEXIGOM AIR"]["holds"]) and f["life_verdict:FLEXIGOM AIR"]["measured"] == 1.82
+    # without life_effect the verdict still holds or not, the ratio is absent and says why
+    f = by_id(ctx_with(life_verdict=verdict))
+    row = f["life_verdict:FLEXIGOM AIR"]
+    assert bool(row["holds"]) and pd.isna(row["measured"])
+    assert "no life ratio: life_effect has no estimate" in row["detail"]
+
+
+def test_the_stage_declares_the_decision_tables():
+    assert {"life_verdict", "life_effect"} <= set(fs.READS.tables)
