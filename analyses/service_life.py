@@ -205,18 +205,49 @@ def weibull_fit(life, failed) -> WeibullFit:
     return WeibullFit(float(best[0]), float(best[1]), float(best[2]), n, r)
 
 
-def _profile_quantile_loglik(b: float, p: float, x, f, shape_hint: float) -> float:
-    """max over the shape of the log-likelihood with the p-quantile held at ``b``."""
+def weibull_quantile_profile(log_q: float, p: float, life, failed) -> float:
+    """Log-likelihood maximised over the shape with the p-quantile held at ``exp(log_q)``.
+
+    The profile likelihood of a Weibull quantile (Meeker & Escobar 1998, section 8.3): with
+    ``log scale = log_q - log(c) / k``, ``c = -log(1 - p)``, the log-likelihood is strictly
+    concave in the shape ``k`` (second derivative ``-r / k^2 - c * sum(u^2 * exp(k * u))``,
+    ``u = log(life) - log_q``), so the shape solves its score equation exactly (``brentq``); at
+    the edge of :data:`SHAPE_BOUNDS` that edge is taken. Used for the B10 bounds here and for the
+    B10 ratio of separate shapes in :mod:`analyses.life_effect`.
+
+    Parameters
+    ----------
+    log_q : float
+        Log of the quantile held [log of the unit of ``life``].
+    p : float
+        Fraction failed by that quantile [-] (0.10 for B10).
+    life, failed : array_like
+        Lives [any unit, > 0] and failure flags.
+
+    Returns
+    -------
+    float
+        The profile log-likelihood.
+    """
+    x, f = _as_arrays(life, failed)
+    u = np.log(x) - log_q
+    r, sum_uf = float(f.sum()), float(u[f].sum())
     c = -math.log1p(-p)
 
-    def neg(logk):
+    def score(logk):
         k = math.exp(logk)
-        return -weibull_loglik(k, b / c ** (1.0 / k), x, f)
+        return r / k + sum_uf - c * float((u * np.exp(np.minimum(k * u, 600.0))).sum())
 
-    centre = math.log(shape_hint)
-    res = scipy.optimize.minimize_scalar(neg, bounds=(centre - 4.0, centre + 4.0), method="bounded",
-                                   options={"xatol": 1e-9})
-    return -float(res.fun)
+    lo, hi = math.log(SHAPE_BOUNDS[0]), math.log(SHAPE_BOUNDS[1])
+    if score(lo) <= 0 or score(hi) >= 0:
+        logk = lo if score(lo) <= 0 else hi
+    else:
+        logk = scipy.optimize.brentq(score, lo, hi, xtol=1e-12)
+    k, log_c = math.exp(logk), math.log(c)
+    # weibull_loglik at scale exp(log_q) / c^(1/k), written in u: log(life / scale) = u + log(c) / k
+    with np.errstate(over="ignore"):
+        return (r * (logk - log_q + log_c / k) + (k - 1.0) * (sum_uf + r * log_c / k)
+                - c * float(np.exp(k * u).sum()))
 
 
 def weibull_quantile_bounds(fit: WeibullFit, life, failed, p: float = 0.10,
@@ -246,7 +277,7 @@ def weibull_quantile_bounds(fit: WeibullFit, life, failed, p: float = 0.10,
     crit = float(scipy.stats.chi2.ppf(confidence, 1))
 
     def g(logb):
-        return 2.0 * (fit.loglik - _profile_quantile_loglik(math.exp(logb), p, x, f, fit.shape)) - crit
+        return 2.0 * (fit.loglik - weibull_quantile_profile(logb, p, x, f)) - crit
 
     centre = math.log(est)
     lo, hi = (math.exp(lr_bound(g, centre, centre + side * math.log(1e6))) for side in (-1.0, 1.0))
@@ -585,6 +616,6 @@ def plot_hose_distances(hoses: pd.DataFrame):
 
 
 __all__ = ["SHAPE_BOUNDS", "WeibullFit", "weibull_fit", "weibull_loglik", "weibull_scale_given_shape",
-           "weibull_quantile_bounds", "lr_bound", "b10", "weibull_lr_test",
+           "weibull_quantile_bounds", "weibull_quantile_profile", "lr_bound", "b10", "weibull_lr_test",
            "kaplan_meier", "weibull_plotting_positions", "plot_weibull_probability", "plot_kaplan_meier",
            "plot_leak_growth", "plot_hose_distances"]

@@ -7,8 +7,9 @@ import pandas as pd
 import pytest
 import scipy
 
-from analyses.life_effect import COMMON, SEPARATE, LifeEffect, _b10_profile, common_shape_fit, life_effect
-from analyses.service_life import _profile_quantile_loglik, weibull_fit, weibull_loglik
+from analyses.life_effect import (COMMON, SEPARATE, LifeEffect, b10_ratio_separate_shapes, common_shape_fit,
+                                  life_effect)
+from analyses.service_life import weibull_fit, weibull_loglik
 
 
 def censored_sample(seed, n, ratio, shape, censor_km, scale_km=5000.0):
@@ -90,7 +91,8 @@ def test_profile_bounds_sit_where_the_deviance_reaches_its_critical_value():
     assert wide.shape_lower < r.shape_lower < r.shape < r.shape_upper < wide.shape_upper
 
 
-#: lifelines 0.30.3's WeibullAFTFitter on :func:`censored_sample` (seed, ratio, shape), n = 14,
+#: lifelines 0.30.3's WeibullAFTFitter on :func:`censored_sample` (seed, ratio, shape), n = 14 (simulated
+#: data; the public-data case is LIFELINES_AFT_LEUKEMIA below),
 #: censored at 6000 km (numpy 2.4.6): log scale = b0 + b1 * force, shape rho = exp(a0), so exp(b1)
 #: is the life ratio and se(b1) the standard error of its log (observed information). Stored, not
 #: run here: lifelines requires pandas < 3, which the project does not test with; regenerate with
@@ -120,6 +122,38 @@ def test_matches_lifelines_weibull_aft_fit(case):
     assert fit.loglik == pytest.approx(ref["loglik"], rel=1e-6)
 
 
+#: Public data: Freireich et al.'s (1963) leukemia remission times [weeks] of 21 patients on 6-MP
+#: (9 relapses, 12 censored) and 21 on placebo (all relapsed), the ``anderson``
+#: data of Kleinbaum & Klein's Survival Analysis, as ``lifelines.datasets.load_leukemia`` gives
+#: it (columns t, status, Rx; Rx = 1 placebo, here in the place of ``group``). Fitted by lifelines
+#: 0.30.3 (pandas 2.3.3, numpy 2.4.6): ``WeibullAFTFitter().fit(load_leukemia()[["t", "status", "Rx"]],
+#: "t", "status")`` -> coef lambda_ Rx -1.2673347224637774 (se 0.3106399886940591), lambda_
+#: Intercept 3.51568723518389, rho_ Intercept 0.31170926264876553, log-likelihood -106.57949158156515.
+LEUKEMIA = dict(
+    t=[35.0, 34, 32, 32, 25, 23, 22, 20, 19, 17, 16, 13, 11, 10, 10, 9, 7, 6, 6, 6, 6,
+       23, 22, 17, 15, 12, 12, 11, 11, 8, 8, 8, 8, 5, 5, 4, 4, 3, 2, 2, 1, 1],
+    status=[0, 0, 0, 0, 0, 1, 1, 0, 0, 0, 1, 1, 0, 0, 1, 0, 1, 0, 1, 1, 1] + [1] * 21,
+    Rx=[0] * 21 + [1] * 21)
+LIFELINES_AFT_LEUKEMIA = dict(ratio=math.exp(-1.2673347224637774), shape=math.exp(0.31170926264876553),
+                              se_log_ratio=0.3106399886940591, scale_distance=math.exp(3.51568723518389),
+                              loglik=-106.57949158156515)
+
+
+def test_matches_lifelines_weibull_aft_fit_on_public_data():
+    life, failed, group = (np.array(LEUKEMIA[k]) for k in ("t", "status", "Rx"))
+    ref = LIFELINES_AFT_LEUKEMIA
+    r = life_effect(life, failed == 1, group)
+    assert (r.n_distance, r.n_failed_distance, r.n_force, r.n_failed_force) == (21, 9, 21, 21)
+    assert r.model == COMMON and r.shape_test_p > 0.5  # one shape fits: the ratio is lifelines' exp(coef)
+    assert r.life_ratio == pytest.approx(ref["ratio"], rel=1e-5)
+    assert r.shape == pytest.approx(ref["shape"], rel=1e-5)
+    assert r.se_log_ratio == pytest.approx(ref["se_log_ratio"], rel=1e-5)
+    fit = common_shape_fit(life, failed == 1, group)
+    assert fit.scale_distance == pytest.approx(ref["scale_distance"], rel=1e-5)
+    assert fit.loglik == pytest.approx(ref["loglik"], rel=1e-9)
+    assert r.life_ratio_lower < ref["ratio"] < r.life_ratio_upper < 1.0 and r.p_value < 1e-4
+
+
 def test_different_shapes_switch_to_the_b10_ratio_of_separate_shapes():
     rng = np.random.default_rng(7)
     n = 40
@@ -137,16 +171,42 @@ def test_different_shapes_switch_to_the_b10_ratio_of_separate_shapes():
     assert r.log_ratio == pytest.approx(common_shape_fit(life, failed, group).log_ratio)
     assert r.shape_lower < r.shape < r.shape_upper
     # alpha below the shape test's p keeps the common shape
-    assert life_effect(life, failed, group, alpha=r.shape_test_p / 2).model == COMMON
+    common = life_effect(life, failed, group, alpha=r.shape_test_p / 2)
+    assert common.model == COMMON
+    # after the switch the interval is the union of the separate-shape profile interval and the
+    # common-shape one, and the p-value the larger of the two tests of ratio = 1
+    own = b10_ratio_separate_shapes(life, failed, group, confidence=0.90)
+    assert own["life_ratio"] == r.life_ratio and own["note"] is None
+    assert r.life_ratio_lower == min(own["life_ratio_lower"], common.life_ratio_lower)
+    assert r.life_ratio_upper == max(own["life_ratio_upper"], common.life_ratio_upper)
+    assert r.p_value == max(own["p_value"], common.p_value)
+    assert r.life_ratio_lower < own["life_ratio_lower"] or r.life_ratio_upper > own["life_ratio_upper"]  # it widens
 
 
-def test_b10_profile_equals_service_lifes_numeric_profile():
-    x = np.array([3.0, 7, 12, 20, 25, 31])
-    f = np.array([1, 1, 1, 0, 1, 0], bool)
-    k = weibull_fit(x, f).shape
-    for log_b in (0.5, 1.5, 2.0, 2.8):
-        assert _b10_profile(log_b, x, f) == pytest.approx(_profile_quantile_loglik(math.exp(log_b), 0.1, x, f, k),
-                                                          abs=1e-9)
+def test_union_after_the_switch_keeps_an_open_side_open():
+    from analyses.life_effect import _separate_or_common
+
+    nan = float("nan")
+    out = _separate_or_common({"life_ratio_lower": 0.8, "life_ratio_upper": nan, "p_value": 0.2},
+                              {"life_ratio": 1.4, "life_ratio_lower": 0.9, "life_ratio_upper": 2.0, "p_value": 0.01})
+    assert out["life_ratio"] == 1.4 and out["life_ratio_lower"] == 0.8 and math.isnan(out["life_ratio_upper"])
+    assert out["p_value"] == 0.2
+
+
+#: reliability 0.9.0's ``Fit_Weibull_2P(..., method="MLE")`` on each LEUKEMIA group, (alpha = scale
+#: [weeks], beta = shape): the call and versions of test_service_life's RELIABILITY_FIT_WEIBULL_2P,
+#: whose 6-MP values these are (checked live there where reliability is installed).
+RELIABILITY_LEUKEMIA = {0: (33.76514119656118, 1.353734209488257), 1: (9.482144704257015, 1.3704998724147957)}
+
+
+def test_separate_shapes_b10_ratio_matches_the_reliability_packages_own_fits():
+    life, failed, group = (np.array(LEUKEMIA[k]) for k in ("t", "status", "Rx"))
+    own = b10_ratio_separate_shapes(life, failed == 1, group)
+    b10s = [scale * (-math.log(0.9)) ** (1 / shape) for scale, shape in (RELIABILITY_LEUKEMIA[g] for g in (0, 1))]
+    assert own["life_ratio"] == pytest.approx(b10s[1] / b10s[0], rel=1e-5)
+    assert own["life_ratio_lower"] < own["life_ratio"] < own["life_ratio_upper"]
+    few = b10_ratio_separate_shapes([1.0, 2, 3, 4], [1, 1, 1, 0], [0, 0, 1, 1])
+    assert math.isnan(few["life_ratio"]) and few["note"] == "too few failures to tell a Weibull: force 1 < 2"
 
 
 def test_fewer_than_two_failures_in_an_adjustment_gives_nan_and_a_note():

@@ -4,11 +4,12 @@ import math
 import numpy as np
 import pytest
 from matplotlib.figure import Figure
-from scipy import stats
+from scipy import optimize, stats
 
-from analyses.service_life import (_profile_quantile_loglik, b10, kaplan_meier, plot_hose_distances,
+from analyses.service_life import (b10, kaplan_meier, plot_hose_distances,
                                    plot_kaplan_meier, plot_leak_growth, plot_weibull_probability, weibull_fit,
-                                   weibull_loglik, weibull_lr_test, weibull_quantile_bounds)
+                                   weibull_loglik, weibull_lr_test, weibull_quantile_bounds,
+                                   weibull_quantile_profile)
 
 # Nelson (1982, Applied Life Data Analysis, p. 318): 70 diesel-engine fans, hours; 0 = failure,
 # 1 = censored, as listed in the SAS/QC PROC RELIABILITY "Getting Started" example, whose Weibull
@@ -53,10 +54,72 @@ def test_b10_is_the_ten_percent_quantile_with_bracketing_lr_bounds():
     fit = weibull_fit(life, failed)
     crit = stats.chi2.ppf(0.90, 1)
     for bound in (r["b10_lower"], r["b10_upper"]):
-        dev = 2 * (fit.loglik - _profile_quantile_loglik(bound, 0.10, life, failed, fit.shape))
+        dev = 2 * (fit.loglik - weibull_quantile_profile(math.log(bound), 0.10, life, failed))
         assert dev == pytest.approx(crit, abs=1e-4)
     wide = weibull_quantile_bounds(fit, life, failed, 0.10, 0.99)
     assert wide[1] < r["b10_lower"] and wide[2] > r["b10_upper"]
+
+
+def test_quantile_profile_is_the_likelihood_maximised_over_the_shape():
+    """The exact profile (a concave problem in the shape) against a brute maximisation over a
+    grid refined by a bounded search, for B10 and the median; at the MLE's quantile it is the maximum."""
+    x = np.array([3.0, 7, 12, 20, 25, 31])
+    f = np.array([1, 1, 1, 0, 1, 0], bool)
+    fit = weibull_fit(x, f)
+    for p in (0.10, 0.50):
+        c = -math.log(1 - p)
+        for log_q in (0.5, 1.5, 2.0, 2.8, 3.5):
+            neg = lambda t, log_q=log_q: -weibull_loglik(math.exp(t), math.exp(log_q) / c ** math.exp(-t), x, f)  # noqa: E731
+            grid = np.linspace(-4, 4, 801)
+            t0 = grid[np.argmin([neg(t) for t in grid])]
+            res = optimize.minimize_scalar(neg, bounds=(t0 - 0.02, t0 + 0.02), method="bounded",
+                                           options={"xatol": 1e-11})
+            assert weibull_quantile_profile(log_q, p, x, f) == pytest.approx(-res.fun, abs=1e-9)
+        assert weibull_quantile_profile(math.log(fit.quantile(p)), p, x, f) == pytest.approx(fit.loglik, abs=1e-9)
+
+
+#: Nelson's fans and the 6-MP group of Freireich et al.'s leukemia remission times (weeks; the
+#: ``anderson`` data of Kleinbaum & Klein, ``lifelines.datasets.load_leukemia`` rows with Rx = 0),
+#: fitted by an independent implementation: reliability 0.9.0 (numpy 2.4.6, scipy 1.17.1,
+#: autograd 1.9.1), ``Fit_Weibull_2P(failures=..., right_censored=..., method="MLE", CI=0.90,
+#: show_probability_plot=False, print_results=False)`` -> ``alpha`` (scale), ``beta`` (shape),
+#: ``loglik``. Stored because reliability is not one of the project's dependencies;
+#: test_matches_the_reliability_package_live checks them wherever it is installed.
+LEUKEMIA_6MP = ([35.0, 34, 32, 32, 25, 23, 22, 20, 19, 17, 16, 13, 11, 10, 10, 9, 7, 6, 6, 6, 6],
+                [0, 0, 0, 0, 0, 1, 1, 0, 0, 0, 1, 1, 0, 0, 1, 0, 1, 0, 1, 1, 1])
+RELIABILITY_FIT_WEIBULL_2P = {
+    "fans": dict(scale=26.29684502324552, shape=1.058445824687575, loglik=-52.259656595570846),
+    "leukemia 6-MP": dict(scale=33.76514119656118, shape=1.353734209488257, loglik=-41.65867847688314),
+}
+
+
+def public_lives(name):
+    """(life, failed) of a public data set named in RELIABILITY_FIT_WEIBULL_2P."""
+    if name == "fans":
+        return fans()
+    return np.array(LEUKEMIA_6MP[0]), np.array(LEUKEMIA_6MP[1]) == 1
+
+
+@pytest.mark.parametrize("name", sorted(RELIABILITY_FIT_WEIBULL_2P))
+def test_matches_the_reliability_packages_fit_weibull_2p_on_public_data(name):
+    ref = RELIABILITY_FIT_WEIBULL_2P[name]
+    life, failed = public_lives(name)
+    assert 0 < failed.sum() < len(failed)  # right-censored
+    fit = weibull_fit(life, failed)
+    assert fit.shape == pytest.approx(ref["shape"], rel=1e-5)
+    assert fit.scale == pytest.approx(ref["scale"], rel=1e-5)
+    assert fit.loglik == pytest.approx(ref["loglik"], rel=1e-9)
+    assert b10(life, failed)["b10"] == pytest.approx(ref["scale"] * (-math.log(0.9)) ** (1 / ref["shape"]), rel=1e-4)
+
+
+@pytest.mark.parametrize("name", sorted(RELIABILITY_FIT_WEIBULL_2P))
+def test_matches_the_reliability_package_live(name):
+    fitters = pytest.importorskip("reliability.Fitters")
+    life, failed = public_lives(name)
+    fit = fitters.Fit_Weibull_2P(failures=life[failed], right_censored=life[~failed], method="MLE", CI=0.90,
+                                 show_probability_plot=False, print_results=False)
+    ref = RELIABILITY_FIT_WEIBULL_2P[name]
+    assert (fit.alpha, fit.beta, fit.loglik) == pytest.approx((ref["scale"], ref["shape"], ref["loglik"]), rel=1e-6)
 
 
 def test_fewer_than_two_failures_give_nan():
