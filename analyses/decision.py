@@ -69,9 +69,6 @@ def _ns(values) -> np.ndarray:
     return pd.to_datetime(pd.Series(values), utc=True, format="ISO8601").to_numpy("datetime64[ns]").astype(np.int64)
 
 
-_NAT = np.iinfo(np.int64).min
-
-
 def usable_hoses(life: pd.DataFrame) -> pd.DataFrame:
     """The hoses of ``life`` that can be placed in the looks.
 
@@ -114,49 +111,25 @@ def failure_events(hoses: pd.DataFrame) -> pd.DataFrame:
     return ev
 
 
-def runs_distance_at(starts, durations_h, distances_km, times) -> np.ndarray:
-    """Distance [km] a hose's runs had covered at each time.
-
-    A run ended by then counts whole; a run under way counts the fraction of its duration
-    elapsed (linear in time); a run without a positive duration counts whole once started (as
-    :func:`analyses.hose_life.hose_distance_at`); a run without a distance counts 0.
-
-    Parameters
-    ----------
-    starts : array_like of datetime64 or Timestamp
-        Start of each run (UTC).
-    durations_h : array_like
-        Duration of each run [h].
-    distances_km : array_like
-        Distance of each run [km].
-    times : array_like of datetime64 or Timestamp
-        When (UTC).
-
-    Returns
-    -------
-    numpy.ndarray
-        One distance [km] per time.
-    """
-    t = _ns(times).astype(np.float64)
-    if len(starts) == 0:
-        return np.zeros(t.size)
+def _run_fractions(starts, durations_h, t: np.ndarray) -> np.ndarray:
+    """Per run (rows) and time ``t`` [ns] (columns), the fraction of the run done by then."""
     s = _ns(starts).astype(np.float64)
-    dur = np.asarray(pd.to_numeric(pd.Series(durations_h), errors="coerce"), float) * 3.6e12
-    km = np.nan_to_num(np.asarray(pd.to_numeric(pd.Series(distances_km), errors="coerce"), float))
-    elapsed = t[None, :] - s[:, None]
+    dur = pd.to_numeric(pd.Series(durations_h), errors="coerce").to_numpy(float) * 3.6e12
+    elapsed = t.astype(np.float64)[None, :] - s[:, None]
+    timed = np.isfinite(dur) & (dur > 0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        frac = np.where((np.isfinite(dur) & (dur > 0))[:, None], np.clip(elapsed / dur[:, None], 0.0, 1.0),
+        return np.where(timed[:, None], np.clip(elapsed / np.where(timed, dur, 1.0)[:, None], 0.0, 1.0),
                         (elapsed > 0).astype(float))
-    return km @ frac
 
 
-def _odometer_at(hose: dict, t: np.ndarray) -> np.ndarray:
-    """Distance [km] of an odometer-only hose at times ``t`` [ns], linear between installation and end."""
-    start, end = _ns([hose["installed_at"]])[0], _ns([hose["ended_at"]])[0]
-    km = float(hose["distance_km"])
-    if end <= start:
-        return np.where(t >= end, km, 0.0)
-    return km * np.clip((t - start) / float(end - start), 0.0, 1.0)
+def _odometer_at(installed: np.ndarray, ended: np.ndarray, km: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Distance [km] of odometer-only hoses (rows) at times ``t`` [ns] (columns), linear between
+    installation and end event (a step at the end when they coincide)."""
+    span = (ended - installed).astype(np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        frac = np.clip((t[None, :] - installed[:, None].astype(np.float64)) / span[:, None], 0.0, 1.0)
+    frac = np.where((span > 0)[:, None], frac, (t[None, :] >= ended[:, None]).astype(float))
+    return km[:, None] * frac
 
 
 def look_hoses(hoses: pd.DataFrame, runs: pd.DataFrame, events: pd.DataFrame) -> pd.DataFrame:
@@ -180,29 +153,31 @@ def look_hoses(hoses: pd.DataFrame, runs: pd.DataFrame, events: pd.DataFrame) ->
         look, in look order), ``distance_from`` (:data:`FROM_RUNS` or :data:`FROM_ODOMETER`);
         a hose is in a look when installed by its event; ordered by look then hose.
     """
-    t = _ns(events["event_at"]) if len(events) else np.empty(0, np.int64)
-    rank = dict(zip(events["hose_id"], events["look"]))
-    by_hose = {h: g for h, g in runs.groupby("hose_id", sort=False)} if len(runs) else {}
-    frames = []
-    for h in hoses.to_dict("records"):
-        installed = _ns([h["installed_at"]])[0]
-        odometer = h.get("distance_source") == "odometer"
-        if odometer:
-            dist = _odometer_at(h, t.astype(np.float64))
-        else:
-            mine = by_hose.get(h["hose_id"])
-            dist = (runs_distance_at(mine["started_at"], mine["duration_h"], mine["distance_km"], events["event_at"])
-                    if mine is not None else np.zeros(t.size))
-        failed = np.arange(1, t.size + 1) >= rank.get(h["hose_id"], t.size + 1)
-        dist = np.where(failed, float(h["distance_km"]), dist)
-        keep = t >= installed
-        frames.append(pd.DataFrame({"look": events["look"].to_numpy()[keep], "hose_id": h["hose_id"],
-                                    "adjustment": h["adjustment"], "distance_km": dist[keep], "failed": failed[keep],
-                                    "distance_from": FROM_ODOMETER if odometer else FROM_RUNS}))
-    if not frames:
+    if hoses.empty or events.empty:
         return pd.DataFrame(columns=LOOK_HOSE_COLUMNS)
-    out = pd.concat(frames, ignore_index=True)
-    return out.sort_values(["look", "hose_id"], kind="stable", ignore_index=True)[LOOK_HOSE_COLUMNS]
+    t = _ns(events["event_at"])
+    ids = hoses["hose_id"].to_numpy(object)
+    km = pd.to_numeric(hoses["distance_km"]).to_numpy(float)
+    installed, ended = _ns(hoses["installed_at"]), _ns(hoses["ended_at"])
+    odometer = (hoses["distance_source"] == "odometer").to_numpy()
+    dist = np.zeros((len(ids), t.size))
+    index = {h: i for i, h in enumerate(ids)}
+    mine = runs[runs["hose_id"].isin(index)] if len(runs) else runs
+    if len(mine):
+        frac = _run_fractions(mine["started_at"], mine["duration_h"], t)
+        kms = np.nan_to_num(pd.to_numeric(mine["distance_km"], errors="coerce").to_numpy(float))
+        np.add.at(dist, mine["hose_id"].map(index).to_numpy(int), kms[:, None] * frac)
+    if odometer.any():
+        dist[odometer] = _odometer_at(installed[odometer], ended[odometer], km[odometer], t.astype(np.float64))
+    rank = events.set_index("hose_id")["look"].reindex(ids).fillna(t.size + 1).to_numpy(int)
+    failed = np.arange(1, t.size + 1)[None, :] >= rank[:, None]
+    dist = np.where(failed, km[:, None], dist)
+    keep = t[None, :] >= installed[:, None]
+    look_ix, hose_ix = np.nonzero(keep.T)                       # by look, then by hose (hoses sorted by id)
+    return pd.DataFrame({"look": events["look"].to_numpy()[look_ix], "hose_id": ids[hose_ix],
+                         "adjustment": hoses["adjustment"].to_numpy(object)[hose_ix],
+                         "distance_km": dist[hose_ix, look_ix], "failed": failed[hose_ix, look_ix],
+                         "distance_from": np.where(odometer[hose_ix], FROM_ODOMETER, FROM_RUNS)})
 
 
 def look_estimates(in_looks: pd.DataFrame, events: pd.DataFrame) -> pd.DataFrame:
@@ -223,20 +198,23 @@ def look_estimates(in_looks: pd.DataFrame, events: pd.DataFrame) -> pd.DataFrame
         (ln force / distance life), ``se_log_ratio`` [-], ``note`` (why the estimate is NaN, and
         the hoses placed by odometer).
     """
+    look = in_looks["look"].to_numpy(int)
+    x = in_looks["distance_km"].to_numpy(float)
+    f = in_looks["failed"].to_numpy(bool)
+    g = (in_looks["adjustment"] == "force").to_numpy(int)
+    odo = (in_looks["distance_from"] == FROM_ODOMETER).to_numpy() & ~f
     rows = []
-    groups = dict(iter(in_looks.groupby("look", sort=True))) if len(in_looks) else {}
     for ev in events.to_dict("records"):
-        g = groups.get(ev["look"], in_looks.iloc[0:0])
-        fit = common_shape_fit(g["distance_km"].to_numpy(float), g["failed"].to_numpy(bool),
-                               g["adjustment"].map(GROUP).to_numpy(int))
+        m = look == ev["look"]
+        fit = common_shape_fit(x[m], f[m], g[m])
         ok = fit.note is None and math.isfinite(fit.se_log_ratio) and fit.se_log_ratio > 0
         notes = [fit.note] if fit.note else ([] if ok else ["the fit's information is not positive definite"])
-        by_odo = int(((g["distance_from"] == FROM_ODOMETER) & ~g["failed"]).sum())
+        by_odo = int(odo[m].sum())
         if by_odo:
             notes.append(f"{by_odo} censored hose(s) known only by their odometer: distance linear in time "
                          "between installation and end event")
         rows.append({"look": ev["look"], "event_at": ev["event_at"], "hose_id": ev["hose_id"],
-                     "failures": int(g["failed"].sum()), "n_hoses": len(g), "total_km": float(g["distance_km"].sum()),
+                     "failures": int(f[m].sum()), "n_hoses": int(m.sum()), "total_km": float(x[m].sum()),
                      "log_ratio": fit.log_ratio if ok else math.nan, "se_log_ratio": fit.se_log_ratio if ok else math.nan,
                      "note": "; ".join(notes) or None})
     return pd.DataFrame(rows, columns=LOOK_COLUMNS)

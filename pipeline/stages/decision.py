@@ -25,21 +25,25 @@ Decisions
 * It reads ``hose_life`` and ``durability_runs`` (tables) and the logbooks (the installations the
   runs are matched to) and the plan, no run kind: a change to a leakage or PLA run does not
   re-run it, a logbook, a durability run or the plan does.
-* Each hose type is one item of ``ctx.map`` (plain data naming every input): the types run in
-  parallel and one whose hoses and runs did not change is not computed again.
+* Each hose type is one item of ``ctx.map`` (plain data naming every input), twice (its
+  ``life_effect``, then its looks): the types run in parallel and one whose hoses, runs and
+  settings did not change is not computed again. The sequential design behind an unset
+  ``max_failures`` is one ``ctx.map`` item per distinct (margin, alpha, power, spending, shape):
+  it costs seconds to minutes the first time (:func:`analyses.sequential.max_information`, a look
+  at each of hundreds of failures) and is then read from the memo.
 """
 from __future__ import annotations
 
+import json
 import math
 
-import numpy as np
 import pandas as pd
 
-from analyses.decision import (GROUP, decide, failure_events, look_estimates, look_hoses, usable_hoses)
+from analyses.decision import GROUP, decide, failure_events, look_estimates, look_hoses, usable_hoses
+from analyses.hose_life import match_runs
 from analyses.life_effect import life_effect
 from analyses.sequential import max_information
 from pipeline.raw.logbook import merge_logbooks, read_logbooks
-from analyses.hose_life import match_runs
 from pipeline.stages import Reads, StageContext, StageOutput
 
 NAME = "decision"
@@ -94,24 +98,43 @@ def _frame(rows: list[dict], times: tuple[str, ...]) -> pd.DataFrame:
     return df
 
 
-def _effect_row(hose_type: str, life: pd.DataFrame, confidence: float, alpha: float):
-    """``life_effect``'s row of one hose type and the :class:`analyses.life_effect.LifeEffect` behind it."""
+def effect_of(item: dict) -> dict:
+    """``life_effect``'s row of one hose type (module level: picklable for ``ctx.map``).
+
+    Parameters
+    ----------
+    item : dict
+        :func:`hose_type_item` (its ``hoses`` and ``plan`` are read).
+
+    Returns
+    -------
+    dict
+        The row; ``shape`` is the common Weibull shape [-] the design reads (NaN when NULL).
+    """
+    life = pd.DataFrame(item["hoses"], columns=["hose_id", "adjustment", "distance_km", "status"])
     use = life[life["distance_km"] > 0]
     le = life_effect(use["distance_km"].to_numpy(float), (use["status"] == "failed").to_numpy(),
-                     use["adjustment"].map(GROUP).to_numpy(int), confidence=confidence, alpha=alpha)
+                     use["adjustment"].map(GROUP).to_numpy(int), confidence=item["plan"]["confidence"],
+                     alpha=item["plan"]["alpha"])
     row = {c: getattr(le, c) for c in EFFECT_COLUMNS if hasattr(le, c)}
-    return {**row, "hose_type": hose_type, "confidence": confidence}, le
+    return {**row, "hose_type": item["hose_type"], "confidence": item["plan"]["confidence"]}
 
 
-def design_failures(plan: dict, shape: float) -> tuple[int, str, str | None]:
-    """(max_failures, where it came from, note): the plan's, else the sequential design's at ``shape``."""
+def design_item(plan: dict, shape: float) -> tuple[dict | None, str | None]:
+    """What :func:`design_failures` needs when the plan leaves ``max_failures`` unset (None when it sets
+    it), and the note when the shape is NULL (the design then assumes 1.0)."""
     if plan["max_failures"] is not None:
-        return int(plan["max_failures"]), "plan", None
+        return None, None
     note = None
     if not (math.isfinite(shape) and shape > 0):
         shape, note = 1.0, "max_failures designed with shape 1.0: the life_effect common shape is NULL"
-    mi = max_information(plan["margin"], plan["alpha"], plan["power"], plan["spending"], shape)
-    return int(mi.failures), "design", note
+    return {k: plan[k] for k in ("margin", "alpha", "power", "spending")} | {"shape": float(shape)}, note
+
+
+def design_failures(item: dict) -> int:
+    """``max_failures`` of the sequential design (:func:`analyses.sequential.max_information`) for
+    a :func:`design_item` (module level: memoised by ``ctx.map``, seconds to minutes the first time)."""
+    return int(max_information(item["margin"], item["alpha"], item["power"], item["spending"], item["shape"]).failures)
 
 
 def _looks_rows(hose_type: str, est: pd.DataFrame, sv, present: bool) -> list[dict]:
@@ -119,6 +142,7 @@ def _looks_rows(hose_type: str, est: pd.DataFrame, sv, present: bool) -> list[di
     rows = []
     for i, e in enumerate(est.to_dict("records")):
         lr, se = e["log_ratio"], e["se_log_ratio"]
+        e["note"] = e["note"] if isinstance(e["note"], str) else None
         row = {"hose_type": hose_type, "look": int(e["look"]), "event_at": e["event_at"], "hose_id": e["hose_id"],
                "failures": int(e["failures"]), "n_hoses": int(e["n_hoses"]), "total_km": e["total_km"],
                "information_fraction": float(sv.information_fraction[i]), "life_ratio": math.exp(lr),
@@ -165,26 +189,27 @@ def _verdict_row(item: dict, looks: list[dict], sv, design: tuple) -> dict:
 
 
 def decide_hose_type(item: dict) -> dict:
-    """The four tables' rows of one hose type (module level: picklable for ``ctx.map``).
+    """The looks, and the verdict over them, of one hose type (module level: picklable for ``ctx.map``).
 
     Parameters
     ----------
     item : dict
-        :func:`hose_type_item`: ``hose_type``, ``hoses`` (hose_life rows), ``runs`` (their matched
-        durability runs), ``plan`` (the hose type's settings).
+        :func:`hose_type_item` (``hose_type``, ``hoses``: hose_life rows, ``runs``: their matched
+        durability runs, ``plan``: the hose type's settings) with ``design``: (max_failures,
+        ``"plan"`` or ``"design"``, note).
 
     Returns
     -------
-    dict of str to list of dict
-        ``life_effect``, ``life_verdict``, ``decision_looks``, ``decision_look_hoses`` rows.
+    dict
+        ``life_verdict`` and ``decision_looks`` rows (lists of dicts), ``decision_look_hoses``
+        (a DataFrame).
     """
     plan, hose_type = item["plan"], item["hose_type"]
     life = _frame(item["hoses"], ("installed_at", "ended_at"))
     runs = _frame(item["runs"], ("started_at",))
     if runs.empty:
         runs = pd.DataFrame(columns=["hose_id", "started_at", "duration_h", "distance_km"])
-    effect, le = _effect_row(hose_type, life, plan["confidence"], plan["alpha"])
-    design = design_failures(plan, le.shape)
+    design = tuple(item["design"])
     hoses = usable_hoses(life)
     events = failure_events(hoses)
     in_looks = look_hoses(hoses, runs, events)
@@ -196,8 +221,8 @@ def decide_hose_type(item: dict) -> dict:
     if left_out:
         verdict["note"] = "; ".join(n for n in (verdict["note"], f"{left_out} hose(s) without a known distance or "
                                                 "time span left out of the looks") if n)
-    return {"life_effect": [effect], "life_verdict": [verdict], "decision_looks": looks,
-            "decision_look_hoses": in_looks.assign(hose_type=hose_type).to_dict("records")}
+    return {"life_verdict": [verdict], "decision_looks": looks,
+            "decision_look_hoses": in_looks.assign(hose_type=hose_type)}
 
 
 def _typed(rows: list[dict], columns: list[str], ints=(), times=(), bools=()) -> pd.DataFrame:
@@ -236,8 +261,18 @@ def hose_type_items(ctx: StageContext) -> list[dict]:
 
 def run(ctx: StageContext) -> StageOutput:
     out = StageOutput()
-    results = ctx.map(decide_hose_type, hose_type_items(ctx), label="decision (hose types)")
-    rows = {t: [r for res in results for r in res[t]] for t in WRITES}
+    items = hose_type_items(ctx)
+    effects = ctx.map(effect_of, items, label="decision: life effect")
+    asks = [design_item(it["plan"], e["shape"]) for it, e in zip(items, effects)]
+    unique = sorted({json.dumps(a, sort_keys=True) for a, _ in asks if a is not None})
+    designed = dict(zip(unique, ctx.map(design_failures, [json.loads(u) for u in unique], label="decision: design")))
+    for it, (ask, note) in zip(items, asks):
+        it["design"] = ([it["plan"]["max_failures"], "plan", None] if ask is None
+                        else [designed[json.dumps(ask, sort_keys=True)], "design", note])
+    results = ctx.map(decide_hose_type, items, label="decision: looks")
+    rows = {t: [r for res in results for r in res[t]] for t in ("life_verdict", "decision_looks")}
+    rows["life_effect"] = effects
+    hoses = [res["decision_look_hoses"] for res in results if len(res["decision_look_hoses"])]
     out.tables["life_effect"] = _typed(rows["life_effect"], EFFECT_COLUMNS,
                                        ints=("n_force", "n_failed_force", "n_distance", "n_failed_distance"))
     out.tables["life_verdict"] = _typed(rows["life_verdict"], VERDICT_COLUMNS,
@@ -245,6 +280,8 @@ def run(ctx: StageContext) -> StageOutput:
                                         times=("decided_at",))
     out.tables["decision_looks"] = _typed(rows["decision_looks"], LOOK_COLUMNS, ints=("look", "failures", "n_hoses"),
                                           times=("event_at",), bools=("decides",))
-    out.tables["decision_look_hoses"] = _typed(rows["decision_look_hoses"], LOOK_HOSE_COLUMNS, ints=("look",),
-                                               bools=("failed",))
+    lh = pd.concat(hoses, ignore_index=True) if hoses else pd.DataFrame(columns=LOOK_HOSE_COLUMNS)
+    lh = lh[LOOK_HOSE_COLUMNS].astype({"look": "int64", "failed": bool, "distance_km": "float64"})
+    out.tables["decision_look_hoses"] = lh.astype({"hose_type": object, "hose_id": object, "adjustment": object,
+                                                   "distance_from": object})
     return out
