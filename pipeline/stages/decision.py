@@ -235,8 +235,9 @@ def _typed(rows: list[dict], columns: list[str], ints=(), times=(), bools=()) ->
     for c in bools:
         df[c] = df[c].astype(bool)
     for c in columns:
-        if c not in (*ints, *times, *bools) and df[c].dtype == object and all(
-                isinstance(v, float) or v is None for v in df[c]):
+        vals = df[c].tolist()
+        if (c not in (*ints, *times, *bools) and df[c].dtype == object and any(isinstance(v, float) for v in vals)
+                and all(isinstance(v, float) or v is None for v in vals)):
             df[c] = pd.to_numeric(df[c]).astype("float64")   # NaN -> NULL
     return df
 

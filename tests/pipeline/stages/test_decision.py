@@ -105,8 +105,8 @@ def _logbook_fleet(tmp_path):
                          "duration_h": [2.0, 2.0, 2.0, 2.0], "distance_km": [3.0, 3.0, 4.0, 9.0], "strokes": [1, 1, 1, 1]})
     hoses, _ = merge_logbooks(read_logbooks(raw)[0])
     life, _ = hose_life(hoses, runs)
-    return StageContext(raw=raw, warehouse=tmp_path, runs=pd.DataFrame(),
-                        results={"hose_life": life, "durability_runs": runs})
+    return StageContext(raw=raw, warehouse=tmp_path, runs=pd.DataFrame(),   # no plan.toml, max_failures given
+                        results={"hose_life": life, "durability_runs": runs}, plan=Plan(defaults={"max_failures": 20}))
 
 
 def test_the_stage_writes_the_contract_tables(tmp_path):
@@ -117,6 +117,7 @@ def test_the_stage_writes_the_contract_tables(tmp_path):
     assert list(out.tables["life_effect"]["hose_type"]) == ["T"]               # U has force-set hoses only
     v = out.tables["life_verdict"].iloc[0]
     assert v["verdict"] == "no plan" and v["plan_from"] == "built-in" and v["looks"] == 2
+    assert (v["max_failures"], v["information_fraction"]) == (20, 0.1)
     lh = out.tables["decision_look_hoses"]
     # r4 started after D1 failed: outside its installation, not counted (the durability stage's matching)
     assert lh[(lh["look"] == 2) & (lh["hose_id"] == "D1")]["distance_km"].item() == 3.0
@@ -169,10 +170,13 @@ def test_the_demo_rebuild_fills_the_decision_tables(demo):
     wh = demo["warehouse"]
     life = query(wh, "SELECT hose_type, count(*) FILTER (WHERE status = 'failed' AND distance_km > 0) FROM hose_life "
                      "GROUP BY hose_type ORDER BY hose_type")
-    assert [t for t, _ in query(wh, "SELECT hose_type FROM life_effect ORDER BY hose_type")] == [t for t, _ in life]
+    assert [t for (t,) in query(wh, "SELECT hose_type FROM life_effect ORDER BY hose_type")] == [t for t, _ in life]
     looks = dict(query(wh, "SELECT hose_type, max(look) FROM decision_looks GROUP BY hose_type"))
     assert looks == {t: n for t, n in life if n}
     for (t, verdict, failures, n_looks) in query(wh, "SELECT hose_type, verdict, failures, looks FROM life_verdict"):
         assert failures == n_looks == looks.get(t, 0) and verdict in ("no plan", "undecided", "force longer",
                                                                       "distance longer", "no practical difference")
     assert query(wh, "SELECT count(*) FROM decision_look_hoses WHERE distance_km < 0 OR distance_km IS NULL") == [(0,)]
+    # an absent text is NULL, never the text 'nan'
+    assert query(wh, "SELECT count(*) FROM life_effect WHERE 'nan' IN (model, note)") == [(0,)]
+    assert query(wh, "SELECT count(*) FROM decision_looks WHERE 'nan' IN (crossed, note)") == [(0,)]
