@@ -67,34 +67,45 @@ _RATIO_FIELDS = ("efficacy_lower", "efficacy_upper", "futility_lower", "futility
 NO_PLAN = "no plan"
 
 
-def _iso(ts) -> str | None:
-    return None if ts is None or pd.isna(ts) else pd.Timestamp(ts).isoformat()
+def _ns_list(values) -> list:
+    """UTC times as int nanoseconds since the epoch (None for NaT): plain data for a ``ctx.map`` item."""
+    t = pd.to_datetime(pd.Series(values), utc=True, format="ISO8601")
+    return [None if pd.isna(v) else int(v) for v in t.to_numpy("datetime64[ns]").astype("int64").astype(object)
+            ] if len(t) else []
 
 
-def _num(v) -> float:
-    v = pd.to_numeric(v, errors="coerce")
-    return float(v) if v is not None and not pd.isna(v) else math.nan
+def _floats(values) -> list:
+    return [float(v) for v in pd.to_numeric(pd.Series(values), errors="coerce").to_numpy(float)]
+
+
+def _columns(df: pd.DataFrame, spec: dict) -> dict:
+    """The item's columns of ``df``: name -> list of plain values (``spec``: name -> "text" | "float" | "time")."""
+    conv = {"text": lambda v: [None if x is None or x != x else str(x) for x in v], "float": _floats, "time": _ns_list}
+    return {c: conv[kind](df[c].tolist() if kind == "text" else df[c]) for c, kind in spec.items()}
+
+
+HOSE_SPEC = {"hose_id": "text", "adjustment": "text", "distance_km": "float", "status": "text",
+             "distance_source": "text", "installed_at": "time", "ended_at": "time"}
+RUN_SPEC = {"hose_id": "text", "started_at": "time", "duration_h": "float", "distance_km": "float"}
 
 
 def hose_type_item(hose_type: str, life: pd.DataFrame, runs: pd.DataFrame, settings) -> dict:
-    """One hose type as plain data (the ``ctx.map`` item): its hoses, their matched runs, its settings."""
-    hoses = [{"hose_id": str(h["hose_id"]), "adjustment": h["adjustment"], "distance_km": _num(h["distance_km"]),
-              "status": h["status"], "distance_source": h["distance_source"], "installed_at": _iso(h["installed_at"]),
-              "ended_at": _iso(h["ended_at"])} for h in life.sort_values("hose_id").to_dict("records")]
-    mine = runs[runs["_hose"].isin(set(life["hose_id"]))].sort_values("run_id")
-    run_rows = [{"hose_id": str(r["_hose"]), "started_at": _iso(r["started_at"]), "duration_h": _num(r["duration_h"]),
-                 "distance_km": _num(r["distance_km"])} for r in mine.to_dict("records")]
+    """One hose type as plain data (the ``ctx.map`` item): its hoses, their matched runs (``hose_id`` the
+    hose matched), its settings; columns as lists, times as int nanoseconds (UTC)."""
     plan = {"present": bool(settings.present), "margin": float(settings.margin), "alpha": float(settings.alpha),
             "power": float(settings.power), "confidence": float(settings.confidence),
             "max_failures": settings.max_failures, "spending": settings.spending,
             "plan_from": settings.sources["margin"]}
-    return {"hose_type": hose_type, "hoses": hoses, "runs": run_rows, "plan": plan}
+    return {"hose_type": hose_type, "hoses": _columns(life.sort_values("hose_id"), HOSE_SPEC),
+            "runs": _columns(runs.sort_values("run_id"), RUN_SPEC), "plan": plan}
 
 
-def _frame(rows: list[dict], times: tuple[str, ...]) -> pd.DataFrame:
-    df = pd.DataFrame(rows)
-    for c in times:
-        df[c] = pd.to_datetime(df[c], utc=True, format="ISO8601") if len(df) else pd.Series([], dtype="datetime64[ns, UTC]")
+def _frame(columns: dict, spec: dict) -> pd.DataFrame:
+    """An item's columns back as a DataFrame (times as UTC timestamps)."""
+    df = pd.DataFrame({c: columns[c] for c in spec})
+    for c, kind in spec.items():
+        if kind == "time":
+            df[c] = pd.to_datetime(pd.Series(columns[c], dtype="float64"), unit="ns", utc=True)
     return df
 
 
@@ -111,7 +122,7 @@ def effect_of(item: dict) -> dict:
     dict
         The row; ``shape`` is the common Weibull shape [-] the design reads (NaN when NULL).
     """
-    life = pd.DataFrame(item["hoses"], columns=["hose_id", "adjustment", "distance_km", "status"])
+    life = pd.DataFrame({c: item["hoses"][c] for c in ("adjustment", "distance_km", "status")})
     use = life[life["distance_km"] > 0]
     le = life_effect(use["distance_km"].to_numpy(float), (use["status"] == "failed").to_numpy(),
                      use["adjustment"].map(GROUP).to_numpy(int), confidence=item["plan"]["confidence"],
@@ -205,10 +216,7 @@ def decide_hose_type(item: dict) -> dict:
         (a DataFrame).
     """
     plan, hose_type = item["plan"], item["hose_type"]
-    life = _frame(item["hoses"], ("installed_at", "ended_at"))
-    runs = _frame(item["runs"], ("started_at",))
-    if runs.empty:
-        runs = pd.DataFrame(columns=["hose_id", "started_at", "duration_h", "distance_km"])
+    life, runs = _frame(item["hoses"], HOSE_SPEC), _frame(item["runs"], RUN_SPEC)
     design = tuple(item["design"])
     hoses = usable_hoses(life)
     events = failure_events(hoses)
@@ -252,11 +260,14 @@ def hose_type_items(ctx: StageContext) -> list[dict]:
         if runs is None or runs.empty else runs.copy()
     events, _problems = read_logbooks(ctx.raw)        # the durability stage reports the logbooks' problems
     hoses, _ = merge_logbooks(events)
-    runs["_hose"] = match_runs(hoses, runs)[0] if len(runs) else pd.Series([], dtype=object)
+    runs["hose_id"] = match_runs(hoses, runs)[0] if len(runs) else pd.Series([], dtype=object)
+    type_of = dict(zip(life["hose_id"], life["hose_type"]))
+    by_type = dict(iter(runs.groupby(runs["hose_id"].map(type_of), sort=False))) if len(runs) else {}
     items = []
     for hose_type, g in life[life["hose_type"].notna()].groupby("hose_type", sort=True):
         if set(GROUP) <= set(g["adjustment"]):
-            items.append(hose_type_item(str(hose_type), g, runs, ctx.plan.for_hose_type(str(hose_type))))
+            mine = by_type.get(hose_type, runs.iloc[0:0])
+            items.append(hose_type_item(str(hose_type), g, mine, ctx.plan.for_hose_type(str(hose_type))))
     return items
 
 

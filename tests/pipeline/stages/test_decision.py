@@ -26,7 +26,7 @@ def settings(present=True, max_failures=20, margin=1.25, spending="pocock"):
             "max_failures": max_failures, "spending": spending, "plan_from": "defaults"}
 
 
-def odometer_item(ratio=4.0, n=12, seed=3, **plan):
+def odometer_item(ratio=4.0, n=12, seed=3, present=True, max_failures=20):
     """n hoses per adjustment, one after another on one bench, odometer-only lives (Weibull shape 3)."""
     rng = np.random.default_rng(seed)
     hoses, t = [], pd.Timestamp("2026-01-01", tz="UTC")
@@ -35,11 +35,12 @@ def odometer_item(ratio=4.0, n=12, seed=3, **plan):
             km = float(scale * rng.weibull(3.0))
             end = t + pd.Timedelta(hours=km)
             hoses.append({"hose_id": f"{adj[0].upper()}{i:02d}", "adjustment": adj, "distance_km": km,
-                          "status": "failed", "distance_source": "odometer", "installed_at": t.isoformat(),
-                          "ended_at": end.isoformat()})
+                          "status": "failed", "distance_source": "odometer", "installed_at": t, "ended_at": end})
             t = end
-    plan = settings(**plan)
-    return {"hose_type": "T", "hoses": hoses, "runs": [], "plan": plan, "design": [plan["max_failures"], "plan", None]}
+    plan = Plan(present=present, defaults={"max_failures": max_failures, "spending": "pocock"}).for_hose_type("T")
+    no_runs = pd.DataFrame(columns=["run_id", "hose_id", "started_at", "duration_h", "distance_km"])
+    item = stage.hose_type_item("T", pd.DataFrame(hoses), no_runs, plan)
+    return {**item, "design": [max_failures, "plan", None]}
 
 
 def test_a_clear_ratio_decides_once_and_the_verdict_sticks():
