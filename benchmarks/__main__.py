@@ -23,6 +23,7 @@ BENCHMARKS = {
     "versions": ([], ["--runs", "300", "--repeat", "2"]),  # before / after a change (--ref main~1), same run
     "sequential": ([], ["--quick"]),  # the sequential verdict's error rates, looked at on every failure
     "life_effect": ([], ["--quick"]),  # coverage of the life ratio's and shape's 90 % intervals, 480 simulated hose types
+    "decision_stage": ([], ["--quick"]),  # the decision stage's seconds at 200 hose types against service_life's
 }
 
 

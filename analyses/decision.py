@@ -1,0 +1,250 @@
+"""The decision's looks: one look at each failure, every hose at its distance then, the verdict over them.
+
+A hose type's test is read at every failure, in logbook time order (Jennison & Turnbull 2000,
+ch. 1 and 7: a look at each event). Pure functions from the ``hose_life`` rows of one hose type
+and its matched durability runs to the looks, so that the same raw/ gives the same looks
+whatever night they were computed on:
+
+* :func:`failure_events`: the looks, the failed hoses with a known positive life ordered by
+  ``ended_at`` (ties by ``hose_id``);
+* :func:`look_hoses`: every hose installed by a look's event at its distance then: from its
+  durability runs (a run under way at the event counts the fraction of its duration elapsed,
+  linear in time; a run without a duration counts whole once started, as
+  :func:`analyses.hose_life.hose_distance_at` counts it); for a hose known only by its odometer,
+  linear in time between its installation and its end event ("odometer, linear in time").
+  A hose that failed at or before the look (in look order) is at its exact life, the others are
+  censored at their distance then;
+* :func:`look_estimates`: per look the common-shape Weibull regression of life on the
+  adjustment (:func:`analyses.life_effect.common_shape_fit`, Meeker & Escobar 1998, ch. 17):
+  ``log_ratio`` and its standard error, NaN with a note where the data cannot tell;
+* :func:`decide`: the sequential verdict over all looks
+  (:func:`analyses.sequential.sequential_verdict`: Lan & DeMets 1983 alpha spending, repeated
+  confidence intervals, a verdict that sticks) at ``information_fraction = failures /
+  max_failures``.
+
+Decisions
+---------
+* Hoses whose life is unknown (a failed or removed hose without runs or odometer reading) are
+  left out: their failure is no look (the ``life_effect`` fit leaves them out too, so the last
+  look's failures are that fit's).
+* A hose known only by its odometer without an end event (a running hose whose reading came from
+  an earlier installation) has no time span to interpolate over: it is left out of the looks
+  (its count is returned for the note).
+* The times of a reinstalled hose's gap are not known to :mod:`analyses.hose_life`'s table: an
+  odometer hose is interpolated over first installation .. last end.
+
+References
+----------
+Meeker, W. Q. & Escobar, L. A. (1998). Statistical Methods for Reliability Data. Wiley.
+Jennison, C. & Turnbull, B. W. (2000). Group Sequential Methods with Applications to Clinical
+Trials. Chapman & Hall/CRC.
+Lan, K. K. G. & DeMets, D. L. (1983). Discrete sequential boundaries for clinical trials.
+Biometrika 70, 659-663.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+
+from analyses.life_effect import common_shape_fit
+from analyses.sequential import SequentialVerdict, sequential_verdict
+
+#: ``distance_from`` of a hose whose distance comes from its durability runs.
+FROM_RUNS = "runs"
+#: ``distance_from`` of a hose known only by its odometer.
+FROM_ODOMETER = "odometer, linear in time"
+
+#: Adjustment -> group of :func:`analyses.life_effect.life_effect` (0 distance, 1 force).
+GROUP = {"distance": 0, "force": 1}
+
+LOOK_HOSE_COLUMNS = ["look", "hose_id", "adjustment", "distance_km", "failed", "distance_from"]
+LOOK_COLUMNS = ["look", "event_at", "hose_id", "failures", "n_hoses", "total_km", "log_ratio", "se_log_ratio",
+                "note"]
+
+
+def _ns(values) -> np.ndarray:
+    """UTC times as int64 nanoseconds (NaT -> the minimum int64)."""
+    return pd.to_datetime(pd.Series(values), utc=True, format="ISO8601").to_numpy("datetime64[ns]").astype(np.int64)
+
+
+def usable_hoses(life: pd.DataFrame) -> pd.DataFrame:
+    """The hoses of ``life`` that can be placed in the looks.
+
+    Parameters
+    ----------
+    life : DataFrame
+        ``hose_life`` rows: ``hose_id``, ``adjustment``, ``distance_km`` [km], ``status``,
+        ``distance_source``, ``installed_at``, ``ended_at`` (UTC).
+
+    Returns
+    -------
+    DataFrame
+        The rows with a known distance (>= 0), an adjustment ``force`` or ``distance``, an
+        installation time, and (odometer-only hoses) an end event; sorted by ``hose_id``.
+    """
+    d = pd.to_numeric(life["distance_km"], errors="coerce")
+    ok = d.notna() & (d >= 0) & life["adjustment"].isin(list(GROUP)) & life["installed_at"].notna()
+    ok &= ~((life["distance_source"] == "odometer") & life["ended_at"].isna())
+    return life[ok].sort_values("hose_id", kind="stable").reset_index(drop=True)
+
+
+def failure_events(hoses: pd.DataFrame) -> pd.DataFrame:
+    """The looks: failed hoses with a positive life, by ``ended_at`` then ``hose_id``.
+
+    Parameters
+    ----------
+    hoses : DataFrame
+        :func:`usable_hoses` rows.
+
+    Returns
+    -------
+    DataFrame
+        ``look`` (1..), ``hose_id``, ``event_at`` (UTC).
+    """
+    failed = hoses[(hoses["status"] == "failed") & (pd.to_numeric(hoses["distance_km"]) > 0)
+                   & hoses["ended_at"].notna()]
+    ev = failed[["hose_id", "ended_at"]].rename(columns={"ended_at": "event_at"})
+    ev = ev.sort_values(["event_at", "hose_id"], kind="stable").reset_index(drop=True)
+    ev.insert(0, "look", np.arange(1, len(ev) + 1, dtype=np.int64))
+    return ev
+
+
+def _run_fractions(starts, durations_h, t: np.ndarray) -> np.ndarray:
+    """Per run (rows) and time ``t`` [ns] (columns), the fraction of the run done by then."""
+    s = _ns(starts).astype(np.float64)
+    dur = pd.to_numeric(pd.Series(durations_h), errors="coerce").to_numpy(float) * 3.6e12
+    elapsed = t.astype(np.float64)[None, :] - s[:, None]
+    timed = np.isfinite(dur) & (dur > 0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(timed[:, None], np.clip(elapsed / np.where(timed, dur, 1.0)[:, None], 0.0, 1.0),
+                        (elapsed > 0).astype(float))
+
+
+def _odometer_at(installed: np.ndarray, ended: np.ndarray, km: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Distance [km] of odometer-only hoses (rows) at times ``t`` [ns] (columns), linear between
+    installation and end event (a step at the end when they coincide)."""
+    span = (ended - installed).astype(np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        frac = np.clip((t[None, :] - installed[:, None].astype(np.float64)) / span[:, None], 0.0, 1.0)
+    frac = np.where((span > 0)[:, None], frac, (t[None, :] >= ended[:, None]).astype(float))
+    return km[:, None] * frac
+
+
+def look_hoses(hoses: pd.DataFrame, runs: pd.DataFrame, events: pd.DataFrame) -> pd.DataFrame:
+    """Every hose in every look, at its distance at the look's event.
+
+    Parameters
+    ----------
+    hoses : DataFrame
+        :func:`usable_hoses` rows of one hose type.
+    runs : DataFrame
+        Their matched durability runs: ``hose_id`` (the hose the run belongs to,
+        :func:`analyses.hose_life.match_runs`), ``started_at`` (UTC), ``duration_h`` [h],
+        ``distance_km`` [km].
+    events : DataFrame
+        :func:`failure_events` of those hoses.
+
+    Returns
+    -------
+    DataFrame
+        ``look``, ``hose_id``, ``adjustment``, ``distance_km`` [km], ``failed`` (at or before the
+        look, in look order), ``distance_from`` (:data:`FROM_RUNS` or :data:`FROM_ODOMETER`);
+        a hose is in a look when installed by its event; ordered by look then hose.
+    """
+    if hoses.empty or events.empty:
+        return pd.DataFrame(columns=LOOK_HOSE_COLUMNS)
+    t = _ns(events["event_at"])
+    ids = hoses["hose_id"].to_numpy(object)
+    km = pd.to_numeric(hoses["distance_km"]).to_numpy(float)
+    installed, ended = _ns(hoses["installed_at"]), _ns(hoses["ended_at"])
+    odometer = (hoses["distance_source"] == "odometer").to_numpy()
+    dist = np.zeros((len(ids), t.size))
+    index = {h: i for i, h in enumerate(ids)}
+    mine = runs[runs["hose_id"].isin(index)] if len(runs) else runs
+    if len(mine):
+        frac = _run_fractions(mine["started_at"], mine["duration_h"], t)
+        kms = np.nan_to_num(pd.to_numeric(mine["distance_km"], errors="coerce").to_numpy(float))
+        np.add.at(dist, mine["hose_id"].map(index).to_numpy(int), kms[:, None] * frac)
+    if odometer.any():
+        dist[odometer] = _odometer_at(installed[odometer], ended[odometer], km[odometer], t.astype(np.float64))
+    rank = events.set_index("hose_id")["look"].reindex(ids).fillna(t.size + 1).to_numpy(int)
+    failed = np.arange(1, t.size + 1)[None, :] >= rank[:, None]
+    dist = np.where(failed, km[:, None], dist)
+    keep = t[None, :] >= installed[:, None]
+    look_ix, hose_ix = np.nonzero(keep.T)                       # by look, then by hose (hoses sorted by id)
+    return pd.DataFrame({"look": events["look"].to_numpy()[look_ix], "hose_id": ids[hose_ix],
+                         "adjustment": hoses["adjustment"].to_numpy(object)[hose_ix],
+                         "distance_km": dist[hose_ix, look_ix], "failed": failed[hose_ix, look_ix],
+                         "distance_from": np.where(odometer[hose_ix], FROM_ODOMETER, FROM_RUNS)})
+
+
+def look_estimates(in_looks: pd.DataFrame, events: pd.DataFrame) -> pd.DataFrame:
+    """The estimate at each look: the common-shape life ratio and its standard error.
+
+    Parameters
+    ----------
+    in_looks : DataFrame
+        :func:`look_hoses`.
+    events : DataFrame
+        :func:`failure_events`.
+
+    Returns
+    -------
+    DataFrame
+        Per look: ``look``, ``event_at``, ``hose_id`` (the hose that failed), ``failures``,
+        ``n_hoses`` (in the look), ``total_km`` [km] (their distances summed), ``log_ratio`` [-]
+        (ln force / distance life), ``se_log_ratio`` [-], ``note`` (why the estimate is NaN, and
+        the hoses placed by odometer).
+    """
+    look = in_looks["look"].to_numpy(int)
+    x = in_looks["distance_km"].to_numpy(float)
+    f = in_looks["failed"].to_numpy(bool)
+    g = (in_looks["adjustment"] == "force").to_numpy(int)
+    odo = (in_looks["distance_from"] == FROM_ODOMETER).to_numpy() & ~f
+    rows = []
+    for ev in events.to_dict("records"):
+        m = look == ev["look"]
+        fit = common_shape_fit(x[m], f[m], g[m])
+        ok = fit.note is None and math.isfinite(fit.se_log_ratio) and fit.se_log_ratio > 0
+        notes = [fit.note] if fit.note else ([] if ok else ["the fit's information is not positive definite"])
+        by_odo = int(odo[m].sum())
+        if by_odo:
+            notes.append(f"{by_odo} censored hose(s) known only by their odometer: distance linear in time "
+                         "between installation and end event")
+        rows.append({"look": ev["look"], "event_at": ev["event_at"], "hose_id": ev["hose_id"],
+                     "failures": int(f[m].sum()), "n_hoses": int(m.sum()), "total_km": float(x[m].sum()),
+                     "log_ratio": fit.log_ratio if ok else math.nan, "se_log_ratio": fit.se_log_ratio if ok else math.nan,
+                     "note": "; ".join(notes) or None})
+    return pd.DataFrame(rows, columns=LOOK_COLUMNS)
+
+
+def decide(estimates: pd.DataFrame, max_failures: int, margin: float, alpha: float,
+           spending: str) -> SequentialVerdict | None:
+    """The sequential verdict over every look (None without looks).
+
+    Parameters
+    ----------
+    estimates : DataFrame
+        :func:`look_estimates`.
+    max_failures : int
+        Failures (both adjustments) at which the test ends [-].
+    margin : float
+        Smallest life ratio worth acting on [-].
+    alpha : float
+        Two-sided error rate of the verdict [-].
+    spending : {"obrien-fleming", "pocock"}
+        Lan-DeMets spending family.
+
+    Returns
+    -------
+    SequentialVerdict or None
+        Per look the information fraction ``failures / max_failures`` (capped at 1), the
+        boundaries on the log scale, what each look crossed, and the sticky verdict.
+    """
+    if estimates.empty:
+        return None
+    t = estimates["failures"].to_numpy(float) / float(max_failures)
+    return sequential_verdict(estimates["log_ratio"].to_numpy(float), estimates["se_log_ratio"].to_numpy(float), t,
+                              margin, alpha, spending)

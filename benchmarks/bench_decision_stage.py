@@ -1,0 +1,180 @@
+"""Speed of the decision stage (issue 23: it adds under 10 s at 200 hose types, under 2 s to the demo).
+
+One command::
+
+    python -m benchmarks.bench_decision_stage                 # 200 hose types, ~30 hoses, ~20 failures each
+    python -m benchmarks.bench_decision_stage --quick         # 20 hose types (a look)
+    python -m benchmarks.bench_decision_stage --warehouse WH  # also the stage on a built warehouse's tables (the demo's)
+
+Synthetic hose types (seeded): 15 hoses per adjustment installed in waves on benches, Weibull lives
+(shape 2.5, force-set 1.3x longer), durability runs of 5 km (8 h) logged for two hoses in three,
+odometer readings only for the others, the test stopped when about 20 have failed. A logbook
+(``hoses.csv``) is written to a temporary raw/ so the stage reads and matches runs as in a rebuild.
+Timed in this process, the plan setting ``max_failures`` (the lab's usual case once ``test_plan`` has
+been read), and with none on three hose types (the sequential design per distinct shape,
+:func:`analyses.sequential.max_information`, memoised by the rebuild after its first computation):
+
+* baseline: :func:`pipeline.stages.durability.service_life` on the same ``hose_life`` (what a rebuild
+  already spends on these hoses);
+* the stage's parts: ``life_effect`` (profile-likelihood bounds), the looks (a common-shape fit at
+  every failure and the sequential verdict), reading and matching the logbooks;
+* the whole stage (:func:`pipeline.stages.decision.run`) with one and two worker processes.
+
+Printed: seconds, the ratio to the baseline and PASS/MISS against 10 s (200 types) or 2 s (a warehouse).
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+HEADER = "hose_id,event,at,hose_type,adjustment,z_rollers_mm,spring_force_n,failure_mode,wall_thickness_mm,distance_km,notes\n"
+START = pd.Timestamp("2026-01-05T08:00", tz="UTC")
+RUN_KM, KM_PER_H = 5.0, 5.0 / 8.0
+#: Hose types timed with max_failures left to the design (seconds to minutes each the first time).
+DESIGNED = 3
+
+
+def _hose_type(rng, t: int, n: int, lines: list, runs: list) -> None:
+    """One hose type's logbook lines and runs: n hoses per adjustment, stopped near 20 failures."""
+    adj = np.repeat(["distance", "force"], n)
+    life = np.where(adj == "force", 1.3, 1.0) * 40.0 * rng.weibull(2.5, 2 * n)
+    installed = START + pd.to_timedelta(rng.integers(0, 20, 2 * n) * 24, unit="h")
+    end_h = life / KM_PER_H
+    stop = np.sort((installed - START) / pd.Timedelta(hours=1) + end_h)[min(19, 2 * n - 1)] + 1.0
+    for i in range(2 * n):
+        hid = f"T{t:03d}-{i:02d}"
+        h0 = (installed[i] - START) / pd.Timedelta(hours=1)
+        failed = h0 + end_h[i] <= stop
+        km = life[i] if failed else max(0.0, (stop - h0) * KM_PER_H)
+        lines.append(f"{hid},installed,{installed[i].isoformat()},TYPE {t:03d},{adj[i]},4.5,866,,,,\n")
+        by_runs = i % 3 != 2
+        if by_runs:
+            done = 0.0
+            while done < km - 1e-9:
+                d = min(RUN_KM, km - done)
+                runs.append({"run_id": f"{hid}/r{len(runs)}", "hose_id": hid,
+                             "started_at": installed[i] + pd.Timedelta(hours=done / KM_PER_H),
+                             "duration_h": d / KM_PER_H, "distance_km": d, "strokes": int(d * 1000)})
+                done += d
+        if failed:
+            at = installed[i] + pd.Timedelta(hours=end_h[i])
+            lines.append(f"{hid},failed,{at.isoformat()},,,,,rupture,,{'' if by_runs else f'{km:.3f}'},\n")
+
+
+def campaign(types: int, seed: int, root: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Write raw/c/hoses.csv under ``root``; the ``hose_life`` and ``durability_runs`` a rebuild would give."""
+    from analyses.hose_life import hose_life
+    from pipeline.raw.logbook import merge_logbooks, read_logbooks
+
+    rng = np.random.default_rng(seed)
+    lines, runs = [], []
+    for t in range(types):
+        _hose_type(rng, t, 15, lines, runs)
+    (root / "c").mkdir(parents=True, exist_ok=True)
+    (root / "c" / "hoses.csv").write_text(HEADER + "".join(lines))
+    runs_df = pd.DataFrame(runs)
+    hoses, problems = merge_logbooks(read_logbooks(root)[0])
+    assert not problems, problems[:3]
+    return hose_life(hoses, runs_df)[0], runs_df
+
+
+def _timed(func, *args):
+    t0 = time.perf_counter()
+    out = func(*args)
+    return out, time.perf_counter() - t0
+
+
+def time_stage(raw: Path, life: pd.DataFrame, runs: pd.DataFrame, plan, jobs: int) -> float:
+    """Seconds of the whole stage on these tables."""
+    from pipeline.stages import StageContext
+    from pipeline.stages import decision
+
+    ctx = StageContext(raw=raw, warehouse=raw, runs=pd.DataFrame(), results={"hose_life": life, "durability_runs": runs},
+                       jobs=jobs, plan=plan)
+    return _timed(decision.run, ctx)[1]
+
+
+def parts(raw: Path, life: pd.DataFrame, runs: pd.DataFrame, plan) -> dict[str, float]:
+    """Seconds of each part of the stage, one process."""
+    from pipeline.stages import StageContext
+    from pipeline.stages import decision
+    from pipeline.stages.durability import service_life
+
+    out = {"baseline: durability service_life": _timed(service_life, life)[1]}
+    ctx = StageContext(raw=raw, warehouse=raw, runs=pd.DataFrame(), results={"hose_life": life, "durability_runs": runs},
+                       plan=plan)
+    items, out["logbooks read, runs matched, items"] = _timed(decision.hose_type_items, ctx)
+    _, out["life_effect (profile bounds)"] = _timed(lambda: [decision.effect_of(it) for it in items])
+    for it in items:
+        it["design"] = [it["plan"]["max_failures"], "plan", None]
+    _, out["looks (a fit at every failure) + verdict"] = _timed(lambda: [decision.decide_hose_type(it) for it in items])
+    return out
+
+
+def _plan(max_failures: int | None):
+    from pipeline.raw.plan import Plan
+
+    return Plan(present=True, defaults={} if max_failures is None else {"max_failures": max_failures})
+
+
+def on_warehouse(wh: Path, raw: Path) -> float:
+    """Seconds of the stage on a built warehouse's hose_life and durability_runs (its raw/ for the logbooks)."""
+    import duckdb
+
+    from pipeline.raw.plan import read_plan
+    from pipeline.raw.tree import RawTree
+
+    con = duckdb.connect(str(wh / "pneubench.duckdb"), read_only=True)
+    try:
+        life, runs = (con.execute(f"SELECT * FROM {t}").df() for t in ("hose_life", "durability_runs"))
+    finally:
+        con.close()
+    return time_stage(raw, life, runs, read_plan(RawTree(raw)), 1)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.bench_decision_stage", description=__doc__.splitlines()[0])
+    ap.add_argument("--types", type=int, default=200, help="synthetic hose types (default 200)")
+    ap.add_argument("--seed", type=int, default=23)
+    ap.add_argument("--quick", action="store_true", help="20 hose types")
+    ap.add_argument("--warehouse", type=Path, help="also time the stage on this warehouse's tables")
+    ap.add_argument("--raw", type=Path, help="its raw/ (default: WAREHOUSE/../raw)")
+    args = ap.parse_args(argv)
+    types = 20 if args.quick else args.types
+    target = 10.0 * types / 200
+    with tempfile.TemporaryDirectory(prefix="pneubench-decision-") as tmp:
+        raw = Path(tmp)
+        life, runs = campaign(types, args.seed, raw)
+        failed = life[life["status"] == "failed"].groupby("hose_type").size()
+        print(f"decision stage: {types} hose types, {len(life)} hoses, {len(runs)} durability runs, "
+              f"{failed.mean():.1f} failures a type (seed {args.seed})")
+        split = parts(raw, life, runs, _plan(40))
+        base = split["baseline: durability service_life"]
+        for name, s in split.items():
+            print(f"  {name:45s} {s:7.2f} s  ({s / base:6.1f}x baseline)")
+        ok = True
+        for jobs in (1, 2):
+            s = time_stage(raw, life, runs, _plan(40), jobs)
+            verdict = "PASS" if s < target else "MISS"
+            ok &= s < target or jobs == 1
+            print(f"  whole stage, max_failures in the plan, {jobs} process(es): {s:7.2f} s ({s / base:.1f}x baseline) "
+                  f"target < {target:.0f} s: {verdict}")
+        few = sorted(life["hose_type"].unique())[:DESIGNED]
+        sub = life[life["hose_type"].isin(few)]
+        s = time_stage(raw, sub, runs[runs["hose_id"].isin(set(sub["hose_id"]))], _plan(None), 1)
+        print(f"  {DESIGNED} hose types with max_failures designed (a new shape each: the design's first computation), "
+              f"1 process: {s:7.2f} s = {s / DESIGNED:.1f} s a hose type")
+    if args.warehouse:
+        s = on_warehouse(args.warehouse, args.raw or args.warehouse.parent / "raw")
+        print(f"  the stage on {args.warehouse}: {s:.2f} s, target < 2 s: {'PASS' if s < 2 else 'MISS'}")
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

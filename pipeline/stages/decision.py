@@ -1,0 +1,299 @@
+"""The decision (issue 23): per hose type, how much longer force-set hoses live, and the verdict read at every failure.
+
+For every hose type with at least one hose of each adjustment (``force``, ``distance``) in
+``hose_life``:
+
+* ``life_effect``: the force / distance life ratio with profile-likelihood bounds
+  (:func:`analyses.life_effect.life_effect`; Meeker & Escobar 1998, ch. 8 and 17) on the hoses'
+  lives (``hose_life.distance_km`` > 0; failed = exact, removed and running = suspensions);
+* ``decision_looks`` / ``decision_look_hoses``: a look at each failure in logbook time order,
+  every hose installed by then at its distance then (from its durability runs, matched to the
+  hose as the durability stage matches them, :func:`analyses.hose_life.match_runs`; an
+  odometer-only hose linear in time), the estimate and its standard error, the boundaries of the
+  plan's alpha-spending function and what each look crossed (:mod:`analyses.decision`,
+  :mod:`analyses.sequential`; Lan & DeMets 1983, Jennison & Turnbull 2000);
+* ``life_verdict``: the sticky verdict, ``no plan`` without a usable ``raw/plan.toml`` (every
+  number still computed, the note says what would have been declared).
+
+Settings per hose type from the plan (:meth:`pipeline.raw.plan.Plan.for_hose_type`);
+``max_failures`` the plan's, else the sequential design's
+(:func:`analyses.sequential.max_information` with the ``life_effect`` common shape; 1.0 when
+that is NULL, said in the note), as the ``test_plan`` stage computes it.
+
+Decisions
+---------
+* It reads ``hose_life`` and ``durability_runs`` (tables) and the logbooks (the installations the
+  runs are matched to) and the plan, no run kind: a change to a leakage or PLA run does not
+  re-run it, a logbook, a durability run or the plan does.
+* Each hose type is one item of ``ctx.map`` (plain data naming every input), twice (its
+  ``life_effect``, then its looks): the types run in parallel and one whose hoses, runs and
+  settings did not change is not computed again. The sequential design behind an unset
+  ``max_failures`` is one ``ctx.map`` item per distinct (margin, alpha, power, spending, shape):
+  it costs seconds to minutes the first time (:func:`analyses.sequential.max_information`, a look
+  at each of hundreds of failures) and is then read from the memo.
+"""
+from __future__ import annotations
+
+import json
+import math
+
+import pandas as pd
+
+from analyses.decision import GROUP, decide, failure_events, look_estimates, look_hoses, usable_hoses
+from analyses.hose_life import match_runs
+from analyses.life_effect import life_effect
+from analyses.sequential import max_information
+from pipeline.raw.logbook import merge_logbooks, read_logbooks
+from pipeline.stages import Reads, StageContext, StageOutput
+
+NAME = "decision"
+READS = Reads(tables=("hose_life", "durability_runs"), logbooks=True, plan=True)
+WRITES = ("life_effect", "life_verdict", "decision_looks", "decision_look_hoses")
+
+EFFECT_COLUMNS = ["hose_type", "n_force", "n_failed_force", "n_distance", "n_failed_distance", "model", "shape",
+                  "shape_lower", "shape_upper", "life_ratio", "life_ratio_lower", "life_ratio_upper", "confidence",
+                  "p_value", "shape_test_p", "note"]
+VERDICT_COLUMNS = ["hose_type", "verdict", "margin", "alpha", "power", "confidence", "spending", "max_failures",
+                   "max_failures_from", "plan_from", "failures", "information_fraction", "looks", "life_ratio",
+                   "se_log_ratio", "z", "boundary_z", "efficacy_lower", "efficacy_upper", "futility_lower",
+                   "futility_upper", "rci_lower", "rci_upper", "decided_at", "decided_at_look", "decided_ratio",
+                   "decided_lower", "decided_upper", "note"]
+LOOK_COLUMNS = ["hose_type", "look", "event_at", "hose_id", "failures", "n_hoses", "total_km", "information_fraction",
+                "life_ratio", "se_log_ratio", "z", "boundary_z", "alpha_spent", "efficacy_lower", "efficacy_upper",
+                "futility_lower", "futility_upper", "rci_lower", "rci_upper", "crossed", "decides", "note"]
+LOOK_HOSE_COLUMNS = ["hose_type", "look", "hose_id", "adjustment", "distance_km", "failed", "distance_from"]
+#: Per-look values of :class:`analyses.sequential.SequentialVerdict` on the log scale, shown as ratios.
+_RATIO_FIELDS = ("efficacy_lower", "efficacy_upper", "futility_lower", "futility_upper", "rci_lower", "rci_upper")
+NO_PLAN = "no plan"
+
+
+def _ns_list(values) -> list:
+    """UTC times as int nanoseconds since the epoch (None for NaT): plain data for a ``ctx.map`` item."""
+    t = pd.to_datetime(pd.Series(values), utc=True, format="ISO8601")
+    return [None if pd.isna(v) else int(v) for v in t.to_numpy("datetime64[ns]").astype("int64").astype(object)
+            ] if len(t) else []
+
+
+def _floats(values) -> list:
+    return [float(v) for v in pd.to_numeric(pd.Series(values), errors="coerce").to_numpy(float)]
+
+
+def _columns(df: pd.DataFrame, spec: dict) -> dict:
+    """The item's columns of ``df``: name -> list of plain values (``spec``: name -> "text" | "float" | "time")."""
+    conv = {"text": lambda v: [None if x is None or x != x else str(x) for x in v], "float": _floats, "time": _ns_list}
+    return {c: conv[kind](df[c].tolist() if kind == "text" else df[c]) for c, kind in spec.items()}
+
+
+HOSE_SPEC = {"hose_id": "text", "adjustment": "text", "distance_km": "float", "status": "text",
+             "distance_source": "text", "installed_at": "time", "ended_at": "time"}
+RUN_SPEC = {"hose_id": "text", "started_at": "time", "duration_h": "float", "distance_km": "float"}
+
+
+def hose_type_item(hose_type: str, life: pd.DataFrame, runs: pd.DataFrame, settings) -> dict:
+    """One hose type as plain data (the ``ctx.map`` item): its hoses, their matched runs (``hose_id`` the
+    hose matched), its settings; columns as lists, times as int nanoseconds (UTC)."""
+    plan = {"present": bool(settings.present), "margin": float(settings.margin), "alpha": float(settings.alpha),
+            "power": float(settings.power), "confidence": float(settings.confidence),
+            "max_failures": settings.max_failures, "spending": settings.spending,
+            "plan_from": settings.sources["margin"]}
+    return {"hose_type": hose_type, "hoses": _columns(life.sort_values("hose_id"), HOSE_SPEC),
+            "runs": _columns(runs.sort_values("run_id"), RUN_SPEC), "plan": plan}
+
+
+def _frame(columns: dict, spec: dict) -> pd.DataFrame:
+    """An item's columns back as a DataFrame (times as UTC timestamps)."""
+    df = pd.DataFrame({c: columns[c] for c in spec})
+    for c, kind in spec.items():
+        if kind == "time":
+            df[c] = pd.to_datetime(pd.Series(columns[c], dtype="float64"), unit="ns", utc=True)
+    return df
+
+
+def effect_of(item: dict) -> dict:
+    """``life_effect``'s row of one hose type (module level: picklable for ``ctx.map``).
+
+    Parameters
+    ----------
+    item : dict
+        :func:`hose_type_item` (its ``hoses`` and ``plan`` are read).
+
+    Returns
+    -------
+    dict
+        The row; ``shape`` is the common Weibull shape [-] the design reads (NaN when NULL).
+    """
+    life = pd.DataFrame({c: item["hoses"][c] for c in ("adjustment", "distance_km", "status")})
+    use = life[life["distance_km"] > 0]
+    le = life_effect(use["distance_km"].to_numpy(float), (use["status"] == "failed").to_numpy(),
+                     use["adjustment"].map(GROUP).to_numpy(int), confidence=item["plan"]["confidence"],
+                     alpha=item["plan"]["alpha"])
+    row = {c: getattr(le, c) for c in EFFECT_COLUMNS if hasattr(le, c)}
+    return {**row, "hose_type": item["hose_type"], "confidence": item["plan"]["confidence"]}
+
+
+def design_item(plan: dict, shape: float) -> tuple[dict | None, str | None]:
+    """What :func:`design_failures` needs when the plan leaves ``max_failures`` unset (None when it sets
+    it), and the note when the shape is NULL (the design then assumes 1.0)."""
+    if plan["max_failures"] is not None:
+        return None, None
+    note = None
+    if not (math.isfinite(shape) and shape > 0):
+        shape, note = 1.0, "max_failures designed with shape 1.0: the life_effect common shape is NULL"
+    return {k: plan[k] for k in ("margin", "alpha", "power", "spending")} | {"shape": float(shape)}, note
+
+
+def design_failures(item: dict) -> int:
+    """``max_failures`` of the sequential design (:func:`analyses.sequential.max_information`) for
+    a :func:`design_item` (module level: memoised by ``ctx.map``, seconds to minutes the first time)."""
+    return int(max_information(item["margin"], item["alpha"], item["power"], item["spending"], item["shape"]).failures)
+
+
+def _looks_rows(hose_type: str, est: pd.DataFrame, sv, present: bool) -> list[dict]:
+    """``decision_looks`` rows from the estimates and the verdict's per-look values."""
+    rows = []
+    for i, e in enumerate(est.to_dict("records")):
+        lr, se = e["log_ratio"], e["se_log_ratio"]
+        e["note"] = e["note"] if isinstance(e["note"], str) else None
+        row = {"hose_type": hose_type, "look": int(e["look"]), "event_at": e["event_at"], "hose_id": e["hose_id"],
+               "failures": int(e["failures"]), "n_hoses": int(e["n_hoses"]), "total_km": e["total_km"],
+               "information_fraction": float(sv.information_fraction[i]), "life_ratio": math.exp(lr),
+               "se_log_ratio": se, "z": lr / se, "boundary_z": float(sv.boundary_z[i]),
+               "alpha_spent": float(sv.alpha_spent[i]), "crossed": sv.crossed[i] or None,
+               "decides": bool(present and sv.decided_at == i), "note": e["note"]}
+        row.update({f: math.exp(float(getattr(sv, f)[i])) for f in _RATIO_FIELDS})
+        if i and sv.information_fraction[i] <= sv.information_fraction[i - 1]:
+            row["note"] = "; ".join(n for n in (e["note"], "no new information (failures past max_failures): "
+                                                "shown, does not decide") if n)
+        rows.append(row)
+    return rows
+
+
+def _verdict_row(item: dict, looks: list[dict], sv, design: tuple) -> dict:
+    """``life_verdict``'s row: the settings, the last look, the deciding look and the note."""
+    plan = item["plan"]
+    row = {"hose_type": item["hose_type"], **{k: plan[k] for k in ("margin", "alpha", "power", "confidence",
+                                                                  "spending", "plan_from")},
+           "max_failures": design[0], "max_failures_from": design[1], "looks": len(looks), "failures": 0,
+           "information_fraction": 0.0}
+    notes = [design[2]]
+    if looks:
+        last = looks[-1]
+        row.update({k: last[k] for k in ("failures", "information_fraction", "life_ratio", "se_log_ratio", "z",
+                                         "boundary_z", *_RATIO_FIELDS)})
+        notes.append(sv.note or None)
+    else:
+        notes.append("no failure yet: no look")
+    verdict = sv.verdict if sv is not None else "undecided"
+    if sv is not None and sv.decided_at is not None:
+        at = looks[sv.decided_at]
+        decided = {"decided_at": at["event_at"], "decided_at_look": at["look"], "decided_ratio": at["life_ratio"],
+                   "decided_lower": at["rci_lower"], "decided_upper": at["rci_upper"]}
+        if plan["present"]:
+            row.update(decided)
+        else:
+            notes.append(f"without a plan it would have been declared {verdict!r} at look {at['look']}")
+    row["verdict"] = verdict if plan["present"] else NO_PLAN
+    if not plan["present"]:
+        notes.insert(0, "no usable raw/plan.toml: built-in settings, no verdict declared")
+    row["note"] = "; ".join(n for n in notes if n) or None
+    return row
+
+
+def decide_hose_type(item: dict) -> dict:
+    """The looks, and the verdict over them, of one hose type (module level: picklable for ``ctx.map``).
+
+    Parameters
+    ----------
+    item : dict
+        :func:`hose_type_item` (``hose_type``, ``hoses``: hose_life rows, ``runs``: their matched
+        durability runs, ``plan``: the hose type's settings) with ``design``: (max_failures,
+        ``"plan"`` or ``"design"``, note).
+
+    Returns
+    -------
+    dict
+        ``life_verdict`` and ``decision_looks`` rows (lists of dicts), ``decision_look_hoses``
+        (a DataFrame).
+    """
+    plan, hose_type = item["plan"], item["hose_type"]
+    life, runs = _frame(item["hoses"], HOSE_SPEC), _frame(item["runs"], RUN_SPEC)
+    design = tuple(item["design"])
+    hoses = usable_hoses(life)
+    events = failure_events(hoses)
+    in_looks = look_hoses(hoses, runs, events)
+    est = look_estimates(in_looks, events)
+    sv = decide(est, design[0], plan["margin"], plan["alpha"], plan["spending"])
+    looks = _looks_rows(hose_type, est, sv, plan["present"]) if sv is not None else []
+    verdict = _verdict_row(item, looks, sv, design)
+    left_out = len(life) - len(hoses)
+    if left_out:
+        verdict["note"] = "; ".join(n for n in (verdict["note"], f"{left_out} hose(s) without a known distance or "
+                                                "time span left out of the looks") if n)
+    return {"life_verdict": [verdict], "decision_looks": looks,
+            "decision_look_hoses": in_looks.assign(hose_type=hose_type)}
+
+
+def _typed(rows: list[dict], columns: list[str], ints=(), times=(), bools=()) -> pd.DataFrame:
+    """A table's frame: its columns in order, BIGINT columns as nullable integers, times in UTC."""
+    df = pd.DataFrame(rows, columns=columns)
+    for c in ints:
+        df[c] = pd.array([None if v is None or pd.isna(v) else int(v) for v in df[c]], dtype="Int64")
+    for c in times:
+        df[c] = pd.to_datetime(df[c], utc=True)
+    for c in bools:
+        df[c] = df[c].astype(bool)
+    for c in columns:
+        vals = df[c].tolist()
+        if (c not in (*ints, *times, *bools) and df[c].dtype == object and any(isinstance(v, float) for v in vals)
+                and all(isinstance(v, float) or v is None for v in vals)):
+            df[c] = pd.to_numeric(df[c]).astype("float64")   # NaN -> NULL
+    return df
+
+
+def hose_type_items(ctx: StageContext) -> list[dict]:
+    """One :func:`hose_type_item` per hose type with a hose of each adjustment, sorted by hose type."""
+    life = ctx.results.get("hose_life")
+    if life is None or life.empty:
+        return []
+    runs = ctx.results.get("durability_runs")
+    runs = pd.DataFrame(columns=["run_id", "hose_id", "started_at", "duration_h", "distance_km"]) \
+        if runs is None or runs.empty else runs.copy()
+    events, _problems = read_logbooks(ctx.raw)        # the durability stage reports the logbooks' problems
+    hoses, _ = merge_logbooks(events)
+    runs["hose_id"] = match_runs(hoses, runs)[0] if len(runs) else pd.Series([], dtype=object)
+    type_of = dict(zip(life["hose_id"], life["hose_type"]))
+    by_type = dict(iter(runs.groupby(runs["hose_id"].map(type_of), sort=False))) if len(runs) else {}
+    items = []
+    for hose_type, g in life[life["hose_type"].notna()].groupby("hose_type", sort=True):
+        if set(GROUP) <= set(g["adjustment"]):
+            mine = by_type.get(hose_type, runs.iloc[0:0])
+            items.append(hose_type_item(str(hose_type), g, mine, ctx.plan.for_hose_type(str(hose_type))))
+    return items
+
+
+def run(ctx: StageContext) -> StageOutput:
+    out = StageOutput()
+    items = hose_type_items(ctx)
+    effects = ctx.map(effect_of, items, label="decision: life effect")
+    asks = [design_item(it["plan"], e["shape"]) for it, e in zip(items, effects)]
+    unique = sorted({json.dumps(a, sort_keys=True) for a, _ in asks if a is not None})
+    designed = dict(zip(unique, ctx.map(design_failures, [json.loads(u) for u in unique], label="decision: design")))
+    for it, (ask, note) in zip(items, asks):
+        it["design"] = ([it["plan"]["max_failures"], "plan", None] if ask is None
+                        else [designed[json.dumps(ask, sort_keys=True)], "design", note])
+    results = ctx.map(decide_hose_type, items, label="decision: looks")
+    rows = {t: [r for res in results for r in res[t]] for t in ("life_verdict", "decision_looks")}
+    rows["life_effect"] = effects
+    hoses = [res["decision_look_hoses"] for res in results if len(res["decision_look_hoses"])]
+    out.tables["life_effect"] = _typed(rows["life_effect"], EFFECT_COLUMNS,
+                                       ints=("n_force", "n_failed_force", "n_distance", "n_failed_distance"))
+    out.tables["life_verdict"] = _typed(rows["life_verdict"], VERDICT_COLUMNS,
+                                        ints=("max_failures", "failures", "looks", "decided_at_look"),
+                                        times=("decided_at",))
+    out.tables["decision_looks"] = _typed(rows["decision_looks"], LOOK_COLUMNS, ints=("look", "failures", "n_hoses"),
+                                          times=("event_at",), bools=("decides",))
+    lh = pd.concat(hoses, ignore_index=True) if hoses else pd.DataFrame(columns=LOOK_HOSE_COLUMNS)
+    lh = lh[LOOK_HOSE_COLUMNS].astype({"look": "int64", "failed": bool, "distance_km": "float64"})
+    out.tables["decision_look_hoses"] = lh.astype({"hose_type": object, "hose_id": object, "adjustment": object,
+                                                   "distance_from": object})
+    return out

@@ -1,0 +1,145 @@
+"""The looks of the decision: hand-checked hose distances at each failure (runs, a run under way, odometer),
+event order and ties, the estimate's NULL notes, recovery of a known life ratio, and the sticky verdict."""
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from analyses.decision import (FROM_ODOMETER, FROM_RUNS, decide, failure_events, look_estimates, look_hoses,
+                               usable_hoses)
+from analyses.hose_life import hose_distance_at
+from analyses.life_effect import common_shape_fit
+
+
+def T(s):
+    ts = pd.Timestamp(s)
+    return ts if ts.tzinfo else ts.tz_localize("UTC")
+
+
+def hose(hid, adj, km, status, source, installed, ended=None):
+    return {"hose_id": hid, "adjustment": adj, "distance_km": km, "status": status, "distance_source": source,
+            "installed_at": T(installed), "ended_at": T(ended) if ended else pd.NaT}
+
+
+def frame(rows):
+    df = pd.DataFrame(rows)
+    for c in ("installed_at", "ended_at"):
+        df[c] = pd.to_datetime(df[c], utc=True)
+    return df
+
+
+def runs_of(rows):
+    df = pd.DataFrame(rows, columns=["hose_id", "started_at", "duration_h", "distance_km"])
+    df["started_at"] = pd.to_datetime(df["started_at"], utc=True)
+    return df
+
+
+@pytest.fixture
+def four():
+    """D1 (runs, fails 01-03 10:00 at 20 km), F2 (a run under way at D1's failure, fails 01-05 at 10 km),
+    D2 (odometer only, 40 km from 01-02 to its failure 01-06), F1 (runs, running at 30 km),
+    F3 (installed 01-04, no runs yet), X (failed, no distance: left out)."""
+    life = frame([hose("D1", "distance", 20.0, "failed", "runs", "2026-01-01", "2026-01-03T10:00"),
+                  hose("F1", "force", 30.0, "running", "runs", "2026-01-01"),
+                  hose("D2", "distance", 40.0, "failed", "odometer", "2026-01-02", "2026-01-06"),
+                  hose("F2", "force", 10.0, "failed", "runs", "2026-01-03", "2026-01-05"),
+                  hose("F3", "force", 0.0, "running", "none", "2026-01-04"),
+                  hose("X", "force", math.nan, "failed", "none", "2026-01-01", "2026-01-02")])
+    runs = runs_of([("D1", "2026-01-01T00:00", 10.0, 10.0), ("D1", "2026-01-03T00:00", 10.0, 10.0),
+                    ("F1", "2026-01-01T00:00", 20.0, 20.0), ("F1", "2026-01-04T00:00", 10.0, 10.0),
+                    ("F2", "2026-01-03T05:00", 10.0, 10.0)])
+    return life, runs
+
+
+def test_hand_checked_looks_runs_odometer_and_a_run_under_way(four):
+    life, runs = four
+    hoses = usable_hoses(life)
+    assert list(hoses["hose_id"]) == ["D1", "D2", "F1", "F2", "F3"]          # X: life unknown
+    ev = failure_events(hoses)
+    assert list(ev["hose_id"]) == ["D1", "F2", "D2"] and list(ev["look"]) == [1, 2, 3]
+    got = look_hoses(hoses, runs, ev)
+    d = {(r.look, r.hose_id): (r.distance_km, r.failed, r.distance_from) for r in got.itertuples()}
+    # look 1, 2026-01-03 10:00: F3 not installed yet
+    assert sorted(h for (k, h) in d if k == 1) == ["D1", "D2", "F1", "F2"]
+    assert d[1, "D1"] == (20.0, True, FROM_RUNS)
+    assert d[1, "F1"] == (20.0, False, FROM_RUNS)                          # second run starts 01-04
+    assert d[1, "F2"][0] == pytest.approx(5.0)                             # half of a 10 h run
+    assert d[1, "D2"][0] == pytest.approx(40.0 * (1 + 10 / 24) / 4) and d[1, "D2"][2] == FROM_ODOMETER
+    # look 2, 2026-01-05: F2 fails at its life, F3 in at 0 km
+    assert d[2, "F2"] == (10.0, True, FROM_RUNS) and d[2, "F3"] == (0.0, False, FROM_RUNS)
+    assert d[2, "F1"][0] == pytest.approx(30.0) and d[2, "D2"][0] == pytest.approx(30.0)
+    assert d[3, "D2"] == (40.0, True, FROM_ODOMETER) and d[3, "D1"] == (20.0, True, FROM_RUNS)
+    est = look_estimates(got, ev)
+    assert list(est["failures"]) == [1, 2, 3] and list(est["n_hoses"]) == [4, 5, 5]
+    assert est["total_km"].iloc[0] == pytest.approx(20 + 20 + 5 + 40 * (1 + 10 / 24) / 4)
+    # the data cannot tell: a NULL estimate and the fit's note, never a number
+    assert est["log_ratio"].isna().all() and est["se_log_ratio"].isna().all()
+    assert est["note"].iloc[0].startswith("too few failures to tell a Weibull")
+    assert "odometer" in est["note"].iloc[0] and "odometer" not in est["note"].iloc[2]   # D2 failed by look 3
+
+
+def test_ties_broken_by_hose_id_and_failed_in_look_order():
+    life = frame([hose("B", "force", 5.0, "failed", "odometer", "2026-01-01", "2026-01-02"),
+                  hose("A", "distance", 4.0, "failed", "odometer", "2026-01-01", "2026-01-02")])
+    ev = failure_events(usable_hoses(life))
+    assert list(ev["hose_id"]) == ["A", "B"]
+    got = look_hoses(usable_hoses(life), runs_of([]), ev)
+    first = got[got["look"] == 1].set_index("hose_id")
+    assert first.loc["A", "failed"] and not first.loc["B", "failed"]
+
+
+def test_runs_distance_is_hose_distance_at_when_no_run_is_under_way():
+    """Looks between runs: the runs' distance is hose_distance_at's (a run without a duration counts whole)."""
+    runs = runs_of([("H", "2026-01-01T00:00", 2.0, 3.0), ("H", "2026-01-02T00:00", 2.0, 4.0),
+                    ("H", "2026-01-03T00:00", math.nan, 5.0)])
+    times = ["2026-01-01T12:00", "2026-01-02T12:00", "2026-01-04"]
+    life = frame([hose("H", "force", 12.0, "running", "runs", "2026-01-01")]
+                 + [hose(f"E{i}", "distance", 1.0, "failed", "odometer", "2025-12-31", w) for i, w in enumerate(times)])
+    hoses = usable_hoses(life)
+    ev = failure_events(hoses)
+    got = look_hoses(hoses, runs, ev)
+    h = got[got["hose_id"] == "H"]["distance_km"].to_numpy()
+    assert h == pytest.approx([hose_distance_at(runs, T(w)) for w in times])
+
+
+def test_a_known_ratio_recovered_and_the_last_look_is_the_censored_fit():
+    """60 hoses per adjustment start together and run at 1 km/h (one run each, its life long): at each failure
+    every hose is at min(life, hours elapsed), and the last look's estimate is the fit of those lives."""
+    rng = np.random.default_rng(23)
+    n, ratio, shape = 60, 1.5, 2.0
+    lives = np.r_[40.0 * rng.weibull(shape, n), 40.0 * ratio * rng.weibull(shape, n)]
+    adj = np.r_[["distance"] * n, ["force"] * n]
+    end_h = 60.0                                  # test stopped: hoses still alive are running
+    start = T("2026-01-01")
+    rows, runs = [], []
+    for i, (x, a) in enumerate(zip(lives, adj)):
+        failed = x < end_h
+        km = x if failed else end_h
+        rows.append(hose(f"H{i:03d}", a, km, "failed" if failed else "running", "runs", "2026-01-01",
+                         start + pd.Timedelta(hours=x) if failed else None))
+        runs.append((f"H{i:03d}", start, km, km))
+    hoses = usable_hoses(frame(rows))
+    ev = failure_events(hoses)
+    got = look_hoses(hoses, runs_of(runs), ev)
+    k = len(ev) // 2
+    at = (ev["event_at"].iloc[k - 1] - start) / pd.Timedelta(hours=1)
+    look = got[got["look"] == k].set_index("hose_id")
+    expect = {f"H{i:03d}": min(x, at) for i, x in enumerate(lives)}
+    assert all(look.loc[h, "distance_km"] == pytest.approx(expect[h]) for h in look.index)
+    est = look_estimates(got, ev)
+    last = got[got["look"] == len(ev)]
+    fit = common_shape_fit(last["distance_km"], last["failed"], (last["adjustment"] == "force").astype(int))
+    assert est["log_ratio"].iloc[-1] == pytest.approx(fit.log_ratio)
+    assert abs(est["log_ratio"].iloc[-1] - math.log(ratio)) < 3 * est["se_log_ratio"].iloc[-1]
+    assert est["se_log_ratio"].iloc[-1] < est["se_log_ratio"].iloc[5]     # information grows with failures
+
+
+def test_the_verdict_sticks_and_later_looks_are_still_shown():
+    est = pd.DataFrame({"failures": [2, 3, 4, 5], "log_ratio": [np.nan, 1.0, 0.0, 0.0],
+                        "se_log_ratio": [np.nan, 0.1, 0.5, 0.5]})
+    sv = decide(est, 4, margin=1.25, alpha=0.05, spending="pocock")
+    assert sv.verdict == "force longer" and sv.decided_at == 1
+    assert sv.crossed == ("", "force longer", "", "")
+    assert list(sv.information_fraction) == [0.5, 0.75, 1.0, 1.0]   # the fourth look: no new information
+    assert decide(est.iloc[0:0], 4, 1.25, 0.05, "pocock") is None

@@ -1,0 +1,183 @@
+"""The decision stage: its four tables from hose_life, durability runs and the logbooks; `no plan`; the plan's
+max_failures or the design's; the sticky verdict at its deciding look; re-run only on logbooks, durability runs
+and the plan; --full equal to incremental; the demo rebuild carries the tables."""
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from analyses.hose_life import hose_life
+from analyses.sequential import max_information
+from pipeline.raw.logbook import merge_logbooks, read_logbooks
+from pipeline.raw.plan import Plan
+from pipeline.simulator import simulate_durability
+from pipeline.stages import StageContext
+from pipeline.stages import decision as stage
+from pipeline.stages import durability
+from tests.conftest import query
+
+HEADER = "hose_id,event,at,hose_type,adjustment,z_rollers_mm,spring_force_n,failure_mode,wall_thickness_mm,distance_km,notes\n"
+PLAN = "[defaults]\nmargin = 2.0\n"   # an unset max_failures: designed, cheaply at this margin
+
+
+def settings(present=True, max_failures=20, margin=1.25, spending="pocock"):
+    return {"present": present, "margin": margin, "alpha": 0.05, "power": 0.8, "confidence": 0.9,
+            "max_failures": max_failures, "spending": spending, "plan_from": "defaults"}
+
+
+def odometer_item(ratio=4.0, n=12, seed=3, present=True, max_failures=20):
+    """n hoses per adjustment, one after another on one bench, odometer-only lives (Weibull shape 3)."""
+    rng = np.random.default_rng(seed)
+    hoses, t = [], pd.Timestamp("2026-01-01", tz="UTC")
+    for i in range(n):
+        for adj, scale in (("distance", 20.0), ("force", 20.0 * ratio)):
+            km = float(scale * rng.weibull(3.0))
+            end = t + pd.Timedelta(hours=km)
+            hoses.append({"hose_id": f"{adj[0].upper()}{i:02d}", "adjustment": adj, "distance_km": km,
+                          "status": "failed", "distance_source": "odometer", "installed_at": t, "ended_at": end})
+            t = end
+    plan = Plan(present=present, defaults={"max_failures": max_failures, "spending": "pocock"}).for_hose_type("T")
+    no_runs = pd.DataFrame(columns=["run_id", "hose_id", "started_at", "duration_h", "distance_km"])
+    item = stage.hose_type_item("T", pd.DataFrame(hoses), no_runs, plan)
+    return {**item, "design": [max_failures, "plan", None]}
+
+
+def test_a_clear_ratio_decides_once_and_the_verdict_sticks():
+    res = stage.decide_hose_type(odometer_item())
+    v, looks = res["life_verdict"][0], pd.DataFrame(res["decision_looks"])
+    assert v["verdict"] == "force longer" and v["max_failures"] == 20 and v["max_failures_from"] == "plan"
+    assert looks["decides"].sum() == 1
+    at = looks[looks["decides"]].iloc[0]
+    assert (v["decided_at_look"], v["decided_at"], v["decided_ratio"]) == (at["look"], at["event_at"], at["life_ratio"])
+    assert v["decided_lower"] > 1 and at["crossed"] == "force longer"
+    assert v["looks"] == len(looks) == 24 and v["failures"] == 24 and v["information_fraction"] == 1.0
+    assert v["life_ratio"] == looks["life_ratio"].iloc[-1]
+    late = looks[looks["failures"] > 20]
+    assert not late["decides"].any() and late["note"].str.contains("no new information").all()
+    # the log-scale boundaries are shown as ratios: the RCI is estimate x/ exp(c se)
+    r = looks.dropna(subset=["life_ratio"]).iloc[-1]
+    assert r["rci_upper"] == pytest.approx(r["life_ratio"] * math.exp(r["boundary_z"] * r["se_log_ratio"]))
+    assert stage.effect_of(odometer_item())["life_ratio"] == pytest.approx(4.0, rel=0.35)
+
+
+def test_no_plan_computes_every_number_and_declares_nothing():
+    res = stage.decide_hose_type(odometer_item(present=False))
+    v, looks = res["life_verdict"][0], pd.DataFrame(res["decision_looks"])
+    assert v["verdict"] == "no plan" and "decided_at" not in v and not looks["decides"].any()
+    assert "would have been declared 'force longer'" in v["note"]
+    assert looks["crossed"].eq("force longer").any() and np.isfinite(v["life_ratio"])
+
+
+def test_too_few_failures_give_null_estimates_with_notes():
+    item = odometer_item(n=1)
+    res = stage.decide_hose_type(item)
+    looks = pd.DataFrame(res["decision_looks"])
+    assert looks["life_ratio"].isna().all() and looks["note"].str.startswith("too few failures").all()
+    assert res["life_verdict"][0]["verdict"] == "undecided" and "without an estimate" in res["life_verdict"][0]["note"]
+    effect = stage.effect_of(item)
+    assert math.isnan(effect["life_ratio"]) and effect["note"].startswith("too few failures")
+
+
+def test_max_failures_from_the_design_with_shape_one_when_the_shape_is_null():
+    plan = settings(max_failures=None, margin=2.0, spending="obrien-fleming")
+    ask, note = stage.design_item(plan, math.nan)
+    assert ask["shape"] == 1.0 and "shape 1.0" in note
+    assert stage.design_failures(ask) == max_information(2.0, 0.05, 0.8, "obrien-fleming", 1.0).failures
+    assert stage.design_item(plan, 2.5) == ({"margin": 2.0, "alpha": 0.05, "power": 0.8, "spending": "obrien-fleming",
+                                             "shape": 2.5}, None)
+    assert stage.design_item({**plan, "max_failures": 30}, 2.0) == (None, None)
+
+
+def _logbook_fleet(tmp_path):
+    """Logbook and durability runs of type T (both adjustments, a run outside every installation) and of a
+    type U with force-set hoses only (no row)."""
+    raw = tmp_path / "raw"
+    (raw / "c").mkdir(parents=True)
+    (raw / "c" / "hoses.csv").write_text(HEADER + (
+        "D1,installed,2026-01-01,T,distance,4.5,,,,,\n"
+        "F1,installed,2026-01-01,T,force,,866,,,,\n"
+        "D1,failed,2026-01-03,,,,,rupture,,,\n"
+        "F1,failed,2026-01-05,,,,,rupture,,,\n"
+        "U1,installed,2026-01-01,U,force,,866,,,,\n"))
+    runs = pd.DataFrame({"run_id": ["r1", "r2", "r3", "r4"], "hose_id": ["D1", "F1", "F1", "D1"],
+                         "started_at": pd.to_datetime(["2026-01-01T01:00", "2026-01-01T01:00", "2026-01-04T01:00",
+                                                       "2026-01-04T01:00"], utc=True),
+                         "duration_h": [2.0, 2.0, 2.0, 2.0], "distance_km": [3.0, 3.0, 4.0, 9.0], "strokes": [1, 1, 1, 1]})
+    hoses, _ = merge_logbooks(read_logbooks(raw)[0])
+    life, _ = hose_life(hoses, runs)
+    return StageContext(raw=raw, warehouse=tmp_path, runs=pd.DataFrame(),   # no plan.toml, max_failures given
+                        results={"hose_life": life, "durability_runs": runs}, plan=Plan(defaults={"max_failures": 20}))
+
+
+def test_the_stage_writes_the_contract_tables(tmp_path):
+    ctx = _logbook_fleet(tmp_path)
+    out = stage.run(ctx)
+    assert list(out.tables) == list(stage.WRITES)
+    assert list(out.tables["life_verdict"].columns) == stage.VERDICT_COLUMNS
+    assert list(out.tables["life_effect"]["hose_type"]) == ["T"]               # U has force-set hoses only
+    v = out.tables["life_verdict"].iloc[0]
+    assert v["verdict"] == "no plan" and v["plan_from"] == "built-in" and v["looks"] == 2
+    assert (v["max_failures"], v["information_fraction"]) == (20, 0.1)
+    lh = out.tables["decision_look_hoses"]
+    # r4 started after D1 failed: outside its installation, not counted (the durability stage's matching)
+    assert lh[(lh["look"] == 2) & (lh["hose_id"] == "D1")]["distance_km"].item() == 3.0
+    assert lh[(lh["look"] == 1) & (lh["hose_id"] == "F1")]["distance_km"].item() == 3.0
+    looks = out.tables["decision_looks"]
+    assert list(looks["hose_id"]) == ["D1", "F1"] and looks["event_at"].dt.tz is not None
+
+
+def _durability_csv(raw, rel, hose, started):
+    sim = simulate_durability(hose_id=hose, distance_m=5.0, rng=1, stroke_m=0.1, dwell_s=0.05, fs_hz=200.0)
+    cols = {"t[s]": sim.data["t_s"].tolist(), "x[mm]": (sim.data["x_m"] * 1e3).round(3).tolist(),
+            "p_a[Pa]": sim.data["p_a_pa"].tolist(), "p_b[Pa]": sim.data["p_b_pa"].tolist()}
+    raw.csv(rel, {"kind": "durability", "rig": "plpa-1", "hose_id": hose, "started_at": started}, cols)
+
+
+def test_reruns_only_on_logbooks_durability_runs_and_plan_and_full_equals_incremental(raw, warehouse, monkeypatch):
+    from pipeline import stages as registry
+    from pipeline.rebuild.flow import rebuild
+
+    monkeypatch.setattr(registry, "discover", lambda: [durability, stage])
+    logbook = HEADER + ("D1,installed,2026-01-01,T,distance,4.5,,,,,\nF1,installed,2026-01-01,T,force,,866,,,,\n"
+                        "D1,failed,2026-01-03,,,,,rupture,,,\n")
+    raw.write("c/hoses.csv", logbook)
+    _durability_csv(raw, "c/d1.csv", "D1", "2026-01-01T08:00:00")
+    _durability_csv(raw, "c/f1.csv", "F1", "2026-01-01T09:00:00")
+    raw.write("plan.toml", PLAN)
+    ran = lambda: rebuild(raw.root, warehouse, jobs=1, report=False)  # noqa: E731
+    assert "decision" in ran().stages_run
+    raw.csv("c/leak.csv", {"kind": "leakage", "rig": "plpa-1", "hose_id": "F1", "chamber": "A", "adjustment": "force", "spring_force_n": 866, "started_at": "2026-01-02T08:00:00"},
+            {"t[s]": [0.0, 1.0, 2.0], "p_supply[bar]": [0.0, 1.0, 1.0], "q_leak[l/min]": [0.0, 0.1, 0.1]})
+    assert "decision" in ran().stages_reused                                       # a leakage run
+    assert query(warehouse, "SELECT kind FROM runs WHERE run_id = 'c/leak'") == [("leakage",)]
+    assert query(warehouse, "SELECT max_failures_from FROM life_verdict") == [("design",)]
+    raw.write("plan.toml", PLAN + "max_failures = 20\nspending = \"pocock\"\n")
+    assert "decision" in ran().stages_run                                          # the plan
+    assert query(warehouse, "SELECT verdict, max_failures, max_failures_from, spending FROM life_verdict") == [
+        ("undecided", 20, "plan", "pocock")]
+    raw.write("c/hoses.csv", logbook + "F1,failed,2026-01-04,,,,,rupture,,,\n")
+    assert "decision" in ran().stages_run                                          # the logbook
+    _durability_csv(raw, "c/f2.csv", "F1", "2026-01-02T09:00:00")
+    assert "decision" in ran().stages_run                                          # a durability run
+    tables = ("life_effect", "life_verdict", "decision_looks", "decision_look_hoses")
+    before = {t: query(warehouse, f"SELECT * FROM {t} ORDER BY ALL") for t in tables}
+    assert before["decision_look_hoses"] and len(before["decision_looks"]) == 2
+    assert "decision" in rebuild(raw.root, warehouse, jobs=1, report=False, full=True).stages_run
+    assert {t: query(warehouse, f"SELECT * FROM {t} ORDER BY ALL") for t in tables} == before
+
+
+def test_the_demo_rebuild_fills_the_decision_tables(demo):
+    wh = demo["warehouse"]
+    life = query(wh, "SELECT hose_type, count(*) FILTER (WHERE status = 'failed' AND distance_km > 0) FROM hose_life "
+                     "GROUP BY hose_type ORDER BY hose_type")
+    assert [t for (t,) in query(wh, "SELECT hose_type FROM life_effect ORDER BY hose_type")] == [t for t, _ in life]
+    looks = dict(query(wh, "SELECT hose_type, max(look) FROM decision_looks GROUP BY hose_type"))
+    assert looks == {t: n for t, n in life if n}
+    for (t, verdict, failures, n_looks) in query(wh, "SELECT hose_type, verdict, failures, looks FROM life_verdict"):
+        assert failures == n_looks == looks.get(t, 0) and verdict in ("no plan", "undecided", "force longer",
+                                                                      "distance longer", "no practical difference")
+    assert query(wh, "SELECT count(*) FROM decision_look_hoses WHERE distance_km < 0 OR distance_km IS NULL") == [(0,)]
+    # an absent text is NULL, never the text 'nan'
+    assert query(wh, "SELECT count(*) FROM life_effect WHERE 'nan' IN (model, note)") == [(0,)]
+    assert query(wh, "SELECT count(*) FROM decision_looks WHERE 'nan' IN (crossed, note)") == [(0,)]
