@@ -65,6 +65,13 @@ SPENDING = ("obrien-fleming", "pocock")
 VERDICTS = ("force longer", "distance longer", "no practical difference", "undecided")
 _NO_BOUNDARY = 40.0   # z: a look that may spend (almost) nothing gets this, i.e. cannot cross
 _TAIL = 9.0           # the density grid is cut this many sds from the drift's mean: 1e-19 lost
+#: Looks beyond which a design's inflation factor ``R`` is taken as that of this many looks: ``R``
+#: grows with the looks towards the continuous-monitoring limit, and from 80 to 160 equally
+#: spaced looks it grows by 0.16 % (O'Brien-Fleming-type, 1.0717 -> 1.0734) and 0.21 % (Pocock-
+#: type, 1.2818 -> 1.2845) at alpha 0.05, power 0.8; the exact recursion's cost grows as the
+#: looks squared (2.8 s at 160 looks), and a design for a shape near 1 and a margin near 1 asks
+#: for hundreds of failures, each a look.
+DESIGN_LOOKS = 100
 
 
 def alpha_spent(t, alpha: float = 0.05, spending: str = "obrien-fleming") -> np.ndarray:
@@ -292,7 +299,8 @@ def max_information(margin: float, alpha: float = 0.05, power: float = 0.8,
         ``shape^2 / 4``.
     looks : int, optional
         Equally spaced looks; None (default) means a look at every failure, found as the fixed
-        point ``looks = failures``.
+        point ``looks = failures``. Above :data:`DESIGN_LOOKS` looks ``R`` is that of
+        :data:`DESIGN_LOOKS` looks (within 0.3 % of the exact value, slightly below it).
 
     Returns
     -------
@@ -304,7 +312,7 @@ def max_information(margin: float, alpha: float = 0.05, power: float = 0.8,
     fixed = 4.0 * (stats.norm.isf(alpha / 2) + stats.norm.ppf(power)) ** 2 / (shape * math.log(margin)) ** 2
     k = looks or max(1, math.ceil(fixed))
     for _ in range(20):
-        r, drift = inflation_factor(k, alpha, power, spending)
+        r, drift = inflation_factor(min(k, DESIGN_LOOKS), alpha, power, spending)
         failures = math.ceil(r * fixed - 1e-9)
         if looks or failures == k:
             break

@@ -152,3 +152,14 @@ def test_looks_without_an_estimate_or_new_information_do_not_decide():
 def test_calibration_benchmark_quick_passes():
     from benchmarks.bench_sequential import main
     assert main(["--quick"]) == 0
+
+
+def test_many_looks_design_uses_the_capped_inflation_within_its_stated_error():
+    """A design past DESIGN_LOOKS looks takes R of DESIGN_LOOKS looks: below the exact R of more
+    looks, by less than the 0.3 % the constant's comment states."""
+    from analyses.sequential import DESIGN_LOOKS, inflation_factor, max_information
+    exact, _ = inflation_factor(2 * DESIGN_LOOKS, 0.05, 0.8, "pocock")
+    mi = max_information(1.25, 0.05, 0.8, "pocock", shape=1.0)   # ~800 failures: far past the cap
+    assert mi.looks > DESIGN_LOOKS
+    assert mi.inflation <= exact < mi.inflation * 1.003
+    assert mi.failures == math.ceil(mi.inflation * mi.failures_fixed - 1e-9)
