@@ -5,6 +5,8 @@ One command::
 
     python -m benchmarks versions                                  # --ref main~1, 10,000 runs
     python -m benchmarks.bench_versions --ref 8789976 --runs 1000  # a quick look
+    python -m benchmarks.bench_versions --ref c5101b4 --raw /tmp/demo/raw \
+        --victim durability-2025/hoses.csv                         # what a feature adds to the demo
 
 The reference version is exported with ``git archive`` (as :mod:`benchmarks.same_behaviour`
 does) and run with this interpreter and these libraries, so only the code differs. The campaign
@@ -76,11 +78,15 @@ def _age_to(raw: Path, when: float) -> None:
             os.utime(p, (when, when))
 
 
-def run(ref: str, runs: int, repeat: int, seed: int) -> dict:
-    raw = make_campaign(DATA / f"scale-{runs}", runs, seed)
+def run(ref: str, runs: int, repeat: int, seed: int, raw_given: Path | None = None, victim_rel: str | None = None) -> dict:
+    work = Path(tempfile.mkdtemp(prefix="pneubench-versions-"))
+    if raw_given is not None:  # a copy: the benchmark edits a file and sets mtimes
+        raw = work / "raw"
+        shutil.copytree(raw_given, raw, symlinks=True)
+    else:
+        raw = make_campaign(DATA / f"scale-{runs}", runs, seed)
     past = time.time() - 3600  # a night's files, an hour old
     _age_to(raw, past)
-    work = Path(tempfile.mkdtemp(prefix="pneubench-versions-"))
     try:
         trees = {"before": export(ref, work / "before"), "after": ROOT}
         wh = {name: work / f"warehouse-{name}" for name in trees}
@@ -93,7 +99,8 @@ def run(ref: str, runs: int, repeat: int, seed: int) -> dict:
         for name, tree in trees.items():
             add(name, "full", _timed(tree, *rebuild[name]))
             print(f"  {name}: full rebuild {times[name]['full'][0]:.1f} s", flush=True)
-        victim = next(p for p in sorted(raw.rglob("*.csv")) if p.name not in ("manifest.csv", "hoses.csv"))
+        victim = (raw / victim_rel if victim_rel else
+                  next(p for p in sorted(raw.rglob("*.csv")) if p.name not in ("manifest.csv", "hoses.csv")))
         original = victim.read_bytes()
         query = {name: ["query", "--warehouse", str(wh[name]), "--format", "csv"] for name in trees}
         run_id = measure([*command(ROOT), *query["after"], "SELECT min(run_id) FROM runs WHERE samples_path IS NOT NULL"],
@@ -128,12 +135,17 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument("--tolerance", type=float, default=0.15)
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--raw", type=Path, default=None,
+                    help="time on a copy of this raw tree (e.g. the demo's) instead of the scale campaign")
+    ap.add_argument("--victim", default=None,
+                    help="the file (relative to raw/) that 'one file' changes; default the first run CSV")
     args = ap.parse_args(argv)
     rev = subprocess.run(["git", "rev-parse", "--short", args.ref], cwd=ROOT, capture_output=True, text=True).stdout.strip()
-    print(f"before: {args.ref} ({rev}); after: this checkout; {args.runs} runs, {os.cpu_count()} cores; "
+    what_raw = f"raw tree {args.raw}" if args.raw else f"{args.runs} runs"
+    print(f"before: {args.ref} ({rev}); after: this checkout; {what_raw}, {os.cpu_count()} cores; "
           f"load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}", flush=True)
-    med = run(args.ref, args.runs, args.repeat, args.seed)
-    print(f"\n| command ({args.runs:,} runs) | before [s] | after [s] | after / before |")
+    med = run(args.ref, args.runs, args.repeat, args.seed, args.raw, args.victim)
+    print(f"\n| command ({args.raw.name if args.raw else f'{args.runs:,} runs'}) | before [s] | after [s] | after / before |")
     print("|---|---|---|---|")
     slower = []
     for what in med["before"]:
