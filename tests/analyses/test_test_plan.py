@@ -149,3 +149,10 @@ def test_decision_date_by_hand():
     assert str(decision_date(t0, 1000.0, 2, 50.0)) == "2026-03-11"
     assert decision_date(t0, float("nan"), 2, 50.0) is None
     assert decision_date(t0, 1000.0, None, 50.0) is None
+
+
+def test_benchmark_power_now_agrees_with_full_refits_quick(capsys):
+    """The benchmark's second part, quick: power_now's approximation against refits at every failure."""
+    from benchmarks.bench_test_plan import check_power_now
+    assert check_power_now(quick=True)
+    assert "full refit at every future failure" in capsys.readouterr().out
