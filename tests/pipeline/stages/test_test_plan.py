@@ -155,3 +155,8 @@ def test_latest_event_is_the_data_not_the_clock():
     last_run_end = T0 - pd.Timedelta(days=1) + pd.Timedelta(hours=12)
     assert stage.latest_event(None, res["durability_runs"]) == last_run_end
     assert stage.latest_event(None, None) is None
+
+
+def test_no_hoses_gives_an_empty_table_with_the_contracts_columns():
+    out = table({"hose_life": frames()["hose_life"].iloc[:0]}, Plan())
+    assert out.empty and list(out.columns) == stage.COLUMNS
