@@ -1,0 +1,375 @@
+"""The test plan: the chance the running test decides, and what more it takes to decide.
+
+One hose type's durability test is read by a group-sequential design (:mod:`analyses.sequential`):
+a look at every failure, information fraction ``t = failures / max_failures``, Lan-DeMets
+boundaries. This module answers, from the current censored state (failed hoses, running hoses at
+their current distance, removed hoses) and the fitted common-shape Weibull
+(:func:`analyses.life_effect.common_shape_fit`):
+
+* ``power_now`` (:func:`power_now`): the probability that the test DECIDES (any of
+  ``force longer``, ``distance longer``, ``no practical difference``) if no hose is added and the
+  running hoses run on until ``max_failures``, given the fitted effect. This is the conditional
+  power of Jennison & Turnbull (2000, ch. 10) evaluated at the current estimate, with the
+  futility side counted as a decision too: at a fitted ratio near 1 the useful decision is
+  ``no practical difference``, and a reader asks "will this test tell me something", not "will it
+  show force longer". It is not the design's power (that is ``target_power`` at the margin): it
+  moves with the estimate, and a test whose estimate sits between 1 and the margin may have low
+  power now although it was designed well.
+* ``more_hoses_per_adjustment`` and ``more_km`` (:func:`more_testing`): the fewest hoses to add
+  per adjustment (equal allocation, new hoses from the fitted model, running hoses continuing)
+  for ``failures_needed`` failures to be reachable, and the expected hose-kilometres of bench
+  testing until the ``failures_needed``-th failure (each hose accumulates km until it fails or
+  that failure is reached). The fewest hoses means every added hose may have to run to failure:
+  adding more shortens the kilometres of elapsed testing but costs hoses; the table gives the
+  fewest and the km it takes. The sequential test may stop earlier (that is its point): these
+  are the km to the maximum.
+* ``expected_decision_date`` (:func:`decision_date`) and the bench capacity measured from the
+  durability runs when the plan does not state it (:func:`measured_capacity`).
+
+Simulation: the canonical joint distribution (J&T 2000, sections 3.1 and 11.5)
+-----------------------------------------------------------------------------
+Refitting the Weibull regression at every simulated failure of every replicate costs ~1 ms a fit,
+so 4,000 replicates of 100 looks for 200 hose types would take hours. Instead each replicate
+draws the remaining life of every running hose from the fitted Weibull conditional on its current
+distance (``x_i = scale_g ((c_i / scale_g)^k + E)^(1/k)``, ``E ~ Exp(1)``, Meeker & Escobar 1998,
+section 4.6), orders the failures by the km still to run (the running hoses accumulate km at one
+rate: they share the benches), and counts failures per adjustment. The information on the log
+ratio at a look is the common-shape Weibull's Fisher information with the shape known,
+``I = k^2 / (1 / d_force + 1 / d_distance)`` (each adjustment's log scale has information
+``k^2 d_g`` under any right censoring; Meeker & Escobar 1998, section 17.3). The score
+``S = theta_hat I`` starts at the current estimate and information and has independent Gaussian
+increments with mean ``theta_hat dI`` and variance ``dI``; ``Z = S / sqrt(I)`` at each look is
+compared with the design's boundaries (the same ``efficacy_boundaries`` at ``t = d / max_failures``
+that :func:`analyses.sequential.sequential_verdict` uses). ``benchmarks/bench_test_plan.py``
+checks this against full refits at every failure.
+
+Replicates are seeded by the caller (the stage derives the seed from a hash of the data and the
+plan): the same data give the same figures. ``mc_se = sqrt(p (1 - p) / n)``.
+
+References
+----------
+Jennison, C. & Turnbull, B. W. (2000). Group Sequential Methods with Applications to Clinical
+Trials. Chapman & Hall/CRC (ch. 3, 7, 10, 11.5).
+Lan, K. K. G. & DeMets, D. L. (1983). Discrete sequential boundaries for clinical trials.
+Biometrika 70, 659-663.
+Meeker, W. Q. & Escobar, L. A. (1998). Statistical Methods for Reliability Data. Wiley.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from analyses.life_effect import CommonShapeFit
+
+#: The second target power of the test plan (the plan's own power is the first) [-].
+TARGET_POWER = 0.9
+
+#: Replicates of each Monte Carlo figure: mc_se of a power at most 0.008 [-].
+N_SIMULATIONS = 4000
+
+#: Days of durability runs the bench capacity is measured from, before the latest event [d].
+CAPACITY_DAYS = 30
+
+
+def target_powers(plan_power: float) -> tuple[float, ...]:
+    """The target powers of the plan's rows: the plan's own, and :data:`TARGET_POWER`.
+
+    Parameters
+    ----------
+    plan_power : float
+        The plan's power [-].
+
+    Returns
+    -------
+    tuple of float
+        ``(plan_power, 0.9)``, or ``(plan_power,)`` when they are equal [-].
+    """
+    return (plan_power,) if math.isclose(plan_power, TARGET_POWER) else (plan_power, TARGET_POWER)
+
+
+@dataclass(frozen=True)
+class HoseState:
+    """The current censored state of one hose type's test.
+
+    Attributes
+    ----------
+    distance : numpy.ndarray
+        Each hose's distance so far [km] (its life when failed).
+    failed : numpy.ndarray of bool
+        Whether it failed.
+    running : numpy.ndarray of bool
+        Whether it is still on test (continues from ``distance``); removed hoses are neither.
+    group : numpy.ndarray of int
+        0 distance-set, 1 force-set.
+    """
+
+    distance: np.ndarray
+    failed: np.ndarray
+    running: np.ndarray
+    group: np.ndarray
+
+    @property
+    def failures(self) -> tuple[int, int]:
+        """Failures so far of (distance, force) [-]."""
+        return int((self.failed & (self.group == 0)).sum()), int((self.failed & (self.group == 1)).sum())
+
+
+def information(d_distance, d_force, shape: float) -> np.ndarray:
+    """Fisher information on the log life ratio from failure counts, shape known [-].
+
+    Parameters
+    ----------
+    d_distance, d_force : array_like
+        Failures of each adjustment [-].
+    shape : float
+        Common Weibull shape [-].
+
+    Returns
+    -------
+    numpy.ndarray
+        ``shape^2 / (1 / d_distance + 1 / d_force)`` [-]; 0 where an adjustment has no failure.
+    """
+    dd, df = np.asarray(d_distance, float), np.asarray(d_force, float)
+    with np.errstate(divide="ignore"):
+        return np.where((dd > 0) & (df > 0), shape ** 2 / (1.0 / dd + 1.0 / df), 0.0)
+
+
+def remaining_km(rng: np.random.Generator, distance, group, fit: CommonShapeFit, n: int) -> np.ndarray:
+    """Km each hose still runs before it fails, drawn from the fitted Weibull given its distance.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+    distance : array_like
+        Current distance of each hose [km] (0 for a new hose).
+    group : array_like of int
+        0 distance-set, 1 force-set.
+    fit : CommonShapeFit
+        The fitted common-shape Weibull (its shape and two scales [km]).
+    n : int
+        Replicates.
+
+    Returns
+    -------
+    numpy.ndarray, shape (n, hoses)
+        Remaining km [km], conditional on survival to ``distance``.
+    """
+    c = np.asarray(distance, float)
+    scale = np.where(np.asarray(group) == 1, fit.scale_force, fit.scale_distance)
+    e = rng.standard_exponential((n, c.size))
+    return scale * ((c / scale) ** fit.shape + e) ** (1.0 / fit.shape) - c
+
+
+def _decides(est, info, c, log_margin: float):
+    """Whether a look decides: efficacy ``|Z| >= c`` or the RCI inside ``(-ln m, ln m)``."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        se = 1.0 / np.sqrt(info)
+        half = c * se
+        return (info > 0) & ((np.abs(est) > half) | (np.abs(est) + half < log_margin))
+
+
+@dataclass(frozen=True)
+class PowerNow:
+    """The chance the running test decides (:func:`power_now`).
+
+    Attributes
+    ----------
+    power : float
+        Probability of a decision by ``max_failures`` [-]; NaN when it cannot be told.
+    mc_se : float
+        Its Monte Carlo standard error [-] (0 when no simulation was needed).
+    n_simulations : int
+        Replicates [-].
+    note : str or None
+        One line on what was assumed or why ``power`` is NaN.
+    """
+
+    power: float
+    mc_se: float
+    n_simulations: int
+    note: str | None = None
+
+
+def power_now(state: HoseState, fit: CommonShapeFit, boundaries, margin: float, n_simulations: int = N_SIMULATIONS,
+              seed: int = 0) -> PowerNow:
+    """Probability that the test decides if no hose is added and it runs to ``max_failures``.
+
+    Parameters
+    ----------
+    state : HoseState
+        The current censored state.
+    fit : CommonShapeFit
+        The common-shape Weibull fitted to ``state`` (NaN: no power, noted).
+    boundaries : array_like
+        The design's efficacy boundaries on the z scale [-], one per failure up to the test's
+        ``max_failures`` (its length): :func:`analyses.sequential.efficacy_boundaries` at
+        ``t = (1..max_failures) / max_failures``.
+    margin : float
+        The design's margin (life ratio, > 1) [-].
+    n_simulations : int
+        Replicates [-].
+    seed : int
+        Seed of the replicates (derive it from the data for determinism).
+
+    Returns
+    -------
+    PowerNow
+        Module docstring: "decides" counts all three verdicts, at the fitted effect.
+    """
+    if fit.note or not np.isfinite(fit.se_log_ratio):
+        return PowerNow(math.nan, math.nan, 0, f"no fitted model: {fit.note or 'no standard error'}")
+    d0d, d0f = state.failures
+    d0 = d0d + d0f
+    c = np.asarray(boundaries, float)
+    max_failures = c.size
+    lm = math.log(max(margin, 1.0 / margin))
+    if d0 >= 1 and d0 <= max_failures and _decides(fit.log_ratio, fit.se_log_ratio ** -2, c[d0 - 1], lm):
+        return PowerNow(1.0, 0.0, 0, "the current look decides")
+    run = np.flatnonzero(state.running)
+    looks = min(max_failures - d0, run.size)
+    if looks <= 0:
+        why = "max_failures reached" if d0 >= max_failures else "no running hose"
+        return PowerNow(0.0, 0.0, 0, f"{why}: no look is left and the test has not decided")
+    rng = np.random.default_rng(seed)
+    left = remaining_km(rng, state.distance[run], state.group[run], fit, n_simulations)
+    order = np.argsort(left, axis=1, kind="stable")[:, :looks]
+    force = state.group[run][order] == 1
+    info = information(d0d + np.cumsum(~force, axis=1), d0f + np.cumsum(force, axis=1), fit.shape)
+    info_now = float(information(d0d, d0f, fit.shape))
+    step = np.diff(np.concatenate([np.full((n_simulations, 1), info_now), info], axis=1), axis=1)
+    score = fit.log_ratio * info_now + np.cumsum(fit.log_ratio * step + np.sqrt(step) * rng.standard_normal(step.shape),
+                                                 axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        est = score / info
+    p = float(_decides(est, info, c[d0:d0 + looks], lm).any(axis=1).mean())
+    note = None if looks == max_failures - d0 else (
+        f"only {run.size} running hose(s): the test can reach {d0 + run.size} of {max_failures} failures")
+    return PowerNow(p, math.sqrt(p * (1.0 - p) / n_simulations), n_simulations, note)
+
+
+@dataclass(frozen=True)
+class MoreTesting:
+    """What it takes to reach ``failures_needed`` (:func:`more_testing`).
+
+    Attributes
+    ----------
+    hoses_per_adjustment : int
+        Hoses to add to each adjustment [-].
+    km : float
+        Expected hose-kilometres of testing still to run [km]; NaN without a fitted model.
+    note : str or None
+        One line on why ``km`` is NaN or what was assumed.
+    """
+
+    hoses_per_adjustment: int
+    km: float
+    note: str | None = None
+
+
+def more_testing(state: HoseState, fit: CommonShapeFit, failures_needed: int,
+                 n_simulations: int = N_SIMULATIONS, seed: int = 0) -> MoreTesting:
+    """The fewest hoses to add per adjustment, and the expected km, to reach ``failures_needed``.
+
+    Parameters
+    ----------
+    state : HoseState
+        The current censored state (running hoses continue from their distance).
+    fit : CommonShapeFit
+        The fitted common-shape Weibull (new hoses' lives and the running ones' remaining lives).
+    failures_needed : int
+        Failures (both adjustments) the design needs [-].
+    n_simulations : int
+        Replicates of the expected km [-].
+    seed : int
+        Seed of the replicates.
+
+    Returns
+    -------
+    MoreTesting
+        ``km`` is the mean over replicates of ``sum_i min(remaining_i, L)``, ``L`` the remaining
+        km of the hose whose failure is the ``failures_needed``-th: every hose (running and
+        added) runs until it fails or the test reaches its maximum.
+    """
+    d0 = sum(state.failures)
+    left = failures_needed - d0
+    if left <= 0:
+        return MoreTesting(0, 0.0, "failures_needed already reached")
+    run = np.flatnonzero(state.running)
+    add = max(0, math.ceil((left - run.size) / 2))
+    if fit.note or not np.isfinite(fit.shape):
+        return MoreTesting(add, math.nan, f"km not estimated, no fitted model: {fit.note}")
+    distance = np.concatenate([state.distance[run], np.zeros(2 * add)])
+    group = np.concatenate([state.group[run], np.repeat([0, 1], add)])
+    rng = np.random.default_rng(seed)
+    remaining = remaining_km(rng, distance, group, fit, n_simulations)
+    last = np.partition(remaining, left - 1, axis=1)[:, left - 1:left]
+    km = np.minimum(remaining, last).sum(axis=1)
+    return MoreTesting(add, float(km.mean()))
+
+
+def measured_capacity(runs: pd.DataFrame, today: pd.Timestamp,
+                      days: int = CAPACITY_DAYS) -> tuple[int | None, float | None, str | None]:
+    """Bench capacity measured from the durability runs of the last ``days`` days.
+
+    Parameters
+    ----------
+    runs : pandas.DataFrame
+        ``started_at`` (UTC timestamps), ``duration_h`` [h] and ``distance_km`` [km] per run.
+    today : pandas.Timestamp
+        The end of the window (the latest event in the data, for determinism).
+    days : int
+        Length of the window [d].
+
+    Returns
+    -------
+    (int or None, float or None, str or None)
+        ``benches``: most runs overlapping in time within the window [-]; ``km_per_day``: the
+        window's km divided by its length (``days``, or the time since the first run when the
+        data are younger) and by ``benches`` [km/d]; and a note when it cannot be measured
+        (both None).
+    """
+    if runs is None or len(runs) == 0:
+        return None, None, "no durability runs to measure the bench capacity from"
+    start = pd.to_datetime(runs["started_at"], utc=True)
+    km = pd.to_numeric(runs["distance_km"], errors="coerce")
+    hours = pd.to_numeric(runs["duration_h"], errors="coerce").fillna(0.0)
+    end = start + pd.to_timedelta(hours, unit="h")
+    since = today - pd.Timedelta(days=days)
+    inside = (start >= since) & (start <= today) & (km > 0)
+    span_d = min(float(days), (today - start.min()).total_seconds() / 86400.0)
+    if not inside.any() or not span_d > 0:
+        return None, None, f"no durability run with a distance in the last {days} days: capacity not measured"
+    edges = sorted([(t, 1) for t in start[inside]] + [(t, -1) for t in end[inside]], key=lambda e: (e[0], e[1]))
+    benches = max(1, int(np.max(np.cumsum([e[1] for e in edges]))))
+    return benches, float(km[inside].sum()) / span_d / benches, None
+
+
+def decision_date(today: pd.Timestamp, more_km: float, benches, km_per_day):
+    """The date the remaining km are run at the bench capacity.
+
+    Parameters
+    ----------
+    today : pandas.Timestamp
+        The latest event in the data.
+    more_km : float
+        Hose-kilometres still to run [km].
+    benches : int or None
+        Benches running at once [-].
+    km_per_day : float or None
+        Kilometres a bench runs a day [km/d].
+
+    Returns
+    -------
+    datetime.date or None
+        ``today + more_km / (benches * km_per_day)`` days; None when any input is missing.
+    """
+    if benches is None or km_per_day is None or not np.isfinite(more_km) or not benches * km_per_day > 0:
+        return None
+    return (today + pd.Timedelta(days=more_km / (benches * km_per_day))).date()
+
+
+__all__ = ["TARGET_POWER", "N_SIMULATIONS", "CAPACITY_DAYS", "HoseState", "PowerNow", "MoreTesting", "target_powers",
+           "information", "remaining_km", "power_now", "more_testing", "measured_capacity", "decision_date"]

@@ -1,0 +1,161 @@
+"""The test plan checked by brute force (issue 23): failures_needed and power_now against full refits.
+
+One command::
+
+    python -m benchmarks.bench_test_plan            # 4 designs, 500 trials each; power_now case
+    python -m benchmarks.bench_test_plan --quick    # 1 design, 150 trials; a smaller power_now case
+
+1. ``failures_needed`` (:func:`analyses.sequential.max_information`, the design's maximum in
+   failures) against the smallest ``max_failures`` that reaches the target power when the design
+   is simulated in full: per trial ``n`` force-set and ``n`` distance-set hoses start together,
+   Weibull lives with the design's common shape and a true force / distance life ratio equal to
+   the margin; at EVERY failure the common-shape Weibull is refitted
+   (:func:`analyses.life_effect.common_shape_fit`, censoring the running hoses at the current
+   distance) and the design read (:func:`analyses.sequential.sequential_verdict`, ``t = d / M``).
+   Power = share of trials declaring ``force longer``. The same trials (common random numbers)
+   serve every ``M`` of a grid around ``failures_needed``; the smallest ``M`` whose power reaches
+   the target is compared with ``failures_needed``: PASS within 10 % (the issue's target).
+2. ``power_now`` (:func:`analyses.test_plan.power_now`, failure counts and the canonical
+   z-process) against a full-refit simulation of the same future for one hose type's current
+   state: the remaining lives drawn from the same fitted model, the Weibull refitted at every
+   future failure, the same boundaries and decision rule. PASS when the two agree within three
+   combined Monte Carlo standard errors.
+
+Seeded (``numpy.random.default_rng(2300 + design)``): the same numbers every run.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+
+import numpy as np
+
+from analyses.life_effect import common_shape_fit
+from analyses.sequential import efficacy_boundaries, max_information, sequential_verdict
+from analyses.test_plan import HoseState, power_now, remaining_km
+
+#: (margin, shape, alpha, power, spending)
+DESIGNS = [(1.5, 2.0, 0.05, 0.8, "obrien-fleming"), (1.5, 2.0, 0.05, 0.8, "pocock"),
+           (2.0, 1.5, 0.05, 0.9, "obrien-fleming"), (1.75, 3.0, 0.10, 0.8, "obrien-fleming")]
+GRID = (0.8, 0.85, 0.9, 0.95, 1.0, 1.05, 1.1, 1.15, 1.2, 1.3)
+TOLERANCE = 0.10
+
+
+def refit_path(rng, margin: float, shape: float, n: int, looks: int):
+    """(log_ratio, se, adjustment) refitted at each of the first ``looks`` failures of one trial
+    (adjustment 1 where the failure is a force-set hose's)."""
+    group = np.repeat([0, 1], n)
+    life = np.where(group == 1, margin, 1.0) * rng.weibull(shape, 2 * n)
+    order = np.argsort(life)
+    est, se = np.full(looks, np.nan), np.full(looks, np.nan)
+    for j in range(looks):
+        now = life[order[j]]
+        fit = common_shape_fit(np.minimum(life, now), life <= now, group)
+        if fit.note is None:
+            est[j], se[j] = fit.log_ratio, fit.se_log_ratio
+    return est, se, group[order[:looks]]
+
+
+def brute_force(design, trials: int, seed: int) -> tuple[int, int | None, dict, float]:
+    """(failures_needed, the smallest M of the grid reaching the power, power per M, the force-set
+    share of the first failures_needed failures: the design's failures-to-information conversion
+    assumes 1/2)."""
+    margin, shape, alpha, power, spending = design
+    needed = max_information(margin, alpha, power, spending, shape).failures
+    grid = sorted({max(4, round(needed * f)) for f in GRID})
+    rng = np.random.default_rng(seed)
+    paths = [refit_path(rng, margin, shape, grid[-1], grid[-1]) for _ in range(trials)]
+    powers = {}
+    for m in grid:
+        t = np.arange(1, m + 1) / m
+        wins = sum(sequential_verdict(e[:m], s[:m], t, margin, alpha, spending).verdict == "force longer"
+                   for e, s, _ in paths)
+        powers[m] = wins / trials
+    smallest = next((m for m in grid if powers[m] >= power), None)
+    share = float(np.mean([g[:needed].mean() for _, _, g in paths]))
+    return needed, smallest, powers, share
+
+
+def _current_state(rng, margin: float, shape: float, n: int, failures: int):
+    """A hose type part way through its test: ``n`` hoses per adjustment, stopped at ``failures``."""
+    group = np.repeat([0, 1], n)
+    life = np.where(group == 1, margin, 1.0) * 1000.0 * rng.weibull(shape, 2 * n)
+    now = np.sort(life)[failures - 1]
+    failed = life <= now
+    return HoseState(np.minimum(life, now), failed, ~failed, group)
+
+
+def refit_power(rng, st: HoseState, fit, bounds, margin: float, trials: int) -> float:
+    """power_now by full refits: the same future, the Weibull refitted at every future failure."""
+    lm, d0 = math.log(margin), int(st.failed.sum())
+    run = np.flatnonzero(st.running)
+    looks = min(len(bounds) - d0, run.size)
+    left = remaining_km(rng, st.distance[run], st.group[run], fit, trials)
+    decided = 0
+    for row in left:
+        order = np.argsort(row)
+        for j in range(looks):
+            elapsed = row[order[j]]
+            x = st.distance.copy()
+            x[run] = st.distance[run] + np.minimum(row, elapsed)
+            failed = st.failed.copy()
+            failed[run] = row <= elapsed
+            f = common_shape_fit(x, failed, st.group)
+            if f.note is not None or not np.isfinite(f.se_log_ratio):
+                continue
+            half = bounds[d0 + j] * f.se_log_ratio
+            if abs(f.log_ratio) > half or abs(f.log_ratio) + half < lm:
+                decided += 1
+                break
+    return decided / trials
+
+
+def check_power_now(quick: bool) -> bool:
+    """Part 2: one hose type's power_now, MC approximation against full refits."""
+    margin, shape, alpha, power, spending = DESIGNS[0]
+    m = max_information(margin, alpha, power, spending, shape).failures
+    n, d0, trials = (20, 10, 100) if quick else (m, 16, 400)
+    rng = np.random.default_rng(2399)
+    st = _current_state(rng, margin, shape, n, d0)
+    fit = common_shape_fit(st.distance, st.failed, st.group)
+    bounds = efficacy_boundaries(np.arange(1, m + 1) / m, alpha, spending)
+    approx = power_now(st, fit, bounds, margin, 4000, seed=2398)
+    full = refit_power(rng, st, fit, bounds, margin, trials)
+    se = math.sqrt(approx.mc_se ** 2 + full * (1 - full) / trials)
+    ok = abs(approx.power - full) <= 3 * se
+    print(f"\npower_now, one hose type: {n} hoses per adjustment, {d0} failures so far, max_failures {m}, "
+          f"fitted ratio {math.exp(fit.log_ratio):.2f}, shape {fit.shape:.2f}")
+    print(f"  MC (counts + canonical z-process, {approx.n_simulations}): {approx.power:.3f} +/- {approx.mc_se:.3f}")
+    print(f"  full refit at every future failure ({trials}):       {full:.3f} +/- "
+          f"{math.sqrt(full * (1 - full) / trials):.3f}")
+    print(f"  difference {approx.power - full:+.3f} (3 combined MC SE {3 * se:.3f}): {'PASS' if ok else 'MISS'}")
+    return ok
+
+
+def main(argv=None) -> int:
+    args = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    args.add_argument("--quick", action="store_true", help="one design, fewer trials (a few seconds)")
+    quick = args.parse_args(argv).quick
+    designs, trials = (DESIGNS[3:], 150) if quick else (DESIGNS, 500)
+    t0 = time.monotonic()
+    ok = True
+    print(f"failures_needed against brute force ({trials} trials a design, a full refit at every failure):")
+    print(f"{'margin':>6} {'shape':>5} {'alpha':>5} {'power':>5} {'spending':>14} {'needed':>6} {'brute':>5} "
+          f"{'diff':>6} {'force':>5}  power at each M (force: share of force-set failures, the design assumes 0.5)")
+    for i, design in enumerate(designs):
+        needed, smallest, powers, share = brute_force(design, trials, 2300 + i)
+        good = smallest is not None and abs(needed - smallest) <= TOLERANCE * smallest
+        ok &= good
+        diff = f"{(needed - smallest) / smallest:+.0%}" if smallest else "n/a"
+        curve = " ".join(f"{m}:{p:.2f}" for m, p in powers.items())
+        print(f"{design[0]:>6} {design[1]:>5} {design[2]:>5} {design[3]:>5} {design[4]:>14} {needed:>6} "
+              f"{smallest if smallest else '>grid':>5} {diff:>6} {share:>5.2f}  {curve}  {'PASS' if good else 'MISS'}")
+    ok &= check_power_now(quick)
+    print(f"\n{'PASS' if ok else 'MISS'} ({time.monotonic() - t0:.0f} s)")
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

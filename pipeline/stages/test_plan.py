@@ -1,0 +1,196 @@
+"""Stage: the test plan (issue 23), what it takes each hose type's durability test to decide.
+
+One ``test_plan`` row per hose type with hoses of both adjustments in ``hose_life`` and per
+target power (the plan's, and 0.9; one row when they are equal), from :mod:`analyses.test_plan`:
+
+* ``failures_needed``: :func:`analyses.sequential.max_information` for the plan's margin, alpha,
+  spending and the target power, at ``life_effect.shape`` (1.0 when NULL, noted): the same
+  number the decision stage uses as ``max_failures`` when the plan leaves it unset.
+* ``power_now``: Monte Carlo from the fitted common-shape Weibull and the current censored state,
+  run to the plan's ``max_failures`` (else ``failures_needed`` at the plan's power); the same for
+  both rows of a hose type.
+* ``more_hoses_per_adjustment``, ``more_km``, and ``expected_decision_date`` = the latest event in
+  the data (not the wall clock: the same raw/ gives the same table) plus ``more_km / (benches *
+  km_per_day)``, the capacity from the plan or measured from the durability runs of the last 30
+  days (``capacity_from``).
+
+Seeds: no stage is handed a digest of its inputs, so each hose type's simulations are seeded from
+a sha256 of its own ``hose_life`` rows (id, adjustment, status, distance), its plan settings and
+its ``life_effect`` shape: a hose type whose data did not change keeps its figures, whatever
+else changed. Each hose type is one item of ``ctx.map`` (the stage's worker pool, memoised per
+item across rebuilds).
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+
+import numpy as np
+import pandas as pd
+
+from analyses.life_effect import SEPARATE, common_shape_fit
+from analyses.sequential import efficacy_boundaries, max_information
+from analyses.test_plan import (CAPACITY_DAYS, N_SIMULATIONS, HoseState, decision_date, measured_capacity,
+                                more_testing, power_now, target_powers)
+from pipeline.stages import Reads, StageContext, StageOutput
+
+NAME = "test_plan"
+READS = Reads(kinds=("durability",), tables=("hose_life", "durability_runs", "life_effect"), logbooks=True,
+              plan=True)
+WRITES = ("test_plan",)
+
+COLUMNS = ["hose_type", "target_power", "failures_needed", "failures", "power_now", "more_hoses_per_adjustment",
+           "more_km", "benches", "km_per_day", "capacity_from", "expected_decision_date", "n_simulations", "mc_se",
+           "note"]
+CAPACITY_PLAN, CAPACITY_MEASURED = "plan", f"measured, last {CAPACITY_DAYS} days"
+_SETTINGS = ("margin", "alpha", "power", "spending", "max_failures")
+
+
+def _number(v) -> float | None:
+    """A finite float, or None (NULL, NaN, missing)."""
+    try:
+        f = float(v)
+    except (TypeError, ValueError):
+        return None
+    return f if math.isfinite(f) else None
+
+
+def hose_items(life: pd.DataFrame, effect: pd.DataFrame | None, plan) -> list[dict]:
+    """One plain-data item per hose type with both adjustments: its hoses, plan and seed."""
+    if life is None or len(life) == 0:
+        return []
+    life = life[life["adjustment"].isin(("force", "distance")) & life["hose_type"].notna()]
+    shapes, models = {}, {}
+    if effect is not None and len(effect):
+        shapes = {t: _number(s) for t, s in zip(effect["hose_type"], effect["shape"])}
+        models = dict(zip(effect["hose_type"], effect.get("model", pd.Series([None] * len(effect)))))
+    items = []
+    for htype, g in life.groupby("hose_type", sort=True):
+        if set(g["adjustment"]) != {"force", "distance"}:
+            continue
+        g = g.sort_values("hose_id", kind="stable")
+        dist = pd.to_numeric(g["distance_km"], errors="coerce").to_numpy(float)
+        running = (g["status"] == "running").to_numpy()
+        keep = (np.isfinite(dist) & (dist > 0)) | running   # a failed hose of unknown life tells nothing
+        s = plan.for_hose_type(htype)
+        item = {"hose_type": str(htype), "hose_id": [str(h) for h in g["hose_id"][keep]],
+                "distance": [float(x) if np.isfinite(x) else 0.0 for x in dist[keep]],
+                "failed": (g["status"] == "failed").to_numpy()[keep].tolist(), "running": running[keep].tolist(),
+                "group": (g["adjustment"] == "force").to_numpy()[keep].astype(int).tolist(),
+                "shape": shapes.get(htype), "model": models.get(htype) if isinstance(models.get(htype), str) else None,
+                "settings": {k: getattr(s, k) for k in _SETTINGS}, "n_simulations": N_SIMULATIONS}
+        item["seed"] = int(hashlib.sha256(json.dumps(item, sort_keys=True).encode()).hexdigest()[:16], 16)
+        items.append(item)
+    return items
+
+
+def design(item: dict) -> dict:
+    """One sequential design (module level for ``ctx.map``): ``failures_needed`` per target power
+    and the efficacy boundaries of the test as planned (one per failure up to ``max_failures``).
+
+    ``item``: ``margin``, ``alpha``, ``power``, ``spending``, ``max_failures`` (None: the design's
+    at ``power``) and ``shape`` [-]. Hose types that share a design share its cost (at a look per
+    failure, :func:`analyses.sequential.max_information` takes seconds to minutes: the boundaries
+    of hundreds of looks).
+    """
+    needed = {p: max_information(item["margin"], item["alpha"], p, item["spending"], item["shape"]).failures
+              for p in target_powers(item["power"])}
+    m = item["max_failures"] or needed[item["power"]]
+    c = efficacy_boundaries(np.arange(1, m + 1) / m, item["alpha"], item["spending"])
+    return {"failures_needed": [[p, f] for p, f in needed.items()], "boundaries": [float(x) for x in c]}
+
+
+def _design_item(item: dict) -> dict:
+    """The design a hose type's item needs (shape 1.0 when life_effect has none)."""
+    s = item["settings"]
+    return {"margin": s["margin"], "alpha": s["alpha"], "power": s["power"], "spending": s["spending"],
+            "max_failures": s["max_failures"], "shape": 1.0 if item["shape"] is None else item["shape"]}
+
+
+def plan_hose_type(item: dict) -> list[dict]:
+    """The ``test_plan`` rows of one hose type (without the bench capacity); module level for ``ctx.map``.
+
+    ``item``: the hose type's hoses and plan (:func:`hose_items`) and its ``design`` (:func:`design`).
+    """
+    s, d = item["settings"], item["design"]
+    state = HoseState(np.array(item["distance"], float), np.array(item["failed"], bool),
+                      np.array(item["running"], bool), np.array(item["group"], int))
+    notes = [] if item["shape"] is not None else ["failures_needed at shape 1.0: life_effect has no common shape"]
+    if item["model"] == SEPARATE:
+        notes.append("the simulations assume a common shape; life_effect finds the shapes differ")
+    fit = common_shape_fit(state.distance, state.failed, state.group)
+    now = power_now(state, fit, d["boundaries"], s["margin"], item["n_simulations"], item["seed"])
+    if now.note:
+        notes.append(f"power_now: {now.note}")
+    rows = []
+    for p, needed in d["failures_needed"]:
+        more = more_testing(state, fit, needed, item["n_simulations"], item["seed"])
+        rows.append({"hose_type": item["hose_type"], "target_power": p, "failures_needed": needed,
+                     "failures": sum(state.failures), "power_now": now.power,
+                     "more_hoses_per_adjustment": more.hoses_per_adjustment, "more_km": more.km,
+                     "n_simulations": now.n_simulations, "mc_se": now.mc_se,
+                     "note": "; ".join(notes + ([f"more_km: {more.note}"] if more.note else [])) or None})
+    return rows
+
+
+def latest_event(life: pd.DataFrame, runs: pd.DataFrame):
+    """The latest event in the data (a run's end, a logbook event): the stage's "today", or None."""
+    times = []
+    if runs is not None and len(runs):
+        start = pd.to_datetime(runs["started_at"], utc=True)
+        times.append(start + pd.to_timedelta(pd.to_numeric(runs["duration_h"], errors="coerce").fillna(0.0), unit="h"))
+    for col in ("installed_at", "ended_at"):
+        if life is not None and col in life:
+            times.append(pd.to_datetime(life[col], utc=True))
+    latest = pd.concat(times).max() if times else pd.NaT
+    return None if pd.isna(latest) else latest
+
+
+def _capacity(row: dict, settings, measured: tuple, today) -> dict:
+    """Bench capacity of a row (the plan's, else measured) and the expected decision date."""
+    benches, km_day, note = measured
+    from_plan = settings.benches is not None and settings.km_per_day is not None
+    if from_plan:
+        benches, km_day, source = settings.benches, settings.km_per_day, CAPACITY_PLAN
+    elif benches is not None:
+        if settings.benches is not None or settings.km_per_day is not None:   # one of the two from the plan
+            total = benches * km_day
+            benches = settings.benches or max(1, round(total / settings.km_per_day))
+            km_day = settings.km_per_day or total / benches
+        source = CAPACITY_MEASURED
+    else:
+        source = None
+    extra = [] if from_plan or note is None else [note]
+    if today is None:
+        extra.append("no event time in the data: no expected_decision_date")
+    row = dict(row, benches=benches, km_per_day=km_day, capacity_from=source,
+               expected_decision_date=decision_date(today, row["more_km"], benches, km_day) if today else None)
+    row["note"] = "; ".join([n for n in (row["note"], *extra) if n]) or None
+    return row
+
+
+def plan_table(ctx: StageContext) -> pd.DataFrame:
+    """The ``test_plan`` table (module docstring)."""
+    life, runs = ctx.results.get("hose_life"), ctx.results.get("durability_runs")
+    items = hose_items(life, ctx.results.get("life_effect"), ctx.plan)
+    keys = sorted({json.dumps(_design_item(i), sort_keys=True) for i in items})
+    designs = dict(zip(keys, ctx.map(design, [json.loads(k) for k in keys], label="test plan designs")))
+    items = [dict(i, design=designs[json.dumps(_design_item(i), sort_keys=True)]) for i in items]
+    results = ctx.map(plan_hose_type, items, label="test plan") if items else []
+    today = latest_event(life, runs)
+    measured = measured_capacity(runs, today) if today is not None else (None, None, "no event time in the data")
+    rows = [_capacity(r, ctx.plan.for_hose_type(item["hose_type"]), measured, today)
+            for item, res in zip(items, results) for r in res]
+    df = pd.DataFrame(rows, columns=COLUMNS)
+    for c in ("failures_needed", "failures", "more_hoses_per_adjustment", "benches", "n_simulations"):
+        df[c] = df[c].astype("Int64")
+    for c in ("target_power", "power_now", "more_km", "km_per_day", "mc_se"):
+        df[c] = pd.to_numeric(df[c]).astype("float64")
+    return df
+
+
+def run(ctx: StageContext) -> StageOutput:
+    out = StageOutput()
+    out.tables["test_plan"] = plan_table(ctx)
+    return out

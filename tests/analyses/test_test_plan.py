@@ -1,0 +1,158 @@
+"""The test plan: power_now against an exact one-look case, the conditional Weibull, the km to the
+r-th failure against the exponential's closed form and the `reliability` package's planner, the
+bench capacity and the decision date by hand."""
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy import stats
+
+from analyses.life_effect import CommonShapeFit, common_shape_fit
+from analyses.test_plan import (HoseState, decision_date, information, measured_capacity, more_testing, power_now,
+                                remaining_km, target_powers)
+
+
+def model(shape=1.5, scale_distance=1000.0, scale_force=1000.0, log_ratio=0.0, se=0.5):
+    """A fitted common-shape Weibull given by hand."""
+    cov = np.diag([0.01, se ** 2, 0.01])
+    return CommonShapeFit(shape, scale_distance, scale_force, 0.0, log_ratio, cov)
+
+
+def state(failed_per_group=2, running_per_group=10, running_at=0.0):
+    """``failed_per_group`` failures at 500 km and ``running_per_group`` running hoses per adjustment."""
+    n = failed_per_group + running_per_group
+    group = np.repeat([0, 1], n)
+    failed = np.tile(np.r_[np.ones(failed_per_group, bool), np.zeros(running_per_group, bool)], 2)
+    distance = np.where(failed, 500.0, running_at)
+    return HoseState(distance, failed, ~failed, group)
+
+
+def test_target_powers_are_the_plans_and_0_9_once():
+    assert target_powers(0.8) == (0.8, 0.9)
+    assert target_powers(0.9) == (0.9,)
+
+
+def test_information_by_hand():
+    assert information(4, 4, 2.0) == pytest.approx(8.0)          # 4 / (1/4 + 1/4)
+    assert information(2, 6, 1.0) == pytest.approx(1.5)          # 1 / (1/2 + 1/6)
+    assert information(0, 6, 1.0) == 0.0
+
+
+def test_remaining_km_is_the_conditional_weibull():
+    """P(remaining > r | survived c) = exp((c/s)^k - ((c + r)/s)^k), checked at three r."""
+    rng = np.random.default_rng(1)
+    k, s, c = 2.0, 1000.0, 800.0
+    left = remaining_km(rng, [c, 0.0], [0, 1], model(shape=k, scale_distance=s, scale_force=2 * s), 40000)
+    for r in (100.0, 400.0, 900.0):
+        expected = math.exp((c / s) ** k - ((c + r) / s) ** k)
+        assert (left[:, 0] > r).mean() == pytest.approx(expected, abs=0.01)
+    # a new force-set hose: the unconditional Weibull at the force scale, mean s2 * Gamma(1 + 1/k)
+    assert left[:, 1].mean() == pytest.approx(2 * s * math.gamma(1.5), rel=0.01)
+
+
+def test_power_now_matches_the_exact_one_look_case():
+    """One look left (max_failures = failures + 1): with equal scales and equal running hoses the
+    next failure is force or distance with probability 1/2, and either way the information goes
+    from k^2 (2 and 2 failures) to 1.2 k^2 (3 and 2), so S ~ N(theta I1, I1 - I0) exactly."""
+    k, theta, c, margin = 1.5, 1.0, 2.0, 10.0
+    i0, i1 = k ** 2, 1.2 * k ** 2
+    bounds = [40.0, 40.0, 40.0, 40.0, c]          # the current look (the 4th failure) cannot decide
+    got = power_now(state(), model(shape=k, log_ratio=theta, se=1 / math.sqrt(i0)), bounds, margin, 200_000, seed=3)
+    sd, mean = math.sqrt(i1 - i0), theta * i1
+    efficacy = stats.norm.sf((c * math.sqrt(i1) - mean) / sd) + stats.norm.cdf((-c * math.sqrt(i1) - mean) / sd)
+    futility_edge = i1 * (math.log(margin) - c / math.sqrt(i1))
+    futility = stats.norm.cdf((futility_edge - mean) / sd) - stats.norm.cdf((-futility_edge - mean) / sd)
+    assert got.power == pytest.approx(efficacy + futility, abs=4 * got.mc_se)
+    assert got.n_simulations == 200_000 and got.note is None
+    assert 0.1 < efficacy and 0.1 < futility     # both kinds of decision are exercised
+
+
+def test_power_now_rises_with_the_fitted_effect_and_is_deterministic():
+    bounds = np.full(60, 2.2)
+    st = state(2, 40, 300.0)
+    weak, strong = (power_now(st, model(log_ratio=t, se=0.7), bounds, 1.25, 2000, seed=7) for t in (0.05, 0.8))
+    assert strong.power > 0.9 and weak.power < strong.power
+    again = power_now(st, model(log_ratio=0.8, se=0.7), bounds, 1.25, 2000, seed=7)
+    assert again == strong
+    assert strong.mc_se == pytest.approx(math.sqrt(strong.power * (1 - strong.power) / 2000))
+
+
+def test_power_now_edges():
+    st = state()
+    assert math.isnan(power_now(st, CommonShapeFit(note="too few"), [2.0] * 10, 1.25).power)
+    decided = power_now(st, model(log_ratio=2.0, se=0.5), [2.0] * 10, 1.25, 100)
+    assert (decided.power, decided.note) == (1.0, "the current look decides")
+    over = power_now(st, model(log_ratio=0.1, se=0.5), [40.0] * 4, 1.25, 100)
+    assert over.power == 0.0 and "max_failures reached" in over.note
+    short = power_now(state(2, 1), model(log_ratio=0.1, se=0.5), [40.0] * 10, 1.25, 100)
+    assert "can reach 6 of 10 failures" in short.note
+
+
+def test_more_testing_counts_hoses_and_the_exponential_km():
+    """Shape 1, every hose at 0 km: the hose-km to the r-th failure is Gamma(r) * scale (its mean
+    r * scale), whatever the number of hoses (memoryless)."""
+    st = state(0, 10)
+    fit = model(shape=1.0)
+    got = more_testing(st, fit, 8, 50_000, seed=5)
+    assert got.hoses_per_adjustment == 0
+    assert got.km == pytest.approx(8 * 1000.0, rel=0.01)
+    more = more_testing(state(2, 3), fit, 20, 2000, seed=5)
+    assert more.hoses_per_adjustment == 5               # 20 - 4 failures - 6 running = 10, 5 per adjustment
+    assert more_testing(state(2, 3), fit, 4).km == 0.0
+    assert math.isnan(more_testing(st, CommonShapeFit(note="too few"), 8).km)
+
+
+#: `reliability` 0.9.0, ``Reliability_testing.reliability_test_planner(MTBF=1000.0,
+#: number_of_failures=8, CI=q, one_sided=True, time_terminated=False)``: the test duration whose
+#: one-sided lower MTBF bound at q is 1000, i.e. the q quantile of the total time on test to the
+#: 8th failure of an exponential (chi2(16) / 2 * MTBF). Stored, not run: the package is not a
+#: dependency of the project.
+RELIABILITY_PLANNER = {0.5: 7669.2494425008035, 0.8: 10232.539646893933, 0.95: 13148.113802432115}
+
+
+def test_km_to_the_rth_failure_matches_the_reliability_planner():
+    """The km machinery (remaining lives, ``sum min(x, x_(r))``) against an independent planner."""
+    rng = np.random.default_rng(11)
+    x = remaining_km(rng, np.zeros(30), np.repeat([0, 1], 15), model(shape=1.0), 40_000)
+    last = np.partition(x, 7, axis=1)[:, 7:8]
+    total = np.minimum(x, last).sum(axis=1)
+    for q, ref in RELIABILITY_PLANNER.items():
+        assert np.quantile(total, q) == pytest.approx(ref, rel=0.015)
+
+
+def test_fitted_model_recovers_a_known_ratio_for_the_simulation():
+    """The model power_now simulates from is the common-shape fit: known scales come back."""
+    rng = np.random.default_rng(2)
+    g = np.repeat([0, 1], 200)
+    life = np.where(g == 1, 1500.0, 1000.0) * rng.weibull(2.0, 400)
+    fit = common_shape_fit(np.minimum(life, 1200.0), life < 1200.0, g)
+    assert math.exp(fit.log_ratio) == pytest.approx(1.5, rel=0.1)
+    assert fit.shape == pytest.approx(2.0, rel=0.12)
+
+
+def test_measured_capacity_by_hand():
+    t0 = pd.Timestamp("2026-03-01", tz="UTC")
+    runs = pd.DataFrame({"started_at": [t0 - pd.Timedelta(days=d) for d in (40, 10, 10, 5)],
+                         "duration_h": [24.0, 48.0, 24.0, 24.0], "distance_km": [99.0, 60.0, 30.0, 30.0]})
+    benches, km_day, note = measured_capacity(runs, t0)
+    assert (benches, note) == (2, None)                    # the two runs of day -10 overlap
+    assert km_day == pytest.approx(120.0 / 30.0 / 2)       # the run of day -40 is outside the window
+    young = measured_capacity(runs.iloc[1:], t0)           # data 10 days old: 10 days, not 30
+    assert young[1] == pytest.approx(120.0 / 10.0 / 2)
+    assert measured_capacity(runs.iloc[:1], t0)[2].startswith("no durability run")
+    assert measured_capacity(runs.iloc[:0], t0)[0] is None
+
+
+def test_decision_date_by_hand():
+    t0 = pd.Timestamp("2026-03-01T12:00", tz="UTC")
+    assert str(decision_date(t0, 1000.0, 2, 50.0)) == "2026-03-11"
+    assert decision_date(t0, float("nan"), 2, 50.0) is None
+    assert decision_date(t0, 1000.0, None, 50.0) is None
+
+
+def test_benchmark_power_now_agrees_with_full_refits_quick(capsys):
+    """The benchmark's second part, quick: power_now's approximation against refits at every failure."""
+    from benchmarks.bench_test_plan import check_power_now
+    assert check_power_now(quick=True)
+    assert "full refit at every future failure" in capsys.readouterr().out

@@ -1,0 +1,162 @@
+"""The test_plan stage on fabricated hose_life, durability_runs and life_effect frames: one row per
+hose type and target power, the design's failures, the capacity's source, the decision date,
+determinism and the worker pool.
+
+The frame is tested, not the warehouse: the ``test_plan`` DDL (schemas/ddl/40_decision.sql) and the
+``life_effect`` table are written by the decision stage's part of issue 23, merged separately."""
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from analyses.life_effect import common_shape_fit
+from analyses.sequential import max_information
+from pipeline.raw.plan import Plan
+from pipeline.stages import DeclaredContext, StageContext
+from pipeline.stages import test_plan as stage
+
+T0 = pd.Timestamp("2026-03-01", tz="UTC")
+
+
+def hoses(hose_type, n, scales, seed, censor=(600.0, 1400.0)):
+    """n hoses per adjustment, Weibull(2) lives, running hoses censored at a random distance."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for adj, scale in zip(("distance", "force"), scales):
+        for i in range(n):
+            life, stop = scale * rng.weibull(2.0), rng.uniform(*censor)
+            status = "failed" if life < stop else "running"
+            rows.append({"hose_id": f"{hose_type}-{adj[0]}{i:02d}", "hose_type": hose_type, "adjustment": adj,
+                         "distance_km": min(life, stop), "status": status, "installed_at": T0 - pd.Timedelta(days=60),
+                         "ended_at": T0 - pd.Timedelta(days=1) if status == "failed" else pd.NaT})
+    return rows
+
+
+def frames():
+    life = pd.DataFrame(hoses("A", 14, (800.0, 1200.0), 1, censor=(200.0, 550.0)) + hoses("B", 12, (900.0, 900.0), 2)
+                        + hoses("C", 3, (900.0, 900.0), 3)[:3])          # C: distance-set only, no row
+    life.loc[len(life)] = {"hose_id": "A-x", "hose_type": "A", "adjustment": "force", "distance_km": np.nan,
+                           "status": "failed", "installed_at": T0, "ended_at": T0}   # unknown life: left out
+    runs = pd.DataFrame({"started_at": [T0 - pd.Timedelta(days=d) for d in range(1, 21)], "duration_h": 12.0,
+                         "distance_km": 40.0})
+    effect = pd.DataFrame({"hose_type": ["A", "B"], "shape": [2.1, np.nan], "model": ["common shape", None]})
+    return {"hose_life": life, "durability_runs": runs, "life_effect": effect}
+
+
+PLAN = Plan(True, {"margin": 2.0}, {"A": {"benches": 3, "km_per_day": 100.0}, "B": {"margin": 3.0, "power": 0.9}})
+
+
+def table(results=None, plan=PLAN, **kw):
+    return stage.plan_table(StageContext(raw=None, warehouse=None, runs=pd.DataFrame(), results=results or frames(),
+                                         plan=plan, **kw))
+
+
+@pytest.fixture(scope="module")
+def df():
+    return table()
+
+
+def test_one_row_per_hose_type_and_target_power(df):
+    assert list(df.columns) == stage.COLUMNS
+    assert list(zip(df["hose_type"], df["target_power"])) == [("A", 0.8), ("A", 0.9), ("B", 0.9)]
+
+
+def test_failures_needed_is_the_design_at_life_effects_shape(df):
+    a = df[df["hose_type"] == "A"]
+    assert a["failures_needed"].tolist() == [max_information(2.0, 0.05, p, "obrien-fleming", 2.1).failures
+                                             for p in (0.8, 0.9)]
+    b = df[df["hose_type"] == "B"].iloc[0]
+    assert b["failures_needed"] == max_information(3.0, 0.05, 0.9, "obrien-fleming", 1.0).failures
+    assert "failures_needed at shape 1.0" in b["note"]
+
+
+def test_counts_and_monte_carlo_figures(df):
+    life = frames()["hose_life"]
+    for htype, g in df.groupby("hose_type"):
+        mine = life[(life["hose_type"] == htype) & (life["distance_km"] > 0)]
+        assert (g["failures"] == (mine["status"] == "failed").sum()).all()
+        assert g["power_now"].nunique() == 1                        # one design as planned per hose type
+    assert ((df["power_now"] >= 0) & (df["power_now"] <= 1)).all()
+    sim = df["n_simulations"] > 0
+    assert np.allclose(df.loc[sim, "mc_se"], np.sqrt(df.loc[sim, "power_now"] * (1 - df.loc[sim, "power_now"])
+                                                    / df.loc[sim, "n_simulations"]))
+    assert (df["more_km"] > 0).all()
+    a = df[df["hose_type"] == "A"]
+    assert a["more_hoses_per_adjustment"].is_monotonic_increasing   # more power, more hoses
+
+
+def test_capacity_from_the_plan_or_measured_and_the_date(df):
+    a, b = df[df["hose_type"] == "A"].iloc[0], df[df["hose_type"] == "B"].iloc[0]
+    assert (a["capacity_from"], a["benches"], a["km_per_day"]) == ("plan", 3, 100.0)
+    days = a["more_km"] / 300.0
+    assert a["expected_decision_date"] == (T0 + pd.Timedelta(days=days)).date()   # today: the latest run's end
+    # measured: 20 runs of 40 km in the last 20 days (the data are 20 days old), one at a time
+    assert (b["capacity_from"], b["benches"]) == ("measured, last 30 days", 1)
+    assert b["km_per_day"] == pytest.approx(800.0 / (20.5 - 0.5))
+
+
+def test_no_capacity_without_runs_or_plan():
+    res = frames()
+    res["durability_runs"] = res["durability_runs"].iloc[:0]
+    out = table(res, Plan(True, {"margin": 2.0}, {"B": {"margin": 3.0}}))   # no capacity in the plan
+    assert out["capacity_from"].isna().all() and out["expected_decision_date"].isna().all()
+    assert out["note"].str.contains("capacity not measured|no durability runs").all()
+
+
+def test_no_fitted_model_gives_null_power_and_km():
+    res = frames()
+    life = res["hose_life"]
+    one = life[(life["hose_type"] == "A") & ~((life["adjustment"] == "force") & (life["status"] == "failed")
+                                              & (life["hose_id"] != life[(life["adjustment"] == "force")
+                                                                         & (life["status"] == "failed")]["hose_id"].iloc[0]))]
+    res["hose_life"] = one
+    assert common_shape_fit(one["distance_km"].fillna(0), one["status"] == "failed",
+                            (one["adjustment"] == "force").astype(int)).note
+    out = table(res)
+    assert out["power_now"].isna().all() and out["more_km"].isna().all()
+    assert out["note"].str.contains("no fitted model").all()
+    running = (one["status"] == "running").sum()
+    failed = ((one["status"] == "failed") & (one["distance_km"] > 0)).sum()
+    assert out["more_hoses_per_adjustment"].tolist() == [max(0, math.ceil((n - failed - running) / 2))
+                                                         for n in out["failures_needed"]]
+
+
+def test_deterministic_and_seeded_by_each_hose_types_data(df):
+    pd.testing.assert_frame_equal(table(), df)
+    res = frames()
+    life = res["hose_life"]
+    running = life.index[(life["hose_type"] == "B") & (life["status"] == "running")][0]
+    life.loc[running, "distance_km"] += 50.0                       # B moved on; A did not
+    out = table(res)
+    pd.testing.assert_frame_equal(out[out["hose_type"] == "A"], df[df["hose_type"] == "A"])
+    items = stage.hose_items(res["hose_life"], res["life_effect"], PLAN)
+    assert items[1]["seed"] != stage.hose_items(frames()["hose_life"], res["life_effect"], PLAN)[1]["seed"]
+
+
+def test_runs_in_the_worker_pool_on_what_it_declares(df):
+    calls = []
+
+    def mapper(func, items, label):
+        calls.append(func.__name__)
+        return [func(i) for i in items]
+
+    ctx = DeclaredContext(stage.NAME, stage.READS, runs=pd.DataFrame(), results=frames(), raw=None, warehouse=None,
+                          plan=PLAN, mapper=mapper)
+    out = stage.run(ctx)
+    assert calls == ["design", "plan_hose_type"]
+    pd.testing.assert_frame_equal(out.tables["test_plan"], df)
+    assert stage.WRITES == ("test_plan",)
+
+
+def test_latest_event_is_the_data_not_the_clock():
+    res = frames()
+    assert stage.latest_event(res["hose_life"], res["durability_runs"]) == T0          # A-x's logbook event
+    last_run_end = T0 - pd.Timedelta(days=1) + pd.Timedelta(hours=12)
+    assert stage.latest_event(None, res["durability_runs"]) == last_run_end
+    assert stage.latest_event(None, None) is None
+
+
+def test_no_hoses_gives_an_empty_table_with_the_contracts_columns():
+    out = table({"hose_life": frames()["hose_life"].iloc[:0]}, Plan())
+    assert out.empty and list(out.columns) == stage.COLUMNS
