@@ -134,7 +134,7 @@ def test_the_tables_are_read_whole_when_there(tmp_path):
 def test_the_benchmark_says_why_it_cannot_count_when_the_stages_are_missing(tmp_path, capsys):
     """A whole (tiny) run: simulate, rebuild as a process; without the decision stages it stops
     with exit 2 and the one-line reason."""
-    code = bd.main(["--types", "2", "--timing-types", "0", "--keep", str(tmp_path)])
+    code = bd.main(["--types", "2", "--shard", "1", "--timing-types", "0", "--keep", str(tmp_path)])
     err = capsys.readouterr().err
     if code == 2:
         assert "are not in this build" in err
