@@ -13,10 +13,10 @@ staggered installations, removed and running hoses, a ``plan.toml`` with margin 
 power 0.8, O'Brien-Fleming spending and ``max_failures`` left to the design, i.e. to
 ``test_plan``'s ``failures_needed``) written with its ``truth.json``, then rebuilt by
 ``pneubench rebuild`` as a process (timed), and read with DuckDB. A scenario is written in shards
-of ``--shard`` hose types (default 100), each its own raw tree and rebuild: the durability stage
+of ``--shard`` hose types (default 50), each its own raw tree and rebuild: the durability stage
 fits and draws every (hose type, adjustment) group, and its figures grow faster than linearly with
-them (measured on this branch: 50 hose types, durability stage 42 s and its figures 87 s of a
-133 s rebuild). The counts pool the shards (hose types named ``<shard>/<type>``).
+them (measured on this branch, a shared 2-core machine: 50 hose types, durability stage 42 s and
+its figures 87 s of a 133 s rebuild; 100 hose types, 109 s and 518 s of 636 s). The counts pool the shards (hose types named ``<shard>/<type>``).
 
 * ``life_effect``: the 90 % profile-likelihood interval of the life ratio covers the true ratio,
   and that of the shape the true shape (hose types with a common true shape; those with one shape
@@ -345,7 +345,7 @@ def main(argv=None) -> int:
     ap.add_argument("--naive-types", type=int, default=200, help="hose types the naive LR test reads (it is slow)")
     ap.add_argument("--seed", type=int, default=23)
     ap.add_argument("--jobs", type=int, default=2)
-    ap.add_argument("--shard", type=int, default=100,
+    ap.add_argument("--shard", type=int, default=50,
                     help="hose types per raw tree and rebuild (the durability stage's figures grow with them)")
     ap.add_argument("--keep", type=Path, default=None, help="keep the raw trees and warehouses here")
     args = ap.parse_args(argv)
