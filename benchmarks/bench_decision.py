@@ -16,7 +16,8 @@ power 0.8, O'Brien-Fleming spending and ``max_failures`` left to the design, i.e
 of ``--shard`` hose types (default 50), each its own raw tree and rebuild: the durability stage
 fits and draws every (hose type, adjustment) group, and its figures grow faster than linearly with
 them (measured on this branch, a shared 2-core machine: 50 hose types, durability stage 42 s and
-its figures 87 s of a 133 s rebuild; 100 hose types, 109 s and 518 s of 636 s). The counts pool the shards (hose types named ``<shard>/<type>``).
+its figures 87 s of a 133 s rebuild; 100 hose types, 109 s and 518 s of 636 s). The counts pool
+the shards (hose types named ``<shard>/<type>``).
 
 * ``life_effect``: the 90 % profile-likelihood interval of the life ratio covers the true ratio,
   and that of the shape the true shape (hose types with a common true shape; those with one shape
