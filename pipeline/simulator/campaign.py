@@ -8,6 +8,7 @@
     durability-2025/ hose logbook (older hoses with odometer readings only, logged hoses),
                      durability runs and leakage checks of the logged hoses
     durability-2026/ the following campaign: a hose continued from 2025, new hoses
+    plan.toml        the lab's test plan (profiles ``demo`` and ``full``: :data:`~pipeline.simulator.profiles.DEMO_PLAN`)
     truth.json       every parameter and every per-run true value
 
 Each of those folders is one campaign when ``out_dir`` is the raw root (``pneubench rebuild --raw
@@ -38,6 +39,7 @@ from pipeline.progress import Progress
 from pipeline.simulator import durability as dur
 from pipeline.simulator import foreign, pla, plpa
 from pipeline.simulator.base import HOSE_AREA_M2, P_ATM_PA, jsonable
+from pipeline.simulator.decision import DECISION_CAMPAIGN, DecisionProfile, simulate_decision
 from pipeline.simulator.hoses import HOSES_COLUMNS, plan_hoses
 from pipeline.simulator.plan import Planner, RunPlan
 from pipeline.simulator.profiles import PROFILES, Profile
@@ -142,8 +144,11 @@ def simulate_campaign(out_dir, seed: int = 1, profile: str = "demo", runs: int |
         Folder to write (created). Existing files of the same names are overwritten.
     seed : int
         Same seed, same bytes.
-    profile : {"demo", "full", "mini", "foreign"}
-        ``foreign``: the foreign-rig campaign only (``runs`` and ``jobs`` do not apply).
+    profile : {"demo", "full", "mini", "foreign", "decision"} or DecisionProfile
+        ``foreign``: the foreign-rig campaign only; ``decision`` (or a
+        :class:`~pipeline.simulator.decision.DecisionProfile` for other sizes and scenarios):
+        hundreds of hose types known by their odometer, and a plan.toml (``runs`` and ``jobs``
+        do not apply to either).
     runs : int, optional
         Total number of runs (pads or trims the characterisation matrices).
     jobs : int, optional
@@ -156,11 +161,15 @@ def simulate_campaign(out_dir, seed: int = 1, profile: str = "demo", runs: int |
     if profile == "foreign":
         truth = foreign.simulate_foreign(out, seed)
         return _summary(out, list(truth["runs"].values()))
+    if profile == "decision" or isinstance(profile, DecisionProfile):
+        return _write_decision(out, seed, profile if isinstance(profile, DecisionProfile) else DecisionProfile())
     prof = PROFILES[profile]
     plans, planner = plan_campaign(seed, prof, runs)
     records = _write_runs(out, plans, seed, prof.chunk_rows, jobs or min(4, os.cpu_count() or 1),
                           progress or Progress())
     _write_folder_files(out, records, planner)
+    if prof.plan:
+        (out / PLAN_FILE).write_text(prof.plan, encoding="utf-8")
     truth = {
         "generator": "pneubench simulator", "seed": seed, "profile": prof.name, "runs_requested": runs,
         "profile_settings": jsonable({k: getattr(prof, k) for k in prof.__dataclass_fields__}),
@@ -214,6 +223,17 @@ def _write_folder_files(out: Path, records: list[dict], planner: Planner) -> Non
             (out / camp / "hoses.csv").write_text(_csv_text(rows, HOSES_COLUMNS), encoding="utf-8")
 
 
+def _write_decision(out: Path, seed: int, profile: DecisionProfile) -> CampaignSummary:
+    """A ``decision`` campaign (:mod:`pipeline.simulator.decision`): its logbook, plan.toml and truth.json."""
+    rows, plan, truth = simulate_decision(seed, profile)
+    (out / DECISION_CAMPAIGN).mkdir(parents=True, exist_ok=True)
+    rows = sorted(rows, key=lambda r: (r["at"], r["hose_id"]))
+    (out / DECISION_CAMPAIGN / "hoses.csv").write_text(_csv_text(rows, HOSES_COLUMNS), encoding="utf-8")
+    (out / PLAN_FILE).write_text(plan, encoding="utf-8")
+    (out / "truth.json").write_text(json.dumps(jsonable(truth), indent=1, sort_keys=True), encoding="utf-8")
+    return _summary(out, [])
+
+
 def _summary(out: Path, records: list[dict]) -> CampaignSummary:
     """What is under ``out`` now: runs by kind and format (from their records), files, bytes."""
     files = [f for f in out.rglob("*") if f.is_file()]
@@ -246,6 +266,8 @@ def parameters() -> dict:
 
 #: The demo's campaigns: the first folders of the raw tree it fills (with ``truth.json`` beside them).
 DEMO_CAMPAIGNS = ("plpa-2025", "pla-2016", "durability-2025", "durability-2026")
+#: The lab's test plan at the top of raw/ (docs/bench-exports.md, "plan.toml").
+PLAN_FILE = "plan.toml"
 
 
 class DemoError(Exception):
@@ -256,9 +278,10 @@ def simulate_demo(raw, seed: int = 1, jobs: int | None = None, progress=None, pr
     """Simulate the demo campaigns as the campaigns of ``raw`` unless they are there; returns
     whether they were written.
 
-    ``raw`` gets ``plpa-2025/``, ``pla-2016/``, ``durability-2025/``, ``durability-2026/`` and
-    ``truth.json`` (written last: it marks a complete demo), so a rebuild of ``raw`` sees exactly
-    the simulated campaigns under their own names. A tree that holds anything else is refused
+    ``raw`` gets ``plpa-2025/``, ``pla-2016/``, ``durability-2025/``, ``durability-2026/``, the
+    lab's ``plan.toml`` (kept when ``raw`` already has one: it is the lab's) and ``truth.json``
+    (written last: it marks a complete demo), so a rebuild of ``raw`` sees exactly the simulated
+    campaigns under their own names. A tree that holds anything else is refused
     (:class:`DemoError`): its runs would be pooled with the simulated ones and the results would
     no longer be those of ``truth.json``. Nothing already in ``raw`` is modified or deleted. The
     campaigns are written to a hidden folder first and renamed into place one by one; an
@@ -268,7 +291,8 @@ def simulate_demo(raw, seed: int = 1, jobs: int | None = None, progress=None, pr
     if (raw / "truth.json").is_file():
         return False
     raw.mkdir(parents=True, exist_ok=True)
-    other = sorted(p.name for p in raw.iterdir() if not p.name.startswith(".") and p.name not in DEMO_CAMPAIGNS)
+    other = sorted(p.name for p in raw.iterdir()
+                   if not p.name.startswith(".") and p.name not in (*DEMO_CAMPAIGNS, PLAN_FILE))
     if other:
         raise DemoError(f"{raw} already holds {', '.join(other[:3])}{', ...' if len(other) > 3 else ''}: the demo "
                         "writes its campaigns only into an empty raw folder (give another one with --raw)")
@@ -276,7 +300,7 @@ def simulate_demo(raw, seed: int = 1, jobs: int | None = None, progress=None, pr
     if tmp.exists():
         shutil.rmtree(tmp)
     simulate_campaign(tmp, seed=seed, profile=profile, jobs=jobs, progress=progress)
-    for name in DEMO_CAMPAIGNS:
+    for name in (*DEMO_CAMPAIGNS, PLAN_FILE):
         if (tmp / name).exists() and not (raw / name).exists():
             os.replace(tmp / name, raw / name)
     os.replace(tmp / "truth.json", raw / "truth.json")

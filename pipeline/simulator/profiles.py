@@ -17,6 +17,11 @@ hoses carry odometer readings only (no runs), as bench-exports.md allows.
 position sensors, 1 um / 50 um encoders, a load cell with a stated force balance, exports without
 a time column, a look-alike channel ``F`` in ``g``), see :mod:`pipeline.simulator.foreign`. It is
 not part of the demo, which stays about a minute.
+The demo and full campaigns carry the lab's test plan, :data:`DEMO_PLAN` (``raw/plan.toml``, issue
+23): margin 1.5 for FLEXIGOM AIR, the rest the defaults, two benches at 30 km a day; the demo's
+hoses (force-set ones live about 2.9 times longer) reach a verdict under it. ``mini`` has none.
+``decision`` (hundreds of hose types known by their odometer, for calibrating the verdict) is
+:mod:`pipeline.simulator.decision`'s.
 ``runs=N`` pads the characterisation matrices with further repetitions (new seeds) to reach N
 runs in total, for campaigns of 1,000+ runs; a smaller N keeps the first N runs (interleaved
 across kinds, durability hoses first).
@@ -24,6 +29,22 @@ across kinds, durability hoses first).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+
+#: The demo's test plan (``raw/plan.toml``; keys in docs/bench-exports.md, "plan.toml").
+DEMO_PLAN = """\
+# The lab's test plan: written before the durability tests (docs/bench-exports.md, "plan.toml")
+[defaults]
+margin = 1.25                 # the smallest force/distance life ratio worth acting on
+alpha = 0.05                  # two-sided error rate of the verdict
+power = 0.8
+confidence = 0.9
+spending = "obrien-fleming"
+benches = 2
+km_per_day = 30.0
+
+[hose_type."FLEXIGOM AIR"]
+margin = 1.5                  # max_failures unset: the sequential design's failures_needed
+"""
 
 
 @dataclass(frozen=True)
@@ -61,6 +82,7 @@ class Profile:
     log_s: float = 1800.0
     limit_per_variant: int | None = None  # mini: runs per kind and format variant
     chunk_rows: int = 2_000_000
+    plan: str | None = DEMO_PLAN          # raw/plan.toml (None: no plan)
 
 
 PROFILES = {
@@ -75,5 +97,5 @@ PROFILES = {
                     identification_runs=2, identification_s=2.0, step_runs=3, step_fs_hz=200.0,
                     spring_fs_hz=200.0, spring_cycles=1.5, dur_run_km=0.6, logged_hoses=2, odometer_hoses=3,
                     stop_km={"distance": 1.0, "force": 1.0}, odometer_stop_km=150.0, check_every=1,
-                    check_fs_hz=10.0, check_plateau_s=1.0, log_s=60.0, limit_per_variant=1),
+                    check_fs_hz=10.0, check_plateau_s=1.0, log_s=60.0, limit_per_variant=1, plan=None),
 }

@@ -17,6 +17,7 @@ from click.testing import CliRunner
 
 from pipeline.cli import main
 from pipeline.simulator.campaign import DEMO_CAMPAIGNS, DemoError, simulate_demo
+from pipeline.simulator.profiles import PROFILES
 from tests.conftest import query
 
 
@@ -28,7 +29,8 @@ def _rows(wh, sql):
 def test_the_demo_campaigns_are_the_raw_trees_campaigns_and_nothing_else(demo):
     assert demo["result"].exit_code == 0, demo["result"].output
     raw, wh = demo["raw"], demo["warehouse"]
-    assert sorted(p.name for p in raw.iterdir()) == sorted([*DEMO_CAMPAIGNS, "truth.json"])
+    assert sorted(p.name for p in raw.iterdir()) == sorted([*DEMO_CAMPAIGNS, "plan.toml", "truth.json"])
+    assert (raw / "plan.toml").read_text() == PROFILES["demo"].plan
     campaigns = sorted(c for (c,) in query(wh, "SELECT DISTINCT campaign FROM runs"))
     assert campaigns == sorted(DEMO_CAMPAIGNS)
     # every run in the warehouse is one of the truth's runs, and every truth run is there

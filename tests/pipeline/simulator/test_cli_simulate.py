@@ -50,3 +50,21 @@ def test_demo_simulates_only_when_absent(tmp_path):
     assert simulate_demo(raw, jobs=1, profile="mini") is False
     assert marker.stat().st_mtime_ns == before
     assert not [p for p in raw.iterdir() if p.name.startswith(".")]
+
+
+def test_the_demo_accepts_and_keeps_the_labs_own_plan(tmp_path):
+    """A raw tree that holds only a plan.toml is the lab's plan for the demo: not refused, not replaced."""
+    raw = tmp_path / "raw"
+    raw.mkdir()
+    (raw / "plan.toml").write_text("[defaults]\nmargin = 2.0\n")
+    assert simulate_demo(raw, jobs=1, profile="mini") is True
+    assert (raw / "plan.toml").read_text() == "[defaults]\nmargin = 2.0\n"
+
+
+def test_simulate_decision_profile_writes_a_logbook_a_plan_and_the_truth(tmp_path):
+    out = tmp_path / "sim"
+    res = CliRunner().invoke(main, ["simulate", str(out), "--profile", "decision", "-q"])
+    assert res.exit_code == 0, res.output
+    truth = json.loads((out / "truth.json").read_text())
+    assert truth["profile"] == "decision" and len(truth["hose_types"]) == 300
+    assert sorted(p.name for p in out.iterdir()) == ["decision-2026", "plan.toml", "truth.json"]

@@ -1,0 +1,382 @@
+"""End-to-end calibration of "The decision" (issue 23): whole ``pneubench rebuild`` processes on
+simulated hose types with a known life ratio, the warehouse's ``life_effect`` and ``life_verdict``
+counted against the truth.
+
+One command::
+
+    python -m benchmarks.bench_decision            # 3 scenarios x 400 hose types, and a 200-type timing run
+    python -m benchmarks.bench_decision --quick    # 3 scenarios x 12 hose types: a look, no verdict
+
+Each scenario is a ``decision`` campaign (:mod:`pipeline.simulator.decision`: hose types known
+by their logbook odometer, benches at a constant km/day so that a look's distances are exact,
+staggered installations, removed and running hoses, a ``plan.toml`` with margin 1.5, alpha 0.05,
+power 0.8, O'Brien-Fleming spending and ``max_failures`` left to the design, i.e. to
+``test_plan``'s ``failures_needed``) written with its ``truth.json``, then rebuilt by
+``pneubench rebuild`` as a process (timed), and read with DuckDB. A scenario is written in shards
+of ``--shard`` hose types (default 50), each its own raw tree and rebuild: the durability stage
+fits and draws every (hose type, adjustment) group, and its figures grow faster than linearly with
+them (measured on this branch, a shared 2-core machine: 50 hose types, durability stage 42 s and
+its figures 87 s of a 133 s rebuild; 100 hose types, 109 s and 518 s of 636 s). The counts pool
+the shards (hose types named ``<shard>/<type>``).
+
+* ``life_effect``: the 90 % profile-likelihood interval of the life ratio covers the true ratio,
+  and that of the shape the true shape (hose types with a common true shape; those with one shape
+  per adjustment are counted apart: their true ratio is the B10 ratio). Target 85-95 %
+  (Meeker & Escobar 1998, ch. 8, 17).
+* ``life_verdict`` at ratio 1: ``force longer`` or ``distance longer`` in at most alpha of the
+  hose types, i.e. a count within the binomial bound (the 97.5 % quantile of Binomial(n, alpha));
+  the naive fixed-sample test read at every failure (a likelihood-ratio p < alpha at any look,
+  computed from ``decision_look_hoses`` as the look saw the hoses; and the Wald |z| of
+  ``decision_looks`` over the fixed-sample z) must fail the same bound (Jennison & Turnbull 2000,
+  ch. 1-2; Lan & DeMets 1983).
+* at ratio = margin: ``no practical difference`` within the same bound; ``force longer`` (the
+  decision rate) at the plan's power +/- 5 points, with ``max_failures`` equal to ``test_plan``'s
+  ``failures_needed`` (checked); above the margin (margin^1.5): at least power - 5 points.
+* the look distances of ``decision_look_hoses`` against the exact ones (odometer linear in time).
+
+Hose types that stopped before their ``max_failures`` (the simulator runs each to 1.5 times its
+closed-form design, which the fitted shape may exceed) are counted and shown. The rebuild time of
+a 200-hose-type campaign and its decision stages' share (the rebuild's ``stage <name> ran`` lines)
+are printed against the issue's 10 s. Seeded: the same command prints the same counts.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import re
+import shutil
+import sys
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from benchmarks.proc import measure, pneubench_cmd, verdict
+
+COVERAGE = (0.85, 0.95)
+POWER_TOLERANCE = 0.05
+SCENARIOS = ("no-difference", "at-margin", "above-margin")
+DECISION_TABLES = ("life_effect", "life_verdict", "decision_looks", "decision_look_hoses", "test_plan")
+DECISION_STAGES = ("decision", "test_plan")
+DECLARED = ("force longer", "distance longer")
+
+
+class MissingTables(Exception):
+    """The warehouse lacks the decision tables (the stages that fill them are not in this build)."""
+
+
+def read_tables(db: Path) -> dict[str, pd.DataFrame]:
+    """The decision tables of a warehouse database, read-only; :class:`MissingTables` naming the
+    absent ones when any is missing."""
+    import duckdb
+
+    con = duckdb.connect(str(db), read_only=True)
+    try:
+        have = {r[0] for r in con.execute("SELECT table_name FROM information_schema.tables").fetchall()}
+        missing = [t for t in DECISION_TABLES if t not in have]
+        if missing:
+            raise MissingTables(f"{db} has no {', '.join(missing)}: the decision stages (pipeline/stages/decision.py, "
+                                "pipeline/stages/test_plan.py) are not in this build, nothing to calibrate")
+        return {t: con.execute(f"SELECT * FROM {t}").df() for t in DECISION_TABLES}
+    finally:
+        con.close()
+
+
+def covers(lower: float, upper: float, truth: float) -> bool:
+    """Whether [lower, upper] holds ``truth``; a NaN bound is an open side."""
+    return (pd.isna(lower) or lower <= truth) and (pd.isna(upper) or truth <= upper)
+
+
+def coverage(life_effect: pd.DataFrame, types: dict) -> dict:
+    """Counts of the intervals covering the truth: ``ratio`` and ``shape`` over hose types with a
+    common true shape, ``ratio, separate shapes`` over the others (true B10 ratio); ``n`` of each
+    and ``absent`` (no estimate: NULL ratio)."""
+    out = {"ratio": [0, 0], "shape": [0, 0], "ratio, separate shapes": [0, 0], "absent": 0}
+    for r in life_effect.itertuples(index=False):
+        t = types.get(r.hose_type)
+        if t is None:
+            continue
+        if pd.isna(r.life_ratio):
+            out["absent"] += 1
+            continue
+        key = "ratio, separate shapes" if t["separate_shapes"] else "ratio"
+        out[key][0] += covers(r.life_ratio_lower, r.life_ratio_upper, t["life_ratio"])
+        out[key][1] += 1
+        if not t["separate_shapes"] and not pd.isna(r.shape):
+            out["shape"][0] += covers(r.shape_lower, r.shape_upper, t["shape"])
+            out["shape"][1] += 1
+    return out
+
+
+def verdicts(life_verdict: pd.DataFrame, test_plan: pd.DataFrame, types: dict) -> dict:
+    """Over hose types with a common true shape: how many got each verdict, how many reached
+    their ``max_failures``, and how many have ``max_failures`` equal to ``test_plan``'s
+    ``failures_needed`` at the plan's power."""
+    v = life_verdict[life_verdict["hose_type"].map(lambda h: h in types and not types[h]["separate_shapes"])]
+    plan = test_plan[np.isclose(test_plan["target_power"], test_plan["hose_type"].map(
+        dict(zip(life_verdict["hose_type"], life_verdict["power"]))).astype(float))]
+    needed = dict(zip(plan["hose_type"], plan["failures_needed"]))
+    same = sum(int(needed.get(h, -1)) == int(m) for h, m in zip(v["hose_type"], v["max_failures"]) if not pd.isna(m))
+    return {"n": len(v), "counts": v["verdict"].value_counts().to_dict(),
+            "reached": int((v["failures"] >= v["max_failures"]).sum()), "max_failures_from_test_plan": same}
+
+
+def naive_lr_declared(look_hoses: pd.DataFrame, alpha: float, limit: int | None = None) -> tuple[int, int]:
+    """(declared, hose types): a fixed-sample likelihood-ratio test of ratio 1 at ``alpha``, read at
+    every look from the hoses as the look saw them, declaring at its first p < alpha."""
+    from scipy import stats
+
+    crit = stats.chi2.isf(alpha, 1)
+    names = sorted(look_hoses["hose_type"].unique())[:limit]
+    declared = 0
+    by_type = look_hoses[look_hoses["hose_type"].isin(names)].groupby("hose_type")
+    for _, hoses in by_type:
+        for _, look in hoses.groupby("look", sort=True):
+            if lr_statistic(look["distance_km"].to_numpy(float), look["failed"].to_numpy(bool),
+                            (look["adjustment"] == "force").to_numpy(int)) > crit:
+                declared += 1
+                break
+    return declared, len(names)
+
+
+def lr_statistic(life: np.ndarray, failed: np.ndarray, force: np.ndarray) -> float:
+    """``2 (loglik(common shape, a scale each) - loglik(one Weibull))`` [-]; NaN when the data
+    cannot tell (an adjustment with fewer than two failures)."""
+    from scipy import optimize
+
+    from analyses.life_effect import common_shape_fit
+    from analyses.service_life import weibull_loglik, weibull_scale_given_shape
+
+    fit = common_shape_fit(life, failed, force)
+    if math.isnan(fit.loglik):
+        return math.nan
+    x = np.maximum(life, 1e-9)
+
+    def neg(logk):
+        k = math.exp(logk)
+        return -weibull_loglik(k, weibull_scale_given_shape(k, x, failed), x, failed)
+
+    res = optimize.minimize_scalar(neg, bounds=(math.log(1e-2), math.log(1e2)), method="bounded",
+                                   options={"xatol": 1e-8})
+    return 2.0 * (fit.loglik + res.fun)
+
+
+def naive_wald_declared(looks: pd.DataFrame, alpha: float) -> tuple[int, int]:
+    """(declared, hose types): the Wald z of ``decision_looks`` beyond the fixed-sample
+    ``z_{1-alpha/2}`` at any look."""
+    from scipy import stats
+
+    z = stats.norm.isf(alpha / 2)
+    hit = looks.assign(hit=looks["z"].abs() > z).groupby("hose_type")["hit"].any()
+    return int(hit.sum()), len(hit)
+
+
+def look_distance_error(look_hoses: pd.DataFrame, looks: pd.DataFrame, truth_hoses: dict, km_per_day: float) -> float:
+    """Largest |distance at a look - exact distance| [km] over every (look, hose): the exact one
+    is ``km_per_day`` x days since installation, up to the hose's end or odometer reading."""
+    if look_hoses.empty:
+        return math.nan
+    hoses = pd.DataFrame([{**t, "hose_id": h} for h, t in truth_hoses.items()])
+    hoses["end"] = pd.to_datetime(hoses["ended_at"].fillna(hoses.get("odometer_at")), utc=True)
+    hoses["installed"] = pd.to_datetime(hoses["installed_at"], utc=True)
+    at = looks[["hose_type", "look", "event_at"]]
+    rows = look_hoses.merge(at, on=["hose_type", "look"]).merge(hoses[["hose_id", "installed", "end"]], on="hose_id")
+    when = pd.to_datetime(rows["event_at"], utc=True)
+    days = (when.where(when < rows["end"], rows["end"]) - rows["installed"]).dt.total_seconds() / 86400.0
+    return float(np.abs(rows["distance_km"] - km_per_day * days).max())
+
+
+def binomial_bound(n: int, p: float) -> int:
+    """The largest count of ``n`` trials consistent with a rate ``p``: the 97.5 % quantile of
+    Binomial(n, p)."""
+    from scipy import stats
+
+    return int(stats.binom.ppf(0.975, n, p))
+
+
+def line(label: str, k: int, n: int, target: str, ok: bool | None) -> bool:
+    """Print one count against its target; returns ``ok`` (None: shown, not judged)."""
+    rate = f"{k / n:.3f}" if n else "  n/a"
+    mark = "" if ok is None else verdict(ok)
+    print(f"  {label:<58} {k:5d}/{n:<5d} = {rate}  target {target} {mark}".rstrip())
+    return ok is not False
+
+
+def stage_seconds(stderr: str) -> dict[str, float]:
+    """Each stage's time [s] from the rebuild's ``stage <name> ran: ... (3.4 s)`` lines."""
+    out = {}
+    for name, value, unit in re.findall(r"^stage (\S+) (?:ran|reused): .*\((\d+(?:\.\d+)?) (ms|s)[;)]", stderr, re.M):
+        out[name] = float(value) / (1e3 if unit == "ms" else 1.0)
+    return out
+
+
+@dataclass
+class Scenario:
+    """One simulated and rebuilt campaign: its truth, tables, rebuild time and stage times."""
+
+    name: str
+    truth: dict
+    tables: dict
+    wall_s: float
+    stages: dict
+    verdicts: dict | None = None
+
+
+def run_scenario(root: Path, name: str, types: int, seed: int, args) -> Scenario:
+    """Simulate ``types`` hose types of scenario ``name`` in shards of ``args.shard`` (each its own
+    raw tree, rebuilt as a process), read the tables; hose types are named ``<shard>/<type>``."""
+    parts = [_rebuild_shard(root, name, k, min(args.shard, types - k * args.shard), seed * 1000 + k, args.jobs)
+             for k in range(math.ceil(types / args.shard))]
+    truth = {**parts[0].truth, "hose_types": {}, "hoses": {}}
+    for p in parts:
+        truth["hose_types"].update(p.truth["hose_types"])
+        truth["hoses"].update(p.truth["hoses"])
+    tables = {t: pd.concat([p.tables[t] for p in parts], ignore_index=True) for t in DECISION_TABLES}
+    stages = {n: sum(p.stages.get(n, math.nan) for p in parts) for n in parts[0].stages}
+    return Scenario(name, truth, tables, sum(p.wall_s for p in parts), stages)
+
+
+def _rebuild_shard(root: Path, name: str, k: int, types: int, seed: int, jobs: int) -> Scenario:
+    """One shard: simulate, rebuild as a process, read; its names prefixed with ``k/``."""
+    from pipeline.simulator.campaign import simulate_campaign
+    from pipeline.simulator.decision import DecisionProfile
+
+    raw, wh = root / f"raw-{name}-{k}", root / f"wh-{name}-{k}"
+    simulate_campaign(raw, seed=seed, profile=DecisionProfile(hose_types=types, scenario=name))
+    m = measure([*pneubench_cmd(), "rebuild", "--raw", str(raw), "--warehouse", str(wh), "--no-report",
+                 "--jobs", str(jobs)])
+    truth = json.loads((raw / "truth.json").read_text())
+    tag = f"{k}/"
+    truth["hose_types"] = {tag + h: t for h, t in truth["hose_types"].items()}
+    truth["hoses"] = {tag + h: t for h, t in truth["hoses"].items()}
+    tables = read_tables(wh / "pneubench.duckdb")
+    for t in tables.values():
+        for col in ("hose_type", "hose_id"):
+            if col in t:
+                t[col] = tag + t[col].astype(str)
+    return Scenario(name, truth, tables, m.wall_s, stage_seconds(m.stderr))
+
+
+def report_coverage(scenarios: list[Scenario]) -> bool:
+    """Coverage of the ratio and shape intervals, per scenario and pooled; True when both PASS."""
+    print("\nlife_effect: 90 % intervals covering the truth (target 85-95 %)")
+    pooled = {"ratio": [0, 0], "shape": [0, 0], "ratio, separate shapes": [0, 0], "absent": 0}
+    for s in scenarios:
+        c = coverage(s.tables["life_effect"], s.truth["hose_types"])
+        for key in ("ratio", "shape", "ratio, separate shapes"):
+            pooled[key] = [a + b for a, b in zip(pooled[key], c[key])]
+            line(f"{s.name}: {key}", *c[key], "85-95 %", None)
+        pooled["absent"] += c["absent"]
+    ok = True
+    for key in ("ratio", "shape"):
+        k, n = pooled[key]
+        ok &= line(f"all scenarios: {key}", k, n, "85-95 %", n > 0 and COVERAGE[0] <= k / n <= COVERAGE[1])
+    line("all scenarios: ratio, separate true shapes (B10 ratio; shown)", *pooled["ratio, separate shapes"],
+         "85-95 %", None)
+    print(f"  hose types without an estimate: {pooled['absent']}")
+    return ok
+
+
+def report_verdicts(by_name: dict, alpha: float, power: float, naive_types: int) -> bool:
+    """The verdict's error rates and decision rate against the targets; True when all PASS."""
+    ok = True
+    print("\nlife_verdict (hose types with a common true shape; a look at every failure)")
+    for s in by_name.values():
+        v = verdicts(s.tables["life_verdict"], s.tables["test_plan"], s.truth["hose_types"])
+        print(f"  {s.name}: {v['n']} hose types, verdicts {dict(sorted(v['counts'].items()))}; reached max_failures "
+              f"{v['reached']}/{v['n']}; max_failures = test_plan.failures_needed {v['max_failures_from_test_plan']}"
+              f"/{v['n']}")
+        s.verdicts = v
+    if "no-difference" in by_name:
+        s = by_name["no-difference"]
+        n = s.verdicts["n"]
+        bound = binomial_bound(n, alpha)
+        k = sum(s.verdicts["counts"].get(d, 0) for d in DECLARED)
+        ok &= line("ratio 1: force or distance longer (sequential)", k, n, f"<= {bound} (alpha {alpha})", k <= bound)
+        kl, nl = naive_lr_declared(s.tables["decision_look_hoses"], alpha, naive_types)
+        line("ratio 1: naive LR p < alpha at any look (must MISS)", kl, nl, f"<= {binomial_bound(nl, alpha)}",
+             kl <= binomial_bound(nl, alpha))
+        kw, nw = naive_wald_declared(s.tables["decision_looks"], alpha)
+        line("ratio 1: naive Wald |z| > z(1-alpha/2) at any look (must MISS)", kw, nw,
+             f"<= {binomial_bound(nw, alpha)}", kw <= binomial_bound(nw, alpha))
+    if "at-margin" in by_name:
+        v = by_name["at-margin"].verdicts
+        n, bound = v["n"], binomial_bound(v["n"], alpha)
+        k = v["counts"].get("no practical difference", 0)
+        ok &= line("ratio = margin: no practical difference", k, n, f"<= {bound} (alpha {alpha})", k <= bound)
+        k = v["counts"].get("force longer", 0)
+        ok &= line("ratio = margin: force longer (power)", k, n, f"{power:.2f} +/- {POWER_TOLERANCE:.2f}",
+                   n > 0 and abs(k / n - power) <= POWER_TOLERANCE)
+    if "above-margin" in by_name:
+        v = by_name["above-margin"].verdicts
+        k, n = v["counts"].get("force longer", 0), v["n"]
+        ok &= line("ratio = margin^1.5: force longer", k, n, f">= {power - POWER_TOLERANCE:.2f}",
+                   n > 0 and k / n >= power - POWER_TOLERANCE)
+    return ok
+
+
+def report_looks(scenarios: list[Scenario]) -> None:
+    """The look distances against the exact ones."""
+    for s in scenarios:
+        err = look_distance_error(s.tables["decision_look_hoses"], s.tables["decision_looks"], s.truth["hoses"],
+                                  s.truth["settings"]["km_per_day"])
+        print(f"  {s.name}: largest |look distance - exact| {err:.3g} km over "
+              f"{len(s.tables['decision_look_hoses'])} (look, hose) rows")
+
+
+def report_timing(scenarios: list[Scenario], timing: Scenario | None) -> None:
+    """Rebuild times and the decision stages' share."""
+    print("\nrebuild as a process (wall time; decision stages from the rebuild's log)")
+    for s in [*scenarios, *([timing] if timing else [])]:
+        dec = sum(s.stages.get(n, math.nan) for n in DECISION_STAGES)
+        types = len(s.truth["hose_types"])
+        print(f"  {s.name} ({types} hose types): rebuild {s.wall_s:.1f} s, decision stages {dec:.1f} s "
+              f"({', '.join(f'{n} {s.stages.get(n, math.nan):.1f} s' for n in DECISION_STAGES)})"
+              + (f"  target < 10 s: {verdict(dec < 10.0)}" if s is timing else ""))
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.bench_decision", description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="12 hose types a scenario, no timing run (a look)")
+    ap.add_argument("--types", type=int, default=None, help="hose types a scenario (default 400; 12 quick)")
+    ap.add_argument("--timing-types", type=int, default=None, help="hose types of the timing run (200; 0: none)")
+    ap.add_argument("--naive-types", type=int, default=200, help="hose types the naive LR test reads (it is slow)")
+    ap.add_argument("--seed", type=int, default=23)
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--shard", type=int, default=50,
+                    help="hose types per raw tree and rebuild (the durability stage's figures grow with them)")
+    ap.add_argument("--keep", type=Path, default=None, help="keep the raw trees and warehouses here")
+    args = ap.parse_args(argv)
+    types = args.types or (12 if args.quick else 400)
+    timing_types = args.timing_types if args.timing_types is not None else (0 if args.quick else 200)
+    root = args.keep or Path(tempfile.mkdtemp(prefix="bench-decision-"))
+    root.mkdir(parents=True, exist_ok=True)
+    try:
+        scenarios = [run_scenario(root, name, types, args.seed + i, args) for i, name in enumerate(SCENARIOS)]
+        one = argparse.Namespace(shard=max(timing_types, 1), jobs=args.jobs)   # the timing run: one rebuild
+        timing = run_scenario(root, "mixed", timing_types, args.seed + 9, one) if timing_types else None
+    except MissingTables as exc:
+        print(f"bench_decision: {exc}", file=sys.stderr)
+        return 2
+    finally:
+        if args.keep is None:
+            shutil.rmtree(root, ignore_errors=True)
+    settings = scenarios[0].truth["settings"]
+    print(f"decision: {types} hose types a scenario, seed {args.seed}; plan margin {settings['margin']}, alpha "
+          f"{settings['alpha']}, power {settings['power']}, {settings['spending']}, max_failures from test_plan")
+    ok = report_coverage(scenarios)
+    ok &= report_verdicts({s.name: s for s in scenarios}, settings["alpha"], settings["power"], args.naive_types)
+    report_looks(scenarios)
+    report_timing(scenarios, timing)
+    if args.quick:
+        print("\n--quick: too few hose types for the targets; counts shown only")
+        return 0
+    print(f"\n{verdict(ok)}: the decision's intervals and verdicts keep their rates end to end")
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
