@@ -428,6 +428,21 @@ def _figure(size=(7.0, 4.5)):
     return fig, fig.add_subplot()
 
 
+#: Groups (hose type x adjustment) drawn in one life figure, and hoses in one per-hose figure:
+#: past these a figure is unreadable (and its legend and layout cost grows with the square of the
+#: series: a 100-hose-type campaign spent 518 s drawing them). The first ones by name are drawn,
+#: the title says how many of how many; the tables hold them all.
+MAX_GROUPS_DRAWN = 12
+MAX_HOSES_DRAWN = 80
+
+
+def _drawn(names: list, limit: int, what: str) -> tuple[list, str]:
+    """The first ``limit`` of ``names`` and a title suffix saying so ("" when all are drawn)."""
+    if len(names) <= limit:
+        return list(names), ""
+    return list(names[:limit]), f"\n(first {limit} of {len(names)} {what} by name; all in the tables)"
+
+
 def plot_weibull_probability(groups: dict, unit: str = "km", confidence: float = 0.90):
     """Weibull probability plot: failures at their plotting positions, suspensions as ticks.
 
@@ -438,7 +453,8 @@ def plot_weibull_probability(groups: dict, unit: str = "km", confidence: float =
     Parameters
     ----------
     groups : dict of str to (life, failed)
-        One series (and its fitted line, when it has one) per group.
+        One series (and its fitted line, when it has one) per group; the first
+        :data:`MAX_GROUPS_DRAWN` by name are drawn.
     unit : str
         Unit of the lives, for the axis label.
     confidence : float
@@ -450,6 +466,8 @@ def plot_weibull_probability(groups: dict, unit: str = "km", confidence: float =
         B10 (10 % failed) of each fitted group is marked with a diamond on its line, its
         bounds as a horizontal bar at 10 %.
     """
+    shown, more = _drawn(sorted(groups), MAX_GROUPS_DRAWN, "groups")
+    groups = {name: groups[name] for name in shown}
     fig, ax = _figure(size=(7.0, 5.8))
     ticks = [0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.3, 0.5, 0.632, 0.8, 0.9, 0.95, 0.99]
     lin = lambda F: np.log(-np.log1p(-np.asarray(F, float)))  # noqa: E731
@@ -510,7 +528,7 @@ def plot_weibull_probability(groups: dict, unit: str = "km", confidence: float =
                 fontsize="x-small", color="0.35")
     ax.set_xlabel(f"life [{unit}]")
     ax.set_ylabel("fraction failed [%] (Weibull scale)")
-    ax.set_title("Weibull probability plot (| = suspension)")
+    ax.set_title("Weibull probability plot (| = suspension)" + more)
     ax.grid(True, which="both", alpha=0.3)
     if ax.get_legend_handles_labels()[0]:
         fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", fontsize="small", ncols=1)
@@ -518,14 +536,16 @@ def plot_weibull_probability(groups: dict, unit: str = "km", confidence: float =
 
 
 def plot_kaplan_meier(groups: dict, unit: str = "km"):
-    """Kaplan-Meier survival curves per group, suspensions marked with ``+``.
+    """Kaplan-Meier survival curves per group (the first :data:`MAX_GROUPS_DRAWN` by name),
+    suspensions marked with ``+``.
 
     Returns
     -------
     matplotlib.figure.Figure
     """
+    shown, more = _drawn(sorted(groups), MAX_GROUPS_DRAWN, "groups")
     fig, ax = _figure()
-    for i, name in enumerate(sorted(groups)):
+    for i, name in enumerate(shown):
         life, failed = _as_arrays(*groups[name])
         km = kaplan_meier(life, failed)
         if km.empty:
@@ -539,7 +559,7 @@ def plot_kaplan_meier(groups: dict, unit: str = "km"):
     ax.set_xlim(left=0)
     ax.set_xlabel(f"distance [{unit}]")
     ax.set_ylabel("fraction surviving")
-    ax.set_title("Kaplan-Meier survival (+ = suspension)")
+    ax.set_title("Kaplan-Meier survival (+ = suspension)" + more)
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize="small")
     return fig
@@ -556,7 +576,8 @@ def plot_leak_growth(df: pd.DataFrame):
     ----------
     df : DataFrame
         ``hose_id``, ``distance_km``, ``leak_l_min`` and optionally ``adjustment``,
-        ``pressure_bar``: points to draw (e.g. one pressure level per hose).
+        ``pressure_bar``: points to draw (e.g. one pressure level per hose); the hoses drawn are
+        the first :data:`MAX_GROUPS_DRAWN` by id.
 
     Returns
     -------
@@ -565,7 +586,8 @@ def plot_leak_growth(df: pd.DataFrame):
     fig, ax = _figure(size=(8.0, 4.5))
     styles = {"force": "-", "distance": "--"}
     markers = ["o", "s", "^", "D", "v", "P", "X", "<", ">", "*"]
-    for i, (hose, g) in enumerate(df.groupby("hose_id", sort=True)):
+    shown, more = _drawn(sorted(df["hose_id"].unique()), MAX_GROUPS_DRAWN, "hoses")
+    for i, (hose, g) in enumerate(df[df["hose_id"].isin(shown)].groupby("hose_id", sort=True)):
         g = g.sort_values("distance_km")
         adj = g["adjustment"].iloc[0] if "adjustment" in g else None
         # hollow markers of a shape per hose, translucent lines getting thinner hose by hose: a
@@ -579,7 +601,7 @@ def plot_leak_growth(df: pd.DataFrame):
     title = "Leakage growth per hose"
     if "pressure_bar" in df and len(df):
         title += f" at {df['pressure_bar'].max():.1f} bar"
-    ax.set_title(title + " (dashed: distance-set rollers)")
+    ax.set_title(title + " (dashed: distance-set rollers)" + more)
     ax.grid(True, alpha=0.3)
     if len(df):
         fig.legend(*ax.get_legend_handles_labels(), loc="outside right upper", fontsize="small")
@@ -592,14 +614,17 @@ def plot_hose_distances(hoses: pd.DataFrame):
     Parameters
     ----------
     hoses : DataFrame
-        ``hose_id``, ``distance_km``, ``status`` and optionally ``adjustment``.
+        ``hose_id``, ``distance_km``, ``status`` and optionally ``adjustment``; the first
+        :data:`MAX_HOSES_DRAWN` by id are drawn.
 
     Returns
     -------
     matplotlib.figure.Figure
     """
     colors = {"failed": "tab:red", "removed": "tab:orange", "running": "tab:green"}
-    h = hoses.sort_values(["adjustment", "distance_km"] if "adjustment" in hoses else ["distance_km"])
+    shown, more = _drawn(sorted(hoses["hose_id"].astype(str)), MAX_HOSES_DRAWN, "hoses")
+    h = hoses[hoses["hose_id"].astype(str).isin(shown)]
+    h = h.sort_values(["adjustment", "distance_km"] if "adjustment" in h else ["distance_km"])
     fig, ax = _figure((max(6.0, 0.3 * len(h) + 2), 4.5))
     pos = np.arange(len(h))
     ax.bar(pos, h["distance_km"].fillna(0.0), color=[colors.get(s, "grey") for s in h["status"]])
@@ -610,7 +635,7 @@ def plot_hose_distances(hoses: pd.DataFrame):
 
     ax.legend(handles=[Patch(color=c, label=s) for s, c in colors.items()], fontsize="small")
     ax.set_ylabel("distance [km]")
-    ax.set_title("Distance per hose (f = force-set, d = distance-set rollers)")
+    ax.set_title("Distance per hose (f = force-set, d = distance-set rollers)" + more)
     ax.grid(True, axis="y", alpha=0.3)
     return fig
 

@@ -2,6 +2,7 @@
 import math
 
 import numpy as np
+import pandas as pd
 import pytest
 from matplotlib.figure import Figure
 from scipy import optimize, stats
@@ -276,3 +277,28 @@ def test_weibull_plot_marks_b10_and_its_bounds():
     assert "B10" in marker.get_label() and f"{r['b10_lower']:.3g}" in marker.get_label()
     segs = [s for c in ax.collections for s in c.get_segments() if len(s) == 2 and s[0][1] == s[1][1]]
     assert any(s[0][0] == pytest.approx(r["b10_lower"]) and s[1][0] == pytest.approx(r["b10_upper"]) for s in segs)
+
+
+def test_life_figures_draw_the_first_groups_and_say_how_many_of_how_many():
+    """Past MAX_GROUPS_DRAWN groups (MAX_HOSES_DRAWN hoses) a figure draws the first ones by name
+    and its title says so; with fewer it is drawn whole and the title is unchanged."""
+    from analyses.service_life import MAX_GROUPS_DRAWN, MAX_HOSES_DRAWN
+    rng = np.random.default_rng(3)
+    groups = {f"T{j:03d} force": (rng.weibull(2.0, 6) * 100, np.array([1, 1, 1, 0, 1, 0], bool))
+              for j in range(MAX_GROUPS_DRAWN + 5)}
+    fig = plot_kaplan_meier(groups)
+    ax = fig.axes[0]
+    assert len([ln for ln in ax.get_lines() if ln.get_label().startswith("T")]) == MAX_GROUPS_DRAWN
+    assert f"first {MAX_GROUPS_DRAWN} of {MAX_GROUPS_DRAWN + 5} groups" in ax.get_title()
+    fig = plot_weibull_probability(groups)
+    labels = fig.axes[0].get_legend_handles_labels()[1]
+    assert {lb.split(":")[0] for lb in labels} == set(sorted(groups)[:MAX_GROUPS_DRAWN])
+    assert f"of {MAX_GROUPS_DRAWN + 5} groups" in fig.axes[0].get_title()
+    hoses = pd.DataFrame({"hose_id": [f"H{i:04d}" for i in range(MAX_HOSES_DRAWN + 20)],
+                          "distance_km": np.arange(MAX_HOSES_DRAWN + 20, dtype=float),
+                          "status": "running", "adjustment": "force"})
+    fig = plot_hose_distances(hoses)
+    assert len(fig.axes[0].patches) == MAX_HOSES_DRAWN
+    assert f"first {MAX_HOSES_DRAWN} of {MAX_HOSES_DRAWN + 20} hoses" in fig.axes[0].get_title()
+    few = plot_kaplan_meier(dict(list(groups.items())[:2]))
+    assert few.axes[0].get_title() == "Kaplan-Meier survival (+ = suspension)"
