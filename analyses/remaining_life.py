@@ -239,11 +239,19 @@ def _t_draws(centre, cov, n: int, rng) -> tuple[np.ndarray, np.ndarray, np.ndarr
 
 
 def _weibull_survival_from(shape, scale, d: float, r) -> np.ndarray:
-    """``S(d + r) / S(d)`` per draw (rows) and remaining distance (columns). [-]"""
+    """``S(d + r) / S(d)`` per draw (rows) and remaining distance ``r > 0`` (columns). [-]
+
+    Computed as ``exp(-(d/s)^k ((1 + r/d)^k - 1))`` in logs, so that a draw under which the unit
+    could not have reached ``d`` gives 0 rather than ``inf - inf``.
+    """
     k, s = np.asarray(shape)[:, None], np.asarray(scale)[:, None]
     r = np.atleast_1d(np.asarray(r, float))[None, :]
-    with np.errstate(over="ignore"):
-        return np.exp(-(((d + r) / s) ** k) + (d / s) ** k)
+    with np.errstate(over="ignore", divide="ignore"):
+        if d > 0:
+            log_h = k * (math.log(d) - np.log(s)) + np.log(np.expm1(k * np.log1p(r / d)))
+        else:
+            log_h = k * (np.log(r) - np.log(s))
+        return np.exp(-np.exp(log_h))
 
 
 def _mixture_quantiles(survival, weights, probs, guess: float) -> np.ndarray:

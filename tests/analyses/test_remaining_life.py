@@ -214,3 +214,11 @@ def test_backtest_predicts_every_failed_hose_twice_per_method_and_mostly_covers(
 def test_backtest_without_failed_hoses_says_so():
     s = backtest_summary(pd.DataFrame(columns=["method", "abs_error_km", "covered", "note"]))
     assert (s["n_predictions"] == 0).all() and (s["note"] == "no failed hose to backtest").all()
+
+
+def test_calibration_benchmark_runs_quick(capsys):
+    from benchmarks.bench_remaining_life import main
+
+    assert main(["--quick"]) == 0
+    out = capsys.readouterr().out
+    assert "weibull      running hoses:" in out and "wear rate mean" in out and "(quick: no verdict)" in out
