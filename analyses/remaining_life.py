@@ -670,11 +670,14 @@ def _leak_failures(hoses: pd.DataFrame, points: pd.DataFrame, limit_l_min: float
 
 def _rupture_posterior(hoses: pd.DataFrame, points: pd.DataFrame, s: RulSettings,
                        seed: int) -> tuple[WeibullPosterior | None, str | None]:
-    """The other failure modes' life model, None (and why) when there are fewer than two."""
+    """The other failure modes' life model; None when there are fewer than two such failures (and
+    why, when there is one)."""
     life, failed = _lives(hoses)
     other = failed & ~_leak_failures(hoses, points, s.limit_l_min)
+    if other.sum() == 0:
+        return None, None
     if other.sum() < 2:
-        return None, f"other failure modes left out ({int(other.sum())} failed otherwise than by leak, 2 needed)"
+        return None, "other failure modes left out (1 hose failed otherwise than by leak, 2 needed for a model)"
     post = weibull_posterior(life, other, s.n_draws, seed)
     return post, (None if post.ok else f"the other failure modes: {post.note}")
 
@@ -730,6 +733,8 @@ def _degradation_with_rupture(deg: DegradationFit, hose_id, distance_km: float, 
     """:func:`degradation_rul` with the other failure modes when there is a model of them; the
     note says when they were left out."""
     post, r_note = rupture
+    if not deg.ok:
+        return np.full(3, _NAN), deg.note
     if post is not None and not post.ok:
         return np.full(3, _NAN), r_note
     q, note = degradation_rul(deg, hose_id, distance_km, s.limit_l_min, post, s.confidence, s.n_draws, seed)
@@ -763,7 +768,7 @@ def rul_backtest(hoses: pd.DataFrame, points: pd.DataFrame, settings: RulSetting
     seed = data_seed(hoses, points) if seed is None else seed
     life, failed = _lives(hoses)
     post = weibull_posterior(life, failed, settings.n_draws, seed)
-    rupture, _ = _rupture_posterior(hoses, points, settings, seed + 1)
+    rupture, left_out = _rupture_posterior(hoses, points, settings, seed + 1)
     leak_failed = _leak_failures(hoses, points, settings.limit_l_min)
     rows = []
     for i in np.flatnonzero(failed):
@@ -774,8 +779,11 @@ def rul_backtest(hoses: pd.DataFrame, points: pd.DataFrame, settings: RulSetting
             rows.append(_backtest_row(hid, "weibull", f, at, total, q, note))
             mine = (points["hose_id"] == hid) & (points["distance_km"] > at)
             deg = degradation_fit(points[~mine], settings.sensor, settings.floor_multiple)
-            r_post = None if rupture is None else rupture.changed([total], [not leak_failed[i]], [at], [False])
-            r_note = None if r_post is None or r_post.ok else f"the other failure modes: {r_post.note}"
+            r_post, r_note = rupture, left_out
+            if rupture is not None and rupture.ok:
+                r_post = rupture.changed([total], [not leak_failed[i]], [at], [False])
+                if not r_post.ok:   # this hose was one of two: without it the mode is left out, as above
+                    r_post, r_note = None, f"other failure modes left out ({r_post.note})"
             q, note = _degradation_with_rupture(deg, hid, at, settings, (r_post, r_note), seed + 2 + i)
             rows.append(_backtest_row(hid, "degradation", f, at, total, q, note))
     return pd.DataFrame(rows, columns=BACKTEST_COLUMNS)

@@ -222,3 +222,21 @@ def test_calibration_benchmark_runs_quick(capsys):
     assert main(["--quick"]) == 0
     out = capsys.readouterr().out
     assert "weibull      running hoses:" in out and "wear rate mean" in out and "(quick: no verdict)" in out
+
+
+def test_a_single_rupture_is_left_out_and_said_and_an_unnamed_mode_is_read_from_the_leak_path():
+    hoses, pts = hose_type(np.random.default_rng(17))
+    i = int(np.flatnonzero(hoses["status"] == "failed")[0])
+    one = hoses.copy()
+    one.loc[i, "failure_mode"] = "rupture"
+    out = remaining_life(one, pts, RulSettings(limit_l_min=2.0, sensor=SENSOR), seed=1)
+    deg = out[(out["method"] == "degradation") & out["rul_median_km"].notna()]
+    assert len(deg) and deg["note"].str.startswith("other failure modes left out (1 hose").all()
+    failed = hoses[hoses["status"] == "failed"]
+    seen = pd.concat([pts, pd.DataFrame({"hose_id": failed["hose_id"], "distance_km": failed["distance_km"],
+                                         "leak_l_min": 2.2})], ignore_index=True)   # the check that found it
+    s = RulSettings(limit_l_min=2.0, sensor=SENSOR)
+    unnamed = remaining_life(hoses.assign(failure_mode=None), seen, s, seed=1)
+    pd.testing.assert_frame_equal(unnamed, remaining_life(hoses, seen, s, seed=1))   # all read as leak failures
+    silent = remaining_life(hoses.assign(failure_mode=None), pts, s, seed=1)          # none seen: all "other"
+    assert not silent.equals(unnamed)
