@@ -14,19 +14,19 @@ The hose type's lives (failures exact, removed and running hoses right-censored)
 two-parameter Weibull likelihood (:mod:`analyses.service_life`). A running hose at distance
 ``d`` has the conditional survival ``S(d + r) / S(d)``. Plugging in the estimate ignores the
 parameters' uncertainty and gives intervals that are too short with few failures (Meeker &
-Escobar 1998, sec. 12.6; Escobar & Meeker 1999, "Statistical prediction based on censored life
+Escobar 1998, ch. 12; Escobar & Meeker 1999, "Statistical prediction based on censored life
 data", Technometrics 41). Here the predictive distribution is the conditional distribution
 **integrated over the likelihood** with the prior flat in ``(log shape, log scale)``:
 ``P(R > r) = E[S(d + r | theta) / S(d | theta) | data]``. ``log T`` is a location-scale variable
-(location ``log scale``, scale ``1 / shape``), and this prior is the right-invariant one, whose
-predictive intervals have exact frequentist coverage for complete and Type II censored
-location-scale data (Hora & Buehler 1967; Lawless 2003, sec. 6.5) and near-nominal coverage
-otherwise (Meeker, Hahn & Escobar 2017, *Statistical Intervals*, ch. 16): that is the
-calibration, measured in ``benchmarks/bench_remaining_life.py``. The integral is computed by
-importance sampling: draws from a Student-t (4 df) around the maximum likelihood estimate with
-twice its observed-information covariance, then once more from a Student-t with the first draws'
-weighted mean and twice their covariance (adaptive importance sampling), weighted by likelihood
-over proposal; the predictive
+(location ``log scale``, scale ``1 / shape``), and this prior is its right-invariant one, whose
+prediction intervals for a new unit have exact frequentist coverage with complete and Type II
+censored data (Hora & Buehler 1967, "Fiducial theory and invariant prediction"; Lawless 2003,
+*Statistical Models and Methods for Lifetime Data*); conditioned on a running unit's distance and
+with Type I censoring they are approximate: their calibration is measured in
+``benchmarks/bench_remaining_life.py``. The integral is computed by importance sampling: draws
+from a Student-t (4 df) around the maximum likelihood estimate with twice its observed-information
+covariance, then once more from a Student-t with the first draws' weighted mean and twice their
+covariance (adaptive importance sampling), weighted by likelihood over proposal; the predictive
 quantiles are found by bisection on the exact mixture of conditional Weibull survivals, so they
 carry no sampling noise of their own. The running hose's own survival to ``d`` is in the data
 (a suspension), so the posterior is already conditioned on it.
@@ -51,7 +51,7 @@ its variance), truncated to "not crossed by now" (it is running). Parameter unce
 of ``gamma`` (normal), ``sigma^2`` (scaled inverse chi-square on its degrees of freedom),
 ``tau^2`` (scaled inverse chi-square on ``tau^4 sum w_i^2`` effective degrees of freedom, from its
 observed information), ``mu`` (normal, recomputed for each ``gamma`` drawn) - a large-sample
-approximation of the posterior (Meeker & Escobar 1998, sec. 13.6 use the bootstrap; these draws
+approximation of the posterior (Meeker & Escobar 1998, ch. 13, use the bootstrap; these draws
 are cheaper and their calibration is measured, not assumed).
 
 Other failure modes (a rupture) end a hose before its leak crosses the limit. They enter as a

@@ -123,13 +123,15 @@ def report(outcomes: pd.DataFrame, backtests: pd.DataFrame, wear: list, quick: b
         cov = float(made["covered"].mean()) if len(made) else math.nan
         ok = len(made) >= 300 and abs(cov - CONFIDENCE) <= 0.07
         all_ok &= ok
-        print(f"{method:12s} running hoses: {len(o)}, with an interval {len(made)}, covered {int(made['covered'].sum())}"
-              f" = {100 * cov:.1f} % (nominal {100 * CONFIDENCE:g} +- 7, >= 300 hoses)  {_verdict(ok, quick)}")
+        print(f"{method:12s} running hoses: {len(o)}, with an interval {len(made)}, "
+              f"covered {int(made['covered'].sum())} = {100 * cov:.1f} % "
+              f"(nominal {100 * CONFIDENCE:g} +- 7, >= 300 hoses)  {_verdict(ok, quick)}")
         b = summary.loc[method]
         ok_b = b["n_predictions"] > 0 and abs(b["coverage"] - cov) <= 0.10
         all_ok &= ok_b
-        print(f"{'':12s} backtest: {b['n_predictions']} predictions, coverage {100 * b['coverage']:.1f} %, median abs "
-              f"error {b['median_abs_error_km']:.0f} km (within 10 points of {100 * cov:.1f} %)  {_verdict(ok_b, quick)}")
+        print(f"{'':12s} backtest: {b['n_predictions']} predictions, coverage {100 * b['coverage']:.1f} %, "
+              f"median abs error {b['median_abs_error_km']:.0f} km "
+              f"(within 10 points of {100 * cov:.1f} %)  {_verdict(ok_b, quick)}")
     s_log = math.sqrt(math.log1p(WEAR_CV ** 2))
     true_sd = WEAR_MEAN * math.sqrt(math.expm1(s_log ** 2))
     est = np.array([(m, s) for m, s, _ in wear], float)
@@ -138,8 +140,9 @@ def report(outcomes: pd.DataFrame, backtests: pd.DataFrame, wear: list, quick: b
         rel = est[:, j] / truth - 1.0
         ok = len(rel) > 0 and abs(float(np.median(est[:, j])) / truth - 1.0) <= 0.15
         all_ok &= ok
-        print(f"wear rate {name:4s}: truth {truth:.3g} 1/km, median estimate {np.median(est[:, j]):.3g} over {len(rel)} "
-              f"types ({100 * np.mean(np.abs(rel) <= 0.15):.0f} % of types within 15 %)  {_verdict(ok, quick)}")
+        print(f"wear rate {name:4s}: truth {truth:.3g} 1/km, median estimate {np.median(est[:, j]):.3g} "
+              f"over {len(rel)} types ({100 * np.mean(np.abs(rel) <= 0.15):.0f} % of types within 15 %)  "
+              f"{_verdict(ok, quick)}")
     both = outcomes[outcomes["made"]].pivot_table(index=["hose_type", "hose_id"], columns="method", values="width")
     both = both.dropna()
     ratio = float(np.median(both["degradation"] / both["weibull"])) if len(both) else math.nan
