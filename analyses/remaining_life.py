@@ -298,6 +298,8 @@ def weibull_rul(post: WeibullPosterior, distance_km: float,
     """
     if not post.ok:
         return np.full(3, _NAN), post.note
+    if not distance_km >= 0:
+        return np.full(3, _NAN), "no distance now"
     weights, ess = post.weights()
     if ess < MIN_ESS:
         return np.full(3, _NAN), f"the parameter draws do not cover the likelihood (effective {ess:.0f})"

@@ -95,6 +95,8 @@ def test_fewer_than_two_failures_give_nan_and_a_note():
     assert np.isnan(q).all() and "too few failures" in note
     ok = weibull_posterior([10.0, 20.0, 30.0], [True, True, False], seed=1)
     assert "too few failures" in ok.changed([10.0], [True], [5.0], [False]).note
+    q, note = weibull_rul(ok, float("nan"))
+    assert np.isnan(q).all() and note == "no distance now"
 
 
 # -- the degradation model -----------------------------------------------------------------------
