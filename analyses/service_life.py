@@ -644,3 +644,35 @@ __all__ = ["SHAPE_BOUNDS", "WeibullFit", "weibull_fit", "weibull_loglik", "weibu
            "weibull_quantile_bounds", "weibull_quantile_profile", "lr_bound", "b10", "weibull_lr_test",
            "kaplan_meier", "weibull_plotting_positions", "plot_weibull_probability", "plot_kaplan_meier",
            "plot_leak_growth", "plot_hose_distances"]
+
+
+def weibull_loglik_many(shape, scale, life, failed) -> np.ndarray:
+    """:func:`weibull_loglik` at many parameter pairs at once (vectorised over the pairs).
+
+    Used to weigh thousands of parameter draws against the likelihood (the predictive
+    distributions of :mod:`analyses.remaining_life`), where one call per pair is too slow.
+
+    Parameters
+    ----------
+    shape, scale : array_like
+        Weibull parameters, broadcast against each other (scale in the unit of ``life``).
+    life : array_like
+        Lives (failure or censoring distance) [any unit, > 0].
+    failed : array_like of bool
+        True for a failure, False for a suspension.
+
+    Returns
+    -------
+    numpy.ndarray
+        Log-likelihood per pair (shape of the broadcast parameters); -inf where a parameter is
+        not positive.
+    """
+    x, f = _as_arrays(life, failed)
+    k, s = np.broadcast_arrays(np.asarray(shape, dtype=float), np.asarray(scale, dtype=float))
+    good = (k > 0) & (s > 0)
+    kk, ss = np.where(good, k, 1.0)[..., None], np.where(good, s, 1.0)[..., None]
+    z = x / ss
+    with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
+        ll = (np.sum(np.where(f, np.log(kk / ss) + (kk - 1.0) * np.log(z), 0.0), axis=-1)
+              - np.sum(z ** kk, axis=-1))
+    return np.where(good, ll, -np.inf)

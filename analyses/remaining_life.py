@@ -1,0 +1,838 @@
+"""Remaining life of running hoses: from the life model, from each hose's leak growth; backtests.
+
+Distances are in km, leaks in l/min (ANR) at the plan's test pressure. A hose is ``running``,
+``failed`` or ``removed`` (``hoses``: ``hose_id``, ``distance_km``, ``status``, optionally
+``failure_mode``); its leak path is its leakage plateaus at its distance (``points``:
+``hose_id``, ``distance_km``, ``leak_l_min``, one pressure level, as ``hose_leak_growth`` gives
+them). Every prediction is a median and a two-sided **prediction interval** at ``confidence``
+for the distance a running hose has left [km], NaN with a one-line ``note`` when the data
+cannot tell.
+
+``weibull``: the life model conditioned on survival
+---------------------------------------------------
+The hose type's lives (failures exact, removed and running hoses right-censored) have a
+two-parameter Weibull likelihood (:mod:`analyses.service_life`). A running hose at distance
+``d`` has the conditional survival ``S(d + r) / S(d)``. Plugging in the estimate ignores the
+parameters' uncertainty and gives intervals that are too short with few failures (Meeker &
+Escobar 1998, ch. 12; Escobar & Meeker 1999, "Statistical prediction based on censored life
+data", Technometrics 41). Here the predictive distribution is the conditional distribution
+**integrated over the likelihood** with the prior flat in ``(log shape, log scale)``:
+``P(R > r) = E[S(d + r | theta) / S(d | theta) | data]``. ``log T`` is a location-scale variable
+(location ``log scale``, scale ``1 / shape``), and this prior is its right-invariant one, whose
+prediction intervals for a new unit have exact frequentist coverage with complete and Type II
+censored data (Hora & Buehler 1967, "Fiducial theory and invariant prediction"; Lawless 2003,
+*Statistical Models and Methods for Lifetime Data*); conditioned on a running unit's distance and
+with Type I censoring they are approximate: their calibration is measured in
+``benchmarks/bench_remaining_life.py``. The integral is computed by importance sampling: draws
+from a Student-t (4 df) around the maximum likelihood estimate with twice its observed-information
+covariance, then once more from a Student-t with the first draws' weighted mean and twice their
+covariance (adaptive importance sampling), weighted by likelihood over proposal; the predictive
+quantiles are found by bisection on the exact mixture of conditional Weibull survivals, so they
+carry no sampling noise of their own. The running hose's own survival to ``d`` is in the data
+(a suspension), so the posterior is already conditioned on it.
+
+``degradation``: each hose's leak path, pooled, run to the limit
+----------------------------------------------------------------
+A random-effects degradation model (Lu & Meeker 1993, Technometrics 35; Meeker & Escobar 1998,
+ch. 13): ``log leak_ij = alpha_i + gamma log d_ij + e_ij``, ``alpha_i ~ N(mu, tau^2)`` from hose
+to hose, ``e_ij ~ N(0, sigma^2)``. Equivalently ``leak = (w_i d)^gamma`` l/min with a hose's
+**wear rate** ``w_i = exp(alpha_i / gamma)`` [1/km] (``1 / w_i`` is the distance at which its leak
+reaches 1 l/min), lognormal across hoses. Why this form: the leak through a worn seal goes as a
+power (about 1.5, an orifice) of the seal's pressure deficit, and the deficit grows in proportion
+to the wear, i.e. to distance at the hose's own rate; the exponent ``gamma`` is a property of the
+seal shared by the hoses of a type and is estimated, not assumed (``gamma = 1`` is a linear path).
+The crossing distance of the limit ``L`` is ``D_i = L^(1/gamma) / w_i``: lognormal, so the model
+has the closed forms Lu & Meeker recommend. Fit: ``gamma`` and ``sigma`` from the within-hose
+regression with one intercept per hose (:func:`analyses.quality.linear_lstsq`), ``mu`` and
+``tau`` by maximum likelihood of the hoses' intercepts given their sampling variances
+``sigma^2 / n_i`` (a one-way random-effects model with unequal counts). Prediction for a running
+hose: its intercept's posterior given its own points (the best linear unbiased predictor and
+its variance), truncated to "not crossed by now" (it is running). Parameter uncertainty: draws
+of ``gamma`` (normal), ``sigma^2`` (scaled inverse chi-square on its degrees of freedom),
+``tau^2`` (scaled inverse chi-square on ``tau^4 sum w_i^2`` effective degrees of freedom, from its
+observed information), ``mu`` (normal, recomputed for each ``gamma`` drawn) - a large-sample
+approximation of the posterior (Meeker & Escobar 1998, ch. 13, use the bootstrap; these draws
+are cheaper and their calibration is measured, not assumed).
+
+Other failure modes (a rupture) end a hose before its leak crosses the limit. They enter as a
+competing risk: a Weibull fitted to the failures that were not leak failures (the others
+censored), with its predictive draws as above, independent of the leak path; the remaining life
+is ``min(crossing, rupture)``. With fewer than two such failures the rupture mode is left out
+and the note says so.
+
+Leak points at or below ``floor_multiple`` times the sensor's floor (:meth:`Sensor.floor
+<analyses.quality.Sensor.floor>`: the larger of its stated resolution and noise) are left out of
+the fit: the log model needs a leak well above the additive sensor noise (at 10 x the floor the
+noise adds at most about 0.1 to the log). A hose's prediction is NaN with a note when it has
+fewer than :data:`MIN_LEAK_POINTS` points in all, fewer than that above the floor ("noisy at
+the sensor floor"), or its own path is falling or flat (its own log-log slope not positive by
+twice its standard error, :meth:`Gate.identifiable <analyses.quality.Gate.identifiable>`).
+
+Backtest
+--------
+:func:`rul_backtest`: for every failed hose, the prediction each method would have made at 50 %
+and 80 % of its life from the data there was then: that hose censored at that distance and its
+later leak points removed, the model refitted (the Weibull posterior by importance re-weighting
+of the same draws, which is exact up to Monte Carlo error: case-deletion importance sampling,
+Gelfand, Dey & Chang 1992; the degradation model by refitting). The other hoses keep their data
+(the tables carry no calendar order of the hoses' lives). :func:`backtest_summary`: per method
+``n_predictions``, ``coverage`` of the intervals and ``median_abs_error_km`` of the medians.
+
+Leak-limit crossing
+-------------------
+:func:`leak_crossing_life`: the first distance at which a hose's leak path reaches a limit,
+linearly interpolated between the two plateaus either side; a path that never reaches it is
+censored at its last plateau (the last distance it was known to be below the limit).
+"""
+from __future__ import annotations
+
+import hashlib
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+import scipy
+
+from analyses.quality import Gate, Sensor, at_bound, linear_lstsq
+from analyses.service_life import WeibullFit, weibull_fit, weibull_loglik_many
+
+_NAN = float("nan")
+#: Leak points a hose needs above the sensor floor for its own prediction: two to draw a path
+#: and one to check it. [-]
+MIN_LEAK_POINTS = 3
+#: Hoses with leak paths (two points or more) needed to pool a degradation model. [-]
+MIN_HOSES = 3
+#: A leak point enters the fit when it is above this multiple of the sensor's floor. [-]
+FLOOR_MULTIPLE = 10.0
+#: Draws of the parameters per predictive distribution. [-]
+N_DRAWS = 1000
+#: Effective sample size below which importance-weighted draws are not trusted. [-]
+MIN_ESS = 100.0
+#: Search range of the hose-to-hose variance of the log leak; an estimate at its ends is NaN. [-]
+TAU2_BOUNDS = (1e-8, 1e2)
+#: Fractions of a failed hose's life at which the backtest predicts. [-]
+BACKTEST_FRACTIONS = (0.5, 0.8)
+RUL_COLUMNS = ["hose_id", "distance_km", "method", "rul_median_km", "rul_lower_km", "rul_upper_km",
+               "leak_now_l_min", "leak_limit_l_min", "n_leak_points", "note"]
+BACKTEST_COLUMNS = ["hose_id", "method", "fraction", "at_km", "life_km", "rul_median_km", "rul_lower_km",
+                    "rul_upper_km", "covered", "abs_error_km", "note"]
+
+
+def data_seed(*frames: pd.DataFrame) -> int:
+    """A seed from the data's content: the same tables give the same draws. [-]"""
+    h = hashlib.sha256()
+    for df in frames:
+        h.update(pd.util.hash_pandas_object(df.reset_index(drop=True), index=False).to_numpy().tobytes())
+    return int.from_bytes(h.digest()[:4], "little")
+
+
+# -- the Weibull predictive ------------------------------------------------------------------
+@dataclass
+class WeibullPosterior:
+    """Draws of (shape, scale) weighted to the likelihood of censored lives (flat prior in logs).
+
+    Attributes
+    ----------
+    shape, scale : numpy.ndarray
+        Proposal draws [-], [km].
+    log_weight : numpy.ndarray
+        Log-likelihood of the data minus the proposal's log density, per draw.
+    fit : WeibullFit
+        The maximum likelihood fit the proposal is centred on.
+    note : str or None
+        Why there are no draws (then the arrays are empty).
+    """
+
+    shape: np.ndarray
+    scale: np.ndarray
+    log_weight: np.ndarray
+    fit: WeibullFit
+    note: str | None = None
+
+    @property
+    def ok(self) -> bool:
+        return self.note is None
+
+    def weights(self) -> tuple[np.ndarray, float]:
+        """Normalised weights of the draws and their effective sample size (Kish). [-]"""
+        lw = np.where(np.isfinite(self.log_weight), self.log_weight, -np.inf)
+        w = np.exp(lw - lw.max())
+        w /= w.sum()
+        return w, float(1.0 / np.sum(w ** 2))
+
+    def changed(self, out_life, out_failed, in_life, in_failed) -> "WeibullPosterior":
+        """The posterior of the data with the units ``out`` removed and ``in`` added.
+
+        Exact re-weighting of the same draws (case-deletion importance sampling, Gelfand, Dey &
+        Chang 1992): no refit. ``*_life`` [km], ``*_failed`` bool, array_like each.
+        """
+        if not self.ok:
+            return self
+        n_failed = self.fit.n_failed - int(np.sum(out_failed)) + int(np.sum(in_failed))
+        fit = WeibullFit(self.fit.shape, self.fit.scale, self.fit.loglik, self.fit.n, n_failed)
+        if n_failed < 2:
+            empty = np.empty(0)
+            return WeibullPosterior(empty, empty, empty, fit, note=f"too few failures: {n_failed} < 2")
+        with np.errstate(invalid="ignore"):   # -inf - -inf: a draw the data rule out stays out
+            lw = (self.log_weight - weibull_loglik_many(self.shape, self.scale, out_life, out_failed)
+                  + weibull_loglik_many(self.shape, self.scale, in_life, in_failed))
+        return WeibullPosterior(self.shape, self.scale, lw, fit)
+
+
+def weibull_posterior(life, failed, n_draws: int = N_DRAWS, seed: int = 0) -> WeibullPosterior:
+    """Importance-sampled posterior of the Weibull parameters of censored lives.
+
+    Parameters
+    ----------
+    life : array_like
+        Lives [km]: failure or censoring distances.
+    failed : array_like of bool
+        True for a failure.
+    n_draws : int
+        Proposal draws. [-]
+    seed : int
+        Seed of the draws.
+
+    Returns
+    -------
+    WeibullPosterior
+        Empty with a ``note`` when the fit has no estimate (fewer than two failures, the shape
+        at its search bound) or the observed information is not positive definite.
+    """
+    fit = weibull_fit(life, failed)
+    empty = np.empty(0)
+    if not fit.ok:
+        return WeibullPosterior(empty, empty, empty, fit, note=f"no Weibull fit: {fit.note}")
+    centre = np.array([math.log(fit.shape), math.log(fit.scale)])
+    h = 1e-3
+    steps = np.array([[i, j] for i in (-1, 0, 1) for j in (-1, 0, 1)], float) * h
+    ll = weibull_loglik_many(np.exp(centre[0] + steps[:, 0]), np.exp(centre[1] + steps[:, 1]), life, failed)
+    g = ll.reshape(3, 3)
+    hess = np.array([[g[2, 1] - 2 * g[1, 1] + g[0, 1], (g[2, 2] - g[2, 0] - g[0, 2] + g[0, 0]) / 4],
+                     [0.0, g[1, 2] - 2 * g[1, 1] + g[1, 0]]]) / h ** 2
+    hess[1, 0] = hess[0, 1]
+    try:
+        cov = np.linalg.inv(-hess)
+        np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        return WeibullPosterior(empty, empty, empty, fit, note="the likelihood is not peaked at its maximum")
+    rng = np.random.default_rng(seed)
+    for _ in range(2):   # the second proposal takes the first's weighted moments (adaptive IS)
+        shape, scale, log_w = _t_draws(centre, 2.0 * cov, n_draws, rng)
+        log_w = log_w + weibull_loglik_many(shape, scale, life, failed)
+        w = np.exp(log_w - log_w.max())
+        w /= w.sum()
+        theta = np.log(np.column_stack([shape, scale]))
+        centre = w @ theta
+        cov = (theta - centre).T @ ((theta - centre) * w[:, None])
+    return WeibullPosterior(shape, scale, log_w, fit)
+
+
+def _t_draws(centre, cov, n: int, rng) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(shape, scale, minus the log proposal density up to a constant) of ``n`` draws of
+    (log shape, log scale) from a Student-t with 4 degrees of freedom."""
+    df = 4.0
+    t = rng.standard_normal((n, 2)) / np.sqrt(rng.chisquare(df, n) / df)[:, None]
+    theta = centre + t @ np.linalg.cholesky(cov).T
+    return np.exp(theta[:, 0]), np.exp(theta[:, 1]), 0.5 * (df + 2.0) * np.log1p(np.sum(t ** 2, axis=1) / df)
+
+
+def _weibull_survival_from(shape, scale, d: float, r) -> np.ndarray:
+    """``S(d + r) / S(d)`` per draw (rows) and remaining distance ``r > 0`` (columns). [-]
+
+    Computed as ``exp(-(d/s)^k ((1 + r/d)^k - 1))`` in logs, so that a draw under which the unit
+    could not have reached ``d`` gives 0 rather than ``inf - inf``.
+    """
+    k, s = np.asarray(shape)[:, None], np.asarray(scale)[:, None]
+    r = np.atleast_1d(np.asarray(r, float))[None, :]
+    with np.errstate(over="ignore", divide="ignore"):
+        if d > 0:
+            log_h = k * (math.log(d) - np.log(s)) + np.log(np.expm1(k * np.log1p(r / d)))
+        else:
+            log_h = k * (np.log(r) - np.log(s))
+        return np.exp(-np.exp(log_h))
+
+
+def _mixture_quantiles(survival, weights, probs, guess: float) -> np.ndarray:
+    """Remaining distances where the weighted mixture of ``survival(r)`` reaches ``1 - p``. [km]
+
+    ``survival(r)`` gives one survival per draw (rows) and distance (columns); the mixture's
+    quantiles are found by bisection on a log scale, from ``guess * 1e-9`` to ``guess * 1e6``
+    (NaN beyond: the data do not bound it).
+    """
+    probs = np.asarray(probs, float)
+    lo = np.full(probs.shape, math.log(guess * 1e-9))
+    hi = np.full(probs.shape, math.log(guess * 1e6))
+    f_hi = 1.0 - weights @ survival(np.exp(hi))
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        cdf = 1.0 - weights @ survival(np.exp(mid))
+        below = cdf < probs
+        lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
+    q = np.exp(0.5 * (lo + hi))
+    return np.where(f_hi >= probs, q, _NAN)
+
+
+def _probs(confidence: float) -> np.ndarray:
+    return np.array([0.5, (1.0 - confidence) / 2.0, (1.0 + confidence) / 2.0])
+
+
+def weibull_rul(post: WeibullPosterior, distance_km: float,
+                confidence: float = 0.90) -> tuple[np.ndarray, str | None]:
+    """Median and prediction interval of the distance left to a unit running at ``distance_km``.
+
+    Parameters
+    ----------
+    post : WeibullPosterior
+        Draws of the hose type's life model (its data include this unit as a suspension).
+    distance_km : float
+        The unit's distance now [km].
+    confidence : float
+        Two-sided level of the prediction interval. [-]
+
+    Returns
+    -------
+    (quantiles, note) : (numpy.ndarray, str or None)
+        ``[median, lower, upper]`` [km]; NaN with a note when the posterior has no draws.
+    """
+    if not post.ok:
+        return np.full(3, _NAN), post.note
+    if not distance_km >= 0:
+        return np.full(3, _NAN), "no distance now"
+    weights, ess = post.weights()
+    if ess < MIN_ESS:
+        return np.full(3, _NAN), f"the parameter draws do not cover the likelihood (effective {ess:.0f})"
+    guess = float(post.fit.scale)
+    q = _mixture_quantiles(lambda r: _weibull_survival_from(post.shape, post.scale, distance_km, r),
+                           weights, _probs(confidence), guess)
+    return q, (None if np.isfinite(q).all() else "the prediction interval is open: the data do not bound it")
+
+
+# -- the degradation model ---------------------------------------------------------------------
+@dataclass
+class DegradationFit:
+    """The pooled leak-growth model ``log leak = alpha_i + gamma log d`` of one hose type.
+
+    Attributes
+    ----------
+    gamma, gamma_se : float
+        Growth exponent of the leak with distance and its standard error. [-]
+    sigma : float
+        Residual standard deviation of the log leak (measurement and path). [-]
+    dof : int
+        Degrees of freedom of ``sigma``. [-]
+    mu, mu_se : float
+        Mean of the hoses' log-leak intercepts ``alpha_i`` [log(l/min)] and its standard error.
+    tau : float
+        Hose-to-hose standard deviation of ``alpha_i``. [-]
+    hoses : DataFrame
+        Per hose: ``hose_id``, ``n_points`` (all), ``n_used`` (above the floor), ``x_mean`` (mean
+        log distance of the used points), ``z_mean`` (their mean log leak), ``leak_now_l_min``
+        (the last point), ``note`` (why its own prediction is NaN).
+    floor_l_min : float
+        Leak below which points are left out [l/min].
+    note : str or None
+        Why the model has no estimate.
+    """
+
+    gamma: float
+    gamma_se: float
+    sigma: float
+    dof: int
+    mu: float
+    mu_se: float
+    tau: float
+    hoses: pd.DataFrame
+    floor_l_min: float
+    note: str | None = None
+
+    @property
+    def ok(self) -> bool:
+        return self.note is None
+
+    def wear_rate(self) -> tuple[float, float]:
+        """Mean and standard deviation across hoses of the wear rate ``w = exp(alpha / gamma)``. [1/km]"""
+        if not self.ok:
+            return _NAN, _NAN
+        m, s = self.mu / self.gamma, self.tau / self.gamma
+        mean = math.exp(m + s * s / 2.0)
+        return mean, mean * math.sqrt(math.expm1(s * s))
+
+
+def _hose_gate(x: np.ndarray, z: np.ndarray, n_all: int, floor: float, min_points: int) -> str | None:
+    """Why one hose's own path (``x`` log distance, ``z`` log leak of its points above the floor)
+    cannot give a prediction (None when it can)."""
+    if n_all < min_points:
+        return f"too few leak points: {n_all} < {min_points}"
+    if len(x) < min_points:
+        return (f"noisy at the sensor floor: {len(x)} of {n_all} leak points above {floor:.3g} l/min "
+                f"({min_points} needed)")
+    sxx = float(np.sum((x - x.mean()) ** 2))
+    if not sxx > 0:
+        return "leak path flat: its points are at one distance"
+    slope = float(np.sum((x - x.mean()) * (z - z.mean())) / sxx)
+    resid = z - z.mean() - slope * (x - x.mean())
+    se = math.sqrt(float(np.sum(resid ** 2)) / (len(x) - 2) / sxx)
+    if slope <= 0:
+        return f"leak path falling (log-log slope {slope:.2g})"
+    g = Gate().identifiable(beta=[slope], se=[se], names=["its leak growth"])
+    return None if g.ok else f"leak path flat: {g.note}"
+
+
+def _per_hose(points: pd.DataFrame, floor: float, min_points: int) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """(usable points with ``x`` = log distance and ``z`` = log leak, one row per hose)."""
+    p = points.dropna(subset=["distance_km", "leak_l_min"]).sort_values(["hose_id", "distance_km"], kind="stable")
+    hid = p["hose_id"].to_numpy()
+    d, y = p["distance_km"].to_numpy(float), p["leak_l_min"].to_numpy(float)
+    good = (y > floor) & (d > 0)
+    x, z = np.log(np.where(good, d, 1.0)), np.log(np.where(good, y, 1.0))
+    ids, first, counts = np.unique(hid, return_index=True, return_counts=True)
+    rows = []
+    for h, a, n in zip(ids, first, counts):
+        sl = slice(a, a + n)
+        k = good[sl]
+        xs, zs = x[sl][k], z[sl][k]
+        rows.append({"hose_id": h, "n_points": int(n), "n_used": int(k.sum()),
+                     "x_mean": xs.mean() if k.any() else _NAN, "z_mean": zs.mean() if k.any() else _NAN,
+                     "leak_now_l_min": float(y[a + n - 1]), "note": _hose_gate(xs, zs, int(n), floor, min_points)})
+    cols = ["hose_id", "n_points", "n_used", "x_mean", "z_mean", "leak_now_l_min", "note"]
+    use = p[good].assign(x=x[good], z=z[good])
+    return use, pd.DataFrame(rows, columns=cols)
+
+
+def _random_intercepts(a: np.ndarray, s2: np.ndarray) -> tuple[float, float, float, bool]:
+    """ML of ``a_i ~ N(mu, tau^2 + s2_i)``: (mu, se of mu, tau^2, tau^2 at a search bound)."""
+    def neg(log_t2):
+        v = np.exp(log_t2) + s2
+        w = 1.0 / v
+        mu = np.sum(w * a) / np.sum(w)
+        return 0.5 * float(np.sum(np.log(v) + (a - mu) ** 2 / v))
+
+    lo, hi = (math.log(b) for b in TAU2_BOUNDS)
+    res = scipy.optimize.minimize_scalar(neg, bounds=(lo, hi), method="bounded", options={"xatol": 1e-8})
+    t2 = math.exp(float(res.x))
+    w = 1.0 / (t2 + s2)
+    return float(np.sum(w * a) / np.sum(w)), float(1.0 / math.sqrt(np.sum(w))), t2, at_bound(t2, *TAU2_BOUNDS)
+
+
+def degradation_fit(points: pd.DataFrame, sensor: Sensor, floor_multiple: float = FLOOR_MULTIPLE,
+                    min_points: int = MIN_LEAK_POINTS) -> DegradationFit:
+    """Fit the pooled random-effects leak-growth model to the leak paths of one hose type.
+
+    Parameters
+    ----------
+    points : DataFrame
+        ``hose_id``, ``distance_km`` [km], ``leak_l_min`` [l/min]: the leak paths at one pressure.
+    sensor : Sensor
+        The leak channel's stated resolution and noise [l/min] (:mod:`analyses.quality`).
+    floor_multiple : float
+        Points at or below this multiple of ``sensor.floor()`` are left out. [-]
+    min_points : int
+        Points above the floor a hose needs for its own prediction. [-]
+
+    Returns
+    -------
+    DegradationFit
+        NaN parameters and a ``note`` with fewer than :data:`MIN_HOSES` hoses with two points
+        above the floor, a growth exponent the data do not separate from zero or not positive,
+        or a hose-to-hose spread at its search bound.
+    """
+    floor = floor_multiple * sensor.floor()
+    use, hoses = _per_hose(points, floor, min_points)
+    nan = DegradationFit(_NAN, _NAN, _NAN, 0, _NAN, _NAN, _NAN, hoses, floor)
+    paths = hoses.loc[hoses["n_used"] >= 2, "hose_id"].tolist()
+    if len(paths) < MIN_HOSES:
+        nan.note = f"too few hoses with a leak path above the floor to pool: {len(paths)} < {MIN_HOSES}"
+        return nan
+    u = use[use["hose_id"].isin(paths)]
+    within = u.groupby("hose_id")[["x", "z"]].transform("mean")
+    xt, zt = (u["x"] - within["x"]).to_numpy(), (u["z"] - within["z"]).to_numpy()
+    fit = linear_lstsq(xt[:, None], zt)            # the within-hose regression (one intercept per hose)
+    dof = len(u) - len(paths) - 1
+    sigma = float(np.sqrt(np.sum((zt - fit.fitted) ** 2) / dof)) if dof > 0 else _NAN
+    gamma, gamma_se = float(fit.beta[0]), sigma / math.sqrt(float(np.sum(xt ** 2)))
+    gate = Gate().enough_points(dof, 1, "degrees of freedom for the pooled path's scatter")
+    gate.identifiable(beta=[gamma], se=[gamma_se], names=["growth exponent"])
+    gate.physical("growth exponent", gamma, lo=0.0)
+    if not gate.ok:
+        nan.note = f"the pooled leak path: {gate.note}"
+        return nan
+    h = hoses[hoses["n_used"] >= 1]
+    a = (h["z_mean"] - gamma * h["x_mean"]).to_numpy()
+    mu, mu_se, t2, bound = _random_intercepts(a, sigma ** 2 / h["n_used"].to_numpy())
+    if bound:
+        return DegradationFit(gamma, gamma_se, sigma, dof, _NAN, _NAN, _NAN, hoses, floor,
+                              note=f"the hose-to-hose spread of the wear rate ran to its search bound "
+                                   f"(variance {t2:.2g}): the data cannot tell it")
+    return DegradationFit(gamma, gamma_se, sigma, int(dof), mu, mu_se, math.sqrt(t2), hoses, floor)
+
+
+@dataclass
+class _DegradationDraws:
+    """Parameter draws of a :class:`DegradationFit` (one value per draw)."""
+
+    gamma: np.ndarray
+    sigma2: np.ndarray
+    tau2: np.ndarray
+    mu_noise: np.ndarray
+
+
+def _degradation_draws(fit: DegradationFit, n_draws: int, rng: np.random.Generator) -> _DegradationDraws:
+    h = fit.hoses[fit.hoses["n_used"] >= 1]
+    s2 = fit.sigma ** 2 / h["n_used"].to_numpy()
+    nu_tau = max(fit.tau ** 4 * float(np.sum(1.0 / (fit.tau ** 2 + s2) ** 2)), 1.0)
+    return _DegradationDraws(gamma=fit.gamma + fit.gamma_se * rng.standard_normal(n_draws),
+                             sigma2=fit.sigma ** 2 * fit.dof / rng.chisquare(fit.dof, n_draws),
+                             tau2=fit.tau ** 2 * nu_tau / rng.chisquare(nu_tau, n_draws),
+                             mu_noise=rng.standard_normal(n_draws))
+
+
+def _crossing_survival(fit: DegradationFit, dr: _DegradationDraws, hose_id, d: float, log_limit: float):
+    """Per draw: ``r -> P(no crossing by d + r | not crossed by d, its points)``, and the
+    probability the path says it has not crossed by ``d`` (median over draws)."""
+    h = fit.hoses[fit.hoses["n_used"] >= 1]
+    a_all = h["z_mean"].to_numpy()[None, :] - dr.gamma[:, None] * h["x_mean"].to_numpy()[None, :]
+    v_all = dr.tau2[:, None] + dr.sigma2[:, None] / h["n_used"].to_numpy()[None, :]
+    w = 1.0 / v_all
+    mu = np.sum(w * a_all, axis=1) / np.sum(w, axis=1) + dr.mu_noise / np.sqrt(np.sum(w, axis=1))
+    i = int(np.flatnonzero(h["hose_id"].to_numpy() == hose_id)[0])
+    n_i = float(h["n_used"].iloc[i])
+    prec = 1.0 / dr.tau2 + n_i / dr.sigma2
+    m = (mu / dr.tau2 + n_i * a_all[:, i] / dr.sigma2) / prec
+    sd = 1.0 / np.sqrt(prec)
+    log_now = scipy.special.log_ndtr((log_limit - dr.gamma * math.log(d) - m) / sd)
+
+    def survival(r):
+        r = np.atleast_1d(np.asarray(r, float))[None, :]
+        num = scipy.special.log_ndtr((log_limit - dr.gamma[:, None] * np.log(d + r) - m[:, None]) / sd[:, None])
+        return np.exp(np.minimum(num - log_now[:, None], 0.0))
+
+    return survival, float(np.exp(np.median(log_now)))
+
+
+def degradation_rul(fit: DegradationFit, hose_id, distance_km: float, limit_l_min: float,
+                    rupture: WeibullPosterior | None = None, confidence: float = 0.90,
+                    n_draws: int = N_DRAWS, seed: int = 0) -> tuple[np.ndarray, str | None]:
+    """Median and prediction interval of the distance a running hose has left [km].
+
+    Parameters
+    ----------
+    fit : DegradationFit
+        The hose type's pooled model (its data include this hose's points up to now).
+    hose_id : str
+        The hose.
+    distance_km : float
+        Its distance now [km].
+    limit_l_min : float
+        The leak that ends its life [l/min].
+    rupture : WeibullPosterior, optional
+        The other failure modes' life model (a competing risk); None leaves them out.
+    confidence : float
+        Two-sided level of the prediction interval. [-]
+    n_draws : int
+        Parameter draws. [-]
+    seed : int
+        Seed of the draws.
+
+    Returns
+    -------
+    (quantiles, note) : (numpy.ndarray, str or None)
+        ``[median, lower, upper]`` [km]; NaN with the reason when the model or the hose's own
+        path cannot tell.
+    """
+    nan = np.full(3, _NAN)
+    if not fit.ok:
+        return nan, fit.note
+    row = fit.hoses[fit.hoses["hose_id"] == hose_id]
+    if row.empty:
+        return nan, "no leak points"
+    if isinstance(row["note"].iloc[0], str):
+        return nan, row["note"].iloc[0]
+    if not (distance_km > 0 and limit_l_min > 0):
+        return nan, "no distance or no leak limit"
+    dr = _degradation_draws(fit, n_draws, np.random.default_rng(seed))
+    survival, p_now = _crossing_survival(fit, dr, hose_id, distance_km, math.log(limit_l_min))
+    if p_now < 1e-6:
+        return nan, "its leak path is past the limit already (the hose should have failed)"
+    weights = np.full(n_draws, 1.0 / n_draws)
+    total = survival
+    if rupture is not None and rupture.ok:
+        w_r, ess = rupture.weights()
+        if ess < MIN_ESS:
+            return nan, "the rupture model's draws do not cover its likelihood"
+        pick = np.random.default_rng(seed + 1).choice(len(w_r), size=n_draws, p=w_r)
+        k, s = rupture.shape[pick], rupture.scale[pick]
+        total = lambda r: survival(r) * _weibull_survival_from(k, s, distance_km, r)  # noqa: E731
+    guess = max(distance_km, 1e-3)
+    q = _mixture_quantiles(total, weights, _probs(confidence), guess)
+    return q, (None if np.isfinite(q).all() else "the prediction interval is open: the data do not bound it")
+
+
+# -- leak-limit crossing ---------------------------------------------------------------------
+def leak_crossing_life(distance_km, leak_l_min, limit_l_min: float) -> tuple[float, bool]:
+    """First distance at which a leak path reaches ``limit_l_min``, and whether it did.
+
+    Parameters
+    ----------
+    distance_km : array_like
+        Distances of the leak plateaus [km].
+    leak_l_min : array_like
+        Their leaks [l/min].
+    limit_l_min : float
+        The limit [l/min].
+
+    Returns
+    -------
+    (life_km, crossed) : (float, bool)
+        Linearly interpolated between the last plateau below and the first at or above the limit;
+        the first plateau's distance when that one is already at the limit (the crossing lies
+        before it, the path does not say where); the last plateau's distance and False when the
+        path never reaches the limit (censored); NaN and False without points.
+    """
+    d = np.asarray(distance_km, float)
+    y = np.asarray(leak_l_min, float)
+    keep = np.isfinite(d) & np.isfinite(y)
+    d, y = d[keep], y[keep]
+    if d.size == 0:
+        return _NAN, False
+    order = np.argsort(d, kind="stable")
+    d, y = d[order], y[order]
+    hit = np.flatnonzero(y >= limit_l_min)
+    if hit.size == 0:
+        return float(d[-1]), False
+    j = int(hit[0])
+    if j == 0:
+        return float(d[0]), True
+    frac = (limit_l_min - y[j - 1]) / (y[j] - y[j - 1])
+    return float(d[j - 1] + frac * (d[j] - d[j - 1])), True
+
+
+def leak_crossing_lives(points: pd.DataFrame, limit_l_min: float) -> pd.DataFrame:
+    """:func:`leak_crossing_life` of every hose in ``points``.
+
+    Parameters
+    ----------
+    points : DataFrame
+        ``hose_id``, ``distance_km`` [km], ``leak_l_min`` [l/min].
+    limit_l_min : float
+        The limit [l/min].
+
+    Returns
+    -------
+    DataFrame
+        ``hose_id``, ``life_km`` [km], ``crossed`` (False: censored at ``life_km``).
+    """
+    rows = [(hid, *leak_crossing_life(g["distance_km"], g["leak_l_min"], limit_l_min))
+            for hid, g in points.groupby("hose_id", sort=True)]
+    return pd.DataFrame(rows, columns=["hose_id", "life_km", "crossed"])
+
+
+# -- one hose type ---------------------------------------------------------------------------
+@dataclass(frozen=True)
+class RulSettings:
+    """What the remaining-life models are asked.
+
+    Attributes
+    ----------
+    limit_l_min : float
+        Leak that ends a hose's life [l/min].
+    sensor : Sensor
+        The leak channel's resolution and noise [l/min].
+    confidence : float
+        Two-sided level of the prediction intervals. [-]
+    n_draws : int
+        Parameter draws per predictive distribution. [-]
+    floor_multiple : float
+        Leak points at or below this multiple of the sensor floor are left out. [-]
+    """
+
+    limit_l_min: float
+    sensor: Sensor
+    confidence: float = 0.90
+    n_draws: int = N_DRAWS
+    floor_multiple: float = FLOOR_MULTIPLE
+
+
+def _lives(hoses: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
+    return hoses["distance_km"].to_numpy(float), (hoses["status"] == "failed").to_numpy()
+
+
+def _leak_failures(hoses: pd.DataFrame, points: pd.DataFrame, limit_l_min: float) -> np.ndarray:
+    """Which hoses failed by their leak: the logbook's failure mode when it names one ("leak..."),
+    else whether the leak path reached the limit."""
+    failed = (hoses["status"] == "failed").to_numpy()
+    mode = hoses["failure_mode"] if "failure_mode" in hoses else pd.Series([None] * len(hoses), index=hoses.index)
+    crossed = dict(leak_crossing_lives(points, limit_l_min)[["hose_id", "crossed"]].itertuples(index=False))
+    by_mode = [isinstance(m, str) and m.strip() != "" for m in mode]
+    leak = [("leak" in m.lower()) if named else bool(crossed.get(h, False))
+            for h, m, named in zip(hoses["hose_id"], mode, by_mode)]
+    return failed & np.asarray(leak, bool)
+
+
+def _rupture_posterior(hoses: pd.DataFrame, points: pd.DataFrame, s: RulSettings,
+                       seed: int) -> tuple[WeibullPosterior | None, str | None]:
+    """The other failure modes' life model; None when there are fewer than two such failures (and
+    why, when there is one)."""
+    life, failed = _lives(hoses)
+    other = failed & ~_leak_failures(hoses, points, s.limit_l_min)
+    if other.sum() == 0:
+        return None, None
+    if other.sum() < 2:
+        return None, "other failure modes left out (1 hose failed otherwise than by leak, 2 needed for a model)"
+    post = weibull_posterior(life, other, s.n_draws, seed)
+    return post, (None if post.ok else f"the other failure modes: {post.note}")
+
+
+def remaining_life(hoses: pd.DataFrame, points: pd.DataFrame, settings: RulSettings,
+                   seed: int | None = None) -> pd.DataFrame:
+    """Remaining life of every running hose of one hose type, by both methods.
+
+    Parameters
+    ----------
+    hoses : DataFrame
+        The hose type's hoses: ``hose_id``, ``distance_km`` [km], ``status`` (``failed``,
+        ``removed``, ``running``), optionally ``failure_mode``.
+    points : DataFrame
+        Their leak paths: ``hose_id``, ``distance_km`` [km], ``leak_l_min`` [l/min] at one pressure.
+    settings : RulSettings
+        Limit, sensor, confidence.
+    seed : int, optional
+        Seed of the draws; default: from the data (:func:`data_seed`), so the same data give the
+        same numbers.
+
+    Returns
+    -------
+    DataFrame
+        :data:`RUL_COLUMNS`, one row per running hose and method (``weibull``, ``degradation``).
+    """
+    seed = data_seed(hoses, points) if seed is None else seed
+    life, failed = _lives(hoses)
+    post = weibull_posterior(life, failed, settings.n_draws, seed)
+    deg = degradation_fit(points, settings.sensor, settings.floor_multiple)
+    rupture, r_note = _rupture_posterior(hoses, points, settings, seed + 1)
+    info = deg.hoses.set_index("hose_id")
+    rows = []
+    for hid, d in hoses.loc[hoses["status"] == "running", ["hose_id", "distance_km"]].itertuples(index=False):
+        leak = info.loc[hid] if hid in info.index else None
+        base = {"hose_id": hid, "distance_km": d, "leak_limit_l_min": settings.limit_l_min,
+                "leak_now_l_min": float(leak["leak_now_l_min"]) if leak is not None else _NAN,
+                "n_leak_points": int(leak["n_points"]) if leak is not None else 0}
+        q, note = weibull_rul(post, d, settings.confidence)
+        rows.append({**base, "method": "weibull", **_quantile_columns(q), "note": note})
+        q, note = _degradation_with_rupture(deg, hid, d, settings, (rupture, r_note), seed)
+        rows.append({**base, "method": "degradation", **_quantile_columns(q), "note": note})
+    return pd.DataFrame(rows, columns=RUL_COLUMNS)
+
+
+def _quantile_columns(q: np.ndarray) -> dict:
+    ok = np.isfinite(q).all()
+    return dict(zip(("rul_median_km", "rul_lower_km", "rul_upper_km"), q if ok else np.full(3, _NAN)))
+
+
+def _degradation_with_rupture(deg: DegradationFit, hose_id, distance_km: float, s: RulSettings,
+                              rupture: tuple, seed: int) -> tuple[np.ndarray, str | None]:
+    """:func:`degradation_rul` with the other failure modes when there is a model of them; the
+    note says when they were left out."""
+    post, r_note = rupture
+    if not deg.ok:
+        return np.full(3, _NAN), deg.note
+    if post is not None and not post.ok:
+        return np.full(3, _NAN), r_note
+    q, note = degradation_rul(deg, hose_id, distance_km, s.limit_l_min, post, s.confidence, s.n_draws, seed)
+    if note is None and r_note is not None and np.isfinite(q).all():
+        note = r_note
+    return q, note
+
+
+# -- backtest --------------------------------------------------------------------------------
+def rul_backtest(hoses: pd.DataFrame, points: pd.DataFrame, settings: RulSettings,
+                 fractions=BACKTEST_FRACTIONS, seed: int | None = None) -> pd.DataFrame:
+    """The prediction each method would have made for every failed hose part-way through its life.
+
+    For a failed hose of life ``L`` and a fraction ``f``: the hose censored at ``f L``, its leak
+    points beyond ``f L`` removed, the models refitted (see the module docstring), and its
+    remaining life predicted at ``f L``; the truth is ``L - f L``.
+
+    Parameters
+    ----------
+    hoses, points, settings, seed
+        As :func:`remaining_life`.
+    fractions : sequence of float
+        Fractions of each failed hose's life at which to predict. [-]
+
+    Returns
+    -------
+    DataFrame
+        :data:`BACKTEST_COLUMNS`, one row per failed hose, fraction and method; ``covered`` and
+        ``abs_error_km`` [km] NaN where the prediction is (``note`` says why).
+    """
+    seed = data_seed(hoses, points) if seed is None else seed
+    life, failed = _lives(hoses)
+    post = weibull_posterior(life, failed, settings.n_draws, seed)
+    rupture, left_out = _rupture_posterior(hoses, points, settings, seed + 1)
+    leak_failed = _leak_failures(hoses, points, settings.limit_l_min)
+    rows = []
+    for i in np.flatnonzero(failed):
+        hid, total = hoses["hose_id"].iloc[i], float(life[i])
+        for f in fractions:
+            at = f * total
+            q, note = weibull_rul(post.changed([total], [True], [at], [False]), at, settings.confidence)
+            rows.append(_backtest_row(hid, "weibull", f, at, total, q, note))
+            mine = (points["hose_id"] == hid) & (points["distance_km"] > at)
+            deg = degradation_fit(points[~mine], settings.sensor, settings.floor_multiple)
+            r_post, r_note = rupture, left_out
+            if rupture is not None and rupture.ok:
+                r_post = rupture.changed([total], [not leak_failed[i]], [at], [False])
+                if not r_post.ok:   # this hose was one of two: without it the mode is left out, as above
+                    r_post, r_note = None, f"other failure modes left out ({r_post.note})"
+            q, note = _degradation_with_rupture(deg, hid, at, settings, (r_post, r_note), seed + 2 + i)
+            rows.append(_backtest_row(hid, "degradation", f, at, total, q, note))
+    return pd.DataFrame(rows, columns=BACKTEST_COLUMNS)
+
+
+def _backtest_row(hose_id, method: str, fraction: float, at: float, total: float, q, note) -> dict:
+    cols = _quantile_columns(np.asarray(q, float))
+    ok = np.isfinite(cols["rul_median_km"])
+    truth = total - at
+    return {"hose_id": hose_id, "method": method, "fraction": fraction, "at_km": at, "life_km": total, **cols,
+            "covered": (cols["rul_lower_km"] <= truth <= cols["rul_upper_km"]) if ok else None,
+            "abs_error_km": abs(cols["rul_median_km"] - truth) if ok else _NAN, "note": note}
+
+
+def backtest_summary(predictions: pd.DataFrame) -> pd.DataFrame:
+    """Per method: how many backtest predictions there are, how often their intervals held.
+
+    Parameters
+    ----------
+    predictions : DataFrame
+        :func:`rul_backtest`'s rows (of one hose type, or pooled).
+
+    Returns
+    -------
+    DataFrame
+        ``method``, ``n_predictions`` (with a number), ``coverage`` (fraction of intervals that
+        held the true remaining life) [-], ``median_abs_error_km`` [km], ``note`` (NULL when
+        sound; how many were NaN and the commonest reason; "no failed hose" when empty).
+    """
+    rows = []
+    for method in ("weibull", "degradation"):
+        p = predictions[predictions["method"] == method]
+        made = p[p["abs_error_km"].notna()]
+        note = None
+        missing = p[p["abs_error_km"].isna()]
+        if p.empty:
+            note = "no failed hose to backtest"
+        elif len(missing):
+            note = f"{len(missing)} of {len(p)} without a prediction (mostly: {missing['note'].mode().iloc[0]})"
+        rows.append({"method": method, "n_predictions": len(made),
+                     "coverage": float(made["covered"].astype(float).mean()) if len(made) else _NAN,
+                     "median_abs_error_km": float(made["abs_error_km"].median()) if len(made) else _NAN,
+                     "note": note})
+    return pd.DataFrame(rows, columns=["method", "n_predictions", "coverage", "median_abs_error_km", "note"])
+
+
+__all__ = ["BACKTEST_FRACTIONS", "DegradationFit", "FLOOR_MULTIPLE", "MIN_HOSES", "MIN_LEAK_POINTS", "N_DRAWS",
+           "RulSettings", "WeibullPosterior", "backtest_summary", "data_seed", "degradation_fit", "degradation_rul",
+           "leak_crossing_life", "leak_crossing_lives", "remaining_life", "rul_backtest", "weibull_posterior",
+           "weibull_rul"]

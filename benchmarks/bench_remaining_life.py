@@ -1,0 +1,173 @@
+"""Calibration of the remaining-life predictions (``analyses.remaining_life``) from known futures.
+
+One command::
+
+    python -m benchmarks.bench_remaining_life            # 20 hose types, 40 hoses each (~2-3 min)
+    python -m benchmarks.bench_remaining_life --quick    # 1 hose type (a look, no verdict)
+
+Its own generator (independent of the pipeline's simulator): each simulated hose type has 40
+hoses; hose ``i`` wears at a rate ``w_i`` drawn from a lognormal (mean :data:`WEAR_MEAN` [1/km],
+coefficient of variation :data:`WEAR_CV`); its true leak is ``(w_i d)^GAMMA`` l/min at distance
+``d``, measured by a leakage run every ``--every`` km with a multiplicative path noise (log sd
+:data:`PATH_NOISE`) and additive sensor noise (:data:`SENSOR`, quantised to its resolution). It
+fails when its leak crosses :data:`LIMIT` (a last leakage run at the failure reads the leak then)
+or earlier by rupture (Weibull :data:`RUPTURE`). The campaign ends for each hose at a distance
+drawn uniformly from 200 to 1,600 km (staggered starts): hoses alive then are running. Truth:
+every hose's failure distance, also for the running ones.
+
+Counted, at the 90 % level:
+
+* ``coverage``: per method, the fraction of running hoses whose true failure distance lies in
+  their interval (target: within 7 points of 90 %, over at least 300 running hoses);
+* ``backtest``: per method, the pooled coverage of :func:`rul_backtest` (target: within 10 points
+  of the running hoses' coverage);
+* ``wear rate``: the degradation model's mean and standard deviation of the wear rate, the median
+  over hose types against the truth (target: within 15 %), and how often one type is within 15 %;
+* ``narrower``: the median over running hoses with both intervals of degradation width / weibull
+  width (target: <= 0.70, i.e. at least 30 % narrower with frequent leak tests).
+
+A hose without a prediction (NaN) is counted and left out. Seeded (``--seed``): the same command
+prints the same counts.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+
+import numpy as np
+import pandas as pd
+
+#: Growth exponent of the leak with distance. [-]
+GAMMA = 1.5
+#: Leak limit. [l/min]
+LIMIT = 2.0
+#: Mean wear rate [1/km] and its coefficient of variation across hoses [-].
+WEAR_MEAN, WEAR_CV = 1.6e-3, 0.35
+#: Log-scale standard deviation of a measured leak around the hose's path. [-]
+PATH_NOISE = 0.10
+#: Leak sensor: resolution and noise. [l/min]
+SENSOR = (0.001, 0.005)
+#: Rupture life: Weibull (shape, scale [km]).
+RUPTURE = (2.0, 2000.0)
+HOSES = 40
+CONFIDENCE = 0.90
+
+
+def simulate_type(rng: np.random.Generator, every_km: float) -> tuple[pd.DataFrame, pd.DataFrame, dict]:
+    """(hoses, leak points, truth) of one hose type; truth: ``life_km`` per hose and the wear rates."""
+    s_log = math.sqrt(math.log1p(WEAR_CV ** 2))
+    w = WEAR_MEAN * np.exp(s_log * rng.standard_normal(HOSES) - s_log ** 2 / 2)
+    crossing = LIMIT ** (1.0 / GAMMA) / w
+    rupture = RUPTURE[1] * rng.weibull(RUPTURE[0], HOSES)
+    truth = np.minimum(crossing, rupture)
+    end = rng.uniform(200.0, 1600.0, HOSES)
+    failed = truth <= end
+    hoses = pd.DataFrame({"hose_id": [f"h{i:02d}" for i in range(HOSES)], "distance_km": np.minimum(truth, end),
+                          "status": np.where(failed, "failed", "running"),
+                          "failure_mode": np.where(~failed, None, np.where(crossing <= rupture, "leakage", "rupture"))})
+    rows = []
+    res, noise = SENSOR
+    for i in range(HOSES):
+        d = np.arange(every_km, hoses["distance_km"].iloc[i], every_km)
+        if failed[i] and crossing[i] <= rupture[i]:
+            d = np.append(d, truth[i])
+        true = (w[i] * d) ** GAMMA
+        meas = true * np.exp(PATH_NOISE * rng.standard_normal(d.size)) + noise * rng.standard_normal(d.size)
+        rows += [(f"h{i:02d}", x, y) for x, y in zip(d, np.round(meas / res) * res)]
+    points = pd.DataFrame(rows, columns=["hose_id", "distance_km", "leak_l_min"])
+    return hoses, points, {"life_km": truth, "wear": w}
+
+
+def _running_outcomes(rul: pd.DataFrame, hoses: pd.DataFrame, life: np.ndarray) -> pd.DataFrame:
+    true_of = dict(zip(hoses["hose_id"], life))
+    r = rul.assign(truth_km=[true_of[h] for h in rul["hose_id"]])
+    ok = r["rul_median_km"].notna()
+    rem = r["truth_km"] - r["distance_km"]
+    return r.assign(made=ok, covered=ok & (r["rul_lower_km"] <= rem) & (rem <= r["rul_upper_km"]),
+                    width=r["rul_upper_km"] - r["rul_lower_km"])
+
+
+def run(types: int, every_km: float, seed: int) -> tuple[pd.DataFrame, pd.DataFrame, list]:
+    """Simulate and predict ``types`` hose types; (running outcomes, backtest rows, wear-rate estimates)."""
+    from analyses.quality import Sensor
+    from analyses.remaining_life import RulSettings, degradation_fit, leak_crossing_lives, remaining_life, rul_backtest
+
+    settings = RulSettings(limit_l_min=LIMIT, sensor=Sensor(*SENSOR, source="metadata"), confidence=CONFIDENCE)
+    outcomes, backtests, wear = [], [], []
+    for t in range(types):
+        hoses, points, truth = simulate_type(np.random.default_rng([seed, t]), every_km)
+        rul = remaining_life(hoses, points, settings, seed=seed * 1000 + t)
+        outcomes.append(_running_outcomes(rul, hoses, truth["life_km"]).assign(hose_type=t))
+        backtests.append(rul_backtest(hoses, points, settings, seed=seed * 1000 + t).assign(hose_type=t))
+        fit = degradation_fit(points, settings.sensor)
+        crossed = leak_crossing_lives(points, LIMIT)
+        wear.append((*fit.wear_rate(), int(crossed["crossed"].sum())))
+    return pd.concat(outcomes, ignore_index=True), pd.concat(backtests, ignore_index=True), wear
+
+
+def _verdict(ok: bool, quick: bool) -> str:
+    return "(quick: no verdict)" if quick else ("PASS" if ok else "MISS")
+
+
+def report(outcomes: pd.DataFrame, backtests: pd.DataFrame, wear: list, quick: bool) -> bool:
+    """Print the counts and PASS/MISS; True when every target is met."""
+    from analyses.remaining_life import backtest_summary
+
+    all_ok = True
+    summary = backtest_summary(backtests).set_index("method")
+    for method in ("weibull", "degradation"):
+        o = outcomes[outcomes["method"] == method]
+        made = o[o["made"]]
+        cov = float(made["covered"].mean()) if len(made) else math.nan
+        ok = len(made) >= 300 and abs(cov - CONFIDENCE) <= 0.07
+        all_ok &= ok
+        print(f"{method:12s} running hoses: {len(o)}, with an interval {len(made)}, "
+              f"covered {int(made['covered'].sum())} = {100 * cov:.1f} % "
+              f"(nominal {100 * CONFIDENCE:g} +- 7, >= 300 hoses)  {_verdict(ok, quick)}")
+        b = summary.loc[method]
+        ok_b = b["n_predictions"] > 0 and abs(b["coverage"] - cov) <= 0.10
+        all_ok &= ok_b
+        print(f"{'':12s} backtest: {b['n_predictions']} predictions, coverage {100 * b['coverage']:.1f} %, "
+              f"median abs error {b['median_abs_error_km']:.0f} km "
+              f"(within 10 points of {100 * cov:.1f} %)  {_verdict(ok_b, quick)}")
+    s_log = math.sqrt(math.log1p(WEAR_CV ** 2))
+    true_sd = WEAR_MEAN * math.sqrt(math.expm1(s_log ** 2))
+    est = np.array([(m, s) for m, s, _ in wear], float)
+    est = est[np.isfinite(est).all(axis=1)]
+    for j, (name, truth) in enumerate((("mean", WEAR_MEAN), ("sd", true_sd))):
+        rel = est[:, j] / truth - 1.0
+        ok = len(rel) > 0 and abs(float(np.median(est[:, j])) / truth - 1.0) <= 0.15
+        all_ok &= ok
+        print(f"wear rate {name:4s}: truth {truth:.3g} 1/km, median estimate {np.median(est[:, j]):.3g} "
+              f"over {len(rel)} types ({100 * np.mean(np.abs(rel) <= 0.15):.0f} % of types within 15 %)  "
+              f"{_verdict(ok, quick)}")
+    both = outcomes[outcomes["made"]].pivot_table(index=["hose_type", "hose_id"], columns="method", values="width")
+    both = both.dropna()
+    ratio = float(np.median(both["degradation"] / both["weibull"])) if len(both) else math.nan
+    ok = ratio <= 0.70
+    print(f"narrower: degradation / weibull interval width, median over {len(both)} running hoses with both: "
+          f"{ratio:.2f} (target <= 0.70)  {_verdict(ok, quick)}")
+    print(f"leak-limit crossings seen in the leak paths: {sum(c for *_, c in wear)}")
+    return all_ok and ok
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="1 hose type: a look, no verdict")
+    ap.add_argument("--types", type=int, default=20, help="simulated hose types of 40 hoses")
+    ap.add_argument("--every", type=float, default=40.0, help="km between a hose's leakage runs")
+    ap.add_argument("--seed", type=int, default=24)
+    a = ap.parse_args(argv)
+    types = 1 if a.quick else a.types
+    t0 = time.perf_counter()
+    outcomes, backtests, wear = run(types, a.every, a.seed)
+    print(f"{types} hose types x {HOSES} hoses, leak test every {a.every:g} km, seed {a.seed} "
+          f"({time.perf_counter() - t0:.0f} s)")
+    ok = report(outcomes, backtests, wear, a.quick)
+    return 0 if ok or a.quick else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,244 @@
+"""Remaining life: Weibull predictive, pooled leak-growth model, backtest, leak-limit crossing."""
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from analyses.quality import Sensor
+from analyses.remaining_life import (RulSettings, backtest_summary, data_seed, degradation_fit, degradation_rul,
+                                     leak_crossing_life, leak_crossing_lives, remaining_life, rul_backtest,
+                                     weibull_posterior, weibull_rul)
+from analyses.service_life import weibull_loglik, weibull_loglik_many
+
+SENSOR = Sensor(resolution=0.001, noise=0.005, source="metadata")   # floor 0.005, points above 0.05 used
+
+
+def leak_paths(rng, n_hoses=40, gamma=1.5, log_w_mean=math.log(1.5e-3), log_w_sd=0.3, noise=0.08, every=50.0,
+               end=800.0):
+    """Leak paths ``(w_i d)^gamma`` with a lognormal wear rate, measured every ``every`` km to ``end``."""
+    w = np.exp(log_w_mean + log_w_sd * rng.standard_normal(n_hoses))
+    d = np.arange(every, end + 1e-9, every)
+    rows = [(f"h{i:02d}", x, (w[i] * x) ** gamma * math.exp(noise * rng.standard_normal()))
+            for i in range(n_hoses) for x in d]
+    return pd.DataFrame(rows, columns=["hose_id", "distance_km", "leak_l_min"]), w
+
+
+# -- leak-limit crossing (hand-checked) ------------------------------------------------------
+def test_crossing_is_interpolated_between_the_plateaus_either_side():
+    assert leak_crossing_life([300, 100, 200], [2.5, 0.5, 1.5], 2.0) == (250.0, True)
+
+
+def test_a_path_that_never_reaches_the_limit_is_censored_at_its_last_plateau():
+    assert leak_crossing_life([100, 200, 300], [0.5, 1.0, 1.9], 2.0) == (300.0, False)
+
+
+def test_a_path_at_the_limit_from_its_first_plateau_crosses_there_and_no_points_is_nan():
+    assert leak_crossing_life([100, 200], [2.2, 3.0], 2.0) == (100.0, True)
+    life, crossed = leak_crossing_life([], [], 2.0)
+    assert math.isnan(life) and not crossed
+
+
+def test_crossing_lives_one_row_per_hose():
+    pts = pd.DataFrame({"hose_id": ["a", "a", "b", "b"], "distance_km": [10, 20, 10, 20],
+                        "leak_l_min": [1.0, 3.0, 0.1, 0.2]})
+    out = leak_crossing_lives(pts, 2.0)
+    assert out.to_dict("list") == {"hose_id": ["a", "b"], "life_km": [15.0, 20.0], "crossed": [True, False]}
+
+
+# -- the shared likelihood ---------------------------------------------------------------------
+def test_vectorised_loglik_matches_the_scalar_one():
+    life, failed = np.array([1.0, 2.0, 3.5, 5.0]), np.array([True, False, True, True])
+    many = weibull_loglik_many([1.5, 2.0, 0.7], [3.0, 4.0, 2.0], life, failed)
+    assert many == pytest.approx([weibull_loglik(k, s, life, failed) for k, s in [(1.5, 3), (2, 4), (0.7, 2)]])
+    assert weibull_loglik_many(-1.0, 3.0, life, failed) == -np.inf
+
+
+# -- the Weibull predictive ----------------------------------------------------------------------
+def test_with_many_failures_the_predictive_is_the_plug_in_conditional_weibull():
+    rng = np.random.default_rng(1)
+    life = 100.0 * rng.weibull(2.0, 3000)
+    post = weibull_posterior(life, np.ones(life.size, bool), seed=2)
+    q, note = weibull_rul(post, 50.0, confidence=0.90)
+    assert note is None
+    cond = lambda p: 100.0 * ((50.0 / 100.0) ** 2 - math.log1p(-p)) ** 0.5 - 50.0  # noqa: E731
+    assert q == pytest.approx([cond(0.5), cond(0.05), cond(0.95)], rel=0.04)
+
+
+def test_with_few_failures_the_interval_is_wider_than_the_plug_in_one():
+    rng = np.random.default_rng(3)
+    life = 100.0 * rng.weibull(2.0, 8)
+    post = weibull_posterior(life, np.ones(8, bool), seed=4)
+    q, _ = weibull_rul(post, 50.0, 0.90)
+    k, s = post.fit.shape, post.fit.scale
+    plug = [s * ((50.0 / s) ** k - math.log1p(-p)) ** (1 / k) - 50.0 for p in (0.05, 0.95)]
+    assert q[2] - q[1] > 1.1 * (plug[1] - plug[0]) and q[2] > plug[1]
+
+
+def test_reweighting_for_a_hose_cut_short_matches_a_refit():
+    rng = np.random.default_rng(5)
+    life = 100.0 * rng.weibull(2.0, 25)
+    failed = np.ones(25, bool)
+    cut = life.copy()
+    cut[0] = 0.5 * life[0]
+    failed_cut = failed.copy()
+    failed_cut[0] = False
+    re = weibull_posterior(life, failed, n_draws=4000, seed=6).changed([life[0]], [True], [cut[0]], [False])
+    fresh = weibull_posterior(cut, failed_cut, n_draws=4000, seed=7)
+    q_re, q_fresh = weibull_rul(re, cut[0])[0], weibull_rul(fresh, cut[0])[0]
+    assert q_re == pytest.approx(q_fresh, rel=0.03)
+
+
+def test_fewer_than_two_failures_give_nan_and_a_note():
+    post = weibull_posterior([10.0, 20.0, 30.0], [True, False, False])
+    q, note = weibull_rul(post, 25.0)
+    assert np.isnan(q).all() and "too few failures" in note
+    ok = weibull_posterior([10.0, 20.0, 30.0], [True, True, False], seed=1)
+    assert "too few failures" in ok.changed([10.0], [True], [5.0], [False]).note
+    q, note = weibull_rul(ok, float("nan"))
+    assert np.isnan(q).all() and note == "no distance now"
+
+
+# -- the degradation model -----------------------------------------------------------------------
+def test_degradation_fit_recovers_the_growth_exponent_and_the_wear_rate_distribution():
+    pts, w = leak_paths(np.random.default_rng(8), n_hoses=80)
+    fit = degradation_fit(pts, SENSOR)
+    assert fit.note is None
+    assert fit.gamma == pytest.approx(1.5, abs=0.05)
+    assert fit.sigma == pytest.approx(0.08, rel=0.15)
+    assert fit.tau / fit.gamma == pytest.approx(0.3, rel=0.2)
+    mean, sd = fit.wear_rate()
+    true_mean = 1.5e-3 * math.exp(0.3 ** 2 / 2)
+    assert mean == pytest.approx(true_mean, rel=0.1)
+    assert sd == pytest.approx(true_mean * math.sqrt(math.expm1(0.09)), rel=0.25)
+
+
+def test_degradation_rul_finds_a_hand_checked_crossing():
+    """Hoses with one wear rate, no noise: the crossing of 2 l/min is 2^(1/1.5) / w exactly."""
+    rng = np.random.default_rng(9)
+    pts, w = leak_paths(rng, n_hoses=30, log_w_sd=0.3, noise=0.02)
+    fit = degradation_fit(pts, SENSOR)
+    d_cross = 2.0 ** (1 / 1.5) / w[0]
+    now = pts.loc[pts["hose_id"] == "h00", "distance_km"].max()
+    q, note = degradation_rul(fit, "h00", now, 2.0, seed=1)
+    if d_cross <= now:
+        assert "past the limit" in note
+    else:
+        assert note is None and q[0] == pytest.approx(d_cross - now, rel=0.05)
+        assert q[1] < q[0] < q[2]
+
+
+def _paths_with(hose_id, distance, leak):
+    pts, _ = leak_paths(np.random.default_rng(10), n_hoses=10)
+    return pd.concat([pts, pd.DataFrame({"hose_id": hose_id, "distance_km": distance, "leak_l_min": leak})],
+                     ignore_index=True)
+
+
+@pytest.mark.parametrize("distance, leak, reason", [
+    ([100.0], [0.5], "too few leak points: 1 < 3"),
+    ([100.0, 200.0, 300.0, 400.0], [0.004, 0.012, 0.031, 0.02], "noisy at the sensor floor"),
+    ([100.0, 200.0, 300.0, 400.0], [0.9, 0.7, 0.6, 0.4], "leak path falling"),
+    ([100.0, 200.0, 300.0, 400.0], [0.45, 0.8, 0.5, 0.6], "leak path flat"),
+])
+def test_a_hose_whose_own_path_cannot_tell_gets_nan_and_the_reason(distance, leak, reason):
+    fit = degradation_fit(_paths_with("odd", distance, leak), SENSOR)
+    assert fit.note is None
+    q, note = degradation_rul(fit, "odd", max(distance), 2.0)
+    assert np.isnan(q).all() and note.startswith(reason)
+
+
+def test_too_few_hoses_to_pool_give_no_model():
+    pts, _ = leak_paths(np.random.default_rng(11), n_hoses=2)
+    fit = degradation_fit(pts, SENSOR)
+    assert "too few hoses" in fit.note and math.isnan(fit.wear_rate()[0])
+    assert "too few hoses" in degradation_rul(fit, "h00", 300.0, 2.0)[1]
+
+
+def test_a_rupture_mode_shortens_the_remaining_life():
+    pts, _ = leak_paths(np.random.default_rng(12), n_hoses=30, end=300.0)
+    fit = degradation_fit(pts, SENSOR)
+    rng = np.random.default_rng(13)
+    rupture = weibull_posterior(np.r_[400 * rng.weibull(2.0, 10), np.full(20, 300.0)],
+                                np.r_[np.ones(10, bool), np.zeros(20, bool)], seed=1)
+    alone, _ = degradation_rul(fit, "h01", 300.0, 2.0)
+    both, note = degradation_rul(fit, "h01", 300.0, 2.0, rupture)
+    assert note is None and both[0] < alone[0] and both[2] <= alone[2] * 1.001
+
+
+# -- one hose type, backtest ---------------------------------------------------------------------
+def hose_type(rng, n=30):
+    pts, w = leak_paths(rng, n_hoses=n, every=40.0, end=1600.0)
+    cross = 2.0 ** (1 / 1.5) / w
+    end = rng.uniform(200, 1600, n)
+    failed = cross <= end
+    life = np.minimum(cross, end)
+    hoses = pd.DataFrame({"hose_id": [f"h{i:02d}" for i in range(n)], "distance_km": life,
+                          "status": np.where(failed, "failed", "running"),
+                          "failure_mode": np.where(failed, "leakage", None)})
+    pts = pts[pts["distance_km"] <= pts["hose_id"].map(dict(zip(hoses["hose_id"], life)))]
+    return hoses, pts.reset_index(drop=True)
+
+
+def test_remaining_life_gives_both_methods_for_every_running_hose_and_is_deterministic():
+    hoses, pts = hose_type(np.random.default_rng(14))
+    s = RulSettings(limit_l_min=2.0, sensor=SENSOR)
+    out = remaining_life(hoses, pts, s)
+    running = set(hoses.loc[hoses["status"] == "running", "hose_id"])
+    assert set(out["hose_id"]) == running and len(out) == 2 * len(running)
+    assert out.groupby("method").size().to_dict() == {"degradation": len(running), "weibull": len(running)}
+    made = out.dropna(subset=["rul_median_km"])
+    assert ((made["rul_lower_km"] < made["rul_median_km"]) & (made["rul_median_km"] < made["rul_upper_km"])).all()
+    assert (out["leak_limit_l_min"] == 2.0).all() and (out["n_leak_points"] >= 0).all()
+    pd.testing.assert_frame_equal(out, remaining_life(hoses, pts, s))
+    assert data_seed(hoses, pts) == data_seed(hoses.copy(), pts.copy())
+
+
+def test_no_failures_of_the_type_gives_weibull_nan_with_a_note():
+    hoses, pts = hose_type(np.random.default_rng(15))
+    hoses = hoses.assign(status="running")
+    out = remaining_life(hoses, pts, RulSettings(limit_l_min=2.0, sensor=SENSOR))
+    wb = out[out["method"] == "weibull"]
+    assert wb["rul_median_km"].isna().all() and wb["note"].str.contains("too few failures").all()
+
+
+def test_backtest_predicts_every_failed_hose_twice_per_method_and_mostly_covers():
+    hoses, pts = hose_type(np.random.default_rng(16))
+    bt = rul_backtest(hoses, pts, RulSettings(limit_l_min=2.0, sensor=SENSOR, n_draws=500), seed=3)
+    n_failed = int((hoses["status"] == "failed").sum())
+    assert len(bt) == 4 * n_failed
+    assert set(bt["fraction"]) == {0.5, 0.8}
+    s = backtest_summary(bt).set_index("method")
+    assert s.loc["weibull", "n_predictions"] == 2 * n_failed
+    assert 0.6 <= s.loc["degradation", "coverage"] <= 1.0 and 0.6 <= s.loc["weibull", "coverage"] <= 1.0
+    assert s.loc["degradation", "median_abs_error_km"] < s.loc["weibull", "median_abs_error_km"]
+
+
+def test_backtest_without_failed_hoses_says_so():
+    s = backtest_summary(pd.DataFrame(columns=["method", "abs_error_km", "covered", "note"]))
+    assert (s["n_predictions"] == 0).all() and (s["note"] == "no failed hose to backtest").all()
+
+
+def test_calibration_benchmark_runs_quick(capsys):
+    from benchmarks.bench_remaining_life import main
+
+    assert main(["--quick"]) == 0
+    out = capsys.readouterr().out
+    assert "weibull      running hoses:" in out and "wear rate mean" in out and "(quick: no verdict)" in out
+
+
+def test_a_single_rupture_is_left_out_and_said_and_an_unnamed_mode_is_read_from_the_leak_path():
+    hoses, pts = hose_type(np.random.default_rng(17))
+    i = int(np.flatnonzero(hoses["status"] == "failed")[0])
+    one = hoses.copy()
+    one.loc[i, "failure_mode"] = "rupture"
+    out = remaining_life(one, pts, RulSettings(limit_l_min=2.0, sensor=SENSOR), seed=1)
+    deg = out[(out["method"] == "degradation") & out["rul_median_km"].notna()]
+    assert len(deg) and deg["note"].str.startswith("other failure modes left out (1 hose").all()
+    failed = hoses[hoses["status"] == "failed"]
+    seen = pd.concat([pts, pd.DataFrame({"hose_id": failed["hose_id"], "distance_km": failed["distance_km"],
+                                         "leak_l_min": 2.2})], ignore_index=True)   # the check that found it
+    s = RulSettings(limit_l_min=2.0, sensor=SENSOR)
+    unnamed = remaining_life(hoses.assign(failure_mode=None), seen, s, seed=1)
+    pd.testing.assert_frame_equal(unnamed, remaining_life(hoses, seen, s, seed=1))   # all read as leak failures
+    silent = remaining_life(hoses.assign(failure_mode=None), pts, s, seed=1)          # none seen: all "other"
+    assert not silent.equals(unnamed)
