@@ -48,9 +48,23 @@ For a margin ``m``, ``alpha`` and ``power``, the fixed-sample design needs infor
 ``I_fix = ((z_{1-alpha/2} + z_power) / ln m)^2``; the sequential design needs ``R * I_fix``
 where the inflation factor ``R`` is found exactly: the drift at which the design's probability of
 crossing the upper boundary equals ``power`` (J&T section 2.5, Tables 2.4 and 2.6). Information is
-converted to failures with the Weibull common-shape approximation ``I = shape^2 D / 4`` for ``D``
-failures split about evenly between the two adjustments (``Var(ln ratio) ~ 4 / (shape^2 D)``;
-Schoenfeld 1981 for the hazard ratio, divided by the shape for a life ratio).
+converted to failures with the expected information of the common-shape Weibull regression, the
+shape estimated (:func:`information_per_failure`). When failures are rare among the hoses at risk
+(the default, what the stages use) a fraction ``p = 1 / (1 + margin^shape)`` of them are force-set
+hoses' at the margin (the hazard ratio's share), the log hazard ratio ``beta = shape ln margin``
+has information ``p (1 - p)`` per failure (Schoenfeld 1983; 1/4 only when the failures split
+evenly), the log life ratio is ``beta / shape`` and the estimated shape adds its own variance
+(``shape^2 / D``, orthogonal to the log hazard scales at a common censoring distance): per failure
+``I / D = shape^2 p (1 - p) / (1 + beta^2 p (1 - p))``. With a stated number of hoses per
+adjustment, all started together, the full 3x3 expected information (Escobar & Meeker 1994) at
+the distance where ``D`` failures are expected is inverted instead: ``I / D`` grows to
+``shape^2 / 4`` as every hose fails. ``benchmarks/bench_test_plan.py`` checks the resulting
+``max_failures`` against brute-force simulation with a full refit at every failure.
+
+References: Schoenfeld, D. A. (1983). Sample-size formula for the proportional-hazards
+regression model. Biometrics 39, 499-503. Escobar, L. A. & Meeker, W. Q. (1994). Fisher
+information matrix for the extreme value, normal and logistic distributions and censored data.
+Applied Statistics 43, 533-540.
 """
 from __future__ import annotations
 
@@ -280,8 +294,74 @@ def inflation_factor(looks: int, alpha: float = 0.05, power: float = 0.8,
     return (drift / fixed) ** 2, drift
 
 
+def _hose_information(c: float, shape: float) -> np.ndarray:
+    """Expected Fisher information of one hose on ``(a, shape)``, ``a`` its log hazard scale.
+
+    Weibull cumulative hazard ``H(x) = e^a x^shape``, censored at ``x = 1`` (the unit of distance),
+    ``c = H(1)``: with ``v = H(x)`` the expectations are integrals of ``v e^-v`` (Escobar & Meeker
+    1994's censored location-scale information in this parametrisation):
+    ``I_aa = 1 - e^-c``, ``I_ak = (1 / shape) int_0^c v ln(v / c) e^-v dv``,
+    ``I_kk = (I_aa + int_0^c v ln(v / c)^2 e^-v dv) / shape^2``.
+    """
+    v, w = _simpson(0.0, c, c / 400.0)
+    lv = np.log(np.maximum(v, 1e-300) / c)
+    dens = w * v * np.exp(-v)
+    failed = -math.expm1(-c)
+    return np.array([[failed, dens @ lv / shape], [dens @ lv / shape, (failed + dens @ (lv * lv)) / shape ** 2]])
+
+
+def information_per_failure(margin: float, shape: float, failures: float | None = None,
+                            hoses_per_adjustment: int | None = None) -> tuple[float, float]:
+    """Expected information on the log life ratio per failure, the shape estimated, at ``margin``.
+
+    Parameters
+    ----------
+    margin : float
+        True life ratio force / distance [-] (> 1).
+    shape : float
+        Common Weibull shape [-].
+    failures : float, optional
+        Failures (both adjustments) at the look [-]; used with ``hoses_per_adjustment``.
+    hoses_per_adjustment : int, optional
+        Hoses started together in each adjustment and run until they fail or the look [-]. None
+        (default): failures rare among the hoses at risk.
+
+    Returns
+    -------
+    (float, float)
+        ``(I / D, p)``: information on ``ln(force life / distance life)`` per failure [-] and the
+        expected force-set share of the failures [-]. Failures rare: ``p = 1 / (1 + margin^shape)``
+        (the hazard ratio's share) and ``I / D = shape^2 p (1 - p) / (1 + beta^2 p (1 - p))``,
+        ``beta = shape ln margin`` the log hazard ratio: Schoenfeld's (1983) ``p (1 - p)`` per failure
+        for ``beta`` (1/4 only when the failures split evenly), divided by the shape for the life
+        ratio, and the shape's own uncertainty (``Var(shape_hat) = shape^2 / D``) added through
+        ``ln ratio = beta / shape``. With ``n`` hoses each, censored together at the distance where
+        ``D`` failures are expected, the 3x3 expected information of the common-shape Weibull
+        regression on (both log hazard scales, the shape) is inverted (:func:`_hose_information`).
+    """
+    beta = shape * math.log(margin)
+    rare = 1.0 / (1.0 + math.exp(beta))
+    if hoses_per_adjustment is None or failures is None or not failures > 0:
+        q = rare * (1.0 - rare)
+        return shape ** 2 * q / (1.0 + beta ** 2 * q), rare
+    if failures >= 2 * hoses_per_adjustment:   # all failed: the location contrast is orthogonal to the shape
+        return shape ** 2 / 4.0, 0.5
+    frac, hr = failures / hoses_per_adjustment, math.exp(-beta)
+    c = optimize.brentq(lambda c: -math.expm1(-c) - math.expm1(-c * hr) - frac, 1e-12, 800.0, xtol=1e-14)
+    info_d, info_f = _hose_information(c, shape), _hose_information(c * hr, shape)
+    m = np.zeros((3, 3))
+    m[0, 0], m[1, 1] = info_d[0, 0], info_f[0, 0]
+    m[0, 2] = m[2, 0] = info_d[0, 1]
+    m[1, 2] = m[2, 1] = info_f[0, 1]
+    m[2, 2] = info_d[1, 1] + info_f[1, 1]
+    grad = np.array([1.0, -1.0, -beta / shape]) / shape   # ln ratio = (a_distance - a_force) / shape
+    var = grad @ np.linalg.solve(hoses_per_adjustment * m, grad)
+    return 1.0 / (var * failures), -math.expm1(-c * hr) / frac
+
+
 def max_information(margin: float, alpha: float = 0.05, power: float = 0.8,
-                    spending: str = "obrien-fleming", shape: float = 1.0, looks: int | None = None) -> MaxInformation:
+                    spending: str = "obrien-fleming", shape: float = 1.0, looks: int | None = None,
+                    hoses_per_adjustment: int | None = None) -> MaxInformation:
     """The failures a sequential test needs to decide at ``margin`` with ``power``.
 
     Parameters
@@ -296,23 +376,34 @@ def max_information(margin: float, alpha: float = 0.05, power: float = 0.8,
         Lan-DeMets spending family.
     shape : float
         Weibull shape [-] (common to both adjustments): information per failure is
-        ``shape^2 / 4``.
+        ``shape^2 p (1 - p)``, ``p`` the force-set share of the failures (:func:`force_share`).
     looks : int, optional
         Equally spaced looks; None (default) means a look at every failure, found as the fixed
         point ``looks = failures``. Above :data:`DESIGN_LOOKS` looks ``R`` is that of
         :data:`DESIGN_LOOKS` looks (within 0.3 % of the exact value, slightly below it).
+    hoses_per_adjustment : int, optional
+        Hoses on test per adjustment when the follow-up is known (:func:`force_share`); None
+        (default, what the stages use): failures rare among the hoses at risk, ``p = 1 / (1 +
+        margin^shape)``, the fewest information per failure, so the most failures.
 
     Returns
     -------
     MaxInformation
+        ``failures_fixed = I_fix / (shape^2 p (1 - p))``.
     """
     margin = max(margin, 1.0 / margin)
     if not margin > 1.0 or not shape > 0:
         raise ValueError("margin must differ from 1 and shape be positive")
-    fixed = 4.0 * (stats.norm.isf(alpha / 2) + stats.norm.ppf(power)) ** 2 / (shape * math.log(margin)) ** 2
+    i_fix = ((stats.norm.isf(alpha / 2) + stats.norm.ppf(power)) / math.log(margin)) ** 2
+
+    def per_failure(d):
+        return information_per_failure(margin, shape, d, hoses_per_adjustment)[0]
+
+    fixed = i_fix / per_failure(None)
     k = looks or max(1, math.ceil(fixed))
-    for _ in range(20):
+    for _ in range(40):
         r, drift = inflation_factor(min(k, DESIGN_LOOKS), alpha, power, spending)
+        fixed = i_fix / per_failure(k)
         failures = math.ceil(r * fixed - 1e-9)
         if looks or failures == k:
             break
