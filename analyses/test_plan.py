@@ -34,11 +34,9 @@ draws the remaining life of every running hose from the fitted Weibull condition
 distance (``x_i = scale_g ((c_i / scale_g)^k + E)^(1/k)``, ``E ~ Exp(1)``, Meeker & Escobar 1998,
 section 4.6), orders the failures by the km still to run (the running hoses accumulate km at one
 rate: they share the benches), and counts failures per adjustment. The information on the log
-ratio at a look is the common-shape Weibull's, the shape estimated, as in the design's
-:func:`analyses.sequential.max_information`: ``1 / I = (1 / d_force + 1 / d_distance) / k^2 +
-theta^2 / D`` (each adjustment's log hazard scale has information ``d_g`` under any right
-censoring, Meeker & Escobar 1998, section 17.3; the shape ``k^2 / D`` when failures are rare
-among the hoses at risk, carried through ``theta = beta / k``). The score
+ratio at a look is the common-shape Weibull's Fisher information with the shape known,
+``I = k^2 / (1 / d_force + 1 / d_distance)`` (each adjustment's log scale has information
+``k^2 d_g`` under any right censoring; Meeker & Escobar 1998, section 17.3). The score
 ``S = theta_hat I`` starts at the current estimate and information and has independent Gaussian
 increments with mean ``theta_hat dI`` and variance ``dI``; ``Z = S / sqrt(I)`` at each look is
 compared with the design's boundaries (the same ``efficacy_boundaries`` at ``t = d / max_failures``
@@ -119,8 +117,8 @@ class HoseState:
         return int((self.failed & (self.group == 0)).sum()), int((self.failed & (self.group == 1)).sum())
 
 
-def information(d_distance, d_force, shape: float, log_ratio: float = 0.0) -> np.ndarray:
-    """Fisher information on the log life ratio from failure counts, the shape estimated [-].
+def information(d_distance, d_force, shape: float) -> np.ndarray:
+    """Fisher information on the log life ratio from failure counts, shape known [-].
 
     Parameters
     ----------
@@ -128,22 +126,15 @@ def information(d_distance, d_force, shape: float, log_ratio: float = 0.0) -> np
         Failures of each adjustment [-].
     shape : float
         Common Weibull shape [-].
-    log_ratio : float
-        The log life ratio the information is evaluated at [-] (0: no effect).
 
     Returns
     -------
     numpy.ndarray
-        ``1 / ((1 / d_distance + 1 / d_force) / shape^2 + log_ratio^2 / (d_distance + d_force))``
-        [-]: the log hazard ratio's ``1 / d_distance + 1 / d_force`` divided by the shape, plus the
-        estimated shape's own variance ``shape^2 / D`` carried through ``ln ratio = beta / shape``
-        (failures rare among the hoses at risk, the information model of
-        :func:`analyses.sequential.information_per_failure`); 0 where an adjustment has no failure.
+        ``shape^2 / (1 / d_distance + 1 / d_force)`` [-]; 0 where an adjustment has no failure.
     """
     dd, df = np.asarray(d_distance, float), np.asarray(d_force, float)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        var = (1.0 / dd + 1.0 / df) / shape ** 2 + log_ratio ** 2 / (dd + df)
-        return np.where((dd > 0) & (df > 0), 1.0 / var, 0.0)
+    with np.errstate(divide="ignore"):
+        return np.where((dd > 0) & (df > 0), shape ** 2 / (1.0 / dd + 1.0 / df), 0.0)
 
 
 def remaining_km(rng: np.random.Generator, distance, group, fit: CommonShapeFit, n: int) -> np.ndarray:
@@ -246,8 +237,8 @@ def power_now(state: HoseState, fit: CommonShapeFit, boundaries, margin: float, 
     left = remaining_km(rng, state.distance[run], state.group[run], fit, n_simulations)
     order = np.argsort(left, axis=1, kind="stable")[:, :looks]
     force = state.group[run][order] == 1
-    info = information(d0d + np.cumsum(~force, axis=1), d0f + np.cumsum(force, axis=1), fit.shape, fit.log_ratio)
-    info_now = float(information(d0d, d0f, fit.shape, fit.log_ratio))
+    info = information(d0d + np.cumsum(~force, axis=1), d0f + np.cumsum(force, axis=1), fit.shape)
+    info_now = float(information(d0d, d0f, fit.shape))
     step = np.diff(np.concatenate([np.full((n_simulations, 1), info_now), info], axis=1), axis=1)
     score = fit.log_ratio * info_now + np.cumsum(fit.log_ratio * step + np.sqrt(step) * rng.standard_normal(step.shape),
                                                  axis=1)

@@ -8,8 +8,7 @@ import pytest
 from scipy import optimize, stats
 
 from analyses.sequential import (alpha_spent, crossing_probabilities, efficacy_boundaries, inflation_factor,
-                                 information_per_failure,
-                                 max_information, sequential_verdict)
+                                 information_per_failure, max_information, rare_failure_power, sequential_verdict)
 
 Z975 = stats.norm.isf(0.025)
 
@@ -204,3 +203,28 @@ def test_many_looks_design_uses_the_capped_inflation_within_its_stated_error():
     assert mi.looks > DESIGN_LOOKS
     assert mi.inflation <= exact < mi.inflation * 1.003
     assert mi.failures == math.ceil(mi.inflation * mi.failures_fixed - 1e-9)
+
+
+def test_rare_failure_power_hand_checked():
+    """Looks 1-4 cannot decide (no estimate before two failures each; c = 40 at look 4); at look 5
+    with c = 0.4 the split 3 distance / 2 force gives ln ratio ln(1.5) / 2 = 0.2027 above
+    0.4 sqrt(1/3 + 1/2 + ln(1.5)^2 / 5) / 2 = 0.1861: force longer; 2 / 3 gives distance longer.
+    P(2 force-set of 5) = 10 p^2 (1 - p)^3 = 10 * 16 * 729 / 13^5 at p = 1 / 3.25 = 4 / 13."""
+    assert rare_failure_power([40.0] * 4 + [0.4], 1.5, 2.0) == pytest.approx(10 * 16 * 729 / 13 ** 5, abs=1e-9)
+    assert rare_failure_power([40.0] * 5, 1.5, 2.0) == 0.0
+
+
+def test_max_information_rare_default_is_the_smallest_maximum_reaching_the_power():
+    mi = max_information(1.5, 0.05, 0.8, "obrien-fleming", 2.0)
+    power = [rare_failure_power(efficacy_boundaries(np.arange(1, m + 1) / m), 1.5, 2.0)
+             for m in (mi.failures - 1, mi.failures)]
+    assert power[0] < 0.8 <= power[1]
+    # the Wald z's spread below 1 at the margin: fewer failures than the canonical process asks
+    assert mi.failures < math.ceil(mi.inflation * mi.failures_fixed)
+
+
+def test_max_information_notes_a_design_with_few_failures_of_the_longer_lived_adjustment():
+    few = max_information(1.75, 0.10, 0.8, "obrien-fleming", 3.0)    # p = 1 / (1 + 1.75^3) = 0.157
+    assert few.note is not None and f"about {round(few.failures * 0.1572)} failures" in few.note
+    assert max_information(1.5, 0.05, 0.8, "obrien-fleming", 2.0).note is None   # 0.31 * 61 = 19
+    assert "Pocock" in max_information(1.5, 0.05, 0.8, "pocock", 2.0).note
