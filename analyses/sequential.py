@@ -58,8 +58,13 @@ evenly), the log life ratio is ``beta / shape`` and the estimated shape adds its
 ``I / D = shape^2 p (1 - p) / (1 + beta^2 p (1 - p))``. With a stated number of hoses per
 adjustment, all started together, the full 3x3 expected information (Escobar & Meeker 1994) at
 the distance where ``D`` failures are expected is inverted instead: ``I / D`` grows to
-``shape^2 / 4`` as every hose fails. ``benchmarks/bench_test_plan.py`` checks the resulting
-``max_failures`` against brute-force simulation with a full refit at every failure.
+``shape^2 / 4`` as every hose fails. The canonical process is not the refitted Wald z at the
+margin: its SE grows with the estimate, so its spread is below 1, and at a look of ``d`` failures
+it cannot exceed about ``sqrt(d)``. With failures rare (the default) and at most
+:data:`DESIGN_LOOKS` failures, ``max_failures`` is therefore the smallest maximum whose exact power
+reaches the target (:func:`rare_failure_power`, a binomial recursion over the force-set count);
+``benchmarks/bench_test_plan.py`` checks it against brute-force simulation with a full refit at
+every failure (docs/decision.md, "failures_needed, right").
 
 References: Schoenfeld, D. A. (1983). Sample-size formula for the proportional-hazards
 regression model. Biometrics 39, 499-503. Escobar, L. A. & Meeker, W. Q. (1994). Fisher
