@@ -48,9 +48,28 @@ For a margin ``m``, ``alpha`` and ``power``, the fixed-sample design needs infor
 ``I_fix = ((z_{1-alpha/2} + z_power) / ln m)^2``; the sequential design needs ``R * I_fix``
 where the inflation factor ``R`` is found exactly: the drift at which the design's probability of
 crossing the upper boundary equals ``power`` (J&T section 2.5, Tables 2.4 and 2.6). Information is
-converted to failures with the Weibull common-shape approximation ``I = shape^2 D / 4`` for ``D``
-failures split about evenly between the two adjustments (``Var(ln ratio) ~ 4 / (shape^2 D)``;
-Schoenfeld 1981 for the hazard ratio, divided by the shape for a life ratio).
+converted to failures with the expected information of the common-shape Weibull regression, the
+shape estimated (:func:`information_per_failure`). When failures are rare among the hoses at risk
+(the default, what the stages use) a fraction ``p = 1 / (1 + margin^shape)`` of them are force-set
+hoses' at the margin (the hazard ratio's share), the log hazard ratio ``beta = shape ln margin``
+has information ``p (1 - p)`` per failure (Schoenfeld 1983; 1/4 only when the failures split
+evenly), the log life ratio is ``beta / shape`` and the estimated shape adds its own variance
+(``shape^2 / D``, orthogonal to the log hazard scales at a common censoring distance): per failure
+``I / D = shape^2 p (1 - p) / (1 + beta^2 p (1 - p))``. With a stated number of hoses per
+adjustment, all started together, the full 3x3 expected information (Escobar & Meeker 1994) at
+the distance where ``D`` failures are expected is inverted instead: ``I / D`` grows to
+``shape^2 / 4`` as every hose fails. The canonical process is not the refitted Wald z at the
+margin: its SE grows with the estimate, so its spread is below 1, and at a look of ``d`` failures
+it cannot exceed about ``sqrt(d)``. With failures rare (the default) and at most
+:data:`DESIGN_LOOKS` failures, ``max_failures`` is therefore the smallest maximum whose exact power
+reaches the target (:func:`rare_failure_power`, a binomial recursion over the force-set count);
+``benchmarks/bench_test_plan.py`` checks it against brute-force simulation with a full refit at
+every failure (docs/decision.md, "failures_needed, right").
+
+References: Schoenfeld, D. A. (1983). Sample-size formula for the proportional-hazards
+regression model. Biometrics 39, 499-503. Escobar, L. A. & Meeker, W. Q. (1994). Fisher
+information matrix for the extreme value, normal and logistic distributions and censored data.
+Applied Statistics 43, 533-540.
 """
 from __future__ import annotations
 
@@ -72,6 +91,10 @@ _TAIL = 9.0           # the density grid is cut this many sds from the drift's m
 #: looks squared (2.8 s at 160 looks), and a design for a shape near 1 and a margin near 1 asks
 #: for hundreds of failures, each a look.
 DESIGN_LOOKS = 100
+#: Expected failures of the adjustment that lives longer below which ``max_information`` notes
+#: that its figure is short: at margin 1.75, shape 3 (4 expected of 23) the brute force needs 30
+#: (-23 %); at 13 and more expected (margins 1.5-2, shapes 1.5-2, O'Brien-Fleming) within 10 %.
+FEW_FAILURES = 10
 
 
 def alpha_spent(t, alpha: float = 0.05, spending: str = "obrien-fleming") -> np.ndarray:
@@ -238,15 +261,23 @@ class MaxInformation:
     Attributes
     ----------
     failures : int
-        Failures (both adjustments together) at which the test ends: ``max_failures`` [-].
+        Failures (both adjustments together) at which the test ends: ``max_failures`` [-]. With
+        failures rare (the default) and at most :data:`DESIGN_LOOKS`, the smallest maximum whose
+        exact power (:func:`rare_failure_power`) reaches the target; else ``ceil(R I_fix / (I /
+        D))`` from the canonical process.
     failures_fixed : float
-        Failures a fixed-sample test read once would need [-].
+        Failures a fixed-sample test read once would need [-] (canonical process).
     inflation : float
         ``R``: the sequential design's maximum information over the fixed sample's [-].
     drift : float
         ``theta sqrt(I_max)`` at the margin [-].
     looks : int
         Equally spaced looks assumed (``failures`` when every failure is a look) [-].
+    note : str or None
+        Set when fewer than :data:`FEW_FAILURES` failures of the adjustment that lives longer are
+        expected by ``failures``, or the spending is Pocock-type: the refitted Wald interval is
+        too narrow at few failures and ``failures`` is likely short of what the test needs
+        (docs/decision.md, "failures_needed, right").
     """
 
     failures: int
@@ -254,6 +285,7 @@ class MaxInformation:
     inflation: float
     drift: float
     looks: int
+    note: str | None = None
 
 
 @functools.lru_cache(maxsize=64)
@@ -280,8 +312,140 @@ def inflation_factor(looks: int, alpha: float = 0.05, power: float = 0.8,
     return (drift / fixed) ** 2, drift
 
 
+def _hose_information(c: float, shape: float) -> np.ndarray:
+    """Expected Fisher information of one hose on ``(a, shape)``, ``a`` its log hazard scale.
+
+    Weibull cumulative hazard ``H(x) = e^a x^shape``, censored at ``x = 1`` (the unit of distance),
+    ``c = H(1)``: with ``v = H(x)`` the expectations are integrals of ``v e^-v`` (Escobar & Meeker
+    1994's censored location-scale information in this parametrisation):
+    ``I_aa = 1 - e^-c``, ``I_ak = (1 / shape) int_0^c v ln(v / c) e^-v dv``,
+    ``I_kk = (I_aa + int_0^c v ln(v / c)^2 e^-v dv) / shape^2``.
+    """
+    v, w = _simpson(0.0, c, c / 400.0)
+    lv = np.log(np.maximum(v, 1e-300) / c)
+    dens = w * v * np.exp(-v)
+    failed = -math.expm1(-c)
+    return np.array([[failed, dens @ lv / shape], [dens @ lv / shape, (failed + dens @ (lv * lv)) / shape ** 2]])
+
+
+def information_per_failure(margin: float, shape: float, failures: float | None = None,
+                            hoses_per_adjustment: int | None = None) -> tuple[float, float]:
+    """Expected information on the log life ratio per failure, the shape estimated, at ``margin``.
+
+    Parameters
+    ----------
+    margin : float
+        True life ratio force / distance [-] (> 1).
+    shape : float
+        Common Weibull shape [-].
+    failures : float, optional
+        Failures (both adjustments) at the look [-]; used with ``hoses_per_adjustment``.
+    hoses_per_adjustment : int, optional
+        Hoses started together in each adjustment and run until they fail or the look [-]. None
+        (default): failures rare among the hoses at risk.
+
+    Returns
+    -------
+    (float, float)
+        ``(I / D, p)``: information on ``ln(force life / distance life)`` per failure [-] and the
+        expected force-set share of the failures [-]. Failures rare: ``p = 1 / (1 + margin^shape)``
+        (the hazard ratio's share) and ``I / D = shape^2 p (1 - p) / (1 + beta^2 p (1 - p))``,
+        ``beta = shape ln margin`` the log hazard ratio: Schoenfeld's (1983) ``p (1 - p)`` per failure
+        for ``beta`` (1/4 only when the failures split evenly), divided by the shape for the life
+        ratio, and the shape's own uncertainty (``Var(shape_hat) = shape^2 / D``) added through
+        ``ln ratio = beta / shape``. With ``n`` hoses each, censored together at the distance where
+        ``D`` failures are expected, the 3x3 expected information of the common-shape Weibull
+        regression on (both log hazard scales, the shape) is inverted (:func:`_hose_information`).
+    """
+    beta = shape * math.log(margin)
+    rare = 1.0 / (1.0 + math.exp(beta))
+    if hoses_per_adjustment is None or failures is None or not failures > 0:
+        q = rare * (1.0 - rare)
+        return shape ** 2 * q / (1.0 + beta ** 2 * q), rare
+    if failures >= 2 * hoses_per_adjustment:   # all failed: the location contrast is orthogonal to the shape
+        return shape ** 2 / 4.0, 0.5
+    frac, hr = failures / hoses_per_adjustment, math.exp(-beta)
+    c = optimize.brentq(lambda c: -math.expm1(-c) - math.expm1(-c * hr) - frac, 1e-12, 800.0, xtol=1e-14)
+    info_d, info_f = _hose_information(c, shape), _hose_information(c * hr, shape)
+    m = np.zeros((3, 3))
+    m[0, 0], m[1, 1] = info_d[0, 0], info_f[0, 0]
+    m[0, 2] = m[2, 0] = info_d[0, 1]
+    m[1, 2] = m[2, 1] = info_f[0, 1]
+    m[2, 2] = info_d[1, 1] + info_f[1, 1]
+    grad = np.array([1.0, -1.0, -beta / shape]) / shape   # ln ratio = (a_distance - a_force) / shape
+    var = grad @ np.linalg.solve(hoses_per_adjustment * m, grad)
+    return 1.0 / (var * failures), -math.expm1(-c * hr) / frac
+
+
+def rare_failure_power(boundaries, margin: float, shape: float) -> float:
+    """Power of the verdict read at every failure, failures rare, by the exact binomial recursion.
+
+    When failures are rare among the hoses at risk the common-shape fit at a look of ``d``
+    failures, ``f`` of them force-set, is a function of ``(d, f)``: the log hazard ratio is
+    ``beta_hat = ln((d - f) / f)`` (the exposures are equal), the log life ratio
+    ``beta_hat / shape`` and its variance ``(1 / (d - f) + 1 / f + beta_hat^2 / d) / shape^2``
+    (:func:`information_per_failure`). Each failure is force-set with probability
+    ``p = 1 / (1 + margin^shape)``, independently, so the distribution of ``f`` among the trials
+    still running is carried look to look exactly, and every look's verdict applied as
+    :func:`sequential_verdict` does: no estimate until each adjustment has two failures,
+    ``force longer`` when ``z >= c_d``, stop at ``distance longer`` or ``no practical difference``.
+    This is the Wald z's small-sample distribution, which the canonical ``N(drift sqrt(t), 1)``
+    is not at the margin: its SE grows with the estimate, so its spread is below 1 (0.69 at margin
+    1.5, shape 2), and it cannot exceed about ``sqrt(d)`` at a look of ``d`` failures.
+
+    Parameters
+    ----------
+    boundaries : array_like
+        ``c_d`` [-] for looks at failures ``1..M`` (:func:`efficacy_boundaries` at ``d / M``).
+    margin : float
+        True life ratio force / distance [-] (> 1).
+    shape : float
+        Common Weibull shape [-].
+
+    Returns
+    -------
+    float
+        P(``force longer`` by failure ``M``) [-].
+    """
+    beta, lm = shape * math.log(margin), math.log(margin)
+    p = 1.0 / (1.0 + math.exp(beta))
+    mass, power = np.array([1.0]), 0.0
+    for d, c in enumerate(np.asarray(boundaries, float), start=1):
+        mass = np.concatenate([mass * (1.0 - p), [0.0]]) + np.concatenate([[0.0], mass * p])
+        f = np.arange(d + 1)
+        ok = (f >= 2) & (d - f >= 2)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            b = np.log((d - f) / f)
+            est, half = b / shape, c * np.sqrt(1.0 / (d - f) + 1.0 / f + b * b / d) / shape
+            up = ok & (est >= half)
+            stop = ok & ((np.abs(est) >= half) | (np.abs(est) + half < lm))
+        power += float(mass[up].sum())
+        mass = np.where(stop, 0.0, mass)
+    return power
+
+
+def _smallest_rare_maximum(start: int, margin: float, alpha: float, power: float, spending: str,
+                           shape: float) -> int | None:
+    """Smallest ``M`` whose :func:`rare_failure_power` reaches ``power``, by bisection from ``start``
+    (None when none up to :data:`DESIGN_LOOKS` does)."""
+    def reaches(m):
+        c = efficacy_boundaries(np.arange(1, m + 1) / m, alpha, spending)
+        return rare_failure_power(c, margin, shape) >= power
+
+    lo, hi = max(4, start // 2), min(DESIGN_LOOKS, max(8, start))
+    while not reaches(hi):
+        if hi == DESIGN_LOOKS:
+            return None
+        lo, hi = hi, min(DESIGN_LOOKS, 2 * hi)
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        lo, hi = (lo, mid) if reaches(mid) else (mid, hi)
+    return hi
+
+
 def max_information(margin: float, alpha: float = 0.05, power: float = 0.8,
-                    spending: str = "obrien-fleming", shape: float = 1.0, looks: int | None = None) -> MaxInformation:
+                    spending: str = "obrien-fleming", shape: float = 1.0, looks: int | None = None,
+                    hoses_per_adjustment: int | None = None) -> MaxInformation:
     """The failures a sequential test needs to decide at ``margin`` with ``power``.
 
     Parameters
@@ -296,28 +460,56 @@ def max_information(margin: float, alpha: float = 0.05, power: float = 0.8,
         Lan-DeMets spending family.
     shape : float
         Weibull shape [-] (common to both adjustments): information per failure is
-        ``shape^2 / 4``.
+        ``shape^2 p (1 - p)``, ``p`` the force-set share of the failures (:func:`force_share`).
     looks : int, optional
         Equally spaced looks; None (default) means a look at every failure, found as the fixed
         point ``looks = failures``. Above :data:`DESIGN_LOOKS` looks ``R`` is that of
         :data:`DESIGN_LOOKS` looks (within 0.3 % of the exact value, slightly below it).
+    hoses_per_adjustment : int, optional
+        Hoses on test per adjustment when the follow-up is known (:func:`force_share`); None
+        (default, what the stages use): failures rare among the hoses at risk, ``p = 1 / (1 +
+        margin^shape)``, the fewest information per failure, so the most failures.
 
     Returns
     -------
     MaxInformation
+        ``failures_fixed = I_fix / (shape^2 p (1 - p))``.
     """
     margin = max(margin, 1.0 / margin)
     if not margin > 1.0 or not shape > 0:
         raise ValueError("margin must differ from 1 and shape be positive")
-    fixed = 4.0 * (stats.norm.isf(alpha / 2) + stats.norm.ppf(power)) ** 2 / (shape * math.log(margin)) ** 2
+    i_fix = ((stats.norm.isf(alpha / 2) + stats.norm.ppf(power)) / math.log(margin)) ** 2
+
+    def per_failure(d):
+        return information_per_failure(margin, shape, d, hoses_per_adjustment)[0]
+
+    fixed = i_fix / per_failure(None)
     k = looks or max(1, math.ceil(fixed))
-    for _ in range(20):
+    for _ in range(40):
         r, drift = inflation_factor(min(k, DESIGN_LOOKS), alpha, power, spending)
+        fixed = i_fix / per_failure(k)
         failures = math.ceil(r * fixed - 1e-9)
         if looks or failures == k:
             break
         k = failures
-    return MaxInformation(failures, fixed, r, drift, k)
+    if looks is None and hoses_per_adjustment is None and failures <= DESIGN_LOOKS:
+        exact = _smallest_rare_maximum(failures, margin, alpha, power, spending, shape)
+        if exact is not None:
+            failures = k = exact
+    return MaxInformation(failures, fixed, r, drift, k, _short_note(failures, margin, shape, spending,
+                                                                    hoses_per_adjustment))
+
+
+def _short_note(failures: int, margin: float, shape: float, spending: str, hoses: int | None) -> str | None:
+    """Why ``failures`` is likely short of what the refitted test needs, or None (FEW_FAILURES)."""
+    fewer = failures * information_per_failure(margin, shape, failures, hoses)[1]
+    if fewer < FEW_FAILURES:
+        return (f"about {fewer:.0f} failures of the adjustment that lives longer expected by {failures}: the Wald "
+                f"interval is too narrow at so few (the shape's small-sample bias), {failures} is likely short")
+    if spending == "pocock":
+        return ("Pocock-type spending decides at early looks, where the refitted Wald interval is too narrow: "
+                f"{failures} may be short")
+    return None
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,7 @@ import pytest
 from scipy import optimize, stats
 
 from analyses.sequential import (alpha_spent, crossing_probabilities, efficacy_boundaries, inflation_factor,
-                                 max_information, sequential_verdict)
+                                 information_per_failure, max_information, rare_failure_power, sequential_verdict)
 
 Z975 = stats.norm.isf(0.025)
 
@@ -97,19 +97,59 @@ def test_inflation_factors_match_jennison_turnbull(k, r_pocock, r_obf):
 
 
 def test_max_information_hand_checked_and_inflated():
-    fixed = 4 * (Z975 + stats.norm.ppf(0.8)) ** 2 / math.log(1.25) ** 2     # 630.5 failures, shape 1
+    # shape 1, margin 1.25: p = 1 / 2.25 = 0.4444, p (1 - p) = 0.24691, beta = ln 1.25 = 0.22314,
+    # I / D = 0.24691 / (1 + 0.049793 * 0.24691) = 0.24391; I_fix = 2.80159^2 / 0.049793 = 157.63
+    per = 0.24691358 / (1 + math.log(1.25) ** 2 * 0.24691358)
+    fixed = (Z975 + stats.norm.ppf(0.8)) ** 2 / math.log(1.25) ** 2 / per
+    assert per == pytest.approx(0.24391, abs=1e-5) and fixed == pytest.approx(646.3, abs=0.1)
     one = max_information(1.25, looks=1)
     assert one.failures_fixed == pytest.approx(fixed) and one.failures == math.ceil(fixed)
     assert one.inflation == pytest.approx(1.0, abs=1e-6)
     assert max_information(1 / 1.25, looks=1).failures == one.failures      # a ratio and its inverse
     five = max_information(1.25, 0.05, 0.8, "pocock", shape=2.0, looks=5)
     r, _ = inflation_factor(5, 0.05, 0.8, "pocock")
-    assert five.inflation == pytest.approx(r) and five.failures == math.ceil(r * fixed / 4)
+    per2, _ = information_per_failure(1.25, 2.0)
+    assert five.inflation == pytest.approx(r) and five.failures == math.ceil(r * per * fixed / per2)
     every = max_information(1.25, 0.05, 0.8, "obrien-fleming", shape=2.0)
     assert every.looks == every.failures                                        # a look at every failure
     assert 1.0 < every.inflation < 1.1 and every.failures > every.failures_fixed
     with pytest.raises(ValueError):
         max_information(1.0)
+
+
+def test_information_per_failure_hand_checked_limits():
+    # rare failures, margin 1.5, shape 2: p = 1 / (1 + 2.25) = 0.30769, p (1 - p) = 0.21302,
+    # beta^2 = (2 ln 1.5)^2 = 0.65753: I / D = 4 * 0.21302 / (1 + 0.65753 * 0.21302) = 0.74738
+    per, p = information_per_failure(1.5, 2.0)
+    assert p == pytest.approx(0.30769, abs=1e-5) and per == pytest.approx(0.74738, abs=1e-5)
+    # the full expected information tends to the closed form as the hoses grow, and to shape^2 / 4
+    # (complete samples: the log-life contrast is orthogonal to the shape) as every hose fails
+    big, p_big = information_per_failure(1.5, 2.0, 72, 1_000_000)
+    assert big == pytest.approx(per, rel=1e-3) and p_big == pytest.approx(p, rel=1e-3)
+    assert information_per_failure(1.5, 2.0, 72, 36) == (1.0, 0.5)
+    near_all, p_all = information_per_failure(1.5, 2.0, 71.9, 36)
+    assert near_all == pytest.approx(1.0, abs=0.01) and p_all == pytest.approx(0.5, abs=0.01)
+    # no effect: the shape is orthogonal whatever the follow-up, shape^2 / 4 per failure
+    assert information_per_failure(1.0 + 1e-9, 1.5, 30, 50)[0] == pytest.approx(1.5 ** 2 / 4, rel=1e-6)
+    # more hoses per failure, less information per failure: more failures needed
+    few = max_information(1.5, 0.05, 0.8, "obrien-fleming", 2.0, hoses_per_adjustment=40).failures
+    assert few < max_information(1.5, 0.05, 0.8, "obrien-fleming", 2.0).failures
+
+
+def test_information_per_failure_matches_the_refitted_variance():
+    """Var of the common-shape MLE of the log ratio over simulated trials, against 1 / I."""
+    from analyses.life_effect import common_shape_fit
+    rng = np.random.default_rng(5)
+    n, d, est = 200, 60, []
+    for _ in range(400):
+        life = np.concatenate([rng.weibull(2.0, n), 1.5 * rng.weibull(2.0, n)])
+        now = np.sort(life)[d - 1]
+        fit = common_shape_fit(np.minimum(life, now), life <= now, np.repeat([0, 1], n))
+        est.append(fit.log_ratio)
+    per, _ = information_per_failure(1.5, 2.0, d, n)
+    # sampling error of a variance from 400 draws: ~7 %; the shape-known 1 / (shape^2 d p (1 - p))
+    # is 13 % smaller and the even split's 4 / (shape^2 d) 30 % smaller
+    assert np.var(est) * per * d == pytest.approx(1.0, abs=0.15)
 
 
 def test_verdict_sticks_once_declared():
@@ -163,3 +203,28 @@ def test_many_looks_design_uses_the_capped_inflation_within_its_stated_error():
     assert mi.looks > DESIGN_LOOKS
     assert mi.inflation <= exact < mi.inflation * 1.003
     assert mi.failures == math.ceil(mi.inflation * mi.failures_fixed - 1e-9)
+
+
+def test_rare_failure_power_hand_checked():
+    """Looks 1-4 cannot decide (no estimate before two failures each; c = 40 at look 4); at look 5
+    with c = 0.4 the split 3 distance / 2 force gives ln ratio ln(1.5) / 2 = 0.2027 above
+    0.4 sqrt(1/3 + 1/2 + ln(1.5)^2 / 5) / 2 = 0.1861: force longer; 2 / 3 gives distance longer.
+    P(2 force-set of 5) = 10 p^2 (1 - p)^3 = 10 * 16 * 729 / 13^5 at p = 1 / 3.25 = 4 / 13."""
+    assert rare_failure_power([40.0] * 4 + [0.4], 1.5, 2.0) == pytest.approx(10 * 16 * 729 / 13 ** 5, abs=1e-9)
+    assert rare_failure_power([40.0] * 5, 1.5, 2.0) == 0.0
+
+
+def test_max_information_rare_default_is_the_smallest_maximum_reaching_the_power():
+    mi = max_information(1.5, 0.05, 0.8, "obrien-fleming", 2.0)
+    power = [rare_failure_power(efficacy_boundaries(np.arange(1, m + 1) / m), 1.5, 2.0)
+             for m in (mi.failures - 1, mi.failures)]
+    assert power[0] < 0.8 <= power[1]
+    # the Wald z's spread below 1 at the margin: fewer failures than the canonical process asks
+    assert mi.failures < math.ceil(mi.inflation * mi.failures_fixed)
+
+
+def test_max_information_notes_a_design_with_few_failures_of_the_longer_lived_adjustment():
+    few = max_information(1.75, 0.10, 0.8, "obrien-fleming", 3.0)    # p = 1 / (1 + 1.75^3) = 0.157
+    assert few.note is not None and f"about {round(few.failures * 0.1572)} failures" in few.note
+    assert max_information(1.5, 0.05, 0.8, "obrien-fleming", 2.0).note is None   # 0.31 * 61 = 19
+    assert "Pocock" in max_information(1.5, 0.05, 0.8, "pocock", 2.0).note
