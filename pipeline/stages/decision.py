@@ -17,7 +17,7 @@ For every hose type with at least one hose of each adjustment (``force``, ``dist
 
 Settings per hose type from the plan (:meth:`pipeline.raw.plan.Plan.for_hose_type`);
 ``max_failures`` the plan's, else the sequential design's
-(:func:`analyses.sequential.max_information` with the ``life_effect`` common shape; 1.0 when
+(:func:`analyses.sequential.design_for` with the ``life_effect`` common shape; 1.0 when
 that is NULL, said in the note), as the ``test_plan`` stage computes it.
 
 Decisions
@@ -42,7 +42,7 @@ import pandas as pd
 from analyses.decision import GROUP, decide, failure_events, look_estimates, look_hoses, usable_hoses
 from analyses.hose_life import match_runs
 from analyses.life_effect import life_effect
-from analyses.sequential import max_information
+from analyses.sequential import design_for, design_shape
 from pipeline.raw.logbook import merge_logbooks, read_logbooks
 from pipeline.stages import Reads, StageContext, StageOutput
 
@@ -139,13 +139,14 @@ def design_item(plan: dict, shape: float) -> tuple[dict | None, str | None]:
     note = None
     if not (math.isfinite(shape) and shape > 0):
         shape, note = 1.0, "max_failures designed with shape 1.0: the life_effect common shape is NULL"
-    return {k: plan[k] for k in ("margin", "alpha", "power", "spending")} | {"shape": float(shape)}, note
+    # on the design grid: hose types whose shapes round alike share one item (one computation)
+    return {k: plan[k] for k in ("margin", "alpha", "power", "spending")} | {"shape": design_shape(float(shape))}, note
 
 
 def design_failures(item: dict) -> int:
-    """``max_failures`` of the sequential design (:func:`analyses.sequential.max_information`) for
+    """``max_failures`` of the sequential design (:func:`analyses.sequential.design_for`) for
     a :func:`design_item` (module level: memoised by ``ctx.map``, seconds to minutes the first time)."""
-    return int(max_information(item["margin"], item["alpha"], item["power"], item["spending"], item["shape"]).failures)
+    return int(design_for(item["margin"], item["alpha"], item["power"], item["spending"], item["shape"]).failures)
 
 
 def _looks_rows(hose_type: str, est: pd.DataFrame, sv, present: bool) -> list[dict]:

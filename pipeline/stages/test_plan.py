@@ -3,7 +3,7 @@
 One ``test_plan`` row per hose type with hoses of both adjustments in ``hose_life`` and per
 target power (the plan's, and 0.9; one row when they are equal), from :mod:`analyses.test_plan`:
 
-* ``failures_needed``: :func:`analyses.sequential.max_information` for the plan's margin, alpha,
+* ``failures_needed``: :func:`analyses.sequential.design_for` for the plan's margin, alpha,
   spending and the target power, at ``life_effect.shape`` (1.0 when NULL, noted): the same
   number the decision stage uses as ``max_failures`` when the plan leaves it unset.
 * ``power_now``: Monte Carlo from the fitted common-shape Weibull and the current censored state,
@@ -30,7 +30,7 @@ import numpy as np
 import pandas as pd
 
 from analyses.life_effect import SEPARATE, common_shape_fit
-from analyses.sequential import efficacy_boundaries, max_information
+from analyses.sequential import design_for, design_shape, efficacy_boundaries
 from analyses.test_plan import (CAPACITY_DAYS, N_SIMULATIONS, HoseState, decision_date, measured_capacity,
                                 more_testing, power_now, target_powers)
 from pipeline.stages import Reads, StageContext, StageOutput
@@ -94,7 +94,7 @@ def design(item: dict) -> dict:
     failure, :func:`analyses.sequential.max_information` takes seconds to minutes: the boundaries
     of hundreds of looks).
     """
-    needed = {p: max_information(item["margin"], item["alpha"], p, item["spending"], item["shape"]).failures
+    needed = {p: design_for(item["margin"], item["alpha"], p, item["spending"], item["shape"]).failures
               for p in target_powers(item["power"])}
     m = item["max_failures"] or needed[item["power"]]
     c = efficacy_boundaries(np.arange(1, m + 1) / m, item["alpha"], item["spending"])
@@ -105,7 +105,8 @@ def _design_item(item: dict) -> dict:
     """The design a hose type's item needs (shape 1.0 when life_effect has none)."""
     s = item["settings"]
     return {"margin": s["margin"], "alpha": s["alpha"], "power": s["power"], "spending": s["spending"],
-            "max_failures": s["max_failures"], "shape": 1.0 if item["shape"] is None else item["shape"]}
+            "max_failures": s["max_failures"],  # the shape on the design grid: types that round alike share it
+            "shape": 1.0 if item["shape"] is None else design_shape(item["shape"])}
 
 
 def plan_hose_type(item: dict) -> list[dict]:

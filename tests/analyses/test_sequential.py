@@ -228,3 +228,17 @@ def test_max_information_notes_a_design_with_few_failures_of_the_longer_lived_ad
     assert few.note is not None and f"about {round(few.failures * 0.1572)} failures" in few.note
     assert max_information(1.5, 0.05, 0.8, "obrien-fleming", 2.0).note is None   # 0.31 * 61 = 19
     assert "Pocock" in max_information(1.5, 0.05, 0.8, "pocock", 2.0).note
+
+
+def test_design_for_rounds_the_shape_to_its_grid_and_gives_both_stages_one_answer():
+    """Shapes within half a grid step share one design; the design is max_information's at the
+    rounded shape, and the rounding moves the shape by at most half the 2 % step."""
+    from analyses.sequential import DESIGN_SHAPE_STEP, design_for, design_shape, max_information
+    for k in (0.8, 1.0, 2.13, 3.7):
+        g = design_shape(k)
+        assert abs(math.log(g / k)) <= DESIGN_SHAPE_STEP / 2 + 1e-12
+        assert design_shape(g) == g
+    assert design_shape(2.130) == design_shape(2.131)
+    d = design_for(1.5, 0.05, 0.8, "obrien-fleming", 2.131)
+    assert d.failures == max_information(1.5, 0.05, 0.8, "obrien-fleming", design_shape(2.131)).failures
+    assert design_for(1.5, 0.05, 0.8, "obrien-fleming", 2.130) is d   # cached: one computation

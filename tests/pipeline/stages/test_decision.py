@@ -8,7 +8,7 @@ import pandas as pd
 import pytest
 
 from analyses.hose_life import hose_life
-from analyses.sequential import max_information
+from analyses.sequential import design_shape, max_information
 from pipeline.raw.logbook import merge_logbooks, read_logbooks
 from pipeline.raw.plan import Plan
 from pipeline.simulator import simulate_durability
@@ -85,7 +85,7 @@ def test_max_failures_from_the_design_with_shape_one_when_the_shape_is_null():
     assert ask["shape"] == 1.0 and "shape 1.0" in note
     assert stage.design_failures(ask) == max_information(2.0, 0.05, 0.8, "obrien-fleming", 1.0).failures
     assert stage.design_item(plan, 2.5) == ({"margin": 2.0, "alpha": 0.05, "power": 0.8, "spending": "obrien-fleming",
-                                             "shape": 2.5}, None)
+                                             "shape": design_shape(2.5)}, None)   # on the design grid
     assert stage.design_item({**plan, "max_failures": 30}, 2.0) == (None, None)
 
 
