@@ -206,7 +206,7 @@ def _split(life, failed, group) -> list[tuple[np.ndarray, np.ndarray]]:
     g = np.asarray(group)
     if not x.shape == f.shape == g.shape:
         raise ValueError("life, failed and group must have the same length")
-    if not np.isin(g, (0, 1)).all():
+    if not ((g == 0) | (g == 1)).all():
         raise ValueError("group must be 0 (distance) or 1 (force)")
     keep = np.isfinite(x) & (x > 0)
     return [(x[keep & (g == v)], f[keep & (g == v)]) for v in (0, 1)]
@@ -310,22 +310,22 @@ def _covariance(groups, shape: float, scales: tuple[float, float]) -> np.ndarray
     section 17.3 and appendix B), inverted, then carried to ``log shape`` (exact for this change of
     one coordinate). All NaN when the information is not positive definite.
     """
-    y = np.log(np.concatenate([groups[0][0], groups[1][0]]))
-    d = np.concatenate([groups[0][1], groups[1][1]]).astype(np.float64)
-    g = np.r_[np.zeros(len(groups[0][0])), np.ones(len(groups[1][0]))]
     sigma = 1.0 / shape
-    z = (y - math.log(scales[0]) - g * math.log(scales[1] / scales[0])) / sigma
-    w = np.exp(z)
-    X = np.column_stack([np.ones_like(g), g])
-    info = np.empty((3, 3))
-    info[:2, :2] = (X.T * w) @ X
-    info[:2, 2] = info[2, :2] = X.T @ (w * z + w - d)
-    info[2, 2] = float((w * z * z + 2.0 * w * z - 2.0 * d * z - d).sum())
-    info /= sigma ** 2
+    sums = []                                   # per group: sum w, sum (w z + w - d), sum (w z^2 + 2 w z - 2 d z - d)
+    for (x, f), shift in zip(groups, (0.0, math.log(scales[1] / scales[0]))):
+        z = (np.log(x) - math.log(scales[0]) - shift) / sigma
+        w = np.exp(z)
+        d = f.astype(np.float64)
+        wz = w * z
+        sums.append((float(w.sum()), float((wz + w - d).sum()), float((wz * z + 2.0 * wz - 2.0 * d * z - d).sum())))
+    (w0, a0, b0), (w1, a1, b1) = sums
+    info = np.array([[w0 + w1, w1, a0 + a1], [w1, w1, a1], [a0 + a1, a1, b0 + b1]]) / sigma ** 2
     if not np.isfinite(info).all() or np.linalg.eigvalsh(info).min() <= 0:
         return np.full((3, 3), _NAN)
-    jac = np.diag([1.0, 1.0, -1.0 / sigma])  # d log(shape) / d sigma = -1 / sigma
-    return jac @ np.linalg.inv(info) @ jac.T
+    cov = np.linalg.inv(info)
+    cov[2, :] *= -1.0 / sigma                   # d log(shape) / d sigma = -1 / sigma
+    cov[:, 2] *= -1.0 / sigma
+    return cov
 
 
 def _fit_groups(groups, start: float = 0.0) -> CommonShapeFit:

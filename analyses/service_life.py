@@ -224,7 +224,9 @@ def newton_root(value_slope, lo: float, hi: float, start: float, xtol: float = 1
     start : float
         First point (clipped into the range).
     xtol : float
-        Converged when a Newton step is below ``xtol * (1 + |t|)``.
+        Accuracy of the root [-]: the iteration stops after a Newton step below
+        ``0.1 * sqrt(xtol) * (1 + |t|)`` (Newton's error after a step is of the order of the
+        step squared).
 
     Returns
     -------
@@ -246,12 +248,12 @@ def newton_root(value_slope, lo: float, hi: float, start: float, xtol: float = 1
             b = t
         step = v / d if math.isfinite(d) and d < 0 else math.nan
         new = t - step
+        if abs(step) <= 0.1 * math.sqrt(xtol) * (1.0 + abs(t)):   # converged: quadratically, this step's error ~ step^2
+            return new if lo < new < hi else None
         if not a < new < b:              # NaN too: bisect the bracket
             new = 0.5 * (a + b)
             if b - a <= xtol * (1.0 + abs(t)):
                 return new if lo < a and b < hi else None
-        elif abs(step) <= xtol * (1.0 + abs(t)):
-            return new if lo < new < hi else None
         t = new
     return None
 
