@@ -166,14 +166,16 @@ def look_hoses(hoses: pd.DataFrame, runs: pd.DataFrame, events: pd.DataFrame) ->
     odometer = (hoses["distance_source"] == "odometer").to_numpy()
     dist = np.zeros((len(ids), t.size))
     index = {h: i for i, h in enumerate(ids)}
-    mine = runs[runs["hose_id"].isin(index)] if len(runs) else runs
-    if len(mine):
-        frac = _run_fractions(mine["started_at"], mine["duration_h"], t)
-        kms = np.nan_to_num(pd.to_numeric(mine["distance_km"], errors="coerce").to_numpy(float))
-        np.add.at(dist, mine["hose_id"].map(index).to_numpy(int), kms[:, None] * frac)
+    run_of = [index.get(h, -1) for h in runs["hose_id"].tolist()] if len(runs) else []
+    mine = np.flatnonzero(np.asarray(run_of, dtype=np.int64) >= 0)     # the runs of these hoses
+    if mine.size:
+        frac = _run_fractions(runs["started_at"].iloc[mine], runs["duration_h"].iloc[mine], t)
+        kms = np.nan_to_num(pd.to_numeric(runs["distance_km"].iloc[mine], errors="coerce").to_numpy(float))
+        np.add.at(dist, np.asarray(run_of, dtype=np.int64)[mine], kms[:, None] * frac)
     if odometer.any():
         dist[odometer] = _odometer_at(installed[odometer], ended[odometer], km[odometer], t.astype(np.float64))
-    rank = events.set_index("hose_id")["look"].reindex(ids).fillna(t.size + 1).to_numpy(int)
+    look_of = dict(zip(events["hose_id"].tolist(), events["look"].tolist()))
+    rank = np.array([look_of.get(h, t.size + 1) for h in ids], dtype=int)
     failed = np.arange(1, t.size + 1)[None, :] >= rank[:, None]
     dist = np.where(failed, km[:, None], dist)
     keep = t[None, :] >= installed[:, None]

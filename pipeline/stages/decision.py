@@ -151,7 +151,8 @@ def design_failures(item: dict) -> int:
 def _looks_rows(hose_type: str, est: pd.DataFrame, sv, present: bool) -> list[dict]:
     """``decision_looks`` rows from the estimates and the verdict's per-look values."""
     rows = []
-    for i, e in enumerate(est.to_dict("records")):
+    records = (dict(zip(est.columns, values)) for values in zip(*(est[c].tolist() for c in est.columns)))
+    for i, e in enumerate(records):
         lr, se = e["log_ratio"], e["se_log_ratio"]
         e["note"] = e["note"] if isinstance(e["note"], str) else None
         row = {"hose_type": hose_type, "look": int(e["look"]), "event_at": e["event_at"], "hose_id": e["hose_id"],
