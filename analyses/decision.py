@@ -16,7 +16,8 @@ whatever night they were computed on:
   censored at their distance then;
 * :func:`look_estimates`: per look the common-shape Weibull regression of life on the
   adjustment (:func:`analyses.life_effect.common_shape_fit`, Meeker & Escobar 1998, ch. 17):
-  ``log_ratio`` and its standard error, NaN with a note where the data cannot tell;
+  ``log_ratio`` and its standard error, NaN with a note where the data cannot tell; each look's
+  shape solve starts at the previous look's shape (the same estimate, in fewer steps);
 * :func:`decide`: the sequential verdict over all looks
   (:func:`analyses.sequential.sequential_verdict`: Lan & DeMets 1983 alpha spending, repeated
   confidence intervals, a verdict that sticks) at ``information_fraction = failures /

@@ -12,8 +12,9 @@ smallest-extreme-value variable with location ``mu_distance + theta * group`` an
 common shape this is the ratio of every quantile, B10 included. The parameters are estimated by
 maximum likelihood with right censoring (:func:`analyses.service_life.weibull_loglik`): for a
 given shape each scale is closed form (:func:`analyses.service_life.weibull_scale_given_shape`)
-and the shape solves a strictly decreasing score equation (``brentq`` over
-:data:`analyses.service_life.SHAPE_BOUNDS`).
+and the shape solves a strictly decreasing score equation (Newton's method kept in a bracket,
+:func:`analyses.service_life.newton_root`, started at the estimate or the previous look's shape;
+``brentq`` over :data:`analyses.service_life.SHAPE_BOUNDS` when it does not settle inside them).
 
 Bounds and tests (Meeker & Escobar 1998, sections 8.3 and 17.3)
 ----------------------------------------------------------------
