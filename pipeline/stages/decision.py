@@ -29,8 +29,8 @@ Decisions
   ``life_effect``, then its looks): the types run in parallel and one whose hoses, runs and
   settings did not change is not computed again. The sequential design behind an unset
   ``max_failures`` is one ``ctx.map`` item per distinct (margin, alpha, power, spending, shape):
-  it costs seconds to minutes the first time (:func:`analyses.sequential.max_information`, a look
-  at each of hundreds of failures) and is then read from the memo.
+  it costs about half a second the first time (:func:`analyses.sequential.max_information`,
+  ``benchmarks/bench_decision_stage.py``) and is then read from the memo.
 """
 from __future__ import annotations
 
@@ -144,7 +144,7 @@ def design_item(plan: dict, shape: float) -> tuple[dict | None, str | None]:
 
 def design_failures(item: dict) -> int:
     """``max_failures`` of the sequential design (:func:`analyses.sequential.max_information`) for
-    a :func:`design_item` (module level: memoised by ``ctx.map``, seconds to minutes the first time)."""
+    a :func:`design_item` (module level: memoised by ``ctx.map``, about half a second the first time)."""
     return int(max_information(item["margin"], item["alpha"], item["power"], item["spending"], item["shape"]).failures)
 
 
