@@ -16,7 +16,8 @@ whatever night they were computed on:
   censored at their distance then;
 * :func:`look_estimates`: per look the common-shape Weibull regression of life on the
   adjustment (:func:`analyses.life_effect.common_shape_fit`, Meeker & Escobar 1998, ch. 17):
-  ``log_ratio`` and its standard error, NaN with a note where the data cannot tell;
+  ``log_ratio`` and its standard error, NaN with a note where the data cannot tell; each look's
+  shape solve starts at the previous look's shape (the same estimate, in fewer steps);
 * :func:`decide`: the sequential verdict over all looks
   (:func:`analyses.sequential.sequential_verdict`: Lan & DeMets 1983 alpha spending, repeated
   confidence intervals, a verdict that sticks) at ``information_fraction = failures /
@@ -65,8 +66,11 @@ LOOK_COLUMNS = ["look", "event_at", "hose_id", "failures", "n_hoses", "total_km"
 
 
 def _ns(values) -> np.ndarray:
-    """UTC times as int64 nanoseconds (NaT -> the minimum int64)."""
-    return pd.to_datetime(pd.Series(values), utc=True, format="ISO8601").to_numpy("datetime64[ns]").astype(np.int64)
+    """UTC times as int64 nanoseconds (NaT -> the minimum int64); times already typed are not parsed again."""
+    s = values if isinstance(values, pd.Series) else pd.Series(values)
+    if not (isinstance(s.dtype, pd.DatetimeTZDtype) or s.dtype.kind == "M"):
+        s = pd.to_datetime(s, utc=True, format="ISO8601")
+    return s.to_numpy("datetime64[ns]").astype(np.int64)
 
 
 def usable_hoses(life: pd.DataFrame) -> pd.DataFrame:
@@ -105,10 +109,11 @@ def failure_events(hoses: pd.DataFrame) -> pd.DataFrame:
     """
     failed = hoses[(hoses["status"] == "failed") & (pd.to_numeric(hoses["distance_km"]) > 0)
                    & hoses["ended_at"].notna()]
-    ev = failed[["hose_id", "ended_at"]].rename(columns={"ended_at": "event_at"})
-    ev = ev.sort_values(["event_at", "hose_id"], kind="stable").reset_index(drop=True)
-    ev.insert(0, "look", np.arange(1, len(ev) + 1, dtype=np.int64))
-    return ev
+    t, ids = _ns(failed["ended_at"]).tolist(), failed["hose_id"].tolist()
+    order = sorted(range(len(ids)), key=lambda i: (t[i], ids[i]))
+    return pd.DataFrame({"look": np.arange(1, len(ids) + 1, dtype=np.int64),
+                         "hose_id": failed["hose_id"].iloc[order].reset_index(drop=True),
+                         "event_at": failed["ended_at"].iloc[order].reset_index(drop=True)})
 
 
 def _run_fractions(starts, durations_h, t: np.ndarray) -> np.ndarray:
@@ -162,14 +167,16 @@ def look_hoses(hoses: pd.DataFrame, runs: pd.DataFrame, events: pd.DataFrame) ->
     odometer = (hoses["distance_source"] == "odometer").to_numpy()
     dist = np.zeros((len(ids), t.size))
     index = {h: i for i, h in enumerate(ids)}
-    mine = runs[runs["hose_id"].isin(index)] if len(runs) else runs
-    if len(mine):
-        frac = _run_fractions(mine["started_at"], mine["duration_h"], t)
-        kms = np.nan_to_num(pd.to_numeric(mine["distance_km"], errors="coerce").to_numpy(float))
-        np.add.at(dist, mine["hose_id"].map(index).to_numpy(int), kms[:, None] * frac)
+    run_of = [index.get(h, -1) for h in runs["hose_id"].tolist()] if len(runs) else []
+    mine = np.flatnonzero(np.asarray(run_of, dtype=np.int64) >= 0)     # the runs of these hoses
+    if mine.size:
+        frac = _run_fractions(runs["started_at"].iloc[mine], runs["duration_h"].iloc[mine], t)
+        kms = np.nan_to_num(pd.to_numeric(runs["distance_km"].iloc[mine], errors="coerce").to_numpy(float))
+        np.add.at(dist, np.asarray(run_of, dtype=np.int64)[mine], kms[:, None] * frac)
     if odometer.any():
         dist[odometer] = _odometer_at(installed[odometer], ended[odometer], km[odometer], t.astype(np.float64))
-    rank = events.set_index("hose_id")["look"].reindex(ids).fillna(t.size + 1).to_numpy(int)
+    look_of = dict(zip(events["hose_id"].tolist(), events["look"].tolist()))
+    rank = np.array([look_of.get(h, t.size + 1) for h in ids], dtype=int)
     failed = np.arange(1, t.size + 1)[None, :] >= rank[:, None]
     dist = np.where(failed, km[:, None], dist)
     keep = t[None, :] >= installed[:, None]
@@ -204,16 +211,18 @@ def look_estimates(in_looks: pd.DataFrame, events: pd.DataFrame) -> pd.DataFrame
     g = (in_looks["adjustment"] == "force").to_numpy(int)
     odo = (in_looks["distance_from"] == FROM_ODOMETER).to_numpy() & ~f
     rows = []
-    for ev in events.to_dict("records"):
-        m = look == ev["look"]
-        fit = common_shape_fit(x[m], f[m], g[m])
+    shape = 1.0                                  # each look's solve starts at the previous look's shape
+    for number, event_at, hose_id in zip(events["look"].tolist(), events["event_at"], events["hose_id"].tolist()):
+        m = look == number
+        fit = common_shape_fit(x[m], f[m], g[m], shape_start=shape)
+        shape = fit.shape if math.isfinite(fit.shape) else shape
         ok = fit.note is None and math.isfinite(fit.se_log_ratio) and fit.se_log_ratio > 0
         notes = [fit.note] if fit.note else ([] if ok else ["the fit's information is not positive definite"])
         by_odo = int(odo[m].sum())
         if by_odo:
             notes.append(f"{by_odo} censored hose(s) known only by their odometer: distance linear in time "
                          "between installation and end event")
-        rows.append({"look": ev["look"], "event_at": ev["event_at"], "hose_id": ev["hose_id"],
+        rows.append({"look": number, "event_at": event_at, "hose_id": hose_id,
                      "failures": int(f[m].sum()), "n_hoses": int(m.sum()), "total_km": float(x[m].sum()),
                      "log_ratio": fit.log_ratio if ok else math.nan, "se_log_ratio": fit.se_log_ratio if ok else math.nan,
                      "note": "; ".join(notes) or None})

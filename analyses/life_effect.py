@@ -12,8 +12,9 @@ smallest-extreme-value variable with location ``mu_distance + theta * group`` an
 common shape this is the ratio of every quantile, B10 included. The parameters are estimated by
 maximum likelihood with right censoring (:func:`analyses.service_life.weibull_loglik`): for a
 given shape each scale is closed form (:func:`analyses.service_life.weibull_scale_given_shape`)
-and the shape solves a strictly decreasing score equation (``brentq`` over
-:data:`analyses.service_life.SHAPE_BOUNDS`).
+and the shape solves a strictly decreasing score equation (Newton's method kept in a bracket,
+:func:`analyses.service_life.newton_root`, started at the estimate or the previous look's shape;
+``brentq`` over :data:`analyses.service_life.SHAPE_BOUNDS` when it does not settle inside them).
 
 Bounds and tests (Meeker & Escobar 1998, sections 8.3 and 17.3)
 ----------------------------------------------------------------
@@ -102,7 +103,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy  # its submodules load on first use
 
-from analyses.service_life import (SHAPE_BOUNDS, WeibullFit, lr_bound, weibull_loglik, weibull_quantile_profile,
+from analyses.service_life import (SHAPE_BOUNDS, WeibullFit, lr_bound, newton_root, weibull_quantile_profile,
                                    weibull_scale_given_shape)
 
 _NAN = float("nan")
@@ -206,7 +207,7 @@ def _split(life, failed, group) -> list[tuple[np.ndarray, np.ndarray]]:
     g = np.asarray(group)
     if not x.shape == f.shape == g.shape:
         raise ValueError("life, failed and group must have the same length")
-    if not np.isin(g, (0, 1)).all():
+    if not ((g == 0) | (g == 1)).all():
         raise ValueError("group must be 0 (distance) or 1 (force)")
     keep = np.isfinite(x) & (x > 0)
     return [(x[keep & (g == v)], f[keep & (g == v)]) for v in (0, 1)]
@@ -230,9 +231,47 @@ def _shape_score(logk: float, groups) -> float:
     return total
 
 
-def _shape_mle(groups) -> tuple[float, bool]:
-    """(shape maximising the likelihood with a scale per group, whether it is at a search edge)."""
+def _score_slope(logk: float, logs, extra: float = 0.0) -> tuple[float, float]:
+    """:func:`_shape_score` minus ``extra / k`` and its derivative in ``log k`` (for :func:`newton_root`).
+
+    ``logs``: :func:`_logs`; d score / d log k = ``-(failures + extra) / k - k * sum(failures * var_w(log life))``
+    with the weights ``w = life^k`` of the scale's closed form: strictly negative.
+    """
+    k = math.exp(logk)
+    value, slope = -extra / k, extra / k
+    for y, r, syf, _ in logs:
+        w = np.exp(k * y)
+        sw = float(w.sum())
+        m = float(w @ y) / sw
+        d = y - m
+        value += r / k + syf - r * m
+        slope -= r / k + k * r * float(w @ (d * d)) / sw
+    return value, slope
+
+
+def _logs(groups) -> list[tuple[np.ndarray, float, float, float]]:
+    """Per group the log lives minus their largest, the failures, the failures' sum of those, the largest."""
+    out = []
+    for x, f in groups:
+        y = np.log(x)
+        ymax = float(y.max())
+        y = y - ymax
+        out.append((y, float(f.sum()), float(y[f].sum()), ymax))
+    return out
+
+
+def _shape_mle(groups, start: float = 0.0) -> tuple[float, bool]:
+    """(shape maximising the likelihood with a scale per group, whether it is at a search edge).
+
+    Newton's method on the score in ``log k`` from ``start`` (:func:`newton_root`: the same root
+    ``brentq`` finds, in a few steps from a near start); the bracketed search when it does not
+    settle inside :data:`SHAPE_BOUNDS` (the MLE at an edge).
+    """
     lo, hi = math.log(SHAPE_BOUNDS[0]), math.log(SHAPE_BOUNDS[1])
+    logs = _logs(groups)
+    root = newton_root(lambda t: _score_slope(t, logs), lo, hi, start)
+    if root is not None:
+        return math.exp(root), False
     if _shape_score(lo, groups) <= 0:
         return SHAPE_BOUNDS[0], True
     if _shape_score(hi, groups) >= 0:
@@ -241,15 +280,26 @@ def _shape_mle(groups) -> tuple[float, bool]:
 
 
 def _loglik_at_shape(k: float, groups) -> float:
-    """Log-likelihood at shape ``k`` with each group's scale at its MLE."""
-    return sum(weibull_loglik(k, weibull_scale_given_shape(k, x, f), x, f) for x, f in groups)
+    """Log-likelihood at shape ``k`` with each group's scale at its MLE.
+
+    :func:`analyses.service_life.weibull_loglik` at :func:`analyses.service_life.weibull_scale_given_shape`,
+    in closed form: with ``scale^k = sum(x^k) / r`` the suspensions' and failures' ``(x / scale)^k``
+    sum to ``r``, leaving ``r log k - r log(sum(x^k) / r) + (k - 1) sum(log x_failed) - r`` per group
+    (the same value to rounding, without the powers' second pass).
+    """
+    total = 0.0
+    for y, r, syf, ymax in _logs(groups):          # y: log lives minus their largest, ymax
+        log_sum = k * ymax + math.log(float(np.exp(k * y).sum()))
+        total += r * math.log(k) - r * (log_sum - math.log(r)) + (k - 1.0) * (syf + r * ymax) - r
+    return total
 
 
-def _ratio_profile(theta: float, groups) -> float:
-    """Common-shape log-likelihood maximised with log(scale_force / scale_distance) held at ``theta``."""
+def _ratio_profile(theta: float, groups, start: float = 0.0) -> float:
+    """Common-shape log-likelihood maximised with log(scale_force / scale_distance) held at ``theta``
+    (the shape's solve from ``log k = start``)."""
     (xd, fd), (xf, ff) = groups
     pooled = [(np.concatenate([xd, xf * math.exp(-theta)]), np.concatenate([fd, ff]))]
-    k, _ = _shape_mle(pooled)
+    k, _ = _shape_mle(pooled, start)
     return _loglik_at_shape(k, pooled) - float(ff.sum()) * theta
 
 
@@ -261,30 +311,30 @@ def _covariance(groups, shape: float, scales: tuple[float, float]) -> np.ndarray
     section 17.3 and appendix B), inverted, then carried to ``log shape`` (exact for this change of
     one coordinate). All NaN when the information is not positive definite.
     """
-    y = np.log(np.concatenate([groups[0][0], groups[1][0]]))
-    d = np.concatenate([groups[0][1], groups[1][1]]).astype(np.float64)
-    g = np.r_[np.zeros(len(groups[0][0])), np.ones(len(groups[1][0]))]
     sigma = 1.0 / shape
-    z = (y - math.log(scales[0]) - g * math.log(scales[1] / scales[0])) / sigma
-    w = np.exp(z)
-    X = np.column_stack([np.ones_like(g), g])
-    info = np.empty((3, 3))
-    info[:2, :2] = (X.T * w) @ X
-    info[:2, 2] = info[2, :2] = X.T @ (w * z + w - d)
-    info[2, 2] = float((w * z * z + 2.0 * w * z - 2.0 * d * z - d).sum())
-    info /= sigma ** 2
+    sums = []                                   # per group: sum w, sum (w z + w - d), sum (w z^2 + 2 w z - 2 d z - d)
+    for (x, f), shift in zip(groups, (0.0, math.log(scales[1] / scales[0]))):
+        z = (np.log(x) - math.log(scales[0]) - shift) / sigma
+        w = np.exp(z)
+        d = f.astype(np.float64)
+        wz = w * z
+        sums.append((float(w.sum()), float((wz + w - d).sum()), float((wz * z + 2.0 * wz - 2.0 * d * z - d).sum())))
+    (w0, a0, b0), (w1, a1, b1) = sums
+    info = np.array([[w0 + w1, w1, a0 + a1], [w1, w1, a1], [a0 + a1, a1, b0 + b1]]) / sigma ** 2
     if not np.isfinite(info).all() or np.linalg.eigvalsh(info).min() <= 0:
         return np.full((3, 3), _NAN)
-    jac = np.diag([1.0, 1.0, -1.0 / sigma])  # d log(shape) / d sigma = -1 / sigma
-    return jac @ np.linalg.inv(info) @ jac.T
+    cov = np.linalg.inv(info)
+    cov[2, :] *= -1.0 / sigma                   # d log(shape) / d sigma = -1 / sigma
+    cov[:, 2] *= -1.0 / sigma
+    return cov
 
 
-def _fit_groups(groups) -> CommonShapeFit:
-    """:func:`common_shape_fit` on the lives already split by adjustment."""
+def _fit_groups(groups, start: float = 0.0) -> CommonShapeFit:
+    """:func:`common_shape_fit` on the lives already split by adjustment (the shape's solve from ``log k = start``)."""
     note = _too_few(groups)
     if note:
         return CommonShapeFit(note=note)
-    k, at_edge = _shape_mle(groups)
+    k, at_edge = _shape_mle(groups, start)
     if at_edge:
         return CommonShapeFit(note=f"the common Weibull shape MLE is at the search bound ({k:g}): "
                                    "the lives cannot tell a shape")
@@ -293,7 +343,7 @@ def _fit_groups(groups) -> CommonShapeFit:
                           _covariance(groups, k, scales))
 
 
-def common_shape_fit(life, failed, group) -> CommonShapeFit:
+def common_shape_fit(life, failed, group, shape_start: float = 1.0) -> CommonShapeFit:
     """The common-shape Weibull regression of life on the adjustment, by maximum likelihood.
 
     The estimate alone (no profile bounds, a few milliseconds): what a sequential design reads
@@ -308,6 +358,9 @@ def common_shape_fit(life, failed, group) -> CommonShapeFit:
         True for a failure, False for a suspension.
     group : array_like of int
         0 for a distance-set adjustment, 1 for a force-set one.
+    shape_start : float
+        Shape the solve starts from [-] (the previous look's, for the next look): the same answer
+        from any start (to 1e-13), fewer steps from a near one.
 
     Returns
     -------
@@ -315,7 +368,8 @@ def common_shape_fit(life, failed, group) -> CommonShapeFit:
         NaN with a ``note`` when an adjustment has fewer than two failures or the shape's MLE is
         at the edge of ``SHAPE_BOUNDS``.
     """
-    return _fit_groups(_split(life, failed, group))
+    start = math.log(shape_start) if math.isfinite(shape_start) and shape_start > 0 else 0.0
+    return _fit_groups(_split(life, failed, group), start)
 
 
 def _shape_bounds(groups, crit: float) -> tuple[float, float]:
@@ -331,7 +385,10 @@ def _shape_bounds(groups, crit: float) -> tuple[float, float]:
     lo, hi = math.log(SHAPE_BOUNDS[0]), math.log(SHAPE_BOUNDS[1])
     if score(lo) <= 0 or score(hi) >= 0:
         return _NAN, _NAN
-    centre = scipy.optimize.brentq(score, lo, hi, xtol=1e-13, rtol=1e-13)
+    logs = _logs(groups)
+    centre = newton_root(lambda t: _score_slope(t, logs, len(groups)), lo, hi, 0.0)
+    if centre is None:
+        centre = scipy.optimize.brentq(score, lo, hi, xtol=1e-13, rtol=1e-13)
     top = adjusted(centre)
     k_lo, k_hi = (lr_bound(lambda t: 2.0 * (top - adjusted(t)) - crit, centre, edge) for edge in (lo, hi))
     return math.exp(k_lo), math.exp(k_hi)
@@ -341,9 +398,10 @@ def _profile_bounds(fit: CommonShapeFit, groups, crit: float) -> dict:
     """Profile-likelihood bounds of the shape and the life ratio, and the p-value of ratio = 1."""
     ll, k, theta = fit.loglik, fit.shape, fit.log_ratio
     k_lo, k_hi = _shape_bounds(groups, crit)
-    r_lo, r_hi = (lr_bound(lambda t: 2.0 * (ll - _ratio_profile(t, groups)) - crit,
+    start = math.log(k)
+    r_lo, r_hi = (lr_bound(lambda t: 2.0 * (ll - _ratio_profile(t, groups, start)) - crit,
                            theta, theta + side * math.log(RATIO_SEARCH)) for side in (-1.0, 1.0))
-    lr = max(0.0, 2.0 * (ll - _ratio_profile(0.0, groups)))
+    lr = max(0.0, 2.0 * (ll - _ratio_profile(0.0, groups, start)))
     return {"shape": k, "shape_lower": k_lo, "shape_upper": k_hi,
             "life_ratio": math.exp(theta), "life_ratio_lower": math.exp(r_lo), "life_ratio_upper": math.exp(r_hi),
             "p_value": float(scipy.stats.chi2.sf(lr, 1))}
@@ -366,9 +424,11 @@ def _separate_profile(log_rho: float, groups, fits) -> float:
     (xd, fd), (xf, ff) = groups
     ends = sorted((math.log(fits[0].quantile(P_B10)), math.log(fits[1].quantile(P_B10)) - log_rho))
 
+    starts = (math.log(fits[0].shape), math.log(fits[1].shape))
+
     def neg(log_b):
-        return -(weibull_quantile_profile(log_b, P_B10, xd, fd)
-                 + weibull_quantile_profile(log_b + log_rho, P_B10, xf, ff))
+        return -(weibull_quantile_profile(log_b, P_B10, xd, fd, starts[0])
+                 + weibull_quantile_profile(log_b + log_rho, P_B10, xf, ff, starts[1]))
 
     # each term peaks at its own B10, so their sum peaks between the two
     res = scipy.optimize.minimize_scalar(neg, bounds=(ends[0] - 0.1, ends[1] + 0.1), method="bounded",

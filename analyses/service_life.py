@@ -205,14 +205,67 @@ def weibull_fit(life, failed) -> WeibullFit:
     return WeibullFit(float(best[0]), float(best[1]), float(best[2]), n, r)
 
 
-def weibull_quantile_profile(log_q: float, p: float, life, failed) -> float:
+def newton_root(value_slope, lo: float, hi: float, start: float, xtol: float = 1e-13) -> float | None:
+    """Root of a strictly decreasing function inside ``(lo, hi)``: Newton steps kept in a bracket.
+
+    A step that would leave the bracket known so far (the last points where the function was
+    positive and negative, ``lo`` and ``hi`` until then) is replaced by bisection, so the
+    iteration cannot diverge; near the root it converges quadratically, in 3-6 evaluations from
+    a good start where ``brentq`` over the whole range takes 12-18. The answer is the same root
+    (to ``xtol``, as ``brentq(..., xtol=1e-13)`` finds it). The edges are not evaluated: a strictly
+    decreasing function has a root inside the range exactly when the iteration settles inside it.
+
+    Parameters
+    ----------
+    value_slope : callable
+        ``t -> (value, slope)``, the function and its derivative at ``t``.
+    lo, hi : float
+        The range searched.
+    start : float
+        First point (clipped into the range).
+    xtol : float
+        Accuracy of the root [-]: the iteration stops after a Newton step below
+        ``0.1 * sqrt(xtol) * (1 + |t|)`` (Newton's error after a step is of the order of the
+        step squared).
+
+    Returns
+    -------
+    float or None
+        The root; None when the iteration does not settle strictly inside ``(lo, hi)`` (the root
+        is at or beyond an edge, or the function misbehaves): the caller then brackets as before.
+    """
+    a, b = lo, hi
+    t = min(max(start, lo), hi)
+    for _ in range(100):
+        v, d = value_slope(t)
+        if not math.isfinite(v):
+            return None
+        if v == 0.0:
+            return t if lo < t < hi else None
+        if v > 0:
+            a = t
+        else:
+            b = t
+        step = v / d if math.isfinite(d) and d < 0 else math.nan
+        new = t - step
+        if abs(step) <= 0.1 * math.sqrt(xtol) * (1.0 + abs(t)):   # converged: quadratically, this step's error ~ step^2
+            return new if lo < new < hi else None
+        if not a < new < b:              # NaN too: bisect the bracket
+            new = 0.5 * (a + b)
+            if b - a <= xtol * (1.0 + abs(t)):
+                return new if lo < a and b < hi else None
+        t = new
+    return None
+
+
+def weibull_quantile_profile(log_q: float, p: float, life, failed, start: float = 0.0) -> float:
     """Log-likelihood maximised over the shape with the p-quantile held at ``exp(log_q)``.
 
     The profile likelihood of a Weibull quantile (Meeker & Escobar 1998, section 8.3): with
     ``log scale = log_q - log(c) / k``, ``c = -log(1 - p)``, the log-likelihood is strictly
     concave in the shape ``k`` (second derivative ``-r / k^2 - c * sum(u^2 * exp(k * u))``,
-    ``u = log(life) - log_q``), so the shape solves its score equation exactly (``brentq``); at
-    the edge of :data:`SHAPE_BOUNDS` that edge is taken. Used for the B10 bounds here and for the
+    ``u = log(life) - log_q``), so the shape solves its score equation exactly (:func:`newton_root`,
+    ``brentq`` as the fallback); at the edge of :data:`SHAPE_BOUNDS` that edge is taken. Used for the B10 bounds here and for the
     B10 ratio of separate shapes in :mod:`analyses.life_effect`.
 
     Parameters
@@ -223,6 +276,9 @@ def weibull_quantile_profile(log_q: float, p: float, life, failed) -> float:
         Fraction failed by that quantile [-] (0.10 for B10).
     life, failed : array_like
         Lives [any unit, > 0] and failure flags.
+    start : float
+        Log of the shape the solve starts from (the shape MLE, for a profile near it) [-]: the
+        same answer from any start, fewer steps from a near one (:func:`newton_root`).
 
     Returns
     -------
@@ -238,11 +294,18 @@ def weibull_quantile_profile(log_q: float, p: float, life, failed) -> float:
         k = math.exp(logk)
         return r / k + sum_uf - c * float((u * np.exp(np.minimum(k * u, 600.0))).sum())
 
+    def score_slope(logk):
+        k = math.exp(logk)
+        ue = u * np.exp(np.minimum(k * u, 600.0))
+        return r / k + sum_uf - c * float(ue.sum()), -r / k - c * k * float(ue @ u)
+
     lo, hi = math.log(SHAPE_BOUNDS[0]), math.log(SHAPE_BOUNDS[1])
-    if score(lo) <= 0 or score(hi) >= 0:
-        logk = lo if score(lo) <= 0 else hi
-    else:
-        logk = scipy.optimize.brentq(score, lo, hi, xtol=1e-12)
+    logk = newton_root(score_slope, lo, hi, start, xtol=1e-12)
+    if logk is None:
+        if score(lo) <= 0 or score(hi) >= 0:
+            logk = lo if score(lo) <= 0 else hi
+        else:
+            logk = scipy.optimize.brentq(score, lo, hi, xtol=1e-12)
     k, log_c = math.exp(logk), math.log(c)
     # weibull_loglik at scale exp(log_q) / c^(1/k), written in u: log(life / scale) = u + log(c) / k
     with np.errstate(over="ignore"):
@@ -277,7 +340,7 @@ def weibull_quantile_bounds(fit: WeibullFit, life, failed, p: float = 0.10,
     crit = float(scipy.stats.chi2.ppf(confidence, 1))
 
     def g(logb):
-        return 2.0 * (fit.loglik - weibull_quantile_profile(logb, p, x, f)) - crit
+        return 2.0 * (fit.loglik - weibull_quantile_profile(logb, p, x, f, start=math.log(fit.shape))) - crit
 
     centre = math.log(est)
     lo, hi = (math.exp(lr_bound(g, centre, centre + side * math.log(1e6))) for side in (-1.0, 1.0))

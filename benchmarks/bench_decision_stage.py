@@ -36,7 +36,7 @@ import pandas as pd
 HEADER = "hose_id,event,at,hose_type,adjustment,z_rollers_mm,spring_force_n,failure_mode,wall_thickness_mm,distance_km,notes\n"
 START = pd.Timestamp("2026-01-05T08:00", tz="UTC")
 RUN_KM, KM_PER_H = 5.0, 5.0 / 8.0
-#: Hose types timed with max_failures left to the design (seconds to minutes each the first time).
+#: Hose types timed with max_failures left to the design (about half a second each the first time).
 DESIGNED = 3
 
 

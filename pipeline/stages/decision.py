@@ -29,8 +29,8 @@ Decisions
   ``life_effect``, then its looks): the types run in parallel and one whose hoses, runs and
   settings did not change is not computed again. The sequential design behind an unset
   ``max_failures`` is one ``ctx.map`` item per distinct (margin, alpha, power, spending, shape):
-  it costs seconds to minutes the first time (:func:`analyses.sequential.max_information`, a look
-  at each of hundreds of failures) and is then read from the memo.
+  it costs about half a second the first time (:func:`analyses.sequential.design_for`,
+  ``benchmarks/bench_decision_stage.py``) and is then read from the memo.
 """
 from __future__ import annotations
 
@@ -145,14 +145,15 @@ def design_item(plan: dict, shape: float) -> tuple[dict | None, str | None]:
 
 def design_failures(item: dict) -> int:
     """``max_failures`` of the sequential design (:func:`analyses.sequential.design_for`) for
-    a :func:`design_item` (module level: memoised by ``ctx.map``, seconds to minutes the first time)."""
+    a :func:`design_item` (module level: memoised by ``ctx.map``, about half a second the first time)."""
     return int(design_for(item["margin"], item["alpha"], item["power"], item["spending"], item["shape"]).failures)
 
 
 def _looks_rows(hose_type: str, est: pd.DataFrame, sv, present: bool) -> list[dict]:
     """``decision_looks`` rows from the estimates and the verdict's per-look values."""
     rows = []
-    for i, e in enumerate(est.to_dict("records")):
+    records = (dict(zip(est.columns, values)) for values in zip(*(est[c].tolist() for c in est.columns)))
+    for i, e in enumerate(records):
         lr, se = e["log_ratio"], e["se_log_ratio"]
         e["note"] = e["note"] if isinstance(e["note"], str) else None
         row = {"hose_type": hose_type, "look": int(e["look"]), "event_at": e["event_at"], "hose_id": e["hose_id"],

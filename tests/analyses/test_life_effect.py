@@ -249,6 +249,25 @@ def test_bad_groups_are_refused_and_bad_lives_ignored():
     assert math.isfinite(r.life_ratio)
 
 
+def test_common_shape_fit_is_the_same_from_any_start():
+    """The look's warm start changes the steps, not the fit: every start gives the brentq root."""
+    rng = np.random.default_rng(11)
+    g = np.r_[np.zeros(12, int), np.ones(12, int)]
+    life = np.where(g == 1, 1.4, 1.0) * 30 * rng.weibull(2.0, 24)
+    failed = life < 40
+    life = np.minimum(life, 40.0)
+    x = [(life[(g == v)], failed[(g == v)]) for v in (0, 1)]
+    score = lambda t: sum(r / math.exp(t) + float(np.log(xx)[ff].sum()) - r * float(  # noqa: E731
+        (np.exp(math.exp(t) * np.log(xx)) * np.log(xx)).sum() / np.exp(math.exp(t) * np.log(xx)).sum())
+        for xx, ff in x for r in [float(ff.sum())])
+    want = math.exp(scipy.optimize.brentq(score, math.log(0.01), math.log(100), xtol=1e-14))
+    fits = [common_shape_fit(life, failed, g, shape_start=s) for s in (1.0, want, 0.001, 1000.0, math.nan)]
+    for fit in fits:
+        assert fit.shape == pytest.approx(want, rel=1e-11)
+        assert fit.log_ratio == pytest.approx(fits[0].log_ratio, rel=1e-11, abs=1e-13)
+        assert fit.se_log_ratio == pytest.approx(fits[0].se_log_ratio, rel=1e-11)
+
+
 def test_calibration_benchmark_runs_quick(capsys):
     from benchmarks.bench_life_effect import main
 

@@ -7,7 +7,7 @@ import pytest
 from matplotlib.figure import Figure
 from scipy import optimize, stats
 
-from analyses.service_life import (b10, kaplan_meier, plot_hose_distances,
+from analyses.service_life import (b10, kaplan_meier, newton_root, plot_hose_distances,
                                    plot_kaplan_meier, plot_leak_growth, plot_weibull_probability, weibull_fit,
                                    weibull_loglik, weibull_lr_test, weibull_quantile_bounds,
                                    weibull_quantile_profile)
@@ -77,6 +77,27 @@ def test_quantile_profile_is_the_likelihood_maximised_over_the_shape():
                                            options={"xatol": 1e-11})
             assert weibull_quantile_profile(log_q, p, x, f) == pytest.approx(-res.fun, abs=1e-9)
         assert weibull_quantile_profile(math.log(fit.quantile(p)), p, x, f) == pytest.approx(fit.loglik, abs=1e-9)
+
+
+def test_quantile_profile_is_the_same_from_any_start():
+    """The shape's Newton solve ends at the same maximum from a near, a far and an edge start."""
+    x, f = fans()
+    fit = weibull_fit(x, f)
+    for log_q in (0.5, 1.5, math.log(fit.quantile(0.1)), 3.5, 5.0):
+        values = [weibull_quantile_profile(log_q, 0.1, x, f, start=s) for s in (0.0, math.log(fit.shape), -6.0, 6.0)]
+        assert max(values) - min(values) < 1e-9 * abs(values[0])
+
+
+def test_newton_root_is_brentqs_root_and_leaves_an_edge_to_the_caller():
+    """A strictly decreasing function's root as brentq finds it, from either side; None when the
+    root lies beyond the range (or the function has no root), so the caller's edge rule applies."""
+    func = lambda t: (math.exp(-t) - 0.3 * t - 0.2, -math.exp(-t) - 0.3)  # noqa: E731
+    want = optimize.brentq(lambda t: func(t)[0], -5, 5, xtol=1e-14)
+    for start in (-5.0, -1.0, 0.0, 4.9, 50.0):
+        assert newton_root(func, -5.0, 5.0, start) == pytest.approx(want, abs=1e-12)
+    assert newton_root(func, 2.0, 5.0, 3.0) is None           # root (1.1..) below the range
+    assert newton_root(lambda t: (-t - 10.0, -1.0), -5.0, 5.0, 0.0) is None
+    assert newton_root(lambda t: (math.nan, -1.0), -5.0, 5.0, 0.0) is None
 
 
 #: Nelson's fans and the 6-MP group of Freireich et al.'s leukemia remission times (weeks; the

@@ -24,6 +24,9 @@ MAX_LOOK_PLOTS = 20
 #: Colours of the figure: estimate, repeated interval, efficacy, futility, margin.
 COLOURS = {"estimate": "#1f3f8f", "rci": "#9db4e8", "efficacy": "#c62828", "futility": "#2e7d32",
            "margin": "#6b7280", "decides": "#e08a00"}
+#: The figure's margins (fractions of 900 x 400 px): room for the labels, the margin's name on the
+#: right and the legend below, fixed so that the figure is drawn once.
+MARGINS = {"left": 0.085, "right": 0.9, "top": 0.91, "bottom": 0.25}
 #: Verdict cell classes (the report's style sheet): decided in colour, the rest grey.
 VERDICT_CLASS = {"force longer": "ok", "distance longer": "bad", "no practical difference": "ok"}
 
@@ -131,9 +134,9 @@ def looks_png(d: HoseDecision) -> bytes | None:
 
     fig = Figure(figsize=(9, 4), dpi=100)
     FigureCanvasAgg(fig)
+    fig.subplots_adjust(**MARGINS)       # fixed: tight_layout would draw the figure twice
     ax = fig.add_subplot(1, 1, 1)
     _draw_looks(ax, d, ratio)
-    fig.tight_layout()
     buf = io.BytesIO()
     fig.savefig(buf, format="png", metadata={"Software": None})
     return buf.getvalue()
