@@ -143,10 +143,12 @@ def design_item(plan: dict, shape: float) -> tuple[dict | None, str | None]:
     return {k: plan[k] for k in ("margin", "alpha", "power", "spending")} | {"shape": design_shape(float(shape))}, note
 
 
-def design_failures(item: dict) -> int:
-    """``max_failures`` of the sequential design (:func:`analyses.sequential.design_for`) for
-    a :func:`design_item` (module level: memoised by ``ctx.map``, about half a second the first time)."""
-    return int(design_for(item["margin"], item["alpha"], item["power"], item["spending"], item["shape"]).failures)
+def design_failures(item: dict) -> list:
+    """``[max_failures, note]`` of the sequential design (:func:`analyses.sequential.design_for`)
+    for a :func:`design_item`, the note saying where the figure is likely short (module level:
+    memoised by ``ctx.map``, about half a second the first time)."""
+    d = design_for(item["margin"], item["alpha"], item["power"], item["spending"], item["shape"])
+    return [int(d.failures), d.note]
 
 
 def _looks_rows(hose_type: str, est: pd.DataFrame, sv, present: bool) -> list[dict]:
@@ -281,8 +283,11 @@ def run(ctx: StageContext) -> StageOutput:
     unique = sorted({json.dumps(a, sort_keys=True) for a, _ in asks if a is not None})
     designed = dict(zip(unique, ctx.map(design_failures, [json.loads(u) for u in unique], label="decision: design")))
     for it, (ask, note) in zip(items, asks):
-        it["design"] = ([it["plan"]["max_failures"], "plan", None] if ask is None
-                        else [designed[json.dumps(ask, sort_keys=True)], "design", note])
+        if ask is None:
+            it["design"] = [it["plan"]["max_failures"], "plan", None]
+        else:
+            failures, short = designed[json.dumps(ask, sort_keys=True)]
+            it["design"] = [failures, "design", "; ".join(n for n in (note, short) if n) or None]
     results = ctx.map(decide_hose_type, items, label="decision: looks")
     rows = {t: [r for res in results for r in res[t]] for t in ("life_verdict", "decision_looks")}
     rows["life_effect"] = effects

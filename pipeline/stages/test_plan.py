@@ -94,11 +94,12 @@ def design(item: dict) -> dict:
     failure, :func:`analyses.sequential.max_information` takes seconds to minutes: the boundaries
     of hundreds of looks).
     """
-    needed = {p: design_for(item["margin"], item["alpha"], p, item["spending"], item["shape"]).failures
-              for p in target_powers(item["power"])}
-    m = item["max_failures"] or needed[item["power"]]
+    designs = {p: design_for(item["margin"], item["alpha"], p, item["spending"], item["shape"])
+               for p in target_powers(item["power"])}
+    m = item["max_failures"] or designs[item["power"]].failures
     c = efficacy_boundaries(np.arange(1, m + 1) / m, item["alpha"], item["spending"])
-    return {"failures_needed": [[p, f] for p, f in needed.items()], "boundaries": [float(x) for x in c]}
+    return {"failures_needed": [[p, d.failures, d.note] for p, d in designs.items()],
+            "boundaries": [float(x) for x in c]}
 
 
 def _design_item(item: dict) -> dict:
@@ -125,13 +126,14 @@ def plan_hose_type(item: dict) -> list[dict]:
     if now.note:
         notes.append(f"power_now: {now.note}")
     rows = []
-    for p, needed in d["failures_needed"]:
+    for p, needed, short in d["failures_needed"]:
         more = more_testing(state, fit, needed, item["n_simulations"], item["seed"])
         rows.append({"hose_type": item["hose_type"], "target_power": p, "failures_needed": needed,
                      "failures": sum(state.failures), "power_now": now.power,
                      "more_hoses_per_adjustment": more.hoses_per_adjustment, "more_km": more.km,
                      "n_simulations": now.n_simulations, "mc_se": now.mc_se,
-                     "note": "; ".join(notes + ([f"more_km: {more.note}"] if more.note else [])) or None})
+                     "note": "; ".join(notes + [f"failures_needed: {short}"] * bool(short)
+                                       + ([f"more_km: {more.note}"] if more.note else [])) or None})
     return rows
 
 

@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 
 from analyses.life_effect import common_shape_fit
-from analyses.sequential import max_information
+from analyses.sequential import design_shape, max_information
 from pipeline.raw.plan import Plan
 from pipeline.stages import DeclaredContext, StageContext
 from pipeline.stages import test_plan as stage
@@ -64,8 +64,8 @@ def test_one_row_per_hose_type_and_target_power(df):
 
 def test_failures_needed_is_the_design_at_life_effects_shape(df):
     a = df[df["hose_type"] == "A"]
-    assert a["failures_needed"].tolist() == [max_information(2.0, 0.05, p, "obrien-fleming", 2.1).failures
-                                             for p in (0.8, 0.9)]
+    assert a["failures_needed"].tolist() == [max_information(2.0, 0.05, p, "obrien-fleming", design_shape(2.1)).failures
+                                             for p in (0.8, 0.9)]   # at the shape on the design grid
     b = df[df["hose_type"] == "B"].iloc[0]
     assert b["failures_needed"] == max_information(3.0, 0.05, 0.9, "obrien-fleming", 1.0).failures
     assert "failures_needed at shape 1.0" in b["note"]
@@ -160,3 +160,11 @@ def test_latest_event_is_the_data_not_the_clock():
 def test_no_hoses_gives_an_empty_table_with_the_contracts_columns():
     out = table({"hose_life": frames()["hose_life"].iloc[:0]}, Plan())
     assert out.empty and list(out.columns) == stage.COLUMNS
+
+
+def test_a_design_likely_short_carries_its_note_per_target_power():
+    d = stage.design({"margin": 1.5, "alpha": 0.05, "power": 0.8, "spending": "pocock", "max_failures": None,
+                      "shape": design_shape(2.0)})
+    assert [p for p, _f, _n in d["failures_needed"]] == [0.8, 0.9]
+    assert all(n and "Pocock" in n for _p, _f, n in d["failures_needed"])
+    assert len(d["boundaries"]) == d["failures_needed"][0][1]
