@@ -49,7 +49,7 @@ import math
 import numpy as np
 import pandas as pd
 
-from analyses.life_effect import common_shape_fit
+from analyses.life_effect import common_shape_fit, ratio_deviance
 from analyses.sequential import SequentialVerdict, sequential_verdict
 
 #: ``distance_from`` of a hose whose distance comes from its durability runs.
@@ -229,8 +229,46 @@ def look_estimates(in_looks: pd.DataFrame, events: pd.DataFrame) -> pd.DataFrame
     return pd.DataFrame(rows, columns=LOOK_COLUMNS)
 
 
+def likelihood_check(in_looks: pd.DataFrame, estimates: pd.DataFrame, margin: float):
+    """``confirm`` of :func:`analyses.sequential.sequential_verdict`: a look that crossed on the
+    Wald scale crosses only if the common-shape profile likelihood agrees, i.e. its deviance
+    (:func:`analyses.life_effect.ratio_deviance`) at ratio 1 (a longer life) or at both margins
+    (no practical difference) exceeds ``boundary_z ** 2``: the repeated interval taken from the
+    profile likelihood instead of the Wald approximation (Meeker & Escobar 1998, sec. 8.3:
+    likelihood intervals hold better in small samples; with the shape refitted the Wald interval
+    is too narrow).
+
+    Parameters
+    ----------
+    in_looks : DataFrame
+        :func:`look_hoses`.
+    estimates : DataFrame
+        :func:`look_estimates` (its ``look`` numbers index ``in_looks``).
+    margin : float
+        Smallest life ratio worth acting on [-].
+
+    Returns
+    -------
+    callable
+        ``confirm(index, crossed, boundary_z) -> bool``.
+    """
+    look = in_looks["look"].to_numpy(int)
+    x = in_looks["distance_km"].to_numpy(float)
+    f = in_looks["failed"].to_numpy(bool)
+    g = (in_looks["adjustment"] == "force").to_numpy(int)
+    numbers = estimates["look"].to_numpy(int)
+    m_ratio = max(margin, 1.0 / margin)
+
+    def confirm(i: int, crossed: str, boundary_z: float) -> bool:
+        m = look == numbers[i]
+        trials = (m_ratio, 1.0 / m_ratio) if crossed == "no practical difference" else (1.0,)
+        return all(ratio_deviance(x[m], f[m], g[m], r) > boundary_z ** 2 for r in trials)
+
+    return confirm
+
+
 def decide(estimates: pd.DataFrame, max_failures: int, margin: float, alpha: float,
-           spending: str) -> SequentialVerdict | None:
+           spending: str, in_looks: pd.DataFrame | None = None) -> SequentialVerdict | None:
     """The sequential verdict over every look (None without looks).
 
     Parameters
@@ -245,6 +283,9 @@ def decide(estimates: pd.DataFrame, max_failures: int, margin: float, alpha: flo
         Two-sided error rate of the verdict [-].
     spending : {"obrien-fleming", "pocock"}
         Lan-DeMets spending family.
+    in_looks : DataFrame, optional
+        :func:`look_hoses`: given, a look crosses only when the profile likelihood agrees with
+        the Wald statistic (:func:`likelihood_check`).
 
     Returns
     -------
@@ -255,5 +296,6 @@ def decide(estimates: pd.DataFrame, max_failures: int, margin: float, alpha: flo
     if estimates.empty:
         return None
     t = estimates["failures"].to_numpy(float) / float(max_failures)
+    confirm = likelihood_check(in_looks, estimates, margin) if in_looks is not None else None
     return sequential_verdict(estimates["log_ratio"].to_numpy(float), estimates["se_log_ratio"].to_numpy(float), t,
-                              margin, alpha, spending)
+                              margin, alpha, spending, confirm=confirm)

@@ -599,7 +599,7 @@ def _look_boundaries(t: np.ndarray, alpha: float, spending: str) -> tuple[np.nda
 
 
 def sequential_verdict(log_ratio, se, information_fraction, margin: float, alpha: float = 0.05,
-                       spending: str = "obrien-fleming") -> SequentialVerdict:
+                       spending: str = "obrien-fleming", confirm=None) -> SequentialVerdict:
     """The sticky verdict of a test read at every look.
 
     Parameters
@@ -617,6 +617,11 @@ def sequential_verdict(log_ratio, se, information_fraction, margin: float, alpha
         Two-sided error rate of the verdict [-].
     spending : {"obrien-fleming", "pocock"}
         Lan-DeMets spending family.
+    confirm : callable, optional
+        ``confirm(index, crossed, boundary_z) -> bool``: a second check of a look that crossed on
+        the Wald scale, e.g. the profile likelihood's deviance at the crossed value against
+        ``boundary_z ** 2``; a look crosses only when both say so (with a refitted Weibull shape
+        the Wald interval is too narrow in small samples: docs/decision.md).
 
     Returns
     -------
@@ -637,9 +642,14 @@ def sequential_verdict(log_ratio, se, information_fraction, margin: float, alpha
         fut = np.where(lm - half > 0, lm - half, np.nan)
         crossed = np.select([ok & (lo > 0), ok & (hi < 0), ok & (lo > -lm) & (hi < lm)],
                             ["force longer", "distance longer", "no practical difference"], "")
+    notes = []
+    if confirm is not None:
+        unconfirmed = [i for i in np.flatnonzero(crossed != "") if not confirm(int(i), str(crossed[i]), float(c[i]))]
+        crossed[unconfirmed] = ""
+        if unconfirmed:
+            notes.append(f"{len(unconfirmed)} look(s) crossed on the Wald scale but not by the profile likelihood")
     deciding = np.flatnonzero((crossed != "") & new)
     at = int(deciding[0]) if deciding.size else None
-    notes = []
     if (~ok).any():
         notes.append(f"{int((~ok).sum())} look(s) without an estimate")
     if (~new).any():

@@ -226,7 +226,7 @@ def decide_hose_type(item: dict) -> dict:
     events = failure_events(hoses)
     in_looks = look_hoses(hoses, runs, events)
     est = look_estimates(in_looks, events)
-    sv = decide(est, design[0], plan["margin"], plan["alpha"], plan["spending"])
+    sv = decide(est, design[0], plan["margin"], plan["alpha"], plan["spending"], in_looks)
     looks = _looks_rows(hose_type, est, sv, plan["present"]) if sv is not None else []
     verdict = _verdict_row(item, looks, sv, design)
     left_out = len(life) - len(hoses)

@@ -143,3 +143,29 @@ def test_the_verdict_sticks_and_later_looks_are_still_shown():
     assert sv.crossed == ("", "force longer", "", "")
     assert list(sv.information_fraction) == [0.5, 0.75, 1.0, 1.0]   # the fourth look: no new information
     assert decide(est.iloc[0:0], 4, 1.25, 0.05, "pocock") is None
+
+
+def test_likelihood_check_compares_the_looks_profile_deviance_with_the_boundary():
+    """confirm(i, ...) is ratio_deviance of look i's hoses (at 1 for a longer life, at both
+    margins for no practical difference) against boundary_z squared: hand-set boundaries just
+    below and above the deviance flip it."""
+    from analyses.decision import likelihood_check
+    from analyses.life_effect import ratio_deviance
+    rng = np.random.default_rng(5)
+    n = 12
+    life = np.concatenate([rng.weibull(2.0, n) * 300.0, rng.weibull(2.0, n) * 100.0])
+    failed = np.ones(2 * n, bool)
+    failed[[0, n]] = False
+    adj = np.array(["force"] * n + ["distance"] * n)
+    in_looks = pd.DataFrame({"look": 7, "hose_id": [f"H{i}" for i in range(2 * n)], "adjustment": adj,
+                             "distance_km": life, "failed": failed, "distance_from": "runs"})
+    est = pd.DataFrame({"look": [7]})
+    confirm = likelihood_check(in_looks, est, 1.5)
+    g = (adj == "force").astype(int)
+    dev1 = ratio_deviance(life, failed, g, 1.0)
+    assert dev1 > 4.0
+    assert confirm(0, "force longer", math.sqrt(dev1) * 0.99)
+    assert not confirm(0, "force longer", math.sqrt(dev1) * 1.01)
+    devs = [ratio_deviance(life, failed, g, r) for r in (1.5, 1 / 1.5)]
+    assert confirm(0, "no practical difference", math.sqrt(min(devs)) * 0.99)
+    assert not confirm(0, "no practical difference", math.sqrt(min(devs)) * 1.01)

@@ -242,3 +242,24 @@ def test_design_for_rounds_the_shape_to_its_grid_and_gives_both_stages_one_answe
     d = design_for(1.5, 0.05, 0.8, "obrien-fleming", 2.131)
     assert d.failures == max_information(1.5, 0.05, 0.8, "obrien-fleming", design_shape(2.131)).failures
     assert design_for(1.5, 0.05, 0.8, "obrien-fleming", 2.130) is d   # cached: one computation
+
+
+def test_confirm_keeps_a_wald_crossing_from_deciding_until_the_second_check_agrees():
+    """A look that crosses on the Wald scale but fails ``confirm`` does not cross; the verdict is
+    the first confirmed crossing, and the note counts the unconfirmed looks."""
+    from analyses.sequential import sequential_verdict
+    est = np.array([1.0, 1.0, 1.0, 1.0])
+    se = np.full(4, 0.05)                      # every look crosses "force longer" on the Wald scale
+    t = np.array([0.25, 0.5, 0.75, 1.0])
+    asked = []
+
+    def confirm(i, crossed, c):
+        asked.append((i, crossed))
+        return i >= 2
+    sv = sequential_verdict(est, se, t, 1.5, 0.05, "obrien-fleming", confirm=confirm)
+    assert sv.decided_at == 2 and sv.verdict == "force longer"
+    assert sv.crossed == ("", "", "force longer", "force longer")
+    assert asked == [(0, "force longer"), (1, "force longer"), (2, "force longer"), (3, "force longer")]
+    assert "2 look(s) crossed on the Wald scale but not by the profile likelihood" in sv.note
+    plain = sequential_verdict(est, se, t, 1.5, 0.05, "obrien-fleming")
+    assert plain.decided_at == 0
