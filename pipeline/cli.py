@@ -408,7 +408,8 @@ def simulate(out_dir, seed, profile, runs, jobs, quiet):
     s = simulate_campaign(out_dir, seed=seed, profile=profile, runs=runs, jobs=jobs,
                           progress=for_stream(sys.stderr, quiet))
     kinds = ", ".join(f"{k} {n}" for k, n in sorted(s.by_kind.items()))
-    click.echo(f"simulate: {s.n_runs} runs ({kinds}), {s.n_files} files, {s.bytes / 1e6:.1f} MB in {out_dir}; "
+    runs_text = f"{s.n_runs} runs ({kinds})" if s.n_runs else "no runs (hose logbooks only)"
+    click.echo(f"simulate: {runs_text}, {s.n_files} files, {s.bytes / 1e6:.1f} MB in {out_dir}; "
                f"ground truth in {Path(out_dir) / 'truth.json'}")
 
 

@@ -68,3 +68,4 @@ def test_simulate_decision_profile_writes_a_logbook_a_plan_and_the_truth(tmp_pat
     truth = json.loads((out / "truth.json").read_text())
     assert truth["profile"] == "decision" and len(truth["hose_types"]) == 300
     assert sorted(p.name for p in out.iterdir()) == ["decision-2026", "plan.toml", "truth.json"]
+    assert "no runs (hose logbooks only)" in res.output   # not "0 runs ()"
