@@ -14,7 +14,8 @@ One command::
    (failures rare among the hoses at risk), :data:`RARE` times the grid's largest ``M``. At EVERY
    failure the common-shape Weibull is refitted (:func:`analyses.life_effect.common_shape_fit`,
    censoring the running hoses at the current distance) and the design read
-   (:func:`analyses.sequential.sequential_verdict`, ``t = d / M``). Power = share of trials
+   (:func:`analyses.sequential.sequential_verdict`, ``t = d / M``) with the decision stage's
+   likelihood check of each crossing look (:func:`analyses.decision.likelihood_check`). Power = share of trials
    declaring ``force longer``. The same trials (common random numbers) serve every ``M`` of a grid
    around ``failures_needed``; the smallest ``M`` whose power reaches the target is compared with
    ``failures_needed``: PASS within 10 % (the issue's target). Also printed: the force-set share of
@@ -45,7 +46,7 @@ import time
 
 import numpy as np
 
-from analyses.life_effect import common_shape_fit
+from analyses.life_effect import common_shape_fit, ratio_deviance
 from analyses.sequential import efficacy_boundaries, information_per_failure, max_information, sequential_verdict
 from analyses.test_plan import HoseState, power_now, remaining_km
 
@@ -62,8 +63,10 @@ TOLERANCE = 0.10
 
 
 def refit_path(rng, margin: float, shape: float, n: int, looks: int):
-    """(log_ratio, se, adjustment) refitted at each of the first ``looks`` failures of one trial
-    (adjustment 1 where the failure is a force-set hose's)."""
+    """(log_ratio, se, adjustment, confirm) refitted at each of the first ``looks`` failures of one
+    trial (adjustment 1 where the failure is a force-set hose's); ``confirm`` is the decision
+    stage's likelihood check of a look (:func:`analyses.decision.likelihood_check`'s rule, its
+    deviances computed once per look and trial ratio)."""
     group = np.repeat([0, 1], n)
     life = np.where(group == 1, margin, 1.0) * rng.weibull(shape, 2 * n)
     order = np.argsort(life)
@@ -73,7 +76,19 @@ def refit_path(rng, margin: float, shape: float, n: int, looks: int):
         fit = common_shape_fit(np.minimum(life, now), life <= now, group)
         if fit.note is None:
             est[j], se[j] = fit.log_ratio, fit.se_log_ratio
-    return est, se, group[order[:looks]]
+    deviances: dict = {}
+
+    def deviance(j: int, ratio: float) -> float:
+        if (j, ratio) not in deviances:
+            now = life[order[j]]
+            deviances[j, ratio] = ratio_deviance(np.minimum(life, now), life <= now, group, ratio)
+        return deviances[j, ratio]
+
+    def confirm(j: int, crossed: str, c: float) -> bool:
+        trials = (margin, 1.0 / margin) if crossed == "no practical difference" else (1.0,)
+        return all(deviance(j, r) > c ** 2 for r in trials)
+
+    return est, se, group[order[:looks]], confirm
 
 
 def brute_force(design, trials: int, seed: int) -> tuple[int, int | None, dict, tuple]:
@@ -90,14 +105,14 @@ def brute_force(design, trials: int, seed: int) -> tuple[int, int | None, dict, 
     powers = {}
     for m in grid:
         t = np.arange(1, m + 1) / m
-        wins = sum(sequential_verdict(e[:m], s[:m], t, margin, alpha, spending).verdict == "force longer"
-                   for e, s, _ in paths)
+        wins = sum(sequential_verdict(e[:m], s[:m], t, margin, alpha, spending, confirm=ok).verdict == "force longer"
+                   for e, s, _, ok in paths)
         powers[m] = wins / trials
     smallest = next((m for m in grid if powers[m] >= power), None)
-    share = float(np.mean([g[:needed].mean() for _, _, g in paths]))
+    share = float(np.mean([g[:needed].mean() for _, _, g, _ in paths]))
     t = np.arange(1, needed + 1) / needed
-    futile = np.mean([sequential_verdict(e[:needed], s[:needed], t, margin, alpha, spending).verdict
-                      == "no practical difference" for e, s, _ in paths])
+    futile = np.mean([sequential_verdict(e[:needed], s[:needed], t, margin, alpha, spending, confirm=ok).verdict
+                      == "no practical difference" for e, s, _, ok in paths])
     return needed, smallest, powers, (share, information_per_failure(margin, shape, needed, hoses)[1], float(futile))
 
 
