@@ -66,7 +66,7 @@ def test_newcomer_clones_runs_the_readme_command_and_the_printed_hint(tmp_path):
     assert re.search(r"demo: \d+ runs in warehouse/pneubench\.duckdb, 0 quarantined", out), out[-3000:]
     assert (clone / "warehouse" / "report" / "index.html").is_file()
     assert sorted(p.name for p in (clone / "raw").iterdir()) == [
-        "durability-2025", "durability-2026", "pla-2016", "plpa-2025", "truth.json"]
+        "durability-2025", "durability-2026", "pla-2016", "plan.toml", "plpa-2025", "truth.json"]
     hints = [ln[len("try: "):] for ln in out.splitlines() if ln.startswith("try: ")]
     assert len(hints) == 1, out[-3000:]
     res = _run(hints[0], clone, timeout=120)
