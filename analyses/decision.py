@@ -261,10 +261,18 @@ def likelihood_check(in_looks: pd.DataFrame, estimates: pd.DataFrame, margin: fl
 
     def confirm(i: int, crossed: str, boundary_z: float) -> bool:
         m = look == numbers[i]
-        trials = (m_ratio, 1.0 / m_ratio) if crossed == "no practical difference" else (1.0,)
-        return all(ratio_deviance(x[m], f[m], g[m], r) > boundary_z ** 2 for r in trials)
+        return crossing_holds(lambda r: ratio_deviance(x[m], f[m], g[m], r), crossed, boundary_z, m_ratio)
 
     return confirm
+
+
+def crossing_holds(deviance, crossed: str, boundary_z: float, margin: float) -> bool:
+    """The likelihood check's rule for one look: the profile deviance ``deviance(ratio)`` [-]
+    above ``boundary_z ** 2`` at ratio 1 for a longer life, at both ``margin`` and
+    ``1 / margin`` for ``no practical difference``."""
+    margin = max(margin, 1.0 / margin)
+    trials = (margin, 1.0 / margin) if crossed == "no practical difference" else (1.0,)
+    return all(deviance(r) > boundary_z ** 2 for r in trials)
 
 
 def decide(estimates: pd.DataFrame, max_failures: int, margin: float, alpha: float,

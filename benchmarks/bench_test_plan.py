@@ -46,6 +46,7 @@ import time
 
 import numpy as np
 
+from analyses.decision import crossing_holds
 from analyses.life_effect import common_shape_fit, ratio_deviance
 from analyses.sequential import efficacy_boundaries, information_per_failure, max_information, sequential_verdict
 from analyses.test_plan import HoseState, power_now, remaining_km
@@ -85,8 +86,7 @@ def refit_path(rng, margin: float, shape: float, n: int, looks: int):
         return deviances[j, ratio]
 
     def confirm(j: int, crossed: str, c: float) -> bool:
-        trials = (margin, 1.0 / margin) if crossed == "no practical difference" else (1.0,)
-        return all(deviance(j, r) > c ** 2 for r in trials)
+        return crossing_holds(lambda r: deviance(j, r), crossed, c, margin)
 
     return est, se, group[order[:looks]], confirm
 
