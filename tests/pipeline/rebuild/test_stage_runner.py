@@ -174,10 +174,11 @@ def test_stages_that_read_each_other_in_a_circle_are_refused_before_any_stage_ru
 
 def test_the_real_stages_run_in_the_order_they_always_had(raw, warehouse):
     """The four stages keep their order; the decision stages (issue 23) come after durability,
-    the findings after the decision (they read its verdict)."""
+    the findings after the decision (they read its verdict), remaining life after both (issue 24)."""
     step(raw, "c/a.csv")
     s = rebuild(raw.root, warehouse, jobs=1)
-    assert s.stages_run == ["plpa_characterisation", "models", "durability", "decision", "findings", "test_plan"]
+    assert s.stages_run == ["plpa_characterisation", "models", "durability", "decision", "findings", "remaining_life",
+                            "test_plan"]
 
 
 def test_durations_read_in_ms_below_a_second():
