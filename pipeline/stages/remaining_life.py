@@ -175,7 +175,7 @@ def _type_inputs(ctx: StageContext, hose_type: str, growth: pd.DataFrame, lmap: 
     return out
 
 
-def _items(ctx: StageContext) -> tuple[list[dict], list[dict]]:
+def stage_items(ctx: StageContext) -> tuple[list[dict], list[dict]]:
     """(one item per (hose type, adjustment) for the models, one per hose type with both adjustments for
     the sensitivity), sorted."""
     life = ctx.results.get("hose_life")
@@ -228,7 +228,7 @@ def rul_group(item: dict) -> dict:
     Parameters
     ----------
     item : dict
-        From :func:`_items`: ``hose_type``, ``adjustment``, ``hoses`` (hose_life columns),
+        From :func:`stage_items`: ``hose_type``, ``adjustment``, ``hoses`` (hose_life columns),
         ``points`` (the leak path, :func:`leak_paths`), ``limit`` [l/min], ``pressure`` [bar],
         ``sensor`` (``[resolution, noise]`` [l/min]), ``confidence``, ``path_note``.
 
@@ -369,7 +369,7 @@ def _typed(rows: list[dict], columns: list[str], ints=()) -> pd.DataFrame:
 
 def run(ctx: StageContext) -> StageOutput:
     out = StageOutput()
-    groups, types = _items(ctx)
+    groups, types = stage_items(ctx)
     results = ctx.map(rul_group, groups, label="remaining life") if groups else []
     sens = ctx.map(sensitivity_of, types, label="remaining life: sensitivity") if types else []
     rul = [r for res in results for r in res["hose_rul"]]

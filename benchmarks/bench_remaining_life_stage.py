@@ -1,0 +1,120 @@
+"""Speed of the remaining-life stage (issue 24: under 5 s for the demo's hoses).
+
+One command::
+
+    python -m benchmarks.bench_remaining_life_stage                  # a demo-sized hose type (8 hoses per adjustment)
+    python -m benchmarks.bench_remaining_life_stage --quick          # 4 hoses per adjustment (a look)
+    python -m benchmarks.bench_remaining_life_stage --warehouse WH   # the stage on a built warehouse's tables (the demo's)
+
+Synthetic hoses (seeded): one hose type, force- and distance-set hoses whose leak at 6 bar grows as
+``(w d)^1.5`` l/min with a lognormal wear rate ``w`` per hose, checked every 2 km on plateaus 0..6 bar,
+failed when the leak reaches the limit, else running. With ``--warehouse`` the stage reads that
+warehouse's ``hose_life``, ``hose_leak_growth``, ``leakage_map`` and ``life_verdict`` with a plan that
+sets ``leak_limit_l_min`` (``--limit``, default 4 l/min) and ``leak_pressure_bar`` (6 bar) for every
+hose type. Timed in this process (one worker: the demo has one hose type, two groups): wall and CPU
+seconds of :func:`pipeline.stages.remaining_life.run`, and its parts (the models and backtests per
+group, the sensitivity per hose type). The machine's load average is printed beside: on a shared
+machine the wall time is the CPU time stretched by the load. PASS/MISS against 5 s (CPU seconds,
+which do not depend on the other work on the machine).
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import time
+
+import numpy as np
+import pandas as pd
+
+TARGET_S = 5.0
+SENSORS = "p_supply: resolution 100, noise 50 (metadata) Pa; q_leak: resolution 1e-07, noise 5e-08 (metadata) kg/s"
+
+
+def synthetic(n: int, seed: int = 1, limit: float = 2.0) -> dict[str, pd.DataFrame]:
+    """The stage's input tables for one hose type of ``n`` hoses per adjustment (module docstring)."""
+    rng = np.random.default_rng(seed)
+    hoses, growth = [], []
+    for adj, wear in (("force", 0.02), ("distance", 0.05)):
+        for i in range(n):
+            hid = f"{adj[0].upper()}{i:02d}"
+            w = wear * math.exp(0.3 * rng.normal())
+            life = limit ** (1 / 1.5) / w
+            stop = rng.uniform(0.3, 1.5) * limit ** (1 / 1.5) / wear
+            end = min(life, stop)
+            hoses.append({"hose_id": hid, "hose_type": "T", "adjustment": adj, "distance_km": end,
+                          "status": "failed" if life < stop else "running",
+                          "failure_mode": "leakage" if life < stop else None})
+            for k, d in enumerate(np.arange(2.0, end, 2.0)):
+                q = (w * d) ** 1.5 * math.exp(0.05 * rng.normal())
+                growth += [{"hose_id": hid, "run_id": f"check-{hid}-{k:02d}", "distance_km": float(d), "chamber": "A",
+                            "pressure_bar": float(p), "leak_l_min": q * p / 6.0} for p in range(7)]
+    g = pd.DataFrame(growth)
+    return {"hose_life": pd.DataFrame(hoses), "hose_leak_growth": g,
+            "leakage_map": pd.DataFrame({"run_id": sorted(set(g["run_id"])), "sensors": SENSORS}),
+            "life_verdict": pd.DataFrame({"hose_type": ["T"], "max_failures": [20], "verdict": ["undecided"]})}
+
+
+def from_warehouse(path: str) -> dict[str, pd.DataFrame]:
+    """The stage's input tables read from a built warehouse."""
+    from pipeline.serve.door import connect_readonly
+    from pipeline.stages import remaining_life
+
+    con = connect_readonly(path)
+    try:
+        have = {r[0] for r in con.execute("SELECT table_name FROM duckdb_tables()").fetchall()}
+        return {t: con.execute(f"SELECT * FROM {t}").df() for t in remaining_life.READS.tables if t in have}
+    finally:
+        con.close()
+
+
+def timed(tables: dict[str, pd.DataFrame], limit: float) -> dict[str, tuple[float, float]]:
+    """(wall, CPU) seconds of the stage and of its parts on ``tables``, one process."""
+    from pipeline.raw.plan import Plan
+    from pipeline.stages import StageContext
+    from pipeline.stages import remaining_life as stage
+
+    plan = Plan(present=True, defaults={"leak_limit_l_min": limit, "leak_pressure_bar": 6.0})
+    ctx = StageContext(raw=None, warehouse=None, runs=pd.DataFrame(), results=tables, plan=plan)
+    out = {}
+
+    def clock(name, func, *args):
+        t, c = time.perf_counter(), time.process_time()
+        res = func(*args)
+        out[name] = (time.perf_counter() - t, time.process_time() - c)
+        return res
+
+    groups, types = clock("items: leak paths at the plan's pressure, sensors", stage.stage_items, ctx)
+    clock(f"models + backtests ({len(groups)} groups)", lambda: [stage.rul_group(g) for g in groups])
+    clock(f"sensitivity ({len(types)} hose types x 4 definitions)", lambda: [stage.sensitivity_of(t) for t in types])
+    clock("the whole stage", stage.run, ctx)
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="4 hoses per adjustment")
+    ap.add_argument("--warehouse", help="time the stage on this built warehouse's tables (the demo's)")
+    ap.add_argument("--limit", type=float, default=4.0, help="leak_limit_l_min of the plan with --warehouse [l/min]")
+    a = ap.parse_args(argv)
+    if a.warehouse:
+        tables, limit, what = from_warehouse(a.warehouse), a.limit, f"warehouse {a.warehouse}"
+    else:
+        n = 4 if a.quick else 8
+        tables, limit, what = synthetic(n), 2.0, f"synthetic: 1 hose type, {n} hoses per adjustment"
+    life = tables.get("hose_life", pd.DataFrame(columns=["status"]))
+    print(f"remaining_life stage on {what}: {len(life)} hoses, {int((life['status'] == 'running').sum())} running, "
+          f"{len(tables.get('hose_leak_growth', []))} leak plateaus; limit {limit:g} l/min at 6 bar")
+    res = timed(tables, limit)
+    for name, (wall, cpu) in res.items():
+        print(f"  {name:<55} wall {wall:7.2f} s   cpu {cpu:7.2f} s")
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    wall, cpu = res["the whole stage"]
+    print(f"load average {load:.1f} on {os.cpu_count()} cores")
+    print(f"stage cpu {cpu:.2f} s (wall {wall:.2f} s) against {TARGET_S:g} s: {'PASS' if cpu < TARGET_S else 'MISS'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
