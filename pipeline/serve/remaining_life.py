@@ -229,7 +229,10 @@ def running_lines(con, hose_type: str | None, width: int | None) -> list[str]:
         out += _wrapped(f"({len(hoses) - len(shown)} more running hoses: pneubench decision --hose-type T lists "
                         "all of a type's)", width)
     backtest = read_backtest(con)
-    for t, a, m in sorted({(h.hose_type, h.adjustment, m) for h in shown for m in h.rows}):
+    out += _wrapped("How far to trust them (each method's intervals on the hoses that have failed):", width)
+    groups = {(h.hose_type, h.adjustment, m) for h in shown for m in h.rows}
+    rank = {m: i for i, m in enumerate(METHODS)}
+    for t, a, m in sorted(groups, key=lambda g: (g[0], g[1], rank.get(g[2], len(rank)), g[2])):
         out += _wrapped(f"{t} {a} {m}: {coverage_text(backtest.get((t, a, m)))}", width, "  ")
     return out
 

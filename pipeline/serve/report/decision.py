@@ -1,6 +1,8 @@
 """The report's first section, "The decision": per hose type the verdict in words, the
-information fraction as a bar and the plan to reach a verdict (one table), then the looks of
-each hose type as a plot of the estimate with its boundaries against the failures.
+information fraction as a bar and the plan to reach a verdict (one table), under each verdict the
+verdict under other failure definitions (``decision_sensitivity``, a flip highlighted), then the
+running hoses (:mod:`~pipeline.serve.report.running_hoses`) and the looks of each hose type as a
+plot of the estimate with its boundaries against the failures.
 
 The words and the reading of the tables are :mod:`pipeline.serve.decision`'s (``pneubench
 decision`` prints the same); here they become HTML and a figure. The figure is drawn with

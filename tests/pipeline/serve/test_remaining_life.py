@@ -210,6 +210,10 @@ def test_the_command_lists_the_running_hoses_after_the_verdicts(wh, monkeypatch)
     assert rows[2].rstrip().endswith(f"degradation: {FEW}") and "—" in rows[2]
     assert "no limit" in rows[3] and rows[3].rstrip().endswith(f"degradation: {UNSET}")
     assert rows[4].rstrip().endswith(f"weibull: {NO_FAILURES}; degradation: {FALLING}")
+    trust = out[out.index("How far to trust them"):].splitlines()[1:]
+    assert [line.split(":")[0] for line in trust] == [
+        "  FLEXIGOM AIR distance weibull", "  FLEXIGOM AIR distance degradation", "  FLEXIGOM AIR force weibull",
+        "  FLEXIGOM AIR force degradation", "  PU 8x6 force weibull", "  PU 8x6 force degradation"]
     assert "  FLEXIGOM AIR force weibull: backtest: 86 % of 40 intervals held (nominal 90 %)" in out
     assert ("  FLEXIGOM AIR distance degradation: backtest: no interval to check (no failed hose with 3 leak "
             "points)") in out
