@@ -257,9 +257,10 @@ def _leak_now(h: RunningHose) -> str:
 # -- the leak path --------------------------------------------------------------------------------------
 def leak_paths(con, hoses: list[RunningHose]) -> dict[str, list[tuple[float, float]]]:
     """Each hose's leak path at its plan's ``leak_pressure_bar``: per leakage run the plateau whose
-    pressure is nearest it, kept when within the plateau spacing (the smallest gap between the
-    hose's plateau pressures; a hose with one plateau pressure only at exactly that pressure), the
-    mean over chambers; (distance [km], leak [l/min]) by distance. {} without ``hose_leak_growth``."""
+    pressure is nearest it, kept when within the plateau spacing (the smallest gap between that
+    run's plateau pressures; a run of one plateau: the median spacing of the hose's other runs, none
+    at all: only at exactly that pressure), the mean over chambers; (distance [km], leak [l/min])
+    by distance. {} without ``hose_leak_growth``."""
     target = {h.hose_id: num(h.row("leak_pressure_bar").get("leak_pressure_bar")) for h in hoses}
     ids = [h for h, p in target.items() if p is not None]
     if not ids or "hose_leak_growth" not in _tables(con):
@@ -276,13 +277,21 @@ def leak_paths(con, hoses: list[RunningHose]) -> dict[str, list[tuple[float, flo
 
 
 def _path(runs: dict[str, list], target: float) -> list[tuple[float, float]]:
-    """The points of one hose (see :func:`leak_paths`)."""
-    pressures = sorted({p for plateaus in runs.values() for p, _d, _l in plateaus})
-    gaps = [b - a for a, b in zip(pressures, pressures[1:]) if b - a > 1e-9]
-    spacing = min(gaps) if gaps else 0.0
+    """The points of one hose (see :func:`leak_paths`); ``runs``: per run its (pressure, distance,
+    leak) plateaus. The plateau pressures are measured (5.994 and 5.997 bar in two runs of the same
+    6 bar plateau), so the spacing is a run's own: the smallest gap between its plateaus."""
+    def spacing(plateaus) -> float | None:
+        ps = sorted(p for p, _d, _l in plateaus)
+        gaps = [b - a for a, b in zip(ps, ps[1:]) if b - a > 1e-9]
+        return min(gaps) if gaps else None
+
+    own = {run: spacing(plateaus) for run, plateaus in runs.items()}
+    known = sorted(g for g in own.values() if g is not None)
+    fallback = known[len(known) // 2] if known else 0.0  # a one-plateau run: the hose's other runs' spacing
     out = []
-    for plateaus in runs.values():
+    for run, plateaus in runs.items():
         p, d, leak = min(plateaus, key=lambda x: (abs(x[0] - target), x[0]))
-        if abs(p - target) <= spacing + 1e-9 and math.isfinite(d) and math.isfinite(leak):
+        tol = own[run] if own[run] is not None else fallback
+        if abs(p - target) <= tol + 1e-9 and math.isfinite(d) and math.isfinite(leak):
             out.append((d, leak))
     return sorted(out)

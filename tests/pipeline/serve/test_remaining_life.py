@@ -175,8 +175,14 @@ def test_the_leak_path_is_at_the_plateau_nearest_the_plans_pressure(wh):
     assert [v for _, v in paths["F1"]] == pytest.approx([0.11, 0.31, 0.51, 0.63, 0.81])
     assert paths["D2"] == [(10, 0.5), (30, 0.4), (50, 0.3)]  # one plateau pressure, exactly the plan's
     assert "P1" not in paths  # its plan sets no pressure
-    assert rl._path({"r1": [(5.0, 10.0, 1.0)], "r2": [(6.0, 20.0, 2.0)]}, 6.0) == [(10.0, 1.0), (20.0, 2.0)]
-    assert rl._path({"r1": [(5.0, 10.0, 1.0)]}, 6.0) == []  # one pressure, not the plan's: no spacing to allow
+    # measured plateau pressures differ from run to run: the spacing is each run's own
+    measured = {"r1": [(0.0004, 10.0, 0.0), (2.9966, 10.0, 0.4), (5.9966, 10.0, 1.0)],
+                "r2": [(-0.0002, 20.0, 0.0), (2.9941, 20.0, 0.5), (5.9939, 20.0, 1.2)],
+                "r3": [(4.9932, 30.0, 1.1)],  # one plateau 1 bar off: within the other runs' median spacing (3 bar)
+                "r4": [(1.0, 40.0, 0.1), (2.0, 40.0, 0.2), (3.0, 40.0, 0.3)]}  # nearest 3 bar, over its spacing
+    assert rl._path(measured, 6.0) == [(10.0, 1.0), (20.0, 1.2), (30.0, 1.1)]
+    assert rl._path({"r1": [(5.0, 10.0, 1.0)], "r2": [(6.0, 20.0, 2.0)]}, 6.0) == [(20.0, 2.0)]
+    assert rl._path({"r1": [(5.0, 10.0, 1.0)]}, 6.0) == []  # one plateau, no spacing known: only the plan's
 
 
 def test_old_warehouse_says_remaining_life_not_computed(tmp_path):
