@@ -170,6 +170,15 @@ def coverage_text(row: dict | None) -> str:
     return f"backtest: {_pct(cov)} of {int(n)} intervals held{nominal}"
 
 
+def interval_name(hoses: list[RunningHose]) -> str:
+    """``90 % prediction interval``, or ``prediction interval at each hose type's plan confidence``
+    when the hoses' plans differ (or do not say)."""
+    levels = {num(r.get("confidence")) for h in hoses for r in h.rows.values()}
+    if len(levels) == 1 and None not in levels:
+        return f"{_pct(levels.pop())} prediction interval"
+    return "prediction interval at each hose type's plan confidence"
+
+
 def limit_text(row: dict) -> str:
     """``2 l/min at 6 bar`` of a row with ``leak_limit_l_min`` and ``leak_pressure_bar``; "" without a limit."""
     lim, p = num(row.get("leak_limit_l_min")), num(row.get("leak_pressure_bar"))
@@ -218,9 +227,7 @@ def running_lines(con, hose_type: str | None, width: int | None) -> list[str]:
     if not hoses:
         return ["Running hoses: none" + (f" of {hose_type}" if hose_type is not None else "")]
     shown = hoses if hose_type is not None else hoses[:MAX_TERMINAL_HOSES]
-    conf = num(shown[0].row("confidence").get("confidence"))
-    out = _wrapped("Running hoses, nearest their end first (remaining km: median "
-                   f"[{_pct(conf) + ' ' if conf else ''}prediction interval]):", width)
+    out = _wrapped(f"Running hoses, nearest their end first (remaining km: median [{interval_name(shown)}]):", width)
     cols = ["hose type", "hose", "adjustment", "now km", *METHODS, "leak now / limit", "note"]
     rows = [(h.hose_type, h.hose_id, h.adjustment, km_text(h.distance_km), *(rul_text(h.rows.get(m)) for m in METHODS),
              _leak_now(h), h.notes()) for h in shown]

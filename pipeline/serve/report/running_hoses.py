@@ -16,7 +16,8 @@ from __future__ import annotations
 import base64
 import io
 
-from pipeline.serve.remaining_life import (METHODS, RunningHose, coverage_text, km_text, leak_paths, num, read_backtest, read_running, rul_missing, rul_text)
+from pipeline.serve.remaining_life import (METHODS, RunningHose, coverage_text, interval_name, km_text, leak_paths,
+                                           num, read_backtest, read_running, rul_missing, rul_text)
 from pipeline.serve.report.db import ReportDB
 from pipeline.serve.report.markup import esc
 
@@ -43,10 +44,8 @@ def running_section(db: ReportDB) -> str:
     paths = leak_paths(db.con, drawn)
     plots = {h.hose_id: leak_png(paths.get(h.hose_id, []), h) for h in drawn}
     backtest = read_backtest(db.con)
-    conf = num(hoses[0].row("confidence").get("confidence"))
     intro = (f'<p class="meta">{len(hoses)} running hose{"s" if len(hoses) != 1 else ""}, nearest their end first. '
-             "Remaining km: the median and the "
-             f"{f'{100 * conf:.0f} % ' if conf is not None else ''}prediction interval of each method: "
+             f"Remaining km: the median and the {esc(interval_name(hoses))} of each method: "
              "<i>weibull</i>, the hose type's life model given that the hose has run this far; <i>degradation</i>, "
              "its own leak path run to the plan's limit. Under each method: how often its intervals held the "
              "true remaining life of the hoses that have since failed, predicted at 50 % and 80 % of their life "
@@ -91,7 +90,8 @@ def _leak_cell(h: RunningHose) -> str:
     under = ", ".join(([f"at {p:.3g} bar"] if p is not None else [])
                       + ([f"{int(n)} point{'s' if n != 1 else ''}"] if n is not None else []))
     return (f'<span style="white-space:nowrap">{"—" if now is None else f"{now:.3g}"} / '
-            f'{num(r["leak_limit_l_min"]):.3g} l/min</span>' + (f'<br><span class="meta">{under}</span>' if under else ""))
+            f'{num(r["leak_limit_l_min"]):.3g} l/min</span>'
+            + (f'<br><span class="meta">{under}</span>' if under else ""))
 
 
 def _plot_cell(h: RunningHose, plots: dict) -> str:
@@ -138,8 +138,8 @@ def _draw_path(ax, points: list[tuple[float, float]], hose: RunningHose) -> None
     med, lo, hi = (num(deg.get(k)) for k in ("rul_median_km", "rul_lower_km", "rul_upper_km"))
     if limit is not None:
         ax.axhline(limit, color=COLOURS["limit"], lw=1.4, ls="--")
-        ax.text(0.01, limit, f" limit {limit:.3g} l/min", transform=ax.get_yaxis_transform(), va="bottom", ha="left", fontsize=7,
-                color=COLOURS["limit"])
+        ax.text(0.01, limit, f" limit {limit:.3g} l/min", transform=ax.get_yaxis_transform(), va="bottom",
+                ha="left", fontsize=7, color=COLOURS["limit"])
         if now is not None and med is not None:
             span = [now + v for v in (lo, hi) if v is not None]
             if span:

@@ -153,6 +153,9 @@ def test_words_of_a_prediction_a_backtest_and_a_sensitivity(wh):
     assert rl.coverage_text(backtest[(DECIDED, "distance", "degradation")]) == \
         "backtest: no interval to check (no failed hose with 3 leak points)"
     assert rl.coverage_text(None) == "backtest: none"
+    assert rl.interval_name([f1]) == "90 % prediction interval"
+    other = rl.RunningHose("X", "X1", "force", 10.0, {"weibull": {"confidence": 0.8}})
+    assert rl.interval_name([f1, other]) == "prediction interval at each hose type's plan confidence"
     assert [r["definition"] for r in sens[DECIDED]] == list(rl.DEFINITIONS)  # in the contract's order
     assert [rl.differs(r, sens[DECIDED]) for r in sens[DECIDED]] == [False, False, True, False]
     assert not any(rl.differs(r, sens[OPEN]) for r in sens[OPEN])  # a NULL verdict is not a flip
