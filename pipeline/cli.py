@@ -291,10 +291,13 @@ def plot(run_id, warehouse, channels, output):
 @main.command()
 @warehouse_option
 @click.option("--hose-type", "hose_type", default=None, metavar="T",
-              help="Only hose type T, with every look (default: every hose type, without the looks).")
+              help="Only hose type T, with every look and all its running hoses (default: every hose type, "
+                   "without the looks, the 20 running hoses nearest their end).")
 def decision(warehouse, hose_type):
     """The decision per hose type: force- vs distance-set rollers, the verdict in words, the
-    information fraction, the plan to a verdict (and the looks of one --hose-type).
+    information fraction, the plan to a verdict, the verdict under other failure definitions (and
+    the looks of one --hose-type); then the running hoses nearest their end first, with the
+    remaining km per method and its backtest.
 
     Exit 0; 2 for a hose type the warehouse has no decision for (the line names the known ones).
     """

@@ -20,6 +20,7 @@ from pathlib import Path
 
 from pipeline.serve.door import connect_readonly
 from pipeline.serve.query import QueryError
+from pipeline.serve.remaining_life import read_sensitivity, running_lines, sensitivity_words
 
 #: Verdicts that are declared (they stick: later looks do not change them).
 DECIDED = ("force longer", "distance longer", "no practical difference")
@@ -310,8 +311,9 @@ def look_rows(d: HoseDecision) -> list[tuple]:
              "yes" if lk.get("decides") else "") for lk in d.looks]
 
 
-def _block(d: HoseDecision, looks: bool, width: int | None) -> list[str]:
-    """The lines of one hose type: verdict, information bar, plan, note, and its looks."""
+def _block(d: HoseDecision, looks: bool, width: int | None, sensitivity: list[dict]) -> list[str]:
+    """The lines of one hose type: verdict, information bar, plan, note, the verdict under each
+    failure definition (``sensitivity``, none before the remaining_life stage), and its looks."""
     from pipeline.serve.formats import format_table
 
     import textwrap
@@ -324,6 +326,8 @@ def _block(d: HoseDecision, looks: bool, width: int | None) -> list[str]:
              *wrapped("  plan         ", plan_words(d))]
     if d.verdict.get("note"):
         lines += wrapped("  note         ", str(d.verdict["note"]))
+    if sensitivity:
+        lines += wrapped("  definitions  ", sensitivity_words(sensitivity))
     if not looks:
         lines += wrapped("  looks        ", f"{len(d.looks)}: pneubench decision --hose-type {_quoted(d.hose_type)} "
                                             "lists them")
@@ -344,7 +348,8 @@ def _quoted(text: str) -> str:
 
 def decision_text(warehouse: str | Path, hose_type: str | None = None, width: int | None = None) -> str:
     """What ``pneubench decision`` prints: every hose type's verdict, information and plan (and
-    with ``hose_type`` that one alone, with its looks); one line when there is nothing to show.
+    with ``hose_type`` that one alone, with its looks), then the running hoses nearest their end
+    first (:func:`~pipeline.serve.remaining_life.running_lines`); one line when there is nothing to show.
 
     Raises
     ------
@@ -359,9 +364,11 @@ def decision_text(warehouse: str | Path, hose_type: str | None = None, width: in
         if missing:
             return missing
         decisions = read_decisions(con, hose_type)
+        sensitivity = read_sensitivity(con)
+        out: list[str] = []
+        for d in decisions:
+            out += _block(d, hose_type is not None, width, sensitivity.get(d.hose_type, [])) + [""]
+        out += running_lines(con, hose_type, width)
     finally:
         con.close()
-    out: list[str] = []
-    for d in decisions:
-        out += _block(d, looks=hose_type is not None, width=width) + [""]
     return "\n".join(out).rstrip("\n")

@@ -3,8 +3,8 @@ small page per run beside it (``report/runs/<safe id>.html``).
 
 Built from the warehouse database alone (read-only), so ``pneubench report`` can rebuild it at
 any time. It reads like a results section: a table of contents; the decision (per hose type the verdict
-of force- against distance-set rollers in words, the information fraction, the plan and the
-looks); findings whose result changed
+of force- against distance-set rollers in words, the information fraction, the plan, the verdict
+under other failure definitions, the running hoses' remaining life and the looks); findings whose result changed
 in the last 24 hours (``findings.changed_at``; an overturned one stays there through further
 rebuilds that night); the findings; per paper each figure with the summary a reader compares it
 to and the paper's tables beside the lab's values (paper value, measured value with its standard
@@ -29,7 +29,9 @@ The modules, from the bottom up:
 - :mod:`~pipeline.serve.report.db`: the warehouse database as the report reads it;
 - :mod:`~pipeline.serve.report.tables`: rows as an HTML table (units, formats, leak floors);
 - :mod:`~pipeline.serve.report.sections`: the findings, the last rebuild, the contents;
-- :mod:`~pipeline.serve.report.decision`: the decision per hose type (words, bar, plan, looks);
+- :mod:`~pipeline.serve.report.running_hoses`: the running hoses' remaining life and leak paths;
+- :mod:`~pipeline.serve.report.decision`: the decision per hose type (words, bar, plan, the verdict
+  under other failure definitions, the running hoses, looks);
 - :mod:`~pipeline.serve.report.summaries`: per analysis, the summary and the papers' values;
 - :mod:`~pipeline.serve.report.results`: per paper its figures, summaries and rows (``LAYOUT``);
 - :mod:`~pipeline.serve.report.channels`: the channels of one run as an SVG plot;

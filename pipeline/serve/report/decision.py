@@ -1,6 +1,8 @@
 """The report's first section, "The decision": per hose type the verdict in words, the
-information fraction as a bar and the plan to reach a verdict (one table), then the looks of
-each hose type as a plot of the estimate with its boundaries against the failures.
+information fraction as a bar and the plan to reach a verdict (one table), under each verdict the
+verdict under other failure definitions (``decision_sensitivity``, a flip highlighted), then the
+running hoses (:mod:`~pipeline.serve.report.running_hoses`) and the looks of each hose type as a
+plot of the estimate with its boundaries against the failures.
 
 The words and the reading of the tables are :mod:`pipeline.serve.decision`'s (``pneubench
 decision`` prints the same); here they become HTML and a figure. The figure is drawn with
@@ -16,8 +18,10 @@ import math
 
 from pipeline.serve.decision import (DECIDED, HoseDecision, information_words, missing_line, plan_words,
                                      read_decisions, verdict_words)
+from pipeline.serve.remaining_life import differs, limit_text, ratio_interval, read_sensitivity
 from pipeline.serve.report.db import ReportDB
 from pipeline.serve.report.markup import esc
+from pipeline.serve.report.running_hoses import running_section
 
 #: Hose types whose looks are drawn (one figure each); the others are listed by name.
 MAX_LOOK_PLOTS = 20
@@ -50,11 +54,13 @@ def decision_section(db: ReportDB) -> str:
              "(each failure) whose repeated confidence interval of the life ratio force / distance excludes 1, or "
              "lies within the plan's margin, and it stays; its error rate holds however often it is read "
              "(docs/decision.md). The interval in words is the fit's profile-likelihood interval.</p>")
-    return (head + intro + _verdict_table(decisions) + _looks_figures(decisions) + "</section>")
+    return (head + intro + _verdict_table(decisions, read_sensitivity(db.con)) + running_section(db)
+            + _looks_figures(decisions) + "</section>")
 
 
-def _verdict_table(decisions: list[HoseDecision]) -> str:
-    """One row per hose type: verdict in words, information bar, plan, note."""
+def _verdict_table(decisions: list[HoseDecision], sensitivity: dict[str, list[dict]]) -> str:
+    """One row per hose type: verdict in words, information bar, plan, note; under it the verdict
+    under each failure definition (``decision_sensitivity``) when the warehouse has it."""
     rows = []
     for k, d in enumerate(decisions):
         v = d.verdict
@@ -65,9 +71,41 @@ def _verdict_table(decisions: list[HoseDecision]) -> str:
         rows.append(f'<tr><td><b>{esc(d.hose_type)}</b>{link}</td><td class="{cls}">{esc(verdict)}</td>'
                     f"<td>{esc(verdict_words(d))}{note}</td><td>{_bar(v.get('information_fraction'))}<br>"
                     f'<span class="meta">{esc(information_words(d))}</span></td><td>{esc(plan_words(d))}</td></tr>')
+        if sensitivity.get(d.hose_type):
+            rows.append(_sensitivity_row(sensitivity[d.hose_type]))
     return ('<div class="wrap"><table class="decision"><thead><tr><th>hose type</th><th>verdict</th><th>in words</th>'
             "<th>information</th><th>plan to a verdict</th></tr></thead><tbody>" + "".join(rows)
             + "</tbody></table></div>")
+
+
+#: Background of a failure definition's row whose verdict differs from the logbook's.
+FLIPPED = "#ffe9b3"
+
+
+def _sensitivity_row(rows: list[dict]) -> str:
+    """A row under a hose type's verdict: the verdict under each failure definition, the rows whose
+    verdict differs from the logbook's highlighted and marked."""
+    body = []
+    for r in rows:
+        flipped = differs(r, rows)
+        verdict = esc(r.get("verdict") or "—") + (" <b>⚠ differs from the logbook</b>" if flipped else "")
+        failed = [r.get(k) for k in ("n_failed_force", "n_force", "n_failed_distance", "n_distance")]
+        counts = ("—" if None in failed else f"{failed[0]} of {failed[1]} / {failed[2]} of {failed[3]}")
+        body.append(f'<tr class="{"flipped" if flipped else "same"}"'
+                    + (f' style="background:{FLIPPED}"' if flipped else "")
+                    + f"><td>{esc(r.get('definition'))}</td><td>{esc(_limit_cell(r))}</td>"
+                    f"<td>{esc(counts)}</td><td>{esc(ratio_interval(r))}</td><td>{verdict}</td>"
+                    f'<td class="meta">{esc(r.get("note") or "")}</td></tr>')
+    return ('<tr class="sensitivity"><td></td><td colspan="4"><span class="meta">The verdict under other failure '
+            "definitions (the decision's rule read once on all of each definition's data now):</span>"
+            '<table class="sensitivity"><thead><tr><th>failure</th><th>leak limit</th><th>failed force / distance'
+            "</th><th>life ratio force / distance</th><th>verdict</th><th>note</th></tr></thead><tbody>"
+            + "".join(body) + "</tbody></table></td></tr>")
+
+
+def _limit_cell(row: dict) -> str:
+    """A failure definition's leak limit: ``2 l/min at 6 bar``, ``as logged`` for the logbook, else a dash."""
+    return "as logged" if row.get("definition") == "logbook" else (limit_text(row) or "—")
 
 
 def _bar(fraction) -> str:
