@@ -263,42 +263,27 @@ def _leak_now(h: RunningHose) -> str:
 
 # -- the leak path --------------------------------------------------------------------------------------
 def leak_paths(con, hoses: list[RunningHose]) -> dict[str, list[tuple[float, float]]]:
-    """Each hose's leak path at its plan's ``leak_pressure_bar``: per leakage run the plateau whose
-    pressure is nearest it, kept when within the plateau spacing (the smallest gap between that
-    run's plateau pressures; a run of one plateau: the median spacing of the hose's other runs, none
-    at all: only at exactly that pressure), the mean over chambers; (distance [km], leak [l/min])
-    by distance. {} without ``hose_leak_growth``."""
-    target = {h.hose_id: num(h.row("leak_pressure_bar").get("leak_pressure_bar")) for h in hoses}
-    ids = [h for h, p in target.items() if p is not None]
-    if not ids or "hose_leak_growth" not in _tables(con):
+    """Each hose's leak path at its plan's ``leak_pressure_bar``, the points the ``remaining_life``
+    stage fitted: :func:`pipeline.stages.remaining_life.leak_paths` on its hose type's
+    ``hose_leak_growth`` rows (the same rows, the same pressure matching); (distance [km], leak
+    [l/min]) by distance. {} without ``hose_leak_growth`` or ``hose_life``."""
+    from pipeline.stages.remaining_life import leak_paths as stage_paths
+
+    target = {(h.hose_type, h.hose_id): num(h.row("leak_pressure_bar").get("leak_pressure_bar")) for h in hoses}
+    wanted = {k: p for k, p in target.items() if p is not None}
+    if not wanted or not {"hose_leak_growth", "hose_life"} <= _tables(con):
         return {}
-    rows = con.execute(
-        "SELECT hose_id, run_id, any_value(distance_km), pressure_bar, avg(leak_l_min) FROM hose_leak_growth "
-        "WHERE hose_id IN (SELECT unnest(?)) AND pressure_bar IS NOT NULL AND leak_l_min IS NOT NULL "
-        "AND distance_km IS NOT NULL GROUP BY hose_id, run_id, pressure_bar ORDER BY hose_id, run_id, pressure_bar",
-        [ids]).fetchall()
-    per_hose: dict[str, dict[str, list]] = {}
-    for hose, run, dist, p, leak in rows:
-        per_hose.setdefault(hose, {}).setdefault(run, []).append((float(p), float(dist), float(leak)))
-    return {hose: _path(runs, target[hose]) for hose, runs in per_hose.items()}
-
-
-def _path(runs: dict[str, list], target: float) -> list[tuple[float, float]]:
-    """The points of one hose (see :func:`leak_paths`); ``runs``: per run its (pressure, distance,
-    leak) plateaus. The plateau pressures are measured (5.994 and 5.997 bar in two runs of the same
-    6 bar plateau), so the spacing is a run's own: the smallest gap between its plateaus."""
-    def spacing(plateaus) -> float | None:
-        ps = sorted(p for p, _d, _l in plateaus)
-        gaps = [b - a for a, b in zip(ps, ps[1:]) if b - a > 1e-9]
-        return min(gaps) if gaps else None
-
-    own = {run: spacing(plateaus) for run, plateaus in runs.items()}
-    known = sorted(g for g in own.values() if g is not None)
-    fallback = known[len(known) // 2] if known else 0.0  # a one-plateau run: the hose's other runs' spacing
-    out = []
-    for run, plateaus in runs.items():
-        p, d, leak = min(plateaus, key=lambda x: (abs(x[0] - target), x[0]))
-        tol = own[run] if own[run] is not None else fallback
-        if abs(p - target) <= tol + 1e-9 and math.isfinite(d) and math.isfinite(leak):
-            out.append((d, leak))
-    return sorted(out)
+    types = sorted({t for t, _ in wanted})
+    growth = con.execute(
+        "SELECT l.hose_type, g.hose_id, g.run_id, g.chamber, g.distance_km, g.pressure_bar, g.leak_l_min "
+        "FROM hose_leak_growth g JOIN hose_life l USING (hose_id) WHERE l.hose_type IN (SELECT unnest(?))",
+        [types]).df()
+    out: dict[str, list[tuple[float, float]]] = {}
+    by_type: dict[tuple, set] = {}
+    for (hose_type, hose_id), pressure in wanted.items():
+        by_type.setdefault((hose_type, pressure), set()).add(hose_id)
+    for (hose_type, pressure), ids in sorted(by_type.items()):
+        pts, _note = stage_paths(growth[growth["hose_type"] == hose_type].drop(columns="hose_type"), float(pressure))
+        for hid, g in pts[pts["hose_id"].isin(ids)].groupby("hose_id", sort=True):
+            out[str(hid)] = sorted(zip(g["distance_km"].astype(float), g["leak_l_min"].astype(float)))
+    return out

