@@ -481,7 +481,8 @@ def weibull_rank_regression(life, failed) -> WeibullFit:
         return WeibullFit(_NAN, _NAN, _NAN, n, r, note="the failures' lives do not spread: the rank regression "
                                                       "cannot tell a shape")
     scale = float(math.exp(lx.mean() - slope * y.mean()))
-    return WeibullFit(shape, scale, weibull_loglik(shape, scale, x, f), n, r)
+    with np.errstate(over="ignore"):          # a suspension far beyond a steep line: -inf, as it is
+        return WeibullFit(shape, scale, weibull_loglik(shape, scale, x, f), n, r)
 
 
 def preferred_method(n_failed: int) -> str | None:
@@ -527,7 +528,8 @@ def weibull_shape_bounds(fit: WeibullFit, life, failed, confidence: float = 0.90
 
     def excess(logk):
         k = math.exp(logk)
-        return 2.0 * (fit.loglik - weibull_loglik(k, weibull_scale_given_shape(k, x, f), x, f)) - crit
+        with np.errstate(over="ignore"):      # a far shape overflows to a -inf likelihood: outside the bounds
+            return 2.0 * (fit.loglik - weibull_loglik(k, weibull_scale_given_shape(k, x, f), x, f)) - crit
 
     centre = math.log(fit.shape)
     lo, hi = (lr_bound(excess, centre, math.log(edge)) for edge in SHAPE_BOUNDS)
