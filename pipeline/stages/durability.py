@@ -4,7 +4,9 @@ Per durability run (streamed from its samples Parquet in batches, bounded memory
 through ``ctx.map``): distance, strokes, duration and a per-stroke summary
 (:mod:`analyses.durability`). The hose logbooks (every ``hoses.csv`` under raw/, merged across
 campaigns, :mod:`pipeline.raw.logbook`) joined with those runs give ``hose_life``; per (hose_type,
-adjustment) a censored Weibull with B10 and likelihood-ratio bounds (``service_life``), Kaplan-
+adjustment) a censored Weibull with likelihood-ratio bounds of shape, scale, B10, the plan's
+B-life and the reliability at its mission distance, and median-rank regression beside it
+(``service_life``; the plan's ``confidence``, ``b_life``, ``mission_km`` per hose type), Kaplan-
 Meier curves (``hose_survival``) and, per hose type, the likelihood-ratio test of force-set
 against distance-set rollers (``service_life_test``). Leakage runs naming a hose are placed at the
 hose's distance at the time of the run (``hose_leak_growth``), from the ``leakage_map`` rows of
