@@ -27,6 +27,7 @@ BENCHMARKS = {
     "decision": ([], ["--quick"]),  # the decision end to end: coverage and error rates on 3 x 400 simulated hose types
     "test_plan": ([], ["--quick"]),  # failures_needed against a brute-force simulation of the same design
     "remaining_life": ([], ["--quick"]),  # remaining-life intervals' coverage on simulated futures (issue 24 groundwork)
+    "service_life": ([], ["--quick"]),  # coverage of the service-life table's bounds (shape, scale, B10, R), 600 groups
 }
 
 
