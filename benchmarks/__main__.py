@@ -28,6 +28,7 @@ BENCHMARKS = {
     "test_plan": ([], ["--quick"]),  # failures_needed against a brute-force simulation of the same design
     "remaining_life": ([], ["--quick"]),  # remaining-life intervals' coverage on simulated futures (issue 24 groundwork)
     "remaining_life_stage": ([], ["--quick"]),  # the remaining_life stage's seconds on a demo-sized hose type (< 5 s)
+    "service_life": ([], ["--quick"]),  # coverage of the service-life table's bounds (shape, scale, B10, R), 600 groups
 }
 
 

@@ -16,7 +16,10 @@ on, > 1), ``alpha`` (two-sided error rate of the verdict, 0 < alpha < 0.5), ``po
 of both adjustments together at which the test ends, an integer >= 2), ``spending`` (the
 alpha-spending family: ``"obrien-fleming"`` or ``"pocock"``, the Lan & DeMets 1983 forms of
 O'Brien & Fleming 1979 and Pocock 1977; Jennison & Turnbull 2000, ch. 7), ``benches`` (an
-integer >= 1) and ``km_per_day`` (> 0) (the bench capacity).
+integer >= 1) and ``km_per_day`` (> 0) (the bench capacity), ``leak_limit_l_min`` and
+``leak_pressure_bar`` (> 0, failure by leakage), ``b_life`` (the service-life table's B-life, in
+percent failed, 0 < b_life < 100) and ``mission_km`` (> 0, the distance at which the
+service-life table gives the reliability).
 
 Decisions where the spec is silent
 ----------------------------------
@@ -39,7 +42,8 @@ Decisions where the spec is silent
   spending O'Brien-Fleming (it spends little alpha at the early looks, where a reliability test
   has few failures). ``max_failures`` unset means the sequential design's ``failures_needed``
   for the margin, alpha and power (``test_plan``); ``benches`` and ``km_per_day`` unset mean
-  measured from the durability runs of the last 30 days. None stands for "unset".
+  measured from the durability runs of the last 30 days. ``b_life`` 10 (B10); ``mission_km``
+  unset means no reliability at a mission (NULL columns). None stands for "unset".
 * **Its hash.** :attr:`Plan.digest` hashes what a stage can see (every setting of every hose type
   the plan names and of any other, where each came from, ``present``): a stage that declares
   ``Reads(plan=True)`` re-runs when that changes, not when a comment does.
@@ -102,6 +106,11 @@ KEYS: dict[str, tuple] = {
                          "unset: no failure by leakage"),
     "leak_pressure_bar": ("a number > 0", lambda v: _number(v) and v > 0, None,
                           "unset: no failure by leakage"),
+    # the service-life table (issue 25, item 17): which B-life, and reliability at which mission distance
+    "b_life": ("a number with 0 < b_life < 100 (percent failed)", lambda v: _number(v) and 0 < v < 100, 10,
+               "10 (B10)"),
+    "mission_km": ("a number > 0", lambda v: _number(v) and v > 0, None,
+                   "unset: no reliability at a mission distance"),
 }
 
 _TABLES_TEXT = '[defaults] and [hose_type."<hose type>"]'
@@ -125,6 +134,8 @@ class PlanSettings:
     km_per_day: float | None
     leak_limit_l_min: float | None
     leak_pressure_bar: float | None
+    b_life: float
+    mission_km: float | None
     sources: dict[str, str]
 
 

@@ -4,7 +4,9 @@ Per durability run (streamed from its samples Parquet in batches, bounded memory
 through ``ctx.map``): distance, strokes, duration and a per-stroke summary
 (:mod:`analyses.durability`). The hose logbooks (every ``hoses.csv`` under raw/, merged across
 campaigns, :mod:`pipeline.raw.logbook`) joined with those runs give ``hose_life``; per (hose_type,
-adjustment) a censored Weibull with B10 and likelihood-ratio bounds (``service_life``), Kaplan-
+adjustment) a censored Weibull with likelihood-ratio bounds of shape, scale, B10, the plan's
+B-life and the reliability at its mission distance, and median-rank regression beside it
+(``service_life``; the plan's ``confidence``, ``b_life``, ``mission_km`` per hose type), Kaplan-
 Meier curves (``hose_survival``) and, per hose type, the likelihood-ratio test of force-set
 against distance-set rollers (``service_life_test``). Leakage runs naming a hose are placed at the
 hose's distance at the time of the run (``hose_leak_growth``), from the ``leakage_map`` rows of
@@ -37,19 +39,20 @@ import pyarrow.parquet as pq
 from analyses.durability import StrokeCounter, stroke_deadband, strokes_note
 from analyses.hose_life import hose_distance_at, hose_life, match_runs
 from analyses.quality import describe_sensor_at_rest
-from analyses.service_life import (b10, kaplan_meier, plot_hose_distances, plot_kaplan_meier, plot_leak_growth,
-                                   plot_weibull_probability, weibull_fit, weibull_lr_test)
+from analyses.service_life import (kaplan_meier, plot_hose_distances, plot_kaplan_meier, plot_leak_growth,
+                                   plot_weibull_probability, service_life_summary, weibull_fit,
+                                   weibull_lr_test, weibull_quantile_bounds)
 from pipeline.raw.logbook import merge_logbooks, read_logbooks
+from pipeline.raw.plan import Plan
 from pipeline.ingest.prefetch import prefetch
 from pipeline.stages import Reads, StageContext, StageOutput
 from pipeline.stages.values import finite_float
 
 NAME = "durability"
-READS = Reads(kinds=("durability", "leakage"), tables=("leakage_map",), logbooks=True)
+READS = Reads(kinds=("durability", "leakage"), tables=("leakage_map",), logbooks=True, plan=True)
 WRITES = ("durability_runs", "durability_strokes", "hose_life", "service_life", "hose_survival",
           "service_life_test", "hose_leak_growth")
 
-CONFIDENCE = 0.90
 BATCH_ROWS = 1 << 17  # 131k rows: bounded memory (plus one decoded row group), cache friendly
 COLUMNS = ("t_s", "x_m", "p_a_pa", "p_b_pa")
 PA_PER_BAR = 1e5
@@ -62,7 +65,18 @@ SENSOR_ROW_GROUPS = 5
 STROKE_COLUMNS = ["run_id", "hose_id", "stroke", "direction", "t_start_s", "t_end_s", "length_mm", "mean_speed_m_s",
                   "dp_mean_bar", "dp_friction_bar", "friction_n", "n_samples"]
 SERVICE_COLUMNS = ["hose_type", "adjustment", "n_hoses", "n_failed", "weibull_shape", "weibull_scale_km", "b10_km",
-                   "b10_lower_km", "b10_upper_km", "confidence", "n_suspended", "b10_method", "loglik", "note"]
+                   "b10_lower_km", "b10_upper_km", "confidence", "n_suspended", "b10_method", "loglik", "note",
+                   "shape_lower", "shape_upper", "scale_lower_km", "scale_upper_km", "b_life_pct", "b_life_km",
+                   "b_life_lower_km", "b_life_upper_km", "mission_km", "reliability_at_mission",
+                   "reliability_at_mission_lower", "reliability_at_mission_upper", "mrr_shape", "mrr_scale_km",
+                   "mrr_b_life_km", "preferred_method", "bounds_note"]
+#: service_life_summary's keys -> the table's new columns (the bounds at the plan's confidence)
+SUMMARY_COLUMNS = {"shape_lower": "shape_lower", "shape_upper": "shape_upper", "scale_lower": "scale_lower_km",
+                   "scale_upper": "scale_upper_km", "b_life": "b_life_km", "b_life_lower": "b_life_lower_km",
+                   "b_life_upper": "b_life_upper_km", "reliability": "reliability_at_mission",
+                   "reliability_lower": "reliability_at_mission_lower",
+                   "reliability_upper": "reliability_at_mission_upper", "mrr_shape": "mrr_shape",
+                   "mrr_scale": "mrr_scale_km", "mrr_b_life": "mrr_b_life_km"}
 SURVIVAL_COLUMNS = ["hose_type", "adjustment", "distance_km", "n_at_risk", "n_failed", "n_censored", "survival",
                     "std_err"]
 TEST_COLUMNS = ["hose_type", "n_force", "n_failed_force", "n_distance", "n_failed_distance", "shape_force",
@@ -191,20 +205,38 @@ def _groups(life: pd.DataFrame, keys):
         yield key, g["distance_km"].to_numpy(float), (g["status"] == "failed").to_numpy()
 
 
-def service_life(life: pd.DataFrame, confidence: float = CONFIDENCE) -> pd.DataFrame:
-    """One ``service_life`` row per (hose_type, adjustment): Weibull, B10 and its LR bounds."""
+def service_life(life: pd.DataFrame, plan: Plan | None = None) -> pd.DataFrame:
+    """One ``service_life`` row per (hose_type, adjustment): Weibull by maximum likelihood with
+    profile-likelihood bounds of shape, scale, B10 and the plan's B-life, reliability at the plan's
+    mission distance, and median-rank regression beside it (:func:`analyses.service_life.service_life_summary`).
+
+    Parameters
+    ----------
+    life : DataFrame
+        ``hose_life``.
+    plan : Plan, optional
+        The lab's test plan: each hose type's ``confidence``, ``b_life`` [%] and ``mission_km``
+        (:meth:`pipeline.raw.plan.Plan.for_hose_type`); None: the built-in defaults.
+    """
+    plan = plan if plan is not None else Plan()
     rows = []
     for (htype, adj), x, failed in _groups(life, ("hose_type", "adjustment")):
-        r = b10(x, failed, confidence)
+        cfg = plan.for_hose_type(htype)
+        r = service_life_summary(x, failed, b_life_pct=cfg.b_life, confidence=cfg.confidence, mission=cfg.mission_km)
+        fit = weibull_fit(x, failed)
+        b10, b10_lo, b10_hi = weibull_quantile_bounds(fit, x, failed, 0.10, cfg.confidence)
         rows.append({"hose_type": htype, "adjustment": adj, "n_hoses": len(x), "n_failed": int(failed.sum()),
                      "n_suspended": int((~failed).sum()), "weibull_shape": r["shape"],
-                     "weibull_scale_km": r["scale"], "b10_km": r["b10"], "b10_lower_km": r["b10_lower"],
-                     "b10_upper_km": r["b10_upper"], "confidence": confidence,
-                     "b10_method": "likelihood ratio (profile likelihood), two-sided", "loglik": r["loglik"],
-                     "note": r["note"]})
+                     "weibull_scale_km": r["scale"], "b10_km": b10, "b10_lower_km": b10_lo,
+                     "b10_upper_km": b10_hi, "confidence": cfg.confidence,
+                     "b10_method": "likelihood ratio (profile likelihood), two-sided", "loglik": fit.loglik,
+                     "note": r["note"], "b_life_pct": cfg.b_life, "mission_km": cfg.mission_km,
+                     "preferred_method": r["preferred_method"], "bounds_note": r["bounds_note"],
+                     **{col: r[key] for key, col in SUMMARY_COLUMNS.items()}})
     df = pd.DataFrame(rows, columns=SERVICE_COLUMNS)
-    for c in ("weibull_shape", "weibull_scale_km", "b10_km", "b10_lower_km", "b10_upper_km", "loglik"):
-        df[c] = pd.to_numeric(df[c]).astype("float64")  # NaN -> NULL in the warehouse
+    for c in ("weibull_shape", "weibull_scale_km", "b10_km", "b10_lower_km", "b10_upper_km", "loglik", "b_life_pct",
+              "mission_km", *SUMMARY_COLUMNS.values()):
+        df[c] = pd.to_numeric(df[c]).astype("float64")  # NaN and None -> NULL in the warehouse
     return df
 
 
@@ -295,7 +327,7 @@ def run(ctx: StageContext) -> StageOutput:
     out.tables["durability_runs"] = runs_df
     out.tables["durability_strokes"] = strokes_df
     out.tables["hose_life"] = life
-    out.tables["service_life"] = service_life(life)
+    out.tables["service_life"] = service_life(life, ctx.plan)
     out.tables["hose_survival"] = hose_survival(life)
     out.tables["service_life_test"] = service_life_test(life)
     growth = leak_growth(ctx, life, runs_df, matched)
@@ -303,7 +335,7 @@ def run(ctx: StageContext) -> StageOutput:
 
     groups = {f"{t or '?'} / {a or '?'}": (x, f) for (t, a), x, f in _groups(life, ("hose_type", "adjustment"))}
     if groups:
-        out.draw("weibull_probability", plot_weibull_probability, groups)
+        out.draw("weibull_probability", plot_weibull_probability, groups, "km", ctx.plan.for_hose_type(None).confidence)
         out.captions["weibull_probability"] = ("Weibull probability plot of hose life per hose type / roller "
                                                "adjustment; | marks suspensions (removed or running hoses).")
         out.draw("kaplan_meier", plot_kaplan_meier, groups)

@@ -60,23 +60,44 @@ CREATE TABLE hose_life (
     warnings          VARCHAR[]            -- e.g. runs and odometer disagree by more than 2 %
 );
 
--- One row per (hose_type, adjustment).
+-- One row per (hose_type, adjustment): the table a Weibull++ user expects. Weibull by maximum
+-- likelihood (MLE) with right-censoring; every bound two-sided, likelihood ratio (profile
+-- likelihood, Meeker & Escobar 1998 ch. 8) at the plan's confidence; median-rank regression
+-- (MRR: rank regression on X, Benard's median ranks, Johnson's adjusted ranks) beside it.
 CREATE TABLE service_life (
     hose_type         VARCHAR,
     adjustment        VARCHAR,
     n_hoses           BIGINT,
     n_failed          BIGINT,
-    weibull_shape     DOUBLE,              -- NULL with fewer than two failures
-    weibull_scale_km  DOUBLE,
-    b10_km            DOUBLE,
-    b10_lower_km      DOUBLE,
-    b10_upper_km      DOUBLE,
-    confidence        DOUBLE,
+    weibull_shape     DOUBLE,              -- MLE shape (beta); NULL with fewer than two failures
+    weibull_scale_km  DOUBLE,              -- MLE scale (eta: the distance by which 63.2 % have failed)
+    b10_km            DOUBLE,              -- distance by which 10 % have failed (MLE)
+    b10_lower_km      DOUBLE,              -- lower bound of `b10_km` at `confidence`
+    b10_upper_km      DOUBLE,              -- upper bound of `b10_km` at `confidence`
+    confidence        DOUBLE,              -- two-sided confidence of every bound: the plan's `confidence`
     n_suspended       BIGINT,              -- removed + running hoses
     b10_method        VARCHAR,             -- how the bounds were computed
     loglik            DOUBLE,              -- log-likelihood at the Weibull MLE
-    note              VARCHAR              -- NULL when sound, else why the Weibull columns are NULL
+    note              VARCHAR,             -- NULL when sound, else why the Weibull columns are NULL
                                            -- (fewer than two failures, shape MLE at the search bound)
+    shape_lower       DOUBLE,              -- lower bound of `weibull_shape` at `confidence`
+    shape_upper       DOUBLE,              -- upper bound of `weibull_shape` at `confidence`
+    scale_lower_km    DOUBLE,              -- lower bound of `weibull_scale_km` at `confidence`
+    scale_upper_km    DOUBLE,              -- upper bound of `weibull_scale_km` at `confidence`
+    b_life_pct        DOUBLE,              -- the B-life's percent failed: the plan's `b_life` (default 10: B10)
+    b_life_km         DOUBLE,              -- distance by which b_life_pct % have failed (MLE)
+    b_life_lower_km   DOUBLE,              -- lower bound of `b_life_km` at `confidence`
+    b_life_upper_km   DOUBLE,              -- upper bound of `b_life_km` at `confidence`
+    mission_km        DOUBLE,              -- the plan's `mission_km`; NULL when the plan states none
+    reliability_at_mission DOUBLE,         -- fraction surviving mission_km, exp(-(mission/scale)^shape) (MLE)
+    reliability_at_mission_lower DOUBLE,   -- lower bound of `reliability_at_mission` at `confidence`
+    reliability_at_mission_upper DOUBLE,   -- upper bound of `reliability_at_mission` at `confidence`
+    mrr_shape         DOUBLE,              -- median-rank regression's shape
+    mrr_scale_km      DOUBLE,              -- median-rank regression's scale
+    mrr_b_life_km     DOUBLE,              -- median-rank regression's B-life (at b_life_pct)
+    preferred_method  VARCHAR,             -- MRR (2-20 failures) or MLE (more): the point estimate to quote
+                                           -- (Abernethy 2006, ch. 5); the bounds are the likelihood's either way
+    bounds_note       VARCHAR              -- NULL when every bound exists, else which the data do not reach
 );
 
 -- Kaplan-Meier survival per (hose_type, adjustment): one row per distinct hose distance.

@@ -323,3 +323,176 @@ def test_life_figures_draw_the_first_groups_and_say_how_many_of_how_many():
     assert f"first {MAX_HOSES_DRAWN} of {MAX_HOSES_DRAWN + 20} hoses" in fig.axes[0].get_title()
     few = plot_kaplan_meier(dict(list(groups.items())[:2]))
     assert few.axes[0].get_title() == "Kaplan-Meier survival (+ = suspension)"
+
+
+# -- the service-life table a Weibull++ user expects (issue 25, item 17) -----------------------------------
+from analyses.service_life import (MRR_MAX_FAILURES, SCALE_FRACTION, median_ranks, preferred_method,  # noqa: E402
+                                   service_life_summary, weibull_rank_regression, weibull_reliability_bounds,
+                                   weibull_shape_bounds)
+
+#: ReliaWiki's (Weibull++) "Example 1" after Kececioglu: six units, all failed [h]; its MLE example gives
+#: shape 1.933, scale 73.526; the exact median ranks it tabulates for rank regression (0.1091 ... 0.8909).
+RELIAWIKI_SIX = [16.0, 34, 53, 75, 93, 120]
+RELIAWIKI_MEDIAN_RANKS = [0.1091, 0.2645, 0.4214, 0.5786, 0.7355, 0.8909]
+#: ReliaWiki's likelihood-ratio example: five failures at 10 ... 50 h, MLE shape 2.2938, scale 33.9428.
+RELIAWIKI_FIVE = [10.0, 20, 30, 40, 50]
+#: Reliability HotWire 104 ("Median rank based on mean order number", the Weibull++ method): S 2500,
+#: F 2730, F 3900, S 4100, F 5000 h; by Johnson's formula the failures' mean order numbers are 1.2, 2.4, 4.2.
+HOTWIRE = ([2500.0, 2730, 3900, 4100, 5000], [False, True, True, False, True])
+#: reliability 0.9.0 (numpy 2.4.6, scipy 1.17.1) ``Fit_Weibull_2P(failures=..., right_censored=...,
+#: method="RRX", CI=0.90, show_probability_plot=False, print_results=False)`` -> ``alpha``, ``beta``: an
+#: independent implementation of median-rank regression (Benard, Johnson's adjusted ranks; data sets without
+#: a failure and a suspension at the same life, where its unstable sort leaves the order to chance).
+RELIABILITY_RRX = {
+    "reliawiki six": dict(scale=76.1095957909622, shape=1.4396632767940571),
+    "hotwire": dict(scale=4706.287149747937, shape=3.2183943086483784),
+    "leukemia 6-MP": dict(scale=22.797101060354887, shape=1.9726558549410969),
+}
+
+
+def rrx_lives(name):
+    if name == "reliawiki six":
+        return np.array(RELIAWIKI_SIX), np.ones(6, bool)
+    if name == "hotwire":
+        return np.array(HOTWIRE[0]), np.array(HOTWIRE[1])
+    return public_lives(name)
+
+
+def test_median_ranks_by_johnson_and_benard_hand_checked():
+    mr = median_ranks(*HOTWIRE)
+    assert mr["life"].tolist() == [2730.0, 3900.0, 5000.0]
+    assert mr["adjusted_rank"].to_numpy() == pytest.approx([1.2, 2.4, 4.2], abs=1e-12)
+    assert mr["median_rank"].to_numpy() == pytest.approx([0.9 / 5.4, 2.1 / 5.4, 3.9 / 5.4], abs=1e-12)
+    # without suspensions: ranks 1..n and Benard's (i - 0.3) / (n + 0.4), within 0.0012 of the exact
+    # (binomial) median ranks ReliaWiki tabulates
+    mr = median_ranks(RELIAWIKI_SIX[::-1], [True] * 6)
+    assert mr["adjusted_rank"].tolist() == [1.0, 2, 3, 4, 5, 6]
+    assert mr["median_rank"].to_numpy() == pytest.approx((np.arange(1, 7) - 0.3) / 6.4, abs=1e-15)
+    assert mr["median_rank"].to_numpy() == pytest.approx(RELIAWIKI_MEDIAN_RANKS, abs=1.2e-3)
+    # a failure and a suspension at the same life: the failure first (as Kaplan-Meier)
+    assert median_ranks([5.0, 5.0, 9.0], [False, True, True])["adjusted_rank"].tolist() == [1.0, 2.5]
+
+
+def test_mle_matches_reliawikis_published_examples():
+    """To the last digit ReliaWiki prints (it cuts rather than rounds: 33.94291 is printed 33.9428)."""
+    for lives, shape, scale, decimals in ((RELIAWIKI_SIX, 1.933, 73.526, 3), (RELIAWIKI_FIVE, 2.2938, 33.9428, 4)):
+        fit = weibull_fit(lives, [True] * len(lives))
+        assert abs(fit.shape - shape) < 1.5 * 10.0 ** -decimals and abs(fit.scale - scale) < 1.5 * 10.0 ** -decimals
+
+
+def test_rank_regression_on_x_is_the_least_squares_line_of_log_life_on_the_plot_ordinate():
+    x = np.array(RELIAWIKI_SIX)
+    y = np.log(-np.log(1 - (np.arange(1, 7) - 0.3) / 6.4))
+    slope, intercept = np.polyfit(y, np.log(x), 1)            # ln(life) on y: X on Y
+    mrr = weibull_rank_regression(x, np.ones(6, bool))
+    assert mrr.shape == pytest.approx(1 / slope, rel=1e-12) and mrr.scale == pytest.approx(math.exp(intercept), rel=1e-12)
+    assert mrr.loglik < weibull_fit(x, np.ones(6, bool)).loglik   # not the likelihood's maximum
+    assert mrr.quantile(0.10) == pytest.approx(mrr.scale * (-math.log(0.9)) ** (1 / mrr.shape))
+
+
+@pytest.mark.parametrize("name", sorted(RELIABILITY_RRX))
+def test_rank_regression_matches_the_reliability_packages_rrx(name):
+    ref = RELIABILITY_RRX[name]
+    mrr = weibull_rank_regression(*rrx_lives(name))
+    assert (mrr.shape, mrr.scale) == pytest.approx((ref["shape"], ref["scale"]), rel=1e-10)
+
+
+@pytest.mark.parametrize("name", sorted(RELIABILITY_RRX))
+def test_rank_regression_matches_the_reliability_package_live(name):
+    fitters = pytest.importorskip("reliability.Fitters")
+    life, failed = rrx_lives(name)
+    fit = fitters.Fit_Weibull_2P(failures=life[failed], right_censored=life[~failed] if (~failed).any() else None,
+                                 method="RRX", CI=0.90, show_probability_plot=False, print_results=False)
+    assert (fit.alpha, fit.beta) == pytest.approx((RELIABILITY_RRX[name]["scale"], RELIABILITY_RRX[name]["shape"]),
+                                                  rel=1e-6)
+
+
+def test_rank_regression_recovers_simulated_parameters_and_refuses_what_cannot_tell():
+    rng = np.random.default_rng(11)
+    life = 500.0 * rng.weibull(2.5, 400)
+    stop = rng.uniform(300, 900, 400)
+    mrr = weibull_rank_regression(np.minimum(life, stop), life <= stop)
+    assert mrr.shape == pytest.approx(2.5, rel=0.1) and mrr.scale == pytest.approx(500.0, rel=0.05)
+    assert weibull_rank_regression([10.0, 20.0, 30.0], [True, False, False]).note == "too few failures: 1 < 2"
+    same = weibull_rank_regression([10.0, 10.0, 10.0], [True, True, True])
+    assert not same.ok and "cannot tell a shape" in same.note
+
+
+def test_preferred_method_follows_abernethys_twenty_failures():
+    assert [preferred_method(r) for r in (0, 1, 2, MRR_MAX_FAILURES, MRR_MAX_FAILURES + 1, 500)] == [
+        None, None, "MRR", "MRR", "MLE", "MLE"]
+    assert MRR_MAX_FAILURES == 20
+
+
+def _deviance_of_shape(k, x, f, fit):
+    from analyses.service_life import weibull_scale_given_shape
+    return 2 * (fit.loglik - weibull_loglik(k, weibull_scale_given_shape(k, x, f), x, f))
+
+
+def test_shape_and_scale_bounds_are_where_the_profile_deviance_reaches_chi2():
+    x, f = public_lives("leukemia 6-MP")
+    fit = weibull_fit(x, f)
+    crit = stats.chi2.ppf(0.90, 1)
+    lo, hi = weibull_shape_bounds(fit, x, f, 0.90)
+    assert lo < fit.shape < hi
+    for k in (lo, hi):
+        assert _deviance_of_shape(k, x, f, fit) == pytest.approx(crit, abs=1e-6)
+    # the scale profile, maximised over the shape by brute force, reaches chi2 at the scale bounds
+    _, s_lo, s_hi = weibull_quantile_bounds(fit, x, f, SCALE_FRACTION, 0.90)
+    assert s_lo < fit.scale < s_hi
+    for s in (s_lo, s_hi):
+        best = -optimize.minimize_scalar(lambda t: -weibull_loglik(math.exp(t), s, x, f), bounds=(-3, 3),
+                                         method="bounded", options={"xatol": 1e-10}).fun
+        assert 2 * (fit.loglik - best) == pytest.approx(crit, abs=1e-5)
+    wider = weibull_shape_bounds(fit, x, f, 0.99)
+    assert wider[0] < lo and wider[1] > hi
+
+
+def test_reliability_bounds_are_the_quantile_bounds_read_the_other_way():
+    """p is inside the interval of F(t) exactly when t is inside the interval of the p-quantile: at a
+    mission equal to a B10 bound, one bound of R is 0.90 (Meeker & Escobar 1998, section 8.3)."""
+    x, f = fans()
+    fit = weibull_fit(x, f)
+    b, b_lo, b_hi = weibull_quantile_bounds(fit, x, f, 0.10, 0.90)
+    r, r_lo, r_hi = weibull_reliability_bounds(fit, x, f, b_hi, 0.90)
+    assert r_hi == pytest.approx(0.90, abs=1e-7) and r_lo < r < r_hi
+    r, r_lo, r_hi = weibull_reliability_bounds(fit, x, f, b_lo, 0.90)
+    assert r_lo == pytest.approx(0.90, abs=1e-7)
+    r, r_lo, r_hi = weibull_reliability_bounds(fit, x, f, b, 0.90)
+    assert r == pytest.approx(0.90) and r_lo < 0.90 < r_hi
+    assert all(math.isnan(v) for v in weibull_reliability_bounds(fit, x, f, -1.0))
+    assert all(math.isnan(v) for v in weibull_reliability_bounds(weibull_fit([1.0, 2.0], [True, False]), x, f, 5.0))
+
+
+def test_the_summary_row_with_a_plans_b_life_confidence_and_mission():
+    x, f = public_lives("leukemia 6-MP")
+    s = service_life_summary(x, f, b_life_pct=5.0, confidence=0.95, mission=10.0)
+    fit = weibull_fit(x, f)
+    assert (s["shape"], s["scale"]) == (fit.shape, fit.scale)
+    assert (s["b_life"], s["b_life_lower"], s["b_life_upper"]) == weibull_quantile_bounds(fit, x, f, 0.05, 0.95)
+    assert (s["shape_lower"], s["shape_upper"]) == weibull_shape_bounds(fit, x, f, 0.95)
+    assert s["reliability"] == pytest.approx(math.exp(-(10.0 / fit.scale) ** fit.shape))
+    assert s["reliability_lower"] < s["reliability"] < s["reliability_upper"]
+    assert s["mrr_shape"] == pytest.approx(RELIABILITY_RRX["leukemia 6-MP"]["shape"])
+    assert s["mrr_b_life"] == pytest.approx(s["mrr_scale"] * (-math.log(0.95)) ** (1 / s["mrr_shape"]))
+    assert s["preferred_method"] == "MRR" and s["note"] is None and s["bounds_note"] is None
+    # B10 and the plan's defaults: the b10 dict's values; no mission, no reliability
+    d = service_life_summary(x, f)
+    old = b10(x, f, 0.90)
+    assert (d["b_life"], d["b_life_lower"], d["b_life_upper"]) == (old["b10"], old["b10_lower"], old["b10_upper"])
+    assert math.isnan(d["reliability"]) and math.isnan(d["reliability_lower"])
+    one = service_life_summary([10.0, 20.0, 30.0], [True, False, False], mission=5.0)
+    assert all(math.isnan(one[k]) for k in ("shape", "shape_lower", "scale_upper", "b_life", "reliability", "mrr_shape"))
+    assert one["preferred_method"] is None and one["note"] == "too few failures: 1 < 2" and one["bounds_note"] is None
+
+
+def test_a_side_the_data_do_not_bound_is_nan_and_named():
+    """Two early failures under forty long suspensions: nothing bounds the scale or B10 from above
+    within 1e6 times the estimate, so those bounds are NaN and the note names them; the rest stand."""
+    x = np.r_[[1.0, 1.001], np.full(40, 1000.0)]
+    f = np.r_[[True, True], np.zeros(40, bool)]
+    s = service_life_summary(x, f, mission=2000.0)
+    assert s["note"] is None and math.isfinite(s["shape"])
+    assert math.isnan(s["scale_upper"]) and math.isnan(s["b_life_upper"])
+    assert s["bounds_note"] == "the data do not bound scale_upper, b_life_upper"
+    assert s["shape_lower"] < s["shape"] < s["shape_upper"] and s["reliability_lower"] < s["reliability_upper"]

@@ -102,7 +102,7 @@ LAYOUT = (
          ("pressure_dynamics", "pressure_steps")),
     )),
     ("durability", "Durability and hose service life", (
-        ("service-life", "Service life: Weibull and B10", ("weibull_probability", "kaplan_meier"),
+        ("service-life", "Service life: Weibull, B-life and reliability", ("weibull_probability", "kaplan_meier"),
          summary_service_life, ("service_life", "service_life_test", "hose_survival")),
         ("hoses", "Hoses and durability runs", ("hose_distance", "leak_growth"), summary_hoses,
          ("hose_life", "durability_runs", "hose_leak_growth")),

@@ -259,15 +259,40 @@ def summary_pressure(db: ReportDB) -> str:
     return html_out
 
 
+#: The service-life table as the report shows it: the Weibull fit (MLE with its bounds, the rank
+#: regression beside it), then the plan's B-life and the reliability at its mission distance.
+SERVICE_LIFE_FIT = ("hose_type", "adjustment", "n_hoses", "n_failed", "n_suspended", "weibull_shape", "shape_lower",
+                    "shape_upper", "weibull_scale_km", "scale_lower_km", "scale_upper_km", "mrr_shape",
+                    "mrr_scale_km", "preferred_method", "campaigns", "note")
+SERVICE_LIFE_LIFE = ("hose_type", "adjustment", "confidence", "b_life_pct", "b_life_km", "b_life_lower_km",
+                     "b_life_upper_km", "mrr_b_life_km", "mission_km", "reliability_at_mission",
+                     "reliability_at_mission_lower", "reliability_at_mission_upper", "bounds_note")
+#: A warehouse built before the plan's B-life (issue 25, item 17): its B10 table as it was.
+SERVICE_LIFE_BEFORE = ("hose_type", "adjustment", "n_hoses", "n_failed", "n_suspended", "weibull_shape",
+                       "weibull_scale_km", "b10_km", "b10_lower_km", "b10_upper_km", "confidence", "campaigns", "note")
+
+
 def summary_service_life(db: ReportDB) -> str:
-    """Weibull life and B10 per hose type and roller adjustment, and the test between them."""
+    """Weibull life per hose type and roller adjustment (MLE with profile-likelihood bounds, median-rank
+    regression beside it), the plan's B-life and the reliability at its mission, and the test between
+    the adjustments."""
     if not db.has("service_life"):
         return ""
-    want = [c for c in ("hose_type", "adjustment", "n_hoses", "n_failed", "n_suspended", "weibull_shape",
-                        "weibull_scale_km", "b10_km", "b10_lower_km", "b10_upper_km", "confidence", "campaigns", "note")
-            if c in db.columns("service_life")]
-    cols, rows = db.rows(f"SELECT {', '.join(want)} FROM service_life ORDER BY hose_type, adjustment")
-    out = "<h4>Weibull life and B10 per hose type and roller adjustment</h4>" + html_table(cols, rows, 20)
+    have = db.columns("service_life")
+    order = " FROM service_life ORDER BY hose_type, adjustment"
+    if "b_life_km" not in have:
+        cols, rows = db.rows(f"SELECT {', '.join(c for c in SERVICE_LIFE_BEFORE if c in have)}{order}")
+        out = "<h4>Weibull life and B10 per hose type and roller adjustment</h4>" + html_table(cols, rows, 20)
+    else:
+        cols, rows = db.rows(f"SELECT {', '.join(c for c in SERVICE_LIFE_FIT if c in have)}{order}")
+        out = ("<h4>Weibull life per hose type and roller adjustment: maximum likelihood with its bounds, "
+               "median-rank regression beside it</h4>" + html_table(cols, rows, 20))
+        cols, rows = db.rows(f"SELECT {', '.join(c for c in SERVICE_LIFE_LIFE if c in have)}{order}")
+        out += ("<h4>B-life and reliability at the mission distance (the plan's b_life, mission_km and "
+                "confidence)</h4>" + html_table(cols, rows, 20)
+                + '<p class="more">Bounds: two-sided, likelihood ratio (profile likelihood). preferred_method: '
+                  "the point estimate to quote: median-rank regression with few failures, maximum likelihood "
+                  "with many (Abernethy 2006, ch. 5; the rule in docs/analyses.md, \"Hose service life\").</p>")
     if db.has("service_life_test") and db.count("service_life_test"):
         cols, rows = db.rows("SELECT * FROM service_life_test")
         out += "<h4>Force- vs distance-set rollers: likelihood-ratio test</h4>" + html_table(cols, rows, 20)

@@ -279,3 +279,65 @@ def test_deadband_from_the_stated_sensor_and_strokes_not_detectable(tmp_path):
     assert tiny["deadband_mm"] == pytest.approx(1.0) and pd.isna(tiny["distance_km"]) and pd.isna(tiny["strokes"])
     assert "strokes not detectable" in tiny["note"]
     assert any("strokes not detectable" in w for w in out.warnings["c/tiny"])
+
+
+#: Two hose types' lives as the lab's logbook holds them (odometer readings, km; True: failed, False: removed)
+LAB_LIVES = {("FLEXIGOM AIR", "distance"): ([412.0, 655.3, 760.0, 998.1, 1210.4, 1300.0, 1300.0],
+                                            [True, True, True, True, True, False, False]),
+             ("PU 8x6", "force"): ([150.2, 288.0, 301.5, 470.9, 520.0], [True, True, False, True, False])}
+
+
+def lab_logbook(b: Bench) -> None:
+    """hoses.csv as the lab writes it: an `installed` row per hose with its type and setting, then a
+    `failed` or `removed` row with the odometer reading (no durability runs logged)."""
+    rows, day = [], 0
+    for (htype, adj), (lives, failed) in LAB_LIVES.items():
+        for j, (km, dead) in enumerate(zip(lives, failed)):
+            hid, day = f"{htype[:2]}{j + 1:02d}", day + 1
+            setting = ",4.5," if adj == "distance" else ",,866"
+            rows.append(f"{hid},installed,2025-03-{day:02d}T08:00,{htype},{adj}{setting},,,,")
+            rows.append(f"{hid},{'failed' if dead else 'removed'},2025-06-{day:02d}T17:30,,,,,"
+                        f"{'rupture' if dead else ''},,{km},{'' if dead else 'end of test'}")
+    b.logbook("durability-2025/hoses.csv", "\n".join(rows) + "\n")
+
+
+def test_service_life_takes_the_plans_b_life_confidence_and_mission_per_hose_type(tmp_path):
+    """A logbook and a plan.toml written as the lab writes them: each hose type's row at its own
+    B-life, confidence and mission (its table over [defaults]), the MLE with profile bounds and the
+    rank regression beside it; without a plan the built-in B10 at 90 % and no reliability."""
+    from analyses.service_life import service_life_summary
+    from pipeline.raw.plan import read_plan
+    from pipeline.raw.tree import RawTree
+
+    b = Bench(tmp_path)
+    lab_logbook(b)
+    (b.raw / "plan.toml").write_text('# the lab\'s plan\n[defaults]\nconfidence = 0.95\nmission_km = 300\n\n'
+                                     '[hose_type."FLEXIGOM AIR"]\nb_life = 5\nconfidence = 0.90\n'
+                                     "mission_km = 500.0\n")
+    plan = read_plan(RawTree(b.raw))
+    assert plan.present and plan.problems == ()
+    ctx = b.ctx()
+    ctx.plan = plan
+    sl = stage.run(ctx).tables["service_life"].set_index("hose_type")
+    assert list(sl.columns[:14]) == stage.SERVICE_COLUMNS[1:15]          # the old columns first, unchanged
+    for htype, (b_life, conf, mission) in {"FLEXIGOM AIR": (5.0, 0.90, 500.0), "PU 8x6": (10.0, 0.95, 300.0)}.items():
+        row = sl.loc[htype]
+        lives, failed = next(v for k, v in LAB_LIVES.items() if k[0] == htype)
+        want = service_life_summary(lives, failed, b_life_pct=b_life, confidence=conf, mission=mission)
+        assert (row["b_life_pct"], row["confidence"], row["mission_km"]) == (b_life, conf, mission)
+        assert row["n_failed"] == sum(failed) and row["n_suspended"] == len(lives) - sum(failed)
+        for key, col in {**stage.SUMMARY_COLUMNS, "shape": "weibull_shape", "scale": "weibull_scale_km"}.items():
+            assert row[col] == pytest.approx(want[key], rel=1e-12), col
+        assert row["shape_lower"] < row["weibull_shape"] < row["shape_upper"]
+        assert row["scale_lower_km"] < row["weibull_scale_km"] < row["scale_upper_km"]
+        assert row["b_life_lower_km"] < row["b_life_km"] < row["b_life_upper_km"]
+        assert row["reliability_at_mission_lower"] < row["reliability_at_mission"] < row["reliability_at_mission_upper"]
+        assert row["preferred_method"] == "MRR" and pd.isna(row["bounds_note"]) and pd.isna(row["note"])
+        assert row["b10_lower_km"] < row["b10_km"] < row["b10_upper_km"]
+    assert sl.loc["FLEXIGOM AIR", "b_life_km"] < sl.loc["FLEXIGOM AIR", "b10_km"]      # B5 before B10
+    # no plan: B10 at 90 %, no mission: the reliability columns NULL
+    ctx = b.ctx()
+    sl = stage.run(ctx).tables["service_life"].set_index("hose_type")
+    assert (sl["b_life_pct"] == 10.0).all() and (sl["confidence"] == 0.90).all()
+    assert sl[["mission_km", "reliability_at_mission", "reliability_at_mission_lower"]].isna().all().all()
+    assert (sl["b_life_km"] == sl["b10_km"]).all() and (sl["b_life_upper_km"] == sl["b10_upper_km"]).all()

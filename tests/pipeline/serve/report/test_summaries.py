@@ -57,3 +57,55 @@ def test_the_spring_tests_at_or_above_the_papers_nrmse_bound_are_counted_with_th
     rows = {r[0]: r for r in table_cells(html)}
     assert rows["front: smallest NRMSE"][2:4] == [f"{PLA_TABLE3_NRMSE_MIN_PCT:g}", "1.2"]
     assert rows["front: largest NRMSE"][2:4] == [f"{PLA_TABLE3_NRMSE_MAX_PCT:g}", "3.1"]
+
+
+def _service_life_db(columns=None):
+    """An in-memory database with the durability stage's service_life of two hose types (one with a
+    single failure) at the plan's B5 and a 500 km mission."""
+    import duckdb
+    import pandas as pd
+
+    from pipeline.raw.plan import Plan
+    from pipeline.stages.durability import service_life
+
+    life = pd.DataFrame({"hose_type": ["A"] * 7 + ["B"] * 3, "adjustment": ["force"] * 7 + ["distance"] * 3,
+                         "distance_km": [412.0, 655.3, 760.0, 998.1, 1210.4, 1300.0, 1300.0, 100.0, 200.0, 300.0],
+                         "status": ["failed"] * 5 + ["removed"] * 2 + ["failed", "running", "running"]})
+    plan = Plan(present=True, defaults={"b_life": 5, "mission_km": 500.0})
+    df = service_life(life, plan)
+    if columns is not None:
+        df = df[list(columns)]
+    con = duckdb.connect()
+    con.execute("CREATE TABLE service_life AS SELECT * FROM df")
+    return con
+
+
+def test_service_life_shows_the_fit_with_its_bounds_and_the_plans_b_life_and_mission():
+    from pipeline.serve.report.db import ReportDB
+    from pipeline.serve.report.summaries import SERVICE_LIFE_FIT, SERVICE_LIFE_LIFE, summary_service_life
+
+    html = summary_service_life(ReportDB(_service_life_db()))
+    fit_t, life_t = re.findall(r"<table>(.*?)</table>", html, flags=re.S)
+    heads = [" ".join(re.sub(r"<[^>]+>", " ", h).split()) for h in re.findall(r"<th>(.*?)</th>", fit_t, flags=re.S)]
+    assert heads == [c.replace("_km", " [km]").replace("_", " ") for c in SERVICE_LIFE_FIT if c != "campaigns"]
+    assert heads[10] == "scale upper [km]"                              # the unit from the suffix
+    a, b = table_cells(fit_t)
+    assert a[:5] == ["A", "force", "7", "5", "2"] and a[13] == "MRR" and b[13] == "—"
+    assert b[5] == "—" and b[-1] == "too few failures: 1 &lt; 2"        # NULL fit, the note why
+    # one number format per column, the bounds around their estimate
+    for j in range(5, 13):
+        assert len({_number_format(c) for c in (a[j], b[j]) if _number_format(c)}) <= 1
+    assert float(a[6]) < float(a[5]) < float(a[7]) and float(a[9]) < float(a[8]) < float(a[10])
+    life_heads = [" ".join(re.sub(r"<[^>]+>", " ", h).split()) for h in re.findall(r"<th>(.*?)</th>", life_t, flags=re.S)]
+    assert life_heads == [c.replace("_km", " [km]").replace("_pct", " [%]").replace("_", " ") for c in SERVICE_LIFE_LIFE]
+    a, b = table_cells(life_t)
+    assert a[2:4] == ["0.9", "5"] and a[8] == "500" and float(a[10]) < float(a[9]) < float(a[11])
+    assert "profile likelihood" in html and "Abernethy 2006" in html
+
+
+def test_a_warehouse_from_before_the_plans_b_life_shows_its_b10_table():
+    from pipeline.serve.report.db import ReportDB
+    from pipeline.serve.report.summaries import SERVICE_LIFE_BEFORE, summary_service_life
+
+    html = summary_service_life(ReportDB(_service_life_db([c for c in SERVICE_LIFE_BEFORE if c != "campaigns"])))
+    assert html.count("<table>") == 1 and "Weibull life and B10" in html and "b10 lower" in html
