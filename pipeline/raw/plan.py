@@ -181,9 +181,15 @@ class Plan:
     @property
     def digest(self) -> str:
         """Hash of everything a stage can read of the plan (the stage cache key's ``plan``)."""
+        return self.digest_of(tuple(KEYS))
+
+    def digest_of(self, keys: tuple[str, ...]) -> str:
+        """Hash of what a stage that reads only ``keys`` can see of the plan: those keys' values
+        and sources for every hose type the plan names and for any other, and ``present``."""
         settings = {"*": self.for_hose_type(None)} | {t: self.for_hose_type(t) for t in self.hose_types}
         blob = {"present": self.present,
-                "settings": {t: {**{k: getattr(s, k) for k in KEYS}, "sources": s.sources} for t, s in settings.items()}}
+                "settings": {t: {**{k: getattr(s, k) for k in keys}, "sources": {k: s.sources[k] for k in keys}}
+                             for t, s in settings.items()}}
         return hashlib.sha256(json.dumps(blob, sort_keys=True).encode()).hexdigest()[:32]
 
 

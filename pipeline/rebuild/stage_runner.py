@@ -165,7 +165,7 @@ def run_stages_cached(inputs: StageInputs, progress: Progress, drawer: FigureDra
 def _input_key(name: str, code: str, reads: Reads, inputs: StageInputs) -> str:
     """A stage's input key: its code, the runs of the kinds it reads, the logbooks and the plan if it reads them."""
     return stage_input_key(name, code, inputs.runs, set(reads.kinds), inputs.logbooks if reads.logbooks else None,
-                           inputs.plan.digest if reads.plan else None)
+                           inputs.plan.digest_of(reads.plan_keys()) if reads.plan else None)
 
 
 def _tables_read(reads: Reads, res: StageResults) -> dict[str, str]:

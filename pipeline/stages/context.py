@@ -18,6 +18,7 @@ import pandas as pd
 import pyarrow.parquet as pq
 
 from pipeline.progress import Progress
+from pipeline.raw.plan import KEYS as PLAN_KEYS
 from pipeline.raw.plan import Plan
 from pipeline.raw.problems import Problem
 from pipeline.stages.registry import Reads
@@ -251,11 +252,14 @@ class DeclaredContext(StageContext):
 
     @property
     def plan(self) -> Plan:
-        """The lab's test plan (only when the stage declares ``plan``)."""
+        """The lab's test plan (only when the stage declares ``plan``; with declared keys, a plan
+        whose settings raise on any other key: :class:`DeclaredPlan`)."""
         if not self.reads.plan:
             raise UndeclaredRead(f"stage {self.stage} read the test plan (raw/plan.toml), which its READS does "
                                  "not declare")
-        return self._plan
+        if self.reads.plan is True:
+            return self._plan
+        return DeclaredPlan(self._plan, self.reads.plan_keys(), self.stage)
 
     @plan.setter
     def plan(self, value: Plan) -> None:
@@ -267,3 +271,33 @@ class DeclaredContext(StageContext):
             raise UndeclaredRead(f"stage {self.stage} read runs of kind {', '.join(undeclared)}, "
                                  "which its READS does not declare")
         return super().runs_of(*kinds)
+
+
+class DeclaredPlan:
+    """A :class:`Plan` seen by a stage that declared only some of its keys (``Reads(plan=(...))``):
+    :meth:`for_hose_type` gives settings whose other keys raise :class:`UndeclaredRead` (the
+    stage's cache key hashes only the declared ones); everything else is the plan's."""
+
+    def __init__(self, plan: Plan, keys: tuple[str, ...], stage: str):
+        self._plan, self._keys, self._stage = plan, keys, stage
+
+    def __getattr__(self, name: str):
+        return getattr(self._plan, name)
+
+    def for_hose_type(self, hose_type: str | None) -> "_DeclaredSettings":
+        """The hose type's settings, only the declared keys readable."""
+        return _DeclaredSettings(self._plan.for_hose_type(hose_type), self._keys, self._stage)
+
+
+class _DeclaredSettings:
+    """:class:`pipeline.raw.plan.PlanSettings` whose undeclared keys raise."""
+
+    def __init__(self, settings, keys: tuple[str, ...], stage: str):
+        self._settings, self._keys, self._stage = settings, keys, stage
+
+    def __getattr__(self, name: str):
+        if name in PLAN_KEYS and name not in self._keys:
+            raise UndeclaredRead(f"stage {self._stage} read the plan's {name}, which its READS does not declare "
+                                 f"(it declares {', '.join(self._keys)})")
+        return getattr(self._settings, name)
+

@@ -49,7 +49,8 @@ from pipeline.stages import Reads, StageContext, StageOutput
 from pipeline.stages.values import finite_float
 
 NAME = "durability"
-READS = Reads(kinds=("durability", "leakage"), tables=("leakage_map",), logbooks=True, plan=True)
+READS = Reads(kinds=("durability", "leakage"), tables=("leakage_map",), logbooks=True,
+              plan=("confidence", "b_life", "mission_km"))
 WRITES = ("durability_runs", "durability_strokes", "hose_life", "service_life", "hose_survival",
           "service_life_test", "hose_leak_growth")
 

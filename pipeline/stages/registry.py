@@ -18,6 +18,8 @@ import pkgutil
 from dataclasses import dataclass
 from types import ModuleType
 
+from pipeline.raw.plan import KEYS
+
 
 @dataclass(frozen=True)
 class Reads:
@@ -32,15 +34,23 @@ class Reads:
         breaks the ties of :func:`run_order`).
     logbooks : bool
         Whether it reads the hose logbooks under ``raw/``.
-    plan : bool
+    plan : bool or tuple of str
         Whether it reads the lab's test plan, ``raw/plan.toml`` (``ctx.plan``,
-        :class:`pipeline.raw.plan.Plan`); it re-runs when what the plan says changes.
+        :class:`pipeline.raw.plan.Plan`): True, all of it (it re-runs when what the plan says
+        changes); a tuple of keys of :data:`pipeline.raw.plan.KEYS`, only those (it re-runs when
+        one of them changes for some hose type, and reading another key raises).
     """
 
     kinds: tuple[str, ...] = ()
     tables: tuple[str, ...] = ()
     logbooks: bool = False
-    plan: bool = False
+    plan: bool | tuple[str, ...] = False
+
+    def plan_keys(self) -> tuple[str, ...]:
+        """The plan keys the stage reads (every key for ``plan=True``, none for False)."""
+        if self.plan is True:
+            return tuple(KEYS)
+        return tuple(self.plan) if self.plan else ()
 
 
 class StageCircle(Exception):

@@ -103,6 +103,39 @@ def test_a_stage_that_reads_the_plan_reruns_only_when_what_the_plan_says_changes
     assert PlanReader.calls == 4 and q(warehouse, "SELECT present, margin FROM zz_plan") == [(False, 1.25)]
 
 
+class MarginReader:
+    """Declares only the plan's margin; reads ``key`` (set by the test)."""
+    NAME, READS, WRITES = "zz_margin_reader", Reads(kinds=("step",), plan=("margin",)), ("zz_margin",)
+    key, calls = "margin", 0
+
+    @classmethod
+    def run(cls, ctx):
+        cls.calls += 1
+        value = getattr(ctx.plan.for_hose_type("FLEXIGOM AIR"), cls.key)
+        return StageOutput(tables={"zz_margin": pd.DataFrame({"value": [value], "present": [ctx.plan.present]})})
+
+
+def test_a_stage_that_declares_plan_keys_reruns_only_when_they_change_and_reads_no_other(raw, warehouse,
+                                                                                         monkeypatch):
+    real = st.discover
+    monkeypatch.setattr(st, "discover", lambda: [*real(), MarginReader])
+    step(raw, "c/a.csv")
+    age(raw.root)
+    MarginReader.calls, MarginReader.key = 0, "margin"
+    raw.write("plan.toml", "[defaults]\nmargin = 1.5\n")
+    rebuild(raw.root, warehouse, jobs=1)
+    assert MarginReader.calls == 1 and q(warehouse, "SELECT value, present FROM zz_margin") == [(1.5, True)]
+    raw.write("plan.toml", "[defaults]\nmargin = 1.5\nalpha = 0.01\nmax_failures = 40\n")  # not its keys
+    s = rebuild(raw.root, warehouse, jobs=1)
+    assert MarginReader.calls == 1 and "zz_margin_reader" in s.stages_reused
+    raw.write("plan.toml", '[defaults]\nmargin = 1.5\n[hose_type."FLEXIGOM AIR"]\nmargin = 2.0\n')
+    s = rebuild(raw.root, warehouse, jobs=1)
+    assert MarginReader.calls == 2 and q(warehouse, "SELECT value FROM zz_margin") == [(2.0,)]
+    MarginReader.key = "alpha"
+    with pytest.raises(RebuildError, match="read the plan's alpha, which its READS does not declare"):
+        rebuild(raw.root, warehouse, jobs=1, full=True)
+
+
 class SneakyStage:
     """Declares step runs; reads what ``read`` says (set by the test)."""
     NAME, READS, WRITES = "zz_sneaky", Reads(kinds=("step",)), ("zz_sneaky",)
