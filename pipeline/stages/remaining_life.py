@@ -58,7 +58,8 @@ from pipeline.stages import Reads, StageContext, StageOutput
 from schemas.units import kg_s_to_l_min_anr
 
 NAME = "remaining_life"
-READS = Reads(tables=("hose_life", "hose_leak_growth", "leakage_map", "life_verdict"), plan=True)
+READS = Reads(tables=("hose_life", "hose_leak_growth", "leakage_map", "life_verdict"),
+              plan=("leak_limit_l_min", "leak_pressure_bar", "confidence", "margin", "alpha", "spending"))
 WRITES = ("hose_rul", "rul_backtest", "decision_sensitivity")
 
 RUL_COLUMNS = ["hose_type", "hose_id", "adjustment", "distance_km", "method", "rul_median_km", "rul_lower_km",
