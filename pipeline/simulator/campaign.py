@@ -173,7 +173,7 @@ def simulate_campaign(out_dir, seed: int = 1, profile: str = "demo", runs: int |
     truth = {
         "generator": "pneubench simulator", "seed": seed, "profile": prof.name, "runs_requested": runs,
         "profile_settings": jsonable({k: getattr(prof, k) for k in prof.__dataclass_fields__}),
-        "parameters": parameters(),
+        "parameters": parameters(prof.leak_limit_l_min, prof.leak_pressure_bar),
         "runs": {rec["metadata"]["run_id"]: rec for rec in records},
         "hoses": jsonable(planner.hoses),
         "logbooks": {camp: f"{camp}/hoses.csv" for camp, rows in planner.logbooks.items() if rows},
@@ -244,8 +244,10 @@ def _summary(out: Path, records: list[dict]) -> CampaignSummary:
     return CampaignSummary(out, len(records), len(files), sum(f.stat().st_size for f in files), by_kind, by_format)
 
 
-def parameters() -> dict:
-    """The physics defaults every run was drawn from (physics.md), for truth.json."""
+def parameters(leak_limit_l_min: float | None = dur.LEAK_LIMIT_L_MIN,
+               leak_pressure_bar: float | None = dur.LEAK_PRESSURE_BAR) -> dict:
+    """The physics defaults every run was drawn from (physics.md), for truth.json; the hoses'
+    true B10 life for the profile's leakage failure (``leak_limit_l_min`` at ``leak_pressure_bar``)."""
     return jsonable({
         "plpa": {"hose_area_m2": HOSE_AREA_M2, "moving_mass_kg": 2.0, "encoder_m": 5e-6, "pressure_noise_pa": 300.0,
                  "leak_c": plpa.LEAK_C, "p_seal_distance": "7.5 - 1.5 (z - 3) bar",
@@ -258,9 +260,15 @@ def parameters() -> dict:
                  "identification_kp_v_m": 5.0, "step_pid": plpa.STEP_PID},
         "pla": {"table1": pla.TABLE1, "p_atm_pa": P_ATM_PA, "stroke_mm": pla.STROKE_MM,
                 "pressure_wn_rad_s": pla.PRESSURE_WN, "pressure_xi": pla.PRESSURE_XI},
-        "durability": {"weibull_life": {k: {"shape": s, "scale_km": c} for k, (s, c) in dur.WEIBULL_LIFE.items()},
-                       "seal_wear_bar_km": dur.SEAL_WEAR_BAR_KM, "wall_new_mm": dur.WALL_NEW_MM,
-                       "wall_wear_mm_km": dur.WALL_WEAR_MM_KM},
+        "durability": {"rupture_life": {k: {"shape": s, "scale_km": c} for k, (s, c) in dur.RUPTURE_LIFE.items()},
+                       "seal_wear_bar_km": dur.SEAL_WEAR_BAR_KM, "wear_cv": dur.WEAR_CV,
+                       "seating_log_sd": dur.SEATING_LOG_SD, "leak_limit_l_min": leak_limit_l_min,
+                       "leak_pressure_bar": leak_pressure_bar,
+                       "settings": {a: dur.sealing_setting(a, leak_pressure_bar or dur.LEAK_PRESSURE_BAR)
+                                    for a in ("distance", "force")},
+                       "life_b10_km": {a: dur.life_b10_km(a, leak_limit_l_min, leak_pressure_bar)
+                                       for a in ("distance", "force")},
+                       "wall_new_mm": dur.WALL_NEW_MM, "wall_wear_mm_km": dur.WALL_WEAR_MM_KM},
     })
 
 
