@@ -32,7 +32,7 @@ LEAK_LIMIT_L_MIN = 2.0
 #: The working pressure at which the leak limit applies; new durability hoses seal it exactly. [bar gauge]
 LEAK_PRESSURE_BAR = 6.0
 #: Mean seal-pressure loss per km of travel across hoses, per roller adjustment. [bar/km]
-SEAL_WEAR_BAR_KM = {"distance": 0.03, "force": 0.008}
+SEAL_WEAR_BAR_KM = {"distance": 0.03, "force": 0.004}
 #: Hose-to-hose coefficient of variation of the wear (a lognormal factor of mean 1). [-]
 WEAR_CV = 0.35
 #: Log-scale standard deviation of the seal deficit at one leakage check (how the hose seats
@@ -40,7 +40,7 @@ WEAR_CV = 0.35
 SEATING_LOG_SD = 0.05
 #: Rupture (wall burst) distance, a two-parameter Weibull per adjustment: (shape, scale [km]),
 #: independent of the seal's wear.
-RUPTURE_LIFE = {"force": (2.4, 95.0), "distance": (1.8, 80.0)}
+RUPTURE_LIFE = {"force": (2.4, 90.0), "distance": (1.8, 80.0)}
 #: New hose wall thickness [mm] and its mean wear per km (scaled by the hose's wear factor). [mm/km]
 WALL_NEW_MM = 3.0
 WALL_WEAR_MM_KM = {"distance": 0.012, "force": 0.006}

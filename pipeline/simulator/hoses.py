@@ -63,7 +63,7 @@ def plan_hoses(pl: Planner) -> None:
     for j in range(p.odometer_hoses):
         when = _odometer_hose(pl, j, when, rng)
     for j in range(p.logged_hoses):
-        _HoseRuns(pl, _logged_hose(p, j, rng), rng).plan()
+        _HoseRuns(pl, _logged_hose(p, pl.seed, j), rng).plan()
 
 
 def _odometer_hose(pl: Planner, j: int, when: datetime, rng: np.random.Generator) -> datetime:
@@ -73,7 +73,7 @@ def _odometer_hose(pl: Planner, j: int, when: datetime, rng: np.random.Generator
     adj = ("distance", "force")[j % 2]
     hose_id = f"H{j + 1:03d}"
     setting = _setting(adj, p)
-    path = dur.draw_wear_path(adj, setting, rng)
+    path = dur.draw_wear_path(adj, setting, _path_rng(pl.seed, hose_id))
     life, mode = path.failure(p.leak_limit_l_min, p.leak_pressure_bar)
     stop = p.odometer_stop_km
     failed = life <= stop
@@ -100,11 +100,18 @@ def _odometer_hose(pl: Planner, j: int, when: datetime, rng: np.random.Generator
     return end + timedelta(days=1)
 
 
-def _logged_hose(p: Profile, j: int, rng: np.random.Generator) -> LoggedHose:
+def _path_rng(seed: int, hose_id: str) -> np.random.Generator:
+    """The generator of a hose's degradation path: its own, from the seed and its number, so a
+    hose's path depends on nothing planned before it."""
+    return np.random.default_rng([int(seed), 24, int(hose_id[1:])])
+
+
+def _logged_hose(p: Profile, seed: int, j: int) -> LoggedHose:
     """Logged hose ``j``: its campaign, its degradation path, its life and how its test ends."""
     adj = ("distance", "force")[j % 2]
     camp = "durability-2025" if j < max(1, p.logged_hoses // 2) else "durability-2026"
-    path = dur.draw_wear_path(adj, _setting(adj, p), rng)
+    hose_id = f"H{100 + j + 1:03d}"
+    path = dur.draw_wear_path(adj, _setting(adj, p), _path_rng(seed, hose_id))
     life, mode = path.failure(p.leak_limit_l_min, p.leak_pressure_bar)
     stop = p.stop_km[adj]
     if j == p.logged_hoses - 1:
@@ -114,7 +121,7 @@ def _logged_hose(p: Profile, j: int, rng: np.random.Generator) -> LoggedHose:
     else:
         outcome = "removed" if j % 3 != 1 else "running"
     end_km = life if outcome == "failed" else stop
-    return LoggedHose(f"H{100 + j + 1:03d}", adj, j, camp, j == 0, life, end_km, outcome, path, mode)
+    return LoggedHose(hose_id, adj, j, camp, j == 0, life, end_km, outcome, path, mode)
 
 
 class _HoseRuns:

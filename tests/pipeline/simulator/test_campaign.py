@@ -163,7 +163,7 @@ def test_lab_format_mix_and_logbook(built):
     assert ids[0] & ids[1]                                        # a hose in both campaigns
     truth = json.loads((raw / "truth.json").read_text())
     assert set(truth["runs"]) == {p.run_id for p in MINI_PLANS}
-    assert truth["parameters"]["durability"]["rupture_life"]["force"] == {"shape": 2.4, "scale_km": 95.0}
+    assert truth["parameters"]["durability"]["rupture_life"]["force"] == {"shape": 2.4, "scale_km": 90.0}
     # every hose carries its path's truth, the running ones too
     for hose in truth["hoses"].values():
         assert hose["failure_km"] == pytest.approx(min(hose["leak_crossing_km"] or math.inf, hose["rupture_km"]))
