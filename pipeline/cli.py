@@ -392,11 +392,13 @@ def report(warehouse, wait_s):
 @main.command()
 @click.argument("out_dir", type=click.Path(file_okay=False, path_type=Path))
 @click.option("--seed", type=int, default=1, show_default=True, help="Same seed, same bytes.")
-@click.option("--profile", type=click.Choice(["demo", "full", "mini", "foreign", "decision"]), default="demo",
+@click.option("--profile", type=click.Choice(["demo", "full", "mini", "foreign", "decision", "rul"]), default="demo",
               show_default=True,
               help="demo: small files, about a minute with rebuild; full: realistic sizes (GB); mini: for tests; "
                    "foreign: other labs' rigs and exports (campaign foreign-2026); decision: 300 hose types "
-                   "known by their odometer, with a plan.toml and their true life ratios (calibrating the verdict).")
+                   "known by their odometer, with a plan.toml and their true life ratios (calibrating the verdict); "
+                   "rul: 500 hoses with leak checks after short runs and every hose's true failure distance "
+                   "(calibrating the remaining life).")
 @click.option("--runs", type=click.IntRange(min=1), default=None,
               help="Total runs: pads the characterisation matrices with repetitions (1,000+ run campaigns).")
 @click.option("--jobs", type=click.IntRange(min=1), default=None, help="Worker processes (default: up to 4).")

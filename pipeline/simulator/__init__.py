@@ -45,13 +45,13 @@ Campaigns (every kind, every format, hoses.csv, manifest, rig.toml, truth.json):
 """
 from pipeline.simulator.ambient import simulate_timeseries
 from pipeline.simulator.base import SimRun
-from pipeline.simulator.durability import (WEIBULL_LIFE, iter_durability_chunks, simulate_durability,
-                                           stroke_plan, worn_seal_pressure_bar)
+from pipeline.simulator.durability import (RUPTURE_LIFE, WearPath, draw_wear_path, iter_durability_chunks,
+                                           simulate_durability, stroke_plan)
 from pipeline.simulator.pla import simulate_pressure_step, simulate_spring
 from pipeline.simulator.plpa import (NEAR_ZERO_SPEEDS_M_S, VISCOUS_SPEEDS_M_S, simulate_breakaway,
                                      simulate_identification, simulate_leakage, simulate_step, simulate_viscous)
 
 __all__ = ["SimRun", "simulate_leakage", "simulate_breakaway", "simulate_viscous", "simulate_identification",
            "simulate_step", "simulate_spring", "simulate_pressure_step", "simulate_durability", "stroke_plan",
-           "iter_durability_chunks", "worn_seal_pressure_bar", "WEIBULL_LIFE", "NEAR_ZERO_SPEEDS_M_S",
+           "iter_durability_chunks", "WearPath", "draw_wear_path", "RUPTURE_LIFE", "NEAR_ZERO_SPEEDS_M_S",
            "VISCOUS_SPEEDS_M_S", "simulate_timeseries"]

@@ -22,7 +22,7 @@ module plans a campaign, writes its runs (in worker processes), the folders' ``r
 ``manifest.csv`` and ``hoses.csv``, and ``truth.json``.
 
 Output is byte-identical for a seed: each run draws from its own generator seeded with
-``(seed, index)``, dates are fixed, files are written in a fixed order of content.
+``(seed, run id)``, dates are fixed, files are written in a fixed order of content.
 """
 from __future__ import annotations
 
@@ -43,6 +43,8 @@ from pipeline.simulator.decision import DECISION_CAMPAIGN, DecisionProfile, simu
 from pipeline.simulator.hoses import HOSES_COLUMNS, plan_hoses
 from pipeline.simulator.plan import Planner, RunPlan
 from pipeline.simulator.profiles import PROFILES, Profile
+from pipeline.simulator.rul import RIG_TOML, RUL_CAMPAIGN, RulProfile, plan_rul
+from pipeline.simulator.rul import plan_toml as plan_toml_rul
 from pipeline.simulator.runs import EMBED_ORDER, write_run
 from pipeline.simulator.variants import RIG_TOMLS, VARIANTS
 
@@ -135,7 +137,7 @@ class CampaignSummary:
 
 
 def simulate_campaign(out_dir, seed: int = 1, profile: str = "demo", runs: int | None = None,
-                      jobs: int | None = None, progress=None) -> CampaignSummary:
+                      jobs: int | None = None, progress=None, campaigns: tuple | None = None) -> CampaignSummary:
     """Write a synthetic campaign (every kind, every format) with ``truth.json`` under ``out_dir``.
 
     Parameters
@@ -144,17 +146,22 @@ def simulate_campaign(out_dir, seed: int = 1, profile: str = "demo", runs: int |
         Folder to write (created). Existing files of the same names are overwritten.
     seed : int
         Same seed, same bytes.
-    profile : {"demo", "full", "mini", "foreign", "decision"} or DecisionProfile
+    profile : {"demo", "full", "mini", "foreign", "decision", "rul"}, DecisionProfile or RulProfile
         ``foreign``: the foreign-rig campaign only; ``decision`` (or a
         :class:`~pipeline.simulator.decision.DecisionProfile` for other sizes and scenarios):
         hundreds of hose types known by their odometer, and a plan.toml (``runs`` and ``jobs``
-        do not apply to either).
+        do not apply to either); ``rul`` (or a :class:`~pipeline.simulator.rul.RulProfile`):
+        hundreds of running hoses with short durability runs and frequent leak checks, and a
+        plan.toml with their leakage failure (``runs`` does not apply).
     runs : int, optional
         Total number of runs (pads or trims the characterisation matrices).
     jobs : int, optional
         Worker processes (default: CPU count, at most 4). Output does not depend on it.
     progress : pipeline.progress.Progress, optional
         Where progress goes (silent by default).
+    campaigns : tuple of str, optional
+        Only the runs, logbooks and rig.toml of these campaign folders (e.g. the demo's hoses:
+        ``("durability-2025", "durability-2026")``); plan.toml and truth.json as usual.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -163,17 +170,22 @@ def simulate_campaign(out_dir, seed: int = 1, profile: str = "demo", runs: int |
         return _summary(out, list(truth["runs"].values()))
     if profile == "decision" or isinstance(profile, DecisionProfile):
         return _write_decision(out, seed, profile if isinstance(profile, DecisionProfile) else DecisionProfile())
+    if profile == "rul" or isinstance(profile, RulProfile):
+        return _write_rul(out, seed, profile if isinstance(profile, RulProfile) else RulProfile(), jobs, progress)
     prof = PROFILES[profile]
     plans, planner = plan_campaign(seed, prof, runs)
+    if campaigns is not None:
+        plans = [p for p in plans if p.rel_path.split("/")[0] in campaigns]
+        planner.logbooks = {c: rows for c, rows in planner.logbooks.items() if c in campaigns}
     records = _write_runs(out, plans, seed, prof.chunk_rows, jobs or min(4, os.cpu_count() or 1),
                           progress or Progress())
-    _write_folder_files(out, records, planner)
+    _write_folder_files(out, records, planner, campaigns)
     if prof.plan:
         (out / PLAN_FILE).write_text(prof.plan, encoding="utf-8")
     truth = {
         "generator": "pneubench simulator", "seed": seed, "profile": prof.name, "runs_requested": runs,
         "profile_settings": jsonable({k: getattr(prof, k) for k in prof.__dataclass_fields__}),
-        "parameters": parameters(),
+        "parameters": parameters(prof.leak_limit_l_min, prof.leak_pressure_bar),
         "runs": {rec["metadata"]["run_id"]: rec for rec in records},
         "hoses": jsonable(planner.hoses),
         "logbooks": {camp: f"{camp}/hoses.csv" for camp, rows in planner.logbooks.items() if rows},
@@ -202,10 +214,12 @@ def _write_runs(out: Path, plans: list[RunPlan], seed: int, chunk_rows: int, job
     return records
 
 
-def _write_folder_files(out: Path, records: list[dict], planner: Planner) -> None:
-    """The folders' ``rig.toml``, ``manifest.csv`` (taking the records' manifest rows) and the
-    campaigns' ``hoses.csv``."""
+def _write_folder_files(out: Path, records: list[dict], planner: Planner, campaigns: tuple | None = None) -> None:
+    """The folders' ``rig.toml`` (of ``campaigns`` only when given), ``manifest.csv`` (taking the
+    records' manifest rows) and the campaigns' ``hoses.csv``."""
     for rel, text in RIG_TOMLS.items():
+        if campaigns is not None and rel.split("/")[0] not in campaigns:
+            continue
         (out / rel).parent.mkdir(parents=True, exist_ok=True)
         (out / rel).write_text(text, encoding="utf-8")
     manifests: dict[Path, list[dict]] = {}
@@ -234,6 +248,20 @@ def _write_decision(out: Path, seed: int, profile: DecisionProfile) -> CampaignS
     return _summary(out, [])
 
 
+def _write_rul(out: Path, seed: int, profile: RulProfile, jobs: int | None, progress) -> CampaignSummary:
+    """A ``rul`` campaign (:mod:`pipeline.simulator.rul`): its runs, rig.toml, logbook, plan.toml and truth.json."""
+    planner, rows, truth = plan_rul(seed, profile)
+    records = _write_runs(out, planner.plans, seed, 2_000_000, jobs or min(4, os.cpu_count() or 1),
+                          progress or Progress())
+    (out / RUL_CAMPAIGN / "rig.toml").write_text(RIG_TOML, encoding="utf-8")
+    rows = sorted(rows, key=lambda r: (r["at"], r["hose_id"]))
+    (out / RUL_CAMPAIGN / "hoses.csv").write_text(_csv_text(rows, HOSES_COLUMNS), encoding="utf-8")
+    (out / PLAN_FILE).write_text(plan_toml_rul(profile), encoding="utf-8")
+    truth["runs"] = {rec["metadata"]["run_id"]: rec for rec in records}
+    (out / "truth.json").write_text(json.dumps(jsonable(truth), indent=1, sort_keys=True), encoding="utf-8")
+    return _summary(out, records)
+
+
 def _summary(out: Path, records: list[dict]) -> CampaignSummary:
     """What is under ``out`` now: runs by kind and format (from their records), files, bytes."""
     files = [f for f in out.rglob("*") if f.is_file()]
@@ -244,8 +272,10 @@ def _summary(out: Path, records: list[dict]) -> CampaignSummary:
     return CampaignSummary(out, len(records), len(files), sum(f.stat().st_size for f in files), by_kind, by_format)
 
 
-def parameters() -> dict:
-    """The physics defaults every run was drawn from (physics.md), for truth.json."""
+def parameters(leak_limit_l_min: float | None = dur.LEAK_LIMIT_L_MIN,
+               leak_pressure_bar: float | None = dur.LEAK_PRESSURE_BAR) -> dict:
+    """The physics defaults every run was drawn from (physics.md), for truth.json; the hoses'
+    true B10 life for the profile's leakage failure (``leak_limit_l_min`` at ``leak_pressure_bar``)."""
     return jsonable({
         "plpa": {"hose_area_m2": HOSE_AREA_M2, "moving_mass_kg": 2.0, "encoder_m": 5e-6, "pressure_noise_pa": 300.0,
                  "leak_c": plpa.LEAK_C, "p_seal_distance": "7.5 - 1.5 (z - 3) bar",
@@ -258,9 +288,15 @@ def parameters() -> dict:
                  "identification_kp_v_m": 5.0, "step_pid": plpa.STEP_PID},
         "pla": {"table1": pla.TABLE1, "p_atm_pa": P_ATM_PA, "stroke_mm": pla.STROKE_MM,
                 "pressure_wn_rad_s": pla.PRESSURE_WN, "pressure_xi": pla.PRESSURE_XI},
-        "durability": {"weibull_life": {k: {"shape": s, "scale_km": c} for k, (s, c) in dur.WEIBULL_LIFE.items()},
-                       "seal_wear_bar_km": dur.SEAL_WEAR_BAR_KM, "wall_new_mm": dur.WALL_NEW_MM,
-                       "wall_wear_mm_km": dur.WALL_WEAR_MM_KM},
+        "durability": {"rupture_life": {k: {"shape": s, "scale_km": c} for k, (s, c) in dur.RUPTURE_LIFE.items()},
+                       "seal_wear_bar_km": dur.SEAL_WEAR_BAR_KM, "wear_cv": dur.WEAR_CV,
+                       "seating_log_sd": dur.SEATING_LOG_SD, "leak_limit_l_min": leak_limit_l_min,
+                       "leak_pressure_bar": leak_pressure_bar,
+                       "settings": {a: dur.sealing_setting(a, leak_pressure_bar or dur.LEAK_PRESSURE_BAR)
+                                    for a in ("distance", "force")},
+                       "life_b10_km": {a: dur.life_b10_km(a, leak_limit_l_min, leak_pressure_bar)
+                                       for a in ("distance", "force")},
+                       "wall_new_mm": dur.WALL_NEW_MM, "wall_wear_mm_km": dur.WALL_WEAR_MM_KM},
     })
 
 

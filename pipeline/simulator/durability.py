@@ -6,8 +6,13 @@ position is an analytic function of time, so a run of any length is generated in
 (:func:`iter_durability_chunks`) with bounded memory. Chamber pressures carry the drive force
 ``m a + F(v)`` around a mean pressure.
 
-Hose wear: under distance-set rollers the seal pressure falls as the wall thins, so leakage grows
-with distance; under force-set rollers it stays nearly flat (:func:`worn_seal_pressure_bar`).
+Hose wear (:class:`WearPath`): each hose's seal pressure falls linearly with distance at its own
+rate, lognormal across hoses around the adjustment's mean (fast under distance-set rollers, as the
+wall thins and the squeeze relaxes; slow under force-set ones, whose spring follows the wall), so
+its leak at the pressure it sealed when new grows as a power 1.5 of distance; the wall bursts at a
+Weibull distance of its own. A hose fails at the first of its leak crossing the lab's limit
+(:data:`LEAK_LIMIT_L_MIN` at :data:`LEAK_PRESSURE_BAR`) and its rupture (docs/physics.md,
+"Durability").
 """
 from __future__ import annotations
 
@@ -19,33 +24,143 @@ import numpy as np
 import pandas as pd
 
 from pipeline.simulator.base import HOSE_AREA_M2, MOVING_MASS_KG, SimRun, encoder, make_rng, pressure_sensor
-from pipeline.simulator.plpa import friction_force, seal_pressure_bar, viscous_parameters
+from pipeline.simulator.plpa import LEAK_C, SPRING_FORCE_MAX_N, friction_force, seal_pressure_bar, viscous_parameters
 
-#: Hose life distance, two-parameter Weibull per roller adjustment: (shape, scale [km]).
-WEIBULL_LIFE = {"force": (2.4, 90.0), "distance": (1.8, 40.0)}
-#: Seal-pressure loss per km of travel. [bar/km]
-SEAL_WEAR_BAR_KM = {"distance": 0.06, "force": 0.004}
-#: New hose wall thickness [mm] and its wear per km. [mm/km]
+#: The lab's functional failure by leakage (the demo plan's ``leak_limit_l_min`` at
+#: ``leak_pressure_bar``): a hose has failed when its leak at the working pressure reaches the limit.
+LEAK_LIMIT_L_MIN = 2.0
+#: The working pressure at which the leak limit applies; new durability hoses seal it exactly. [bar gauge]
+LEAK_PRESSURE_BAR = 6.0
+#: Mean seal-pressure loss per km of travel across hoses, per roller adjustment. [bar/km]
+SEAL_WEAR_BAR_KM = {"distance": 0.03, "force": 0.004}
+#: Hose-to-hose coefficient of variation of the wear (a lognormal factor of mean 1). [-]
+WEAR_CV = 0.35
+#: Log-scale standard deviation of the seal deficit at one leakage check (how the hose seats
+#: when it is clamped for the check): the leak's scatter around its path is 1.5 times it. [-]
+SEATING_LOG_SD = 0.05
+#: Rupture (wall burst) distance, a two-parameter Weibull per adjustment: (shape, scale [km]),
+#: independent of the seal's wear.
+RUPTURE_LIFE = {"force": (2.4, 90.0), "distance": (1.8, 80.0)}
+#: New hose wall thickness [mm] and its mean wear per km (scaled by the hose's wear factor). [mm/km]
 WALL_NEW_MM = 3.0
 WALL_WEAR_MM_KM = {"distance": 0.012, "force": 0.006}
 
 
-def worn_seal_pressure_bar(adjustment: str, distance_km: float, z_rollers_mm: float | None = None,
-                           spring_force_n: float | None = None) -> float:
-    """Seal pressure of a hose after ``distance_km`` of travel. [bar gauge]"""
-    p0 = seal_pressure_bar(adjustment, z_rollers_mm, spring_force_n)
-    return p0 - SEAL_WEAR_BAR_KM[adjustment] * distance_km
+def sealing_setting(adjustment: str, p_bar: float = LEAK_PRESSURE_BAR) -> dict:
+    """The roller setting at which a new hose seals ``p_bar`` (physics.md's seal pressure
+    inverted): ``z_rollers_mm`` to 0.1 mm or ``spring_force_n`` to 1 N."""
+    if adjustment == "distance":
+        return {"z_rollers_mm": round(3.0 + (7.5 - p_bar) / 1.5, 1)}
+    return {"spring_force_n": float(round((p_bar - 2.0) / 9.7 * SPRING_FORCE_MAX_N))}
 
 
-def wall_thickness_mm(adjustment: str, distance_km: float) -> float:
-    """True wall thickness after ``distance_km`` of travel. [mm]"""
-    return WALL_NEW_MM - WALL_WEAR_MM_KM[adjustment] * distance_km
+@dataclass(frozen=True)
+class WearPath:
+    """One hose's degradation path and its rupture distance (the truth of its life).
+
+    The seal pressure falls linearly with distance at the hose's own rate ``k``:
+    ``p_seal(d) = p_seal_new - k d`` (the wall thins, the squeeze relaxes), and the leak at a
+    pressure ``p`` is ``c (p - p_seal(d))^1.5`` above ``p_seal(d)`` (physics.md). At the pressure
+    the hose seals when new (``p = p_seal_new``) the leak is ``(w d)^1.5`` with the **wear rate**
+    ``w = c^(2/3) k`` [1/km]: a power law through the origin with a lognormal ``w`` across hoses,
+    the family :mod:`analyses.remaining_life` fits. At another pressure the path starts with an
+    offset (a leak at ``d = 0`` above the seal pressure, none until ``k d = p_seal_new - p`` below it).
+
+    Attributes
+    ----------
+    adjustment : str
+        ``distance`` or ``force``.
+    p_seal_new_bar : float
+        Seal pressure of the new hose at its setting. [bar gauge]
+    seal_wear_bar_km : float
+        Its seal-pressure loss per km, ``k``. [bar/km]
+    wear_factor : float
+        ``k`` over the adjustment's mean (it also scales the wall's thinning). [-]
+    c : float
+        Leak coefficient of the checked chamber. [l/min/bar^1.5]
+    rupture_km : float
+        Distance at which the wall bursts. [km]
+    """
+
+    adjustment: str
+    p_seal_new_bar: float
+    seal_wear_bar_km: float
+    wear_factor: float
+    c: float
+    rupture_km: float
+
+    def seal_pressure_bar(self, distance_km: float, seating: float = 1.0) -> float:
+        """Seal pressure after ``distance_km``, its deficit scaled by ``seating`` at a check. [bar gauge]"""
+        return self.p_seal_new_bar - self.seal_wear_bar_km * distance_km * seating
+
+    def leak_l_min(self, p_bar: float, distance_km: float) -> float:
+        """The true leak at ``p_bar`` after ``distance_km`` (no seating scatter). [l/min ANR]"""
+        return self.c * max(p_bar - self.seal_pressure_bar(distance_km), 0.0) ** 1.5
+
+    @property
+    def wear_rate_per_km(self) -> float:
+        """``w = c^(2/3) k``: the leak at the new seal pressure is ``(w d)^1.5``. [1/km]"""
+        return self.c ** (2.0 / 3.0) * self.seal_wear_bar_km
+
+    def crossing_km(self, limit_l_min: float | None, p_bar: float | None) -> float:
+        """Distance at which the leak at ``p_bar`` reaches ``limit_l_min`` (inf without a
+        limit, 0 for a hose that leaks that much new). [km]"""
+        if limit_l_min is None or p_bar is None:
+            return math.inf
+        need = (limit_l_min / self.c) ** (2.0 / 3.0) - (p_bar - self.p_seal_new_bar)  # deficit to wear [bar]
+        return max(need, 0.0) / self.seal_wear_bar_km
+
+    def failure(self, limit_l_min: float | None, p_bar: float | None) -> tuple[float, str]:
+        """The hose's true failure distance [km] and mode (``leakage`` or ``rupture``): whichever comes first."""
+        cross = self.crossing_km(limit_l_min, p_bar)
+        return (cross, "leakage") if cross <= self.rupture_km else (self.rupture_km, "rupture")
+
+    def truth(self, limit_l_min: float | None, p_bar: float | None) -> dict:
+        """Its truth.json record: wear rate, crossing, rupture and failure distances [km]."""
+        life, mode = self.failure(limit_l_min, p_bar)
+        cross = self.crossing_km(limit_l_min, p_bar)
+        return {"seal_wear_bar_km": self.seal_wear_bar_km, "wear_factor": self.wear_factor,
+                "wear_rate_per_km": self.wear_rate_per_km, "p_seal_new_bar": self.p_seal_new_bar, "leak_c": self.c,
+                "leak_crossing_km": cross if math.isfinite(cross) else None, "rupture_km": self.rupture_km,
+                "failure_km": life, "failure_mode_true": mode}
 
 
-def weibull_life_km(adjustment: str, rng: np.random.Generator) -> float:
-    """One hose life drawn from the Weibull of its adjustment. [km]"""
-    shape, scale = WEIBULL_LIFE[adjustment]
-    return float(scale * rng.weibull(shape))
+def draw_wear_path(adjustment: str, setting: dict, rng: np.random.Generator, *, seal_wear_bar_km: float | None = None,
+                   wear_cv: float = WEAR_CV, rupture: tuple | None = None, chamber: str = "A") -> WearPath:
+    """One hose's :class:`WearPath`: a lognormal wear factor (mean 1, ``wear_cv``) times the mean
+    seal wear of its adjustment, and a Weibull rupture distance (``rupture``: shape, scale [km])."""
+    s_log = math.sqrt(math.log1p(wear_cv ** 2))
+    factor = float(math.exp(s_log * rng.standard_normal() - s_log ** 2 / 2.0))
+    shape, scale = rupture or RUPTURE_LIFE[adjustment]
+    k = (SEAL_WEAR_BAR_KM[adjustment] if seal_wear_bar_km is None else seal_wear_bar_km) * factor
+    p0 = seal_pressure_bar(adjustment, setting.get("z_rollers_mm"), setting.get("spring_force_n"))
+    return WearPath(adjustment, p0, k, factor, LEAK_C[chamber], float(scale * rng.weibull(shape)))
+
+
+def life_b10_km(adjustment: str, limit_l_min: float | None = LEAK_LIMIT_L_MIN, p_bar: float | None = LEAK_PRESSURE_BAR,
+                setting: dict | None = None, q: float = 0.10) -> float:
+    """The true ``q`` quantile (B10) of the life of the adjustment's hoses: the first of the
+    lognormal leak crossing and the Weibull rupture (their survivals multiply), at ``setting``
+    (default: :func:`sealing_setting` of ``p_bar``). [km]"""
+    from scipy import optimize, stats
+
+    setting = setting or sealing_setting(adjustment, p_bar or LEAK_PRESSURE_BAR)
+    s_log = math.sqrt(math.log1p(WEAR_CV ** 2))
+    mean = WearPath(adjustment, seal_pressure_bar(adjustment, setting.get("z_rollers_mm"),
+                                                  setting.get("spring_force_n")),
+                    SEAL_WEAR_BAR_KM[adjustment], 1.0, LEAK_C["A"], math.inf).crossing_km(limit_l_min, p_bar)
+    shape, scale = RUPTURE_LIFE[adjustment]
+
+    def survival(t):
+        s_leak = 1.0 if not math.isfinite(mean) else stats.norm.sf((math.log(t) - math.log(mean) - s_log ** 2 / 2) / s_log)
+        return s_leak * math.exp(-(t / scale) ** shape)
+
+    return float(optimize.brentq(lambda t: survival(t) - (1.0 - q), 1e-6, 10 * scale))
+
+
+def wall_thickness_mm(adjustment: str, distance_km: float, wear_factor: float = 1.0) -> float:
+    """True wall thickness after ``distance_km`` of travel, thinning at ``wear_factor`` times the mean. [mm]"""
+    return WALL_NEW_MM - WALL_WEAR_MM_KM[adjustment] * wear_factor * distance_km
 
 
 @dataclass(frozen=True)

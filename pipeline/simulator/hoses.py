@@ -2,9 +2,16 @@
 
 Older hoses carry odometer readings only (logbook ``durability-2025``, dates from 2023). Logged
 hoses get durability runs, inspections (wall thickness) and leakage checks of their worn seal;
-the first one spans both campaigns (``durability-2025`` and ``durability-2026``). Lives are drawn
-from :data:`pipeline.simulator.durability.WEIBULL_LIFE` with the campaign's own generator, so the
-hoses do not depend on the other runs.
+the first one spans both campaigns (``durability-2025`` and ``durability-2026``). Each hose has a
+degradation path (:class:`pipeline.simulator.durability.WearPath`: its own wear rate, its seal
+pressure falling with distance, a rupture distance), drawn with the campaign's own generator, so
+the hoses do not depend on the other runs; it fails at the first of its leak at the profile's
+``leak_pressure_bar`` reaching ``leak_limit_l_min`` and its rupture, and the logbook names the
+mode. Every hose is set to seal ``leak_pressure_bar`` when new (:func:`~pipeline.simulator.durability.sealing_setting`),
+so its leak there starts at zero and grows as a power of distance. Leakage checks read the worn
+seal with a small seating scatter (:data:`~pipeline.simulator.durability.SEATING_LOG_SD`).
+Truth per hose: its wear rate, true leak-crossing, rupture and failure distances, also for the
+hoses still running.
 """
 from __future__ import annotations
 
@@ -28,10 +35,11 @@ HOSES_COLUMNS = ["hose_id", "event", "at", "hose_type", "adjustment", "z_rollers
 class LoggedHose:
     """A logged hose's fate, drawn before its runs are planned.
 
-    ``index``: its number among the logged hoses (it picks the setting); ``spans``: continued into
-    ``durability-2026``; ``life_km``: the Weibull life drawn [km]; ``end_km``: the distance it
-    runs [km] (its life if it fails, else the profile's stop); ``outcome``: ``failed``,
-    ``removed`` or ``running``.
+    ``index``: its number among the logged hoses; ``spans``: continued into ``durability-2026``;
+    ``life_km``: its true failure distance [km] (``path``'s first of leak crossing and rupture);
+    ``end_km``: the distance it runs [km] (its life if it fails, else the profile's stop);
+    ``outcome``: ``failed``, ``removed`` or ``running``; ``path``: its degradation path;
+    ``mode``: how it fails (or would).
     """
 
     hose_id: str
@@ -42,6 +50,8 @@ class LoggedHose:
     life_km: float
     end_km: float
     outcome: str
+    path: dur.WearPath | None = None
+    mode: str | None = None
 
 
 def plan_hoses(pl: Planner) -> None:
@@ -53,7 +63,7 @@ def plan_hoses(pl: Planner) -> None:
     for j in range(p.odometer_hoses):
         when = _odometer_hose(pl, j, when, rng)
     for j in range(p.logged_hoses):
-        _HoseRuns(pl, _logged_hose(p, j, rng), rng).plan()
+        _HoseRuns(pl, _logged_hose(p, pl.seed, j), rng).plan()
 
 
 def _odometer_hose(pl: Planner, j: int, when: datetime, rng: np.random.Generator) -> datetime:
@@ -62,8 +72,9 @@ def _odometer_hose(pl: Planner, j: int, when: datetime, rng: np.random.Generator
     p = pl.p
     adj = ("distance", "force")[j % 2]
     hose_id = f"H{j + 1:03d}"
-    life = dur.weibull_life_km(adj, rng)
-    setting = _setting(adj, j)
+    setting = _setting(adj, p)
+    path = dur.draw_wear_path(adj, setting, _path_rng(pl.seed, hose_id))
+    life, mode = path.failure(p.leak_limit_l_min, p.leak_pressure_bar)
     stop = p.odometer_stop_km
     failed = life <= stop
     dist = life if failed else stop
@@ -72,10 +83,10 @@ def _odometer_hose(pl: Planner, j: int, when: datetime, rng: np.random.Generator
                  notes="tested before runs were logged")]
     if dist > 10:
         ev.append(_event(hose_id, "inspected", when + timedelta(days=days // 2, hours=6),
-                         wall_thickness_mm=round(dur.wall_thickness_mm(adj, dist / 2) + rng.normal(0, 0.01), 2),
+                         wall_thickness_mm=round(dur.wall_thickness_mm(adj, dist / 2, path.wear_factor)
+                                                 + rng.normal(0, 0.01), 2),
                          notes=f"odometer {dist / 2:.1f} km"))
     end = when + timedelta(days=days, hours=8)
-    mode = _failure_mode(adj, rng)
     if failed:
         ev.append(_event(hose_id, "failed", end, failure_mode=mode, distance_km=round(dist, 1)))
     else:
@@ -85,15 +96,23 @@ def _odometer_hose(pl: Planner, j: int, when: datetime, rng: np.random.Generator
                          "life_km_drawn": life, "status": "failed" if failed else "removed",
                          "failure_mode": mode if failed else None, "distance_km": round(dist, 1),
                          "source": "odometer", "n_runs": 0, "strokes": None,
-                         "campaigns": ["durability-2025"]}
+                         "campaigns": ["durability-2025"], **path.truth(p.leak_limit_l_min, p.leak_pressure_bar)}
     return end + timedelta(days=1)
 
 
-def _logged_hose(p: Profile, j: int, rng: np.random.Generator) -> LoggedHose:
-    """Logged hose ``j``: its campaign, its drawn life and how its test ends."""
+def _path_rng(seed: int, hose_id: str) -> np.random.Generator:
+    """The generator of a hose's degradation path: its own, from the seed and its number, so a
+    hose's path depends on nothing planned before it."""
+    return np.random.default_rng([int(seed), 24, int(hose_id[1:])])
+
+
+def _logged_hose(p: Profile, seed: int, j: int) -> LoggedHose:
+    """Logged hose ``j``: its campaign, its degradation path, its life and how its test ends."""
     adj = ("distance", "force")[j % 2]
     camp = "durability-2025" if j < max(1, p.logged_hoses // 2) else "durability-2026"
-    life = dur.weibull_life_km(adj, rng)
+    hose_id = f"H{100 + j + 1:03d}"
+    path = dur.draw_wear_path(adj, _setting(adj, p), _path_rng(seed, hose_id))
+    life, mode = path.failure(p.leak_limit_l_min, p.leak_pressure_bar)
     stop = p.stop_km[adj]
     if j == p.logged_hoses - 1:
         outcome = "running"
@@ -102,7 +121,7 @@ def _logged_hose(p: Profile, j: int, rng: np.random.Generator) -> LoggedHose:
     else:
         outcome = "removed" if j % 3 != 1 else "running"
     end_km = life if outcome == "failed" else stop
-    return LoggedHose(f"H{100 + j + 1:03d}", adj, j, camp, j == 0, life, end_km, outcome)
+    return LoggedHose(hose_id, adj, j, camp, j == 0, life, end_km, outcome, path, mode)
 
 
 class _HoseRuns:
@@ -113,7 +132,7 @@ class _HoseRuns:
 
     def __init__(self, pl: Planner, hose: LoggedHose, rng: np.random.Generator):
         self.pl, self.hose, self.rng = pl, hose, rng
-        self.setting = _setting(hose.adjustment, hose.index)
+        self.setting = _setting(hose.adjustment, pl.p)
         n_runs = max(1, math.ceil(hose.end_km / pl.p.dur_run_km - 1e-9))
         split = (n_runs + 1) // 2 if hose.spans else n_runs  # runs logged in the first campaign
         if hose.spans and n_runs < 2:
@@ -140,16 +159,18 @@ class _HoseRuns:
                                "failure_mode": mode, "distance_km": self.km, "strokes": self.strokes,
                                "source": "runs", "n_runs": self.n_runs,
                                "campaigns": [h.campaign] + (["durability-2026"] if h.spans else []),
-                               "leakage_checks": self.checks}
+                               "leakage_checks": self.checks,
+                               **h.path.truth(self.pl.p.leak_limit_l_min, self.pl.p.leak_pressure_bar)}
 
     def campaign_at(self, run_number: int) -> str:
         """The campaign the hose is in after ``run_number`` runs."""
         return "durability-2026" if self.hose.spans and run_number > self.split else self.hose.campaign
 
     def check(self, after_run: int) -> None:
-        """A leakage check of the worn seal after ``after_run`` runs (30 min)."""
+        """A leakage check of the worn seal after ``after_run`` runs (30 min): the seal pressure
+        of the hose's path, its deficit scattered by how the hose seats for the check."""
         h, p = self.hose, self.pl.p
-        p_seal = dur.worn_seal_pressure_bar(h.adjustment, self.km, **self.setting)
+        p_seal = h.path.seal_pressure_bar(self.km, math.exp(dur.SEATING_LOG_SD * self.rng.standard_normal()))
         plan = self.pl.add(RunSpec(self.campaign_at(after_run), "leakage_check", "leakage",
                                    f"check-{h.hose_id}-{after_run:02d}",
                                    dict(chamber="A", adjustment=h.adjustment,
@@ -158,7 +179,9 @@ class _HoseRuns:
                                         fs_hz=p.check_fs_hz, plateau_s=p.check_plateau_s, hose_id=h.hose_id),
                                    meta={"hose_id": h.hose_id, "distance_km_so_far": round(self.km, 6)}),
                            when=self.when)
-        self.checks.append({"run_id": plan.run_id, "distance_km": self.km, "p_seal_bar": p_seal})
+        self.checks.append({"run_id": plan.run_id, "distance_km": self.km, "p_seal_bar": p_seal,
+                            "p_seal_path_bar": h.path.seal_pressure_bar(self.km),
+                            "leak_path_l_min": h.path.leak_l_min(p.leak_pressure_bar, self.km)})
         self.when += timedelta(minutes=30)
 
     def run(self, r: int) -> None:
@@ -181,7 +204,8 @@ class _HoseRuns:
             if not (last and h.outcome == "failed"):
                 self.check(r + 1)
         if (r + 1) % 2 == 0 and not last:
-            thickness = round(dur.wall_thickness_mm(h.adjustment, self.km) + self.rng.normal(0, 0.01), 2)
+            thickness = round(dur.wall_thickness_mm(h.adjustment, self.km, h.path.wear_factor)
+                              + self.rng.normal(0, 0.01), 2)
             pl.logbooks[self.campaign_at(r + 1)].append(_event(h.hose_id, "inspected", self.when,
                                                                wall_thickness_mm=thickness))
             self.when += timedelta(minutes=20)
@@ -190,7 +214,7 @@ class _HoseRuns:
         """How the hose's test ends (failed, removed, still running); returns its failure mode."""
         h = self.hose
         book = self.pl.logbooks[self.campaign_at(self.n_runs)]
-        mode = _failure_mode(h.adjustment, self.rng) if h.outcome == "failed" else None
+        mode = h.mode if h.outcome == "failed" else None
         if h.outcome == "failed":
             extra = ({"distance_km": round(self.km * 1.005, 2), "notes": "odometer read at failure"}
                      if h.index % 4 == 2 else {})
@@ -202,17 +226,10 @@ class _HoseRuns:
         return mode
 
 
-def _setting(adj: str, j: int) -> dict:
-    """Hose ``j``'s roller distance [mm] or spring force [N]."""
-    if adj == "distance":
-        return {"z_rollers_mm": (4.0, 4.5, 5.0)[(j // 2) % 3]}
-    return {"spring_force_n": (429.0, 858.0)[(j // 2) % 2]}
-
-
-def _failure_mode(adj: str, rng: np.random.Generator) -> str:
-    """How a hose fails: mostly leakage under a roller distance, mostly rupture under a spring force."""
-    u = rng.random()
-    return ("leakage" if u < 0.7 else "rupture") if adj == "distance" else ("rupture" if u < 0.8 else "leakage")
+def _setting(adj: str, p: Profile) -> dict:
+    """A hose's roller distance [mm] or spring force [N]: the setting that seals the profile's
+    ``leak_pressure_bar`` when new (its leak there starts at zero)."""
+    return dur.sealing_setting(adj, p.leak_pressure_bar or dur.LEAK_PRESSURE_BAR)
 
 
 def _event(hose_id: str, event: str, at: datetime, **kw) -> dict:

@@ -17,9 +17,12 @@ hoses carry odometer readings only (no runs), as bench-exports.md allows.
 position sensors, 1 um / 50 um encoders, a load cell with a stated force balance, exports without
 a time column, a look-alike channel ``F`` in ``g``), see :mod:`pipeline.simulator.foreign`. It is
 not part of the demo, which stays about a minute.
-The demo and full campaigns carry the lab's test plan, :data:`DEMO_PLAN` (``raw/plan.toml``, issue
-23): margin 1.5 for FLEXIGOM AIR, the rest the defaults, two benches at 30 km a day; the demo's
-hoses (force-set ones live about 2.9 times longer) reach a verdict under it. ``mini`` has none.
+The demo and full campaigns carry the lab's test plan, :data:`DEMO_PLAN` (``raw/plan.toml``, issues
+23 and 24): margin 1.5 for FLEXIGOM AIR, its leakage failure (2 l/min at 6 bar: the profiles'
+``leak_limit_l_min`` and ``leak_pressure_bar``, which the simulated hoses fail by), the rest the
+defaults, two benches at 30 km a day. ``mini`` has no plan.toml (its hoses wear the same way).
+``rul`` (hundreds of running hoses with frequent leak checks, for calibrating the remaining-life
+predictions of issue 24) is :mod:`pipeline.simulator.rul`'s.
 ``decision`` (hundreds of hose types known by their odometer, for calibrating the verdict) is
 :mod:`pipeline.simulator.decision`'s.
 ``runs=N`` pads the characterisation matrices with further repetitions (new seeds) to reach N
@@ -30,8 +33,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from pipeline.simulator.durability import LEAK_LIMIT_L_MIN, LEAK_PRESSURE_BAR
+
 #: The demo's test plan (``raw/plan.toml``; keys in docs/bench-exports.md, "plan.toml").
-DEMO_PLAN = """\
+DEMO_PLAN = f"""\
 # The lab's test plan: written before the durability tests (docs/bench-exports.md, "plan.toml")
 [defaults]
 margin = 1.25                 # the smallest force/distance life ratio worth acting on
@@ -44,6 +49,8 @@ km_per_day = 30.0
 
 [hose_type."FLEXIGOM AIR"]
 margin = 1.5                  # max_failures unset: the sequential design's failures_needed
+leak_limit_l_min = {LEAK_LIMIT_L_MIN!r}        # failed by leakage: the leak at leak_pressure_bar reaches this (l/min ANR)
+leak_pressure_bar = {LEAK_PRESSURE_BAR!r}       # the working pressure; new hoses are set to seal it exactly
 """
 
 
@@ -83,6 +90,8 @@ class Profile:
     limit_per_variant: int | None = None  # mini: runs per kind and format variant
     chunk_rows: int = 2_000_000
     plan: str | None = DEMO_PLAN          # raw/plan.toml (None: no plan)
+    leak_limit_l_min: float | None = LEAK_LIMIT_L_MIN   # a hose fails when its leak at ...
+    leak_pressure_bar: float | None = LEAK_PRESSURE_BAR  # ... this pressure reaches the limit (or it ruptures)
 
 
 PROFILES = {

@@ -1,10 +1,13 @@
 """One run of a campaign: simulate its plan and write its export (the run's file and truth record).
 
-Each run draws from its own generator seeded with ``(seed, index)`` (:func:`run_rng`), so a run's
-bytes depend neither on the order the runs are written in nor on the number of workers.
+Each run draws from its own generator seeded with the campaign's seed and the run's id
+(:func:`run_rng`), so a run's bytes depend neither on the order the runs are written in, nor on
+the number of workers, nor on how many other runs the campaign plans (a hose more in the
+durability campaigns leaves the characterisation runs as they were).
 """
 from __future__ import annotations
 
+import hashlib
 from pathlib import Path
 
 import numpy as np
@@ -28,9 +31,11 @@ GENERATORS = {
 EMBED_ORDER = ("kind", "run_id", "started_at", "rig", "operator")
 
 
-def run_rng(seed: int, index: int) -> np.random.Generator:
-    """The generator of run ``index`` of a campaign: independent of order and parallelism."""
-    return np.random.default_rng([int(seed), int(index)])
+def run_rng(seed: int, run_id: str) -> np.random.Generator:
+    """The generator of run ``run_id`` of a campaign: independent of order, parallelism and the
+    other runs planned (128 bits of the id's SHA-256 beside the seed)."""
+    words = np.frombuffer(hashlib.sha256(str(run_id).encode()).digest()[:16], dtype="<u4")
+    return np.random.default_rng([int(seed), *(int(w) for w in words)])
 
 
 def simulate_plan(plan: RunPlan, seed: int, chunk_rows: int = 2_000_000):
@@ -40,7 +45,7 @@ def simulate_plan(plan: RunPlan, seed: int, chunk_rows: int = 2_000_000):
     iterator of chunks of ``chunk_rows`` rows (GB-scale runs); ``metadata`` is the run's
     metadata (the plan's over the generator's); ``truth`` every true value used.
     """
-    rng = run_rng(seed, plan.index)
+    rng = run_rng(seed, plan.run_id)
     if plan.kind == "durability":
         kw = dict(plan.kwargs)
         p_mean = kw.pop("p_mean_bar", 2.0)

@@ -11,7 +11,6 @@ from __future__ import annotations
 import math
 import shlex
 
-import numpy as np
 import pytest
 from click.testing import CliRunner
 
@@ -77,6 +76,12 @@ def test_an_interrupted_demo_is_completed_with_the_same_bytes(tmp_path):
 # -- results against truth.json ------------------------------------------------------------------------
 def test_seal_envelope_matches_the_true_seal_pressures(demo):
     env = _rows(demo["warehouse"], "SELECT * FROM seal_envelope")
+    # the durability hoses' setting that seals 6 bar new (536 N) is in no characterisation run:
+    # its row comes from the worn hoses' checks alone, and says so
+    worn = env[env["runs_used"] == "hose_checks"]
+    settings = demo["truth"]["parameters"]["durability"]["settings"]
+    assert len(worn) == 1 and worn["spring_force_n"].iloc[0] == settings["force"]["spring_force_n"]
+    env = env[env["runs_used"] != "hose_checks"]
     assert len(env) == 2 * (7 + 3)  # both chambers, 7 distance and 3 force settings
     for _, r in env.iterrows():
         assert r["runs_used"] == "characterisation" and list(r["campaigns"]) == ["plpa-2025"]
@@ -185,12 +190,12 @@ def test_durability_distances_strokes_and_hose_lives_match_truth(demo):
 
 
 def test_service_life_bounds_contain_the_true_b10(demo):
-    wl = demo["truth"]["parameters"]["durability"]["weibull_life"]
+    # the hoses' true life: the first of a lognormal leak crossing and a Weibull rupture (truth.json)
+    true_b10 = demo["truth"]["parameters"]["durability"]["life_b10_km"]
     sl = _rows(demo["warehouse"], "SELECT * FROM service_life")
     assert sorted(sl["adjustment"]) == ["distance", "force"]
     for _, r in sl.iterrows():
-        w = wl[r["adjustment"]]
-        b10 = w["scale_km"] * (-np.log(0.9)) ** (1 / w["shape"])
+        b10 = true_b10[r["adjustment"]]
         assert r["b10_lower_km"] <= b10 <= r["b10_upper_km"], (r["adjustment"], b10)
         assert sorted(r["campaigns"]) == ["durability-2025", "durability-2026"]
 

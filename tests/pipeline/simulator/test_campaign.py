@@ -6,6 +6,7 @@ import csv
 import hashlib
 import importlib.util
 import json
+import math
 from pathlib import Path
 
 import duckdb
@@ -162,7 +163,11 @@ def test_lab_format_mix_and_logbook(built):
     assert ids[0] & ids[1]                                        # a hose in both campaigns
     truth = json.loads((raw / "truth.json").read_text())
     assert set(truth["runs"]) == {p.run_id for p in MINI_PLANS}
-    assert truth["parameters"]["durability"]["weibull_life"]["force"] == {"shape": 2.4, "scale_km": 90.0}
+    assert truth["parameters"]["durability"]["rupture_life"]["force"] == {"shape": 2.4, "scale_km": 90.0}
+    # every hose carries its path's truth, the running ones too
+    for hose in truth["hoses"].values():
+        assert hose["failure_km"] == pytest.approx(min(hose["leak_crossing_km"] or math.inf, hose["rupture_km"]))
+        assert hose["wear_rate_per_km"] > 0
 
 
 TIMESERIES = [p for p in MINI_PLANS if p.kind == "timeseries"]

@@ -3,7 +3,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from pipeline.simulator import iter_durability_chunks, simulate_durability, stroke_plan, worn_seal_pressure_bar
+from pipeline.simulator import draw_wear_path, iter_durability_chunks, simulate_durability, stroke_plan
+from pipeline.simulator import durability as dur
 
 
 def test_distance_and_strokes_from_samples():
@@ -31,6 +32,38 @@ def test_chunks_equal_one_piece():
 
 
 def test_wear_distance_set_leaks_more_with_distance_force_set_flat():
-    d0, d40 = (worn_seal_pressure_bar("distance", km, z_rollers_mm=4.0) for km in (0, 40))
-    f0, f40 = (worn_seal_pressure_bar("force", km, spring_force_n=429.0) for km in (0, 40))
-    assert d0 - d40 > 1.0 and f0 - f40 < 0.3
+    rng = np.random.default_rng(5)
+    d = [draw_wear_path("distance", {"z_rollers_mm": 4.0}, rng) for _ in range(400)]
+    f = [draw_wear_path("force", {"spring_force_n": 536.0}, rng) for _ in range(400)]
+    assert np.median([p.p_seal_new_bar - p.seal_pressure_bar(40) for p in d]) > 1.0
+    assert np.median([p.p_seal_new_bar - p.seal_pressure_bar(40) for p in f]) < 0.4
+
+
+def test_the_leak_at_the_new_seal_pressure_is_a_power_law_through_the_origin():
+    """At the pressure the new hose seals, leak = (w d)^1.5 exactly (the remaining-life model's
+    family), and the leak reaches the limit at the crossing distance."""
+    setting = dur.sealing_setting("distance", 6.0)
+    assert setting == {"z_rollers_mm": 4.0}
+    path = dur.WearPath("distance", 6.0, 0.03, 1.0, 2.0, 1e9)
+    for d_km in (1.0, 10.0, 33.0):
+        assert path.leak_l_min(6.0, d_km) == pytest.approx((path.wear_rate_per_km * d_km) ** 1.5)
+    cross = path.crossing_km(2.0, 6.0)
+    assert cross == pytest.approx(1.0 / 0.03) and path.leak_l_min(6.0, cross) == pytest.approx(2.0)
+    assert path.failure(2.0, 6.0) == (pytest.approx(cross), "leakage")
+    # below the new seal pressure the path starts late (an offset); without a limit only a rupture ends it
+    assert path.crossing_km(2.0, 5.0) == pytest.approx(2.0 / 0.03)
+    assert dur.WearPath("force", 6.0, 0.01, 1.0, 2.0, 50.0).failure(None, None) == (50.0, "rupture")
+
+
+def test_wear_rates_are_lognormal_with_the_stated_mean_and_spread():
+    rng = np.random.default_rng(11)
+    k = np.array([draw_wear_path("distance", {"z_rollers_mm": 4.0}, rng).seal_wear_bar_km for _ in range(4000)])
+    assert k.mean() == pytest.approx(dur.SEAL_WEAR_BAR_KM["distance"], rel=0.03)
+    assert k.std() / k.mean() == pytest.approx(dur.WEAR_CV, rel=0.08)
+
+
+def test_the_true_b10_is_the_quantile_of_the_simulated_lives():
+    rng = np.random.default_rng(12)
+    setting = dur.sealing_setting("distance")
+    lives = [draw_wear_path("distance", setting, rng).failure(2.0, 6.0)[0] for _ in range(6000)]
+    assert np.quantile(lives, 0.10) == pytest.approx(dur.life_b10_km("distance", 2.0, 6.0), rel=0.04)

@@ -42,7 +42,18 @@ def test_logged_hoses_runs_add_up_and_checks_follow_the_wear():
         checks = hose["leakage_checks"]
         assert checks[0]["distance_km"] == 0.0
         assert [c["distance_km"] for c in checks] == sorted(c["distance_km"] for c in checks)
-        assert [c["p_seal_bar"] for c in checks] == sorted((c["p_seal_bar"] for c in checks), reverse=True)
+        # the path's seal pressure falls with distance; a check reads it with the hose's seating scatter
+        assert [c["p_seal_path_bar"] for c in checks] == sorted((c["p_seal_path_bar"] for c in checks), reverse=True)
+        for c in checks[1:]:
+            deficit = hose["p_seal_new_bar"] - c["p_seal_bar"]
+            assert deficit / (hose["p_seal_new_bar"] - c["p_seal_path_bar"]) == pytest.approx(1.0, abs=0.25)
+        assert checks[0]["p_seal_bar"] == hose["p_seal_new_bar"] == pytest.approx(6.0, abs=0.01)
+        # the hose ends at its true failure distance when it fails, by the mode that came first
+        if hose["status"] == "failed":
+            assert hose["distance_km"] == pytest.approx(hose["failure_km"], abs=len(runs) * 1e-3)
+            assert hose["failure_mode"] == hose["failure_mode_true"]
+        else:
+            assert hose["failure_km"] > hose["distance_km"]
     spanning = [h for h in logged.values() if len(h["campaigns"]) == 2]
     assert len(spanning) == 1
     camps = {p.run_id.split("/")[0] for p in pl.plans if p.metadata.get("hose_id") == spanning[0]["hose_id"]}

@@ -18,9 +18,9 @@ def _first(**match):
     return next(p for p in PLANS if all(getattr(p, k) == v for k, v in match.items()))
 
 
-def test_run_rng_depends_on_seed_and_index_only():
-    assert run_rng(3, 7).random() == run_rng(3, 7).random()
-    assert len({run_rng(s, i).random() for s, i in [(3, 7), (3, 8), (4, 7)]}) == 3
+def test_run_rng_depends_on_seed_and_run_id_only():
+    assert run_rng(3, "c/a").random() == run_rng(3, "c/a").random()
+    assert len({run_rng(s, i).random() for s, i in [(3, "c/a"), (3, "c/b"), (4, "c/a")]}) == 3
 
 
 def test_simulate_plan_is_the_same_for_the_same_seed_and_chunks_durability():

@@ -100,7 +100,9 @@ def test_demo_report_in_chromium_contents_paper_tables_and_a_run_page(demo, tmp_
     assert ["front: polytropic index n", "", "1.123"] == t1[1][:3] and t1[1][3].startswith("1.12")
     assert any(r[0] == "rear: δ (structural damping)" and r[2] == "2963" for r in t1)
     t2p = _cells(dom, "PLA Table 2")
-    assert any(r[0] == "front, discharge: ξ" and r[2] == "0.69" and r[3].startswith("0.69") for r in t2p)
+    # measured within 0.01 of the paper's 0.69 (its last digits are the simulated noise's: 0.6899 is fine)
+    assert any(r[0] == "front, discharge: ξ" and r[2] == "0.69" and abs(float(r[3].split()[0]) - 0.69) < 0.01
+               for r in t2p)
     t3 = _cells(dom, "PLA Table 3")
     assert any(r[0] == "front: largest NRMSE" and r[2] == "2.39" for r in t3)
     f12 = _cells(dom, "PLPA Fig. 12")
