@@ -1,5 +1,5 @@
-"""benchmarks/bench_rul_e2e.py: the contract's leak path and sensor, and its predictions from a
-small hand-made warehouse with the durability stage's tables."""
+"""benchmarks/bench_rul_e2e.py: the wear rates refitted on the stage's leak paths, and the running
+hoses' outcomes counted from the stage's tables."""
 from __future__ import annotations
 
 import math
@@ -10,31 +10,10 @@ import pandas as pd
 import pytest
 
 from benchmarks import bench_rul_e2e as be
-from schemas.units import kg_s_to_l_min_anr
 
 
 def _growth(rows):
     return pd.DataFrame(rows, columns=["hose_id", "run_id", "distance_km", "chamber", "pressure_bar", "leak_l_min"])
-
-
-def test_the_leak_path_takes_the_plateau_nearest_the_plans_pressure_and_the_mean_over_chambers():
-    g = _growth([("h", "r1", 1.0, "A", 0.01, 0.0), ("h", "r1", 1.0, "A", 2.98, 0.1), ("h", "r1", 1.0, "A", 5.97, 1.0),
-                 ("h", "r1", 1.0, "B", 6.02, 1.4),
-                 # a run whose plateaus stop far below the pressure asked: no point
-                 ("h", "r2", 2.0, "A", 0.0, 0.0), ("h", "r2", 2.0, "A", 1.0, 0.3)])
-    pts = be.leak_points(g, 6.0)
-    assert pts.to_dict("records") == [{"hose_id": "h", "run_id": "r1", "distance_km": 1.0,
-                                       "leak_l_min": pytest.approx(1.2)}]
-    assert be.leak_points(g.iloc[:0], 6.0).empty
-
-
-def test_the_leak_sensor_is_the_coarsest_stated_in_leakage_map():
-    s = pd.Series(["p_supply: resolution 1, noise 300 (estimated) Pa; q_leak: resolution 1e-08, noise 4e-08 "
-                   "(metadata) kg/s", "p_supply: resolution 1, noise 300 (estimated) Pa; q_leak: resolution 1e-08, "
-                   "noise 8e-08 (estimated) kg/s", None])
-    sensor = be.leak_sensor(s)
-    assert sensor.noise == pytest.approx(float(kg_s_to_l_min_anr(8e-8))) and sensor.source == "estimated"
-    assert be.leak_sensor(pd.Series(["nothing stated"])) is None
 
 
 def _warehouse(tmp_path, rng):
@@ -64,18 +43,31 @@ def _warehouse(tmp_path, rng):
     return con
 
 
-def test_predictions_from_a_warehouse_cover_every_running_hose_with_both_methods(tmp_path):
+def test_wear_rates_are_refitted_on_the_stages_leak_paths_and_recover_the_drawn_rate(tmp_path):
     from pipeline.raw.plan import read_plan
     from pipeline.raw.tree import RawTree
 
     (tmp_path / "plan.toml").write_text("[defaults]\nleak_limit_l_min = 2.0\nleak_pressure_bar = 6.0\n")
     con = _warehouse(tmp_path, np.random.default_rng(7))
-    rul, tests, wear = be.predictions_from_warehouse(con, read_plan(RawTree(tmp_path.resolve())))
-    running = con.sql("SELECT hose_id FROM hose_life WHERE status = 'running'").df()["hose_id"]
-    assert set(rul["hose_id"]) == set(running) and sorted(rul["method"].unique()) == ["degradation", "weibull"]
-    assert (rul["hose_type"] == "T").all() and (rul["confidence"] == 0.9).all() and len(tests) > 0
+    wear = be.wear_rates(con, read_plan(RawTree(tmp_path.resolve())))
     # the wear rate the paths were drawn with: median 0.5 1/km, log sd 0.3
+    assert wear[["hose_type", "adjustment"]].values.tolist() == [["T", "distance"]]
     assert wear["wear_mean_per_km"].iloc[0] == pytest.approx(0.5 * math.exp(0.045), rel=0.25)
     assert wear["gamma"].iloc[0] == pytest.approx(1.5, abs=0.15)
-    out = be.running_outcomes(rul, {h: {"failure_km": 1e9} for h in rul["hose_id"]})
-    assert not out["covered"].any()   # a future far beyond every interval is never covered
+    (tmp_path / "plan.toml").write_text("[defaults]\nmargin = 1.5\n")   # no leak limit: nothing to fit
+    assert be.wear_rates(con, read_plan(RawTree(tmp_path.resolve()))).empty
+
+
+def test_running_outcomes_count_a_future_inside_its_interval_and_leave_a_null_out(tmp_path):
+    con = duckdb.connect(str(tmp_path / "w.duckdb"))
+    con.execute("CREATE TABLE hose_rul AS SELECT * FROM (VALUES ('T', 'a', 10.0, 'weibull', 5.0, 2.0, 9.0, 0.9, NULL),"
+                " ('T', 'b', 20.0, 'weibull', 5.0, 2.0, 9.0, 0.9, NULL), ('T', 'c', 30.0, 'weibull', NULL, NULL, NULL,"
+                " 0.9, 'too few failures')) t(hose_type, hose_id, distance_km, method, rul_median_km, rul_lower_km,"
+                " rul_upper_km, confidence, note)")
+    con.execute("CREATE TABLE rul_backtest AS SELECT 'T' hose_type, 'force' adjustment, 'weibull' method, "
+                "10 n_predictions, 0.8 coverage")
+    rul, backtest = be.stage_tables(con)
+    out = be.running_outcomes(rul, {"a": {"failure_km": 18.0}, "b": {"failure_km": 40.0}, "c": {"failure_km": 31.0}})
+    assert out["made"].tolist() == [True, True, False]
+    assert out["covered"].tolist() == [True, False, False]   # a: 8 km left, in [2, 9]; b: 20 km left, beyond
+    assert backtest["coverage"].tolist() == [0.8]
