@@ -189,9 +189,12 @@ def main(argv=None) -> int:
     args = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     args.add_argument("--quick", action="store_true", help="one design, fewer trials (a few seconds)")
     args.add_argument("--trials", type=int, default=500, help="trials a design (default 500)")
+    args.add_argument("--designs", type=int, nargs="+", default=None,
+                      help=f"only these designs (indices 0-{len(DESIGNS) - 1} of DESIGNS; each keeps its seed)")
     parsed = args.parse_args(argv)
     quick = parsed.quick
-    designs, trials = (DESIGNS[4:5], 150) if quick else (DESIGNS, parsed.trials)
+    picked = parsed.designs if parsed.designs is not None else ([4] if quick else range(len(DESIGNS)))
+    trials = 150 if quick else parsed.trials
     t0 = time.monotonic()
     ok = True
     print(f"failures_needed against brute force ({trials} trials a design, a full refit at every failure):")
@@ -199,7 +202,8 @@ def main(argv=None) -> int:
           f"{'brute':>5} {'diff':>6} {'force':>5} {'exp.':>5} {'npd':>5}  power at each M")
     print("  (hoses: on test per adjustment, failed ones replaced; rare = failures rare; force: share of force-set failures, exp.: the design's; "
           "npd: 'no practical difference' declared at M = needed, the design allows alpha / 2)")
-    for i, design in enumerate(designs):
+    for i in picked:
+        design = DESIGNS[i]
         needed, smallest, powers, (share, expected, futile) = brute_force(design, trials, 2300 + i)
         good = smallest is not None and abs(needed - smallest) <= TOLERANCE * smallest
         ok &= good

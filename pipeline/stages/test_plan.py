@@ -4,8 +4,10 @@ One ``test_plan`` row per hose type with hoses of both adjustments in ``hose_lif
 target power (the plan's, and 0.9; one row when they are equal), from :mod:`analyses.test_plan`:
 
 * ``failures_needed``: :func:`analyses.sequential.design_for` for the plan's margin, alpha,
-  spending and the target power, at ``life_effect.shape`` (1.0 when NULL, noted): the same
-  number the decision stage uses as ``max_failures`` when the plan leaves it unset.
+  spending and the target power, at ``life_effect.shape`` (1.0 when NULL, noted) and the hose
+  type's hoses on test per adjustment (:func:`analyses.test_plan.hoses_on_test`, from every hose's
+  installation and end; failures rare when none is known): the same number the decision stage
+  uses as ``max_failures`` when the plan leaves it unset.
 * ``power_now``: Monte Carlo from the fitted common-shape Weibull and the current censored state,
   run to the plan's ``max_failures`` (else ``failures_needed`` at the plan's power); the same for
   both rows of a hose type.
