@@ -2,8 +2,8 @@
 
 One command::
 
-    python -m benchmarks.bench_test_plan               # 7 designs, 500 trials each; power_now case (~15 min loaded)
-    python -m benchmarks.bench_test_plan --trials 150  # the same, fewer trials
+    python -m benchmarks.bench_test_plan               # 7 designs, 300 trials each; power_now case (~35 min, 2 loaded cores)
+    python -m benchmarks.bench_test_plan --trials 500 --designs 4 5   # more trials, two designs
     python -m benchmarks.bench_test_plan --quick       # 1 design (4 hoses on test each), 150 trials; a smaller power_now case
 
 1. ``failures_needed`` (:func:`analyses.sequential.max_information`, the design's maximum in
@@ -188,7 +188,7 @@ def check_power_now(quick: bool) -> bool:
 def main(argv=None) -> int:
     args = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     args.add_argument("--quick", action="store_true", help="one design, fewer trials (a few seconds)")
-    args.add_argument("--trials", type=int, default=500, help="trials a design (default 500)")
+    args.add_argument("--trials", type=int, default=300, help="trials a design (default 300)")
     args.add_argument("--designs", type=int, nargs="+", default=None,
                       help=f"only these designs (indices 0-{len(DESIGNS) - 1} of DESIGNS; each keeps its seed)")
     parsed = args.parse_args(argv)
