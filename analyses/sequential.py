@@ -50,26 +50,34 @@ where the inflation factor ``R`` is found exactly: the drift at which the design
 crossing the upper boundary equals ``power`` (J&T section 2.5, Tables 2.4 and 2.6). Information is
 converted to failures with the expected information of the common-shape Weibull regression, the
 shape estimated (:func:`information_per_failure`). When failures are rare among the hoses at risk
-(the default, what the stages use) a fraction ``p = 1 / (1 + margin^shape)`` of them are force-set
+(the default) a fraction ``p = 1 / (1 + margin^shape)`` of them are force-set
 hoses' at the margin (the hazard ratio's share), the log hazard ratio ``beta = shape ln margin``
 has information ``p (1 - p)`` per failure (Schoenfeld 1983; 1/4 only when the failures split
 evenly), the log life ratio is ``beta / shape`` and the estimated shape adds its own variance
 (``shape^2 / D``, orthogonal to the log hazard scales at a common censoring distance): per failure
-``I / D = shape^2 p (1 - p) / (1 + beta^2 p (1 - p))``. With a stated number of hoses per
-adjustment, all started together, the full 3x3 expected information (Escobar & Meeker 1994) at
-the distance where ``D`` failures are expected is inverted instead: ``I / D`` grows to
-``shape^2 / 4`` as every hose fails. The canonical process is not the refitted Wald z at the
+``I / D = shape^2 p (1 - p) / (1 + beta^2 p (1 - p))``. With ``n`` hoses on test at once per
+adjustment, a failed hose replaced by a new one (benches that keep running; what the stages pass,
+:func:`analyses.test_plan.hoses_on_test`), the full 3x3 expected information (Escobar & Meeker
+1994, in the counting-process form with the renewal function's hoses at risk) at the bench
+distance where ``D`` failures are expected is inverted instead: many hoses per failure give the
+rare limit, few hoses run to many failures nearly complete samples, ``p`` towards
+``1 / (1 + margin)`` and ``I / D`` towards ``shape^2 p (1 - p)`` (1.5 instead of 1.03 per failure at
+margin 1.5, shape 2.5, 4 hoses each). The canonical process is not the refitted Wald z at the
 margin: its SE grows with the estimate, so its spread is below 1, and at a look of ``d`` failures
-it cannot exceed about ``sqrt(d)``. With failures rare (the default) and at most
-:data:`DESIGN_LOOKS` failures, ``max_failures`` is therefore the smallest maximum whose exact power
-reaches the target (:func:`rare_failure_power`, a binomial recursion over the force-set count);
-``benchmarks/bench_test_plan.py`` checks it against brute-force simulation with a full refit at
-every failure (docs/decision.md, "failures_needed, right").
+it cannot exceed about ``sqrt(d)``. With failures rare and at most :data:`DESIGN_LOOKS` failures,
+``max_failures`` is therefore the smallest maximum whose exact power reaches the target
+(:func:`rare_failure_power`, a binomial recursion over the force-set count); with hoses on test it
+is the canonical ``R I_fix / (I / D)``, capped at that rare figure (hoses on test never carry less
+information per failure). ``benchmarks/bench_test_plan.py`` checks both against brute-force
+simulation with a full refit at every failure (docs/decision.md, "failures_needed, right" and
+"Designing from the hoses on test").
 
 References: Schoenfeld, D. A. (1983). Sample-size formula for the proportional-hazards
 regression model. Biometrics 39, 499-503. Escobar, L. A. & Meeker, W. Q. (1994). Fisher
 information matrix for the extreme value, normal and logistic distributions and censored data.
-Applied Statistics 43, 533-540.
+Applied Statistics 43, 533-540. Andersen, P. K., Borgan, O., Gill, R. D. & Keiding, N. (1993).
+Statistical Models Based on Counting Processes. Springer (ch. VI: the information of a hazard
+model as an integral over the numbers at risk).
 """
 from __future__ import annotations
 
@@ -92,8 +100,10 @@ _TAIL = 9.0           # the density grid is cut this many sds from the drift's m
 #: for hundreds of failures, each a look.
 DESIGN_LOOKS = 100
 #: Expected failures of the adjustment that lives longer below which ``max_information`` notes
-#: that its figure is short: at margin 1.75, shape 3 (4 expected of 23) the brute force needs 30
-#: (-23 %); at 13 and more expected (margins 1.5-2, shapes 1.5-2, O'Brien-Fleming) within 10 %.
+#: that its figure is likely short: at margin 1.75, shape 3 (4 expected of 23) the brute force
+#: needed 30 (-23 %) before the decision's likelihood check of a crossing; with it 22 (+5 %, 300
+#: trials): the note stays, the Wald interval is too narrow there; at 13 and more expected
+#: (margins 1.5-2, shapes 1.5-2, O'Brien-Fleming) within 10 %.
 FEW_FAILURES = 10
 
 
@@ -264,7 +274,7 @@ class MaxInformation:
         Failures (both adjustments together) at which the test ends: ``max_failures`` [-]. With
         failures rare (the default) and at most :data:`DESIGN_LOOKS`, the smallest maximum whose
         exact power (:func:`rare_failure_power`) reaches the target; else ``ceil(R I_fix / (I /
-        D))`` from the canonical process.
+        D))`` from the canonical process (with hoses on test, at most the rare figure).
     failures_fixed : float
         Failures a fixed-sample test read once would need [-] (canonical process).
     inflation : float
@@ -312,20 +322,38 @@ def inflation_factor(looks: int, alpha: float = 0.05, power: float = 0.8,
     return (drift / fixed) ** 2, drift
 
 
-def _hose_information(c: float, shape: float) -> np.ndarray:
-    """Expected Fisher information of one hose on ``(a, shape)``, ``a`` its log hazard scale.
+def _renewal_function(t: np.ndarray, scale: float, shape: float) -> np.ndarray:
+    """Expected failures ``M(t)`` of one bench by bench distance ``t`` when each failed hose is
+    replaced at once: the renewal equation ``M(t) = F(t) + int_0^t M(t - u) dF(u)`` on the uniform
+    grid ``t`` from 0, the integral by the trapezoidal rule in ``M`` (error O(step^2))."""
+    f = -np.expm1(-(t / scale) ** shape)
+    df = np.diff(f)
+    m = np.zeros(t.size)
+    for i in range(1, t.size):
+        mid = 0.5 * (m[i - 1:0:-1] + m[i - 2::-1]) if i > 1 else np.zeros(0)   # (M(t_i - u_j) + M(t_i - u_{j-1})) / 2
+        m[i] = (f[i] + 0.5 * m[i - 1] * df[0] + mid @ df[1:i]) / (1.0 - 0.5 * df[0])
+    return m
 
-    Weibull cumulative hazard ``H(x) = e^a x^shape``, censored at ``x = 1`` (the unit of distance),
-    ``c = H(1)``: with ``v = H(x)`` the expectations are integrals of ``v e^-v`` (Escobar & Meeker
-    1994's censored location-scale information in this parametrisation):
-    ``I_aa = 1 - e^-c``, ``I_ak = (1 / shape) int_0^c v ln(v / c) e^-v dv``,
-    ``I_kk = (I_aa + int_0^c v ln(v / c)^2 e^-v dv) / shape^2``.
+
+def _bench_information(distance: float, scale: float, shape: float, t: np.ndarray,
+                       m: np.ndarray) -> np.ndarray:
+    """Expected Fisher information on ``(a, shape)`` of one bench run to ``distance`` [km], a failed
+    hose replaced at once (``m``: :func:`_renewal_function` on the grid ``t``).
+
+    Weibull cumulative hazard ``H(x) = e^a x^shape`` (``a = -shape ln scale``). In counting-process
+    form (Andersen et al. 1993, ch. VI) the information is ``int Y(x) h(x) s(x) s(x)^T dx`` with
+    ``s = (1, 1/shape + ln x)`` the score of ``ln h`` and ``Y(x) = S(x) (1 + M(distance - x))`` the
+    expected number of hoses at risk at age ``x`` (one per start: the first and each renewal); a
+    bench without renewal (``M = 0``) gives Escobar & Meeker's (1994) censored information. The
+    integral is taken over ``ln H`` (the integrand vanishes as ``H ln^2 H`` at 0).
     """
-    v, w = _simpson(0.0, c, c / 400.0)
-    lv = np.log(np.maximum(v, 1e-300) / c)
-    dens = w * v * np.exp(-v)
-    failed = -math.expm1(-c)
-    return np.array([[failed, dens @ lv / shape], [dens @ lv / shape, (failed + dens @ (lv * lv)) / shape ** 2]])
+    c = (distance / scale) ** shape
+    lv, w = _simpson(math.log(c) - 40.0, math.log(c), 0.05)
+    v = np.exp(lv)
+    x = scale * v ** (1.0 / shape)
+    s = 1.0 / shape + math.log(scale) + lv / shape        # 1/shape + ln x
+    dens = w * v * np.exp(-v) * (1.0 + np.interp(distance - x, t, m))
+    return np.array([dens.sum(), dens @ s, dens @ (s * s)])
 
 
 def information_per_failure(margin: float, shape: float, failures: float | None = None,
@@ -341,8 +369,8 @@ def information_per_failure(margin: float, shape: float, failures: float | None 
     failures : float, optional
         Failures (both adjustments) at the look [-]; used with ``hoses_per_adjustment``.
     hoses_per_adjustment : int, optional
-        Hoses started together in each adjustment and run until they fail or the look [-]. None
-        (default): failures rare among the hoses at risk.
+        Hoses on test at once per adjustment (the benches), a failed hose replaced by a new one at
+        once [-]. None (default): failures rare among the hoses at risk.
 
     Returns
     -------
@@ -353,28 +381,39 @@ def information_per_failure(margin: float, shape: float, failures: float | None 
         ``beta = shape ln margin`` the log hazard ratio: Schoenfeld's (1983) ``p (1 - p)`` per failure
         for ``beta`` (1/4 only when the failures split evenly), divided by the shape for the life
         ratio, and the shape's own uncertainty (``Var(shape_hat) = shape^2 / D``) added through
-        ``ln ratio = beta / shape``. With ``n`` hoses each, censored together at the distance where
-        ``D`` failures are expected, the 3x3 expected information of the common-shape Weibull
-        regression on (both log hazard scales, the shape) is inverted (:func:`_hose_information`).
+        ``ln ratio = beta / shape``. With ``n`` hoses on test per adjustment, each bench run to the
+        distance where ``D`` failures are expected, the 3x3 expected information of the common-shape
+        Weibull regression on (both log hazard scales, the shape) is inverted
+        (:func:`_bench_information`): many benches give the rare limit, few benches run to many
+        failures nearly complete samples (``p`` towards ``1 / (1 + margin)``, the renewal rates'
+        share, and ``I / D`` towards ``shape^2 p (1 - p)``).
     """
     beta = shape * math.log(margin)
     rare = 1.0 / (1.0 + math.exp(beta))
     if hoses_per_adjustment is None or failures is None or not failures > 0:
         q = rare * (1.0 - rare)
         return shape ** 2 * q / (1.0 + beta ** 2 * q), rare
-    if failures >= 2 * hoses_per_adjustment:   # all failed: the location contrast is orthogonal to the shape
-        return shape ** 2 / 4.0, 0.5
-    frac, hr = failures / hoses_per_adjustment, math.exp(-beta)
-    c = optimize.brentq(lambda c: -math.expm1(-c) - math.expm1(-c * hr) - frac, 1e-12, 800.0, xtol=1e-14)
-    info_d, info_f = _hose_information(c, shape), _hose_information(c * hr, shape)
-    m = np.zeros((3, 3))
-    m[0, 0], m[1, 1] = info_d[0, 0], info_f[0, 0]
-    m[0, 2] = m[2, 0] = info_d[0, 1]
-    m[1, 2] = m[2, 1] = info_f[0, 1]
-    m[2, 2] = info_d[1, 1] + info_f[1, 1]
+    n, scale_f = float(hoses_per_adjustment), margin   # distance-set scale 1: force-set scale = margin
+    # the grid reaches past the distance of D failures: without renewals that distance is the
+    # largest (renewals add failures); with D near 2n a bench fails about once a mean life
+    # (<= 1.2 scales at shape >= 0.5)
+    top = 1.5 * scale_f * (failures / n + 3.0) * max(1.0, math.gamma(1.0 + 1.0 / shape))
+    if failures < 1.9 * n:
+        top = 1.001 * optimize.brentq(lambda x: -n * (math.expm1(-x ** shape) + math.expm1(-(x / scale_f) ** shape))
+                                      - failures, 0.0, top)
+    t = np.linspace(0.0, top, int(min(4001, max(401, 20.0 * top))))
+    m_d, m_f = _renewal_function(t, 1.0, shape), _renewal_function(t, scale_f, shape)
+    dist = float(np.interp(failures, n * (m_d + m_f), t))   # expected failures increase with the distance
+    info_d, info_f = _bench_information(dist, 1.0, shape, t, m_d), _bench_information(dist, scale_f, shape, t, m_f)
+    f_d, f_f = np.interp(dist, t, m_d), np.interp(dist, t, m_f)
+    mat = np.zeros((3, 3))
+    mat[0, 0], mat[1, 1] = info_d[0], info_f[0]
+    mat[0, 2] = mat[2, 0] = info_d[1]
+    mat[1, 2] = mat[2, 1] = info_f[1]
+    mat[2, 2] = info_d[2] + info_f[2]
     grad = np.array([1.0, -1.0, -beta / shape]) / shape   # ln ratio = (a_distance - a_force) / shape
-    var = grad @ np.linalg.solve(hoses_per_adjustment * m, grad)
-    return 1.0 / (var * failures), -math.expm1(-c * hr) / frac
+    var = grad @ np.linalg.solve(n * mat, grad)
+    return float(1.0 / (var * failures)), float(f_f / (f_d + f_f))
 
 
 def rare_failure_power(boundaries, margin: float, shape: float) -> float:
@@ -460,15 +499,18 @@ def max_information(margin: float, alpha: float = 0.05, power: float = 0.8,
         Lan-DeMets spending family.
     shape : float
         Weibull shape [-] (common to both adjustments): information per failure is
-        ``shape^2 p (1 - p)``, ``p`` the force-set share of the failures (:func:`force_share`).
+        ``shape^2 p (1 - p)``, ``p`` the force-set share of the failures (:func:`information_per_failure`).
     looks : int, optional
         Equally spaced looks; None (default) means a look at every failure, found as the fixed
         point ``looks = failures``. Above :data:`DESIGN_LOOKS` looks ``R`` is that of
         :data:`DESIGN_LOOKS` looks (within 0.3 % of the exact value, slightly below it).
     hoses_per_adjustment : int, optional
-        Hoses on test per adjustment when the follow-up is known (:func:`force_share`); None
-        (default, what the stages use): failures rare among the hoses at risk, ``p = 1 / (1 +
-        margin^shape)``, the fewest information per failure, so the most failures.
+        Hoses on test at once per adjustment, a failed hose replaced by a new one (the benches keep
+        running; the stages pass :func:`analyses.test_plan.hoses_on_test`): the information per
+        failure of that follow-up (:func:`information_per_failure`) and the canonical process,
+        capped at the rare-failure design's exact figure. None: failures rare among the hoses at
+        risk, ``p = 1 / (1 + margin^shape)``, the fewest information per failure, so the most
+        failures.
 
     Returns
     -------
@@ -492,10 +534,11 @@ def max_information(margin: float, alpha: float = 0.05, power: float = 0.8,
         if looks or failures == k:
             break
         k = failures
-    if looks is None and hoses_per_adjustment is None and failures <= DESIGN_LOOKS:
+    if looks is None and failures <= DESIGN_LOOKS:
+        # hoses on test carry at least the rare failures' information per failure: never more failures
         exact = _smallest_rare_maximum(failures, margin, alpha, power, spending, shape)
         if exact is not None:
-            failures = k = exact
+            failures = k = exact if hoses_per_adjustment is None else min(failures, exact)
     return MaxInformation(failures, fixed, r, drift, k, _short_note(failures, margin, shape, spending,
                                                                     hoses_per_adjustment))
 
@@ -513,16 +556,20 @@ def design_shape(shape: float) -> float:
     return round(math.exp(round(math.log(shape) / DESIGN_SHAPE_STEP) * DESIGN_SHAPE_STEP), 9)
 
 
-def design_for(margin: float, alpha: float, power: float, spending: str, shape: float) -> MaxInformation:
-    """:func:`max_information` with looks at every failure, at :func:`design_shape` of ``shape``,
-    cached per grid shape: the design both the decision and the test-plan stages read (the same
-    arguments give the same ``max_failures`` in both)."""
-    return _design_on_grid(margin, alpha, power, spending, design_shape(shape))
+def design_for(margin: float, alpha: float, power: float, spending: str, shape: float,
+               hoses_per_adjustment: int | None = None) -> MaxInformation:
+    """:func:`max_information` with looks at every failure, at :func:`design_shape` of ``shape`` and
+    ``hoses_per_adjustment`` on test (None: failures rare), cached per grid shape: the design both
+    the decision and the test-plan stages read (the same arguments give the same ``max_failures``
+    in both)."""
+    return _design_on_grid(margin, alpha, power, spending, design_shape(shape), hoses_per_adjustment)
 
 
 @functools.lru_cache(maxsize=1024)
-def _design_on_grid(margin: float, alpha: float, power: float, spending: str, shape: float) -> MaxInformation:
-    return max_information(margin, alpha, power, spending, shape)
+def _design_on_grid(margin: float, alpha: float, power: float, spending: str, shape: float,
+                    hoses: int | None) -> MaxInformation:
+    return max_information(margin, alpha, power, spending, shape, hoses_per_adjustment=hoses)
+
 
 def _short_note(failures: int, margin: float, shape: float, spending: str, hoses: int | None) -> str | None:
     """Why ``failures`` is likely short of what the refitted test needs, or None (FEW_FAILURES)."""

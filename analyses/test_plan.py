@@ -74,6 +74,44 @@ N_SIMULATIONS = 4000
 CAPACITY_DAYS = 30
 
 
+def hoses_on_test(installed, ended, group) -> int | None:
+    """The most hoses of one adjustment on test at the same time: the design's hoses on test [-].
+
+    The sequential design converts information to failures from the follow-up
+    (:func:`analyses.sequential.information_per_failure`): ``n`` hoses on test per adjustment, a
+    failed one replaced (the benches keep running). That ``n`` is the benches' load, read from the
+    logbook: per adjustment the largest number of hoses installed and not yet ended at one moment
+    (an end before an installation at the same moment), the larger of the two adjustments (more
+    hoses at once, failures rarer among them: fewer information per failure, the more failures).
+    It settles as soon as the benches are loaded, so the design does not drift as hoses are
+    replaced over the test.
+
+    Parameters
+    ----------
+    installed, ended : array_like of datetime64 or float
+        Each hose's first installation and its end (NaT/NaN while running) [time].
+    group : array_like of int
+        1 force-set, 0 distance-set.
+
+    Returns
+    -------
+    int or None
+        None when no hose has an installation time.
+    """
+    start, stop = (((pd.to_datetime(pd.Series(x), utc=True) - pd.Timestamp(0, tz="UTC")).dt.total_seconds()
+                    .to_numpy(float)) for x in (installed, ended))     # [s]; NaN where unknown
+    group = np.asarray(group, int)
+    best = 0
+    for g in (0, 1):
+        known = (group == g) & np.isfinite(start)
+        ends = np.where(np.isfinite(stop[known]), stop[known], np.inf)
+        times = np.concatenate([ends, start[known]])
+        steps = np.concatenate([-np.ones(ends.size), np.ones(ends.size)])
+        order = np.lexsort((steps, times))      # at one moment the ends (-1) first
+        best = max(best, int(np.cumsum(steps[order]).max(initial=0)))
+    return best or None
+
+
 def target_powers(plan_power: float) -> tuple[float, ...]:
     """The target powers of the plan's rows: the plan's own, and :data:`TARGET_POWER`.
 

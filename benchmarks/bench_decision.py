@@ -6,6 +6,8 @@ One command::
 
     python -m benchmarks.bench_decision            # 3 scenarios x 400 hose types, and a 200-type timing run
     python -m benchmarks.bench_decision --quick    # 3 scenarios x 12 hose types: a look, no verdict
+    python -m benchmarks.bench_decision --scenarios at-margin --types 48 --shard 48 --timing-types 0
+                                                   # the power alone, ~10 min on a loaded machine
 
 Each scenario is a ``decision`` campaign (:mod:`pipeline.simulator.decision`: hose types known
 by their logbook odometer, benches at a constant km/day so that a look's distances are exact,
@@ -349,13 +351,16 @@ def main(argv=None) -> int:
     ap.add_argument("--shard", type=int, default=50,
                     help="hose types per raw tree and rebuild (the durability stage's figures grow with them)")
     ap.add_argument("--keep", type=Path, default=None, help="keep the raw trees and warehouses here")
+    ap.add_argument("--scenarios", nargs="+", choices=SCENARIOS, default=list(SCENARIOS),
+                    help="only these scenarios (each keeps its seed: the same hose types as in a full run)")
     args = ap.parse_args(argv)
     types = args.types or (12 if args.quick else 400)
     timing_types = args.timing_types if args.timing_types is not None else (0 if args.quick else 200)
     root = args.keep or Path(tempfile.mkdtemp(prefix="bench-decision-"))
     root.mkdir(parents=True, exist_ok=True)
     try:
-        scenarios = [run_scenario(root, name, types, args.seed + i, args) for i, name in enumerate(SCENARIOS)]
+        scenarios = [run_scenario(root, name, types, args.seed + i, args) for i, name in enumerate(SCENARIOS)
+                     if name in args.scenarios]
         one = argparse.Namespace(shard=max(timing_types, 1), jobs=args.jobs)   # the timing run: one rebuild
         timing = run_scenario(root, "mixed", timing_types, args.seed + 9, one) if timing_types else None
     except MissingTables as exc:

@@ -2,24 +2,26 @@
 
 One command::
 
-    python -m benchmarks.bench_test_plan               # 6 designs, 500 trials each; power_now case (~6 min)
-    python -m benchmarks.bench_test_plan --trials 150  # the same, fewer trials
-    python -m benchmarks.bench_test_plan --quick       # 1 design (40 hoses each), 150 trials; a smaller power_now case
+    python -m benchmarks.bench_test_plan               # 7 designs, 300 trials each; power_now case (~35 min, 2 loaded cores)
+    python -m benchmarks.bench_test_plan --trials 500 --designs 4 5   # more trials, two designs
+    python -m benchmarks.bench_test_plan --quick       # 1 design (4 hoses on test each), 150 trials; a smaller power_now case
 
 1. ``failures_needed`` (:func:`analyses.sequential.max_information`, the design's maximum in
    failures) against the smallest ``max_failures`` that reaches the target power when the design
-   is simulated in full: per trial ``n`` force-set and ``n`` distance-set hoses start together,
-   Weibull lives with the design's common shape and a true force / distance life ratio equal to
-   the margin; ``n`` is the design's (``hoses_per_adjustment``) or, for the stages' default
-   (failures rare among the hoses at risk), :data:`RARE` times the grid's largest ``M``. At EVERY
-   failure the common-shape Weibull is refitted (:func:`analyses.life_effect.common_shape_fit`,
-   censoring the running hoses at the current distance) and the design read
-   (:func:`analyses.sequential.sequential_verdict`, ``t = d / M``) with the decision stage's
-   likelihood check of each crossing look (:func:`analyses.decision.likelihood_check`). Power = share of trials
-   declaring ``force longer``. The same trials (common random numbers) serve every ``M`` of a grid
-   around ``failures_needed``; the smallest ``M`` whose power reaches the target is compared with
-   ``failures_needed``: PASS within 10 % (the issue's target). Also printed: the force-set share of
-   the failures (simulated and the design's) and the share of trials declaring ``no practical
+   is simulated in full: per trial ``n`` benches per adjustment run hoses with Weibull lives of
+   the design's common shape and a true force / distance life ratio equal to the margin, a failed
+   hose replaced by a new one at once (:func:`bench_lives`); ``n`` is the design's hoses on test
+   (``hoses_per_adjustment``, what the stages pass: :func:`analyses.test_plan.hoses_on_test`) or,
+   for failures rare among the hoses at risk, :data:`RARE` times the grid's largest ``M`` (no
+   replacement comes into play then). At EVERY failure the common-shape Weibull is refitted
+   (:func:`analyses.life_effect.common_shape_fit`, the hoses on test censored at their distance
+   then) and the design read (:func:`analyses.sequential.sequential_verdict`, ``t = d / M``) with
+   the decision stage's likelihood check of each crossing look
+   (:func:`analyses.decision.likelihood_check`). Power = share of trials declaring ``force
+   longer``. The same trials (common random numbers) serve every ``M`` of a grid around
+   ``failures_needed``; the smallest ``M`` whose power reaches the target is compared with
+   ``failures_needed``: PASS within 10 % (the issue's target). Also printed: the force-set share
+   of the failures (simulated and the design's) and the share of trials declaring ``no practical
    difference`` at ``M = failures_needed`` (the design allows ``alpha / 2``).
 2. ``power_now`` (:func:`analyses.test_plan.power_now`, failure counts and the canonical
    z-process) against a full-refit simulation of the same future for one hose type's current
@@ -27,13 +29,7 @@ One command::
    future failure, the same boundaries and decision rule. PASS when the two agree within three
    combined Monte Carlo standard errors.
 
-Last full run (500 trials; needed / brute force / difference): margin 1.5, shape 2, O'Brien-Fleming
-61 / 58 / +5 %; Pocock 77 / 85 / -9 %; margin 2, shape 1.5, power 0.9, O'Brien-Fleming 51 / 54 / -6 %;
-margin 1.75, shape 3, alpha 0.1, O'Brien-Fleming 23 / 30 / -23 % MISS (4 force-set failures
-expected: the Wald interval too narrow, 'no practical difference' in 18 % of trials; noted by
-``max_information``); 40 hoses each, O'Brien-Fleming 57 / 60 / -5 %; 45 hoses each, margin 2,
-shape 1.5, power 0.9, Pocock 59 / > 77 MISS (power 0.80 at 59; 'no practical difference' 15 %).
-power_now 0.680 +/- 0.007 against 0.693 +/- 0.023 by full refits: PASS.
+Figures of the last full run are in docs/decision.md ("Designing from the hoses on test").
 
 Seeded (``numpy.random.default_rng(2300 + design)``): the same numbers every run.
 """
@@ -51,44 +47,62 @@ from analyses.life_effect import common_shape_fit, ratio_deviance
 from analyses.sequential import efficacy_boundaries, information_per_failure, max_information, sequential_verdict
 from analyses.test_plan import HoseState, power_now, remaining_km
 
-#: (margin, shape, alpha, power, spending, hoses per adjustment): None = failures rare among the
-#: hoses at risk (what the stages assume), simulated with :data:`RARE` times the grid's largest M
-#: hoses per adjustment; a number = that many hoses each, all started together (the follow-up the
-#: design states, passed to ``max_information(hoses_per_adjustment=...)``).
+#: (margin, shape, alpha, power, spending, hoses on test per adjustment): None = failures rare
+#: among the hoses at risk, simulated with :data:`RARE` times the grid's largest M benches per
+#: adjustment; a number = that many benches each, a failed hose replaced at once (the follow-up
+#: the stages design from, passed to ``max_information(hoses_per_adjustment=...)``). The second
+#: bench design is bench_decision's plan at its median shape (8 benches: 4 per adjustment).
 DESIGNS = [(1.5, 2.0, 0.05, 0.8, "obrien-fleming", None), (1.5, 2.0, 0.05, 0.8, "pocock", None),
            (2.0, 1.5, 0.05, 0.9, "obrien-fleming", None), (1.75, 3.0, 0.10, 0.8, "obrien-fleming", None),
-           (1.5, 2.0, 0.05, 0.8, "obrien-fleming", 40), (2.0, 1.5, 0.05, 0.9, "pocock", 45)]
+           (1.5, 2.0, 0.05, 0.8, "obrien-fleming", 4), (1.5, 2.5, 0.05, 0.8, "obrien-fleming", 4),
+           (2.0, 1.5, 0.05, 0.9, "pocock", 8)]
 GRID = (0.8, 0.85, 0.9, 0.95, 1.0, 1.05, 1.1, 1.15, 1.2, 1.3)
 RARE = 4
 TOLERANCE = 0.10
 
 
-def refit_path(rng, margin: float, shape: float, n: int, looks: int):
+def bench_lives(rng, margin: float, shape: float, benches: int, failures: int):
+    """One trial's hoses on ``benches`` benches per adjustment, each failed hose replaced at once:
+    (bench distance at which each hose starts, its life, its adjustment: 1 force-set), enough hoses
+    for the first ``failures`` failures."""
+    per = failures + 2                      # a bench cannot see more failures than the whole trial
+    group = np.repeat([0, 1], benches)
+    life = np.where(group[:, None] == 1, margin, 1.0) * rng.weibull(shape, (2 * benches, per))
+    start = np.cumsum(life, axis=1) - life
+    return start.ravel(), life.ravel(), np.repeat(group, per)
+
+
+def refit_path(rng, margin: float, shape: float, benches: int, looks: int):
     """(log_ratio, se, adjustment, confirm) refitted at each of the first ``looks`` failures of one
-    trial (adjustment 1 where the failure is a force-set hose's); ``confirm`` is the decision
-    stage's likelihood check of a look (:func:`analyses.decision.likelihood_check`'s rule, its
-    deviances computed once per look and trial ratio)."""
-    group = np.repeat([0, 1], n)
-    life = np.where(group == 1, margin, 1.0) * rng.weibull(shape, 2 * n)
-    order = np.argsort(life)
+    trial (adjustment 1 where the failure is a force-set hose's) on ``benches`` benches per
+    adjustment (:func:`bench_lives`); ``confirm`` is the decision stage's likelihood check of a
+    look (:func:`analyses.decision.likelihood_check`'s rule, its deviances computed once per look
+    and trial ratio)."""
+    start, life, group = bench_lives(rng, margin, shape, benches, looks)
+    end = start + life
+    order = np.argsort(end)[:looks]
+
+    def state(j: int):
+        now = end[order[j]]
+        on = start < now
+        return np.minimum(life, now - start)[on], (end <= now)[on], group[on]
+
     est, se = np.full(looks, np.nan), np.full(looks, np.nan)
     for j in range(looks):
-        now = life[order[j]]
-        fit = common_shape_fit(np.minimum(life, now), life <= now, group)
+        fit = common_shape_fit(*state(j))
         if fit.note is None:
             est[j], se[j] = fit.log_ratio, fit.se_log_ratio
     deviances: dict = {}
 
     def deviance(j: int, ratio: float) -> float:
         if (j, ratio) not in deviances:
-            now = life[order[j]]
-            deviances[j, ratio] = ratio_deviance(np.minimum(life, now), life <= now, group, ratio)
+            deviances[j, ratio] = ratio_deviance(*state(j), ratio)
         return deviances[j, ratio]
 
     def confirm(j: int, crossed: str, c: float) -> bool:
         return crossing_holds(lambda r: deviance(j, r), crossed, c, margin)
 
-    return est, se, group[order[:looks]], confirm
+    return est, se, group[order], confirm
 
 
 def brute_force(design, trials: int, seed: int) -> tuple[int, int | None, dict, tuple]:
@@ -99,7 +113,6 @@ def brute_force(design, trials: int, seed: int) -> tuple[int, int | None, dict, 
     needed = max_information(margin, alpha, power, spending, shape, hoses_per_adjustment=hoses).failures
     grid = sorted({max(4, round(needed * f)) for f in GRID})
     n = hoses or RARE * grid[-1]
-    grid = [m for m in grid if m <= 2 * n]
     rng = np.random.default_rng(seed)
     paths = [refit_path(rng, margin, shape, n, grid[-1]) for _ in range(trials)]
     powers = {}
@@ -175,18 +188,22 @@ def check_power_now(quick: bool) -> bool:
 def main(argv=None) -> int:
     args = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     args.add_argument("--quick", action="store_true", help="one design, fewer trials (a few seconds)")
-    args.add_argument("--trials", type=int, default=500, help="trials a design (default 500)")
+    args.add_argument("--trials", type=int, default=300, help="trials a design (default 300)")
+    args.add_argument("--designs", type=int, nargs="+", default=None,
+                      help=f"only these designs (indices 0-{len(DESIGNS) - 1} of DESIGNS; each keeps its seed)")
     parsed = args.parse_args(argv)
     quick = parsed.quick
-    designs, trials = (DESIGNS[4:5], 150) if quick else (DESIGNS, parsed.trials)
+    picked = parsed.designs if parsed.designs is not None else ([4] if quick else range(len(DESIGNS)))
+    trials = 150 if quick else parsed.trials
     t0 = time.monotonic()
     ok = True
     print(f"failures_needed against brute force ({trials} trials a design, a full refit at every failure):")
     print(f"{'margin':>6} {'shape':>5} {'alpha':>5} {'power':>5} {'spending':>14} {'hoses':>5} {'needed':>6} "
           f"{'brute':>5} {'diff':>6} {'force':>5} {'exp.':>5} {'npd':>5}  power at each M")
-    print("  (hoses: per adjustment, rare = failures rare; force: share of force-set failures, exp.: the design's; "
+    print("  (hoses: on test per adjustment, failed ones replaced; rare = failures rare; force: share of force-set failures, exp.: the design's; "
           "npd: 'no practical difference' declared at M = needed, the design allows alpha / 2)")
-    for i, design in enumerate(designs):
+    for i in picked:
+        design = DESIGNS[i]
         needed, smallest, powers, (share, expected, futile) = brute_force(design, trials, 2300 + i)
         good = smallest is not None and abs(needed - smallest) <= TOLERANCE * smallest
         ok &= good

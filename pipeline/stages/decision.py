@@ -43,6 +43,7 @@ from analyses.decision import GROUP, decide, failure_events, look_estimates, loo
 from analyses.hose_life import match_runs
 from analyses.life_effect import life_effect
 from analyses.sequential import design_for, design_shape
+from analyses.test_plan import hoses_on_test
 from pipeline.raw.logbook import merge_logbooks, read_logbooks
 from pipeline.stages import Reads, StageContext, StageOutput
 
@@ -131,23 +132,26 @@ def effect_of(item: dict) -> dict:
     return {**row, "hose_type": item["hose_type"], "confidence": item["plan"]["confidence"]}
 
 
-def design_item(plan: dict, shape: float) -> tuple[dict | None, str | None]:
+def design_item(plan: dict, shape: float, hoses: dict) -> tuple[dict | None, str | None]:
     """What :func:`design_failures` needs when the plan leaves ``max_failures`` unset (None when it sets
-    it), and the note when the shape is NULL (the design then assumes 1.0)."""
+    it), and the note when the shape is NULL (the design then assumes 1.0); ``hoses``: the item's
+    hose columns, whose installations and ends give the hoses on test (:func:`analyses.test_plan.hoses_on_test`)."""
     if plan["max_failures"] is not None:
         return None, None
     note = None
     if not (math.isfinite(shape) and shape > 0):
         shape, note = 1.0, "max_failures designed with shape 1.0: the life_effect common shape is NULL"
     # on the design grid: hose types whose shapes round alike share one item (one computation)
-    return {k: plan[k] for k in ("margin", "alpha", "power", "spending")} | {"shape": design_shape(float(shape))}, note
+    on_test = hoses_on_test(hoses["installed_at"], hoses["ended_at"], [GROUP.get(a, -1) for a in hoses["adjustment"]])
+    return {k: plan[k] for k in ("margin", "alpha", "power", "spending")} | {"shape": design_shape(float(shape)),
+                                                                           "hoses": on_test}, note
 
 
 def design_failures(item: dict) -> list:
     """``[max_failures, note]`` of the sequential design (:func:`analyses.sequential.design_for`)
     for a :func:`design_item`, the note saying where the figure is likely short (module level:
     memoised by ``ctx.map``, about half a second the first time)."""
-    d = design_for(item["margin"], item["alpha"], item["power"], item["spending"], item["shape"])
+    d = design_for(item["margin"], item["alpha"], item["power"], item["spending"], item["shape"], item["hoses"])
     return [int(d.failures), d.note]
 
 
@@ -279,7 +283,7 @@ def run(ctx: StageContext) -> StageOutput:
     out = StageOutput()
     items = hose_type_items(ctx)
     effects = ctx.map(effect_of, items, label="decision: life effect")
-    asks = [design_item(it["plan"], e["shape"]) for it, e in zip(items, effects)]
+    asks = [design_item(it["plan"], e["shape"], it["hoses"]) for it, e in zip(items, effects)]
     unique = sorted({json.dumps(a, sort_keys=True) for a, _ in asks if a is not None})
     designed = dict(zip(unique, ctx.map(design_failures, [json.loads(u) for u in unique], label="decision: design")))
     for it, (ask, note) in zip(items, asks):

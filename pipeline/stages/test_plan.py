@@ -4,8 +4,10 @@ One ``test_plan`` row per hose type with hoses of both adjustments in ``hose_lif
 target power (the plan's, and 0.9; one row when they are equal), from :mod:`analyses.test_plan`:
 
 * ``failures_needed``: :func:`analyses.sequential.design_for` for the plan's margin, alpha,
-  spending and the target power, at ``life_effect.shape`` (1.0 when NULL, noted): the same
-  number the decision stage uses as ``max_failures`` when the plan leaves it unset.
+  spending and the target power, at ``life_effect.shape`` (1.0 when NULL, noted) and the hose
+  type's hoses on test per adjustment (:func:`analyses.test_plan.hoses_on_test`, from every hose's
+  installation and end; failures rare when none is known): the same number the decision stage
+  uses as ``max_failures`` when the plan leaves it unset.
 * ``power_now``: Monte Carlo from the fitted common-shape Weibull and the current censored state,
   run to the plan's ``max_failures`` (else ``failures_needed`` at the plan's power); the same for
   both rows of a hose type.
@@ -31,8 +33,8 @@ import pandas as pd
 
 from analyses.life_effect import SEPARATE, common_shape_fit
 from analyses.sequential import design_for, design_shape, efficacy_boundaries
-from analyses.test_plan import (CAPACITY_DAYS, N_SIMULATIONS, HoseState, decision_date, measured_capacity,
-                                more_testing, power_now, target_powers)
+from analyses.test_plan import (CAPACITY_DAYS, N_SIMULATIONS, HoseState, decision_date, hoses_on_test,
+                                measured_capacity, more_testing, power_now, target_powers)
 from pipeline.stages import Reads, StageContext, StageOutput
 
 NAME = "test_plan"
@@ -79,10 +81,19 @@ def hose_items(life: pd.DataFrame, effect: pd.DataFrame | None, plan) -> list[di
                 "failed": (g["status"] == "failed").to_numpy()[keep].tolist(), "running": running[keep].tolist(),
                 "group": (g["adjustment"] == "force").to_numpy()[keep].astype(int).tolist(),
                 "shape": shapes.get(htype), "model": models.get(htype) if isinstance(models.get(htype), str) else None,
-                "settings": {k: getattr(s, k) for k in _SETTINGS}, "n_simulations": N_SIMULATIONS}
+                "settings": {k: getattr(s, k) for k in _SETTINGS}, "n_simulations": N_SIMULATIONS,
+                "hoses_on_test": _on_test(g)}
         item["seed"] = int(hashlib.sha256(json.dumps(item, sort_keys=True).encode()).hexdigest()[:16], 16)
         items.append(item)
     return items
+
+
+def _on_test(g: pd.DataFrame) -> int | None:
+    """The hose type's hoses on test per adjustment (:func:`analyses.test_plan.hoses_on_test`), from all
+    its hoses (also those whose life is unknown: they held a bench)."""
+    if "installed_at" not in g or "ended_at" not in g:
+        return None
+    return hoses_on_test(g["installed_at"], g["ended_at"], (g["adjustment"] == "force").astype(int))
 
 
 def design(item: dict) -> dict:
@@ -90,11 +101,11 @@ def design(item: dict) -> dict:
     and the efficacy boundaries of the test as planned (one per failure up to ``max_failures``).
 
     ``item``: ``margin``, ``alpha``, ``power``, ``spending``, ``max_failures`` (None: the design's
-    at ``power``) and ``shape`` [-]. Hose types that share a design share its cost (at a look per
+    at ``power``), ``shape`` [-] and ``hoses``: hoses on test per adjustment [-] (None: failures rare). Hose types that share a design share its cost (at a look per
     failure, :func:`analyses.sequential.max_information` takes seconds to minutes: the boundaries
     of hundreds of looks).
     """
-    designs = {p: design_for(item["margin"], item["alpha"], p, item["spending"], item["shape"])
+    designs = {p: design_for(item["margin"], item["alpha"], p, item["spending"], item["shape"], item["hoses"])
                for p in target_powers(item["power"])}
     m = item["max_failures"] or designs[item["power"]].failures
     c = efficacy_boundaries(np.arange(1, m + 1) / m, item["alpha"], item["spending"])
@@ -107,7 +118,7 @@ def _design_item(item: dict) -> dict:
     s = item["settings"]
     return {"margin": s["margin"], "alpha": s["alpha"], "power": s["power"], "spending": s["spending"],
             "max_failures": s["max_failures"],  # the shape on the design grid: types that round alike share it
-            "shape": 1.0 if item["shape"] is None else design_shape(item["shape"])}
+            "shape": 1.0 if item["shape"] is None else design_shape(item["shape"]), "hoses": item["hoses_on_test"]}
 
 
 def plan_hose_type(item: dict) -> list[dict]:

@@ -9,8 +9,8 @@ import pytest
 from scipy import stats
 
 from analyses.life_effect import CommonShapeFit, common_shape_fit
-from analyses.test_plan import (HoseState, decision_date, information, measured_capacity, more_testing, power_now,
-                                remaining_km, target_powers)
+from analyses.test_plan import (HoseState, decision_date, hoses_on_test, information, measured_capacity, more_testing,
+                                power_now, remaining_km, target_powers)
 
 
 def model(shape=1.5, scale_distance=1000.0, scale_force=1000.0, log_ratio=0.0, se=0.5):
@@ -26,6 +26,20 @@ def state(failed_per_group=2, running_per_group=10, running_at=0.0):
     failed = np.tile(np.r_[np.ones(failed_per_group, bool), np.zeros(running_per_group, bool)], 2)
     distance = np.where(failed, 500.0, running_at)
     return HoseState(distance, failed, ~failed, group)
+
+
+def test_hoses_on_test_is_the_most_on_test_at_once_per_adjustment():
+    """Distance-set: D1 from day 1 to day 5, D2 from day 2 on, D3 from day 5 on (D1's end comes
+    first at day 5): 2 at once; force-set: F1 day 1-3, F2 from day 3: 1. Unknown installations
+    do not count; none known: None."""
+    day = lambda d: pd.Timestamp("2025-01-01", tz="UTC") + pd.Timedelta(days=d)  # noqa: E731
+    installed = [day(0), day(1), day(4), day(0), day(2), pd.NaT]
+    ended = [day(4), pd.NaT, pd.NaT, day(2), pd.NaT, pd.NaT]
+    assert hoses_on_test(installed, ended, [0, 0, 0, 1, 1, 1]) == 2
+    assert hoses_on_test(installed[3:], ended[3:], [1, 1, 1]) == 1
+    ns = [float(t.value) if t is not pd.NaT else math.nan for t in installed]   # the stage's int-ns columns
+    assert hoses_on_test(ns, [float(t.value) if t is not pd.NaT else math.nan for t in ended], [0, 0, 0, 1, 1, 1]) == 2
+    assert hoses_on_test([pd.NaT], [pd.NaT], [0]) is None
 
 
 def test_target_powers_are_the_plans_and_0_9_once():

@@ -81,15 +81,19 @@ def test_too_few_failures_give_null_estimates_with_notes():
 
 def test_max_failures_from_the_design_with_shape_one_when_the_shape_is_null():
     plan = settings(max_failures=None, margin=2.0, spending="obrien-fleming")
-    ask, note = stage.design_item(plan, math.nan)
-    assert ask["shape"] == 1.0 and "shape 1.0" in note
-    assert stage.design_failures(ask) == [max_information(2.0, 0.05, 0.8, "obrien-fleming", 1.0).failures, None]
+    hoses = odometer_item()["hoses"]   # one hose after another on one bench: one on test at a time
+    ask, note = stage.design_item(plan, math.nan, hoses)
+    assert ask["shape"] == 1.0 and ask["hoses"] == 1 and "shape 1.0" in note
+    assert stage.design_failures(ask) == [max_information(2.0, 0.05, 0.8, "obrien-fleming", 1.0,
+                                                          hoses_per_adjustment=1).failures, None]
     pocock = dict(ask, spending="pocock")
     failures, short = stage.design_failures(pocock)   # a design likely short says so, for the verdict's note
-    assert failures == max_information(2.0, 0.05, 0.8, "pocock", 1.0).failures and "Pocock" in short
-    assert stage.design_item(plan, 2.5) == ({"margin": 2.0, "alpha": 0.05, "power": 0.8, "spending": "obrien-fleming",
-                                             "shape": design_shape(2.5)}, None)   # on the design grid
-    assert stage.design_item({**plan, "max_failures": 30}, 2.0) == (None, None)
+    assert failures == max_information(2.0, 0.05, 0.8, "pocock", 1.0, hoses_per_adjustment=1).failures
+    assert "Pocock" in short
+    assert stage.design_item(plan, 2.5, hoses) == ({"margin": 2.0, "alpha": 0.05, "power": 0.8,
+                                                    "spending": "obrien-fleming", "shape": design_shape(2.5),
+                                                    "hoses": 1}, None)   # on the design grid
+    assert stage.design_item({**plan, "max_failures": 30}, 2.0, hoses) == (None, None)
 
 
 def _logbook_fleet(tmp_path):

@@ -62,12 +62,16 @@ def test_one_row_per_hose_type_and_target_power(df):
     assert list(zip(df["hose_type"], df["target_power"])) == [("A", 0.8), ("A", 0.9), ("B", 0.9)]
 
 
-def test_failures_needed_is_the_design_at_life_effects_shape(df):
+def test_failures_needed_is_the_design_at_life_effects_shape_and_the_hoses_on_test(df):
+    # every hose installed 60 days before: 14 (A) and 12 (B) on test at once per adjustment
+    # (A-x, installed when the others had ended, does not add one)
     a = df[df["hose_type"] == "A"]
-    assert a["failures_needed"].tolist() == [max_information(2.0, 0.05, p, "obrien-fleming", design_shape(2.1)).failures
+    assert a["failures_needed"].tolist() == [max_information(2.0, 0.05, p, "obrien-fleming", design_shape(2.1),
+                                                             hoses_per_adjustment=14).failures
                                              for p in (0.8, 0.9)]   # at the shape on the design grid
     b = df[df["hose_type"] == "B"].iloc[0]
-    assert b["failures_needed"] == max_information(3.0, 0.05, 0.9, "obrien-fleming", 1.0).failures
+    assert b["failures_needed"] == max_information(3.0, 0.05, 0.9, "obrien-fleming", 1.0,
+                                                   hoses_per_adjustment=12).failures
     assert "failures_needed at shape 1.0" in b["note"]
 
 
@@ -164,7 +168,7 @@ def test_no_hoses_gives_an_empty_table_with_the_contracts_columns():
 
 def test_a_design_likely_short_carries_its_note_per_target_power():
     d = stage.design({"margin": 1.5, "alpha": 0.05, "power": 0.8, "spending": "pocock", "max_failures": None,
-                      "shape": design_shape(2.0)})
+                      "shape": design_shape(2.0), "hoses": None})
     assert [p for p, _f, _n in d["failures_needed"]] == [0.8, 0.9]
     assert all(n and "Pocock" in n for _p, _f, n in d["failures_needed"])
     assert len(d["boundaries"]) == d["failures_needed"][0][1]
