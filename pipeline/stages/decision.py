@@ -37,6 +37,7 @@ from __future__ import annotations
 import json
 import math
 
+import numpy as np
 import pandas as pd
 
 from analyses.decision import GROUP, decide, failure_events, look_estimates, look_hoses, usable_hoses
@@ -65,6 +66,8 @@ LOOK_HOSE_COLUMNS = ["hose_type", "look", "hose_id", "adjustment", "distance_km"
 #: Per-look values of :class:`analyses.sequential.SequentialVerdict` on the log scale, shown as ratios.
 _RATIO_FIELDS = ("efficacy_lower", "efficacy_upper", "futility_lower", "futility_upper", "rci_lower", "rci_upper")
 NO_PLAN = "no plan"
+#: NaT as int64 nanoseconds.
+_NAT = np.iinfo(np.int64).min
 
 
 def _ns_list(values) -> list:
@@ -101,11 +104,14 @@ def hose_type_item(hose_type: str, life: pd.DataFrame, runs: pd.DataFrame, setti
 
 
 def _frame(columns: dict, spec: dict) -> pd.DataFrame:
-    """An item's columns back as a DataFrame (times as UTC timestamps)."""
+    """An item's columns back as a DataFrame (times as UTC timestamps, to the nanosecond: the int
+    nanoseconds are read as int64, never through a float, whose 53-bit mantissa would round
+    today's times by up to 128 ns)."""
     df = pd.DataFrame({c: columns[c] for c in spec})
     for c, kind in spec.items():
         if kind == "time":
-            df[c] = pd.to_datetime(pd.Series(columns[c], dtype="float64"), unit="ns", utc=True)
+            ns = np.array([_NAT if v is None else int(v) for v in columns[c]], dtype=np.int64)
+            df[c] = pd.Series(ns.view("datetime64[ns]"), index=df.index).dt.tz_localize("UTC")
     return df
 
 

@@ -184,3 +184,11 @@ def test_the_demo_rebuild_fills_the_decision_tables(demo):
     # an absent text is NULL, never the text 'nan'
     assert query(wh, "SELECT count(*) FROM life_effect WHERE 'nan' IN (model, note)") == [(0,)]
     assert query(wh, "SELECT count(*) FROM decision_looks WHERE 'nan' IN (crossed, note)") == [(0,)]
+
+
+def test_item_times_come_back_to_the_nanosecond():
+    # int nanoseconds through a float lose up to 128 ns at today's times: the item's times must come back exact
+    times = pd.Series(pd.to_datetime(["2026-03-02T10:11:12.345Z", None, "2026-03-02T10:11:12.345000129Z"], utc=True))
+    back = stage._frame({"t": stage._ns_list(times)}, {"t": "time"})["t"]
+    assert back.dtype == times.dtype and back.isna().tolist() == [False, True, False]
+    assert (back[[0, 2]] == times[[0, 2]]).all()
