@@ -160,7 +160,7 @@ def test_likelihood_check_compares_the_looks_profile_deviance_with_the_boundary(
     in_looks = pd.DataFrame({"look": 7, "hose_id": [f"H{i}" for i in range(2 * n)], "adjustment": adj,
                              "distance_km": life, "failed": failed, "distance_from": "runs"})
     est = pd.DataFrame({"look": [7]})
-    confirm = likelihood_check(in_looks, est, 1.5)
+    confirm = likelihood_check(in_looks, est, 1.5, [0.5])
     g = (adj == "force").astype(int)
     dev1 = ratio_deviance(life, failed, g, 1.0)
     assert dev1 > 4.0
@@ -169,3 +169,25 @@ def test_likelihood_check_compares_the_looks_profile_deviance_with_the_boundary(
     devs = [ratio_deviance(life, failed, g, r) for r in (1.5, 1 / 1.5)]
     assert confirm(0, "no practical difference", math.sqrt(min(devs)) * 0.99)
     assert not confirm(0, "no practical difference", math.sqrt(min(devs)) * 1.01)
+
+
+def test_likelihood_check_stops_at_the_verdict():
+    """Once a look with new information is confirmed (the verdict, which sticks), later looks are passed
+    unchecked; a confirmed look without new information does not stop the checks, nor does an earlier look
+    asked after it."""
+    from analyses.decision import likelihood_check
+    rng = np.random.default_rng(5)
+    n = 12
+    life = np.concatenate([rng.weibull(2.0, n) * 300.0, rng.weibull(2.0, n) * 100.0])
+    adj = np.array(["force"] * n + ["distance"] * n)
+    in_looks = pd.concat([pd.DataFrame({"look": k, "hose_id": [f"H{i}" for i in range(2 * n)], "adjustment": adj,
+                                        "distance_km": life, "failed": True, "distance_from": "runs"})
+                          for k in (1, 2, 3, 4)], ignore_index=True)
+    est = pd.DataFrame({"look": [1, 2, 3, 4]})
+    confirm = likelihood_check(in_looks, est, 1.5, [0.5, 0.5, 0.75, 1.0])   # look 2: no new information
+    assert not confirm(0, "force longer", 1e3)         # a boundary no deviance reaches: not confirmed
+    assert confirm(1, "force longer", 1.0)              # confirmed, but no new information: no verdict yet
+    assert not confirm(2, "force longer", 1e3)          # still checked
+    assert confirm(2, "force longer", 1.0)              # the verdict (new information)
+    assert confirm(3, "force longer", 1e3)              # after it: not checked
+    assert not confirm(1, "force longer", 1e3)          # an earlier look is still checked
