@@ -188,10 +188,12 @@ def look_hoses(hoses: pd.DataFrame, runs: pd.DataFrame, events: pd.DataFrame) ->
     dist = np.where(failed, km[:, None], dist)
     keep = t[None, :] >= installed[:, None]
     look_ix, hose_ix = np.nonzero(keep.T)                       # by look, then by hose (hoses sorted by id)
-    return pd.DataFrame({"look": events["look"].to_numpy()[look_ix], "hose_id": ids[hose_ix],
-                         "adjustment": hoses["adjustment"].to_numpy(object)[hose_ix],
-                         "distance_km": dist[hose_ix, look_ix], "failed": failed[hose_ix, look_ix],
-                         "distance_from": np.where(odometer[hose_ix], FROM_ODOMETER, FROM_RUNS)})
+    text = {"hose_id": ids[hose_ix], "adjustment": hoses["adjustment"].to_numpy(object)[hose_ix],
+            "distance_from": np.where(odometer[hose_ix], FROM_ODOMETER, FROM_RUNS).astype(object)}
+    text = {c: pd.Series(v, dtype=object) for c, v in text.items()}      # object: no string inference per look
+    return pd.DataFrame({"look": events["look"].to_numpy()[look_ix], "hose_id": text["hose_id"],
+                         "adjustment": text["adjustment"], "distance_km": dist[hose_ix, look_ix],
+                         "failed": failed[hose_ix, look_ix], "distance_from": text["distance_from"]})
 
 
 def _by_look(x: np.ndarray, f: np.ndarray, row: np.ndarray, rows: int):

@@ -116,7 +116,8 @@ def _frame(columns: dict, spec: dict) -> pd.DataFrame:
             ns = np.array([_NAT if v is None else int(v) for v in columns[c]], dtype=np.int64)
             out[c] = pd.Series(ns.view("datetime64[ns]")).dt.tz_localize("UTC")
         else:
-            out[c] = pd.Series(np.array(columns[c], dtype=object if kind == "text" else np.float64))
+            out[c] = (pd.Series(np.array(columns[c], dtype=object), dtype=object) if kind == "text"   # no str inference
+                      else pd.Series(np.array(columns[c], dtype=np.float64)))
     return pd.DataFrame(out, columns=list(spec))
 
 

@@ -191,3 +191,31 @@ def test_likelihood_check_stops_at_the_verdict():
     assert confirm(2, "force longer", 1.0)              # the verdict (new information)
     assert confirm(3, "force longer", 1e3)              # after it: not checked
     assert not confirm(1, "force longer", 1e3)          # an earlier look is still checked
+
+
+def test_look_fits_equal_each_looks_own_fit():
+    """The vectorised fit of every look is common_shape_fit of that look's hoses (to 1e-12), notes included:
+    looks with too few failures, lives of 0 (just installed), and a look without rows."""
+    from analyses.decision import look_fits
+    from analyses.life_effect import common_shape_fit
+    rng = np.random.default_rng(11)
+    parts = []
+    for look in range(1, 16):
+        m = int(rng.integers(0, 30))
+        x = rng.weibull(rng.uniform(0.8, 4.0), m) * 50.0 * np.where(np.arange(m) % 2, 1.6, 1.0)
+        x[rng.random(m) < 0.1] = 0.0
+        parts.append((np.full(m, look), x, rng.random(m) < rng.uniform(0.2, 1.0), np.arange(m) % 2))
+    look, x, f, g = (np.concatenate([p[i] for p in parts]) for i in range(4))
+    wanted = np.arange(1, 17)                       # look 16 has no rows
+    fits = look_fits(x, f, g, look, wanted)
+    fitted = 0
+    for fit, number in zip(fits, wanted):
+        m = look == number
+        ref = common_shape_fit(x[m], f[m], g[m])
+        assert fit.note == ref.note
+        if ref.note is None:
+            fitted += 1
+            for a, b in ((fit.shape, ref.shape), (fit.log_ratio, ref.log_ratio), (fit.loglik, ref.loglik),
+                         (fit.se_log_ratio, ref.se_log_ratio), (fit.scale_force, ref.scale_force)):
+                assert a == pytest.approx(b, rel=1e-12, abs=1e-13)
+    assert 5 <= fitted < len(wanted)                # both kinds of look were there

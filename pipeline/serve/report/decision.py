@@ -99,8 +99,8 @@ def _looks_figures(decisions: list[HoseDecision]) -> str:
         if png is None:
             continue
         data = base64.b64encode(png).decode("ascii")
-        out.append(f'<figure id="{_anchor(k)}" data-key="{looks_key(d)}"><img alt="looks of {esc(d.hose_type)}" '
-                   f'src="data:image/png;base64,{data}">'
+        out.append(f'<figure id="{_anchor(k)}"><img alt="looks of {esc(d.hose_type)}" '
+                   f'src="data:image/png;base64,{data}" data-key="{looks_key(d)}">'
                    f"<figcaption><b>{esc(d.hose_type)}</b>: the estimate of the life ratio force / distance at each "
                    "look (failure) with its repeated confidence interval, the efficacy boundaries (crossing one "
                    "declares a longer life) and the futility boundaries (inside both: no practical difference), "
