@@ -16,12 +16,14 @@ whatever night they were computed on:
   censored at their distance then;
 * :func:`look_estimates`: per look the common-shape Weibull regression of life on the
   adjustment (:func:`analyses.life_effect.common_shape_fit`, Meeker & Escobar 1998, ch. 17):
-  ``log_ratio`` and its standard error, NaN with a note where the data cannot tell; each look's
-  shape solve starts at the previous look's shape (the same estimate, in fewer steps);
+  ``log_ratio`` and its standard error, NaN with a note where the data cannot tell; all looks
+  are solved at once (:func:`look_fits`: each look's own score equation, vectorised over padded
+  (look, hose) matrices, the same unique root to 1e-13): one solve a hose type, not one a failure;
 * :func:`decide`: the sequential verdict over all looks
   (:func:`analyses.sequential.sequential_verdict`: Lan & DeMets 1983 alpha spending, repeated
   confidence intervals, a verdict that sticks) at ``information_fraction = failures /
-  max_failures``.
+  max_failures``; the likelihood check (:func:`likelihood_check`) confirms the Wald crossings up
+  to the verdict, not after it (a later look cannot change a verdict that sticks).
 
 Decisions
 ---------
