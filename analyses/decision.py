@@ -93,7 +93,7 @@ def usable_hoses(life: pd.DataFrame) -> pd.DataFrame:
     """
     d = pd.to_numeric(life["distance_km"], errors="coerce").to_numpy(float)
     adjustment = life["adjustment"].to_numpy(object)
-    ok = ~np.isnan(d) & (d >= 0) & ((adjustment == "force") | (adjustment == "distance"))
+    ok = ~np.isnan(d) & (d >= 0) & np.isin(adjustment, list(GROUP))
     ok &= life["installed_at"].notna().to_numpy() & ~((life["distance_source"].to_numpy(object) == "odometer")
                                                       & life["ended_at"].isna().to_numpy())
     kept = np.flatnonzero(ok)
