@@ -16,12 +16,14 @@ whatever night they were computed on:
   censored at their distance then;
 * :func:`look_estimates`: per look the common-shape Weibull regression of life on the
   adjustment (:func:`analyses.life_effect.common_shape_fit`, Meeker & Escobar 1998, ch. 17):
-  ``log_ratio`` and its standard error, NaN with a note where the data cannot tell; each look's
-  shape solve starts at the previous look's shape (the same estimate, in fewer steps);
+  ``log_ratio`` and its standard error, NaN with a note where the data cannot tell; all looks
+  are solved at once (:func:`look_fits`: each look's own score equation, vectorised over padded
+  (look, hose) matrices, the same unique root to 1e-13): one solve a hose type, not one a failure;
 * :func:`decide`: the sequential verdict over all looks
   (:func:`analyses.sequential.sequential_verdict`: Lan & DeMets 1983 alpha spending, repeated
   confidence intervals, a verdict that sticks) at ``information_fraction = failures /
-  max_failures``.
+  max_failures``; the likelihood check (:func:`likelihood_check`) confirms the Wald crossings up
+  to the verdict, not after it (a later look cannot change a verdict that sticks).
 
 Decisions
 ---------
@@ -49,8 +51,9 @@ import math
 import numpy as np
 import pandas as pd
 
-from analyses.life_effect import common_shape_fit, ratio_deviance
+from analyses.life_effect import CommonShapeFit, common_shape_fit, ratio_deviance
 from analyses.sequential import SequentialVerdict, sequential_verdict
+from analyses.service_life import SHAPE_BOUNDS
 
 #: ``distance_from`` of a hose whose distance comes from its durability runs.
 FROM_RUNS = "runs"
@@ -88,10 +91,15 @@ def usable_hoses(life: pd.DataFrame) -> pd.DataFrame:
         The rows with a known distance (>= 0), an adjustment ``force`` or ``distance``, an
         installation time, and (odometer-only hoses) an end event; sorted by ``hose_id``.
     """
-    d = pd.to_numeric(life["distance_km"], errors="coerce")
-    ok = d.notna() & (d >= 0) & life["adjustment"].isin(list(GROUP)) & life["installed_at"].notna()
-    ok &= ~((life["distance_source"] == "odometer") & life["ended_at"].isna())
-    return life[ok].sort_values("hose_id", kind="stable").reset_index(drop=True)
+    d = pd.to_numeric(life["distance_km"], errors="coerce").to_numpy(float)
+    adjustment = life["adjustment"].to_numpy(object)
+    ok = ~np.isnan(d) & (d >= 0) & np.isin(adjustment, list(GROUP))
+    ok &= life["installed_at"].notna().to_numpy() & ~((life["distance_source"].to_numpy(object) == "odometer")
+                                                      & life["ended_at"].isna().to_numpy())
+    kept = np.flatnonzero(ok)
+    ids = life["hose_id"].to_numpy(object)[kept]
+    order = sorted(range(kept.size), key=lambda i: (not isinstance(ids[i], str), str(ids[i])))   # as sort_values
+    return life.iloc[kept[order]].reset_index(drop=True)
 
 
 def failure_events(hoses: pd.DataFrame) -> pd.DataFrame:
@@ -107,13 +115,14 @@ def failure_events(hoses: pd.DataFrame) -> pd.DataFrame:
     DataFrame
         ``look`` (1..), ``hose_id``, ``event_at`` (UTC).
     """
-    failed = hoses[(hoses["status"] == "failed") & (pd.to_numeric(hoses["distance_km"]) > 0)
-                   & hoses["ended_at"].notna()]
-    t, ids = _ns(failed["ended_at"]).tolist(), failed["hose_id"].tolist()
-    order = sorted(range(len(ids)), key=lambda i: (t[i], ids[i]))
+    ok = ((hoses["status"].to_numpy(object) == "failed") & (pd.to_numeric(hoses["distance_km"]).to_numpy(float) > 0)
+          & hoses["ended_at"].notna().to_numpy())
+    rows = np.flatnonzero(ok)
+    t, ids = _ns(hoses["ended_at"].iloc[rows]).tolist(), hoses["hose_id"].to_numpy(object)[rows].tolist()
+    order = rows[sorted(range(len(ids)), key=lambda i: (t[i], ids[i]))]
     return pd.DataFrame({"look": np.arange(1, len(ids) + 1, dtype=np.int64),
-                         "hose_id": failed["hose_id"].iloc[order].reset_index(drop=True),
-                         "event_at": failed["ended_at"].iloc[order].reset_index(drop=True)})
+                         "hose_id": hoses["hose_id"].iloc[order].reset_index(drop=True),
+                         "event_at": hoses["ended_at"].iloc[order].reset_index(drop=True)})
 
 
 def _run_fractions(starts, durations_h, t: np.ndarray) -> np.ndarray:
@@ -181,10 +190,163 @@ def look_hoses(hoses: pd.DataFrame, runs: pd.DataFrame, events: pd.DataFrame) ->
     dist = np.where(failed, km[:, None], dist)
     keep = t[None, :] >= installed[:, None]
     look_ix, hose_ix = np.nonzero(keep.T)                       # by look, then by hose (hoses sorted by id)
-    return pd.DataFrame({"look": events["look"].to_numpy()[look_ix], "hose_id": ids[hose_ix],
-                         "adjustment": hoses["adjustment"].to_numpy(object)[hose_ix],
-                         "distance_km": dist[hose_ix, look_ix], "failed": failed[hose_ix, look_ix],
-                         "distance_from": np.where(odometer[hose_ix], FROM_ODOMETER, FROM_RUNS)})
+    text = {"hose_id": ids[hose_ix], "adjustment": hoses["adjustment"].to_numpy(object)[hose_ix],
+            "distance_from": np.where(odometer[hose_ix], FROM_ODOMETER, FROM_RUNS).astype(object)}
+    text = {c: pd.Series(v, dtype=object) for c, v in text.items()}      # object: no string inference per look
+    return pd.DataFrame({"look": events["look"].to_numpy()[look_ix], "hose_id": text["hose_id"],
+                         "adjustment": text["adjustment"], "distance_km": dist[hose_ix, look_ix],
+                         "failed": failed[hose_ix, look_ix], "distance_from": text["distance_from"]})
+
+
+def _by_look(x: np.ndarray, f: np.ndarray, row: np.ndarray, rows: int):
+    """One adjustment's lives of every look as padded (look, hose) matrices: ``(log x, x, failed, present)``."""
+    order = np.argsort(row, kind="stable")
+    r, xs, fs = row[order], x[order], f[order]
+    col = np.arange(r.size) - np.searchsorted(r, r, side="left")
+    width = int(col.max()) + 1 if r.size else 1
+    lx, xx = np.zeros((rows, width)), np.ones((rows, width))
+    ff, mm = np.zeros((rows, width), bool), np.zeros((rows, width), bool)
+    lx[r, col], xx[r, col], ff[r, col], mm[r, col] = np.log(xs), xs, fs, True
+    return lx, xx, ff, mm
+
+
+def _batch_score(t: np.ndarray, logs) -> tuple[np.ndarray, np.ndarray]:
+    """The common shape's profile score and its slope in ``log k`` (``life_effect``'s ``_score_slope``) of many
+    looks at once; ``logs``: per adjustment (y, present, failures, the failures' sum of y), ``y`` the log lives
+    minus each look's largest."""
+    k = np.exp(t)
+    value, slope = np.zeros_like(t), np.zeros_like(t)
+    for y, m, r, syf in logs:
+        w = np.where(m, np.exp(k[:, None] * y), 0.0)
+        sw = w.sum(axis=1)
+        mean = (w * y).sum(axis=1) / sw
+        d = y - mean[:, None]
+        value += r / k + syf - r * mean
+        slope -= r / k + k * r * (w * d * d).sum(axis=1) / sw
+    return value, slope
+
+
+def _batch_newton(value_slope, start: np.ndarray, xtol: float = 1e-13) -> np.ndarray:
+    """:func:`analyses.service_life.newton_root` over :data:`~analyses.service_life.SHAPE_BOUNDS` (log shapes) for
+    many roots at once, step for step; NaN where it does not settle strictly inside (solved alone then)."""
+    lo, hi = math.log(SHAPE_BOUNDS[0]), math.log(SHAPE_BOUNDS[1])
+    a, b = np.full(start.size, lo), np.full(start.size, hi)
+    t, root, todo = np.clip(start, lo, hi), np.full(start.size, math.nan), np.ones(start.size, bool)
+    for _ in range(100):
+        if not todo.any():
+            break
+        v, d = value_slope(t)
+        todo &= np.isfinite(v)
+        hit = todo & (v == 0.0)
+        root[hit], todo = np.where((lo < t) & (t < hi), t, math.nan)[hit], todo & ~hit
+        a, b = np.where(todo & (v > 0), t, a), np.where(todo & (v < 0), t, b)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            step = np.where(np.isfinite(d) & (d < 0), v / d, math.nan)
+        new = t - step
+        done = todo & (np.abs(step) <= 0.1 * math.sqrt(xtol) * (1.0 + np.abs(t)))
+        root[done], todo = np.where((lo < new) & (new < hi), new, math.nan)[done], todo & ~done
+        out = ~((a < new) & (new < b))
+        new = np.where(out, 0.5 * (a + b), new)
+        done = todo & out & (b - a <= xtol * (1.0 + np.abs(t)))
+        root[done], todo = np.where((lo < a) & (b < hi), new, math.nan)[done], todo & ~done
+        t = np.where(todo, new, t)
+    return root
+
+
+def _batch_covariance(mats, k: np.ndarray, scales: np.ndarray) -> np.ndarray:
+    """``life_effect``'s ``_covariance`` (the inverse observed information of (log scale_distance, log ratio,
+    log shape)) of many looks at once; ``mats``: :func:`_by_look` per adjustment, ``scales``: (looks, 2)."""
+    sigma = 1.0 / k
+    sums = []
+    for (lx, _, ff, mm), shift in zip(mats, (0.0, np.log(scales[:, 1] / scales[:, 0]))):
+        z = np.where(mm, (lx - np.log(scales[:, :1]) - np.reshape(shift, (-1, 1))) / sigma[:, None], 0.0)
+        w = np.where(mm, np.exp(z), 0.0)
+        d = ff.astype(np.float64)
+        wz = w * z
+        sums.append((w.sum(axis=1), (wz + w - d).sum(axis=1), (wz * z + 2.0 * wz - 2.0 * d * z - d).sum(axis=1)))
+    (w0, a0, b0), (w1, a1, b1) = sums
+    info = np.stack([np.stack([w0 + w1, w1, a0 + a1], -1), np.stack([w1, w1, a1], -1),
+                     np.stack([a0 + a1, a1, b0 + b1], -1)], -2) / (sigma ** 2)[:, None, None]
+    good = np.isfinite(info).all(axis=(1, 2))
+    info[~good] = np.eye(3)
+    good &= np.linalg.eigvalsh(info).min(axis=1) > 0
+    cov = np.full(info.shape, math.nan)
+    if good.any():
+        cov[good] = np.linalg.inv(info[good])
+    j = (-1.0 / sigma)[:, None]            # d log(shape) / d sigma = -1 / sigma
+    cov[:, 2, :] *= j
+    cov[:, :, 2] *= j
+    return cov
+
+
+def _batch_fits(k: np.ndarray, mats, logs) -> list[CommonShapeFit]:
+    """The fits at the solved shapes ``k`` [-]: each adjustment's scale, the log-likelihood (``life_effect``'s
+    closed form) and the covariance of each look."""
+    scales, loglik = [], np.zeros_like(k)
+    for (_, xx, _, mm), (y, _, r, syf, ymax) in zip(mats, logs):
+        s = np.where(mm, xx, -np.inf).max(axis=1)
+        scales.append(s * (np.where(mm, (xx / s[:, None]) ** k[:, None], 0.0).sum(axis=1) / r) ** (1.0 / k))
+        log_sum = k * ymax + np.log(np.where(mm, np.exp(k[:, None] * y), 0.0).sum(axis=1))
+        loglik += r * np.log(k) - r * (log_sum - np.log(r)) + (k - 1.0) * (syf + r * ymax) - r
+    scales = np.stack(scales, -1)
+    cov = _batch_covariance(mats, k, scales)
+    return [CommonShapeFit(float(k[i]), float(scales[i, 0]), float(scales[i, 1]), float(loglik[i]),
+                           math.log(scales[i, 1] / scales[i, 0]), cov[i]) for i in range(k.size)]
+
+
+def look_fits(life, failed, group, look, looks) -> list[CommonShapeFit]:
+    """:func:`analyses.life_effect.common_shape_fit` of every look at once: the same estimates, one solve.
+
+    Each look's common shape solves its own strictly decreasing score equation (the same
+    function, so the same unique root to the solver's 1e-13) by Newton's method kept in a
+    bracket, all looks together on padded (look, hose) matrices; scales, log-likelihood and
+    observed information follow in closed form. A look with fewer than two failures in an
+    adjustment, or whose solve does not settle inside the shape's search range, is fitted alone
+    by :func:`~analyses.life_effect.common_shape_fit` (the same notes).
+
+    Parameters
+    ----------
+    life, failed, group : array_like
+        Lives [km], failure flags and adjustment (0 distance, 1 force) of every look's hoses.
+    look : array_like of int
+        Each row's look.
+    looks : array_like of int
+        The looks wanted (distinct), in the order returned.
+
+    Returns
+    -------
+    list of CommonShapeFit
+        One per ``looks``.
+    """
+    x, f, g, lk = (np.asarray(life, np.float64), np.asarray(failed, bool), np.asarray(group),
+                   np.asarray(look, np.int64))
+    wanted = np.asarray(looks, np.int64)
+    order = np.argsort(wanted, kind="stable")
+    pos = np.minimum(np.searchsorted(wanted[order], lk), max(wanted.size - 1, 0))
+    on = (wanted[order][pos] == lk) & np.isfinite(x) & (x > 0) if wanted.size else np.zeros(lk.size, bool)
+    row = order[pos] if wanted.size else pos
+    mats = [_by_look(x[on & (g == v)], f[on & (g == v)], row[on & (g == v)], wanted.size) for v in (0, 1)]
+    logs = []
+    for lx, _, ff, mm in mats:
+        ymax = np.where(mm, lx, -np.inf).max(axis=1)
+        y = np.where(mm, lx - np.where(np.isfinite(ymax), ymax, 0.0)[:, None], 0.0)
+        logs.append((y, mm, ff.sum(axis=1).astype(np.float64), np.where(ff, y, 0.0).sum(axis=1), ymax))
+    batch = (logs[0][2] >= 2) & (logs[1][2] >= 2)
+    root = np.full(wanted.size, math.nan)
+    if batch.any():
+        sub = [(y[batch], m[batch], r[batch], syf[batch]) for y, m, r, syf, _ in logs]
+        root[batch] = _batch_newton(lambda t: _batch_score(t, sub), np.zeros(int(batch.sum())))
+    fits: list = [None] * wanted.size
+    ok = np.flatnonzero(np.isfinite(root))
+    if ok.size:
+        solved = _batch_fits(np.exp(root[ok]), [tuple(a[ok] for a in m) for m in mats],
+                             [tuple(a[ok] for a in lg) for lg in logs])
+        for i, fit in zip(ok.tolist(), solved):
+            fits[i] = fit
+    for i in np.flatnonzero(~np.isfinite(root)).tolist():
+        m = lk == wanted[i]
+        fits[i] = common_shape_fit(x[m], f[m], g[m])
+    return fits
 
 
 def look_estimates(in_looks: pd.DataFrame, events: pd.DataFrame) -> pd.DataFrame:
@@ -205,17 +367,20 @@ def look_estimates(in_looks: pd.DataFrame, events: pd.DataFrame) -> pd.DataFrame
         (ln force / distance life), ``se_log_ratio`` [-], ``note`` (why the estimate is NaN, and
         the hoses placed by odometer).
     """
-    look = in_looks["look"].to_numpy(int)
+    look = in_looks["look"].to_numpy(np.int64)
     x = in_looks["distance_km"].to_numpy(float)
     f = in_looks["failed"].to_numpy(bool)
     g = (in_looks["adjustment"] == "force").to_numpy(int)
     odo = (in_looks["distance_from"] == FROM_ODOMETER).to_numpy() & ~f
+    numbers = events["look"].to_numpy(np.int64)
+    fits = look_fits(x, f, g, look, numbers)           # every look's fit in one solve
+    order = np.argsort(look, kind="stable")             # in_looks is by look already: then the identity
+    sorted_look = look[order]
+    starts, ends = np.searchsorted(sorted_look, numbers, "left"), np.searchsorted(sorted_look, numbers, "right")
     rows = []
-    shape = 1.0                                  # each look's solve starts at the previous look's shape
-    for number, event_at, hose_id in zip(events["look"].tolist(), events["event_at"], events["hose_id"].tolist()):
-        m = look == number
-        fit = common_shape_fit(x[m], f[m], g[m], shape_start=shape)
-        shape = fit.shape if math.isfinite(fit.shape) else shape
+    for number, event_at, hose_id, fit, a, b in zip(numbers.tolist(), events["event_at"], events["hose_id"].tolist(),
+                                                    fits, starts.tolist(), ends.tolist()):
+        m = order[a:b]
         ok = fit.note is None and math.isfinite(fit.se_log_ratio) and fit.se_log_ratio > 0
         notes = [fit.note] if fit.note else ([] if ok else ["the fit's information is not positive definite"])
         by_odo = int(odo[m].sum())
@@ -223,13 +388,13 @@ def look_estimates(in_looks: pd.DataFrame, events: pd.DataFrame) -> pd.DataFrame
             notes.append(f"{by_odo} censored hose(s) known only by their odometer: distance linear in time "
                          "between installation and end event")
         rows.append({"look": number, "event_at": event_at, "hose_id": hose_id,
-                     "failures": int(f[m].sum()), "n_hoses": int(m.sum()), "total_km": float(x[m].sum()),
+                     "failures": int(f[m].sum()), "n_hoses": int(b - a), "total_km": float(x[m].sum()),
                      "log_ratio": fit.log_ratio if ok else math.nan, "se_log_ratio": fit.se_log_ratio if ok else math.nan,
                      "note": "; ".join(notes) or None})
     return pd.DataFrame(rows, columns=LOOK_COLUMNS)
 
 
-def likelihood_check(in_looks: pd.DataFrame, estimates: pd.DataFrame, margin: float):
+def likelihood_check(in_looks: pd.DataFrame, estimates: pd.DataFrame, margin: float, information_fraction):
     """``confirm`` of :func:`analyses.sequential.sequential_verdict`: a look that crossed on the
     Wald scale crosses only if the common-shape profile likelihood agrees, i.e. its deviance
     (:func:`analyses.life_effect.ratio_deviance`) at ratio 1 (a longer life) or at both margins
@@ -237,6 +402,10 @@ def likelihood_check(in_looks: pd.DataFrame, estimates: pd.DataFrame, margin: fl
     profile likelihood instead of the Wald approximation (Meeker & Escobar 1998, sec. 8.3:
     likelihood intervals hold better in small samples; with the shape refitted the Wald interval
     is too narrow).
+
+    Only the looks up to the verdict are checked: once a look with new information is confirmed
+    (it declares the verdict, which sticks), a later look's crossing cannot change it and is
+    passed unchecked (its ``crossed`` is the Wald crossing; the stage's note says so).
 
     Parameters
     ----------
@@ -246,6 +415,9 @@ def likelihood_check(in_looks: pd.DataFrame, estimates: pd.DataFrame, margin: fl
         :func:`look_estimates` (its ``look`` numbers index ``in_looks``).
     margin : float
         Smallest life ratio worth acting on [-].
+    information_fraction : array_like
+        Per look ``failures / max_failures`` [-] as the verdict reads it: a look decides only when
+        its fraction is above every earlier one (:func:`analyses.sequential.sequential_verdict`).
 
     Returns
     -------
@@ -258,10 +430,19 @@ def likelihood_check(in_looks: pd.DataFrame, estimates: pd.DataFrame, margin: fl
     g = (in_looks["adjustment"] == "force").to_numpy(int)
     numbers = estimates["look"].to_numpy(int)
     m_ratio = max(margin, 1.0 / margin)
+    t = np.minimum(np.asarray(information_fraction, float), 1.0)
+    new = t > np.concatenate([[0.0], np.maximum.accumulate(t)[:-1]])
+    decided = math.inf                        # the earliest look known to declare the verdict
 
     def confirm(i: int, crossed: str, boundary_z: float) -> bool:
+        nonlocal decided
+        if i > decided:
+            return True                       # after the verdict: not checked
         m = look == numbers[i]
-        return crossing_holds(lambda r: ratio_deviance(x[m], f[m], g[m], r), crossed, boundary_z, m_ratio)
+        holds = crossing_holds(lambda r: ratio_deviance(x[m], f[m], g[m], r), crossed, boundary_z, m_ratio)
+        if holds and new[i]:
+            decided = min(decided, i)
+        return holds
 
     return confirm
 
@@ -292,8 +473,9 @@ def decide(estimates: pd.DataFrame, max_failures: int, margin: float, alpha: flo
     spending : {"obrien-fleming", "pocock"}
         Lan-DeMets spending family.
     in_looks : DataFrame, optional
-        :func:`look_hoses`: given, a look crosses only when the profile likelihood agrees with
-        the Wald statistic (:func:`likelihood_check`).
+        :func:`look_hoses`: given, a look up to the verdict crosses only when the profile
+        likelihood agrees with the Wald statistic (:func:`likelihood_check`); a later look's
+        ``crossed`` is its Wald crossing, unchecked.
 
     Returns
     -------
@@ -304,6 +486,6 @@ def decide(estimates: pd.DataFrame, max_failures: int, margin: float, alpha: flo
     if estimates.empty:
         return None
     t = estimates["failures"].to_numpy(float) / float(max_failures)
-    confirm = likelihood_check(in_looks, estimates, margin) if in_looks is not None else None
+    confirm = likelihood_check(in_looks, estimates, margin, t) if in_looks is not None else None
     return sequential_verdict(estimates["log_ratio"].to_numpy(float), estimates["se_log_ratio"].to_numpy(float), t,
                               margin, alpha, spending, confirm=confirm)

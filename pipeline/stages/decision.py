@@ -37,6 +37,7 @@ from __future__ import annotations
 import json
 import math
 
+import numpy as np
 import pandas as pd
 
 from analyses.decision import GROUP, decide, failure_events, look_estimates, look_hoses, usable_hoses
@@ -66,6 +67,11 @@ LOOK_HOSE_COLUMNS = ["hose_type", "look", "hose_id", "adjustment", "distance_km"
 #: Per-look values of :class:`analyses.sequential.SequentialVerdict` on the log scale, shown as ratios.
 _RATIO_FIELDS = ("efficacy_lower", "efficacy_upper", "futility_lower", "futility_upper", "rci_lower", "rci_upper")
 NO_PLAN = "no plan"
+#: The note of a look after the verdict that crossed: its ``crossed`` is the Wald crossing, which the likelihood
+#: check (:func:`analyses.decision.likelihood_check`) does not read once the verdict stands.
+AFTER_VERDICT = "after the verdict: crossed on the Wald scale, not checked by the profile likelihood"
+#: NaT as int64 nanoseconds.
+_NAT = np.iinfo(np.int64).min
 
 
 def _ns_list(values) -> list:
@@ -102,12 +108,18 @@ def hose_type_item(hose_type: str, life: pd.DataFrame, runs: pd.DataFrame, setti
 
 
 def _frame(columns: dict, spec: dict) -> pd.DataFrame:
-    """An item's columns back as a DataFrame (times as UTC timestamps)."""
-    df = pd.DataFrame({c: columns[c] for c in spec})
+    """An item's columns back as a DataFrame (times as UTC timestamps, to the nanosecond: the int
+    nanoseconds are read as int64, never through a float, whose 53-bit mantissa would round
+    today's times by up to 128 ns)."""
+    out = {}
     for c, kind in spec.items():
         if kind == "time":
-            df[c] = pd.to_datetime(pd.Series(columns[c], dtype="float64"), unit="ns", utc=True)
-    return df
+            ns = np.array([_NAT if v is None else int(v) for v in columns[c]], dtype=np.int64)
+            out[c] = pd.Series(ns.view("datetime64[ns]")).dt.tz_localize("UTC")
+        else:
+            out[c] = (pd.Series(np.array(columns[c], dtype=object), dtype=object) if kind == "text"   # no str inference
+                      else pd.Series(np.array(columns[c], dtype=np.float64)))
+    return pd.DataFrame(out, columns=list(spec))
 
 
 def effect_of(item: dict) -> dict:
@@ -169,9 +181,13 @@ def _looks_rows(hose_type: str, est: pd.DataFrame, sv, present: bool) -> list[di
                "alpha_spent": float(sv.alpha_spent[i]), "crossed": sv.crossed[i] or None,
                "decides": bool(present and sv.decided_at == i), "note": e["note"]}
         row.update({f: math.exp(float(getattr(sv, f)[i])) for f in _RATIO_FIELDS})
+        late = []
         if i and sv.information_fraction[i] <= sv.information_fraction[i - 1]:
-            row["note"] = "; ".join(n for n in (e["note"], "no new information (failures past max_failures): "
-                                                "shown, does not decide") if n)
+            late.append("no new information (failures past max_failures): shown, does not decide")
+        if sv.crossed[i] and sv.decided_at is not None and i > sv.decided_at:
+            late.append(AFTER_VERDICT)
+        if late:
+            row["note"] = "; ".join(n for n in (e["note"], *late) if n)
         rows.append(row)
     return rows
 

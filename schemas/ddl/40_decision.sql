@@ -62,7 +62,8 @@ CREATE TABLE life_verdict (
     decided_lower     DOUBLE,              -- repeated confidence interval at the deciding look, lower end [-]
     decided_upper     DOUBLE,              -- repeated confidence interval at the deciding look, upper end [-]
     note              VARCHAR              -- no plan (and what would have been declared), max_failures from
-                                           -- shape 1.0, looks without an estimate or new information
+                                           -- shape 1.0, looks without an estimate or new information, looks up
+                                           -- to the verdict that crossed on the Wald scale only
 );
 
 -- One row per (hose type, look): a look at each failure in logbook time order (ties by hose_id), so the
@@ -89,10 +90,13 @@ CREATE TABLE decision_looks (
     rci_lower         DOUBLE,              -- repeated confidence interval, lower end [-]
     rci_upper         DOUBLE,              -- repeated confidence interval, upper end [-]
     crossed           VARCHAR,             -- what this look's data showed ('force longer', 'distance longer',
-                                           -- 'no practical difference'); NULL if nothing
+                                           -- 'no practical difference'); NULL if nothing. Up to the verdict: the
+                                           -- repeated interval and the profile likelihood both; after it: the
+                                           -- repeated interval (Wald) alone, not checked, said in note
     decides           BOOLEAN,             -- this look declared the verdict (never with no plan)
     note              VARCHAR              -- why the estimate is NULL, hoses placed by odometer (linear in time),
-                                           -- no new information past max_failures
+                                           -- no new information past max_failures, a crossing after the verdict
+                                           -- not checked by the profile likelihood
 );
 
 -- One row per (hose type, look, hose in the look): each hose installed by the look's event at its distance then.

@@ -160,7 +160,7 @@ def test_likelihood_check_compares_the_looks_profile_deviance_with_the_boundary(
     in_looks = pd.DataFrame({"look": 7, "hose_id": [f"H{i}" for i in range(2 * n)], "adjustment": adj,
                              "distance_km": life, "failed": failed, "distance_from": "runs"})
     est = pd.DataFrame({"look": [7]})
-    confirm = likelihood_check(in_looks, est, 1.5)
+    confirm = likelihood_check(in_looks, est, 1.5, [0.5])
     g = (adj == "force").astype(int)
     dev1 = ratio_deviance(life, failed, g, 1.0)
     assert dev1 > 4.0
@@ -169,3 +169,53 @@ def test_likelihood_check_compares_the_looks_profile_deviance_with_the_boundary(
     devs = [ratio_deviance(life, failed, g, r) for r in (1.5, 1 / 1.5)]
     assert confirm(0, "no practical difference", math.sqrt(min(devs)) * 0.99)
     assert not confirm(0, "no practical difference", math.sqrt(min(devs)) * 1.01)
+
+
+def test_likelihood_check_stops_at_the_verdict():
+    """Once a look with new information is confirmed (the verdict, which sticks), later looks are passed
+    unchecked; a confirmed look without new information does not stop the checks, nor does an earlier look
+    asked after it."""
+    from analyses.decision import likelihood_check
+    rng = np.random.default_rng(5)
+    n = 12
+    life = np.concatenate([rng.weibull(2.0, n) * 300.0, rng.weibull(2.0, n) * 100.0])
+    adj = np.array(["force"] * n + ["distance"] * n)
+    in_looks = pd.concat([pd.DataFrame({"look": k, "hose_id": [f"H{i}" for i in range(2 * n)], "adjustment": adj,
+                                        "distance_km": life, "failed": True, "distance_from": "runs"})
+                          for k in (1, 2, 3, 4)], ignore_index=True)
+    est = pd.DataFrame({"look": [1, 2, 3, 4]})
+    confirm = likelihood_check(in_looks, est, 1.5, [0.5, 0.5, 0.75, 1.0])   # look 2: no new information
+    assert not confirm(0, "force longer", 1e3)         # a boundary no deviance reaches: not confirmed
+    assert confirm(1, "force longer", 1.0)              # confirmed, but no new information: no verdict yet
+    assert not confirm(2, "force longer", 1e3)          # still checked
+    assert confirm(2, "force longer", 1.0)              # the verdict (new information)
+    assert confirm(3, "force longer", 1e3)              # after it: not checked
+    assert not confirm(1, "force longer", 1e3)          # an earlier look is still checked
+
+
+def test_look_fits_equal_each_looks_own_fit():
+    """The vectorised fit of every look is common_shape_fit of that look's hoses (to 1e-12), notes included:
+    looks with too few failures, lives of 0 (just installed), and a look without rows."""
+    from analyses.decision import look_fits
+    from analyses.life_effect import common_shape_fit
+    rng = np.random.default_rng(11)
+    parts = []
+    for look in range(1, 16):
+        m = int(rng.integers(0, 30))
+        x = rng.weibull(rng.uniform(0.8, 4.0), m) * 50.0 * np.where(np.arange(m) % 2, 1.6, 1.0)
+        x[rng.random(m) < 0.1] = 0.0
+        parts.append((np.full(m, look), x, rng.random(m) < rng.uniform(0.2, 1.0), np.arange(m) % 2))
+    look, x, f, g = (np.concatenate([p[i] for p in parts]) for i in range(4))
+    wanted = np.arange(1, 17)                       # look 16 has no rows
+    fits = look_fits(x, f, g, look, wanted)
+    fitted = 0
+    for fit, number in zip(fits, wanted):
+        m = look == number
+        ref = common_shape_fit(x[m], f[m], g[m])
+        assert fit.note == ref.note
+        if ref.note is None:
+            fitted += 1
+            for a, b in ((fit.shape, ref.shape), (fit.log_ratio, ref.log_ratio), (fit.loglik, ref.loglik),
+                         (fit.se_log_ratio, ref.se_log_ratio), (fit.scale_force, ref.scale_force)):
+                assert a == pytest.approx(b, rel=1e-12, abs=1e-13)
+    assert 5 <= fitted < len(wanted)                # both kinds of look were there

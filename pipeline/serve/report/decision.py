@@ -13,8 +13,12 @@ only when there is a look to draw.
 from __future__ import annotations
 
 import base64
+import hashlib
 import io
+import json
 import math
+from importlib import metadata
+from pathlib import Path
 
 from pipeline.serve.decision import (DECIDED, HoseDecision, information_words, missing_line, plan_words,
                                      read_decisions, verdict_words)
@@ -22,15 +26,19 @@ from pipeline.serve.remaining_life import differs, limit_text, ratio_interval, r
 from pipeline.serve.report.db import ReportDB
 from pipeline.serve.report.markup import esc
 from pipeline.serve.report.running_hoses import running_section
+from pipeline.stages.decision import AFTER_VERDICT
 
 #: Hose types whose looks are drawn (one figure each); the others are listed by name.
 MAX_LOOK_PLOTS = 20
 #: Colours of the figure: estimate, repeated interval, efficacy, futility, margin.
 COLOURS = {"estimate": "#1f3f8f", "rci": "#9db4e8", "efficacy": "#c62828", "futility": "#2e7d32",
-           "margin": "#6b7280", "decides": "#e08a00"}
+           "margin": "#6b7280", "decides": "#e08a00", "crossed": "#8e24aa"}
 #: The figure's margins (fractions of 900 x 400 px): room for the labels, the margin's name on the
 #: right and the legend below, fixed so that the figure is drawn once.
 MARGINS = {"left": 0.085, "right": 0.9, "top": 0.91, "bottom": 0.25}
+#: What a looks figure reads of each look (its key: :func:`looks_key`).
+LOOK_FIELDS = ("look", "failures", "life_ratio", "rci_lower", "rci_upper", "efficacy_lower", "efficacy_upper",
+               "futility_lower", "futility_upper", "crossed", "decides", "note")
 #: Verdict cell classes (the report's style sheet): decided in colour, the rest grey.
 VERDICT_CLASS = {"force longer": "ok", "distance longer": "bad", "no practical difference": "ok"}
 
@@ -130,12 +138,14 @@ def _looks_figures(decisions: list[HoseDecision]) -> str:
             continue
         data = base64.b64encode(png).decode("ascii")
         out.append(f'<figure id="{_anchor(k)}"><img alt="looks of {esc(d.hose_type)}" '
-                   f'src="data:image/png;base64,{data}">'
+                   f'src="data:image/png;base64,{data}" data-key="{looks_key(d)}">'
                    f"<figcaption><b>{esc(d.hose_type)}</b>: the estimate of the life ratio force / distance at each "
                    "look (failure) with its repeated confidence interval, the efficacy boundaries (crossing one "
                    "declares a longer life) and the futility boundaries (inside both: no practical difference), "
-                   "against the failures, up to the planned maximum; the margins dotted. The early looks' boundaries "
-                   "run off the axis.</figcaption></figure>")
+                   "against the failures, up to the planned maximum; the margins dotted. Ringed: the looks whose "
+                   "crossing the verdict counts (the profile likelihood confirmed it); an estimate beyond a boundary "
+                   "without a ring did not cross (the likelihood did not confirm it) or came after the verdict. The "
+                   "early looks' boundaries run off the axis.</figcaption></figure>")
     rest = [d.hose_type for d in decisions[MAX_LOOK_PLOTS:] if _drawable(d)]
     if rest:
         out.append(f'<p class="meta">Looks not drawn for {len(rest)} more hose types ({esc(", ".join(rest))}): '
@@ -158,6 +168,22 @@ def _series(looks: list[dict], column: str) -> list[float]:
 def _drawable(d: HoseDecision) -> bool:
     """Whether a look of ``d`` has an estimate (there is something to draw)."""
     return any(math.isfinite(r) for r in _series(d.looks, "life_ratio"))
+
+
+def counted_crossings(d: HoseDecision) -> list[int]:
+    """Indices of the looks of ``d`` whose crossing the verdict counts: ``crossed`` up to the verdict (checked by
+    the profile likelihood), not a crossing after it (the Wald one, unchecked: its note says so)."""
+    return [i for i, lk in enumerate(d.looks) if lk.get("crossed") and AFTER_VERDICT not in (lk.get("note") or "")]
+
+
+def looks_key(d: HoseDecision) -> str:
+    """A key of the looks figure of ``d``: a hash of what :func:`looks_png` reads and of the code and matplotlib
+    that draw it (equal keys, equal bytes)."""
+    looks = [[lk.get(c) for c in LOOK_FIELDS] for lk in d.looks]
+    verdict = [d.verdict.get(c) for c in ("verdict", "margin", "max_failures")]
+    data = json.dumps([d.hose_type, verdict, looks, Path(__file__).read_text(encoding="utf-8"),
+                       metadata.version("matplotlib")], default=str, sort_keys=True)
+    return hashlib.sha256(data.encode("utf-8")).hexdigest()[:16]
 
 
 def looks_png(d: HoseDecision) -> bytes | None:
@@ -191,6 +217,10 @@ def _draw_looks(ax, d: HoseDecision, ratio: list[float]) -> None:
         ax.step(x, _series(d.looks, f"futility_{side}"), where="mid", color=COLOURS["futility"], lw=1.3,
                 ls="-.", label="futility boundary" if side == "upper" else None)
     ax.plot(x, ratio, "o-", color=COLOURS["estimate"], ms=3.5, lw=1.4, label="estimate force / distance")
+    counted = counted_crossings(d)
+    if counted:
+        ax.plot([x[i] for i in counted], [ratio[i] for i in counted], "o", mfc="none", mec=COLOURS["crossed"], ms=9,
+                mew=1.6, label="crossed (confirmed)")
     v = d.verdict
     ax.axhline(1.0, color="black", lw=0.7)
     margin = v.get("margin")

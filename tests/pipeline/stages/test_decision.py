@@ -188,3 +188,54 @@ def test_the_demo_rebuild_fills_the_decision_tables(demo):
     # an absent text is NULL, never the text 'nan'
     assert query(wh, "SELECT count(*) FROM life_effect WHERE 'nan' IN (model, note)") == [(0,)]
     assert query(wh, "SELECT count(*) FROM decision_looks WHERE 'nan' IN (crossed, note)") == [(0,)]
+
+
+def test_item_times_come_back_to_the_nanosecond():
+    # int nanoseconds through a float lose up to 128 ns at today's times: the item's times must come back exact
+    times = pd.Series(pd.to_datetime(["2026-03-02T10:11:12.345Z", None, "2026-03-02T10:11:12.345000129Z"], utc=True))
+    back = stage._frame({"t": stage._ns_list(times)}, {"t": "time"})["t"]
+    assert back.dtype == times.dtype and back.isna().tolist() == [False, True, False]
+    assert (back[[0, 2]] == times[[0, 2]]).all()
+
+
+@pytest.mark.parametrize("ratio, seed", [(4.0, 3), (1.0, 5), (1.6, 8)])
+def test_the_looks_and_verdict_are_the_look_by_look_computation(ratio, seed):
+    """Pins "no change of results" of the fast looks against the look-by-look computation they replaced (each
+    look fitted alone by common_shape_fit, the likelihood check at every Wald crossing): estimates to 1e-12, the
+    verdict, its look and every crossing up to it equal; after the verdict a look shows its Wald crossing,
+    unchecked, and says so."""
+    from analyses.decision import crossing_holds, failure_events, look_hoses, usable_hoses
+    from analyses.life_effect import common_shape_fit, ratio_deviance
+    from analyses.sequential import sequential_verdict
+
+    item = odometer_item(ratio=ratio, n=14, seed=seed, max_failures=24)
+    res = stage.decide_hose_type(item)
+    looks, v = pd.DataFrame(res["decision_looks"]), res["life_verdict"][0]
+    hoses = usable_hoses(stage._frame(item["hoses"], stage.HOSE_SPEC))
+    events = failure_events(hoses)
+    in_looks = look_hoses(hoses, stage._frame(item["runs"], stage.RUN_SPEC), events)
+    x, f = in_looks["distance_km"].to_numpy(float), in_looks["failed"].to_numpy(bool)
+    g, number = (in_looks["adjustment"] == "force").to_numpy(int), in_looks["look"].to_numpy(int)
+    fits = [common_shape_fit(x[number == k], f[number == k], g[number == k]) for k in events["look"]]
+    lr = np.array([ft.log_ratio if ft.note is None else np.nan for ft in fits])
+    se = np.array([ft.se_log_ratio if ft.note is None else np.nan for ft in fits])
+    np.testing.assert_allclose(np.log(looks["life_ratio"]), lr, rtol=1e-12, atol=1e-13)
+    np.testing.assert_allclose(looks["se_log_ratio"], se, rtol=1e-12)
+    t = looks["failures"].to_numpy(float) / 24
+
+    def every_look(i, crossed, c):
+        m = number == events["look"].iloc[i]
+        return crossing_holds(lambda r: ratio_deviance(x[m], f[m], g[m], r), crossed, c, 1.25)
+
+    ref = sequential_verdict(lr, se, t, 1.25, 0.05, "pocock", confirm=every_look)
+    wald = sequential_verdict(lr, se, t, 1.25, 0.05, "pocock")
+    assert v["verdict"] == ref.verdict
+    assert v.get("decided_at_look") == (None if ref.decided_at is None else ref.decided_at + 1)
+    crossed = [c if isinstance(c, str) else "" for c in looks["crossed"]]
+    upto = len(crossed) if ref.decided_at is None else ref.decided_at + 1
+    assert crossed[:upto] == list(ref.crossed[:upto])
+    assert crossed[upto:] == list(wald.crossed[upto:])
+    after = looks.iloc[upto:]
+    assert after["note"].fillna("").str.contains(stage.AFTER_VERDICT).tolist() == [bool(c) for c in crossed[upto:]]
+    if ratio == 4.0:                                  # a verdict, and crossings after it
+        assert ref.decided_at is not None and any(crossed[upto:])

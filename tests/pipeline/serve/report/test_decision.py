@@ -67,12 +67,26 @@ def test_the_looks_are_a_figure_per_hose_type_with_an_estimate(wh):
         assert f'href="#{anchor}"' in sec
     img = _png(figs[0][2])[..., :3]
     assert img.shape[:2] == (400, 900)
-    # the deciding look's orange star, the red efficacy boundaries, the blue estimate
+    # the deciding look's orange star, the red efficacy boundaries, the blue estimate, the counted crossings ringed
     for colour in ("decides", "efficacy", "estimate"):
         assert _pixels(img, colour) > 150, colour
+    assert _pixels(img, "crossed") > 40           # rings (and the legend's) are thin
     # the undecided hose type: no deciding look (no star), futility boundaries once its interval is narrow
     img = _png(figs[2][2])[..., :3]
     assert _pixels(img, "decides") == 0 and _pixels(img, "futility") > 150
+
+
+def test_only_the_crossings_the_verdict_counts_are_ringed(wh):
+    """A crossing after the verdict (its Wald crossing, not checked by the likelihood: its note says so) is not
+    ringed; the ones up to the verdict are; the figure's key follows its data."""
+    d = read_decisions_of(wh, DECIDED)
+    counted = rd.counted_crossings(d)
+    assert counted and all(d.looks[i]["crossed"] for i in counted)
+    late = [dict(lk, crossed="force longer", note=rd.AFTER_VERDICT) if i > counted[-1] else lk
+            for i, lk in enumerate(d.looks)]
+    d_late = type(d)(d.hose_type, d.verdict, d.effect, late, d.plans)
+    assert len(d.looks) > counted[-1] + 1 and rd.counted_crossings(d_late) == counted
+    assert rd.looks_key(d) == rd.looks_key(read_decisions_of(wh, DECIDED)) != rd.looks_key(d_late)
 
 
 def _pixels(img, colour: str) -> int:
