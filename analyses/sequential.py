@@ -199,6 +199,10 @@ def _check_fractions(t) -> np.ndarray:
     return t
 
 
+#: The largest even design whose boundaries are computed whole and sliced (:func:`_grid_of`). [-]
+_GRID_LOOKS = 400
+
+
 def efficacy_boundaries(t, alpha: float = 0.05, spending: str = "obrien-fleming") -> np.ndarray:
     """Two-sided efficacy boundaries on the z scale for looks at information fractions ``t``.
 
@@ -218,7 +222,22 @@ def efficacy_boundaries(t, alpha: float = 0.05, spending: str = "obrien-fleming"
         ``c_k`` [-]: look ``k`` crosses when ``|log_ratio / se| >= c_k``. ``_NO_BOUNDARY`` (40)
         where the spending allows less than 1e-15 (early O'Brien-Fleming looks).
     """
-    return np.array(_boundaries(tuple(_check_fractions(np.minimum(t, 1.0)).tolist()), alpha, spending))
+    tt = tuple(_check_fractions(np.minimum(t, 1.0)).tolist())
+    grid = _grid_of(tt)
+    if grid is not None:   # the first looks of an even design: a slice of the whole design's boundaries
+        return np.array(_boundaries(grid, alpha, spending)[:len(tt)])
+    return np.array(_boundaries(tt, alpha, spending))
+
+
+def _grid_of(t: tuple) -> tuple | None:
+    """The whole even design ``(1/M, 2/M, ..., 1)`` whose first looks ``t`` are (``t_k = k / M``
+    exactly as ``failures / max_failures`` gives them), else None. A boundary depends only on the
+    looks up to it (the recursion runs forward: Armitage, McPherson & Rowe 1969), so the first
+    looks' boundaries are those of the whole design, computed once per design."""
+    m = round(1.0 / t[0])
+    if m < 1 or m > _GRID_LOOKS or len(t) > m or any(v != (k + 1) / m for k, v in enumerate(t)):
+        return None
+    return tuple((k + 1) / m for k in range(m))
 
 
 @functools.lru_cache(maxsize=64)

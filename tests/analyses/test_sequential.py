@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from scipy import optimize, stats
 
+from analyses import sequential
 from analyses.sequential import (alpha_spent, crossing_probabilities, efficacy_boundaries, inflation_factor,
                                  information_per_failure, max_information, rare_failure_power, sequential_verdict)
 
@@ -293,3 +294,14 @@ def test_confirm_keeps_a_wald_crossing_from_deciding_until_the_second_check_agre
     assert "2 look(s) crossed on the Wald scale but not by the profile likelihood" in sv.note
     plain = sequential_verdict(est, se, t, 1.5, 0.05, "obrien-fleming")
     assert plain.decided_at == 0
+
+
+@pytest.mark.parametrize("spending", ["obrien-fleming", "pocock"])
+def test_the_first_looks_of_an_even_design_get_the_whole_designs_boundaries_bit_for_bit(spending):
+    for m, looks in ((40, 17), (7, 3), (63, 63)):
+        t = np.arange(1, looks + 1) / m
+        direct = np.array(sequential._boundaries(tuple(t.tolist()), 0.05, spending))
+        assert np.array_equal(sequential.efficacy_boundaries(t, 0.05, spending), direct)
+    assert sequential._grid_of((0.1, 0.2, 0.35)) is None          # uneven: computed as given
+    assert sequential._grid_of((0.5, 1.0)) == (0.5, 1.0)
+    assert sequential._grid_of((1 / 3, 2 / 3)) == (1 / 3, 2 / 3, 1.0)
