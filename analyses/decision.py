@@ -31,8 +31,11 @@ Decisions
   left out: their failure is no look (the ``life_effect`` fit leaves them out too, so the last
   look's failures are that fit's).
 * A hose known only by its odometer without an end event (a running hose whose reading came from
-  an earlier installation) has no time span to interpolate over: it is left out of the looks
-  (its count is returned for the note).
+  an earlier installation, e.g. read in a pause of its test) is interpolated over installation ..
+  the reading's time (``hose_life.odometer_at``) and held at the reading after it: the last
+  distance known, a suspension there (the ``life_effect`` fit counts it at that distance too, so
+  the last look is that fit's). Without a reading time it has no span: it is left out of the
+  looks (its count is returned for the note).
 * The times of a reinstalled hose's gap are not known to :mod:`analyses.hose_life`'s table: an
   odometer hose is interpolated over first installation .. last end.
 
@@ -76,6 +79,16 @@ def _ns(values) -> np.ndarray:
     return s.to_numpy("datetime64[ns]").astype(np.int64)
 
 
+def _reading_end(life: pd.DataFrame) -> pd.Series:
+    """The end of an odometer hose's interpolation: its end event, or while it runs the time of
+    its odometer reading (``odometer_at``; after it the hose is held at that reading, the last
+    distance known: a suspension there)."""
+    ended = life["ended_at"]
+    if "odometer_at" not in life:
+        return ended
+    return ended.where(ended.notna(), life["odometer_at"])
+
+
 def usable_hoses(life: pd.DataFrame) -> pd.DataFrame:
     """The hoses of ``life`` that can be placed in the looks.
 
@@ -94,8 +107,9 @@ def usable_hoses(life: pd.DataFrame) -> pd.DataFrame:
     d = pd.to_numeric(life["distance_km"], errors="coerce").to_numpy(float)
     adjustment = life["adjustment"].to_numpy(object)
     ok = ~np.isnan(d) & (d >= 0) & np.isin(adjustment, list(GROUP))
+    read_at = _reading_end(life).isna().to_numpy()
     ok &= life["installed_at"].notna().to_numpy() & ~((life["distance_source"].to_numpy(object) == "odometer")
-                                                      & life["ended_at"].isna().to_numpy())
+                                                      & read_at)
     kept = np.flatnonzero(ok)
     ids = life["hose_id"].to_numpy(object)[kept]
     order = sorted(range(kept.size), key=lambda i: (not isinstance(ids[i], str), str(ids[i])))   # as sort_values
@@ -172,7 +186,7 @@ def look_hoses(hoses: pd.DataFrame, runs: pd.DataFrame, events: pd.DataFrame) ->
     t = _ns(events["event_at"])
     ids = hoses["hose_id"].to_numpy(object)
     km = pd.to_numeric(hoses["distance_km"]).to_numpy(float)
-    installed, ended = _ns(hoses["installed_at"]), _ns(hoses["ended_at"])
+    installed, ended = _ns(hoses["installed_at"]), _ns(_reading_end(hoses))
     odometer = (hoses["distance_source"] == "odometer").to_numpy()
     dist = np.zeros((len(ids), t.size))
     index = {h: i for i, h in enumerate(ids)}

@@ -27,7 +27,7 @@ ODOMETER_TOLERANCE = 0.02
 
 LIFE_COLUMNS = ["hose_id", "hose_type", "adjustment", "distance_km", "strokes", "status", "failure_mode", "n_runs",
                 "z_rollers_mm", "spring_force_n", "runs_km", "odometer_km", "distance_source", "installed_at",
-                "ended_at", "n_installations", "campaigns", "wall_thickness_mm", "warnings"]
+                "ended_at", "n_installations", "campaigns", "wall_thickness_mm", "warnings", "odometer_at"]
 
 
 def match_runs(hoses: pd.DataFrame, runs: pd.DataFrame) -> tuple[pd.Series, dict[str, list[str]]]:
@@ -100,7 +100,7 @@ def hose_life(hoses: pd.DataFrame, runs: pd.DataFrame) -> tuple[pd.DataFrame, di
     out = pd.DataFrame(rows, columns=LIFE_COLUMNS)
     out["strokes"] = out["strokes"].astype("Int64")
     out["n_runs"] = out["n_runs"].astype("int64")
-    for col in ("installed_at", "ended_at"):
+    for col in ("installed_at", "ended_at", "odometer_at"):
         out[col] = pd.to_datetime(out[col], utc=True, format="ISO8601")
     return out, run_warn
 
@@ -147,6 +147,7 @@ def _life_row(h: dict, mine: pd.DataFrame) -> dict:
         "installed_at": h.get("installed_at"), "ended_at": h.get("ended_at"),
         "n_installations": h.get("n_installations"), "campaigns": list(h.get("campaigns") or []),
         "wall_thickness_mm": h.get("wall_thickness_mm"), "warnings": warnings,
+        "odometer_at": h.get("odometer_at"),
     }
 
 

@@ -67,7 +67,7 @@ _EVENT_ORDER = {"installed": 0, "inspected": 1, "failed": 2, "removed": 2}
 EVENT_COLUMNS = ["hose_id", "event", "at", *TEXT, *NUMERIC, "campaign", "source_path", "line"]
 HOSE_COLUMNS = ["hose_id", "hose_type", "adjustment", "z_rollers_mm", "spring_force_n", "status",
                 "failure_mode", "installed_at", "ended_at", "odometer_km", "wall_thickness_mm",
-                "n_installations", "campaigns", "intervals", "warnings"]
+                "n_installations", "campaigns", "intervals", "warnings", "odometer_at"]
 
 
 def find_logbooks(raw: Path) -> list[Path]:
@@ -410,6 +410,7 @@ def _hose_row(h: _Hose) -> dict:
         "campaigns": sorted(c for c in h.campaigns if c),
         "intervals": [(s, e) for s, e, _k, _r in h.installs],
         "warnings": list(h.warnings),
+        "odometer_at": h.odo_row["at"] if h.odo_row is not None else pd.NaT,
     }
 
 

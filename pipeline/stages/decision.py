@@ -92,7 +92,7 @@ def _columns(df: pd.DataFrame, spec: dict) -> dict:
 
 
 HOSE_SPEC = {"hose_id": "text", "adjustment": "text", "distance_km": "float", "status": "text",
-             "distance_source": "text", "installed_at": "time", "ended_at": "time"}
+             "distance_source": "text", "installed_at": "time", "ended_at": "time", "odometer_at": "time"}
 RUN_SPEC = {"hose_id": "text", "started_at": "time", "duration_h": "float", "distance_km": "float"}
 
 
@@ -103,6 +103,8 @@ def hose_type_item(hose_type: str, life: pd.DataFrame, runs: pd.DataFrame, setti
             "power": float(settings.power), "confidence": float(settings.confidence),
             "max_failures": settings.max_failures, "spending": settings.spending,
             "plan_from": settings.sources["margin"]}
+    if "odometer_at" not in life:   # a hose_life without reading times (written before they were kept)
+        life = life.assign(odometer_at=pd.NaT)
     return {"hose_type": hose_type, "hoses": _columns(life.sort_values("hose_id"), HOSE_SPEC),
             "runs": _columns(runs.sort_values("run_id"), RUN_SPEC), "plan": plan}
 

@@ -57,7 +57,8 @@ CREATE TABLE hose_life (
     n_installations   BIGINT,              -- > 1 when reinstalled (life continues)
     campaigns         VARCHAR[],           -- campaigns whose logbooks mention it
     wall_thickness_mm DOUBLE,              -- last inspection
-    warnings          VARCHAR[]            -- e.g. runs and odometer disagree by more than 2 %
+    warnings          VARCHAR[],           -- e.g. runs and odometer disagree by more than 2 %
+    odometer_at       TIMESTAMPTZ          -- time of the logbook event that gave odometer_km (NULL without one)
 );
 
 -- One row per (hose_type, adjustment): the table a Weibull++ user expects. Weibull by maximum
