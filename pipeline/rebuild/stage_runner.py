@@ -208,7 +208,9 @@ def _run_stage(mod, reads: Reads, key: str, inputs: StageInputs, res: StageResul
     # with the same inputs (stages are deterministic)
     salt = inputs.generation if inputs.full else ""
     folder_key = hashlib.sha256(json.dumps([key, read, salt], sort_keys=True).encode()).hexdigest()[:20]
-    rel, cacheable, now_in = save_stage_folder(inputs.warehouse, name, folder_key, out, drawer)
+    old = inputs.previous.stages.get(name)
+    previous = None if inputs.full or old is None else inputs.warehouse / old.folder  # its figures, by key
+    rel, cacheable, now_in = save_stage_folder(inputs.warehouse, name, folder_key, out, drawer, previous)
     record = StageRecord(name, key if cacheable else "uncacheable", rel, sorted(reads.kinds), False, read)
     return record, load_stage_folder(inputs.warehouse, rel, name, out, now_in)
 
