@@ -23,6 +23,18 @@ the one-run samples query under 0.5 s; no-op and one-change time growing no fast
 in the number of runs (the exponent of a power law fitted over the sizes, log-log least squares,
 at most 1.0). It prints every figure with PASS / MISS, writes ``--json`` and a log-log plot of
 the curve (``--plot``, default ``benchmarks/scale.png``).
+
+The cost of a change of each kind (issue 26), before and after a change of the code in one run::
+
+    python -m benchmarks.bench_scale --per-kind --ref main --runs 1000
+
+Both versions (``--ref`` and ``--after``, default this checkout's HEAD, each exported with ``git
+archive``) build their own warehouse from the same campaign (``full``), then, alternating before /
+after per kind, one value of one file is changed (the last digit of one CSV run file of each kind;
+a logbook line's notes; a setting of ``plan.toml``), rebuilt (timed) and put back with its old bytes
+and mtime (rebuilt, untimed). Each rebuild is a whole process; the CPU seconds of its process tree
+are the figure a loaded machine moves least. The table gives each kind's share of the version's
+own full rebuild, CPU and wall.
 """
 from __future__ import annotations
 
@@ -32,6 +44,7 @@ import io
 import json
 import os
 import shutil
+import statistics
 import sys
 import time
 from pathlib import Path
@@ -66,13 +79,13 @@ def _size_mb(folder: Path) -> float:
     return sum(p.stat().st_size for p in folder.rglob("*") if p.is_file()) / 1e6
 
 
-def _edit_logbook(path: Path) -> bytes:
+def _edit_logbook(path: Path, note: str = "(checked)") -> bytes:
     """Change the notes of the logbook's first data line; returns the original bytes."""
     original = path.read_bytes()
     rows = list(csv.reader(io.StringIO(original.decode("utf-8"))))
     head = rows[0]
     col = head.index("notes") if "notes" in head else len(head) - 1
-    rows[1][col] = (rows[1][col] + " (checked)").strip()
+    rows[1][col] = (rows[1][col] + " " + note).strip()
     buf = io.StringIO()
     csv.writer(buf, lineterminator="\n").writerows(rows)
     path.write_text(buf.getvalue(), encoding="utf-8")
@@ -175,6 +188,109 @@ def bench_size(runs: int, seed: int, repeat: int, jobs: int | None) -> dict:
     return out
 
 
+#: Run kinds whose one changed file the per-kind benchmark times (a CSV file of each).
+CHANGE_KINDS = ("spring", "breakaway", "leakage", "viscous", "durability", "pressure_step", "step")
+
+
+def bump_last_digit(path: Path, by: int) -> bytes:
+    """Change one value of a run file: its last digit + ``by`` (mod 10); returns the old bytes."""
+    original = path.read_bytes()
+    data = bytearray(original)
+    i = max(i for i, b in enumerate(data) if 48 <= b <= 57)
+    data[i] = 48 + (data[i] - 48 + by) % 10
+    path.write_bytes(bytes(data))
+    return original
+
+
+def bump_plan(path: Path, by: int) -> bytes:
+    """Change one setting of ``plan.toml`` (``km_per_day``, or the first ``margin``); returns the old bytes."""
+    import re
+
+    original = path.read_bytes()
+    text = original.decode("utf-8")
+    m = re.search(r"^(km_per_day|margin)\s*=\s*([0-9.]+)", text, re.MULTILINE)
+    if m is None:
+        raise SystemExit(f"{path}: no km_per_day or margin setting to change")
+    new = f"{m.group(1)} = {float(m.group(2)) + 0.01 * by:g}"
+    path.write_text(text[:m.start()] + new + text[m.end():], encoding="utf-8")
+    return original
+
+
+def change_victims(raw: Path, warehouse: Path) -> dict[str, tuple[Path, object]]:
+    """Per kind of change: the file changed and how (``edit(path, by) -> old bytes``)."""
+    import duckdb
+
+    con = duckdb.connect(str(warehouse / "pneubench.duckdb"), read_only=True)
+    try:
+        rows = con.execute("SELECT kind, min(source_path) FROM runs WHERE lower(source_path) LIKE '%.csv' "
+                           "GROUP BY kind").fetchall()
+    finally:
+        con.close()
+    found = dict(rows)
+    out = {kind: (raw / found[kind], bump_last_digit) for kind in CHANGE_KINDS if kind in found}
+    logbooks = sorted(raw.rglob("hoses.csv"))
+    if logbooks:
+        out["logbook line"] = (logbooks[0], lambda path, by: _edit_logbook(path, f"(checked {by})"))
+    if (raw / "plan.toml").is_file():
+        out["plan.toml"] = (raw / "plan.toml", bump_plan)
+    return out
+
+
+def per_kind(ref: str, after: str, runs: int, seed: int, rounds: int) -> dict:
+    """Wall and CPU seconds of a full rebuild and of one change of each kind, versions ``ref`` and
+    ``after`` alternating on the same campaign (:func:`change_victims`)."""
+    import tempfile
+
+    from benchmarks.bench_versions import _age_to, command, _env
+    from benchmarks.same_behaviour import export
+
+    raw = make_campaign(DATA / f"scale-{runs}", runs, seed)
+    past = time.time() - 3600
+    _age_to(raw, past)
+    work = Path(tempfile.mkdtemp(prefix="pneubench-per-kind-"))
+    try:
+        trees = {"before": export(ref, work / "before"), "after": export(after, work / "after")}
+        out: dict = {name: {} for name in trees}
+
+        def rebuild(name: str) -> tuple[float, float]:
+            m = measure([*command(trees[name]), "rebuild", "--raw", str(raw), "--warehouse", str(work / f"wh-{name}"),
+                         "-q"], cwd=trees[name], env=_env(trees[name]))
+            return m.wall_s, m.cpu_s
+
+        for name in trees:
+            out[name]["full"] = [rebuild(name)]
+            print(f"  {name}: full {out[name]['full'][0][0]:.1f} s, CPU {out[name]['full'][0][1]:.1f} s", flush=True)
+        for kind, (path, edit) in change_victims(raw, work / "wh-after").items():
+            for i in range(rounds):
+                for name in (trees if i % 2 == 0 else list(reversed(trees))):
+                    original = edit(path, i + 1)
+                    try:
+                        out[name].setdefault(kind, []).append(rebuild(name))
+                    finally:
+                        path.write_bytes(original)
+                        os.utime(path, (past, past))
+                    rebuild(name)  # back to the campaign as it was
+                    print(f"  {name}: {kind} ({path.relative_to(raw)}) {out[name][kind][-1][0]:.1f} s, "
+                          f"CPU {out[name][kind][-1][1]:.1f} s", flush=True)
+        return out
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+def per_kind_table(times: dict) -> list[str]:
+    """The markdown table of :func:`per_kind`'s medians: seconds and share of the version's full rebuild."""
+    med = {v: {k: (statistics.median(w for w, _ in t), statistics.median(c for _, c in t)) for k, t in kinds.items()}
+           for v, kinds in times.items()}
+    b, a = med["before"], med["after"]
+    lines = ["| change | before: wall s / CPU s | CPU share of full | after: wall s / CPU s | CPU share of full "
+             "| after / before CPU |", "|---|---|---|---|---|---|"]
+    for kind in b:
+        lines.append(f"| {kind} | {b[kind][0]:.1f} / {b[kind][1]:.1f} | {b[kind][1] / b['full'][1]:.3f} "
+                     f"| {a[kind][0]:.1f} / {a[kind][1]:.1f} | {a[kind][1] / a['full'][1]:.3f} "
+                     f"| {a[kind][1] / b[kind][1]:.2f} |")
+    return lines
+
+
 def plot(results: list[dict], path: Path) -> None:
     import matplotlib
 
@@ -212,7 +328,14 @@ def main(argv=None) -> int:
     ap.add_argument("--with-json", type=Path, action="append", default=[],
                     help="also use the sizes measured by an earlier run (its --json), for the table, the "
                          "exponents and the plot (a size measured now wins)")
+    ap.add_argument("--per-kind", action="store_true",
+                    help="the cost of one change of each kind, versions --ref and --after alternating (issue 26)")
+    ap.add_argument("--ref", default="main", help="--per-kind: the version before")
+    ap.add_argument("--after", default="HEAD", help="--per-kind: the version after")
+    ap.add_argument("--rounds", type=int, default=1, help="--per-kind: changes of each kind per version (median)")
     args = ap.parse_args(argv)
+    if args.per_kind:
+        return _main_per_kind(args)
     sizes = sorted(int(n) for n in args.runs.split(",") if n.strip())
     print(f"pneubench cost curve: {sizes} runs, {os.cpu_count()} cores, python {sys.version.split()[0]}")
     print(f"load average before: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
@@ -256,6 +379,25 @@ def main(argv=None) -> int:
     if args.json:
         args.json.write_text(json.dumps({"results": results, "checks": [(w, v, ok) for w, v, ok in checks]}, indent=1))
     return 0 if all(ok for _, _, ok in checks) else 1
+
+
+def _main_per_kind(args) -> int:
+    """``--per-kind``: the table of one change of each kind before / after, and the issue's target."""
+    n = int(args.runs.split(",")[0])
+    print(f"one change of each kind, {n} runs, before {args.ref}, after {args.after}, {os.cpu_count()} cores; "
+          f"load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}", flush=True)
+    times = per_kind(args.ref, args.after, n, args.seed, args.rounds)
+    print(f"load average after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}\n")
+    print("\n".join(per_kind_table(times)))
+    full = statistics.median([c for _, c in times["after"]["full"]])
+    worst = max((k for k in times["after"] if k != "full"),
+                key=lambda k: statistics.median([c for _, c in times["after"][k]]))
+    share = statistics.median([c for _, c in times["after"][worst]]) / full
+    ok = share < 0.05
+    print(f"\n{verdict(ok)}  worst kind ({worst}) under 5 % of a full rebuild at {n} runs (CPU): {share:.3f}")
+    if args.json:
+        args.json.write_text(json.dumps({"runs": n, "ref": args.ref, "after": args.after, "times": times}, indent=1))
+    return 0 if ok else 1
 
 
 if __name__ == "__main__":

@@ -190,9 +190,11 @@ def _run_stage(mod, reads: Reads, key: str, inputs: StageInputs, res: StageResul
     """Run a stage on what it declared, store its outputs; its record and its outputs as stored."""
     from pipeline import stages
 
-
     name = mod.NAME
-    drawer.warm()
+    old = inputs.previous.stages.get(name)
+    previous = None if inputs.full or old is None else inputs.warehouse / old.folder  # its figures, by key
+    if previous is None:  # every figure to draw: the drawing worker imports matplotlib while the stage runs
+        drawer.warm()  # (else it starts with the first figure whose key changed, if any)
     # per-run results of earlier rebuilds (not read by --full, written either way)
     memo = res.memos[name] = Memo(inputs.warehouse, name, read=not inputs.full)
     ctx = stages.DeclaredContext(name, reads, raw=inputs.raw, warehouse=inputs.warehouse, runs=inputs.runs_frame,
@@ -208,7 +210,7 @@ def _run_stage(mod, reads: Reads, key: str, inputs: StageInputs, res: StageResul
     # with the same inputs (stages are deterministic)
     salt = inputs.generation if inputs.full else ""
     folder_key = hashlib.sha256(json.dumps([key, read, salt], sort_keys=True).encode()).hexdigest()[:20]
-    rel, cacheable, now_in = save_stage_folder(inputs.warehouse, name, folder_key, out, drawer)
+    rel, cacheable, now_in = save_stage_folder(inputs.warehouse, name, folder_key, out, drawer, previous)
     record = StageRecord(name, key if cacheable else "uncacheable", rel, sorted(reads.kinds), False, read)
     return record, load_stage_folder(inputs.warehouse, rel, name, out, now_in)
 

@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 from pipeline.raw.problems import Problem
 from pipeline.rebuild.executors import _kill_workers  # stop the figure worker of an interrupted rebuild
 from pipeline.rebuild.executors import default_jobs, forked_pool
+from pipeline.rebuild.figure_keys import figure_key, reusable_figures
 from pipeline.rebuild.options import RebuildError
 from pipeline.rebuild.garbage import remove_stage_folder
 
@@ -139,12 +140,15 @@ def _place_stage_folder(tmp: Path, final: Path) -> None:
 
 
 def save_stage_folder(warehouse: Path, name: str, folder_key: str, out: StageOutput,
-                       drawer: FigureDrawer | None = None) -> tuple[str, bool, Path]:
+                       drawer: FigureDrawer | None = None, previous: Path | None = None) -> tuple[str, bool, Path]:
     """Write a stage's outputs to ``stages/<name>/<key>/`` (temp folder, then one rename).
 
     Returns (folder relative to the warehouse, whether the tables could be cached, the folder
     that holds them now). With a ``drawer``, figures may still be being drawn into a temporary
-    folder, which the drawer renames into place (:meth:`FigureDrawer.finish`).
+    folder, which the drawer renames into place (:meth:`FigureDrawer.finish`). ``previous``: the
+    stage's folder of the previous rebuild; a figure whose key
+    (:func:`pipeline.rebuild.figure_keys.figure_key`) is one of its figures' is taken from there,
+    not drawn.
     """
     import pyarrow as pa
     import pyarrow.parquet as pq
@@ -172,11 +176,7 @@ def save_stage_folder(warehouse: Path, name: str, folder_key: str, out: StageOut
         except (pa.ArrowException, TypeError, ValueError):
             cacheable = False
     drawer = drawer or FigureDrawer()
-    figures = {}
-    for fname, fig in sorted(out.figures.items()):
-        file = f"{fname}.png"
-        drawer.draw(name, fname, fig, tmp / "figures" / file)
-        figures[fname] = {"file": file, "caption": out.captions.get(fname, "")}
+    figures = _save_figures(name, out, tmp / "figures", drawer, previous)
     meta = {"tables": sorted(out.tables), "empty": empty, "figures": figures, "cacheable": cacheable,
             "problems": [{"source_path": p.source_path, "error": p.error, "line": p.line, "stage": p.stage}
                          for p in out.problems],
@@ -188,6 +188,38 @@ def save_stage_folder(warehouse: Path, name: str, folder_key: str, out: StageOut
         return rel, cacheable, tmp
     drawer.finish()
     return rel, cacheable, final
+
+
+def _save_figures(name: str, out: StageOutput, folder: Path, drawer: FigureDrawer, previous: Path | None) -> dict:
+    """Draw each figure of ``out`` into ``folder`` (or link the previous folder's file with the same
+    key); ``{name: {"file", "caption", "key"}}`` for ``output.json``."""
+    from pipeline import stages as stage_registry
+
+    reusable = reusable_figures(previous)
+    figures = {}
+    for fname, fig in sorted(out.figures.items()):
+        file = f"{fname}.png"
+        key = figure_key(fig) if isinstance(fig, stage_registry.FigureRecipe) else None
+        if key is None or not _link_figure(reusable.get(key), folder / file):
+            drawer.draw(name, fname, fig, folder / file)
+        figures[fname] = {"file": file, "caption": out.captions.get(fname, "")} | ({"key": key} if key else {})
+    return figures
+
+
+def _link_figure(source: Path | None, target: Path) -> bool:
+    """Put the PNG ``source`` (a figure with the same key) at ``target``: a hard link, a copy where
+    links are refused; False when there is none or it cannot be taken."""
+    if source is None:
+        return False
+    try:
+        try:
+            os.link(source, target)
+        except OSError:
+            shutil.copyfile(source, target)
+        return True
+    except OSError:
+        target.unlink(missing_ok=True)
+        return False
 
 
 def _cacheable_tables(out: StageOutput) -> bool:

@@ -210,3 +210,93 @@ def test_a_channel_numeric_in_one_run_and_text_in_another_is_text_in_the_view(tm
     res = CliRunner().invoke(main, ["query", "--warehouse", str(wh), "--format", "csv",
                                     "SELECT run_id, note FROM samples_step ORDER BY run_id, t_s"])
     assert res.exit_code == 0 and res.output.splitlines()[1:4] == ["c/a,1.5", "c/a,2.0", "c/a,3.0"], res.output
+
+
+def _columns_in_order(db: Path) -> list[tuple]:
+    con = duckdb.connect(str(db), read_only=True)
+    try:
+        return con.execute("SELECT table_name, column_name, data_type FROM duckdb_columns() "
+                           "WHERE database_name = current_database() ORDER BY table_name, column_index").fetchall()
+    finally:
+        con.close()
+
+
+def _rows_in_order(db: Path) -> dict[str, list]:
+    con = duckdb.connect(str(db), read_only=True)
+    try:
+        con.execute("SET TimeZone = 'UTC'")
+        names = [r[0] for r in con.execute("SELECT table_name FROM duckdb_tables() "
+                                           "WHERE database_name = current_database()").fetchall()]
+        return {t: con.execute(f'SELECT * FROM "{t}"').fetchall() for t in sorted(names)}
+    finally:
+        con.close()
+
+
+def test_tables_whose_rows_did_not_change_are_copied_and_the_database_is_a_fresh_builds(raw, tmp_path, monkeypatch):
+    """Tables written only when their rows changed: the second rebuild (one run file changed)
+    starts from a copy of the live database and writes only the tables whose hash changed; the
+    result has the tables, columns (in order) and rows (in order) a fresh build of the same frames
+    gives, and --full (no copy) gives the same rows of the stages' tables."""
+    import pipeline.rebuild.assemble as assemble
+    import pipeline.rebuild.flow as flow
+    from benchmarks.same_behaviour import compare_tables
+
+    for i in range(4):
+        raw.csv(f"c/s{i}.csv", STEP_META, {"t[s]": T, "x[mm]": [0.0, 1.0 + i, 2.0, 3.0], "x_ref[mm]": [5.0] * 4})
+    wh = tmp_path / "wh"
+    assert rebuild(raw.root, wh, jobs=1, report=False).exit_code == 0
+    calls = []
+    real = assemble.build_database
+
+    def spy(path, warehouse, tables, runs, extra_sql=None, previous=None, unchanged=frozenset()):
+        calls.append((dict(tables), previous, unchanged))
+        return real(path, warehouse, tables, runs, extra_sql, previous, unchanged)
+
+    monkeypatch.setattr(flow, "build_database", spy)
+    raw.csv("c/s0.csv", STEP_META, {"t[s]": T, "x[mm]": [0.0, 1.5, 2.0, 3.0], "x_ref[mm]": [5.0] * 4})
+    assert rebuild(raw.root, wh, jobs=1, report=False).exit_code == 0
+    tables, previous, unchanged = calls[-1]
+    assert previous == wh / DB_NAME and "runs" not in unchanged and "rebuild_log" not in unchanged
+    assert len(unchanged) > 5  # e.g. every table of the stages that read no step run
+    fresh = tmp_path / "fresh.duckdb"
+    real(fresh, wh, tables, tables["runs"])
+    assert _columns_in_order(wh / DB_NAME) == _columns_in_order(fresh)
+    assert _rows_in_order(wh / DB_NAME) == _rows_in_order(fresh)
+    assert compare_tables(wh / DB_NAME, fresh)[0] == []
+    full = tmp_path / "full"
+    assert rebuild(raw.root, full, jobs=1, report=False, full=True).exit_code == 0
+    assert calls[-1][1] is None  # --full builds anew
+    user = [t for t in _rows_in_order(fresh) if t not in assemble.INTERNAL_TABLES and t not in ("findings", "superseded_files")]
+    a, b = _rows_in_order(wh / DB_NAME), _rows_in_order(full / DB_NAME)
+    assert {t: a[t] for t in user if t != "runs"} == {t: b[t] for t in user if t != "runs"}
+
+
+def test_table_hashes_of_another_generation_or_code_are_not_trusted(tmp_path, monkeypatch):
+    import pipeline.rebuild.assemble as assemble
+
+    tmp = assemble.stage_table_hashes(tmp_path, "g1", {"runs": "h1", "t": "h2"})
+    assert assemble.unchanged_tables(tmp_path, "g1", {"runs": "h1"}) is None  # staged, not in place yet
+    assemble.keep_table_hashes(tmp)
+    assert assemble.unchanged_tables(tmp_path, "g1", {"runs": "h1", "t": "h3", "u": "h4"}) == {"runs"}
+    assert assemble.unchanged_tables(tmp_path, "g2", {"runs": "h1"}) is None  # the live database is another
+    assert assemble.unchanged_tables(tmp_path, None, {"runs": "h1"}) is None
+    monkeypatch.setattr("pipeline.versions.project_code_version", lambda: "other code")
+    assert assemble.unchanged_tables(tmp_path, "g1", {"runs": "h1"}) is None
+    (tmp_path / ".table-hashes.json").write_text("{damaged")
+    assert assemble.unchanged_tables(tmp_path, "g1", {"runs": "h1"}) is None
+
+
+def test_a_table_whose_columns_would_differ_is_built_anew(tmp_path):
+    """A DDL table that had an extra column in the live database and has it no longer: not patchable."""
+    import pandas as pd
+
+    import pipeline.rebuild.assemble as assemble
+
+    runs = pd.DataFrame(columns=["run_id", "kind", "campaign", "samples_path"])
+    live = tmp_path / "live.duckdb"
+    assemble.build_database(live, tmp_path, {"quarantine": pd.DataFrame({"source_path": ["a"], "error": ["e"], "extra_x": [1.0]})},
+                            runs)
+    with pytest.raises(assemble.NotPatchable):
+        assemble.build_database(tmp_path / "new.duckdb", tmp_path, {"quarantine": pd.DataFrame({"source_path": ["b"], "error": ["e"]})},
+                                runs, previous=live)
+    assert not (tmp_path / "new.duckdb").exists()

@@ -186,3 +186,34 @@ def test_a_rebuild_draws_the_same_figures_with_jobs_2_as_with_jobs_1(raw, tmp_pa
         assert not list((wh / "stages").glob(".tmp-*"))
     assert ("durability", "hose_distance") in figs[1]
     assert figs[2] == figs[1]
+
+
+def test_a_re_run_stage_draws_only_the_figures_whose_inputs_changed(tmp_path):
+    """Figures keyed by their own inputs: the next folder of a stage links the previous folder's
+    figure with the same key (the bytes a new drawing gives) and draws only the changed one;
+    without a previous folder (``--full``) every figure is drawn."""
+    import pandas as pd
+
+    from pipeline.stages import StageOutput
+
+    pids = tmp_path / "pids.txt"
+
+    def output(title_b):
+        out = StageOutput(tables={"t": pd.DataFrame({"run_id": ["a"], "x": [1.0]})})
+        out.draw("a", tiny_plot, "same", str(pids), caption="A.")
+        out.draw("b", tiny_plot, title_b, str(pids), caption="B.")
+        return out
+
+    first, *_ = store.save_stage_folder(tmp_path, "demo", "1" * 20, output("before"))
+    assert pids.read_text().count("\n") == 2
+    second, *_ = store.save_stage_folder(tmp_path, "demo", "2" * 20, output("after"), previous=tmp_path / first)
+    assert pids.read_text().count("\n") == 3  # only "b" drawn
+    a1, a2 = (tmp_path / rel / "figures" / "a.png" for rel in (first, second))
+    assert a2.read_bytes() == a1.read_bytes() and a2.stat().st_ino == a1.stat().st_ino  # linked
+    full, *_ = store.save_stage_folder(tmp_path, "demo", "3" * 20, output("after"))  # no previous: all drawn
+    assert pids.read_text().count("\n") == 5
+    for name in ("a", "b"):  # a figure taken over has the bytes it would be drawn with
+        assert (tmp_path / full / "figures" / f"{name}.png").read_bytes() == \
+            (tmp_path / second / "figures" / f"{name}.png").read_bytes()
+    _tables, figures, *_ = store.load_stage_folder(tmp_path, second, "demo")
+    assert [f["caption"] for f in figures] == ["A.", "B."]
