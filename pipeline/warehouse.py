@@ -144,11 +144,6 @@ STAGE_OUTPUT = re.compile(r"output\.json")
 FIGURE = re.compile(r"[A-Za-z0-9._-]+\.png")
 #: The database being written beside the live one, ``.pneubench.duckdb.tmp-<pid>`` (and its WAL).
 DB_TMP = re.compile(re.escape(f".{DB_NAME}.tmp-") + r"[0-9]+(\.wal)?")
-#: The content hash of every table of the live database, ``.table-hashes.json`` (the rebuild's own
-#: cache: the next rebuild copies the tables whose rows are unchanged with the file) ...
-TABLE_HASHES = ".table-hashes.json"
-#: ... and the one being written, ``.table-hashes.json.tmp-<pid>``.
-TABLE_HASHES_TMP = re.compile(re.escape(f"{TABLE_HASHES}.tmp-") + r"[0-9]+")
 #: A morning report being written, ``report/.index.html.tmp-<pid>`` or ``report/.parts-cache.tmp-<pid>``.
 REPORT_TMP = re.compile(r"\.(index\.html|parts-cache)\.tmp-[0-9]+")
 #: A memo shard, ``memo/<stage>/<xx>.pkl`` (``xx`` the first two hex digits of the keys it holds) ...

@@ -4,28 +4,18 @@ views and the ``samples()`` macro, the comments on every table and column; then 
 The database is always built under a temporary name beside the live one and swapped in with
 an atomic rename (:func:`swap_in`), so a reader opening ``pneubench.duckdb`` sees the previous
 complete warehouse or the new complete one, never a mix.
-
-Tables written only when their rows changed (issue 26): the content hash of every table
-(:func:`table_hashes`) is kept beside the live database (``.table-hashes.json``, under the
-generation it describes and the project's code version); an incremental rebuild whose live
-database matches them starts the new database as a copy of the live one and writes only the
-tables whose hash changed (:func:`build_database` with ``previous``). Anything in doubt (no hashes,
-another generation or code, a table whose columns would differ from a fresh build's) builds the
-database anew, as ``--full`` always does: either way the same rows.
 """
 from __future__ import annotations
 
 import json
 import os
-import shutil
 from pathlib import Path
-from functools import lru_cache
 from typing import TYPE_CHECKING
 
 import duckdb
 
 from pipeline.warehouse import (CONTRACT_ROWS, FILES_TABLE, INTERNAL_PREFIX, INTERNAL_TABLES, ROOT_RAW_SQL, ROOT_SQL,
-                                ROOT_VARIABLE, TABLE_HASHES, ddl_comments, glob_escape)
+                                ROOT_VARIABLE, ddl_comments, glob_escape)
 from schemas import ddl_statements
 
 # pandas and pyarrow (through schemas.channels and schemas.kinds) cost ~0.5 s each to import: the
@@ -198,37 +188,21 @@ SAMPLES_MACRO = (
     f"JOIN {FILES_TABLE} AS m ON s.filename = {ROOT_RAW_SQL} || '/' || m.path AND m.run_id = rid")
 
 
-class NotPatchable(Exception):
-    """The live database cannot be the start of the new one (a table's columns would differ)."""
-
-
 def build_database(path: Path, warehouse: Path, tables: dict[str, pd.DataFrame], runs: pd.DataFrame,
-                   extra_sql: list[str] | None = None, previous: Path | None = None,
-                   unchanged: frozenset[str] = frozenset()) -> None:
-    """Create a complete database at ``path`` (which must not exist).
-
-    ``previous``: the live database, whose tables named in ``unchanged`` hold exactly the rows of
-    ``tables`` (:func:`unchanged_tables`): the new database starts as a copy of it and only the
-    other tables are written. Raises :class:`NotPatchable` (``path`` removed) when a table's
-    columns would not be a fresh build's; the caller builds anew.
-    """
+                   extra_sql: list[str] | None = None) -> None:
+    """Create a complete database at ``path`` (which must not exist)."""
     path = Path(path)
     if path.exists():
         path.unlink()
-    if previous is not None:
-        shutil.copyfile(previous, path)
     con = duckdb.connect(str(path))
     try:
         con.execute("SET TimeZone = 'UTC'")
         # one transaction: committing each of ~300 statements (most of them COMMENT ON) was half
         # the time of writing a small warehouse
         con.execute("BEGIN TRANSACTION")
-        if previous is None:
-            for _name, sql in ddl_statements():
-                con.execute(sql)
-            _write_tables(con, tables)
-        else:
-            _patch_tables(con, tables, unchanged)
+        for _name, sql in ddl_statements():
+            con.execute(sql)
+        _write_tables(con, tables)
         create_samples_views(con, warehouse, runs)
         for sql in extra_sql or []:
             con.execute(sql)
@@ -237,88 +211,8 @@ def build_database(path: Path, warehouse: Path, tables: dict[str, pd.DataFrame],
             con.execute(";\n".join(comments))
         con.execute("COMMIT")
         con.execute("CHECKPOINT")
-    except NotPatchable:
-        con.close()
-        path.unlink(missing_ok=True)
-        raise
     finally:
         con.close()
-
-
-@lru_cache(maxsize=1)
-def ddl_columns() -> dict[str, tuple[str, ...]]:
-    """Columns of every table the DDL creates (``schemas/ddl``, run in a scratch in-memory database)."""
-    con = duckdb.connect()
-    try:
-        for _name, sql in ddl_statements():
-            con.execute(sql)
-        return {t: tuple(table_columns(con, t)) for (t,) in con.execute(
-            "SELECT table_name FROM duckdb_tables() WHERE database_name = current_database()").fetchall()}
-    finally:
-        con.close()
-
-
-def _patch_tables(con: duckdb.DuckDBPyConnection, tables: dict[str, pd.DataFrame], unchanged: frozenset[str]) -> None:
-    """Turn a copy of the live database into the new one's tables: the samples views and their
-    table dropped (made again by :func:`create_samples_views`), every table but the ``unchanged``
-    emptied (DDL tables) or dropped (tables made from a frame) and written as a fresh build
-    writes it; a DDL table whose columns then differ from a fresh build's raises :class:`NotPatchable`."""
-    ddl = ddl_columns()
-    for (view,) in con.execute("SELECT view_name FROM duckdb_views() WHERE NOT internal AND database_name = "
-                               "current_database() AND view_name LIKE 'samples\\_%' ESCAPE '\\'").fetchall():
-        con.execute(f'DROP VIEW "{view}"')
-    con.execute("DROP MACRO TABLE IF EXISTS samples")
-    con.execute(f"DROP TABLE IF EXISTS {FILES_TABLE}")
-    existing = {r[0] for r in con.execute(
-        "SELECT table_name FROM duckdb_tables() WHERE database_name = current_database()").fetchall()}
-    for table in sorted(existing - set(unchanged)):
-        con.execute(f'DELETE FROM "{table}"' if table in ddl else f'DROP TABLE "{table}"')
-    if ddl.keys() - existing:
-        raise NotPatchable(f"tables of the DDL not in the live database: {', '.join(sorted(ddl.keys() - existing))}")
-    _write_tables(con, {t: df for t, df in tables.items() if t not in unchanged})
-    for table in ddl.keys() - set(unchanged):
-        df = tables.get(table)
-        extra = [] if df is None or df.empty else [c for c in df.columns if c not in ddl[table]]
-        if tuple(table_columns(con, table)) != ddl[table] + tuple(extra):
-            raise NotPatchable(f"table {table}: its columns would not be a fresh build's")
-
-
-def table_hashes(tables: dict[str, pd.DataFrame]) -> dict[str, str]:
-    """Content hash of every table a fresh build writes (a frame without columns is not written)."""
-    from pipeline.rebuild.state import frame_hash
-
-    return {t: frame_hash(df) for t, df in sorted(tables.items()) if df is not None and len(df.columns)}
-
-
-def unchanged_tables(warehouse: Path, generation: str | None, hashes: dict[str, str]) -> frozenset[str] | None:
-    """The tables whose rows the live database holds already (same hash as ``hashes``), or None
-    when its hashes cannot be trusted (none kept, kept for another generation or code version)."""
-    from pipeline.versions import project_code_version
-
-    try:
-        kept = json.loads((Path(warehouse) / TABLE_HASHES).read_text(encoding="utf-8"))
-        if generation is None or kept.get("generation") != generation or kept.get("code") != project_code_version():
-            return None
-        old = kept["hashes"]
-        return frozenset(t for t, h in hashes.items() if isinstance(old, dict) and old.get(t) == h)
-    except (OSError, ValueError, TypeError, KeyError, AttributeError):
-        return None
-
-
-def stage_table_hashes(warehouse: Path, generation: str, hashes: dict[str, str]) -> Path:
-    """Write the new database's table hashes beside it under a temporary name (put in place by
-    :func:`keep_table_hashes` once the database is swapped in); returns that file."""
-    from pipeline.versions import project_code_version
-
-    tmp = Path(warehouse) / f"{TABLE_HASHES}.tmp-{os.getpid()}"
-    tmp.write_text(json.dumps({"generation": generation, "code": project_code_version(), "hashes": hashes},
-                              sort_keys=True), encoding="utf-8")
-    return tmp
-
-
-def keep_table_hashes(tmp: Path) -> None:
-    """Put the table hashes staged by :func:`stage_table_hashes` in place (the database they describe is live)."""
-    os.replace(tmp, tmp.parent / TABLE_HASHES)
 
 
 def _write_tables(con: duckdb.DuckDBPyConnection, tables: dict[str, pd.DataFrame]) -> None:

@@ -40,8 +40,7 @@ from pipeline.readers import READERS
 from pipeline.rebuild.executors import Executor, make_executor
 from pipeline.rebuild.garbage import clean_debris, collect_garbage, split_kept
 from pipeline.rebuild.history import append_log, compare_findings
-from pipeline.rebuild.assemble import (NotPatchable, build_database, keep_table_hashes, runs_frame, stage_table_hashes,
-                                       table_hashes, unchanged_tables)
+from pipeline.rebuild.assemble import build_database, runs_frame
 from pipeline.rebuild.ingest_tasks import deduplicate, ingest_incremental
 from pipeline.rebuild.noop import inputs_key, nothing_changed, rebuild_noop
 from pipeline.rebuild.options import (EXIT_USAGE, RebuildError, RebuildOptions, RebuildRun, RebuildSummary,
@@ -54,7 +53,6 @@ from pipeline.rebuild.state import (FilePlan, FileRecord, PreviousState, load_pr
                                     side_records, superseded_files)
 from pipeline.serve.report.publish import settle_report
 from pipeline.versions import ingest_code_version
-from pipeline.warehouse import DB_NAME
 
 log = logging.getLogger("pneubench")
 
@@ -412,10 +410,8 @@ def _publish(run: RebuildRun, plan: _Plan, tables: dict[str, pd.DataFrame], keep
     warehouse, progress, prev = run.warehouse, run.progress, plan.prev
     progress.message(f"warehouse: writing {len(tables)} tables")
 
-    staged_hashes = []
-
     def write(tmp_db):
-        _write_database(run, prev, tables, tmp_db, staged_hashes)
+        build_database(tmp_db, warehouse, tables, tables["runs"])
         waited = time.monotonic()
         n_aside = drawer.finish()  # the figures drawn beside the database, their stage folders put in place
         if n_aside:
@@ -426,28 +422,6 @@ def _publish(run: RebuildRun, plan: _Plan, tables: dict[str, pd.DataFrame], keep
     # their retention, what a killed night left): a nearly full disk gets that room back first
     collect_garbage(warehouse, *split_kept(keep | prev.samples | prev.stage_folders))
     run.summary.report = swap_in_new_database(warehouse, write, run.options.report)
-    if staged_hashes:  # the database they describe is live
-        keep_table_hashes(staged_hashes[0])
     # files the new warehouse uses, and those of earlier ones still within their retention
     # (a reader that opened an earlier warehouse keeps reading its samples)
     collect_garbage(warehouse, *split_kept(keep))
-
-
-def _write_database(run: RebuildRun, prev: PreviousState, tables: dict[str, pd.DataFrame], tmp_db: Path,
-                    staged_hashes: list[Path]) -> None:
-    """The new database at ``tmp_db``: the live one copied and only the tables whose rows changed
-    written, when its table hashes can be trusted (not ``--full``); else built anew. Its own table
-    hashes are staged beside it (``staged_hashes``)."""
-    hashes = table_hashes(tables)
-    live = run.warehouse / DB_NAME
-    unchanged = None if run.options.full or not live.is_file() else unchanged_tables(run.warehouse, prev.generation,
-                                                                                     hashes)
-    try:
-        if unchanged is None:
-            raise NotPatchable("no table hashes to trust")
-        build_database(tmp_db, run.warehouse, tables, tables["runs"], previous=live, unchanged=unchanged)
-        run.progress.message(f"warehouse: {len(hashes) - len(unchanged)} of {len(hashes)} tables written, "
-                             "the others copied with the live database")
-    except NotPatchable:
-        build_database(tmp_db, run.warehouse, tables, tables["runs"])
-    staged_hashes.append(stage_table_hashes(run.warehouse, run.generation, hashes))

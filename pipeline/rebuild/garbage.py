@@ -14,7 +14,6 @@ from pathlib import Path
 
 from pipeline.rebuild.memo import MEMO_DIR
 from pipeline.warehouse import (DB_TMP, FIGURE, REPORT_TMP, SAMPLES_FILE, SAMPLES_TMP, SHARD_FILE, SHARD_TMP,
-                                TABLE_HASHES_TMP,
                                 STAGE_KEY, STAGE_NAME, STAGE_OUTPUT, STAGE_TABLE, STAGE_TMP)
 from schemas.kind_names import KIND_NAMES  # not schemas.kinds: a no-op needs no pyarrow
 
@@ -92,7 +91,6 @@ def clean_debris(warehouse: Path) -> None:
     memo and report files), by the writers' own temp names only."""
     for _name, path, _is_dir, is_file in _entries(warehouse):
         _unlink_if(path, is_file, DB_TMP)
-        _unlink_if(path, is_file, TABLE_HASHES_TMP)
     if _real_dir(warehouse / "stages"):
         for name, path, is_dir, _ in _entries(warehouse / "stages"):
             if is_dir and STAGE_TMP.fullmatch(name):
