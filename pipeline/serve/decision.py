@@ -13,14 +13,16 @@ A number the tables hold as NULL is said to be absent, never filled in.
 from __future__ import annotations
 
 import difflib
-import math
 from dataclasses import dataclass
 from datetime import date, datetime, timezone
 from pathlib import Path
 
 from pipeline.serve.door import connect_readonly
 from pipeline.serve.query import QueryError
+from pipeline.serve.remaining_life import dict_rows as _dicts
+from pipeline.serve.remaining_life import num as _num
 from pipeline.serve.remaining_life import read_sensitivity, running_lines, sensitivity_words
+from pipeline.serve.remaining_life import table_names as _tables
 
 #: Verdicts that are declared (they stick: later looks do not change them).
 DECIDED = ("force longer", "distance longer", "no practical difference")
@@ -38,28 +40,6 @@ class HoseDecision:
     effect: dict
     looks: list[dict]
     plans: list[dict]
-
-
-def _num(value) -> float | None:
-    """A finite number, else None (NULL, NaN and inf are absent)."""
-    if value is None or isinstance(value, bool):
-        return None
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        return None
-    return x if math.isfinite(x) else None
-
-
-def _tables(con) -> set[str]:
-    return {r[0] for r in con.execute("SELECT table_name FROM duckdb_tables() "
-                                      "WHERE database_name = current_database()").fetchall()}
-
-
-def _dicts(con, sql: str, params=()) -> list[dict]:
-    cur = con.execute(sql, list(params))
-    cols = [d[0] for d in cur.description]
-    return [dict(zip(cols, r)) for r in cur.fetchall()]
 
 
 def missing_line(con) -> str | None:

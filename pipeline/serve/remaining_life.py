@@ -68,12 +68,14 @@ def _ordered(keys) -> list[str]:
     return sorted(keys, key=lambda k: (METHODS.index(k) if k in METHODS else len(METHODS), str(k)))
 
 
-def _tables(con) -> set[str]:
+def table_names(con) -> set[str]:
+    """The tables of the warehouse ``con`` is connected to."""
     return {r[0] for r in con.execute("SELECT table_name FROM duckdb_tables() "
                                       "WHERE database_name = current_database()").fetchall()}
 
 
-def _dicts(con, sql: str, params=()) -> list[dict]:
+def dict_rows(con, sql: str, params=()) -> list[dict]:
+    """The rows of ``sql`` as dicts by column name."""
     cur = con.execute(sql, list(params))
     cols = [d[0] for d in cur.description]
     return [dict(zip(cols, r)) for r in cur.fetchall()]
@@ -81,7 +83,7 @@ def _dicts(con, sql: str, params=()) -> list[dict]:
 
 def rul_missing(con) -> str | None:
     """:data:`NOT_COMPUTED` when the warehouse has no ``hose_rul`` (built before the stage), else None."""
-    return NOT_COMPUTED if "hose_rul" not in _tables(con) else None
+    return NOT_COMPUTED if "hose_rul" not in table_names(con) else None
 
 
 def end_order(hose: RunningHose) -> tuple:
@@ -94,11 +96,11 @@ def end_order(hose: RunningHose) -> tuple:
 def read_running(con, hose_type: str | None = None) -> list[RunningHose]:
     """The running hoses of ``hose_rul`` (only ``hose_type``'s when given), nearest their end first;
     [] when the table is absent."""
-    if "hose_rul" not in _tables(con):
+    if "hose_rul" not in table_names(con):
         return []
     where, params = ("WHERE hose_type = ?", [hose_type]) if hose_type is not None else ("", [])
     by_hose: dict[tuple, dict] = {}
-    for r in _dicts(con, f"SELECT * FROM hose_rul {where} ORDER BY hose_type, hose_id, method", params):
+    for r in dict_rows(con, f"SELECT * FROM hose_rul {where} ORDER BY hose_type, hose_id, method", params):
         by_hose.setdefault((str(r["hose_type"]), str(r["hose_id"])), {})[str(r["method"])] = r
     out = []
     for (t, h), rows in by_hose.items():
@@ -109,18 +111,18 @@ def read_running(con, hose_type: str | None = None) -> list[RunningHose]:
 
 def read_backtest(con) -> dict[tuple, dict]:
     """``rul_backtest`` by (hose type, adjustment, method); {} when the table is absent."""
-    if "rul_backtest" not in _tables(con):
+    if "rul_backtest" not in table_names(con):
         return {}
     return {(str(r["hose_type"]), str(r["adjustment"]), str(r["method"])): r
-            for r in _dicts(con, "SELECT * FROM rul_backtest")}
+            for r in dict_rows(con, "SELECT * FROM rul_backtest")}
 
 
 def read_sensitivity(con) -> dict[str, list[dict]]:
     """``decision_sensitivity`` by hose type, each in the order of :data:`DEFINITIONS`; {} when absent."""
-    if "decision_sensitivity" not in _tables(con):
+    if "decision_sensitivity" not in table_names(con):
         return {}
     out: dict[str, list[dict]] = {}
-    for r in _dicts(con, "SELECT * FROM decision_sensitivity ORDER BY hose_type"):
+    for r in dict_rows(con, "SELECT * FROM decision_sensitivity ORDER BY hose_type"):
         out.setdefault(str(r["hose_type"]), []).append(r)
     rank = {d: i for i, d in enumerate(DEFINITIONS)}
     return {t: sorted(rows, key=lambda r: (rank.get(r.get("definition"), len(rank)), str(r.get("definition"))))
@@ -271,7 +273,7 @@ def leak_paths(con, hoses: list[RunningHose]) -> dict[str, list[tuple[float, flo
 
     target = {(h.hose_type, h.hose_id): num(h.row("leak_pressure_bar").get("leak_pressure_bar")) for h in hoses}
     wanted = {k: p for k, p in target.items() if p is not None}
-    if not wanted or not {"hose_leak_growth", "hose_life"} <= _tables(con):
+    if not wanted or not {"hose_leak_growth", "hose_life"} <= table_names(con):
         return {}
     types = sorted({t for t, _ in wanted})
     growth = con.execute(
