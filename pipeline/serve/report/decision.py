@@ -26,7 +26,6 @@ from pipeline.serve.remaining_life import differs, limit_text, ratio_interval, r
 from pipeline.serve.report.db import ReportDB
 from pipeline.serve.report.markup import esc
 from pipeline.serve.report.running_hoses import running_section
-from pipeline.stages.decision import AFTER_VERDICT
 
 #: Hose types whose looks are drawn (one figure each); the others are listed by name.
 MAX_LOOK_PLOTS = 20
@@ -173,6 +172,8 @@ def _drawable(d: HoseDecision) -> bool:
 def counted_crossings(d: HoseDecision) -> list[int]:
     """Indices of the looks of ``d`` whose crossing the verdict counts: ``crossed`` up to the verdict (checked by
     the profile likelihood), not a crossing after it (the Wald one, unchecked: its note says so)."""
+    from pipeline.stages.decision import AFTER_VERDICT   # here: the stage imports scipy, the no-op must not
+
     return [i for i, lk in enumerate(d.looks) if lk.get("crossed") and AFTER_VERDICT not in (lk.get("note") or "")]
 
 

@@ -16,6 +16,7 @@ import pytest  # noqa: E402
 from pipeline.serve.door import connect_readonly  # noqa: E402
 from pipeline.serve.decision import read_decisions  # noqa: E402
 from pipeline.serve.report import decision as rd  # noqa: E402
+from pipeline.stages.decision import AFTER_VERDICT  # noqa: E402
 from pipeline.serve.report.db import ReportDB  # noqa: E402
 from pipeline.serve.report.render import render_report  # noqa: E402
 from tests.pipeline.serve.report.conftest import console_lines, needs_chromium, run_chromium  # noqa: E402
@@ -82,7 +83,7 @@ def test_only_the_crossings_the_verdict_counts_are_ringed(wh):
     d = read_decisions_of(wh, DECIDED)
     counted = rd.counted_crossings(d)
     assert counted and all(d.looks[i]["crossed"] for i in counted)
-    late = [dict(lk, crossed="force longer", note=rd.AFTER_VERDICT) if i > counted[-1] else lk
+    late = [dict(lk, crossed="force longer", note=AFTER_VERDICT) if i > counted[-1] else lk
             for i, lk in enumerate(d.looks)]
     d_late = type(d)(d.hose_type, d.verdict, d.effect, late, d.plans)
     assert len(d.looks) > counted[-1] + 1 and rd.counted_crossings(d_late) == counted
