@@ -550,6 +550,41 @@ def jacobian_se(jac, residuals, n_params: int | None = None) -> tuple[np.ndarray
     return se, cond
 
 
+def gram_se(jtj, sum_sq: float, dof: int) -> tuple[np.ndarray, float]:
+    """Standard errors and scaled condition number from ``J^T J`` (a fit kept as sums, not samples).
+
+    Parameters
+    ----------
+    jtj : array_like
+        ``J^T J`` at the optimum, (p, p).
+    sum_sq : float
+        Sum of squared residuals at the optimum.
+    dof : int
+        Residual degrees of freedom (observations minus parameters).
+
+    Returns
+    -------
+    (ndarray, float)
+        As :func:`jacobian_se`: ``se`` NaN where ``J^T J`` is singular; ``cond`` the condition
+        number of J with unit-norm columns (square root of that of the scaled ``J^T J``).
+    """
+    A = np.asarray(jtj, dtype=float)
+    p = A.shape[0]
+    se = np.full(p, np.nan)
+    dg = np.diag(A)
+    if not (np.all(np.isfinite(A)) and np.all(dg > 0)):
+        return se, float("inf")
+    sc = 1.0 / np.sqrt(dg)
+    ev = np.linalg.eigvalsh(A * sc[:, None] * sc[None, :])
+    cond = float(np.sqrt(ev[-1] / ev[0])) if ev[0] > 0 else float("inf")
+    if dof > 0 and np.isfinite(cond):
+        try:
+            se = np.sqrt(np.clip(np.diag(sum_sq / dof * np.linalg.inv(A)), 0, None))
+        except np.linalg.LinAlgError:
+            pass
+    return se, cond
+
+
 def at_bound(value: float, lo: float, hi: float, rtol: float = 1e-3) -> bool:
     """Whether ``value`` sits at (within ``rtol`` of the range of) the bound ``lo`` or ``hi``.
 

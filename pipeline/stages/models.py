@@ -155,18 +155,31 @@ def _step(run_id, path, params):
 
 
 def _spring(run_id, path, params):
+    row, warns, run = _spring_prepared(run_id, path, params)
+    if run is None:
+        return [row], warns, None
+    stats = spring.spring_run_stats(run)   # what the joint fit needs of the run, not its samples
+    if not stats.ok:
+        row["note"] = stats.message
+        return [row], [f"{NAME}: spring run: {stats.message}; not fitted"], None
+    return [row], [], stats
+
+
+def _spring_prepared(run_id, path, params):
+    """The spring run's ``spring_tests`` row, warnings and :class:`analyses.pla_spring.SpringRun` (None
+    when it cannot be used)."""
     chamber = str(params.get("chamber") or "").strip().lower()
     null = {"run_id": run_id, "chamber": chamber or None, "p0_bar_abs": None,
             "amplitude_mm": finite_float(params.get("amplitude_mm")), "frequency_hz": finite_float(params.get("frequency_hz")),
             "nrmse_pct": None, "note": None}
     if chamber not in spring.PRESSURE_SIGN:
         null["note"] = "chamber must be front or rear"
-        return [null], [f"{NAME}: spring run chamber must be front or rear, got {chamber or 'none'}; not fitted"], None
+        return null, [f"{NAME}: spring run chamber must be front or rear, got {chamber or 'none'}; not fitted"], None
     df = read_samples(path, ["t_s", "d_m", "f_n", "p_pa"])
     miss = _missing(df, ["t_s", "d_m", "f_n", "p_pa"])
     if miss:
         null["note"] = f"lacks {', '.join(miss)}"
-        return [null], [f"{NAME}: spring run lacks {', '.join(miss)}; not fitted"], None
+        return null, [f"{NAME}: spring run lacks {', '.join(miss)}; not fitted"], None
     amp = finite_float(params.get("amplitude_mm"))
     d, f = df["d_m"].to_numpy(), df["f_n"].to_numpy()
     run = spring.prepare_spring_run(run_id, df["t_s"].to_numpy(), d, f,
@@ -178,9 +191,19 @@ def _spring(run_id, path, params):
     null["p0_bar_abs"] = finite_float(run.p0_abs / 1e5) if np.isfinite(run.p0_abs) else None
     if not run.ok:
         null["note"] = run.message
-        return [null], [f"{NAME}: spring run: {run.message}; not fitted"], None
+        return null, [f"{NAME}: spring run: {run.message}; not fitted"], None
     null.update(amplitude_mm=run.amplitude_m * 1e3, frequency_hz=run.frequency_hz)
-    return [null], [], run
+    return null, [], run
+
+
+def spring_figure_run(item: tuple) -> spring.SpringRun | None:
+    """The prepared spring run (its samples) of one run drawn in a figure (for ``ctx.map``; item as
+    :func:`analyse_run`'s)."""
+    _, run_id, path, params = item
+    try:
+        return _spring_prepared(run_id, path, params)[2]
+    except Exception:  # analyse_run said why; the figure goes without the run
+        return None
 
 
 def _pressure_step(run_id, path, params):
@@ -204,10 +227,11 @@ def _pressure_step(run_id, path, params):
 # -- per chamber ----------------------------------------------------------------------------
 
 def fit_spring_item(item: tuple) -> spring.SpringFit:
-    """``(chamber, runs)`` -> :class:`analyses.pla_spring.SpringFit` (for ``ctx.map``)."""
-    chamber, runs = item
+    """``(chamber, stats)`` -> :class:`analyses.pla_spring.SpringFit` from the runs' sufficient statistics
+    (:class:`analyses.pla_spring.SpringStats`): milliseconds, whatever the runs' lengths."""
+    chamber, stats = item
     try:
-        return spring.fit_spring_chamber(runs)
+        return spring.fit_spring_stats(stats)
     except Exception as exc:  # never fail the rebuild on a fit
         return spring.SpringFit(chamber, message=f"fit failed: {type(exc).__name__}: {exc}")
 
@@ -253,7 +277,7 @@ def run(ctx: StageContext) -> StageOutput:
 
     _identification_outputs(out, by_kind["identification"])
     _step_outputs(out, by_kind["step"])
-    _spring_outputs(ctx, out, by_kind["spring"])
+    _spring_outputs(ctx, out, by_kind["spring"], {i[1]: i for i in items if i[0] == "spring"})
     _pressure_outputs(ctx, out, by_kind["pressure_step"])
     return out
 
@@ -281,12 +305,12 @@ def _step_outputs(out, results):
                                        f"step with the 2 % band ({PLPA_CITATION}, Fig. 15).")
 
 
-def _spring_outputs(ctx, out, results):
+def _spring_outputs(ctx, out, results, items):
     rows = {r["run_id"]: dict(r["rows"][0]) for r in results if r["rows"]}
     prepared = [r["extra"] for r in results if r["extra"] is not None]
     chambers = sorted({p.chamber for p in prepared})
     groups = [(c, sorted((p for p in prepared if p.chamber == c), key=lambda p: p.run_id)) for c in chambers]
-    fits = dict(zip(chambers, ctx.map(fit_spring_item, groups, label=f"{NAME}: spring fits"))) if groups else {}
+    fits = {c: fit_spring_item((c, g)) for c, g in groups}
     fit_rows, energy = [], []
     for chamber, group in groups:
         fit = fits[chamber]
@@ -307,7 +331,7 @@ def _spring_outputs(ctx, out, results):
             rows[p.run_id]["nrmse_pct"] = finite_float(fit.nrmse_pct.get(p.run_id))
             rows[p.run_id]["note"] = fit.test_notes.get(p.run_id) or (
                 None if fit.ok else f"the {chamber} chamber's fit is not reported: {fit.note or fit.message}")
-            model_u = spring.model_loop_energy(p, fit) if fit.ok else float("nan")
+            model_u = fit.model_loop_energy_j.get(p.run_id, float("nan")) if fit.ok else float("nan")
             energy.append({"run_id": p.run_id, "chamber": chamber, "p0_bar_abs": p.p0_abs / 1e5,
                            "amplitude_mm": p.amplitude_m * 1e3, "frequency_hz": p.frequency_hz,
                            "n_cycles": p.cycles, "loop_energy_j": finite_float(p.loop_energy_j),
@@ -318,9 +342,11 @@ def _spring_outputs(ctx, out, results):
     out.tables["spring_loop_energy"] = _frame(energy, ENERGY_COLS, ints=("n_cycles",))
     for chamber, group in groups:
         fit = fits[chamber]
-        if fit.ok:
+        if fit.ok:   # only the runs drawn are read again (their prepared samples memoised)
+            shown = [items[rid] for rid in spring.figure_runs(group)]
+            runs = [r for r in ctx.map(spring_figure_run, shown, label=f"{NAME}: spring figures") if r is not None]
             name = f"spring_loops_{chamber}"
-            out.draw(name, spring.plot_spring_loops, group, fit)
+            out.draw(name, spring.plot_spring_loops, runs, fit)
             out.captions[name] = (f"PLA {chamber} chamber: force-displacement loops, experimental vs fitted model, "
                                   f"for the tests of {PLA_CITATION}, Figs. 8-13 (closest available runs).")
     if energy:

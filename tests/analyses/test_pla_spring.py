@@ -11,6 +11,7 @@ from analyses.quality import Sensor
 from analyses.quality import nrmse_pct as nrmse_percent
 from analyses.pla_spring import (fit_spring_chamber, loop_energy, model_loop_energy,
                                  plot_loop_energy, plot_spring_loops, prepare_spring_run, read_p0, spring_force,
+                                 spring_run_stats,
                                  spring_pressure)
 from pipeline.simulator import simulate_spring
 
@@ -129,7 +130,7 @@ def test_loop_energy_grows_with_amplitude_not_frequency():
     assert (spread < 1.1).all()   # frequency independent: structural, not viscous
     fit = fit_spring_chamber(runs)
     for r in runs:
-        assert model_loop_energy(r, fit) == pytest.approx(r.loop_energy_j, rel=0.05)
+        assert model_loop_energy(spring_run_stats(r), fit) == pytest.approx(r.loop_energy_j, rel=0.05)
 
 
 def test_unusable_runs_are_flagged_not_raised():
