@@ -236,9 +236,9 @@ def change_victims(raw: Path, warehouse: Path) -> dict[str, tuple[Path, object]]
     return out
 
 
-def per_kind(ref: str, after: str, runs: int, seed: int, rounds: int) -> dict:
+def per_kind(ref: str, after: str, runs: int, seed: int, rounds: int, kinds: tuple[str, ...] = ()) -> dict:
     """Wall and CPU seconds of a full rebuild and of one change of each kind, versions ``ref`` and
-    ``after`` alternating on the same campaign (:func:`change_victims`)."""
+    ``after`` alternating on the same campaign (:func:`change_victims`; only ``kinds`` when given)."""
     import tempfile
 
     from benchmarks.bench_versions import _age_to, command, _env
@@ -261,6 +261,8 @@ def per_kind(ref: str, after: str, runs: int, seed: int, rounds: int) -> dict:
             out[name]["full"] = [rebuild(name)]
             print(f"  {name}: full {out[name]['full'][0][0]:.1f} s, CPU {out[name]['full'][0][1]:.1f} s", flush=True)
         for kind, (path, edit) in change_victims(raw, work / "wh-after").items():
+            if kinds and kind not in kinds:
+                continue
             for i in range(rounds):
                 for name in (trees if i % 2 == 0 else list(reversed(trees))):
                     original = edit(path, i + 1)
@@ -333,6 +335,7 @@ def main(argv=None) -> int:
     ap.add_argument("--ref", default="main", help="--per-kind: the version before")
     ap.add_argument("--after", default="HEAD", help="--per-kind: the version after")
     ap.add_argument("--rounds", type=int, default=1, help="--per-kind: changes of each kind per version (median)")
+    ap.add_argument("--kinds", default="", help="--per-kind: only these changes (comma-separated, e.g. spring)")
     args = ap.parse_args(argv)
     if args.per_kind:
         return _main_per_kind(args)
@@ -386,7 +389,8 @@ def _main_per_kind(args) -> int:
     n = int(args.runs.split(",")[0])
     print(f"one change of each kind, {n} runs, before {args.ref}, after {args.after}, {os.cpu_count()} cores; "
           f"load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}", flush=True)
-    times = per_kind(args.ref, args.after, n, args.seed, args.rounds)
+    times = per_kind(args.ref, args.after, n, args.seed, args.rounds,
+                     tuple(k.strip() for k in args.kinds.split(",") if k.strip()))
     print(f"load average after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}\n")
     print("\n".join(per_kind_table(times)))
     full = statistics.median([c for _, c in times["after"]["full"]])

@@ -237,9 +237,14 @@ def fit_spring_item(item: tuple) -> spring.SpringFit:
 
 
 def fit_pressure_item(item: tuple) -> pdyn.PressureFit:
-    """``(chamber, direction, steps)`` -> :class:`analyses.pressure_dynamics.PressureFit`."""
-    chamber, direction, steps = item
+    """``(chamber, direction, runs)`` -> :class:`analyses.pressure_dynamics.PressureFit` of the steps in
+    that direction of ``runs`` (items as :func:`analyse_run`'s, in the group's order; read again here,
+    so the item names every input and the memo keeps the fit until one of its runs changes)."""
+    chamber, direction, runs = item
+    steps = []
     try:
+        for _, run_id, path, params in runs:
+            steps += [s for s in (_pressure_step(run_id, path, params)[2] or []) if s.direction == direction]
         return pdyn.fit_pressure_dynamics(steps, chamber, direction)
     except Exception as exc:
         return pdyn.PressureFit(chamber, direction, n_steps=len(steps),
@@ -278,7 +283,7 @@ def run(ctx: StageContext) -> StageOutput:
     _identification_outputs(out, by_kind["identification"])
     _step_outputs(out, by_kind["step"])
     _spring_outputs(ctx, out, by_kind["spring"], {i[1]: i for i in items if i[0] == "spring"})
-    _pressure_outputs(ctx, out, by_kind["pressure_step"])
+    _pressure_outputs(ctx, out, by_kind["pressure_step"], {i[1]: i for i in items if i[0] == "pressure_step"})
     return out
 
 
@@ -379,16 +384,16 @@ def _group_label(g) -> str:
     return f"({g.chamber}, {g.direction}; {where})"
 
 
-def _pressure_outputs(ctx, out, results):
+def _pressure_outputs(ctx, out, results, items):
     """``pressure_dynamics`` and ``pressure_steps``, and their figures, from the pressure_step runs' steps."""
-    grouped, fits = _pressure_fits(ctx, results)
+    grouped, fits = _pressure_fits(ctx, results, items)
     _pressure_tables(out, grouped, fits)
     _draw_rig_pressures(out, grouped, fits)
     _draw_part_pressures(out, grouped, fits)
     _draw_pressure_ageing(out)
 
 
-def _pressure_fits(ctx, results) -> tuple[dict, dict]:
+def _pressure_fits(ctx, results, items) -> tuple[dict, dict]:
     """The steps grouped (:class:`analyses.pressure_dynamics.StepGroup` -> steps, by its sort key) and
     each group's :class:`analyses.pressure_dynamics.PressureFit`."""
     steps = [s for r in results if r["extra"] for s in r["extra"]]
@@ -399,7 +404,8 @@ def _pressure_fits(ctx, results) -> tuple[dict, dict]:
         for d in ("charge", "discharge"):
             grouped.setdefault(pdyn.StepGroup("rig", g.campaign, g.rig, g.chamber, d), [])
     grouped = {g: grouped[g] for g in sorted(grouped, key=pdyn.StepGroup.sort_key)}
-    todo = [(g, (g.chamber, g.direction, v)) for g, v in grouped.items() if v]
+    todo = [(g, (g.chamber, g.direction, [items[rid] for rid in dict.fromkeys(s.run_id for s in v)]))
+            for g, v in grouped.items() if v]
     fits = dict(zip((g for g, _ in todo), ctx.map(fit_pressure_item, [i for _, i in todo],
                                                   label=f"{NAME}: pressure fits"))) if todo else {}
     for g in grouped:

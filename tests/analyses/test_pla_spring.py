@@ -11,7 +11,7 @@ from analyses.quality import Sensor
 from analyses.quality import nrmse_pct as nrmse_percent
 from analyses.pla_spring import (fit_spring_chamber, loop_energy, model_loop_energy,
                                  plot_loop_energy, plot_spring_loops, prepare_spring_run, read_p0, spring_force,
-                                 spring_run_stats,
+                                 spring_model_force, spring_nrmse, spring_run_stats, fit_spring_stats,
                                  spring_pressure)
 from pipeline.simulator import simulate_spring
 
@@ -207,3 +207,62 @@ def test_motion_judged_against_the_displacement_sensor():
     still = prepare_spring_run("s", t, dither, np.ones_like(t), np.full_like(t, 2e5), "rear", 1.0, 0.005,
                                d_sensor=Sensor(1e-6, 0.5e-6))
     assert not still.ok and "no displacement" in still.message
+
+
+# -- the joint fit from per-run sufficient statistics -------------------------------------------
+
+def _direct_fit(runs):
+    """The chamber's weighted nonlinear least squares on the samples themselves (scipy, tight)."""
+    import scipy.optimize
+
+    from analyses.pla_spring import FORCE_SIGN, PRESSURE_SIGN
+
+    sf = FORCE_SIGN[runs[0].chamber]
+
+    def residual(x):
+        n, ae, eps, delta = x
+        out = []
+        for r in runs:
+            half = 0.5 * r.stroke_m
+            pg = r.p0_abs * (half / (half + PRESSURE_SIGN[r.chamber] * r.d)) ** n - r.p_atm
+            model = pg * ae + sf * (np.sign(r.v) * eps * pg + delta * r.v / (2 * np.pi * r.frequency_hz))
+            out.append((model - r.f) / (np.ptp(r.f) * np.sqrt(len(r.d))))
+        return np.concatenate(out)
+
+    x0 = [1.2, 1.5e-3, 2e-5, 3e3]
+    return scipy.optimize.least_squares(residual, x0, x_scale=x0, xtol=1e-15, ftol=1e-15, gtol=1e-15).x
+
+
+def test_the_fit_from_sums_is_the_least_squares_fit_of_the_samples():
+    runs, _ = _prepared("front", SMALL_GRID + [(3.0, 5.0, 2.0)])
+    fit = fit_spring_chamber(runs)
+    np.testing.assert_allclose(fit.params, _direct_fit(runs), rtol=1e-8)
+    for r in runs:   # each test's NRMSE and model loop energy, from its sums, as from its samples
+        assert fit.nrmse_pct[r.run_id] == pytest.approx(spring_nrmse(r, fit), rel=1e-8)
+        direct = loop_energy(r.d, spring_model_force(r, fit), r.chamber)[0]
+        assert fit.model_loop_energy_j[r.run_id] == pytest.approx(direct, rel=1e-10)
+
+
+def test_runs_combine_in_run_id_order_bit_for_bit_and_survive_a_pickle():
+    import pickle
+
+    runs, _ = _prepared("rear", SMALL_GRID)
+    stats = [spring_run_stats(r) for r in runs]
+    a = fit_spring_stats(stats)
+    b = fit_spring_stats([pickle.loads(pickle.dumps(s)) for s in reversed(stats)])   # as read from the memo
+    assert a.params == b.params and a.nrmse_pct == b.nrmse_pct and a.se == b.se
+    assert fit_spring_chamber(runs).params == a.params
+    assert all(not k.startswith("_") and isinstance(v, np.ndarray) and v.size < 64
+               for s in stats for part in (s.fit, s.all, s.cycle) for k, v in part.items())   # sums, not samples
+
+
+def test_a_run_at_the_stroke_end_is_outside_the_model():
+    t = np.linspace(0, 3, 3000)
+    d = 0.0199 * np.sin(2 * np.pi * t)            # 19.9 mm of a 20 mm half stroke
+    pg = spring_pressure(d, 3e5, 1.1, "rear") - PA
+    run = prepare_spring_run("end", t, d, pg * 1.5e-3, pg, "rear", 1.0, 0.0199)
+    assert run.ok
+    stats = spring_run_stats(run)
+    assert not stats.ok and "stroke's end" in stats.message
+    fit = fit_spring_stats([stats])
+    assert not fit.ok and fit.note == "no usable run"

@@ -217,3 +217,18 @@ def test_setpoint_jumps_on_settled_levels_not_on_every_change():
     stairs = np.repeat([0.0, 750.0, 1500.0], 1000)
     assert setpoint_jumps(stairs, 14.985, 14.985, 5) == [1000, 2000]
     assert settle_points(Sensor(0.0, 10.0), 5) == 12 and settle_points(Sensor(1.0, 0.0), 5) == 5
+
+
+def test_gram_se_is_jacobian_se_from_the_sums():
+    from analyses.quality import gram_se, jacobian_se
+
+    rng = np.random.default_rng(3)
+    J = rng.normal(size=(200, 3)) * [1e5, 1.0, 1e-3]      # units ten decades apart
+    J[:, 2] += 1e-3 * J[:, 1]
+    r = rng.normal(0, 0.5, 200)
+    se, cond = jacobian_se(J, r)
+    se2, cond2 = gram_se(J.T @ J, float(np.sum(r ** 2)), 200 - 3)
+    np.testing.assert_allclose(se2, se, rtol=1e-10)
+    assert cond2 == pytest.approx(cond, rel=1e-8)
+    J[:, 2] = 0.0                                        # a parameter the data cannot see
+    assert gram_se(J.T @ J, 1.0, 197)[1] == float("inf") and np.isnan(gram_se(J.T @ J, 1.0, 197)[0]).all()

@@ -342,3 +342,35 @@ def test_hostile_chamber_and_part_names_are_stored_as_written_and_never_name_a_p
     for p in figs["path"]:
         f = (wh / p).resolve()
         assert f.is_relative_to((wh / "stages" / "models").resolve()) and f.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_one_changed_spring_run_refits_from_the_memo_and_equals_a_full_rebuild(tmp_path, monkeypatch):
+    import pipeline.rebuild.flow as rb
+    from tests.pipeline.rebuild.test_state import age, dump
+
+    seen = []
+    real = rb.run_stages_cached
+    monkeypatch.setattr(rb, "run_stages_cached", lambda *a, **k: seen.append(real(*a, **k)) or seen[-1])
+    raw, inc, full = tmp_path / "raw", tmp_path / "inc", tmp_path / "full"
+    for chamber in ("rear", "front"):
+        for i, (p0, amp, f) in enumerate(SPRING_TESTS[:4]):
+            _write(raw, f"spring_{chamber}_{i}", simulate_spring(chamber, p0, amp, f, rng=i, cycles=2.0))
+    _write(raw, "pstep", simulate_pressure_step("rear", rng=7))
+    age(raw)
+    rebuild(raw, inc, jobs=2, report=False)
+    before = q(inc, "SELECT * FROM spring_fits ORDER BY chamber")
+    _write(raw, "spring_front_3", simulate_spring("front", 4.4, 5.0, 1.0, rng=99, cycles=2.0))
+    age(raw)
+    rebuild(raw, inc, jobs=2, report=False)
+    memo = seen[-1].memos["models"]
+    # computed: the changed run's analysis and the front figure's runs read again (at most the changed
+    # run and one it displaced); the joint spring fits combine the runs' sums (no item), the pressure
+    # fits come from the memo (before: 1 + 2 spring fits + 2 pressure fits computed)
+    assert memo.computed <= 3 and memo.hits >= 9
+    after = q(inc, "SELECT * FROM spring_fits ORDER BY chamber")
+    assert after["n_polytropic"].iloc[1] == before["n_polytropic"].iloc[1]            # rear: the same bits
+    assert after["n_polytropic"].iloc[0] != before["n_polytropic"].iloc[0]            # front: refitted
+    rebuild(raw, full, jobs=2, full=True, report=False)
+    a, b = dump(inc), dump(full)
+    for table in ("spring_fits", "spring_tests", "spring_loop_energy", "pressure_dynamics", "pressure_steps"):
+        assert a[table] and a[table] == b[table], table
