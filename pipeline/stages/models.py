@@ -9,7 +9,12 @@ Tables (``schemas/ddl/20_models.sql``): ``identification``, ``step_response``, `
 ``spring_tests``, ``spring_loop_energy``, ``pressure_dynamics``, ``pressure_steps``.
 
 Per-run work (reading samples, decimation, fits of one run) goes through ``ctx.map`` with the
-module-level :func:`analyse_run`; the per-chamber fits (spring, pressure) through ``ctx.map`` too.
+module-level :func:`analyse_run`, memoised per run. A spring run's result is its sufficient statistics
+(:class:`analyses.pla_spring.SpringStats`, not its samples): the joint spring fit of a chamber adds
+them in this process (milliseconds; one changed run costs its own analysis), and only the runs a
+figure draws are read again (:func:`spring_figure_run`, memoised). The pressure fits go through
+``ctx.map`` with items naming the runs they read (:func:`fit_pressure_item`): memoised until one of
+their runs changes.
 A run that cannot be analysed gives NULLs and a warning on the run, never an exception.
 """
 from __future__ import annotations
