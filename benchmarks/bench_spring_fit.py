@@ -12,9 +12,10 @@ x f 0.5, 1, 1.5, 2, 4 Hz) with the simulator as warehouse samples Parquet under
 ``benchmarks/_data/spring/`` (git-ignored; reused when present), then times, in this run:
 
 * ``stage``: what ``pipeline.stages.models`` does: :func:`pipeline.stages.models.analyse_run` per
-  test through a pool of ``--jobs`` processes (read Parquet, P0, velocity, loop energy), then one
-  fit per chamber through the pool (:func:`analyses.pla_spring.fit_spring_chamber`: paper seeds,
-  stacked arrays, analytic Jacobian, ``least_squares``), NRMSE of every test;
+  test through a pool of ``--jobs`` processes (read Parquet, P0, velocity, loop energy, the run's
+  sufficient statistics), then one fit per chamber in this process from the sums
+  (:func:`pipeline.stages.models.fit_spring_item`: paper seeds, variable projection), NRMSE of
+  every test;
 * ``baseline``: the same reading and seeds in one process, then a plain fit: a residual that loops
   over the tests and their samples in Python, finite-difference Jacobian, every sample used.
 
@@ -68,12 +69,12 @@ def stage_path(items: list[tuple], jobs: int):
     t0 = time.perf_counter()
     with ProcessPoolExecutor(max_workers=jobs) as pool:
         results = list(pool.map(analyse_run, items, chunksize=max(1, len(items) // (jobs * 8))))
-        runs = [r["extra"] for r in results if r["extra"] is not None]
-        t1 = time.perf_counter()
-        groups = [(c, [r for r in runs if r.chamber == c]) for c in ("front", "rear")]
-        fits = list(pool.map(fit_spring_item, groups))
-    print(f"    stage: read + prepare {t1 - t0:.2f} s (pool start included), fits {time.perf_counter() - t1:.2f} s")
-    return {f.chamber: f for f in fits}, runs
+    stats = [r["extra"] for r in results if r["extra"] is not None]
+    t1 = time.perf_counter()
+    fits = [fit_spring_item((c, [r for r in stats if r.chamber == c])) for c in ("front", "rear")]
+    print(f"    stage: read + prepare + sums {t1 - t0:.2f} s (pool start included), "
+          f"fits {time.perf_counter() - t1:.3f} s")
+    return {f.chamber: f for f in fits}, stats
 
 
 def _plain_residual(x, tests, stroke_m, p_atm):
@@ -99,14 +100,14 @@ def baseline_path(items: list[tuple]):
     import numpy as np
     from scipy import optimize
 
-    from analyses.pla_spring import SpringFit, _seed, spring_nrmse
-    from pipeline.stages.models import analyse_run
+    from analyses.pla_spring import SpringFit, fit_spring_stats, spring_nrmse, spring_run_stats
+    from pipeline.stages.models import spring_figure_run
 
-    runs = [r["extra"] for r in map(analyse_run, items) if r["extra"] is not None]
+    runs = [r for r in map(spring_figure_run, items) if r is not None]
     fits = {}
     for chamber in ("front", "rear"):
         group = [r for r in runs if r.chamber == chamber]
-        seeds = _seed(group)
+        seeds = fit_spring_stats([spring_run_stats(r) for r in group]).seeds
         x0 = [seeds["n_polytropic"], seeds["ae_m2"], seeds["epsilon_m2"], seeds["delta_n_m"]]
         tests = [{"chamber": r.chamber, "d": r.d.tolist(), "v": r.v.tolist(), "force": r.f.tolist(),
                   "p0": r.p0_abs, "f": r.frequency_hz, "range": float(np.ptp(r.f))} for r in group]
@@ -143,10 +144,10 @@ def main(argv=None) -> int:
           f"{time.perf_counter() - t0:.1f} s; {os.cpu_count()} CPUs, stage path on {args.jobs} workers")
 
     t0 = time.perf_counter()
-    fits, runs = stage_path(items, args.jobs)
+    fits, stats = stage_path(items, args.jobs)
     t_stage = time.perf_counter() - t0
-    n_samples = sum(len(r.d) for r in runs)
-    print(f"{n_samples} samples in {len(runs)} tests")
+    n_samples = sum(r.n_all for r in stats)
+    print(f"{n_samples} samples in {len(stats)} tests")
     _report("stage", t_stage, fits, truth)
     ok = t_stage < 30.0 and all(max(f.nrmse_pct.values()) < 2.5 for f in fits.values())
 
