@@ -86,7 +86,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import optimize, special, stats
+import scipy  # its submodules load on first use: a rebuild whose decision stage has no hoses never pays for them
 
 SPENDING = ("obrien-fleming", "pocock")
 VERDICTS = ("force longer", "distance longer", "no practical difference", "undecided")
@@ -127,7 +127,7 @@ def alpha_spent(t, alpha: float = 0.05, spending: str = "obrien-fleming") -> np.
     t = np.clip(np.asarray(t, float), 0.0, 1.0)
     if spending == "obrien-fleming":
         with np.errstate(divide="ignore"):
-            out = 2.0 * stats.norm.sf(stats.norm.isf(alpha / 2.0) / np.sqrt(t))
+            out = 2.0 * scipy.stats.norm.sf(scipy.stats.norm.isf(alpha / 2.0) / np.sqrt(t))
     elif spending == "pocock":
         out = alpha * np.log1p((math.e - 1.0) * t)
     else:
@@ -165,12 +165,12 @@ class _Recursion:
         t, k, d = self.t, self.k, self.drift
         if k == 0:
             m = d * math.sqrt(t[0])
-            return float(stats.norm.sf(c - m)), float(stats.norm.cdf(-c - m))
+            return float(scipy.stats.norm.sf(c - m)), float(scipy.stats.norm.cdf(-c - m))
         inc = t[k] - t[k - 1]
         mean = self.z * math.sqrt(t[k - 1]) + d * inc
         s = math.sqrt(inc)
-        up = special.ndtr((mean - c * math.sqrt(t[k])) / s)
-        lo = special.ndtr((-c * math.sqrt(t[k]) - mean) / s)
+        up = scipy.special.ndtr((mean - c * math.sqrt(t[k])) / s)
+        lo = scipy.special.ndtr((-c * math.sqrt(t[k]) - mean) / s)
         wg = self.w * self.g
         return float(wg @ up), float(wg @ lo)
 
@@ -183,7 +183,7 @@ class _Recursion:
             lo, hi = m - 1e-9, m + 1e-9
         z, w = _simpson(lo, hi, self.h[k])
         if k == 0:
-            g = stats.norm.pdf(z - m)
+            g = scipy.stats.norm.pdf(z - m)
         else:
             inc = t[k] - t[k - 1]
             s = math.sqrt(inc)
@@ -249,7 +249,7 @@ def _boundaries(t: tuple, alpha: float, spending: str) -> tuple:
         if spend[k] < 1e-15:
             c = _NO_BOUNDARY
         else:
-            c = optimize.brentq(lambda c: sum(rec.exit_probabilities(c)) - spend[k], 1e-6, _NO_BOUNDARY,
+            c = scipy.optimize.brentq(lambda c: sum(rec.exit_probabilities(c)) - spend[k], 1e-6, _NO_BOUNDARY,
                                 xtol=1e-10, rtol=1e-12)
         out.append(c)
         rec.advance(c)
@@ -329,7 +329,7 @@ def inflation_factor(looks: int, alpha: float = 0.05, power: float = 0.8,
     """
     t = np.arange(1, looks + 1) / looks
     c = efficacy_boundaries(t, alpha, spending)
-    fixed = stats.norm.isf(alpha / 2) + stats.norm.ppf(power)
+    fixed = scipy.stats.norm.isf(alpha / 2) + scipy.stats.norm.ppf(power)
 
     def excess(d):
         return crossing_probabilities(c, t, d)[0].sum() - power
@@ -337,7 +337,7 @@ def inflation_factor(looks: int, alpha: float = 0.05, power: float = 0.8,
     lo, hi = 0.995 * fixed, 1.3 * fixed
     if excess(hi) < 0:
         lo, hi = hi, 3.0 * fixed
-    drift = optimize.brentq(excess, lo, hi, xtol=1e-7)
+    drift = scipy.optimize.brentq(excess, lo, hi, xtol=1e-7)
     return (drift / fixed) ** 2, drift
 
 
@@ -418,7 +418,7 @@ def information_per_failure(margin: float, shape: float, failures: float | None 
     # (<= 1.2 scales at shape >= 0.5)
     top = 1.5 * scale_f * (failures / n + 3.0) * max(1.0, math.gamma(1.0 + 1.0 / shape))
     if failures < 1.9 * n:
-        top = 1.001 * optimize.brentq(lambda x: -n * (math.expm1(-x ** shape) + math.expm1(-(x / scale_f) ** shape))
+        top = 1.001 * scipy.optimize.brentq(lambda x: -n * (math.expm1(-x ** shape) + math.expm1(-(x / scale_f) ** shape))
                                       - failures, 0.0, top)
     t = np.linspace(0.0, top, int(min(4001, max(401, 20.0 * top))))
     m_d, m_f = _renewal_function(t, 1.0, shape), _renewal_function(t, scale_f, shape)
@@ -539,7 +539,7 @@ def max_information(margin: float, alpha: float = 0.05, power: float = 0.8,
     margin = max(margin, 1.0 / margin)
     if not margin > 1.0 or not shape > 0:
         raise ValueError("margin must differ from 1 and shape be positive")
-    i_fix = ((stats.norm.isf(alpha / 2) + stats.norm.ppf(power)) / math.log(margin)) ** 2
+    i_fix = ((scipy.stats.norm.isf(alpha / 2) + scipy.stats.norm.ppf(power)) / math.log(margin)) ** 2
 
     def per_failure(d):
         return information_per_failure(margin, shape, d, hoses_per_adjustment)[0]

@@ -17,7 +17,8 @@ BENCHMARKS = {
     "durability": ([], ["--hours", "0.5", "--repeat", "1"]),  # default: one full-profile run (10 km)
     "spring_fit": ([], []),
     "rebuild": (["--runs", "1000"], ["--runs", "150"]),
-    "cli": ([], ["--quick"]),  # whole pneubench commands as processes against whole-process baselines
+    "cli": ([], ["--quick"]),
+    "one_csv": ([], ["--quick"]),  # one fresh 100 MB CSV: the whole rebuild before / after against pandas and DuckDB  # whole pneubench commands as processes against whole-process baselines
     "scale": ([], ["--runs", "300,1000"]),  # the cost curve to 10,000 runs
     "memo": ([], ["--entries", "1000"]),  # the per-run memo's own cost: one change out of 10,000
     "versions": ([], ["--runs", "300", "--repeat", "2"]),  # before / after a change (--ref main~1), same run
