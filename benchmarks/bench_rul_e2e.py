@@ -95,7 +95,10 @@ def build(root: Path, profile, seed: int, jobs: int, campaigns: tuple | None = N
     from pipeline.simulator.campaign import simulate_campaign
 
     raw, wh = root / "raw", root / "wh"
-    simulate_campaign(raw, seed=seed, profile=profile, jobs=jobs, campaigns=campaigns)
+    if (raw / "truth.json").exists():   # --keep of an earlier run: its campaign, rebuilt incrementally
+        print(f"{raw}: simulated before (--keep), not again")
+    else:
+        simulate_campaign(raw, seed=seed, profile=profile, jobs=jobs, campaigns=campaigns)
     m = measure([*pneubench_cmd(), "rebuild", "--raw", str(raw), "--warehouse", str(wh), "--no-report",
                  "--jobs", str(jobs), "-q"], check=False)
     if m.exit_code != 0:
@@ -113,12 +116,30 @@ def read_plan(raw: Path):
 
 # -- counting -------------------------------------------------------------------------------------
 def running_outcomes(rul: pd.DataFrame, truth_hoses: dict) -> pd.DataFrame:
-    """The running hoses' predictions with their true remaining life [km]: ``made``, ``covered``, ``width``."""
-    r = rul.assign(truth_km=[truth_hoses[h]["failure_km"] for h in rul["hose_id"]])
+    """The running hoses' predictions with their true remaining life [km]: ``made``, ``covered``,
+    ``width``, ``below`` (the truth under the lower end), ``above`` (over the upper end), ``mode``
+    (how the simulator ends the hose: leakage or rupture)."""
+    r = rul.assign(truth_km=[truth_hoses[h]["failure_km"] for h in rul["hose_id"]],
+                   mode=[truth_hoses[h].get("failure_mode_true", "?") for h in rul["hose_id"]])
     ok = r["rul_median_km"].notna()
     rem = r["truth_km"] - r["distance_km"]
-    return r.assign(made=ok, covered=ok & (r["rul_lower_km"] <= rem) & (rem <= r["rul_upper_km"]),
+    below, above = ok & (rem < r["rul_lower_km"]), ok & (rem > r["rul_upper_km"])
+    return r.assign(made=ok, covered=ok & ~below & ~above, below=below, above=above,
                     width=r["rul_upper_km"] - r["rul_lower_km"])
+
+
+def misses(made: pd.DataFrame) -> None:
+    """Print where one method's intervals miss: the truth below the lower end or above the upper end,
+    by quartile of the distance now relative to its group's median (the groups wear at different
+    rates) and by the simulator's failure mode."""
+    rel = made["distance_km"] / made.groupby(["hose_type", "adjustment"])["distance_km"].transform("median")
+    parts = [(f"distance now / group median, quartile {q + 1}", g)
+             for q, g in made.groupby(pd.qcut(rel.rank(method="first"), 4, labels=False), sort=True)]
+    parts += [(f"ends by {mode}", g) for mode, g in made.groupby("mode", sort=True)]
+    for label, g in parts:
+        print(f"{'':14s}{label:44s} {len(g):4d} hoses: covered {int(g['covered'].sum()):4d} "
+              f"({100 * g['covered'].mean():5.1f} %), truth below the lower end {int(g['below'].sum()):3d}, "
+              f"above the upper end {int(g['above'].sum()):3d}")
 
 
 def line(label: str, ok: bool, quick: bool) -> bool:
@@ -143,6 +164,7 @@ def report(outcomes: pd.DataFrame, backtests: pd.DataFrame, wear: pd.DataFrame, 
                    f"{int(made['covered'].sum())} = {100 * cov:.1f} % (nominal {100 * conf:g} +- 7, >= 300)"
                    + (f"; NULL mostly: {notes.index[0]}" if len(notes) else ""),
                    len(made) >= 300 and abs(cov - conf) <= 0.07, quick)
+        misses(made)
         b = summary.loc[method] if method in summary.index else {"n_predictions": 0, "coverage": math.nan,
                                                                  "median_abs_error_km": math.nan}
         ok &= line(f"{'':12s} rul_backtest {int(b['n_predictions'])} predictions, coverage {100 * b['coverage']:.1f} %, "
