@@ -247,13 +247,17 @@ def _adapted_draws(life, failed, fit: WeibullFit, start: tuple, n_draws: int, rn
         log_w = log_w + weibull_loglik_many(shape, scale, life, failed)
         post = WeibullPosterior(shape, scale, log_w, fit)
         w, ess = post.weights()
-        if ess > best_ess:
+        if best is None or ess > best_ess:
             best, best_ess = post, ess
         if k + 1 >= MIN_ADAPT_ROUNDS and best_ess >= ADAPTED_ESS * MIN_ESS:
             break
         centre = w @ theta
         cov = (theta - centre).T @ ((theta - centre) * w[:, None])
-        if not (np.isfinite(cov).all() and np.linalg.eigvalsh(cov).min() > 0):
+        try:   # a degenerate round (one draw carries the weight) cannot propose the next
+            np.linalg.cholesky(cov)
+        except np.linalg.LinAlgError:
+            break
+        if not np.isfinite(centre).all():
             break
     return best
 

@@ -247,39 +247,6 @@ def to_display(column: str, values):
 _SI_SUFFIX = {q.si_unit: "_" + q.suffix for q in QUANTITIES.values()}
 
 
-#: One part of a ``sensors`` text of result rows, as :meth:`analyses.quality.Sensor.describe` and the
-#: stage that writes it make it: ``"<channel>: resolution <r>, noise <n> (<source>) <SI unit>"``.
-SENSOR_PART = r"\s*(?P<name>[^:;]+): resolution (?P<res>\S+), noise (?P<noise>\S+) \((?P<src>[^)]*)\) (?P<unit>\S+)\s*"
-
-
-def sensor_parts(text) -> dict:
-    """The sensors a ``sensors`` text of result rows states (``leakage_map.sensors``: ``"p_supply:
-    resolution 100, noise 40 (metadata) Pa; q_leak: resolution 2e-08, noise 4e-08 (metadata) kg/s"``).
-
-    The one reader of that text (the report's flow floor, the remaining-life stage's leak sensor,
-    :func:`display_sensors_text`).
-
-    Returns
-    -------
-    dict
-        channel -> ``(resolution, noise, source, unit)``, the numbers as written in ``unit`` (NaN
-        stays NaN: the caller decides); a part that does not read that way, or whose numbers do not
-        parse, is left out. Empty for a text that is not a string.
-    """
-    import re
-
-    found = {}
-    for part in (text.split(";") if isinstance(text, str) else []):
-        m = re.fullmatch(SENSOR_PART, part)
-        if m is None:
-            continue
-        try:
-            found[m["name"]] = (float(m["res"]), float(m["noise"]), m["src"], m["unit"])
-        except ValueError:
-            continue
-    return found
-
-
 def display_sensors_text(text: str) -> str:
     """A ``sensors`` text of result rows in display units.
 
@@ -287,15 +254,22 @@ def display_sensors_text(text: str) -> str:
     ``"p_supply: resolution 0.001 bar, noise 0.0004 bar (metadata); q_leak: ... l/min"``.
     A part that does not read that way is left as it is.
     """
+    import re
+
     def one(part: str) -> str:
-        stated = sensor_parts(part)
-        if not stated:
+        m = re.fullmatch(r"\s*(?P<name>[^:;]+): resolution (?P<res>\S+), noise (?P<noise>\S+) "
+                         r"\((?P<src>[^)]*)\) (?P<unit>\S+)\s*", part)
+        if m is None or m["unit"] not in _SI_SUFFIX:
             return part.strip()
-        (name, (res, noise, src, si)), = stated.items()
-        shown, convert = DISPLAY.get(_SI_SUFFIX.get(si), (None, None))
+        try:
+            res, noise = float(m["res"]), float(m["noise"])
+        except ValueError:
+            return part.strip()
+        shown, convert = DISPLAY.get(_SI_SUFFIX[m["unit"]], (None, None))
         if shown is None:
             return part.strip()
         unit = COLUMN_UNITS[shown][1]
-        return f"{name}: resolution {float(convert(res)):.3g} {unit}, noise {float(convert(noise)):.3g} {unit} ({src})"
+        return (f"{m['name']}: resolution {float(convert(res)):.3g} {unit}, noise {float(convert(noise)):.3g} {unit} "
+                f"({m['src']})")
 
     return "; ".join(one(p) for p in str(text).split(";"))

@@ -54,7 +54,8 @@ from analyses.quality import Sensor
 from analyses.remaining_life import (RulSettings, backtest_summary, leak_crossing_lives, remaining_life,
                                      rul_backtest)
 from pipeline.stages import Reads, StageContext, StageOutput
-from schemas.units import kg_s_to_l_min_anr, sensor_parts
+from pipeline.stages.sensors_text import sensor_parts
+from schemas.units import kg_s_to_l_min_anr
 
 NAME = "remaining_life"
 READS = Reads(tables=("hose_life", "hose_leak_growth", "leakage_map", "life_verdict"),
@@ -92,8 +93,9 @@ def _columns(df: pd.DataFrame, names) -> dict:
 
 
 def leak_sensor(sensors) -> list | None:
-    """The leak-flow sensor the ``leakage_map.sensors`` texts state (:func:`schemas.units.sensor_parts`):
-    ``[resolution, noise]`` [l/min ANR], the coarsest of each among them; None when none states one."""
+    """The leak-flow sensor the ``leakage_map.sensors`` texts state
+    (:func:`pipeline.stages.sensors_text.sensor_parts`): ``[resolution, noise]`` [l/min ANR], the
+    coarsest of each among them; None when none states one."""
     stated = [sensor_parts(t).get("q_leak") for t in sensors]
     found = [(r, n) for r, n, _, unit in (s for s in stated if s is not None)
              if unit == "kg/s" and math.isfinite(r) and math.isfinite(n) and r >= 0 and n >= 0]

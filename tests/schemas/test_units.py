@@ -1,5 +1,3 @@
-import math
-
 import numpy as np
 import pytest
 
@@ -83,15 +81,3 @@ def test_sensors_text_reads_in_display_units():
     # what does not read that way stays as it is
     assert display_sensors_text("hand-made note; x: resolution 1, noise 2 (metadata) furlong") == \
         "hand-made note; x: resolution 1, noise 2 (metadata) furlong"
-
-
-def test_sensor_parts_reads_each_channel_as_written_and_skips_what_does_not_read():
-    from schemas.units import sensor_parts
-
-    text = "p_supply: resolution 100, noise 40 (metadata) Pa; q_leak: resolution 2e-08, noise nan (estimated) kg/s"
-    parts = sensor_parts(text)
-    assert parts["p_supply"] == (100.0, 40.0, "metadata", "Pa")
-    res, noise, src, unit = parts["q_leak"]
-    assert (res, src, unit) == (2e-08, "estimated", "kg/s") and math.isnan(noise)
-    assert sensor_parts("hand-made note; x: resolution one, noise 2 (metadata) Pa") == {}
-    assert sensor_parts(None) == {} and sensor_parts(float("nan")) == {}
