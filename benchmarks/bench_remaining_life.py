@@ -168,7 +168,7 @@ def report(outcomes: pd.DataFrame, backtests: pd.DataFrame, wear: list, quick: b
         ok_b = b["n_predictions"] > 0 and abs(b["coverage"] - cov) <= 0.10
         all_ok &= ok_b
         print(f"{'':12s} backtest: {b['n_predictions']} predictions, coverage {100 * b['coverage']:.1f} %, "
-              f"median abs error {b['median_abs_error_km']:.0f} km "
+              f"median abs error {b['median_abs_error_km']:.3g} km "
               f"(within 10 points of {100 * cov:.1f} %)  {_verdict(ok_b, quick)}")
     if not own_wear:
         print("wear rate: not this generator's (--design rul): bench_rul_e2e checks it against the simulator's truth")
@@ -207,8 +207,9 @@ def main(argv=None) -> int:
     types = 1 if a.quick else a.types
     t0 = time.perf_counter()
     outcomes, backtests, wear = run(types, a.every, a.seed, simulate_rul_type if a.design == "rul" else None)
-    print(f"{types} hose types x {HOSES} hoses, leak test every {a.every:g} km, seed {a.seed} "
-          f"({time.perf_counter() - t0:.0f} s)")
+    what = (f"{HOSES} hoses, leak test every {a.every:g} km" if a.design == "default" else
+            f"25 hoses (the rul profile's design, distances in median crossings), leak test every {a.every / 200:g}")
+    print(f"{types} hose types x {what}, seed {a.seed} ({time.perf_counter() - t0:.0f} s)")
     ok = report(outcomes, backtests, wear, a.quick, own_wear=a.design == "default")
     return 0 if ok or a.quick else 1
 
