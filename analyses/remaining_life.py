@@ -55,10 +55,14 @@ approximation of the posterior (Meeker & Escobar 1998, ch. 13, use the bootstrap
 are cheaper and their calibration is measured, not assumed).
 
 Other failure modes (a rupture) end a hose before its leak crosses the limit. They enter as a
-competing risk: a Weibull fitted to the failures that were not leak failures (the others
-censored), with its predictive draws as above, independent of the leak path; the remaining life
-is ``min(crossing, rupture)``. With fewer than two such failures the rupture mode is left out
-and the note says so.
+competing risk (Meeker & Escobar 1998, ch. 15): a Weibull fitted to the failures that were not
+leak failures (the leak failures censored at their distance), with its predictive draws as above,
+independent of the leak path; the remaining life is ``min(crossing, rupture)``, so this method is
+the joint model of the hose's own leak path and the logbook's ruptures. With one such failure or
+none the Weibull has no proper posterior; the mode then has a constant hazard with the Jeffreys
+prior on its rate (:func:`exponential_posterior`, posterior ``Gamma(r + 1/2, exposure)``): a mode
+seen once or not yet is bounded by the distance run without it rather than left out (leaving it
+out covered only a third of the hoses that then ruptured first).
 
 Leak points at or below ``floor_multiple`` times the sensor's floor (:meth:`Sensor.floor
 <analyses.quality.Sensor.floor>`: the larger of its stated resolution and noise) are left out of
@@ -109,6 +113,9 @@ FLOOR_MULTIPLE = 10.0
 N_DRAWS = 1000
 #: Effective sample size below which importance-weighted draws are not trusted. [-]
 MIN_ESS = 100.0
+#: Rounds of adaptive importance sampling: at least, at most [-], and the effective size, in
+#: multiples of :data:`MIN_ESS`, at which the rounds stop early [-].
+MIN_ADAPT_ROUNDS, MAX_ADAPT_ROUNDS, ADAPTED_ESS = 2, 8, 3.0
 #: Search range of the hose-to-hose variance of the log leak; an estimate at its ends is NaN. [-]
 TAU2_BOUNDS = (1e-8, 1e2)
 #: Fractions of a failed hose's life at which the backtest predicts. [-]
@@ -142,6 +149,9 @@ class WeibullPosterior:
         The maximum likelihood fit the proposal is centred on.
     note : str or None
         Why there are no draws (then the arrays are empty).
+    fixed_shape : bool
+        The shape is not drawn (:func:`exponential_posterior`: 1): one failure, or none, is then
+        enough for the model.
     """
 
     shape: np.ndarray
@@ -149,6 +159,7 @@ class WeibullPosterior:
     log_weight: np.ndarray
     fit: WeibullFit
     note: str | None = None
+    fixed_shape: bool = False
 
     @property
     def ok(self) -> bool:
@@ -171,13 +182,13 @@ class WeibullPosterior:
             return self
         n_failed = self.fit.n_failed - int(np.sum(out_failed)) + int(np.sum(in_failed))
         fit = WeibullFit(self.fit.shape, self.fit.scale, self.fit.loglik, self.fit.n, n_failed)
-        if n_failed < 2:
+        if n_failed < 2 and not self.fixed_shape:
             empty = np.empty(0)
             return WeibullPosterior(empty, empty, empty, fit, note=f"too few failures: {n_failed} < 2")
         with np.errstate(invalid="ignore"):   # -inf - -inf: a draw the data rule out stays out
             lw = (self.log_weight - weibull_loglik_many(self.shape, self.scale, out_life, out_failed)
                   + weibull_loglik_many(self.shape, self.scale, in_life, in_failed))
-        return WeibullPosterior(self.shape, self.scale, lw, fit)
+        return WeibullPosterior(self.shape, self.scale, lw, fit, fixed_shape=self.fixed_shape)
 
 
 def weibull_posterior(life, failed, n_draws: int = N_DRAWS, seed: int = 0) -> WeibullPosterior:
@@ -217,25 +228,83 @@ def weibull_posterior(life, failed, n_draws: int = N_DRAWS, seed: int = 0) -> We
         np.linalg.cholesky(cov)
     except np.linalg.LinAlgError:
         return WeibullPosterior(empty, empty, empty, fit, note="the likelihood is not peaked at its maximum")
-    rng = np.random.default_rng(seed)
-    for _ in range(2):   # the second proposal takes the first's weighted moments (adaptive IS)
-        shape, scale, log_w = _t_draws(centre, 2.0 * cov, n_draws, rng)
+    return _adapted_draws(life, failed, fit, (centre, cov), n_draws, np.random.default_rng(seed))
+
+
+def _adapted_draws(life, failed, fit: WeibullFit, start: tuple, n_draws: int, rng) -> WeibullPosterior:
+    """Adaptive importance sampling (Cappe, Guillin, Marin & Robert 2004, "Population Monte Carlo"):
+    each proposal a Student-t with the previous round's weighted mean and twice its covariance, at
+    least :data:`MIN_ADAPT_ROUNDS` rounds and at most :data:`MAX_ADAPT_ROUNDS`, stopping once the
+    effective sample size reaches :data:`ADAPTED_ESS` times :data:`MIN_ESS`; the round of the largest
+    effective size is kept. With two or three failures the posterior is skewed (a banana in log shape
+    and log scale) and two rounds often left fewer than :data:`MIN_ESS` effective draws."""
+    centre, cov = start
+    best, best_ess = None, -1.0
+    for k in range(MAX_ADAPT_ROUNDS):
+        theta, log_w = _t_draws(centre, 2.0 * cov, n_draws, rng)
+        with np.errstate(over="ignore"):
+            shape, scale = np.exp(theta[:, 0]), np.exp(theta[:, 1])
         log_w = log_w + weibull_loglik_many(shape, scale, life, failed)
-        w = np.exp(log_w - log_w.max())
-        w /= w.sum()
-        theta = np.log(np.column_stack([shape, scale]))
+        post = WeibullPosterior(shape, scale, log_w, fit)
+        w, ess = post.weights()
+        if best is None or ess > best_ess:
+            best, best_ess = post, ess
+        if k + 1 >= MIN_ADAPT_ROUNDS and best_ess >= ADAPTED_ESS * MIN_ESS:
+            break
         centre = w @ theta
         cov = (theta - centre).T @ ((theta - centre) * w[:, None])
-    return WeibullPosterior(shape, scale, log_w, fit)
+        try:   # a degenerate round (one draw carries the weight) cannot propose the next
+            np.linalg.cholesky(cov)
+        except np.linalg.LinAlgError:
+            break
+        if not np.isfinite(centre).all():
+            break
+    return best
 
 
-def _t_draws(centre, cov, n: int, rng) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(shape, scale, minus the log proposal density up to a constant) of ``n`` draws of
-    (log shape, log scale) from a Student-t with 4 degrees of freedom."""
+def exponential_posterior(life, failed, n_draws: int = N_DRAWS, seed: int = 0) -> WeibullPosterior:
+    """Draws of a constant-hazard life model (a Weibull of shape 1) with the Jeffreys prior on its rate.
+
+    ``r`` failures in a total exposure ``T`` (the sum of the lives, failed or censored) give the
+    rate the posterior ``Gamma(r + 1/2, T)`` [1/km]: proper with one failure or none, where the
+    Weibull's flat prior is not (Jeffreys 1961; the zero- and one-failure case of reliability
+    practice, Atwood et al. 2003, NUREG/CR-6823, section 6.2.2; Abernethy 2006, ch. 6, "Weibayes",
+    with the shape assumed 1: no wear-out claimed where the data cannot show one).
+
+    Parameters
+    ----------
+    life : array_like
+        Lives [km]: failure or censoring distances.
+    failed : array_like of bool
+        True for a failure.
+    n_draws : int
+        Draws of the rate. [-]
+    seed : int
+        Seed of the draws.
+
+    Returns
+    -------
+    WeibullPosterior
+        Equal weights, shape 1, ``fixed_shape``; empty with a note without exposure.
+    """
+    life = np.asarray(life, float)
+    failed = np.asarray(failed, bool)
+    exposure, r = float(np.sum(life[np.isfinite(life)])), int(np.sum(failed))
+    fit = WeibullFit(1.0, exposure / (r + 0.5), _NAN, int(life.size), r)
+    if not exposure > 0:
+        empty = np.empty(0)
+        return WeibullPosterior(empty, empty, empty, fit, note="no exposure: no distance run", fixed_shape=True)
+    rate = np.random.default_rng(seed).gamma(r + 0.5, 1.0 / exposure, n_draws)
+    return WeibullPosterior(np.ones(n_draws), 1.0 / rate, np.zeros(n_draws), fit, fixed_shape=True)
+
+
+def _t_draws(centre, cov, n: int, rng) -> tuple[np.ndarray, np.ndarray]:
+    """(``n`` draws of (log shape, log scale) from a Student-t with 4 degrees of freedom, minus the
+    log proposal density of each up to a constant)."""
     df = 4.0
     t = rng.standard_normal((n, 2)) / np.sqrt(rng.chisquare(df, n) / df)[:, None]
     theta = centre + t @ np.linalg.cholesky(cov).T
-    return np.exp(theta[:, 0]), np.exp(theta[:, 1]), 0.5 * (df + 2.0) * np.log1p(np.sum(t ** 2, axis=1) / df)
+    return theta, 0.5 * (df + 2.0) * np.log1p(np.sum(t ** 2, axis=1) / df)
 
 
 def _weibull_survival_from(shape, scale, d: float, r) -> np.ndarray:
@@ -671,17 +740,39 @@ def _leak_failures(hoses: pd.DataFrame, points: pd.DataFrame, limit_l_min: float
 
 
 def _rupture_posterior(hoses: pd.DataFrame, points: pd.DataFrame, s: RulSettings,
-                       seed: int) -> tuple[WeibullPosterior | None, str | None]:
-    """The other failure modes' life model; None when there are fewer than two such failures (and
-    why, when there is one)."""
+                       seed: int) -> tuple[WeibullPosterior, str | None]:
+    """The other failure modes' life model (:func:`rupture_model`) and why it has no draws."""
     life, failed = _lives(hoses)
-    other = failed & ~_leak_failures(hoses, points, s.limit_l_min)
-    if other.sum() == 0:
-        return None, None
-    if other.sum() < 2:
-        return None, "other failure modes left out (1 hose failed otherwise than by leak, 2 needed for a model)"
-    post = weibull_posterior(life, other, s.n_draws, seed)
+    post = rupture_model(life, failed & ~_leak_failures(hoses, points, s.limit_l_min), s.n_draws, seed)
     return post, (None if post.ok else f"the other failure modes: {post.note}")
+
+
+def rupture_model(life, other, n_draws: int = N_DRAWS, seed: int = 0) -> WeibullPosterior:
+    """The life model of the failure modes other than the leak (a competing risk, Meeker & Escobar
+    1998, ch. 15: the leak failures censored at their distance).
+
+    A Weibull (:func:`weibull_posterior`) with two such failures or more; with one or none, a
+    constant hazard with the Jeffreys prior on its rate (:func:`exponential_posterior`): a mode
+    seen once, or not yet, is bounded by the distance run without it, never assumed absent.
+
+    Parameters
+    ----------
+    life : array_like
+        Lives [km]: failure or censoring distances.
+    other : array_like of bool
+        True for a failure by another mode than the leak.
+    n_draws : int
+        Parameter draws. [-]
+    seed : int
+        Seed of the draws.
+
+    Returns
+    -------
+    WeibullPosterior
+    """
+    if int(np.sum(other)) >= 2:
+        return weibull_posterior(life, other, n_draws, seed)
+    return exponential_posterior(life, other, n_draws, seed)
 
 
 def remaining_life(hoses: pd.DataFrame, points: pd.DataFrame, settings: RulSettings,
@@ -732,17 +823,14 @@ def _quantile_columns(q: np.ndarray) -> dict:
 
 def _degradation_with_rupture(deg: DegradationFit, hose_id, distance_km: float, s: RulSettings,
                               rupture: tuple, seed: int) -> tuple[np.ndarray, str | None]:
-    """:func:`degradation_rul` with the other failure modes when there is a model of them; the
-    note says when they were left out."""
+    """:func:`degradation_rul` with the other failure modes' model (``(posterior, note)``); NaN with
+    the note when either model has none."""
     post, r_note = rupture
     if not deg.ok:
         return np.full(3, _NAN), deg.note
-    if post is not None and not post.ok:
+    if not post.ok:
         return np.full(3, _NAN), r_note
-    q, note = degradation_rul(deg, hose_id, distance_km, s.limit_l_min, post, s.confidence, s.n_draws, seed)
-    if note is None and r_note is not None and np.isfinite(q).all():
-        note = r_note
-    return q, note
+    return degradation_rul(deg, hose_id, distance_km, s.limit_l_min, post, s.confidence, s.n_draws, seed)
 
 
 # -- backtest --------------------------------------------------------------------------------
@@ -781,14 +869,30 @@ def rul_backtest(hoses: pd.DataFrame, points: pd.DataFrame, settings: RulSetting
             rows.append(_backtest_row(hid, "weibull", f, at, total, q, note))
             mine = (points["hose_id"] == hid) & (points["distance_km"] > at)
             deg = degradation_fit(points[~mine], settings.sensor, settings.floor_multiple)
-            r_post, r_note = rupture, left_out
-            if rupture is not None and rupture.ok:
-                r_post = rupture.changed([total], [not leak_failed[i]], [at], [False])
-                if not r_post.ok:   # this hose was one of two: without it the mode is left out, as above
-                    r_post, r_note = None, f"other failure modes left out ({r_post.note})"
+            r_post, r_note = _rupture_cut_short(rupture, left_out, (life, failed & ~leak_failed), i, at, settings,
+                                                seed + 1)
             q, note = _degradation_with_rupture(deg, hid, at, settings, (r_post, r_note), seed + 2 + i)
             rows.append(_backtest_row(hid, "degradation", f, at, total, q, note))
     return pd.DataFrame(rows, columns=BACKTEST_COLUMNS)
+
+
+def _rupture_cut_short(post: WeibullPosterior, note, lives: tuple, i: int, at: float, s: RulSettings,
+                       seed: int) -> tuple[WeibullPosterior, str | None]:
+    """The other failure modes' model with hose ``i`` censored at ``at``: the Weibull draws
+    re-weighted; drawn afresh (:func:`rupture_model`) when the Weibull loses its second failure or
+    the model is the constant hazard (its draws are exact and cheap, and re-weighting a Gamma
+    posterior to one failure fewer has an infinite variance)."""
+    life, other = lives
+    if post.ok and not post.fixed_shape:
+        cut = post.changed([life[i]], [other[i]], [at], [False])
+        if cut.ok:
+            return cut, None
+    elif not post.ok:
+        return post, note
+    other = other.copy()
+    other[i] = False
+    cut = rupture_model(np.where(np.arange(len(life)) == i, at, life), other, s.n_draws, seed)
+    return cut, (None if cut.ok else f"the other failure modes: {cut.note}")
 
 
 def _backtest_row(hose_id, method: str, fraction: float, at: float, total: float, q, note) -> dict:
@@ -834,5 +938,6 @@ def backtest_summary(predictions: pd.DataFrame) -> pd.DataFrame:
 
 __all__ = ["BACKTEST_FRACTIONS", "DegradationFit", "FLOOR_MULTIPLE", "MIN_HOSES", "MIN_LEAK_POINTS", "N_DRAWS",
            "RulSettings", "WeibullPosterior", "backtest_summary", "data_seed", "degradation_fit", "degradation_rul",
+           "exponential_posterior", "rupture_model",
            "leak_crossing_life", "leak_crossing_lives", "remaining_life", "rul_backtest", "weibull_posterior",
            "weibull_rul"]

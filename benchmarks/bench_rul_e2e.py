@@ -60,6 +60,21 @@ def stage_tables(con) -> tuple[pd.DataFrame, pd.DataFrame]:
             con.sql("SELECT * FROM rul_backtest ORDER BY hose_type, adjustment, method").df())
 
 
+def stage_in_process(db: Path, raw: Path, jobs: int) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """``hose_rul`` and ``rul_backtest`` as the ``remaining_life`` stage's ``run`` makes them, called in this
+    process on the inputs it declares, read from the rebuilt warehouse (``--in-process``: a change to
+    the models measured without a rebuild, whose ingest and other stages it would not change)."""
+    from pipeline.stages import StageContext
+    from pipeline.stages import remaining_life as stage
+
+    with duckdb.connect(str(db), read_only=True) as con:
+        results = {t: con.sql(f"SELECT * FROM {t}").df() for t in stage.READS.tables}
+    out = stage.run(StageContext(raw=raw, warehouse=db.parent, runs=pd.DataFrame(), results=results, jobs=jobs,
+                                 plan=read_plan(raw)))
+    return (out.tables["hose_rul"].sort_values(["hose_type", "hose_id", "method"], ignore_index=True),
+            out.tables["rul_backtest"].sort_values(["hose_type", "adjustment", "method"], ignore_index=True))
+
+
 def wear_rates(con, plan) -> pd.DataFrame:
     """Per (hose type, adjustment), the degradation model's wear-rate mean and spread [1/km] and
     growth exponent, fitted on the points the stage fitted (its own :func:`leak_paths` and
@@ -95,7 +110,10 @@ def build(root: Path, profile, seed: int, jobs: int, campaigns: tuple | None = N
     from pipeline.simulator.campaign import simulate_campaign
 
     raw, wh = root / "raw", root / "wh"
-    simulate_campaign(raw, seed=seed, profile=profile, jobs=jobs, campaigns=campaigns)
+    if (raw / "truth.json").exists():   # --keep of an earlier run: its campaign, rebuilt incrementally
+        print(f"{raw}: simulated before (--keep), not again")
+    else:
+        simulate_campaign(raw, seed=seed, profile=profile, jobs=jobs, campaigns=campaigns)
     m = measure([*pneubench_cmd(), "rebuild", "--raw", str(raw), "--warehouse", str(wh), "--no-report",
                  "--jobs", str(jobs), "-q"], check=False)
     if m.exit_code != 0:
@@ -113,12 +131,30 @@ def read_plan(raw: Path):
 
 # -- counting -------------------------------------------------------------------------------------
 def running_outcomes(rul: pd.DataFrame, truth_hoses: dict) -> pd.DataFrame:
-    """The running hoses' predictions with their true remaining life [km]: ``made``, ``covered``, ``width``."""
-    r = rul.assign(truth_km=[truth_hoses[h]["failure_km"] for h in rul["hose_id"]])
+    """The running hoses' predictions with their true remaining life [km]: ``made``, ``covered``,
+    ``width``, ``below`` (the truth under the lower end), ``above`` (over the upper end), ``mode``
+    (how the simulator ends the hose: leakage or rupture)."""
+    r = rul.assign(truth_km=[truth_hoses[h]["failure_km"] for h in rul["hose_id"]],
+                   mode=[truth_hoses[h].get("failure_mode_true", "?") for h in rul["hose_id"]])
     ok = r["rul_median_km"].notna()
     rem = r["truth_km"] - r["distance_km"]
-    return r.assign(made=ok, covered=ok & (r["rul_lower_km"] <= rem) & (rem <= r["rul_upper_km"]),
+    below, above = ok & (rem < r["rul_lower_km"]), ok & (rem > r["rul_upper_km"])
+    return r.assign(made=ok, covered=ok & ~below & ~above, below=below, above=above,
                     width=r["rul_upper_km"] - r["rul_lower_km"])
+
+
+def misses(made: pd.DataFrame) -> None:
+    """Print where one method's intervals miss: the truth below the lower end or above the upper end,
+    by quartile of the distance now relative to its group's median (the groups wear at different
+    rates) and by the simulator's failure mode."""
+    rel = made["distance_km"] / made.groupby(["hose_type", "adjustment"])["distance_km"].transform("median")
+    parts = [(f"distance now / group median, quartile {q + 1}", g)
+             for q, g in made.groupby(pd.qcut(rel.rank(method="first"), 4, labels=False), sort=True)]
+    parts += [(f"ends by {mode}", g) for mode, g in made.groupby("mode", sort=True)]
+    for label, g in parts:
+        print(f"{'':14s}{label:44s} {len(g):4d} hoses: covered {int(g['covered'].sum()):4d} "
+              f"({100 * g['covered'].mean():5.1f} %), truth below the lower end {int(g['below'].sum()):3d}, "
+              f"above the upper end {int(g['above'].sum()):3d}")
 
 
 def line(label: str, ok: bool, quick: bool) -> bool:
@@ -143,6 +179,7 @@ def report(outcomes: pd.DataFrame, backtests: pd.DataFrame, wear: pd.DataFrame, 
                    f"{int(made['covered'].sum())} = {100 * cov:.1f} % (nominal {100 * conf:g} +- 7, >= 300)"
                    + (f"; NULL mostly: {notes.index[0]}" if len(notes) else ""),
                    len(made) >= 300 and abs(cov - conf) <= 0.07, quick)
+        misses(made)
         b = summary.loc[method] if method in summary.index else {"n_predictions": 0, "coverage": math.nan,
                                                                  "median_abs_error_km": math.nan}
         ok &= line(f"{'':12s} rul_backtest {int(b['n_predictions'])} predictions, coverage {100 * b['coverage']:.1f} %, "
@@ -198,13 +235,21 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=24)
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--demo-warehouse", help="time the analyses on this demo warehouse instead of building one")
-    ap.add_argument("--keep", help="build under this folder and keep it (default: a temporary one)")
+    ap.add_argument("--keep", help="build under this folder and keep it (default: a temporary one); a folder "
+                                   "kept before is not simulated again, only rebuilt (incrementally)")
+    ap.add_argument("--in-process", action="store_true",
+                    help="with --keep of a rebuilt campaign: no rebuild, the remaining_life stage's run called in "
+                         "this process on the warehouse's inputs (a change to the models only)")
     a = ap.parse_args(argv)
     profile = RulProfile(hose_types=1, hoses=10) if a.quick else RulProfile(hose_types=a.types, hoses=a.hoses)
     with tempfile.TemporaryDirectory(prefix="bench_rul_e2e-") as tmp:
         root = Path(a.keep) if a.keep else Path(tmp)
         t0 = time.perf_counter()
-        db, truth, rebuild_s = build(root / "rul", profile, a.seed, a.jobs)
+        if a.in_process and a.keep:
+            db, truth, rebuild_s = (root / "rul" / "wh" / "pneubench.duckdb",
+                                    json.loads((root / "rul" / "raw" / "truth.json").read_text()), 0.0)
+        else:
+            db, truth, rebuild_s = build(root / "rul", profile, a.seed, a.jobs)
         print(f"rul campaign: {profile.hose_types} hose types x 2 adjustments x {profile.hoses} hoses, "
               f"{len(truth['runs'])} runs, seed {a.seed}: simulated and rebuilt in {time.perf_counter() - t0:.0f} s "
               f"(rebuild {rebuild_s:.0f} s)")
@@ -212,6 +257,9 @@ def main(argv=None) -> int:
         with duckdb.connect(str(db), read_only=True) as con:
             rul, tests = stage_tables(con)
             wear = wear_rates(con, read_plan(root / "rul" / "raw"))
+        if a.in_process and a.keep:
+            rul, tests = stage_in_process(db, root / "rul" / "raw", a.jobs)
+            print("hose_rul and rul_backtest: the remaining_life stage run in this process (--in-process)")
         print(f"hose_rul of {rul['hose_id'].nunique()} running hoses read, wear rates refitted: "
               f"{time.perf_counter() - t1:.0f} s")
         ok = report(running_outcomes(rul, truth["hoses"]), tests, wear, truth["groups"], a.quick)

@@ -44,7 +44,6 @@ Decisions (docs/decision.md, "Remaining life: the stage")
 from __future__ import annotations
 
 import math
-import re
 
 import numpy as np
 import pandas as pd
@@ -55,6 +54,7 @@ from analyses.quality import Sensor
 from analyses.remaining_life import (RulSettings, backtest_summary, leak_crossing_lives, remaining_life,
                                      rul_backtest)
 from pipeline.stages import Reads, StageContext, StageOutput
+from pipeline.stages.sensors_text import sensor_parts
 from schemas.units import kg_s_to_l_min_anr
 
 NAME = "remaining_life"
@@ -75,7 +75,6 @@ DEFINITIONS = (("logbook", None), ("leak limit", 1.0), ("leak limit x0.5", 0.5),
 #: The note of what a plan without a leak limit leaves NULL.
 NO_LEAK_PLAN = "plan.toml sets no leak_limit_l_min / leak_pressure_bar for {}"
 NO_PLAN = "no plan"
-_Q_LEAK = re.compile(r"q_leak: resolution (\S+), noise (\S+) \([^)]*\) kg/s")
 _HOSE_SPEC = ("hose_id", "adjustment", "distance_km", "status", "failure_mode")
 _NAN = float("nan")
 
@@ -94,18 +93,12 @@ def _columns(df: pd.DataFrame, names) -> dict:
 
 
 def leak_sensor(sensors) -> list | None:
-    """The leak-flow sensor the ``leakage_map.sensors`` texts state: ``[resolution, noise]`` [l/min ANR],
-    the coarsest of each among them; None when none states one."""
-    found = []
-    for text in sensors:
-        m = _Q_LEAK.search(text) if isinstance(text, str) else None
-        if m:
-            try:
-                res, noise = float(m.group(1)), float(m.group(2))
-            except ValueError:
-                continue
-            if math.isfinite(res) and math.isfinite(noise) and res >= 0 and noise >= 0:
-                found.append((res, noise))
+    """The leak-flow sensor the ``leakage_map.sensors`` texts state
+    (:func:`pipeline.stages.sensors_text.sensor_parts`): ``[resolution, noise]`` [l/min ANR], the
+    coarsest of each among them; None when none states one."""
+    stated = [sensor_parts(t).get("q_leak") for t in sensors]
+    found = [(r, n) for r, n, _, unit in (s for s in stated if s is not None)
+             if unit == "kg/s" and math.isfinite(r) and math.isfinite(n) and r >= 0 and n >= 0]
     if not found:
         return None
     return [float(kg_s_to_l_min_anr(max(r for r, _ in found))), float(kg_s_to_l_min_anr(max(n for _, n in found)))]

@@ -13,7 +13,9 @@ CREATE TABLE hose_rul (
                                            -- survival to distance_km, integrated over the likelihood) |
                                            -- 'degradation' (its own leak path in the group's pooled random-effects
                                            -- leak-growth model, run to leak_limit_l_min; other failure modes as a
-                                           -- competing risk)
+                                           -- competing risk fitted to the logbook's non-leak failures, leak failures
+                                           -- censored: the joint model, the first of crossing and rupture; a mode
+                                           -- seen once or never: constant hazard, Jeffreys prior on its rate)
     rul_median_km     DOUBLE,              -- median remaining distance [km]
     rul_lower_km      DOUBLE,              -- lower end of the two-sided prediction interval at confidence [km]
     rul_upper_km      DOUBLE,              -- upper end of the prediction interval [km]

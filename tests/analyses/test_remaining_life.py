@@ -6,9 +6,9 @@ import pandas as pd
 import pytest
 
 from analyses.quality import Sensor
-from analyses.remaining_life import (RulSettings, backtest_summary, data_seed, degradation_fit, degradation_rul,
-                                     leak_crossing_life, leak_crossing_lives, remaining_life, rul_backtest,
-                                     weibull_posterior, weibull_rul)
+from analyses.remaining_life import (MIN_ESS, RulSettings, backtest_summary, data_seed, degradation_fit,
+                                     degradation_rul, exponential_posterior, leak_crossing_life, leak_crossing_lives,
+                                     remaining_life, rul_backtest, rupture_model, weibull_posterior, weibull_rul)
 from analyses.service_life import weibull_loglik, weibull_loglik_many
 
 SENSOR = Sensor(resolution=0.001, noise=0.005, source="metadata")   # floor 0.005, points above 0.05 used
@@ -226,19 +226,48 @@ def test_calibration_benchmark_runs_quick(capsys):
     assert "weibull      running hoses:" in out and "wear rate mean" in out and "(quick: no verdict)" in out
 
 
-def test_a_single_rupture_is_left_out_and_said_and_an_unnamed_mode_is_read_from_the_leak_path():
+def test_a_single_rupture_gets_a_constant_hazard_and_an_unnamed_mode_is_read_from_the_leak_path():
     hoses, pts = hose_type(np.random.default_rng(17))
     i = int(np.flatnonzero(hoses["status"] == "failed")[0])
     one = hoses.copy()
     one.loc[i, "failure_mode"] = "rupture"
-    out = remaining_life(one, pts, RulSettings(limit_l_min=2.0, sensor=SENSOR), seed=1)
-    deg = out[(out["method"] == "degradation") & out["rul_median_km"].notna()]
-    assert len(deg) and deg["note"].str.startswith("other failure modes left out (1 hose").all()
+    s = RulSettings(limit_l_min=2.0, sensor=SENSOR)
+    out = remaining_life(one, pts, s, seed=1)
+    none = remaining_life(hoses, pts, s, seed=1)
+    deg = (out["method"] == "degradation") & out["rul_median_km"].notna()
+    assert deg.sum() and out.loc[deg, "note"].isna().all()
+    # the rupture seen once shortens every prediction against the type that saw none
+    assert (out.loc[deg, "rul_lower_km"].to_numpy() < none.loc[deg, "rul_lower_km"].to_numpy()).all()
     failed = hoses[hoses["status"] == "failed"]
     seen = pd.concat([pts, pd.DataFrame({"hose_id": failed["hose_id"], "distance_km": failed["distance_km"],
                                          "leak_l_min": 2.2})], ignore_index=True)   # the check that found it
-    s = RulSettings(limit_l_min=2.0, sensor=SENSOR)
     unnamed = remaining_life(hoses.assign(failure_mode=None), seen, s, seed=1)
     pd.testing.assert_frame_equal(unnamed, remaining_life(hoses, seen, s, seed=1))   # all read as leak failures
     silent = remaining_life(hoses.assign(failure_mode=None), pts, s, seed=1)          # none seen: all "other"
     assert not silent.equals(unnamed)
+
+
+def test_the_constant_hazard_posterior_is_the_jeffreys_gamma():
+    life = np.array([10.0, 20.0, 30.0, 40.0])   # exposure 100 km, one failure: rate ~ Gamma(1.5, 100)
+    post = exponential_posterior(life, [True, False, False, False], n_draws=20000, seed=3)
+    rate = 1.0 / post.scale
+    assert post.ok and post.fixed_shape and (post.shape == 1.0).all()
+    assert rate.mean() == pytest.approx(1.5 / 100.0, rel=0.03) and rate.var() == pytest.approx(1.5 / 1e4, rel=0.08)
+    # re-weighting for a hose cut short: Gamma(1.5, 80 km); one failure stays enough for this model
+    cut = post.changed([40.0], [False], [20.0], [False])
+    w, _ = cut.weights()
+    assert cut.ok and float(w @ (1.0 / cut.scale)) == pytest.approx(1.5 / 80.0, rel=0.03)
+    assert not exponential_posterior([0.0], [False]).ok
+    assert rupture_model(life, [True, True, False, False], seed=1).fixed_shape is False
+    assert rupture_model(life, [False] * 4, seed=1).fixed_shape is True
+
+
+def test_two_failures_among_many_suspensions_give_enough_effective_draws():
+    # the skewed posterior of two failures: two rounds of adaptation left fewer than MIN_ESS here
+    rng = np.random.default_rng([9, 58])
+    cross, rup = np.exp(0.35 * rng.standard_normal(25)), 3 * rng.weibull(2, 25)
+    t, end = np.minimum(cross, rup), rng.uniform(0.6, 1.05, 25)
+    other = (t <= end) & (rup < cross)
+    assert other.sum() == 2
+    post = weibull_posterior(np.minimum(t, end), other, seed=58)   # two rounds: effective size 4
+    assert post.ok and post.weights()[1] >= MIN_ESS

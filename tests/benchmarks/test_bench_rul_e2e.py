@@ -71,3 +71,22 @@ def test_running_outcomes_count_a_future_inside_its_interval_and_leave_a_null_ou
     assert out["made"].tolist() == [True, True, False]
     assert out["covered"].tolist() == [True, False, False]   # a: 8 km left, in [2, 9]; b: 20 km left, beyond
     assert backtest["coverage"].tolist() == [0.8]
+    assert out["above"].tolist() == [False, True, False] and not out["below"].any()
+    assert out["mode"].tolist() == ["?", "?", "?"]   # a truth without the simulator's failure mode
+
+
+def test_misses_are_split_by_side_distance_now_and_failure_mode(capsys):
+    rul = pd.DataFrame({"hose_type": "T", "adjustment": "force", "hose_id": list("abcdefgh"), "method": "weibull",
+                        "distance_km": [1.0, 2, 3, 4, 5, 6, 7, 8], "rul_median_km": 5.0, "rul_lower_km": 2.0,
+                        "rul_upper_km": 9.0, "confidence": 0.9, "note": None})
+    left = {"a": 1.0, "b": 5, "c": 5, "d": 5, "e": 5, "f": 5, "g": 5, "h": 12}   # a under 2 km, h over 9 km
+    truth = {h: {"failure_km": d + left[h], "failure_mode_true": "rupture" if h == "a" else "leakage"}
+             for h, d in zip(rul["hose_id"], rul["distance_km"])}
+    out = be.running_outcomes(rul, truth)
+    be.misses(out[out["made"]])
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == 6   # four quartiles, two modes
+    assert "quartile 1" in lines[0] and "covered    1" in lines[0] and "below the lower end   1" in lines[0]
+    assert "quartile 4" in lines[3] and "above the upper end   1" in lines[3]
+    assert "ends by leakage" in lines[4] and "covered    6" in lines[4] and "above the upper end   1" in lines[4]
+    assert "ends by rupture" in lines[5] and "below the lower end   1" in lines[5]

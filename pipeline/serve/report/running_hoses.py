@@ -47,7 +47,9 @@ def running_section(db: ReportDB) -> str:
     intro = (f'<p class="meta">{len(hoses)} running hose{"s" if len(hoses) != 1 else ""}, nearest their end first. '
              f"Remaining km: the median and the {esc(interval_name(hoses))} of each method: "
              "<i>weibull</i>, the hose type's life model given that the hose has run this far; <i>degradation</i>, "
-             "its own leak path run to the plan's limit. Under each method: how often its intervals held the "
+             "its own leak path run to the plan's limit, with the logbook's other failures (ruptures) as a competing "
+             "risk: the first of the two ends the hose (the one to read where both predict: the weibull intervals "
+             "run short on lives that mix a wear-out and a rupture; docs/decision.md). Under each method: how often its intervals held the "
              "true remaining life of the hoses that have since failed, predicted at 50 % and 80 % of their life "
              "(the backtest; docs/decision.md). Leak path: the hose's leak at the plan's pressure against distance "
              "(blue), the limit (red, dashed), the distance now (dotted) and, where the degradation model predicts "

@@ -5,7 +5,6 @@ stays), a ``sensors`` text in display units and run ids linked to their pages.""
 from __future__ import annotations
 
 import math
-import re
 
 from pipeline.serve.report.markup import esc, fmt, run_href, significant, split_unit
 from schemas.units import display_sensors_text, kg_s_to_l_min_anr
@@ -37,17 +36,16 @@ FLOORED_COLUMNS = ("leak_l_min", "leak_at_5_bar_l_min", "leak_at_6_bar_l_min")
 #: A row's floor of :data:`FLOORED_COLUMNS`: this column when the row has it, else the flow sensor
 #: stated in its ``sensors`` text (``leakage_map``).
 FLOOR_COLUMN = "leak_floor_l_min"
-_FLOW_SENSOR = re.compile(r"q_leak: resolution (\S+), noise (\S+) \([^)]*\) kg/s")
 
 
 def flow_floor_l_min(sensors) -> float | None:
-    """Floor of the leak-flow sensor a ``leakage_map.sensors`` text states, in l/min ANR: the
-    larger of its resolution and noise (:meth:`analyses.quality.Sensor.floor`); None without one."""
-    m = _FLOW_SENSOR.search(sensors) if isinstance(sensors, str) else None
-    try:
-        floor = max(float(m.group(1)), float(m.group(2))) if m else math.nan
-    except ValueError:
-        return None
+    """Floor of the leak-flow sensor a ``leakage_map.sensors`` text states
+    (:func:`pipeline.stages.sensors_text.sensor_parts`), in l/min ANR: the larger of its resolution and
+    noise (:meth:`analyses.quality.Sensor.floor`); None without one."""
+    from pipeline.stages.sensors_text import sensor_parts   # here: the stages package loads pandas, the no-op must not
+
+    res, noise, _, unit = sensor_parts(sensors).get("q_leak", (math.nan, math.nan, "", "kg/s"))
+    floor = max(res, noise) if unit == "kg/s" else math.nan
     return float(kg_s_to_l_min_anr(floor)) if math.isfinite(floor) and floor > 0 else None
 
 
