@@ -421,7 +421,8 @@ def _publish(run: RebuildRun, plan: _Plan, tables: dict[str, pd.DataFrame], keep
     # before the new database is written, what neither warehouse uses nor keeps goes (files past
     # their retention, what a killed night left): a nearly full disk gets that room back first
     collect_garbage(warehouse, *split_kept(keep | prev.samples | prev.stage_folders))
-    run.summary.report = swap_in_new_database(warehouse, write, run.options.report)
+    run.summary.report = swap_in_new_database(warehouse, write, run.options.report,  # --full: every figure drawn
+                                              run_pages="all" if run.options.full else "update")
     # files the new warehouse uses, and those of earlier ones still within their retention
     # (a reader that opened an earlier warehouse keeps reading its samples)
     collect_garbage(warehouse, *split_kept(keep))

@@ -34,9 +34,10 @@ The modules, from the bottom up:
   under other failure definitions, the running hoses, looks);
 - :mod:`~pipeline.serve.report.summaries`: per analysis, the summary and the papers' values;
 - :mod:`~pipeline.serve.report.results`: per paper its figures, summaries and rows (``LAYOUT``);
+- :mod:`~pipeline.serve.report.figures`: the report's own figures by key, taken from the previous report;
 - :mod:`~pipeline.serve.report.channels`: the channels of one run as an SVG plot;
 - :mod:`~pipeline.serve.report.pages`: the run pages and the index of runs;
-- :mod:`~pipeline.serve.report.cache`: the data-only parts kept under the inputs key;
+- :mod:`~pipeline.serve.report.cache`: the data-only parts kept under the inputs and code key;
 - :mod:`~pipeline.serve.report.publish`: staging a report folder and swapping it in whole;
 - :mod:`~pipeline.serve.report.render`: the flow: render, stage, publish (``write_report``).
 """

@@ -1,7 +1,9 @@
 """The parts cache: the report's parts that depend on the data only (the results sections with
 their contents entries, the index of runs, the decision), kept in the report folder under the inputs key of the
-rebuild that rendered them. Equal keys mean equal result tables (the rebuild is deterministic), so
-the next report with the same key takes them as they are (the no-op rebuild)."""
+rebuild that rendered them and the key of the code that rendered them (:func:`parts_key`). Equal
+inputs keys mean equal result tables (the rebuild is deterministic) and equal code keys the same
+rendering, so the next report with the same key takes them as they are (the no-op rebuild); a
+report rendered by changed code (``pneubench report`` after an update) renders them anew."""
 from __future__ import annotations
 
 import json
@@ -9,17 +11,29 @@ import os
 from pathlib import Path
 
 from pipeline.serve.report.db import ReportDB
+from pipeline.serve.report.figures import code_key
 from pipeline.serve.report.folders import REPORT_DIR
 
 #: The cache file in a report folder.
 PARTS_CACHE = ".parts-cache.json"
+#: The code the parts are rendered with: all of the project's (the report reads the stages'
+#: declarations, which import the analyses: the closure of what it imports is nearly all of it,
+#: and hashing all of it costs a few hundredths of a second).
+REPORT_CODE = ("pipeline/**/*.py", "analyses/**/*.py", "schemas/**/*.py", "schemas/**/*.sql")
+
+
+def parts_key(db: ReportDB) -> str | None:
+    """The key the parts are kept under: the database's inputs key and :data:`REPORT_CODE`'s
+    :func:`~pipeline.serve.report.figures.code_key` (None without an inputs key)."""
+    key = db.inputs_key()
+    return None if key is None else f"{key}-{code_key(REPORT_CODE)}"
 
 
 def cached_parts(db: ReportDB, warehouse: Path) -> tuple[str, list, str, str] | None:
     """(results HTML, contents entries, runs index HTML, decision HTML) of the live report when its
-    key is the database's; None otherwise (no key, no cache, another key, a damaged file, a cache
-    written before a part was kept)."""
-    key = db.inputs_key()
+    key is :func:`parts_key`; None otherwise (no key, no cache, other inputs or code, a damaged
+    file, a cache written before a part was kept)."""
+    key = parts_key(db)
     if key is None:
         return None
     try:
@@ -33,8 +47,8 @@ def cached_parts(db: ReportDB, warehouse: Path) -> tuple[str, list, str, str] | 
 
 
 def cache_parts(db: ReportDB, folder: Path, results: str, toc: list, runs_index: str, decision: str) -> None:
-    """Keep the parts in the new report ``folder`` under the database's inputs key (none without one)."""
-    key = db.inputs_key()
+    """Keep the parts in the new report ``folder`` under :func:`parts_key` (none without one)."""
+    key = parts_key(db)
     if key is None:
         return
     tmp = folder / f".parts-cache.tmp-{os.getpid()}"

@@ -7,23 +7,21 @@ plot of the estimate with its boundaries against the failures.
 The words and the reading of the tables are :mod:`pipeline.serve.decision`'s (``pneubench
 decision`` prints the same); here they become HTML and a figure. The figure is drawn with
 matplotlib's object API (no pyplot: no global state) as a PNG embedded like the stages' figures,
-without a date or software stamp (the same tables give the same bytes); matplotlib is imported
-only when there is a look to draw.
+without a date or software stamp (the same tables give the same bytes), under its key
+(:func:`looks_key`): a figure whose key the previous report holds is taken from there
+(:mod:`~pipeline.serve.report.figures`), and matplotlib is imported only when a look is drawn.
 """
 from __future__ import annotations
 
 import base64
-import hashlib
 import io
-import json
 import math
-from importlib import metadata
-from pathlib import Path
 
 from pipeline.serve.decision import (DECIDED, HoseDecision, information_words, missing_line, plan_words,
                                      read_decisions, verdict_words)
 from pipeline.serve.remaining_life import differs, limit_text, ratio_interval, read_sensitivity
 from pipeline.serve.report.db import ReportDB
+from pipeline.serve.report.figures import Figures, code_key, figure_key
 from pipeline.serve.report.markup import esc
 from pipeline.serve.report.running_hoses import running_section
 
@@ -38,6 +36,9 @@ MARGINS = {"left": 0.085, "right": 0.9, "top": 0.91, "bottom": 0.25}
 #: What a looks figure reads of each look (its key: :func:`looks_key`).
 LOOK_FIELDS = ("look", "failures", "life_ratio", "rci_lower", "rci_upper", "efficacy_lower", "efficacy_upper",
                "futility_lower", "futility_upper", "crossed", "decides", "note")
+#: What a looks figure is drawn with (part of its key): this module, the decision stage (which
+#: crossings the verdict counts) and the libraries that draw.
+LOOKS_CODE = (("pipeline/serve/report/decision.py", "pipeline/stages/decision.py"), ("numpy", "matplotlib"))
 #: Verdict cell classes (the report's style sheet): decided in colour, the rest grey.
 VERDICT_CLASS = {"force longer": "ok", "distance longer": "bad", "no practical difference": "ok"}
 
@@ -47,9 +48,10 @@ def _anchor(k: int) -> str:
     return f"decision-looks-{k + 1}"
 
 
-def decision_section(db: ReportDB) -> str:
+def decision_section(db: ReportDB, figures: Figures | None = None) -> str:
     """The section ``#decision``: one line when the warehouse has no decision, else the table of
-    verdicts and the looks of each hose type (the first :data:`MAX_LOOK_PLOTS`)."""
+    verdicts and the looks of each hose type (the first :data:`MAX_LOOK_PLOTS`), each taken from
+    ``figures`` (the previous report) when its key is there, else drawn."""
     head = '<section id="decision"><h2>The decision</h2>'
     missing = missing_line(db.con)
     if missing:
@@ -62,7 +64,7 @@ def decision_section(db: ReportDB) -> str:
              "lies within the plan's margin, and it stays; its error rate holds however often it is read "
              "(docs/decision.md). The interval in words is the fit's profile-likelihood interval.</p>")
     return (head + intro + _verdict_table(decisions, read_sensitivity(db.con)) + running_section(db)
-            + _looks_figures(decisions) + "</section>")
+            + _looks_figures(decisions, figures or Figures()) + "</section>")
 
 
 def _verdict_table(decisions: list[HoseDecision], sensitivity: dict[str, list[dict]]) -> str:
@@ -128,16 +130,15 @@ def _bar(fraction) -> str:
             f'title="{100 * x:.0f} %"><span style="width:{100 * x:.1f}%"></span></span>')
 
 
-def _looks_figures(decisions: list[HoseDecision]) -> str:
-    """The looks of each hose type as a figure (the first :data:`MAX_LOOK_PLOTS` with looks)."""
+def _looks_figures(decisions: list[HoseDecision], figures: Figures) -> str:
+    """The looks of each hose type as a figure (the first :data:`MAX_LOOK_PLOTS` with looks), from
+    ``figures`` when its key is there."""
     out = []
     for k, d in enumerate(decisions[:MAX_LOOK_PLOTS]):
-        png = looks_png(d)
-        if png is None:
+        if not _drawable(d):
             continue
-        data = base64.b64encode(png).decode("ascii")
-        out.append(f'<figure id="{_anchor(k)}"><img alt="looks of {esc(d.hose_type)}" '
-                   f'src="data:image/png;base64,{data}" data-key="{looks_key(d)}">'
+        img = figures.figure(looks_key(d), lambda d=d: _looks_img(d))
+        out.append(f'<figure id="{_anchor(k)}">{img}'
                    f"<figcaption><b>{esc(d.hose_type)}</b>: the estimate of the life ratio force / distance at each "
                    "look (failure) with its repeated confidence interval, the efficacy boundaries (crossing one "
                    "declares a longer life) and the futility boundaries (inside both: no practical difference), "
@@ -150,6 +151,15 @@ def _looks_figures(decisions: list[HoseDecision]) -> str:
         out.append(f'<p class="meta">Looks not drawn for {len(rest)} more hose types ({esc(", ".join(rest))}): '
                    "<code>pneubench decision --hose-type T</code> lists them.</p>")
     return "".join(out)
+
+
+def _looks_img(d: HoseDecision) -> str:
+    """The looks figure of ``d`` as an ``<img>`` with its PNG embedded ("" when there is none)."""
+    png = looks_png(d)
+    if png is None:
+        return ""
+    data = base64.b64encode(png).decode("ascii")
+    return f'<img alt="looks of {esc(d.hose_type)}" src="data:image/png;base64,{data}">'
 
 
 def _series(looks: list[dict], column: str) -> list[float]:
@@ -178,13 +188,11 @@ def counted_crossings(d: HoseDecision) -> list[int]:
 
 
 def looks_key(d: HoseDecision) -> str:
-    """A key of the looks figure of ``d``: a hash of what :func:`looks_png` reads and of the code and matplotlib
-    that draw it (equal keys, equal bytes)."""
+    """A key of the looks figure of ``d``: a hash of what :func:`looks_png` reads and of the code and libraries
+    that draw it (:data:`LOOKS_CODE`; equal keys, equal bytes) [32 hex digits]."""
     looks = [[lk.get(c) for c in LOOK_FIELDS] for lk in d.looks]
     verdict = [d.verdict.get(c) for c in ("verdict", "margin", "max_failures")]
-    data = json.dumps([d.hose_type, verdict, looks, Path(__file__).read_text(encoding="utf-8"),
-                       metadata.version("matplotlib")], default=str, sort_keys=True)
-    return hashlib.sha256(data.encode("utf-8")).hexdigest()[:16]
+    return figure_key(code_key(*LOOKS_CODE), d.hose_type, verdict, looks)
 
 
 def looks_png(d: HoseDecision) -> bytes | None:

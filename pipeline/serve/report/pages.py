@@ -3,7 +3,11 @@ result rows derived from it) and the report's index of runs that links to them.
 
 A page is drawn again only when its inputs changed: its key (samples file, source hash, results,
 warnings, parameters, :data:`RUN_PAGE_VERSION`) is in its first line, and a page with the same key
-is taken over from the live report (a hard link).
+is taken over from the live report (a hard link). A page drawn again takes its channels from the
+previous page when their own key is unchanged (:func:`channels_key`: the samples file, the
+channels, the events marked on them and the drawing code; :mod:`~pipeline.serve.report.figures`):
+a new fit of a run's results changes its page, rarely its channels. ``--full`` draws every page
+and figure.
 """
 from __future__ import annotations
 
@@ -14,12 +18,16 @@ from pathlib import Path
 
 from pipeline.serve.report.channels import channels_svg, downsample_minmax, run_events
 from pipeline.serve.report.db import ReportDB
+from pipeline.serve.report.figures import Figures, code_key, figure_key
 from pipeline.serve.report.folders import OWN_PAGE, REPORT_DIR, link_or_copy, page_name, scandir
 from pipeline.serve.report.markup import CSS, esc, fmt, one_line_error, run_href
 from pipeline.serve.report.tables import html_table
 
 #: Bumped when the run pages' layout changes (cached pages are then drawn again).
-RUN_PAGE_VERSION = "2"
+RUN_PAGE_VERSION = "3"
+#: What a run's channels are drawn with (part of their key): the drawing module, the units it
+#: shows them in, and the libraries that read and tick them.
+CHANNELS_CODE = (("pipeline/serve/report/channels.py", "schemas/units.py"), ("numpy", "pyarrow", "matplotlib"))
 
 
 def _run_results(db: ReportDB) -> dict[str, list[tuple[str, list[str], list[tuple]]]]:
@@ -82,13 +90,16 @@ def _results(results: list) -> str:
                    for t, (cols, rows) in sorted(by_table.items())) or '<p class="meta">no result rows</p>'
 
 
-def write_run_pages(db: ReportDB, warehouse: Path, folder: Path | None = None, previous: Path | None = None) -> int:
+def write_run_pages(db: ReportDB, warehouse: Path, folder: Path | None = None, previous: Path | None = None,
+                    full: bool = False) -> int:
     """Write ``report/runs/<safe id>.html`` for every run; returns how many were drawn anew.
 
     A page whose inputs (samples file, source hash, results, warnings, layout version) are
     unchanged is kept (its key is in its first line), so a nightly rebuild redraws only the
-    runs that changed. Pages of runs no longer in the warehouse are removed. ``previous``: the
+    runs that changed; a page drawn again takes its channels from the previous page when their
+    key is unchanged. Pages of runs no longer in the warehouse are removed. ``previous``: the
     live report's run pages, an unchanged one is linked (or copied) from there into ``folder``.
+    ``full``: every page and its channels drawn anew (``--full``).
     """
     if not db.has("runs"):
         return 0
@@ -109,9 +120,10 @@ def write_run_pages(db: ReportDB, warehouse: Path, folder: Path | None = None, p
         res = results.get(rid, [])
         key = _page_key(run, res)
         page = folder / name
-        if _take_over(page if previous is None else previous / name, page, key):
+        old = page if previous is None else previous / name
+        if not full and _take_over(old, page, key):
             continue
-        svg = _draw_channels(Path(warehouse), run, channels.get(rid, []), res)
+        svg = _draw_channels(Path(warehouse), run, channels.get(rid, []), res, Figures(() if full else (old,)))
         tmp = folder / f".{name}.tmp-{os.getpid()}"
         tmp.write_text(_run_page(run, res, svg, key), encoding="utf-8")
         os.replace(tmp, page)
@@ -142,17 +154,25 @@ def _take_over(old: Path, page: Path, key: str) -> bool:
     return False
 
 
-def _draw_channels(warehouse: Path, run: dict, columns: list[str], results: list) -> str:
-    """The run's channels as SVG with the events of its ``results`` ("" without a samples file)."""
+def _draw_channels(warehouse: Path, run: dict, columns: list[str], results: list, figures: Figures) -> str:
+    """The run's channels as SVG with the events of its ``results`` ("" without a samples file),
+    taken from ``figures`` (the previous page) when their key is there."""
     samples = (warehouse / run["samples_path"]) if run.get("samples_path") else None
     if samples is None or not samples.is_file():
         return ""
     chans = [c for c in columns if c not in ("t_s", "run_id")]
+    n_rows, title, events = run.get("n_samples") or 0, f"channels of {run['run_id']}", run_events(results)
     try:
-        return channels_svg(downsample_minmax(samples, chans, run.get("n_samples") or 0), f"channels of {run['run_id']}",
-                            run_events(results))
+        return figures.figure(channels_key(run["samples_path"], chans, n_rows, title, events),
+                              lambda: channels_svg(downsample_minmax(samples, chans, n_rows), title, events))
     except Exception as exc:  # a damaged samples file must not cost the whole report
         return f'<p class="nodata">channels could not be drawn: {esc(one_line_error(exc))}</p>'
+
+
+def channels_key(samples_path: str, columns: list[str], n_rows: int, title: str, events: list) -> str:
+    """The key of a run's channels SVG: its samples file (named by its content key), the channels
+    drawn, the rows binned, the title, the events marked and :data:`CHANNELS_CODE`."""
+    return figure_key(code_key(*CHANNELS_CODE), samples_path, columns, n_rows, title, events)
 
 
 def carry_pages(src: Path, dst: Path) -> None:

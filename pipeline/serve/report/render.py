@@ -15,6 +15,7 @@ from pathlib import Path
 from pipeline.serve.report.cache import cache_parts, cached_parts
 from pipeline.serve.report.db import ReportDB
 from pipeline.serve.report.decision import decision_section
+from pipeline.serve.report.figures import Figures
 from pipeline.serve.report.folders import GENERATION_FILE, REPORT_DIR
 from pipeline.serve.report.markup import CSS, esc, one_line_error
 from pipeline.serve.report.pages import carry_pages, run_pages_present, runs_index, write_run_pages
@@ -49,7 +50,9 @@ def render_report(warehouse: str | Path, now: datetime | None = None, database: 
     are written into, each unchanged page taken over from the live report; None writes nothing.
     ``run_pages``: ``"update"`` redraws every run page whose inputs changed (each page's key is
     checked); ``"missing"`` only when a run's page is missing (the no-op rebuild: the runs and
-    their results are those of the pages already there).
+    their results are those of the pages already there); ``"all"`` draws every page and figure
+    (``--full``). Otherwise a figure whose key is in the live report is taken from there
+    (:mod:`~pipeline.serve.report.figures`).
     """
     warehouse = Path(warehouse)
     now = now or _now()
@@ -58,12 +61,13 @@ def render_report(warehouse: str | Path, now: datetime | None = None, database: 
         db = ReportDB(con)
         alert, findings = findings_section(db, now)
         generation = db.generation()
-        cached = cached_parts(db, warehouse)
-        if cached is not None:  # the same inputs as the last report: the same results
+        cached = None if run_pages == "all" else cached_parts(db, warehouse)
+        if cached is not None:  # the same inputs and code as the last report: the same results
             parts = cached
         else:
             results, entries = results_sections(db, warehouse)
-            parts = (results, entries, runs_index(db), decision_section(db))
+            live = () if run_pages == "all" else (warehouse / REPORT_DIR / "index.html",)
+            parts = (results, entries, runs_index(db), decision_section(db, Figures(live)))
         if folder is not None:
             _fill_folder(db, warehouse, Path(folder), generation, run_pages, parts)
         return _index(db, warehouse, generation, (alert, findings), parts)
@@ -79,7 +83,7 @@ def _fill_folder(db: ReportDB, warehouse: Path, folder: Path, generation: str, r
     if run_pages == "missing" and run_pages_present(db, warehouse):
         carry_pages(live / "runs", folder / "runs")
     else:
-        write_run_pages(db, warehouse, folder / "runs", previous=live / "runs")
+        write_run_pages(db, warehouse, folder / "runs", previous=live / "runs", full=run_pages == "all")
 
 
 def _index(db: ReportDB, warehouse: Path, generation: str, findings: tuple[str, str], parts: tuple) -> str:

@@ -61,8 +61,8 @@ def test_the_report_opens_with_the_decision(wh):
 
 def test_the_looks_are_a_figure_per_hose_type_with_an_estimate(wh):
     sec = _section(render_report(wh))
-    figs = re.findall(r'<figure id="(decision-looks-\d+)"><img alt="looks of ([^"]*)" src="(data:image/png;base64,[^"]+)"',
-                      sec)
+    figs = re.findall(r'<figure id="(decision-looks-\d+)"><!-- figure: [0-9a-f]{32} -->'
+                      r'<img alt="looks of ([^"]*)" src="(data:image/png;base64,[^"]+)"', sec)
     assert [f[1] for f in figs] == [DECIDED, "NBR &lt;b&gt;10&lt;/b&gt;", OPEN]  # none for the hose type without an estimate
     for anchor, _name, _src in figs:
         assert f'href="#{anchor}"' in sec
@@ -100,6 +100,30 @@ def test_the_same_tables_give_the_same_figure_bytes(wh):
     d = read_decisions_of(wh, DECIDED)
     assert rd.looks_png(d) == rd.looks_png(d)
     assert rd.looks_png(read_decisions_of(wh, NO_ESTIMATE)) is None
+
+
+def test_a_looks_figure_whose_key_the_live_report_holds_is_taken_not_drawn(wh, monkeypatch):
+    """The looks are drawn once; the next report takes each figure whose key is unchanged from the
+    live one (same bytes), draws the one whose looks changed, and ``--full`` draws them all."""
+    import duckdb
+
+    from pipeline.serve.report.render import write_report
+    from pipeline.warehouse import DB_NAME
+
+    write_report(wh)
+    first = _section((wh / "report" / "index.html").read_text(encoding="utf-8"))
+    drawn = []
+    real = rd.looks_png
+    monkeypatch.setattr(rd, "looks_png", lambda d: drawn.append(d.hose_type) or real(d))
+    assert _section(render_report(wh)) == first and drawn == []
+    assert _section(render_report(wh, run_pages="all")) == first and len(drawn) == 3
+    drawn.clear()
+    con = duckdb.connect(str(wh / DB_NAME))
+    con.execute("UPDATE decision_looks SET life_ratio = life_ratio * 1.01 WHERE hose_type = ?", [OPEN])
+    con.close()
+    again = _section(render_report(wh))
+    assert drawn == [OPEN] and again != first
+    assert again == _section(render_report(wh, run_pages="all"))
 
 
 def read_decisions_of(wh, hose_type):
