@@ -24,7 +24,15 @@ section 3.1): ``Z_k ~ N(theta sqrt(I_k), 1)`` with independent increments of the
 probability is computed by recursive numerical integration of the density of ``Z_k`` on the
 continuation region (Armitage, McPherson & Rowe 1969; J&T ch. 19), Simpson's rule on a grid
 finer than the standard deviation of the increment, so boundaries for a look at every one of
-hundreds of failures are exact to ~1e-6.
+hundreds of failures are exact to ~1e-6. Each look's ``c_k`` is Newton's root of that probability
+(its derivative is the density at ``+/- c_k``), started from the last looks' boundaries. A design's
+boundaries are computed forward only as far as they are asked for and kept per design
+(:class:`_Design`): the first looks of an even design ``k / M`` are those of the whole design. The
+power at any drift comes from the same null recursion by a change of measure: the likelihood ratio
+of Brownian motion with drift ``theta`` against none, ``exp(theta S - theta^2 t / 2)``, depends only
+on the score ``S`` at the end of the path (Siegmund 1985, *Sequential Analysis*, Springer, ch. III;
+J&T section 19.2), so the sub-density under a drift is the null one reweighted
+(:meth:`_Design.upper_power`); the inflation factor's drift search needs no new recursion.
 
 The verdict
 -----------
@@ -98,8 +106,8 @@ _TAIL = 9.0           # the density grid is cut this many sds from the drift's m
 #: grows with the looks towards the continuous-monitoring limit, and from 80 to 160 equally
 #: spaced looks it grows by 0.16 % (O'Brien-Fleming-type, 1.0717 -> 1.0734) and 0.21 % (Pocock-
 #: type, 1.2818 -> 1.2845) at alpha 0.05, power 0.8; the exact recursion's cost grows as the
-#: looks squared (2.8 s at 160 looks), and a design for a shape near 1 and a margin near 1 asks
-#: for hundreds of failures, each a look.
+#: looks to the power 1.5-2, and a design for a shape near 1 and a margin near 1 asks for hundreds
+#: of failures, each a look.
 DESIGN_LOOKS = 100
 #: Expected failures of the adjustment that lives longer below which ``max_information`` notes
 #: that its figure is likely short: at margin 1.75, shape 3 (4 expected of 23) the brute force
@@ -696,8 +704,9 @@ def max_information(margin: float, alpha: float = 0.05, power: float = 0.8,
 
 
 #: Step, in log shape, of the grid the stages' designs are computed on (:func:`design_for`): 2 %,
-#: so that 200 hose types whose shapes lie within a factor 1.5 share about 20 designs (each
-#: 0.2-0.8 s) instead of computing 200; the failures move by about twice the shape's rounding
+#: so that 200 hose types whose shapes lie within a factor 1.5 share about 20 designs instead of
+#: computing 200 (each 10-50 ms once the process holds the boundaries of its looks, which every
+#: design of the same alpha and spending shares); the failures move by about twice the shape's rounding
 #: (<= 2 %), where the fitted shape's own 90 % interval is +/- 30 % or more.
 DESIGN_SHAPE_STEP = 0.02
 

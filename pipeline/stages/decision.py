@@ -28,9 +28,10 @@ Decisions
 * Each hose type is one item of ``ctx.map`` (plain data naming every input), twice (its
   ``life_effect``, then its looks): the types run in parallel and one whose hoses, runs and
   settings did not change is not computed again. The sequential design behind an unset
-  ``max_failures`` is one ``ctx.map`` item per distinct (margin, alpha, power, spending, shape):
-  it costs about half a second the first time (:func:`analyses.sequential.design_for`,
-  ``benchmarks/bench_decision_stage.py``) and is then read from the memo.
+  ``max_failures`` is one ``ctx.map`` item per distinct (margin, alpha, power, spending, shape,
+  hoses on test): tens of milliseconds the first time in a process that has computed others
+  (:func:`analyses.sequential.design_for`; ``benchmarks/bench_decision_stage.py`` times a cold first
+  rebuild) and then read from the memo.
 """
 from __future__ import annotations
 
@@ -164,7 +165,7 @@ def design_item(plan: dict, shape: float, hoses: dict) -> tuple[dict | None, str
 def design_failures(item: dict) -> list:
     """``[max_failures, note]`` of the sequential design (:func:`analyses.sequential.design_for`)
     for a :func:`design_item`, the note saying where the figure is likely short (module level:
-    memoised by ``ctx.map``, about half a second the first time)."""
+    memoised by ``ctx.map``)."""
     d = design_for(item["margin"], item["alpha"], item["power"], item["spending"], item["shape"], item["hoses"])
     return [int(d.failures), d.note]
 

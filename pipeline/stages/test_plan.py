@@ -101,9 +101,9 @@ def design(item: dict) -> dict:
     and the efficacy boundaries of the test as planned (one per failure up to ``max_failures``).
 
     ``item``: ``margin``, ``alpha``, ``power``, ``spending``, ``max_failures`` (None: the design's
-    at ``power``), ``shape`` [-] and ``hoses``: hoses on test per adjustment [-] (None: failures rare). Hose types that share a design share its cost (at a look per
-    failure, :func:`analyses.sequential.max_information` takes seconds to minutes: the boundaries
-    of hundreds of looks).
+    at ``power``), ``shape`` [-] and ``hoses``: hoses on test per adjustment [-] (None: failures rare).
+    Hose types that share a design share its cost (the boundaries of up to hundreds of looks, computed
+    once per number of looks, alpha and spending in a process: :mod:`analyses.sequential`).
     """
     designs = {p: design_for(item["margin"], item["alpha"], p, item["spending"], item["shape"], item["hoses"])
                for p in target_powers(item["power"])}
