@@ -566,6 +566,8 @@ def decide(estimates: pd.DataFrame, max_failures: int | None, margin: float, alp
         return _no_maximum(len(estimates))
     t = estimates["failures"].to_numpy(float) / float(max_failures)
     confirm = likelihood_check(in_looks, estimates, margin, t) if in_looks is not None else None
-    early = estimates["look"].to_numpy(np.int64) < first_look
-    est, se = (np.where(early, math.nan, estimates[c].to_numpy(float)) for c in ("log_ratio", "se_log_ratio"))
+    est, se = (estimates[c].to_numpy(float) for c in ("log_ratio", "se_log_ratio"))
+    if first_look > 1:
+        early = estimates["look"].to_numpy(np.int64) < first_look
+        est, se = np.where(early, math.nan, est), np.where(early, math.nan, se)
     return sequential_verdict(est, se, t, margin, alpha, spending, confirm=confirm)

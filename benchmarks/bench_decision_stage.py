@@ -133,7 +133,7 @@ def parts(raw: Path, life: pd.DataFrame, runs: pd.DataFrame, plan) -> dict[str, 
     items, *out["logbooks read, runs matched, items"] = _timed(decision.hose_type_items, ctx)
     out["life_effect (profile bounds)"] = _timed(lambda: [decision.effect_of(it) for it in items])[1:]
     for it in items:
-        it["design"] = [it["plan"]["max_failures"], "plan", None]
+        it["design"] = decision.design_of(it, None, {})   # the plan sets max_failures here
     out["looks (a fit at every failure) + verdict"] = _timed(lambda: [decision.decide_hose_type(it) for it in items])[1:]
     return out
 
@@ -163,11 +163,11 @@ def designed(types: int, seed: int, size: tuple[int, int]) -> dict[str, tuple[fl
         out, *times = _timed(decision.run, ctx)
         ctx2 = StageContext(raw=raw, warehouse=raw, runs=pd.DataFrame(), jobs=1, plan=_plan(None),
                             results={"hose_life": life, "durability_runs": runs,
-                                     "life_effect": out.tables["life_effect"]})
+                                     "life_effect": out.tables["life_effect"],
+                                     "life_verdict": out.tables["life_verdict"]})
         plan_times = _timed(test_plan.run, ctx2)[1:]
         items = decision.hose_type_items(ctx)
-        shapes = dict(zip(out.tables["life_effect"]["hose_type"], out.tables["life_effect"]["shape"]))
-        asks = {str(decision.design_item(it["plan"], float(shapes[it["hose_type"]]), it["hoses"])[0]) for it in items}
+        asks = {str(a) for a in decision.design_asks(ctx, items)[1] if a is not None}
     return {"designs": (len(asks), len(items)), "decision": tuple(times), "test_plan": plan_times}
 
 
@@ -192,7 +192,8 @@ def on_warehouse(wh: Path, raw: Path) -> dict[str, tuple[float, float]]:
                        jobs=1, plan=plan)
     out, *times = _timed(decision.run, ctx)
     ctx2 = StageContext(raw=raw, warehouse=raw, runs=pd.DataFrame(), jobs=1, plan=plan,
-                        results={"hose_life": life, "durability_runs": runs, "life_effect": out.tables["life_effect"]})
+                        results={"hose_life": life, "durability_runs": runs, "life_effect": out.tables["life_effect"],
+                                 "life_verdict": out.tables["life_verdict"]})
     return {"decision": tuple(times), "test_plan": _timed(test_plan.run, ctx2)[1:]}
 
 

@@ -40,7 +40,7 @@ def odometer_item(ratio=4.0, n=12, seed=3, present=True, max_failures=20):
     plan = Plan(present=present, defaults={"max_failures": max_failures, "spending": "pocock"}).for_hose_type("T")
     no_runs = pd.DataFrame(columns=["run_id", "hose_id", "started_at", "duration_h", "distance_km"])
     item = stage.hose_type_item("T", pd.DataFrame(hoses), no_runs, plan)
-    return {**item, "design": [max_failures, "plan", None]}
+    return {**item, "design": [max_failures, "plan", None, 1]}
 
 
 def test_a_clear_ratio_decides_once_and_the_verdict_sticks():
@@ -79,21 +79,26 @@ def test_too_few_failures_give_null_estimates_with_notes():
     assert math.isnan(effect["life_ratio"]) and effect["note"].startswith("too few failures")
 
 
-def test_max_failures_from_the_design_with_shape_one_when_the_shape_is_null():
+def test_the_design_item_is_the_frozen_looks_shape_and_hoses_on_test_by_its_time():
     plan = settings(max_failures=None, margin=2.0, spending="obrien-fleming")
     hoses = odometer_item()["hoses"]   # one hose after another on one bench: one on test at a time
-    ask, note = stage.design_item(plan, math.nan, hoses)
-    assert ask["shape"] == 1.0 and ask["hoses"] == 1 and "shape 1.0" in note
-    assert stage.design_failures(ask) == [max_information(2.0, 0.05, 0.8, "obrien-fleming", 1.0,
-                                                          hoses_per_adjustment=1).failures, None]
-    pocock = dict(ask, spending="pocock")
-    failures, short = stage.design_failures(pocock)   # a design likely short says so, for the verdict's note
-    assert failures == max_information(2.0, 0.05, 0.8, "pocock", 1.0, hoses_per_adjustment=1).failures
-    assert "Pocock" in short
-    assert stage.design_item(plan, 2.5, hoses) == ({"margin": 2.0, "alpha": 0.05, "power": 0.8,
-                                                    "spending": "obrien-fleming", "shape": design_shape(2.5),
-                                                    "hoses": 1}, None)   # on the design grid
-    assert stage.design_item({**plan, "max_failures": 30}, 2.0, hoses) == (None, None)
+    frozen = {"look": 10, "event_at": hoses["ended_at"][5], "shape": 2.5, "failures": [5, 5]}
+    ask = stage.design_item(plan, frozen, hoses)
+    assert ask == {"margin": 2.0, "alpha": 0.05, "power": 0.8, "spending": "obrien-fleming",
+                   "shape": design_shape(2.5), "hoses": 1}    # on the design grid
+    assert stage.design_failures(ask)[0] == max_information(2.0, 0.05, 0.8, "obrien-fleming", design_shape(2.5),
+                                                            hoses_per_adjustment=1).failures
+    # hoses installed after the frozen look's time are not counted: three more on test at once later on
+    later = {c: list(v) for c, v in hoses.items()}
+    t_late = hoses["ended_at"][-1] + 1
+    for h in ("X1", "X2", "X3"):
+        for c, v in {"hose_id": h, "adjustment": "force", "distance_km": 1.0, "status": "running",
+                     "distance_source": "odometer", "installed_at": t_late, "ended_at": None, "odometer_at": None}.items():
+            later[c].append(v)
+    assert stage.design_item(plan, frozen, later)["hoses"] == 1
+    assert stage.design_item(plan, dict(frozen, event_at=t_late), later)["hoses"] == 3
+    assert stage.design_item({**plan, "max_failures": 30}, frozen, hoses) is None
+    assert stage.design_item(plan, {"look": None, "event_at": None, "shape": None, "failures": [4, 7]}, hoses) is None
 
 
 def _logbook_fleet(tmp_path):
