@@ -195,6 +195,9 @@ def design_of(item: dict, frozen: dict | None, designed: dict) -> list:
     note = (f"max_failures frozen at look {frozen['look']} ({at}): designed from that look's common shape "
             f"{frozen['shape']:.3g} and {ask['hoses'] or 'rare failures, no'} hose(s) on test per adjustment; "
             f"the {frozen['look'] - 1} look(s) before it do not decide (counted without an estimate)")
+    if failures < frozen["look"]:   # a look is a failure: the test cannot end before the look that froze it
+        note += f"; the design's {failures} is below the {frozen['look']} failures then: the test ends at that look"
+        failures = frozen["look"]
     return [failures, "design", "; ".join(n for n in (note, short) if n), frozen["look"]]
 
 
