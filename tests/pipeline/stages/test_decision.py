@@ -316,3 +316,26 @@ def test_an_unset_max_failures_is_frozen_at_a_look_and_later_failures_move_no_pa
     before = {t: query(warehouse, f"SELECT * FROM {t} ORDER BY ALL") for t in tables}
     assert "decision" in ran(full=True).stages_run
     assert {t: query(warehouse, f"SELECT * FROM {t} ORDER BY ALL") for t in tables} == before
+
+
+def test_with_max_failures_in_the_plan_the_tables_are_bit_identical_to_before_the_freeze(raw, warehouse, monkeypatch):
+    """The campaign of the test above with max_failures = 20 in the plan: the four tables' rows (their repr,
+    sha256) are the ones the stage wrote before max_failures was frozen (commit b84e19a, the same
+    environment): the freeze changes nothing when the plan sets the maximum."""
+    import hashlib
+
+    from pipeline import stages as registry
+    from pipeline.rebuild.flow import rebuild
+
+    monkeypatch.setattr(registry, "discover", lambda: [durability, stage])
+    raw.write("c/hoses.csv", HEADER + _campaign_lines(1) + _campaign_lines(2))
+    raw.write("plan.toml", "[defaults]\nmargin = 2.0\nmax_failures = 20\nspending = \"pocock\"\n")
+    rebuild(raw.root, warehouse, jobs=1, report=False)
+    def digest(rows):   # times as ISO text: the repr of their zone depends on the machine's zoneinfo
+        rows = [tuple(v.isoformat() if hasattr(v, "isoformat") else v for v in r) for r in rows]
+        return hashlib.sha256(repr(rows).encode()).hexdigest()[:16]
+
+    digests = {t: digest(query(warehouse, f"SELECT * FROM {t} ORDER BY ALL"))
+               for t in ("life_effect", "life_verdict", "decision_looks", "decision_look_hoses")}
+    assert digests == {"life_effect": "ca6e7b79b604db3d", "life_verdict": "3576f0cd17bebfd5",
+                       "decision_looks": "91ba8a5bf1769f02", "decision_look_hoses": "7b3fd7a8b04a344a"}
