@@ -23,7 +23,12 @@ whatever night they were computed on:
   (:func:`analyses.sequential.sequential_verdict`: Lan & DeMets 1983 alpha spending, repeated
   confidence intervals, a verdict that sticks) at ``information_fraction = failures /
   max_failures``; the likelihood check (:func:`likelihood_check`) confirms the Wald crossings up
-  to the verdict, not after it (a later look cannot change a verdict that sticks).
+  to the verdict, not after it (a later look cannot change a verdict that sticks);
+* :func:`freeze_look`: when the plan leaves ``max_failures`` unset, the look at which it is
+  frozen (the first with ``FEW_FAILURES / 2`` failures of each adjustment and a common shape),
+  whose own fit designs it; :func:`decide` reads the looks before it as looks without an estimate
+  (their alpha spent unused: Jennison & Turnbull 2000, sec. 7.2 and ch. 14, the internal pilot;
+  Mehta & Tsiatis 2001), and without a frozen maximum no look decides.
 
 Decisions
 ---------
@@ -46,6 +51,8 @@ Jennison, C. & Turnbull, B. W. (2000). Group Sequential Methods with Application
 Trials. Chapman & Hall/CRC.
 Lan, K. K. G. & DeMets, D. L. (1983). Discrete sequential boundaries for clinical trials.
 Biometrika 70, 659-663.
+Mehta, C. R. & Tsiatis, A. A. (2001). Flexible sample size considerations using information-based
+interim monitoring. Drug Information Journal 35, 1095-1112.
 """
 from __future__ import annotations
 
@@ -55,7 +62,7 @@ import numpy as np
 import pandas as pd
 
 from analyses.life_effect import CommonShapeFit, common_shape_fit, ratio_deviance
-from analyses.sequential import SequentialVerdict, sequential_verdict
+from analyses.sequential import FEW_FAILURES, SequentialVerdict, sequential_verdict
 from analyses.service_life import SHAPE_BOUNDS
 
 #: ``distance_from`` of a hose whose distance comes from its durability runs.
@@ -470,16 +477,69 @@ def crossing_holds(deviance, crossed: str, boundary_z: float, margin: float) -> 
     return all(deviance(r) > boundary_z ** 2 for r in trials)
 
 
-def decide(estimates: pd.DataFrame, max_failures: int, margin: float, alpha: float,
-           spending: str, in_looks: pd.DataFrame | None = None) -> SequentialVerdict | None:
+def freeze_look(hoses: pd.DataFrame, runs: pd.DataFrame, events: pd.DataFrame):
+    """The look at which a ``max_failures`` the plan leaves unset is frozen, and that look's fit.
+
+    The first look at which each adjustment has at least ``FEW_FAILURES / 2`` failures
+    (:data:`analyses.sequential.FEW_FAILURES`: the shape then rests on 10 or more) and whose
+    common-shape fit (:func:`look_fits`) has a shape: a function of the data up to that look
+    only, so the same raw/ gives the same look and fit whatever later failures came (the maximum
+    is re-estimated once, on the nuisance shape, never on the effect: Mehta & Tsiatis 2001;
+    Jennison & Turnbull 2000, ch. 14).
+
+    Parameters
+    ----------
+    hoses, runs, events : DataFrame
+        :func:`usable_hoses`, their matched runs and :func:`failure_events` (as :func:`look_hoses`).
+
+    Returns
+    -------
+    look : int or None
+        The look's number (None: no look qualifies yet).
+    fit : CommonShapeFit or None
+        Its common-shape fit.
+    failures : list of int
+        Failures of the distance-set and force-set hoses by that look (by the last look when None).
+    """
+    if events.empty:
+        return None, None, [0, 0]
+    adjustment = dict(zip(hoses["hose_id"].tolist(), hoses["adjustment"].tolist()))
+    g = np.array([adjustment.get(h) for h in events["hose_id"].tolist()], dtype=object)
+    counts = np.stack([np.cumsum(g == a) for a in GROUP])        # (distance, force) x looks
+    ready = np.flatnonzero(counts.min(axis=0) >= FEW_FAILURES / 2)
+    for upto in (ready[:1], ready):     # the first ready look alone; all of them when its fit cannot tell
+        if not upto.size:
+            break
+        in_looks = look_hoses(hoses, runs, events.iloc[:int(upto[-1]) + 1])
+        fits = look_fits(in_looks["distance_km"].to_numpy(float), in_looks["failed"].to_numpy(bool),
+                         (in_looks["adjustment"] == "force").to_numpy(int), in_looks["look"].to_numpy(np.int64),
+                         events["look"].to_numpy(np.int64)[upto])
+        for i, fit in zip(upto.tolist(), fits):
+            if fit.note is None and math.isfinite(fit.shape):
+                return int(events["look"].iloc[i]), fit, [int(c) for c in counts[:, i]]
+    return None, None, [int(c) for c in counts[:, -1]]
+
+
+def _no_maximum(n: int) -> SequentialVerdict:
+    """The verdict of ``n`` looks read without a ``max_failures``: no boundary, none decides."""
+    nan = np.full(n, math.nan)
+    return SequentialVerdict(verdict="undecided", decided_at=None, information_fraction=nan, alpha_spent=nan,
+                             boundary_z=nan, efficacy_lower=nan, efficacy_upper=nan, futility_lower=nan,
+                             futility_upper=nan, rci_lower=nan, rci_upper=nan, crossed=("",) * n,
+                             note="no max_failures yet: no look decides")
+
+
+def decide(estimates: pd.DataFrame, max_failures: int | None, margin: float, alpha: float,
+           spending: str, in_looks: pd.DataFrame | None = None, first_look: int = 1) -> SequentialVerdict | None:
     """The sequential verdict over every look (None without looks).
 
     Parameters
     ----------
     estimates : DataFrame
         :func:`look_estimates`.
-    max_failures : int
-        Failures (both adjustments) at which the test ends [-].
+    max_failures : int or None
+        Failures (both adjustments) at which the test ends [-]; None (not frozen yet,
+        :func:`freeze_look`): every look is shown without boundaries and none decides.
     margin : float
         Smallest life ratio worth acting on [-].
     alpha : float
@@ -490,6 +550,9 @@ def decide(estimates: pd.DataFrame, max_failures: int, margin: float, alpha: flo
         :func:`look_hoses`: given, a look up to the verdict crosses only when the profile
         likelihood agrees with the Wald statistic (:func:`likelihood_check`); a later look's
         ``crossed`` is its Wald crossing, unchecked.
+    first_look : int, optional
+        The first look that may decide (the look ``max_failures`` was frozen at): the looks before
+        it are read as looks without an estimate, their alpha spent unused (conservative).
 
     Returns
     -------
@@ -499,7 +562,12 @@ def decide(estimates: pd.DataFrame, max_failures: int, margin: float, alpha: flo
     """
     if estimates.empty:
         return None
+    if max_failures is None:
+        return _no_maximum(len(estimates))
     t = estimates["failures"].to_numpy(float) / float(max_failures)
     confirm = likelihood_check(in_looks, estimates, margin, t) if in_looks is not None else None
-    return sequential_verdict(estimates["log_ratio"].to_numpy(float), estimates["se_log_ratio"].to_numpy(float), t,
-                              margin, alpha, spending, confirm=confirm)
+    est, se = (estimates[c].to_numpy(float) for c in ("log_ratio", "se_log_ratio"))
+    if first_look > 1:
+        early = estimates["look"].to_numpy(np.int64) < first_look
+        est, se = np.where(early, math.nan, est), np.where(early, math.nan, se)
+    return sequential_verdict(est, se, t, margin, alpha, spending, confirm=confirm)

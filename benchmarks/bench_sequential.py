@@ -21,6 +21,11 @@ a failure. Counted, per scenario:
 * true ratio = margin: ``force longer`` declared, against the plan's power (within 5 points);
 * true ratio = margin^1.5: ``force longer`` declared (target >= power - 5 points).
 
+Before the trials, the design's exact arithmetic: the power of the inflation factor's looks at its
+drift, which :func:`analyses.sequential.inflation_factor` finds from the null recursion by a change
+of measure, recomputed by the recursion run under that drift
+(:func:`analyses.sequential.crossing_probabilities`): equal to the target power within 1e-6.
+
 Seeded (``numpy.random.default_rng(2023 + scenario)``): the same numbers every run.
 """
 from __future__ import annotations
@@ -32,7 +37,8 @@ import time
 
 import numpy as np
 
-from analyses.sequential import efficacy_boundaries, max_information, sequential_verdict
+from analyses.sequential import (DESIGN_LOOKS, crossing_probabilities, efficacy_boundaries, inflation_factor,
+                                 max_information, sequential_verdict)
 
 SHAPE = 2.0
 
@@ -95,7 +101,14 @@ def run_family(args) -> bool:
           f"max_failures {design.failures} (fixed sample {design.failures_fixed:.1f}, inflation "
           f"{design.inflation:.4f}), a look at each failure, final boundary z {c[-1]:.3f} "
           f"({time.perf_counter() - t0:.1f} s to design)")
-    ok, n = True, args.trials
+    looks = min(design.failures, DESIGN_LOOKS)   # a look at each failure, as the design's inflation factor
+    _, drift = inflation_factor(looks, args.alpha, args.power, args.spending)
+    t = np.arange(1, looks + 1) / looks
+    direct = crossing_probabilities(efficacy_boundaries(t, args.alpha, args.spending), t, drift)[0].sum()
+    ok = abs(direct - args.power) <= 1e-6
+    print(f"  power of {looks} looks at the inflation factor's drift {drift:.6f}: {args.power} by the change of "
+          f"measure, {direct:.8f} by the recursion run under the drift: {'PASS' if ok else 'MISS'} (within 1e-6)")
+    n = args.trials
     h0 = run_scenario(np.random.default_rng(2023), 1.0, design, args)
     ok &= _line("ratio 1: force or distance longer (sequential)", h0["force longer"] + h0["distance longer"],
                 n, args.alpha, True)

@@ -16,9 +16,13 @@ For every hose type with at least one hose of each adjustment (``force``, ``dist
   number still computed, the note says what would have been declared).
 
 Settings per hose type from the plan (:meth:`pipeline.raw.plan.Plan.for_hose_type`);
-``max_failures`` the plan's, else the sequential design's
-(:func:`analyses.sequential.design_for` with the ``life_effect`` common shape; 1.0 when
-that is NULL, said in the note), as the ``test_plan`` stage computes it.
+``max_failures`` the plan's, else the sequential design's (:func:`analyses.sequential.design_for`)
+frozen at a defined look (:func:`analyses.decision.freeze_look`: the first with ``FEW_FAILURES / 2``
+failures of each adjustment), from that look's own common shape and the hoses on test by its
+time, and kept for every later look: the same raw/ gives the same maximum whatever the night, and a
+past look's boundary never moves. The looks before it do not decide (looks without an estimate);
+until it, no look decides and ``max_failures`` is NULL (docs/decision.md, "max_failures frozen at
+a look").
 
 Decisions
 ---------
@@ -27,10 +31,12 @@ Decisions
   re-run it, a logbook, a durability run or the plan does.
 * Each hose type is one item of ``ctx.map`` (plain data naming every input), twice (its
   ``life_effect``, then its looks): the types run in parallel and one whose hoses, runs and
-  settings did not change is not computed again. The sequential design behind an unset
-  ``max_failures`` is one ``ctx.map`` item per distinct (margin, alpha, power, spending, shape):
-  it costs about half a second the first time (:func:`analyses.sequential.design_for`,
-  ``benchmarks/bench_decision_stage.py``) and is then read from the memo.
+  settings did not change is not computed again. The look an unset ``max_failures`` is frozen
+  at is one more ``ctx.map`` item per hose type (:func:`freeze_of`, fitting that look only), and
+  the design behind it one per distinct (margin, alpha, power, spending, shape,
+  hoses on test): tens of milliseconds the first time in a process that has computed others
+  (:func:`analyses.sequential.design_for`; ``benchmarks/bench_decision_stage.py`` times a cold first
+  rebuild) and then read from the memo.
 """
 from __future__ import annotations
 
@@ -40,10 +46,11 @@ import math
 import numpy as np
 import pandas as pd
 
-from analyses.decision import GROUP, decide, failure_events, look_estimates, look_hoses, usable_hoses
+from analyses.decision import (GROUP, decide, failure_events, freeze_look, look_estimates, look_hoses,
+                               usable_hoses)
 from analyses.hose_life import match_runs
 from analyses.life_effect import life_effect
-from analyses.sequential import design_for, design_shape
+from analyses.sequential import FEW_FAILURES, design_for, design_shape
 from analyses.test_plan import hoses_on_test
 from pipeline.raw.logbook import merge_logbooks, read_logbooks
 from pipeline.stages import Reads, StageContext, StageOutput
@@ -146,25 +153,58 @@ def effect_of(item: dict) -> dict:
     return {**row, "hose_type": item["hose_type"], "confidence": item["plan"]["confidence"]}
 
 
-def design_item(plan: dict, shape: float, hoses: dict) -> tuple[dict | None, str | None]:
-    """What :func:`design_failures` needs when the plan leaves ``max_failures`` unset (None when it sets
-    it), and the note when the shape is NULL (the design then assumes 1.0); ``hoses``: the item's
-    hose columns, whose installations and ends give the hoses on test (:func:`analyses.test_plan.hoses_on_test`)."""
-    if plan["max_failures"] is not None:
-        return None, None
-    note = None
-    if not (math.isfinite(shape) and shape > 0):
-        shape, note = 1.0, "max_failures designed with shape 1.0: the life_effect common shape is NULL"
+def freeze_of(item: dict) -> dict:
+    """The look an unset ``max_failures`` is frozen at (:func:`analyses.decision.freeze_look`), as plain
+    data (module level: memoised by ``ctx.map``): ``look`` (None: none yet), ``event_at`` [int ns], ``shape``
+    [-] of that look's common-shape fit, ``failures``: (distance-set, force-set) by then."""
+    hoses = usable_hoses(_frame(item["hoses"], HOSE_SPEC))
+    events = failure_events(hoses)
+    look, fit, failures = freeze_look(hoses, _frame(item["runs"], RUN_SPEC), events)
+    at = None if look is None else _ns_list(events["event_at"].iloc[look - 1:look])[0]
+    return {"look": look, "event_at": at, "shape": None if fit is None else float(fit.shape), "failures": failures}
+
+
+def design_item(plan: dict, frozen: dict | None, hoses: dict) -> dict | None:
+    """What :func:`design_failures` needs when the plan leaves ``max_failures`` unset and a look froze
+    it (:func:`freeze_of`), else None; ``hoses``: the item's hose columns, whose installations and ends up
+    to the frozen look's time give the hoses on test then (:func:`analyses.test_plan.hoses_on_test`)."""
+    if plan["max_failures"] is not None or frozen is None or frozen["look"] is None:
+        return None
+    by = frozen["event_at"]
+    ended = [e if e is not None and e <= by else None for e in hoses["ended_at"]]
+    mine = [i for i, t in enumerate(hoses["installed_at"]) if t is None or t <= by]
+    on_test = hoses_on_test([hoses["installed_at"][i] for i in mine], [ended[i] for i in mine],
+                            [GROUP.get(hoses["adjustment"][i], -1) for i in mine])
     # on the design grid: hose types whose shapes round alike share one item (one computation)
-    on_test = hoses_on_test(hoses["installed_at"], hoses["ended_at"], [GROUP.get(a, -1) for a in hoses["adjustment"]])
-    return {k: plan[k] for k in ("margin", "alpha", "power", "spending")} | {"shape": design_shape(float(shape)),
-                                                                           "hoses": on_test}, note
+    return {k: plan[k] for k in ("margin", "alpha", "power", "spending")} | {"shape": design_shape(frozen["shape"]),
+                                                                           "hoses": on_test}
+
+
+def design_of(item: dict, frozen: dict | None, designed: dict) -> list:
+    """The item's ``design``: [max_failures, "plan" or "design", note, the first look that may decide]."""
+    plan = item["plan"]
+    if plan["max_failures"] is not None:
+        return [plan["max_failures"], "plan", None, 1]
+    ask = design_item(plan, frozen, item["hoses"])
+    if ask is None:
+        d, f = frozen["failures"] if frozen else (0, 0)
+        return [None, "design", f"max_failures not frozen yet: designed at the first look with {FEW_FAILURES / 2:g} "
+                f"failures of each adjustment (so far {d} distance-set, {f} force-set)", None]
+    failures, short = designed[json.dumps(ask, sort_keys=True)]
+    at = pd.Timestamp(frozen["event_at"], tz="UTC").isoformat()
+    note = (f"max_failures frozen at look {frozen['look']} ({at}): designed from that look's common shape "
+            f"{frozen['shape']:.3g} and {ask['hoses'] or 'rare failures, no'} hose(s) on test per adjustment; "
+            f"the {frozen['look'] - 1} look(s) before it do not decide (counted without an estimate)")
+    if failures < frozen["look"]:   # a look is a failure: the test cannot end before the look that froze it
+        note += f"; the design's {failures} is below the {frozen['look']} failures then: the test ends at that look"
+        failures = frozen["look"]
+    return [failures, "design", "; ".join(n for n in (note, short) if n), frozen["look"]]
 
 
 def design_failures(item: dict) -> list:
     """``[max_failures, note]`` of the sequential design (:func:`analyses.sequential.design_for`)
     for a :func:`design_item`, the note saying where the figure is likely short (module level:
-    memoised by ``ctx.map``, about half a second the first time)."""
+    memoised by ``ctx.map``)."""
     d = design_for(item["margin"], item["alpha"], item["power"], item["spending"], item["shape"], item["hoses"])
     return [int(d.failures), d.note]
 
@@ -232,8 +272,8 @@ def decide_hose_type(item: dict) -> dict:
     ----------
     item : dict
         :func:`hose_type_item` (``hose_type``, ``hoses``: hose_life rows, ``runs``: their matched
-        durability runs, ``plan``: the hose type's settings) with ``design``: (max_failures,
-        ``"plan"`` or ``"design"``, note).
+        durability runs, ``plan``: the hose type's settings) with ``design``: (max_failures or None,
+        ``"plan"`` or ``"design"``, note, the first look that may decide) (:func:`design_of`).
 
     Returns
     -------
@@ -248,8 +288,11 @@ def decide_hose_type(item: dict) -> dict:
     events = failure_events(hoses)
     in_looks = look_hoses(hoses, runs, events)
     est = look_estimates(in_looks, events)
-    sv = decide(est, design[0], plan["margin"], plan["alpha"], plan["spending"], in_looks)
+    sv = decide(est, design[0], plan["margin"], plan["alpha"], plan["spending"], in_looks, design[3] or 1)
     looks = _looks_rows(hose_type, est, sv, plan["present"]) if sv is not None else []
+    for row in looks[:design[3] - 1] if design[0] is not None else []:
+        row["note"] = "; ".join(n for n in (row["note"], f"before look {design[3]}, where max_failures was frozen: "
+                                            "does not decide") if n)
     verdict = _verdict_row(item, looks, sv, design)
     left_out = len(life) - len(hoses)
     if left_out:
@@ -297,19 +340,25 @@ def hose_type_items(ctx: StageContext) -> list[dict]:
     return items
 
 
+def design_asks(ctx: StageContext, items: list[dict]) -> tuple[list, list]:
+    """Per item its frozen look (:func:`freeze_of`, None when the plan sets ``max_failures``) and its
+    :func:`design_item` (None when none is needed)."""
+    unset = [it for it in items if it["plan"]["max_failures"] is None]
+    found = dict(zip([it["hose_type"] for it in unset],
+                     ctx.map(freeze_of, unset, label="decision: freeze") if unset else []))
+    frozen = [found.get(it["hose_type"]) for it in items]
+    return frozen, [design_item(it["plan"], fr, it["hoses"]) for it, fr in zip(items, frozen)]
+
+
 def run(ctx: StageContext) -> StageOutput:
     out = StageOutput()
     items = hose_type_items(ctx)
     effects = ctx.map(effect_of, items, label="decision: life effect")
-    asks = [design_item(it["plan"], e["shape"], it["hoses"]) for it, e in zip(items, effects)]
-    unique = sorted({json.dumps(a, sort_keys=True) for a, _ in asks if a is not None})
+    frozen, asks = design_asks(ctx, items)
+    unique = sorted({json.dumps(a, sort_keys=True) for a in asks if a is not None})
     designed = dict(zip(unique, ctx.map(design_failures, [json.loads(u) for u in unique], label="decision: design")))
-    for it, (ask, note) in zip(items, asks):
-        if ask is None:
-            it["design"] = [it["plan"]["max_failures"], "plan", None]
-        else:
-            failures, short = designed[json.dumps(ask, sort_keys=True)]
-            it["design"] = [failures, "design", "; ".join(n for n in (note, short) if n) or None]
+    for it, fr in zip(items, frozen):
+        it["design"] = design_of(it, fr, designed)
     results = ctx.map(decide_hose_type, items, label="decision: looks")
     rows = {t: [r for res in results for r in res[t]] for t in ("life_verdict", "decision_looks")}
     rows["life_effect"] = effects

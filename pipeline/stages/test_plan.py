@@ -9,8 +9,10 @@ target power (the plan's, and 0.9; one row when they are equal), from :mod:`anal
   installation and end; failures rare when none is known): the same number the decision stage
   uses as ``max_failures`` when the plan leaves it unset.
 * ``power_now``: Monte Carlo from the fitted common-shape Weibull and the current censored state,
-  run to the plan's ``max_failures`` (else ``failures_needed`` at the plan's power); the same for
-  both rows of a hose type.
+  run to the decision stage's ``max_failures`` (``life_verdict``: the plan's, or the design's frozen
+  at a look, :func:`analyses.decision.freeze_look`; while none is frozen, ``failures_needed`` at
+  the plan's power, noted); the same for both rows of a hose type. ``failures_needed`` keeps
+  following the current shape: it answers "what would it take now".
 * ``more_hoses_per_adjustment``, ``more_km``, and ``expected_decision_date`` = the latest event in
   the data (not the wall clock: the same raw/ gives the same table) plus ``more_km / (benches *
   km_per_day)``, the capacity from the plan or measured from the durability runs of the last 30
@@ -38,8 +40,8 @@ from analyses.test_plan import (CAPACITY_DAYS, N_SIMULATIONS, HoseState, decisio
 from pipeline.stages import Reads, StageContext, StageOutput
 
 NAME = "test_plan"
-READS = Reads(kinds=("durability",), tables=("hose_life", "durability_runs", "life_effect"), logbooks=True,
-              plan=True)
+READS = Reads(kinds=("durability",), tables=("hose_life", "durability_runs", "life_effect", "life_verdict"),
+              logbooks=True, plan=True)
 WRITES = ("test_plan",)
 
 COLUMNS = ["hose_type", "target_power", "failures_needed", "failures", "power_now", "more_hoses_per_adjustment",
@@ -58,8 +60,9 @@ def _number(v) -> float | None:
     return f if math.isfinite(f) else None
 
 
-def hose_items(life: pd.DataFrame, effect: pd.DataFrame | None, plan) -> list[dict]:
-    """One plain-data item per hose type with both adjustments: its hoses, plan and seed."""
+def hose_items(life: pd.DataFrame, effect: pd.DataFrame | None, plan, verdict: pd.DataFrame | None = None) -> list[dict]:
+    """One plain-data item per hose type with both adjustments: its hoses, plan and seed; ``max_failures``
+    the decision stage's (``verdict``: ``life_verdict``; the plan's where it has no row)."""
     if life is None or len(life) == 0:
         return []
     life = life[life["adjustment"].isin(("force", "distance")) & life["hose_type"].notna()]
@@ -67,6 +70,9 @@ def hose_items(life: pd.DataFrame, effect: pd.DataFrame | None, plan) -> list[di
     if effect is not None and len(effect):
         shapes = {t: _number(s) for t, s in zip(effect["hose_type"], effect["shape"])}
         models = dict(zip(effect["hose_type"], effect.get("model", pd.Series([None] * len(effect)))))
+    frozen = {}
+    if verdict is not None and len(verdict):
+        frozen = {t: None if pd.isna(m) else int(m) for t, m in zip(verdict["hose_type"], verdict["max_failures"])}
     items = []
     for htype, g in life.groupby("hose_type", sort=True):
         if set(g["adjustment"]) != {"force", "distance"}:
@@ -81,7 +87,8 @@ def hose_items(life: pd.DataFrame, effect: pd.DataFrame | None, plan) -> list[di
                 "failed": (g["status"] == "failed").to_numpy()[keep].tolist(), "running": running[keep].tolist(),
                 "group": (g["adjustment"] == "force").to_numpy()[keep].astype(int).tolist(),
                 "shape": shapes.get(htype), "model": models.get(htype) if isinstance(models.get(htype), str) else None,
-                "settings": {k: getattr(s, k) for k in _SETTINGS}, "n_simulations": N_SIMULATIONS,
+                "settings": {k: getattr(s, k) for k in _SETTINGS} | {"max_failures": frozen.get(htype, s.max_failures)},
+                "n_simulations": N_SIMULATIONS,
                 "hoses_on_test": _on_test(g)}
         item["seed"] = int(hashlib.sha256(json.dumps(item, sort_keys=True).encode()).hexdigest()[:16], 16)
         items.append(item)
@@ -100,10 +107,10 @@ def design(item: dict) -> dict:
     """One sequential design (module level for ``ctx.map``): ``failures_needed`` per target power
     and the efficacy boundaries of the test as planned (one per failure up to ``max_failures``).
 
-    ``item``: ``margin``, ``alpha``, ``power``, ``spending``, ``max_failures`` (None: the design's
-    at ``power``), ``shape`` [-] and ``hoses``: hoses on test per adjustment [-] (None: failures rare). Hose types that share a design share its cost (at a look per
-    failure, :func:`analyses.sequential.max_information` takes seconds to minutes: the boundaries
-    of hundreds of looks).
+    ``item``: ``margin``, ``alpha``, ``power``, ``spending``, ``max_failures`` (``life_verdict``'s;
+    None: the design's at ``power`` and the current shape), ``shape`` [-] and ``hoses``: hoses on test per adjustment [-] (None: failures rare).
+    Hose types that share a design share its cost (the boundaries of up to hundreds of looks, computed
+    once per number of looks, alpha and spending in a process: :mod:`analyses.sequential`).
     """
     designs = {p: design_for(item["margin"], item["alpha"], p, item["spending"], item["shape"], item["hoses"])
                for p in target_powers(item["power"])}
@@ -130,6 +137,8 @@ def plan_hose_type(item: dict) -> list[dict]:
     state = HoseState(np.array(item["distance"], float), np.array(item["failed"], bool),
                       np.array(item["running"], bool), np.array(item["group"], int))
     notes = [] if item["shape"] is not None else ["failures_needed at shape 1.0: life_effect has no common shape"]
+    if s["max_failures"] is None:
+        notes.append("power_now runs to failures_needed at the plan's power: no max_failures frozen yet (life_verdict)")
     if item["model"] == SEPARATE:
         notes.append("the simulations assume a common shape; life_effect finds the shapes differ")
     fit = common_shape_fit(state.distance, state.failed, state.group)
@@ -187,7 +196,7 @@ def _capacity(row: dict, settings, measured: tuple, today) -> dict:
 def plan_table(ctx: StageContext) -> pd.DataFrame:
     """The ``test_plan`` table (module docstring)."""
     life, runs = ctx.results.get("hose_life"), ctx.results.get("durability_runs")
-    items = hose_items(life, ctx.results.get("life_effect"), ctx.plan)
+    items = hose_items(life, ctx.results.get("life_effect"), ctx.plan, ctx.results.get("life_verdict"))
     keys = sorted({json.dumps(_design_item(i), sort_keys=True) for i in items})
     designs = dict(zip(keys, ctx.map(design, [json.loads(k) for k in keys], label="test plan designs")))
     items = [dict(i, design=designs[json.dumps(_design_item(i), sort_keys=True)]) for i in items]

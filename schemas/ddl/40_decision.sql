@@ -37,9 +37,11 @@ CREATE TABLE life_verdict (
     power             DOUBLE,              -- power at the margin the design is for (plan) [-]
     confidence        DOUBLE,              -- confidence of life_effect's intervals (plan) [-]
     spending          VARCHAR,             -- alpha-spending family: obrien-fleming | pocock (plan)
-    max_failures      BIGINT,              -- failures (both adjustments) at which the test ends [-]
-    max_failures_from VARCHAR,             -- 'plan' | 'design' (sequential design at margin, alpha, power and the
-                                           -- life_effect common shape; 1.0 when that is NULL, said in note)
+    max_failures      BIGINT,              -- failures (both adjustments) at which the test ends [-]; designed: frozen
+                                           -- at the first look with FEW_FAILURES / 2 failures of each adjustment
+                                           -- (note: look k and its event time), NULL until that look
+    max_failures_from VARCHAR,             -- 'plan' | 'design' (sequential design at margin, alpha, power, the
+                                           -- frozen look's own common shape and the hoses on test by its time)
     plan_from         VARCHAR,             -- where the margin came from: 'hose_type' | 'defaults' | 'built-in'
     failures          BIGINT,              -- failures so far (the last look's) [-]
     information_fraction DOUBLE,           -- failures / max_failures, capped at 1 [-]
@@ -61,8 +63,9 @@ CREATE TABLE life_verdict (
     decided_ratio     DOUBLE,              -- estimate at the deciding look [-]
     decided_lower     DOUBLE,              -- repeated confidence interval at the deciding look, lower end [-]
     decided_upper     DOUBLE,              -- repeated confidence interval at the deciding look, upper end [-]
-    note              VARCHAR              -- no plan (and what would have been declared), max_failures from
-                                           -- shape 1.0, looks without an estimate or new information, looks up
+    note              VARCHAR              -- no plan (and what would have been declared), the look max_failures
+                                           -- was frozen at (or that it is not yet), looks without an estimate
+                                           -- (also those before the freeze) or new information, looks up
                                            -- to the verdict that crossed on the Wald scale only
 );
 
@@ -76,7 +79,8 @@ CREATE TABLE decision_looks (
     failures          BIGINT,              -- failures so far, both adjustments [-]
     n_hoses           BIGINT,              -- hoses installed by event_at, in the look (decision_look_hoses) [-]
     total_km          DOUBLE,              -- their distances at event_at summed [km]
-    information_fraction DOUBLE,           -- failures / max_failures, capped at 1 [-]
+    information_fraction DOUBLE,           -- failures / max_failures, capped at 1 [-]; NULL (and no boundary) while
+                                           -- no max_failures is frozen (life_verdict.max_failures)
     life_ratio        DOUBLE,              -- common-shape estimate at this look [-]; NULL when the data cannot tell
     se_log_ratio      DOUBLE,              -- its standard error on the log scale (observed information) [-]
     z                 DOUBLE,              -- ln(life_ratio) / se_log_ratio [-]
@@ -96,7 +100,8 @@ CREATE TABLE decision_looks (
     decides           BOOLEAN,             -- this look declared the verdict (never with no plan)
     note              VARCHAR              -- why the estimate is NULL, hoses placed by odometer (linear in time),
                                            -- no new information past max_failures, a crossing after the verdict
-                                           -- not checked by the profile likelihood
+                                           -- not checked by the profile likelihood, a look before the one
+                                           -- max_failures was frozen at (does not decide)
 );
 
 -- One row per (hose type, look, hose in the look): each hose installed by the look's event at its distance then.
@@ -121,7 +126,9 @@ CREATE TABLE test_plan (
                                            -- target_power [-]
     failures          BIGINT,              -- failures so far [-]
     power_now         DOUBLE,              -- chance to decide if no hose were added and the test ran to
-                                           -- max_failures [-]
+                                           -- max_failures: life_verdict's (the plan's or the frozen one; while
+                                           -- none is frozen, failures_needed at the plan's power) [-];
+                                           -- failures_needed follows the current shape (what it takes now)
     more_hoses_per_adjustment BIGINT,      -- hoses to add per adjustment to reach target_power [-]
     more_km           DOUBLE,              -- more kilometres of testing, all benches together [km]
     benches           BIGINT,              -- benches testing this hose type [-]

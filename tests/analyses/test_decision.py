@@ -143,6 +143,14 @@ def test_the_verdict_sticks_and_later_looks_are_still_shown():
     assert sv.crossed == ("", "force longer", "", "")
     assert list(sv.information_fraction) == [0.5, 0.75, 1.0, 1.0]   # the fourth look: no new information
     assert decide(est.iloc[0:0], 4, 1.25, 0.05, "pocock") is None
+    # frozen at the third look: the first two are read without an estimate (their alpha spent unused)
+    late = decide(est.assign(look=[1, 2, 3, 4]), 4, 1.25, 0.05, "pocock", first_look=3)
+    assert late.verdict == "undecided" and late.crossed == ("", "", "", "")
+    assert late.boundary_z[2] == sv.boundary_z[2] and "2 look(s) without an estimate" in late.note
+    # no max_failures yet: every look shown without a boundary, none decides
+    none = decide(est, None, 1.25, 0.05, "pocock")
+    assert none.verdict == "undecided" and none.decided_at is None and np.isnan(none.boundary_z).all()
+    assert np.isnan(none.information_fraction).all() and none.crossed == ("",) * 4
 
 
 def test_likelihood_check_compares_the_looks_profile_deviance_with_the_boundary():
@@ -219,3 +227,49 @@ def test_look_fits_equal_each_looks_own_fit():
                          (fit.se_log_ratio, ref.se_log_ratio), (fit.scale_force, ref.scale_force)):
                 assert a == pytest.approx(b, rel=1e-12, abs=1e-13)
     assert 5 <= fitted < len(wanted)                # both kinds of look were there
+
+
+def _staggered(n_distance=8, n_force=6, seed=2):
+    """All hoses installed on day 0, odometer-only; the distance-set ones fail on days 1..n_distance, then the
+    force-set ones on the following days; two force-set hoses still running."""
+    rng = np.random.default_rng(seed)
+    t0 = pd.Timestamp("2026-01-01", tz="UTC")
+    rows = [{"hose_id": f"D{i}", "adjustment": "distance", "status": "failed", "ended_at": t0 + pd.Timedelta(days=i + 1)}
+            for i in range(n_distance)]
+    rows += [{"hose_id": f"F{i}", "adjustment": "force", "status": "failed",
+              "ended_at": t0 + pd.Timedelta(days=n_distance + i + 1)} for i in range(n_force)]
+    rows += [{"hose_id": f"R{i}", "adjustment": "force", "status": "running", "ended_at": pd.NaT,
+              "odometer_at": t0 + pd.Timedelta(days=40)} for i in range(2)]
+    life = pd.DataFrame(rows)
+    life["distance_km"] = 10.0 * rng.weibull(2.0, len(life)) + 1.0
+    life["distance_source"], life["installed_at"] = "odometer", t0
+    return usable_hoses(life)
+
+
+def test_freeze_look_is_the_first_with_half_few_failures_of_each_adjustment_and_later_failures_do_not_move_it():
+    from analyses.decision import freeze_look
+    from analyses.sequential import FEW_FAILURES
+
+    assert FEW_FAILURES / 2 == 5
+    runs = pd.DataFrame(columns=["hose_id", "started_at", "duration_h", "distance_km"])
+    hoses = _staggered()
+    events = failure_events(hoses)
+    look, fit, failures = freeze_look(hoses, runs, events)
+    assert look == 13 and failures == [8, 5]                  # D0..D7 (looks 1-8), F0..F4 (looks 9-13): hand-checked
+    in_looks = look_hoses(hoses, runs, events)
+    m = (in_looks["look"] == 13).to_numpy()
+    ref = common_shape_fit(in_looks["distance_km"][m].to_numpy(float), in_looks["failed"][m].to_numpy(bool),
+                           (in_looks["adjustment"][m] == "force").to_numpy(int))
+    assert fit.shape == pytest.approx(ref.shape, rel=1e-10) and fit.log_ratio == pytest.approx(ref.log_ratio, rel=1e-9)
+    # the night before F5 failed (running then, its odometer read at that time) gives the same look and fit
+    early = hoses.copy()
+    f5 = (early["hose_id"] == "F5").to_numpy()
+    early.loc[f5, "odometer_at"], early.loc[f5, "status"] = early.loc[f5, "ended_at"], "running"
+    early.loc[f5, "ended_at"] = pd.NaT
+    assert len(failure_events(early)) == len(events) - 1
+    again = freeze_look(early, runs, failure_events(early))
+    assert again[0] == 13 and again[1].shape == fit.shape and again[2] == [8, 5]
+    # four force-set failures: no look qualifies yet
+    few = _staggered(n_force=4)
+    assert freeze_look(few, runs, failure_events(few)) == (None, None, [8, 4])
+    assert freeze_look(few, runs, failure_events(few.iloc[0:0])) == (None, None, [0, 0])

@@ -152,6 +152,19 @@ def test_renewal_function_of_exponential_lives_is_linear():
         assert m[i] == pytest.approx(count.mean(), abs=3 * count.std() / math.sqrt(count.size) + 1e-3)
 
 
+def test_renewal_function_solves_the_trapezoidal_recursion():
+    """The series inversion gives what the discretised renewal equation gives step by step."""
+    from analyses.sequential import _renewal_function
+    t = np.linspace(0.0, 7.0, 300)
+    for scale, shape in ((1.0, 2.0), (1.5, 0.7), (0.8, 3.5)):
+        f = -np.expm1(-(t / scale) ** shape)
+        df, m = np.diff(f), np.zeros(t.size)
+        for i in range(1, t.size):   # M_i = F_i + sum_j (M(t_i - u_j) + M(t_i - u_{j+1})) / 2 dF_j
+            m[i] = (f[i] + sum(0.5 * (m[i - j] + m[i - j - 1]) * df[j] for j in range(1, i))
+                    + 0.5 * m[i - 1] * df[0]) / (1.0 - 0.5 * df[0])
+        assert _renewal_function(t, scale, shape) == pytest.approx(m, abs=1e-12)
+
+
 def _bench_trial(rng, benches: int, failures: int, margin: float, shape: float):
     """Hoses on ``benches`` benches per adjustment, each failed hose replaced at once, at the
     ``failures``-th failure: (distance, failed, force)."""
@@ -298,10 +311,46 @@ def test_confirm_keeps_a_wald_crossing_from_deciding_until_the_second_check_agre
 
 @pytest.mark.parametrize("spending", ["obrien-fleming", "pocock"])
 def test_the_first_looks_of_an_even_design_get_the_whole_designs_boundaries_bit_for_bit(spending):
+    sequential.clear_caches()
     for m, looks in ((40, 17), (7, 3), (63, 63)):
         t = np.arange(1, looks + 1) / m
-        direct = np.array(sequential._boundaries(tuple(t.tolist()), 0.05, spending))
+        direct = np.array(sequential._Design(t, 0.05, spending).boundaries(looks))   # the prefix alone
         assert np.array_equal(sequential.efficacy_boundaries(t, 0.05, spending), direct)
+    # computed only as far as asked, then extended: the same values as the whole design at once
+    assert len(sequential._design_of(40, 0.05, spending).c) == 17
+    whole = sequential._Design(np.arange(1, 41) / 40, 0.05, spending).boundaries(40)
+    assert np.array_equal(sequential.efficacy_boundaries(np.arange(1, 41) / 40, 0.05, spending), whole)
     assert sequential._grid_of((0.1, 0.2, 0.35)) is None          # uneven: computed as given
-    assert sequential._grid_of((0.5, 1.0)) == (0.5, 1.0)
-    assert sequential._grid_of((1 / 3, 2 / 3)) == (1 / 3, 2 / 3, 1.0)
+    assert sequential._grid_of((0.5, 1.0)) == 2
+    assert sequential._grid_of((1 / 3, 2 / 3)) == 3
+    sequential.clear_caches()
+    assert not sequential._DESIGNS
+
+
+@pytest.mark.parametrize("spending, looks", [("obrien-fleming", 30), ("pocock", 12), ("obrien-fleming", 1)])
+def test_power_by_change_of_measure_is_the_direct_recursion_with_drift(spending, looks):
+    """The design's power read from the null recursion's grids times the likelihood ratio equals the
+    recursion run under each drift (crossing_probabilities), to 1e-9."""
+    t = np.arange(1, looks + 1) / looks
+    c = efficacy_boundaries(t, 0.05, spending)
+    design = sequential._design_of(looks, 0.05, spending)
+    for drift in (0.0, 1.0, 2.9, 4.5, -2.0):
+        assert design.upper_power(drift) == pytest.approx(crossing_probabilities(c, t, drift)[0].sum(), abs=1e-9)
+    assert design.upper_power(0.0) == pytest.approx(0.025, abs=1e-6)      # half of alpha under no difference
+    with pytest.raises(ValueError):
+        design.upper_power(30.0)
+
+
+@pytest.mark.parametrize("spending", ["obrien-fleming", "pocock"])
+def test_boundaries_by_newton_are_the_bracketed_ones(spending):
+    """Each look's boundary solved by Newton's method equals brentq's root of the same crossing
+    probability (what the recursion did before) to 1e-9."""
+    t = np.arange(1, 26) / 25
+    c = efficacy_boundaries(t, 0.05, spending)
+    spend = np.diff(np.concatenate([[0.0], alpha_spent(t, 0.05, spending)]))
+    rec = sequential._Recursion(t, 0.0)
+    for k in range(t.size):
+        if spend[k] >= 1e-15:
+            root = optimize.brentq(lambda x: sum(rec.exit_probabilities(x)) - spend[k], 1e-6, 40.0, xtol=1e-12)
+            assert c[k] == pytest.approx(root, abs=1e-9)
+        rec.advance(c[k])

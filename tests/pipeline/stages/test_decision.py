@@ -40,7 +40,7 @@ def odometer_item(ratio=4.0, n=12, seed=3, present=True, max_failures=20):
     plan = Plan(present=present, defaults={"max_failures": max_failures, "spending": "pocock"}).for_hose_type("T")
     no_runs = pd.DataFrame(columns=["run_id", "hose_id", "started_at", "duration_h", "distance_km"])
     item = stage.hose_type_item("T", pd.DataFrame(hoses), no_runs, plan)
-    return {**item, "design": [max_failures, "plan", None]}
+    return {**item, "design": [max_failures, "plan", None, 1]}
 
 
 def test_a_clear_ratio_decides_once_and_the_verdict_sticks():
@@ -79,21 +79,35 @@ def test_too_few_failures_give_null_estimates_with_notes():
     assert math.isnan(effect["life_ratio"]) and effect["note"].startswith("too few failures")
 
 
-def test_max_failures_from_the_design_with_shape_one_when_the_shape_is_null():
+def test_the_design_item_is_the_frozen_looks_shape_and_hoses_on_test_by_its_time():
     plan = settings(max_failures=None, margin=2.0, spending="obrien-fleming")
     hoses = odometer_item()["hoses"]   # one hose after another on one bench: one on test at a time
-    ask, note = stage.design_item(plan, math.nan, hoses)
-    assert ask["shape"] == 1.0 and ask["hoses"] == 1 and "shape 1.0" in note
-    assert stage.design_failures(ask) == [max_information(2.0, 0.05, 0.8, "obrien-fleming", 1.0,
-                                                          hoses_per_adjustment=1).failures, None]
-    pocock = dict(ask, spending="pocock")
-    failures, short = stage.design_failures(pocock)   # a design likely short says so, for the verdict's note
-    assert failures == max_information(2.0, 0.05, 0.8, "pocock", 1.0, hoses_per_adjustment=1).failures
-    assert "Pocock" in short
-    assert stage.design_item(plan, 2.5, hoses) == ({"margin": 2.0, "alpha": 0.05, "power": 0.8,
-                                                    "spending": "obrien-fleming", "shape": design_shape(2.5),
-                                                    "hoses": 1}, None)   # on the design grid
-    assert stage.design_item({**plan, "max_failures": 30}, 2.0, hoses) == (None, None)
+    frozen = {"look": 10, "event_at": hoses["ended_at"][5], "shape": 2.5, "failures": [5, 5]}
+    ask = stage.design_item(plan, frozen, hoses)
+    assert ask == {"margin": 2.0, "alpha": 0.05, "power": 0.8, "spending": "obrien-fleming",
+                   "shape": design_shape(2.5), "hoses": 1}    # on the design grid
+    assert stage.design_failures(ask)[0] == max_information(2.0, 0.05, 0.8, "obrien-fleming", design_shape(2.5),
+                                                            hoses_per_adjustment=1).failures
+    # hoses installed after the frozen look's time are not counted: three more on test at once later on
+    later = {c: list(v) for c, v in hoses.items()}
+    t_late = hoses["ended_at"][-1] + 1
+    for h in ("X1", "X2", "X3"):
+        for c, v in {"hose_id": h, "adjustment": "force", "distance_km": 1.0, "status": "running",
+                     "distance_source": "odometer", "installed_at": t_late, "ended_at": None, "odometer_at": None}.items():
+            later[c].append(v)
+    assert stage.design_item(plan, frozen, later)["hoses"] == 1
+    assert stage.design_item(plan, dict(frozen, event_at=t_late), later)["hoses"] == 3
+    assert stage.design_item({**plan, "max_failures": 30}, frozen, hoses) is None
+    # a design below the failures already seen at the frozen look ends the test at that look
+    item = {"plan": plan, "hoses": hoses}
+    key = __import__("json").dumps(ask, sort_keys=True)
+    m, src, note, first = stage.design_of(item, frozen, {key: [7, None]})
+    assert (m, src, first) == (10, "design", 10) and "the design's 7 is below the 10 failures" in note
+    assert stage.design_of(item, frozen, {key: [25, None]})[0] == 25
+    assert stage.design_of({"plan": {**plan, "max_failures": 30}, "hoses": hoses}, None, {}) == [30, "plan", None, 1]
+    unfrozen = stage.design_of(item, {"look": None, "event_at": None, "shape": None, "failures": [4, 7]}, {})
+    assert unfrozen[0] is None and unfrozen[3] is None and "so far 4 distance-set, 7 force-set" in unfrozen[2]
+    assert stage.design_item(plan, {"look": None, "event_at": None, "shape": None, "failures": [4, 7]}, hoses) is None
 
 
 def _logbook_fleet(tmp_path):
@@ -239,3 +253,89 @@ def test_the_looks_and_verdict_are_the_look_by_look_computation(ratio, seed):
     assert after["note"].fillna("").str.contains(stage.AFTER_VERDICT).tolist() == [bool(c) for c in crossed[upto:]]
     if ratio == 4.0:                                  # a verdict, and crossings after it
         assert ref.decided_at is not None and any(crossed[upto:])
+
+
+def _campaign_lines(phase: int) -> str:
+    """Odometer-only hoses of type T. Phase 1, installed on 2026-01-01: eight distance-set hoses of tight lives
+    (5-15 km) failing on Jan 2-9 (looks 1-8), then eight force-set ones (20-60 km) on Jan 10-17 (looks 9-16).
+    Phase 2, installed on Feb 1 (after every phase-1 event: no past look holds them): six of each, lives spread
+    wide (a much smaller Weibull shape), failing in March."""
+    lines = []
+    if phase == 1:
+        lives = {"distance": [5.0, 7.0, 8.0, 9.0, 10.0, 11.0, 13.0, 15.0], "force": [20, 28, 33, 38, 42, 46, 52, 60]}
+        day = 2
+        for adj, km in lives.items():
+            for i, x in enumerate(km):
+                h = f"{adj[0].upper()}{i}"
+                lines += [f"{h},installed,2026-01-01,T,{adj},4.5,866,,,,",
+                          f"{h},failed,2026-01-{day:02d},,,,,rupture,,{x},"]
+                day += 1
+        return "\n".join(lines) + "\n"
+    lives = {"distance": [1.0, 3.0, 25.0, 0.5, 18.0, 6.0], "force": [5.0, 90.0, 2.0, 150.0, 30.0, 60.0]}
+    for k, (adj, km) in enumerate(lives.items()):
+        for i, x in enumerate(km):
+            h = f"{adj[0].upper()}{10 + i}"
+            lines += [f"{h},installed,2026-02-01,T,{adj},4.5,866,,,,",
+                      f"{h},failed,2026-03-{1 + 2 * i + k:02d},,,,,rupture,,{x},"]
+    return "\n".join(lines) + "\n"
+
+
+def test_an_unset_max_failures_is_frozen_at_a_look_and_later_failures_move_no_past_look(raw, warehouse, monkeypatch):
+    """Night N: 16 failures; the first look with FEW_FAILURES / 2 = 5 of each adjustment is look 13 (eight
+    distance-set failures first, the fifth force-set one is the 13th failure): max_failures is designed there
+    and kept. Night N+1 appends twelve failures of a much smaller shape, whose design would differ: the
+    maximum, the verdict and every look of night N are unchanged, and --full equals incremental."""
+    from pipeline import stages as registry
+    from pipeline.rebuild.flow import rebuild
+    from analyses.sequential import design_for
+
+    monkeypatch.setattr(registry, "discover", lambda: [durability, stage])
+    raw.write("c/hoses.csv", HEADER + _campaign_lines(1))
+    raw.write("plan.toml", PLAN)
+    ran = lambda **kw: rebuild(raw.root, warehouse, jobs=1, report=False, **kw)  # noqa: E731
+    assert "decision" in ran().stages_run
+    looks_sql = "SELECT * EXCLUDE (note) FROM decision_looks WHERE look <= 16 ORDER BY look"
+    v1 = query(warehouse, "SELECT verdict, max_failures, decided_at_look, decided_ratio, note FROM life_verdict")[0]
+    looks1 = query(warehouse, looks_sql)
+    shape1 = query(warehouse, "SELECT shape FROM life_effect")[0][0]
+    assert v1[0] == "force longer" and v1[2] >= 13 and "max_failures frozen at look 13 (2026-01-14" in v1[4]
+    assert query(warehouse, "SELECT look FROM decision_looks WHERE decides") == [(v1[2],)]
+    early = query(warehouse, "SELECT count(*), count(crossed), count(rci_lower) FROM decision_looks WHERE look < 13")
+    assert early == [(12, 0, 0)]       # before the freeze: shown, no boundary crossed, none decides
+    assert query(warehouse, "SELECT count(*) FROM decision_looks WHERE look < 13 AND note LIKE '%before look 13%'"
+                 ) == [(12,)]
+    raw.write("c/hoses.csv", HEADER + _campaign_lines(1) + _campaign_lines(2))
+    assert "decision" in ran().stages_run
+    v2 = query(warehouse, "SELECT verdict, max_failures, decided_at_look, decided_ratio, note FROM life_verdict")[0]
+    shape2 = query(warehouse, "SELECT shape FROM life_effect")[0][0]
+    assert design_shape(shape2) != design_shape(shape1)
+    moved = design_for(2.0, 0.05, 0.8, "obrien-fleming", shape2, 8).failures    # what a refitted design would say
+    assert moved != v1[1] and v2[:4] == v1[:4] and query(warehouse, looks_sql) == looks1
+    assert query(warehouse, "SELECT count(*) FROM decision_looks") == [(28,)]
+    tables = ("life_effect", "life_verdict", "decision_looks", "decision_look_hoses")
+    before = {t: query(warehouse, f"SELECT * FROM {t} ORDER BY ALL") for t in tables}
+    assert "decision" in ran(full=True).stages_run
+    assert {t: query(warehouse, f"SELECT * FROM {t} ORDER BY ALL") for t in tables} == before
+
+
+def test_with_max_failures_in_the_plan_the_tables_are_bit_identical_to_before_the_freeze(raw, warehouse, monkeypatch):
+    """The campaign of the test above with max_failures = 20 in the plan: the four tables' rows (their repr,
+    sha256) are the ones the stage wrote before max_failures was frozen (commit b84e19a, the same
+    environment): the freeze changes nothing when the plan sets the maximum."""
+    import hashlib
+
+    from pipeline import stages as registry
+    from pipeline.rebuild.flow import rebuild
+
+    monkeypatch.setattr(registry, "discover", lambda: [durability, stage])
+    raw.write("c/hoses.csv", HEADER + _campaign_lines(1) + _campaign_lines(2))
+    raw.write("plan.toml", "[defaults]\nmargin = 2.0\nmax_failures = 20\nspending = \"pocock\"\n")
+    rebuild(raw.root, warehouse, jobs=1, report=False)
+    def digest(rows):   # times as ISO text: the repr of their zone depends on the machine's zoneinfo
+        rows = [tuple(v.isoformat() if hasattr(v, "isoformat") else v for v in r) for r in rows]
+        return hashlib.sha256(repr(rows).encode()).hexdigest()[:16]
+
+    digests = {t: digest(query(warehouse, f"SELECT * FROM {t} ORDER BY ALL"))
+               for t in ("life_effect", "life_verdict", "decision_looks", "decision_look_hoses")}
+    assert digests == {"life_effect": "ca6e7b79b604db3d", "life_verdict": "3576f0cd17bebfd5",
+                       "decision_looks": "91ba8a5bf1769f02", "decision_look_hoses": "7b3fd7a8b04a344a"}

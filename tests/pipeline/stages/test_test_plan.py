@@ -172,3 +172,18 @@ def test_a_design_likely_short_carries_its_note_per_target_power():
     assert [p for p, _f, _n in d["failures_needed"]] == [0.8, 0.9]
     assert all(n and "Pocock" in n for _p, _f, n in d["failures_needed"])
     assert len(d["boundaries"]) == d["failures_needed"][0][1]
+
+
+def test_power_now_runs_to_life_verdicts_max_failures_and_failures_needed_follows_the_current_shape(df):
+    verdict = pd.DataFrame({"hose_type": ["A", "B"], "max_failures": pd.array([30, None], dtype="Int64")})
+    items = stage.hose_items(frames()["hose_life"], frames()["life_effect"], PLAN, verdict)
+    assert [i["settings"]["max_failures"] for i in items] == [30, None]
+    assert len(stage.design(stage._design_item(items[0]))["boundaries"]) == 30     # the looks up to the frozen 30
+    frozen = table(dict(frames(), life_verdict=verdict))
+    # the same as a plan setting 30 for A: the same design, the same seed, the same simulations
+    plan30 = Plan(True, {"margin": 2.0}, {"A": {"benches": 3, "km_per_day": 100.0, "max_failures": 30},
+                                          "B": {"margin": 3.0, "power": 0.9}})
+    pd.testing.assert_frame_equal(frozen[frozen["hose_type"] == "A"], table(plan=plan30).iloc[:2])
+    assert (frozen["failures_needed"] == df["failures_needed"]).all()      # still the current shape's
+    b = frozen[frozen["hose_type"] == "B"].iloc[0]
+    assert "no max_failures frozen yet" in b["note"] and b["power_now"] == df[df["hose_type"] == "B"]["power_now"].iloc[0]
