@@ -20,6 +20,7 @@ BENCHMARKS = {
     "cli": ([], ["--quick"]),
     "one_csv": ([], ["--quick"]),  # one fresh 100 MB CSV: the whole rebuild before / after against pandas and DuckDB  # whole pneubench commands as processes against whole-process baselines
     "scale": ([], ["--runs", "300,1000"]),  # the cost curve to 10,000 runs
+    "memory": ([], ["--quick"]),  # a full rebuild's peak PSS (process tree) at 1,000 and 3,000 runs, slope, 10k target
     "memo": ([], ["--entries", "1000"]),  # the per-run memo's own cost: one change out of 10,000
     "versions": ([], ["--runs", "300", "--repeat", "2"]),  # before / after a change (--ref main~1), same run
     "sequential": ([], ["--quick"]),  # the sequential verdict's error rates, looked at on every failure

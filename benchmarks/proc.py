@@ -79,6 +79,11 @@ def tree_rss_bytes(pid: int) -> int:
     return sum(_rss(p) for p in _tree(pid))
 
 
+def tree_pss_by_process(pid: int) -> dict[int, int]:
+    """PSS of ``pid`` and of each of its descendants, by process id [bytes]."""
+    return {p: _pss(p) for p in _tree(pid)}
+
+
 def tree_memory_bytes(pid: int) -> tuple[int, int]:
     """(RSS, PSS) of ``pid`` and all its descendants, summed [bytes]. The RSS sum counts a page
     that forked workers share once per process (it over-states a forked pool); the PSS sum counts

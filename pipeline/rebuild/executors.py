@@ -24,6 +24,7 @@ calling process (the single writer) ever builds the DuckDB warehouse.
 """
 from __future__ import annotations
 
+import gc
 import importlib
 import multiprocessing
 import os
@@ -79,6 +80,10 @@ class Executor:
         """A ``StageContext.mapper``: ``mapper(func, items, label) -> list``."""
         return lambda func, items, label="": self.map(func, items, label, progress)
 
+    def release_readers(self) -> None:
+        """The work on untrusted bytes is done (the ingest): stop the processes kept for it, whose
+        memory the rest of the rebuild would otherwise hold (executors with such processes)."""
+
     def close(self) -> None:
         pass
 
@@ -124,6 +129,10 @@ def _reader_worker_init(pid: int, close_fds: tuple[int, ...]) -> None:
     rebuild's own handler, inherited by the fork, is not its)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    # what the rebuild held when it forked this worker is left out of the worker's garbage
+    # collections: a collection writes into every object it visits, and so would copy every page
+    # of the parent's heap it shares into this process (issue 26: memory flat in the runs)
+    gc.freeze()
     for fd in close_fds:
         try:
             os.close(fd)
@@ -183,6 +192,9 @@ class LocalExecutor(Executor):
             self._readers = forked_pool(workers, self.close_in_workers)
             self.reader_processes_started += workers  # started on the first submit, one per worker
         return self._readers
+
+    def release_readers(self) -> None:
+        self._drop_readers()
 
     def _drop_readers(self) -> None:
         if self._readers is not None:

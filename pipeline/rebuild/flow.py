@@ -265,6 +265,7 @@ def _start_executor(run: RebuildRun) -> Executor:
 def _ingest(run: RebuildRun, plan: _Plan, ex: Executor) -> _Ingested:
     """Read the new and changed files (the stages' imports done meanwhile); deduplicate the runs."""
     results, records = ingest_incremental(run, plan.tree, plan.plans, ex, plan.code, while_waiting=_import_for_stages)
+    ex.release_readers()  # their memory is not held through the stages and the database write
     crash_point("after_ingest")
     runs, channels, problems = deduplicate(results)
     return _Ingested(results, records, runs, channels, plan.tree.problems + problems, runs_frame(runs))

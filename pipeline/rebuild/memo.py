@@ -20,7 +20,10 @@ Storage
     whose set of entries changed (new keys, or keys no longer used), leaves the others untouched,
     and deletes the shard files left with no entry, also those no key was asked for (their
     entries are all unused: deleted without being read); so results of runs that are gone
-    disappear with the next run of their stage, and one changed run rewrites one shard. A stage
+    disappear with the next run of their stage, and one changed run rewrites one shard. Until
+    ``save`` the results computed in this run wait, pickled, in an unnamed temporary file in the
+    warehouse (removed by the system when the rebuild ends, however it ends), not in memory; a
+    saved memo holds no entries (issue 26: a stage's memory does not grow with its items). A stage
     whose cached outputs are reused keeps its memo folder as it is (its items did not change). A
     memo folder whose stage has no folder the warehouse still keeps is collected
     (:func:`pipeline.rebuild.garbage.collect_garbage`). A missing, damaged or unreadable shard file, or
@@ -42,6 +45,7 @@ import pickle
 import re
 import stat as stat_mod
 import sys
+import tempfile
 from collections.abc import Callable
 from functools import lru_cache
 from pathlib import Path
@@ -168,7 +172,13 @@ class Memo:
         self._unclean: set[str] = set()
         #: shards to which ``map`` added a computed result
         self._computed_in: set[str] = set()
-        self._new: dict[str, bytes] = {}
+        #: key -> the entry this run used: its bytes (taken from a stored shard), or where in
+        #: :attr:`_spill` a result computed tonight was written (offset, length)
+        self._new: dict[str, bytes | tuple[int, int]] = {}
+        #: the results computed tonight, pickled, until :meth:`save` writes them into their shards:
+        #: an unnamed temporary file in the warehouse (gone with the process, whatever ends it),
+        #: so that a stage's memory does not grow with its items (issue 26)
+        self._spill = None
         #: items taken from the memo / computed / computed but not memoised
         self.hits = self.computed = self.unkeyed = 0
         self.used = False
@@ -246,15 +256,41 @@ class Memo:
                     self.unkeyed += 1
                     continue
                 try:
-                    self._new[k] = pickle.dumps(res, protocol=pickle.HIGHEST_PROTOCOL)
-                except Exception:  # a result that cannot be pickled is simply not kept
+                    self._new[k] = self._spilled(pickle.dumps(res, protocol=pickle.HIGHEST_PROTOCOL))
+                except Exception:  # a result that cannot be pickled (or spilled) is simply not kept
                     self.unkeyed += 1
                     continue
                 self._computed_in.add(shard_of(k))
         return out
 
+    def _spilled(self, blob: bytes) -> tuple[int, int]:
+        """Write ``blob`` to the spill file; where it is (offset, length)."""
+        if self._spill is None:
+            self._spill = tempfile.TemporaryFile(dir=self.warehouse)
+        offset = self._spill.seek(0, os.SEEK_END)
+        self._spill.write(blob)
+        return offset, len(blob)
+
+    def _blob(self, entry: bytes | tuple[int, int]) -> bytes:
+        """An entry of :attr:`_new` as bytes (read back from the spill file)."""
+        if isinstance(entry, bytes):
+            return entry
+        offset, length = entry
+        self._spill.seek(offset)
+        blob = self._spill.read(length)
+        if len(blob) != length:
+            raise OSError("the memo's spill file is short")
+        return blob
+
+    def release(self) -> None:
+        """Forget the entries (the counts stay for :meth:`summary`) and close the spill file."""
+        self._new, self._stored = {}, {}
+        if self._spill is not None:
+            self._spill.close()
+            self._spill = None
+
     # -- writing -----------------------------------------------------------------------------
-    def _unchanged(self, shard: str, entries: dict[str, bytes]) -> bool:
+    def _unchanged(self, shard: str, entries: dict) -> bool:
         """Whether the shard's file already holds exactly ``entries`` (the same keys, every value
         taken from it, nothing else in it)."""
         stored = self._stored.get(shard)
@@ -264,9 +300,16 @@ class Memo:
     def save(self) -> None:
         """Keep exactly the entries used by this run of the stage: rewrite (temp file, then
         ``os.replace``) only the shards whose entries differ from their file's, delete the shard
-        files left with none (without reading them). A stage without any memoised item leaves nothing. Failing to write is not an error."""
+        files left with none (without reading them). A stage without any memoised item leaves nothing. Failing to write is not an error.
+        The memo is released afterwards (:meth:`release`): a saved memo holds no entries."""
+        try:
+            self._save()
+        finally:
+            self.release()
+
+    def _save(self) -> None:
         memo = self.warehouse / MEMO_DIR
-        by_shard: dict[str, dict[str, bytes]] = {}
+        by_shard: dict[str, dict[str, bytes | tuple[int, int]]] = {}
         for k, blob in self._new.items():
             by_shard.setdefault(shard_of(k), {})[k] = blob
         try:
@@ -299,12 +342,13 @@ class Memo:
             except OSError:
                 pass  # it holds something the memo did not write
 
-    def _write(self, shard: str, entries: dict[str, bytes]) -> None:
+    def _write(self, shard: str, entries: dict[str, bytes | tuple[int, int]]) -> None:
         path = self.shard_path(shard)
         if os.path.lexists(path) and not _regular_file(path):
             return  # a symlink or a folder in its place: left alone (the items are misses)
         tmp = self.folder / f".{shard}.pkl.tmp-{os.getpid()}"
         try:
+            entries = {k: self._blob(v) for k, v in entries.items()}
             tmp.unlink(missing_ok=True)
             fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | _NOFOLLOW, 0o666)
             with os.fdopen(fd, "wb") as fh:

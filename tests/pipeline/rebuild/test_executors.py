@@ -212,3 +212,38 @@ def test_a_deliberately_crashed_worker_prints_no_fatal_error_dump():
     assert res.returncode == 0, res.stderr
     assert res.stdout.strip() == str((3, "crashed: " + CRASH_REASON))
     assert "Fatal Python error" not in res.stderr and res.stderr == ""
+
+
+def frozen_objects(x):
+    """The worker's pid and how many objects its garbage collector leaves alone (``gc.freeze``)."""
+    import gc
+    import os
+
+    return os.getpid(), gc.get_freeze_count()
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_readers_released_after_the_ingest_are_gone_and_workers_leave_the_parents_objects_to_it(jobs):
+    """Issue 26: the reader processes do not live through the stages, and a forked worker's
+    garbage collections do not visit (and so copy) what it inherited from the rebuild."""
+    import gc
+    import os
+    import time
+
+    assert gc.get_freeze_count() == 0  # this process freezes nothing
+    with LocalExecutor(jobs) as ex:
+        out = ex.map(frozen_objects, list(range(4)), on_crash=crashed)
+        assert all(n > 1000 for _, n in out)  # everything imported here before the fork
+        readers = {p for p, _ in out}
+        ex.release_readers()
+        end = time.monotonic() + 10
+        while time.monotonic() < end and any(os.path.exists(f"/proc/{p}") and
+                                             open(f"/proc/{p}/stat").read().split()[2] != "Z" for p in readers):
+            time.sleep(0.05)
+        assert not any(os.path.exists(f"/proc/{p}") for p in readers)
+        again = ex.map(frozen_objects, [1], on_crash=crashed)  # a later read starts fresh workers
+        assert again[0][0] not in readers
+        if jobs == 2:  # the stages' pool freezes too
+            assert all(n > 1000 for _, n in ex.map(frozen_objects, list(range(4))))
+    assert gc.get_freeze_count() == 0
+    Executor().release_readers()  # an executor without reader processes: nothing to do

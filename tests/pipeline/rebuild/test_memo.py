@@ -472,3 +472,27 @@ def test_a_memo_file_goes_with_its_stage_folder_after_the_retention(raw, warehou
     step(raw, "c/c.csv")
     rebuild(raw.root, warehouse, jobs=1, clock=lambda: time.time() + 25 * 3600)
     assert not (warehouse / "memo" / "models").exists()
+
+
+def _kilobytes(item):
+    return bytes([item % 256]) * 100_000
+
+
+def test_computed_results_wait_on_disk_until_saved_and_a_saved_memo_holds_nothing(tmp_path):
+    """Issue 26: a stage's memory does not grow with its items: what it computed waits, pickled,
+    in an unnamed file in the warehouse, read back shard by shard when saved; nothing is left."""
+    m = Memo(tmp_path, "s")
+    out = StageContext(raw=tmp_path, warehouse=tmp_path, runs=None, memo=m).map(_kilobytes, list(range(40)))
+    assert out == [_kilobytes(i) for i in range(40)]
+    assert not any(isinstance(v, bytes) for v in m._new.values())  # no pickled copy in memory
+    assert os.fstat(m._spill.fileno()).st_size > 40 * 100_000
+    assert sorted(os.listdir(tmp_path)) == []  # the spill file has no name: a killed rebuild leaves none
+    m.save()
+    assert m._new == {} and m._stored == {} and m._spill is None and m.summary().endswith("40 computed")
+    assert sorted(os.listdir(tmp_path)) == ["memo"]
+    assert sorted(pickle.loads(b)[0] for b in stored(tmp_path, "s").values()) == list(range(40))
+    m2 = Memo(tmp_path, "s")  # read back: hits, equal to what was computed
+    again = StageContext(raw=tmp_path, warehouse=tmp_path, runs=None, memo=m2).map(_kilobytes, list(range(40)))
+    assert again == out and (m2.hits, m2.computed) == (40, 0)
+    m2.save()
+    assert len(stored(tmp_path, "s")) == 40
