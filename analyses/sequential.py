@@ -543,13 +543,44 @@ def information_per_failure(margin: float, shape: float, failures: float | None 
         (:func:`_bench_information`): many benches give the rare limit, few benches run to many
         failures nearly complete samples (``p`` towards ``1 / (1 + margin)``, the renewal rates'
         share, and ``I / D`` towards ``shape^2 p (1 - p)``).
+
+    Raises
+    ------
+    NoDesign
+        Where the benches' information does not exist in double precision (a shape so steep that
+        one adjustment's hoses fail with a probability below it on the renewal grid: the 3x3
+        matrix singular, or a power overflowing). The rare-failure figure is no stand-in: it is
+        the least information per failure, and a maximum designed from it would be many times
+        too large (and its early boundaries too wide to decide).
     """
     beta = shape * math.log(margin)
     rare = 1.0 / (1.0 + math.exp(beta))
     if hoses_per_adjustment is None or failures is None or not failures > 0:
         q = rare * (1.0 - rare)
         return shape ** 2 * q / (1.0 + beta ** 2 * q), rare
-    n, scale_f = float(hoses_per_adjustment), margin   # distance-set scale 1: force-set scale = margin
+    try:
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):   # a non-finite figure is refused below
+            info, share = _bench_figure(margin, shape, failures, float(hoses_per_adjustment))
+    except (np.linalg.LinAlgError, OverflowError, ZeroDivisionError) as exc:
+        raise NoDesign(f"no sequential design at shape {shape:.3g} with {hoses_per_adjustment} hose(s) on test "
+                       f"per adjustment: their expected information at {failures:g} failures does not exist in "
+                       f"double precision ({type(exc).__name__})") from None
+    if not (math.isfinite(info) and info > 0):
+        raise NoDesign(f"no sequential design at shape {shape:.3g} with {hoses_per_adjustment} hose(s) on test "
+                       f"per adjustment: their expected information at {failures:g} failures is {info:g}")
+    return info, share
+
+
+class NoDesign(ValueError):
+    """The sequential design does not exist in double precision for these arguments (the message says
+    why); the stages write its maximum NULL with the message as the note."""
+
+
+def _bench_figure(margin: float, shape: float, failures: float, n: float) -> tuple[float, float]:
+    """:func:`information_per_failure` with ``n`` hoses on test per adjustment (may raise where the
+    figure does not exist in double precision)."""
+    beta = shape * math.log(margin)
+    scale_f = margin   # distance-set scale 1: force-set scale = margin
     # the grid reaches past the distance of D failures: without renewals that distance is the
     # largest (renewals add failures); with D near 2n a bench fails about once a mean life
     # (<= 1.2 scales at shape >= 0.5)

@@ -50,7 +50,7 @@ from analyses.decision import (GROUP, decide, failure_events, freeze_look, look_
                                usable_hoses)
 from analyses.hose_life import match_runs
 from analyses.life_effect import life_effect
-from analyses.sequential import FEW_FAILURES, design_for, design_shape
+from analyses.sequential import FEW_FAILURES, NoDesign, design_for, design_shape
 from analyses.test_plan import hoses_on_test
 from pipeline.raw.logbook import merge_logbooks, read_logbooks
 from pipeline.stages import Reads, StageContext, StageOutput
@@ -192,6 +192,8 @@ def design_of(item: dict, frozen: dict | None, designed: dict) -> list:
                 f"failures of each adjustment (so far {d} distance-set, {f} force-set)", None]
     failures, short = designed[json.dumps(ask, sort_keys=True)]
     at = pd.Timestamp(frozen["event_at"], tz="UTC").isoformat()
+    if failures is None:   # no design exists for that look's shape (NoDesign): no look decides
+        return [None, "design", f"max_failures not frozen at look {frozen['look']} ({at}): {short}", None]
     note = (f"max_failures frozen at look {frozen['look']} ({at}): designed from that look's common shape "
             f"{frozen['shape']:.3g} and {ask['hoses'] or 'rare failures, no'} hose(s) on test per adjustment; "
             f"the {frozen['look'] - 1} look(s) before it do not decide (counted without an estimate)")
@@ -205,7 +207,10 @@ def design_failures(item: dict) -> list:
     """``[max_failures, note]`` of the sequential design (:func:`analyses.sequential.design_for`)
     for a :func:`design_item`, the note saying where the figure is likely short (module level:
     memoised by ``ctx.map``)."""
-    d = design_for(item["margin"], item["alpha"], item["power"], item["spending"], item["shape"], item["hoses"])
+    try:
+        d = design_for(item["margin"], item["alpha"], item["power"], item["spending"], item["shape"], item["hoses"])
+    except NoDesign as exc:
+        return [None, str(exc)]
     return [int(d.failures), d.note]
 
 

@@ -34,9 +34,9 @@ import numpy as np
 import pandas as pd
 
 from analyses.life_effect import SEPARATE, common_shape_fit
-from analyses.sequential import design_for, design_shape, efficacy_boundaries
-from analyses.test_plan import (CAPACITY_DAYS, N_SIMULATIONS, HoseState, decision_date, hoses_on_test,
-                                measured_capacity, more_testing, power_now, target_powers)
+from analyses.sequential import NoDesign, design_for, design_shape, efficacy_boundaries
+from analyses.test_plan import (CAPACITY_DAYS, N_SIMULATIONS, HoseState, MoreTesting, PowerNow, decision_date,
+                                hoses_on_test, measured_capacity, more_testing, power_now, target_powers)
 from pipeline.stages import Reads, StageContext, StageOutput
 
 NAME = "test_plan"
@@ -112,12 +112,16 @@ def design(item: dict) -> dict:
     Hose types that share a design share its cost (the boundaries of up to hundreds of looks, computed
     once per number of looks, alpha and spending in a process: :mod:`analyses.sequential`).
     """
-    designs = {p: design_for(item["margin"], item["alpha"], p, item["spending"], item["shape"], item["hoses"])
-               for p in target_powers(item["power"])}
-    m = item["max_failures"] or designs[item["power"]].failures
-    c = efficacy_boundaries(np.arange(1, m + 1) / m, item["alpha"], item["spending"])
-    return {"failures_needed": [[p, d.failures, d.note] for p, d in designs.items()],
-            "boundaries": [float(x) for x in c]}
+    needed = {}
+    for p in target_powers(item["power"]):
+        try:
+            d = design_for(item["margin"], item["alpha"], p, item["spending"], item["shape"], item["hoses"])
+            needed[p] = [int(d.failures), d.note]
+        except NoDesign as exc:   # NULL with the reason, never a number the design does not give
+            needed[p] = [None, str(exc)]
+    m = item["max_failures"] or needed[item["power"]][0]
+    c = efficacy_boundaries(np.arange(1, m + 1) / m, item["alpha"], item["spending"]) if m else []
+    return {"failures_needed": [[p, *v] for p, v in needed.items()], "boundaries": [float(x) for x in c]}
 
 
 def _design_item(item: dict) -> dict:
@@ -142,12 +146,14 @@ def plan_hose_type(item: dict) -> list[dict]:
     if item["model"] == SEPARATE:
         notes.append("the simulations assume a common shape; life_effect finds the shapes differ")
     fit = common_shape_fit(state.distance, state.failed, state.group)
-    now = power_now(state, fit, d["boundaries"], s["margin"], item["n_simulations"], item["seed"])
+    now = power_now(state, fit, d["boundaries"], s["margin"], item["n_simulations"], item["seed"]) \
+        if d["boundaries"] else PowerNow(math.nan, math.nan, 0, "no maximum: the design does not exist (failures_needed)")
     if now.note:
         notes.append(f"power_now: {now.note}")
     rows = []
     for p, needed, short in d["failures_needed"]:
-        more = more_testing(state, fit, needed, item["n_simulations"], item["seed"])
+        more = more_testing(state, fit, needed, item["n_simulations"], item["seed"]) if needed is not None \
+            else MoreTesting(None, math.nan, None)
         rows.append({"hose_type": item["hose_type"], "target_power": p, "failures_needed": needed,
                      "failures": sum(state.failures), "power_now": now.power,
                      "more_hoses_per_adjustment": more.hoses_per_adjustment, "more_km": more.km,

@@ -354,3 +354,14 @@ def test_boundaries_by_newton_are_the_bracketed_ones(spending):
             root = optimize.brentq(lambda x: sum(rec.exit_probabilities(x)) - spend[k], 1e-6, 40.0, xtol=1e-12)
             assert c[k] == pytest.approx(root, abs=1e-9)
         rec.advance(c[k])
+
+
+def test_a_design_whose_bench_information_does_not_exist_is_refused_with_the_reason_not_invented():
+    # session 18: a steep shape (lives 8-12 km: shape ~15) with hoses on test made the 3x3 information
+    # singular and crashed the decision stage (LinAlgError), the whole night with it
+    from analyses.sequential import NoDesign, design_for, design_shape
+    with pytest.raises(NoDesign, match=r"no sequential design at shape 14.9 with 8 hose\(s\) on test"):
+        design_for(2.0, 0.05, 0.8, "obrien-fleming", design_shape(15.0), 8)
+    with pytest.raises(NoDesign, match="OverflowError"):
+        design_for(2.0, 0.05, 0.8, "obrien-fleming", design_shape(50.0), 8)
+    assert design_for(2.0, 0.05, 0.8, "obrien-fleming", design_shape(3.0), 8).failures == 14  # unchanged where it exists

@@ -339,3 +339,19 @@ def test_with_max_failures_in_the_plan_the_tables_are_bit_identical_to_before_th
                for t in ("life_effect", "life_verdict", "decision_looks", "decision_look_hoses")}
     assert digests == {"life_effect": "ca6e7b79b604db3d", "life_verdict": "3576f0cd17bebfd5",
                        "decision_looks": "91ba8a5bf1769f02", "decision_look_hoses": "7b3fd7a8b04a344a"}
+
+
+def test_a_frozen_look_whose_design_does_not_exist_leaves_max_failures_null_with_the_reason():
+    from pipeline.stages.decision import design_failures, design_of
+    steep = {"margin": 2.0, "alpha": 0.05, "power": 0.8, "spending": "obrien-fleming", "shape": 14.9, "hoses": 8}
+    failures, why = design_failures(steep)
+    assert failures is None and why.startswith("no sequential design at shape 14.9 with 8 hose(s) on test")
+    plan = {"max_failures": None, "margin": 2.0, "alpha": 0.05, "power": 0.8, "spending": "obrien-fleming"}
+    frozen = {"look": 11, "event_at": 1.7e18, "shape": 14.9, "failures": (6, 5)}
+    import json
+    from pipeline.stages.decision import design_item
+    hoses = {"installed_at": [], "ended_at": [], "adjustment": []}
+    ask = design_item(plan, frozen, hoses)
+    got = design_of({"plan": plan, "hoses": hoses}, frozen, {json.dumps(ask, sort_keys=True): [None, why]})
+    assert got[0] is None and got[1] == "design" and got[3] is None
+    assert got[2].startswith("max_failures not frozen at look 11 (") and got[2].endswith(why)

@@ -187,3 +187,14 @@ def test_power_now_runs_to_life_verdicts_max_failures_and_failures_needed_follow
     assert (frozen["failures_needed"] == df["failures_needed"]).all()      # still the current shape's
     b = frozen[frozen["hose_type"] == "B"].iloc[0]
     assert "no max_failures frozen yet" in b["note"] and b["power_now"] == df[df["hose_type"] == "B"]["power_now"].iloc[0]
+
+
+def test_failures_needed_is_null_with_the_reason_where_the_design_does_not_exist():
+    from pipeline.stages.test_plan import design
+    got = design({"margin": 2.0, "alpha": 0.05, "power": 0.8, "spending": "obrien-fleming", "max_failures": None,
+                  "shape": 14.9, "hoses": 8})
+    assert [p for p, _, _ in got["failures_needed"]] == [0.8, 0.9] and got["boundaries"] == []
+    assert all(n is None and why.startswith("no sequential design at shape 14.9") for _, n, why in got["failures_needed"])
+    kept = design({"margin": 2.0, "alpha": 0.05, "power": 0.8, "spending": "obrien-fleming", "max_failures": 30,
+                   "shape": 14.9, "hoses": 8})   # the plan's (or a frozen) maximum still gives the boundaries
+    assert len(kept["boundaries"]) == 30
