@@ -193,7 +193,8 @@ def design_of(item: dict, frozen: dict | None, designed: dict) -> list:
     failures, short = designed[json.dumps(ask, sort_keys=True)]
     at = pd.Timestamp(frozen["event_at"], tz="UTC").isoformat()
     if failures is None:   # no design exists for that look's shape (NoDesign): no look decides
-        return [None, "design", f"max_failures not frozen at look {frozen['look']} ({at}): {short}", None]
+        return [None, "design", f"max_failures not frozen at look {frozen['look']} ({at}): {short}; "
+                "max_failures in plan.toml lets the test decide", None]
     note = (f"max_failures frozen at look {frozen['look']} ({at}): designed from that look's common shape "
             f"{frozen['shape']:.3g} and {ask['hoses'] or 'rare failures, no'} hose(s) on test per adjustment; "
             f"the {frozen['look'] - 1} look(s) before it do not decide (counted without an estimate)")
