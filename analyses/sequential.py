@@ -550,8 +550,7 @@ def information_per_failure(margin: float, shape: float, failures: float | None 
         Where the benches' information does not exist in double precision (a shape so steep that
         one adjustment's hoses fail with a probability below it on the renewal grid: the 3x3
         matrix singular, or a power overflowing). The rare-failure figure is no stand-in: it is
-        the least information per failure, and a maximum designed from it would be many times
-        too large (and its early boundaries too wide to decide).
+        another design's, the least information per failure, larger by an amount unknown there.
     """
     beta = shape * math.log(margin)
     rare = 1.0 / (1.0 + math.exp(beta))
