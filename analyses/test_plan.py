@@ -62,7 +62,9 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from analyses.life_effect import CommonShapeFit
+from analyses.decision import crossing_holds
+from analyses.life_effect import CommonShapeFit, ratio_deviance
+from analyses.sequential import FEW_FAILURES
 
 #: The second target power of the test plan (the plan's own power is the first) [-].
 TARGET_POWER = 0.9
@@ -209,6 +211,18 @@ def _decides(est, info, c, log_margin: float):
         return (info > 0) & ((np.abs(est) > half) | (np.abs(est) + half < log_margin))
 
 
+def _current_look_decides(state: HoseState, fit: CommonShapeFit, c: float, margin: float) -> bool:
+    """Whether the current look decides as the decision stage reads it: the Wald crossing confirmed by
+    the profile likelihood of the state's data (:func:`analyses.decision.crossing_holds`)."""
+    lm = math.log(max(margin, 1.0 / margin))
+    if not _decides(fit.log_ratio, fit.se_log_ratio ** -2, c, lm):
+        return False
+    half = c * fit.se_log_ratio
+    crossed = ("force longer" if fit.log_ratio > half else "distance longer" if fit.log_ratio < -half
+               else "no practical difference")
+    return crossing_holds(lambda r: ratio_deviance(state.distance, state.failed, state.group, r), crossed, c, margin)
+
+
 @dataclass(frozen=True)
 class PowerNow:
     """The chance the running test decides (:func:`power_now`).
@@ -264,7 +278,7 @@ def power_now(state: HoseState, fit: CommonShapeFit, boundaries, margin: float, 
     c = np.asarray(boundaries, float)
     max_failures = c.size
     lm = math.log(max(margin, 1.0 / margin))
-    if d0 >= 1 and d0 <= max_failures and _decides(fit.log_ratio, fit.se_log_ratio ** -2, c[d0 - 1], lm):
+    if d0 >= 1 and d0 <= max_failures and _current_look_decides(state, fit, float(c[d0 - 1]), margin):
         return PowerNow(1.0, 0.0, 0, "the current look decides")
     run = np.flatnonzero(state.running)
     looks = min(max_failures - d0, run.size)
@@ -283,9 +297,12 @@ def power_now(state: HoseState, fit: CommonShapeFit, boundaries, margin: float, 
     with np.errstate(divide="ignore", invalid="ignore"):
         est = score / info
     p = float(_decides(est, info, c[d0:d0 + looks], lm).any(axis=1).mean())
-    note = None if looks == max_failures - d0 else (
-        f"only {run.size} running hose(s): the test can reach {d0 + run.size} of {max_failures} failures")
-    return PowerNow(p, math.sqrt(p * (1.0 - p) / n_simulations), n_simulations, note)
+    notes = [] if looks == max_failures - d0 else [
+        f"only {run.size} running hose(s): the test can reach {d0 + run.size} of {max_failures} failures"]
+    if min(d0d, d0f) < FEW_FAILURES / 2:
+        notes.append(f"fewer than {FEW_FAILURES // 2} failures in an adjustment: optimistic (the shape from so few "
+                     "is biased high; docs/decision.md, the plan's forward figures)")
+    return PowerNow(p, math.sqrt(p * (1.0 - p) / n_simulations), n_simulations, "; ".join(notes) or None)
 
 
 @dataclass(frozen=True)

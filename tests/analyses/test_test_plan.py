@@ -78,7 +78,7 @@ def test_power_now_matches_the_exact_one_look_case():
     futility_edge = i1 * (math.log(margin) - c / math.sqrt(i1))
     futility = stats.norm.cdf((futility_edge - mean) / sd) - stats.norm.cdf((-futility_edge - mean) / sd)
     assert got.power == pytest.approx(efficacy + futility, abs=4 * got.mc_se)
-    assert got.n_simulations == 200_000 and got.note is None
+    assert got.n_simulations == 200_000 and got.note.startswith("fewer than 5 failures in an adjustment: optimistic")
     assert 0.1 < efficacy and 0.1 < futility     # both kinds of decision are exercised
 
 
@@ -92,10 +92,30 @@ def test_power_now_rises_with_the_fitted_effect_and_is_deterministic():
     assert strong.mc_se == pytest.approx(math.sqrt(strong.power * (1 - strong.power) / 2000))
 
 
+def clear_state():
+    """Eight failures per adjustment, the force-set lives 5x the distance-set ones, 10 running each."""
+    group = np.repeat([0, 1], 18)
+    failed = np.tile(np.r_[np.ones(8, bool), np.zeros(10, bool)], 2)
+    life = np.tile(np.r_[np.linspace(300.0, 700.0, 8), np.full(10, 800.0)], 2) * np.where(group == 1, 5.0, 1.0)
+    return HoseState(np.where(failed, life, 800.0), failed, ~failed, group)
+
+
+def test_the_current_look_decides_only_as_the_decision_stage_confirms_it():
+    """A Wald crossing the data's profile likelihood does not confirm (ratio 1 in the data, a fitted
+    ratio e^2 handed in) is not "the current look decides" (the stage's verdict would not say so):
+    the future is simulated; the same crossing on data that show it decides now."""
+    st = clear_state()
+    fit = common_shape_fit(st.distance, st.failed, st.group)
+    assert power_now(st, fit, [2.0] * 40, 1.25, 100).note == "the current look decides"
+    same = HoseState(np.where(st.failed, 500.0, 800.0), st.failed, st.running, st.group)   # no effect in the data
+    got = power_now(same, model(log_ratio=2.0, se=0.5), [2.0] * 40, 1.25, 100)
+    assert got.n_simulations == 100 and "current look" not in got.note
+
+
 def test_power_now_edges():
     st = state()
     assert math.isnan(power_now(st, CommonShapeFit(note="too few"), [2.0] * 10, 1.25).power)
-    decided = power_now(st, model(log_ratio=2.0, se=0.5), [2.0] * 10, 1.25, 100)
+    decided = power_now(clear_state(), model(log_ratio=2.0, se=0.5), [2.0] * 40, 1.25, 100)
     assert (decided.power, decided.note) == (1.0, "the current look decides")
     over = power_now(st, model(log_ratio=0.1, se=0.5), [40.0] * 4, 1.25, 100)
     assert over.power == 0.0 and "max_failures reached" in over.note
