@@ -14,7 +14,12 @@ their current distance, removed hoses) and the fitted common-shape Weibull
   ``no practical difference``, and a reader asks "will this test tell me something", not "will it
   show force longer". It is not the design's power (that is ``target_power`` at the margin): it
   moves with the estimate, and a test whose estimate sits between 1 and the margin may have low
-  power now although it was designed well.
+  power now although it was designed well. The current look decides only as the decision stage
+  declares it (the Wald crossing confirmed by the profile likelihood,
+  :func:`analyses.decision.crossing_holds`); the simulated looks are read on the Wald scale.
+  Measured against the real future (``benchmarks/bench_test_plan_forward.py``): calibrated
+  against that Wald reading, optimistic by about 0.07 against the stage's likelihood-checked one,
+  and by about 0.2 with fewer than ``FEW_FAILURES / 2`` failures in an adjustment (the note says so).
 * ``more_hoses_per_adjustment`` and ``more_km`` (:func:`more_testing`): the fewest hoses to add
   per adjustment (equal allocation, new hoses from the fitted model, running hoses continuing)
   for ``failures_needed`` failures to be reachable, and the expected hose-kilometres of bench
