@@ -216,6 +216,26 @@ def _decides(est, info, c, log_margin: float):
         return (info > 0) & ((np.abs(est) > half) | (np.abs(est) + half < log_margin))
 
 
+def _first_decision(rng: np.random.Generator, force, failures: tuple[int, int], fit: CommonShapeFit, c,
+                    log_margin: float) -> np.ndarray:
+    """The first simulated look that decides, per replicate (-1: none).
+
+    ``force`` (replicates, looks) says whether each coming failure is a force-set hose's; the score
+    process of the module docstring runs from the current ``failures`` (distance, force) and the fit's
+    estimate, and each look ``j`` is read at the boundary ``c[j]`` on the Wald scale.
+    """
+    d0d, d0f = failures
+    info = information(d0d + np.cumsum(~force, axis=1), d0f + np.cumsum(force, axis=1), fit.shape)
+    info_now = float(information(d0d, d0f, fit.shape))
+    step = np.diff(np.concatenate([np.full((force.shape[0], 1), info_now), info], axis=1), axis=1)
+    score = fit.log_ratio * info_now + np.cumsum(fit.log_ratio * step + np.sqrt(step) * rng.standard_normal(step.shape),
+                                                 axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        est = score / info
+    hit = _decides(est, info, np.asarray(c, float), log_margin)
+    return np.where(hit.any(axis=1), hit.argmax(axis=1), -1)
+
+
 def _current_look_decides(state: HoseState, fit: CommonShapeFit, c: float, margin: float) -> bool:
     """Whether the current look decides as the decision stage reads it: the Wald crossing confirmed by
     the profile likelihood of the state's data (:func:`analyses.decision.crossing_holds`)."""
@@ -290,23 +310,17 @@ def power_now(state: HoseState, fit: CommonShapeFit, boundaries, margin: float, 
     if looks <= 0:
         why = "max_failures reached" if d0 >= max_failures else "no running hose"
         return PowerNow(0.0, 0.0, 0, f"{why}: no look is left and the test has not decided")
+    if min(d0d, d0f) < FEW_FAILURES / 2:
+        return PowerNow(math.nan, math.nan, 0, f"not told with fewer than {FEW_FAILURES // 2} failures in an adjustment "
+                        "(the shape from so few is biased high and power_now with it, by 0.2 measured; the design's "
+                        "max_failures waits for as many: docs/decision.md, the plan's forward figures)")
     rng = np.random.default_rng(seed)
     left = remaining_km(rng, state.distance[run], state.group[run], fit, n_simulations)
     order = np.argsort(left, axis=1, kind="stable")[:, :looks]
-    force = state.group[run][order] == 1
-    info = information(d0d + np.cumsum(~force, axis=1), d0f + np.cumsum(force, axis=1), fit.shape)
-    info_now = float(information(d0d, d0f, fit.shape))
-    step = np.diff(np.concatenate([np.full((n_simulations, 1), info_now), info], axis=1), axis=1)
-    score = fit.log_ratio * info_now + np.cumsum(fit.log_ratio * step + np.sqrt(step) * rng.standard_normal(step.shape),
-                                                 axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        est = score / info
-    p = float(_decides(est, info, c[d0:d0 + looks], lm).any(axis=1).mean())
+    p = float((_first_decision(rng, state.group[run][order] == 1, state.failures, fit, c[d0:d0 + looks], lm)
+               >= 0).mean())
     notes = [] if looks == max_failures - d0 else [
         f"only {run.size} running hose(s): the test can reach {d0 + run.size} of {max_failures} failures"]
-    if min(d0d, d0f) < FEW_FAILURES / 2:
-        notes.append(f"fewer than {FEW_FAILURES // 2} failures in an adjustment: optimistic (the shape from so few "
-                     "is biased high; docs/decision.md, the plan's forward figures)")
     return PowerNow(p, math.sqrt(p * (1.0 - p) / n_simulations), n_simulations, "; ".join(notes) or None)
 
 
@@ -370,6 +384,89 @@ def more_testing(state: HoseState, fit: CommonShapeFit, failures_needed: int,
     return MoreTesting(add, float(km.mean()))
 
 
+@dataclass(frozen=True)
+class BenchSchedule:
+    """When the lab's benches reach the decision (:func:`bench_schedule`).
+
+    Attributes
+    ----------
+    hose_km : float
+        Median over the replicates of the hose-kilometres the benches run from now until the test
+        decides or reaches its maximum [km] (every hose on the benches accumulates km; at ``benches``
+        benches of ``km_per_day``, ``hose_km / (benches km_per_day)`` days: :func:`decision_date`);
+        NaN when it cannot be told.
+    note : str or None
+        One line on what was assumed or why it is NaN.
+    """
+
+    hose_km: float
+    note: str | None = None
+
+
+def _bench_slots(state: HoseState, benches: int) -> tuple[np.ndarray, np.ndarray]:
+    """The benches' hoses now: (distance [km], group) of the running hoses, and new hoses (0 km) on the
+    benches they leave free, each to the adjustment with fewer hoses on the benches."""
+    run = np.flatnonzero(state.running)
+    group = list(state.group[run])
+    for _ in range(max(0, benches - run.size)):
+        group.append(int(group.count(1) < group.count(0)))
+    distance = np.concatenate([state.distance[run], np.zeros(len(group) - run.size)])
+    return distance, np.asarray(group, int)
+
+
+def bench_schedule(state: HoseState, fit: CommonShapeFit, boundaries, margin: float, benches: int,
+                   n_simulations: int = N_SIMULATIONS, seed: int = 0) -> BenchSchedule:
+    """The hose-km the lab's benches run until the test decides or reaches its maximum.
+
+    The lab's schedule, which the design's information per failure assumes too
+    (:func:`analyses.sequential.information_per_failure`): ``benches`` benches run at one rate, the
+    running hoses continue from their distance (a free bench takes a new hose, to the adjustment with
+    fewer), and each failed hose is replaced at once by a new one of its adjustment (a renewal
+    process per bench; lives from the fitted model, :func:`remaining_km`). The failures are read in
+    bench-km order with the score process of :func:`power_now` at the design's ``boundaries``; a
+    replicate stops at its first deciding look, else at the maximum (the last boundary's failure).
+
+    Parameters
+    ----------
+    state, fit, boundaries, margin, n_simulations, seed
+        As :func:`power_now` (``boundaries``: one per failure up to the maximum the schedule runs to).
+    benches : int
+        Benches testing the hose type, both adjustments [-]. With more running hoses than benches the
+        running hoses share them (each advances at the same rate; the hose-km are the same).
+
+    Returns
+    -------
+    BenchSchedule
+        The median hose-km [km] (0 when the current look decides or the maximum is reached).
+        Read on the Wald scale like :func:`power_now`, the simulated looks decide somewhat earlier than
+        the decision stage's likelihood-checked ones (docs/decision.md, the plan's forward figures).
+    """
+    if fit.note or not np.isfinite(fit.se_log_ratio):
+        return BenchSchedule(math.nan, f"no fitted model: {fit.note or 'no standard error'}")
+    c = np.asarray(boundaries, float)
+    d0 = sum(state.failures)
+    left = c.size - d0
+    if left <= 0 or (d0 >= 1 and _current_look_decides(state, fit, float(c[d0 - 1]), margin)):
+        return BenchSchedule(0.0, "the maximum is reached" if left <= 0 else "the current look decides")
+    distance, group = _bench_slots(state, int(benches))
+    if group.size == 0:
+        return BenchSchedule(math.nan, "no bench and no running hose")
+    rng = np.random.default_rng(seed)
+    lm = math.log(max(margin, 1.0 / margin))
+    chunk = max(1, 2_000_000 // (group.size * left))       # replicates at a time: bounded memory
+    km = []
+    for lo in range(0, n_simulations, chunk):
+        n = min(chunk, n_simulations - lo)
+        first = remaining_km(rng, distance, group, fit, n)
+        later = remaining_km(rng, np.zeros(group.size * (left - 1)), np.tile(group, left - 1), fit, n)
+        lives = np.concatenate([first, later], axis=1).reshape(n, left, group.size)
+        at = np.cumsum(lives, axis=1).reshape(n, -1)        # each bench's failures in bench-km
+        order = np.argsort(at, axis=1, kind="stable")[:, :left]
+        stop = _first_decision(rng, np.tile(group, left)[order] == 1, state.failures, fit, c[d0:], lm)
+        km.append(np.take_along_axis(at, order, axis=1)[np.arange(n), np.where(stop >= 0, stop, left - 1)])
+    return BenchSchedule(group.size * float(np.median(np.concatenate(km))))
+
+
 def measured_capacity(runs: pd.DataFrame, today: pd.Timestamp,
                       days: int = CAPACITY_DAYS) -> tuple[int | None, float | None, str | None]:
     """Bench capacity measured from the durability runs of the last ``days`` days.
@@ -415,7 +512,7 @@ def decision_date(today: pd.Timestamp, more_km: float, benches, km_per_day):
     today : pandas.Timestamp
         The latest event in the data.
     more_km : float
-        Hose-kilometres still to run [km].
+        Hose-kilometres still to run [km] (the stage: :func:`bench_schedule`'s ``hose_km``).
     benches : int or None
         Benches running at once [-].
     km_per_day : float or None
@@ -431,5 +528,6 @@ def decision_date(today: pd.Timestamp, more_km: float, benches, km_per_day):
     return (today + pd.Timedelta(days=more_km / (benches * km_per_day))).date()
 
 
-__all__ = ["TARGET_POWER", "N_SIMULATIONS", "CAPACITY_DAYS", "HoseState", "PowerNow", "MoreTesting", "target_powers",
-           "information", "remaining_km", "power_now", "more_testing", "measured_capacity", "decision_date"]
+__all__ = ["TARGET_POWER", "N_SIMULATIONS", "CAPACITY_DAYS", "HoseState", "PowerNow", "MoreTesting", "BenchSchedule",
+           "target_powers", "information", "remaining_km", "power_now", "more_testing", "bench_schedule",
+           "measured_capacity", "decision_date"]

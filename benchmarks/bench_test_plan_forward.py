@@ -9,7 +9,9 @@ One command::
 state and the fitted common-shape Weibull (:mod:`analyses.test_plan`): ``power_now`` (the chance
 the test decides if no hose is added and it runs to ``max_failures``), ``more_km`` (the expected
 hose-kilometres still to run to the ``failures_needed``-th failure, ``more_hoses_per_adjustment``
-new hoses added) and ``expected_decision_date`` (today + ``more_km / (benches km_per_day)``). Each
+new hoses added) and ``expected_decision_date`` (today + the median hose-km the lab's benches run to
+the decision or the maximum, :func:`analyses.test_plan.bench_schedule`, over ``benches km_per_day``;
+until this branch it was today + ``more_km / (benches km_per_day)``, printed as "before"). Each
 is a prediction about the future of ONE test; here they are checked against that future, drawn from
 the known truth, many times (the lab's rule: calibration measured by simulation from known truth).
 
@@ -41,7 +43,9 @@ b. ``more_km``'s own future: the running hoses and ``more_hoses_per_adjustment``
    failure): realised hose-km = ``2 B`` x bench-km. Counted: median realised / predicted, share
    within +/- 25 %, the ratio of the means.
 c. ``expected_decision_date`` against the day the lab's future reaches the ``failures_needed``-th
-   failure and the decision (bench-km / :data:`KM_PER_DAY`), the same way.
+   failure and the decision (bench-km / :data:`KM_PER_DAY`), the same way; the date before (from
+   ``more_km``) and now (from :func:`analyses.test_plan.bench_schedule`). PASS: the date now within
+   10 % (median) of the realised decision day.
 
 Seeded: state ``i`` of cell ``j`` uses ``numpy.random.default_rng(4100 + 1000 j + i)`` (and the
 stage's figures that seed): the same numbers every run. Figures and what they mean:
@@ -66,7 +70,7 @@ import pandas as pd
 from analyses.decision import crossing_holds
 from analyses.life_effect import common_shape_fit, ratio_deviance
 from analyses.sequential import FEW_FAILURES, design_for, efficacy_boundaries, sequential_verdict
-from analyses.test_plan import HoseState, decision_date, more_testing, power_now
+from analyses.test_plan import HoseState, bench_schedule, decision_date, more_testing, power_now
 from benchmarks.bench_test_plan import bench_lives
 
 #: The plan: margin, alpha, power, spending.
@@ -149,14 +153,15 @@ def read_future(state: HoseState, fut: Future, max_failures: int, rule: str = "l
 
 def forward_state(rng, cell, max_failures: int, bounds, seed: int) -> dict | None:
     """One state: the stage's figures and the realised future (module docstring); None when the
-    state's fit cannot tell (power_now NaN)."""
+    state's fit cannot tell (no common-shape fit; power_now NaN with fewer than FEW_FAILURES / 2
+    failures in an adjustment is kept, NaN)."""
     shape, benches, ratio = cell
     d0 = int(rng.integers(max(4, round(0.2 * max_failures)), round(0.9 * max_failures) + 1))
     state, lab, alone = lab_trial(rng, shape, ratio, benches, max_failures, d0)
     fit = common_shape_fit(state.distance, state.failed, state.group)
-    now = power_now(state, fit, bounds, PLAN[0], N_SIM, seed)
-    if not math.isfinite(now.power):
+    if fit.note or not math.isfinite(fit.se_log_ratio):
         return None
+    now = power_now(state, fit, bounds, PLAN[0], N_SIM, seed)
     more = more_testing(state, fit, max_failures, N_SIM, seed)
     decided, _ = read_future(state, alone, max_failures)
     wald, _ = read_future(state, alone, max_failures, rule="wald")
@@ -166,11 +171,14 @@ def forward_state(rng, cell, max_failures: int, bounds, seed: int) -> dict | Non
     own_km = float(np.minimum(own, np.sort(own)[left - 1]).sum())
     at, times = read_future(state, lab, max_failures)
     end_km = times[-1] if at is None else times[at]
-    date = decision_date(TODAY, more.km, 2 * benches, KM_PER_DAY)
+    old = decision_date(TODAY, more.km, 2 * benches, KM_PER_DAY)     # the date before: more_km at the capacity
+    date = decision_date(TODAY, bench_schedule(state, fit, bounds, PLAN[0], 2 * benches, N_SIM, seed).hose_km,
+                         2 * benches, KM_PER_DAY)
     return {"cell": cell, "d0": d0, "fewest": min(state.failures), "power_now": now.power, "decided": decided is not None,
             "decided_wald": wald is not None, "more_km": more.km, "add": more.hoses_per_adjustment,
             "own_km": own_km, "lab_km": 2 * benches * times[-1], "lab_decision_km": 2 * benches * end_km,
             "pred_days": (date - TODAY.date()).days if date else math.nan,
+            "more_km_days": (old - TODAY.date()).days if old else math.nan,
             "lab_days": times[-1] / KM_PER_DAY, "lab_decision_days": end_km / KM_PER_DAY,
             "fitted_ratio": math.exp(fit.log_ratio), "fitted_shape": fit.shape}
 
@@ -222,8 +230,9 @@ def ratios(realised, predicted) -> dict:
 
 def report(df: pd.DataFrame) -> bool:
     """Print the counts; True when power_now's overall mean (states with at least FEW_FAILURES / 2
-    failures in each adjustment) is within 2 SE of the realised rate under the stage's rule and
-    ``more_km`` is within 10 % (median) of its own scenario's realised km."""
+    failures in each adjustment) is within 2 SE of the realised rate under the stage's rule, it is
+    NULL in every state with fewer, ``more_km`` is within 10 % (median) of its own scenario's
+    realised km and the date within 10 % (median) of the realised decision day."""
     ok = True
     print(f"{len(df)} states ({df.attrs.get('skipped', 0)} skipped: the fit at the state cannot tell); "
           f"max_failures per cell: {sorted(set(df['max_failures']))}")
@@ -236,9 +245,10 @@ def report(df: pd.DataFrame) -> bool:
         print(f"  {'bin':>11} {'n':>4} {'predicted':>9} {'realised':>8} {'2 SE':>6}")
         for lo, hi, n, pm, ym, se, good in bins:
             print(f"  {lo:4.1f}-{hi:4.1f}   {n:>4} {pm:9.3f} {ym:8.3f} {2 * se:6.3f}  {'PASS' if good else 'MISS'}")
+        told = df[df["power_now"].notna()]
         for words, part in ((f">= {FEW_FAILURES // 2} failures each", sure),
-                            (f"< {FEW_FAILURES // 2} in an adjustment", df[df["fewest"] < FEW_FAILURES // 2]),
-                            ("all states", df)):
+                            (f"< {FEW_FAILURES // 2} in an adjustment", told[told["fewest"] < FEW_FAILURES // 2]),
+                            ("all states told", told)):
             if len(part) == 0:
                 continue
             _, tot = calibration(part, realised)
@@ -248,8 +258,14 @@ def report(df: pd.DataFrame) -> bool:
                   f"(z {tot['z']:+.2f}) {'PASS' if good else 'MISS'}; Brier {tot['brier']:.3f} against "
                   f"{tot['brier_constant']:.3f} for the constant forecast "
                   f"(skill {1 - tot['brier'] / max(tot['brier_constant'], 1e-12):+.2f})")
-    print("\n  per cell (all states; the stage's rule):")
-    for cell, g in df.groupby("cell", sort=False):
+    few = df["fewest"] < FEW_FAILURES // 2
+    print(f"\n  power_now NULL (fewer than {FEW_FAILURES // 2} failures in an adjustment): "
+          f"{int(df.loc[few, 'power_now'].isna().sum())} of {int(few.sum())} such states "
+          f"{'PASS' if df.loc[few, 'power_now'].isna().all() else 'MISS'}; realised decision rate there "
+          f"{df.loc[few, 'decided'].mean() if few.any() else math.nan:.3f}")
+    ok &= bool(df.loc[few, "power_now"].isna().all())
+    print("\n  per cell (states with power_now told; the stage's rule):")
+    for cell, g in df[df["power_now"].notna()].groupby("cell", sort=False):
         _, tot = calibration(g)
         print(f"  shape {cell[0]}, {cell[1]} benches each, ratio {cell[2]}: n {tot['n']}, predicted "
               f"{tot['predicted']:.3f}, realised {tot['realised']:.3f} (z {tot['z']:+.2f}), Wald rule "
@@ -265,10 +281,14 @@ def report(df: pd.DataFrame) -> bool:
         print(f"  {words}: n {r['n']}, median {r['median']:.2f}, within 25 % {r['within_25']:.0%}, "
               f"means {r['mean_ratio']:.2f}  {'PASS' if good else 'MISS'}")
     print("\n(c) expected_decision_date (days from today) against the lab's benches at the same capacity:")
-    for col, words in (("lab_days", "to failures_needed"), ("lab_decision_days", "to the decision")):
-        r = ratios(df[col], df["pred_days"])
-        print(f"  {words}: n {r['n']}, median {r['median']:.2f}, within 25 % {r['within_25']:.0%}, "
-              f"means {r['mean_ratio']:.2f}  {'PASS' if abs(r['median'] - 1) <= 0.10 else 'MISS'}")
+    for pred, how in (("more_km_days", "before, more_km at the capacity"),
+                      ("pred_days", "now, bench_schedule: the benches to the decision or the maximum")):
+        for col, words in (("lab_days", "to failures_needed"), ("lab_decision_days", "to the decision")):
+            r = ratios(df[col], df[pred])
+            good = abs(r["median"] - 1) <= 0.10
+            ok &= good or pred != "pred_days" or col != "lab_decision_days"
+            print(f"  {how}, {words}: n {r['n']}, median {r['median']:.2f}, within 25 % {r['within_25']:.0%}, "
+                  f"means {r['mean_ratio']:.2f}  {'PASS' if good else 'MISS'}")
     return ok
 
 
