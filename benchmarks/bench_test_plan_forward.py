@@ -172,12 +172,11 @@ def forward_state(rng, cell, max_failures: int, bounds, seed: int) -> dict | Non
     at, times = read_future(state, lab, max_failures)
     end_km = times[-1] if at is None else times[at]
     old = decision_date(TODAY, more.km, 2 * benches, KM_PER_DAY)     # the date before: more_km at the capacity
-    date = decision_date(TODAY, bench_schedule(state, fit, bounds, PLAN[0], 2 * benches, N_SIM, seed).hose_km,
-                         2 * benches, KM_PER_DAY)
+    bench_km = bench_schedule(state, fit, bounds, PLAN[0], 2 * benches, seed=seed).hose_km   # the stage's replicates
     return {"cell": cell, "d0": d0, "fewest": min(state.failures), "power_now": now.power, "decided": decided is not None,
             "decided_wald": wald is not None, "more_km": more.km, "add": more.hoses_per_adjustment,
             "own_km": own_km, "lab_km": 2 * benches * times[-1], "lab_decision_km": 2 * benches * end_km,
-            "pred_days": (date - TODAY.date()).days if date else math.nan,
+            "pred_days": bench_km / (2 * benches * KM_PER_DAY),   # decision_date's days, not rounded to a day
             "more_km_days": (old - TODAY.date()).days if old else math.nan,
             "lab_days": times[-1] / KM_PER_DAY, "lab_decision_days": end_km / KM_PER_DAY,
             "fitted_ratio": math.exp(fit.log_ratio), "fitted_shape": fit.shape}
@@ -220,12 +219,15 @@ def calibration(df: pd.DataFrame, realised: str = "decided") -> tuple[list, dict
 
 
 def ratios(realised, predicted) -> dict:
-    """Realised / predicted: median, share within +/- 25 %, ratio of the means, n."""
-    r = np.asarray(realised, float) / np.asarray(predicted, float)
-    r = r[np.isfinite(r)]
+    """Realised / predicted: median, share within +/- 25 %, ratio of the means, n (pairs with a finite ratio;
+    a prediction of 0, the current look deciding, has none)."""
+    realised, predicted = np.asarray(realised, float), np.asarray(predicted, float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = np.where((realised == 0) & (predicted == 0), 1.0, realised / predicted)   # both now: exact
+    keep = np.isfinite(r)
+    r = r[keep]
     return {"n": r.size, "median": float(np.median(r)), "within_25": float(np.mean(np.abs(r - 1) <= 0.25)),
-            "mean_ratio": float(np.sum(np.asarray(realised)[np.isfinite(realised / predicted)])
-                                / np.sum(np.asarray(predicted)[np.isfinite(realised / predicted)]))}
+            "mean_ratio": float(realised[keep].sum() / predicted[keep].sum())}
 
 
 def report(df: pd.DataFrame) -> bool:

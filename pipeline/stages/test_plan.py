@@ -38,9 +38,9 @@ import pandas as pd
 
 from analyses.life_effect import SEPARATE, common_shape_fit
 from analyses.sequential import NoDesign, design_for, design_shape, efficacy_boundaries
-from analyses.test_plan import (CAPACITY_DAYS, N_SIMULATIONS, BenchSchedule, HoseState, MoreTesting, PowerNow,
-                                bench_schedule, decision_date, hoses_on_test, measured_capacity, more_testing,
-                                power_now, target_powers)
+from analyses.test_plan import (CAPACITY_DAYS, N_SIMULATIONS, SCHEDULE_SIMULATIONS, BenchSchedule, HoseState,
+                                MoreTesting, PowerNow, bench_schedule, decision_date, hoses_on_test, measured_capacity,
+                                more_testing, power_now, target_powers)
 from pipeline.stages import Reads, StageContext, StageOutput
 
 NAME = "test_plan"
@@ -177,7 +177,7 @@ def _schedule(item: dict, state: HoseState, fit, needed: int | None) -> BenchSch
     s, c = item["settings"], item["design"]["boundaries"]
     if len(c) != needed:
         c = efficacy_boundaries(np.arange(1, needed + 1) / needed, s["alpha"], s["spending"])
-    return bench_schedule(state, fit, c, s["margin"], item["benches"], item["n_simulations"], item["seed"])
+    return bench_schedule(state, fit, c, s["margin"], item["benches"], SCHEDULE_SIMULATIONS, item["seed"])
 
 
 def latest_event(life: pd.DataFrame, runs: pd.DataFrame):

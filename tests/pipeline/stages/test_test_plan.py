@@ -12,7 +12,7 @@ import pytest
 
 from analyses.life_effect import common_shape_fit
 from analyses.sequential import design_shape, efficacy_boundaries, max_information
-from analyses.test_plan import HoseState, bench_schedule
+from analyses.test_plan import SCHEDULE_SIMULATIONS, HoseState, bench_schedule
 from pipeline.raw.plan import Plan
 from pipeline.stages import DeclaredContext, StageContext
 from pipeline.stages import test_plan as stage
@@ -109,7 +109,7 @@ def test_capacity_from_the_plan_or_measured_and_the_date(df):
     m = int(a["failures_needed"])
     sched = bench_schedule(st, common_shape_fit(st.distance, st.failed, st.group),
                            efficacy_boundaries(np.arange(1, m + 1) / m, 0.05, "obrien-fleming"), 2.0, 3,
-                           item["n_simulations"], item["seed"])
+                           SCHEDULE_SIMULATIONS, item["seed"])
     assert sched.hose_km > 0
     days = sched.hose_km / 300.0
     assert a["expected_decision_date"] == (T0 + pd.Timedelta(days=days)).date()   # today: the latest run's end
