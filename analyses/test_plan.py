@@ -18,8 +18,10 @@ their current distance, removed hoses) and the fitted common-shape Weibull
   declares it (the Wald crossing confirmed by the profile likelihood,
   :func:`analyses.decision.crossing_holds`); the simulated looks are read on the Wald scale.
   Measured against the real future (``benchmarks/bench_test_plan_forward.py``): calibrated
-  against that Wald reading, optimistic by about 0.07 against the stage's likelihood-checked one,
-  and by about 0.2 with fewer than ``FEW_FAILURES / 2`` failures in an adjustment (the note says so).
+  against that Wald reading, optimistic by about 0.07 against the stage's likelihood-checked one
+  (simulating the check, a profile fit per crossing replicate, would cost seconds a hose type), and
+  by about 0.2 with fewer than ``FEW_FAILURES / 2`` failures in an adjustment: there it is NaN with
+  the note why (the design's freeze of ``max_failures`` waits for as many).
 * ``more_hoses_per_adjustment`` and ``more_km`` (:func:`more_testing`): the fewest hoses to add
   per adjustment (equal allocation, new hoses from the fitted model, running hoses continuing)
   for ``failures_needed`` failures to be reachable, and the expected hose-kilometres of bench
@@ -28,8 +30,13 @@ their current distance, removed hoses) and the fitted common-shape Weibull
   adding more shortens the kilometres of elapsed testing but costs hoses; the table gives the
   fewest and the km it takes. The sequential test may stop earlier (that is its point): these
   are the km to the maximum.
-* ``expected_decision_date`` (:func:`decision_date`) and the bench capacity measured from the
-  durability runs when the plan does not state it (:func:`measured_capacity`).
+* ``expected_decision_date`` (:func:`bench_schedule`, :func:`decision_date`): the lab's benches as
+  they run (running hoses continuing, a failed hose replaced at once by a new one of its adjustment),
+  the same looks as ``power_now``, the median over the replicates of the hose-km until the test
+  decides or reaches its maximum, at the bench capacity (the plan's, or measured from the durability
+  runs, :func:`measured_capacity`). ``more_km`` is not that: it is the fewest-hoses scenario's km to the
+  maximum, all hoses on test at once; on the lab's benches the maximum takes about a quarter more and
+  the decision (usually before the maximum) about a fifth less (docs/decision.md).
 
 Simulation: the canonical joint distribution (J&T 2000, sections 3.1 and 11.5)
 -----------------------------------------------------------------------------
