@@ -25,6 +25,7 @@ import hashlib
 import json
 import pickle
 import sys
+from importlib import metadata
 from datetime import date, datetime, time, timedelta
 from functools import lru_cache
 from pathlib import Path
@@ -44,10 +45,10 @@ def plotting_environment() -> str:
     """Python and the libraries a figure's bytes depend on (part of every key)."""
     parts = [f"python {sys.version_info[0]}.{sys.version_info[1]}.{sys.version_info[2]}"]
     for name in ("numpy", "pandas", "matplotlib"):
+        mod = sys.modules.get(name)  # else its installed version: not imported for a key (issue 26)
         try:
-            mod = sys.modules.get(name) or __import__(name)
-            parts.append(f"{name} {getattr(mod, '__version__', '?')}")
-        except ImportError:
+            parts.append(f"{name} {getattr(mod, '__version__', '?') if mod else metadata.version(name)}")
+        except metadata.PackageNotFoundError:
             parts.append(f"{name} -")
     return "; ".join(parts)
 
