@@ -25,9 +25,9 @@ import hashlib
 import json
 import pickle
 import sys
-from importlib import metadata
 from datetime import date, datetime, time, timedelta
 from functools import lru_cache
+from importlib import metadata
 from pathlib import Path
 
 from pipeline.versions import function_code_version
