@@ -12,8 +12,6 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-import duckdb
-
 from pipeline.warehouse import (CONTRACT_ROWS, FILES_TABLE, INTERNAL_PREFIX, INTERNAL_TABLES, ROOT_RAW_SQL, ROOT_SQL,
                                 ROOT_VARIABLE, ddl_comments, glob_escape)
 from schemas import ddl_statements
@@ -22,6 +20,7 @@ from schemas import ddl_statements
 # no-op rebuild imports this module and needs neither, so the functions below import them where
 # they are used.
 if TYPE_CHECKING:
+    import duckdb  # imported by build_database: a fresh rebuild imports it while its files are read
     import pandas as pd
 
 
@@ -191,6 +190,8 @@ SAMPLES_MACRO = (
 def build_database(path: Path, warehouse: Path, tables: dict[str, pd.DataFrame], runs: pd.DataFrame,
                    extra_sql: list[str] | None = None) -> None:
     """Create a complete database at ``path`` (which must not exist)."""
+    import duckdb
+
     path = Path(path)
     if path.exists():
         path.unlink()

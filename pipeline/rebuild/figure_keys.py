@@ -27,6 +27,7 @@ import pickle
 import sys
 from datetime import date, datetime, time, timedelta
 from functools import lru_cache
+from importlib import metadata
 from pathlib import Path
 
 from pipeline.versions import function_code_version
@@ -44,10 +45,10 @@ def plotting_environment() -> str:
     """Python and the libraries a figure's bytes depend on (part of every key)."""
     parts = [f"python {sys.version_info[0]}.{sys.version_info[1]}.{sys.version_info[2]}"]
     for name in ("numpy", "pandas", "matplotlib"):
+        mod = sys.modules.get(name)  # else its installed version: not imported for a key (issue 26)
         try:
-            mod = sys.modules.get(name) or __import__(name)
-            parts.append(f"{name} {getattr(mod, '__version__', '?')}")
-        except ImportError:
+            parts.append(f"{name} {getattr(mod, '__version__', '?') if mod else metadata.version(name)}")
+        except metadata.PackageNotFoundError:
             parts.append(f"{name} -")
     return "; ".join(parts)
 

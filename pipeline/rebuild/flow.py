@@ -88,13 +88,18 @@ def check_folders(raw: str | Path, warehouse: str | Path) -> None:
 
 
 def _import_for_stages() -> None:
-    """What the stages need (pandas, the analyses): imported while the readers' workers work (they
-    are forked first and import the readers themselves), and in any case before the stages' own
-    pool is forked, so that its workers start warm."""
+    """What the stages, the database write and the report need: imported while the readers'
+    workers work (they are forked first and import the readers themselves), and in any case
+    before the stages' own pool and the figure worker are forked, so that they start warm:
+    matplotlib's figure and Agg canvas are imported once here, not again in the figure worker
+    and (its ticker) by the report (issue 26)."""
+    import matplotlib.backends.backend_agg  # noqa: F401
+    import matplotlib.figure  # noqa: F401
     import pandas  # noqa: F401
     import pyarrow.dataset  # noqa: F401 (what the first pd.read_parquet of a process imports: ~15 ms)
     import pyarrow.pandas_compat  # noqa: F401
 
+    import pipeline.serve.report.render  # noqa: F401 (and duckdb: kept off the start-up)
     from pipeline import stages
 
     stages.discover()
@@ -262,8 +267,19 @@ def _start_executor(run: RebuildRun) -> Executor:
         raise RebuildError(f"cannot start the {run.options.executor} executor: {type(exc).__name__}: {exc}") from exc
 
 
+def _import_before_fork(plans: list[FilePlan]) -> None:
+    """numpy, pyarrow and pandas, imported here before the readers' workers are forked when there is
+    a file to read: the workers inherit them. pyarrow imports pandas on a worker's first array
+    (``pa.array``, ``to_numpy``), so a worker forked cold imported pandas as well as this process
+    did: twice the CPU, and on a one-export rebuild's critical path (issue 26)."""
+    if any(p.status != "unchanged" for p in plans):
+        import pandas  # noqa: F401 (numpy and pyarrow with it)
+        import pyarrow.parquet  # noqa: F401
+
+
 def _ingest(run: RebuildRun, plan: _Plan, ex: Executor) -> _Ingested:
     """Read the new and changed files (the stages' imports done meanwhile); deduplicate the runs."""
+    _import_before_fork(plan.plans)
     results, records = ingest_incremental(run, plan.tree, plan.plans, ex, plan.code, while_waiting=_import_for_stages)
     ex.release_readers()  # their memory is not held through the stages and the database write
     crash_point("after_ingest")

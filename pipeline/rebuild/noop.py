@@ -14,8 +14,7 @@ import shutil
 import time
 from datetime import datetime, timezone
 from pathlib import Path
-
-import duckdb
+from typing import TYPE_CHECKING
 
 from pipeline.raw.problems import Problem
 from pipeline.raw.tree import RawTree
@@ -26,6 +25,9 @@ from pipeline.rebuild.publish import swap_in_new_database
 from pipeline.rebuild.state import FilePlan, FileRecord, PreviousState, superseded_files
 from pipeline.versions import project_code_version
 from pipeline.warehouse import DB_NAME
+
+if TYPE_CHECKING:  # imported where the database is carried over: a fresh rebuild imports it while files are read
+    import duckdb
 
 
 def inputs_key(tree: RawTree, code: str, plans: list[FilePlan], side: list[FileRecord], ignored: list[Path]) -> str:
@@ -81,6 +83,8 @@ def rebuild_noop(run: RebuildRun, prev: PreviousState, plans: list[FilePlan], ke
     kept, expired = superseded_files(prev, in_use, run.options.clock(), run.options.keep_superseded_h)
 
     def carry_over(tmp_db: Path) -> None:
+        import duckdb
+
         shutil.copyfile(warehouse / DB_NAME, tmp_db)
         con = duckdb.connect(str(tmp_db))
         try:

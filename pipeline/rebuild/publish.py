@@ -26,7 +26,6 @@ from pipeline.rebuild.garbage import clean_debris, collect_garbage, split_kept
 from pipeline.rebuild.options import EXIT_LOCKED, EXIT_USAGE, RebuildError
 from pipeline.rebuild.state import FilePlan, PreviousState, load_previous
 from pipeline.serve.report.publish import publish_report, remove_report_folder
-from pipeline.serve.report.render import stage_report
 from pipeline.rebuild.assemble import swap_in
 from pipeline.warehouse import DB_NAME
 
@@ -135,6 +134,8 @@ def swap_in_new_database(warehouse: Path, write: Callable[[Path], None], report:
         write(tmp_db)
         if report:  # before the swap: a failure keeps the previous warehouse and its report
             try:
+                from pipeline.serve.report.render import stage_report  # (and duckdb): off the start-up
+
                 page = stage_report(warehouse, database=tmp_db, run_pages=run_pages)
             except Exception as exc:
                 log.exception("report failed")

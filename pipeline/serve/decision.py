@@ -18,7 +18,6 @@ from datetime import date, datetime, timezone
 from pathlib import Path
 
 from pipeline.serve.door import connect_readonly
-from pipeline.serve.query import QueryError
 from pipeline.serve.remaining_life import dict_rows as _dicts
 from pipeline.serve.remaining_life import num as _num
 from pipeline.serve.remaining_life import read_sensitivity, running_lines, sensitivity_words
@@ -66,6 +65,8 @@ def read_decisions(con, hose_type: str | None = None) -> list[HoseDecision]:
     known = [str(v["hose_type"]) for v in verdicts]
     if hose_type is not None:
         if hose_type not in known:
+            from pipeline.serve.query import QueryError  # (with duckdb: kept off the rebuild's start-up)
+
             raise QueryError(_unknown(hose_type, known))
         verdicts = [v for v in verdicts if str(v["hose_type"]) == hose_type]
 

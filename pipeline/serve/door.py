@@ -14,10 +14,12 @@ import os
 import shutil
 import tempfile
 from pathlib import Path
-
-import duckdb
+from typing import TYPE_CHECKING
 
 from pipeline.warehouse import DB_NAME, ROOT_VARIABLE, glob_escape
+
+if TYPE_CHECKING:  # imported where a connection is made: a fresh rebuild imports this module and needs
+    import duckdb  # duckdb only later, while its files are read (issue 26)
 
 #: Default limits of every connection of the door (README, "Limits of pneubench query"):
 #: DuckDB's memory (beyond it a query spills to the door's private temp folder, or fails), and
@@ -73,6 +75,8 @@ def _attach_unnamed(con: duckdb.DuckDBPyConnection, db: Path, private: Path, n: 
 
 def _limit(con: duckdb.DuckDBPyConnection, setting: str, value: str | None, env: str, default: str) -> None:
     """Set a size ``setting``: ``value``, else ``$env``, else ``default``; ValueError when DuckDB refuses it."""
+    import duckdb
+
     value = value if value is not None else (os.environ.get(env) or default)
     try:
         con.execute(f"SET {setting} = ?", [str(value)])
@@ -114,6 +118,8 @@ def connect_readonly(warehouse: Path, database: Path | None = None, memory_limit
     db = Path(database).resolve() if database is not None else warehouse / DB_NAME
     if not db.is_file():
         raise FileNotFoundError(f"no warehouse at {db} (run `pneubench rebuild` first)")
+    import duckdb
+
     # An in-memory instance of its own (never Python's cached instance of the file, whose
     # settings other connections share) with the warehouse attached read-only.
     con = duckdb.connect(":memory:", config={

@@ -82,3 +82,19 @@ def test_the_previous_folder_gives_its_keyed_figures(tmp_path):
     assert fk.reusable_figures(None) == {} and fk.reusable_figures(tmp_path / "none") == {}
     (tmp_path / "output.json").write_text("{damaged")
     assert fk.reusable_figures(tmp_path) == {}
+
+
+def test_the_plotting_environment_is_the_same_whether_matplotlib_is_imported_or_not():
+    """Keys name the installed version when the library is not imported (no 0.5 s import for a key,
+    issue 26): the same text as the imported module's ``__version__``, so stored keys still match."""
+    import subprocess
+    import sys
+
+    from tests.conftest import PROJECT_ROOT
+
+    code = ("import sys\nfrom pipeline.rebuild import figure_keys as fk\ncold = fk.plotting_environment()\n"
+            "assert 'matplotlib' not in sys.modules\nimport matplotlib, numpy, pandas\nfk.plotting_environment.cache_clear()\n"
+            "print(cold == fk.plotting_environment(), cold)")
+    out = subprocess.run([sys.executable, "-c", code], cwd=PROJECT_ROOT, capture_output=True, text=True, check=True)
+    same, env = out.stdout.strip().split(" ", 1)
+    assert same == "True" and "matplotlib 3." in env and " -" not in env

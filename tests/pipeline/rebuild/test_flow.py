@@ -295,3 +295,20 @@ def test_a_connection_opened_before_two_rebuilds_still_reads_its_samples_until_t
         reader.stdin.close()
         reader.wait(timeout=60)
     assert (warehouse / q(warehouse, "SELECT samples_path FROM runs")[0][0]).is_file()
+
+
+def test_the_rebuilds_start_up_imports_no_duckdb_and_its_workers_inherit_pandas():
+    """Issue 26: duckdb (~0.2 s) is imported while the files are read, not before the readers are
+    forked; pandas (which pyarrow imports on a worker's first array) is imported once before the
+    fork when there is a file to read, and not at all when there is none."""
+    import subprocess
+    import sys
+
+    from tests.conftest import PROJECT_ROOT
+
+    code = ("import sys, pipeline.cli\nfrom types import SimpleNamespace as P\nfrom pipeline.rebuild import flow\n"
+            "start = 'duckdb' in sys.modules\nflow._import_before_fork([P(status='unchanged')])\n"
+            "none = 'pandas' in sys.modules\nflow._import_before_fork([P(status='unchanged'), P(status='new')])\n"
+            "print(start, none, 'pandas' in sys.modules, 'pyarrow.parquet' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], cwd=PROJECT_ROOT, capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["False", "False", "True", "True"]
