@@ -231,7 +231,7 @@ def _plan_row(d: HoseDecision, power) -> dict | None:
 
 
 def _plan_part(row: dict) -> str:
-    """``11 more failures, about 6 more hoses per adjustment, expected by 2026-08`` of one row."""
+    """``11 more failures, about 6 more hoses per adjustment, verdict expected by 2026-08`` of one row."""
     need, have = row.get("failures_needed"), row.get("failures")
     if need is None:
         return "no number of failures" + (f": {row['note']}" if row.get("note") else "")
@@ -246,7 +246,7 @@ def _plan_part(row: dict) -> str:
     when = row.get("expected_decision_date")
     if isinstance(when, (date, datetime)):
         pace = " at the last 30 days' pace" if str(row.get("capacity_from") or "").startswith("measured") else ""
-        parts.append(f"expected by {when:%Y-%m}{pace}")
+        parts.append(f"verdict expected by {when:%Y-%m}{pace}")
     else:
         parts.append("no date (bench capacity unknown)")
     return ", ".join(parts)

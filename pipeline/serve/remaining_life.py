@@ -130,9 +130,13 @@ def read_sensitivity(con) -> dict[str, list[dict]]:
 
 
 def differs(row: dict, rows: list[dict]) -> bool:
-    """Whether ``row``'s verdict differs from the ``logbook`` row's (both present, not the logbook row)."""
+    """Whether ``row``'s verdict differs from the ``logbook`` row's (both present, not the logbook row).
+
+    A definition whose data cannot give a life ratio (no hose crossed the limit yet, too few
+    crossings in an adjustment) is ``undecided`` for want of data, not a flip: not marked."""
     logbook = next((r for r in rows if r.get("definition") == "logbook"), None)
     return (logbook is not None and row is not logbook and row.get("verdict") is not None
+            and num(row.get("life_ratio")) is not None
             and logbook.get("verdict") is not None and row["verdict"] != logbook["verdict"])
 
 

@@ -195,9 +195,9 @@ def test_information_plan_and_bar(wh):
     assert dc.information_words(d[OPEN]) == "72 % of the information: 29 of 40 failures (maximum from the design)"
     assert dc.text_bar(29 / 40, 20) == "[" + "#" * 14 + "." * 6 + "]"
     assert dc.text_bar(None, 4) == "[....]" and dc.text_bar(1.7, 4) == "[####]"
-    assert dc.plan_words(d[OPEN]) == ("11 more failures, about 6 more hoses per adjustment, expected by 2026-08 "
+    assert dc.plan_words(d[OPEN]) == ("11 more failures, about 6 more hoses per adjustment, verdict expected by 2026-08 "
                                       "(80 % power; 45 % chance of a verdict with the hoses on test now); for 90 % "
-                                      "power: 23 more failures, about 12 more hoses per adjustment, expected by 2026-11")
+                                      "power: 23 more failures, about 12 more hoses per adjustment, verdict expected by 2026-11")
     assert dc.plan_words(d[NO_PLAN]).startswith("28 more failures, about 15 more hoses per adjustment, "
                                                 "no date (bench capacity unknown) (80 % power")
     assert dc.plan_words(d[DECIDED]) == "decided: no more failures are needed for this verdict"
@@ -238,7 +238,7 @@ def test_the_command_prints_every_hose_type_or_one_with_its_looks(wh, tmp_path):
     assert lines[0].startswith("FLEXIGOM AIR: force-set FLEXIGOM AIR hoses live 1.82x longer")
     assert "  information  [" + "#" * 12 + "." * 18 + "] 40 % of the information: 16 of 40 failures" in res.output
     assert "  looks        16: pneubench decision --hose-type 'FLEXIGOM AIR' lists them" in lines
-    assert "  plan         11 more failures, about 6 more hoses per adjustment, expected by 2026-08" in res.output
+    assert "  plan         11 more failures, about 6 more hoses per adjustment, verdict expected by 2026-08" in res.output
     assert "  note         fewer than two failures in an adjustment" in lines
     one = CliRunner().invoke(main, ["decision", "--warehouse", str(wh), "--hose-type", DECIDED],
                              env={"COLUMNS": "160"})

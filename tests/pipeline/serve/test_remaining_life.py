@@ -163,6 +163,8 @@ def test_words_of_a_prediction_a_backtest_and_a_sensitivity(wh):
     assert [r["definition"] for r in sens[DECIDED]] == list(rl.DEFINITIONS)  # in the contract's order
     assert [rl.differs(r, sens[DECIDED]) for r in sens[DECIDED]] == [False, False, True, False]
     assert not any(rl.differs(r, sens[OPEN]) for r in sens[OPEN])  # a NULL verdict is not a flip
+    no_crossing = {**sens[DECIDED][2], "life_ratio": None, "life_ratio_lower": None, "life_ratio_upper": None}
+    assert not rl.differs(no_crossing, [*sens[DECIDED][:2], no_crossing])  # no data under it: not a flip
     assert rl.sensitivity_words(sens[DECIDED]) == (
         "logbook: force longer, 1.82x (90 % CI 1.31-2.53x); leak limit (2 l/min at 6 bar): force longer, 1.9x "
         "(90 % CI 1.2-3.1x); leak limit x0.5 (1 l/min at 6 bar): undecided, 1.3x (90 % CI 0.9-1.9x) <- differs; "

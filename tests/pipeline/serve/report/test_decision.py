@@ -54,7 +54,7 @@ def test_the_report_opens_with_the_decision(wh):
     assert "<b>10</b>" not in sec  # a hose type from the logbook is text, escaped
     # the information fraction as a bar as wide as the fraction, and the plan in words
     assert '<span style="width:72.5%"></span></span><br><span class="meta">72 % of the information: 29 of 40' in sec
-    assert ("<td>11 more failures, about 6 more hoses per adjustment, expected by 2026-08 (80 % power; 45 % chance "
+    assert ("<td>11 more failures, about 6 more hoses per adjustment, verdict expected by 2026-08 (80 % power; 45 % chance "
             "of a verdict with the hoses on test now)") in sec
     assert 'title="unknown"' not in sec and sec.count('class="infobar"') == 4
 
