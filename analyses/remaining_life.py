@@ -237,7 +237,8 @@ def _family_fit(family: str, life, failed) -> WeibullFit:
     return WeibullFit(1.0 / f.sigma if f.ok else _NAN, f.median, f.loglik, f.n, f.n_failed, note=f.note)
 
 
-def weibull_posterior(life, failed, n_draws: int = N_DRAWS, seed: int = 0, family: str = "weibull") -> WeibullPosterior:
+def weibull_posterior(life, failed, n_draws: int = N_DRAWS, seed: int = 0,
+                      family: str = "weibull") -> WeibullPosterior:
     """Importance-sampled posterior of the Weibull (or lognormal) parameters of censored lives.
 
     Parameters
@@ -1082,7 +1083,8 @@ def backtest_summary(predictions: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["method", "n_predictions", "coverage", "median_abs_error_km", "note"])
 
 
-__all__ = ["BACKTEST_FRACTIONS", "DegradationFit", "FLOOR_MULTIPLE", "LIFE_FAMILIES", "LifeModel", "life_model", "MIN_HOSES", "MIN_LEAK_POINTS", "N_DRAWS",
+__all__ = ["BACKTEST_FRACTIONS", "DegradationFit", "FLOOR_MULTIPLE", "LIFE_FAMILIES", "LifeModel", "life_model",
+           "MIN_HOSES", "MIN_LEAK_POINTS", "N_DRAWS",
            "RulSettings", "WeibullPosterior", "backtest_summary", "data_seed", "degradation_fit", "degradation_rul",
            "exponential_posterior", "rupture_model",
            "leak_crossing_life", "leak_crossing_lives", "remaining_life", "rul_backtest", "weibull_posterior",

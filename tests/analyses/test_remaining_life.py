@@ -6,9 +6,10 @@ import pandas as pd
 import pytest
 
 from analyses.quality import Sensor
-from analyses.remaining_life import (MIN_ESS, LifeModel, RulSettings, life_model, backtest_summary, data_seed, degradation_fit,
+from analyses.remaining_life import (MIN_ESS, LifeModel, RulSettings, backtest_summary, data_seed, degradation_fit,
                                      degradation_rul, exponential_posterior, leak_crossing_life, leak_crossing_lives,
-                                     remaining_life, rul_backtest, rupture_model, weibull_posterior, weibull_rul)
+                                     life_model, remaining_life, rul_backtest, rupture_model, weibull_posterior,
+                                     weibull_rul)
 from analyses.service_life import lognormal_loglik_many, weibull_loglik, weibull_loglik_many
 
 SENSOR = Sensor(resolution=0.001, noise=0.005, source="metadata")   # floor 0.005, points above 0.05 used
