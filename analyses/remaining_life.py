@@ -399,9 +399,8 @@ class LifeModel:
     (Berger, Pericchi & Varshavsky 1998, "Bayes factors and marginal distributions in invariant
     situations", Sankhya A 60): the predictive distribution is the mixture of the two families'
     predictive distributions with their posterior probabilities (equal prior odds; Hoeting, Madigan,
-    Raftery & Volinsky 1999, "Bayesian model averaging"). Where the lives are Weibull the Weibull
-    carries the weight, where they are lognormal the lognormal does, and where the data cannot tell
-    both widen the interval.
+    Raftery & Volinsky 1999, "Bayesian model averaging"). With many failures the family the lives
+    follow carries the weight; with a few, both do and the interval holds both.
 
     Attributes
     ----------
