@@ -31,6 +31,20 @@ quantiles are found by bisection on the exact mixture of conditional Weibull sur
 carry no sampling noise of their own. The running hose's own survival to ``d`` is in the data
 (a suspension), so the posterior is already conditioned on it.
 
+**The family** (:class:`LifeModel`, docs/decision.md "Remaining life: the life model's family"):
+a life that ends at the first of a leak crossing (lognormal when the wear rate is) and a rupture is
+not Weibull, and a Weibull fitted to its early failures has too short an upper tail. The same
+computation is done for the lognormal (also log-location-scale, the same prior), and the predictive
+distribution is the mixture of the two families' with their posterior probabilities: the ratio of
+their marginal likelihoods under the shared right-invariant prior is a proper Bayes factor (Berger,
+Pericchi & Varshavsky 1998; Hoeting et al. 1999, Bayesian model averaging), estimated from the same
+importance-sampling draws and re-weighted with them in the backtest. Meeker & Escobar (1998, ch. 6-8)
+compare the two families by their probability plots and maximised likelihoods; with the few
+early failures a group has seen, that comparison rarely decides (the lognormal fits better in about
+two thirds of groups of truly Weibull lives), so the method averages rather than picks. The
+``note`` gives the families' shares and the difference of their maximised log-likelihoods when the
+lognormal carries 5 % or more.
+
 ``degradation``: each hose's leak path, pooled, run to the limit
 ----------------------------------------------------------------
 A random-effects degradation model (Lu & Meeker 1993, Technometrics 35; Meeker & Escobar 1998,
@@ -99,7 +113,7 @@ import pandas as pd
 import scipy
 
 from analyses.quality import Gate, Sensor, at_bound, linear_lstsq
-from analyses.service_life import WeibullFit, weibull_fit, weibull_loglik_many
+from analyses.service_life import WeibullFit, lognormal_fit, lognormal_loglik_many, weibull_fit, weibull_loglik_many
 
 _NAN = float("nan")
 #: Leak points a hose needs above the sensor floor for its own prediction: two to draw a path
@@ -152,6 +166,10 @@ class WeibullPosterior:
     fixed_shape : bool
         The shape is not drawn (:func:`exponential_posterior`: 1): one failure, or none, is then
         enough for the model.
+    family : str
+        ``weibull`` or ``lognormal``. Both are log-location-scale: ``log T = log scale + Z / shape``
+        with ``Z`` smallest-extreme-value (Weibull) or standard normal (lognormal: ``scale`` is the
+        median, ``shape`` is ``1 / sigma``), so the draws, the prior and :attr:`fit` read alike.
     """
 
     shape: np.ndarray
@@ -160,6 +178,7 @@ class WeibullPosterior:
     fit: WeibullFit
     note: str | None = None
     fixed_shape: bool = False
+    family: str = "weibull"
 
     @property
     def ok(self) -> bool:
@@ -172,6 +191,16 @@ class WeibullPosterior:
         w /= w.sum()
         return w, float(1.0 / np.sum(w ** 2))
 
+    def log_evidence(self) -> float:
+        """Log of the importance-sampling estimate of the data's marginal likelihood under the flat prior
+        in (log shape, log scale): the mean of likelihood / proposal density (``log_weight`` is on that
+        absolute scale). Comparable between families: they share the parameter space and the prior."""
+        lw = self.log_weight[np.isfinite(self.log_weight)]
+        if lw.size == 0:
+            return -math.inf
+        top = float(lw.max())
+        return top + math.log(float(np.sum(np.exp(lw - top))) / self.log_weight.size)
+
     def changed(self, out_life, out_failed, in_life, in_failed) -> "WeibullPosterior":
         """The posterior of the data with the units ``out`` removed and ``in`` added.
 
@@ -181,18 +210,36 @@ class WeibullPosterior:
         if not self.ok:
             return self
         n_failed = self.fit.n_failed - int(np.sum(out_failed)) + int(np.sum(in_failed))
-        fit = WeibullFit(self.fit.shape, self.fit.scale, self.fit.loglik, self.fit.n, n_failed)
+        fit = WeibullFit(self.fit.shape, self.fit.scale, _NAN, self.fit.n, n_failed)   # loglik: not refitted
         if n_failed < 2 and not self.fixed_shape:
             empty = np.empty(0)
-            return WeibullPosterior(empty, empty, empty, fit, note=f"too few failures: {n_failed} < 2")
+            return WeibullPosterior(empty, empty, empty, fit, note=f"too few failures: {n_failed} < 2",
+                                    family=self.family)
         with np.errstate(invalid="ignore"):   # -inf - -inf: a draw the data rule out stays out
-            lw = (self.log_weight - weibull_loglik_many(self.shape, self.scale, out_life, out_failed)
-                  + weibull_loglik_many(self.shape, self.scale, in_life, in_failed))
-        return WeibullPosterior(self.shape, self.scale, lw, fit, fixed_shape=self.fixed_shape)
+            lw = (self.log_weight - _loglik_many(self.family, self.shape, self.scale, out_life, out_failed)
+                  + _loglik_many(self.family, self.shape, self.scale, in_life, in_failed))
+        return WeibullPosterior(self.shape, self.scale, lw, fit, fixed_shape=self.fixed_shape, family=self.family)
 
 
-def weibull_posterior(life, failed, n_draws: int = N_DRAWS, seed: int = 0) -> WeibullPosterior:
-    """Importance-sampled posterior of the Weibull parameters of censored lives.
+def _loglik_many(family: str, shape, scale, life, failed) -> np.ndarray:
+    """Log-likelihood of censored lives per (shape, scale) draw under ``family`` (see :class:`WeibullPosterior`)."""
+    if family == "lognormal":
+        with np.errstate(divide="ignore"):
+            return lognormal_loglik_many(1.0 / np.asarray(shape, float), scale, life, failed)
+    return weibull_loglik_many(shape, scale, life, failed)
+
+
+def _family_fit(family: str, life, failed) -> WeibullFit:
+    """The maximum likelihood fit of ``family``, as (shape, scale) of :class:`WeibullPosterior`."""
+    if family == "weibull":
+        return weibull_fit(life, failed)
+    f = lognormal_fit(life, failed)
+    return WeibullFit(1.0 / f.sigma if f.ok else _NAN, f.median, f.loglik, f.n, f.n_failed, note=f.note)
+
+
+def weibull_posterior(life, failed, n_draws: int = N_DRAWS, seed: int = 0,
+                      family: str = "weibull") -> WeibullPosterior:
+    """Importance-sampled posterior of the Weibull (or lognormal) parameters of censored lives.
 
     Parameters
     ----------
@@ -204,6 +251,8 @@ def weibull_posterior(life, failed, n_draws: int = N_DRAWS, seed: int = 0) -> We
         Proposal draws. [-]
     seed : int
         Seed of the draws.
+    family : str
+        ``weibull`` or ``lognormal`` (:class:`WeibullPosterior`).
 
     Returns
     -------
@@ -211,14 +260,15 @@ def weibull_posterior(life, failed, n_draws: int = N_DRAWS, seed: int = 0) -> We
         Empty with a ``note`` when the fit has no estimate (fewer than two failures, the shape
         at its search bound) or the observed information is not positive definite.
     """
-    fit = weibull_fit(life, failed)
+    fit = _family_fit(family, life, failed)
     empty = np.empty(0)
     if not fit.ok:
-        return WeibullPosterior(empty, empty, empty, fit, note=f"no Weibull fit: {fit.note}")
+        return WeibullPosterior(empty, empty, empty, fit, note=f"no {_FAMILY_NAMES[family]} fit: {fit.note}",
+                                family=family)
     centre = np.array([math.log(fit.shape), math.log(fit.scale)])
     h = 1e-3
     steps = np.array([[i, j] for i in (-1, 0, 1) for j in (-1, 0, 1)], float) * h
-    ll = weibull_loglik_many(np.exp(centre[0] + steps[:, 0]), np.exp(centre[1] + steps[:, 1]), life, failed)
+    ll = _loglik_many(family, np.exp(centre[0] + steps[:, 0]), np.exp(centre[1] + steps[:, 1]), life, failed)
     g = ll.reshape(3, 3)
     hess = np.array([[g[2, 1] - 2 * g[1, 1] + g[0, 1], (g[2, 2] - g[2, 0] - g[0, 2] + g[0, 0]) / 4],
                      [0.0, g[1, 2] - 2 * g[1, 1] + g[1, 0]]]) / h ** 2
@@ -227,11 +277,13 @@ def weibull_posterior(life, failed, n_draws: int = N_DRAWS, seed: int = 0) -> We
         cov = np.linalg.inv(-hess)
         np.linalg.cholesky(cov)
     except np.linalg.LinAlgError:
-        return WeibullPosterior(empty, empty, empty, fit, note="the likelihood is not peaked at its maximum")
-    return _adapted_draws(life, failed, fit, (centre, cov), n_draws, np.random.default_rng(seed))
+        return WeibullPosterior(empty, empty, empty, fit, note="the likelihood is not peaked at its maximum",
+                                family=family)
+    return _adapted_draws(life, failed, fit, (centre, cov), n_draws, np.random.default_rng(seed), family)
 
 
-def _adapted_draws(life, failed, fit: WeibullFit, start: tuple, n_draws: int, rng) -> WeibullPosterior:
+def _adapted_draws(life, failed, fit: WeibullFit, start: tuple, n_draws: int, rng,
+                   family: str = "weibull") -> WeibullPosterior:
     """Adaptive importance sampling (Cappe, Guillin, Marin & Robert 2004, "Population Monte Carlo"):
     each proposal a Student-t with the previous round's weighted mean and twice its covariance, at
     least :data:`MIN_ADAPT_ROUNDS` rounds and at most :data:`MAX_ADAPT_ROUNDS`, stopping once the
@@ -244,8 +296,8 @@ def _adapted_draws(life, failed, fit: WeibullFit, start: tuple, n_draws: int, rn
         theta, log_w = _t_draws(centre, 2.0 * cov, n_draws, rng)
         with np.errstate(over="ignore"):
             shape, scale = np.exp(theta[:, 0]), np.exp(theta[:, 1])
-        log_w = log_w + weibull_loglik_many(shape, scale, life, failed)
-        post = WeibullPosterior(shape, scale, log_w, fit)
+        log_w = log_w + _loglik_many(family, shape, scale, life, failed)
+        post = WeibullPosterior(shape, scale, log_w, fit, family=family)
         w, ess = post.weights()
         if best is None or ess > best_ess:
             best, best_ess = post, ess
@@ -299,12 +351,15 @@ def exponential_posterior(life, failed, n_draws: int = N_DRAWS, seed: int = 0) -
 
 
 def _t_draws(centre, cov, n: int, rng) -> tuple[np.ndarray, np.ndarray]:
-    """(``n`` draws of (log shape, log scale) from a Student-t with 4 degrees of freedom, minus the
-    log proposal density of each up to a constant)."""
+    """(``n`` draws of (log shape, log scale) from a bivariate Student-t with 4 degrees of freedom,
+    minus the log proposal density of each: ``log(2 pi) + log|cov| / 2 + 3 log(1 + t't / 4)``, whole,
+    so that likelihood / proposal estimates the marginal likelihood, :meth:`WeibullPosterior.log_evidence`)."""
     df = 4.0
     t = rng.standard_normal((n, 2)) / np.sqrt(rng.chisquare(df, n) / df)[:, None]
-    theta = centre + t @ np.linalg.cholesky(cov).T
-    return theta, 0.5 * (df + 2.0) * np.log1p(np.sum(t ** 2, axis=1) / df)
+    chol = np.linalg.cholesky(cov)
+    theta = centre + t @ chol.T
+    log_norm = math.log(2.0 * math.pi) + float(np.sum(np.log(np.diag(chol))))
+    return theta, log_norm + 0.5 * (df + 2.0) * np.log1p(np.sum(t ** 2, axis=1) / df)
 
 
 def _weibull_survival_from(shape, scale, d: float, r) -> np.ndarray:
@@ -321,6 +376,89 @@ def _weibull_survival_from(shape, scale, d: float, r) -> np.ndarray:
         else:
             log_h = k * (np.log(r) - np.log(s))
         return np.exp(-np.exp(log_h))
+
+
+def _survival_from(post: "WeibullPosterior", d: float, r) -> np.ndarray:
+    """``S(d + r) / S(d)`` per draw of ``post`` (rows) and remaining distance (columns), in its family. [-]"""
+    if post.family == "weibull":
+        return _weibull_survival_from(post.shape, post.scale, d, r)
+    k, log_s = post.shape[:, None], np.log(post.scale)[:, None]
+    r = np.atleast_1d(np.asarray(r, float))[None, :]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        now = scipy.special.log_ndtr(-(math.log(d) - log_s) * k) if d > 0 else np.zeros_like(log_s)
+        later = scipy.special.log_ndtr(-(np.log(d + r) - log_s) * k)
+        return np.exp(np.minimum(np.nan_to_num(later - now, nan=-np.inf), 0.0))
+
+
+@dataclass
+class LifeModel:
+    """The hose type's life model: the Weibull and the lognormal posteriors, weighed by their evidence.
+
+    Both families are log-location-scale with the same flat prior in (log shape, log scale), the
+    right-invariant one, under which the ratio of their marginal likelihoods is a proper Bayes factor
+    (Berger, Pericchi & Varshavsky 1998, "Bayes factors and marginal distributions in invariant
+    situations", Sankhya A 60): the predictive distribution is the mixture of the two families'
+    predictive distributions with their posterior probabilities (equal prior odds; Hoeting, Madigan,
+    Raftery & Volinsky 1999, "Bayesian model averaging"). With many failures the family the lives
+    follow carries the weight; with a few, both do and the interval holds both.
+
+    Attributes
+    ----------
+    families : tuple of WeibullPosterior
+        One per family (:data:`LIFE_FAMILIES`).
+    """
+
+    families: tuple
+
+    def changed(self, out_life, out_failed, in_life, in_failed) -> "LifeModel":
+        """Each family's :meth:`WeibullPosterior.changed` (the backtest's data then)."""
+        return LifeModel(tuple(p.changed(out_life, out_failed, in_life, in_failed) for p in self.families))
+
+    def usable(self) -> tuple[list, np.ndarray]:
+        """(the families with draws that cover their likelihood, their posterior probabilities [-])."""
+        ok = [p for p in self.families if p.ok and p.weights()[1] >= MIN_ESS]
+        log_z = np.array([p.log_evidence() for p in ok])
+        prob = np.exp(log_z - log_z.max()) if ok else log_z
+        return ok, prob / prob.sum() if ok else prob
+
+    def family_note(self) -> str | None:
+        """Which family carries the prediction, when the lognormal has a share of at least 5 %."""
+        ok, prob = self.usable()
+        share = dict(zip((p.family for p in ok), prob))
+        if share.get("lognormal", 0.0) < 0.05:
+            return None
+        fits = {p.family: p.fit.loglik for p in self.families}
+        diff = fits.get("lognormal", _NAN) - fits.get("weibull", _NAN)
+        told = f"; maximised log-likelihood lognormal - Weibull {diff:+.1f}" if math.isfinite(diff) else ""
+        return (f"life model: lognormal {share.get('lognormal', 0.0):.2f}, Weibull {share.get('weibull', 0.0):.2f} "
+                f"(posterior probabilities{told})")
+
+
+#: Life families of the ``weibull`` method's :class:`LifeModel`, and their names in notes.
+LIFE_FAMILIES = ("weibull", "lognormal")
+_FAMILY_NAMES = {"weibull": "Weibull", "lognormal": "lognormal"}
+
+
+def life_model(life, failed, n_draws: int = N_DRAWS, seed: int = 0) -> LifeModel:
+    """The ``weibull`` method's life model of censored lives: :func:`weibull_posterior` of each of
+    :data:`LIFE_FAMILIES` (see :class:`LifeModel`).
+
+    Parameters
+    ----------
+    life : array_like
+        Lives [km]: failure or censoring distances.
+    failed : array_like of bool
+        True for a failure.
+    n_draws : int
+        Proposal draws per family. [-]
+    seed : int
+        Seed of the draws.
+
+    Returns
+    -------
+    LifeModel
+    """
+    return LifeModel(tuple(weibull_posterior(life, failed, n_draws, seed, family=f) for f in LIFE_FAMILIES))
 
 
 def _mixture_quantiles(survival, weights, probs, guess: float) -> np.ndarray:
@@ -347,14 +485,15 @@ def _probs(confidence: float) -> np.ndarray:
     return np.array([0.5, (1.0 - confidence) / 2.0, (1.0 + confidence) / 2.0])
 
 
-def weibull_rul(post: WeibullPosterior, distance_km: float,
+def weibull_rul(post: "WeibullPosterior | LifeModel", distance_km: float,
                 confidence: float = 0.90) -> tuple[np.ndarray, str | None]:
     """Median and prediction interval of the distance left to a unit running at ``distance_km``.
 
     Parameters
     ----------
-    post : WeibullPosterior
-        Draws of the hose type's life model (its data include this unit as a suspension).
+    post : WeibullPosterior or LifeModel
+        Draws of the hose type's life model (its data include this unit as a suspension); a
+        :class:`LifeModel`'s families mixed with their posterior probabilities.
     distance_km : float
         The unit's distance now [km].
     confidence : float
@@ -363,19 +502,26 @@ def weibull_rul(post: WeibullPosterior, distance_km: float,
     Returns
     -------
     (quantiles, note) : (numpy.ndarray, str or None)
-        ``[median, lower, upper]`` [km]; NaN with a note when the posterior has no draws.
+        ``[median, lower, upper]`` [km]; NaN with a note when the posterior has no draws; the
+        note of a :class:`LifeModel` says which family carries the numbers when not the Weibull.
     """
-    if not post.ok:
-        return np.full(3, _NAN), post.note
+    model = post if isinstance(post, LifeModel) else LifeModel((post,))
+    first = model.families[0]
+    if not first.ok and not any(p.ok for p in model.families):
+        return np.full(3, _NAN), first.note
     if not distance_km >= 0:
         return np.full(3, _NAN), "no distance now"
-    weights, ess = post.weights()
-    if ess < MIN_ESS:
+    ok, prob = model.usable()
+    if not ok:
+        ess = first.weights()[1] if first.ok else 0.0
         return np.full(3, _NAN), f"the parameter draws do not cover the likelihood (effective {ess:.0f})"
-    guess = float(post.fit.scale)
-    q = _mixture_quantiles(lambda r: _weibull_survival_from(post.shape, post.scale, distance_km, r),
+    weights = np.concatenate([pr * p.weights()[0] for p, pr in zip(ok, prob)])
+    guess = float(ok[int(np.argmax(prob))].fit.scale)
+    q = _mixture_quantiles(lambda r: np.vstack([_survival_from(p, distance_km, r) for p in ok]),
                            weights, _probs(confidence), guess)
-    return q, (None if np.isfinite(q).all() else "the prediction interval is open: the data do not bound it")
+    if not np.isfinite(q).all():
+        return q, "the prediction interval is open: the data do not bound it"
+    return q, model.family_note()
 
 
 # -- the degradation model ---------------------------------------------------------------------
@@ -799,7 +945,7 @@ def remaining_life(hoses: pd.DataFrame, points: pd.DataFrame, settings: RulSetti
     """
     seed = data_seed(hoses, points) if seed is None else seed
     life, failed = _lives(hoses)
-    post = weibull_posterior(life, failed, settings.n_draws, seed)
+    post = life_model(life, failed, settings.n_draws, seed)
     deg = degradation_fit(points, settings.sensor, settings.floor_multiple)
     rupture, r_note = _rupture_posterior(hoses, points, settings, seed + 1)
     info = deg.hoses.set_index("hose_id")
@@ -857,7 +1003,7 @@ def rul_backtest(hoses: pd.DataFrame, points: pd.DataFrame, settings: RulSetting
     """
     seed = data_seed(hoses, points) if seed is None else seed
     life, failed = _lives(hoses)
-    post = weibull_posterior(life, failed, settings.n_draws, seed)
+    post = life_model(life, failed, settings.n_draws, seed)
     rupture, left_out = _rupture_posterior(hoses, points, settings, seed + 1)
     leak_failed = _leak_failures(hoses, points, settings.limit_l_min)
     rows = []
@@ -936,7 +1082,8 @@ def backtest_summary(predictions: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["method", "n_predictions", "coverage", "median_abs_error_km", "note"])
 
 
-__all__ = ["BACKTEST_FRACTIONS", "DegradationFit", "FLOOR_MULTIPLE", "MIN_HOSES", "MIN_LEAK_POINTS", "N_DRAWS",
+__all__ = ["BACKTEST_FRACTIONS", "DegradationFit", "FLOOR_MULTIPLE", "LIFE_FAMILIES", "LifeModel", "life_model",
+           "MIN_HOSES", "MIN_LEAK_POINTS", "N_DRAWS",
            "RulSettings", "WeibullPosterior", "backtest_summary", "data_seed", "degradation_fit", "degradation_rul",
            "exponential_posterior", "rupture_model",
            "leak_crossing_life", "leak_crossing_lives", "remaining_life", "rul_backtest", "weibull_posterior",

@@ -9,8 +9,9 @@ CREATE TABLE hose_rul (
     hose_id           VARCHAR,             -- hose_life.hose_id (status running)
     adjustment        VARCHAR,             -- force / distance: the group whose models predict it
     distance_km       DOUBLE,              -- its distance now (hose_life.distance_km) [km]
-    method            VARCHAR,             -- 'weibull' (the group's censored Weibull life model conditioned on
-                                           -- survival to distance_km, integrated over the likelihood) |
+    method            VARCHAR,             -- 'weibull' (the group's censored life model conditioned on survival to
+                                           -- distance_km, integrated over the likelihood: the Weibull and the
+                                           -- lognormal mixed by their posterior probabilities, see note) |
                                            -- 'degradation' (its own leak path in the group's pooled random-effects
                                            -- leak-growth model, run to leak_limit_l_min; other failure modes as a
                                            -- competing risk fitted to the logbook's non-leak failures, leak failures
@@ -25,9 +26,10 @@ CREATE TABLE hose_rul (
     leak_pressure_bar DOUBLE,              -- the pressure the limit is read at (plan.toml), gauge [bar]; NULL when unset
     n_leak_points     BIGINT,              -- its leak points at that pressure (all, also those under the sensor
                                            -- floor) [-]; NULL when the plan sets no pressure
-    note              VARCHAR              -- NULL when sound, else why the values are NULL (too few leak points,
-                                           -- noisy at the sensor floor, a flat or falling path, too few failures,
-                                           -- no leak limit in plan.toml)
+    note              VARCHAR              -- why the values are NULL (too few leak points, noisy at the sensor
+                                           -- floor, a flat or falling path, too few failures, no leak limit in
+                                           -- plan.toml); on a 'weibull' row with values, the life families'
+                                           -- shares when the lognormal has 5 % or more; else NULL
 );
 
 -- One row per (hose type, adjustment, method): the predictions the method would have made for every failed hose

@@ -6,10 +6,11 @@ import pandas as pd
 import pytest
 
 from analyses.quality import Sensor
-from analyses.remaining_life import (MIN_ESS, RulSettings, backtest_summary, data_seed, degradation_fit,
+from analyses.remaining_life import (MIN_ESS, LifeModel, RulSettings, backtest_summary, data_seed, degradation_fit,
                                      degradation_rul, exponential_posterior, leak_crossing_life, leak_crossing_lives,
-                                     remaining_life, rul_backtest, rupture_model, weibull_posterior, weibull_rul)
-from analyses.service_life import weibull_loglik, weibull_loglik_many
+                                     life_model, remaining_life, rul_backtest, rupture_model, weibull_posterior,
+                                     weibull_rul)
+from analyses.service_life import lognormal_loglik_many, weibull_loglik, weibull_loglik_many
 
 SENSOR = Sensor(resolution=0.001, noise=0.005, source="metadata")   # floor 0.005, points above 0.05 used
 
@@ -271,3 +272,49 @@ def test_two_failures_among_many_suspensions_give_enough_effective_draws():
     assert other.sum() == 2
     post = weibull_posterior(np.minimum(t, end), other, seed=58)   # two rounds: effective size 4
     assert post.ok and post.weights()[1] >= MIN_ESS
+
+
+# -- the life model's family ---------------------------------------------------------------------
+def test_log_evidence_is_the_marginal_likelihood_under_the_flat_prior():
+    """The importance-sampling estimate against a quadrature of the likelihood over (log shape, log scale)."""
+    rng = np.random.default_rng(71)
+    life = 100.0 * rng.weibull(2.0, 12)
+    failed = np.ones(12, bool)
+    failed[:4] = False
+    for family in ("weibull", "lognormal"):
+        post = weibull_posterior(life, failed, n_draws=4000, seed=72, family=family)
+        ls, lk = np.meshgrid(np.linspace(math.log(30.0), math.log(400.0), 400), np.linspace(-2.5, 3.0, 400))
+        shape, scale = np.exp(lk), np.exp(ls)
+        ll = (weibull_loglik_many(shape, scale, life, failed) if family == "weibull"
+              else lognormal_loglik_many(1.0 / shape, scale, life, failed))
+        top = ll.max()
+        quad = top + math.log(np.exp(ll - top).sum() * (ls[0, 1] - ls[0, 0]) * (lk[1, 0] - lk[0, 0]))
+        assert post.log_evidence() == pytest.approx(quad, abs=0.05)
+
+
+def test_the_life_model_weighs_the_family_the_lives_follow():
+    rng = np.random.default_rng(73)
+    logn = np.exp(math.log(500.0) + 0.8 * rng.standard_normal(150))
+    model = life_model(logn, np.ones(150, bool), seed=74)
+    ok, prob = model.usable()
+    assert [p.family for p in ok] == ["weibull", "lognormal"] and prob[1] > 0.99
+    q, note = weibull_rul(model, 100.0)
+    q_ln, _ = weibull_rul(model.families[1], 100.0)
+    assert q == pytest.approx(q_ln, rel=0.02) and note.startswith("life model: lognormal 1.00, Weibull 0.00")
+    wei = 500.0 * rng.weibull(1.0, 400)
+    model = life_model(wei, np.ones(400, bool), seed=75)
+    assert model.usable()[1][0] > 0.99
+    q, note = weibull_rul(model, 100.0)
+    assert note is None and q == pytest.approx(weibull_rul(model.families[0], 100.0)[0], rel=0.02)
+
+
+def test_a_lognormal_predictive_with_many_failures_is_the_plug_in_conditional_lognormal():
+    rng = np.random.default_rng(76)
+    life = np.exp(math.log(100.0) + 0.5 * rng.standard_normal(3000))
+    post = weibull_posterior(life, np.ones(life.size, bool), seed=77, family="lognormal")
+    q, note = weibull_rul(LifeModel((post,)), 80.0, 0.90)
+    z_now = math.log(80.0 / 100.0) / 0.5
+    sf_now = 0.5 * math.erfc(z_now / math.sqrt(2.0))
+    from scipy.stats import norm
+    want = [100.0 * math.exp(0.5 * norm.isf(sf_now * (1.0 - p))) - 80.0 for p in (0.5, 0.05, 0.95)]
+    assert note.startswith("life model: lognormal 1.00") and q == pytest.approx(want, rel=0.04)

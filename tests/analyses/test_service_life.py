@@ -7,7 +7,8 @@ import pytest
 from matplotlib.figure import Figure
 from scipy import optimize, stats
 
-from analyses.service_life import (b10, kaplan_meier, newton_root, plot_hose_distances,
+from analyses.service_life import (b10, kaplan_meier, lognormal_fit, lognormal_loglik_many, newton_root,
+                                   plot_hose_distances,
                                    plot_kaplan_meier, plot_leak_growth, plot_weibull_probability, weibull_fit,
                                    weibull_loglik, weibull_lr_test, weibull_quantile_bounds,
                                    weibull_quantile_profile)
@@ -496,3 +497,32 @@ def test_a_side_the_data_do_not_bound_is_nan_and_named():
     assert math.isnan(s["scale_upper"]) and math.isnan(s["b_life_upper"])
     assert s["bounds_note"] == "the data do not bound scale_upper, b_life_upper"
     assert s["shape_lower"] < s["shape"] < s["shape_upper"] and s["reliability_lower"] < s["reliability_upper"]
+
+
+# -- the lognormal beside the Weibull ----------------------------------------------------------
+def test_lognormal_loglik_is_the_censored_normal_of_the_log_lives():
+    life, failed = np.array([1.0, 2.0, 3.5, 5.0]), np.array([True, False, True, True])
+    many = lognormal_loglik_many([0.5, 1.2], [2.0, 3.0], life, failed)
+    for got, (sg, md) in zip(many, [(0.5, 2.0), (1.2, 3.0)]):
+        want = (stats.lognorm.logpdf(life[failed], sg, scale=md).sum()
+                + stats.lognorm.logsf(life[~failed], sg, scale=md).sum())
+        assert got == pytest.approx(want)
+    assert lognormal_loglik_many(-1.0, 3.0, life, failed) == -np.inf
+
+
+def test_lognormal_fit_matches_scipys_censored_fit_on_nelsons_fans():
+    life, failed = fans()
+    fit = lognormal_fit(life, failed)
+    s, _, md = stats.lognorm.fit(stats.CensoredData.right_censored(life, ~failed), floc=0)
+    assert (fit.sigma, fit.median) == pytest.approx((s, md), rel=1e-4)
+    assert fit.loglik == pytest.approx(float(lognormal_loglik_many(s, md, life, failed)), abs=1e-6)
+
+
+def test_lognormal_fit_recovers_its_parameters_and_needs_two_failures():
+    rng = np.random.default_rng(11)
+    t = np.exp(math.log(500.0) + 0.4 * rng.standard_normal(2000))
+    end = rng.uniform(300.0, 900.0, t.size)
+    fit = lognormal_fit(np.minimum(t, end), t <= end)
+    assert fit.ok and fit.median == pytest.approx(500.0, rel=0.03) and fit.sigma == pytest.approx(0.4, rel=0.06)
+    one = lognormal_fit([10.0, 20.0, 30.0], [True, False, False])
+    assert not one.ok and "too few failures" in one.note

@@ -90,3 +90,17 @@ def test_misses_are_split_by_side_distance_now_and_failure_mode(capsys):
     assert "quartile 4" in lines[3] and "above the upper end   1" in lines[3]
     assert "ends by leakage" in lines[4] and "covered    6" in lines[4] and "above the upper end   1" in lines[4]
     assert "ends by rupture" in lines[5] and "below the lower end   1" in lines[5]
+
+
+def test_the_control_counts_every_running_hose_under_each_rule():
+    rng = np.random.default_rng(3)
+    out = be.control_group(rng, be.CONTROL_LAWS["lognormal lives (sigma 0.35)"], 0.90)
+    # the same draws again: the running hoses are those whose life passed their campaign's end
+    again = np.random.default_rng(3)
+    truth = np.exp(0.35 * again.standard_normal(25))
+    n_running = int((truth > again.uniform(0.6, 1.05, 25)).sum())
+    assert out["rule"].value_counts().to_dict() == {r: n_running for r in ("weibull only", "better fit", "mixture")}
+    assert out["made"].all() and (out["width"] > 0).all()
+    # lognormal lives: the mixture's intervals are never narrower in the median than the Weibull's alone
+    by = out.groupby("rule")["width"].median()
+    assert by["mixture"] >= by["weibull only"]

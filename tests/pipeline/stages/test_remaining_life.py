@@ -71,7 +71,9 @@ def test_every_running_hose_gets_both_methods_and_the_leak_path_holds_its_true_e
     assert list(rul.columns) == stage.RUL_COLUMNS and len(rul) == 2 * len(running) == 16
     assert sorted(rul["hose_id"].unique()) == sorted(running["hose_id"])
     assert (rul["confidence"] == 0.9).all() and (rul["leak_limit_l_min"] == LIMIT).all()
-    assert (rul["leak_pressure_bar"] == 6.0).all() and rul["note"].isna().all()
+    assert (rul["leak_pressure_bar"] == 6.0).all() and rul["rul_median_km"].notna().all()
+    # a note on a row with numbers only says which life family carries the weibull method's
+    assert (rul["note"].isna() | ((rul["method"] == "weibull") & rul["note"].str.startswith("life model: "))).all()
     assert ((rul["rul_lower_km"] <= rul["rul_median_km"]) & (rul["rul_median_km"] <= rul["rul_upper_km"])).all()
     deg = rul[rul["method"] == "degradation"].set_index("hose_id")
     wb = rul[rul["method"] == "weibull"].set_index("hose_id")
@@ -106,7 +108,7 @@ def test_without_a_leak_limit_the_weibull_rows_stand_and_the_leak_side_is_null_w
     rul, note = out.tables["hose_rul"], stage.NO_LEAK_PLAN.format("T")
     deg, wb = rul[rul["method"] == "degradation"], rul[rul["method"] == "weibull"]
     assert deg["rul_median_km"].isna().all() and (deg["note"] == note).all()
-    assert wb["rul_median_km"].notna().all() and wb["note"].isna().all()
+    assert wb["rul_median_km"].notna().all() and (wb["note"].isna() | wb["note"].str.startswith("life model: ")).all()
     assert rul["n_leak_points"].isna().all() and rul["leak_limit_l_min"].isna().all()
     bt = out.tables["rul_backtest"].set_index(["adjustment", "method"])
     assert (bt.xs("degradation", level="method")["note"] == note).all()
@@ -331,7 +333,7 @@ def test_the_demo_rebuild_with_a_leak_limit_fills_the_three_tables(demo, tmp_pat
     rul = query(wh, "SELECT * FROM hose_rul ORDER BY hose_id, method", frame=True)
     assert sorted(set(rul["hose_id"])) == [h for (h,) in running] and len(rul) == 2 * len(running)
     assert (rul["leak_limit_l_min"] == limit).all() and (rul["leak_pressure_bar"] == 6.0).all()
-    sound = rul[rul["note"].isna()]
+    sound = rul[rul["rul_median_km"].notna()]
     assert (sound["rul_lower_km"] <= sound["rul_median_km"]).all()
     assert rul[rul["rul_median_km"].isna()]["note"].notna().all()            # NULL only with a reason
     bt = query(wh, "SELECT adjustment, method FROM rul_backtest ORDER BY ALL")
