@@ -14,11 +14,16 @@ workers and the morning report included, what cron runs):
 * ``noop``: the same raw/ again (median of 3);
 * ``one file``: one run file's bytes changed (a newline appended), then rebuilt;
 * ``one logbook line``: one ``hoses.csv`` line's notes changed, then rebuilt;
+* ``one change of each kind`` (issue 26): the last digit of one CSV run file of each kind, a
+  logbook line's notes, a ``plan.toml`` setting (:func:`change_victims`), each rebuilt and put
+  back; the CPU seconds of the process tree as a share of the full rebuild's;
 * the warehouse's size on disk;
 * three typical queries through ``pneubench query`` (median of 3): one run's samples by run_id,
   the leak map at 5 bar, the service life table.
 
 Targets (at the largest size): no-op under 2 s; one file changed under 5 % of a full rebuild;
+at every size, the worst kind of change under 5 % of a full rebuild's CPU at 1,000 runs and 2 % at
+10,000 (:func:`kind_target`);
 the one-run samples query under 0.5 s; no-op and one-change time growing no faster than linear
 in the number of runs (the exponent of a power law fitted over the sizes, log-log least squares,
 at most 1.0). It prints every figure with PASS / MISS, writes ``--json`` and a log-log plot of
@@ -140,6 +145,7 @@ def bench_size(runs: int, seed: int, repeat: int, jobs: int | None) -> dict:
     out: dict = {"runs": runs, "raw_mb": _size_mb(raw)}
     full = measure(rebuild, cwd=ROOT)
     out["full_s"], out["full_tree_mb"] = full.wall_s, full.tree_peak_mb
+    out["full_cpu_s"] = full.cpu_s
     out["full_tree_pss_mb"] = full.tree_peak_pss_mb  # shared (forked) pages counted once
     noop = Series("noop", [measure(rebuild, cwd=ROOT) for _ in range(repeat)])
     out["noop_s"], out["noop_tree_mb"] = noop.wall_s, noop.tree_peak_mb
@@ -162,6 +168,7 @@ def bench_size(runs: int, seed: int, repeat: int, jobs: int | None) -> dict:
     _age(raw)
     measure(rebuild, cwd=ROOT)
     out["warehouse_mb"] = _size_mb(wh)
+    out.update(kind_changes(raw, wh, rebuild))
 
     query = [*pneubench_cmd(), "query", "--warehouse", str(wh), "--format", "csv"]
     run_id = measure([*query, "SELECT run_id FROM runs WHERE kind = 'durability' ORDER BY n_samples DESC LIMIT 1"],
@@ -183,9 +190,66 @@ def bench_size(runs: int, seed: int, repeat: int, jobs: int | None) -> dict:
         out[key], out[key[:-2] + "_cpu_s"] = q.wall_s, q.cpu_s  # CPU: the figure a loaded machine does not move
     out["noop_profile"] = prof
     for k, v in out.items():
-        if k not in ("runs", "noop_profile"):
+        if k not in ("runs", "noop_profile", "per_kind", "worst_kind"):
             print(f"  {k:22s} {v:10.3f}")
     return out
+
+
+def kind_changes(raw: Path, wh: Path, rebuild: list[str]) -> dict:
+    """One change of each kind (:func:`change_victims`) rebuilt as a whole process and put back
+    (rebuilt, untimed): ``per_kind`` {kind: [wall s, CPU s]}, the worst kind by CPU and its wall
+    seconds (``worst_kind_s``, the cost curve's series) and CPU share of the full rebuild (issue 26)."""
+    per: dict[str, list[float]] = {}
+    past = time.time() - 3600
+    for kind, (path, edit) in change_victims(raw, wh).items():
+        original = edit(path, 1)
+        try:
+            m = measure(rebuild, cwd=ROOT)
+        finally:
+            path.write_bytes(original)
+            os.utime(path, (past, past))
+        measure(rebuild, cwd=ROOT)  # back to the campaign as it was
+        per[kind] = [m.wall_s, m.cpu_s]
+        print(f"  change {kind} ({path.relative_to(raw)}): {m.wall_s:.1f} s, CPU {m.cpu_s:.1f} s", flush=True)
+    if not per:
+        return {}
+    worst = max(per, key=lambda k: per[k][1])
+    return {"per_kind": per, "worst_kind": worst, "worst_kind_s": per[worst][0], "worst_kind_cpu_s": per[worst][1]}
+
+
+def kind_target(runs: int) -> float:
+    """Issue 26's target share of a full rebuild (CPU) for one change of any kind: 5 % up to
+    1,000 runs, 2 % from 10,000 (interpolated on log runs between)."""
+    import math
+
+    if runs <= 1000:
+        return 0.05
+    if runs >= 10000:
+        return 0.02
+    return 0.05 + (0.02 - 0.05) * math.log10(runs / 1000)
+
+
+def kind_lines(results: list[dict]) -> tuple[list[str], list[tuple[str, float, bool]]]:
+    """The per-kind table (CPU share of each size's full rebuild) and a check per size: the worst kind
+    under :func:`kind_target`."""
+    sized = [r for r in results if r.get("per_kind") and r.get("full_cpu_s")]
+    if not sized:
+        return [], []
+    kinds = list(dict.fromkeys(k for r in sized for k in r["per_kind"]))
+    lines = ["| change: CPU share of full (CPU s) | " + " | ".join(f"{r['runs']:,} runs" for r in sized) + " |",
+             "|---|" + "---|" * len(sized)]
+    lines.append("| full rebuild, CPU s | " + " | ".join(f"{r['full_cpu_s']:.1f}" for r in sized) + " |")
+    for k in kinds:
+        cells = [f"{r['per_kind'][k][1] / r['full_cpu_s']:.3f} ({r['per_kind'][k][1]:.1f})" if k in r["per_kind"]
+                 else "-" for r in sized]
+        lines.append(f"| {k} | " + " | ".join(cells) + " |")
+    checks = []
+    for r in sized:
+        share = r["worst_kind_cpu_s"] / r["full_cpu_s"]
+        target = kind_target(r["runs"])
+        checks.append((f"worst kind ({r['worst_kind']}) under {target:.0%} of a full rebuild at {r['runs']} runs (CPU)",
+                       share, share < target))
+    return lines, checks
 
 
 #: Run kinds whose one changed file the per-kind benchmark times (a CSV file of each).
@@ -302,10 +366,14 @@ def plot(results: list[dict], path: Path) -> None:
     ns = [r["runs"] for r in results]
     fig, ax = plt.subplots(figsize=(7, 4.5))
     series = [("full_s", "full rebuild", "o-"), ("one_file_s", "one file changed", "s-"),
+              ("worst_kind_s", "one change of the worst kind", "P-"),
               ("one_logbook_line_s", "one logbook line changed", "^-"), ("noop_s", "no-op rebuild", "D-"),
               ("query_one_run_s", "query: one run's samples", "v--"), ("query_service_life_s", "query: service life", "x--")]
     for key, label, style in series:
-        ax.plot(ns, [r[key] for r in results], style, label=label)
+        have = [(r["runs"], r[key]) for r in results if key in r]  # sizes measured before a series existed lack it
+        if have:
+            worst = {r.get("worst_kind") for r in results if key == "worst_kind_s" and "worst_kind" in r}
+            ax.plot(*zip(*have), style, label=label + (f" ({', '.join(sorted(worst))})" if worst else ""))
     ax.plot(ns, [ns[0] and results[0]["full_s"] * n / ns[0] for n in ns], ":", color="grey", label="linear in runs")
     ax.set_xscale("log")
     ax.set_yscale("log")
@@ -373,6 +441,10 @@ def main(argv=None) -> int:
         print(f"| {r['runs']:,} | {r['raw_mb']:.0f} | {r['full_s']:.1f} | {r['noop_s']:.2f} | {r['one_file_s']:.2f} "
               f"| {r['one_logbook_line_s']:.2f} | {r['warehouse_mb']:.0f} | {r['query_one_run_s']:.2f} "
               f"| {r['query_leak_5bar_s']:.2f} | {r['query_service_life_s']:.2f} |")
+    table, kind_checks = kind_lines(results)
+    checks += kind_checks
+    if table:
+        print("\n" + "\n".join(table))
     print()
     for what, value, ok in checks:
         print(f"{verdict(ok)}  {what}: {value:.3f}")

@@ -30,6 +30,7 @@ from functools import lru_cache
 from importlib import metadata
 from pathlib import Path
 
+from pipeline.rebuild.memo import environment
 from pipeline.versions import function_code_version
 
 #: How a stage figure is saved (``pipeline.rebuild.stage_store``); part of every key.
@@ -69,6 +70,25 @@ def figure_key(recipe) -> str | None:
         return None
     blob = json.dumps({"func": f"{module}:{qualname}", "code": code, "env": plotting_environment(),
                        "save": FIGURE_FORMAT, "args": content}, sort_keys=True)
+    return hashlib.sha256(blob.encode()).hexdigest()
+
+
+def table_key(func, args: tuple) -> str | None:
+    """The key of a pooled table ``func(*args)`` (:class:`pipeline.rebuild.stage_store.PooledTables`)
+    [64 hex digits]: the function (module, name, code version), the content of its arguments and
+    the numerical libraries' versions (:func:`pipeline.rebuild.memo.environment`); None when it has none."""
+    qualname, module = getattr(func, "__qualname__", "") or "", getattr(func, "__module__", "") or ""
+    if not qualname or not module or "<" in qualname:
+        return None
+    code = function_code_version(func)
+    if code is None:
+        return None
+    try:
+        content = content_hash(args)
+    except (_Unkeyable, RecursionError):
+        return None
+    blob = json.dumps({"func": f"{module}:{qualname}", "code": code, "env": environment(), "args": content,
+                       "key_version": 1}, sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()
 
 

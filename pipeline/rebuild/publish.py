@@ -26,6 +26,7 @@ from pipeline.rebuild.garbage import clean_debris, collect_garbage, split_kept
 from pipeline.rebuild.options import EXIT_LOCKED, EXIT_USAGE, RebuildError
 from pipeline.rebuild.state import FilePlan, PreviousState, load_previous
 from pipeline.serve.report.publish import publish_report, remove_report_folder
+from pipeline.versions import project_code_version
 from pipeline.rebuild.assemble import swap_in
 from pipeline.warehouse import DB_NAME
 
@@ -136,7 +137,8 @@ def swap_in_new_database(warehouse: Path, write: Callable[[Path], None], report:
             try:
                 from pipeline.serve.report.render import stage_report  # (and duckdb): off the start-up
 
-                page = stage_report(warehouse, database=tmp_db, run_pages=run_pages)
+                # the rebuild's one hash of the project's code keys the report's parts cache
+                page = stage_report(warehouse, database=tmp_db, run_pages=run_pages, code=project_code_version())
             except Exception as exc:
                 log.exception("report failed")
                 raise RebuildError(f"the morning report could not be written: {type(exc).__name__}: "

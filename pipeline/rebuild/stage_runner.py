@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING
 from pipeline.progress import Progress
 from pipeline.raw.problems import Problem
 from pipeline.rebuild.memo import Memo
-from pipeline.rebuild.stage_store import FigureDrawer, load_stage_folder, save_stage_folder
+from pipeline.rebuild.stage_store import FigureDrawer, PooledTables, load_stage_folder, save_stage_folder
 from pipeline.rebuild.state import PreviousState, StageRecord, frame_hash, stage_input_key
 from pipeline.versions import stage_code_version
 from pipeline.rebuild.options import RebuildError
@@ -199,7 +199,7 @@ def _run_stage(mod, reads: Reads, key: str, inputs: StageInputs, res: StageResul
     memo = res.memos[name] = Memo(inputs.warehouse, name, read=not inputs.full)
     ctx = stages.DeclaredContext(name, reads, raw=inputs.raw, warehouse=inputs.warehouse, runs=inputs.runs_frame,
                                  results=res.tables, jobs=inputs.jobs, progress=progress, mapper=inputs.mapper,
-                                 memo=memo, plan=inputs.plan)
+                                 memo=memo, plan=inputs.plan, pooled_tables=(pooled := PooledTables(previous)))
     try:
         out = mod.run(ctx)
     except Exception as exc:  # a bug in an analysis: fail, keep the previous warehouse
@@ -210,7 +210,9 @@ def _run_stage(mod, reads: Reads, key: str, inputs: StageInputs, res: StageResul
     # with the same inputs (stages are deterministic)
     salt = inputs.generation if inputs.full else ""
     folder_key = hashlib.sha256(json.dumps([key, read, salt], sort_keys=True).encode()).hexdigest()[:20]
-    rel, cacheable, now_in = save_stage_folder(inputs.warehouse, name, folder_key, out, drawer, previous)
+    rel, cacheable, now_in = save_stage_folder(inputs.warehouse, name, folder_key, out, drawer, previous, pooled.keys)
+    if pooled.taken:
+        progress.message(f"stage {name}: {', '.join(pooled.taken)} taken from its previous run (inputs unchanged)")
     record = StageRecord(name, key if cacheable else "uncacheable", rel, sorted(reads.kinds), False, read)
     return record, load_stage_folder(inputs.warehouse, rel, name, out, now_in)
 

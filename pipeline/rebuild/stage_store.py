@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 from pipeline.raw.problems import Problem
 from pipeline.rebuild.executors import _kill_workers  # stop the figure worker of an interrupted rebuild
 from pipeline.rebuild.executors import default_jobs, forked_pool
-from pipeline.rebuild.figure_keys import figure_key, reusable_figures
+from pipeline.rebuild.figure_keys import figure_key, reusable_figures, table_key
 from pipeline.rebuild.options import RebuildError
 from pipeline.rebuild.garbage import remove_stage_folder
 
@@ -139,8 +139,76 @@ def _place_stage_folder(tmp: Path, final: Path) -> None:
     os.replace(tmp, final)
 
 
+class PooledTables:
+    """A stage's pooled tables keyed by their inputs (``StageContext.pooled``): a table whose
+    function, code and arguments are those of the stage's previous folder is read from there
+    instead of computed again.
+
+    One changed leakage check re-runs ``durability``, whose Weibull fits pool the hoses' lives,
+    which did not change: they (and their ``scipy.stats`` import) were ~3 CPU-s of the change
+    (issue 26). The previous folder's ``output.json`` keeps each pooled table's key
+    (:func:`pipeline.rebuild.figure_keys.table_key`); a table is taken only when its key is
+    there and its Parquet file (or its empty columns) too. The rebuild reads every stage table
+    back from its folder's Parquet, so a taken table gives the database the rows a computed one
+    gives (tested against ``--full``, which takes none).
+
+    Parameters
+    ----------
+    previous : Path or None
+        The stage's folder of the previous rebuild (None: every table is computed).
+    """
+
+    def __init__(self, previous: Path | None):
+        self.keys: dict[str, str] = {}
+        self.taken: list[str] = []
+        self._folder = previous
+        self._meta: dict = {}
+        if previous is not None:
+            try:
+                self._meta = json.loads((previous / "output.json").read_text())
+            except (OSError, ValueError):
+                self._meta = {}
+
+    def take(self, table: str, func, key_args: tuple):
+        """The previous folder's ``table`` when its key is that of ``func(*key_args)``, else None
+        (the caller computes it); the key is kept for this run's folder either way."""
+        key = table_key(func, key_args)
+        if key is None:
+            return None
+        self.keys[table] = key
+        if (self._meta.get("pooled") or {}).get(table) != key or table not in self._meta.get("tables", ()):
+            return None
+        empty = self._meta.get("empty") or {}
+        try:
+            if table in empty:
+                df = _empty_frame(empty[table])
+            else:
+                import pandas as pd
+
+                df = pd.read_parquet(self._folder / "tables" / f"{table}.parquet")
+        except (OSError, ValueError, TypeError):
+            return None
+        self.taken.append(table)
+        return df
+
+    @staticmethod
+    def settle(df: pd.DataFrame) -> pd.DataFrame:
+        """A computed pooled table as a taken one reads: through Parquet (as is when it cannot be)."""
+        import pandas as pd
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        try:
+            buf = io.BytesIO()
+            pq.write_table(pa.Table.from_pandas(df.reset_index(drop=True), preserve_index=False), buf)
+            return pd.read_parquet(io.BytesIO(buf.getvalue()))
+        except (pa.ArrowException, TypeError, ValueError):
+            return df
+
+
 def save_stage_folder(warehouse: Path, name: str, folder_key: str, out: StageOutput,
-                       drawer: FigureDrawer | None = None, previous: Path | None = None) -> tuple[str, bool, Path]:
+                       drawer: FigureDrawer | None = None, previous: Path | None = None,
+                       pooled: dict[str, str] | None = None) -> tuple[str, bool, Path]:
     """Write a stage's outputs to ``stages/<name>/<key>/`` (temp folder, then one rename).
 
     Returns (folder relative to the warehouse, whether the tables could be cached, the folder
@@ -148,7 +216,7 @@ def save_stage_folder(warehouse: Path, name: str, folder_key: str, out: StageOut
     folder, which the drawer renames into place (:meth:`FigureDrawer.finish`). ``previous``: the
     stage's folder of the previous rebuild; a figure whose key
     (:func:`pipeline.rebuild.figure_keys.figure_key`) is one of its figures' is taken from there,
-    not drawn.
+    not drawn. ``pooled``: the keys of its pooled tables (:class:`PooledTables`).
     """
     import pyarrow as pa
     import pyarrow.parquet as pq
@@ -178,6 +246,7 @@ def save_stage_folder(warehouse: Path, name: str, folder_key: str, out: StageOut
     drawer = drawer or FigureDrawer()
     figures = _save_figures(name, out, tmp / "figures", drawer, previous)
     meta = {"tables": sorted(out.tables), "empty": empty, "figures": figures, "cacheable": cacheable,
+            "pooled": dict(sorted((pooled or {}).items())),
             "problems": [{"source_path": p.source_path, "error": p.error, "line": p.line, "stage": p.stage}
                          for p in out.problems],
             "warnings": {k: list(v) for k, v in sorted(out.warnings.items())}}

@@ -112,6 +112,8 @@ class StageContext:
     #: per-item results kept between rebuilds (``pipeline.rebuild.memo.Memo``; the rebuild sets one per stage)
     memo: object | None = None
     plan: Plan = field(default_factory=Plan)
+    #: pooled tables kept between rebuilds (``pipeline.rebuild.stage_store.PooledTables``; set by the rebuild)
+    pooled_tables: object | None = None
 
     def runs_of(self, *kinds: str) -> pd.DataFrame:
         """Runs of the given kinds, sorted by run_id."""
@@ -147,6 +149,19 @@ class StageContext:
             return self.memo.map(self._compute, func, items, label)
         return self._compute(func, items, label)
 
+    def pooled(self, table: str, func: Callable, *args, **kwargs) -> pd.DataFrame:
+        """Table ``table`` as ``func(*args, **kwargs)``, a pooled result (a module-level function
+        of data that may not have changed: e.g. Weibull fits of the hoses' lives when a leakage
+        check changed). With :attr:`pooled_tables` (the rebuild), the previous rebuild's table is
+        taken when the function, its code and the arguments' content are the same, and a computed
+        one comes back as its Parquet file will (so both give the same frame); a plan among the
+        arguments is keyed by what the stage declared it reads of it."""
+        if self.pooled_tables is None:
+            return func(*args, **kwargs)
+        key_args = tuple(_plan_digest(a) if isinstance(a, (Plan, DeclaredPlan)) else a for a in args)
+        held = self.pooled_tables.take(table, func, (key_args, dict(sorted(kwargs.items()))))
+        return self.pooled_tables.settle(func(*args, **kwargs)) if held is None else held
+
     def _compute(self, func: Callable, items: list, label: str = "") -> list:
         if self.mapper is not None:
             return self.mapper(func, items, label)
@@ -162,6 +177,13 @@ class StageContext:
                         out.append(res)
                         task.advance()
         return out
+
+
+def _plan_digest(plan) -> str:
+    """What a stage can see of ``plan`` (a :class:`DeclaredPlan`: its declared keys), as a hash."""
+    if isinstance(plan, DeclaredPlan):
+        return "plan " + plan._plan.digest_of(plan._keys)
+    return "plan " + plan.digest_of(tuple(PLAN_KEYS))
 
 
 def read_samples(path: str | Path, columns: list[str] | None = None) -> pd.DataFrame:

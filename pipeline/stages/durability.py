@@ -328,9 +328,10 @@ def run(ctx: StageContext) -> StageOutput:
     out.tables["durability_runs"] = runs_df
     out.tables["durability_strokes"] = strokes_df
     out.tables["hose_life"] = life
-    out.tables["service_life"] = service_life(life, ctx.plan)
-    out.tables["hose_survival"] = hose_survival(life)
-    out.tables["service_life_test"] = service_life_test(life)
+    # pooled over the hoses' lives only: taken from the previous run when they did not change (a leakage check)
+    out.tables["service_life"] = ctx.pooled("service_life", service_life, life, ctx.plan)
+    out.tables["hose_survival"] = ctx.pooled("hose_survival", hose_survival, life)
+    out.tables["service_life_test"] = ctx.pooled("service_life_test", service_life_test, life)
     growth = leak_growth(ctx, life, runs_df, matched)
     out.tables["hose_leak_growth"] = growth
 

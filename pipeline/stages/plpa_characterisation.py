@@ -218,10 +218,11 @@ def run(ctx: StageContext) -> StageOutput:
     env = lk.seal_envelope(leak, LEAK_THRESHOLD_L_MIN)
     brk = _frame(rows["breakaway"], BREAKAWAY_COLS)
     summ = bk.breakaway_summary(brk)
-    findings = bk.breakaway_findings(brk, CONFIDENCE)
+    # pooled tables of unchanged rows are taken from the previous run (their scipy.stats import too)
+    findings = ctx.pooled("breakaway_findings", bk.breakaway_findings, brk, CONFIDENCE)
     pts = _frame(rows["viscous"], VISCOUS_COLS)
-    fits = vf.viscous_fits(pts, missing=missing)
-    trans = vf.viscous_transition(pts)
+    fits = ctx.pooled("viscous_fits", vf.viscous_fits, pts, missing=missing)
+    trans = ctx.pooled("viscous_transition", vf.viscous_transition, pts)  # scipy.stats too
     out.tables = {"leakage_map": leak, "seal_envelope": env, "breakaway": brk, "breakaway_summary": summ,
                   "breakaway_findings": findings, "viscous_points": pts, "viscous_fits": fits,
                   "viscous_transition": trans, "friction_dynamic": _frame(dynamic, DYNAMIC_COLS)}

@@ -22,18 +22,21 @@ PARTS_CACHE = ".parts-cache.json"
 REPORT_CODE = ("pipeline/**/*.py", "analyses/**/*.py", "schemas/**/*.py", "schemas/**/*.sql")
 
 
-def parts_key(db: ReportDB) -> str | None:
-    """The key the parts are kept under: the database's inputs key and :data:`REPORT_CODE`'s
-    :func:`~pipeline.serve.report.figures.code_key` (None without an inputs key)."""
+def parts_key(db: ReportDB, code: str | None = None) -> str | None:
+    """The key the parts are kept under: the database's inputs key and the version of the code
+    rendering them (None without an inputs key). ``code``: that version as the caller knows it (the
+    rebuild gives its hash of all of the project's code, ``pipeline.versions.project_code_version``,
+    so that a rebuild hashes the code once); None: :data:`REPORT_CODE`'s
+    :func:`~pipeline.serve.report.figures.code_key` (``pneubench report``)."""
     key = db.inputs_key()
-    return None if key is None else f"{key}-{code_key(REPORT_CODE)}"
+    return None if key is None else f"{key}-{code or code_key(REPORT_CODE)}"
 
 
-def cached_parts(db: ReportDB, warehouse: Path) -> tuple[str, list, str, str] | None:
+def cached_parts(db: ReportDB, warehouse: Path, code: str | None = None) -> tuple[str, list, str, str] | None:
     """(results HTML, contents entries, runs index HTML, decision HTML) of the live report when its
-    key is :func:`parts_key`; None otherwise (no key, no cache, other inputs or code, a damaged
-    file, a cache written before a part was kept)."""
-    key = parts_key(db)
+    key is :func:`parts_key` (of ``code``); None otherwise (no key, no cache, other inputs or code,
+    a damaged file, a cache written before a part was kept)."""
+    key = parts_key(db, code)
     if key is None:
         return None
     try:
@@ -46,9 +49,10 @@ def cached_parts(db: ReportDB, warehouse: Path) -> tuple[str, list, str, str] | 
         return None  # none yet, or damaged: rendered anew
 
 
-def cache_parts(db: ReportDB, folder: Path, results: str, toc: list, runs_index: str, decision: str) -> None:
-    """Keep the parts in the new report ``folder`` under :func:`parts_key` (none without one)."""
-    key = parts_key(db)
+def cache_parts(db: ReportDB, folder: Path, results: str, toc: list, runs_index: str, decision: str,
+                code: str | None = None) -> None:
+    """Keep the parts in the new report ``folder`` under :func:`parts_key` of ``code`` (none without one)."""
+    key = parts_key(db, code)
     if key is None:
         return
     tmp = folder / f".parts-cache.tmp-{os.getpid()}"

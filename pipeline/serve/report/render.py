@@ -41,7 +41,7 @@ def _now() -> datetime:
 
 
 def render_report(warehouse: str | Path, now: datetime | None = None, database: str | Path | None = None,
-                  run_pages: str = "update", folder: str | Path | None = None) -> str:
+                  run_pages: str = "update", folder: str | Path | None = None, code: str | None = None) -> str:
     """The report of the warehouse as one HTML string (``now``: the clock for "last 24 hours").
 
     ``database``: the DuckDB file to read instead of the warehouse's live one (the rebuild
@@ -53,6 +53,8 @@ def render_report(warehouse: str | Path, now: datetime | None = None, database: 
     their results are those of the pages already there); ``"all"`` draws every page and figure
     (``--full``). Otherwise a figure whose key is in the live report is taken from there
     (:mod:`~pipeline.serve.report.figures`).
+    ``code``: the version of the code rendering it, as the rebuild hashed it (the parts cache's
+    key, :func:`~pipeline.serve.report.cache.parts_key`); None: the report hashes its code itself.
     """
     warehouse = Path(warehouse)
     now = now or _now()
@@ -61,7 +63,7 @@ def render_report(warehouse: str | Path, now: datetime | None = None, database: 
         db = ReportDB(con)
         alert, findings = findings_section(db, now)
         generation = db.generation()
-        cached = None if run_pages == "all" else cached_parts(db, warehouse)
+        cached = None if run_pages == "all" else cached_parts(db, warehouse, code)
         if cached is not None:  # the same inputs and code as the last report: the same results
             parts = cached
         else:
@@ -69,17 +71,20 @@ def render_report(warehouse: str | Path, now: datetime | None = None, database: 
             live = () if run_pages == "all" else (warehouse / REPORT_DIR / "index.html",)
             parts = (results, entries, runs_index(db), decision_section(db, Figures(live)))
         if folder is not None:
-            _fill_folder(db, warehouse, Path(folder), generation, run_pages, parts)
+            _fill_folder(db, warehouse, Path(folder), generation, run_pages, (parts, code))
         return _index(db, warehouse, generation, (alert, findings), parts)
     finally:
         con.close()
 
 
-def _fill_folder(db: ReportDB, warehouse: Path, folder: Path, generation: str, run_pages: str, parts: tuple) -> None:
-    """The new report ``folder``'s generation, parts cache and run pages (see :func:`render_report`)."""
+def _fill_folder(db: ReportDB, warehouse: Path, folder: Path, generation: str, run_pages: str,
+                 parts_code: tuple) -> None:
+    """The new report ``folder``'s generation, parts cache (``parts_code``: the parts and the code's
+    version) and run pages (see :func:`render_report`)."""
+    parts, code = parts_code
     live = warehouse / REPORT_DIR
     (folder / GENERATION_FILE).write_text(generation or "", encoding="utf-8")
-    cache_parts(db, folder, *parts)
+    cache_parts(db, folder, *parts, code=code)
     if run_pages == "missing" and run_pages_present(db, warehouse):
         carry_pages(live / "runs", folder / "runs")
     else:
@@ -130,13 +135,13 @@ def failure_page(warehouse: str | Path, generation: str | None, error: str, now:
 
 
 def stage_report(warehouse: str | Path, database: str | Path | None = None, run_pages: str = "update",
-                 now: datetime | None = None) -> Path:
+                 now: datetime | None = None, code: str | None = None) -> Path:
     """Render the whole report (index and run pages) into a new folder beside the live one;
     :func:`~pipeline.serve.report.publish.publish_report` swaps it in. Unchanged run pages are
     hard links to the live ones. A failure removes the folder and raises (the live report is
-    untouched)."""
+    untouched). ``code`` as for :func:`render_report`."""
     return stage_folder(Path(warehouse), lambda folder: render_report(warehouse, now, database=database,
-                                                                      run_pages=run_pages, folder=folder))
+                                                                      run_pages=run_pages, folder=folder, code=code))
 
 
 def write_report(warehouse: str | Path, generation: str | None = None, now: datetime | None = None) -> Path:

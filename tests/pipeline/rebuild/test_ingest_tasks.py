@@ -207,3 +207,33 @@ def test_a_file_growing_while_its_reader_reads_it_is_not_published_and_is_read_n
     assert second.exit_code == 0 and second.quarantine == []
     whole = hashlib.sha256((raw.root / "c/a.csv").read_bytes()).hexdigest()
     assert q(warehouse, "SELECT n_samples, source_sha256 FROM runs WHERE run_id = 'c/a'") == [(6, whole)]
+
+
+def test_a_small_read_forks_its_readers_after_the_stages_imports_and_a_large_one_before(raw, warehouse, monkeypatch):
+    """Below ``WARM_READ_BYTES`` the rebuild imports the readers and the stages' modules first and
+    forks its reader workers warm (nothing left to preload nor to do while they read); above it the
+    readers are forked first and import while the rebuild imports. The warehouse is the same."""
+    from pipeline.rebuild.executors import LocalExecutor
+
+    seen = []
+    real_map = LocalExecutor.map
+
+    def spy(self, func, items, *a, **k):
+        if k.get("on_crash") is not None:
+            seen.append((list(k.get("preload") or ()), k.get("while_waiting")))
+        return real_map(self, func, items, *a, **k)
+
+    monkeypatch.setattr(LocalExecutor, "map", spy)
+    step(raw, "c/a.csv")
+    age(raw.root)
+    rebuild(raw.root, warehouse, jobs=1)
+    preload, waiting = seen[-1]
+    assert preload == [] and waiting is None  # imported before the readers were forked
+    first = q(warehouse, "SELECT run_id, n_samples FROM runs")
+    monkeypatch.setattr(tasks, "WARM_READ_BYTES", 0)
+    step(raw, "c/b.csv", scale=2.0)
+    age(raw.root)
+    rebuild(raw.root, warehouse, jobs=1)
+    preload, waiting = seen[-1]
+    assert preload and waiting is not None  # the readers import while this process does
+    assert len(q(warehouse, "SELECT run_id FROM runs")) == len(first) + 1

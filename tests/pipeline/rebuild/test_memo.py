@@ -496,3 +496,36 @@ def test_computed_results_wait_on_disk_until_saved_and_a_saved_memo_holds_nothin
     assert again == out and (m2.hits, m2.computed) == (40, 0)
     m2.save()
     assert len(stored(tmp_path, "s")) == 40
+
+
+def test_pooled_tables_of_unchanged_rows_are_taken_and_equal_a_full_rebuild(raw, tmp_path, stages_of, monkeypatch):
+    """A changed breakaway run re-runs ``plpa_characterisation``: its breakaway findings are computed
+    again, its viscous tables (no viscous rows changed) are taken from the previous folder; the
+    database equals a full rebuild's, which takes none."""
+    import pipeline.rebuild.stage_store as store_mod
+
+    taken = []
+    real_take = store_mod.PooledTables.take
+
+    def spy(self, table, func, key_args):
+        df = real_take(self, table, func, key_args)
+        taken.append((table, df is not None))
+        return df
+
+    monkeypatch.setattr(store_mod.PooledTables, "take", spy)
+    inc, full = tmp_path / "inc", tmp_path / "full"
+    campaign(raw)
+    rebuild(raw.root, inc, jobs=1)
+    assert ("breakaway_findings", False) in taken and ("viscous_fits", False) in taken
+    taken.clear()
+    breakaway(raw, "c/b2.csv", scale=9.0)
+    age(raw.root)
+    s = rebuild(raw.root, inc, jobs=1)
+    assert "plpa_characterisation" in s.stages_run
+    assert dict(taken) == {"breakaway_findings": False, "viscous_fits": True, "viscous_transition": True}
+    taken.clear()
+    rebuild(raw.root, full, jobs=1, full=True)
+    assert set(dict(taken).values()) == {False} and "viscous_fits" in dict(taken)  # --full takes none
+    a, b = dump(inc), dump(full)
+    for table in a:
+        assert a[table] == b[table], table

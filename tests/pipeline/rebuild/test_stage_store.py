@@ -217,3 +217,70 @@ def test_a_re_run_stage_draws_only_the_figures_whose_inputs_changed(tmp_path):
             (tmp_path / second / "figures" / f"{name}.png").read_bytes()
     _tables, figures, *_ = store.load_stage_folder(tmp_path, second, "demo")
     assert [f["caption"] for f in figures] == ["A.", "B."]
+
+
+def pooled_sum(df, by):
+    """A pooled table of the test (module-level: keyable); counts its calls."""
+    pooled_sum.calls += 1
+    return df.groupby(by, as_index=False)["x"].sum()
+
+
+pooled_sum.calls = 0
+
+
+def test_a_pooled_table_with_unchanged_inputs_is_taken_from_the_previous_folder(tmp_path):
+    """``StageContext.pooled`` through :class:`PooledTables`: the previous folder's table is taken
+    when the function and its arguments' content are unchanged (not computed), computed when they
+    changed or without a previous folder (``--full``); a computed one comes back as Parquet gives
+    it, so a taken and a computed table are the same frame."""
+    import pandas as pd
+    import pandas.testing as pdt
+
+    from pipeline.stages import StageContext, StageOutput
+
+    data = pd.DataFrame({"g": ["a", "b", "a"], "x": [1.0, 2.0, 3.5]})
+
+    def run(previous, df):
+        pooled = store.PooledTables(previous)
+        ctx = StageContext(raw=tmp_path, warehouse=tmp_path, runs=pd.DataFrame(), pooled_tables=pooled)
+        table = ctx.pooled("sums", pooled_sum, df, by="g")
+        out = StageOutput(tables={"sums": table})
+        rel, *_ = store.save_stage_folder(tmp_path, "demo", f"{len(list(tmp_path.glob('stages/demo/*'))):020d}",
+                                          out, previous=previous, pooled=pooled.keys)
+        return tmp_path / rel, table, pooled
+
+    pooled_sum.calls = 0
+    first, computed, p1 = run(None, data)
+    assert pooled_sum.calls == 1 and p1.taken == [] and set(p1.keys) == {"sums"}
+    second, taken, p2 = run(first, data.copy())  # equal content, another frame
+    assert pooled_sum.calls == 1 and p2.taken == ["sums"] and p2.keys == p1.keys
+    pdt.assert_frame_equal(taken, computed, check_exact=True)
+    assert list(taken["x"]) == [4.5, 2.0]
+    _third, changed, p3 = run(second, data.assign(x=[1.0, 2.0, 4.0]))  # one value changed: computed
+    assert pooled_sum.calls == 2 and p3.taken == [] and list(changed["x"]) == [5.0, 2.0]
+    _full, again, p4 = run(None, data)  # no previous folder: computed, the same frame as taken
+    assert pooled_sum.calls == 3 and p4.taken == []
+    pdt.assert_frame_equal(again, taken, check_exact=True)
+    ctx = StageContext(raw=tmp_path, warehouse=tmp_path, runs=pd.DataFrame())  # outside a rebuild: computed
+    assert list(ctx.pooled("sums", pooled_sum, data, by="g")["x"]) == [4.5, 2.0] and pooled_sum.calls == 4
+
+
+def test_a_pooled_table_is_not_taken_from_a_damaged_or_foreign_previous_folder(tmp_path):
+    import pandas as pd
+
+    from pipeline.stages import StageOutput
+
+    data = pd.DataFrame({"g": ["a"], "x": [1.0]})
+    pooled = store.PooledTables(None)
+    assert pooled.take("sums", pooled_sum, ((data,), {"by": "g"})) is None
+    rel, *_ = store.save_stage_folder(tmp_path, "demo", "1" * 20, StageOutput(tables={"sums": data}),
+                                      pooled=pooled.keys)
+    folder = tmp_path / rel
+    again = store.PooledTables(folder)
+    assert again.take("sums", pooled_sum, ((data,), {"by": "g"})) is not None
+    assert store.PooledTables(folder).take("other", pooled_sum, ((data,), {"by": "g"})) is None  # not kept
+    assert store.PooledTables(folder).take("sums", lambda d: d, ((data,), {})) is None  # no key: computed
+    (folder / "tables" / "sums.parquet").unlink()
+    assert store.PooledTables(folder).take("sums", pooled_sum, ((data,), {"by": "g"})) is None
+    (folder / "output.json").write_text("{not json")
+    assert store.PooledTables(folder).take("sums", pooled_sum, ((data,), {"by": "g"})) is None

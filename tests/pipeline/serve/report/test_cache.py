@@ -89,3 +89,27 @@ def test_pneubench_report_after_a_code_change_does_not_serve_stale_sections(raw,
     assert done.returncode == 0, done.stderr
     index = (warehouse / "report" / "index.html").read_text(encoding="utf-8")
     assert "Each run has a new page with its channels" in index
+
+
+def test_the_code_version_the_rebuild_gives_keys_the_parts_and_the_code_is_not_hashed_again(raw, warehouse,
+                                                                                              tmp_path, monkeypatch):
+    """The rebuild passes its one hash of the project's code (``project_code_version``) to the
+    report: the parts cache is keyed by it, taken only under it, and the report hashes no code."""
+    import pytest
+
+    from pipeline.rebuild.flow import rebuild
+    from pipeline.serve.report import cache
+    from pipeline.versions import project_code_version
+    from tests.conftest import STEP_META
+
+    monkeypatch.setattr(cache, "code_key", lambda *a, **k: pytest.fail("the report hashed the code again"))
+    folder = tmp_path / ".report-1-abcdef01"
+    cache_parts(_db("k1"), folder, "results", [], "runs", "decision", code="v1")
+    (tmp_path / "report").symlink_to(folder.name)
+    assert cached_parts(_db("k1"), tmp_path, "v1") == ("results", [], "runs", "decision")
+    assert cached_parts(_db("k1"), tmp_path, "v2") is None  # other code: rendered anew
+    raw.csv("c/s0.csv", {**STEP_META, "run_id": "s0"}, {"t[s]": [0, 0.1, 0.2], "x[mm]": [0, 1, 1],
+                                                      "x_ref[mm]": [1, 1, 1]})
+    rebuild(raw.root, warehouse, jobs=1)
+    key = json.loads((warehouse / "report" / PARTS_CACHE).read_text(encoding="utf-8"))["key"]
+    assert key.endswith("-" + project_code_version())

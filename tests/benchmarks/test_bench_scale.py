@@ -1,0 +1,26 @@
+"""The cost curve's per-kind figures (issue 26): the target per size and the table and checks."""
+import pytest
+
+from benchmarks import bench_scale as bs
+
+
+def test_the_target_is_5_percent_at_1000_runs_and_2_percent_at_10000():
+    assert bs.kind_target(300) == bs.kind_target(1000) == 0.05
+    assert bs.kind_target(10000) == bs.kind_target(30000) == 0.02
+    assert bs.kind_target(3000) == pytest.approx(0.05 - 0.03 * 0.47712, rel=1e-4)  # log-interpolated
+
+
+def test_the_worst_kind_is_judged_by_its_cpu_share_of_its_own_sizes_full_rebuild():
+    results = [
+        {"runs": 1000, "full_cpu_s": 80.0, "per_kind": {"spring": [9.0, 4.0], "leakage": [5.0, 3.0]},
+         "worst_kind": "spring", "worst_kind_cpu_s": 4.0},
+        {"runs": 10000, "full_cpu_s": 800.0, "per_kind": {"spring": [30.0, 20.0]},
+         "worst_kind": "spring", "worst_kind_cpu_s": 20.0},
+        {"runs": 3000},  # measured before the per-kind figures: left out
+    ]
+    lines, checks = bs.kind_lines(results)
+    assert lines[0] == "| change: CPU share of full (CPU s) | 1,000 runs | 10,000 runs |"
+    assert "| spring | 0.050 (4.0) | 0.025 (20.0) |" in lines and "| leakage | 0.037 (3.0) | - |" in lines
+    assert [(round(v, 3), ok) for _, v, ok in checks] == [(0.05, False), (0.025, False)]
+    assert "worst kind (spring) under 5% of a full rebuild at 1000 runs" in checks[0][0]
+    assert bs.kind_lines([{"runs": 30}]) == ([], [])
