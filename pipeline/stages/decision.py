@@ -107,14 +107,24 @@ RUN_SPEC = {"hose_id": "text", "started_at": "time", "duration_h": "float", "dis
 def hose_type_item(hose_type: str, life: pd.DataFrame, runs: pd.DataFrame, settings) -> dict:
     """One hose type as plain data (the ``ctx.map`` item): its hoses, their matched runs (``hose_id`` the
     hose matched), its settings; columns as lists, times as int nanoseconds (UTC)."""
+    if "odometer_at" not in life:   # a hose_life without reading times (written before they were kept)
+        life = life.assign(odometer_at=pd.NaT)
+    return _item(hose_type, _columns(life.sort_values("hose_id"), HOSE_SPEC),
+                 _columns(runs.sort_values("run_id"), RUN_SPEC), settings)
+
+
+def _item(hose_type: str, hoses: dict, runs: dict, settings) -> dict:
+    """:func:`hose_type_item` from its columns already converted (:func:`_columns`)."""
     plan = {"present": bool(settings.present), "margin": float(settings.margin), "alpha": float(settings.alpha),
             "power": float(settings.power), "confidence": float(settings.confidence),
             "max_failures": settings.max_failures, "spending": settings.spending,
             "plan_from": settings.sources["margin"]}
-    if "odometer_at" not in life:   # a hose_life without reading times (written before they were kept)
-        life = life.assign(odometer_at=pd.NaT)
-    return {"hose_type": hose_type, "hoses": _columns(life.sort_values("hose_id"), HOSE_SPEC),
-            "runs": _columns(runs.sort_values("run_id"), RUN_SPEC), "plan": plan}
+    return {"hose_type": hose_type, "hoses": hoses, "runs": runs, "plan": plan}
+
+
+def _pick(columns: dict, rows) -> dict:
+    """The ``rows`` (positions) of converted columns, in that order."""
+    return {c: [v[i] for i in rows] for c, v in columns.items()}
 
 
 def _frame(columns: dict, spec: dict) -> pd.DataFrame:
@@ -356,12 +366,27 @@ def hose_type_items(ctx: StageContext) -> list[dict]:
     hoses, _ = merge_logbooks(events)
     runs["hose_id"] = match_runs(hoses, runs)[0] if len(runs) else pd.Series([], dtype=object)
     type_of = dict(zip(life["hose_id"], life["hose_type"]))
-    by_type = dict(iter(runs.groupby(runs["hose_id"].map(type_of), sort=False))) if len(runs) else {}
+    # every column converted once (the conversions are value by value), then each type's rows picked in the
+    # order hose_type_item sorts them: hoses by hose_id, runs by run_id (each unique)
+    life = life[life["hose_type"].notna()]
+    if "odometer_at" not in life:   # a hose_life without reading times (written before they were kept)
+        life = life.assign(odometer_at=pd.NaT)
+    life = life.sort_values("hose_id", kind="stable")
+    hose_cols, run_cols = _columns(life, HOSE_SPEC), _columns(runs.sort_values("run_id", kind="stable"), RUN_SPEC)
+    run_types = [type_of.get(h) for h in run_cols["hose_id"]]
+    rows_of: dict = {}
+    for i, t in enumerate(life["hose_type"].tolist()):
+        rows_of.setdefault(t, []).append(i)
+    runs_of: dict = {}
+    for i, t in enumerate(run_types):
+        runs_of.setdefault(t, []).append(i)
+    adjustments = hose_cols["adjustment"]
     items = []
-    for hose_type, g in life[life["hose_type"].notna()].groupby("hose_type", sort=True):
-        if set(GROUP) <= set(g["adjustment"]):
-            mine = by_type.get(hose_type, runs.iloc[0:0])
-            items.append(hose_type_item(str(hose_type), g, mine, ctx.plan.for_hose_type(str(hose_type))))
+    for hose_type in sorted(rows_of, key=str):
+        rows = rows_of[hose_type]
+        if set(GROUP) <= {adjustments[i] for i in rows}:
+            items.append(_item(str(hose_type), _pick(hose_cols, rows), _pick(run_cols, runs_of.get(hose_type, [])),
+                               ctx.plan.for_hose_type(str(hose_type))))
     return items
 
 
