@@ -298,7 +298,7 @@ def added_by(raw: Path, warm: Path, change, stages: tuple, repeat: int, common: 
             if without is not None:
                 change(True)
             try:
-                m = measure(rebuild_cmd(raw, wh, without or ()))
+                m = measure(rebuild_cmd(raw, wh, common if without is None else without))
             finally:
                 change(False)
             out[label].runs.append(m)
@@ -333,7 +333,8 @@ def report_added(name: str, res: dict, target: float, stages: tuple) -> bool:
     print(f"  stages re-run (wall in the rebuild's log): {own or 'none found'}")
     ok = add < target
     print(f"  added by {'+'.join(stages)}: {add:.2f} s wall, {add_cpu:.2f} s CPU; target < {target:g} s: "
-          f"{'PASS' if ok else 'MISS'} (load average {os.getloadavg()[0]:.1f})")
+          f"{'PASS' if ok else 'MISS'} (of CPU: {'PASS' if add_cpu < target else 'MISS'}; load average "
+          f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores: above it the wall is the load's)")
     return ok
 
 
