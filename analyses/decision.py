@@ -477,7 +477,7 @@ def crossing_holds(deviance, crossed: str, boundary_z: float, margin: float) -> 
     return all(deviance(r) > boundary_z ** 2 for r in trials)
 
 
-def freeze_look(hoses: pd.DataFrame, runs: pd.DataFrame, events: pd.DataFrame):
+def freeze_look(hoses: pd.DataFrame, runs: pd.DataFrame, events: pd.DataFrame, in_looks: pd.DataFrame | None = None):
     """The look at which a ``max_failures`` the plan leaves unset is frozen, and that look's fit.
 
     The first look at which each adjustment has at least ``FEW_FAILURES / 2`` failures
@@ -491,6 +491,10 @@ def freeze_look(hoses: pd.DataFrame, runs: pd.DataFrame, events: pd.DataFrame):
     ----------
     hoses, runs, events : DataFrame
         :func:`usable_hoses`, their matched runs and :func:`failure_events` (as :func:`look_hoses`).
+    in_looks : DataFrame, optional
+        :func:`look_hoses` of all of ``events`` when the caller has it: its rows up to a look are
+        those of the looks up to it computed alone (each look's column is computed by itself), so
+        they are read instead of computed again.
 
     Returns
     -------
@@ -510,9 +514,13 @@ def freeze_look(hoses: pd.DataFrame, runs: pd.DataFrame, events: pd.DataFrame):
     for upto in (ready[:1], ready):     # the first ready look alone; all of them when its fit cannot tell
         if not upto.size:
             break
-        in_looks = look_hoses(hoses, runs, events.iloc[:int(upto[-1]) + 1])
-        fits = look_fits(in_looks["distance_km"].to_numpy(float), in_looks["failed"].to_numpy(bool),
-                         (in_looks["adjustment"] == "force").to_numpy(int), in_looks["look"].to_numpy(np.int64),
+        last = int(events["look"].iloc[int(upto[-1])])
+        if in_looks is None:
+            upto_looks = look_hoses(hoses, runs, events.iloc[:int(upto[-1]) + 1])
+        else:
+            upto_looks = in_looks[in_looks["look"].to_numpy(np.int64) <= last]
+        fits = look_fits(upto_looks["distance_km"].to_numpy(float), upto_looks["failed"].to_numpy(bool),
+                         (upto_looks["adjustment"] == "force").to_numpy(int), upto_looks["look"].to_numpy(np.int64),
                          events["look"].to_numpy(np.int64)[upto])
         for i, fit in zip(upto.tolist(), fits):
             if fit.note is None and math.isfinite(fit.shape):

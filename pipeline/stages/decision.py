@@ -32,11 +32,12 @@ Decisions
 * Each hose type is one item of ``ctx.map`` (plain data naming every input), twice (its
   ``life_effect``, then its looks): the types run in parallel and one whose hoses, runs and
   settings did not change is not computed again. The look an unset ``max_failures`` is frozen
-  at is one more ``ctx.map`` item per hose type (:func:`freeze_of`, fitting that look only), and
-  the design behind it one per distinct (margin, alpha, power, spending, shape,
-  hoses on test): tens of milliseconds the first time in a process that has computed others
-  (:func:`analyses.sequential.design_for`; ``benchmarks/bench_decision_stage.py`` times a cold first
-  rebuild) and then read from the memo.
+  at, and the design behind it, are computed inside the looks' task (:func:`_design_here`): the
+  frozen look's fit read from the looks already placed, the design
+  (:func:`analyses.sequential.design_for`, cached per process by grid shape and hoses on test) in
+  the worker pool beside the other hose types' looks, and with them read from the memo on later
+  nights (``benchmarks/bench_decision_stage.py`` measures a cold rebuild as a process;
+  docs/decision.md, "The decision stage as a process").
 """
 from __future__ import annotations
 
@@ -106,14 +107,24 @@ RUN_SPEC = {"hose_id": "text", "started_at": "time", "duration_h": "float", "dis
 def hose_type_item(hose_type: str, life: pd.DataFrame, runs: pd.DataFrame, settings) -> dict:
     """One hose type as plain data (the ``ctx.map`` item): its hoses, their matched runs (``hose_id`` the
     hose matched), its settings; columns as lists, times as int nanoseconds (UTC)."""
+    if "odometer_at" not in life:   # a hose_life without reading times (written before they were kept)
+        life = life.assign(odometer_at=pd.NaT)
+    return _item(hose_type, _columns(life.sort_values("hose_id"), HOSE_SPEC),
+                 _columns(runs.sort_values("run_id"), RUN_SPEC), settings)
+
+
+def _item(hose_type: str, hoses: dict, runs: dict, settings) -> dict:
+    """:func:`hose_type_item` from its columns already converted (:func:`_columns`)."""
     plan = {"present": bool(settings.present), "margin": float(settings.margin), "alpha": float(settings.alpha),
             "power": float(settings.power), "confidence": float(settings.confidence),
             "max_failures": settings.max_failures, "spending": settings.spending,
             "plan_from": settings.sources["margin"]}
-    if "odometer_at" not in life:   # a hose_life without reading times (written before they were kept)
-        life = life.assign(odometer_at=pd.NaT)
-    return {"hose_type": hose_type, "hoses": _columns(life.sort_values("hose_id"), HOSE_SPEC),
-            "runs": _columns(runs.sort_values("run_id"), RUN_SPEC), "plan": plan}
+    return {"hose_type": hose_type, "hoses": hoses, "runs": runs, "plan": plan}
+
+
+def _pick(columns: dict, rows) -> dict:
+    """The ``rows`` (positions) of converted columns, in that order."""
+    return {c: [v[i] for i in rows] for c, v in columns.items()}
 
 
 def _frame(columns: dict, spec: dict) -> pd.DataFrame:
@@ -158,10 +169,27 @@ def freeze_of(item: dict) -> dict:
     data (module level: memoised by ``ctx.map``): ``look`` (None: none yet), ``event_at`` [int ns], ``shape``
     [-] of that look's common-shape fit, ``failures``: (distance-set, force-set) by then."""
     hoses = usable_hoses(_frame(item["hoses"], HOSE_SPEC))
-    events = failure_events(hoses)
-    look, fit, failures = freeze_look(hoses, _frame(item["runs"], RUN_SPEC), events)
+    return _frozen(hoses, _frame(item["runs"], RUN_SPEC), failure_events(hoses))
+
+
+def _frozen(hoses: pd.DataFrame, runs: pd.DataFrame, events: pd.DataFrame, in_looks: pd.DataFrame | None = None) -> dict:
+    """:func:`freeze_of` from the item's frames (``in_looks``: their :func:`analyses.decision.look_hoses`, when
+    computed already)."""
+    look, fit, failures = freeze_look(hoses, runs, events, in_looks)
     at = None if look is None else _ns_list(events["event_at"].iloc[look - 1:look])[0]
     return {"look": look, "event_at": at, "shape": None if fit is None else float(fit.shape), "failures": failures}
+
+
+def _design_here(item: dict, hoses: pd.DataFrame, runs: pd.DataFrame, events: pd.DataFrame,
+                 in_looks: pd.DataFrame) -> list:
+    """The item's :func:`design_of` computed inside its own ``ctx.map`` task (in the worker pool): the frozen
+    look read from the looks already placed (:func:`_frozen`), its design by :func:`design_failures`
+    (cached per process by :func:`analyses.sequential.design_for`: hose types of one grid shape and hoses
+    on test share it in a worker)."""
+    frozen = _frozen(hoses, runs, events, in_looks) if item["plan"]["max_failures"] is None else None
+    ask = design_item(item["plan"], frozen, item["hoses"])
+    designed = {} if ask is None else {json.dumps(ask, sort_keys=True): design_failures(ask)}
+    return design_of(item, frozen, designed)
 
 
 def design_item(plan: dict, frozen: dict | None, hoses: dict) -> dict | None:
@@ -278,8 +306,9 @@ def decide_hose_type(item: dict) -> dict:
     ----------
     item : dict
         :func:`hose_type_item` (``hose_type``, ``hoses``: hose_life rows, ``runs``: their matched
-        durability runs, ``plan``: the hose type's settings) with ``design``: (max_failures or None,
-        ``"plan"`` or ``"design"``, note, the first look that may decide) (:func:`design_of`).
+        durability runs, ``plan``: the hose type's settings), optionally with ``design``: (max_failures
+        or None, ``"plan"`` or ``"design"``, note, the first look that may decide) (:func:`design_of`);
+        without it the design is computed here (:func:`_design_here`), in the task, from the same looks.
 
     Returns
     -------
@@ -289,10 +318,10 @@ def decide_hose_type(item: dict) -> dict:
     """
     plan, hose_type = item["plan"], item["hose_type"]
     life, runs = _frame(item["hoses"], HOSE_SPEC), _frame(item["runs"], RUN_SPEC)
-    design = tuple(item["design"])
     hoses = usable_hoses(life)
     events = failure_events(hoses)
     in_looks = look_hoses(hoses, runs, events)
+    design = tuple(item["design"] if "design" in item else _design_here(item, hoses, runs, events, in_looks))
     est = look_estimates(in_looks, events)
     sv = decide(est, design[0], plan["margin"], plan["alpha"], plan["spending"], in_looks, design[3] or 1)
     looks = _looks_rows(hose_type, est, sv, plan["present"]) if sv is not None else []
@@ -337,12 +366,27 @@ def hose_type_items(ctx: StageContext) -> list[dict]:
     hoses, _ = merge_logbooks(events)
     runs["hose_id"] = match_runs(hoses, runs)[0] if len(runs) else pd.Series([], dtype=object)
     type_of = dict(zip(life["hose_id"], life["hose_type"]))
-    by_type = dict(iter(runs.groupby(runs["hose_id"].map(type_of), sort=False))) if len(runs) else {}
+    # every column converted once (the conversions are value by value), then each type's rows picked in the
+    # order hose_type_item sorts them: hoses by hose_id, runs by run_id (each unique)
+    life = life[life["hose_type"].notna()]
+    if "odometer_at" not in life:   # a hose_life without reading times (written before they were kept)
+        life = life.assign(odometer_at=pd.NaT)
+    life = life.sort_values("hose_id", kind="stable")
+    hose_cols, run_cols = _columns(life, HOSE_SPEC), _columns(runs.sort_values("run_id", kind="stable"), RUN_SPEC)
+    run_types = [type_of.get(h) for h in run_cols["hose_id"]]
+    rows_of: dict = {}
+    for i, t in enumerate(life["hose_type"].tolist()):
+        rows_of.setdefault(t, []).append(i)
+    runs_of: dict = {}
+    for i, t in enumerate(run_types):
+        runs_of.setdefault(t, []).append(i)
+    adjustments = hose_cols["adjustment"]
     items = []
-    for hose_type, g in life[life["hose_type"].notna()].groupby("hose_type", sort=True):
-        if set(GROUP) <= set(g["adjustment"]):
-            mine = by_type.get(hose_type, runs.iloc[0:0])
-            items.append(hose_type_item(str(hose_type), g, mine, ctx.plan.for_hose_type(str(hose_type))))
+    for hose_type in sorted(rows_of, key=str):
+        rows = rows_of[hose_type]
+        if set(GROUP) <= {adjustments[i] for i in rows}:
+            items.append(_item(str(hose_type), _pick(hose_cols, rows), _pick(run_cols, runs_of.get(hose_type, [])),
+                               ctx.plan.for_hose_type(str(hose_type))))
     return items
 
 
@@ -360,11 +404,7 @@ def run(ctx: StageContext) -> StageOutput:
     out = StageOutput()
     items = hose_type_items(ctx)
     effects = ctx.map(effect_of, items, label="decision: life effect")
-    frozen, asks = design_asks(ctx, items)
-    unique = sorted({json.dumps(a, sort_keys=True) for a in asks if a is not None})
-    designed = dict(zip(unique, ctx.map(design_failures, [json.loads(u) for u in unique], label="decision: design")))
-    for it, fr in zip(items, frozen):
-        it["design"] = design_of(it, fr, designed)
+    # the frozen look and its design are computed in each hose type's own task (_design_here)
     results = ctx.map(decide_hose_type, items, label="decision: looks")
     rows = {t: [r for res in results for r in res[t]] for t in ("life_verdict", "decision_looks")}
     rows["life_effect"] = effects

@@ -1,0 +1,23 @@
+"""benchmarks/bench_decision_stage.py: the stage times read from a rebuild's log, the odometer-only campaign."""
+from benchmarks import bench_decision_stage as bench
+
+LOG = ("stage durability ran: hose_life 560 rows (27.4 s)\n"
+       "stage decision ran: decision_look_hoses 5351 rows, life_verdict 20 rows (19.7 s; per-run results: 0 from the memo)\n"
+       "stage findings ran: findings 28 rows (828 ms)\n")
+
+
+def test_stage_seconds_reads_the_rebuilds_progress_lines():
+    assert bench.stage_seconds(LOG, "decision") == 19.7
+    assert abs(bench.stage_seconds(LOG, "findings") - 0.828) < 1e-12
+    assert bench.stage_seconds(LOG, "test_plan") is None     # not re-run: no line
+
+
+def test_the_odometer_only_campaign_has_no_runs_and_every_hose_placed(tmp_path):
+    life, runs = bench.campaign(3, 5, tmp_path, (8, 6), varied=True, odometer_only=True)
+    assert runs.empty and set(life["hose_type"]) == {"TYPE 000", "TYPE 001", "TYPE 002"}
+    assert set(life["status"]) == {"failed", "running"}
+    on_test = life[life["distance_km"] > 0]             # hoses installed after the stop have run nothing
+    assert len(on_test) > len(life) / 3 and (on_test["distance_source"] == "odometer").all()
+    running = on_test[on_test["status"] == "running"]
+    assert len(running) and running["odometer_at"].notna().all()   # read at the stop: placed in the looks
+    assert (life[life["status"] == "failed"].groupby("hose_type").size() >= 6).all()
