@@ -54,7 +54,7 @@ from analyses.quality import Sensor
 from analyses.remaining_life import (RulSettings, backtest_summary, leak_crossing_lives, remaining_life,
                                      rul_backtest)
 from pipeline.stages import Reads, StageContext, StageOutput
-from pipeline.stages.sensors_text import sensor_parts
+from schemas.sensors_text import sensor_parts
 from schemas.units import kg_s_to_l_min_anr
 
 NAME = "remaining_life"
@@ -94,7 +94,7 @@ def _columns(df: pd.DataFrame, names) -> dict:
 
 def leak_sensor(sensors) -> list | None:
     """The leak-flow sensor the ``leakage_map.sensors`` texts state
-    (:func:`pipeline.stages.sensors_text.sensor_parts`): ``[resolution, noise]`` [l/min ANR], the
+    (:func:`schemas.sensors_text.sensor_parts`): ``[resolution, noise]`` [l/min ANR], the
     coarsest of each among them; None when none states one."""
     stated = [sensor_parts(t).get("q_leak") for t in sensors]
     found = [(r, n) for r, n, _, unit in (s for s in stated if s is not None)
