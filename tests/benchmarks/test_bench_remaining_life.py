@@ -4,7 +4,7 @@ import math
 
 import numpy as np
 
-from analyses.remaining_life import rupture_model, weibull_rul
+from analyses.remaining_life import weibayes_posterior, weibull_rul
 from benchmarks import bench_remaining_life as bench
 
 
@@ -25,18 +25,21 @@ def test_no_rupture_gives_the_jeffreys_predictive_interval():
     """With no rupture in an exposure T the remaining distance to rupture is Lomax: P(R > r) = (T / (T + r))^0.5,
     whatever the distance now (a constant hazard); its 5 % and 95 % points are T (0.95^-2 - 1) and T (0.05^-2 - 1)."""
     life = np.array([2.0, 3.0, 5.0])
-    q, note = weibull_rul(rupture_model(life, np.zeros(3, bool), n_draws=20000, seed=1), 4.0, 0.90)
+    q, note = weibull_rul(weibayes_posterior(life, np.zeros(3, bool), 1.0, n_draws=20000, seed=1), 4.0, 0.90)
     assert note is None
     t = life.sum()
-    assert math.isclose(q[1], t * (0.95 ** -2 - 1), rel_tol=0.05) and math.isclose(q[2], t * (0.05 ** -2 - 1), rel_tol=0.1)
-    assert math.isclose(q[0], t * 3.0, rel_tol=0.05)   # the median: (T / (T + r))^0.5 = 1/2
+    assert math.isclose(q[1], t * (0.95 ** -2 - 1), rel_tol=1e-9) and math.isclose(q[2], t * (0.05 ** -2 - 1), rel_tol=1e-9)
+    assert math.isclose(q[0], t * 3.0, rel_tol=1e-9)   # the median: (T / (T + r))^0.5 = 1/2
 
 
 def test_the_count_keeps_groups_of_at_most_one_rupture_and_runs_quick(capsys):
     out, kept = bench.rupture_outcomes(12, 40.0, 24, "wear-out")
     assert 0 < kept <= 12 and set(out["ruptures"]) <= {0, 1} and out["group"].nunique() == kept
     assert (out["rupture_left_km"] > 0).all() and (out["rul_lower_km"] < out["rul_upper_km"]).all()
+    # the union over shapes holds the constant hazard's interval (shape 1 is in it)
+    assert (out["rul_lower_km"] <= out["const_lower_km"] * (1 + 1e-9)).all()
+    assert (out["rul_upper_km"] >= out["const_upper_km"] * (1 - 1e-9)).all()
     assert bench.main(["--design", "rupture", "--quick"]) == 0
     text = capsys.readouterr().out
     assert "rupture model, wear-out truth:" in text and "rupture model, constant truth:" in text
-    assert "one hose a group (independent)" in text and "(quick: no verdict)" in text
+    assert "one hose a group (independent)" in text and "(quick: no verdict)" in text and "width" in text
