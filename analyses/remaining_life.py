@@ -172,10 +172,24 @@ class WeibullPosterior:
     fit: WeibullFit
     note: str | None = None
     fixed_shape: bool = False
+    parts: tuple = ()
 
     @property
     def ok(self) -> bool:
         return self.note is None
+
+    @property
+    def weibayes(self) -> tuple:
+        """The Weibayes fits (:func:`weibayes_posterior`) this posterior is, or is an equal mixture of
+        (``parts``); empty when it is not (its draws are re-weighted, or a Weibull): then only the
+        draws describe it."""
+        fits = []
+        for p in self.parts or (self,):
+            if not (p.fixed_shape and p.ok and np.all(p.shape == p.fit.shape)
+                    and np.all(p.log_weight == p.log_weight[0])):
+                return ()
+            fits.append(p.fit)
+        return tuple(fits)
 
     def weights(self) -> tuple[np.ndarray, float]:
         """Normalised weights of the draws and their effective sample size (Kish). [-]"""
@@ -392,8 +406,13 @@ def weibull_rul(post: WeibullPosterior, distance_km: float,
         return np.full(3, _NAN), post.note
     if not distance_km >= 0:
         return np.full(3, _NAN), "no distance now"
-    if post.fixed_shape and np.all(post.shape == post.fit.shape) and np.all(post.log_weight == post.log_weight[0]):
-        return _weibayes_quantiles(post.fit, distance_km, _probs(confidence)), None
+    fits = post.weibayes
+    if len(fits) == 1:
+        return _weibayes_quantiles(fits[0], distance_km, _probs(confidence)), None
+    if fits:   # an equal mixture of Weibayes: bisection on their exact survivals
+        q = _mixture_quantiles(lambda r: _weibayes_survival(fits, distance_km, r), np.full(len(fits), 1.0 / len(fits)),
+                               _probs(confidence), float(np.median([f.scale for f in fits])))
+        return q, (None if np.isfinite(q).all() else "the prediction interval is open: the data do not bound it")
     weights, ess = post.weights()
     if ess < MIN_ESS:
         return np.full(3, _NAN), f"the parameter draws do not cover the likelihood (effective {ess:.0f})"
@@ -415,6 +434,19 @@ def _weibayes_quantiles(fit: WeibullFit, d: float, probs) -> np.ndarray:
     a, k, s = fit.n_failed + 0.5, fit.shape, fit.scale
     u = a * np.expm1(-np.log1p(-np.asarray(probs, float)) / a)
     return s * ((d / s) ** k + u) ** (1.0 / k) - d
+
+
+def _weibayes_survival(fits, d: float, r) -> np.ndarray:
+    """``P(R > r)`` of each Weibayes fit (rows) at each remaining distance ``r`` (columns), exact
+    (:func:`_weibayes_quantiles`). [-]"""
+    r = np.atleast_1d(np.asarray(r, float))[None, :]
+    out = []
+    for f in fits:
+        a, k, s = f.n_failed + 0.5, f.shape, f.scale
+        with np.errstate(over="ignore"):
+            u = ((d + r) / s) ** k - (d / s) ** k
+            out.append(np.exp(-a * np.log1p(u / a))[0])
+    return np.array(out)
 
 
 def rul_over_shapes(predict, posts) -> tuple[np.ndarray, str | None]:
@@ -458,7 +490,8 @@ def _equal_mixture(posts: list) -> WeibullPosterior:
         with np.errstate(divide="ignore"):
             logs.append(np.log(w / len(posts)))
     return WeibullPosterior(np.concatenate([p.shape for p in posts]), np.concatenate([p.scale for p in posts]),
-                            np.concatenate(logs), posts[0].fit, fixed_shape=all(p.fixed_shape for p in posts))
+                            np.concatenate(logs), posts[0].fit, fixed_shape=all(p.fixed_shape for p in posts),
+                            parts=tuple(posts))
 
 
 # -- the degradation model ---------------------------------------------------------------------
