@@ -73,10 +73,20 @@ competing risk (Meeker & Escobar 1998, ch. 15): a Weibull fitted to the failures
 leak failures (the leak failures censored at their distance), with its predictive draws as above,
 independent of the leak path; the remaining life is ``min(crossing, rupture)``, so this method is
 the joint model of the hose's own leak path and the logbook's ruptures. With one such failure or
-none the Weibull has no proper posterior; the mode then has a constant hazard with the Jeffreys
-prior on its rate (:func:`exponential_posterior`, posterior ``Gamma(r + 1/2, exposure)``): a mode
-seen once or not yet is bounded by the distance run without it rather than left out (leaving it
-out covered only a third of the hoses that then ruptured first).
+none the Weibull has no proper posterior; the mode is then a Weibayes (:func:`weibayes_posterior`;
+Abernethy 2006, ch. 6; Nelson 1985): a Weibull of known shape whose scale has the Jeffreys
+posterior from the exposure, ``Gamma(r + 1/2, sum t^k)`` on ``scale^-k``: a mode seen once or not
+yet is bounded by the distance run without it rather than left out (leaving it out covered only a
+third of the hoses that then ruptured first). Zero or one rupture cannot tell the shape: the plan's
+``rupture_shape`` gives it when the lab knows it (:attr:`RulSettings.rupture_shape`; then the
+Weibayes at it, whatever the count). When it does not, the interval must hold for every plausible
+shape (:func:`rupture_model`, :func:`rul_over_shapes`): it is the union of the intervals at the
+shapes of a geometric grid from 1 (the constant hazard) to the upper ``confidence`` profile bound
+of the hose type's logbook Weibull shape (all failure modes; :func:`weibull_shape_bounds
+<analyses.service_life.weibull_shape_bounds>`), and the row's note says the shape was not known;
+its median is the equal mixture's over the grid. Without that bound (fewer than two failures in the
+logbook, or a bound the data do not close) the rupture part, and so the joint prediction, is NaN
+with the reason.
 
 Leak points at or below ``floor_multiple`` times the sensor's floor (:meth:`Sensor.floor
 <analyses.quality.Sensor.floor>`: the larger of its stated resolution and noise) are left out of
@@ -113,7 +123,8 @@ import pandas as pd
 import scipy
 
 from analyses.quality import Gate, Sensor, at_bound, linear_lstsq
-from analyses.service_life import WeibullFit, lognormal_fit, lognormal_loglik_many, weibull_fit, weibull_loglik_many
+from analyses.service_life import (WeibullFit, lognormal_fit, lognormal_loglik_many, weibull_fit, weibull_loglik_many,
+                                   weibull_shape_bounds)
 
 _NAN = float("nan")
 #: Leak points a hose needs above the sensor floor for its own prediction: two to draw a path
@@ -132,6 +143,8 @@ MIN_ESS = 100.0
 MIN_ADAPT_ROUNDS, MAX_ADAPT_ROUNDS, ADAPTED_ESS = 2, 8, 3.0
 #: Search range of the hose-to-hose variance of the log leak; an estimate at its ends is NaN. [-]
 TAU2_BOUNDS = (1e-8, 1e2)
+#: Shapes of the grid over which the rupture part's interval is united when its shape is not known. [-]
+N_RUPTURE_SHAPES = 5
 #: Fractions of a failed hose's life at which the backtest predicts. [-]
 BACKTEST_FRACTIONS = (0.5, 0.8)
 RUL_COLUMNS = ["hose_id", "distance_km", "method", "rul_median_km", "rul_lower_km", "rul_upper_km",
@@ -164,7 +177,7 @@ class WeibullPosterior:
     note : str or None
         Why there are no draws (then the arrays are empty).
     fixed_shape : bool
-        The shape is not drawn (:func:`exponential_posterior`: 1): one failure, or none, is then
+        The shape is not drawn (:func:`weibayes_posterior`: known): one failure, or none, is then
         enough for the model.
     family : str
         ``weibull`` or ``lognormal``. Both are log-location-scale: ``log T = log scale + Z / shape``
@@ -179,10 +192,24 @@ class WeibullPosterior:
     note: str | None = None
     fixed_shape: bool = False
     family: str = "weibull"
+    parts: tuple = ()
 
     @property
     def ok(self) -> bool:
         return self.note is None
+
+    @property
+    def weibayes(self) -> tuple:
+        """The Weibayes fits (:func:`weibayes_posterior`) this posterior is, or is an equal mixture of
+        (``parts``); empty when it is not (its draws are re-weighted, or a Weibull): then only the
+        draws describe it."""
+        fits = []
+        for p in self.parts or (self,):
+            if not (p.fixed_shape and p.ok and np.all(p.shape == p.fit.shape)
+                    and np.all(p.log_weight == p.log_weight[0])):
+                return ()
+            fits.append(p.fit)
+        return tuple(fits)
 
     def weights(self) -> tuple[np.ndarray, float]:
         """Normalised weights of the draws and their effective sample size (Kish). [-]"""
@@ -314,14 +341,18 @@ def _adapted_draws(life, failed, fit: WeibullFit, start: tuple, n_draws: int, rn
     return best
 
 
-def exponential_posterior(life, failed, n_draws: int = N_DRAWS, seed: int = 0) -> WeibullPosterior:
-    """Draws of a constant-hazard life model (a Weibull of shape 1) with the Jeffreys prior on its rate.
+def weibayes_posterior(life, failed, shape: float = 1.0, n_draws: int = N_DRAWS, seed: int = 0) -> WeibullPosterior:
+    """Draws of a Weibull life model of known ``shape`` (Weibayes), the scale from the exposure.
 
-    ``r`` failures in a total exposure ``T`` (the sum of the lives, failed or censored) give the
-    rate the posterior ``Gamma(r + 1/2, T)`` [1/km]: proper with one failure or none, where the
-    Weibull's flat prior is not (Jeffreys 1961; the zero- and one-failure case of reliability
-    practice, Atwood et al. 2003, NUREG/CR-6823, section 6.2.2; Abernethy 2006, ch. 6, "Weibayes",
-    with the shape assumed 1: no wear-out claimed where the data cannot show one).
+    With the shape ``k`` known, ``t^k`` of a Weibull life is exponential with the rate
+    ``scale^-k``, so ``r`` failures in the exposure ``T_k = sum t_i^k`` (the lives, failed or
+    censored) give the rate the posterior ``Gamma(r + 1/2, T_k)`` with the Jeffreys prior on it
+    (Jeffreys 1961; Atwood et al. 2003, NUREG/CR-6823, section 6.2.2): proper with one failure or
+    none. This is Weibayes (Abernethy 2006, *The New Weibull Handbook*, ch. 6; Nelson 1985,
+    "Weibull analysis of reliability data with few or no failures", J. Quality Technology 17):
+    Nelson's confidence bounds on the rate are ``chi2(2r + 2) / 2T_k`` (its upper) and
+    ``chi2(2r) / 2T_k`` (its lower); the Jeffreys posterior is ``chi2(2r + 1) / 2T_k``, between the
+    two. ``shape = 1`` is the constant hazard: no wear-out claimed where the data cannot show one.
 
     Parameters
     ----------
@@ -329,6 +360,8 @@ def exponential_posterior(life, failed, n_draws: int = N_DRAWS, seed: int = 0) -
         Lives [km]: failure or censoring distances.
     failed : array_like of bool
         True for a failure.
+    shape : float
+        The Weibull shape, known [-], > 0.
     n_draws : int
         Draws of the rate. [-]
     seed : int
@@ -337,17 +370,22 @@ def exponential_posterior(life, failed, n_draws: int = N_DRAWS, seed: int = 0) -
     Returns
     -------
     WeibullPosterior
-        Equal weights, shape 1, ``fixed_shape``; empty with a note without exposure.
+        Equal weights, ``shape`` in every draw, ``fixed_shape``; empty with a note without exposure.
     """
     life = np.asarray(life, float)
     failed = np.asarray(failed, bool)
-    exposure, r = float(np.sum(life[np.isfinite(life)])), int(np.sum(failed))
-    fit = WeibullFit(1.0, exposure / (r + 0.5), _NAN, int(life.size), r)
+    keep = np.isfinite(life) & (life > 0)
+    life, r = life[keep], int(np.sum(failed[keep]))
+    top = float(life.max()) if life.size else 0.0
+    exposure = float(np.sum((life / top) ** shape)) if top > 0 else 0.0   # T_k / top^k: no overflow
+    empty = np.empty(0)
+    fit = WeibullFit(float(shape), top * (exposure / (r + 0.5)) ** (1.0 / shape) if top > 0 else _NAN, _NAN,
+                     int(life.size), r)
     if not exposure > 0:
-        empty = np.empty(0)
         return WeibullPosterior(empty, empty, empty, fit, note="no exposure: no distance run", fixed_shape=True)
-    rate = np.random.default_rng(seed).gamma(r + 0.5, 1.0 / exposure, n_draws)
-    return WeibullPosterior(np.ones(n_draws), 1.0 / rate, np.zeros(n_draws), fit, fixed_shape=True)
+    rate = np.random.default_rng(seed).gamma(r + 0.5, 1.0 / exposure, n_draws)   # of (t / top)^k
+    return WeibullPosterior(np.full(n_draws, float(shape)), top * rate ** (-1.0 / shape), np.zeros(n_draws), fit,
+                            fixed_shape=True)
 
 
 def _t_draws(centre, cov, n: int, rng) -> tuple[np.ndarray, np.ndarray]:
@@ -511,6 +549,13 @@ def weibull_rul(post: "WeibullPosterior | LifeModel", distance_km: float,
         return np.full(3, _NAN), first.note
     if not distance_km >= 0:
         return np.full(3, _NAN), "no distance now"
+    fits = first.weibayes if len(model.families) == 1 else ()
+    if len(fits) == 1:
+        return _weibayes_quantiles(fits[0], distance_km, _probs(confidence)), None
+    if fits:   # an equal mixture of Weibayes: bisection on their exact survivals
+        q = _mixture_quantiles(lambda r: _weibayes_survival(fits, distance_km, r), np.full(len(fits), 1.0 / len(fits)),
+                               _probs(confidence), float(np.median([f.scale for f in fits])))
+        return q, (None if np.isfinite(q).all() else "the prediction interval is open: the data do not bound it")
     ok, prob = model.usable()
     if not ok:
         ess = first.weights()[1] if first.ok else 0.0
@@ -522,6 +567,78 @@ def weibull_rul(post: "WeibullPosterior | LifeModel", distance_km: float,
     if not np.isfinite(q).all():
         return q, "the prediction interval is open: the data do not bound it"
     return q, model.family_note()
+
+
+def _weibayes_quantiles(fit: WeibullFit, d: float, probs) -> np.ndarray:
+    """Quantiles of the distance left [km] under a Weibayes (:func:`weibayes_posterior`), exact.
+
+    With the rate ``scale^-k ~ Gamma(a, T_k)`` (``a = r + 1/2``, ``T_k = a fit.scale^k``) the
+    predictive is ``P(R > r) = (1 + u / a)^-a`` with ``u = ((d + r) / fit.scale)^k - (d / fit.scale)^k``
+    (a Lomax in ``u``), so ``r`` at probability ``p`` is ``fit.scale (d_k + u_p)^(1/k) - d`` with
+    ``u_p = a ((1 - p)^(-1/a) - 1)`` and ``d_k = (d / fit.scale)^k``: the draws' mixture without
+    their Monte Carlo error.
+    """
+    a, k, s = fit.n_failed + 0.5, fit.shape, fit.scale
+    u = a * np.expm1(-np.log1p(-np.asarray(probs, float)) / a)
+    return s * ((d / s) ** k + u) ** (1.0 / k) - d
+
+
+def _weibayes_survival(fits, d: float, r) -> np.ndarray:
+    """``P(R > r)`` of each Weibayes fit (rows) at each remaining distance ``r`` (columns), exact
+    (:func:`_weibayes_quantiles`). [-]"""
+    r = np.atleast_1d(np.asarray(r, float))[None, :]
+    out = []
+    for f in fits:
+        a, k, s = f.n_failed + 0.5, f.shape, f.scale
+        with np.errstate(over="ignore"):
+            u = ((d + r) / s) ** k - (d / s) ** k
+            out.append(np.exp(-a * np.log1p(u / a))[0])
+    return np.array(out)
+
+
+def rul_over_shapes(predict, posts) -> tuple[np.ndarray, str | None]:
+    """The prediction that holds for each of several life models (one per rupture shape).
+
+    Parameters
+    ----------
+    predict : callable
+        ``post -> (quantiles, note)``: one model's ``[median, lower, upper]`` [km] (:func:`weibull_rul`,
+        or the joint prediction of :func:`degradation_rul`).
+    posts : sequence of WeibullPosterior
+        The models (:func:`rupture_model`); one alone is its own prediction.
+
+    Returns
+    -------
+    (quantiles, note) : (numpy.ndarray, str or None)
+        ``[median, lower, upper]`` [km]: the union of the intervals (the least lower end, the
+        greatest upper end) and the median of the models' equal mixture; NaN with the note when
+        there is no model or one of them has no prediction.
+    """
+    posts = list(posts)
+    if not posts:
+        return np.full(3, _NAN), "no rupture model"
+    if len(posts) == 1:
+        return predict(posts[0])
+    qs = []
+    for post in [*posts, _equal_mixture(posts)]:
+        q, note = predict(post)
+        if not np.isfinite(q).all():
+            return np.full(3, _NAN), note
+        qs.append(q)
+    qs = np.array(qs)
+    return np.array([qs[-1, 0], qs[:-1, 1].min(), qs[:-1, 2].max()]), None
+
+
+def _equal_mixture(posts: list) -> WeibullPosterior:
+    """The models' draws pooled, each model's weights summing to ``1 / len(posts)``."""
+    logs = []
+    for post in posts:
+        w, _ = post.weights()
+        with np.errstate(divide="ignore"):
+            logs.append(np.log(w / len(posts)))
+    return WeibullPosterior(np.concatenate([p.shape for p in posts]), np.concatenate([p.scale for p in posts]),
+                            np.concatenate(logs), posts[0].fit, fixed_shape=all(p.fixed_shape for p in posts),
+                            parts=tuple(posts))
 
 
 # -- the degradation model ---------------------------------------------------------------------
@@ -727,7 +844,7 @@ def _crossing_survival(fit: DegradationFit, dr: _DegradationDraws, hose_id, d: f
 
 
 def degradation_rul(fit: DegradationFit, hose_id, distance_km: float, limit_l_min: float,
-                    rupture: WeibullPosterior | None = None, confidence: float = 0.90,
+                    rupture=None, confidence: float = 0.90,
                     n_draws: int = N_DRAWS, seed: int = 0) -> tuple[np.ndarray, str | None]:
     """Median and prediction interval of the distance a running hose has left [km].
 
@@ -741,8 +858,10 @@ def degradation_rul(fit: DegradationFit, hose_id, distance_km: float, limit_l_mi
         Its distance now [km].
     limit_l_min : float
         The leak that ends its life [l/min].
-    rupture : WeibullPosterior, optional
-        The other failure modes' life model (a competing risk); None leaves them out.
+    rupture : WeibullPosterior or sequence of WeibullPosterior, optional
+        The other failure modes' life model (a competing risk); several (one per shape,
+        :func:`rupture_model`): the interval holds for each (:func:`rul_over_shapes`); None leaves
+        them out.
     confidence : float
         Two-sided level of the prediction interval. [-]
     n_draws : int
@@ -771,17 +890,23 @@ def degradation_rul(fit: DegradationFit, hose_id, distance_km: float, limit_l_mi
     if p_now < 1e-6:
         return nan, "its leak path is past the limit already (the hose should have failed)"
     weights = np.full(n_draws, 1.0 / n_draws)
-    total = survival
-    if rupture is not None and rupture.ok:
-        w_r, ess = rupture.weights()
-        if ess < MIN_ESS:
-            return nan, "the rupture model's draws do not cover its likelihood"
-        pick = np.random.default_rng(seed + 1).choice(len(w_r), size=n_draws, p=w_r)
-        k, s = rupture.shape[pick], rupture.scale[pick]
-        total = lambda r: survival(r) * _weibull_survival_from(k, s, distance_km, r)  # noqa: E731
     guess = max(distance_km, 1e-3)
-    q = _mixture_quantiles(total, weights, _probs(confidence), guess)
-    return q, (None if np.isfinite(q).all() else "the prediction interval is open: the data do not bound it")
+    posts = [rupture] if isinstance(rupture, WeibullPosterior) else list(rupture or [])
+    posts = [p for p in posts if p.ok]
+
+    def joint(post: WeibullPosterior | None):
+        total = survival
+        if post is not None:
+            w_r, ess = post.weights()
+            if ess < MIN_ESS:
+                return nan, "the rupture model's draws do not cover its likelihood"
+            pick = np.random.default_rng(seed + 1).choice(len(w_r), size=n_draws, p=w_r)
+            k, s = post.shape[pick], post.scale[pick]
+            total = lambda r: survival(r) * _weibull_survival_from(k, s, distance_km, r)  # noqa: E731
+        q = _mixture_quantiles(total, weights, _probs(confidence), guess)
+        return q, (None if np.isfinite(q).all() else "the prediction interval is open: the data do not bound it")
+
+    return rul_over_shapes(joint, posts) if posts else joint(None)
 
 
 # -- leak-limit crossing ---------------------------------------------------------------------
@@ -860,6 +985,10 @@ class RulSettings:
         Parameter draws per predictive distribution. [-]
     floor_multiple : float
         Leak points at or below this multiple of the sensor floor are left out. [-]
+    rupture_shape : float or None
+        The Weibull shape of the other failure modes when the lab knows it (the plan's
+        ``rupture_shape``) [-]: their model is then the Weibayes at it; None: not known
+        (:func:`rupture_model`).
     """
 
     limit_l_min: float
@@ -867,6 +996,7 @@ class RulSettings:
     confidence: float = 0.90
     n_draws: int = N_DRAWS
     floor_multiple: float = FLOOR_MULTIPLE
+    rupture_shape: float | None = None
 
 
 def _lives(hoses: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
@@ -886,27 +1016,73 @@ def _leak_failures(hoses: pd.DataFrame, points: pd.DataFrame, limit_l_min: float
 
 
 def _rupture_posterior(hoses: pd.DataFrame, points: pd.DataFrame, s: RulSettings,
-                       seed: int) -> tuple[WeibullPosterior, str | None]:
-    """The other failure modes' life model (:func:`rupture_model`) and why it has no draws."""
+                       seed: int) -> tuple[list, str | None]:
+    """The other failure modes' models (:func:`rupture_model`) and their note."""
     life, failed = _lives(hoses)
-    post = rupture_model(life, failed & ~_leak_failures(hoses, points, s.limit_l_min), s.n_draws, seed)
-    return post, (None if post.ok else f"the other failure modes: {post.note}")
+    return rupture_model(life, failed, failed & ~_leak_failures(hoses, points, s.limit_l_min), s.rupture_shape,
+                         s.confidence, s.n_draws, seed)
 
 
-def rupture_model(life, other, n_draws: int = N_DRAWS, seed: int = 0) -> WeibullPosterior:
-    """The life model of the failure modes other than the leak (a competing risk, Meeker & Escobar
-    1998, ch. 15: the leak failures censored at their distance).
+def rupture_shapes(life, failed, confidence: float = 0.90) -> tuple[np.ndarray, str]:
+    """The shapes a rupture model of unknown shape must hold for, and the note that says so.
 
-    A Weibull (:func:`weibull_posterior`) with two such failures or more; with one or none, a
-    constant hazard with the Jeffreys prior on its rate (:func:`exponential_posterior`): a mode
-    seen once, or not yet, is bounded by the distance run without it, never assumed absent.
+    From 1 (the constant hazard) to the upper ``confidence`` likelihood-ratio bound of the Weibull
+    shape of all the lives' failures (the logbook's, every mode; :func:`weibull_shape_bounds
+    <analyses.service_life.weibull_shape_bounds>`, Meeker & Escobar 1998, section 8.3), a geometric
+    grid of :data:`N_RUPTURE_SHAPES` (from the bound to 1 when the bound is below 1).
 
     Parameters
     ----------
     life : array_like
         Lives [km]: failure or censoring distances.
+    failed : array_like of bool
+        True for a failure, any mode.
+    confidence : float
+        Two-sided level of the shape's bounds. [-]
+
+    Returns
+    -------
+    (shapes, note) : (numpy.ndarray, str)
+        The grid [-], empty when the lives give no upper bound (fewer than two failures, no fit,
+        a bound the data do not close); the note says which.
+    """
+    fit = weibull_fit(life, failed)
+    upper = weibull_shape_bounds(fit, life, failed, confidence)[1] if fit.ok else _NAN
+    unknown = "the rupture shape is not known (plan.toml sets no rupture_shape)"
+    if not math.isfinite(upper):
+        why = f"no logbook Weibull fit: {fit.note}" if not fit.ok else \
+            f"the logbook Weibull shape has no upper {100 * confidence:g} % bound"
+        return np.empty(0), f"{unknown} and the logbook cannot bound it ({why})"
+    lo, hi = sorted((1.0, upper))
+    return np.geomspace(lo, hi, N_RUPTURE_SHAPES), (
+        f"{unknown}: the interval holds for every shape from {lo:.3g} to {hi:.3g} (1 and the logbook Weibull "
+        f"shape's upper {100 * confidence:g} % bound)")
+
+
+def rupture_model(life, failed, other, shape: float | None = None, confidence: float = 0.90,
+                  n_draws: int = N_DRAWS, seed: int = 0) -> tuple[list, str | None]:
+    """The life models of the failure modes other than the leak (a competing risk, Meeker & Escobar
+    1998, ch. 15: the leak failures censored at their distance), and their note.
+
+    ``shape`` given (the lab's, the plan's ``rupture_shape``): the Weibayes at it
+    (:func:`weibayes_posterior`), whatever the count. Else a Weibull (:func:`weibull_posterior`)
+    with two such failures or more; with one or none, whose shape the data cannot tell, the
+    Weibayes at each shape of :func:`rupture_shapes`, whose intervals a prediction unites
+    (:func:`rul_over_shapes`): a mode seen once, or not yet, is bounded by the distance run without
+    it, never assumed absent, and its wear-out neither assumed nor ruled out.
+
+    Parameters
+    ----------
+    life : array_like
+        Lives [km]: failure or censoring distances.
+    failed : array_like of bool
+        True for a failure, any mode (the logbook's: they bound the shape).
     other : array_like of bool
         True for a failure by another mode than the leak.
+    shape : float, optional
+        The other modes' Weibull shape, known [-].
+    confidence : float
+        Two-sided level of the logbook shape's bound. [-]
     n_draws : int
         Parameter draws. [-]
     seed : int
@@ -914,11 +1090,23 @@ def rupture_model(life, other, n_draws: int = N_DRAWS, seed: int = 0) -> Weibull
 
     Returns
     -------
-    WeibullPosterior
+    (posteriors, note) : (list of WeibullPosterior, str or None)
+        One model, or one per shape of the grid; empty with the reason when there is none; the
+        note says so when the shape was not known.
     """
-    if int(np.sum(other)) >= 2:
-        return weibull_posterior(life, other, n_draws, seed)
-    return exponential_posterior(life, other, n_draws, seed)
+    other = np.asarray(other, bool)
+    note = None
+    if shape is not None:
+        posts = [weibayes_posterior(life, other, shape, n_draws, seed)]
+    elif int(other.sum()) >= 2:
+        posts = [weibull_posterior(life, other, n_draws, seed)]
+    else:
+        shapes, note = rupture_shapes(life, failed, confidence)
+        posts = [weibayes_posterior(life, other, k, n_draws, seed) for k in shapes]
+        if not posts:
+            return [], note
+    bad = [p.note for p in posts if not p.ok]
+    return ([], f"the other failure modes: {bad[0]}") if bad else (posts, note)
 
 
 def remaining_life(hoses: pd.DataFrame, points: pd.DataFrame, settings: RulSettings,
@@ -969,14 +1157,16 @@ def _quantile_columns(q: np.ndarray) -> dict:
 
 def _degradation_with_rupture(deg: DegradationFit, hose_id, distance_km: float, s: RulSettings,
                               rupture: tuple, seed: int) -> tuple[np.ndarray, str | None]:
-    """:func:`degradation_rul` with the other failure modes' model (``(posterior, note)``); NaN with
-    the note when either model has none."""
-    post, r_note = rupture
+    """:func:`degradation_rul` with the other failure modes' models (``(posteriors, note)``, of
+    :func:`rupture_model`); NaN with the note when either model has none; the rupture models' note
+    (the shape not known) on a prediction."""
+    posts, r_note = rupture
     if not deg.ok:
         return np.full(3, _NAN), deg.note
-    if not post.ok:
+    if not posts:
         return np.full(3, _NAN), r_note
-    return degradation_rul(deg, hose_id, distance_km, s.limit_l_min, post, s.confidence, s.n_draws, seed)
+    q, note = degradation_rul(deg, hose_id, distance_km, s.limit_l_min, posts, s.confidence, s.n_draws, seed)
+    return q, (r_note if note is None else note)
 
 
 # -- backtest --------------------------------------------------------------------------------
@@ -1004,7 +1194,7 @@ def rul_backtest(hoses: pd.DataFrame, points: pd.DataFrame, settings: RulSetting
     seed = data_seed(hoses, points) if seed is None else seed
     life, failed = _lives(hoses)
     post = life_model(life, failed, settings.n_draws, seed)
-    rupture, left_out = _rupture_posterior(hoses, points, settings, seed + 1)
+    rupture = _rupture_posterior(hoses, points, settings, seed + 1)
     leak_failed = _leak_failures(hoses, points, settings.limit_l_min)
     rows = []
     for i in np.flatnonzero(failed):
@@ -1015,30 +1205,30 @@ def rul_backtest(hoses: pd.DataFrame, points: pd.DataFrame, settings: RulSetting
             rows.append(_backtest_row(hid, "weibull", f, at, total, q, note))
             mine = (points["hose_id"] == hid) & (points["distance_km"] > at)
             deg = degradation_fit(points[~mine], settings.sensor, settings.floor_multiple)
-            r_post, r_note = _rupture_cut_short(rupture, left_out, (life, failed & ~leak_failed), i, at, settings,
-                                                seed + 1)
-            q, note = _degradation_with_rupture(deg, hid, at, settings, (r_post, r_note), seed + 2 + i)
+            cut = _rupture_cut_short(rupture, (life, failed, failed & ~leak_failed), i, at, settings, seed + 1)
+            q, note = _degradation_with_rupture(deg, hid, at, settings, cut, seed + 2 + i)
             rows.append(_backtest_row(hid, "degradation", f, at, total, q, note))
     return pd.DataFrame(rows, columns=BACKTEST_COLUMNS)
 
 
-def _rupture_cut_short(post: WeibullPosterior, note, lives: tuple, i: int, at: float, s: RulSettings,
-                       seed: int) -> tuple[WeibullPosterior, str | None]:
-    """The other failure modes' model with hose ``i`` censored at ``at``: the Weibull draws
-    re-weighted; drawn afresh (:func:`rupture_model`) when the Weibull loses its second failure or
-    the model is the constant hazard (its draws are exact and cheap, and re-weighting a Gamma
-    posterior to one failure fewer has an infinite variance)."""
-    life, other = lives
-    if post.ok and not post.fixed_shape:
-        cut = post.changed([life[i]], [other[i]], [at], [False])
+def _rupture_cut_short(rupture: tuple, lives: tuple, i: int, at: float, s: RulSettings,
+                       seed: int) -> tuple[list, str | None]:
+    """The other failure modes' models (``(posteriors, note)``) with hose ``i`` censored at ``at``
+    (``lives``: life, failed, failed by another mode): the Weibull draws re-weighted; made afresh
+    (:func:`rupture_model`) when the Weibull loses its second failure or the models are Weibayes
+    (their draws are exact and cheap, the logbook's shape bound changes with the cut, and
+    re-weighting a Gamma posterior to one failure fewer has an infinite variance)."""
+    posts, note = rupture
+    life, failed, other = lives
+    if not posts:
+        return rupture
+    if len(posts) == 1 and not posts[0].fixed_shape:
+        cut = posts[0].changed([life[i]], [other[i]], [at], [False])
         if cut.ok:
-            return cut, None
-    elif not post.ok:
-        return post, note
-    other = other.copy()
-    other[i] = False
-    cut = rupture_model(np.where(np.arange(len(life)) == i, at, life), other, s.n_draws, seed)
-    return cut, (None if cut.ok else f"the other failure modes: {cut.note}")
+            return [cut], note
+    keep = np.arange(len(life)) != i
+    return rupture_model(np.where(keep, life, at), failed & keep, other & keep, s.rupture_shape, s.confidence,
+                         s.n_draws, seed)
 
 
 def _backtest_row(hose_id, method: str, fraction: float, at: float, total: float, q, note) -> dict:
@@ -1085,6 +1275,6 @@ def backtest_summary(predictions: pd.DataFrame) -> pd.DataFrame:
 __all__ = ["BACKTEST_FRACTIONS", "DegradationFit", "FLOOR_MULTIPLE", "LIFE_FAMILIES", "LifeModel", "life_model",
            "MIN_HOSES", "MIN_LEAK_POINTS", "N_DRAWS",
            "RulSettings", "WeibullPosterior", "backtest_summary", "data_seed", "degradation_fit", "degradation_rul",
-           "exponential_posterior", "rupture_model",
+           "N_RUPTURE_SHAPES", "rul_over_shapes", "rupture_model", "rupture_shapes", "weibayes_posterior",
            "leak_crossing_life", "leak_crossing_lives", "remaining_life", "rul_backtest", "weibull_posterior",
            "weibull_rul"]

@@ -17,6 +17,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from schemas.sensors_text import sensor_part
+
 #: Air density at ANR reference conditions (ISO 8778). [kg/m3]
 RHO_ANR_KG_M3 = 1.185
 #: Air density at DIN 1343 normal conditions. [kg/m3]
@@ -248,28 +250,20 @@ _SI_SUFFIX = {q.si_unit: "_" + q.suffix for q in QUANTITIES.values()}
 
 
 def display_sensors_text(text: str) -> str:
-    """A ``sensors`` text of result rows in display units.
+    """A ``sensors`` text of result rows in display units (read by :func:`schemas.sensors_text.sensor_part`).
 
     ``"p_supply: resolution 100, noise 40 (metadata) Pa; q_leak: ... kg/s"`` ->
     ``"p_supply: resolution 0.001 bar, noise 0.0004 bar (metadata); q_leak: ... l/min"``.
-    A part that does not read that way is left as it is.
+    A part that does not read that way, or whose unit has no display unit, is left as it is.
     """
-    import re
-
     def one(part: str) -> str:
-        m = re.fullmatch(r"\s*(?P<name>[^:;]+): resolution (?P<res>\S+), noise (?P<noise>\S+) "
-                         r"\((?P<src>[^)]*)\) (?P<unit>\S+)\s*", part)
-        if m is None or m["unit"] not in _SI_SUFFIX:
+        read = sensor_part(part)
+        suffix = _SI_SUFFIX.get(read[4]) if read is not None else None
+        if suffix not in DISPLAY:
             return part.strip()
-        try:
-            res, noise = float(m["res"]), float(m["noise"])
-        except ValueError:
-            return part.strip()
-        shown, convert = DISPLAY.get(_SI_SUFFIX[m["unit"]], (None, None))
-        if shown is None:
-            return part.strip()
+        name, res, noise, src, _ = read
+        shown, convert = DISPLAY[suffix]
         unit = COLUMN_UNITS[shown][1]
-        return (f"{m['name']}: resolution {float(convert(res)):.3g} {unit}, noise {float(convert(noise)):.3g} {unit} "
-                f"({m['src']})")
+        return f"{name}: resolution {float(convert(res)):.3g} {unit}, noise {float(convert(noise)):.3g} {unit} ({src})"
 
     return "; ".join(one(p) for p in str(text).split(";"))

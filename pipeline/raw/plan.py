@@ -19,7 +19,9 @@ O'Brien & Fleming 1979 and Pocock 1977; Jennison & Turnbull 2000, ch. 7), ``benc
 integer >= 1) and ``km_per_day`` (> 0) (the bench capacity), ``leak_limit_l_min`` and
 ``leak_pressure_bar`` (> 0, failure by leakage), ``b_life`` (the service-life table's B-life, in
 percent failed, 0 < b_life < 100) and ``mission_km`` (> 0, the distance at which the
-service-life table gives the reliability).
+service-life table gives the reliability), ``rupture_shape`` (0 < shape <= :data:`MAX_RUPTURE_SHAPE`,
+the Weibull shape of the failures other than the leak when the lab knows it: the remaining-life
+models' Weibayes, :func:`analyses.remaining_life.rupture_model`).
 
 Decisions where the spec is silent
 ----------------------------------
@@ -71,6 +73,11 @@ MAX_FAILURES_LIMIT = 10_000
 #: Largest ``benches`` accepted.
 MAX_BENCHES = 1_000
 
+#: Largest ``rupture_shape`` accepted: Weibull shapes of wear-out in the reliability literature stay
+#: below about 10 (Abernethy 2006, ch. 6 and appendix on Weibull libraries); 20 leaves room, a larger
+#: value is a typo (it would put every rupture at one distance).
+MAX_RUPTURE_SHAPE = 20.0
+
 #: The alpha-spending families the verdict knows (Lan & DeMets 1983).
 SPENDING = ("obrien-fleming", "pocock")
 
@@ -111,6 +118,11 @@ KEYS: dict[str, tuple] = {
                "10 (B10)"),
     "mission_km": ("a number > 0", lambda v: _number(v) and v > 0, None,
                    "unset: no reliability at a mission distance"),
+    # the remaining-life models' other failure modes (issue 24): their Weibull shape, when known (Weibayes)
+    "rupture_shape": (f"a number with 0 < rupture_shape <= {MAX_RUPTURE_SHAPE:g}",
+                      lambda v: _number(v) and 0 < v <= MAX_RUPTURE_SHAPE, None,
+                      "unset: the rupture shape not known, the intervals hold for every shape from 1 to the "
+                      "logbook's bound"),
 }
 
 _TABLES_TEXT = '[defaults] and [hose_type."<hose type>"]'
@@ -136,6 +148,7 @@ class PlanSettings:
     leak_pressure_bar: float | None
     b_life: float
     mission_km: float | None
+    rupture_shape: float | None
     sources: dict[str, str]
 
 

@@ -3,7 +3,7 @@
 Three tables, from ``hose_life`` and ``hose_leak_growth`` (the durability stage's),
 ``leakage_map`` (the leak-flow sensor of each leakage run), ``life_verdict`` (the decision's
 ``max_failures``) and the plan (``leak_limit_l_min``, ``leak_pressure_bar``, ``confidence``,
-``margin``, ``alpha``, ``spending``):
+``margin``, ``alpha``, ``spending``, ``rupture_shape``):
 
 * ``hose_rul``: per running hose and method (``weibull``, ``degradation``) the median and the
   prediction interval at the plan's confidence of the distance it has left
@@ -54,12 +54,13 @@ from analyses.quality import Sensor
 from analyses.remaining_life import (RulSettings, backtest_summary, leak_crossing_lives, remaining_life,
                                      rul_backtest)
 from pipeline.stages import Reads, StageContext, StageOutput
-from pipeline.stages.sensors_text import sensor_parts
+from schemas.sensors_text import sensor_parts
 from schemas.units import kg_s_to_l_min_anr
 
 NAME = "remaining_life"
 READS = Reads(tables=("hose_life", "hose_leak_growth", "leakage_map", "life_verdict"),
-              plan=("leak_limit_l_min", "leak_pressure_bar", "confidence", "margin", "alpha", "spending"))
+              plan=("leak_limit_l_min", "leak_pressure_bar", "confidence", "margin", "alpha", "spending",
+                    "rupture_shape"))
 WRITES = ("hose_rul", "rul_backtest", "decision_sensitivity")
 
 RUL_COLUMNS = ["hose_type", "hose_id", "adjustment", "distance_km", "method", "rul_median_km", "rul_lower_km",
@@ -94,7 +95,7 @@ def _columns(df: pd.DataFrame, names) -> dict:
 
 def leak_sensor(sensors) -> list | None:
     """The leak-flow sensor the ``leakage_map.sensors`` texts state
-    (:func:`pipeline.stages.sensors_text.sensor_parts`): ``[resolution, noise]`` [l/min ANR], the
+    (:func:`schemas.sensors_text.sensor_parts`): ``[resolution, noise]`` [l/min ANR], the
     coarsest of each among them; None when none states one."""
     stated = [sensor_parts(t).get("q_leak") for t in sensors]
     found = [(r, n) for r, n, _, unit in (s for s in stated if s is not None)
@@ -155,7 +156,8 @@ def _type_inputs(ctx: StageContext, hose_type: str, growth: pd.DataFrame, lmap: 
     s = ctx.plan.for_hose_type(hose_type)
     limit, pressure = s.leak_limit_l_min, s.leak_pressure_bar
     out = {"limit": None if limit is None else float(limit), "pressure": None if pressure is None else float(pressure),
-           "confidence": float(s.confidence), "points": {"hose_id": [], "distance_km": [], "leak_l_min": []},
+           "confidence": float(s.confidence),
+           "rupture_shape": None if s.rupture_shape is None else float(s.rupture_shape), "points": {"hose_id": [], "distance_km": [], "leak_l_min": []},
            "sensor": None, "path_note": NO_LEAK_PLAN.format(hose_type)}
     if limit is None or pressure is None:
         return out
@@ -224,7 +226,8 @@ def rul_group(item: dict) -> dict:
     item : dict
         From :func:`stage_items`: ``hose_type``, ``adjustment``, ``hoses`` (hose_life columns),
         ``points`` (the leak path, :func:`leak_paths`), ``limit`` [l/min], ``pressure`` [bar],
-        ``sensor`` (``[resolution, noise]`` [l/min]), ``confidence``, ``path_note``.
+        ``sensor`` (``[resolution, noise]`` [l/min]), ``confidence``, ``rupture_shape`` [-] (None:
+        not known), ``path_note``.
 
     Returns
     -------
@@ -234,7 +237,7 @@ def rul_group(item: dict) -> dict:
     hoses, points, reason = _frames(item)
     sensor = Sensor(*(item["sensor"] or (0.0, 0.0)), source="metadata")
     settings = RulSettings(limit_l_min=_NAN if item["limit"] is None else item["limit"], sensor=sensor,
-                           confidence=item["confidence"])
+                           confidence=item["confidence"], rupture_shape=item.get("rupture_shape"))
     base = {"hose_type": item["hose_type"], "adjustment": item["adjustment"], "confidence": item["confidence"]}
     rul = remaining_life(hoses, points, settings)
     deg = (rul["method"] == "degradation").to_numpy()

@@ -6,11 +6,12 @@ import pandas as pd
 import pytest
 
 from analyses.quality import Sensor
-from analyses.remaining_life import (MIN_ESS, LifeModel, RulSettings, backtest_summary, data_seed, degradation_fit,
-                                     degradation_rul, exponential_posterior, leak_crossing_life, leak_crossing_lives,
-                                     life_model, remaining_life, rul_backtest, rupture_model, weibull_posterior,
-                                     weibull_rul)
-from analyses.service_life import lognormal_loglik_many, weibull_loglik, weibull_loglik_many
+from analyses.remaining_life import (MIN_ESS, N_RUPTURE_SHAPES, LifeModel, RulSettings, WeibullPosterior,
+                                     backtest_summary, data_seed, degradation_fit, degradation_rul, leak_crossing_life,
+                                     leak_crossing_lives, life_model, remaining_life, rul_backtest, rul_over_shapes,
+                                     rupture_model, rupture_shapes, weibayes_posterior, weibull_posterior, weibull_rul)
+from analyses.service_life import (lognormal_loglik_many, weibull_fit, weibull_loglik, weibull_loglik_many,
+                                   weibull_shape_bounds)
 
 SENSOR = Sensor(resolution=0.001, noise=0.005, source="metadata")   # floor 0.005, points above 0.05 used
 
@@ -232,7 +233,7 @@ def test_a_single_rupture_gets_a_constant_hazard_and_an_unnamed_mode_is_read_fro
     i = int(np.flatnonzero(hoses["status"] == "failed")[0])
     one = hoses.copy()
     one.loc[i, "failure_mode"] = "rupture"
-    s = RulSettings(limit_l_min=2.0, sensor=SENSOR)
+    s = RulSettings(limit_l_min=2.0, sensor=SENSOR, rupture_shape=1.0)   # the constant hazard, stated
     out = remaining_life(one, pts, s, seed=1)
     none = remaining_life(hoses, pts, s, seed=1)
     deg = (out["method"] == "degradation") & out["rul_median_km"].notna()
@@ -250,7 +251,7 @@ def test_a_single_rupture_gets_a_constant_hazard_and_an_unnamed_mode_is_read_fro
 
 def test_the_constant_hazard_posterior_is_the_jeffreys_gamma():
     life = np.array([10.0, 20.0, 30.0, 40.0])   # exposure 100 km, one failure: rate ~ Gamma(1.5, 100)
-    post = exponential_posterior(life, [True, False, False, False], n_draws=20000, seed=3)
+    post = weibayes_posterior(life, [True, False, False, False], n_draws=20000, seed=3)
     rate = 1.0 / post.scale
     assert post.ok and post.fixed_shape and (post.shape == 1.0).all()
     assert rate.mean() == pytest.approx(1.5 / 100.0, rel=0.03) and rate.var() == pytest.approx(1.5 / 1e4, rel=0.08)
@@ -258,9 +259,92 @@ def test_the_constant_hazard_posterior_is_the_jeffreys_gamma():
     cut = post.changed([40.0], [False], [20.0], [False])
     w, _ = cut.weights()
     assert cut.ok and float(w @ (1.0 / cut.scale)) == pytest.approx(1.5 / 80.0, rel=0.03)
-    assert not exponential_posterior([0.0], [False]).ok
-    assert rupture_model(life, [True, True, False, False], seed=1).fixed_shape is False
-    assert rupture_model(life, [False] * 4, seed=1).fixed_shape is True
+    assert not weibayes_posterior([0.0], [False]).ok
+
+
+def test_the_weibayes_posterior_is_the_gamma_of_the_exposure_in_t_to_the_shape():
+    """Known shape 2: ``scale^-2 ~ Gamma(r + 1/2, sum t^2)`` (Nelson 1985): one failure in
+    10^2 + 20^2 + 30^2 + 40^2 = 3000 km^2; and its predictive quantiles (closed form) are the draws' mixture's."""
+    life = np.array([10.0, 20.0, 30.0, 40.0])
+    post = weibayes_posterior(life, [True, False, False, False], shape=2.0, n_draws=40000, seed=4)
+    rate = post.scale ** -2.0
+    assert post.ok and post.fixed_shape and (post.shape == 2.0).all()
+    assert rate.mean() == pytest.approx(1.5 / 3000.0, rel=0.02) and rate.var() == pytest.approx(1.5 / 3000.0 ** 2,
+                                                                                                rel=0.05)
+    q, note = weibull_rul(post, 25.0, 0.90)
+    # by hand: P(R > r) = (1 + ((25 + r)^2 - 25^2) / 3000)^-1.5; at the median (...)^-1.5 = 1/2
+    median = math.sqrt(25.0 ** 2 + 3000.0 * (2.0 ** (1 / 1.5) - 1.0)) - 25.0
+    assert note is None and q[0] == pytest.approx(median, rel=1e-9)
+    mixed = WeibullPosterior(post.shape, post.scale, post.log_weight + np.arange(post.shape.size) * 0.0 + 1e-12 *
+                             (np.arange(post.shape.size) == 0), post.fit)   # not equal weights: by bisection
+    assert weibull_rul(mixed, 25.0, 0.90)[0] == pytest.approx(q, rel=0.03)
+    # large shapes do not overflow: lives in km to the 20th
+    big = weibayes_posterior(life * 1e3, [False] * 4, shape=20.0, seed=1)
+    assert big.ok and np.isfinite(big.scale).all() and (big.scale > 40e3).mean() > 0.5
+
+
+def test_the_rupture_shapes_run_from_1_to_the_logbook_shape_s_upper_bound():
+    rng = np.random.default_rng(21)
+    t, end = 1000.0 * rng.weibull(3.0, 40), rng.uniform(300, 1500, 40)
+    life, failed = np.minimum(t, end), t <= end
+    shapes, note = rupture_shapes(life, failed, 0.90)
+    upper = weibull_shape_bounds(weibull_fit(life, failed), life, failed, 0.90)[1]
+    assert upper > weibull_fit(life, failed).shape > 2.0 and len(shapes) == N_RUPTURE_SHAPES   # a wear-out (truth 3)
+    assert shapes[0] == pytest.approx(1.0) and shapes[-1] == pytest.approx(upper)
+    assert "not known" in note and f"{upper:.3g}" in note
+    # a logbook with one failure cannot bound it: no shapes, and the note says why
+    none, why = rupture_shapes(life, np.arange(40) == 0, 0.90)
+    assert none.size == 0 and "cannot bound it" in why and "too few failures" in why
+
+
+def test_the_rupture_model_is_the_stated_shape_the_weibull_or_the_grid():
+    rng = np.random.default_rng(22)
+    t, end = 1000.0 * rng.weibull(3.0, 40), rng.uniform(300, 1500, 40)
+    life, failed = np.minimum(t, end), t <= end
+    none, one, two = np.zeros(40, bool), np.arange(40) == int(np.flatnonzero(failed)[0]), failed & (life < 700)
+    assert two.sum() >= 2
+    stated, note = rupture_model(life, failed, none, shape=2.5, seed=1)
+    assert note is None and len(stated) == 1 and (stated[0].shape == 2.5).all()
+    weib, note = rupture_model(life, failed, two, seed=1)
+    assert note is None and len(weib) == 1 and not weib[0].fixed_shape
+    grid, note = rupture_model(life, failed, one, seed=1)
+    assert len(grid) == N_RUPTURE_SHAPES and [p.shape[0] for p in grid] == pytest.approx(rupture_shapes(life, failed)[0])
+    assert "not known" in note
+    assert rupture_model(life, one, one, seed=1) == ([], rupture_shapes(life, one)[1])   # nothing bounds it
+
+
+def test_the_prediction_over_shapes_is_the_union_of_their_intervals():
+    life = np.array([2.0, 3.0, 5.0, 7.0])
+    posts = [weibayes_posterior(life, np.zeros(4, bool), k, seed=1) for k in (1.0, 2.0, 4.0)]
+    alone = np.array([weibull_rul(p, 4.0, 0.90)[0] for p in posts])
+    q, note = rul_over_shapes(lambda p: weibull_rul(p, 4.0, 0.90), posts)
+    assert note is None and q[1] == alone[:, 1].min() and q[2] == alone[:, 2].max()
+    assert alone[:, 0].min() < q[0] < alone[:, 0].max()   # the equal mixture's median lies among theirs
+    # the wear-out shapes predict the rupture sooner than the constant hazard
+    assert alone[2, 1] < alone[0, 1] and q[1] == alone[2, 1]
+    assert rul_over_shapes(lambda p: weibull_rul(p, 4.0, 0.90), posts[:1])[0] == pytest.approx(alone[0])
+    assert np.isnan(rul_over_shapes(lambda p: weibull_rul(p, 4.0, 0.90), [])[0]).all()
+
+
+def test_a_stated_rupture_shape_replaces_the_union_and_no_bound_gives_null():
+    hoses, pts = hose_type(np.random.default_rng(17))
+    s = RulSettings(limit_l_min=2.0, sensor=SENSOR)
+    unknown = remaining_life(hoses, pts, s, seed=1)
+    known = remaining_life(hoses, pts, RulSettings(limit_l_min=2.0, sensor=SENSOR, rupture_shape=1.0), seed=1)
+    deg = (unknown["method"] == "degradation") & unknown["rul_median_km"].notna()
+    assert deg.sum() and unknown.loc[deg, "note"].str.contains("rupture shape is not known").all()
+    assert known.loc[deg, "note"].isna().all()
+    # the union holds for shape 1 too: never narrower than the constant hazard's interval
+    assert (unknown.loc[deg, "rul_lower_km"] <= known.loc[deg, "rul_lower_km"] * 1.02).all()
+    assert (unknown.loc[deg, "rul_upper_km"] >= known.loc[deg, "rul_upper_km"] * 0.98).all()
+    # one failure in the logbook: the shape has no bound, the joint prediction is NULL with the reason
+    first = hoses.index[hoses["status"] == "failed"][1:]
+    lone = hoses.assign(status=np.where(hoses.index.isin(first), "removed", hoses["status"]))
+    out = remaining_life(lone, pts, s, seed=1)
+    d = out["method"] == "degradation"
+    assert out.loc[d, "rul_median_km"].isna().all() and out.loc[d, "note"].str.contains("cannot bound it").all()
+    assert remaining_life(lone, pts, RulSettings(limit_l_min=2.0, sensor=SENSOR, rupture_shape=2.0),
+                          seed=1).loc[d, "rul_median_km"].notna().any()
 
 
 def test_two_failures_among_many_suspensions_give_enough_effective_draws():

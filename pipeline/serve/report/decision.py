@@ -63,7 +63,7 @@ def decision_section(db: ReportDB, figures: Figures | None = None) -> str:
              "(each failure) whose repeated confidence interval of the life ratio force / distance excludes 1, or "
              "lies within the plan's margin, and it stays; its error rate holds however often it is read "
              "(docs/decision.md). The interval in words is the fit's profile-likelihood interval.</p>")
-    return (head + intro + _verdict_table(decisions, read_sensitivity(db.con)) + running_section(db)
+    return (head + intro + _verdict_table(decisions, read_sensitivity(db.con)) + running_section(db, figures)
             + _looks_figures(decisions, figures or Figures()) + "</section>")
 
 

@@ -9,7 +9,10 @@ The reading and the words are :mod:`pipeline.serve.remaining_life`'s (``pneubenc
 prints the same); the models behind the numbers: Meeker & Escobar 1998, ch. 12-13; Lu & Meeker
 1993 (``docs/decision.md``, "Remaining life: the models"). Each plot is drawn with matplotlib's
 object API (no pyplot) at the size it is shown (no scaling: its text as readable as the table's),
-embedded as PNG without a date or software stamp (the same tables give the same bytes).
+embedded as PNG without a date or software stamp (the same tables give the same bytes), under its
+key (:func:`leak_key`: the points and rows it draws and the code that draws them): a plot whose key
+the previous report holds is taken from there (:class:`~pipeline.serve.report.figures.Figures`), so
+a night that changed one hose draws one plot.
 """
 from __future__ import annotations
 
@@ -19,6 +22,7 @@ import io
 from pipeline.serve.remaining_life import (METHODS, RunningHose, coverage_text, interval_name, km_text, leak_paths,
                                            num, read_backtest, read_running, rul_missing, rul_text)
 from pipeline.serve.report.db import ReportDB
+from pipeline.serve.report.figures import Figures, code_key, figure_key
 from pipeline.serve.report.markup import esc
 
 #: Running hoses whose leak path is drawn, nearest their end first (a plot each; the rest are counted).
@@ -27,12 +31,19 @@ MAX_LEAK_PLOTS = 40
 PLOT_PX = (360, 190)
 #: Colours of the plot: the leak path, the plan's limit, the distance now, the predicted crossing.
 COLOURS = {"path": "#1f3f8f", "limit": "#c62828", "now": "#6b7280", "crossing": "#e08a00"}
+#: What a leak-path plot is drawn with (part of its key): this module, the reading of its rows and
+#: the libraries that draw.
+LEAK_CODE = (("pipeline/serve/report/running_hoses.py", "pipeline/serve/remaining_life.py"), ("numpy", "matplotlib"))
+#: What a leak-path plot reads of its hose's rows (besides its points and distance now).
+LEAK_FIELDS = (("leak_limit_l_min", None), ("leak_pressure_bar", None), ("rul_median_km", "degradation"),
+               ("rul_lower_km", "degradation"), ("rul_upper_km", "degradation"))
 
 
-def running_section(db: ReportDB) -> str:
+def running_section(db: ReportDB, figures: Figures | None = None) -> str:
     """The part ``#running-hoses`` of the decision section: one line when the warehouse has no
     remaining life (built before its stage) or no running hose, else a table per hose type and
-    adjustment."""
+    adjustment; each leak-path plot taken from ``figures`` (the previous report) when its key is
+    there, else drawn."""
     head = '<h3 id="running-hoses">Running hoses</h3>'
     missing = rul_missing(db.con)
     if missing:
@@ -42,7 +53,8 @@ def running_section(db: ReportDB) -> str:
         return f'{head}<p class="nodata">no running hose: every hose in the logbooks has failed or was removed</p>'
     drawn = hoses[:MAX_LEAK_PLOTS]
     paths = leak_paths(db.con, drawn)
-    plots = {h.hose_id: leak_png(paths.get(h.hose_id, []), h) for h in drawn}
+    figures = figures or Figures()
+    plots = {h.hose_id: _plot(h, paths.get(h.hose_id, []), figures) for h in drawn}
     backtest = read_backtest(db.con)
     intro = (f'<p class="meta">{len(hoses)} running hose{"s" if len(hoses) != 1 else ""}, nearest their end first. '
              f"Remaining km: the median and the {esc(interval_name(hoses))} of each method: "
@@ -97,17 +109,34 @@ def _leak_cell(h: RunningHose) -> str:
 
 
 def _plot_cell(h: RunningHose, plots: dict) -> str:
-    """The hose's leak-path plot, or why there is none."""
-    if h.hose_id not in plots:
-        return '<span class="meta">not drawn (see below)</span>'
-    png = plots[h.hose_id]
-    if png is None:
+    """The hose's leak-path plot (:func:`_plot`), or why there is none."""
+    return plots.get(h.hose_id, '<span class="meta">not drawn (see below)</span>')
+
+
+def _plot(h: RunningHose, points: list[tuple[float, float]], figures: Figures) -> str:
+    """The hose's leak-path plot as an ``<img>`` under its key (:func:`leak_key`), from ``figures``
+    or drawn; without points, why there is none."""
+    if not points:
         why = ("no leak pressure in plan.toml" if num(h.row("leak_pressure_bar").get("leak_pressure_bar")) is None
                else "no leak point at the plan's pressure")
         return f'<span class="meta">{why}</span>'
+    return figures.figure(leak_key(h, points), lambda: _img(h, leak_png(points, h)))
+
+
+def _img(h: RunningHose, png: bytes) -> str:
+    """The plot's PNG as an ``<img>`` shown at the size it was drawn."""
     data = base64.b64encode(png).decode("ascii")
     return (f'<img class="leakpath" alt="leak path of {esc(h.hose_id)}" width="{PLOT_PX[0]}" height="{PLOT_PX[1]}" '
             f'src="data:image/png;base64,{data}">')
+
+
+def leak_key(h: RunningHose, points: list[tuple[float, float]]) -> str:
+    """A key of the leak-path plot of ``h``: a hash of what :func:`leak_png` and :func:`_img` read (the
+    points, the distance now, :data:`LEAK_FIELDS`, the hose's name) and of the code and libraries that
+    draw it (:data:`LEAK_CODE`; equal keys, equal bytes) [32 hex digits]."""
+    rows = [num((h.rows.get(method) or {}).get(field) if method else h.row(field).get(field))
+            for field, method in LEAK_FIELDS]
+    return figure_key(code_key(*LEAK_CODE), h.hose_id, num(h.distance_km), [[num(x), num(y)] for x, y in points], rows)
 
 
 def leak_png(points: list[tuple[float, float]], hose: RunningHose) -> bytes | None:

@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 
 from pipeline.serve.report.markup import esc, fmt, run_href, significant, split_unit
+from schemas.sensors_text import sensor_parts
 from schemas.units import display_sensors_text, kg_s_to_l_min_anr
 
 #: Rows of a table shown (the rest: "n more rows: query the warehouse").
@@ -40,10 +41,8 @@ FLOOR_COLUMN = "leak_floor_l_min"
 
 def flow_floor_l_min(sensors) -> float | None:
     """Floor of the leak-flow sensor a ``leakage_map.sensors`` text states
-    (:func:`pipeline.stages.sensors_text.sensor_parts`), in l/min ANR: the larger of its resolution and
+    (:func:`schemas.sensors_text.sensor_parts`), in l/min ANR: the larger of its resolution and
     noise (:meth:`analyses.quality.Sensor.floor`); None without one."""
-    from pipeline.stages.sensors_text import sensor_parts   # here: the stages package loads pandas, the no-op must not
-
     res, noise, _, unit = sensor_parts(sensors).get("q_leak", (math.nan, math.nan, "", "kg/s"))
     floor = max(res, noise) if unit == "kg/s" else math.nan
     return float(kg_s_to_l_min_anr(floor)) if math.isfinite(floor) and floor > 0 else None

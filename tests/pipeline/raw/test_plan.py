@@ -14,7 +14,10 @@ from tests.pipeline.raw.conftest import rebuild_checked
 
 BUILT_IN = {"margin": 1.25, "alpha": 0.05, "power": 0.80, "confidence": 0.90, "max_failures": None,
             "spending": "obrien-fleming", "benches": None, "km_per_day": None,
-            "leak_limit_l_min": None, "leak_pressure_bar": None, "b_life": 10, "mission_km": None}
+            "leak_limit_l_min": None, "leak_pressure_bar": None, "b_life": 10, "mission_km": None,
+            "rupture_shape": None}
+RUPTURE_UNSET = ("the default (unset: the rupture shape not known, the intervals hold for every shape from 1 to the "
+                 "logbook's bound)")
 
 
 def plan_of(raw, text: str | None) -> Plan:
@@ -64,7 +67,8 @@ def test_a_hose_types_table_overrides_the_defaults_which_override_the_built_ins(
     assert s.sources == {"margin": "hose_type", "alpha": "defaults", "power": "built-in", "confidence": "built-in",
                          "max_failures": "hose_type", "spending": "hose_type", "benches": "hose_type",
                          "km_per_day": "defaults", "leak_limit_l_min": "built-in",
-                         "leak_pressure_bar": "built-in", "b_life": "built-in", "mission_km": "built-in"}
+                         "leak_pressure_bar": "built-in", "b_life": "built-in", "mission_km": "built-in",
+                         "rupture_shape": "built-in"}
     assert s.present and s.hose_type == "FLEXIGOM AIR"
     # a hose type the plan does not name: [defaults] over the built-ins
     other = plan.for_hose_type("NOT NAMED")
@@ -79,6 +83,7 @@ def test_a_hose_types_table_overrides_the_defaults_which_override_the_built_ins(
     ("spending", '"obrien-fleming"'), ("spending", '"pocock"'), ("benches", "1"), ("km_per_day", "0.5"),
     ("leak_limit_l_min", "2.5"), ("leak_pressure_bar", "6"),  # the spec's leakage failure keys
     ("b_life", "0.1"), ("b_life", "1"), ("b_life", "99.9"), ("mission_km", "0.001"), ("mission_km", "2000"),
+    ("rupture_shape", "0.5"), ("rupture_shape", "1"), ("rupture_shape", "2.0"), ("rupture_shape", "20"),
 ])
 def test_values_at_the_edges_of_their_ranges_are_taken(raw, key, value):
     plan = plan_of(raw, f"[defaults]\n{key} = {value}\n")
@@ -119,6 +124,10 @@ def test_values_at_the_edges_of_their_ranges_are_taken(raw, key, value):
     ("b_life", '"B10"', '"B10"', "a number with 0 < b_life < 100 (percent failed)", "the default 10 (B10)"),
     ("mission_km", "0", "0", "a number > 0", "the default (unset: no reliability at a mission distance)"),
     ("mission_km", "-1500.0", "-1500.0", "a number > 0", "the default (unset: no reliability at a mission distance)"),
+    *[("rupture_shape", v, shown, "a number with 0 < rupture_shape <= 20", RUPTURE_UNSET) for v, shown in (
+        ("0", "0"), ("-2", "-2"), ("20.5", "20.5"), ("1e308", "1e+308"), ("inf", "inf"), ("nan", "nan"), ("true", "true"),
+        ('"2"', '"2"'), ('"weibull 2"', '"weibull 2"'), ("[2.0]", "an array"), ("{ shape = 2 }", "a table"),
+        ("1979-05-27", "the date/time 1979-05-27"))],
 ])
 def test_a_bad_value_is_one_line_naming_file_table_and_key_and_the_default_is_used(raw, key, value, shown, rule,
                                                                                    instead):
@@ -151,7 +160,7 @@ def test_long_strings_and_names_are_shown_cut(raw):
     ("[defaults]\nmarign = 1.3\n", "[defaults] marign: unknown key (did you mean margin?); ignored"),
     ('[hose_type."A"]\nwhatever = 1\n',
      '[hose_type."A"] whatever: unknown key (expected margin, alpha, power, confidence, max_failures, spending, '
-     "benches, km_per_day, leak_limit_l_min, leak_pressure_bar, b_life, mission_km); ignored"),
+     "benches, km_per_day, leak_limit_l_min, leak_pressure_bar, b_life, mission_km, rupture_shape); ignored"),
     ("[hoses]\nmargin = 1.3\n",
      '[hoses]: unknown table (expected [defaults] and [hose_type."<hose type>"]); ignored'),
     ("margin = 1.3\n[defaults]\n",

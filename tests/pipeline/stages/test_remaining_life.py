@@ -72,8 +72,11 @@ def test_every_running_hose_gets_both_methods_and_the_leak_path_holds_its_true_e
     assert sorted(rul["hose_id"].unique()) == sorted(running["hose_id"])
     assert (rul["confidence"] == 0.9).all() and (rul["leak_limit_l_min"] == LIMIT).all()
     assert (rul["leak_pressure_bar"] == 6.0).all() and rul["rul_median_km"].notna().all()
-    # a note on a row with numbers only says which life family carries the weibull method's
-    assert (rul["note"].isna() | ((rul["method"] == "weibull") & rul["note"].str.startswith("life model: "))).all()
+    # a note on a weibull row with numbers only says which life family carries it
+    wb_note = rul.loc[rul["method"] == "weibull", "note"]
+    assert (wb_note.isna() | wb_note.str.startswith("life model: ")).all()
+    # no rupture logged, no rupture_shape in the plan: the joint interval holds for every shape, and says so
+    assert rul.loc[rul["method"] == "degradation", "note"].str.startswith("the rupture shape is not known").all()
     assert ((rul["rul_lower_km"] <= rul["rul_median_km"]) & (rul["rul_median_km"] <= rul["rul_upper_km"])).all()
     deg = rul[rul["method"] == "degradation"].set_index("hose_id")
     wb = rul[rul["method"] == "weibull"].set_index("hose_id")
@@ -100,6 +103,18 @@ def test_the_backtest_is_per_adjustment_and_method_and_pools_its_two_fractions(b
     deg = bt[(bt["method"] == "degradation")]
     assert (deg["n_predictions"] == 2 * failed[deg["adjustment"]].to_numpy()).all() and deg["note"].isna().all()
     assert (bt["median_abs_error_km"] > 0).all()
+
+
+def test_the_plans_rupture_shape_reaches_the_joint_model(built):
+    """``rupture_shape`` stated: the Weibayes at it, no note; at 1 (the constant hazard, in the union's range)
+    each interval lies inside the union's of the shape not known."""
+    out = stage.run(context(built["life"], built["growth"], built["lmap"], plan={**LEAK_PLAN, "rupture_shape": 1.0}))
+    union, known = (o.tables["hose_rul"].query("method == 'degradation'").set_index("hose_id")
+                    for o in (built["out"], out))
+    assert known["note"].isna().all() and known["rul_median_km"].notna().all()
+    assert (known["rul_lower_km"] >= union["rul_lower_km"] - 1e-9).all()
+    assert (known["rul_upper_km"] <= union["rul_upper_km"] + 1e-9).all()
+    assert stage.READS.plan and "rupture_shape" in stage.READS.plan
 
 
 # -- NULL + note ----------------------------------------------------------------------------------

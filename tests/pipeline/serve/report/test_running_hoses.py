@@ -102,6 +102,38 @@ def test_a_leak_path_per_hose_with_its_limit_and_predicted_crossing(wh):
     assert rh.leak_png([], f1_hose) is None
 
 
+def _files(folder):
+    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def test_an_unchanged_hose_s_leak_path_is_taken_and_the_incremental_report_equals_full(wh, monkeypatch):
+    """Each leak-path plot is keyed by its own inputs: the next report takes an unchanged hose's plot
+    from the live one, draws the hose whose leak path changed alone, and its files equal a ``--full``
+    report's byte for byte."""
+    from datetime import datetime, timezone
+
+    import duckdb
+
+    from pipeline.serve.report.render import stage_report, write_report
+    from pipeline.warehouse import DB_NAME
+
+    now = datetime(2026, 11, 26, 6, 0, tzinfo=timezone.utc)
+    write_report(wh, now=now)
+    drawn = []
+    real = rh.leak_png
+    monkeypatch.setattr(rh, "leak_png", lambda points, h: drawn.append(h.hose_id) or real(points, h))
+    same = stage_report(wh, now=now)
+    assert drawn == [] and _files(same) == _files(wh / "report")
+    con = duckdb.connect(str(wh / DB_NAME))
+    con.execute("UPDATE hose_leak_growth SET leak_l_min = leak_l_min * 1.1 WHERE hose_id = 'D1'")
+    con.close()
+    incremental = stage_report(wh, now=now)
+    assert drawn == ["D1"]
+    full = stage_report(wh, run_pages="all", now=now)
+    assert sorted(drawn) == ["D1", "D1", "D2", "F1"]
+    assert _files(incremental) == _files(full) and _files(full) != _files(same)
+
+
 def test_the_plots_are_capped_nearest_their_end_first(wh, monkeypatch):
     monkeypatch.setattr(rh, "MAX_LEAK_PLOTS", 2)
     con = connect_readonly(wh)
