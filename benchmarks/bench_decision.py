@@ -60,6 +60,9 @@ import pandas as pd
 from benchmarks.proc import measure, pneubench_cmd, verdict
 
 COVERAGE = (0.85, 0.95)
+#: Hose types a scenario: about a tenth have one shape per adjustment (counted apart), so that
+#: at least 400 with a common true shape remain in each scenario (354-378 of 400 at seed 23).
+TYPES = 460
 POWER_TOLERANCE = 0.05
 SCENARIOS = ("no-difference", "at-margin", "above-margin")
 DECISION_TABLES = ("life_effect", "life_verdict", "decision_looks", "decision_look_hoses", "test_plan")
@@ -209,8 +212,10 @@ def rci_coverage(looks: pd.DataFrame, life_verdict: pd.DataFrame, types: dict) -
     Jennison & Turnbull 2000, ch. 9): per hose type, whether the true ratio lies in the interval of
     every look that has one, over the designed looks (failures <= ``max_failures``) and over all.
     Counts ``[covered, n]`` for common true shapes (``designed``, ``all looks``) and separate ones
-    (``separate shapes``, designed looks, the true B10 ratio); ``none``: types without an interval."""
-    out = {"designed": [0, 0], "all looks": [0, 0], "separate shapes": [0, 0], "none": 0}
+    (``separate shapes``, designed looks, the true B10 ratio); ``none``: types without an interval;
+    ``first_miss``: per common-shape type not covered, (failures at its first missing look, at its first
+    look with an interval, ``max_failures``)."""
+    out = {"designed": [0, 0], "all looks": [0, 0], "separate shapes": [0, 0], "none": 0, "first_miss": []}
     top = dict(zip(life_verdict["hose_type"], life_verdict["max_failures"]))
     has = looks.dropna(subset=["rci_lower", "rci_upper"], how="all")
     for h, g in has.groupby("hose_type"):
@@ -220,6 +225,8 @@ def rci_coverage(looks: pd.DataFrame, life_verdict: pd.DataFrame, types: dict) -
         inside = [covers(lo, up, t["life_ratio"]) for lo, up in zip(g["rci_lower"], g["rci_upper"])]
         m = top.get(h)
         designed = all(c for c, f in zip(inside, g["failures"]) if pd.isna(m) or f <= m)
+        if not designed and not t["separate_shapes"]:
+            out["first_miss"].append((g["failures"].iloc[inside.index(False)], g["failures"].iloc[0], m))
         key = "separate shapes" if t["separate_shapes"] else "designed"
         out[key] = [out[key][0] + designed, out[key][1] + 1]
         if not t["separate_shapes"]:
@@ -425,6 +432,7 @@ def report_verdicts(by_name: dict, settings: dict, naive_types: int) -> bool:
                     at_truth)
             anatomy("not force longer at ratio = margin", rows[rows["verdict"] != "force longer"],
                     s.truth["hose_types"], at_truth)
+            _power_by_design(rows, s.truth["hose_types"], at_truth)
     if "above-margin" in by_name:
         s = by_name["above-margin"]
         k, n = s.verdicts["counts"].get("force longer", 0), s.verdicts["n"]
@@ -435,6 +443,15 @@ def report_verdicts(by_name: dict, settings: dict, naive_types: int) -> bool:
             anatomy("not force longer above the margin", rows[rows["verdict"] != "force longer"],
                     s.truth["hose_types"], at_truth)
     return ok
+
+
+def _power_by_design(rows: pd.DataFrame, types: dict, at_truth) -> None:
+    """The decision rate split by whether the frozen ``max_failures`` reaches the design at the true shape."""
+    need = rows["hose_type"].map(lambda h: at_truth(types[h]["shape"])).astype(float)
+    enough = rows["max_failures"].astype(float).to_numpy() >= need.to_numpy()
+    for label, m in (("max_failures >= the design at the true shape", enough), ("max_failures below it", ~enough)):
+        line(f"    force longer when {label}", int((rows["verdict"][m] == "force longer").sum()), int(m.sum()),
+             "shown", None)
 
 
 def _report_null(s: Scenario, alpha: float, naive_types: int, at_truth) -> bool:
@@ -466,9 +483,10 @@ def report_rci(scenarios: list[Scenario], alpha: float) -> bool:
     when any designed look's interval misses the true ratio; PASS when the misses are within the
     binomial bound."""
     print(f"\nrepeated confidence intervals: the true ratio inside every look's interval (nominal {1 - alpha:.2f})")
-    pooled = {"designed": [0, 0], "all looks": [0, 0], "separate shapes": [0, 0], "none": 0}
+    pooled = {"designed": [0, 0], "all looks": [0, 0], "separate shapes": [0, 0], "none": 0, "first_miss": []}
     for s in scenarios:
         c = rci_coverage(s.tables["decision_looks"], s.tables["life_verdict"], s.truth["hose_types"])
+        pooled["first_miss"] += c["first_miss"]
         for key in ("designed", "all looks", "separate shapes"):
             pooled[key] = [a + b for a, b in zip(pooled[key], c[key])]
         line(f"{s.name}: every designed look covers", *c["designed"], f">= {1 - alpha:.2f}", None)
@@ -481,6 +499,14 @@ def report_rci(scenarios: list[Scenario], alpha: float) -> bool:
     line("all scenarios: separate true shapes, designed looks (B10 ratio; shown)", *pooled["separate shapes"], "",
          None)
     print(f"  hose types without a repeated interval (no look decides): {pooled['none']}")
+    if not ok and pooled["first_miss"]:
+        miss = pd.DataFrame(pooled["first_miss"], columns=["at", "first", "max"]).astype(float)
+        for name, x in (("failures at the first missing look", miss["at"]),
+                        ("... after the first look with an interval", miss["at"] - miss["first"]),
+                        ("... as a fraction of max_failures", miss["at"] / miss["max"])):
+            q = x.quantile([0.25, 0.5, 0.75]).tolist()
+            print(f"    misses ({len(miss)}): {name:<44} " + " / ".join(f"{v:.3g}" for v in q))
+        print(f"    misses at the first look with an interval: {int((miss['at'] == miss['first']).sum())}")
     return ok
 
 
@@ -509,7 +535,7 @@ def report_timing(scenarios: list[Scenario], timing: Scenario | None) -> None:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m benchmarks.bench_decision", description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="12 hose types a scenario, no timing run (a look)")
-    ap.add_argument("--types", type=int, default=None, help="hose types a scenario (default 400; 12 quick)")
+    ap.add_argument("--types", type=int, default=None, help=f"hose types a scenario (default {TYPES}; 12 quick)")
     ap.add_argument("--rebuild", action="store_true",
                     help="whole `pneubench rebuild` processes (the end-to-end check, e.g. --rebuild --types 24) "
                          "instead of the decision stage in-process")
@@ -523,7 +549,7 @@ def main(argv=None) -> int:
     ap.add_argument("--scenarios", nargs="+", choices=SCENARIOS, default=list(SCENARIOS),
                     help="only these scenarios (each keeps its seed: the same hose types as in a full run)")
     args = ap.parse_args(argv)
-    types = args.types or (12 if args.quick else 400)
+    types = args.types or (12 if args.quick else TYPES)
     args.shard = args.shard or (50 if args.rebuild else 25)
     root = args.keep or Path(tempfile.mkdtemp(prefix="bench-decision-"))
     root.mkdir(parents=True, exist_ok=True)
