@@ -1,45 +1,47 @@
-"""End-to-end calibration of "The decision" (issue 23): whole ``pneubench rebuild`` processes on
-simulated hose types with a known life ratio, the warehouse's ``life_effect`` and ``life_verdict``
-counted against the truth.
+"""Calibration of "The decision" (issue 23): the decision stage's ``life_effect``, ``life_verdict``
+and ``decision_looks`` on simulated hose types with a known life ratio, counted against the truth.
 
 One command::
 
-    python -m benchmarks.bench_decision            # 3 scenarios x 400 hose types, and a 200-type timing run
+    python -m benchmarks.bench_decision            # 3 scenarios x 460 hose types, the stage in-process (~20 min)
     python -m benchmarks.bench_decision --quick    # 3 scenarios x 12 hose types: a look, no verdict
-    python -m benchmarks.bench_decision --scenarios at-margin --types 48 --shard 48 --timing-types 0
-                                                   # the power alone, ~10 min on a loaded machine
+    python -m benchmarks.bench_decision --rebuild --types 24 --shard 24
+                                                   # the end-to-end check: whole `pneubench rebuild` processes
 
-Each scenario is a ``decision`` campaign (:mod:`pipeline.simulator.decision`: hose types known
-by their logbook odometer, benches at a constant km/day so that a look's distances are exact,
+Each scenario is ``decision`` campaigns (:mod:`pipeline.simulator.decision`: hose types known by
+their logbook odometer, benches at a constant km/day so that a look's distances are exact,
 staggered installations, removed and running hoses, a ``plan.toml`` with margin 1.5, alpha 0.05,
-power 0.8, O'Brien-Fleming spending and ``max_failures`` left to the design, i.e. to
-``test_plan``'s ``failures_needed``) written with its ``truth.json``, then rebuilt by
-``pneubench rebuild`` as a process (timed), and read with DuckDB. A scenario is written in shards
-of ``--shard`` hose types (default 50), each its own raw tree and rebuild: the durability stage
-fits and draws every (hose type, adjustment) group, and its figures grow faster than linearly with
-them (measured on this branch, a shared 2-core machine: 50 hose types, durability stage 42 s and
-its figures 87 s of a 133 s rebuild; 100 hose types, 109 s and 518 s of 636 s). The counts pool
-the shards (hose types named ``<shard>/<type>``).
+power 0.8, O'Brien-Fleming spending and ``max_failures`` left to the design) in shards of
+``--shard`` hose types, each its own raw tree, seeded ``(seed + scenario) * 1000 + shard``. Every
+hose type runs until it reaches the ``max_failures`` the decision stage freezes
+(:class:`benchmarks.decision_inprocess.StageRunTo`: asked at each failure from the logbook as it
+stands; capped at 4 times the closed-form design, counted). By default the shards run in a pool of
+``--jobs`` processes, each through the decision stage's own ``run`` in-process
+(:mod:`benchmarks.decision_inprocess`: the logbook read and merged, ``hose_life``, the plan, the
+freeze at a look, looks in logbook order, odometer-linear distances; equal to the warehouse's rows,
+``tests/benchmarks/test_decision_inprocess.py``); ``--rebuild`` runs ``pneubench rebuild`` on each
+shard instead (minutes a shard: the durability stage's fits and figures) and reads the warehouse.
 
 * ``life_effect``: the 90 % profile-likelihood interval of the life ratio covers the true ratio,
   and that of the shape the true shape (hose types with a common true shape; those with one shape
   per adjustment are counted apart: their true ratio is the B10 ratio). Target 85-95 %
   (Meeker & Escobar 1998, ch. 8, 17).
-* ``life_verdict`` at ratio 1: ``force longer`` or ``distance longer`` in at most alpha of the
-  hose types, i.e. a count within the binomial bound (the 97.5 % quantile of Binomial(n, alpha));
-  the naive fixed-sample test read at every failure (a likelihood-ratio p < alpha at any look,
-  computed from ``decision_look_hoses`` as the look saw the hoses; and the Wald |z| of
-  ``decision_looks`` over the fixed-sample z) must fail the same bound (Jennison & Turnbull 2000,
-  ch. 1-2; Lan & DeMets 1983).
+* ``life_verdict`` (common true shapes) at ratio 1: ``force longer`` or ``distance longer`` in at
+  most alpha of the hose types, i.e. a count within the binomial bound (the 97.5 % quantile of
+  Binomial(n, alpha)); the naive fixed-sample test read at every failure (a likelihood-ratio
+  p < alpha at any look, from ``decision_look_hoses`` as the look saw the hoses; and the Wald |z|
+  of ``decision_looks`` over the fixed-sample z) must fail the same bound (Jennison & Turnbull
+  2000, ch. 1-2; Lan & DeMets 1983).
 * at ratio = margin: ``no practical difference`` within the same bound; ``force longer`` (the
-  decision rate) at the plan's power +/- 5 points, with ``max_failures`` equal to ``test_plan``'s
-  ``failures_needed`` (checked); above the margin (margin^1.5): at least power - 5 points.
+  decision rate) at the plan's power +/- 5 points with ``max_failures`` as the stage freezes it;
+  above the margin (margin^1.5): at least power - 5 points. A miss prints its anatomy (the frozen
+  look, its shape against the truth, ``max_failures`` against the design at the true shape).
+* the repeated confidence intervals (``rci_lower`` / ``rci_upper``, Jennison & Turnbull 2000,
+  ch. 9): the true ratio inside the interval of every designed look (failures <= ``max_failures``)
+  of a hose type, in at least 1 - alpha of them (misses within the binomial bound).
 * the look distances of ``decision_look_hoses`` against the exact ones (odometer linear in time).
 
-Hose types that stopped before their ``max_failures`` (the simulator runs each to 1.5 times its
-closed-form design, which the fitted shape may exceed) are counted and shown. The rebuild time of
-a 200-hose-type campaign and its decision stages' share (the rebuild's ``stage <name> ran`` lines)
-are printed against the issue's 10 s. Seeded: the same command prints the same counts.
+Counts are printed with their Monte Carlo SE. Seeded: the same command prints the same counts.
 """
 from __future__ import annotations
 

@@ -167,3 +167,17 @@ def test_the_benchmark_says_why_it_cannot_count_when_the_stages_are_missing(tmp_
         assert "are not in this build" in err
     else:   # the stages are wired: the tables are there and counted
         assert code in (0, 1)
+
+
+def test_the_repeated_intervals_report_misses_and_their_first_look(capsys):
+    """Both common-shape types miss (Binomial(2, 0.05)'s 97.5 % quantile allows one): MISS, and where
+    the misses begin: A at its second look (12 failures), B at its first (10)."""
+    looks = pd.DataFrame({"hose_type": ["A", "A", "B", "B"], "failures": [10, 12, 10, 11],
+                          "rci_lower": [0.5, 1.1, 1.6, 1.0], "rci_upper": [2.0, 1.3, 2.0, 2.0]})
+    verdict = pd.DataFrame({"hose_type": ["A", "B"], "max_failures": [20, 20]})
+    s = bd.Scenario("x", {"hose_types": TYPES}, {"decision_looks": looks, "life_verdict": verdict}, 0.0, {})
+    assert bd.report_rci([s], 0.05) is False
+    out = capsys.readouterr().out
+    assert "0/2" in out and "MISS" in out
+    assert "misses (2): failures at the first missing look           10.5 / 11 / 11.5" in out
+    assert "misses at the first look with an interval: 1" in out      # B misses at its first look, A at its second
