@@ -434,7 +434,7 @@ def report_verdicts(by_name: dict, settings: dict, naive_types: int) -> bool:
                     at_truth)
             anatomy("not force longer at ratio = margin", rows[rows["verdict"] != "force longer"],
                     s.truth["hose_types"], at_truth)
-            _power_by_design(rows, s.truth["hose_types"], at_truth)
+        _power_by_design(rows, s.truth["hose_types"], at_truth)   # shown on a PASS too: the design's share
     if "above-margin" in by_name:
         s = by_name["above-margin"]
         k, n = s.verdicts["counts"].get("force longer", 0), s.verdicts["n"]
