@@ -26,7 +26,8 @@ whatever night they were computed on:
   to the verdict, not after it (a later look cannot change a verdict that sticks);
 * :func:`freeze_look`: when the plan leaves ``max_failures`` unset, the look at which it is
   frozen (the first with ``FEW_FAILURES / 2`` failures of each adjustment and a common shape),
-  whose own fit designs it; :func:`decide` reads the looks before it as looks without an estimate
+  whose own fit designs it, its shape with Abernethy's reduced-bias adjustment (Abernethy 2006,
+  sec. 5.5); :func:`decide` reads the looks before it as looks without an estimate
   (their alpha spent unused: Jennison & Turnbull 2000, sec. 7.2 and ch. 14, the internal pilot;
   Mehta & Tsiatis 2001), and without a frozen maximum no look decides.
 
@@ -51,19 +52,21 @@ Jennison, C. & Turnbull, B. W. (2000). Group Sequential Methods with Application
 Trials. Chapman & Hall/CRC.
 Lan, K. K. G. & DeMets, D. L. (1983). Discrete sequential boundaries for clinical trials.
 Biometrika 70, 659-663.
+Abernethy, R. B. (2006). The New Weibull Handbook, 5th ed. Abernethy, North Palm Beach.
 Mehta, C. R. & Tsiatis, A. A. (2001). Flexible sample size considerations using information-based
 interim monitoring. Drug Information Journal 35, 1095-1112.
 """
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pandas as pd
 
 from analyses.life_effect import CommonShapeFit, common_shape_fit, ratio_deviance
 from analyses.sequential import FEW_FAILURES, SequentialVerdict, sequential_verdict
-from analyses.service_life import SHAPE_BOUNDS
+from analyses.service_life import SHAPE_BOUNDS, reduced_bias_shape
 
 #: ``distance_from`` of a hose whose distance comes from its durability runs.
 FROM_RUNS = "runs"
@@ -501,7 +504,10 @@ def freeze_look(hoses: pd.DataFrame, runs: pd.DataFrame, events: pd.DataFrame, i
     look : int or None
         The look's number (None: no look qualifies yet).
     fit : CommonShapeFit or None
-        Its common-shape fit.
+        Its common-shape fit, the shape bias-adjusted for the design
+        (:func:`analyses.service_life.reduced_bias_shape` from that look's failures: the MLE from
+        10-odd failures is biased steep, and a steep shape designs a short test); the other fields
+        are the MLE's.
     failures : list of int
         Failures of the distance-set and force-set hoses by that look (by the last look when None).
     """
@@ -524,7 +530,9 @@ def freeze_look(hoses: pd.DataFrame, runs: pd.DataFrame, events: pd.DataFrame, i
                          events["look"].to_numpy(np.int64)[upto])
         for i, fit in zip(upto.tolist(), fits):
             if fit.note is None and math.isfinite(fit.shape):
-                return int(events["look"].iloc[i]), fit, [int(c) for c in counts[:, i]]
+                failures = [int(c) for c in counts[:, i]]
+                return int(events["look"].iloc[i]), replace(fit, shape=reduced_bias_shape(fit.shape, sum(failures))), \
+                    failures
     return None, None, [int(c) for c in counts[:, -1]]
 
 

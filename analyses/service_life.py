@@ -41,6 +41,12 @@ one row, as the ``service_life`` table holds them. Their coverage, measured by s
 (``python -m benchmarks.bench_service_life``, 600 groups): 87.7 % (shape), 88.0 % (scale),
 90.0 % (B10), 90.3 % (R) for 90 % intervals.
 
+Small-sample bias of the shape
+------------------------------
+:func:`reduced_bias_shape`: Abernethy's reduced-bias adjustment ``shape * C4^3.5`` (Abernethy 2006,
+The New Weibull Handbook, 5th ed., sec. 5.5), for whoever designs from a shape fitted to few
+failures (:func:`analyses.decision.freeze_look`); the fitted rows keep the MLE.
+
 Median-rank regression
 ----------------------
 :func:`weibull_rank_regression`: the Weibull plot's line fitted by least squares of ln(life) on
@@ -232,6 +238,36 @@ def weibull_fit(life, failed) -> WeibullFit:
         return WeibullFit(_NAN, _NAN, _NAN, n, r, note=f"the Weibull shape MLE ({best[0]:.3g}) is at the search "
                                                       "bound: the lives cannot tell a shape")
     return WeibullFit(float(best[0]), float(best[1]), float(best[2]), n, r)
+
+
+def reduced_bias_shape(shape: float, failures: int) -> float:
+    """The Weibull shape MLE with Abernethy's reduced-bias adjustment (RBA).
+
+    The shape MLE from few failures is biased upward (with 10 complete failures its median is
+    about 11 % high, its mean 16 %: tests); the RBA multiplies it by ``C4^3.5``, ``C4 =
+    sqrt(2 / (r - 1)) * Gamma(r / 2) / Gamma((r - 1) / 2)`` the unbiasing factor of a normal
+    standard deviation, with ``r`` the number of failures (with suspensions too: Abernethy 2006,
+    The New Weibull Handbook, 5th ed., sec. 5.5), which makes it about median-unbiased (tests:
+    1.006 of the truth from 10 failures). For a design that should not rest on a shape biased
+    steep; the shape a fit reports stays the MLE.
+
+    Parameters
+    ----------
+    shape : float
+        Weibull shape MLE [-].
+    failures : int
+        Failures the MLE rests on [-].
+
+    Returns
+    -------
+    float
+        ``shape * C4(failures)^3.5`` [-]; NaN with fewer than two failures or a non-finite shape.
+    """
+    if failures < 2 or not math.isfinite(shape):
+        return _NAN
+    r = float(failures)
+    log_c4 = 0.5 * math.log(2.0 / (r - 1.0)) + math.lgamma(r / 2.0) - math.lgamma((r - 1.0) / 2.0)
+    return float(shape * math.exp(3.5 * log_c4))
 
 
 def newton_root(value_slope, lo: float, hi: float, start: float, xtol: float = 1e-13) -> float | None:
@@ -967,7 +1003,7 @@ def plot_hose_distances(hoses: pd.DataFrame):
 
 
 __all__ = ["SHAPE_BOUNDS", "MRR_MAX_FAILURES", "WeibullFit", "weibull_fit", "median_ranks", "weibull_rank_regression",
-           "preferred_method", "weibull_shape_bounds", "weibull_reliability_bounds", "service_life_summary", "weibull_loglik", "weibull_scale_given_shape",
+           "preferred_method", "reduced_bias_shape", "weibull_shape_bounds", "weibull_reliability_bounds", "service_life_summary", "weibull_loglik", "weibull_scale_given_shape",
            "weibull_quantile_bounds", "weibull_quantile_profile", "lr_bound", "b10", "weibull_lr_test",
            "kaplan_meier", "weibull_plotting_positions", "plot_weibull_probability", "plot_kaplan_meier",
            "plot_leak_growth", "plot_hose_distances", "LognormalFit", "lognormal_fit", "lognormal_loglik_many"]

@@ -26,7 +26,7 @@ BENCHMARKS = {
     "sequential": ([], ["--quick"]),  # the sequential verdict's error rates, looked at on every failure
     "life_effect": ([], ["--quick"]),  # coverage of the life ratio's and shape's 90 % intervals, 480 simulated hose types
     "decision_stage": ([], ["--quick"]),  # the decision stage's seconds at 200 hose types against service_life's
-    "decision": ([], ["--quick"]),  # the decision end to end: coverage and error rates on 3 x 400 simulated hose types
+    "decision": ([], ["--quick"]),  # the decision: coverage and error rates on 3 x 460 simulated hose types (stage in-process)
     "test_plan": ([], ["--quick"]),  # failures_needed against a brute-force simulation of the same design
     "remaining_life": ([], ["--quick"]),  # remaining-life intervals' coverage on simulated futures (issue 24 groundwork)
     "remaining_life_stage": ([], ["--quick"]),  # the remaining_life stage's seconds on a demo-sized hose type (< 5 s)

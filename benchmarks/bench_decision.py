@@ -1,45 +1,47 @@
-"""End-to-end calibration of "The decision" (issue 23): whole ``pneubench rebuild`` processes on
-simulated hose types with a known life ratio, the warehouse's ``life_effect`` and ``life_verdict``
-counted against the truth.
+"""Calibration of "The decision" (issue 23): the decision stage's ``life_effect``, ``life_verdict``
+and ``decision_looks`` on simulated hose types with a known life ratio, counted against the truth.
 
 One command::
 
-    python -m benchmarks.bench_decision            # 3 scenarios x 400 hose types, and a 200-type timing run
+    python -m benchmarks.bench_decision            # 3 scenarios x 460 hose types, the stage in-process (~20 min)
     python -m benchmarks.bench_decision --quick    # 3 scenarios x 12 hose types: a look, no verdict
-    python -m benchmarks.bench_decision --scenarios at-margin --types 48 --shard 48 --timing-types 0
-                                                   # the power alone, ~10 min on a loaded machine
+    python -m benchmarks.bench_decision --rebuild --types 24 --shard 24
+                                                   # the end-to-end check: whole `pneubench rebuild` processes
 
-Each scenario is a ``decision`` campaign (:mod:`pipeline.simulator.decision`: hose types known
-by their logbook odometer, benches at a constant km/day so that a look's distances are exact,
+Each scenario is ``decision`` campaigns (:mod:`pipeline.simulator.decision`: hose types known by
+their logbook odometer, benches at a constant km/day so that a look's distances are exact,
 staggered installations, removed and running hoses, a ``plan.toml`` with margin 1.5, alpha 0.05,
-power 0.8, O'Brien-Fleming spending and ``max_failures`` left to the design, i.e. to
-``test_plan``'s ``failures_needed``) written with its ``truth.json``, then rebuilt by
-``pneubench rebuild`` as a process (timed), and read with DuckDB. A scenario is written in shards
-of ``--shard`` hose types (default 50), each its own raw tree and rebuild: the durability stage
-fits and draws every (hose type, adjustment) group, and its figures grow faster than linearly with
-them (measured on this branch, a shared 2-core machine: 50 hose types, durability stage 42 s and
-its figures 87 s of a 133 s rebuild; 100 hose types, 109 s and 518 s of 636 s). The counts pool
-the shards (hose types named ``<shard>/<type>``).
+power 0.8, O'Brien-Fleming spending and ``max_failures`` left to the design) in shards of
+``--shard`` hose types, each its own raw tree, seeded ``(seed + scenario) * 1000 + shard``. Every
+hose type runs until it reaches the ``max_failures`` the decision stage freezes
+(:class:`benchmarks.decision_inprocess.StageRunTo`: asked at each failure from the logbook as it
+stands; capped at 4 times the closed-form design, counted). By default the shards run in a pool of
+``--jobs`` processes, each through the decision stage's own ``run`` in-process
+(:mod:`benchmarks.decision_inprocess`: the logbook read and merged, ``hose_life``, the plan, the
+freeze at a look, looks in logbook order, odometer-linear distances; equal to the warehouse's rows,
+``tests/benchmarks/test_decision_inprocess.py``); ``--rebuild`` runs ``pneubench rebuild`` on each
+shard instead (minutes a shard: the durability stage's fits and figures) and reads the warehouse.
 
 * ``life_effect``: the 90 % profile-likelihood interval of the life ratio covers the true ratio,
   and that of the shape the true shape (hose types with a common true shape; those with one shape
   per adjustment are counted apart: their true ratio is the B10 ratio). Target 85-95 %
   (Meeker & Escobar 1998, ch. 8, 17).
-* ``life_verdict`` at ratio 1: ``force longer`` or ``distance longer`` in at most alpha of the
-  hose types, i.e. a count within the binomial bound (the 97.5 % quantile of Binomial(n, alpha));
-  the naive fixed-sample test read at every failure (a likelihood-ratio p < alpha at any look,
-  computed from ``decision_look_hoses`` as the look saw the hoses; and the Wald |z| of
-  ``decision_looks`` over the fixed-sample z) must fail the same bound (Jennison & Turnbull 2000,
-  ch. 1-2; Lan & DeMets 1983).
+* ``life_verdict`` (common true shapes) at ratio 1: ``force longer`` or ``distance longer`` in at
+  most alpha of the hose types, i.e. a count within the binomial bound (the 97.5 % quantile of
+  Binomial(n, alpha)); the naive fixed-sample test read at every failure (a likelihood-ratio
+  p < alpha at any look, from ``decision_look_hoses`` as the look saw the hoses; and the Wald |z|
+  of ``decision_looks`` over the fixed-sample z) must fail the same bound (Jennison & Turnbull
+  2000, ch. 1-2; Lan & DeMets 1983).
 * at ratio = margin: ``no practical difference`` within the same bound; ``force longer`` (the
-  decision rate) at the plan's power +/- 5 points, with ``max_failures`` equal to ``test_plan``'s
-  ``failures_needed`` (checked); above the margin (margin^1.5): at least power - 5 points.
+  decision rate) at the plan's power +/- 5 points with ``max_failures`` as the stage freezes it;
+  above the margin (margin^1.5): at least power - 5 points. A miss prints its anatomy (the frozen
+  look, its shape against the truth, ``max_failures`` against the design at the true shape).
+* the repeated confidence intervals (``rci_lower`` / ``rci_upper``, Jennison & Turnbull 2000,
+  ch. 9): the true ratio inside the interval of every designed look (failures <= ``max_failures``)
+  of a hose type, in at least 1 - alpha of them (misses within the binomial bound).
 * the look distances of ``decision_look_hoses`` against the exact ones (odometer linear in time).
 
-Hose types that stopped before their ``max_failures`` (the simulator runs each to 1.5 times its
-closed-form design, which the fitted shape may exceed) are counted and shown. The rebuild time of
-a 200-hose-type campaign and its decision stages' share (the rebuild's ``stage <name> ran`` lines)
-are printed against the issue's 10 s. Seeded: the same command prints the same counts.
+Counts are printed with their Monte Carlo SE. Seeded: the same command prints the same counts.
 """
 from __future__ import annotations
 
@@ -50,6 +52,7 @@ import re
 import shutil
 import sys
 import tempfile
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -59,6 +62,9 @@ import pandas as pd
 from benchmarks.proc import measure, pneubench_cmd, verdict
 
 COVERAGE = (0.85, 0.95)
+#: Hose types a scenario: about a tenth have one shape per adjustment (counted apart), so that
+#: at least 400 with a common true shape remain in each scenario (354-378 of 400 at seed 23).
+TYPES = 460
 POWER_TOLERANCE = 0.05
 SCENARIOS = ("no-difference", "at-margin", "above-margin")
 DECISION_TABLES = ("life_effect", "life_verdict", "decision_looks", "decision_look_hoses", "test_plan")
@@ -113,17 +119,12 @@ def coverage(life_effect: pd.DataFrame, types: dict) -> dict:
     return out
 
 
-def verdicts(life_verdict: pd.DataFrame, test_plan: pd.DataFrame, types: dict) -> dict:
-    """Over hose types with a common true shape: how many got each verdict, how many reached
-    their ``max_failures``, and how many have ``max_failures`` equal to ``test_plan``'s
-    ``failures_needed`` at the plan's power."""
+def verdicts(life_verdict: pd.DataFrame, types: dict) -> dict:
+    """Over hose types with a common true shape: how many got each verdict, how many reached their
+    ``max_failures`` (as the stage froze it) and how many have none (NULL: no look qualified)."""
     v = life_verdict[life_verdict["hose_type"].map(lambda h: h in types and not types[h]["separate_shapes"])]
-    plan = test_plan[np.isclose(test_plan["target_power"], test_plan["hose_type"].map(
-        dict(zip(life_verdict["hose_type"], life_verdict["power"]))).astype(float))]
-    needed = dict(zip(plan["hose_type"], plan["failures_needed"]))
-    same = sum(int(needed.get(h, -1)) == int(m) for h, m in zip(v["hose_type"], v["max_failures"]) if not pd.isna(m))
     return {"n": len(v), "counts": v["verdict"].value_counts().to_dict(),
-            "reached": int((v["failures"] >= v["max_failures"]).sum()), "max_failures_from_test_plan": same}
+            "reached": int((v["failures"] >= v["max_failures"]).sum()), "no_max": int(v["max_failures"].isna().sum())}
 
 
 def naive_lr_declared(look_hoses: pd.DataFrame, alpha: float, limit: int | None = None) -> tuple[int, int]:
@@ -200,11 +201,65 @@ def binomial_bound(n: int, p: float) -> int:
 
 
 def line(label: str, k: int, n: int, target: str, ok: bool | None) -> bool:
-    """Print one count against its target; returns ``ok`` (None: shown, not judged)."""
-    rate = f"{k / n:.3f}" if n else "  n/a"
+    """Print one count, its rate and Monte Carlo SE against its target; returns ``ok`` (None: shown,
+    not judged)."""
+    rate = f"{k / n:.3f} (MC SE {math.sqrt(k / n * (1 - k / n) / n):.3f})" if n else "  n/a"
     mark = "" if ok is None else verdict(ok)
-    print(f"  {label:<58} {k:5d}/{n:<5d} = {rate}  target {target} {mark}".rstrip())
+    print(f"  {label:<62} {k:5d}/{n:<5d} = {rate}  target {target} {mark}".rstrip())
     return ok is not False
+
+
+def rci_coverage(looks: pd.DataFrame, life_verdict: pd.DataFrame, types: dict) -> dict:
+    """Simultaneous coverage of the repeated confidence intervals (``rci_lower`` / ``rci_upper``,
+    Jennison & Turnbull 2000, ch. 9): per hose type, whether the true ratio lies in the interval of
+    every look that has one, over the designed looks (failures <= ``max_failures``) and over all.
+    Counts ``[covered, n]`` for common true shapes (``designed``, ``all looks``) and separate ones
+    (``separate shapes``, designed looks, the true B10 ratio); ``none``: types without an interval;
+    ``first_miss``: per common-shape type not covered, (failures at its first missing look, at its first
+    look with an interval, ``max_failures``)."""
+    out = {"designed": [0, 0], "all looks": [0, 0], "separate shapes": [0, 0], "none": 0, "first_miss": []}
+    top = dict(zip(life_verdict["hose_type"], life_verdict["max_failures"]))
+    has = looks.dropna(subset=["rci_lower", "rci_upper"], how="all")
+    for h, g in has.groupby("hose_type"):
+        t = types.get(h)
+        if t is None:
+            continue
+        inside = [covers(lo, up, t["life_ratio"]) for lo, up in zip(g["rci_lower"], g["rci_upper"])]
+        m = top.get(h)
+        designed = all(c for c, f in zip(inside, g["failures"]) if pd.isna(m) or f <= m)
+        if not designed and not t["separate_shapes"]:
+            out["first_miss"].append((g["failures"].iloc[inside.index(False)], g["failures"].iloc[0], m))
+        key = "separate shapes" if t["separate_shapes"] else "designed"
+        out[key] = [out[key][0] + designed, out[key][1] + 1]
+        if not t["separate_shapes"]:
+            out["all looks"] = [out["all looks"][0] + all(inside), out["all looks"][1] + 1]
+    out["none"] = sum(h in types for h in set(looks["hose_type"]) - set(has["hose_type"]))
+    return out
+
+
+FROZEN = re.compile(r"max_failures frozen at look (\d+) \([^)]*\): designed from that look's common shape ([0-9.]+)")
+
+
+def anatomy(label: str, rows: pd.DataFrame, types: dict, design_at_truth) -> None:
+    """The anatomy of a set of ``life_verdict`` rows (a target's misses): quartiles of the deciding
+    look, of ``max_failures`` against the design at the true shape (``design_at_truth(shape)``), of
+    the look that froze it and of that look's fitted shape over the true one; how many had a design
+    below the frozen look's count (the test ends at that look)."""
+    if rows.empty:
+        return
+    frozen = rows["note"].fillna("").str.extract(FROZEN).astype(float)
+    truth = rows["hose_type"].map(lambda h: types[h]["shape"]).astype(float)
+    cols = {"decided at look": rows["decided_at_look"].astype(float), "failures": rows["failures"].astype(float),
+            "max_failures": rows["max_failures"].astype(float),
+            "design at the true shape": truth.map(design_at_truth).astype(float),
+            "frozen at look": frozen[0], "frozen shape / true shape": frozen[1].to_numpy() / truth.to_numpy()}
+    print(f"    anatomy of {label} ({len(rows)} hose types): quartiles (25 / 50 / 75 %)")
+    for name, x in cols.items():
+        q = pd.Series(np.asarray(x, float)).dropna().quantile([0.25, 0.5, 0.75]).tolist()
+        print(f"      {name:<28} " + (" / ".join(f"{v:.3g}" for v in q) if q else "none"))
+    print(f"      max_failures = the freezing look's count (design below it): "
+          f"{int((rows['max_failures'].astype(float) == frozen[0]).sum())}; reached max_failures: "
+          f"{int((rows['failures'] >= rows['max_failures']).sum())}")
 
 
 def stage_seconds(stderr: str) -> dict[str, float]:
@@ -225,41 +280,91 @@ class Scenario:
     wall_s: float
     stages: dict
     verdicts: dict | None = None
+    naive: tuple | None = None   # (declared, hose types) of the naive LR test, when counted in the workers
+
+
+def _merged(name: str, parts: list[Scenario]) -> Scenario:
+    """One scenario from its shards: truths, tables and naive counts pooled, times summed."""
+    truth = {**parts[0].truth, "hose_types": {}, "hoses": {}}
+    for p in parts:
+        truth["hose_types"].update(p.truth["hose_types"])
+        truth["hoses"].update(p.truth["hoses"])
+    tables = {t: pd.concat([p.tables[t] for p in parts], ignore_index=True) for t in parts[0].tables}
+    stages = {n: sum(p.stages.get(n, math.nan) for p in parts) for n in parts[0].stages}
+    naive = None if parts[0].naive is None else tuple(np.sum([p.naive for p in parts], axis=0).tolist())
+    return Scenario(name, truth, tables, sum(p.wall_s for p in parts), stages, naive=naive)
+
+
+def _tagged(truth: dict, tables: dict, k: int) -> tuple[dict, dict]:
+    """A shard's truth and tables with its hose types and hoses named ``<k>/<name>``."""
+    tag = f"{k}/"
+    truth["hose_types"] = {tag + h: t for h, t in truth["hose_types"].items()}
+    truth["hoses"] = {tag + h: t for h, t in truth["hoses"].items()}
+    for t in tables.values():
+        for col in ("hose_type", "hose_id"):
+            if col in t:
+                t[col] = tag + t[col].astype(str)
+    return truth, tables
+
+
+def _shards(name: str, types: int, seed: int, shard: int) -> list[tuple[int, int, int]]:
+    """``(k, hose types, seed)`` of each shard of a scenario: shard ``k`` is seeded ``seed * 1000 + k``."""
+    return [(k, min(shard, types - k * shard), seed * 1000 + k) for k in range(math.ceil(types / shard))]
 
 
 def run_scenario(root: Path, name: str, types: int, seed: int, args) -> Scenario:
     """Simulate ``types`` hose types of scenario ``name`` in shards of ``args.shard`` (each its own
     raw tree, rebuilt as a process), read the tables; hose types are named ``<shard>/<type>``."""
-    parts = [_rebuild_shard(root, name, k, min(args.shard, types - k * args.shard), seed * 1000 + k, args.jobs)
-             for k in range(math.ceil(types / args.shard))]
-    truth = {**parts[0].truth, "hose_types": {}, "hoses": {}}
-    for p in parts:
-        truth["hose_types"].update(p.truth["hose_types"])
-        truth["hoses"].update(p.truth["hoses"])
-    tables = {t: pd.concat([p.tables[t] for p in parts], ignore_index=True) for t in DECISION_TABLES}
-    stages = {n: sum(p.stages.get(n, math.nan) for p in parts) for n in parts[0].stages}
-    return Scenario(name, truth, tables, sum(p.wall_s for p in parts), stages)
+    return _merged(name, [_rebuild_shard(root, name, k, n, s, args.jobs) for k, n, s in _shards(name, types, seed,
+                                                                                                 args.shard)])
 
 
 def _rebuild_shard(root: Path, name: str, k: int, types: int, seed: int, jobs: int) -> Scenario:
-    """One shard: simulate, rebuild as a process, read; its names prefixed with ``k/``."""
-    from pipeline.simulator.campaign import simulate_campaign
-    from pipeline.simulator.decision import DecisionProfile
+    """One shard: simulate (each type run to its frozen ``max_failures``), rebuild as a process, read."""
+    from benchmarks.decision_inprocess import write_campaign
 
     raw, wh = root / f"raw-{name}-{k}", root / f"wh-{name}-{k}"
-    simulate_campaign(raw, seed=seed, profile=DecisionProfile(hose_types=types, scenario=name))
+    truth = write_campaign(raw, name, types, seed)
     m = measure([*pneubench_cmd(), "rebuild", "--raw", str(raw), "--warehouse", str(wh), "--no-report",
                  "--jobs", str(jobs)])
-    truth = json.loads((raw / "truth.json").read_text())
-    tag = f"{k}/"
-    truth["hose_types"] = {tag + h: t for h, t in truth["hose_types"].items()}
-    truth["hoses"] = {tag + h: t for h, t in truth["hoses"].items()}
-    tables = read_tables(wh / "pneubench.duckdb")
-    for t in tables.values():
-        for col in ("hose_type", "hose_id"):
-            if col in t:
-                t[col] = tag + t[col].astype(str)
+    truth, tables = _tagged(truth, read_tables(wh / "pneubench.duckdb"), k)
     return Scenario(name, truth, tables, m.wall_s, stage_seconds(m.stderr))
+
+
+def _inprocess_shard(job: tuple) -> Scenario:
+    """One shard in a worker: simulate, the decision stage in-process (:mod:`benchmarks.decision_inprocess`),
+    and at ratio 1 the naive test over its common-shape types; the raw tree is removed after."""
+    import time
+
+    from benchmarks.decision_inprocess import stage_tables, write_campaign
+
+    root, name, k, types, seed, alpha = job
+    start = time.process_time()
+    raw = root / f"raw-{name}-{k}"
+    truth = write_campaign(raw, name, types, seed)
+    truth, tables = _tagged(truth, stage_tables(raw), k)
+    shutil.rmtree(raw, ignore_errors=True)
+    naive = None
+    if name == "no-difference":
+        common = [h for h, t in truth["hose_types"].items() if not t["separate_shapes"]]
+        lh = tables["decision_look_hoses"]
+        naive = naive_lr_declared(lh[lh["hose_type"].isin(common)], alpha)
+    return Scenario(name, truth, tables, time.process_time() - start, {}, naive=naive)
+
+
+def run_inprocess(root: Path, names: list[str], types: int, args) -> list[Scenario]:
+    """Every scenario's shards in a pool of ``args.jobs`` processes (the decision stage in-process), each
+    scenario merged; scenario ``i`` of :data:`SCENARIOS` is seeded ``args.seed + i``."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    from pipeline.simulator.decision import DecisionProfile
+
+    alpha = DecisionProfile().alpha
+    jobs = [(root, name, k, n, s, alpha) for name in names
+            for k, n, s in _shards(name, types, args.seed + SCENARIOS.index(name), args.shard)]
+    with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+        parts = list(pool.map(_inprocess_shard, jobs))
+    return [_merged(name, [p for p in parts if p.name == name]) for name in names]
 
 
 def report_coverage(scenarios: list[Scenario]) -> bool:
@@ -282,41 +387,128 @@ def report_coverage(scenarios: list[Scenario]) -> bool:
     return ok
 
 
-def report_verdicts(by_name: dict, alpha: float, power: float, naive_types: int) -> bool:
-    """The verdict's error rates and decision rate against the targets; True when all PASS."""
+def _common(s: Scenario) -> pd.DataFrame:
+    """The scenario's ``life_verdict`` rows of hose types with a common true shape."""
+    v, types = s.tables["life_verdict"], s.truth["hose_types"]
+    return v[v["hose_type"].map(lambda h: h in types and not types[h]["separate_shapes"])]
+
+
+def report_verdicts(by_name: dict, settings: dict, naive_types: int) -> bool:
+    """The verdict's error rates and decision rate against the targets, the misses' anatomy; True when all PASS."""
+    from analyses.sequential import NoDesign, design_for
+
+    alpha, power = settings["alpha"], settings["power"]
+
+    def at_truth(shape):
+        try:
+            return design_for(settings["margin"], alpha, power, settings["spending"], shape,
+                              settings["benches"] // 2).failures
+        except NoDesign:
+            return math.nan
+
     ok = True
-    print("\nlife_verdict (hose types with a common true shape; a look at every failure)")
+    print("\nlife_verdict (hose types with a common true shape; a look at every failure; max_failures as frozen)")
     for s in by_name.values():
-        v = verdicts(s.tables["life_verdict"], s.tables["test_plan"], s.truth["hose_types"])
+        v = verdicts(s.tables["life_verdict"], s.truth["hose_types"])
+        stopped = pd.Series([t.get("stopped_by") for t in s.truth["hose_types"].values()
+                             if not t["separate_shapes"]]).value_counts().to_dict()
         print(f"  {s.name}: {v['n']} hose types, verdicts {dict(sorted(v['counts'].items()))}; reached max_failures "
-              f"{v['reached']}/{v['n']}; max_failures = test_plan.failures_needed {v['max_failures_from_test_plan']}"
-              f"/{v['n']}")
+              f"{v['reached']}/{v['n']} (none frozen: {v['no_max']}); simulation stopped by {stopped}")
         s.verdicts = v
     if "no-difference" in by_name:
-        s = by_name["no-difference"]
-        n = s.verdicts["n"]
-        bound = binomial_bound(n, alpha)
-        k = sum(s.verdicts["counts"].get(d, 0) for d in DECLARED)
-        ok &= line("ratio 1: force or distance longer (sequential)", k, n, f"<= {bound} (alpha {alpha})", k <= bound)
-        kl, nl = naive_lr_declared(s.tables["decision_look_hoses"], alpha, naive_types)
-        line("ratio 1: naive LR p < alpha at any look (must MISS)", kl, nl, f"<= {binomial_bound(nl, alpha)}",
-             kl <= binomial_bound(nl, alpha))
-        kw, nw = naive_wald_declared(s.tables["decision_looks"], alpha)
-        line("ratio 1: naive Wald |z| > z(1-alpha/2) at any look (must MISS)", kw, nw,
-             f"<= {binomial_bound(nw, alpha)}", kw <= binomial_bound(nw, alpha))
+        ok &= _report_null(by_name["no-difference"], alpha, naive_types, at_truth)
     if "at-margin" in by_name:
-        v = by_name["at-margin"].verdicts
+        s = by_name["at-margin"]
+        v, rows = s.verdicts, _common(s)
         n, bound = v["n"], binomial_bound(v["n"], alpha)
         k = v["counts"].get("no practical difference", 0)
-        ok &= line("ratio = margin: no practical difference", k, n, f"<= {bound} (alpha {alpha})", k <= bound)
+        if not line("ratio = margin: no practical difference", k, n, f"<= {bound} (alpha {alpha})", k <= bound):
+            ok = False
+            anatomy("no practical difference at ratio = margin", rows[rows["verdict"] == "no practical difference"],
+                    s.truth["hose_types"], at_truth)
         k = v["counts"].get("force longer", 0)
-        ok &= line("ratio = margin: force longer (power)", k, n, f"{power:.2f} +/- {POWER_TOLERANCE:.2f}",
-                   n > 0 and abs(k / n - power) <= POWER_TOLERANCE)
+        if not line("ratio = margin: force longer (power)", k, n, f"{power:.2f} +/- {POWER_TOLERANCE:.2f}",
+                    n > 0 and abs(k / n - power) <= POWER_TOLERANCE):
+            ok = False
+            anatomy("force longer at ratio = margin", rows[rows["verdict"] == "force longer"], s.truth["hose_types"],
+                    at_truth)
+            anatomy("not force longer at ratio = margin", rows[rows["verdict"] != "force longer"],
+                    s.truth["hose_types"], at_truth)
+        _power_by_design(rows, s.truth["hose_types"], at_truth)   # shown on a PASS too: the design's share
     if "above-margin" in by_name:
-        v = by_name["above-margin"].verdicts
-        k, n = v["counts"].get("force longer", 0), v["n"]
-        ok &= line("ratio = margin^1.5: force longer", k, n, f">= {power - POWER_TOLERANCE:.2f}",
-                   n > 0 and k / n >= power - POWER_TOLERANCE)
+        s = by_name["above-margin"]
+        k, n = s.verdicts["counts"].get("force longer", 0), s.verdicts["n"]
+        if not line("ratio = margin^1.5: force longer", k, n, f">= {power - POWER_TOLERANCE:.2f}",
+                    n > 0 and k / n >= power - POWER_TOLERANCE):
+            ok = False
+            rows = _common(s)
+            anatomy("not force longer above the margin", rows[rows["verdict"] != "force longer"],
+                    s.truth["hose_types"], at_truth)
+    return ok
+
+
+def _power_by_design(rows: pd.DataFrame, types: dict, at_truth) -> None:
+    """The decision rate split by whether the frozen ``max_failures`` reaches the design at the true shape."""
+    need = rows["hose_type"].map(lambda h: at_truth(types[h]["shape"])).astype(float)
+    enough = rows["max_failures"].astype(float).to_numpy() >= need.to_numpy()
+    for label, m in (("max_failures >= the design at the true shape", enough), ("max_failures below it", ~enough)):
+        line(f"    force longer when {label}", int((rows["verdict"][m] == "force longer").sum()), int(m.sum()),
+             "shown", None)
+
+
+def _report_null(s: Scenario, alpha: float, naive_types: int, at_truth) -> bool:
+    """Ratio 1: the sequential verdict's error rate (PASS/MISS) and the naive readings (must MISS)."""
+    n = s.verdicts["n"]
+    bound = binomial_bound(n, alpha)
+    k = sum(s.verdicts["counts"].get(d, 0) for d in DECLARED)
+    ok = line("ratio 1: force or distance longer (sequential)", k, n, f"<= {bound} (alpha {alpha})", k <= bound)
+    if not ok:
+        rows = _common(s)
+        anatomy("declared at ratio 1", rows[rows["verdict"].isin(DECLARED)], s.truth["hose_types"], at_truth)
+    common = set(_common(s)["hose_type"])
+    if s.naive is not None:
+        kl, nl = s.naive
+    else:
+        lh = s.tables["decision_look_hoses"]
+        kl, nl = naive_lr_declared(lh[lh["hose_type"].isin(common)], alpha, naive_types)
+    line("ratio 1: naive LR p < alpha at any look (must MISS)", kl, nl, f"<= {binomial_bound(nl, alpha)}",
+         kl <= binomial_bound(nl, alpha))
+    looks = s.tables["decision_looks"]
+    kw, nw = naive_wald_declared(looks[looks["hose_type"].isin(common)], alpha)
+    line("ratio 1: naive Wald |z| > z(1-alpha/2) at any look (must MISS)", kw, nw,
+         f"<= {binomial_bound(nw, alpha)}", kw <= binomial_bound(nw, alpha))
+    return ok
+
+
+def report_rci(scenarios: list[Scenario], alpha: float) -> bool:
+    """Simultaneous coverage of the repeated confidence intervals (nominal 1 - alpha): a type misses
+    when any designed look's interval misses the true ratio; PASS when the misses are within the
+    binomial bound."""
+    print(f"\nrepeated confidence intervals: the true ratio inside every look's interval (nominal {1 - alpha:.2f})")
+    pooled = {"designed": [0, 0], "all looks": [0, 0], "separate shapes": [0, 0], "none": 0, "first_miss": []}
+    for s in scenarios:
+        c = rci_coverage(s.tables["decision_looks"], s.tables["life_verdict"], s.truth["hose_types"])
+        pooled["first_miss"] += c["first_miss"]
+        for key in ("designed", "all looks", "separate shapes"):
+            pooled[key] = [a + b for a, b in zip(pooled[key], c[key])]
+        line(f"{s.name}: every designed look covers", *c["designed"], f">= {1 - alpha:.2f}", None)
+        pooled["none"] += c["none"]
+    k, n = pooled["designed"]
+    bound = binomial_bound(n, alpha)
+    ok = line("all scenarios: every designed look covers (failures <= max_failures)", k, n,
+              f">= {1 - alpha:.2f} (misses <= {bound})", n > 0 and n - k <= bound)
+    line("all scenarios: every look covers (also past max_failures; shown)", *pooled["all looks"], "", None)
+    line("all scenarios: separate true shapes, designed looks (B10 ratio; shown)", *pooled["separate shapes"], "",
+         None)
+    print(f"  hose types without a repeated interval (no look decides): {pooled['none']}")
+    if not ok and pooled["first_miss"]:
+        miss = pd.DataFrame(pooled["first_miss"], columns=["at", "first", "max"]).astype(float)
+        for name, x in (("failures at the first missing look", miss["at"]),
+                        ("... after the first look with an interval", miss["at"] - miss["first"]),
+                        ("... as a fraction of max_failures", miss["at"] / miss["max"])):
+            q = x.quantile([0.25, 0.5, 0.75]).tolist()
+            print(f"    misses ({len(miss)}): {name:<44} " + " / ".join(f"{v:.3g}" for v in q))
+        print(f"    misses at the first look with an interval: {int((miss['at'] == miss['first']).sum())}")
     return ok
 
 
@@ -330,7 +522,9 @@ def report_looks(scenarios: list[Scenario]) -> None:
 
 
 def report_timing(scenarios: list[Scenario], timing: Scenario | None) -> None:
-    """Rebuild times and the decision stages' share."""
+    """Rebuild times and the decision stages' share (nothing without a rebuild)."""
+    if not scenarios and timing is None:
+        return
     print("\nrebuild as a process (wall time; decision stages from the rebuild's log)")
     for s in [*scenarios, *([timing] if timing else [])]:
         dec = sum(s.stages.get(n, math.nan) for n in DECISION_STAGES)
@@ -343,26 +537,33 @@ def report_timing(scenarios: list[Scenario], timing: Scenario | None) -> None:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m benchmarks.bench_decision", description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="12 hose types a scenario, no timing run (a look)")
-    ap.add_argument("--types", type=int, default=None, help="hose types a scenario (default 400; 12 quick)")
-    ap.add_argument("--timing-types", type=int, default=None, help="hose types of the timing run (200; 0: none)")
-    ap.add_argument("--naive-types", type=int, default=200, help="hose types the naive LR test reads (it is slow)")
+    ap.add_argument("--types", type=int, default=None, help=f"hose types a scenario (default {TYPES}; 12 quick)")
+    ap.add_argument("--rebuild", action="store_true",
+                    help="whole `pneubench rebuild` processes (the end-to-end check, e.g. --rebuild --types 24) "
+                         "instead of the decision stage in-process")
+    ap.add_argument("--timing-types", type=int, default=0, help="hose types of a timing rebuild (0: none)")
+    ap.add_argument("--naive-types", type=int, default=200, help="hose types the naive LR test reads (--rebuild)")
     ap.add_argument("--seed", type=int, default=23)
     ap.add_argument("--jobs", type=int, default=2)
-    ap.add_argument("--shard", type=int, default=50,
-                    help="hose types per raw tree and rebuild (the durability stage's figures grow with them)")
-    ap.add_argument("--keep", type=Path, default=None, help="keep the raw trees and warehouses here")
+    ap.add_argument("--shard", type=int, default=None,
+                    help="hose types per raw tree (default 25 in-process, 50 with --rebuild)")
+    ap.add_argument("--keep", type=Path, default=None, help="keep the raw trees and warehouses here (--rebuild)")
     ap.add_argument("--scenarios", nargs="+", choices=SCENARIOS, default=list(SCENARIOS),
                     help="only these scenarios (each keeps its seed: the same hose types as in a full run)")
     args = ap.parse_args(argv)
-    types = args.types or (12 if args.quick else 400)
-    timing_types = args.timing_types if args.timing_types is not None else (0 if args.quick else 200)
+    types = args.types or (12 if args.quick else TYPES)
+    args.shard = args.shard or (50 if args.rebuild else 25)
     root = args.keep or Path(tempfile.mkdtemp(prefix="bench-decision-"))
     root.mkdir(parents=True, exist_ok=True)
+    names = [n for n in SCENARIOS if n in args.scenarios]
+    start = time.perf_counter()
     try:
-        scenarios = [run_scenario(root, name, types, args.seed + i, args) for i, name in enumerate(SCENARIOS)
-                     if name in args.scenarios]
-        one = argparse.Namespace(shard=max(timing_types, 1), jobs=args.jobs)   # the timing run: one rebuild
-        timing = run_scenario(root, "mixed", timing_types, args.seed + 9, one) if timing_types else None
+        if args.rebuild:
+            scenarios = [run_scenario(root, n, types, args.seed + SCENARIOS.index(n), args) for n in names]
+        else:
+            scenarios = run_inprocess(root, names, types, args)
+        one = argparse.Namespace(shard=max(args.timing_types, 1), jobs=args.jobs)   # the timing run: one rebuild
+        timing = run_scenario(root, "mixed", args.timing_types, args.seed + 9, one) if args.timing_types else None
     except MissingTables as exc:
         print(f"bench_decision: {exc}", file=sys.stderr)
         return 2
@@ -370,12 +571,15 @@ def main(argv=None) -> int:
         if args.keep is None:
             shutil.rmtree(root, ignore_errors=True)
     settings = scenarios[0].truth["settings"]
-    print(f"decision: {types} hose types a scenario, seed {args.seed}; plan margin {settings['margin']}, alpha "
-          f"{settings['alpha']}, power {settings['power']}, {settings['spending']}, max_failures from test_plan")
+    how = "whole rebuilds" if args.rebuild else f"the decision stage in-process, {args.jobs} worker(s)"
+    print(f"decision: {types} hose types a scenario ({how}; shards of {args.shard}), seed {args.seed}; plan margin "
+          f"{settings['margin']}, alpha {settings['alpha']}, power {settings['power']}, {settings['spending']}, "
+          f"max_failures frozen by the stage; {time.perf_counter() - start:.0f} s")
     ok = report_coverage(scenarios)
-    ok &= report_verdicts({s.name: s for s in scenarios}, settings["alpha"], settings["power"], args.naive_types)
+    ok &= report_verdicts({s.name: s for s in scenarios}, settings, args.naive_types)
+    ok &= report_rci(scenarios, settings["alpha"])
     report_looks(scenarios)
-    report_timing(scenarios, timing)
+    report_timing(scenarios if args.rebuild else [], timing)
     if args.quick:
         print("\n--quick: too few hose types for the targets; counts shown only")
         return 0

@@ -11,10 +11,13 @@ installation and its end. Hoses are known by their logbook odometer only (``hose
 write and to rebuild, and a look's distances interpolated linearly in time are exact.
 
 Censoring (right): a share of the hoses is ``removed`` at a distance drawn independently of its
-life (a bench needed elsewhere); a hose type's test stops at its cutoff, a little after the
-failure that brings its failures to ``slack`` times the failures its sequential design needs
-(closed form, Jennison & Turnbull 2000, ch. 7; the stage computes the exact number from the
-fitted shape, which the slack covers). The hoses on the benches at the cutoff are ``running``:
+life (a bench needed elsewhere); a hose type's test stops at its cutoff, half a day after the
+failure that brings its failures to the number it runs to. With ``run_to`` (a callable given the
+logbook as it stands at each failure, returning the ``max_failures`` the decision stage froze, or
+None while none is: ``benchmarks.bench_decision`` supplies the stage's own, which the simulator
+may not import) that is the frozen ``max_failures``, capped at ``cap`` times the closed-form
+design (the truth says which stopped it); without it, ``slack`` times the failures the sequential
+design needs (closed form, Jennison & Turnbull 2000, ch. 7). The hoses on the benches at the cutoff are ``running``:
 the lab reads their odometer then, which the logbook format records as a removal and a
 reinstallation one minute later (a pause, not a suspension: ``docs/bench-exports.md``), so
 their distance so far is known and their status stays ``running``.
@@ -31,7 +34,8 @@ from __future__ import annotations
 
 import heapq
 import math
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from datetime import datetime, timedelta
 from statistics import NormalDist
 
@@ -58,7 +62,10 @@ class DecisionProfile:
     shape is ``shape_split`` times the distance-set one; ``removed`` the share of hoses removed at
     a distance drawn independently of their life; ``slack`` the failures a type runs to over its
     design's; ``above`` the exponent of the margin in ``above-margin``. ``max_failures`` None
-    leaves it out of plan.toml (the design's number, test_plan's, is used).
+    leaves it out of plan.toml (the design's number, test_plan's, is used). ``run_to``: called at
+    each failure with the type's logbook rows as they stand (hoses on the benches read then, see
+    :func:`logbook_now`) and its truth, returns the failures to run to (the stage's frozen
+    ``max_failures``) or None while unknown; then ``cap`` times the closed-form design bounds the run.
     """
 
     hose_types: int = 300
@@ -78,6 +85,8 @@ class DecisionProfile:
     removed: float = 0.1
     slack: float = 1.5
     above: float = 1.5
+    run_to: Callable | None = field(default=None, compare=False)
+    cap: float = 4.0
 
     def ratio(self, scenario: str) -> float:
         """The true force / distance life ratio of ``scenario`` [-]."""
@@ -119,7 +128,8 @@ def hose_type_truth(j: int, p: DecisionProfile, rng: np.random.Generator) -> dic
             "shape_distance": shape, "shape_force": shape_f,
             "scale_distance_km": scale_d, "scale_force_km": scale_f,
             "b10_distance_km": b10_d, "b10_force_km": ratio * b10_d,
-            "target_failures": math.ceil(p.slack * design_failures(p.margin, p.alpha, p.power, shape)),
+            "target_failures": math.ceil((p.cap if p.run_to else p.slack)
+                                         * design_failures(p.margin, p.alpha, p.power, shape)),
             "benches": p.benches, "km_per_day": p.km_per_day}
 
 
@@ -148,15 +158,18 @@ def _new_hose(truth: dict, n: int, adj: str, when: datetime, p: DecisionProfile,
 
 
 def run_benches(truth: dict, p: DecisionProfile, rng: np.random.Generator) -> tuple[list[dict], list[dict]]:
-    """Run a hose type's benches until its target failures (and half a day more): its logbook
-    rows and its hoses (truth: installation, end, status, distance [km])."""
+    """Run a hose type's benches until the failures it runs to (and half a day more): its logbook
+    rows and its hoses (truth: installation, end, status, distance [km]). Sets ``truth["stopped_by"]``:
+    ``max_failures`` (``run_to``'s number reached), ``cap`` (``target_failures`` reached first, with
+    ``run_to``) or ``slack`` (without ``run_to``); ``truth["run_to"]``: ``run_to``'s number or None."""
     v = p.km_per_day
     queue, hoses, rows, failures, n = [], [], [], 0, 0
     for b in range(p.benches):  # benches start a day apart: staggered from the first day
         n += 1
         h = _new_hose(truth, n, ADJUSTMENTS[b % 2], START + timedelta(days=b), p, rng)
         heapq.heappush(queue, (*h.end(v), n, b, h))
-    cutoff = None
+    cutoff, truth["run_to"] = None, None
+    truth["stopped_by"] = "cap" if p.run_to else "slack"
     while queue:
         at, how, k, b, h = heapq.heappop(queue)
         if cutoff is not None and at > cutoff:
@@ -164,8 +177,13 @@ def run_benches(truth: dict, p: DecisionProfile, rng: np.random.Generator) -> tu
             break
         hoses.append(_ended(h, at, how, v, rows))
         failures += how == "failed"
-        if cutoff is None and failures >= truth["target_failures"]:
+        if cutoff is None and how == "failed" and p.run_to and truth["run_to"] is None:
+            truth["run_to"] = p.run_to(logbook_now(rows, queue, at, v), truth)
+        if cutoff is None and how == "failed" and (failures >= truth["target_failures"] or (
+                truth["run_to"] is not None and failures >= truth["run_to"])):
             cutoff = at + timedelta(hours=12)
+            if truth["run_to"] is not None and failures >= truth["run_to"]:
+                truth["stopped_by"] = "max_failures"
         n += 1
         nxt = _new_hose(truth, n, h.adjustment, at + timedelta(hours=1), p, rng)
         heapq.heappush(queue, (*nxt.end(v), n, b, nxt))
@@ -173,6 +191,17 @@ def run_benches(truth: dict, p: DecisionProfile, rng: np.random.Generator) -> tu
         if h.installed < cutoff:
             hoses.append(_running(h, cutoff, v, rows))
     return rows, hoses
+
+
+def logbook_now(rows: list[dict], queue: list, at: datetime, v: float) -> list[dict]:
+    """The logbook as it stands at ``at`` (a failure): the rows so far, and every hose on a bench
+    installed by then read a minute later as at the cutoff (:func:`_running`), sorted as the campaign
+    writes them."""
+    now = list(rows)
+    for *_, h in sorted(queue, key=lambda q: q[2]):
+        if h.installed < at:
+            _running(h, at + timedelta(minutes=1), v, now)
+    return sorted(now, key=lambda r: (r["at"], r["hose_id"]))
 
 
 def _installed_row(h: _Hose, when: datetime) -> dict:
@@ -234,7 +263,8 @@ def simulate_decision(seed: int, p: DecisionProfile) -> tuple[list[dict], str, d
                                                  for s in ("failed", "removed", "running")})
         types[truth["hose_type"]] = truth
         hoses.update({h["hose_id"]: h for h in type_hoses})
-    settings = {k: getattr(p, k) for k in p.__dataclass_fields__}
+    settings = {k: getattr(p, k) for k in p.__dataclass_fields__ if k != "run_to"}
+    settings["run_to"] = None if p.run_to is None else getattr(p.run_to, "__qualname__", type(p.run_to).__qualname__)
     truth = {"generator": "pneubench simulator", "seed": seed, "profile": "decision", "settings": settings,
              "plan": "plan.toml", "logbook": f"{DECISION_CAMPAIGN}/hoses.csv", "hose_types": types, "hoses": hoses}
     return rows, plan_toml(p), truth

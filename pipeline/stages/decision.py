@@ -167,7 +167,7 @@ def effect_of(item: dict) -> dict:
 def freeze_of(item: dict) -> dict:
     """The look an unset ``max_failures`` is frozen at (:func:`analyses.decision.freeze_look`), as plain
     data (module level: memoised by ``ctx.map``): ``look`` (None: none yet), ``event_at`` [int ns], ``shape``
-    [-] of that look's common-shape fit, ``failures``: (distance-set, force-set) by then."""
+    [-] of that look's common-shape fit with the reduced-bias adjustment (the design's), ``failures``: (distance-set, force-set) by then."""
     hoses = usable_hoses(_frame(item["hoses"], HOSE_SPEC))
     return _frozen(hoses, _frame(item["runs"], RUN_SPEC), failure_events(hoses))
 
@@ -224,7 +224,7 @@ def design_of(item: dict, frozen: dict | None, designed: dict) -> list:
         return [None, "design", f"max_failures not frozen at look {frozen['look']} ({at}): {short}; "
                 "max_failures in plan.toml lets the test decide", None]
     note = (f"max_failures frozen at look {frozen['look']} ({at}): designed from that look's common shape "
-            f"{frozen['shape']:.3g} and {ask['hoses'] or 'rare failures, no'} hose(s) on test per adjustment; "
+            f"{frozen['shape']:.3g} (reduced-bias, Abernethy) and {ask['hoses'] or 'rare failures, no'} hose(s) on test per adjustment; "
             f"the {frozen['look'] - 1} look(s) before it do not decide (counted without an estimate)")
     if failures < frozen["look"]:   # a look is a failure: the test cannot end before the look that froze it
         note += f"; the design's {failures} is below the {frozen['look']} failures then: the test ends at that look"

@@ -8,7 +8,7 @@ from matplotlib.figure import Figure
 from scipy import optimize, stats
 
 from analyses.service_life import (b10, kaplan_meier, lognormal_fit, lognormal_loglik_many, newton_root,
-                                   plot_hose_distances,
+                                   plot_hose_distances, reduced_bias_shape,
                                    plot_kaplan_meier, plot_leak_growth, plot_weibull_probability, weibull_fit,
                                    weibull_loglik, weibull_lr_test, weibull_quantile_bounds,
                                    weibull_quantile_profile)
@@ -150,6 +150,23 @@ def test_fewer_than_two_failures_give_nan():
         r = b10([10.0, 20.0, 30.0, 40.0], failed)
         assert all(math.isnan(r[k]) for k in ("shape", "scale", "b10", "b10_lower", "b10_upper"))
         assert r["n"] == 4 and r["n_failed"] == sum(failed)
+
+
+def test_reduced_bias_shape_is_c4_to_the_3_5_hand_checked():
+    # C4(10) = sqrt(2/9) Gamma(5) / Gamma(4.5) = 0.97266, ^3.5 = 0.90753; C4(2) = sqrt(2) / sqrt(pi)
+    assert reduced_bias_shape(2.0, 10) == pytest.approx(2.0 * 0.90753, rel=1e-4)
+    assert reduced_bias_shape(1.0, 2) == pytest.approx((2.0 / math.pi) ** 1.75, rel=1e-12)
+    assert reduced_bias_shape(3.0, 10_000) == pytest.approx(3.0, rel=1e-3)   # no adjustment in the limit
+    assert math.isnan(reduced_bias_shape(2.0, 1)) and math.isnan(reduced_bias_shape(math.nan, 10))
+
+
+def test_reduced_bias_shape_is_median_unbiased_from_ten_failures():
+    rng = np.random.default_rng(7)
+    mle = np.array([weibull_fit(50.0 * rng.weibull(2.0, 10), np.ones(10, bool)).shape for _ in range(600)])
+    assert np.median(mle) / 2.0 > 1.06 and mle.mean() / 2.0 > 1.12  # the MLE from 10 failures: steep
+    rba = np.array([reduced_bias_shape(k, 10) for k in mle])
+    assert abs(np.median(rba) / 2.0 - 1.0) < 0.03                   # median-unbiased (MC SE ~0.012)
+    assert rba.mean() / 2.0 < mle.mean() / 2.0 - 0.09
 
 
 def test_weibull_recovers_simulated_parameters_with_censoring():

@@ -32,12 +32,11 @@ def _life_effect() -> pd.DataFrame:
                 "shape_upper"])
 
 
-def _verdicts() -> tuple[pd.DataFrame, pd.DataFrame]:
-    verdict = pd.DataFrame({"hose_type": ["A", "B", "C"], "verdict": ["undecided", "force longer", "force longer"],
-                            "power": [0.8, 0.8, 0.8], "max_failures": [20, 30, 10], "failures": [22, 25, 12]})
-    plan = pd.DataFrame({"hose_type": ["A", "A", "B", "B", "C"], "target_power": [0.8, 0.9, 0.8, 0.9, 0.8],
-                         "failures_needed": [20, 27, 31, 40, 10]})
-    return verdict, plan
+def _verdicts() -> pd.DataFrame:
+    return pd.DataFrame({"hose_type": ["A", "B", "C", "D"],
+                         "verdict": ["undecided", "force longer", "force longer", "undecided"],
+                         "power": [0.8, 0.8, 0.8, 0.8], "max_failures": [20, 30, 10, None],
+                         "failures": [22, 25, 12, 4]})
 
 
 def test_coverage_joins_the_truth_and_counts_open_sides_as_covering():
@@ -48,12 +47,40 @@ def test_coverage_joins_the_truth_and_counts_open_sides_as_covering():
     assert bd.coverage(_life_effect(), types)["absent"] == 1
 
 
-def test_verdicts_count_common_shape_types_their_reach_and_the_test_plans_max_failures():
-    verdict, plan = _verdicts()
-    v = bd.verdicts(verdict, plan, TYPES)
-    assert v["n"] == 2 and v["counts"] == {"undecided": 1, "force longer": 1}
-    assert v["reached"] == 1                       # A: 22 of 20; B: 25 of 30
-    assert v["max_failures_from_test_plan"] == 1   # A: 20 = 20 at power 0.8; B: 30 != 31
+def test_verdicts_count_common_shape_types_their_reach_and_those_without_a_frozen_maximum():
+    v = bd.verdicts(_verdicts(), {**TYPES, "D": TYPES["A"]})
+    assert v["n"] == 3 and v["counts"] == {"undecided": 2, "force longer": 1}
+    assert v["reached"] == 1                       # A: 22 of 20; B: 25 of 30; D: none frozen
+    assert v["no_max"] == 1
+
+
+def test_the_repeated_intervals_cover_when_every_designed_look_holds_the_truth():
+    """A: true ratio 1 in every look's interval; B (1.5): the 2nd look's misses, so B is not covered;
+    C (separate shapes) counted apart; A's 3rd look is past max_failures (20): counted under "all looks"
+    only; D has no interval at all."""
+    nan = float("nan")
+    looks = pd.DataFrame({"hose_type": ["A", "A", "A", "B", "B", "C", "D"],
+                          "failures": [10, 20, 21, 10, 11, 10, 3],
+                          "rci_lower": [0.5, 0.8, 1.1, 1.0, 1.6, 1.2, nan],
+                          "rci_upper": [2.0, 1.2, 1.3, 2.0, 2.0, 1.9, nan]})
+    c = bd.rci_coverage(looks, _verdicts(), {**TYPES, "D": TYPES["A"]})
+    assert c["designed"] == [1, 2] and c["all looks"] == [0, 2] and c["separate shapes"] == [1, 1]
+    assert c["none"] == 1
+
+
+def test_the_anatomy_reads_the_frozen_look_and_shape_from_the_note(capsys):
+    rows = pd.DataFrame({"hose_type": ["A", "B"], "decided_at_look": [12, 14], "failures": [12, 20],
+                         "max_failures": [12, 30], "note": [
+                             "max_failures frozen at look 12 (2025-01-01T00:00:00+00:00): designed from that look's "
+                             "common shape 3 and 4 hose(s) on test per adjustment; the 11 look(s) before it",
+                             "max_failures frozen at look 10 (2025-01-02T00:00:00+00:00): designed from that look's "
+                             "common shape 2.5 and 4 hose(s) on test per adjustment"]})
+    bd.anatomy("misses", rows, TYPES, lambda shape: 10 * shape)
+    out = capsys.readouterr().out
+    assert "anatomy of misses (2 hose types)" in out
+    assert "design at the true shape     21.2 / 22.5 / 23.8" in out    # 10 x (2.0, 2.5)
+    assert "frozen shape / true shape    1.12 / 1.25 / 1.38" in out    # 3 / 2, 2.5 / 2.5
+    assert "design below it): 1; reached max_failures: 1" in out     # A: 12 of 12; B: 20 of 30
 
 
 def _look_hoses(rng, ratio: float, name: str) -> pd.DataFrame:
@@ -134,9 +161,23 @@ def test_the_tables_are_read_whole_when_there(tmp_path):
 def test_the_benchmark_says_why_it_cannot_count_when_the_stages_are_missing(tmp_path, capsys):
     """A whole (tiny) run: simulate, rebuild as a process; without the decision stages it stops
     with exit 2 and the one-line reason."""
-    code = bd.main(["--types", "2", "--shard", "1", "--timing-types", "0", "--keep", str(tmp_path)])
+    code = bd.main(["--rebuild", "--types", "2", "--shard", "1", "--keep", str(tmp_path)])
     err = capsys.readouterr().err
     if code == 2:
         assert "are not in this build" in err
     else:   # the stages are wired: the tables are there and counted
         assert code in (0, 1)
+
+
+def test_the_repeated_intervals_report_misses_and_their_first_look(capsys):
+    """Both common-shape types miss (Binomial(2, 0.05)'s 97.5 % quantile allows one): MISS, and where
+    the misses begin: A at its second look (12 failures), B at its first (10)."""
+    looks = pd.DataFrame({"hose_type": ["A", "A", "B", "B"], "failures": [10, 12, 10, 11],
+                          "rci_lower": [0.5, 1.1, 1.6, 1.0], "rci_upper": [2.0, 1.3, 2.0, 2.0]})
+    verdict = pd.DataFrame({"hose_type": ["A", "B"], "max_failures": [20, 20]})
+    s = bd.Scenario("x", {"hose_types": TYPES}, {"decision_looks": looks, "life_verdict": verdict}, 0.0, {})
+    assert bd.report_rci([s], 0.05) is False
+    out = capsys.readouterr().out
+    assert "0/2" in out and "MISS" in out
+    assert "misses (2): failures at the first missing look           10.5 / 11 / 11.5" in out
+    assert "misses at the first look with an interval: 1" in out      # B misses at its first look, A at its second

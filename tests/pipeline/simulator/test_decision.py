@@ -149,3 +149,50 @@ def test_a_plan_with_max_failures_and_an_unknown_scenario():
     assert "max_failures = 40" in plan
     with pytest.raises(ValueError, match="unknown scenario"):
         simulate_decision(1, dataclasses.replace(SMALL, scenario="huge"))
+
+
+class _RunTo:
+    """A ``run_to`` that records the logbooks it is shown: None until ``after`` failures, then ``to``."""
+
+    def __init__(self, after: int, to: int | None):
+        self.after, self.to, self.seen = after, to, []
+
+    def __call__(self, rows, truth):
+        self.seen.append(rows)
+        failed = sum(r["event"] == "failed" for r in rows)
+        return self.to if failed >= self.after else None
+
+
+def test_run_to_stops_a_type_half_a_day_after_the_number_it_returns():
+    hook = _RunTo(8, 20)
+    p = DecisionProfile(hose_types=1, scenario="at-margin", separate_shapes=0.0, run_to=hook)
+    rows, _, truth = simulate_decision(2, p)
+    t = truth["hose_types"]["SIM-0001"]
+    assert t["run_to"] == 20 and t["stopped_by"] == "max_failures" and truth["settings"]["run_to"] == "_RunTo"
+    failed = sorted(pd.Timestamp(h["ended_at"]) for h in truth["hoses"].values() if h["status"] == "failed")
+    assert len(failed) == t["n_failed"] >= 20
+    cutoff = failed[19] + pd.Timedelta(hours=12)   # half a day after the 20th failure
+    assert failed[-1] <= cutoff
+    odometer = {pd.Timestamp(h["odometer_at"]) for h in truth["hoses"].values() if h["status"] == "running"}
+    assert odometer == {cutoff}
+    # it was asked at each failure until it answered (the 8th), with the logbook as it stood then
+    assert [sum(r["event"] == "failed" for r in rows_then) for rows_then in hook.seen] == list(range(1, 9))
+    last = hook.seen[-1]
+    at = max(r["at"] for r in last if r["event"] == "failed")
+    running = {r["hose_id"] for r in last if r["event"] == "removed" and r["notes"] == "odometer read; test continues"}
+    assert running and all(r["at"] > at for r in last if r["hose_id"] in running and r["event"] == "removed")
+    assert [r["at"] for r in last] == sorted(r["at"] for r in last)
+    # the prefix of the logbook is the same as without the hook: the same hoses, the same lives
+    _, _, plain = simulate_decision(2, dataclasses.replace(p, run_to=None))
+    common = set(truth["hoses"]) & set(plain["hoses"])
+    assert len(common) >= 20 and all(truth["hoses"][h]["life_km_drawn"] == plain["hoses"][h]["life_km_drawn"]
+                                     for h in common)
+
+
+def test_run_to_without_an_answer_stops_at_the_cap():
+    p = DecisionProfile(hose_types=1, scenario="no-difference", separate_shapes=0.0, run_to=_RunTo(10 ** 6, None))
+    _, _, truth = simulate_decision(3, p)
+    t = truth["hose_types"]["SIM-0001"]
+    assert t["stopped_by"] == "cap" and t["run_to"] is None
+    assert t["target_failures"] == math.ceil(4.0 * design_failures(1.5, 0.05, 0.8, t["shape_distance"]))
+    assert t["n_failed"] >= t["target_failures"]
