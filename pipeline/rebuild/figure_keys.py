@@ -57,26 +57,17 @@ def plotting_environment() -> str:
 def figure_key(recipe) -> str | None:
     """The key of a :class:`pipeline.stages.FigureRecipe` [64 hex digits]; None when it has none
     (a lambda or local function, a function without a module file, arguments that cannot be hashed)."""
-    func = recipe.func
-    qualname, module = getattr(func, "__qualname__", "") or "", getattr(func, "__module__", "") or ""
-    if not qualname or not module or "<" in qualname:
+    named = _named_call(recipe.func, (recipe.args, recipe.kwargs))
+    if named is None:
         return None
-    code = function_code_version(func)
-    if code is None:
-        return None
-    try:
-        content = content_hash((recipe.args, recipe.kwargs))
-    except (_Unkeyable, RecursionError):
-        return None
-    blob = json.dumps({"func": f"{module}:{qualname}", "code": code, "env": plotting_environment(),
-                       "save": FIGURE_FORMAT, "args": content}, sort_keys=True)
+    blob = json.dumps({**named, "env": plotting_environment(), "save": FIGURE_FORMAT}, sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()
 
 
-def table_key(func, args: tuple) -> str | None:
-    """The key of a pooled table ``func(*args)`` (:class:`pipeline.rebuild.stage_store.PooledTables`)
-    [64 hex digits]: the function (module, name, code version), the content of its arguments and
-    the numerical libraries' versions (:func:`pipeline.rebuild.memo.environment`); None when it has none."""
+def _named_call(func, args) -> dict | None:
+    """``{"func": module:name, "code": its code version, "args": the content hash of args}`` of a
+    call; None when it cannot be keyed (a lambda or local function, no module file, arguments
+    that cannot be hashed)."""
     qualname, module = getattr(func, "__qualname__", "") or "", getattr(func, "__module__", "") or ""
     if not qualname or not module or "<" in qualname:
         return None
@@ -87,8 +78,17 @@ def table_key(func, args: tuple) -> str | None:
         content = content_hash(args)
     except (_Unkeyable, RecursionError):
         return None
-    blob = json.dumps({"func": f"{module}:{qualname}", "code": code, "env": environment(), "args": content,
-                       "key_version": 1}, sort_keys=True)
+    return {"func": f"{module}:{qualname}", "code": code, "args": content}
+
+
+def table_key(func, args: tuple) -> str | None:
+    """The key of a pooled table ``func(*args)`` (:class:`pipeline.rebuild.stage_store.PooledTables`)
+    [64 hex digits]: the function (module, name, code version), the content of its arguments and
+    the numerical libraries' versions (:func:`pipeline.rebuild.memo.environment`); None when it has none."""
+    named = _named_call(func, args)
+    if named is None:
+        return None
+    blob = json.dumps({**named, "env": environment(), "key_version": 1}, sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()
 
 
