@@ -14,7 +14,14 @@ their current distance, removed hoses) and the fitted common-shape Weibull
   ``no practical difference``, and a reader asks "will this test tell me something", not "will it
   show force longer". It is not the design's power (that is ``target_power`` at the margin): it
   moves with the estimate, and a test whose estimate sits between 1 and the margin may have low
-  power now although it was designed well.
+  power now although it was designed well. The current look decides only as the decision stage
+  declares it (the Wald crossing confirmed by the profile likelihood,
+  :func:`analyses.decision.crossing_holds`); the simulated looks are read on the Wald scale.
+  Measured against the real future (``benchmarks/bench_test_plan_forward.py``): calibrated
+  against that Wald reading, optimistic by about 0.07 against the stage's likelihood-checked one
+  (simulating the check, a profile fit per crossing replicate, would cost seconds a hose type), and
+  by about 0.2 with fewer than ``FEW_FAILURES / 2`` failures in an adjustment: there it is NaN with
+  the note why (the design's freeze of ``max_failures`` waits for as many).
 * ``more_hoses_per_adjustment`` and ``more_km`` (:func:`more_testing`): the fewest hoses to add
   per adjustment (equal allocation, new hoses from the fitted model, running hoses continuing)
   for ``failures_needed`` failures to be reachable, and the expected hose-kilometres of bench
@@ -23,8 +30,13 @@ their current distance, removed hoses) and the fitted common-shape Weibull
   adding more shortens the kilometres of elapsed testing but costs hoses; the table gives the
   fewest and the km it takes. The sequential test may stop earlier (that is its point): these
   are the km to the maximum.
-* ``expected_decision_date`` (:func:`decision_date`) and the bench capacity measured from the
-  durability runs when the plan does not state it (:func:`measured_capacity`).
+* ``expected_decision_date`` (:func:`bench_schedule`, :func:`decision_date`): the lab's benches as
+  they run (running hoses continuing, a failed hose replaced at once by a new one of its adjustment),
+  the same looks as ``power_now``, the median over the replicates of the hose-km until the test
+  decides or reaches its maximum, at the bench capacity (the plan's, or measured from the durability
+  runs, :func:`measured_capacity`). ``more_km`` is not that: it is the fewest-hoses scenario's km to the
+  maximum, all hoses on test at once; on the lab's benches the maximum takes about a quarter more and
+  the decision (usually before the maximum) about a fifth less (docs/decision.md).
 
 Simulation: the canonical joint distribution (J&T 2000, sections 3.1 and 11.5)
 -----------------------------------------------------------------------------
@@ -62,13 +74,19 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from analyses.life_effect import CommonShapeFit
+from analyses.decision import crossing_holds
+from analyses.life_effect import CommonShapeFit, ratio_deviance
+from analyses.sequential import FEW_FAILURES
 
 #: The second target power of the test plan (the plan's own power is the first) [-].
 TARGET_POWER = 0.9
 
 #: Replicates of each Monte Carlo figure: mc_se of a power at most 0.008 [-].
 N_SIMULATIONS = 4000
+
+#: Replicates of the benches' schedule (:func:`bench_schedule`): the median's Monte Carlo error about
+#: 2 % of it [-], a quarter of the cost of N_SIMULATIONS (the stage runs one a row).
+SCHEDULE_SIMULATIONS = 1000
 
 #: Days of durability runs the bench capacity is measured from, before the latest event [d].
 CAPACITY_DAYS = 30
@@ -209,6 +227,38 @@ def _decides(est, info, c, log_margin: float):
         return (info > 0) & ((np.abs(est) > half) | (np.abs(est) + half < log_margin))
 
 
+def _first_decision(rng: np.random.Generator, force, failures: tuple[int, int], fit: CommonShapeFit, c,
+                    log_margin: float) -> np.ndarray:
+    """The first simulated look that decides, per replicate (-1: none).
+
+    ``force`` (replicates, looks) says whether each coming failure is a force-set hose's; the score
+    process of the module docstring runs from the current ``failures`` (distance, force) and the fit's
+    estimate, and each look ``j`` is read at the boundary ``c[j]`` on the Wald scale.
+    """
+    d0d, d0f = failures
+    info = information(d0d + np.cumsum(~force, axis=1), d0f + np.cumsum(force, axis=1), fit.shape)
+    info_now = float(information(d0d, d0f, fit.shape))
+    step = np.diff(np.concatenate([np.full((force.shape[0], 1), info_now), info], axis=1), axis=1)
+    score = fit.log_ratio * info_now + np.cumsum(fit.log_ratio * step + np.sqrt(step) * rng.standard_normal(step.shape),
+                                                 axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        est = score / info
+    hit = _decides(est, info, np.asarray(c, float), log_margin)
+    return np.where(hit.any(axis=1), hit.argmax(axis=1), -1)
+
+
+def _current_look_decides(state: HoseState, fit: CommonShapeFit, c: float, margin: float) -> bool:
+    """Whether the current look decides as the decision stage reads it: the Wald crossing confirmed by
+    the profile likelihood of the state's data (:func:`analyses.decision.crossing_holds`)."""
+    lm = math.log(max(margin, 1.0 / margin))
+    if not _decides(fit.log_ratio, fit.se_log_ratio ** -2, c, lm):
+        return False
+    half = c * fit.se_log_ratio
+    crossed = ("force longer" if fit.log_ratio > half else "distance longer" if fit.log_ratio < -half
+               else "no practical difference")
+    return crossing_holds(lambda r: ratio_deviance(state.distance, state.failed, state.group, r), crossed, c, margin)
+
+
 @dataclass(frozen=True)
 class PowerNow:
     """The chance the running test decides (:func:`power_now`).
@@ -264,28 +314,25 @@ def power_now(state: HoseState, fit: CommonShapeFit, boundaries, margin: float, 
     c = np.asarray(boundaries, float)
     max_failures = c.size
     lm = math.log(max(margin, 1.0 / margin))
-    if d0 >= 1 and d0 <= max_failures and _decides(fit.log_ratio, fit.se_log_ratio ** -2, c[d0 - 1], lm):
+    if d0 >= 1 and d0 <= max_failures and _current_look_decides(state, fit, float(c[d0 - 1]), margin):
         return PowerNow(1.0, 0.0, 0, "the current look decides")
     run = np.flatnonzero(state.running)
     looks = min(max_failures - d0, run.size)
     if looks <= 0:
         why = "max_failures reached" if d0 >= max_failures else "no running hose"
         return PowerNow(0.0, 0.0, 0, f"{why}: no look is left and the test has not decided")
+    if min(d0d, d0f) < FEW_FAILURES / 2:
+        return PowerNow(math.nan, math.nan, 0, f"not told with fewer than {FEW_FAILURES // 2} failures in an adjustment "
+                        "(the shape from so few is biased high and power_now with it, by 0.2 measured; the design's "
+                        "max_failures waits for as many: docs/decision.md, the plan's forward figures)")
     rng = np.random.default_rng(seed)
     left = remaining_km(rng, state.distance[run], state.group[run], fit, n_simulations)
     order = np.argsort(left, axis=1, kind="stable")[:, :looks]
-    force = state.group[run][order] == 1
-    info = information(d0d + np.cumsum(~force, axis=1), d0f + np.cumsum(force, axis=1), fit.shape)
-    info_now = float(information(d0d, d0f, fit.shape))
-    step = np.diff(np.concatenate([np.full((n_simulations, 1), info_now), info], axis=1), axis=1)
-    score = fit.log_ratio * info_now + np.cumsum(fit.log_ratio * step + np.sqrt(step) * rng.standard_normal(step.shape),
-                                                 axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        est = score / info
-    p = float(_decides(est, info, c[d0:d0 + looks], lm).any(axis=1).mean())
-    note = None if looks == max_failures - d0 else (
-        f"only {run.size} running hose(s): the test can reach {d0 + run.size} of {max_failures} failures")
-    return PowerNow(p, math.sqrt(p * (1.0 - p) / n_simulations), n_simulations, note)
+    p = float((_first_decision(rng, state.group[run][order] == 1, state.failures, fit, c[d0:d0 + looks], lm)
+               >= 0).mean())
+    notes = [] if looks == max_failures - d0 else [
+        f"only {run.size} running hose(s): the test can reach {d0 + run.size} of {max_failures} failures"]
+    return PowerNow(p, math.sqrt(p * (1.0 - p) / n_simulations), n_simulations, "; ".join(notes) or None)
 
 
 @dataclass(frozen=True)
@@ -348,6 +395,105 @@ def more_testing(state: HoseState, fit: CommonShapeFit, failures_needed: int,
     return MoreTesting(add, float(km.mean()))
 
 
+@dataclass(frozen=True)
+class BenchSchedule:
+    """When the lab's benches reach the decision (:func:`bench_schedule`).
+
+    Attributes
+    ----------
+    hose_km : float
+        Median over the replicates of the hose-kilometres the benches run from now until the test
+        decides or reaches its maximum [km] (every hose on the benches accumulates km; at ``benches``
+        benches of ``km_per_day``, ``hose_km / (benches km_per_day)`` days: :func:`decision_date`);
+        NaN when it cannot be told.
+    note : str or None
+        One line on what was assumed or why it is NaN.
+    """
+
+    hose_km: float
+    note: str | None = None
+
+
+def _bench_slots(state: HoseState, benches: int) -> tuple[np.ndarray, np.ndarray]:
+    """The benches' hoses now: (distance [km], group) of the running hoses, and new hoses (0 km) on the
+    benches they leave free, each to the adjustment with fewer hoses on the benches."""
+    run = np.flatnonzero(state.running)
+    group = list(state.group[run])
+    for _ in range(max(0, benches - run.size)):
+        group.append(int(group.count(1) < group.count(0)))
+    distance = np.concatenate([state.distance[run], np.zeros(len(group) - run.size)])
+    return distance, np.asarray(group, int)
+
+
+def _bench_failures(rng: np.random.Generator, distance, group, fit: CommonShapeFit, n: int,
+                    left: int) -> tuple[np.ndarray, np.ndarray]:
+    """The next ``left`` failures on the benches, per replicate: (their bench-km, sorted; whether each is
+    a force-set hose's), each bench a renewal process from its hose at ``distance``.
+
+    Each bench draws its next ``K`` lives (``K`` 1.5 times its share of ``left``, plus 2); a replicate where
+    some bench's ``K``-th failure comes before the ``left``-th of all is drawn again with ``K = left``
+    (then no bench can run short).
+    """
+    k = min(left, math.ceil(1.5 * left / group.size) + 2)
+    first = remaining_km(rng, distance, group, fit, n)
+    later = remaining_km(rng, np.zeros(group.size * (k - 1)), np.tile(group, k - 1), fit, n)
+    at = np.cumsum(np.concatenate([first, later], axis=1).reshape(n, k, group.size), axis=1)
+    flat = at.reshape(n, -1)
+    pick = np.argpartition(flat, left - 1, axis=1)[:, :left]
+    pick = np.take_along_axis(pick, np.argsort(np.take_along_axis(flat, pick, axis=1), axis=1, kind="stable"), axis=1)
+    times = np.take_along_axis(flat, pick, axis=1)
+    force = np.tile(group, k)[pick] == 1
+    short = (at[:, -1, :] < times[:, -1:]).any(axis=1) if k < left else np.zeros(n, bool)
+    if short.any():
+        times[short], force[short] = _bench_failures(rng, distance, group, fit, int(short.sum()), left)
+    return times, force
+
+
+def bench_schedule(state: HoseState, fit: CommonShapeFit, boundaries, margin: float, benches: int,
+                   n_simulations: int = SCHEDULE_SIMULATIONS, seed: int = 0) -> BenchSchedule:
+    """The hose-km the lab's benches run until the test decides or reaches its maximum.
+
+    The lab's schedule, which the design's information per failure assumes too
+    (:func:`analyses.sequential.information_per_failure`): ``benches`` benches run at one rate, the
+    running hoses continue from their distance (a free bench takes a new hose, to the adjustment with
+    fewer), and each failed hose is replaced at once by a new one of its adjustment (a renewal
+    process per bench; lives from the fitted model, :func:`remaining_km`). The failures are read in
+    bench-km order with the score process of :func:`power_now` at the design's ``boundaries``; a
+    replicate stops at its first deciding look, else at the maximum (the last boundary's failure).
+
+    Parameters
+    ----------
+    state, fit, boundaries, margin, n_simulations, seed
+        As :func:`power_now` (``boundaries``: one per failure up to the maximum the schedule runs to).
+    benches : int
+        Benches testing the hose type, both adjustments [-]. With more running hoses than benches the
+        running hoses share them (each advances at the same rate; the hose-km are the same).
+
+    Returns
+    -------
+    BenchSchedule
+        The median hose-km [km] (0 when the current look decides or the maximum is reached).
+        Read on the Wald scale like :func:`power_now`, the simulated looks decide somewhat earlier than
+        the decision stage's likelihood-checked ones (docs/decision.md, the plan's forward figures).
+    """
+    if fit.note or not np.isfinite(fit.se_log_ratio):
+        return BenchSchedule(math.nan, f"no fitted model: {fit.note or 'no standard error'}")
+    c = np.asarray(boundaries, float)
+    d0 = sum(state.failures)
+    left = c.size - d0
+    if left <= 0 or (d0 >= 1 and _current_look_decides(state, fit, float(c[d0 - 1]), margin)):
+        return BenchSchedule(0.0, "the maximum is reached" if left <= 0 else "the current look decides")
+    distance, group = _bench_slots(state, int(benches))
+    if group.size == 0:
+        return BenchSchedule(math.nan, "no bench and no running hose")
+    rng = np.random.default_rng(seed)
+    lm = math.log(max(margin, 1.0 / margin))
+    at, force = _bench_failures(rng, distance, group, fit, n_simulations, left)
+    stop = _first_decision(rng, force, state.failures, fit, c[d0:], lm)
+    km = at[np.arange(n_simulations), np.where(stop >= 0, stop, left - 1)]
+    return BenchSchedule(group.size * float(np.median(km)))
+
+
 def measured_capacity(runs: pd.DataFrame, today: pd.Timestamp,
                       days: int = CAPACITY_DAYS) -> tuple[int | None, float | None, str | None]:
     """Bench capacity measured from the durability runs of the last ``days`` days.
@@ -393,7 +539,7 @@ def decision_date(today: pd.Timestamp, more_km: float, benches, km_per_day):
     today : pandas.Timestamp
         The latest event in the data.
     more_km : float
-        Hose-kilometres still to run [km].
+        Hose-kilometres still to run [km] (the stage: :func:`bench_schedule`'s ``hose_km``).
     benches : int or None
         Benches running at once [-].
     km_per_day : float or None
@@ -409,5 +555,6 @@ def decision_date(today: pd.Timestamp, more_km: float, benches, km_per_day):
     return (today + pd.Timedelta(days=more_km / (benches * km_per_day))).date()
 
 
-__all__ = ["TARGET_POWER", "N_SIMULATIONS", "CAPACITY_DAYS", "HoseState", "PowerNow", "MoreTesting", "target_powers",
-           "information", "remaining_km", "power_now", "more_testing", "measured_capacity", "decision_date"]
+__all__ = ["TARGET_POWER", "N_SIMULATIONS", "SCHEDULE_SIMULATIONS", "CAPACITY_DAYS", "HoseState", "PowerNow", "MoreTesting", "BenchSchedule",
+           "target_powers", "information", "remaining_km", "power_now", "more_testing", "bench_schedule",
+           "measured_capacity", "decision_date"]

@@ -167,7 +167,7 @@ def check_power_now(quick: bool) -> bool:
     """Part 2: one hose type's power_now, MC approximation against full refits."""
     margin, shape, alpha, power, spending, _ = DESIGNS[0]
     m = max_information(margin, alpha, power, spending, shape).failures
-    n, d0, trials = (20, 10, 100) if quick else (52, 16, 400)
+    n, d0, trials = (20, 14, 100) if quick else (52, 16, 400)
     rng = np.random.default_rng(2399)
     st = _current_state(rng, margin, shape, n, d0)
     fit = common_shape_fit(st.distance, st.failed, st.group)

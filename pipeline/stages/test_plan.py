@@ -13,10 +13,13 @@ target power (the plan's, and 0.9; one row when they are equal), from :mod:`anal
   at a look, :func:`analyses.decision.freeze_look`; while none is frozen, ``failures_needed`` at
   the plan's power, noted); the same for both rows of a hose type. ``failures_needed`` keeps
   following the current shape: it answers "what would it take now".
-* ``more_hoses_per_adjustment``, ``more_km``, and ``expected_decision_date`` = the latest event in
-  the data (not the wall clock: the same raw/ gives the same table) plus ``more_km / (benches *
-  km_per_day)``, the capacity from the plan or measured from the durability runs of the last 30
-  days (``capacity_from``).
+* ``more_hoses_per_adjustment``, ``more_km`` (the fewest hoses and their km, all on test at once:
+  :func:`analyses.test_plan.more_testing`), and ``expected_decision_date`` = the latest event in
+  the data (not the wall clock: the same raw/ gives the same table) plus the days the lab's
+  ``benches`` (failed hoses replaced) take to decide or reach ``failures_needed``
+  (:func:`analyses.test_plan.bench_schedule`'s median hose-km over ``benches * km_per_day``), the
+  capacity from the plan or measured from the durability runs of the last 30 days
+  (``capacity_from``; known before the simulations, which need the benches).
 
 Seeds: no stage is handed a digest of its inputs, so each hose type's simulations are seeded from
 a sha256 of its own ``hose_life`` rows (id, adjustment, status, distance), its plan settings and
@@ -35,8 +38,9 @@ import pandas as pd
 
 from analyses.life_effect import SEPARATE, common_shape_fit
 from analyses.sequential import NoDesign, design_for, design_shape, efficacy_boundaries
-from analyses.test_plan import (CAPACITY_DAYS, N_SIMULATIONS, HoseState, MoreTesting, PowerNow, decision_date,
-                                hoses_on_test, measured_capacity, more_testing, power_now, target_powers)
+from analyses.test_plan import (CAPACITY_DAYS, N_SIMULATIONS, SCHEDULE_SIMULATIONS, BenchSchedule, HoseState,
+                                MoreTesting, PowerNow, bench_schedule, decision_date, hoses_on_test, measured_capacity,
+                                more_testing, power_now, target_powers)
 from pipeline.stages import Reads, StageContext, StageOutput
 
 NAME = "test_plan"
@@ -154,13 +158,26 @@ def plan_hose_type(item: dict) -> list[dict]:
     for p, needed, short in d["failures_needed"]:
         more = more_testing(state, fit, needed, item["n_simulations"], item["seed"]) if needed is not None \
             else MoreTesting(None, math.nan, None)
+        sched = _schedule(item, state, fit, needed)
         rows.append({"hose_type": item["hose_type"], "target_power": p, "failures_needed": needed,
                      "failures": sum(state.failures), "power_now": now.power,
                      "more_hoses_per_adjustment": more.hoses_per_adjustment, "more_km": more.km,
-                     "n_simulations": now.n_simulations, "mc_se": now.mc_se,
+                     "n_simulations": now.n_simulations, "mc_se": now.mc_se, "decision_km": sched.hose_km,
                      "note": "; ".join(notes + [f"failures_needed: {short}"] * bool(short)
-                                       + ([f"more_km: {more.note}"] if more.note else [])) or None})
+                                       + ([f"more_km: {more.note}"] if more.note else [])
+                                       + ([f"expected_decision_date: {sched.note}"] if sched.note else [])) or None})
     return rows
+
+
+def _schedule(item: dict, state: HoseState, fit, needed: int | None) -> BenchSchedule:
+    """The lab's benches (``item["benches"]``) run to a decision or ``needed`` failures, read at the
+    boundaries of the design whose maximum is ``needed`` (the test's own when it is life_verdict's)."""
+    if needed is None or not item.get("benches"):
+        return BenchSchedule(math.nan, None)
+    s, c = item["settings"], item["design"]["boundaries"]
+    if len(c) != needed:
+        c = efficacy_boundaries(np.arange(1, needed + 1) / needed, s["alpha"], s["spending"])
+    return bench_schedule(state, fit, c, s["margin"], item["benches"], SCHEDULE_SIMULATIONS, item["seed"])
 
 
 def latest_event(life: pd.DataFrame, runs: pd.DataFrame):
@@ -176,25 +193,28 @@ def latest_event(life: pd.DataFrame, runs: pd.DataFrame):
     return None if pd.isna(latest) else latest
 
 
+def _bench_capacity(settings, measured: tuple) -> tuple:
+    """(benches, km_per_day, capacity_from) of a hose type: the plan's, else measured."""
+    benches, km_day, _ = measured
+    if settings.benches is not None and settings.km_per_day is not None:
+        return settings.benches, settings.km_per_day, CAPACITY_PLAN
+    if benches is None:
+        return None, None, None
+    if settings.benches is not None or settings.km_per_day is not None:   # one of the two from the plan
+        total = benches * km_day
+        benches = settings.benches or max(1, round(total / settings.km_per_day))
+        km_day = settings.km_per_day or total / benches
+    return benches, km_day, CAPACITY_MEASURED
+
+
 def _capacity(row: dict, settings, measured: tuple, today) -> dict:
     """Bench capacity of a row (the plan's, else measured) and the expected decision date."""
-    benches, km_day, note = measured
-    from_plan = settings.benches is not None and settings.km_per_day is not None
-    if from_plan:
-        benches, km_day, source = settings.benches, settings.km_per_day, CAPACITY_PLAN
-    elif benches is not None:
-        if settings.benches is not None or settings.km_per_day is not None:   # one of the two from the plan
-            total = benches * km_day
-            benches = settings.benches or max(1, round(total / settings.km_per_day))
-            km_day = settings.km_per_day or total / benches
-        source = CAPACITY_MEASURED
-    else:
-        source = None
-    extra = [] if from_plan or note is None else [note]
+    benches, km_day, source = _bench_capacity(settings, measured)
+    extra = [] if source == CAPACITY_PLAN or measured[2] is None else [measured[2]]
     if today is None:
         extra.append("no event time in the data: no expected_decision_date")
-    row = dict(row, benches=benches, km_per_day=km_day, capacity_from=source,
-               expected_decision_date=decision_date(today, row["more_km"], benches, km_day) if today else None)
+    date = decision_date(today, row.get("decision_km", math.nan), benches, km_day) if today else None
+    row = dict(row, benches=benches, km_per_day=km_day, capacity_from=source, expected_decision_date=date)
     row["note"] = "; ".join([n for n in (row["note"], *extra) if n]) or None
     return row
 
@@ -202,13 +222,14 @@ def _capacity(row: dict, settings, measured: tuple, today) -> dict:
 def plan_table(ctx: StageContext) -> pd.DataFrame:
     """The ``test_plan`` table (module docstring)."""
     life, runs = ctx.results.get("hose_life"), ctx.results.get("durability_runs")
+    today = latest_event(life, runs)
+    measured = measured_capacity(runs, today) if today is not None else (None, None, "no event time in the data")
     items = hose_items(life, ctx.results.get("life_effect"), ctx.plan, ctx.results.get("life_verdict"))
     keys = sorted({json.dumps(_design_item(i), sort_keys=True) for i in items})
     designs = dict(zip(keys, ctx.map(design, [json.loads(k) for k in keys], label="test plan designs")))
-    items = [dict(i, design=designs[json.dumps(_design_item(i), sort_keys=True)]) for i in items]
+    items = [dict(i, design=designs[json.dumps(_design_item(i), sort_keys=True)],
+                  benches=_bench_capacity(ctx.plan.for_hose_type(i["hose_type"]), measured)[0]) for i in items]
     results = ctx.map(plan_hose_type, items, label="test plan") if items else []
-    today = latest_event(life, runs)
-    measured = measured_capacity(runs, today) if today is not None else (None, None, "no event time in the data")
     rows = [_capacity(r, ctx.plan.for_hose_type(item["hose_type"]), measured, today)
             for item, res in zip(items, results) for r in res]
     df = pd.DataFrame(rows, columns=COLUMNS)

@@ -11,7 +11,8 @@ import pandas as pd
 import pytest
 
 from analyses.life_effect import common_shape_fit
-from analyses.sequential import design_shape, max_information
+from analyses.sequential import design_shape, efficacy_boundaries, max_information
+from analyses.test_plan import SCHEDULE_SIMULATIONS, HoseState, bench_schedule
 from pipeline.raw.plan import Plan
 from pipeline.stages import DeclaredContext, StageContext
 from pipeline.stages import test_plan as stage
@@ -80,8 +81,15 @@ def test_counts_and_monte_carlo_figures(df):
     for htype, g in df.groupby("hose_type"):
         mine = life[(life["hose_type"] == htype) & (life["distance_km"] > 0)]
         assert (g["failures"] == (mine["status"] == "failed").sum()).all()
-        assert g["power_now"].nunique() == 1                        # one design as planned per hose type
-    assert ((df["power_now"] >= 0) & (df["power_now"] <= 1)).all()
+        assert g["power_now"].nunique(dropna=False) == 1           # one design as planned per hose type
+    # A: 3 and 4 failures (censored at 200-550 km), fewer than FEW_FAILURES / 2 = 5 in an adjustment: the
+    # shape from so few is biased high and power_now with it (0.71 predicted against 0.49 realised,
+    # bench_test_plan_forward), so NULL with why, as the design's freeze waits; B (9 and 9) has a number
+    a, b = df[df["hose_type"] == "A"], df[df["hose_type"] == "B"]
+    assert a["power_now"].isna().all() and (a["n_simulations"] == 0).all()
+    assert a["note"].str.contains("power_now: not told with fewer than 5 failures in an adjustment").all()
+    assert ((b["power_now"] >= 0) & (b["power_now"] <= 1)).all()
+    assert (b["power_now"] == 1.0).all() and b["note"].str.contains("power_now: the current look decides").all()
     sim = df["n_simulations"] > 0
     assert np.allclose(df.loc[sim, "mc_se"], np.sqrt(df.loc[sim, "power_now"] * (1 - df.loc[sim, "power_now"])
                                                     / df.loc[sim, "n_simulations"]))
@@ -93,7 +101,17 @@ def test_counts_and_monte_carlo_figures(df):
 def test_capacity_from_the_plan_or_measured_and_the_date(df):
     a, b = df[df["hose_type"] == "A"].iloc[0], df[df["hose_type"] == "B"].iloc[0]
     assert (a["capacity_from"], a["benches"], a["km_per_day"]) == ("plan", 3, 100.0)
-    days = a["more_km"] / 300.0
+    # the date: the lab's 3 benches run to a decision or failures_needed (analyses.test_plan.bench_schedule on
+    # the stage's own item: its hoses, seed and the design at failures_needed), over 3 x 100 km a day
+    item = next(i for i in stage.hose_items(frames()["hose_life"], frames()["life_effect"], PLAN) if i["hose_type"] == "A")
+    st = HoseState(*(np.array(item[k], t) for k, t in (("distance", float), ("failed", bool), ("running", bool),
+                                                       ("group", int))))
+    m = int(a["failures_needed"])
+    sched = bench_schedule(st, common_shape_fit(st.distance, st.failed, st.group),
+                           efficacy_boundaries(np.arange(1, m + 1) / m, 0.05, "obrien-fleming"), 2.0, 3,
+                           SCHEDULE_SIMULATIONS, item["seed"])
+    assert sched.hose_km > 0
+    days = sched.hose_km / 300.0
     assert a["expected_decision_date"] == (T0 + pd.Timedelta(days=days)).date()   # today: the latest run's end
     # measured: 20 runs of 40 km in the last 20 days (the data are 20 days old), one at a time
     assert (b["capacity_from"], b["benches"]) == ("measured, last 30 days", 1)
