@@ -2,7 +2,7 @@
 
 One command::
 
-    python -m benchmarks.bench_sensitivity             # 400 simulated hose types (~5 min CPU; 14 min on 2 loaded cores)
+    python -m benchmarks.bench_sensitivity             # 400 simulated hose types (~3.5 min; 14 on heavily loaded cores)
     python -m benchmarks.bench_sensitivity --quick     # 20 hose types, a look (seconds)
     python -m benchmarks.bench_sensitivity --every 200 # leak tests every 200 km instead of 40
 
