@@ -418,7 +418,8 @@ def look_estimates(in_looks: pd.DataFrame, events: pd.DataFrame) -> pd.DataFrame
     return pd.DataFrame(rows, columns=LOOK_COLUMNS)
 
 
-def likelihood_check(in_looks: pd.DataFrame, estimates: pd.DataFrame, margin: float, information_fraction):
+def likelihood_check(in_looks: pd.DataFrame, estimates: pd.DataFrame, margin: float, information_fraction,
+                     deviance=ratio_deviance):
     """``confirm`` of :func:`analyses.sequential.sequential_verdict`: a look that crossed on the
     Wald scale crosses only if the common-shape profile likelihood agrees, i.e. its deviance
     (:func:`analyses.life_effect.ratio_deviance`) at ratio 1 (a longer life) or at both margins
@@ -442,6 +443,10 @@ def likelihood_check(in_looks: pd.DataFrame, estimates: pd.DataFrame, margin: fl
     information_fraction : array_like
         Per look ``failures / max_failures`` [-] as the verdict reads it: a look decides only when
         its fraction is above every earlier one (:func:`analyses.sequential.sequential_verdict`).
+    deviance : callable, optional
+        ``deviance(life, failed, group, ratio)``: the profile deviance of the life model the
+        estimates come from (the common-shape Weibull's by default;
+        :func:`analyses.life_effect_lognormal.lognormal_ratio_deviance` for a lognormal one).
 
     Returns
     -------
@@ -463,7 +468,7 @@ def likelihood_check(in_looks: pd.DataFrame, estimates: pd.DataFrame, margin: fl
         if i > decided:
             return True                       # after the verdict: not checked
         m = look == numbers[i]
-        holds = crossing_holds(lambda r: ratio_deviance(x[m], f[m], g[m], r), crossed, boundary_z, m_ratio)
+        holds = crossing_holds(lambda r: deviance(x[m], f[m], g[m], r), crossed, boundary_z, m_ratio)
         if holds and new[i]:
             decided = min(decided, i)
         return holds
@@ -546,7 +551,8 @@ def _no_maximum(n: int) -> SequentialVerdict:
 
 
 def decide(estimates: pd.DataFrame, max_failures: int | None, margin: float, alpha: float,
-           spending: str, in_looks: pd.DataFrame | None = None, first_look: int = 1) -> SequentialVerdict | None:
+           spending: str, in_looks: pd.DataFrame | None = None, first_look: int = 1,
+           deviance=ratio_deviance) -> SequentialVerdict | None:
     """The sequential verdict over every look (None without looks).
 
     Parameters
@@ -569,6 +575,8 @@ def decide(estimates: pd.DataFrame, max_failures: int | None, margin: float, alp
     first_look : int, optional
         The first look that may decide (the look ``max_failures`` was frozen at): the looks before
         it are read as looks without an estimate, their alpha spent unused (conservative).
+    deviance : callable, optional
+        The likelihood check's profile deviance (:func:`likelihood_check`): the model of ``estimates``.
 
     Returns
     -------
@@ -581,7 +589,7 @@ def decide(estimates: pd.DataFrame, max_failures: int | None, margin: float, alp
     if max_failures is None:
         return _no_maximum(len(estimates))
     t = estimates["failures"].to_numpy(float) / float(max_failures)
-    confirm = likelihood_check(in_looks, estimates, margin, t) if in_looks is not None else None
+    confirm = likelihood_check(in_looks, estimates, margin, t, deviance) if in_looks is not None else None
     est, se = (estimates[c].to_numpy(float) for c in ("log_ratio", "se_log_ratio"))
     if first_look > 1:
         early = estimates["look"].to_numpy(np.int64) < first_look

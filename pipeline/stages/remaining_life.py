@@ -18,7 +18,12 @@ Three tables, from ``hose_life`` and ``hose_leak_growth`` (the durability stage'
   (:func:`analyses.life_effect.life_effect`) and the verdict the decision's rule reads on all of
   that definition's data now (:func:`analyses.decision.decide`: the sequential boundary at the
   definition's information fraction in the plan's design with a look at every failure, the
-  profile-likelihood check; Lan & DeMets 1983, Jennison & Turnbull 2000).
+  profile-likelihood check; Lan & DeMets 1983, Jennison & Turnbull 2000). The leak-limit
+  definitions are read under the life model the degradation model induces (docs/decision.md,
+  "The sensitivity's life model"): a lognormal wear rate makes the crossing distances lognormal
+  (Lu & Meeker 1993), so their ratio, bounds and verdict come from the common-sigma lognormal
+  (:func:`analyses.life_effect_lognormal.lognormal_life_effect`), the logbook's from
+  :func:`analyses.life_effect.life_effect`.
 
 Decisions (docs/decision.md, "Remaining life: the stage")
 ---------------------------------------------------------
@@ -50,6 +55,8 @@ import pandas as pd
 
 from analyses.decision import FROM_RUNS, GROUP, decide, look_estimates
 from analyses.life_effect import life_effect
+from analyses.life_effect_lognormal import (LOGNORMAL, lognormal_effect_fit, lognormal_life_effect,
+                                            lognormal_ratio_deviance)
 from analyses.quality import Sensor
 from analyses.remaining_life import (RulSettings, backtest_summary, leak_crossing_lives, remaining_life,
                                      rul_backtest)
@@ -73,6 +80,8 @@ SENSITIVITY_COLUMNS = ["hose_type", "definition", "leak_limit_l_min", "leak_pres
                        "life_ratio_upper", "confidence", "verdict", "note"]
 #: The failure definitions of ``decision_sensitivity``: name -> multiple of the plan's leak limit (None: the logbook).
 DEFINITIONS = (("logbook", None), ("leak limit", 1.0), ("leak limit x0.5", 0.5), ("leak limit x2", 2.0))
+#: The life model of the leak-limit definitions: the one the degradation model (a lognormal wear rate) induces.
+LEAK_MODEL = LOGNORMAL
 #: The note of what a plan without a leak limit leaves NULL.
 NO_LEAK_PLAN = "plan.toml sets no leak_limit_l_min / leak_pressure_bar for {}"
 NO_PLAN = "no plan"
@@ -294,21 +303,39 @@ def definition_lives(hoses: pd.DataFrame, points: pd.DataFrame, limit_l_min: flo
     return lives[keep].reset_index(drop=True), "; ".join(notes) or None
 
 
-def read_once(lives: pd.DataFrame, max_failures: int, plan: dict):
+def definition_model(factor: float | None) -> str | None:
+    """The life model a definition is read under: :data:`LEAK_MODEL` for a leak-limit crossing
+    (``factor`` a multiple of the plan's limit), None (the logbook: :func:`analyses.life_effect.life_effect`'s
+    choice, the common-shape Weibull for the verdict) otherwise."""
+    return None if factor is None else LEAK_MODEL
+
+
+def read_once(lives: pd.DataFrame, max_failures: int, plan: dict, model: str | None = None):
     """The decision's rule read on ``lives`` now: one look with all of them, at the boundary this
     failure count has in the plan's design with a look at every failure (earlier looks without an
-    estimate: they set the boundary, they do not decide). Returns
-    :class:`analyses.sequential.SequentialVerdict` (None without failures) and the estimate row."""
+    estimate: they set the boundary, they do not decide). ``model`` :data:`LEAK_MODEL` reads the
+    common-sigma lognormal's estimate, standard error and profile deviance instead of the
+    common-shape Weibull's. Returns :class:`analyses.sequential.SequentialVerdict` (None without
+    failures) and the estimate row."""
     failures = int(lives["failed"].sum())
     if failures == 0:
         return None, None
     in_looks = lives.assign(look=failures, distance_from=FROM_RUNS)
     est = look_estimates(in_looks, pd.DataFrame({"look": [failures], "event_at": [None], "hose_id": [None]}))
+    deviance = {}
+    if model == LEAK_MODEL:
+        fit = lognormal_effect_fit(lives["distance_km"].to_numpy(float), lives["failed"].to_numpy(bool),
+                                   lives["adjustment"].map(GROUP).to_numpy(int))
+        ok = fit.note is None and math.isfinite(fit.se_log_ratio) and fit.se_log_ratio > 0
+        est = est.assign(log_ratio=fit.log_ratio if ok else _NAN, se_log_ratio=fit.se_log_ratio if ok else _NAN,
+                         note=fit.note or (None if ok else "the fit's information is not positive definite"))
+        deviance = {"deviance": lognormal_ratio_deviance}
     k = min(failures, max_failures)
     before = pd.DataFrame({"look": np.arange(1, k), "failures": np.arange(1, k), "log_ratio": _NAN,
                            "se_log_ratio": _NAN})
     looks = pd.concat([before, est[["look", "failures", "log_ratio", "se_log_ratio"]]], ignore_index=True)
-    return decide(looks, max_failures, plan["margin"], plan["alpha"], plan["spending"], in_looks), est.iloc[-1]
+    verdict = decide(looks, max_failures, plan["margin"], plan["alpha"], plan["spending"], in_looks, **deviance)
+    return verdict, est.iloc[-1]
 
 
 def _sensitivity_row(item: dict, definition: str, factor: float | None, hoses, points, reason) -> dict:
@@ -319,15 +346,17 @@ def _sensitivity_row(item: dict, definition: str, factor: float | None, hoses, p
     if factor is not None and reason:
         return {**row, "note": reason}
     lives, note = definition_lives(hoses, points, limit)
-    le = life_effect(lives["distance_km"].to_numpy(float), lives["failed"].to_numpy(bool),
-                     lives["adjustment"].map(GROUP).to_numpy(int), confidence=item["confidence"],
-                     alpha=item["plan"]["alpha"])
+    model = definition_model(factor)
+    args = (lives["distance_km"].to_numpy(float), lives["failed"].to_numpy(bool),
+            lives["adjustment"].map(GROUP).to_numpy(int))
+    le = (lognormal_life_effect(*args, confidence=item["confidence"]) if model == LEAK_MODEL
+          else life_effect(*args, confidence=item["confidence"], alpha=item["plan"]["alpha"]))
     row.update({c: getattr(le, c) for c in SENSITIVITY_COLUMNS if c not in row and hasattr(le, c) and c != "note"})
     notes = [note, le.note]
     if item["max_failures"] is None:
         notes.append("no life_verdict row: no max_failures, no verdict")
         return {**row, "note": "; ".join(n for n in notes if n)}
-    sv, est = read_once(lives, item["max_failures"], item["plan"])
+    sv, est = read_once(lives, item["max_failures"], item["plan"], model)
     verdict = "undecided" if sv is None else sv.verdict
     # the looks before this one are placeholders that set its boundary: what the verdict says of them is not news
     notes += ["no failure under this definition"] if sv is None else [

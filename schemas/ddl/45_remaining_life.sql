@@ -62,7 +62,9 @@ CREATE TABLE decision_sensitivity (
     n_failed_force    BIGINT,              -- of which failed under it [-]
     n_distance        BIGINT,              -- distance-set hoses with a positive life under this definition [-]
     n_failed_distance BIGINT,              -- of which failed under it [-]
-    model             VARCHAR,             -- whose life_ratio: 'common shape' | 'separate shapes' (as life_effect)
+    model             VARCHAR,             -- whose life_ratio: the logbook's 'common shape' | 'separate shapes' (as
+                                           -- life_effect); the leak-limit definitions' 'lognormal, common sigma'
+                                           -- (the crossing law a lognormal wear rate induces; ratio of medians)
     life_ratio        DOUBLE,              -- force / distance ratio of B10 (of every quantile under a common shape) [-]
     life_ratio_lower  DOUBLE,              -- lower profile-likelihood bound at confidence [-]
     life_ratio_upper  DOUBLE,              -- upper profile-likelihood bound [-]; NULL when the data do not bound it

@@ -10,6 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from analyses.life_effect_lognormal import lognormal_effect_fit
 from analyses.sequential import efficacy_boundaries
 from pipeline.raw.plan import Plan
 from pipeline.stages import StageContext
@@ -225,11 +226,20 @@ def test_the_sensitivity_reads_the_decisions_rule_once_at_its_information_fracti
     assert sens.loc["leak limit x0.5", "n_failed_force"] >= sens.loc["leak limit", "n_failed_force"]
     assert sens.loc["logbook", "life_ratio_lower"] < 2.5 < sens.loc["logbook", "life_ratio_upper"]
     assert sens.loc["logbook", "verdict"] == "force longer"
+    assert sens.loc["logbook", "model"] in ("common shape", "separate shapes")
+    leak = sens.iloc[1:]
+    told = leak["life_ratio"].notna()
+    assert (leak["model"][told] == stage.LEAK_MODEL).all() and stage.LEAK_MODEL == "lognormal, common sigma"
+    assert told["leak limit"] and leak["note"][~told].str.contains("lognormal").all()   # untold: why, by the model
     life = built["life"].assign(failed=built["life"]["status"] == "failed")
     sv, _ = stage.read_once(life, 20, {"margin": 1.25, "alpha": 0.05, "spending": "obrien-fleming"})
     f = int(life["failed"].sum())
     assert sv.boundary_z[-1] == pytest.approx(efficacy_boundaries(np.arange(1, f + 1) / 20, 0.05)[-1])
     assert sv.verdict == "force longer" and sv.decided_at == f - 1
+    # under the leak definitions' model the look reads the common-sigma lognormal's estimate
+    _, est = stage.read_once(life, 20, {"margin": 1.25, "alpha": 0.05, "spending": "obrien-fleming"}, stage.LEAK_MODEL)
+    ln = lognormal_effect_fit(life["distance_km"], life["failed"], (life["adjustment"] == "force").astype(int))
+    assert est["log_ratio"] == ln.log_ratio and est["se_log_ratio"] == ln.se_log_ratio
 
 
 def test_without_a_plan_the_sensitivity_says_no_plan_and_what_it_would_have_read(built):
