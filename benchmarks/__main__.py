@@ -31,6 +31,9 @@ BENCHMARKS = {
     "remaining_life": ([], ["--quick"]),  # remaining-life intervals' coverage on simulated futures (issue 24 groundwork)
     "remaining_life_stage": ([], ["--quick"]),  # the remaining_life stage's seconds on a demo-sized hose type (< 5 s)
     "service_life": ([], ["--quick"]),  # coverage of the service-life table's bounds (shape, scale, B10, R), 600 groups
+    "rul_e2e": ([], ["--quick"]),  # remaining life end to end: hose_rul coverage per method against the simulator's futures
+    "test_plan_forward": ([], ["--quick"]),  # power_now, more_km and the decision date against the real future
+    "sensitivity": ([], ["--quick"]),  # decision_sensitivity's verdict at a true ratio of 1, per failure definition
 }
 
 
