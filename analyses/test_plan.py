@@ -14,14 +14,14 @@ their current distance, removed hoses) and the fitted common-shape Weibull
   ``no practical difference``, and a reader asks "will this test tell me something", not "will it
   show force longer". It is not the design's power (that is ``target_power`` at the margin): it
   moves with the estimate, and a test whose estimate sits between 1 and the margin may have low
-  power now although it was designed well. The current look decides only as the decision stage
-  declares it (the Wald crossing confirmed by the profile likelihood,
-  :func:`analyses.decision.crossing_holds`); the simulated looks are read on the Wald scale.
-  Measured against the real future (``benchmarks/bench_test_plan_forward.py``): calibrated
-  against that Wald reading, optimistic by about 0.07 against the stage's likelihood-checked one
-  (simulating the check, a profile fit per crossing replicate, would cost seconds a hose type), and
-  by about 0.2 with fewer than ``FEW_FAILURES / 2`` failures in an adjustment: there it is NaN with
-  the note why (the design's freeze of ``max_failures`` waits for as many).
+  power now although it was designed well. Every look, the current one and each simulated one, decides
+  only as the decision stage declares it: the common-shape Weibull refitted to the look's lives, the
+  Wald crossing confirmed by the profile likelihood (:func:`analyses.decision.crossing_holds`; the
+  simulated looks in batches, :mod:`analyses.plan_check`). Measured against the real future
+  (``benchmarks/bench_test_plan_forward.py``, docs/decision.md "power_now with the likelihood check").
+  With fewer than ``FEW_FAILURES / 2`` failures in an adjustment it is NaN with the note why (optimistic
+  by about 0.2 there: the shape from so few is biased high; the design's freeze of ``max_failures``
+  waits for as many).
 * ``more_hoses_per_adjustment`` and ``more_km`` (:func:`more_testing`): the fewest hoses to add
   per adjustment (equal allocation, new hoses from the fitted model, running hoses continuing)
   for ``failures_needed`` failures to be reachable, and the expected hose-kilometres of bench
@@ -38,22 +38,18 @@ their current distance, removed hoses) and the fitted common-shape Weibull
   maximum, all hoses on test at once; on the lab's benches the maximum takes about a quarter more and
   the decision (usually before the maximum) about a fifth less (docs/decision.md).
 
-Simulation: the canonical joint distribution (J&T 2000, sections 3.1 and 11.5)
------------------------------------------------------------------------------
-Refitting the Weibull regression at every simulated failure of every replicate costs ~1 ms a fit,
-so 4,000 replicates of 100 looks for 200 hose types would take hours. Instead each replicate
-draws the remaining life of every running hose from the fitted Weibull conditional on its current
-distance (``x_i = scale_g ((c_i / scale_g)^k + E)^(1/k)``, ``E ~ Exp(1)``, Meeker & Escobar 1998,
-section 4.6), orders the failures by the km still to run (the running hoses accumulate km at one
-rate: they share the benches), and counts failures per adjustment. The information on the log
-ratio at a look is the common-shape Weibull's Fisher information with the shape known,
-``I = k^2 / (1 / d_force + 1 / d_distance)`` (each adjustment's log scale has information
-``k^2 d_g`` under any right censoring; Meeker & Escobar 1998, section 17.3). The score
-``S = theta_hat I`` starts at the current estimate and information and has independent Gaussian
-increments with mean ``theta_hat dI`` and variance ``dI``; ``Z = S / sqrt(I)`` at each look is
-compared with the design's boundaries (the same ``efficacy_boundaries`` at ``t = d / max_failures``
-that :func:`analyses.sequential.sequential_verdict` uses). ``benchmarks/bench_test_plan.py``
-checks this against full refits at every failure.
+Simulation: the simulated lives, read as the stage reads them
+-------------------------------------------------------------
+Each replicate draws the remaining life of every running hose from the fitted Weibull conditional on its
+current distance (``x_i = scale_g ((c_i / scale_g)^k + E)^(1/k)``, ``E ~ Exp(1)``, Meeker & Escobar 1998,
+section 4.6) and orders the failures by the km still to run (the running hoses accumulate km at one
+rate: they share the benches). At each coming failure the replicate's data are the past hoses and the
+running ones at their distance then; the look decides as the decision stage's looks do
+(:func:`analyses.plan_check.first_decision`: a shape-known screen picks the replicates whose look may
+cross, those are refitted and their crossing checked by the profile likelihood, all in one vectorised
+pass per look; the replicate stops at its first confirmed look). Until session 20 the looks were read on
+the Wald scale of the canonical score process (Jennison & Turnbull 2000, sections 3.1 and 11.5) without
+the check, and ``power_now`` was optimistic by 0.07 against the stage (docs/decision.md).
 
 Replicates are seeded by the caller (the stage derives the seed from a hash of the data and the
 plan): the same data give the same figures. ``mc_se = sqrt(p (1 - p) / n)``.
@@ -76,6 +72,7 @@ import pandas as pd
 
 from analyses.decision import crossing_holds
 from analyses.life_effect import CommonShapeFit, ratio_deviance
+from analyses.plan_check import Future, Past, first_decision
 from analyses.sequential import FEW_FAILURES
 
 #: The second target power of the test plan (the plan's own power is the first) [-].
@@ -85,8 +82,9 @@ TARGET_POWER = 0.9
 N_SIMULATIONS = 4000
 
 #: Replicates of the benches' schedule (:func:`bench_schedule`): the median's Monte Carlo error about
-#: 2 % of it [-], a quarter of the cost of N_SIMULATIONS (the stage runs one a row).
-SCHEDULE_SIMULATIONS = 1000
+#: 3 % of it [-] (each replicate's looks are read by the decision stage's rule, refits at the crossings:
+#: the schedule costs most of the stage, docs/decision.md "power_now with the likelihood check").
+SCHEDULE_SIMULATIONS = 500
 
 #: Days of durability runs the bench capacity is measured from, before the latest event [d].
 CAPACITY_DAYS = 30
@@ -173,26 +171,6 @@ class HoseState:
         return int((self.failed & (self.group == 0)).sum()), int((self.failed & (self.group == 1)).sum())
 
 
-def information(d_distance, d_force, shape: float) -> np.ndarray:
-    """Fisher information on the log life ratio from failure counts, shape known [-].
-
-    Parameters
-    ----------
-    d_distance, d_force : array_like
-        Failures of each adjustment [-].
-    shape : float
-        Common Weibull shape [-].
-
-    Returns
-    -------
-    numpy.ndarray
-        ``shape^2 / (1 / d_distance + 1 / d_force)`` [-]; 0 where an adjustment has no failure.
-    """
-    dd, df = np.asarray(d_distance, float), np.asarray(d_force, float)
-    with np.errstate(divide="ignore"):
-        return np.where((dd > 0) & (df > 0), shape ** 2 / (1.0 / dd + 1.0 / df), 0.0)
-
-
 def remaining_km(rng: np.random.Generator, distance, group, fit: CommonShapeFit, n: int) -> np.ndarray:
     """Km each hose still runs before it fails, drawn from the fitted Weibull given its distance.
 
@@ -220,31 +198,17 @@ def remaining_km(rng: np.random.Generator, distance, group, fit: CommonShapeFit,
 
 
 def _decides(est, info, c, log_margin: float):
-    """Whether a look decides: efficacy ``|Z| >= c`` or the RCI inside ``(-ln m, ln m)``."""
+    """Whether a look crosses on the Wald scale: efficacy ``|Z| >= c`` or the RCI inside ``(-ln m, ln m)``."""
     with np.errstate(divide="ignore", invalid="ignore"):
         se = 1.0 / np.sqrt(info)
         half = c * se
         return (info > 0) & ((np.abs(est) > half) | (np.abs(est) + half < log_margin))
 
 
-def _first_decision(rng: np.random.Generator, force, failures: tuple[int, int], fit: CommonShapeFit, c,
-                    log_margin: float) -> np.ndarray:
-    """The first simulated look that decides, per replicate (-1: none).
-
-    ``force`` (replicates, looks) says whether each coming failure is a force-set hose's; the score
-    process of the module docstring runs from the current ``failures`` (distance, force) and the fit's
-    estimate, and each look ``j`` is read at the boundary ``c[j]`` on the Wald scale.
-    """
-    d0d, d0f = failures
-    info = information(d0d + np.cumsum(~force, axis=1), d0f + np.cumsum(force, axis=1), fit.shape)
-    info_now = float(information(d0d, d0f, fit.shape))
-    step = np.diff(np.concatenate([np.full((force.shape[0], 1), info_now), info], axis=1), axis=1)
-    score = fit.log_ratio * info_now + np.cumsum(fit.log_ratio * step + np.sqrt(step) * rng.standard_normal(step.shape),
-                                                 axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        est = score / info
-    hit = _decides(est, info, np.asarray(c, float), log_margin)
-    return np.where(hit.any(axis=1), hit.argmax(axis=1), -1)
+def _past(state: HoseState) -> Past:
+    """The state's hoses that no longer run (failed or removed, with a positive distance)."""
+    m = ~state.running & (state.distance > 0)
+    return Past(np.log(state.distance[m]), state.failed[m], state.group[m])
 
 
 def _current_look_decides(state: HoseState, fit: CommonShapeFit, c: float, margin: float) -> bool:
@@ -313,7 +277,6 @@ def power_now(state: HoseState, fit: CommonShapeFit, boundaries, margin: float, 
     d0 = d0d + d0f
     c = np.asarray(boundaries, float)
     max_failures = c.size
-    lm = math.log(max(margin, 1.0 / margin))
     if d0 >= 1 and d0 <= max_failures and _current_look_decides(state, fit, float(c[d0 - 1]), margin):
         return PowerNow(1.0, 0.0, 0, "the current look decides")
     run = np.flatnonzero(state.running)
@@ -327,9 +290,9 @@ def power_now(state: HoseState, fit: CommonShapeFit, boundaries, margin: float, 
                         "max_failures waits for as many: docs/decision.md, the plan's forward figures)")
     rng = np.random.default_rng(seed)
     left = remaining_km(rng, state.distance[run], state.group[run], fit, n_simulations)
-    order = np.argsort(left, axis=1, kind="stable")[:, :looks]
-    p = float((_first_decision(rng, state.group[run][order] == 1, state.failures, fit, c[d0:d0 + looks], lm)
-               >= 0).mean())
+    fut = Future(state.distance[run], np.zeros_like(left), left, state.group[run])
+    first = first_decision(_past(state), fut, np.sort(left, axis=1)[:, :looks], c[d0:d0 + looks], margin, fit.shape)
+    p = float((first >= 0).mean())
     notes = [] if looks == max_failures - d0 else [
         f"only {run.size} running hose(s): the test can reach {d0 + run.size} of {max_failures} failures"]
     return PowerNow(p, math.sqrt(p * (1.0 - p) / n_simulations), n_simulations, "; ".join(notes) or None)
@@ -425,28 +388,39 @@ def _bench_slots(state: HoseState, benches: int) -> tuple[np.ndarray, np.ndarray
     return distance, np.asarray(group, int)
 
 
-def _bench_failures(rng: np.random.Generator, distance, group, fit: CommonShapeFit, n: int,
-                    left: int) -> tuple[np.ndarray, np.ndarray]:
-    """The next ``left`` failures on the benches, per replicate: (their bench-km, sorted; whether each is
-    a force-set hose's), each bench a renewal process from its hose at ``distance``.
-
-    Each bench draws its next ``K`` lives (``K`` 1.5 times its share of ``left``, plus 2); a replicate where
-    some bench's ``K``-th failure comes before the ``left``-th of all is drawn again with ``K = left``
-    (then no bench can run short).
-    """
-    k = min(left, math.ceil(1.5 * left / group.size) + 2)
+def _bench_future(rng: np.random.Generator, distance, group, fit: CommonShapeFit, n: int, left: int,
+                  per_bench: int) -> tuple[Future, np.ndarray, np.ndarray]:
+    """The benches' next ``per_bench`` hoses each, per replicate (a renewal process per bench from its hose at
+    ``distance``): (the :class:`~analyses.plan_check.Future` on the bench-km clock, the next ``left``
+    failures' bench-km (sorted), whether a bench's last drawn failure comes before the ``left``-th: then
+    it could run short of hoses and the replicate is drawn again with ``per_bench = left``)."""
     first = remaining_km(rng, distance, group, fit, n)
-    later = remaining_km(rng, np.zeros(group.size * (k - 1)), np.tile(group, k - 1), fit, n)
-    at = np.cumsum(np.concatenate([first, later], axis=1).reshape(n, k, group.size), axis=1)
-    flat = at.reshape(n, -1)
-    pick = np.argpartition(flat, left - 1, axis=1)[:, :left]
-    pick = np.take_along_axis(pick, np.argsort(np.take_along_axis(flat, pick, axis=1), axis=1, kind="stable"), axis=1)
-    times = np.take_along_axis(flat, pick, axis=1)
-    force = np.tile(group, k)[pick] == 1
-    short = (at[:, -1, :] < times[:, -1:]).any(axis=1) if k < left else np.zeros(n, bool)
+    later = remaining_km(rng, np.zeros(group.size * (per_bench - 1)), np.tile(group, per_bench - 1), fit, n)
+    life = np.concatenate([first, later], axis=1).reshape(n, per_bench, group.size)
+    end = np.cumsum(life, axis=1)
+    start = np.concatenate([np.zeros((n, 1, group.size)), end[:, :-1]], axis=1)
+    flat = end.reshape(n, -1)
+    times = np.sort(np.partition(flat, left - 1, axis=1)[:, :left], axis=1)
+    short = (end[:, -1, :] < times[:, -1:]).any(axis=1) if per_bench < left else np.zeros(n, bool)
+    base = np.concatenate([distance, np.zeros(group.size * (per_bench - 1))])
+    return Future(base, start.reshape(n, -1), flat, np.tile(group, per_bench)), times, short
+
+
+def _bench_km(rng: np.random.Generator, state: HoseState, slots, fit: CommonShapeFit, n: int, c,
+              margin: float, per_bench: int) -> np.ndarray:
+    """Bench-km of each replicate's deciding look, or of its maximum's failure (:func:`bench_schedule`):
+    each bench draws its next ``per_bench`` lives (1.5 times its share of the coming failures, plus 2);
+    the replicates where that is short are drawn again in full."""
+    distance, group = slots
+    left = len(c)
+    fut, times, short = _bench_future(rng, distance, group, fit, n, left, per_bench)
+    keep = np.flatnonzero(~short)
+    sub = Future(fut.base, fut.start[keep], fut.end[keep], fut.group)
+    stop = first_decision(_past(state), sub, times[keep], c, margin, fit.shape)
+    km = times[keep, np.where(stop >= 0, stop, left - 1)]
     if short.any():
-        times[short], force[short] = _bench_failures(rng, distance, group, fit, int(short.sum()), left)
-    return times, force
+        km = np.concatenate([km, _bench_km(rng, state, slots, fit, int(short.sum()), c, margin, left)])
+    return km
 
 
 def bench_schedule(state: HoseState, fit: CommonShapeFit, boundaries, margin: float, benches: int,
@@ -458,8 +432,9 @@ def bench_schedule(state: HoseState, fit: CommonShapeFit, boundaries, margin: fl
     running hoses continue from their distance (a free bench takes a new hose, to the adjustment with
     fewer), and each failed hose is replaced at once by a new one of its adjustment (a renewal
     process per bench; lives from the fitted model, :func:`remaining_km`). The failures are read in
-    bench-km order with the score process of :func:`power_now` at the design's ``boundaries``; a
-    replicate stops at its first deciding look, else at the maximum (the last boundary's failure).
+    bench-km order as :func:`power_now` reads its looks, at the design's ``boundaries``; a
+    replicate stops at its first deciding look (:func:`analyses.plan_check.first_decision`), else at the
+    maximum (the last boundary's failure).
 
     Parameters
     ----------
@@ -472,9 +447,8 @@ def bench_schedule(state: HoseState, fit: CommonShapeFit, boundaries, margin: fl
     Returns
     -------
     BenchSchedule
-        The median hose-km [km] (0 when the current look decides or the maximum is reached).
-        Read on the Wald scale like :func:`power_now`, the simulated looks decide somewhat earlier than
-        the decision stage's likelihood-checked ones (docs/decision.md, the plan's forward figures).
+        The median hose-km [km] (0 when the current look decides or the maximum is reached); each
+        simulated look read as the decision stage reads it, as in :func:`power_now`.
     """
     if fit.note or not np.isfinite(fit.se_log_ratio):
         return BenchSchedule(math.nan, f"no fitted model: {fit.note or 'no standard error'}")
@@ -487,10 +461,8 @@ def bench_schedule(state: HoseState, fit: CommonShapeFit, boundaries, margin: fl
     if group.size == 0:
         return BenchSchedule(math.nan, "no bench and no running hose")
     rng = np.random.default_rng(seed)
-    lm = math.log(max(margin, 1.0 / margin))
-    at, force = _bench_failures(rng, distance, group, fit, n_simulations, left)
-    stop = _first_decision(rng, force, state.failures, fit, c[d0:], lm)
-    km = at[np.arange(n_simulations), np.where(stop >= 0, stop, left - 1)]
+    per_bench = min(left, math.ceil(1.5 * left / group.size) + 2)
+    km = _bench_km(rng, state, (distance, group), fit, n_simulations, c[d0:], margin, per_bench)
     return BenchSchedule(group.size * float(np.median(km)))
 
 
@@ -556,5 +528,5 @@ def decision_date(today: pd.Timestamp, more_km: float, benches, km_per_day):
 
 
 __all__ = ["TARGET_POWER", "N_SIMULATIONS", "SCHEDULE_SIMULATIONS", "CAPACITY_DAYS", "HoseState", "PowerNow", "MoreTesting", "BenchSchedule",
-           "target_powers", "information", "remaining_km", "power_now", "more_testing", "bench_schedule",
+           "target_powers", "remaining_km", "power_now", "more_testing", "bench_schedule",
            "measured_capacity", "decision_date"]

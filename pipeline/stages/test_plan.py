@@ -18,8 +18,9 @@ target power (the plan's, and 0.9; one row when they are equal), from :mod:`anal
   the data (not the wall clock: the same raw/ gives the same table) plus the days the lab's
   ``benches`` (failed hoses replaced) take to decide or reach ``failures_needed``
   (:func:`analyses.test_plan.bench_schedule`'s median hose-km over ``benches * km_per_day``), the
-  capacity from the plan or measured from the durability runs of the last 30 days
-  (``capacity_from``; known before the simulations, which need the benches).
+  capacity from the plan or measured from the hose type's own durability runs of the last 30 days
+  (``capacity_from``; known before the simulations, which need the benches; until session 20 it was
+  measured from every hose type's runs together, the lab's benches given to each type).
 
 Seeds: no stage is handed a digest of its inputs, so each hose type's simulations are seeded from
 a sha256 of its own ``hose_life`` rows (id, adjustment, status, distance), its plan settings and
@@ -193,6 +194,19 @@ def latest_event(life: pd.DataFrame, runs: pd.DataFrame):
     return None if pd.isna(latest) else latest
 
 
+def measured_by_type(life: pd.DataFrame, runs: pd.DataFrame, today, hose_types) -> dict:
+    """Per hose type, the bench capacity measured from ITS hoses' durability runs of the last
+    ``CAPACITY_DAYS`` days (:func:`analyses.test_plan.measured_capacity`: benches, km_per_day, note): the
+    benches testing that hose type, as ``benches`` means, not the lab's runs of every type together."""
+    if today is None:
+        return {t: (None, None, "no event time in the data") for t in hose_types}
+    if runs is None or life is None or len(runs) == 0 or "hose_id" not in runs:
+        return {t: measured_capacity(None, today) for t in hose_types}
+    type_of = dict(zip(life["hose_id"].astype(str), life["hose_type"]))
+    of_type = runs["hose_id"].astype(str).map(type_of)
+    return {t: measured_capacity(runs[(of_type == t).to_numpy()], today) for t in hose_types}
+
+
 def _bench_capacity(settings, measured: tuple) -> tuple:
     """(benches, km_per_day, capacity_from) of a hose type: the plan's, else measured."""
     benches, km_day, _ = measured
@@ -223,14 +237,15 @@ def plan_table(ctx: StageContext) -> pd.DataFrame:
     """The ``test_plan`` table (module docstring)."""
     life, runs = ctx.results.get("hose_life"), ctx.results.get("durability_runs")
     today = latest_event(life, runs)
-    measured = measured_capacity(runs, today) if today is not None else (None, None, "no event time in the data")
     items = hose_items(life, ctx.results.get("life_effect"), ctx.plan, ctx.results.get("life_verdict"))
+    measured = measured_by_type(life, runs, today, [i["hose_type"] for i in items])
     keys = sorted({json.dumps(_design_item(i), sort_keys=True) for i in items})
     designs = dict(zip(keys, ctx.map(design, [json.loads(k) for k in keys], label="test plan designs")))
     items = [dict(i, design=designs[json.dumps(_design_item(i), sort_keys=True)],
-                  benches=_bench_capacity(ctx.plan.for_hose_type(i["hose_type"]), measured)[0]) for i in items]
+                  benches=_bench_capacity(ctx.plan.for_hose_type(i["hose_type"]), measured[i["hose_type"]])[0])
+             for i in items]
     results = ctx.map(plan_hose_type, items, label="test plan") if items else []
-    rows = [_capacity(r, ctx.plan.for_hose_type(item["hose_type"]), measured, today)
+    rows = [_capacity(r, ctx.plan.for_hose_type(item["hose_type"]), measured[item["hose_type"]], today)
             for item, res in zip(items, results) for r in res]
     df = pd.DataFrame(rows, columns=COLUMNS)
     for c in ("failures_needed", "failures", "more_hoses_per_adjustment", "benches", "n_simulations"):

@@ -129,10 +129,9 @@ CREATE TABLE test_plan (
                                            -- max_failures: life_verdict's (the plan's or the frozen one; while
                                            -- none is frozen, failures_needed at the plan's power) [-];
                                            -- failures_needed follows the current shape (what it takes now).
-                                           -- Simulated looks read on the Wald scale (the profile-likelihood
-                                           -- check is not simulated: a profile fit per crossing replicate costs
-                                           -- seconds a hose type): an upper bound by about 0.07 on the stage's
-                                           -- likelihood-checked decision (up to 0.17 at 0.7-0.9). NULL with
+                                           -- Each simulated look is read as the decision stage reads a look:
+                                           -- the common-shape Weibull refitted to the simulated lives, the
+                                           -- Wald crossing confirmed by the profile likelihood. NULL with
                                            -- fewer than 5 failures (FEW_FAILURES / 2) in an adjustment: the
                                            -- shape from so few is biased high (0.71 predicted against 0.49
                                            -- realised), the freeze waits as long
@@ -142,16 +141,18 @@ CREATE TABLE test_plan (
                                            -- failure with the running hoses and those added hoses all on test
                                            -- at once, no replacement [km]: the scenario of
                                            -- more_hoses_per_adjustment, not the lab's benches' schedule
-    benches           BIGINT,              -- benches testing this hose type [-]
+    benches           BIGINT,              -- benches testing this hose type [-]: the plan's, or the most of its
+                                           -- hoses' durability runs at once in the last 30 days
     km_per_day        DOUBLE,              -- testing capacity per bench [km/day]
-    capacity_from     VARCHAR,             -- 'plan' | 'measured, last 30 days' | NULL
+    capacity_from     VARCHAR,             -- 'plan' | 'measured, last 30 days' (this hose type's runs) | NULL
     expected_decision_date DATE,           -- latest event in the data + the median (over the simulations) of
                                            -- the days the lab's benches take to decide or reach failures_needed:
                                            -- benches at km_per_day, running hoses continuing, a failed hose
-                                           -- replaced at once, looks at the design's boundaries for
-                                           -- failures_needed; NULL without capacity or fitted model
+                                           -- replaced at once, each look read as the decision stage reads it
+                                           -- (refit, Wald crossing, likelihood check) at the design's boundaries
+                                           -- for failures_needed; NULL without capacity or fitted model
     n_simulations     BIGINT,              -- Monte Carlo replicates behind power_now and more_km (0: power_now
-                                           -- not simulated, decided or NULL); expected_decision_date uses 1,000 [-]
+                                           -- not simulated, decided or NULL); expected_decision_date uses 500 [-]
     mc_se             DOUBLE,              -- Monte Carlo standard error of power_now [-]
     note              VARCHAR              -- NULL when sound, else why values are NULL
 );

@@ -8,8 +8,9 @@ import pandas as pd
 import pytest
 from scipy import stats
 
-from analyses.life_effect import CommonShapeFit, common_shape_fit
-from analyses.test_plan import (HoseState, bench_schedule, decision_date, hoses_on_test, information, measured_capacity,
+from analyses.decision import crossing_holds
+from analyses.life_effect import CommonShapeFit, common_shape_fit, ratio_deviance
+from analyses.test_plan import (HoseState, bench_schedule, decision_date, hoses_on_test, measured_capacity,
                                 more_testing, power_now, remaining_km, target_powers)
 
 
@@ -47,12 +48,6 @@ def test_target_powers_are_the_plans_and_0_9_once():
     assert target_powers(0.9) == (0.9,)
 
 
-def test_information_by_hand():
-    assert information(4, 4, 2.0) == pytest.approx(8.0)          # 4 / (1/4 + 1/4)
-    assert information(2, 6, 1.0) == pytest.approx(1.5)          # 1 / (1/2 + 1/6)
-    assert information(0, 6, 1.0) == 0.0
-
-
 def test_remaining_km_is_the_conditional_weibull():
     """P(remaining > r | survived c) = exp((c/s)^k - ((c + r)/s)^k), checked at three r."""
     rng = np.random.default_rng(1)
@@ -65,31 +60,59 @@ def test_remaining_km_is_the_conditional_weibull():
     assert left[:, 1].mean() == pytest.approx(2 * s * math.gamma(1.5), rel=0.01)
 
 
-def test_power_now_matches_the_exact_one_look_case():
-    """One look left (max_failures = failures + 1): with equal scales and equal running hoses the
-    next failure is force or distance with probability 1/2, and either way the information goes
-    from 2.5 k^2 (5 and 5 failures) to 30/11 k^2 (6 and 5), so S ~ N(theta I1, I1 - I0) exactly."""
-    k, theta, c, margin = 1.5, 0.69, 2.0, 4.0
-    i0, i1 = 2.5 * k ** 2, 30 / 11 * k ** 2
-    bounds = [40.0] * 10 + [c]                    # the current look (the 10th failure) cannot decide
-    got = power_now(state(5), model(shape=k, log_ratio=theta, se=1 / math.sqrt(i0)), bounds, margin, 200_000, seed=3)
-    sd, mean = math.sqrt(i1 - i0), theta * i1
-    efficacy = stats.norm.sf((c * math.sqrt(i1) - mean) / sd) + stats.norm.cdf((-c * math.sqrt(i1) - mean) / sd)
-    futility_edge = i1 * (math.log(margin) - c / math.sqrt(i1))
-    futility = stats.norm.cdf((futility_edge - mean) / sd) - stats.norm.cdf((-futility_edge - mean) / sd)
-    assert got.power == pytest.approx(efficacy + futility, abs=4 * got.mc_se)
-    assert got.n_simulations == 200_000 and got.note is None
-    assert 0.1 < efficacy and 0.1 < futility     # both kinds of decision are exercised
+def test_power_now_reads_the_simulated_look_as_the_decision_stage():
+    """One look left: power_now is the share of the replicates whose next failure's look the decision stage
+    would declare. The same draws (the seed's first use of its generator: remaining_km) read one by one:
+    the common-shape Weibull refitted to the look's lives, the Wald crossing at the boundary and the
+    profile likelihood's check (crossing_holds), as the decision stage reads a look."""
+    rng = np.random.default_rng(8)
+    group = np.repeat([0, 1], 14)
+    failed = np.tile(np.r_[np.ones(8, bool), np.zeros(6, bool)], 2)
+    life = rng.weibull(2.0, 28) * 1000.0 * np.where(group == 1, 1.6, 1.0)
+    st = HoseState(np.where(failed, life, 900.0), failed, ~failed, group)
+    fit = common_shape_fit(st.distance, st.failed, st.group)
+    z = abs(fit.log_ratio) / fit.se_log_ratio
+    c, margin, n = 0.9 * z, 1.25, 300
+    got = power_now(st, fit, [40.0] * 16 + [c], margin, n, seed=3)
+    left = remaining_km(np.random.default_rng(3), st.distance[~failed], group[~failed], fit, n)
+    decided = 0
+    for r in range(n):
+        x = st.distance.copy()
+        x[~failed] += np.minimum(left[r], left[r].min())
+        f = failed.copy()
+        f[~failed] = left[r] <= left[r].min()
+        one = common_shape_fit(x, f, group)
+        half = c * one.se_log_ratio
+        crossed = ("force longer" if one.log_ratio > half else "distance longer" if one.log_ratio < -half
+                   else "no practical difference" if abs(one.log_ratio) + half < math.log(margin) else None)
+        decided += crossed is not None and crossing_holds(lambda t: ratio_deviance(x, f, group, t), crossed, c, margin)
+    assert got.power == decided / n
+    assert 0.05 < got.power < 0.95 and got.n_simulations == n
+
+
+def drawn_state(ratio, seed=7):
+    """6 failures per adjustment drawn from Weibull(1.5) lives (force-set ``ratio`` times longer), 30 running
+    each at 300 km: the fit is the data's, as the stage's."""
+    rng = np.random.default_rng(seed)
+    group = np.repeat([0, 1], 36)
+    failed = np.tile(np.r_[np.ones(6, bool), np.zeros(30, bool)], 2)
+    life = np.sort(rng.weibull(1.5, (2, 6)), axis=1).ravel() * 300.0 * np.repeat([1.0, ratio], 6)
+    distance = np.full(72, 300.0)
+    distance[failed] = life
+    st = HoseState(distance, failed, ~failed, group)
+    return st, common_shape_fit(st.distance, st.failed, st.group)
 
 
 def test_power_now_rises_with_the_fitted_effect_and_is_deterministic():
     bounds = np.full(60, 2.2)
-    st = state(5, 40, 300.0)
-    weak, strong = (power_now(st, model(log_ratio=t, se=0.7), bounds, 1.25, 2000, seed=7) for t in (0.05, 0.8))
-    assert strong.power > 0.9 and weak.power < strong.power
-    again = power_now(st, model(log_ratio=0.8, se=0.7), bounds, 1.25, 2000, seed=7)
+    (weak_st, weak_fit), (strong_st, strong_fit) = drawn_state(1.0), drawn_state(4.0)
+    assert strong_fit.log_ratio > weak_fit.log_ratio + 0.5
+    weak = power_now(weak_st, weak_fit, bounds, 1.25, 1000, seed=7)
+    strong = power_now(strong_st, strong_fit, bounds, 1.25, 1000, seed=7)
+    assert strong.power > 0.8 and weak.power < strong.power - 0.2
+    again = power_now(strong_st, strong_fit, bounds, 1.25, 1000, seed=7)
     assert again == strong
-    assert strong.mc_se == pytest.approx(math.sqrt(strong.power * (1 - strong.power) / 2000))
+    assert strong.mc_se == pytest.approx(math.sqrt(strong.power * (1 - strong.power) / 1000))
 
 
 def clear_state():
@@ -169,10 +192,11 @@ def test_bench_schedule_to_the_maximum_is_the_exponentials_gamma():
 def test_bench_schedule_stops_at_the_decision():
     """A strong fitted effect decides long before the maximum: the benches' km shrink; the current look
     deciding or the maximum reached is 0 km; no fitted model is NaN. Deterministic per seed."""
-    st, bounds = state(5, 10, 300.0), np.full(200, 2.0)
-    weak, strong = (bench_schedule(st, model(log_ratio=t, se=0.4), bounds, 1.25, 20, 2000, seed=1) for t in (0.0, 1.5))
+    bounds = np.full(100, 2.0)
+    (weak_st, weak_fit), (st, fit) = drawn_state(1.0), drawn_state(4.0)
+    weak, strong = (bench_schedule(s, f, bounds, 1.25, 20, 300, seed=1) for s, f in ((weak_st, weak_fit), (st, fit)))
     assert 0.0 < strong.hose_km < 0.5 * weak.hose_km
-    assert bench_schedule(st, model(log_ratio=1.5, se=0.4), bounds, 1.25, 20, 2000, seed=1) == strong
+    assert bench_schedule(st, fit, bounds, 1.25, 20, 300, seed=1) == strong
     decided = bench_schedule(clear_state(), model(log_ratio=2.0, se=0.5), [2.0] * 40, 1.25, 20, 100)
     assert (decided.hose_km, decided.note) == (0.0, "the current look decides")
     assert bench_schedule(st, model(), [40.0] * 10, 1.25, 20).hose_km == 0.0

@@ -46,3 +46,9 @@ def test_a_quick_run_is_repeatable(capsys):
     a, b = bf.run(2, bf.CELLS[:1]), bf.run(2, bf.CELLS[:1])
     pd.testing.assert_frame_equal(a, b)
     assert bf.main(["--quick"]) in (0, 1) and "power_now against the realised decision" in capsys.readouterr().out
+
+
+def test_screen_error_compares_the_same_replicates():
+    """The screen against reading every look: counts of one state's replicates (the benchmark's N_SIM)."""
+    differ, total, told = bf.screen_error(2, bf.CELLS[1:2])
+    assert total == told * bf.N_SIM and told >= 1 and 0 <= differ <= total

@@ -39,8 +39,9 @@ def frames():
                         + hoses("C", 3, (900.0, 900.0), 3)[:3])          # C: distance-set only, no row
     life.loc[len(life)] = {"hose_id": "A-x", "hose_type": "A", "adjustment": "force", "distance_km": np.nan,
                            "status": "failed", "installed_at": T0, "ended_at": T0}   # unknown life: left out
-    runs = pd.DataFrame({"started_at": [T0 - pd.Timedelta(days=d) for d in range(1, 21)], "duration_h": 12.0,
-                         "distance_km": 40.0})
+    days = [T0 - pd.Timedelta(days=d) for d in range(1, 21)]
+    runs = pd.DataFrame({"hose_id": ["B-d00"] * 20 + ["A-f01"] * 20, "started_at": days + days, "duration_h": 12.0,
+                         "distance_km": 40.0})             # B's hose and A's run at the same times
     effect = pd.DataFrame({"hose_type": ["A", "B"], "shape": [2.1, np.nan], "model": ["common shape", None]})
     return {"hose_life": life, "durability_runs": runs, "life_effect": effect}
 
@@ -113,7 +114,8 @@ def test_capacity_from_the_plan_or_measured_and_the_date(df):
     assert sched.hose_km > 0
     days = sched.hose_km / 300.0
     assert a["expected_decision_date"] == (T0 + pd.Timedelta(days=days)).date()   # today: the latest run's end
-    # measured: 20 runs of 40 km in the last 20 days (the data are 20 days old), one at a time
+    # measured from B's own runs: 20 runs of 40 km in the last 20 days (the data are 20 days old), one at a
+    # time (A's runs beside them are A's benches, not B's)
     assert (b["capacity_from"], b["benches"]) == ("measured, last 30 days", 1)
     assert b["km_per_day"] == pytest.approx(800.0 / (20.5 - 0.5))
 

@@ -1,0 +1,96 @@
+"""The decision stage's rule on many simulated looks: the batch fit and deviance against the scalar
+functions the stage uses, and the first deciding look against reading each look one by one."""
+import math
+
+import numpy as np
+import pytest
+
+from analyses.decision import crossing_holds
+from analyses.life_effect import common_shape_fit, ratio_deviance
+from analyses.plan_check import SCREEN, Future, Past, batch_deviance, batch_fit, decides, first_decision
+
+
+def censored(rng, rows=60, hoses=24, ratio=1.3):
+    """Weibull(2.5) lives, force-set ones ``ratio`` times longer, random censoring, a tenth of the hoses off."""
+    group = np.repeat([0, 1], hoses // 2)
+    life = rng.weibull(2.5, (rows, hoses)) * 1000.0 * np.where(group == 1, ratio, 1.0)
+    stop = rng.uniform(300.0, 2000.0, (rows, hoses))
+    return np.log(np.minimum(life, stop)), life <= stop, rng.random((rows, hoses)) > 0.1, group
+
+
+def test_batch_fit_and_deviance_are_the_scalar_functions():
+    """Every row's shape, log ratio, its standard error, log-likelihood and the profile deviance at 1 and
+    1.5 equal common_shape_fit / ratio_deviance on that row's hoses; a row with one force-set failure is
+    not ok (the scalar fit has a note)."""
+    logx, failed, on, group = censored(np.random.default_rng(1))
+    failed[0, group == 1] = False
+    failed[0, -1] = True                        # row 0: one force-set failure
+    fit = batch_fit(logx, failed, on, group, 2.0)
+    dev = {r: batch_deviance(logx, failed, on, group, fit, r) for r in (1.0, 1.5)}
+    assert not fit.ok[0] and math.isnan(dev[1.0][0])
+    for i in range(1, len(logx)):
+        m = on[i]
+        x, f, g = np.exp(logx[i, m]), failed[i, m], group[m]
+        one = common_shape_fit(x, f, g)
+        assert one.note is None and fit.ok[i]
+        assert fit.shape[i] == pytest.approx(one.shape, rel=1e-8)
+        assert fit.log_ratio[i] == pytest.approx(one.log_ratio, abs=1e-8)
+        assert fit.se[i] == pytest.approx(one.se_log_ratio, rel=1e-8)
+        assert fit.loglik[i] == pytest.approx(one.loglik, abs=1e-8)
+        for r in (1.0, 1.5):
+            assert dev[r][i] == pytest.approx(ratio_deviance(x, f, g, r), abs=1e-7)
+
+
+def scalar_decides(x, f, g, c, margin):
+    """The decision stage's rule on one look (sequential_verdict's crossing, then crossing_holds)."""
+    fit = common_shape_fit(x, f, g)
+    if fit.note or not math.isfinite(fit.se_log_ratio):
+        return False, False
+    half, lm = c * fit.se_log_ratio, math.log(margin)
+    crossed = ("force longer" if fit.log_ratio - half > 0 else "distance longer" if fit.log_ratio + half < 0
+               else "no practical difference" if abs(fit.log_ratio) + half < lm else None)
+    if crossed is None:
+        return False, False
+    return True, crossing_holds(lambda r: ratio_deviance(x, f, g, r), crossed, c, margin)
+
+
+def test_decides_is_the_stage_rule_with_its_vetoes():
+    """At a boundary near the rows' z some rows cross on the Wald scale and the likelihood vetoes some of
+    those: decides() agrees with the scalar rule row by row, and every outcome occurs."""
+    logx, failed, on, group = censored(np.random.default_rng(2), rows=150, ratio=1.6)
+    c = np.full(len(logx), 2.0)
+    got = decides(logx, failed, on, group, c, 1.25, 2.0)
+    want = [scalar_decides(np.exp(logx[i, on[i]]), failed[i, on[i]], group[on[i]], 2.0, 1.25) for i in range(len(logx))]
+    assert got.tolist() == [w[1] for w in want]
+    assert {(w[0], w[1]) for w in want} == {(False, False), (True, False), (True, True)}   # a veto occurs
+
+
+def test_first_decision_reads_every_look_as_the_stage():
+    """A small future (6 running hoses each adjustment continuing, past failures), looks at each coming
+    failure: the first look the scalar rule declares, replicate by replicate, is first_decision's, with
+    the screen (at the current fit's shape, as the test plan passes it) and without it."""
+    rng = np.random.default_rng(3)
+    group_run = np.repeat([0, 1], 6)
+    base = rng.uniform(100.0, 400.0, 12)
+    n = 40
+    left = rng.weibull(2.0, (n, 12)) * 900.0 * np.where(group_run == 1, 1.8, 1.0)
+    fut = Future(base, np.zeros((n, 12)), left, group_run)
+    px = np.r_[rng.uniform(200.0, 700.0, 6), rng.uniform(400.0, 1200.0, 6)]
+    past = Past(np.log(px), np.ones(12, bool), np.repeat([0, 1], 6))
+    times = np.sort(left, axis=1)[:, :10]
+    c = np.linspace(2.6, 2.0, 10)
+    want = []
+    for r in range(n):
+        first = -1
+        for j in range(10):
+            x = np.r_[px, base + np.minimum(left[r], times[r, j])]
+            f = np.r_[np.ones(12, bool), left[r] <= times[r, j]]
+            if scalar_decides(x, f, np.r_[past.group, group_run], c[j], 1.5)[1]:
+                first = j
+                break
+        want.append(first)
+    assert 0 < sum(w >= 0 for w in want) < n
+    shape = common_shape_fit(np.r_[px, base], np.r_[np.ones(12, bool), np.zeros(12, bool)],
+                             np.r_[past.group, group_run]).shape
+    assert first_decision(past, fut, times, c, 1.5, shape, screen=0.0).tolist() == want
+    assert first_decision(past, fut, times, c, 1.5, shape, screen=SCREEN).tolist() == want
