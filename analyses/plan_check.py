@@ -43,6 +43,11 @@ from analyses.service_life import SHAPE_BOUNDS
 #: nothing it should find when it is looser than 1 (measured: benchmarks/bench_test_plan_forward.py).
 SCREEN = 0.75
 
+#: The same for a replicate refitted at an earlier look [-]: its screen is corrected by that refit (the
+#: refit's estimate minus the screen's, the ratio of their standard errors), which one more failure
+#: changes little, so a tighter factor finds the same looks with fewer refits (measured as SCREEN).
+SCREEN_REFITTED = 0.85
+
 _LO, _HI = math.log(SHAPE_BOUNDS[0]), math.log(SHAPE_BOUNDS[1])
 
 
@@ -101,9 +106,9 @@ def _value_slope(t, groups):
 def _shape_mle(groups, start: float):
     """(log shape per row, whether it settled strictly inside SHAPE_BOUNDS): bracketed Newton steps
     (:func:`analyses.service_life.newton_root` row by row: a step leaving the bracket is a bisection), each
-    row iterated until its step is below 1e-10 (relative)."""
+    row iterated until its step is below 1e-8 (relative; the error after it is of the order of its square)."""
     n = groups[0][2].size
-    a, b, t = np.full(n, _LO), np.full(n, _HI), np.full(n, min(max(start, _LO), _HI))
+    a, b, t = np.full(n, _LO), np.full(n, _HI), np.clip(np.broadcast_to(np.asarray(start, float), n), _LO, _HI)
     live = np.arange(n)
     for _ in range(100):
         sub = [tuple(v[live] for v in grp) for grp in groups]
@@ -112,7 +117,7 @@ def _shape_mle(groups, start: float):
         with np.errstate(divide="ignore", invalid="ignore"):
             step = -v / s
         nxt = t[live] + step
-        done = np.isfinite(step) & (np.abs(step) < 1e-10 * (1.0 + np.abs(t[live])))
+        done = np.isfinite(step) & (np.abs(step) < 1e-8 * (1.0 + np.abs(t[live])))
         bad = ~done & (~np.isfinite(nxt) | (nxt <= a[live]) | (nxt >= b[live]))
         t[live] = np.where(bad, 0.5 * (a[live] + b[live]), nxt)
         live = live[~done]
@@ -173,15 +178,15 @@ def batch_fit(logx, failed, on, group, shape_start: float = 1.0) -> BatchFit:
         Failure; the hose is in the row's data.
     group : numpy.ndarray of int, shape (H,)
         1 force-set, 0 distance-set.
-    shape_start : float
-        Shape the Newton steps start from [-] (the same root from any start).
+    shape_start : float or numpy.ndarray
+        Shape the Newton steps start from [-], one or per row (the same root from any start).
 
     Returns
     -------
     BatchFit
     """
     groups = [_prep(logx[:, group == g], failed[:, group == g], on[:, group == g]) for g in (0, 1)]
-    t, inside = _shape_mle(groups, math.log(shape_start))
+    t, inside = _shape_mle(groups, np.log(shape_start))
     k = np.exp(t)
     enough = (groups[0][2] >= 2) & (groups[1][2] >= 2)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -208,13 +213,16 @@ def batch_deviance(logx, failed, on, group, fit: BatchFit, ratio: float) -> np.n
     return np.where(fit.ok & inside, np.maximum(0.0, 2.0 * (fit.loglik - profile)), np.nan)
 
 
-def decides(logx, failed, on, group, c, margin: float, shape_start: float = 1.0) -> np.ndarray:
+def decides(logx, failed, on, group, c, margin: float, shape_start=1.0) -> tuple[np.ndarray, BatchFit]:
     """Whether each row's look decides as the decision stage declares it: the refitted Wald crossing at
     the boundary ``c`` (per row [-]) confirmed by the profile likelihood (module docstring).
 
     Returns
     -------
     numpy.ndarray of bool, shape (B,)
+        Whether the row's look decides.
+    BatchFit
+        The rows' refits (:func:`batch_fit`).
     """
     fit = batch_fit(logx, failed, on, group, shape_start)
     c = np.broadcast_to(np.asarray(c, float), fit.ok.shape)
@@ -232,7 +240,7 @@ def decides(logx, failed, on, group, c, margin: float, shape_start: float = 1.0)
         for r in trials:
             holds &= batch_deviance(logx[rows], failed[rows], on[rows], group, sub, r) > c[rows] ** 2
         out[rows] = holds
-    return out
+    return out, fit
 
 
 def _look(fut: Future, rows, at):
@@ -253,7 +261,7 @@ def _with_past(past: Past, logx, failed, on):
 
 
 def first_decision(past: Past, fut: Future, times, c, margin: float, shape: float,
-                   screen: float = SCREEN) -> np.ndarray:
+                   screen: tuple[float, float] = (SCREEN, SCREEN_REFITTED)) -> np.ndarray:
     """The first simulated look that the decision stage would declare, per replicate (-1: none).
 
     Parameters
@@ -270,8 +278,9 @@ def first_decision(past: Past, fut: Future, times, c, margin: float, shape: floa
         The design's margin [-].
     shape : float
         The fitted shape now [-]: the screen's known shape and the refits' start.
-    screen : float
-        Slack of the screen (:data:`SCREEN`; 0 reads every look in full).
+    screen : (float, float)
+        Slack of the screen before a replicate's first refit and after it (:data:`SCREEN`,
+        :data:`SCREEN_REFITTED`; ``(0, 0)`` reads every look in full).
 
     Returns
     -------
@@ -283,6 +292,8 @@ def first_decision(past: Past, fut: Future, times, c, margin: float, shape: floa
     past_sum = [float(np.exp(shape * past.logx[past.group == g]).sum()) for g in (0, 1)]
     past_d = [int((past.failed & (past.group == g)).sum()) for g in (0, 1)]
     first = np.full(n, -1)
+    offset, ratio, start = np.zeros(n), np.ones(n), np.full(n, float(shape))    # from each replicate's last refit
+    refitted = np.zeros(n, bool)
     for j in range(looks):
         rows = np.flatnonzero(first < 0)
         if rows.size == 0:
@@ -292,14 +303,19 @@ def first_decision(past: Past, fut: Future, times, c, margin: float, shape: floa
         d = [past_d[g] + failed[:, fut.group == g].sum(axis=1) for g in (0, 1)]
         s = [past_sum[g] + powered[:, fut.group == g].sum(axis=1) for g in (0, 1)]
         with np.errstate(divide="ignore", invalid="ignore"):
-            est = (np.log(s[1] / d[1]) - np.log(s[0] / d[0])) / shape
-            half = screen * c[j] * np.sqrt(1.0 / d[0] + 1.0 / d[1]) / shape
+            se = np.sqrt(1.0 / d[0] + 1.0 / d[1]) / shape
+            est = (np.log(s[1] / d[1]) - np.log(s[0] / d[0])) / shape + offset[rows]
+            half = np.where(refitted[rows], screen[1], screen[0]) * c[j] * se * ratio[rows]
             maybe = (d[0] >= 2) & (d[1] >= 2) & ((np.abs(est) > half) | (np.abs(est) + half < lm))
         idx = np.flatnonzero(maybe)
         if idx.size:
-            yes = decides(*_with_past(past, logx[idx], failed[idx], on[idx]), group, c[j], margin, shape)
+            yes, fit = decides(*_with_past(past, logx[idx], failed[idx], on[idx]), group, c[j], margin, start[rows[idx]])
             first[rows[idx[yes]]] = j
+            ok, at = fit.ok, rows[idx]
+            offset[at[ok]] += fit.log_ratio[ok] - est[idx[ok]]
+            ratio[at[ok]] = fit.se[ok] / se[idx[ok]]
+            start[at[ok]], refitted[at[ok]] = fit.shape[ok], True
     return first
 
 
-__all__ = ["SCREEN", "Future", "Past", "BatchFit", "batch_fit", "batch_deviance", "decides", "first_decision"]
+__all__ = ["SCREEN", "SCREEN_REFITTED", "Future", "Past", "BatchFit", "batch_fit", "batch_deviance", "decides", "first_decision"]

@@ -23,9 +23,10 @@ One command::
    ``failures_needed``: PASS within 10 % (the issue's target). Also printed: the force-set share
    of the failures (simulated and the design's) and the share of trials declaring ``no practical
    difference`` at ``M = failures_needed`` (the design allows ``alpha / 2``).
-2. ``power_now`` (:func:`analyses.test_plan.power_now`, failure counts and the canonical
-   z-process) against a full-refit simulation of the same future for one hose type's current
-   state: the remaining lives drawn from the same fitted model, the Weibull refitted at every
+2. ``power_now`` (:func:`analyses.test_plan.power_now`, since session 20 its simulated looks read by
+   the stage's rule in batches, :mod:`analyses.plan_check`; until then failure counts and the
+   canonical z-process) against a full-refit simulation of the same future for one hose type's current
+   state, written independently: the remaining lives drawn from the same fitted model, the Weibull refitted at every
    future failure, the same boundaries and decision rule. PASS when the two agree within three
    combined Monte Carlo standard errors.
 
@@ -178,7 +179,7 @@ def check_power_now(quick: bool) -> bool:
     ok = abs(approx.power - full) <= 3 * se
     print(f"\npower_now, one hose type: {n} hoses per adjustment, {d0} failures so far, max_failures {m}, "
           f"fitted ratio {math.exp(fit.log_ratio):.2f}, shape {fit.shape:.2f}")
-    print(f"  MC (counts + canonical z-process, {approx.n_simulations}): {approx.power:.3f} +/- {approx.mc_se:.3f}")
+    print(f"  MC (each look read by the stage's rule, {approx.n_simulations}): {approx.power:.3f} +/- {approx.mc_se:.3f}")
     print(f"  full refit at every future failure ({trials}):       {full:.3f} +/- "
           f"{math.sqrt(full * (1 - full) / trials):.3f}")
     print(f"  difference {approx.power - full:+.3f} (3 combined MC SE {3 * se:.3f}): {'PASS' if ok else 'MISS'}")

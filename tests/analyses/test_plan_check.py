@@ -7,7 +7,7 @@ import pytest
 
 from analyses.decision import crossing_holds
 from analyses.life_effect import common_shape_fit, ratio_deviance
-from analyses.plan_check import SCREEN, Future, Past, batch_deviance, batch_fit, decides, first_decision
+from analyses.plan_check import Future, Past, batch_deviance, batch_fit, decides, first_decision
 
 
 def censored(rng, rows=60, hoses=24, ratio=1.3):
@@ -59,7 +59,7 @@ def test_decides_is_the_stage_rule_with_its_vetoes():
     those: decides() agrees with the scalar rule row by row, and every outcome occurs."""
     logx, failed, on, group = censored(np.random.default_rng(2), rows=150, ratio=1.6)
     c = np.full(len(logx), 2.0)
-    got = decides(logx, failed, on, group, c, 1.25, 2.0)
+    got, _ = decides(logx, failed, on, group, c, 1.25, 2.0)
     want = [scalar_decides(np.exp(logx[i, on[i]]), failed[i, on[i]], group[on[i]], 2.0, 1.25) for i in range(len(logx))]
     assert got.tolist() == [w[1] for w in want]
     assert {(w[0], w[1]) for w in want} == {(False, False), (True, False), (True, True)}   # a veto occurs
@@ -92,5 +92,5 @@ def test_first_decision_reads_every_look_as_the_stage():
     assert 0 < sum(w >= 0 for w in want) < n
     shape = common_shape_fit(np.r_[px, base], np.r_[np.ones(12, bool), np.zeros(12, bool)],
                              np.r_[past.group, group_run]).shape
-    assert first_decision(past, fut, times, c, 1.5, shape, screen=0.0).tolist() == want
-    assert first_decision(past, fut, times, c, 1.5, shape, screen=SCREEN).tolist() == want
+    assert first_decision(past, fut, times, c, 1.5, shape, screen=(0.0, 0.0)).tolist() == want
+    assert first_decision(past, fut, times, c, 1.5, shape, ).tolist() == want
