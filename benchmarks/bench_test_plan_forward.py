@@ -74,7 +74,8 @@ import pandas as pd
 from analyses.decision import crossing_holds
 from analyses.life_effect import common_shape_fit, ratio_deviance
 from analyses.sequential import FEW_FAILURES, design_for, efficacy_boundaries, sequential_verdict
-from analyses.plan_check import SCREEN, SCREEN_REFITTED, Future, Past, first_decision
+from analyses import plan_check
+from analyses.plan_check import SCREEN, SCREEN_REFITTED, first_decision
 from analyses.test_plan import HoseState, bench_schedule, decision_date, more_testing, power_now, remaining_km
 from benchmarks.bench_test_plan import bench_lives
 
@@ -227,8 +228,8 @@ def screen_error(states: int, cells=CELLS) -> tuple[int, int, int]:
             if fit.note or looks <= 0 or min(st.failures) < FEW_FAILURES // 2:
                 continue
             left = remaining_km(np.random.default_rng(seed), st.distance[run_], st.group[run_], fit, N_SIM)
-            fut = Future(st.distance[run_], np.zeros_like(left), left, st.group[run_])
-            past = Past(np.log(st.distance[~st.running]), st.failed[~st.running], st.group[~st.running])
+            fut = plan_check.Future(st.distance[run_], np.zeros_like(left), left, st.group[run_])
+            past = plan_check.Past(np.log(st.distance[~st.running]), st.failed[~st.running], st.group[~st.running])
             times = np.sort(left, axis=1)[:, :looks]
             a, b = (first_decision(past, fut, times, c[d0:d0 + looks], margin, fit.shape, s)
                     for s in ((SCREEN, SCREEN_REFITTED), (0.0, 0.0)))
