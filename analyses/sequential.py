@@ -221,8 +221,15 @@ class _Recursion:
         else:
             inc = t[k] - t[k - 1]
             s = math.sqrt(inc)
-            u = (z[:, None] * math.sqrt(t[k]) - self.z[None, :] * math.sqrt(t[k - 1]) - d * inc) / s
-            g = (np.exp(-0.5 * u * u) @ (self.w * self.g)) * math.sqrt(t[k]) / (s * math.sqrt(2 * math.pi))
+            # u = (z sqrt(t_k) - z_prev sqrt(t_k-1) - d inc) / s and exp(-0.5 u u), the same operations in the
+            # same order as written out, in one buffer (no temporaries; subtracting a zero drift is skipped)
+            u = np.subtract.outer(z * math.sqrt(t[k]), self.z * math.sqrt(t[k - 1]))
+            if d:
+                u -= d * inc
+            u /= s
+            e = np.multiply(u, -0.5)
+            e *= u
+            g = (np.exp(e, out=e) @ (self.w * self.g)) * math.sqrt(t[k]) / (s * math.sqrt(2 * math.pi))
         self.z, self.w, self.g, self.k = z, w, g, k + 1
 
 
