@@ -278,10 +278,14 @@ def stage_names() -> list[str]:
 
 
 def added_by(raw: Path, warm: Path, change, stages: tuple, repeat: int, common: tuple = NOT_COMPARED) -> dict:
-    """Whole ``pneubench rebuild`` processes on copies of the warm warehouse ``warm``, each after
-    ``change(True)`` (the plan change; ``change(False)`` restores it): with every stage but ``common``
-    (default :data:`NOT_COMPARED`) and with ``stages`` absent too, alternately, ``repeat`` times; and a
-    no-op rebuild.
+    """Whole ``pneubench rebuild`` processes, each after a plan change: with every stage but ``common``
+    (default :data:`NOT_COMPARED`) on the warm warehouse ``warm``, and with ``stages`` absent too on a
+    second warehouse (a copy of ``warm`` settled by one untimed rebuild without them), ``repeat`` rounds,
+    alternately; and a no-op rebuild (nothing changed) of ``warm`` after each round's ``with`` run.
+    Round ``r`` applies ``change(r % 2 == 0)``: the plan goes to the changed value and back, each a change
+    for both warehouses (``change(False)`` restores it at the end). Both warehouses are rebuilt in place:
+    a copied warehouse re-runs stages whose inputs did not change (session 19), which a copy before every
+    run would add to both sides.
     Returns the :class:`benchmarks.proc.Series` by ``"with"``, ``"without"``, ``"no-op"`` and the stages'
     own seconds in the ``with`` runs (``"own"``: stage -> list)."""
     import shutil
@@ -290,21 +294,24 @@ def added_by(raw: Path, warm: Path, change, stages: tuple, repeat: int, common: 
 
     out = {k: Series(k) for k in ("with", "without", "no-op")}
     own = {}
-    wh = warm.parent / "wh-measured"
-    for _ in range(repeat):
-        for label, without in (("with", common), ("without", stages + common), ("no-op", None)):
-            shutil.rmtree(wh, ignore_errors=True)
-            shutil.copytree(warm, wh, symlinks=True)
-            if without is not None:
-                change(True)
-            try:
-                m = measure(rebuild_cmd(raw, wh, common if without is None else without))
-            finally:
-                change(False)
-            out[label].runs.append(m)
-            for n in stage_names() if label == "with" else ():
-                own.setdefault(n, []).append(stage_seconds(m.stdout + m.stderr, n))
-    shutil.rmtree(wh, ignore_errors=True)
+    other = warm.parent / f"{warm.name}-without"
+    shutil.rmtree(other, ignore_errors=True)
+    shutil.copytree(warm, other, symlinks=True)
+    m = measure(rebuild_cmd(raw, other, stages + common))
+    print(f"  (the copy without {'+'.join(stages)} settled, not part of the comparison: {m.wall_s:.1f} s wall, "
+          f"CPU {m.cpu_s:.1f} s)")
+    try:
+        for r in range(repeat):
+            change(r % 2 == 0)
+            for label, wh, without in (("with", warm, common), ("no-op", warm, common),
+                                       ("without", other, stages + common)):
+                m = measure(rebuild_cmd(raw, wh, without))
+                out[label].runs.append(m)
+                for n in stage_names() if label == "with" else ():
+                    own.setdefault(n, []).append(stage_seconds(m.stdout + m.stderr, n))
+    finally:
+        change(False)
+        shutil.rmtree(other, ignore_errors=True)
     return {**out, "own": own, "common": common}
 
 
