@@ -299,7 +299,7 @@ def added_by(raw: Path, warm: Path, change, stages: tuple, repeat: int, common: 
     shutil.copytree(warm, other, symlinks=True)
     m = measure(rebuild_cmd(raw, other, stages + common))
     print(f"  (the copy without {'+'.join(stages)} settled, not part of the comparison: {m.wall_s:.1f} s wall, "
-          f"CPU {m.cpu_s:.1f} s)")
+          f"CPU {m.cpu_s:.1f} s)", flush=True)
     try:
         for r in range(repeat):
             change(r % 2 == 0)
@@ -307,6 +307,8 @@ def added_by(raw: Path, warm: Path, change, stages: tuple, repeat: int, common: 
                                        ("without", other, stages + common)):
                 m = measure(rebuild_cmd(raw, wh, without))
                 out[label].runs.append(m)
+                print(f"  round {r + 1}, {label:7s}: {m.wall_s:7.1f} s wall, CPU {m.cpu_s:6.1f} s, load average "
+                      f"{os.getloadavg()[0]:.1f}", flush=True)
                 for n in stage_names() if label == "with" else ():
                     own.setdefault(n, []).append(stage_seconds(m.stdout + m.stderr, n))
     finally:
@@ -350,7 +352,8 @@ def first_rebuild(raw: Path, wh: Path, common: tuple = NOT_COMPARED) -> None:
     from benchmarks.proc import measure
 
     m = measure(rebuild_cmd(raw, wh, common))
-    print(f"  (first rebuild, not part of the comparison: {m.wall_s:.1f} s wall, CPU {m.cpu_s:.1f} s, exit {m.exit_code})")
+    print(f"  (first rebuild, not part of the comparison: {m.wall_s:.1f} s wall, CPU {m.cpu_s:.1f} s, exit {m.exit_code})",
+          flush=True)
 
 
 def on_demo(tmp: Path, repeat: int) -> bool:
