@@ -11,8 +11,9 @@ One command::
 
 **What is measured: what a user runs.** Whole ``pneubench rebuild`` processes (all cores, the
 report written), timed by :func:`benchmarks.proc.measure`: wall seconds and the CPU seconds of the
-process tree (the rebuild and every worker it started). On a copy of one warm warehouse (a first
-rebuild, not timed), the plan's ``power`` is changed from 0.8 to 0.81, which only the decision and
+process tree (the rebuild and every worker it started). From one warm warehouse (a first rebuild,
+not timed) and a copy of it settled by one untimed rebuild, both rebuilt in place (:func:`added_by`),
+the plan's ``power`` goes from 0.8 to 0.81 and back, round by round, which only the decision and
 test_plan stages read among the stages compared: every hose type's items are new, so the stages
 re-run cold (no memo entry, no design in any process). The same rebuild is run with every stage and
 with the two stages absent (``pneubench`` with them left out of the stage registry: the baseline a
