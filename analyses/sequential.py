@@ -221,8 +221,15 @@ class _Recursion:
         else:
             inc = t[k] - t[k - 1]
             s = math.sqrt(inc)
-            u = (z[:, None] * math.sqrt(t[k]) - self.z[None, :] * math.sqrt(t[k - 1]) - d * inc) / s
-            g = (np.exp(-0.5 * u * u) @ (self.w * self.g)) * math.sqrt(t[k]) / (s * math.sqrt(2 * math.pi))
+            # u = (z sqrt(t_k) - z_prev sqrt(t_k-1) - d inc) / s and exp(-0.5 u u), the same operations in the
+            # same order as written out, in one buffer (no temporaries; subtracting a zero drift is skipped)
+            u = np.subtract.outer(z * math.sqrt(t[k]), self.z * math.sqrt(t[k - 1]))
+            if d:
+                u -= d * inc
+            u /= s
+            e = np.multiply(u, -0.5)
+            e *= u
+            g = (np.exp(e, out=e) @ (self.w * self.g)) * math.sqrt(t[k]) / (s * math.sqrt(2 * math.pi))
         self.z, self.w, self.g, self.k = z, w, g, k + 1
 
 
@@ -364,6 +371,7 @@ def clear_caches() -> None:
     inflation_factor.cache_clear()
     information_per_failure.cache_clear()
     _design_on_grid.cache_clear()
+    _rare_power.cache_clear()
 
 
 def crossing_probabilities(boundaries, t, drift: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
@@ -652,13 +660,20 @@ def rare_failure_power(boundaries, margin: float, shape: float) -> float:
     return power
 
 
+@functools.lru_cache(maxsize=8192)
+def _rare_power(m: int, margin: float, alpha: float, spending: str, shape: float) -> float:
+    """:func:`rare_failure_power` of the even design of ``m`` looks, kept per arguments: the bisections of
+    designs that differ only in their hoses on test or target power (one grid shape) visit the same
+    maxima, and take the same figure instead of computing it again."""
+    return rare_failure_power(efficacy_boundaries(np.arange(1, m + 1) / m, alpha, spending), margin, shape)
+
+
 def _smallest_rare_maximum(start: int, margin: float, alpha: float, power: float, spending: str,
                            shape: float) -> int | None:
     """Smallest ``M`` whose :func:`rare_failure_power` reaches ``power``, by bisection from ``start``
     (None when none up to :data:`DESIGN_LOOKS` does)."""
     def reaches(m):
-        c = efficacy_boundaries(np.arange(1, m + 1) / m, alpha, spending)
-        return rare_failure_power(c, margin, shape) >= power
+        return _rare_power(m, margin, alpha, spending, shape) >= power
 
     lo, hi = max(4, start // 2), min(DESIGN_LOOKS, max(8, start))
     while not reaches(hi):

@@ -11,8 +11,9 @@ One command::
 
 **What is measured: what a user runs.** Whole ``pneubench rebuild`` processes (all cores, the
 report written), timed by :func:`benchmarks.proc.measure`: wall seconds and the CPU seconds of the
-process tree (the rebuild and every worker it started). On a copy of one warm warehouse (a first
-rebuild, not timed), the plan's ``power`` is changed from 0.8 to 0.81, which only the decision and
+process tree (the rebuild and every worker it started). From one warm warehouse (a first rebuild,
+not timed) and a copy of it settled by one untimed rebuild, both rebuilt in place (:func:`added_by`),
+the plan's ``power`` goes from 0.8 to 0.81 and back, round by round, which only the decision and
 test_plan stages read among the stages compared: every hose type's items are new, so the stages
 re-run cold (no memo entry, no design in any process). The same rebuild is run with every stage and
 with the two stages absent (``pneubench`` with them left out of the stage registry: the baseline a
@@ -278,10 +279,14 @@ def stage_names() -> list[str]:
 
 
 def added_by(raw: Path, warm: Path, change, stages: tuple, repeat: int, common: tuple = NOT_COMPARED) -> dict:
-    """Whole ``pneubench rebuild`` processes on copies of the warm warehouse ``warm``, each after
-    ``change(True)`` (the plan change; ``change(False)`` restores it): with every stage but ``common``
-    (default :data:`NOT_COMPARED`) and with ``stages`` absent too, alternately, ``repeat`` times; and a
-    no-op rebuild.
+    """Whole ``pneubench rebuild`` processes, each after a plan change: with every stage but ``common``
+    (default :data:`NOT_COMPARED`) on the warm warehouse ``warm``, and with ``stages`` absent too on a
+    second warehouse (a copy of ``warm`` settled by one untimed rebuild without them), ``repeat`` rounds,
+    alternately; and a no-op rebuild (nothing changed) of ``warm`` after each round's ``with`` run.
+    Round ``r`` applies ``change(r % 2 == 0)``: the plan goes to the changed value and back, each a change
+    for both warehouses (``change(False)`` restores it at the end). Both warehouses are rebuilt in place:
+    a copied warehouse re-runs stages whose inputs did not change (session 19), which a copy before every
+    run would add to both sides.
     Returns the :class:`benchmarks.proc.Series` by ``"with"``, ``"without"``, ``"no-op"`` and the stages'
     own seconds in the ``with`` runs (``"own"``: stage -> list)."""
     import shutil
@@ -290,21 +295,26 @@ def added_by(raw: Path, warm: Path, change, stages: tuple, repeat: int, common: 
 
     out = {k: Series(k) for k in ("with", "without", "no-op")}
     own = {}
-    wh = warm.parent / "wh-measured"
-    for _ in range(repeat):
-        for label, without in (("with", common), ("without", stages + common), ("no-op", None)):
-            shutil.rmtree(wh, ignore_errors=True)
-            shutil.copytree(warm, wh, symlinks=True)
-            if without is not None:
-                change(True)
-            try:
-                m = measure(rebuild_cmd(raw, wh, common if without is None else without))
-            finally:
-                change(False)
-            out[label].runs.append(m)
-            for n in stage_names() if label == "with" else ():
-                own.setdefault(n, []).append(stage_seconds(m.stdout + m.stderr, n))
-    shutil.rmtree(wh, ignore_errors=True)
+    other = warm.parent / f"{warm.name}-without"
+    shutil.rmtree(other, ignore_errors=True)
+    shutil.copytree(warm, other, symlinks=True)
+    m = measure(rebuild_cmd(raw, other, stages + common))
+    print(f"  (the copy without {'+'.join(stages)} settled, not part of the comparison: {m.wall_s:.1f} s wall, "
+          f"CPU {m.cpu_s:.1f} s)", flush=True)
+    try:
+        for r in range(repeat):
+            change(r % 2 == 0)
+            for label, wh, without in (("with", warm, common), ("no-op", warm, common),
+                                       ("without", other, stages + common)):
+                m = measure(rebuild_cmd(raw, wh, without))
+                out[label].runs.append(m)
+                print(f"  round {r + 1}, {label:7s}: {m.wall_s:7.1f} s wall, CPU {m.cpu_s:6.1f} s, load average "
+                      f"{os.getloadavg()[0]:.1f}", flush=True)
+                for n in stage_names() if label == "with" else ():
+                    own.setdefault(n, []).append(stage_seconds(m.stdout + m.stderr, n))
+    finally:
+        change(False)
+        shutil.rmtree(other, ignore_errors=True)
     return {**out, "own": own, "common": common}
 
 
@@ -343,7 +353,8 @@ def first_rebuild(raw: Path, wh: Path, common: tuple = NOT_COMPARED) -> None:
     from benchmarks.proc import measure
 
     m = measure(rebuild_cmd(raw, wh, common))
-    print(f"  (first rebuild, not part of the comparison: {m.wall_s:.1f} s wall, CPU {m.cpu_s:.1f} s, exit {m.exit_code})")
+    print(f"  (first rebuild, not part of the comparison: {m.wall_s:.1f} s wall, CPU {m.cpu_s:.1f} s, exit {m.exit_code})",
+          flush=True)
 
 
 def on_demo(tmp: Path, repeat: int) -> bool:

@@ -135,7 +135,7 @@ def _frame(columns: dict, spec: dict) -> pd.DataFrame:
     for c, kind in spec.items():
         if kind == "time":
             ns = np.array([_NAT if v is None else int(v) for v in columns[c]], dtype=np.int64)
-            out[c] = pd.Series(ns.view("datetime64[ns]")).dt.tz_localize("UTC")
+            out[c] = pd.Series(pd.DatetimeIndex(ns.view("datetime64[ns]")).tz_localize("UTC"))   # not .dt: 3x faster
         else:
             out[c] = (pd.Series(np.array(columns[c], dtype=object), dtype=object) if kind == "text"   # no str inference
                       else pd.Series(np.array(columns[c], dtype=np.float64)))
@@ -189,7 +189,7 @@ def _design_here(item: dict, hoses: pd.DataFrame, runs: pd.DataFrame, events: pd
     frozen = _frozen(hoses, runs, events, in_looks) if item["plan"]["max_failures"] is None else None
     ask = design_item(item["plan"], frozen, item["hoses"])
     designed = {} if ask is None else {json.dumps(ask, sort_keys=True): design_failures(ask)}
-    return design_of(item, frozen, designed)
+    return design_of(item, frozen, designed, ask)
 
 
 def design_item(plan: dict, frozen: dict | None, hoses: dict) -> dict | None:
@@ -208,12 +208,13 @@ def design_item(plan: dict, frozen: dict | None, hoses: dict) -> dict | None:
                                                                            "hoses": on_test}
 
 
-def design_of(item: dict, frozen: dict | None, designed: dict) -> list:
-    """The item's ``design``: [max_failures, "plan" or "design", note, the first look that may decide]."""
+def design_of(item: dict, frozen: dict | None, designed: dict, ask: dict | None = None) -> list:
+    """The item's ``design``: [max_failures, "plan" or "design", note, the first look that may decide]
+    (``ask``: its :func:`design_item`, when known already; it places every hose in time)."""
     plan = item["plan"]
     if plan["max_failures"] is not None:
         return [plan["max_failures"], "plan", None, 1]
-    ask = design_item(plan, frozen, item["hoses"])
+    ask = design_item(plan, frozen, item["hoses"]) if ask is None else ask
     if ask is None:
         d, f = frozen["failures"] if frozen else (0, 0)
         return [None, "design", f"max_failures not frozen yet: designed at the first look with {FEW_FAILURES / 2:g} "
@@ -362,9 +363,11 @@ def hose_type_items(ctx: StageContext) -> list[dict]:
     runs = ctx.results.get("durability_runs")
     runs = pd.DataFrame(columns=["run_id", "hose_id", "started_at", "duration_h", "distance_km"]) \
         if runs is None or runs.empty else runs.copy()
-    events, _problems = read_logbooks(ctx.raw)        # the durability stage reports the logbooks' problems
-    hoses, _ = merge_logbooks(events)
-    runs["hose_id"] = match_runs(hoses, runs)[0] if len(runs) else pd.Series([], dtype=object)
+    if len(runs):   # the installations the runs are matched to (none to match: the logbooks are not read again)
+        events, _problems = read_logbooks(ctx.raw)    # the durability stage reports the logbooks' problems
+        runs["hose_id"] = match_runs(merge_logbooks(events)[0], runs)[0]
+    else:
+        runs["hose_id"] = pd.Series([], dtype=object)
     type_of = dict(zip(life["hose_id"], life["hose_type"]))
     # every column converted once (the conversions are value by value), then each type's rows picked in the
     # order hose_type_item sorts them: hoses by hose_id, runs by run_id (each unique)

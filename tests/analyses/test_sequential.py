@@ -365,3 +365,50 @@ def test_a_design_whose_bench_information_does_not_exist_is_refused_with_the_rea
     with pytest.raises(NoDesign, match="OverflowError"):
         design_for(2.0, 0.05, 0.8, "obrien-fleming", design_shape(50.0), 8)
     assert design_for(2.0, 0.05, 0.8, "obrien-fleming", design_shape(3.0), 8).failures == 14  # unchanged where it exists
+
+
+class _WrittenOut(sequential._Recursion):
+    """The recursion step as first written (one expression, temporaries): the reference for the buffered one."""
+
+    def advance(self, c):
+        t, k, d = self.t, self.k, self.drift
+        if k == 0:
+            return super().advance(c)
+        m = d * math.sqrt(t[k])
+        lo, hi = max(-c, m - sequential._TAIL), min(c, m + sequential._TAIL)
+        z, w = sequential._simpson(lo, hi, self.h[k])
+        inc = t[k] - t[k - 1]
+        s = math.sqrt(inc)
+        u = (z[:, None] * math.sqrt(t[k]) - self.z[None, :] * math.sqrt(t[k - 1]) - d * inc) / s
+        g = (np.exp(-0.5 * u * u) @ (self.w * self.g)) * math.sqrt(t[k]) / (s * math.sqrt(2 * math.pi))
+        self.z, self.w, self.g, self.k = z, w, g, k + 1
+
+
+@pytest.mark.parametrize("drift", [0.0, 2.7, -1.3])
+def test_the_buffered_recursion_step_is_the_written_out_formula_bit_for_bit(drift):
+    t = np.arange(1, 31) / 30
+    c = sequential.efficacy_boundaries(t, 0.05, "pocock")
+    fast, ref = sequential._Recursion(t, drift), _WrittenOut(t, drift)
+    for ck in c:
+        assert fast.exit_probabilities(ck) == ref.exit_probabilities(ck)
+        fast.advance(ck)
+        ref.advance(ck)
+        assert np.array_equal(fast.z, ref.z) and np.array_equal(fast.g, ref.g)
+
+
+def test_the_rare_failure_power_is_kept_per_design_and_is_the_figure_computed_afresh():
+    sequential.clear_caches()
+    m, shape = 23, 2.1
+    c = sequential.efficacy_boundaries(np.arange(1, m + 1) / m, 0.05, "obrien-fleming")
+    assert sequential._rare_power(m, 1.5, 0.05, "obrien-fleming", shape) == rare_failure_power(c, 1.5, shape)
+    # two designs of one grid shape, other hoses on test and power: the second takes the first's figures
+    first = sequential.design_for(1.5, 0.05, 0.8, "obrien-fleming", shape, 6)
+    computed = sequential._rare_power.cache_info().misses
+    second = sequential.design_for(1.5, 0.05, 0.8, "obrien-fleming", shape, 9)
+    info = sequential._rare_power.cache_info()
+    assert info.hits >= 2 and info.misses - computed < computed   # fewer maxima computed for the second
+    for hoses, kept in ((6, first), (9, second)):   # the same designs computed cold, one by one
+        sequential.clear_caches()
+        assert sequential.design_for(1.5, 0.05, 0.8, "obrien-fleming", shape, hoses) == kept
+    sequential.clear_caches()
+    assert sequential._rare_power.cache_info().currsize == 0

@@ -1,6 +1,7 @@
 """The decision stage: its four tables from hose_life, durability runs and the logbooks; `no plan`; the plan's
 max_failures or the design's; the sticky verdict at its deciding look; re-run only on logbooks, durability runs
 and the plan; --full equal to incremental; the demo rebuild carries the tables."""
+import json
 import math
 
 import numpy as np
@@ -355,3 +356,67 @@ def test_a_frozen_look_whose_design_does_not_exist_leaves_max_failures_null_with
     got = design_of({"plan": plan, "hoses": hoses}, frozen, {json.dumps(ask, sort_keys=True): [None, why]})
     assert got[0] is None and got[1] == "design" and got[3] is None
     assert got[2].startswith("max_failures not frozen at look 11 (") and got[2].endswith(f"{why}; max_failures in plan.toml lets the test decide")
+
+
+def _designed_fleet(tmp_path, types=5, seed=11):
+    """``types`` hose types of varied shape and size, odometer-only lives in waves on benches, some running at
+    the stop (read then), ``max_failures`` left to the design (margin 2): each type froze its own design."""
+    rng = np.random.default_rng(seed)
+    raw, lines, start = tmp_path / "raw", [], pd.Timestamp("2026-01-05T08:00", tz="UTC")
+    for t in range(types):
+        n, shape = int(rng.integers(8, 14)), float(rng.uniform(1.5, 3.5))
+        life = np.repeat([1.0, 1.6], n) * 40.0 * rng.weibull(shape, 2 * n)
+        installed = rng.integers(0, 20, 2 * n) * 24.0 + 0.0
+        stop = np.sort(installed + life / 0.625)[min(15, 2 * n - 1)] + 1.0
+        for i in range(2 * n):
+            hid, adj = f"T{t}-{i:02d}", ("distance", "force")[i >= n]
+            lines.append(f"{hid},installed,{(start + pd.Timedelta(hours=installed[i])).isoformat()},TYPE {t},{adj},,,,,,\n")
+            end = installed[i] + life[i] / 0.625
+            if end <= stop:
+                lines.append(f"{hid},failed,{(start + pd.Timedelta(hours=end)).isoformat()},,,,,rupture,,{life[i]:.3f},\n")
+            elif stop > installed[i]:
+                km = (stop - installed[i]) * 0.625
+                lines.append(f"{hid},removed,{(start + pd.Timedelta(hours=stop)).isoformat()},,,,,,,{km:.3f},odometer read\n")
+    (raw / "c").mkdir(parents=True)
+    (raw / "c" / "hoses.csv").write_text(HEADER + "".join(lines))
+    hoses, problems = merge_logbooks(read_logbooks(raw)[0])
+    assert not problems
+    no_runs = pd.DataFrame(columns=["run_id", "hose_id", "started_at", "duration_h", "distance_km", "strokes"])
+    return raw, hose_life(hoses, no_runs)[0], no_runs
+
+
+def test_the_tables_of_a_designed_fleet_do_not_depend_on_what_the_process_computed_before(tmp_path):
+    """Designs shared between hose types and kept in a process (boundaries, rare-failure powers), two worker
+    processes, the logbooks not read when no run is to be matched: the tables are bit for bit those of each
+    hose type computed alone in a cold process, its frozen look found by the separate pass (freeze_of)."""
+    from analyses import sequential
+
+    raw, life, runs = _designed_fleet(tmp_path)
+    plan = Plan(present=True, defaults={"margin": 2.0})
+    ctx = StageContext(raw=raw, warehouse=tmp_path, runs=pd.DataFrame(), jobs=2, plan=plan,
+                       results={"hose_life": life, "durability_runs": runs})
+    sequential.clear_caches()
+    shared = stage.run(ctx)
+    assert shared.tables["life_verdict"]["max_failures_from"].eq("design").all()
+    assert shared.tables["life_verdict"]["max_failures"].notna().sum() >= 3     # designs frozen and used
+    looks, verdicts, look_hoses = [], [], []
+    for item in stage.hose_type_items(ctx):
+        sequential.clear_caches()
+        frozen = stage.freeze_of(item)
+        ask = stage.design_item(item["plan"], frozen, item["hoses"])
+        designed = {} if ask is None else {json.dumps(ask, sort_keys=True): stage.design_failures(ask)}
+        res = stage.decide_hose_type({**item, "design": stage.design_of(item, frozen, designed)})
+        looks += res["decision_looks"]
+        verdicts += res["life_verdict"]
+        look_hoses.append(res["decision_look_hoses"])
+    alone = stage.run(StageContext(raw=raw, warehouse=tmp_path, runs=pd.DataFrame(), jobs=1, plan=plan,
+                                   results={"hose_life": life, "durability_runs": runs}))
+    for name, table in shared.tables.items():
+        pd.testing.assert_frame_equal(table, alone.tables[name], check_exact=True)
+    pd.testing.assert_frame_equal(shared.tables["decision_looks"].reset_index(drop=True),
+                                  stage._typed(looks, stage.LOOK_COLUMNS, ints=("look", "failures", "n_hoses"),
+                                               times=("event_at",), bools=("decides",)), check_exact=True)
+    one_by_one = stage._typed(verdicts, stage.VERDICT_COLUMNS, ints=("max_failures", "failures", "looks",
+                                                                     "decided_at_look"), times=("decided_at",))
+    pd.testing.assert_frame_equal(shared.tables["life_verdict"], one_by_one, check_exact=True)
+    sequential.clear_caches()
