@@ -46,8 +46,8 @@ class ReportDB:
             self._columns: dict[str, list[str]] = {}
             for name, col in self.con.execute(
                     "SELECT table_name, column_name FROM duckdb_columns() WHERE database_name = current_database() "
-                    "AND table_name IN (SELECT table_name FROM duckdb_tables() WHERE database_name = current_database()) "
-                    "ORDER BY table_name, column_index").fetchall():
+                    "AND table_name IN (SELECT table_name FROM duckdb_tables() "
+                    "WHERE database_name = current_database()) ORDER BY table_name, column_index").fetchall():
                 self._columns.setdefault(name, []).append(col)
         if table in self._columns:
             return list(self._columns[table])

@@ -319,11 +319,13 @@ def test_the_channels_read_ahead_are_the_new_runs_in_the_run_pages_order_as_thei
 
     from pipeline.rebuild.flow import _new_channels
 
-    runs = pd.DataFrame({"run_id": ["b", "a", "c", "d"], "samples_path": ["s/b.parquet", "s/a.parquet", "s/c.parquet", None],
+    runs = pd.DataFrame({"run_id": ["b", "a", "c", "d"],
+                         "samples_path": ["s/b.parquet", "s/a.parquet", "s/c.parquet", None],
                          "n_samples": [10.0, float("nan"), 7.0, 3.0]})
     channels = pd.DataFrame({"run_id": ["a", "a", "a", "b", "b", "c"],
                              "column": ["x_m", "t_s", "p_a_pa", "x_m", "run_id", "p_b_pa"]})
     tables = {"runs": runs, "channels": channels}
-    assert _new_channels(tables, {"s/c.parquet"}) == [("s/a.parquet", ["p_a_pa", "x_m"], 0), ("s/b.parquet", ["x_m"], 10)]
+    assert _new_channels(tables, {"s/c.parquet"}) == [("s/a.parquet", ["p_a_pa", "x_m"], 0),
+                                                      ("s/b.parquet", ["x_m"], 10)]
     assert _new_channels({"runs": runs, "channels": channels.head(0)}, set())[2] == ("s/c.parquet", [], 7)
     assert _new_channels({"runs": runs.head(0), "channels": channels}, set()) == []

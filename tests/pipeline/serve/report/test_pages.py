@@ -183,7 +183,8 @@ def test_a_new_runs_channels_are_read_once_beside_the_database_and_its_page_is_t
     from pipeline.serve.report.folders import page_name
     from pipeline.serve.report.render import stage_report
 
-    raw.csv("c/s0.csv", {**STEP_META, "run_id": "s0"}, {"t[s]": [0, 0.1, 0.2], "x[mm]": [0, 1, 1], "x_ref[mm]": [1, 1, 1]})
+    raw.csv("c/s0.csv", {**STEP_META, "run_id": "s0"},
+            {"t[s]": [0, 0.1, 0.2], "x[mm]": [0, 1, 1], "x_ref[mm]": [1, 1, 1]})
     threads = []
     real = pages.downsample_minmax
     monkeypatch.setattr(pages, "downsample_minmax",
