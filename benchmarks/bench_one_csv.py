@@ -26,7 +26,8 @@ the issue's target "pandas' wall time / the rebuild's >= 1.5" and for "the chang
 rebuild no slower" (CPU after <= CPU before x 1.05). Then where a fresh rebuild's time goes, per
 version: the process runs :func:`pipeline.rebuild.flow.rebuild` with a progress that stamps each
 line with wall and CPU seconds (start-up imports, plan, ingest with the stages' imports beside
-it, each stage, the database write with the figures drawn beside it, the report).
+it, each stage, the database write with the figures drawn and the report's channel bands read
+beside it, the report).
 """
 from __future__ import annotations
 
@@ -73,7 +74,7 @@ _STEPS = [(re.compile(r"^imported$"), "start-up: imports of the command"),
           (re.compile(r"^ingest: \d+ of \d+ run files to read"), "plan (walk raw/, previous state)"),
           (re.compile(r"^stage (\w+) (ran|reused)"), "stage {0} {1}"),
           (re.compile(r"^warehouse: writing"), "after the stages (assemble the tables)"),
-          (re.compile(r"^figures: "), "database write (figures drawn beside it)"),
+          (re.compile(r"^figures: "), "database write (figures drawn, the new runs' channels read beside it)"),
           (re.compile(r"^report: "), "report"),
           (re.compile(r"^end$"), "the rest (summary, exit)")]
 

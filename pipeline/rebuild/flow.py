@@ -435,11 +435,33 @@ def _publish(run: RebuildRun, plan: _Plan, tables: dict[str, pd.DataFrame], keep
             progress.message(f"figures: {n_aside} drawn in a worker beside the stages and the database "
                              f"(waited {duration_text(time.monotonic() - waited)} for them)")
 
-    # before the new database is written, what neither warehouse uses nor keeps goes (files past
-    # their retention, what a killed night left): a nearly full disk gets that room back first
-    collect_garbage(warehouse, *split_kept(keep | prev.samples | prev.stage_folders))
-    run.summary.report = swap_in_new_database(warehouse, write, run.options.report,  # --full: every figure drawn
-                                              run_pages="all" if run.options.full else "update")
+    from pipeline.serve.report.pages import BandsAhead  # imported with the report's renderer while the files were read
+
+    with BandsAhead(warehouse) as ahead:
+        if run.options.report:  # the new runs' channels for their pages, read beside the database write
+            ahead.read(_new_channels(tables, prev.samples))
+        # before the new database is written, what neither warehouse uses nor keeps goes (files past
+        # their retention, what a killed night left): a nearly full disk gets that room back first
+        collect_garbage(warehouse, *split_kept(keep | prev.samples | prev.stage_folders))
+        run.summary.report = swap_in_new_database(warehouse, write, run.options.report,  # --full: every figure drawn
+                                                  run_pages="all" if run.options.full else "update", ahead=ahead)
     # files the new warehouse uses, and those of earlier ones still within their retention
     # (a reader that opened an earlier warehouse keeps reading its samples)
     collect_garbage(warehouse, *split_kept(keep))
+
+
+def _new_channels(tables: dict[str, pd.DataFrame], live: set[str]) -> list[tuple[str, list[str], int]]:
+    """(samples path, channels as its run page draws them, rows) of every run whose samples file is
+    not one the live warehouse publishes (``live``), in the run pages' order: those pages are drawn
+    anew, and their channels with them (:class:`~pipeline.serve.report.pages.BandsAhead`)."""
+    runs, channels = tables["runs"], tables["channels"]
+    if runs.empty:
+        return []
+    columns: dict[str, list[str]] = {}
+    if not channels.empty:
+        for rid, col in sorted(zip(channels["run_id"], channels["column"])):
+            if col not in ("t_s", "run_id"):
+                columns.setdefault(rid, []).append(col)
+    return [(path, columns.get(rid, []), int(n) if n is not None and n == n else 0)  # NaN: NULL, read as 0
+            for rid, path, n in sorted(zip(runs["run_id"], runs["samples_path"], runs["n_samples"]))
+            if isinstance(path, str) and path and path not in live]

@@ -25,11 +25,12 @@ def test_each_step_ends_at_its_line_and_the_ingest_is_named_before_the_first_sta
     assert names == ["start-up: imports of the command", "plan (walk raw/, previous state)",
                      "ingest (workers) + the stages' imports, then stage plpa_characterisation ran",
                      "stage models reused", "stage durability ran", "after the stages (assemble the tables)",
-                     "database write (figures drawn beside it)", "report", "the rest (summary, exit)"]
+                     "database write (figures drawn, the new runs' channels read beside it)", "report",
+                     "the rest (summary, exit)"]
     wall = dict((s, w) for s, w, _ in got)
     cpu = dict((s, c) for s, _, c in got)
     assert wall["stage durability ran"] == pytest.approx(1.0)
-    assert cpu["database write (figures drawn beside it)"] == pytest.approx(0.35)
+    assert cpu["database write (figures drawn, the new runs' channels read beside it)"] == pytest.approx(0.35)
     assert sum(w for _, w, _ in got) == pytest.approx(4.51)  # the steps add up to the whole
     assert bench._children_cpu(STAMPED) == pytest.approx(2.1)
 

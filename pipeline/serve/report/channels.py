@@ -72,14 +72,11 @@ def downsample_minmax(path: str | Path, columns: list[str], n_rows: int, width: 
         n = batch.num_rows
         if n == 0:
             continue
-        bins = (np.arange(start, start + n, dtype=np.int64) * width) // n_rows
-        bins = np.minimum(bins, width - 1)
-        cuts = np.flatnonzero(np.diff(bins)) + 1
-        idx = np.concatenate(([0], cuts))
-        ub = bins[idx]
+        idx, ub = bin_starts(start, n, n_rows, width)
         for c in have:
-            v = batch.column(c).to_numpy(zero_copy_only=False).astype(float)
-            v = np.where(np.isfinite(v), v, np.nan)
+            v = batch.column(c).to_numpy(zero_copy_only=False).astype(float, copy=False)
+            if not np.isfinite(v).all():  # +-inf count as no sample, as NaN does
+                v = np.where(np.isfinite(v), v, np.nan)
             with np.errstate(invalid="ignore"):
                 mn = np.fmin.reduceat(v, idx)
                 mx = np.fmax.reduceat(v, idx)
@@ -97,6 +94,23 @@ def downsample_minmax(path: str | Path, columns: list[str], n_rows: int, width: 
         b[~np.isfinite(b)] = np.nan
         out[c] = (a, b)
     return out
+
+
+def bin_starts(start: int, n: int, n_rows: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """Where the pixel columns begin in a batch of rows ``start`` .. ``start + n - 1``.
+
+    Row ``r`` falls in column ``min(r * width // n_rows, width - 1)``. Returns (offsets in the batch
+    where a column begins, the first one 0; those columns), as :func:`numpy.ufunc.reduceat` takes
+    them. Column ``k`` begins at row ``ceil(k * n_rows / width)``: computed for the ``width`` columns,
+    not for every row of the batch (~10 ms per million rows).
+    """
+    import numpy as np
+
+    first = min(start * width // n_rows, width - 1)
+    last = min((start + n - 1) * width // n_rows, width - 1)
+    cols = np.arange(first + 1, last + 1, dtype=np.int64)
+    rows = -((-cols * n_rows) // width) - start  # ceil(k * n_rows / width), relative to the batch
+    return np.concatenate(([0], rows)), np.concatenate(([first], cols))
 
 
 def _tick(v: float) -> str:

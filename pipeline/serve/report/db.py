@@ -37,8 +37,21 @@ class ReportDB:
         return [d[0] for d in cur.description], cur.fetchall()
 
     def columns(self, table: str) -> list[str]:
-        """Column names of ``table`` (none when it is not there)."""
-        return [r[0] for r in self.con.execute(f'DESCRIBE "{table}"').fetchall()] if self.has(table) else []
+        """Column names of ``table`` (none when it is not there). The tables' are read at once on
+        the first call (one catalogue query, not a ``DESCRIBE`` per table); a view's are
+        described when asked (binding it is what says its columns)."""
+        if not self.has(table):
+            return []
+        if not hasattr(self, "_columns"):
+            self._columns: dict[str, list[str]] = {}
+            for name, col in self.con.execute(
+                    "SELECT table_name, column_name FROM duckdb_columns() WHERE database_name = current_database() "
+                    "AND table_name IN (SELECT table_name FROM duckdb_tables() "
+                    "WHERE database_name = current_database()) ORDER BY table_name, column_index").fetchall():
+                self._columns.setdefault(name, []).append(col)
+        if table in self._columns:
+            return list(self._columns[table])
+        return [r[0] for r in self.con.execute(f'DESCRIBE "{table}"').fetchall()]
 
     def count(self, table: str) -> int:
         """Rows of ``table`` (0 when it is not there)."""

@@ -14,6 +14,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 from pipeline.serve.report.channels import channels_svg, downsample_minmax, run_events
@@ -91,7 +92,7 @@ def _results(results: list) -> str:
 
 
 def write_run_pages(db: ReportDB, warehouse: Path, folder: Path | None = None, previous: Path | None = None,
-                    full: bool = False) -> int:
+                    full: bool = False, ahead: BandsAhead | None = None) -> int:
     """Write ``report/runs/<safe id>.html`` for every run; returns how many were drawn anew.
 
     A page whose inputs (samples file, source hash, results, warnings, layout version) are
@@ -99,7 +100,8 @@ def write_run_pages(db: ReportDB, warehouse: Path, folder: Path | None = None, p
     runs that changed; a page drawn again takes its channels from the previous page when their
     key is unchanged. Pages of runs no longer in the warehouse are removed. ``previous``: the
     live report's run pages, an unchanged one is linked (or copied) from there into ``folder``.
-    ``full``: every page and its channels drawn anew (``--full``).
+    ``full``: every page and its channels drawn anew (``--full``). ``ahead``: channel bands the
+    rebuild began to read while it wrote the database (:class:`BandsAhead`).
     """
     if not db.has("runs"):
         return 0
@@ -123,7 +125,7 @@ def write_run_pages(db: ReportDB, warehouse: Path, folder: Path | None = None, p
         old = page if previous is None else previous / name
         if not full and _take_over(old, page, key):
             continue
-        svg = _draw_channels(Path(warehouse), run, channels.get(rid, []), res, Figures(() if full else (old,)))
+        svg = _draw_channels(Path(warehouse), run, channels.get(rid, []), res, (Figures(() if full else (old,)), ahead))
         tmp = folder / f".{name}.tmp-{os.getpid()}"
         tmp.write_text(_run_page(run, res, svg, key), encoding="utf-8")
         os.replace(tmp, page)
@@ -154,19 +156,73 @@ def _take_over(old: Path, page: Path, key: str) -> bool:
     return False
 
 
-def _draw_channels(warehouse: Path, run: dict, columns: list[str], results: list, figures: Figures) -> str:
+def _draw_channels(warehouse: Path, run: dict, columns: list[str], results: list, taken: tuple) -> str:
     """The run's channels as SVG with the events of its ``results`` ("" without a samples file),
-    taken from ``figures`` (the previous page) when their key is there."""
+    taken from the previous page when their key is there. ``taken``: (:class:`Figures` of the
+    previous page, :class:`BandsAhead` or None: the bands when they were read ahead)."""
+    figures, ahead = taken
     samples = (warehouse / run["samples_path"]) if run.get("samples_path") else None
     if samples is None or not samples.is_file():
         return ""
     chans = [c for c in columns if c not in ("t_s", "run_id")]
     n_rows, title, events = run.get("n_samples") or 0, f"channels of {run['run_id']}", run_events(results)
+    read = ahead.take(run["samples_path"], chans, n_rows) if ahead is not None else None
     try:
         return figures.figure(channels_key(run["samples_path"], chans, n_rows, title, events),
-                              lambda: channels_svg(downsample_minmax(samples, chans, n_rows), title, events))
+                              lambda: channels_svg(read.result() if read is not None else
+                                                   downsample_minmax(samples, chans, n_rows), title, events))
     except Exception as exc:  # a damaged samples file must not cost the whole report
         return f'<p class="nodata">channels could not be drawn: {esc(one_line_error(exc))}</p>'
+
+
+#: Runs whose channel bands :class:`BandsAhead` reads at most (a few tens of kB each).
+AHEAD_RUNS = 8
+
+
+class BandsAhead:
+    """The channel bands (:func:`downsample_minmax`) of the first run pages a rebuild's report will
+    draw, read in a thread while the rebuild assembles and writes its database (issue 26: a new
+    100 MB export's bands are ~0.2 CPU-s of reading and reducing its samples file, otherwise
+    serial after the database write).
+
+    Used as a context manager around the database write and the report; :meth:`read` starts the
+    thread. Nothing is written: a band read ahead and not taken is dropped; a failure is raised
+    where the report takes it (:meth:`take`), as the report's own read would have raised it.
+
+    Parameters
+    ----------
+    warehouse : path-like
+        The warehouse folder (samples paths are relative to it).
+    """
+
+    def __init__(self, warehouse: str | Path):
+        self.warehouse = Path(warehouse)
+        self._pool: ThreadPoolExecutor | None = None
+        self._reads: dict[tuple, Future] = {}
+
+    def read(self, runs: list[tuple[str, list[str], int]]) -> None:
+        """Start reading the bands of ``runs`` (the first :data:`AHEAD_RUNS`): (samples path relative
+        to the warehouse, columns as the run page draws them, rows as ``runs.n_samples`` says)."""
+        runs = runs[:AHEAD_RUNS]
+        if not runs:
+            return
+        self._pool = self._pool or ThreadPoolExecutor(1, thread_name_prefix="report-bands")
+        for path, columns, n_rows in runs:
+            key = (path, tuple(columns), n_rows)
+            if key not in self._reads:
+                self._reads[key] = self._pool.submit(downsample_minmax, self.warehouse / path, list(columns), n_rows)
+
+    def take(self, path: str, columns: list[str], n_rows: int) -> Future | None:
+        """The read of these bands when it was started ahead (then the caller's), else None."""
+        return self._reads.pop((path, tuple(columns), n_rows), None)
+
+    def __enter__(self) -> BandsAhead:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+        self._reads.clear()
 
 
 def channels_key(samples_path: str, columns: list[str], n_rows: int, title: str, events: list) -> str:

@@ -18,7 +18,7 @@ from pipeline.serve.report.decision import decision_section
 from pipeline.serve.report.figures import Figures
 from pipeline.serve.report.folders import GENERATION_FILE, REPORT_DIR
 from pipeline.serve.report.markup import CSS, esc, one_line_error
-from pipeline.serve.report.pages import carry_pages, run_pages_present, runs_index, write_run_pages
+from pipeline.serve.report.pages import BandsAhead, carry_pages, run_pages_present, runs_index, write_run_pages
 from pipeline.serve.report.publish import live_generation, publish_report, settle_report, stage_folder
 from pipeline.serve.report.results import results_sections
 from pipeline.serve.report.sections import findings_section, rebuild_line, rebuild_section, toc
@@ -41,7 +41,8 @@ def _now() -> datetime:
 
 
 def render_report(warehouse: str | Path, now: datetime | None = None, database: str | Path | None = None,
-                  run_pages: str = "update", folder: str | Path | None = None, code: str | None = None) -> str:
+                  run_pages: str = "update", folder: str | Path | None = None, code: str | None = None,
+                  ahead: BandsAhead | None = None) -> str:
     """The report of the warehouse as one HTML string (``now``: the clock for "last 24 hours").
 
     ``database``: the DuckDB file to read instead of the warehouse's live one (the rebuild
@@ -55,6 +56,8 @@ def render_report(warehouse: str | Path, now: datetime | None = None, database: 
     (:mod:`~pipeline.serve.report.figures`).
     ``code``: the version of the code rendering it, as the rebuild hashed it (the parts cache's
     key, :func:`~pipeline.serve.report.cache.parts_key`); None: the report hashes its code itself.
+    ``ahead``: channel bands the rebuild began to read for the run pages
+    (:class:`~pipeline.serve.report.pages.BandsAhead`).
     """
     warehouse = Path(warehouse)
     now = now or _now()
@@ -71,14 +74,14 @@ def render_report(warehouse: str | Path, now: datetime | None = None, database: 
             live = () if run_pages == "all" else (warehouse / REPORT_DIR / "index.html",)
             parts = (results, entries, runs_index(db), decision_section(db, Figures(live)))
         if folder is not None:
-            _fill_folder(db, warehouse, Path(folder), generation, run_pages, (parts, code))
+            _fill_folder(db, warehouse, Path(folder), generation, run_pages, (parts, code), ahead)
         return _index(db, warehouse, generation, (alert, findings), parts)
     finally:
         con.close()
 
 
 def _fill_folder(db: ReportDB, warehouse: Path, folder: Path, generation: str, run_pages: str,
-                 parts_code: tuple) -> None:
+                 parts_code: tuple, ahead: BandsAhead | None = None) -> None:
     """The new report ``folder``'s generation, parts cache (``parts_code``: the parts and the code's
     version) and run pages (see :func:`render_report`)."""
     parts, code = parts_code
@@ -88,7 +91,7 @@ def _fill_folder(db: ReportDB, warehouse: Path, folder: Path, generation: str, r
     if run_pages == "missing" and run_pages_present(db, warehouse):
         carry_pages(live / "runs", folder / "runs")
     else:
-        write_run_pages(db, warehouse, folder / "runs", previous=live / "runs", full=run_pages == "all")
+        write_run_pages(db, warehouse, folder / "runs", previous=live / "runs", full=run_pages == "all", ahead=ahead)
 
 
 def _index(db: ReportDB, warehouse: Path, generation: str, findings: tuple[str, str], parts: tuple) -> str:
@@ -135,13 +138,14 @@ def failure_page(warehouse: str | Path, generation: str | None, error: str, now:
 
 
 def stage_report(warehouse: str | Path, database: str | Path | None = None, run_pages: str = "update",
-                 now: datetime | None = None, code: str | None = None) -> Path:
+                 now: datetime | None = None, code: str | None = None, ahead: BandsAhead | None = None) -> Path:
     """Render the whole report (index and run pages) into a new folder beside the live one;
     :func:`~pipeline.serve.report.publish.publish_report` swaps it in. Unchanged run pages are
     hard links to the live ones. A failure removes the folder and raises (the live report is
-    untouched). ``code`` as for :func:`render_report`."""
+    untouched). ``code`` and ``ahead`` as for :func:`render_report`."""
     return stage_folder(Path(warehouse), lambda folder: render_report(warehouse, now, database=database,
-                                                                      run_pages=run_pages, folder=folder, code=code))
+                                                                      run_pages=run_pages, folder=folder, code=code,
+                                                                      ahead=ahead))
 
 
 def write_report(warehouse: str | Path, generation: str | None = None, now: datetime | None = None) -> Path:

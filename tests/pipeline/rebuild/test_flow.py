@@ -312,3 +312,20 @@ def test_the_rebuilds_start_up_imports_no_duckdb_and_its_workers_inherit_pandas(
             "print(start, none, 'pandas' in sys.modules, 'pyarrow.parquet' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], cwd=PROJECT_ROOT, capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["False", "False", "True", "True"]
+
+
+def test_the_channels_read_ahead_are_the_new_runs_in_the_run_pages_order_as_their_pages_name_them():
+    import pandas as pd
+
+    from pipeline.rebuild.flow import _new_channels
+
+    runs = pd.DataFrame({"run_id": ["b", "a", "c", "d"],
+                         "samples_path": ["s/b.parquet", "s/a.parquet", "s/c.parquet", None],
+                         "n_samples": [10.0, float("nan"), 7.0, 3.0]})
+    channels = pd.DataFrame({"run_id": ["a", "a", "a", "b", "b", "c"],
+                             "column": ["x_m", "t_s", "p_a_pa", "x_m", "run_id", "p_b_pa"]})
+    tables = {"runs": runs, "channels": channels}
+    assert _new_channels(tables, {"s/c.parquet"}) == [("s/a.parquet", ["p_a_pa", "x_m"], 0),
+                                                      ("s/b.parquet", ["x_m"], 10)]
+    assert _new_channels({"runs": runs, "channels": channels.head(0)}, set())[2] == ("s/c.parquet", [], 7)
+    assert _new_channels({"runs": runs.head(0), "channels": channels}, set()) == []

@@ -79,3 +79,40 @@ def test_a_run_with_thousands_of_events_draws_a_bounded_page():
     assert f"constant-velocity pass ({rp.MAX_EVENTS})" in svg
     assert f"(first {rp.MAX_EVENTS} drawn, {n - rp.MAX_EVENTS} more in the tables)" in svg
     assert len(svg) < 300_000
+
+
+def test_pixel_columns_begin_where_every_row_says_they_do():
+    """``bin_starts`` against the per-row rule ``min(r * width // n_rows, width - 1)``: batches that
+    do not line up with the columns, a batch inside one column, more rows than ``n_rows`` says."""
+    import numpy as np
+
+    from pipeline.serve.report.channels import bin_starts
+
+    for start, n, n_rows, width in [(0, 1000, 1000, 880), (0, 1_000_000, 3_400_000, 880), (1_000_000, 1_000_000,
+                                    3_400_000, 880), (3_000_000, 400_000, 3_400_000, 880), (7, 3, 997, 10),
+                                    (5, 1, 997, 10), (900, 300, 1000, 7), (1200, 50, 1000, 7), (0, 13, 13, 13)]:
+        bins = np.minimum(np.arange(start, start + n, dtype=np.int64) * width // n_rows, width - 1)
+        idx = np.concatenate(([0], np.flatnonzero(np.diff(bins)) + 1))
+        got_idx, got_cols = bin_starts(start, n, n_rows, width)
+        assert got_idx.tolist() == idx.tolist() and got_cols.tolist() == bins[idx].tolist(), (start, n, n_rows, width)
+
+
+def test_infinite_and_missing_samples_are_no_samples_of_their_pixel_column(tmp_path):
+    import numpy as np
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from pipeline.serve.report import channels as rp
+
+    x = np.linspace(0.0, 1.0, 100)
+    x[10] = np.inf      # column 1 (10 rows each): its other samples stay
+    x[20:30] = np.nan   # column 2: no sample at all -> NaN
+    x[35] = -np.inf
+    y = np.linspace(5.0, 6.0, 100)  # finite throughout
+    f = tmp_path / "s.parquet"
+    pq.write_table(pa.table({"t_s": np.arange(100.0), "x_m": x, "y_m": y}), f)
+    b = rp.downsample_minmax(f, ["x_m", "y_m"], 100, width=10)
+    lo, hi = b["x_m"]
+    assert hi[1] == x[19] and lo[1] == x[11] and np.isnan(lo[2]) and np.isnan(hi[2])
+    assert lo[3] == x[30] and hi[3] == x[39]
+    assert b["y_m"][0].tolist() == y[::10].tolist() and b["y_m"][1].tolist() == y[9::10].tolist()

@@ -83,3 +83,21 @@ def test_a_rebuild_log_from_before_seq_is_numbered_in_its_stored_order(raw, ware
     third = rebuild(raw.root, warehouse, jobs=1)
     assert query(warehouse, "SELECT generation, seq FROM rebuild_log ORDER BY seq") == [
         (first.generation, 1), (second.generation, 2), (third.generation, 3)]
+
+
+def test_columns_read_at_once_are_those_describe_gives_and_views_are_described(raw, warehouse):
+    from pipeline.serve.door import connect_readonly
+    from pipeline.serve.report.db import ReportDB
+
+    raw.csv("c/s.csv", {**STEP_META, "run_id": "s"}, {"t[s]": [0, 0.1], "x[mm]": [0, 1], "x_ref[mm]": [1, 1]})
+    rebuild(raw.root, warehouse, jobs=1)
+    con = connect_readonly(warehouse)
+    try:
+        db = ReportDB(con)
+        assert "samples_step" in db.tables and "runs" in db.tables
+        for t in sorted(db.tables):
+            assert db.columns(t) == [r[0] for r in con.execute(f'DESCRIBE "{t}"').fetchall()], t
+        assert "samples_step" not in db._columns and db.columns("no_such_table") == []
+        assert db.columns("runs")[:2] == ["run_id", "kind"]
+    finally:
+        con.close()

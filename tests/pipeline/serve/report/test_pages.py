@@ -139,3 +139,60 @@ def test_a_full_rebuild_draws_every_channels_figure_again(raw, warehouse, monkey
     assert read == []
     rebuild(raw.root, warehouse, jobs=1, full=True)
     assert len(read) == 2
+
+
+def test_bands_read_ahead_are_taken_once_by_their_own_key_and_a_failure_comes_with_them(tmp_path, monkeypatch):
+    """:class:`BandsAhead`: the first :data:`AHEAD_RUNS` runs read in a thread, each read taken by the
+    report once under (path, channels, rows); another key is not the same read; a file that cannot
+    be read raises where it is taken, as the report's own read would."""
+    import numpy as np
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    import pytest
+
+    from pipeline.serve.report import pages
+
+    for i in range(3):
+        pq.write_table(pa.table({"t_s": np.arange(50.0), "x_m": np.arange(50.0) * (i + 1)}), tmp_path / f"{i}.parquet")
+    read = []
+    real = pages.downsample_minmax
+    monkeypatch.setattr(pages, "downsample_minmax", lambda path, *a, **k: read.append(path.name) or real(path, *a, **k))
+    monkeypatch.setattr(pages, "AHEAD_RUNS", 2)
+    with pages.BandsAhead(tmp_path) as ahead:
+        ahead.read([("0.parquet", ["x_m"], 50), ("missing.parquet", ["x_m"], 50), ("2.parquet", ["x_m"], 50)])
+        assert ahead.take("0.parquet", ["x_m"], 49) is None  # another key: the report reads it itself
+        got = ahead.take("0.parquet", ["x_m"], 50).result()
+        want = real(tmp_path / "0.parquet", ["x_m"], 50)
+        assert got["t_s"] == want["t_s"] and all(np.array_equal(a, b) for a, b in zip(got["x_m"], want["x_m"]))
+        assert ahead.take("0.parquet", ["x_m"], 50) is None  # taken once
+        with pytest.raises(OSError):
+            ahead.take("missing.parquet", ["x_m"], 50).result()
+        assert ahead.take("2.parquet", ["x_m"], 50) is None  # past AHEAD_RUNS: not read ahead
+    assert read == ["0.parquet", "missing.parquet"]
+
+
+def test_a_new_runs_channels_are_read_once_beside_the_database_and_its_page_is_the_one_drawn_alone(
+        raw, warehouse, monkeypatch):
+    """A rebuild reads a new run's channel bands while it writes its database, and its report takes
+    them: the samples are read once, and the run page is byte for byte the page the report draws
+    on its own (``--full`` report, no read ahead)."""
+    import threading
+    from datetime import datetime, timezone
+
+    from pipeline.serve.report import pages
+    from pipeline.serve.report.folders import page_name
+    from pipeline.serve.report.render import stage_report
+
+    raw.csv("c/s0.csv", {**STEP_META, "run_id": "s0"},
+            {"t[s]": [0, 0.1, 0.2], "x[mm]": [0, 1, 1], "x_ref[mm]": [1, 1, 1]})
+    threads = []
+    real = pages.downsample_minmax
+    monkeypatch.setattr(pages, "downsample_minmax",
+                        lambda path, *a, **k: threads.append(threading.current_thread().name) or real(path, *a, **k))
+    rebuild(raw.root, warehouse, jobs=1)
+    assert len(threads) == 1 and threads[0].startswith("report-bands")
+    page = (warehouse / "report" / "runs" / page_name("s0")).read_bytes()
+    alone = stage_report(warehouse, now=datetime(2026, 11, 26, tzinfo=timezone.utc), run_pages="all")
+    assert (alone / "runs" / page_name("s0")).read_bytes() == page and len(threads) == 2
+    rebuild(raw.root, warehouse, jobs=1, report=False)  # nothing new, no report: nothing read ahead
+    assert len(threads) == 2
