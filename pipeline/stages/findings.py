@@ -98,7 +98,7 @@ def _std_from_ci(r: dict, log: bool = False) -> float | None:
     lo, hi, est, conf = finite_float(r.get("ci_low")), finite_float(r.get("ci_high")), finite_float(r.get("estimate")), finite_float(r.get("confidence"))
     if lo is None or hi is None or est is None:
         return None
-    z = scipy.stats.norm.ppf(0.5 + (conf or 0.95) / 2)
+    z = float(scipy.special.ndtri(0.5 + (conf or 0.95) / 2))   # norm.ppf's bits, without importing scipy.stats
     if log and lo > 0 and hi > 0:
         return est * (math.log(hi) - math.log(lo)) / (2 * z)
     return (hi - lo) / (2 * z)
@@ -214,7 +214,7 @@ def viscous_backpressure(ctx: StageContext) -> dict:
     if not spreads:
         return _row(claim, "viscous_fits", n=len(sel), detail="no data: one backpressure per direction")
     i = int(np.argmax(spreads))
-    p = float(scipy.stats.chi2.sf(chi2, dof)) if has_se and dof > 0 else None
+    p = float(scipy.special.chdtrc(dof, chi2)) if has_se and dof > 0 else None   # chi2.sf, as _std_from_ci
     holds = (p is not None and p >= ALPHA) or spreads[i] < 100 * NEGLIGIBLE
     return _row(claim, "viscous_fits", spreads[i], uncs[i], holds, int(sel["n_points"].sum()) if "n_points" in sel else len(sel),
                 p, "largest spread (max - min) / mean of the viscous coefficient across 1-3 bar, per direction; "
