@@ -337,7 +337,7 @@ def per_kind(ref: str, after: str, runs: int, seed: int, rounds: int, kinds: tup
                         os.utime(path, (past, past))
                     rebuild(name)  # back to the campaign as it was
                     print(f"  {name}: {kind} ({path.relative_to(raw)}) {out[name][kind][-1][0]:.1f} s, "
-                          f"CPU {out[name][kind][-1][1]:.1f} s", flush=True)
+                          f"CPU {out[name][kind][-1][1]:.1f} s, load {os.getloadavg()[0]:.1f}", flush=True)
         return out
     finally:
         shutil.rmtree(work, ignore_errors=True)

@@ -98,7 +98,7 @@ def _std_from_ci(r: dict, log: bool = False) -> float | None:
     lo, hi, est, conf = finite_float(r.get("ci_low")), finite_float(r.get("ci_high")), finite_float(r.get("estimate")), finite_float(r.get("confidence"))
     if lo is None or hi is None or est is None:
         return None
-    z = scipy.stats.norm.ppf(0.5 + (conf or 0.95) / 2)
+    z = float(scipy.special.ndtri(0.5 + (conf or 0.95) / 2))   # norm.ppf's bits, without importing scipy.stats
     if log and lo > 0 and hi > 0:
         return est * (math.log(hi) - math.log(lo)) / (2 * z)
     return (hi - lo) / (2 * z)
@@ -214,7 +214,7 @@ def viscous_backpressure(ctx: StageContext) -> dict:
     if not spreads:
         return _row(claim, "viscous_fits", n=len(sel), detail="no data: one backpressure per direction")
     i = int(np.argmax(spreads))
-    p = float(scipy.stats.chi2.sf(chi2, dof)) if has_se and dof > 0 else None
+    p = float(scipy.special.chdtrc(dof, chi2)) if has_se and dof > 0 else None   # chi2.sf, as _std_from_ci
     holds = (p is not None and p >= ALPHA) or spreads[i] < 100 * NEGLIGIBLE
     return _row(claim, "viscous_fits", spreads[i], uncs[i], holds, int(sel["n_points"].sum()) if "n_points" in sel else len(sel),
                 p, "largest spread (max - min) / mean of the viscous coefficient across 1-3 bar, per direction; "
@@ -336,7 +336,7 @@ def force_outlives_distance(ctx: StageContext) -> dict:
             unc = None
             if hl is not None and "adjustment" in hl.columns:
                 groups = _life_groups(hl, worst.get("hose_type"))
-                fits = {k: sl.weibull_fit(*v) for k, v in groups.items()}
+                fits = _weibull_fits(ctx, groups)
                 if all(f.ok for f in fits.values()):
                     unc = _ratio_uncertainty(groups, fits, ratios[i])
             p = pd.to_numeric(t["p_value"], errors="coerce")
@@ -356,7 +356,7 @@ def force_outlives_distance(ctx: StageContext) -> dict:
     if min(fails.values()) < 2:
         return _row(claim, "hose_life", n=n, detail=f"no data: fewer than two failures in a group "
                                                      f"(force {fails['force']}, distance {fails['distance']})")
-    fits = {k: sl.weibull_fit(*v) for k, v in groups.items()}
+    fits = _weibull_fits(ctx, groups)
     if not all(f.ok for f in fits.values()):
         return _row(claim, "hose_life", n=n, detail="no data: the Weibull fit did not converge")
     ratio = fits["force"].scale / fits["distance"].scale
@@ -366,6 +366,21 @@ def force_outlives_distance(ctx: StageContext) -> dict:
               f"{fits['distance'].n} failed)")
     return _row(claim, "hose_life", ratio, _ratio_uncertainty(groups, fits, ratio),
                 ratio > 1 and p is not None and p < ALPHA, n, p, detail)
+
+
+def weibull_fit_item(item: tuple) -> sl.WeibullFit:
+    """``(lives [km], failed)`` -> :func:`analyses.service_life.weibull_fit`, for ``ctx.map``: memoised
+    by the lives themselves, so a change of another table (a spring test) neither refits the hoses'
+    lives nor imports ``scipy.stats`` for them (~1.5 CPU-s of such a change, issue 26)."""
+    life, failed = item
+    return sl.weibull_fit(np.asarray(life, dtype=float), np.asarray(failed, dtype=bool))
+
+
+def _weibull_fits(ctx: StageContext, groups: dict) -> dict:
+    """Each group's Weibull fit (:func:`weibull_fit_item`), groups as :func:`_life_groups` gives them."""
+    keys = list(groups)
+    items = [([float(v) for v in groups[k][0]], [bool(v) for v in groups[k][1]]) for k in keys]
+    return dict(zip(keys, ctx.map(weibull_fit_item, items, label=f"{NAME}: Weibull fits")))
 
 
 def _ratio_uncertainty(groups, fits, ratio) -> float | None:

@@ -365,3 +365,19 @@ def test_a_hose_type_whose_verdict_cannot_be_read_is_null_with_the_error_the_oth
 
 def test_the_stage_declares_the_decision_tables():
     assert {"life_verdict", "life_effect"} <= set(fs.READS.tables)
+
+
+def test_hose_life_fits_go_through_the_memo_as_plain_lives_with_a_direct_fits_bits():
+    from analyses import service_life as sl
+
+    lives = weibull_lives()
+    ctx = ctx_with(hose_life=lives)
+    calls, plain = [], ctx.map
+    ctx.map = lambda func, items, label="": calls.append((func, list(items))) or plain(func, items, label)
+    r = by_id(ctx)["force_set_hoses_outlive_distance_set"]
+    assert bool(r["holds"]) and [func for func, _ in calls] == [fs.weibull_fit_item]
+    items = calls[0][1]
+    assert all(type(v) is float for life, _ in items for v in life)   # plain data: what the memo keys on
+    for (life, failed), (x, f) in zip(items, fs._life_groups(lives).values()):
+        a, b = fs.weibull_fit_item((life, failed)), sl.weibull_fit(x, f)
+        assert a.ok and (a.shape, a.scale, a.loglik) == (b.shape, b.scale, b.loglik)
