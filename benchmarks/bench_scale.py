@@ -15,7 +15,8 @@ workers and the morning report included, what cron runs):
 * ``one file``: one run file's bytes changed (a newline appended), then rebuilt;
 * ``one logbook line``: one ``hoses.csv`` line's notes changed, then rebuilt;
 * ``one change of each kind`` (issue 26): the last digit of one CSV run file of each kind, a
-  logbook line's notes, a ``plan.toml`` setting (:func:`change_victims`), each rebuilt and put
+  logbook line's notes, a ``plan.toml`` setting (:func:`change_victims`; a campaign simulated
+  before the simulator wrote a plan.toml gets today's, :func:`ensure_plan`), each rebuilt and put
   back; the CPU seconds of the process tree as a share of the full rebuild's;
 * the warehouse's size on disk;
 * three typical queries through ``pneubench query`` (median of 3): one run's samples by run_id,
@@ -71,6 +72,7 @@ def _age(raw: Path, seconds: float = 3600.0) -> None:
 def make_campaign(base: Path, runs: int, seed: int) -> Path:
     raw = base / "raw"
     if (base / ".complete").is_file():
+        ensure_plan(raw)
         return raw
     shutil.rmtree(base, ignore_errors=True)
     base.mkdir(parents=True)
@@ -78,6 +80,22 @@ def make_campaign(base: Path, runs: int, seed: int) -> Path:
     print(f"  simulated {runs} runs in {m.wall_s:.0f} s: {m.stdout.strip()}")
     (base / ".complete").write_text("ok\n")
     return raw
+
+
+def ensure_plan(raw: Path) -> bool:
+    """Give a campaign simulated before the simulator wrote ``plan.toml`` the one it writes now
+    (:data:`pipeline.simulator.profiles.DEMO_PLAN`, aged an hour), so that the ``plan.toml`` kind of
+    change is measured (issue 26; session 19's 1,000-run campaign had none). True when written."""
+    from pipeline.simulator.profiles import DEMO_PLAN
+
+    plan = raw / "plan.toml"
+    if plan.exists() or not raw.is_dir():
+        return False
+    plan.write_text(DEMO_PLAN, encoding="utf-8")
+    past = time.time() - 3600
+    os.utime(plan, (past, past))
+    print(f"  {plan}: the simulator's plan.toml written (the campaign predates it)", flush=True)
+    return True
 
 
 def _size_mb(folder: Path) -> float:

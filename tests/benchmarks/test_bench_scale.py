@@ -24,3 +24,21 @@ def test_the_worst_kind_is_judged_by_its_cpu_share_of_its_own_sizes_full_rebuild
     assert [(round(v, 3), ok) for _, v, ok in checks] == [(0.05, False), (0.025, False)]
     assert "worst kind (spring) under 5% of a full rebuild at 1000 runs" in checks[0][0]
     assert bs.kind_lines([{"runs": 30}]) == ([], [])
+
+
+def test_a_campaign_without_a_plan_gets_the_simulators_and_its_plan_change_is_measured(tmp_path):
+    import time
+
+    from pipeline.raw.plan import read_plan
+    from pipeline.raw.tree import RawTree
+
+    raw = tmp_path / "raw"
+    raw.mkdir()
+    assert bs.ensure_plan(raw) is True
+    plan = read_plan(RawTree(raw))
+    assert plan.present and plan.problems == () and plan.for_hose_type("FLEXIGOM AIR").margin == 1.5
+    assert time.time() - (raw / "plan.toml").stat().st_mtime > 3000  # aged: not hashed as a racy file
+    (raw / "plan.toml").write_text("[defaults]\nmargin = 1.3\n")
+    assert bs.ensure_plan(raw) is False and (raw / "plan.toml").read_text() == "[defaults]\nmargin = 1.3\n"
+    old = bs.bump_plan(raw / "plan.toml", 2)
+    assert old == b"[defaults]\nmargin = 1.3\n" and (raw / "plan.toml").read_text() == "[defaults]\nmargin = 1.32\n"
