@@ -30,6 +30,11 @@ in the number of runs (the exponent of a power law fitted over the sizes, log-lo
 at most 1.0). It prints every figure with PASS / MISS, writes ``--json`` and a log-log plot of
 the curve (``--plot``, default ``benchmarks/scale.png``).
 
+A raw tree and its warehouse copied elsewhere (issue 26: a backup restored, a new disk), ``cp -a``
+and ``cp -r``, the first rebuild of the copy against a no-op, before and after a change::
+
+    python -m benchmarks.bench_scale --copied --ref main --runs 60
+
 The cost of a change of each kind (issue 26), before and after a change of the code in one run::
 
     python -m benchmarks.bench_scale --per-kind --ref main --runs 1000
@@ -361,6 +366,85 @@ def per_kind(ref: str, after: str, runs: int, seed: int, rounds: int, kinds: tup
         shutil.rmtree(work, ignore_errors=True)
 
 
+def copy_tree(src: Path, dst: Path, keep_mtime: bool) -> None:
+    """``cp -a`` (``keep_mtime``: mtimes kept, new inodes) or ``cp -r`` (new mtimes as well, aged an
+    hour as a restored night's files are) of ``src`` to ``dst``."""
+    shutil.copytree(src, dst, symlinks=True, copy_function=shutil.copy2 if keep_mtime else shutil.copyfile)
+    if not keep_mtime:
+        _age(dst)
+
+
+#: How a raw tree and its warehouse are copied elsewhere (``--copied``): name -> mtimes kept.
+COPIES = {"cp -a": True, "cp -r": False}
+
+
+def _rebuilt(m) -> str:
+    """What a rebuild's last line says: ``no-op``, or the stages it ran."""
+    last = (m.stdout + m.stderr).strip().splitlines()[-1:] or [""]
+    if "a no-op" in last[0]:
+        return "no-op"
+    return "stages run: " + (last[0].split("stages run: ")[-1].rsplit(",", 1)[0] if "stages run: " in last[0] else "?")
+
+
+def copied(ref: str, after: str, runs: int, seed: int) -> dict:
+    """Per version (``ref``, ``after``): CPU and wall of a no-op rebuild, and of the first rebuild of
+    its raw tree and warehouse copied elsewhere (:data:`COPIES`), with what it did (issue 26: a
+    copied warehouse's no-op re-ran every stage in session 19's measurement)."""
+    import tempfile
+
+    from benchmarks.bench_versions import _age_to, command, _env
+    from benchmarks.same_behaviour import export
+
+    raw = make_campaign(DATA / f"scale-{runs}", runs, seed)
+    _age_to(raw, time.time() - 3600)
+    work = Path(tempfile.mkdtemp(prefix="pneubench-copied-"))
+    out: dict = {}
+    try:
+        for name, ref_ in (("before", ref), ("after", after)):
+            tree = export(ref_, work / name)
+
+            def rebuild(r: Path, wh: Path):
+                return measure([*command(tree), "rebuild", "--raw", str(r), "--warehouse", str(wh)], cwd=tree,
+                               env=_env(tree))
+
+            wh = work / f"wh-{name}"
+            rebuild(raw, wh)
+            m = rebuild(raw, wh)
+            out[name] = {"no-op": [m.wall_s, m.cpu_s, _rebuilt(m)]}
+            for how, keep in COPIES.items():
+                dest = work / f"copy-{name}"
+                copy_tree(raw, dest / "raw", keep)
+                copy_tree(wh, dest / "warehouse", keep)
+                m = rebuild(dest / "raw", dest / "warehouse")
+                out[name][how] = [m.wall_s, m.cpu_s, _rebuilt(m)]
+                shutil.rmtree(dest)
+                print(f"  {name}: {how} {m.wall_s:.1f} s, CPU {m.cpu_s:.1f} s: {out[name][how][2]}", flush=True)
+        return out
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+def _main_copied(args) -> int:
+    """``--copied``: the table of :func:`copied`; PASS when the copies' rebuilds of ``--after`` are
+    no-ops under twice the no-op's CPU."""
+    n = int(args.runs.split(",")[0])
+    print(f"a raw tree and its warehouse copied elsewhere, {n} runs, before {args.ref}, after {args.after}; "
+          f"load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}", flush=True)
+    res = copied(args.ref, args.after, n, args.seed)
+    print("\n| rebuild | " + " | ".join(f"{v}: wall s / CPU s, what it did" for v in res) + " |")
+    print("|---|" + "---|" * len(res))
+    for how in ("no-op", *COPIES):
+        cells = [f"{r[how][0]:.1f} / {r[how][1]:.1f}, {r[how][2]}" for r in res.values()]
+        print(f"| {how} | " + " | ".join(cells) + " |")
+    after, ok = res["after"], True
+    for how in COPIES:
+        good = after[how][2] == "no-op" and after[how][1] < 2 * after["no-op"][1]
+        ok &= good
+        print(f"{verdict(good)}  {how} copy rebuilt as a no-op under twice the no-op's CPU "
+              f"({after['no-op'][1]:.2f} s): {after[how][1]:.2f} s, {after[how][2]}")
+    return 0 if ok else 1
+
+
 def per_kind_table(times: dict) -> list[str]:
     """The markdown table of :func:`per_kind`'s medians: seconds and share of the version's full rebuild."""
     med = {v: {k: (statistics.median(w for w, _ in t), statistics.median(c for _, c in t)) for k, t in kinds.items()}
@@ -422,9 +506,13 @@ def main(argv=None) -> int:
     ap.add_argument("--after", default="HEAD", help="--per-kind: the version after")
     ap.add_argument("--rounds", type=int, default=1, help="--per-kind: changes of each kind per version (median)")
     ap.add_argument("--kinds", default="", help="--per-kind: only these changes (comma-separated, e.g. spring)")
+    ap.add_argument("--copied", action="store_true",
+                    help="the first rebuild of a raw tree and warehouse copied elsewhere, --ref and --after (issue 26)")
     args = ap.parse_args(argv)
     if args.per_kind:
         return _main_per_kind(args)
+    if args.copied:
+        return _main_copied(args)
     sizes = sorted(int(n) for n in args.runs.split(",") if n.strip())
     print(f"pneubench cost curve: {sizes} runs, {os.cpu_count()} cores, python {sys.version.split()[0]}")
     print(f"load average before: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
