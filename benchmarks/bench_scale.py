@@ -336,7 +336,8 @@ def per_kind(ref: str, after: str, runs: int, seed: int, rounds: int, kinds: tup
     _age_to(raw, past)
     work = Path(tempfile.mkdtemp(prefix="pneubench-per-kind-"))
     try:
-        trees = {"before": export(ref, work / "before"), "after": export(after, work / "after")}
+        trees = {"before": export(ref, work / "before")} if ref != "none" else {}  # none: only --after
+        trees["after"] = export(after, work / "after")
         out: dict = {name: {} for name in trees}
 
         def rebuild(name: str) -> tuple[float, float]:
@@ -347,9 +348,9 @@ def per_kind(ref: str, after: str, runs: int, seed: int, rounds: int, kinds: tup
         for name in trees:
             out[name]["full"] = [rebuild(name)]
             print(f"  {name}: full {out[name]['full'][0][0]:.1f} s, CPU {out[name]['full'][0][1]:.1f} s", flush=True)
-        for kind, (path, edit) in change_victims(raw, work / "wh-after").items():
-            if kinds and kind not in kinds:
-                continue
+        victims = change_victims(raw, work / "wh-after")
+        for kind in [k for k in kinds if k in victims] if kinds else list(victims):  # in the order asked
+            path, edit = victims[kind]
             for i in range(rounds):
                 for name in (trees if i % 2 == 0 else list(reversed(trees))):
                     original = edit(path, i + 1)
@@ -449,6 +450,10 @@ def per_kind_table(times: dict) -> list[str]:
     """The markdown table of :func:`per_kind`'s medians: seconds and share of the version's full rebuild."""
     med = {v: {k: (statistics.median(w for w, _ in t), statistics.median(c for _, c in t)) for k, t in kinds.items()}
            for v, kinds in times.items()}
+    if "before" not in med:  # --ref none: the version measured alone
+        a = med["after"]
+        return ["| change | wall s / CPU s | CPU share of full |", "|---|---|---|"] + [
+            f"| {kind} | {a[kind][0]:.1f} / {a[kind][1]:.1f} | {a[kind][1] / a['full'][1]:.3f} |" for kind in a]
     b, a = med["before"], med["after"]
     lines = ["| change | before: wall s / CPU s | CPU share of full | after: wall s / CPU s | CPU share of full "
              "| after / before CPU |", "|---|---|---|---|---|---|"]
@@ -502,7 +507,7 @@ def main(argv=None) -> int:
                          "exponents and the plot (a size measured now wins)")
     ap.add_argument("--per-kind", action="store_true",
                     help="the cost of one change of each kind, versions --ref and --after alternating (issue 26)")
-    ap.add_argument("--ref", default="main", help="--per-kind: the version before")
+    ap.add_argument("--ref", default="main", help="--per-kind, --copied: the version before (--per-kind: none)")
     ap.add_argument("--after", default="HEAD", help="--per-kind: the version after")
     ap.add_argument("--rounds", type=int, default=1, help="--per-kind: changes of each kind per version (median)")
     ap.add_argument("--kinds", default="", help="--per-kind: only these changes (comma-separated, e.g. spring)")

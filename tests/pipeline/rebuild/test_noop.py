@@ -110,8 +110,8 @@ def test_anything_that_may_change_the_warehouse_takes_the_incremental_path(raw, 
         step(raw, "c/c.csv")
     elif change == "delete a run file":
         (raw.root / "c/b.csv").unlink()
-    elif change == "new ignored file":
-        raw.write("c/readme.md", "notes\n")
+    elif change == "new ignored file":  # a README is a known non-run, in no table: that would be a no-op
+        raw.write("c/extra.json", "{}\n")
     elif change == "manifest":
         raw.write("c/manifest.csv", "file,operator\na.csv,ana\n")
     elif change == "rig.toml":
