@@ -15,7 +15,8 @@ workers and the morning report included, what cron runs):
 * ``one file``: one run file's bytes changed (a newline appended), then rebuilt;
 * ``one logbook line``: one ``hoses.csv`` line's notes changed, then rebuilt;
 * ``one change of each kind`` (issue 26): the last digit of one CSV run file of each kind, a
-  logbook line's notes, a ``plan.toml`` setting (:func:`change_victims`), each rebuilt and put
+  logbook line's notes, a ``plan.toml`` setting (:func:`change_victims`; a campaign simulated
+  before the simulator wrote a plan.toml gets today's, :func:`ensure_plan`), each rebuilt and put
   back; the CPU seconds of the process tree as a share of the full rebuild's;
 * the warehouse's size on disk;
 * three typical queries through ``pneubench query`` (median of 3): one run's samples by run_id,
@@ -28,6 +29,11 @@ the one-run samples query under 0.5 s; no-op and one-change time growing no fast
 in the number of runs (the exponent of a power law fitted over the sizes, log-log least squares,
 at most 1.0). It prints every figure with PASS / MISS, writes ``--json`` and a log-log plot of
 the curve (``--plot``, default ``benchmarks/scale.png``).
+
+A raw tree and its warehouse copied elsewhere (issue 26: a backup restored, a new disk), ``cp -a``
+and ``cp -r``, the first rebuild of the copy against a no-op, before and after a change::
+
+    python -m benchmarks.bench_scale --copied --ref main --runs 60
 
 The cost of a change of each kind (issue 26), before and after a change of the code in one run::
 
@@ -71,6 +77,7 @@ def _age(raw: Path, seconds: float = 3600.0) -> None:
 def make_campaign(base: Path, runs: int, seed: int) -> Path:
     raw = base / "raw"
     if (base / ".complete").is_file():
+        ensure_plan(raw)
         return raw
     shutil.rmtree(base, ignore_errors=True)
     base.mkdir(parents=True)
@@ -78,6 +85,22 @@ def make_campaign(base: Path, runs: int, seed: int) -> Path:
     print(f"  simulated {runs} runs in {m.wall_s:.0f} s: {m.stdout.strip()}")
     (base / ".complete").write_text("ok\n")
     return raw
+
+
+def ensure_plan(raw: Path) -> bool:
+    """Give a campaign simulated before the simulator wrote ``plan.toml`` the one it writes now
+    (:data:`pipeline.simulator.profiles.DEMO_PLAN`, aged an hour), so that the ``plan.toml`` kind of
+    change is measured (issue 26; session 19's 1,000-run campaign had none). True when written."""
+    from pipeline.simulator.profiles import DEMO_PLAN
+
+    plan = raw / "plan.toml"
+    if plan.exists() or not raw.is_dir():
+        return False
+    plan.write_text(DEMO_PLAN, encoding="utf-8")
+    past = time.time() - 3600
+    os.utime(plan, (past, past))
+    print(f"  {plan}: the simulator's plan.toml written (the campaign predates it)", flush=True)
+    return True
 
 
 def _size_mb(folder: Path) -> float:
@@ -313,7 +336,8 @@ def per_kind(ref: str, after: str, runs: int, seed: int, rounds: int, kinds: tup
     _age_to(raw, past)
     work = Path(tempfile.mkdtemp(prefix="pneubench-per-kind-"))
     try:
-        trees = {"before": export(ref, work / "before"), "after": export(after, work / "after")}
+        trees = {"before": export(ref, work / "before")} if ref != "none" else {}  # none: only --after
+        trees["after"] = export(after, work / "after")
         out: dict = {name: {} for name in trees}
 
         def rebuild(name: str) -> tuple[float, float]:
@@ -324,9 +348,9 @@ def per_kind(ref: str, after: str, runs: int, seed: int, rounds: int, kinds: tup
         for name in trees:
             out[name]["full"] = [rebuild(name)]
             print(f"  {name}: full {out[name]['full'][0][0]:.1f} s, CPU {out[name]['full'][0][1]:.1f} s", flush=True)
-        for kind, (path, edit) in change_victims(raw, work / "wh-after").items():
-            if kinds and kind not in kinds:
-                continue
+        victims = change_victims(raw, work / "wh-after")
+        for kind in [k for k in kinds if k in victims] if kinds else list(victims):  # in the order asked
+            path, edit = victims[kind]
             for i in range(rounds):
                 for name in (trees if i % 2 == 0 else list(reversed(trees))):
                     original = edit(path, i + 1)
@@ -343,10 +367,93 @@ def per_kind(ref: str, after: str, runs: int, seed: int, rounds: int, kinds: tup
         shutil.rmtree(work, ignore_errors=True)
 
 
+def copy_tree(src: Path, dst: Path, keep_mtime: bool) -> None:
+    """``cp -a`` (``keep_mtime``: mtimes kept, new inodes) or ``cp -r`` (new mtimes as well, aged an
+    hour as a restored night's files are) of ``src`` to ``dst``."""
+    shutil.copytree(src, dst, symlinks=True, copy_function=shutil.copy2 if keep_mtime else shutil.copyfile)
+    if not keep_mtime:
+        _age(dst)
+
+
+#: How a raw tree and its warehouse are copied elsewhere (``--copied``): name -> mtimes kept.
+COPIES = {"cp -a": True, "cp -r": False}
+
+
+def _rebuilt(m) -> str:
+    """What a rebuild's last line says: ``no-op``, or the stages it ran."""
+    last = (m.stdout + m.stderr).strip().splitlines()[-1:] or [""]
+    if "a no-op" in last[0]:
+        return "no-op"
+    return "stages run: " + (last[0].split("stages run: ")[-1].rsplit(",", 1)[0] if "stages run: " in last[0] else "?")
+
+
+def copied(ref: str, after: str, runs: int, seed: int) -> dict:
+    """Per version (``ref``, ``after``): CPU and wall of a no-op rebuild, and of the first rebuild of
+    its raw tree and warehouse copied elsewhere (:data:`COPIES`), with what it did (issue 26: a
+    copied warehouse's no-op re-ran every stage in session 19's measurement)."""
+    import tempfile
+
+    from benchmarks.bench_versions import _age_to, command, _env
+    from benchmarks.same_behaviour import export
+
+    raw = make_campaign(DATA / f"scale-{runs}", runs, seed)
+    _age_to(raw, time.time() - 3600)
+    work = Path(tempfile.mkdtemp(prefix="pneubench-copied-"))
+    out: dict = {}
+    try:
+        for name, ref_ in (("before", ref), ("after", after)):
+            tree = export(ref_, work / name)
+
+            def rebuild(r: Path, wh: Path):
+                return measure([*command(tree), "rebuild", "--raw", str(r), "--warehouse", str(wh)], cwd=tree,
+                               env=_env(tree))
+
+            wh = work / f"wh-{name}"
+            rebuild(raw, wh)
+            m = rebuild(raw, wh)
+            out[name] = {"no-op": [m.wall_s, m.cpu_s, _rebuilt(m)]}
+            for how, keep in COPIES.items():
+                dest = work / f"copy-{name}"
+                copy_tree(raw, dest / "raw", keep)
+                copy_tree(wh, dest / "warehouse", keep)
+                m = rebuild(dest / "raw", dest / "warehouse")
+                out[name][how] = [m.wall_s, m.cpu_s, _rebuilt(m)]
+                shutil.rmtree(dest)
+                print(f"  {name}: {how} {m.wall_s:.1f} s, CPU {m.cpu_s:.1f} s: {out[name][how][2]}", flush=True)
+        return out
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+def _main_copied(args) -> int:
+    """``--copied``: the table of :func:`copied`; PASS when the copies' rebuilds of ``--after`` are
+    no-ops under twice the no-op's CPU."""
+    n = int(args.runs.split(",")[0])
+    print(f"a raw tree and its warehouse copied elsewhere, {n} runs, before {args.ref}, after {args.after}; "
+          f"load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}", flush=True)
+    res = copied(args.ref, args.after, n, args.seed)
+    print("\n| rebuild | " + " | ".join(f"{v}: wall s / CPU s, what it did" for v in res) + " |")
+    print("|---|" + "---|" * len(res))
+    for how in ("no-op", *COPIES):
+        cells = [f"{r[how][0]:.1f} / {r[how][1]:.1f}, {r[how][2]}" for r in res.values()]
+        print(f"| {how} | " + " | ".join(cells) + " |")
+    after, ok = res["after"], True
+    for how in COPIES:
+        good = after[how][2] == "no-op" and after[how][1] < 2 * after["no-op"][1]
+        ok &= good
+        print(f"{verdict(good)}  {how} copy rebuilt as a no-op under twice the no-op's CPU "
+              f"({after['no-op'][1]:.2f} s): {after[how][1]:.2f} s, {after[how][2]}")
+    return 0 if ok else 1
+
+
 def per_kind_table(times: dict) -> list[str]:
     """The markdown table of :func:`per_kind`'s medians: seconds and share of the version's full rebuild."""
     med = {v: {k: (statistics.median(w for w, _ in t), statistics.median(c for _, c in t)) for k, t in kinds.items()}
            for v, kinds in times.items()}
+    if "before" not in med:  # --ref none: the version measured alone
+        a = med["after"]
+        return ["| change | wall s / CPU s | CPU share of full |", "|---|---|---|"] + [
+            f"| {kind} | {a[kind][0]:.1f} / {a[kind][1]:.1f} | {a[kind][1] / a['full'][1]:.3f} |" for kind in a]
     b, a = med["before"], med["after"]
     lines = ["| change | before: wall s / CPU s | CPU share of full | after: wall s / CPU s | CPU share of full "
              "| after / before CPU |", "|---|---|---|---|---|---|"]
@@ -400,13 +507,17 @@ def main(argv=None) -> int:
                          "exponents and the plot (a size measured now wins)")
     ap.add_argument("--per-kind", action="store_true",
                     help="the cost of one change of each kind, versions --ref and --after alternating (issue 26)")
-    ap.add_argument("--ref", default="main", help="--per-kind: the version before")
+    ap.add_argument("--ref", default="main", help="--per-kind, --copied: the version before (--per-kind: none)")
     ap.add_argument("--after", default="HEAD", help="--per-kind: the version after")
     ap.add_argument("--rounds", type=int, default=1, help="--per-kind: changes of each kind per version (median)")
     ap.add_argument("--kinds", default="", help="--per-kind: only these changes (comma-separated, e.g. spring)")
+    ap.add_argument("--copied", action="store_true",
+                    help="the first rebuild of a raw tree and warehouse copied elsewhere, --ref and --after (issue 26)")
     args = ap.parse_args(argv)
     if args.per_kind:
         return _main_per_kind(args)
+    if args.copied:
+        return _main_copied(args)
     sizes = sorted(int(n) for n in args.runs.split(",") if n.strip())
     print(f"pneubench cost curve: {sizes} runs, {os.cpu_count()} cores, python {sys.version.split()[0]}")
     print(f"load average before: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")

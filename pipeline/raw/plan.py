@@ -193,16 +193,29 @@ class Plan:
 
     @property
     def digest(self) -> str:
-        """Hash of everything a stage can read of the plan (the stage cache key's ``plan``)."""
-        return self.digest_of(tuple(KEYS))
+        """Hash of everything a stage can read of the plan (the cache key's ``plan`` of a stage that
+        declares ``Reads(plan=True)``): every key's value and source for any hose type and for each
+        hose type the plan names (such a stage may list them), and ``present``."""
+        return self._digest(tuple(KEYS), every_named=True)
 
     def digest_of(self, keys: tuple[str, ...]) -> str:
         """Hash of what a stage that reads only ``keys`` can see of the plan: those keys' values
-        and sources for every hose type the plan names and for any other, and ``present``."""
-        settings = {"*": self.for_hose_type(None)} | {t: self.for_hose_type(t) for t in self.hose_types}
-        blob = {"present": self.present,
-                "settings": {t: {**{k: getattr(s, k) for k in keys}, "sources": {k: s.sources[k] for k in keys}}
-                             for t, s in settings.items()}}
+        and sources for any hose type (``[defaults]`` over the built-ins), for each hose type whose
+        table sets one of them, and ``present``. A hose type's table that sets none of ``keys`` (a
+        ``power`` for the verdict) gives that hose type what any other gets: it changes nothing a
+        stage reading only ``keys`` sees (issue 26: ``durability`` re-ran on such a change)."""
+        return self._digest(tuple(keys), every_named=False)
+
+    def _digest(self, keys: tuple[str, ...], every_named: bool) -> str:
+        def seen(s: PlanSettings) -> dict:
+            return {**{k: getattr(s, k) for k in keys}, "sources": {k: s.sources[k] for k in keys}}
+
+        settings = {"*": seen(self.for_hose_type(None))}
+        for t in sorted(self.hose_types):
+            own = seen(self.for_hose_type(t))
+            if every_named or own != settings["*"]:
+                settings[t] = own
+        blob = {"present": self.present, "settings": settings}
         return hashlib.sha256(json.dumps(blob, sort_keys=True).encode()).hexdigest()[:32]
 
 

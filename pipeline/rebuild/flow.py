@@ -42,7 +42,7 @@ from pipeline.rebuild.garbage import clean_debris, collect_garbage, split_kept
 from pipeline.rebuild.history import append_log, compare_findings
 from pipeline.rebuild.assemble import build_database, runs_frame
 from pipeline.rebuild.ingest_tasks import deduplicate, ingest_incremental
-from pipeline.rebuild.noop import inputs_key, nothing_changed, rebuild_noop
+from pipeline.rebuild.noop import InputsKey, confirm_same_bytes, nothing_changed, planned_records, rebuild_noop
 from pipeline.rebuild.options import (EXIT_USAGE, RebuildError, RebuildOptions, RebuildRun, RebuildSummary,
                                       keep_superseded_h)
 from pipeline.rebuild.publish import (check_mass_delete, clean_after_failure, crash_point, live_database,
@@ -178,7 +178,7 @@ def _rebuild_locked(run: RebuildRun) -> RebuildSummary:
         summary.mode = "no-op"
         run.progress.message(f"rebuild {run.generation} (no-op): {len(plan.files)} run files under {run.raw}, "
                              "nothing changed since the last rebuild: its database is carried over")
-        return rebuild_noop(run, plan.prev, plan.plans, plan.key)
+        return rebuild_noop(run, plan.prev, plan.plans, plan.key, plan.side)
     n_quick = sum(p.status == "unchanged" for p in plan.plans)
     run.progress.message(f"rebuild {run.generation} ({summary.mode}): {len(plan.files)} run files under "
                          f"{run.raw}, {n_quick} unchanged at a glance")
@@ -215,7 +215,8 @@ class _Plan:
     plans: list[FilePlan]      # per run file: new, changed, unchanged or to check
     side: list[FileRecord]     # manifests, rig.toml, logbooks
     side_changes: list[dict]   # their rows of rebuild_inputs
-    key: str                   # :func:`pipeline.rebuild.noop.inputs_key`
+    key: str                   # :meth:`pipeline.rebuild.noop.InputsKey.key` of what the plan knows
+    keyer: InputsKey           # the key's parts other than the files (taken when raw/ was walked)
 
 
 def _plan(run: RebuildRun) -> _Plan:
@@ -242,8 +243,11 @@ def _plan(run: RebuildRun) -> _Plan:
     side, side_changes = side_records(tree, prev)
     if not run.options.allow_mass_delete:
         check_mass_delete(prev, plans)
-    key = inputs_key(tree, code, plans, side, ignored)
-    return _Plan(prev, tree, files, ignored, code, plans, side, side_changes, key)
+    if not run.options.full:  # a file whose stat alone changed (touched, copied, moved): its bytes, hashed here
+        confirm_same_bytes(tree, plans, run.options.jobs)
+    keyer = InputsKey.of_tree(tree, code, ignored)
+    return _Plan(prev, tree, files, ignored, code, plans, side, side_changes, keyer.key(planned_records(plans), side),
+                 keyer)
 
 
 # -- ingest ----------------------------------------------------------------------------------------
@@ -324,7 +328,7 @@ def _assemble(run: RebuildRun, plan: _Plan, ingested: _Ingested, staged: StageRe
     summary.n_runs = len(ingested.runs)
     summary.quarantine = problems
     summary.stages_run, summary.stages_reused = staged.ran, staged.reused
-    history = append_log(prev.history, _log_row(run, plan, executor, len(ingested.runs), staged))
+    history = append_log(prev.history, _log_row(run, plan, executor, ingested, staged))
     in_use = set(runs_df.get("samples_path", [])) | {r.folder for r in staged.records}
     kept, _expired = superseded_files(prev, in_use, run.options.clock(), run.options.keep_superseded_h)
     tables = {
@@ -377,15 +381,15 @@ def _count_inputs(summary: RebuildSummary, inputs: pd.DataFrame) -> None:
     summary.n_unchanged = int(((inputs["status"] == "unchanged") & runs).sum())
 
 
-def _log_row(run: RebuildRun, plan: _Plan, executor: str, n_runs: int, staged: StageResults) -> dict:
+def _log_row(run: RebuildRun, plan: _Plan, executor: str, ingested: _Ingested, staged: StageResults) -> dict:
     """This rebuild's row of ``rebuild_log`` (its ``seq`` is given by :func:`append_log`)."""
     s = run.summary
     return {"generation": run.generation, "started_at": run.started_at, "finished_at": datetime.now(timezone.utc),
             "duration_s": time.monotonic() - run.t0, "mode": s.mode, "executor": executor,
-            "n_files": len(plan.files), "n_runs": n_runs, "n_new": s.n_new, "n_changed": s.n_changed,
+            "n_files": len(plan.files), "n_runs": len(ingested.runs), "n_new": s.n_new, "n_changed": s.n_changed,
             "n_deleted": s.n_deleted, "n_unchanged": s.n_unchanged, "n_quarantined": len(s.quarantine),
             "stages_run": staged.ran, "stages_reused": staged.reused, "exit_code": s.exit_code,
-            "inputs_key": plan.key}
+            "inputs_key": plan.keyer.key(ingested.records, plan.side)}
 
 
 def _quarantine_frame(problems: list[Problem]) -> pd.DataFrame:

@@ -23,7 +23,8 @@ from typing import TYPE_CHECKING
 from pipeline.progress import Progress
 from pipeline.raw.problems import Problem
 from pipeline.rebuild.memo import Memo
-from pipeline.rebuild.stage_store import FigureDrawer, PooledTables, load_stage_folder, save_stage_folder
+from pipeline.rebuild.stage_store import (FigureDrawer, PooledTables, load_stage_folder, own_stage_folder,
+                                           save_stage_folder)
 from pipeline.rebuild.state import PreviousState, StageRecord, frame_hash, stage_input_key
 from pipeline.versions import stage_code_version
 from pipeline.rebuild.options import RebuildError
@@ -165,7 +166,7 @@ def run_stages_cached(inputs: StageInputs, progress: Progress, drawer: FigureDra
 def _input_key(name: str, code: str, reads: Reads, inputs: StageInputs) -> str:
     """A stage's input key: its code, the runs of the kinds it reads, the logbooks and the plan if it reads them."""
     return stage_input_key(name, code, inputs.runs, set(reads.kinds), inputs.logbooks if reads.logbooks else None,
-                           inputs.plan.digest_of(reads.plan_keys()) if reads.plan else None)
+                           reads.plan_digest(inputs.plan))
 
 
 def _tables_read(reads: Reads, res: StageResults) -> dict[str, str]:
@@ -177,10 +178,9 @@ def _reusable(name: str, key: str, tables_read: dict[str, str], inputs: StageInp
     """The previous rebuild's record of a stage when its outputs can be reused (same input key, same
     tables read, its folder still there), else None."""
     old = inputs.previous.stages.get(name)
-    if inputs.full or old is None:
+    if inputs.full or old is None or (folder := own_stage_folder(inputs.warehouse, old.folder, name)) is None:
         return None
-    if (key == old.input_key and (inputs.warehouse / old.folder / "output.json").is_file()
-            and tables_read == old.results_read):
+    if key == old.input_key and (folder / "output.json").is_file() and tables_read == old.results_read:
         return old
     return None
 
@@ -192,7 +192,8 @@ def _run_stage(mod, reads: Reads, key: str, inputs: StageInputs, res: StageResul
 
     name = mod.NAME
     old = inputs.previous.stages.get(name)
-    previous = None if inputs.full or old is None else inputs.warehouse / old.folder  # its figures, by key
+    # the previous folder (its figures and pooled tables, by key): only one of this warehouse's own
+    previous = None if inputs.full or old is None else own_stage_folder(inputs.warehouse, old.folder, name)
     if previous is None:  # every figure to draw: the drawing worker imports matplotlib while the stage runs
         drawer.warm()  # (else it starts with the first figure whose key changed, if any)
     # per-run results of earlier rebuilds (not read by --full, written either way)

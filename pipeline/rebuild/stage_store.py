@@ -13,6 +13,7 @@ import io
 import json
 import os
 import shutil
+import stat
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -22,6 +23,7 @@ from pipeline.rebuild.executors import default_jobs, forked_pool
 from pipeline.rebuild.figure_keys import figure_key, reusable_figures, table_key
 from pipeline.rebuild.options import RebuildError
 from pipeline.rebuild.garbage import remove_stage_folder
+from pipeline.warehouse import STAGE_KEY
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -130,9 +132,32 @@ class FigureDrawer:
         return False
 
 
+def own_stage_folder(warehouse: Path, rel: str, stage: str) -> Path | None:
+    """The folder ``rel`` of a stage record when it is one of this warehouse's own stage folders:
+    ``stages/<stage>/<key>`` relative to it (as :func:`save_stage_folder` names them), each level a
+    real folder, not a symlink; else None (the stage runs: a record naming a folder elsewhere, an
+    absolute path, ``..``, a link out, is never read). Relative names are why a warehouse copied or
+    moved elsewhere reuses its own folders (issue 26), and only those."""
+    parts = rel.split("/") if isinstance(rel, str) else []
+    if len(parts) != 3 or parts[0] != "stages" or parts[1] != stage or not STAGE_KEY.fullmatch(parts[2]):
+        return None
+    folder = Path(warehouse)
+    for part in parts:
+        folder = folder / part
+        try:
+            if not stat.S_ISDIR(os.lstat(folder).st_mode):
+                return None
+        except OSError:
+            return None
+    return folder
+
+
 def _place_stage_folder(tmp: Path, final: Path) -> None:
-    """Rename a stage folder written under its temporary name into place (replacing a damaged one)."""
-    if final.exists():  # damaged (its output.json gone), or tables that could not be stored
+    """Rename a stage folder written under its temporary name into place (replacing a damaged one,
+    or a link in its place: the link goes, never what it points at)."""
+    if final.is_symlink():
+        final.unlink()
+    elif final.exists():  # damaged (its output.json gone), or tables that could not be stored
 
         remove_stage_folder(final)
     final.parent.mkdir(parents=True, exist_ok=True)  # the collection before the database removes empty folders
@@ -224,7 +249,7 @@ def save_stage_folder(warehouse: Path, name: str, folder_key: str, out: StageOut
     rel = f"stages/{name}/{folder_key}"
     final = warehouse / rel
     tmp = warehouse / "stages" / f".tmp-{name}-{folder_key}-{os.getpid()}"
-    if final.exists() and (final / "output.json").is_file() and _cacheable_tables(out):
+    if own_stage_folder(warehouse, rel, name) and (final / "output.json").is_file() and _cacheable_tables(out):
         # same inputs, same outputs (stages are deterministic): keep the folder a live warehouse
         # may use, and draw nothing
         return rel, True, final

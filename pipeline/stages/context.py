@@ -183,7 +183,7 @@ def _plan_digest(plan) -> str:
     """What a stage can see of ``plan`` (a :class:`DeclaredPlan`: its declared keys), as a hash."""
     if isinstance(plan, DeclaredPlan):
         return "plan " + plan._plan.digest_of(plan._keys)
-    return "plan " + plan.digest_of(tuple(PLAN_KEYS))
+    return "plan " + plan.digest
 
 
 def read_samples(path: str | Path, columns: list[str] | None = None) -> pd.DataFrame:
@@ -304,6 +304,9 @@ class DeclaredPlan:
         self._plan, self._keys, self._stage = plan, keys, stage
 
     def __getattr__(self, name: str):
+        if name in ("defaults", "hose_types", "digest"):  # the tables themselves hold every key
+            raise UndeclaredRead(f"stage {self._stage} read the plan's {name}, which holds keys its READS does "
+                                 f"not declare (it declares {', '.join(self._keys)}): use for_hose_type")
         return getattr(self._plan, name)
 
     def for_hose_type(self, hose_type: str | None) -> "_DeclaredSettings":

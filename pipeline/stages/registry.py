@@ -18,7 +18,7 @@ import pkgutil
 from dataclasses import dataclass
 from types import ModuleType
 
-from pipeline.raw.plan import KEYS
+from pipeline.raw.plan import KEYS, Plan
 
 
 @dataclass(frozen=True)
@@ -51,6 +51,14 @@ class Reads:
         if self.plan is True:
             return tuple(KEYS)
         return tuple(self.plan) if self.plan else ()
+
+    def plan_digest(self, plan: Plan) -> str | None:
+        """What the stage sees of ``plan``, hashed for its cache key (None when it does not read it):
+        all of it for ``plan=True`` (:attr:`Plan.digest`), else only its keys (:meth:`Plan.digest_of`:
+        a hose type's table that sets none of them changes nothing)."""
+        if self.plan is True:
+            return plan.digest
+        return plan.digest_of(self.plan_keys()) if self.plan else None
 
 
 class StageCircle(Exception):

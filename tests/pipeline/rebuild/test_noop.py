@@ -2,7 +2,9 @@
 exactly as the incremental path would have written it."""
 import os
 import re
+import shutil
 import time
+from pathlib import Path
 
 import pytest
 
@@ -88,7 +90,7 @@ def test_a_noop_rebuild_carries_the_database_over_exactly_as_the_incremental_pat
     assert "no-op rebuild" in html and a.generation in html
 
 
-@pytest.mark.parametrize("change", ["touch a run file", "new run file", "delete a run file", "new ignored file",
+@pytest.mark.parametrize("change", ["same size, other bytes", "new run file", "delete a run file", "new ignored file",
                                     "manifest", "rig.toml", "logbook", "code", "stage folder gone", "--full"])
 def test_anything_that_may_change_the_warehouse_takes_the_incremental_path(raw, warehouse, monkeypatch, change):
     step(raw, "c/a.csv")
@@ -99,14 +101,17 @@ def test_anything_that_may_change_the_warehouse_takes_the_incremental_path(raw, 
     rebuild(raw.root, warehouse, jobs=1)
     assert rebuild(raw.root, warehouse, jobs=1).mode == "no-op"
     full = False
-    if change == "touch a run file":
-        os.utime(raw.root / "c/a.csv", (time.time() - 600, time.time() - 600))
+    if change == "same size, other bytes":  # a touch alone is a no-op (test_a_copied_...)
+        path = raw.root / "c/a.csv"
+        data = path.read_bytes()
+        path.write_bytes(data.replace(b"1", b"4"))
+        assert path.stat().st_size == len(data) and path.read_bytes() != data
     elif change == "new run file":
         step(raw, "c/c.csv")
     elif change == "delete a run file":
         (raw.root / "c/b.csv").unlink()
-    elif change == "new ignored file":
-        raw.write("c/readme.md", "notes\n")
+    elif change == "new ignored file":  # a README is a known non-run, in no table: that would be a no-op
+        raw.write("c/extra.json", "{}\n")
     elif change == "manifest":
         raw.write("c/manifest.csv", "file,operator\na.csv,ana\n")
     elif change == "rig.toml":
@@ -126,6 +131,54 @@ def test_anything_that_may_change_the_warehouse_takes_the_incremental_path(raw, 
     s = rebuild(raw.root, warehouse, jobs=1, full=full)
     assert s.mode == ("full" if full else "incremental"), change
     assert rebuild(raw.root, warehouse, jobs=1).mode == "no-op"  # and the next night is a no-op again
+
+
+def _copy_tree(src, dst, keep_mtime: bool):
+    """``cp -a`` (mtimes kept, new inodes) or ``cp -r`` (new mtimes too, aged as a night's files are)."""
+    shutil.copytree(src, dst, symlinks=True, copy_function=shutil.copy2 if keep_mtime else shutil.copyfile)
+    if not keep_mtime:
+        age(dst, 900)
+
+
+@pytest.mark.parametrize("keep_mtime", [True, False])
+def test_a_copied_raw_tree_and_warehouse_rebuild_as_a_noop_and_record_the_new_stats(raw, tmp_path, monkeypatch,
+                                                                                    keep_mtime):
+    """Issue 26: a raw tree and its warehouse copied elsewhere (a backup restored, a new disk): every
+    file has a new inode (and, with ``cp -r``, a new mtime), so none is unchanged at a glance. Each is
+    hashed once in the rebuild's own process (none read by a reader), no stage runs, and the rebuild is
+    the no-op, writing what the incremental path writes (the new stats recorded): the next night hashes
+    nothing."""
+    import pipeline.rebuild.ingest_tasks as tasks
+
+    _campaign_with_changes(raw, tmp_path / "wh")
+    rebuild(raw.root, tmp_path / "wh", jobs=1)
+    moved = tmp_path / "elsewhere"
+    for src, name in ((raw.root, "raw"), (tmp_path / "wh", "fast")):
+        _copy_tree(src, moved / name, keep_mtime)
+    shutil.copytree(moved / "fast", moved / "slow", symlinks=True)
+    hashed, read = [], []
+    real_sha, real_ingest = tasks.sha256_file, tasks.ingest_file
+    monkeypatch.setattr(tasks, "sha256_file", lambda p, *a, **k: hashed.append(Path(p).name) or real_sha(p, *a, **k))
+    monkeypatch.setattr(tasks, "ingest_file", lambda t, p, *a, **k: read.append(p.name) or real_ingest(t, p, *a, **k))
+    now = time.time()
+    a = rebuild(moved / "raw", moved / "fast", jobs=2, clock=lambda: now)
+    assert a.mode == "no-op" and a.stages_run == [] and read == []
+    runs = sorted(Path(r[0]).name for r in q(moved / "fast", "SELECT source_path FROM ingest_state WHERE role = 'run'"))
+    assert sorted(hashed) == runs and len(runs) >= 4  # each run file once, in this process
+    assert q(moved / "fast", "SELECT mode, len(stages_run) FROM rebuild_log ORDER BY seq DESC LIMIT 1") == [("no-op", 0)]
+    monkeypatch.setattr(rb, "nothing_changed", lambda *args: False)  # the incremental path, from the same state
+    b = rebuild(moved / "raw", moved / "slow", jobs=1, clock=lambda: now)
+    assert b.mode == "incremental" and b.stages_run == [] and read == []
+    ta, tb = _everything(moved / "fast"), _everything(moved / "slow")
+    assert {t: ta[t] for t in ta if ta[t] != tb[t]} == {}
+    monkeypatch.undo()
+    stats = {r[0]: r[1:] for r in q(moved / "fast", "SELECT source_path, size_bytes, mtime_ns, inode FROM ingest_state")}
+    for rel, (size, mtime_ns, inode) in stats.items():
+        st = (moved / "raw" / rel).stat()
+        assert (size, mtime_ns, inode) == (st.st_size, st.st_mtime_ns, st.st_ino), rel
+    hashed.clear()
+    again = rebuild(moved / "raw", moved / "fast", jobs=1)
+    assert again.mode == "no-op" and hashed == []
 
 
 def test_a_noop_rebuild_killed_before_its_swap_leaves_the_warehouse_as_it_was(raw, warehouse):

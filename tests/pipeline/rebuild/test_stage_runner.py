@@ -131,9 +131,73 @@ def test_a_stage_that_declares_plan_keys_reruns_only_when_they_change_and_reads_
     raw.write("plan.toml", '[defaults]\nmargin = 1.5\n[hose_type."FLEXIGOM AIR"]\nmargin = 2.0\n')
     s = rebuild(raw.root, warehouse, jobs=1)
     assert MarginReader.calls == 2 and q(warehouse, "SELECT value FROM zz_margin") == [(2.0,)]
+    # a hose type's table that sets none of its keys gives that type what any other gets: not re-run
+    raw.write("plan.toml", '[defaults]\nmargin = 1.5\n[hose_type."FLEXIGOM AIR"]\nmargin = 2.0\n'
+                           '[hose_type."OTHER"]\nalpha = 0.01\n')
+    s = rebuild(raw.root, warehouse, jobs=1)
+    assert MarginReader.calls == 2 and "zz_margin_reader" in s.stages_reused
+    raw.write("plan.toml", '[defaults]\nmargin = 1.5\n[hose_type."FLEXIGOM AIR"]\nmargin = 2.0\n'
+                           '[hose_type."OTHER"]\nalpha = 0.01\nmargin = 1.5\n')  # same value, its own table
+    s = rebuild(raw.root, warehouse, jobs=1)
+    assert MarginReader.calls == 3 and "zz_margin_reader" in s.stages_run
     MarginReader.key = "alpha"
     with pytest.raises(RebuildError, match="read the plan's alpha, which its READS does not declare"):
         rebuild(raw.root, warehouse, jobs=1, full=True)
+
+
+def test_durability_reruns_on_a_plan_key_it_reads_and_not_on_one_only_the_verdict_reads(raw, warehouse):
+    """Issue 26: stages are keyed by the plan keys they declare. ``power`` and ``max_failures`` are read
+    by ``decision`` and ``test_plan`` (the whole plan), not by ``durability`` (``confidence``, ``b_life``,
+    ``mission_km``)."""
+    from pipeline.stages import durability
+
+    assert "power" not in durability.READS.plan_keys() and "confidence" in durability.READS.plan_keys()
+    step(raw, "c/a.csv")
+    raw.write("c/hoses.csv", "hose_id,event,at,hose_type,adjustment,spring_force_n\n"
+                             "H1,installed,2026-01-01T00:00:00,FLEXIGOM AIR,force,858\n")
+    raw.write("plan.toml", "[defaults]\npower = 0.8\nconfidence = 0.9\n")
+    age(raw.root)
+    rebuild(raw.root, warehouse, jobs=1)
+    raw.write("plan.toml", '[defaults]\npower = 0.85\nconfidence = 0.9\n[hose_type."FLEXIGOM AIR"]\n'
+                           "max_failures = 30\n")
+    s = rebuild(raw.root, warehouse, jobs=1)
+    assert "durability" in s.stages_reused and {"decision", "test_plan"} <= set(s.stages_run)
+    raw.write("plan.toml", '[defaults]\npower = 0.85\nconfidence = 0.95\n[hose_type."FLEXIGOM AIR"]\n'
+                           "max_failures = 30\n")
+    s = rebuild(raw.root, warehouse, jobs=1)
+    assert "durability" in s.stages_run and "plpa_characterisation" in s.stages_reused
+
+
+@pytest.mark.parametrize("where", ["absolute", "dot-dot", "another stage's", "a link out"])
+def test_a_stage_record_naming_a_folder_outside_its_own_is_never_reused(raw, warehouse, tmp_path, where):
+    """A warehouse reuses only its own stage folders (``stages/<stage>/<key>``, real folders): a
+    record naming one elsewhere (an absolute path to another warehouse, ``..``, another stage's name,
+    a folder that is a link out) re-runs the stage, and the next rebuild records its own folder."""
+    import shutil
+
+    import duckdb
+
+    step(raw, "c/a.csv")
+    age(raw.root)
+    rebuild(raw.root, warehouse, jobs=1)
+    other = tmp_path / "other"
+    shutil.copytree(warehouse, other, symlinks=True)
+    own = q(warehouse, "SELECT folder FROM stage_cache WHERE stage = 'models'")[0][0]
+    key = own.rsplit("/", 1)[1]
+    if where == "a link out":
+        shutil.rmtree(warehouse / own)
+        (warehouse / own).symlink_to(other / own, target_is_directory=True)
+        folder = own
+    else:
+        folder = {"absolute": str(other / own), "dot-dot": f"stages/../../other/{own}",
+                  "another stage's": f"stages/durability/{key}"}[where]
+        con = duckdb.connect(str(warehouse / "pneubench.duckdb"))
+        con.execute("UPDATE stage_cache SET folder = ? WHERE stage = 'models'", [folder])
+        con.close()
+    s = rebuild(raw.root, warehouse, jobs=1)
+    assert s.mode == "incremental" and "models" in s.stages_run and "plpa_characterisation" in s.stages_reused
+    assert q(warehouse, "SELECT folder FROM stage_cache WHERE stage = 'models'") == [(own,)]
+    assert rebuild(raw.root, warehouse, jobs=1).mode == "no-op"
 
 
 class SneakyStage:
