@@ -103,7 +103,9 @@ and 80 % of its life from the data there was then: that hose censored at that di
 later leak points removed, the model refitted (the Weibull posterior by importance re-weighting
 of the same draws, which is exact up to Monte Carlo error: case-deletion importance sampling,
 Gelfand, Dey & Chang 1992; the degradation model by refitting). The other hoses keep their data
-(the tables carry no calendar order of the hoses' lives). :func:`backtest_summary`: per method
+(the tables carry no calendar order of the hoses' lives). The full data's models are fitted once
+for the predictions and their backtest (:func:`group_models`: the same seeds, the same draws).
+:func:`backtest_summary`: per method
 ``n_predictions``, ``coverage`` of the intervals and ``median_abs_error_km`` of the medians.
 
 Leak-limit crossing
