@@ -103,7 +103,9 @@ and 80 % of its life from the data there was then: that hose censored at that di
 later leak points removed, the model refitted (the Weibull posterior by importance re-weighting
 of the same draws, which is exact up to Monte Carlo error: case-deletion importance sampling,
 Gelfand, Dey & Chang 1992; the degradation model by refitting). The other hoses keep their data
-(the tables carry no calendar order of the hoses' lives). :func:`backtest_summary`: per method
+(the tables carry no calendar order of the hoses' lives). The full data's models are fitted once
+for the predictions and their backtest (:func:`group_models`: the same seeds, the same draws).
+:func:`backtest_summary`: per method
 ``n_predictions``, ``coverage`` of the intervals and ``median_abs_error_km`` of the medians.
 
 Leak-limit crossing
@@ -400,32 +402,42 @@ def _t_draws(centre, cov, n: int, rng) -> tuple[np.ndarray, np.ndarray]:
     return theta, log_norm + 0.5 * (df + 2.0) * np.log1p(np.sum(t ** 2, axis=1) / df)
 
 
-def _weibull_survival_from(shape, scale, d: float, r) -> np.ndarray:
-    """``S(d + r) / S(d)`` per draw (rows) and remaining distance ``r > 0`` (columns). [-]
+def _weibull_survival_at(shape, scale, d: float):
+    """``r -> S(d + r) / S(d)`` per draw (rows) and remaining distance ``r > 0`` (columns). [-]
 
     Computed as ``exp(-(d/s)^k ((1 + r/d)^k - 1))`` in logs, so that a draw under which the unit
-    could not have reached ``d`` gives 0 rather than ``inf - inf``.
+    could not have reached ``d`` gives 0 rather than ``inf - inf``. What does not depend on ``r`` is
+    computed once: a bisection evaluates the function some forty times (the same operations on the
+    same arrays: the same floats as computing it whole each time).
     """
     k, s = np.asarray(shape)[:, None], np.asarray(scale)[:, None]
-    r = np.atleast_1d(np.asarray(r, float))[None, :]
     with np.errstate(over="ignore", divide="ignore"):
-        if d > 0:
-            log_h = k * (math.log(d) - np.log(s)) + np.log(np.expm1(k * np.log1p(r / d)))
-        else:
-            log_h = k * (np.log(r) - np.log(s))
-        return np.exp(-np.exp(log_h))
+        log_s = np.log(s)
+        base = k * (math.log(d) - log_s) if d > 0 else None
+
+    def survival(r):
+        r = np.atleast_1d(np.asarray(r, float))[None, :]
+        with np.errstate(over="ignore", divide="ignore"):
+            log_h = base + np.log(np.expm1(k * np.log1p(r / d))) if d > 0 else k * (np.log(r) - log_s)
+            return np.exp(-np.exp(log_h))
+    return survival
 
 
-def _survival_from(post: "WeibullPosterior", d: float, r) -> np.ndarray:
-    """``S(d + r) / S(d)`` per draw of ``post`` (rows) and remaining distance (columns), in its family. [-]"""
+def _survival_at(post: "WeibullPosterior", d: float):
+    """``r -> S(d + r) / S(d)`` per draw of ``post`` (rows) and remaining distance (columns), in its
+    family [-]; the survival to ``d`` computed once (:func:`_weibull_survival_at`)."""
     if post.family == "weibull":
-        return _weibull_survival_from(post.shape, post.scale, d, r)
+        return _weibull_survival_at(post.shape, post.scale, d)
     k, log_s = post.shape[:, None], np.log(post.scale)[:, None]
-    r = np.atleast_1d(np.asarray(r, float))[None, :]
     with np.errstate(divide="ignore", invalid="ignore"):
         now = scipy.special.log_ndtr(-(math.log(d) - log_s) * k) if d > 0 else np.zeros_like(log_s)
-        later = scipy.special.log_ndtr(-(np.log(d + r) - log_s) * k)
-        return np.exp(np.minimum(np.nan_to_num(later - now, nan=-np.inf), 0.0))
+
+    def survival(r):
+        r = np.atleast_1d(np.asarray(r, float))[None, :]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            later = scipy.special.log_ndtr(-(np.log(d + r) - log_s) * k)
+            return np.exp(np.minimum(np.nan_to_num(later - now, nan=-np.inf), 0.0))
+    return survival
 
 
 @dataclass
@@ -562,7 +574,8 @@ def weibull_rul(post: "WeibullPosterior | LifeModel", distance_km: float,
         return np.full(3, _NAN), f"the parameter draws do not cover the likelihood (effective {ess:.0f})"
     weights = np.concatenate([pr * p.weights()[0] for p, pr in zip(ok, prob)])
     guess = float(ok[int(np.argmax(prob))].fit.scale)
-    q = _mixture_quantiles(lambda r: np.vstack([_survival_from(p, distance_km, r) for p in ok]),
+    survivals = [_survival_at(p, distance_km) for p in ok]
+    q = _mixture_quantiles(lambda r: np.vstack([survival(r) for survival in survivals]),
                            weights, _probs(confidence), guess)
     if not np.isfinite(q).all():
         return q, "the prediction interval is open: the data do not bound it"
@@ -901,8 +914,8 @@ def degradation_rul(fit: DegradationFit, hose_id, distance_km: float, limit_l_mi
             if ess < MIN_ESS:
                 return nan, "the rupture model's draws do not cover its likelihood"
             pick = np.random.default_rng(seed + 1).choice(len(w_r), size=n_draws, p=w_r)
-            k, s = post.shape[pick], post.scale[pick]
-            total = lambda r: survival(r) * _weibull_survival_from(k, s, distance_km, r)  # noqa: E731
+            rupture_survival = _weibull_survival_at(post.shape[pick], post.scale[pick], distance_km)
+            total = lambda r: survival(r) * rupture_survival(r)  # noqa: E731
         q = _mixture_quantiles(total, weights, _probs(confidence), guess)
         return q, (None if np.isfinite(q).all() else "the prediction interval is open: the data do not bound it")
 
@@ -1016,14 +1029,14 @@ def _leak_failures(hoses: pd.DataFrame, points: pd.DataFrame, limit_l_min: float
 
 
 def _rupture_posterior(hoses: pd.DataFrame, points: pd.DataFrame, s: RulSettings,
-                       seed: int) -> tuple[list, str | None]:
+                       seed: int, logbook_fit: WeibullFit | None = None) -> tuple[list, str | None]:
     """The other failure modes' models (:func:`rupture_model`) and their note."""
     life, failed = _lives(hoses)
     return rupture_model(life, failed, failed & ~_leak_failures(hoses, points, s.limit_l_min), s.rupture_shape,
-                         s.confidence, s.n_draws, seed)
+                         s.confidence, s.n_draws, seed, logbook_fit)
 
 
-def rupture_shapes(life, failed, confidence: float = 0.90) -> tuple[np.ndarray, str]:
+def rupture_shapes(life, failed, confidence: float = 0.90, fit: WeibullFit | None = None) -> tuple[np.ndarray, str]:
     """The shapes a rupture model of unknown shape must hold for, and the note that says so.
 
     From 1 (the constant hazard) to the upper ``confidence`` likelihood-ratio bound of the Weibull
@@ -1039,6 +1052,9 @@ def rupture_shapes(life, failed, confidence: float = 0.90) -> tuple[np.ndarray, 
         True for a failure, any mode.
     confidence : float
         Two-sided level of the shape's bounds. [-]
+    fit : WeibullFit, optional
+        :func:`weibull_fit <analyses.service_life.weibull_fit>` of these lives when the caller has
+        it (the life model's); fitted here otherwise.
 
     Returns
     -------
@@ -1046,7 +1062,7 @@ def rupture_shapes(life, failed, confidence: float = 0.90) -> tuple[np.ndarray, 
         The grid [-], empty when the lives give no upper bound (fewer than two failures, no fit,
         a bound the data do not close); the note says which.
     """
-    fit = weibull_fit(life, failed)
+    fit = weibull_fit(life, failed) if fit is None else fit
     upper = weibull_shape_bounds(fit, life, failed, confidence)[1] if fit.ok else _NAN
     unknown = "the rupture shape is not known (plan.toml sets no rupture_shape)"
     if not math.isfinite(upper):
@@ -1060,7 +1076,8 @@ def rupture_shapes(life, failed, confidence: float = 0.90) -> tuple[np.ndarray, 
 
 
 def rupture_model(life, failed, other, shape: float | None = None, confidence: float = 0.90,
-                  n_draws: int = N_DRAWS, seed: int = 0) -> tuple[list, str | None]:
+                  n_draws: int = N_DRAWS, seed: int = 0,
+                  logbook_fit: WeibullFit | None = None) -> tuple[list, str | None]:
     """The life models of the failure modes other than the leak (a competing risk, Meeker & Escobar
     1998, ch. 15: the leak failures censored at their distance), and their note.
 
@@ -1087,6 +1104,9 @@ def rupture_model(life, failed, other, shape: float | None = None, confidence: f
         Parameter draws. [-]
     seed : int
         Seed of the draws.
+    logbook_fit : WeibullFit, optional
+        :func:`weibull_fit <analyses.service_life.weibull_fit>` of ``life`` and ``failed``, when the
+        caller has it (:func:`rupture_shapes`).
 
     Returns
     -------
@@ -1101,7 +1121,7 @@ def rupture_model(life, failed, other, shape: float | None = None, confidence: f
     elif int(other.sum()) >= 2:
         posts = [weibull_posterior(life, other, n_draws, seed)]
     else:
-        shapes, note = rupture_shapes(life, failed, confidence)
+        shapes, note = rupture_shapes(life, failed, confidence, logbook_fit)
         posts = [weibayes_posterior(life, other, k, n_draws, seed) for k in shapes]
         if not posts:
             return [], note
@@ -1109,8 +1129,53 @@ def rupture_model(life, failed, other, shape: float | None = None, confidence: f
     return ([], f"the other failure modes: {bad[0]}") if bad else (posts, note)
 
 
+@dataclass(frozen=True)
+class GroupModels:
+    """What :func:`remaining_life` and :func:`rul_backtest` both fit on one hose type's data.
+
+    Attributes
+    ----------
+    seed : int
+        The seed of the draws (:func:`data_seed` of the data, unless given).
+    life : LifeModel
+        The ``weibull`` method's life model of the hoses' lives (:func:`life_model`, ``seed``).
+    rupture : tuple
+        The other failure modes' models and their note (:func:`rupture_model`, ``seed + 1``; the
+        logbook's Weibull fit that bounds an unknown shape is the life model's).
+    degradation : DegradationFit
+        The degradation model of all the leak points (:func:`degradation_fit`).
+    """
+
+    seed: int
+    life: LifeModel
+    rupture: tuple
+    degradation: DegradationFit
+
+
+def group_models(hoses: pd.DataFrame, points: pd.DataFrame, settings: RulSettings,
+                 seed: int | None = None) -> GroupModels:
+    """The life and rupture models of one hose type's data, fitted once for the predictions and
+    their backtest (the same draws: the same numbers as each fitting its own).
+
+    Parameters
+    ----------
+    hoses, points, settings, seed
+        As :func:`remaining_life`.
+
+    Returns
+    -------
+    GroupModels
+    """
+    seed = data_seed(hoses, points) if seed is None else seed
+    life, failed = _lives(hoses)
+    model = life_model(life, failed, settings.n_draws, seed)
+    logbook = next(p.fit for p in model.families if p.family == "weibull")   # weibull_fit(life, failed)
+    return GroupModels(seed, model, _rupture_posterior(hoses, points, settings, seed + 1, logbook),
+                       degradation_fit(points, settings.sensor, settings.floor_multiple))
+
+
 def remaining_life(hoses: pd.DataFrame, points: pd.DataFrame, settings: RulSettings,
-                   seed: int | None = None) -> pd.DataFrame:
+                   seed: int | None = None, models: "GroupModels | None" = None) -> pd.DataFrame:
     """Remaining life of every running hose of one hose type, by both methods.
 
     Parameters
@@ -1125,17 +1190,18 @@ def remaining_life(hoses: pd.DataFrame, points: pd.DataFrame, settings: RulSetti
     seed : int, optional
         Seed of the draws; default: from the data (:func:`data_seed`), so the same data give the
         same numbers.
+    models : GroupModels, optional
+        :func:`group_models` of the same arguments, when the caller has them (the backtest
+        shares them); ``seed`` is then theirs.
 
     Returns
     -------
     DataFrame
         :data:`RUL_COLUMNS`, one row per running hose and method (``weibull``, ``degradation``).
     """
-    seed = data_seed(hoses, points) if seed is None else seed
-    life, failed = _lives(hoses)
-    post = life_model(life, failed, settings.n_draws, seed)
-    deg = degradation_fit(points, settings.sensor, settings.floor_multiple)
-    rupture, r_note = _rupture_posterior(hoses, points, settings, seed + 1)
+    models = group_models(hoses, points, settings, seed) if models is None else models
+    seed, post, deg = models.seed, models.life, models.degradation
+    rupture, r_note = models.rupture
     info = deg.hoses.set_index("hose_id")
     rows = []
     for hid, d in hoses.loc[hoses["status"] == "running", ["hose_id", "distance_km"]].itertuples(index=False):
@@ -1171,7 +1237,8 @@ def _degradation_with_rupture(deg: DegradationFit, hose_id, distance_km: float, 
 
 # -- backtest --------------------------------------------------------------------------------
 def rul_backtest(hoses: pd.DataFrame, points: pd.DataFrame, settings: RulSettings,
-                 fractions=BACKTEST_FRACTIONS, seed: int | None = None) -> pd.DataFrame:
+                 fractions=BACKTEST_FRACTIONS, seed: int | None = None,
+                 models: "GroupModels | None" = None) -> pd.DataFrame:
     """The prediction each method would have made for every failed hose part-way through its life.
 
     For a failed hose of life ``L`` and a fraction ``f``: the hose censored at ``f L``, its leak
@@ -1180,7 +1247,7 @@ def rul_backtest(hoses: pd.DataFrame, points: pd.DataFrame, settings: RulSetting
 
     Parameters
     ----------
-    hoses, points, settings, seed
+    hoses, points, settings, seed, models
         As :func:`remaining_life`.
     fractions : sequence of float
         Fractions of each failed hose's life at which to predict. [-]
@@ -1191,10 +1258,9 @@ def rul_backtest(hoses: pd.DataFrame, points: pd.DataFrame, settings: RulSetting
         :data:`BACKTEST_COLUMNS`, one row per failed hose, fraction and method; ``covered`` and
         ``abs_error_km`` [km] NaN where the prediction is (``note`` says why).
     """
-    seed = data_seed(hoses, points) if seed is None else seed
+    models = group_models(hoses, points, settings, seed) if models is None else models
+    seed, post, rupture = models.seed, models.life, models.rupture
     life, failed = _lives(hoses)
-    post = life_model(life, failed, settings.n_draws, seed)
-    rupture = _rupture_posterior(hoses, points, settings, seed + 1)
     leak_failed = _leak_failures(hoses, points, settings.limit_l_min)
     rows = []
     for i in np.flatnonzero(failed):
@@ -1204,8 +1270,11 @@ def rul_backtest(hoses: pd.DataFrame, points: pd.DataFrame, settings: RulSetting
             q, note = weibull_rul(post.changed([total], [True], [at], [False]), at, settings.confidence)
             rows.append(_backtest_row(hid, "weibull", f, at, total, q, note))
             mine = (points["hose_id"] == hid) & (points["distance_km"] > at)
-            deg = degradation_fit(points[~mine], settings.sensor, settings.floor_multiple)
-            cut = _rupture_cut_short(rupture, (life, failed, failed & ~leak_failed), i, at, settings, seed + 1)
+            deg = degradation_fit(points[~mine], settings.sensor, settings.floor_multiple) if mine.any() \
+                else models.degradation   # no point of its to cut: the same fit
+            # the rupture models only where the degradation model has a prediction to join them to
+            cut = _rupture_cut_short(rupture, (life, failed, failed & ~leak_failed), i, at, settings, seed + 1) \
+                if deg.ok else ([], None)
             q, note = _degradation_with_rupture(deg, hid, at, settings, cut, seed + 2 + i)
             rows.append(_backtest_row(hid, "degradation", f, at, total, q, note))
     return pd.DataFrame(rows, columns=BACKTEST_COLUMNS)
@@ -1272,7 +1341,8 @@ def backtest_summary(predictions: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["method", "n_predictions", "coverage", "median_abs_error_km", "note"])
 
 
-__all__ = ["BACKTEST_FRACTIONS", "DegradationFit", "FLOOR_MULTIPLE", "LIFE_FAMILIES", "LifeModel", "life_model",
+__all__ = ["BACKTEST_FRACTIONS", "DegradationFit", "FLOOR_MULTIPLE", "GroupModels", "LIFE_FAMILIES", "LifeModel",
+           "group_models", "life_model",
            "MIN_HOSES", "MIN_LEAK_POINTS", "N_DRAWS",
            "RulSettings", "WeibullPosterior", "backtest_summary", "data_seed", "degradation_fit", "degradation_rul",
            "N_RUPTURE_SHAPES", "rul_over_shapes", "rupture_model", "rupture_shapes", "weibayes_posterior",

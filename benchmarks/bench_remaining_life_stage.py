@@ -6,6 +6,7 @@ One command::
     python -m benchmarks.bench_remaining_life_stage --in-process     # the detail only: a demo-sized hose type
     python -m benchmarks.bench_remaining_life_stage --quick          # the detail, 4 hoses per adjustment (a look)
     python -m benchmarks.bench_remaining_life_stage --warehouse WH   # the stage on a built warehouse's tables (the demo's)
+    python -m benchmarks.bench_remaining_life_stage --same-as main --warehouse WH   # the same tables as main's code?
 
 **As a process** (the default; what a user runs): the demo simulated and rebuilt once (not timed), then
 whole ``pneubench rebuild`` processes on copies of that warehouse after the plan's ``leak_limit_l_min``
@@ -24,6 +25,12 @@ seconds of :func:`pipeline.stages.remaining_life.run`, and its parts (the models
 group, the sensitivity per hose type). The machine's load average is printed beside: on a shared
 machine the wall time is the CPU time stretched by the load. PASS/MISS against 5 s (CPU seconds,
 which do not depend on the other work on the machine).
+
+**Same results** (``--same-as REF``): a change meant only to make the stage faster must give the same
+floats. The stage's three tables are computed on the same input (the ``--warehouse``'s tables, else
+the synthetic ones) by this checkout and by ``REF`` (a commit or branch, exported with ``git archive``:
+:func:`benchmarks.same_behaviour.export`), each in its own process, and compared exactly (every
+column, every bit: ``pandas.testing.assert_frame_equal(check_exact=True)``). Exit 1 when any differs.
 """
 from __future__ import annotations
 
@@ -100,6 +107,54 @@ def timed(tables: dict[str, pd.DataFrame], limit: float) -> dict[str, tuple[floa
     return out
 
 
+#: Run in a process whose ``PYTHONPATH`` is one version's tree: the stage's tables on the input
+#: ``argv[1]`` (a warehouse, or ``synthetic:N``) with the plan's ``leak_limit_l_min`` ``argv[2]``, pickled to ``argv[3]``.
+_STAGE_TABLES = """
+import pickle, sys
+import pandas as pd
+from benchmarks.bench_remaining_life_stage import from_warehouse, synthetic
+from pipeline.raw.plan import Plan
+from pipeline.stages import StageContext
+from pipeline.stages import remaining_life as stage
+src, limit, out = sys.argv[1], float(sys.argv[2]), sys.argv[3]
+tables = synthetic(int(src.split(":")[1])) if src.startswith("synthetic:") else from_warehouse(src)
+plan = Plan(present=True, defaults={"leak_limit_l_min": limit, "leak_pressure_bar": 6.0})
+res = stage.run(StageContext(raw=None, warehouse=None, runs=pd.DataFrame(), results=tables, plan=plan))
+pickle.dump(dict(res.tables), open(out, "wb"))
+"""
+
+
+def same_as(ref: str, source: str, limit: float) -> bool:
+    """Whether this checkout's stage gives the same tables as ``ref``'s on ``source`` (a warehouse, or
+    ``synthetic:N``), bit for bit; prints one line per table."""
+    import pickle
+    import subprocess
+    import tempfile
+    from pathlib import Path
+
+    from benchmarks.same_behaviour import ROOT, export
+
+    with tempfile.TemporaryDirectory(prefix="pneubench-rul-same-") as tmp:
+        trees = {"this checkout": ROOT, ref: export(ref, Path(tmp) / "ref")}
+        got = {}
+        for name, tree in trees.items():
+            out = Path(tmp) / f"{len(got)}.pkl"
+            subprocess.run([sys.executable, "-c", _STAGE_TABLES, source, repr(limit), str(out)], cwd=tree, check=True,
+                           env=dict(os.environ, PYTHONPATH=str(tree)), stdin=subprocess.DEVNULL)
+            with open(out, "rb") as fh:
+                got[name] = pickle.load(fh)
+    mine, theirs = got.values()
+    ok = True
+    for table in sorted(set(mine) | set(theirs)):
+        try:
+            pd.testing.assert_frame_equal(mine[table], theirs[table], check_exact=True)
+            print(f"  {table}: same ({len(mine[table])} rows, every value bit for bit)")
+        except (AssertionError, KeyError) as exc:
+            ok = False
+            print(f"  {table}: DIFFERS from {ref}: {str(exc).splitlines()[0] if str(exc) else 'missing'}")
+    return ok
+
+
 def on_demo(repeat: int) -> bool:
     """What the remaining-life stage adds to a rebuild of the demo, as whole ``pneubench rebuild`` processes
     (:func:`benchmarks.bench_decision_stage.added_by`): the plan's ``leak_limit_l_min`` changed by 1 %
@@ -133,7 +188,13 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=1, help="measured rebuilds of each kind (medians; default 1)")
     ap.add_argument("--warehouse", help="time the stage on this built warehouse's tables (the demo's)")
     ap.add_argument("--limit", type=float, default=4.0, help="leak_limit_l_min of the plan with --warehouse [l/min]")
+    ap.add_argument("--same-as", metavar="REF", help="only compare the stage's tables with REF's code (bit for bit)")
     a = ap.parse_args(argv)
+    if a.same_as:
+        source = a.warehouse or f"synthetic:{4 if a.quick else 8}"
+        limit = a.limit if a.warehouse else 2.0
+        print(f"the remaining_life stage's tables on {source}, this checkout against {a.same_as}:")
+        return 0 if same_as(a.same_as, source, limit) else 1
     ok = True
     if not (a.quick or a.in_process or a.warehouse):
         ok = on_demo(a.repeat)

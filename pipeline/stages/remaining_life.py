@@ -58,8 +58,8 @@ from analyses.life_effect import life_effect
 from analyses.life_effect_lognormal import (LOGNORMAL, lognormal_effect_fit, lognormal_life_effect,
                                             lognormal_ratio_deviance)
 from analyses.quality import Sensor
-from analyses.remaining_life import (RulSettings, backtest_summary, leak_crossing_lives, remaining_life,
-                                     rul_backtest)
+from analyses.remaining_life import (RulSettings, backtest_summary, group_models, leak_crossing_lives,
+                                     remaining_life, rul_backtest)
 from pipeline.stages import Reads, StageContext, StageOutput
 from schemas.sensors_text import sensor_parts
 from schemas.units import kg_s_to_l_min_anr
@@ -248,7 +248,8 @@ def rul_group(item: dict) -> dict:
     settings = RulSettings(limit_l_min=_NAN if item["limit"] is None else item["limit"], sensor=sensor,
                            confidence=item["confidence"], rupture_shape=item.get("rupture_shape"))
     base = {"hose_type": item["hose_type"], "adjustment": item["adjustment"], "confidence": item["confidence"]}
-    rul = remaining_life(hoses, points, settings)
+    models = group_models(hoses, points, settings)   # fitted once for the predictions and their backtest
+    rul = remaining_life(hoses, points, settings, models=models)
     deg = (rul["method"] == "degradation").to_numpy()
     if reason:
         rul.loc[deg, ["rul_median_km", "rul_lower_km", "rul_upper_km"]] = _NAN
@@ -257,7 +258,7 @@ def rul_group(item: dict) -> dict:
         rul["n_leak_points"] = None
     rul = rul.assign(**base, leak_pressure_bar=item["pressure"],
                      leak_limit_l_min=item["limit"])
-    tested = rul_backtest(hoses, points, settings)
+    tested = rul_backtest(hoses, points, settings, models=models)
     rows = []
     for m in ("weibull", "degradation"):
         row = {**base, "method": m}
@@ -396,8 +397,10 @@ def _typed(rows: list[dict], columns: list[str], ints=()) -> pd.DataFrame:
 def run(ctx: StageContext) -> StageOutput:
     out = StageOutput()
     groups, types = stage_items(ctx)
-    results = ctx.map(rul_group, groups, label="remaining life") if groups else []
+    # the sensitivity first: one hose type's runs here and imports scipy's optimisers and distributions,
+    # which the workers then forked for the groups inherit instead of each importing them again
     sens = ctx.map(sensitivity_of, types, label="remaining life: sensitivity") if types else []
+    results = ctx.map(rul_group, groups, label="remaining life") if groups else []
     rul = [r for res in results for r in res["hose_rul"]]
     out.tables["hose_rul"] = _typed(sorted(rul, key=lambda r: (r["hose_type"], r["hose_id"], r["method"])),
                                     RUL_COLUMNS, ints=("n_leak_points",))

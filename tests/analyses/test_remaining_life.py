@@ -7,7 +7,8 @@ import pytest
 
 from analyses.quality import Sensor
 from analyses.remaining_life import (MIN_ESS, N_RUPTURE_SHAPES, LifeModel, RulSettings, WeibullPosterior,
-                                     backtest_summary, data_seed, degradation_fit, degradation_rul, leak_crossing_life,
+                                     backtest_summary, data_seed, degradation_fit, degradation_rul, group_models,
+                                     leak_crossing_life,
                                      leak_crossing_lives, life_model, remaining_life, rul_backtest, rul_over_shapes,
                                      rupture_model, rupture_shapes, weibayes_posterior, weibull_posterior, weibull_rul)
 from analyses.service_life import (lognormal_loglik_many, weibull_fit, weibull_loglik, weibull_loglik_many,
@@ -213,6 +214,20 @@ def test_backtest_predicts_every_failed_hose_twice_per_method_and_mostly_covers(
     assert s.loc["weibull", "n_predictions"] == 2 * n_failed
     assert 0.6 <= s.loc["degradation", "coverage"] <= 1.0 and 0.6 <= s.loc["weibull", "coverage"] <= 1.0
     assert s.loc["degradation", "median_abs_error_km"] < s.loc["weibull", "median_abs_error_km"]
+
+
+def test_models_fitted_once_give_the_numbers_each_call_fitting_its_own():
+    hoses, pts = hose_type(np.random.default_rng(17), n=12)
+    first = hoses.index[hoses["status"] == "failed"][0]
+    hoses.loc[first, "failure_mode"] = "burst"   # one rupture: the Weibayes grid over shapes, bounded by the logbook
+    s = RulSettings(limit_l_min=2.0, sensor=SENSOR, n_draws=300)
+    models = group_models(hoses, pts, s)
+    assert len(models.rupture[0]) == N_RUPTURE_SHAPES and models.degradation.ok
+    shared = (remaining_life(hoses, pts, s, models=models), rul_backtest(hoses, pts, s, models=models))
+    # the backtest after the predictions used the same models: nothing in them was changed by the use
+    pd.testing.assert_frame_equal(shared[1], rul_backtest(hoses, pts, s))
+    pd.testing.assert_frame_equal(shared[0], remaining_life(hoses, pts, s, models=group_models(hoses, pts, s)))
+    assert shared[0]["rul_median_km"].notna().all()
 
 
 def test_backtest_without_failed_hoses_says_so():
