@@ -40,6 +40,12 @@ from analyses.service_life import SHAPE_BOUNDS, lr_bound
 NEWTON_STEPS = 12
 
 
+def _row_sums(a: np.ndarray) -> np.ndarray:
+    """Each row's sum, added in order: numpy's pairwise sum rounds differently as the padding grows, and a
+    look's fit and interval must not move (in their last bits) when later looks widen the matrices."""
+    return np.cumsum(a, axis=1)[:, -1] if a.shape[1] else np.zeros(a.shape[0])
+
+
 def _by_look(x: np.ndarray, f: np.ndarray, row: np.ndarray, rows: int):
     """One adjustment's lives of every look as padded (look, hose) matrices: ``(log x, x, failed, present)``."""
     order = np.argsort(row, kind="stable")
@@ -69,11 +75,11 @@ def _batch_score(t: np.ndarray, logs) -> tuple[np.ndarray, np.ndarray]:
     value, slope = np.zeros_like(t), np.zeros_like(t)
     for y, m, r, syf in logs:
         w = np.where(m, np.exp(k[:, None] * y), 0.0)
-        sw = w.sum(axis=1)
-        mean = (w * y).sum(axis=1) / sw
+        sw = _row_sums(w)
+        mean = _row_sums(w * y) / sw
         d = y - mean[:, None]
         value += r / k + syf - r * mean
-        slope -= r / k + k * r * (w * d * d).sum(axis=1) / sw
+        slope -= r / k + k * r * _row_sums(w * d * d) / sw
     return value, slope
 
 
@@ -114,7 +120,7 @@ def _batch_covariance(mats, k: np.ndarray, scales: np.ndarray) -> np.ndarray:
         w = np.where(mm, np.exp(z), 0.0)
         d = ff.astype(np.float64)
         wz = w * z
-        sums.append((w.sum(axis=1), (wz + w - d).sum(axis=1), (wz * z + 2.0 * wz - 2.0 * d * z - d).sum(axis=1)))
+        sums.append((_row_sums(w), _row_sums(wz + w - d), _row_sums(wz * z + 2.0 * wz - 2.0 * d * z - d)))
     (w0, a0, b0), (w1, a1, b1) = sums
     info = np.stack([np.stack([w0 + w1, w1, a0 + a1], -1), np.stack([w1, w1, a1], -1),
                      np.stack([a0 + a1, a1, b0 + b1], -1)], -2) / (sigma ** 2)[:, None, None]
@@ -136,8 +142,8 @@ def _batch_fits(k: np.ndarray, mats, logs) -> list[CommonShapeFit]:
     scales, loglik = [], np.zeros_like(k)
     for (_, xx, _, mm), (y, _, r, syf, ymax) in zip(mats, logs):
         s = np.where(mm, xx, -np.inf).max(axis=1)
-        scales.append(s * (np.where(mm, (xx / s[:, None]) ** k[:, None], 0.0).sum(axis=1) / r) ** (1.0 / k))
-        log_sum = k * ymax + np.log(np.where(mm, np.exp(k[:, None] * y), 0.0).sum(axis=1))
+        scales.append(s * (_row_sums(np.where(mm, (xx / s[:, None]) ** k[:, None], 0.0)) / r) ** (1.0 / k))
+        log_sum = k * ymax + np.log(_row_sums(np.where(mm, np.exp(k[:, None] * y), 0.0)))
         loglik += r * np.log(k) - r * (log_sum - np.log(r)) + (k - 1.0) * (syf + r * ymax) - r
     scales = np.stack(scales, -1)
     cov = _batch_covariance(mats, k, scales)
@@ -177,7 +183,7 @@ def look_fits(life, failed, group, look, looks) -> list[CommonShapeFit]:
     for lx, _, ff, mm in mats:
         ymax = np.where(mm, lx, -np.inf).max(axis=1)
         y = np.where(mm, lx - np.where(np.isfinite(ymax), ymax, 0.0)[:, None], 0.0)
-        logs.append((y, mm, ff.sum(axis=1).astype(np.float64), np.where(ff, y, 0.0).sum(axis=1), ymax))
+        logs.append((y, mm, _row_sums(ff.astype(np.float64)), _row_sums(np.where(ff, y, 0.0)), ymax))
     batch = (logs[0][2] >= 2) & (logs[1][2] >= 2)
     root = np.full(wanted.size, math.nan)
     if batch.any():
@@ -203,17 +209,17 @@ def _signed_root(t: np.ndarray, pooled, ll: np.ndarray, centre: np.ndarray, logk
     big = np.where(mm, lx - t[:, None] * fm, -np.inf)
     ymax = big.max(axis=1)
     y = np.where(mm, big - ymax[:, None], 0.0)
-    r, rf = ff.sum(axis=1).astype(np.float64), (ff & fm).sum(axis=1).astype(np.float64)
-    syf = np.where(ff, y, 0.0).sum(axis=1)
+    r, rf = _row_sums(ff.astype(np.float64)), _row_sums((ff & fm).astype(np.float64))
+    syf = _row_sums(np.where(ff, y, 0.0))
     logk = _batch_newton(lambda u: _batch_score(u, [(y, mm, r, syf)]), logk)
     k = np.exp(logk)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         e = np.where(mm, np.exp(k[:, None] * y), 0.0)
-        total = e.sum(axis=1)
+        total = _row_sums(e)
         ell = r * logk - r * (k * ymax + np.log(total) - np.log(r)) + (k - 1.0) * (syf + r * ymax) - r - rf * t
         root = np.sqrt(np.maximum(2.0 * (ll - ell), 0.0))
         sign = np.sign(t - centre)
-        slope = sign * 2.0 * k * (rf - r * np.where(fm, e, 0.0).sum(axis=1) / total) / (2.0 * root)
+        slope = sign * 2.0 * k * (rf - r * _row_sums(np.where(fm, e, 0.0)) / total) / (2.0 * root)
     return sign * root, slope, logk
 
 

@@ -111,3 +111,20 @@ def test_the_interval_covers_a_known_ratio_at_its_nominal_rate():
         lo, hi = profile_rci(x, f, g, np.ones(24, int), [1], [z])
         covered += bool(lo[0] < math.log(1.3) < hi[0])
     assert 0.85 * n <= covered <= 0.95 * n
+
+
+def test_later_looks_with_more_hoses_move_no_earlier_interval():
+    """The same looks with a later look of many more hoses beside them (wider padded matrices): every
+    earlier look's ends and fit are bit-identical (the same raw/ up to a look gives the same interval whatever came
+    after)."""
+    life, failed, group, look, looks = looks_of(6, n=14, first=10)
+    z = np.full(looks.size, 2.4)
+    lo, hi = profile_rci(life, failed, group, look, looks, z)
+    more = looks_of(7, n=60, first=110)
+    wide = [np.r_[a, b] for a, b in zip((life, failed, group, look), more[:4])]
+    later = more[4][:3] + 1000
+    wide[3][life.size:] += 1000
+    lo2, hi2 = profile_rci(*wide, np.r_[looks, later], np.r_[z, 2.0, 2.0, 2.0])
+    assert np.array_equal(lo2[:looks.size], lo) and np.array_equal(hi2[:looks.size], hi)
+    for a, b in zip(look_fits(life, failed, group, look, looks), look_fits(*wide, np.r_[looks, later])):
+        assert (a.shape, a.loglik, a.log_ratio, a.se_log_ratio) == (b.shape, b.loglik, b.log_ratio, b.se_log_ratio)
