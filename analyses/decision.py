@@ -424,7 +424,11 @@ def decide(estimates: pd.DataFrame, max_failures: int | None, margin: float, alp
     in_looks : DataFrame, optional
         :func:`look_hoses`: given, a look up to the verdict crosses only when the profile
         likelihood agrees with the Wald statistic (:func:`likelihood_check`); a later look's
-        ``crossed`` is its Wald crossing, unchecked.
+        ``crossed`` is its Wald crossing, unchecked; and the repeated confidence intervals are the
+        profile likelihood's (:func:`profile_intervals`) when ``deviance`` is the common-shape
+        Weibull's. Without it, or for another model's deviance (the lognormal's, read at one look by
+        the remaining-life stage, which shows no interval: its profile searched look by look costs
+        seconds), they are the Wald intervals of :func:`analyses.sequential.sequential_verdict`.
     first_look : int, optional
         The first look that may decide (the look ``max_failures`` was frozen at): the looks before
         it are read as looks without an estimate, their alpha spent unused (conservative).
@@ -448,11 +452,11 @@ def decide(estimates: pd.DataFrame, max_failures: int | None, margin: float, alp
         early = estimates["look"].to_numpy(np.int64) < first_look
         est, se = np.where(early, math.nan, est), np.where(early, math.nan, se)
     verdict = sequential_verdict(est, se, t, margin, alpha, spending, confirm=confirm)
-    return verdict if in_looks is None else profile_intervals(verdict, in_looks, estimates, deviance)
+    return verdict if in_looks is None or deviance is not ratio_deviance else profile_intervals(verdict, in_looks,
+                                                                                              estimates)
 
 
-def profile_intervals(verdict: SequentialVerdict, in_looks: pd.DataFrame, estimates: pd.DataFrame,
-                      deviance=ratio_deviance) -> SequentialVerdict:
+def profile_intervals(verdict: SequentialVerdict, in_looks: pd.DataFrame, estimates: pd.DataFrame) -> SequentialVerdict:
     """``verdict`` with its repeated confidence intervals taken from the profile likelihood.
 
     At each look that has a Wald interval ``log_ratio -/+ c_k se`` (an estimate and a boundary), the
@@ -467,9 +471,8 @@ def profile_intervals(verdict: SequentialVerdict, in_looks: pd.DataFrame, estima
     verdict : SequentialVerdict
         :func:`analyses.sequential.sequential_verdict` over ``estimates``.
     in_looks, estimates : DataFrame
-        :func:`look_hoses` and :func:`look_estimates` (``estimates`` one row a look of ``verdict``).
-    deviance : callable, optional
-        The profile deviance of the model of ``estimates`` (:func:`likelihood_check`).
+        :func:`look_hoses` and :func:`look_estimates` (``estimates`` one row a look of ``verdict``; the
+        common-shape Weibull's estimates).
 
     Returns
     -------
@@ -482,8 +485,7 @@ def profile_intervals(verdict: SequentialVerdict, in_looks: pd.DataFrame, estima
         lo[need], hi[need] = profile_rci(in_looks["distance_km"].to_numpy(float), in_looks["failed"].to_numpy(bool),
                                          (in_looks["adjustment"] == "force").to_numpy(int),
                                          in_looks["look"].to_numpy(np.int64),
-                                         estimates["look"].to_numpy(np.int64)[need], verdict.boundary_z[need],
-                                         estimates["log_ratio"].to_numpy(float)[need], deviance)
+                                         estimates["look"].to_numpy(np.int64)[need], verdict.boundary_z[need])
     open_ = int((~(np.isfinite(lo[need]) & np.isfinite(hi[need]))).sum())
     note = verdict.note
     if open_:

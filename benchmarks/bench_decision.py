@@ -243,9 +243,10 @@ def rci_coverage(looks: pd.DataFrame, life_verdict: pd.DataFrame, types: dict,
 def wald_ends(looks: pd.DataFrame) -> pd.DataFrame:
     """``looks`` with the Wald repeated interval ``life_ratio * exp(-/+ boundary_z * se_log_ratio)``
     (``wald_lower`` / ``wald_upper``; what ``rci_lower`` / ``rci_upper`` held before the profile
-    likelihood's), NaN where a look has no boundary or estimate."""
+    likelihood's) at the looks that show a repeated interval (a look before the frozen one has a
+    boundary and an estimate but decides nothing and shows none); NaN elsewhere."""
     half = looks["boundary_z"].astype(float) * looks["se_log_ratio"].astype(float)
-    ratio = looks["life_ratio"].astype(float)
+    ratio = looks["life_ratio"].astype(float).where(looks[["rci_lower", "rci_upper"]].notna().any(axis=1))
     return looks.assign(wald_lower=ratio * np.exp(-half), wald_upper=ratio * np.exp(half))
 
 
