@@ -17,13 +17,16 @@ whatever night they were computed on:
 * :func:`look_estimates`: per look the common-shape Weibull regression of life on the
   adjustment (:func:`analyses.life_effect.common_shape_fit`, Meeker & Escobar 1998, ch. 17):
   ``log_ratio`` and its standard error, NaN with a note where the data cannot tell; all looks
-  are solved at once (:func:`look_fits`: each look's own score equation, vectorised over padded
-  (look, hose) matrices, the same unique root to 1e-13): one solve a hose type, not one a failure;
+  are solved at once (:func:`analyses.look_fits.look_fits`: each look's own score equation,
+  vectorised over padded (look, hose) matrices, the same unique root to 1e-13): one solve a hose
+  type, not one a failure;
 * :func:`decide`: the sequential verdict over all looks
   (:func:`analyses.sequential.sequential_verdict`: Lan & DeMets 1983 alpha spending, repeated
   confidence intervals, a verdict that sticks) at ``information_fraction = failures /
   max_failures``; the likelihood check (:func:`likelihood_check`) confirms the Wald crossings up
-  to the verdict, not after it (a later look cannot change a verdict that sticks);
+  to the verdict, not after it (a later look cannot change a verdict that sticks); the repeated
+  confidence intervals shown are the profile likelihood's, ``{log ratio : deviance <= c_k^2}``
+  (:func:`profile_intervals`, J&T ch. 9 with the likelihood ratio for the Wald statistic);
 * :func:`freeze_look`: when the plan leaves ``max_failures`` unset, the look at which it is
   frozen (the first with ``FEW_FAILURES / 2`` failures of each adjustment and a common shape),
   whose own fit designs it, its shape with Abernethy's reduced-bias adjustment (Abernethy 2006,
@@ -64,9 +67,10 @@ from dataclasses import replace
 import numpy as np
 import pandas as pd
 
-from analyses.life_effect import CommonShapeFit, common_shape_fit, ratio_deviance
+from analyses.life_effect import ratio_deviance
+from analyses.look_fits import look_fits, profile_rci
 from analyses.sequential import FEW_FAILURES, SequentialVerdict, sequential_verdict
-from analyses.service_life import SHAPE_BOUNDS, reduced_bias_shape
+from analyses.service_life import reduced_bias_shape
 
 #: ``distance_from`` of a hose whose distance comes from its durability runs.
 FROM_RUNS = "runs"
@@ -220,157 +224,6 @@ def look_hoses(hoses: pd.DataFrame, runs: pd.DataFrame, events: pd.DataFrame) ->
     return pd.DataFrame({"look": events["look"].to_numpy()[look_ix], "hose_id": text["hose_id"],
                          "adjustment": text["adjustment"], "distance_km": dist[hose_ix, look_ix],
                          "failed": failed[hose_ix, look_ix], "distance_from": text["distance_from"]})
-
-
-def _by_look(x: np.ndarray, f: np.ndarray, row: np.ndarray, rows: int):
-    """One adjustment's lives of every look as padded (look, hose) matrices: ``(log x, x, failed, present)``."""
-    order = np.argsort(row, kind="stable")
-    r, xs, fs = row[order], x[order], f[order]
-    col = np.arange(r.size) - np.searchsorted(r, r, side="left")
-    width = int(col.max()) + 1 if r.size else 1
-    lx, xx = np.zeros((rows, width)), np.ones((rows, width))
-    ff, mm = np.zeros((rows, width), bool), np.zeros((rows, width), bool)
-    lx[r, col], xx[r, col], ff[r, col], mm[r, col] = np.log(xs), xs, fs, True
-    return lx, xx, ff, mm
-
-
-def _batch_score(t: np.ndarray, logs) -> tuple[np.ndarray, np.ndarray]:
-    """The common shape's profile score and its slope in ``log k`` (``life_effect``'s ``_score_slope``) of many
-    looks at once; ``logs``: per adjustment (y, present, failures, the failures' sum of y), ``y`` the log lives
-    minus each look's largest."""
-    k = np.exp(t)
-    value, slope = np.zeros_like(t), np.zeros_like(t)
-    for y, m, r, syf in logs:
-        w = np.where(m, np.exp(k[:, None] * y), 0.0)
-        sw = w.sum(axis=1)
-        mean = (w * y).sum(axis=1) / sw
-        d = y - mean[:, None]
-        value += r / k + syf - r * mean
-        slope -= r / k + k * r * (w * d * d).sum(axis=1) / sw
-    return value, slope
-
-
-def _batch_newton(value_slope, start: np.ndarray, xtol: float = 1e-13) -> np.ndarray:
-    """:func:`analyses.service_life.newton_root` over :data:`~analyses.service_life.SHAPE_BOUNDS` (log shapes) for
-    many roots at once, step for step; NaN where it does not settle strictly inside (solved alone then)."""
-    lo, hi = math.log(SHAPE_BOUNDS[0]), math.log(SHAPE_BOUNDS[1])
-    a, b = np.full(start.size, lo), np.full(start.size, hi)
-    t, root, todo = np.clip(start, lo, hi), np.full(start.size, math.nan), np.ones(start.size, bool)
-    for _ in range(100):
-        if not todo.any():
-            break
-        v, d = value_slope(t)
-        todo &= np.isfinite(v)
-        hit = todo & (v == 0.0)
-        root[hit], todo = np.where((lo < t) & (t < hi), t, math.nan)[hit], todo & ~hit
-        a, b = np.where(todo & (v > 0), t, a), np.where(todo & (v < 0), t, b)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            step = np.where(np.isfinite(d) & (d < 0), v / d, math.nan)
-        new = t - step
-        done = todo & (np.abs(step) <= 0.1 * math.sqrt(xtol) * (1.0 + np.abs(t)))
-        root[done], todo = np.where((lo < new) & (new < hi), new, math.nan)[done], todo & ~done
-        out = ~((a < new) & (new < b))
-        new = np.where(out, 0.5 * (a + b), new)
-        done = todo & out & (b - a <= xtol * (1.0 + np.abs(t)))
-        root[done], todo = np.where((lo < a) & (b < hi), new, math.nan)[done], todo & ~done
-        t = np.where(todo, new, t)
-    return root
-
-
-def _batch_covariance(mats, k: np.ndarray, scales: np.ndarray) -> np.ndarray:
-    """``life_effect``'s ``_covariance`` (the inverse observed information of (log scale_distance, log ratio,
-    log shape)) of many looks at once; ``mats``: :func:`_by_look` per adjustment, ``scales``: (looks, 2)."""
-    sigma = 1.0 / k
-    sums = []
-    for (lx, _, ff, mm), shift in zip(mats, (0.0, np.log(scales[:, 1] / scales[:, 0]))):
-        z = np.where(mm, (lx - np.log(scales[:, :1]) - np.reshape(shift, (-1, 1))) / sigma[:, None], 0.0)
-        w = np.where(mm, np.exp(z), 0.0)
-        d = ff.astype(np.float64)
-        wz = w * z
-        sums.append((w.sum(axis=1), (wz + w - d).sum(axis=1), (wz * z + 2.0 * wz - 2.0 * d * z - d).sum(axis=1)))
-    (w0, a0, b0), (w1, a1, b1) = sums
-    info = np.stack([np.stack([w0 + w1, w1, a0 + a1], -1), np.stack([w1, w1, a1], -1),
-                     np.stack([a0 + a1, a1, b0 + b1], -1)], -2) / (sigma ** 2)[:, None, None]
-    good = np.isfinite(info).all(axis=(1, 2))
-    info[~good] = np.eye(3)
-    good &= np.linalg.eigvalsh(info).min(axis=1) > 0
-    cov = np.full(info.shape, math.nan)
-    if good.any():
-        cov[good] = np.linalg.inv(info[good])
-    j = (-1.0 / sigma)[:, None]            # d log(shape) / d sigma = -1 / sigma
-    cov[:, 2, :] *= j
-    cov[:, :, 2] *= j
-    return cov
-
-
-def _batch_fits(k: np.ndarray, mats, logs) -> list[CommonShapeFit]:
-    """The fits at the solved shapes ``k`` [-]: each adjustment's scale, the log-likelihood (``life_effect``'s
-    closed form) and the covariance of each look."""
-    scales, loglik = [], np.zeros_like(k)
-    for (_, xx, _, mm), (y, _, r, syf, ymax) in zip(mats, logs):
-        s = np.where(mm, xx, -np.inf).max(axis=1)
-        scales.append(s * (np.where(mm, (xx / s[:, None]) ** k[:, None], 0.0).sum(axis=1) / r) ** (1.0 / k))
-        log_sum = k * ymax + np.log(np.where(mm, np.exp(k[:, None] * y), 0.0).sum(axis=1))
-        loglik += r * np.log(k) - r * (log_sum - np.log(r)) + (k - 1.0) * (syf + r * ymax) - r
-    scales = np.stack(scales, -1)
-    cov = _batch_covariance(mats, k, scales)
-    return [CommonShapeFit(float(k[i]), float(scales[i, 0]), float(scales[i, 1]), float(loglik[i]),
-                           math.log(scales[i, 1] / scales[i, 0]), cov[i]) for i in range(k.size)]
-
-
-def look_fits(life, failed, group, look, looks) -> list[CommonShapeFit]:
-    """:func:`analyses.life_effect.common_shape_fit` of every look at once: the same estimates, one solve.
-
-    Each look's common shape solves its own strictly decreasing score equation (the same
-    function, so the same unique root to the solver's 1e-13) by Newton's method kept in a
-    bracket, all looks together on padded (look, hose) matrices; scales, log-likelihood and
-    observed information follow in closed form. A look with fewer than two failures in an
-    adjustment, or whose solve does not settle inside the shape's search range, is fitted alone
-    by :func:`~analyses.life_effect.common_shape_fit` (the same notes).
-
-    Parameters
-    ----------
-    life, failed, group : array_like
-        Lives [km], failure flags and adjustment (0 distance, 1 force) of every look's hoses.
-    look : array_like of int
-        Each row's look.
-    looks : array_like of int
-        The looks wanted (distinct), in the order returned.
-
-    Returns
-    -------
-    list of CommonShapeFit
-        One per ``looks``.
-    """
-    x, f, g, lk = (np.asarray(life, np.float64), np.asarray(failed, bool), np.asarray(group),
-                   np.asarray(look, np.int64))
-    wanted = np.asarray(looks, np.int64)
-    order = np.argsort(wanted, kind="stable")
-    pos = np.minimum(np.searchsorted(wanted[order], lk), max(wanted.size - 1, 0))
-    on = (wanted[order][pos] == lk) & np.isfinite(x) & (x > 0) if wanted.size else np.zeros(lk.size, bool)
-    row = order[pos] if wanted.size else pos
-    mats = [_by_look(x[on & (g == v)], f[on & (g == v)], row[on & (g == v)], wanted.size) for v in (0, 1)]
-    logs = []
-    for lx, _, ff, mm in mats:
-        ymax = np.where(mm, lx, -np.inf).max(axis=1)
-        y = np.where(mm, lx - np.where(np.isfinite(ymax), ymax, 0.0)[:, None], 0.0)
-        logs.append((y, mm, ff.sum(axis=1).astype(np.float64), np.where(ff, y, 0.0).sum(axis=1), ymax))
-    batch = (logs[0][2] >= 2) & (logs[1][2] >= 2)
-    root = np.full(wanted.size, math.nan)
-    if batch.any():
-        sub = [(y[batch], m[batch], r[batch], syf[batch]) for y, m, r, syf, _ in logs]
-        root[batch] = _batch_newton(lambda t: _batch_score(t, sub), np.zeros(int(batch.sum())))
-    fits: list = [None] * wanted.size
-    ok = np.flatnonzero(np.isfinite(root))
-    if ok.size:
-        solved = _batch_fits(np.exp(root[ok]), [tuple(a[ok] for a in m) for m in mats],
-                             [tuple(a[ok] for a in lg) for lg in logs])
-        for i, fit in zip(ok.tolist(), solved):
-            fits[i] = fit
-    for i in np.flatnonzero(~np.isfinite(root)).tolist():
-        m = lk == wanted[i]
-        fits[i] = common_shape_fit(x[m], f[m], g[m])
-    return fits
 
 
 def look_estimates(in_looks: pd.DataFrame, events: pd.DataFrame) -> pd.DataFrame:
@@ -571,7 +424,11 @@ def decide(estimates: pd.DataFrame, max_failures: int | None, margin: float, alp
     in_looks : DataFrame, optional
         :func:`look_hoses`: given, a look up to the verdict crosses only when the profile
         likelihood agrees with the Wald statistic (:func:`likelihood_check`); a later look's
-        ``crossed`` is its Wald crossing, unchecked.
+        ``crossed`` is its Wald crossing, unchecked; and the repeated confidence intervals are the
+        profile likelihood's (:func:`profile_intervals`) when ``deviance`` is the common-shape
+        Weibull's. Without it, or for another model's deviance (the lognormal's, read at one look by
+        the remaining-life stage, which shows no interval: its profile searched look by look costs
+        seconds), they are the Wald intervals of :func:`analyses.sequential.sequential_verdict`.
     first_look : int, optional
         The first look that may decide (the look ``max_failures`` was frozen at): the looks before
         it are read as looks without an estimate, their alpha spent unused (conservative).
@@ -594,4 +451,44 @@ def decide(estimates: pd.DataFrame, max_failures: int | None, margin: float, alp
     if first_look > 1:
         early = estimates["look"].to_numpy(np.int64) < first_look
         est, se = np.where(early, math.nan, est), np.where(early, math.nan, se)
-    return sequential_verdict(est, se, t, margin, alpha, spending, confirm=confirm)
+    verdict = sequential_verdict(est, se, t, margin, alpha, spending, confirm=confirm)
+    return verdict if in_looks is None or deviance is not ratio_deviance else profile_intervals(verdict, in_looks,
+                                                                                              estimates)
+
+
+def profile_intervals(verdict: SequentialVerdict, in_looks: pd.DataFrame, estimates: pd.DataFrame) -> SequentialVerdict:
+    """``verdict`` with its repeated confidence intervals taken from the profile likelihood.
+
+    At each look that has a Wald interval ``log_ratio -/+ c_k se`` (an estimate and a boundary), the
+    interval ``{log ratio : profile deviance <= c_k^2}`` (:func:`analyses.look_fits.profile_rci`;
+    Jennison & Turnbull 2000, ch. 9): the set the likelihood check (:func:`likelihood_check`) tests
+    crossings against, where the Wald one is too narrow with few failures and the shape refitted.
+    An end the deviance does not reach within the search edge is NaN, and the verdict's note says
+    how many looks have one.
+
+    Parameters
+    ----------
+    verdict : SequentialVerdict
+        :func:`analyses.sequential.sequential_verdict` over ``estimates``.
+    in_looks, estimates : DataFrame
+        :func:`look_hoses` and :func:`look_estimates` (``estimates`` one row a look of ``verdict``; the
+        common-shape Weibull's estimates).
+
+    Returns
+    -------
+    SequentialVerdict
+        ``rci_lower`` / ``rci_upper`` [-] (log scale) replaced, everything else as given.
+    """
+    lo, hi = np.full(len(estimates), math.nan), np.full(len(estimates), math.nan)
+    need = np.flatnonzero(np.isfinite(verdict.rci_lower) & np.isfinite(verdict.rci_upper))
+    if need.size:
+        lo[need], hi[need] = profile_rci(in_looks["distance_km"].to_numpy(float), in_looks["failed"].to_numpy(bool),
+                                         (in_looks["adjustment"] == "force").to_numpy(int),
+                                         in_looks["look"].to_numpy(np.int64),
+                                         estimates["look"].to_numpy(np.int64)[need], verdict.boundary_z[need])
+    open_ = int((~(np.isfinite(lo[need]) & np.isfinite(hi[need]))).sum())
+    note = verdict.note
+    if open_:
+        note = "; ".join(n for n in (note, f"{open_} look(s) whose repeated interval the profile likelihood does "
+                                           "not close within the search edge (NULL on that side)") if n)
+    return replace(verdict, rci_lower=lo, rci_upper=hi, note=note)

@@ -36,9 +36,10 @@ shard instead (minutes a shard: the durability stage's fits and figures) and rea
   decision rate) at the plan's power +/- 5 points with ``max_failures`` as the stage freezes it;
   above the margin (margin^1.5): at least power - 5 points. A miss prints its anatomy (the frozen
   look, its shape against the truth, ``max_failures`` against the design at the true shape).
-* the repeated confidence intervals (``rci_lower`` / ``rci_upper``, Jennison & Turnbull 2000,
-  ch. 9): the true ratio inside the interval of every designed look (failures <= ``max_failures``)
-  of a hose type, in at least 1 - alpha of them (misses within the binomial bound).
+* the repeated confidence intervals (``rci_lower`` / ``rci_upper``, the profile likelihood's,
+  Jennison & Turnbull 2000, ch. 9): the true ratio inside the interval of every designed look
+  (failures <= ``max_failures``) of a hose type, in at least 1 - alpha of them (misses within the
+  binomial bound); the Wald interval ``log ratio -/+ c_k se`` of the same looks counted beside it.
 * the look distances of ``decision_look_hoses`` against the exact ones (odometer linear in time).
 
 Counts are printed with their Monte Carlo SE. Seeded: the same command prints the same counts.
@@ -209,22 +210,24 @@ def line(label: str, k: int, n: int, target: str, ok: bool | None) -> bool:
     return ok is not False
 
 
-def rci_coverage(looks: pd.DataFrame, life_verdict: pd.DataFrame, types: dict) -> dict:
+def rci_coverage(looks: pd.DataFrame, life_verdict: pd.DataFrame, types: dict,
+                 ends: tuple[str, str] = ("rci_lower", "rci_upper")) -> dict:
     """Simultaneous coverage of the repeated confidence intervals (``rci_lower`` / ``rci_upper``,
     Jennison & Turnbull 2000, ch. 9): per hose type, whether the true ratio lies in the interval of
     every look that has one, over the designed looks (failures <= ``max_failures``) and over all.
     Counts ``[covered, n]`` for common true shapes (``designed``, ``all looks``) and separate ones
     (``separate shapes``, designed looks, the true B10 ratio); ``none``: types without an interval;
     ``first_miss``: per common-shape type not covered, (failures at its first missing look, at its first
-    look with an interval, ``max_failures``)."""
+    look with an interval, ``max_failures``). ``ends``: the columns of the interval's ends (the Wald
+    interval's, :func:`wald_ends`, to compare)."""
     out = {"designed": [0, 0], "all looks": [0, 0], "separate shapes": [0, 0], "none": 0, "first_miss": []}
     top = dict(zip(life_verdict["hose_type"], life_verdict["max_failures"]))
-    has = looks.dropna(subset=["rci_lower", "rci_upper"], how="all")
+    has = looks.dropna(subset=list(ends), how="all")
     for h, g in has.groupby("hose_type"):
         t = types.get(h)
         if t is None:
             continue
-        inside = [covers(lo, up, t["life_ratio"]) for lo, up in zip(g["rci_lower"], g["rci_upper"])]
+        inside = [covers(lo, up, t["life_ratio"]) for lo, up in zip(g[ends[0]], g[ends[1]])]
         m = top.get(h)
         designed = all(c for c, f in zip(inside, g["failures"]) if pd.isna(m) or f <= m)
         if not designed and not t["separate_shapes"]:
@@ -235,6 +238,16 @@ def rci_coverage(looks: pd.DataFrame, life_verdict: pd.DataFrame, types: dict) -
             out["all looks"] = [out["all looks"][0] + all(inside), out["all looks"][1] + 1]
     out["none"] = sum(h in types for h in set(looks["hose_type"]) - set(has["hose_type"]))
     return out
+
+
+def wald_ends(looks: pd.DataFrame) -> pd.DataFrame:
+    """``looks`` with the Wald repeated interval ``life_ratio * exp(-/+ boundary_z * se_log_ratio)``
+    (``wald_lower`` / ``wald_upper``; what ``rci_lower`` / ``rci_upper`` held before the profile
+    likelihood's) at the looks that show a repeated interval (a look before the frozen one has a
+    boundary and an estimate but decides nothing and shows none); NaN elsewhere."""
+    half = looks["boundary_z"].astype(float) * looks["se_log_ratio"].astype(float)
+    ratio = looks["life_ratio"].astype(float).where(looks[["rci_lower", "rci_upper"]].notna().any(axis=1))
+    return looks.assign(wald_lower=ratio * np.exp(-half), wald_upper=ratio * np.exp(half))
 
 
 FROZEN = re.compile(r"max_failures frozen at look (\d+) \([^)]*\): designed from that look's common shape ([0-9.]+)")
@@ -498,6 +511,11 @@ def report_rci(scenarios: list[Scenario], alpha: float) -> bool:
     ok = line("all scenarios: every designed look covers (failures <= max_failures)", k, n,
               f">= {1 - alpha:.2f} (misses <= {bound})", n > 0 and n - k <= bound)
     line("all scenarios: every look covers (also past max_failures; shown)", *pooled["all looks"], "", None)
+    if all({"life_ratio", "se_log_ratio", "boundary_z"} <= set(s.tables["decision_looks"]) for s in scenarios):
+        wald = [rci_coverage(wald_ends(s.tables["decision_looks"]), s.tables["life_verdict"], s.truth["hose_types"],
+                             ("wald_lower", "wald_upper"))["designed"] for s in scenarios]
+        line("all scenarios: the Wald interval (log ratio -/+ c_k se) instead (shown)",
+             sum(w[0] for w in wald), sum(w[1] for w in wald), "", None)
     line("all scenarios: separate true shapes, designed looks (B10 ratio; shown)", *pooled["separate shapes"], "",
          None)
     print(f"  hose types without a repeated interval (no look decides): {pooled['none']}")

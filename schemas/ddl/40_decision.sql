@@ -56,8 +56,9 @@ CREATE TABLE life_verdict (
                                            -- NULL while the interval is wider than the margins
     futility_upper    DOUBLE,              -- 'no practical difference' below this ratio [-]; NULL likewise
     rci_lower         DOUBLE,              -- the last look's repeated confidence interval, lower end (1 - alpha over
-                                           -- all looks together) [-]
-    rci_upper         DOUBLE,              -- the last look's repeated confidence interval, upper end [-]
+                                           -- all looks together; the profile likelihood's, deviance <= boundary_z^2)
+                                           -- [-]; NULL when the data do not bound that side
+    rci_upper         DOUBLE,              -- the last look's repeated confidence interval, upper end [-]; NULL likewise
     decided_at        TIMESTAMPTZ,         -- event time of the deciding look (UTC); NULL until then
     decided_at_look   BIGINT,              -- the deciding look (1..) [-]
     decided_ratio     DOUBLE,              -- estimate at the deciding look [-]
@@ -91,12 +92,15 @@ CREATE TABLE decision_looks (
     futility_lower    DOUBLE,              -- 'no practical difference' above this ratio (and below futility_upper) [-];
                                            -- NULL while the interval is wider than the margins
     futility_upper    DOUBLE,              -- 'no practical difference' below this ratio [-]; NULL likewise
-    rci_lower         DOUBLE,              -- repeated confidence interval, lower end [-]
-    rci_upper         DOUBLE,              -- repeated confidence interval, upper end [-]
+    rci_lower         DOUBLE,              -- repeated confidence interval, lower end [-]: the ratios whose profile
+                                           -- deviance is <= boundary_z^2 (not the Wald life_ratio x/ exp(boundary_z
+                                           -- se)); NULL when the deviance stays below it up to 1e6 x the estimate
+    rci_upper         DOUBLE,              -- repeated confidence interval, upper end [-]; NULL likewise
     crossed           VARCHAR,             -- what this look's data showed ('force longer', 'distance longer',
                                            -- 'no practical difference'); NULL if nothing. Up to the verdict: the
-                                           -- repeated interval and the profile likelihood both; after it: the
-                                           -- repeated interval (Wald) alone, not checked, said in note
+                                           -- Wald interval (efficacy_*, futility_*) and the profile likelihood
+                                           -- (rci_*) both; after it: the Wald interval alone, not checked, said in
+                                           -- note
     decides           BOOLEAN,             -- this look declared the verdict (never with no plan)
     note              VARCHAR              -- why the estimate is NULL, hoses placed by odometer (linear in time),
                                            -- no new information past max_failures, a crossing after the verdict

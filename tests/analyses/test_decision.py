@@ -1,6 +1,7 @@
 """The looks of the decision: hand-checked hose distances at each failure (runs, a run under way, odometer),
 event order and ties, the estimate's NULL notes, recovery of a known life ratio, and the sticky verdict."""
 import math
+from dataclasses import replace
 
 import numpy as np
 import pandas as pd
@@ -201,34 +202,6 @@ def test_likelihood_check_stops_at_the_verdict():
     assert not confirm(1, "force longer", 1e3)          # an earlier look is still checked
 
 
-def test_look_fits_equal_each_looks_own_fit():
-    """The vectorised fit of every look is common_shape_fit of that look's hoses (to 1e-12), notes included:
-    looks with too few failures, lives of 0 (just installed), and a look without rows."""
-    from analyses.decision import look_fits
-    from analyses.life_effect import common_shape_fit
-    rng = np.random.default_rng(11)
-    parts = []
-    for look in range(1, 16):
-        m = int(rng.integers(0, 30))
-        x = rng.weibull(rng.uniform(0.8, 4.0), m) * 50.0 * np.where(np.arange(m) % 2, 1.6, 1.0)
-        x[rng.random(m) < 0.1] = 0.0
-        parts.append((np.full(m, look), x, rng.random(m) < rng.uniform(0.2, 1.0), np.arange(m) % 2))
-    look, x, f, g = (np.concatenate([p[i] for p in parts]) for i in range(4))
-    wanted = np.arange(1, 17)                       # look 16 has no rows
-    fits = look_fits(x, f, g, look, wanted)
-    fitted = 0
-    for fit, number in zip(fits, wanted):
-        m = look == number
-        ref = common_shape_fit(x[m], f[m], g[m])
-        assert fit.note == ref.note
-        if ref.note is None:
-            fitted += 1
-            for a, b in ((fit.shape, ref.shape), (fit.log_ratio, ref.log_ratio), (fit.loglik, ref.loglik),
-                         (fit.se_log_ratio, ref.se_log_ratio), (fit.scale_force, ref.scale_force)):
-                assert a == pytest.approx(b, rel=1e-12, abs=1e-13)
-    assert 5 <= fitted < len(wanted)                # both kinds of look were there
-
-
 def _staggered(n_distance=8, n_force=6, seed=2):
     """All hoses installed on day 0, odometer-only; the distance-set ones fail on days 1..n_distance, then the
     force-set ones on the following days; two force-set hoses still running."""
@@ -276,3 +249,46 @@ def test_freeze_look_is_the_first_with_half_few_failures_of_each_adjustment_and_
     few = _staggered(n_force=4)
     assert freeze_look(few, runs, failure_events(few)) == (None, None, [8, 4])
     assert freeze_look(few, runs, failure_events(few.iloc[0:0])) == (None, None, [0, 0])
+
+
+def test_decide_with_the_looks_gives_the_repeated_intervals_of_the_profile_likelihood():
+    from analyses.life_effect import ratio_deviance
+    runs = pd.DataFrame(columns=["hose_id", "started_at", "duration_h", "distance_km"])
+    hoses = _staggered(n_distance=10, n_force=10)
+    events = failure_events(hoses)
+    in_looks = look_hoses(hoses, runs, events)
+    est = look_estimates(in_looks, events)
+    wald = decide(est, 30, 1.25, 0.05, "obrien-fleming", first_look=13)
+    sv = decide(est, 30, 1.25, 0.05, "obrien-fleming", in_looks, first_look=13)
+    has = np.isfinite(wald.rci_lower)
+    assert has.sum() >= 3 and not has[:12].any()
+    assert np.array_equal(np.isfinite(sv.rci_lower), has) and np.array_equal(np.isfinite(sv.rci_upper), has)
+    for i in np.flatnonzero(has):
+        m = (in_looks["look"] == est["look"].iloc[i]).to_numpy()
+        x, f = in_looks["distance_km"][m].to_numpy(float), in_looks["failed"][m].to_numpy(bool)
+        g = (in_looks["adjustment"][m] == "force").to_numpy(int)
+        for bound in (sv.rci_lower[i], sv.rci_upper[i]):      # where the deviance reaches c_k^2
+            assert ratio_deviance(x, f, g, math.exp(bound)) == pytest.approx(sv.boundary_z[i] ** 2, abs=1e-6)
+        assert sv.rci_lower[i] < est["log_ratio"].iloc[i] < sv.rci_upper[i]
+    assert not np.allclose(sv.rci_lower[has], wald.rci_lower[has])      # not the Wald interval
+    for name in ("boundary_z", "efficacy_lower", "efficacy_upper", "futility_lower", "information_fraction"):
+        assert np.array_equal(getattr(sv, name), getattr(wald, name), equal_nan=True)   # only the intervals change
+    assert "repeated interval" not in sv.note
+
+
+def test_an_interval_the_profile_likelihood_does_not_close_is_null_with_a_note():
+    """Two failures an adjustment, at a boundary of 6: the deviance stays below 36 up to the search edge."""
+    from analyses.decision import profile_intervals
+    from analyses.sequential import sequential_verdict
+    x = [1.0, 2.0, 3.0, 5.0, 1.5, 2.5, 9.0, 9.0]
+    in_looks = pd.DataFrame({"look": 1, "distance_km": x, "failed": [1, 1, 0, 0, 1, 1, 0, 0],
+                             "adjustment": ["distance"] * 4 + ["force"] * 4}).astype({"failed": bool})
+    fit = common_shape_fit(in_looks["distance_km"], in_looks["failed"], (in_looks["adjustment"] == "force").astype(int))
+    est = pd.DataFrame({"look": [1], "log_ratio": [fit.log_ratio], "se_log_ratio": [fit.se_log_ratio]})
+    sv = sequential_verdict([fit.log_ratio], [fit.se_log_ratio], [1.0], 1.25, 0.05)
+    assert np.isfinite(sv.rci_lower).all()
+    wide = profile_intervals(replace(sv, boundary_z=np.array([6.0])), in_looks, est)
+    assert np.isnan(wide.rci_lower).all() and np.isnan(wide.rci_upper).all()
+    assert "1 look(s) whose repeated interval the profile likelihood does not close" in wide.note
+    narrow = profile_intervals(replace(sv, boundary_z=np.array([1.0])), in_looks, est)
+    assert narrow.rci_lower[0] < fit.log_ratio < narrow.rci_upper[0] and "repeated interval" not in narrow.note

@@ -181,3 +181,17 @@ def test_the_repeated_intervals_report_misses_and_their_first_look(capsys):
     assert "0/2" in out and "MISS" in out
     assert "misses (2): failures at the first missing look           10.5 / 11 / 11.5" in out
     assert "misses at the first look with an interval: 1" in out      # B misses at its first look, A at its second
+
+
+def test_the_wald_ends_are_the_estimate_times_exp_of_the_boundary_times_its_se_and_are_counted_alike():
+    """A's first look comes before the freeze (no repeated interval shown): no Wald interval either."""
+    looks = pd.DataFrame({"hose_type": ["A", "A", "A", "B"], "failures": [5, 10, 20, 10],
+                          "life_ratio": [3.0, 1.2, 0.9, 2.0], "se_log_ratio": [0.1, 0.1, 0.08, NAN],
+                          "boundary_z": [4.0, 3.0, 2.0, 2.5], "rci_lower": [NAN, 0.8, NAN, NAN],
+                          "rci_upper": [NAN, 1.5, 1.1, NAN]})
+    w = bd.wald_ends(looks)
+    assert w["wald_lower"].tolist()[1:3] == pytest.approx([1.2 * math.exp(-0.3), 0.9 * math.exp(-0.16)])
+    assert w["wald_upper"].tolist()[1:3] == pytest.approx([1.2 * math.exp(0.3), 0.9 * math.exp(0.16)])
+    assert w[["wald_lower", "wald_upper"]].iloc[[0, 3]].isna().all().all()
+    c = bd.rci_coverage(w, _verdicts(), TYPES, ("wald_lower", "wald_upper"))
+    assert c["designed"] == [1, 1] and c["none"] == 1      # A: 1.0 in both looks' intervals; B: none

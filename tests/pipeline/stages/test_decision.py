@@ -9,6 +9,7 @@ import pandas as pd
 import pytest
 
 from analyses.hose_life import hose_life
+from analyses.life_effect import ratio_deviance
 from analyses.sequential import design_shape, max_information
 from pipeline.raw.logbook import merge_logbooks, read_logbooks
 from pipeline.raw.plan import Plan
@@ -56,9 +57,17 @@ def test_a_clear_ratio_decides_once_and_the_verdict_sticks():
     assert v["life_ratio"] == looks["life_ratio"].iloc[-1]
     late = looks[looks["failures"] > 20]
     assert not late["decides"].any() and late["note"].str.contains("no new information").all()
-    # the log-scale boundaries are shown as ratios: the RCI is estimate x/ exp(c se)
+    # the log-scale boundaries are shown as ratios: efficacy at exp(+/- c se); the repeated interval is the
+    # profile likelihood's, its ends where the look's deviance reaches c^2
     r = looks.dropna(subset=["life_ratio"]).iloc[-1]
-    assert r["rci_upper"] == pytest.approx(r["life_ratio"] * math.exp(r["boundary_z"] * r["se_log_ratio"]))
+    assert r["efficacy_upper"] == pytest.approx(math.exp(r["boundary_z"] * r["se_log_ratio"]))
+    h = res["decision_look_hoses"]
+    h = h[h["look"] == r["look"]]
+    for end in (r["rci_lower"], r["rci_upper"]):
+        assert ratio_deviance(h["distance_km"].to_numpy(float), h["failed"].to_numpy(bool),
+                              (h["adjustment"] == "force").to_numpy(int), end) == pytest.approx(r["boundary_z"] ** 2,
+                                                                                                abs=1e-6)
+    assert r["rci_lower"] < r["life_ratio"] < r["rci_upper"]
     assert stage.effect_of(odometer_item())["life_ratio"] == pytest.approx(4.0, rel=0.35)
 
 
@@ -322,7 +331,10 @@ def test_an_unset_max_failures_is_frozen_at_a_look_and_later_failures_move_no_pa
 def test_with_max_failures_in_the_plan_the_tables_are_bit_identical_to_before_the_freeze(raw, warehouse, monkeypatch):
     """The campaign of the test above with max_failures = 20 in the plan: the four tables' rows (their repr,
     sha256) are the ones the stage wrote before max_failures was frozen (commit b84e19a, the same
-    environment): the freeze changes nothing when the plan sets the maximum."""
+    environment): the freeze changes nothing when the plan sets the maximum. Updated in session 20 for
+    the repeated intervals by the profile likelihood (rci_*, decided_lower/upper) and the looks' fits summed
+    in order (life_ratio, se_log_ratio and the boundaries on the ratio scale within 3 ulp; the other
+    columns and tables equal, compared column by column against a077062)."""
     import hashlib
 
     from pipeline import stages as registry
@@ -338,8 +350,8 @@ def test_with_max_failures_in_the_plan_the_tables_are_bit_identical_to_before_th
 
     digests = {t: digest(query(warehouse, f"SELECT * FROM {t} ORDER BY ALL"))
                for t in ("life_effect", "life_verdict", "decision_looks", "decision_look_hoses")}
-    assert digests == {"life_effect": "ca6e7b79b604db3d", "life_verdict": "3576f0cd17bebfd5",
-                       "decision_looks": "91ba8a5bf1769f02", "decision_look_hoses": "7b3fd7a8b04a344a"}
+    assert digests == {"life_effect": "ca6e7b79b604db3d", "life_verdict": "61a801646a23988c",
+                       "decision_looks": "ff5f1a2da7cd1c2a", "decision_look_hoses": "7b3fd7a8b04a344a"}
 
 
 def test_a_frozen_look_whose_design_does_not_exist_leaves_max_failures_null_with_the_reason():
