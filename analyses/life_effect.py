@@ -200,8 +200,28 @@ class CommonShapeFit:
         return float(math.sqrt(self.cov[1, 1]))
 
 
-def _split(life, failed, group) -> list[tuple[np.ndarray, np.ndarray]]:
-    """[(lives, failed) of distance, (lives, failed) of force]; non-positive or non-finite lives dropped."""
+def split_groups(life, failed, group) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The two adjustments' lives apart: ``[(lives, failed) of distance, (lives, failed) of force]``.
+
+    Parameters
+    ----------
+    life : array_like
+        Each hose's distance at failure or at censoring; non-positive or non-finite ones are dropped. [km]
+    failed : array_like of bool
+        True where the hose failed, False where it is censored (still running or removed).
+    group : array_like of int
+        0 for distance-set, 1 for force-set.
+
+    Returns
+    -------
+    list of (ndarray, ndarray)
+        Lives [km] and failure flags of the distance-set hoses, then of the force-set ones.
+
+    Raises
+    ------
+    ValueError
+        The three arrays differ in length, or a group is neither 0 nor 1.
+    """
     x = np.asarray(life, dtype=np.float64)
     f = np.asarray(failed, dtype=bool)
     g = np.asarray(group)
@@ -369,7 +389,7 @@ def common_shape_fit(life, failed, group, shape_start: float = 1.0) -> CommonSha
         at the edge of ``SHAPE_BOUNDS``.
     """
     start = math.log(shape_start) if math.isfinite(shape_start) and shape_start > 0 else 0.0
-    return _fit_groups(_split(life, failed, group), start)
+    return _fit_groups(split_groups(life, failed, group), start)
 
 
 def _shape_bounds(groups, crit: float) -> tuple[float, float]:
@@ -483,7 +503,7 @@ def b10_ratio_separate_shapes(life, failed, group, confidence: float = 0.90) -> 
         ``life_ratio``, ``life_ratio_lower``, ``life_ratio_upper`` [-], ``p_value`` (ratio = 1) and
         ``note``; NaN values with the ``note`` when an adjustment's own fit cannot be made.
     """
-    groups = _split(life, failed, group)
+    groups = split_groups(life, failed, group)
     nan = {"life_ratio": _NAN, "life_ratio_lower": _NAN, "life_ratio_upper": _NAN, "p_value": _NAN}
     note = _too_few(groups)
     if note:
@@ -518,7 +538,7 @@ def ratio_deviance(life, failed, group, ratio: float, model: str = COMMON) -> fl
     float
         The deviance [-]; NaN when the model's fit cannot be made (as :func:`life_effect`).
     """
-    groups = _split(life, failed, group)
+    groups = split_groups(life, failed, group)
     if _too_few(groups):
         return _NAN
     if model == COMMON:
@@ -560,7 +580,7 @@ def life_effect(life, failed, group, confidence: float = 0.90, alpha: float = 0.
     LifeEffect
         NaN values with a one-line ``note`` where the data cannot tell (module docstring).
     """
-    groups = _split(life, failed, group)
+    groups = split_groups(life, failed, group)
     counts = {"n_distance": len(groups[0][0]), "n_failed_distance": int(groups[0][1].sum()),
               "n_force": len(groups[1][0]), "n_failed_force": int(groups[1][1].sum())}
     fit = _fit_groups(groups)
@@ -580,5 +600,5 @@ def life_effect(life, failed, group, confidence: float = 0.90, alpha: float = 0.
     return LifeEffect(**counts, **values, note="; ".join(n for n in notes if n) or None)
 
 
-__all__ = ["COMMON", "SEPARATE", "RATIO_SEARCH", "LifeEffect", "CommonShapeFit", "common_shape_fit", "life_effect",
+__all__ = ["COMMON", "SEPARATE", "RATIO_SEARCH", "LifeEffect", "CommonShapeFit", "common_shape_fit", "life_effect", "split_groups",
            "b10_ratio_separate_shapes", "ratio_deviance"]

@@ -45,7 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy  # its submodules load on first use
 
-from analyses.life_effect import RATIO_SEARCH, LifeEffect, _split
+from analyses.life_effect import RATIO_SEARCH, LifeEffect, split_groups
 from analyses.service_life import SIGMA_BOUNDS, lognormal_loglik_many, lr_bound
 
 _NAN = float("nan")
@@ -195,13 +195,13 @@ def lognormal_effect_fit(life, failed, group) -> LognormalEffectFit:
     LognormalEffectFit
         NaN with a ``note`` when an adjustment has fewer than two failures or sigma cannot be told.
     """
-    return _fit(_split(life, failed, group))[0]
+    return _fit(split_groups(life, failed, group))[0]
 
 
 def lognormal_ratio_deviance(life, failed, group, ratio: float) -> float:
     """Profile deviance ``2 * (loglik_max - loglik_profile(ratio))`` of a trial force / distance life
     ratio [-] (as :func:`analyses.life_effect.ratio_deviance`); NaN when the fit cannot be made."""
-    groups = _split(life, failed, group)
+    groups = split_groups(life, failed, group)
     fit, p = _fit(groups)
     if fit.note:
         return _NAN
@@ -225,7 +225,7 @@ def lognormal_life_effect(life, failed, group, confidence: float = 0.90) -> Life
         ``model`` :data:`LOGNORMAL`; the shape columns NaN (no Weibull shape); NaN values with a
         one-line ``note`` where the data cannot tell.
     """
-    groups = _split(life, failed, group)
+    groups = split_groups(life, failed, group)
     counts = {"n_distance": len(groups[0][0]), "n_failed_distance": int(groups[0][1].sum()),
               "n_force": len(groups[1][0]), "n_failed_force": int(groups[1][1].sum())}
     fit, p = _fit(groups)

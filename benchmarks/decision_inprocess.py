@@ -69,7 +69,7 @@ class StageRunTo:
 
     def __call__(self, rows: list[dict], truth: dict) -> int | None:
         from analyses.sequential import FEW_FAILURES
-        from pipeline.simulator.campaign import _csv_text
+        from pipeline.simulator.campaign import csv_text
         from pipeline.simulator.decision import DECISION_CAMPAIGN
         from pipeline.simulator.hoses import HOSES_COLUMNS
         from pipeline.stages import decision
@@ -81,7 +81,7 @@ class StageRunTo:
         with tempfile.TemporaryDirectory(prefix="run-to-") as tmp:
             raw = Path(tmp)
             (raw / DECISION_CAMPAIGN).mkdir()
-            (raw / DECISION_CAMPAIGN / "hoses.csv").write_text(_csv_text(rows, HOSES_COLUMNS), encoding="utf-8")
+            (raw / DECISION_CAMPAIGN / "hoses.csv").write_text(csv_text(rows, HOSES_COLUMNS), encoding="utf-8")
             (raw / "plan.toml").write_text(self.plan, encoding="utf-8")
             ctx = stage_context(raw)
             items = decision.hose_type_items(ctx)

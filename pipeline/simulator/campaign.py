@@ -113,7 +113,7 @@ def _to_count(pl: Planner, runs: int, n_dur: int) -> None:
 
 
 # -- writing -----------------------------------------------------------------------------------
-def _csv_text(rows: list[dict], columns: list[str]) -> str:
+def csv_text(rows: list[dict], columns: list[str]) -> str:
     """Rows as CSV text under ``columns`` (None empty, floats as ``repr``)."""
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=columns, lineterminator="\n", extrasaction="ignore")
@@ -229,12 +229,12 @@ def _write_folder_files(out: Path, records: list[dict], planner: Planner, campai
             manifests.setdefault(folder, []).append({"file": Path(rec["file"]).name, **rec.pop("manifest_row")})
     for folder, rows in sorted(manifests.items()):
         keys = ["file"] + sorted({k for r in rows for k in r if k != "file"}, key=lambda k: (k not in EMBED_ORDER, k))
-        (folder / "manifest.csv").write_text(_csv_text(rows, keys), encoding="utf-8")
+        (folder / "manifest.csv").write_text(csv_text(rows, keys), encoding="utf-8")
     for camp, rows in planner.logbooks.items():
         rows = sorted(rows, key=lambda r: (r["at"], r["hose_id"]))
         if rows:
             (out / camp).mkdir(parents=True, exist_ok=True)
-            (out / camp / "hoses.csv").write_text(_csv_text(rows, HOSES_COLUMNS), encoding="utf-8")
+            (out / camp / "hoses.csv").write_text(csv_text(rows, HOSES_COLUMNS), encoding="utf-8")
 
 
 def _write_decision(out: Path, seed: int, profile: DecisionProfile) -> CampaignSummary:
@@ -242,7 +242,7 @@ def _write_decision(out: Path, seed: int, profile: DecisionProfile) -> CampaignS
     rows, plan, truth = simulate_decision(seed, profile)
     (out / DECISION_CAMPAIGN).mkdir(parents=True, exist_ok=True)
     rows = sorted(rows, key=lambda r: (r["at"], r["hose_id"]))
-    (out / DECISION_CAMPAIGN / "hoses.csv").write_text(_csv_text(rows, HOSES_COLUMNS), encoding="utf-8")
+    (out / DECISION_CAMPAIGN / "hoses.csv").write_text(csv_text(rows, HOSES_COLUMNS), encoding="utf-8")
     (out / PLAN_FILE).write_text(plan, encoding="utf-8")
     (out / "truth.json").write_text(json.dumps(jsonable(truth), indent=1, sort_keys=True), encoding="utf-8")
     return _summary(out, [])
@@ -255,7 +255,7 @@ def _write_rul(out: Path, seed: int, profile: RulProfile, jobs: int | None, prog
                           progress or Progress())
     (out / RUL_CAMPAIGN / "rig.toml").write_text(RIG_TOML, encoding="utf-8")
     rows = sorted(rows, key=lambda r: (r["at"], r["hose_id"]))
-    (out / RUL_CAMPAIGN / "hoses.csv").write_text(_csv_text(rows, HOSES_COLUMNS), encoding="utf-8")
+    (out / RUL_CAMPAIGN / "hoses.csv").write_text(csv_text(rows, HOSES_COLUMNS), encoding="utf-8")
     (out / PLAN_FILE).write_text(plan_toml_rul(profile), encoding="utf-8")
     truth["runs"] = {rec["metadata"]["run_id"]: rec for rec in records}
     (out / "truth.json").write_text(json.dumps(jsonable(truth), indent=1, sort_keys=True), encoding="utf-8")

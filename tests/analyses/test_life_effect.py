@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 import scipy
 
-from analyses.life_effect import (COMMON, SEPARATE, LifeEffect, b10_ratio_separate_shapes, common_shape_fit,
+from analyses.life_effect import (COMMON, SEPARATE, LifeEffect, split_groups, b10_ratio_separate_shapes, common_shape_fit,
                                   life_effect)
 from analyses.service_life import weibull_fit, weibull_loglik
 
@@ -274,3 +274,13 @@ def test_calibration_benchmark_runs_quick(capsys):
     assert main(["--quick"]) == 0
     out = capsys.readouterr().out
     assert "hose types: 40 simulated" in out and "shape, Wald" in out
+
+
+def test_split_groups_keeps_each_adjustments_lives_and_drops_unusable_ones():
+    (xd, fd), (xf, ff) = split_groups([10.0, 0.0, 30.0, math.nan, 50.0], [1, 1, 0, 1, 1], [0, 0, 1, 1, 1])
+    assert xd.tolist() == [10.0] and fd.tolist() == [True]
+    assert xf.tolist() == [30.0, 50.0] and ff.tolist() == [False, True]
+    with pytest.raises(ValueError, match="same length"):
+        split_groups([1.0, 2.0], [1], [0, 1])
+    with pytest.raises(ValueError, match="0 \\(distance\\) or 1"):
+        split_groups([1.0], [1], [2])

@@ -54,7 +54,7 @@ def test_one_group_each_side_agrees_with_service_lifes_lognormal():
 def test_score_and_hessian_match_differences_with_censoring():
     x, f, g, _, _ = _complete(seed=2)
     f[[1, 3, 12, 15]] = False
-    groups = ln._split(x, f, g)
+    groups = ln.split_groups(x, f, g)
     stacked, p, eps = ln._stack(groups), np.array([0.1, 0.2, 0.6]), 1e-6
     score, hess = ln._derivatives(stacked, *p)
     for i in range(3):
