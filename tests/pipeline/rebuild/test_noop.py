@@ -210,3 +210,25 @@ def test_the_noops_imports_load_no_numeric_library():
             "print(sorted(m for m in ('pandas', 'numpy', 'scipy', 'matplotlib', 'pyarrow') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], cwd=PROJECT_ROOT, capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+def test_a_touched_run_file_swapped_for_a_symlink_out_of_raw_with_the_same_bytes_is_not_confirmed(raw, warehouse,
+                                                                                                  tmp_path):
+    """Hostile beside the copied tree above: the same bytes and size behind a symlink out of raw/ are
+    not a file whose stat alone changed; the night quarantines it with one line naming it, keeps the
+    other runs, and neither the link nor its target is touched."""
+    for name in ("c/a.csv", "c/b.csv", "c/c.csv"):
+        step(raw, name)
+    age(raw.root)
+    rebuild(raw.root, warehouse, jobs=1)
+    victim = raw.root / "c" / "a.csv"
+    outside = tmp_path / "outside.csv"
+    shutil.copy2(victim, outside)
+    body = outside.read_bytes()
+    victim.unlink()
+    os.symlink(outside, victim)
+    s = rebuild(raw.root, warehouse, jobs=1)
+    assert s.mode == "incremental"
+    assert [(p.source_path, p.error.split(":")[0]) for p in s.quarantine] == [("c/a.csv", "symlink to a file outside raw/")]
+    assert q(warehouse, "SELECT source_path FROM ingest_state WHERE role = 'run' ORDER BY 1") == [("c/b.csv",), ("c/c.csv",)]
+    assert victim.is_symlink() and os.readlink(victim) == str(outside) and outside.read_bytes() == body
