@@ -8,8 +8,8 @@ their current distance, removed hoses) and the fitted common-shape Weibull
 
 * ``power_now`` (:func:`power_now`): the probability that the test DECIDES (any of
   ``force longer``, ``distance longer``, ``no practical difference``) if no hose is added and the
-  running hoses run on until ``max_failures``, given the fitted effect. This is the conditional
-  power of Jennison & Turnbull (2000, ch. 10) evaluated at the current estimate, with the
+  running hoses run on until ``max_failures``, given the data: the predictive power of Jennison &
+  Turnbull (2000, sec. 10.3), each replicate its own model (:func:`predictive_draws`), with the
   futility side counted as a decision too: at a fitted ratio near 1 the useful decision is
   ``no practical difference``, and a reader asks "will this test tell me something", not "will it
   show force longer". It is not the design's power (that is ``target_power`` at the margin): it
@@ -40,9 +40,10 @@ their current distance, removed hoses) and the fitted common-shape Weibull
 
 Simulation: the simulated lives, read as the stage reads them
 -------------------------------------------------------------
-Each replicate draws the remaining life of every running hose from the fitted Weibull conditional on its
-current distance (``x_i = scale_g ((c_i / scale_g)^k + E)^(1/k)``, ``E ~ Exp(1)``, Meeker & Escobar 1998,
-section 4.6) and orders the failures by the km still to run (the running hoses accumulate km at one
+Each replicate draws its own model from the fit's sampling distribution (:func:`predictive_draws`), then
+the remaining life of every running hose from that Weibull conditional on its current distance
+(``x_i = scale_g ((c_i / scale_g)^k + E)^(1/k)``, ``E ~ Exp(1)``, Meeker & Escobar 1998, section 4.6;
+``more_testing`` keeps the estimate) and orders the failures by the km still to run (the running hoses accumulate km at one
 rate: they share the benches). At each coming failure the replicate's data are the past hoses and the
 running ones at their distance then; the look decides as the decision stage's looks do
 (:func:`analyses.plan_check.first_decision`: a shape-known screen picks the replicates whose look may
@@ -61,6 +62,8 @@ Trials. Chapman & Hall/CRC (ch. 3, 7, 10, 11.5).
 Lan, K. K. G. & DeMets, D. L. (1983). Discrete sequential boundaries for clinical trials.
 Biometrika 70, 659-663.
 Meeker, W. Q. & Escobar, L. A. (1998). Statistical Methods for Reliability Data. Wiley.
+Spiegelhalter, D. J., Freedman, L. S. & Blackburn, P. R. (1986). Monitoring clinical trials: conditional
+or predictive power? Controlled Clinical Trials 7, 8-17.
 """
 from __future__ import annotations
 
@@ -171,7 +174,56 @@ class HoseState:
         return int((self.failed & (self.group == 0)).sum()), int((self.failed & (self.group == 1)).sum())
 
 
-def remaining_km(rng: np.random.Generator, distance, group, fit: CommonShapeFit, n: int) -> np.ndarray:
+@dataclass(frozen=True)
+class ModelDraws:
+    """One common-shape Weibull per replicate (:func:`predictive_draws`), read by :func:`remaining_km` as a fit.
+
+    Attributes
+    ----------
+    shape, scale_distance, scale_force : numpy.ndarray, shape (n, 1)
+        Each replicate's shape [-] and scales [km].
+    """
+
+    shape: np.ndarray
+    scale_distance: np.ndarray
+    scale_force: np.ndarray
+
+
+def predictive_draws(rng: np.random.Generator, fit: CommonShapeFit, n: int) -> ModelDraws:
+    """Each replicate's own model, drawn from the fit's sampling distribution: PREDICTIVE, not plug-in.
+
+    ``(log scale_distance, log ratio, log shape)`` ~ normal at the maximum with the inverse observed
+    information ``fit.cov`` (Meeker & Escobar 1998, sec. 8.3, appendix B: the large-sample posterior under
+    a flat prior on those coordinates). At the estimate alone a simulation is conditional power there,
+    optimistic at the top (Spiegelhalter, Freedman & Blackburn 1986; Jennison & Turnbull 2000, sec. 10.3):
+    docs/decision.md "power_now, predictive".
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        The replicates' generator (one standard normal triple per replicate, drawn first).
+    fit : CommonShapeFit
+        The common-shape fit: its estimate and ``cov``.
+    n : int
+        Replicates [-].
+
+    Returns
+    -------
+    ModelDraws
+        The ``n`` models; all at the estimate (the plug-in) when ``cov`` is not positive definite
+        (singular, as an estimate known exactly; NaN: power_now has no standard error and is NaN before).
+    """
+    mean = np.array([math.log(fit.scale_distance), fit.log_ratio, math.log(fit.shape)])
+    z = rng.standard_normal((n, 3))
+    try:
+        draw = mean + z @ np.linalg.cholesky(np.asarray(fit.cov, float)).T
+    except np.linalg.LinAlgError:
+        draw = np.broadcast_to(mean, (n, 3))
+    col = [draw[:, i:i + 1] for i in range(3)]
+    return ModelDraws(np.exp(col[2]), np.exp(col[0]), np.exp(col[0] + col[1]))
+
+
+def remaining_km(rng: np.random.Generator, distance, group, fit: CommonShapeFit | ModelDraws, n: int) -> np.ndarray:
     """Km each hose still runs before it fails, drawn from the fitted Weibull given its distance.
 
     Parameters
@@ -181,8 +233,9 @@ def remaining_km(rng: np.random.Generator, distance, group, fit: CommonShapeFit,
         Current distance of each hose [km] (0 for a new hose).
     group : array_like of int
         0 distance-set, 1 force-set.
-    fit : CommonShapeFit
-        The fitted common-shape Weibull (its shape and two scales [km]).
+    fit : CommonShapeFit or ModelDraws
+        The fitted common-shape Weibull (its shape and two scales [km]): plug-in; or one model per
+        replicate (:func:`predictive_draws`): predictive.
     n : int
         Replicates.
 
@@ -289,7 +342,7 @@ def power_now(state: HoseState, fit: CommonShapeFit, boundaries, margin: float, 
                         "(the shape from so few is biased high and power_now with it, by 0.2 measured; the design's "
                         "max_failures waits for as many: docs/decision.md, the plan's forward figures)")
     rng = np.random.default_rng(seed)
-    left = remaining_km(rng, state.distance[run], state.group[run], fit, n_simulations)
+    left = remaining_km(rng, state.distance[run], state.group[run], predictive_draws(rng, fit, n_simulations), n_simulations)
     fut = Future(state.distance[run], np.zeros_like(left), left, state.group[run])
     first = first_decision(_past(state), fut, np.sort(left, axis=1)[:, :looks], c[d0:d0 + looks], margin, fit.shape)
     p = float((first >= 0).mean())
@@ -393,9 +446,11 @@ def _bench_future(rng: np.random.Generator, distance, group, fit: CommonShapeFit
     """The benches' next ``per_bench`` hoses each, per replicate (a renewal process per bench from its hose at
     ``distance``): (the :class:`~analyses.plan_check.Future` on the bench-km clock, the next ``left``
     failures' bench-km (sorted), whether a bench's last drawn failure comes before the ``left``-th: then
-    it could run short of hoses and the replicate is drawn again with ``per_bench = left``)."""
-    first = remaining_km(rng, distance, group, fit, n)
-    later = remaining_km(rng, np.zeros(group.size * (per_bench - 1)), np.tile(group, per_bench - 1), fit, n)
+    it could run short of hoses and the replicate is drawn again with ``per_bench = left``). Predictive: one
+    model per replicate (:func:`predictive_draws`) for all of its benches' hoses."""
+    model = predictive_draws(rng, fit, n)
+    first = remaining_km(rng, distance, group, model, n)
+    later = remaining_km(rng, np.zeros(group.size * (per_bench - 1)), np.tile(group, per_bench - 1), model, n)
     life = np.concatenate([first, later], axis=1).reshape(n, per_bench, group.size)
     end = np.cumsum(life, axis=1)
     start = np.concatenate([np.zeros((n, 1, group.size)), end[:, :-1]], axis=1)
@@ -527,6 +582,6 @@ def decision_date(today: pd.Timestamp, more_km: float, benches, km_per_day):
     return (today + pd.Timedelta(days=more_km / (benches * km_per_day))).date()
 
 
-__all__ = ["TARGET_POWER", "N_SIMULATIONS", "SCHEDULE_SIMULATIONS", "CAPACITY_DAYS", "HoseState", "PowerNow", "MoreTesting", "BenchSchedule",
-           "target_powers", "remaining_km", "power_now", "more_testing", "bench_schedule",
+__all__ = ["TARGET_POWER", "N_SIMULATIONS", "SCHEDULE_SIMULATIONS", "CAPACITY_DAYS", "HoseState", "ModelDraws", "PowerNow", "MoreTesting", "BenchSchedule",
+           "target_powers", "predictive_draws", "remaining_km", "power_now", "more_testing", "bench_schedule",
            "measured_capacity", "decision_date"]

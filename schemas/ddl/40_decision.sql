@@ -135,7 +135,11 @@ CREATE TABLE test_plan (
                                            -- failures_needed follows the current shape (what it takes now).
                                            -- Each simulated look is read as the decision stage reads a look:
                                            -- the common-shape Weibull refitted to the simulated lives, the
-                                           -- Wald crossing confirmed by the profile likelihood. NULL with
+                                           -- Wald crossing confirmed by the profile likelihood. Predictive:
+                                           -- each replicate draws its own shape and scales from the fit's
+                                           -- sampling normal (observed information, log scale), then the lives
+                                           -- (expected_decision_date's replicates too); at the estimate alone
+                                           -- it was optimistic where it is near 1. NULL with
                                            -- fewer than 5 failures (FEW_FAILURES / 2) in an adjustment: the
                                            -- shape from so few is biased high (0.71 predicted against 0.49
                                            -- realised), the freeze waits as long

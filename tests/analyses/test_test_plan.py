@@ -2,6 +2,7 @@
 r-th failure against the exponential's closed form and the `reliability` package's planner, the
 bench capacity and the decision date by hand."""
 import math
+from dataclasses import replace
 
 import numpy as np
 import pandas as pd
@@ -11,7 +12,7 @@ from scipy import stats
 from analyses.decision import crossing_holds
 from analyses.life_effect import CommonShapeFit, common_shape_fit, ratio_deviance
 from analyses.test_plan import (HoseState, bench_schedule, decision_date, hoses_on_test, measured_capacity,
-                                more_testing, power_now, remaining_km, target_powers)
+                                more_testing, power_now, predictive_draws, remaining_km, target_powers)
 
 
 def model(shape=1.5, scale_distance=1000.0, scale_force=1000.0, log_ratio=0.0, se=0.5):
@@ -60,9 +61,30 @@ def test_remaining_km_is_the_conditional_weibull():
     assert left[:, 1].mean() == pytest.approx(2 * s * math.gamma(1.5), rel=0.01)
 
 
+def test_predictive_draws_are_the_fits_sampling_normal_on_the_log_scale():
+    """One model per replicate: (log scale_distance, log ratio, log shape) with the fit's mean and covariance
+    (by hand: the sample moments of 40,000 draws); a singular covariance (zero: the estimate known) plugs it in; the
+    lives of a replicate follow its own model (remaining_km reads it row by row, as the plug-in would)."""
+    cov = np.array([[0.04, -0.02, 0.01], [-0.02, 0.09, 0.0], [0.01, 0.0, 0.0225]])
+    fit = CommonShapeFit(2.0, 1000.0, 1500.0, 0.0, math.log(1.5), cov)
+    d = predictive_draws(np.random.default_rng(1), fit, 40_000)
+    logs = np.column_stack([np.log(d.scale_distance), np.log(d.scale_force / d.scale_distance), np.log(d.shape)])
+    assert d.shape.shape == (40_000, 1)
+    assert logs.mean(axis=0) == pytest.approx([math.log(1000.0), math.log(1.5), math.log(2.0)], abs=0.005)
+    assert np.cov(logs.T) == pytest.approx(cov, abs=0.003)
+    known = predictive_draws(np.random.default_rng(1), replace(fit, cov=np.zeros((3, 3))), 5)
+    assert np.all(known.shape == 2.0) and np.allclose(known.scale_force, 1500.0)
+    rows = predictive_draws(np.random.default_rng(2), fit, 3)
+    got = remaining_km(np.random.default_rng(3), [400.0, 0.0], [0, 1], rows, 3)
+    rng = np.random.default_rng(3)
+    for i in range(3):
+        one = CommonShapeFit(float(rows.shape[i, 0]), float(rows.scale_distance[i, 0]), float(rows.scale_force[i, 0]))
+        assert got[i] == pytest.approx(remaining_km(rng, [400.0, 0.0], [0, 1], one, 1)[0])
+
+
 def test_power_now_reads_the_simulated_look_as_the_decision_stage():
     """One look left: power_now is the share of the replicates whose next failure's look the decision stage
-    would declare. The same draws (the seed's first use of its generator: remaining_km) read one by one:
+    would declare. The same draws (the seed's generator: predictive_draws, then remaining_km) read one by one:
     the common-shape Weibull refitted to the look's lives, the Wald crossing at the boundary and the
     profile likelihood's check (crossing_holds), as the decision stage reads a look."""
     rng = np.random.default_rng(8)
@@ -74,7 +96,8 @@ def test_power_now_reads_the_simulated_look_as_the_decision_stage():
     z = abs(fit.log_ratio) / fit.se_log_ratio
     c, margin, n = 0.9 * z, 1.25, 300
     got = power_now(st, fit, [40.0] * 16 + [c], margin, n, seed=3)
-    left = remaining_km(np.random.default_rng(3), st.distance[~failed], group[~failed], fit, n)
+    rng = np.random.default_rng(3)      # power_now's draws: one model per replicate, then the lives
+    left = remaining_km(rng, st.distance[~failed], group[~failed], predictive_draws(rng, fit, n), n)
     decided = 0
     for r in range(n):
         x = st.distance.copy()
@@ -181,7 +204,7 @@ def test_bench_schedule_to_the_maximum_is_the_exponentials_gamma():
     the r-th failure at Gamma(r, s / B) bench-km, and the hose-km (B x that) is Gamma(r, s): the median
     by hand, for 6 running hoses on 6 benches and for 2 running hoses on 6 (4 new hoses loaded). More
     running hoses than benches share them: the same hose-km."""
-    fit = model(shape=1.0, log_ratio=0.0, se=0.5)
+    fit = replace(model(shape=1.0, log_ratio=0.0), cov=np.diag([0.0, 0.25, 0.0]))   # singular: the draws plug it in
     r = 12                                                  # failures still to come: maximum 16, 4 so far
     for running, benches in ((3, 6), (1, 6), (5, 4)):
         got = bench_schedule(state(2, running, 300.0), fit, [40.0] * 16, 1.25, benches, 20_000, seed=4)
