@@ -4,6 +4,7 @@ One command::
 
     python -m benchmarks.bench_test_plan_forward            # 8 cells x 100 states (~1 min on 2 loaded cores)
     python -m benchmarks.bench_test_plan_forward --quick    # 2 cells x 6 states, a look (seconds)
+    python -m benchmarks.bench_test_plan_forward --truth    # and power_now with the TRUE model plugged in
 
 ``test_plan`` gives a hose type's running test three forward figures from its current censored
 state and the fitted common-shape Weibull (:mod:`analyses.test_plan`): ``power_now`` (the chance
@@ -39,7 +40,9 @@ a. ``power_now``'s future: the running hoses only, no hose added, to ``max_failu
    no likelihood check), to show what the check takes away. Since session 20 power_now reads each
    simulated look by the stage's rule on the simulated lives (:mod:`analyses.plan_check`), after a
    screen; the screen's error is counted too (:func:`screen_error`: the replicates whose first
-   deciding look differs from reading every look in full).
+   deciding look differs from reading every look in full). ``--truth`` adds the same states' power_now with
+   the true model plugged in (:func:`truth_power`): calibrated there, power_now's miss at the top was the
+   plug-in (session 21: power_now is predictive since, :func:`analyses.test_plan.predictive_draws`).
 b. ``more_km``'s own future: the running hoses and ``more_hoses_per_adjustment`` new hoses per
    adjustment all on test at once to the ``failures_needed``-th failure (the scenario it
    simulates): realised hose-km. And the lab's future: ``2 B`` benches, failed hoses replaced, to
@@ -72,11 +75,12 @@ import numpy as np
 import pandas as pd
 
 from analyses.decision import crossing_holds
-from analyses.life_effect import common_shape_fit, ratio_deviance
+from analyses.life_effect import CommonShapeFit, common_shape_fit, ratio_deviance
 from analyses.sequential import FEW_FAILURES, design_for, efficacy_boundaries, sequential_verdict
 from analyses import plan_check
 from analyses.plan_check import SCREEN, SCREEN_REFITTED, first_decision
-from analyses.test_plan import HoseState, bench_schedule, decision_date, more_testing, power_now, remaining_km
+from analyses.test_plan import (HoseState, bench_schedule, decision_date, more_testing, power_now, predictive_draws,
+                                remaining_km)
 from benchmarks.bench_test_plan import bench_lives
 
 #: The plan: margin, alpha, power, spending.
@@ -157,7 +161,27 @@ def read_future(state: HoseState, fut: Future, max_failures: int, rule: str = "l
     return None, times
 
 
-def forward_state(rng, cell, max_failures: int, bounds, seed: int) -> dict | None:
+def truth_power(state: HoseState, fit, now, truth: CommonShapeFit, bounds, seed: int) -> float:
+    """power_now with the TRUE model plugged in (``--truth``): the stage's own figure where it is a fact or
+    NULL (the current look decides, no look is left, too few failures), else the share of ``N_SIM``
+    replicates, the running hoses' remaining lives drawn from ``truth`` (:func:`remaining_km`), whose simulated
+    looks the decision stage declares (:func:`analyses.plan_check.first_decision`). If power_now's top-bin miss
+    is plug-in optimism (conditional power at the estimate, Spiegelhalter, Freedman & Blackburn 1986), this
+    one is calibrated: it is the chance of the decision given the truth, the future's own law."""
+    run = np.flatnonzero(state.running)
+    d0 = int(state.failed.sum())
+    looks = min(len(bounds) - d0, run.size)
+    if now.n_simulations == 0 or looks <= 0:
+        return now.power
+    left = remaining_km(np.random.default_rng(seed), state.distance[run], state.group[run], truth, N_SIM)
+    fut = plan_check.Future(state.distance[run], np.zeros_like(left), left, state.group[run])
+    past = plan_check.Past(np.log(state.distance[~state.running]), state.failed[~state.running],
+                           state.group[~state.running])
+    first = first_decision(past, fut, np.sort(left, axis=1)[:, :looks], bounds[d0:d0 + looks], PLAN[0], fit.shape)
+    return float((first >= 0).mean())
+
+
+def forward_state(rng, cell, max_failures: int, bounds, seed: int, truth: bool = False) -> dict | None:
     """One state: the stage's figures and the realised future (module docstring); None when the
     state's fit cannot tell (no common-shape fit; power_now NaN with fewer than FEW_FAILURES / 2
     failures in an adjustment is kept, NaN)."""
@@ -168,6 +192,8 @@ def forward_state(rng, cell, max_failures: int, bounds, seed: int) -> dict | Non
     if fit.note or not math.isfinite(fit.se_log_ratio):
         return None
     now = power_now(state, fit, bounds, PLAN[0], N_SIM, seed)
+    true_model = CommonShapeFit(shape, SCALE, SCALE * ratio)
+    at_truth = truth_power(state, fit, now, true_model, bounds, seed) if truth else math.nan
     more = more_testing(state, fit, max_failures, N_SIM, seed)
     decided, _ = read_future(state, alone, max_failures)
     wald, _ = read_future(state, alone, max_failures, rule="wald")
@@ -180,7 +206,7 @@ def forward_state(rng, cell, max_failures: int, bounds, seed: int) -> dict | Non
     at_wald, _ = read_future(state, lab, max_failures, rule="wald")     # bench_schedule's model of a look
     old = decision_date(TODAY, more.km, 2 * benches, KM_PER_DAY)     # the date before: more_km at the capacity
     bench_km = bench_schedule(state, fit, bounds, PLAN[0], 2 * benches, seed=seed).hose_km   # the stage's replicates
-    return {"cell": cell, "d0": d0, "fewest": min(state.failures), "power_now": now.power, "decided": decided is not None, "decides_now": now.note == "the current look decides",
+    return {"cell": cell, "d0": d0, "fewest": min(state.failures), "power_now": now.power, "power_truth": at_truth, "decided": decided is not None, "decides_now": now.note == "the current look decides",
             "decided_wald": wald is not None, "more_km": more.km, "add": more.hoses_per_adjustment,
             "own_km": own_km, "lab_km": 2 * benches * times[-1], "lab_decision_km": 2 * benches * end_km,
             "pred_days": bench_km / (2 * benches * KM_PER_DAY),   # decision_date's days, not rounded to a day
@@ -190,8 +216,9 @@ def forward_state(rng, cell, max_failures: int, bounds, seed: int) -> dict | Non
             "fitted_ratio": math.exp(fit.log_ratio), "fitted_shape": fit.shape}
 
 
-def run(states: int, cells=CELLS) -> pd.DataFrame:
-    """Every cell's states (:func:`forward_state`), one row each (skipped states left out, counted in ``skipped``)."""
+def run(states: int, cells=CELLS, truth: bool = False) -> pd.DataFrame:
+    """Every cell's states (:func:`forward_state`), one row each (skipped states left out, counted in ``skipped``);
+    ``truth``: power_now with the true model plugged in too (:func:`truth_power`)."""
     margin, alpha, power, spending = PLAN
     rows, skipped = [], 0
     for j, cell in enumerate(cells):
@@ -199,7 +226,7 @@ def run(states: int, cells=CELLS) -> pd.DataFrame:
         bounds = efficacy_boundaries(np.arange(1, m + 1) / m, alpha, spending)
         for i in range(states):
             seed = 4100 + 1000 * CELLS.index(cell) + i
-            row = forward_state(np.random.default_rng(seed), cell, m, bounds, seed)
+            row = forward_state(np.random.default_rng(seed), cell, m, bounds, seed, truth)
             skipped += row is None
             if row is not None:
                 rows.append(dict(row, max_failures=m))
@@ -227,7 +254,8 @@ def screen_error(states: int, cells=CELLS) -> tuple[int, int, int]:
             looks = min(m - d0, run_.size)
             if fit.note or looks <= 0 or min(st.failures) < FEW_FAILURES // 2:
                 continue
-            left = remaining_km(np.random.default_rng(seed), st.distance[run_], st.group[run_], fit, N_SIM)
+            rng = np.random.default_rng(seed)     # power_now's draws: one model per replicate, then the lives
+            left = remaining_km(rng, st.distance[run_], st.group[run_], predictive_draws(rng, fit, N_SIM), N_SIM)
             fut = plan_check.Future(st.distance[run_], np.zeros_like(left), left, st.group[run_])
             past = plan_check.Past(np.log(st.distance[~st.running]), st.failed[~st.running], st.group[~st.running])
             times = np.sort(left, axis=1)[:, :looks]
@@ -237,11 +265,11 @@ def screen_error(states: int, cells=CELLS) -> tuple[int, int, int]:
     return differ, total, told
 
 
-def calibration(df: pd.DataFrame, realised: str = "decided") -> tuple[list, dict]:
+def calibration(df: pd.DataFrame, realised: str = "decided", predicted: str = "power_now") -> tuple[list, dict]:
     """power_now against the realised decision: per bin (lo, hi, n, mean predicted, realised rate,
     its binomial SE at the predicted rate, PASS within 2 SE) and overall (mean predicted, realised,
     z, Brier, Brier of the constant forecast)."""
-    p, y = df["power_now"].to_numpy(float), df[realised].to_numpy(float)
+    p, y = df[predicted].to_numpy(float), df[realised].to_numpy(float)
     bins = []
     for lo, hi in zip(BINS[:-1], BINS[1:]):
         m = (p >= lo) & (p < hi)
@@ -265,6 +293,17 @@ def ratios(realised, predicted) -> dict:
     r = r[keep]
     return {"n": r.size, "median": float(np.median(r)), "within_25": float(np.mean(np.abs(r - 1) <= 0.25)),
             "mean_ratio": float(realised[keep].sum() / predicted[keep].sum())}
+
+
+def truth_table(sure: pd.DataFrame) -> None:
+    """``--truth``: the calibration of power_now with the true model plugged in (:func:`truth_power`),
+    the same states and realised futures (the stage's rule); no target of its own (a diagnosis)."""
+    bins, tot = calibration(sure, "decided", "power_truth")
+    print("\n  the same states, power_now with the TRUE model plugged in (a diagnosis, --truth):")
+    for lo, hi, n, pm, ym, se, good in bins:
+        print(f"  {lo:4.1f}-{hi:4.1f}   {n:>4} {pm:9.3f} {ym:8.3f} {2 * se:6.3f}  {'within' if good else 'outside'} 2 SE")
+    print(f"  {'overall':>20}: n {tot['n']}, predicted {tot['predicted']:.3f}, realised {tot['realised']:.3f} "
+          f"(z {tot['z']:+.2f}); Brier {tot['brier']:.3f}")
 
 
 def report(df: pd.DataFrame) -> bool:
@@ -297,6 +336,8 @@ def report(df: pd.DataFrame) -> bool:
                   f"(z {tot['z']:+.2f}) {'PASS' if good else 'MISS'}; Brier {tot['brier']:.3f} against "
                   f"{tot['brier_constant']:.3f} for the constant forecast "
                   f"(skill {1 - tot['brier'] / max(tot['brier_constant'], 1e-12):+.2f})")
+    if df["power_truth"].notna().any():
+        truth_table(sure)
     few = df["fewest"] < FEW_FAILURES // 2
     null, now = few & df["power_now"].isna(), few & df["decides_now"]
     good = bool((null | now)[few].all())
@@ -345,9 +386,10 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="2 cells x 6 states (seconds)")
     ap.add_argument("--states", type=int, default=100, help="states per cell (default 100; 8 cells)")
+    ap.add_argument("--truth", action="store_true", help="power_now with the true model plugged in too (a diagnosis)")
     args = ap.parse_args(argv)
     t0 = time.monotonic()
-    df = run(6, CELLS[:2]) if args.quick else run(args.states)
+    df = run(6, CELLS[:2], args.truth) if args.quick else run(args.states, CELLS, args.truth)
     ok = report(df)
     differ, total, told = screen_error(1, CELLS[:2]) if args.quick else screen_error(3)
     print(f"\n(d) power_now's screen (slack {SCREEN}, {SCREEN_REFITTED} once refitted): {differ} of {total} replicates ({told} states) decide at another "

@@ -52,3 +52,22 @@ def test_screen_error_compares_the_same_replicates():
     """The screen against reading every look: counts of one state's replicates (the benchmark's N_SIM)."""
     differ, total, told = bf.screen_error(2, bf.CELLS[1:2])
     assert total == told * bf.N_SIM and told >= 1 and 0 <= differ <= total
+
+
+def test_truth_power_plugs_the_true_model_into_power_nows_simulation():
+    """--truth: where power_now is a fact or NULL, the same; else the share of replicates that decide with the
+    running hoses' lives from the TRUE model: a true effect far past the margin decides often, the same
+    state's no-effect truth hardly ever."""
+    from analyses.life_effect import CommonShapeFit
+    from analyses.sequential import design_for, efficacy_boundaries
+    from analyses.test_plan import PowerNow
+    m = design_for(*bf.PLAN[:4], 2.0, 4).failures
+    bounds = efficacy_boundaries(np.arange(1, m + 1) / m, bf.PLAN[1], bf.PLAN[3])
+    state, _, _ = bf.lab_trial(np.random.default_rng(11), 2.0, 1.0, 4, m, m // 2)
+    fit = common_shape_fit(state.distance, state.failed, state.group)
+    told = PowerNow(0.5, 0.01, 100)
+    strong = bf.truth_power(state, fit, told, CommonShapeFit(2.0, bf.SCALE, 5.0 * bf.SCALE), bounds, 3)
+    none = bf.truth_power(state, fit, told, CommonShapeFit(2.0, bf.SCALE, bf.SCALE), bounds, 3)
+    assert strong > 0.5 and none < 0.05           # 8 running hoses: a 5x truth decides in half the futures
+    fact = PowerNow(1.0, 0.0, 0, "the current look decides")
+    assert bf.truth_power(state, fit, fact, CommonShapeFit(2.0, bf.SCALE, bf.SCALE), bounds, 3) == 1.0
