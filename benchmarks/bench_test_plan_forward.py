@@ -2,7 +2,7 @@
 
 One command::
 
-    python -m benchmarks.bench_test_plan_forward            # 8 cells x 100 states (~1 min on 2 loaded cores)
+    python -m benchmarks.bench_test_plan_forward            # 8 cells x 100 states (15 min at load 10)
     python -m benchmarks.bench_test_plan_forward --quick    # 2 cells x 6 states, a look (seconds)
     python -m benchmarks.bench_test_plan_forward --truth    # and power_now with the TRUE model plugged in
 
