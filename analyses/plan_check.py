@@ -112,7 +112,7 @@ def _shape_mle(groups, start: float):
     a, b, t = np.full(n, _LO), np.full(n, _HI), np.clip(np.broadcast_to(np.asarray(start, float), n), _LO, _HI)
     live = np.arange(n)
     for _ in range(100):
-        sub = [tuple(v[live] for v in grp) for grp in groups]
+        sub = groups if live.size == n else [tuple(v[live] for v in grp) for grp in groups]
         v, s = _value_slope(t[live], sub)
         a[live], b[live] = np.where(v > 0, t[live], a[live]), np.where(v < 0, t[live], b[live])
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -245,12 +245,15 @@ def decides(logx, failed, on, group, c, margin: float, shape_start=1.0) -> tuple
 
 
 def _look(fut: Future, rows, at):
-    """(log x, failed, on) of the future's hoses for the replicates ``rows`` at ``at`` [km of testing from
-    now]: the hoses on test then."""
+    """(log x, failed, on, columns) of the future's hoses for the replicates ``rows`` at ``at`` [km of testing
+    from now]: the hoses on test then, in the columns (of ``fut``) of the hoses on test in at least one of the
+    rows; the other columns would add nothing to any sum (a hose not yet on a bench is in no row's data)."""
     at = at[:, None]
     on = fut.start[rows] < at
-    x = fut.base + np.minimum(fut.end[rows], at) - fut.start[rows]
-    return np.log(np.where(on, x, 1.0)), on & (fut.end[rows] <= at), on
+    cols = np.flatnonzero(on.any(axis=0))
+    on, start, end = on[:, cols], fut.start[np.ix_(rows, cols)], fut.end[np.ix_(rows, cols)]
+    x = fut.base[cols] + np.minimum(end, at) - start
+    return np.log(np.where(on, x, 1.0)), on & (end <= at), on, cols
 
 
 def _with_past(past: Past, logx, failed, on):
@@ -288,7 +291,6 @@ def first_decision(past: Past, fut: Future, times, c, margin: float, shape: floa
     numpy.ndarray of int, shape (n,)
     """
     n, looks = times.shape
-    group = np.concatenate([past.group, fut.group])
     lm = math.log(max(margin, 1.0 / margin))
     past_sum = [float(np.exp(shape * past.logx[past.group == g]).sum()) for g in (0, 1)]
     past_d = [int((past.failed & (past.group == g)).sum()) for g in (0, 1)]
@@ -299,10 +301,11 @@ def first_decision(past: Past, fut: Future, times, c, margin: float, shape: floa
         rows = np.flatnonzero(first < 0)
         if rows.size == 0:
             break
-        logx, failed, on = _look(fut, rows, times[rows, j])
+        logx, failed, on, cols = _look(fut, rows, times[rows, j])
+        group = fut.group[cols]
         powered = np.where(on, np.exp(shape * logx), 0.0)
-        d = [past_d[g] + failed[:, fut.group == g].sum(axis=1) for g in (0, 1)]
-        s = [past_sum[g] + powered[:, fut.group == g].sum(axis=1) for g in (0, 1)]
+        d = [past_d[g] + failed[:, group == g].sum(axis=1) for g in (0, 1)]
+        s = [past_sum[g] + powered[:, group == g].sum(axis=1) for g in (0, 1)]
         with np.errstate(divide="ignore", invalid="ignore"):
             se = np.sqrt(1.0 / d[0] + 1.0 / d[1]) / shape
             est = (np.log(s[1] / d[1]) - np.log(s[0] / d[0])) / shape + offset[rows]
@@ -310,7 +313,10 @@ def first_decision(past: Past, fut: Future, times, c, margin: float, shape: floa
             maybe = (d[0] >= 2) & (d[1] >= 2) & ((np.abs(est) > half) | (np.abs(est) + half < lm))
         idx = np.flatnonzero(maybe)
         if idx.size:
-            yes, fit = decides(*_with_past(past, logx[idx], failed[idx], on[idx]), group, c[j], margin, start[rows[idx]])
+            mine = np.flatnonzero(on[idx].any(axis=0))     # the hoses on test in the rows refitted
+            keep = np.ix_(idx, mine)
+            yes, fit = decides(*_with_past(past, logx[keep], failed[keep], on[keep]),
+                               np.concatenate([past.group, group[mine]]), c[j], margin, start[rows[idx]])
             first[rows[idx[yes]]] = j
             ok, at = fit.ok, rows[idx]
             offset[at[ok]] += fit.log_ratio[ok] - est[idx[ok]]
