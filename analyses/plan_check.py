@@ -90,15 +90,25 @@ def _prep(logx, d, on):
     return y, on, d.sum(axis=1).astype(float), (y * d).sum(axis=1), ymax
 
 
+def _masked_exp(k, y, on):
+    """``exp(k y)`` per row's ``k`` where ``on``, else 0 (``y`` is 0 there, so nothing overflows), in one buffer."""
+    w = k[:, None] * y
+    np.exp(w, out=w)
+    w *= on
+    return w
+
+
 def _value_slope(t, groups):
     """The shape score with the scales profiled and its derivative in ``log k``, per row."""
     k = np.exp(t)
     value, slope = np.zeros_like(t), np.zeros_like(t)
     for y, on, r, syf, _ in groups:
-        w = np.where(on, np.exp(k[:, None] * y), 0.0)
+        w = _masked_exp(k, y, on)
         sw = w.sum(axis=1)
-        mean = (w * y).sum(axis=1) / sw
-        var = np.maximum((w * y * y).sum(axis=1) / sw - mean ** 2, 0.0)
+        w *= y                              # w y
+        mean = w.sum(axis=1) / sw
+        w *= y                              # w y^2
+        var = np.maximum(w.sum(axis=1) / sw - mean ** 2, 0.0)
         value += r / k + syf - r * mean
         slope -= r / k + k * r * var
     return value, slope
@@ -127,11 +137,17 @@ def _shape_mle(groups, start: float):
     return t, np.isfinite(t) & (t > _LO + 1e-6) & (t < _HI - 1e-6)
 
 
-def _loglik(k, groups):
-    """Log-likelihood at shape ``k`` with each group's scale at its MLE (closed form), per row."""
+def _power_sums(k, groups) -> list:
+    """Per group, each row's sum of ``exp(k y)`` over its hoses on test (``x^k`` relative to the largest)."""
+    return [_masked_exp(k, y, on).sum(axis=1) for y, on, *_ in groups]
+
+
+def _loglik(k, groups, sums=None):
+    """Log-likelihood at shape ``k`` with each group's scale at its MLE (closed form), per row (``sums``:
+    :func:`_power_sums` at ``k``, when computed already)."""
     total = np.zeros_like(k)
-    for y, on, r, syf, ymax in groups:
-        log_sum = k * ymax + np.log(np.where(on, np.exp(k[:, None] * y), 0.0).sum(axis=1))
+    for (y, on, r, syf, ymax), sw in zip(groups, _power_sums(k, groups) if sums is None else sums):
+        log_sum = k * ymax + np.log(sw)
         total += r * np.log(k) - r * (log_sum - np.log(r)) + (k - 1.0) * (syf + r * ymax) - r
     return total
 
@@ -191,10 +207,10 @@ def batch_fit(logx, failed, on, group, shape_start: float = 1.0) -> BatchFit:
     k = np.exp(t)
     enough = (groups[0][2] >= 2) & (groups[1][2] >= 2)
     with np.errstate(divide="ignore", invalid="ignore"):
-        log_scale = [ymax + np.log(np.where(on_, np.exp(k[:, None] * y), 0.0).sum(axis=1) / r) / k
-                     for y, on_, r, _, ymax in groups]
+        sums = _power_sums(k, groups)     # the scales' and the log-likelihood's, computed once
+        log_scale = [ymax + np.log(sw / r) / k for (_, _, r, _, ymax), sw in zip(groups, sums)]
         se = _se_log_ratio(logx, failed, on, group, k, log_scale)
-        ll = _loglik(k, groups)
+        ll = _loglik(k, groups, sums)
     ok = enough & inside & np.isfinite(se)
     return BatchFit(k, ll, log_scale[1] - log_scale[0], se, ok)
 
