@@ -90,15 +90,25 @@ def _prep(logx, d, on):
     return y, on, d.sum(axis=1).astype(float), (y * d).sum(axis=1), ymax
 
 
+def _masked_exp(k, y, on):
+    """``exp(k y)`` per row's ``k`` where ``on``, else 0 (``y`` is 0 there, so nothing overflows), in one buffer."""
+    w = k[:, None] * y
+    np.exp(w, out=w)
+    w *= on
+    return w
+
+
 def _value_slope(t, groups):
     """The shape score with the scales profiled and its derivative in ``log k``, per row."""
     k = np.exp(t)
     value, slope = np.zeros_like(t), np.zeros_like(t)
     for y, on, r, syf, _ in groups:
-        w = np.where(on, np.exp(k[:, None] * y), 0.0)
+        w = _masked_exp(k, y, on)
         sw = w.sum(axis=1)
-        mean = (w * y).sum(axis=1) / sw
-        var = np.maximum((w * y * y).sum(axis=1) / sw - mean ** 2, 0.0)
+        w *= y                              # w y
+        mean = w.sum(axis=1) / sw
+        w *= y                              # w y^2
+        var = np.maximum(w.sum(axis=1) / sw - mean ** 2, 0.0)
         value += r / k + syf - r * mean
         slope -= r / k + k * r * var
     return value, slope
@@ -112,7 +122,7 @@ def _shape_mle(groups, start: float):
     a, b, t = np.full(n, _LO), np.full(n, _HI), np.clip(np.broadcast_to(np.asarray(start, float), n), _LO, _HI)
     live = np.arange(n)
     for _ in range(100):
-        sub = [tuple(v[live] for v in grp) for grp in groups]
+        sub = groups if live.size == n else [tuple(v[live] for v in grp) for grp in groups]
         v, s = _value_slope(t[live], sub)
         a[live], b[live] = np.where(v > 0, t[live], a[live]), np.where(v < 0, t[live], b[live])
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -127,11 +137,17 @@ def _shape_mle(groups, start: float):
     return t, np.isfinite(t) & (t > _LO + 1e-6) & (t < _HI - 1e-6)
 
 
-def _loglik(k, groups):
-    """Log-likelihood at shape ``k`` with each group's scale at its MLE (closed form), per row."""
+def _power_sums(k, groups) -> list:
+    """Per group, each row's sum of ``exp(k y)`` over its hoses on test (``x^k`` relative to the largest)."""
+    return [_masked_exp(k, y, on).sum(axis=1) for y, on, *_ in groups]
+
+
+def _loglik(k, groups, sums=None):
+    """Log-likelihood at shape ``k`` with each group's scale at its MLE (closed form), per row (``sums``:
+    :func:`_power_sums` at ``k``, when computed already)."""
     total = np.zeros_like(k)
-    for y, on, r, syf, ymax in groups:
-        log_sum = k * ymax + np.log(np.where(on, np.exp(k[:, None] * y), 0.0).sum(axis=1))
+    for (y, on, r, syf, ymax), sw in zip(groups, _power_sums(k, groups) if sums is None else sums):
+        log_sum = k * ymax + np.log(sw)
         total += r * np.log(k) - r * (log_sum - np.log(r)) + (k - 1.0) * (syf + r * ymax) - r
     return total
 
@@ -191,10 +207,10 @@ def batch_fit(logx, failed, on, group, shape_start: float = 1.0) -> BatchFit:
     k = np.exp(t)
     enough = (groups[0][2] >= 2) & (groups[1][2] >= 2)
     with np.errstate(divide="ignore", invalid="ignore"):
-        log_scale = [ymax + np.log(np.where(on_, np.exp(k[:, None] * y), 0.0).sum(axis=1) / r) / k
-                     for y, on_, r, _, ymax in groups]
+        sums = _power_sums(k, groups)     # the scales' and the log-likelihood's, computed once
+        log_scale = [ymax + np.log(sw / r) / k for (_, _, r, _, ymax), sw in zip(groups, sums)]
         se = _se_log_ratio(logx, failed, on, group, k, log_scale)
-        ll = _loglik(k, groups)
+        ll = _loglik(k, groups, sums)
     ok = enough & inside & np.isfinite(se)
     return BatchFit(k, ll, log_scale[1] - log_scale[0], se, ok)
 
@@ -245,12 +261,15 @@ def decides(logx, failed, on, group, c, margin: float, shape_start=1.0) -> tuple
 
 
 def _look(fut: Future, rows, at):
-    """(log x, failed, on) of the future's hoses for the replicates ``rows`` at ``at`` [km of testing from
-    now]: the hoses on test then."""
+    """(log x, failed, on, columns) of the future's hoses for the replicates ``rows`` at ``at`` [km of testing
+    from now]: the hoses on test then, in the columns (of ``fut``) of the hoses on test in at least one of the
+    rows; the other columns would add nothing to any sum (a hose not yet on a bench is in no row's data)."""
     at = at[:, None]
     on = fut.start[rows] < at
-    x = fut.base + np.minimum(fut.end[rows], at) - fut.start[rows]
-    return np.log(np.where(on, x, 1.0)), on & (fut.end[rows] <= at), on
+    cols = np.flatnonzero(on.any(axis=0))
+    on, start, end = on[:, cols], fut.start[np.ix_(rows, cols)], fut.end[np.ix_(rows, cols)]
+    x = fut.base[cols] + np.minimum(end, at) - start
+    return np.log(np.where(on, x, 1.0)), on & (end <= at), on, cols
 
 
 def _with_past(past: Past, logx, failed, on):
@@ -288,7 +307,6 @@ def first_decision(past: Past, fut: Future, times, c, margin: float, shape: floa
     numpy.ndarray of int, shape (n,)
     """
     n, looks = times.shape
-    group = np.concatenate([past.group, fut.group])
     lm = math.log(max(margin, 1.0 / margin))
     past_sum = [float(np.exp(shape * past.logx[past.group == g]).sum()) for g in (0, 1)]
     past_d = [int((past.failed & (past.group == g)).sum()) for g in (0, 1)]
@@ -299,10 +317,11 @@ def first_decision(past: Past, fut: Future, times, c, margin: float, shape: floa
         rows = np.flatnonzero(first < 0)
         if rows.size == 0:
             break
-        logx, failed, on = _look(fut, rows, times[rows, j])
+        logx, failed, on, cols = _look(fut, rows, times[rows, j])
+        group = fut.group[cols]
         powered = np.where(on, np.exp(shape * logx), 0.0)
-        d = [past_d[g] + failed[:, fut.group == g].sum(axis=1) for g in (0, 1)]
-        s = [past_sum[g] + powered[:, fut.group == g].sum(axis=1) for g in (0, 1)]
+        d = [past_d[g] + failed[:, group == g].sum(axis=1) for g in (0, 1)]
+        s = [past_sum[g] + powered[:, group == g].sum(axis=1) for g in (0, 1)]
         with np.errstate(divide="ignore", invalid="ignore"):
             se = np.sqrt(1.0 / d[0] + 1.0 / d[1]) / shape
             est = (np.log(s[1] / d[1]) - np.log(s[0] / d[0])) / shape + offset[rows]
@@ -310,7 +329,10 @@ def first_decision(past: Past, fut: Future, times, c, margin: float, shape: floa
             maybe = (d[0] >= 2) & (d[1] >= 2) & ((np.abs(est) > half) | (np.abs(est) + half < lm))
         idx = np.flatnonzero(maybe)
         if idx.size:
-            yes, fit = decides(*_with_past(past, logx[idx], failed[idx], on[idx]), group, c[j], margin, start[rows[idx]])
+            mine = np.flatnonzero(on[idx].any(axis=0))     # the hoses on test in the rows refitted
+            keep = np.ix_(idx, mine)
+            yes, fit = decides(*_with_past(past, logx[keep], failed[keep], on[keep]),
+                               np.concatenate([past.group, group[mine]]), c[j], margin, start[rows[idx]])
             first[rows[idx[yes]]] = j
             ok, at = fit.ok, rows[idx]
             offset[at[ok]] += fit.log_ratio[ok] - est[idx[ok]]

@@ -8,6 +8,7 @@ One command::
     python -m benchmarks.bench_decision_stage --quick         # 20 hose types, no demo (a look)
     python -m benchmarks.bench_decision_stage --detail        # also the in-process breakdown below
     python -m benchmarks.bench_decision_stage --warehouse WH  # also the two stages on a built warehouse's tables
+    python -m benchmarks.bench_decision_stage --same-as main  # the same tables as main's code? (12 types, bit for bit)
 
 **What is measured: what a user runs.** Whole ``pneubench rebuild`` processes (all cores, the
 report written), timed by :func:`benchmarks.proc.measure`: wall seconds and the CPU seconds of the
@@ -56,6 +57,14 @@ then with the plan setting ``max_failures`` (the lab's usual case once ``test_pl
 
 Printed: wall seconds and this process's CPU seconds (the 2-process run's workers are not in it) and
 the ratio to the baseline; no verdict (the verdict is the processes').
+
+**Same results** (``--same-as REF``): a change meant only to make the stages faster must give the same
+floats. The designed case's campaign (``--types``, default 12 here; ``--seed``) is built by this checkout
+and by ``REF`` (a commit or branch, exported with ``git archive``: :func:`benchmarks.same_behaviour.export`),
+each in its own process with two workers, and both stages' tables (``life_effect``, ``life_verdict``,
+``decision_looks``, ``decision_look_hoses``, ``test_plan``, and the bench schedule's hose-km behind each
+``expected_decision_date``, which the table rounds to a day) are compared exactly (every column, every bit:
+``pandas.testing.assert_frame_equal(check_exact=True)``). Exit 1 when any differs.
 """
 from __future__ import annotations
 
@@ -415,9 +424,62 @@ def in_process(types: int, seed: int, large: bool, warehouse: Path | None, raw: 
               f"(CPU {cpu2:.2f} s)")
 
 
+#: Run in a process whose ``PYTHONPATH`` is one version's tree: the designed case's two stages on ``argv[1]``
+#: hose types (seed ``argv[2]``, two workers), their tables pickled to ``argv[3]``.
+_STAGE_TABLES = """
+import pickle, sys, tempfile
+from pathlib import Path
+import pandas as pd
+from benchmarks.bench_decision_stage import _plan, campaign
+from pipeline.stages import StageContext, decision, test_plan
+types, seed, out = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3]
+with tempfile.TemporaryDirectory() as tmp:
+    raw = Path(tmp)
+    life, runs = campaign(types, seed, raw, (20, 20), varied=True)
+    res = {"hose_life": life, "durability_runs": runs}
+    ctx = StageContext(raw=raw, warehouse=raw, runs=pd.DataFrame(), results=res, jobs=2, plan=_plan(None))
+    tables = dict(decision.run(ctx).tables)
+    ctx = StageContext(raw=raw, warehouse=raw, runs=pd.DataFrame(), results={**res, **tables}, jobs=2, plan=_plan(None))
+    km, capacity = [], test_plan._capacity    # the schedule's hose-km behind each date, rounded in the table
+    test_plan._capacity = lambda row, *a: (km.append((row["hose_type"], row["target_power"], row["decision_km"])),
+                                           capacity(row, *a))[1]
+    tables.update(test_plan.run(ctx).tables)
+tables["test_plan decision_km"] = pd.DataFrame(km, columns=["hose_type", "target_power", "decision_km"])
+pickle.dump(tables, open(out, "wb"))
+"""
+
+
+def same_as(ref: str, types: int, seed: int) -> bool:
+    """Whether this checkout's decision and test_plan stages give the same tables as ``ref``'s on the
+    designed case's campaign of ``types`` hose types, bit for bit; prints one line per table."""
+    import pickle
+    import subprocess
+
+    from benchmarks.same_behaviour import ROOT, export
+
+    with tempfile.TemporaryDirectory(prefix="pneubench-decision-same-") as tmp:
+        got = {}
+        for name, tree in (("this checkout", ROOT), (ref, export(ref, Path(tmp) / "ref"))):
+            out = Path(tmp) / f"{len(got)}.pkl"
+            subprocess.run([sys.executable, "-c", _STAGE_TABLES, str(types), str(seed), str(out)], cwd=tree,
+                           check=True, env=dict(os.environ, PYTHONPATH=str(tree)), stdin=subprocess.DEVNULL)
+            with open(out, "rb") as fh:
+                got[name] = pickle.load(fh)
+    mine, theirs = got.values()
+    ok = True
+    for table in sorted(set(mine) | set(theirs)):
+        try:
+            pd.testing.assert_frame_equal(mine[table], theirs[table], check_exact=True)
+            print(f"  {table}: same ({len(mine[table])} rows, every value bit for bit)")
+        except (AssertionError, KeyError) as exc:
+            ok = False
+            print(f"  {table}: DIFFERS from {ref}: {str(exc).splitlines()[0] if str(exc) else 'missing'}")
+    return ok
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m benchmarks.bench_decision_stage", description=__doc__.splitlines()[0])
-    ap.add_argument("--types", type=int, default=200, help="synthetic hose types (default 200)")
+    ap.add_argument("--types", type=int, help="synthetic hose types (default 200; 12 with --same-as)")
     ap.add_argument("--seed", type=int, default=23)
     ap.add_argument("--repeat", type=int, default=1, help="measured rebuilds of each kind (medians; default 1)")
     ap.add_argument("--quick", action="store_true", help="20 hose types, no demo")
@@ -426,8 +488,14 @@ def main(argv=None) -> int:
     ap.add_argument("--large", action="store_true", help="detail: 32 hoses per adjustment, ~60 failures a type")
     ap.add_argument("--warehouse", type=Path, help="detail: also the stages on this warehouse's tables")
     ap.add_argument("--raw", type=Path, help="its raw/ (default: WAREHOUSE/../raw)")
+    ap.add_argument("--same-as", metavar="REF", help="only compare both stages' tables with REF's code (bit for bit)")
     args = ap.parse_args(argv)
-    types = 20 if args.quick else args.types
+    if args.same_as:
+        types = 12 if args.types is None else args.types
+        print(f"the decision stages' tables, {types} designed hose types (seed {args.seed}), this checkout against "
+              f"{args.same_as}:")
+        return 0 if same_as(args.same_as, types, args.seed) else 1
+    types = 20 if args.quick else 200 if args.types is None else args.types
     ok = True
     with tempfile.TemporaryDirectory(prefix="pneubench-decision-proc-") as tmp:
         if not (args.quick or args.no_demo):

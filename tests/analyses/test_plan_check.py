@@ -94,3 +94,26 @@ def test_first_decision_reads_every_look_as_the_stage():
                              np.r_[past.group, group_run]).shape
     assert first_decision(past, fut, times, c, 1.5, shape, screen=(0.0, 0.0)).tolist() == want
     assert first_decision(past, fut, times, c, 1.5, shape, ).tolist() == want
+
+
+def test_hoses_not_yet_on_test_change_nothing():
+    """A bench's next hoses (columns that go on test only after a replicate's failure) enter a look only once
+    on test: a future with extra columns starting after every look gives the same first deciding looks as
+    without them, and one whose extra hoses start at 0 km (on test from the first look) differs."""
+    rng = np.random.default_rng(4)
+    group_run = np.repeat([0, 1], 6)
+    base = rng.uniform(100.0, 400.0, 12)
+    n = 60
+    left = rng.weibull(2.0, (n, 12)) * 900.0 * np.where(group_run == 1, 1.8, 1.0)
+    px = np.r_[rng.uniform(200.0, 700.0, 6), rng.uniform(400.0, 1200.0, 6)]
+    past = Past(np.log(px), np.ones(12, bool), np.repeat([0, 1], 6))
+    times = np.sort(left, axis=1)[:, :10]
+    c = np.linspace(2.6, 2.0, 10)
+    first = first_decision(past, Future(base, np.zeros((n, 12)), left, group_run), times, c, 1.5, 2.0)
+    late = times[:, -1:] + rng.uniform(1.0, 50.0, (n, 8))       # each replicate's extra hoses start after its last look
+    extra = Future(np.r_[base, np.zeros(8)], np.c_[np.zeros((n, 12)), late], np.c_[left, late + 500.0],
+                   np.r_[group_run, np.repeat([0, 1], 4)])
+    assert 0 < (first >= 0).sum() < n
+    assert first_decision(past, extra, times, c, 1.5, 2.0).tolist() == first.tolist()
+    early = Future(extra.base, np.c_[np.zeros((n, 12)), np.zeros((n, 8))], np.c_[left, np.full((n, 8), 1e6)], extra.group)
+    assert first_decision(past, early, times, c, 1.5, 2.0).tolist() != first.tolist()

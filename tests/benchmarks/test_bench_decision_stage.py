@@ -21,3 +21,14 @@ def test_the_odometer_only_campaign_has_no_runs_and_every_hose_placed(tmp_path):
     running = on_test[on_test["status"] == "running"]
     assert len(running) and running["odometer_at"].notna().all()   # read at the stop: placed in the looks
     assert (life[life["status"] == "failed"].groupby("hose_type").size() >= 6).all()
+
+
+def test_same_as_compares_both_stages_tables_with_another_versions(capsys):
+    """--same-as: HEAD's code (git archive) and this checkout on two designed hose types, each in its own
+    process; every table of both stages and the schedule's hose-km compared, one line each."""
+    assert bench.same_as("HEAD", 2, 1)
+    lines = capsys.readouterr().out.splitlines()
+    names = {line.split(":")[0].strip() for line in lines}
+    assert {"life_effect", "life_verdict", "decision_looks", "decision_look_hoses", "test_plan",
+            "test_plan decision_km"} <= names
+    assert all(": same (" in line for line in lines)
