@@ -39,7 +39,11 @@ shard instead (minutes a shard: the durability stage's fits and figures) and rea
 * the repeated confidence intervals (``rci_lower`` / ``rci_upper``, the profile likelihood's,
   Jennison & Turnbull 2000, ch. 9): the true ratio inside the interval of every designed look
   (failures <= ``max_failures``) of a hose type, in at least 1 - alpha of them (misses within the
-  binomial bound); the Wald interval ``log ratio -/+ c_k se`` of the same looks counted beside it.
+  binomial bound); the Wald interval ``log ratio -/+ c_k se`` and the profile interval without the
+  Bartlett factor (``D_k <= c_k^2``, session 20's) of the same looks counted beside it; per
+  information-fraction bin the looks whose own interval misses against their nominal rate (pointwise
+  or multiplicity). ``--bartlett REPS``: the Bartlett factor (:func:`analyses.look_fits.bartlett_factor`)
+  against the mean deviance at the truth of simulated complete samples.
 * the look distances of ``decision_look_hoses`` against the exact ones (odometer linear in time).
 
 Counts are printed with their Monte Carlo SE. Seeded: the same command prints the same counts.
@@ -248,6 +252,69 @@ def wald_ends(looks: pd.DataFrame) -> pd.DataFrame:
     half = looks["boundary_z"].astype(float) * looks["se_log_ratio"].astype(float)
     ratio = looks["life_ratio"].astype(float).where(looks[["rci_lower", "rci_upper"]].notna().any(axis=1))
     return looks.assign(wald_lower=ratio * np.exp(-half), wald_upper=ratio * np.exp(half))
+
+
+def uncorrected_ends(looks: pd.DataFrame, look_hoses: pd.DataFrame) -> pd.DataFrame:
+    """``looks`` with the profile-likelihood repeated interval without the Bartlett factor, ``{theta :
+    D_k(theta) <= c_k^2}`` (``prof_lower`` / ``prof_upper``; what ``rci_lower`` / ``rci_upper`` held in
+    session 20) at the looks that show a repeated interval, from ``decision_look_hoses``; NaN elsewhere."""
+    from analyses.look_fits import profile_rci
+
+    out = looks.assign(prof_lower=math.nan, prof_upper=math.nan)
+    shown = looks[["rci_lower", "rci_upper"]].notna().any(axis=1) & looks["boundary_z"].notna()
+    hoses = dict(tuple(look_hoses.groupby("hose_type")))
+    for h, g in looks[shown].groupby("hose_type"):
+        lh = hoses.get(h)
+        if lh is None:
+            continue
+        lo, hi = profile_rci(lh["distance_km"].to_numpy(float), lh["failed"].to_numpy(bool),
+                             (lh["adjustment"] == "force").to_numpy(int), lh["look"].to_numpy(np.int64),
+                             g["look"].to_numpy(np.int64), g["boundary_z"].to_numpy(float))
+        out.loc[g.index, "prof_lower"], out.loc[g.index, "prof_upper"] = np.exp(lo), np.exp(hi)
+    return out
+
+
+#: Information-fraction bins of the pointwise reading (failures / max_failures).
+FRACTION_BINS = (0.0, 0.4, 0.6, 0.8, 0.9, 1.0)
+
+
+def pointwise(looks: pd.DataFrame, life_verdict: pd.DataFrame, types: dict) -> pd.DataFrame:
+    """Per information-fraction bin (:data:`FRACTION_BINS`), the designed looks with a repeated interval of
+    common-shape hose types: ``looks``, ``misses`` (the true ratio outside that look's interval) and
+    ``expected`` (the sum of each look's nominal miss probability ``2 Phi(-c_k sqrt(b_k))``, ``b_k`` the
+    Bartlett factor of its failures): a pointwise miss (the look's own level) tells apart from multiplicity."""
+    from scipy import stats
+
+    from analyses.look_fits import bartlett_factor
+
+    top = dict(zip(life_verdict["hose_type"], life_verdict["max_failures"]))
+    common = looks["hose_type"].map(lambda h: h in types and not types[h]["separate_shapes"])
+    frac = looks["failures"] / looks["hose_type"].map(top).astype(float)
+    rows = looks[common & looks["rci_lower"].notna() & looks["rci_upper"].notna() & (frac <= 1.0)]
+    truth = rows["hose_type"].map(lambda h: types[h]["life_ratio"])
+    miss = ~((rows["rci_lower"] <= truth) & (truth <= rows["rci_upper"]))
+    z = rows["boundary_z"].to_numpy(float) * np.sqrt(bartlett_factor(rows["failures"].to_numpy(float)))
+    out = pd.DataFrame({"bin": pd.cut(frac[rows.index], FRACTION_BINS, include_lowest=True), "miss": miss,
+                        "expected": 2.0 * stats.norm.sf(z)})
+    return out.groupby("bin", observed=False).agg(looks=("miss", "size"), misses=("miss", "sum"),
+                                                  expected=("expected", "sum"))
+
+
+def bartlett_table(reps: int, seed: int) -> list[tuple[int, int, float, float, float]]:
+    """The Bartlett factor against the mean profile deviance at the true ratio of ``reps`` simulated
+    complete two-sample Weibull data sets (the pivot ``BARTLETT`` is measured on) per pair of failure
+    counts: rows ``(r_distance, r_force, mean D, its MC SE, bartlett_factor(r))``; seeded ``seed``."""
+    from analyses.life_effect import ratio_deviance
+    from analyses.look_fits import bartlett_factor
+
+    out = []
+    for rd, rf in ((5, 5), (5, 15), (8, 8), (7, 20), (10, 10), (15, 15), (10, 30), (20, 20), (30, 30), (15, 45)):
+        rng = np.random.default_rng([seed, rd, rf])
+        g, f = np.r_[np.zeros(rd, int), np.ones(rf, int)], np.ones(rd + rf, bool)
+        d = np.array([ratio_deviance(rng.weibull(2.0, rd + rf), f, g, 1.0) for _ in range(reps)])
+        d = d[np.isfinite(d)]
+        out.append((rd, rf, float(d.mean()), float(d.std() / math.sqrt(d.size)), float(bartlett_factor(rd + rf))))
+    return out
 
 
 FROZEN = re.compile(r"max_failures frozen at look (\d+) \([^)]*\): designed from that look's common shape ([0-9.]+)")
@@ -516,8 +583,22 @@ def report_rci(scenarios: list[Scenario], alpha: float) -> bool:
                              ("wald_lower", "wald_upper"))["designed"] for s in scenarios]
         line("all scenarios: the Wald interval (log ratio -/+ c_k se) instead (shown)",
              sum(w[0] for w in wald), sum(w[1] for w in wald), "", None)
+    if all("decision_look_hoses" in s.tables and "boundary_z" in s.tables["decision_looks"] for s in scenarios):
+        prof = [rci_coverage(uncorrected_ends(s.tables["decision_looks"], s.tables["decision_look_hoses"]),
+                             s.tables["life_verdict"], s.truth["hose_types"], ("prof_lower", "prof_upper"))["designed"]
+                for s in scenarios]
+        for s, p in zip(scenarios, prof):
+            line(f"{s.name}: without the Bartlett factor (D_k <= c_k^2; shown)", *p, "", None)
+        line("all scenarios: the profile interval without the Bartlett factor instead (shown)",
+             sum(p[0] for p in prof), sum(p[1] for p in prof), "", None)
     line("all scenarios: separate true shapes, designed looks (B10 ratio; shown)", *pooled["separate shapes"], "",
          None)
+    print("  pointwise: designed looks whose own interval misses, against the sum of their nominal miss "
+          "probabilities 2 Phi(-c_k sqrt(b_k)), by failures / max_failures")
+    for s in scenarios if all("boundary_z" in s.tables["decision_looks"] for s in scenarios) else []:
+        pw = pointwise(s.tables["decision_looks"], s.tables["life_verdict"], s.truth["hose_types"])
+        print(f"    {s.name}: " + "; ".join(f"{b} {int(r.misses)}/{int(r.looks)} (expected {r.expected:.1f})"
+                                          for b, r in pw.iterrows()))
     print(f"  hose types without a repeated interval (no look decides): {pooled['none']}")
     if not ok and pooled["first_miss"]:
         miss = pd.DataFrame(pooled["first_miss"], columns=["at", "first", "max"]).astype(float)
@@ -568,7 +649,15 @@ def main(argv=None) -> int:
     ap.add_argument("--keep", type=Path, default=None, help="keep the raw trees and warehouses here (--rebuild)")
     ap.add_argument("--scenarios", nargs="+", choices=SCENARIOS, default=list(SCENARIOS),
                     help="only these scenarios (each keeps its seed: the same hose types as in a full run)")
+    ap.add_argument("--bartlett", type=int, default=0, metavar="REPS",
+                    help="only the Bartlett factor against simulated complete samples, REPS a pair of failure counts")
     args = ap.parse_args(argv)
+    if args.bartlett:
+        print("the profile deviance at the true ratio, complete two-sample Weibull samples: mean (MC SE) "
+              "against bartlett_factor(r)")
+        for rd, rf, mean, se, b in bartlett_table(args.bartlett, args.seed):
+            print(f"  {rd:3d} + {rf:3d} failures: {mean:.3f} ({se:.3f})  b = {b:.3f}  {verdict(abs(mean - b) <= 3 * se)}")
+        return 0
     types = args.types or (12 if args.quick else TYPES)
     args.shard = args.shard or (50 if args.rebuild else 25)
     root = args.keep or Path(tempfile.mkdtemp(prefix="bench-decision-"))

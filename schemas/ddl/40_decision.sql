@@ -56,13 +56,16 @@ CREATE TABLE life_verdict (
                                            -- NULL while the interval is wider than the margins
     futility_upper    DOUBLE,              -- 'no practical difference' below this ratio [-]; NULL likewise
     rci_lower         DOUBLE,              -- the last look's repeated confidence interval, lower end (1 - alpha over
-                                           -- all looks together; the profile likelihood's, deviance <= boundary_z^2)
-                                           -- [-]; NULL when the data do not bound that side
+                                           -- all looks together; the profile likelihood's, deviance <= b boundary_z^2,
+                                           -- b = 1 + 3.8 / failures the Bartlett factor) [-]; NULL when the data
+                                           -- do not bound that side
     rci_upper         DOUBLE,              -- the last look's repeated confidence interval, upper end [-]; NULL likewise
     decided_at        TIMESTAMPTZ,         -- event time of the deciding look (UTC); NULL until then
     decided_at_look   BIGINT,              -- the deciding look (1..) [-]
     decided_ratio     DOUBLE,              -- estimate at the deciding look [-]
     decided_lower     DOUBLE,              -- repeated confidence interval at the deciding look, lower end [-]
+                                           -- (Bartlett-corrected, as rci_lower: it may reach 1 where the look's
+                                           -- crossing, at boundary_z^2, decided; the note then says so)
     decided_upper     DOUBLE,              -- repeated confidence interval at the deciding look, upper end [-]
     note              VARCHAR              -- no plan (and what would have been declared), the look max_failures
                                            -- was frozen at (or that it is not yet), looks without an estimate
@@ -93,8 +96,9 @@ CREATE TABLE decision_looks (
                                            -- NULL while the interval is wider than the margins
     futility_upper    DOUBLE,              -- 'no practical difference' below this ratio [-]; NULL likewise
     rci_lower         DOUBLE,              -- repeated confidence interval, lower end [-]: the ratios whose profile
-                                           -- deviance is <= boundary_z^2 (not the Wald life_ratio x/ exp(boundary_z
-                                           -- se)); NULL when the deviance stays below it up to 1e6 x the estimate
+                                           -- deviance is <= b boundary_z^2, b = 1 + 3.8 / failures the deviance's
+                                           -- Bartlett factor (not the Wald life_ratio x/ exp(boundary_z se)); NULL
+                                           -- when the deviance stays below it up to 1e6 x the estimate
     rci_upper         DOUBLE,              -- repeated confidence interval, upper end [-]; NULL likewise
     crossed           VARCHAR,             -- what this look's data showed ('force longer', 'distance longer',
                                            -- 'no practical difference'); NULL if nothing. Up to the verdict: the

@@ -253,6 +253,7 @@ def test_freeze_look_is_the_first_with_half_few_failures_of_each_adjustment_and_
 
 def test_decide_with_the_looks_gives_the_repeated_intervals_of_the_profile_likelihood():
     from analyses.life_effect import ratio_deviance
+    from analyses.look_fits import bartlett_factor
     runs = pd.DataFrame(columns=["hose_id", "started_at", "duration_h", "distance_km"])
     hoses = _staggered(n_distance=10, n_force=10)
     events = failure_events(hoses)
@@ -267,13 +268,14 @@ def test_decide_with_the_looks_gives_the_repeated_intervals_of_the_profile_likel
         m = (in_looks["look"] == est["look"].iloc[i]).to_numpy()
         x, f = in_looks["distance_km"][m].to_numpy(float), in_looks["failed"][m].to_numpy(bool)
         g = (in_looks["adjustment"][m] == "force").to_numpy(int)
-        for bound in (sv.rci_lower[i], sv.rci_upper[i]):      # where the deviance reaches c_k^2
-            assert ratio_deviance(x, f, g, math.exp(bound)) == pytest.approx(sv.boundary_z[i] ** 2, abs=1e-6)
+        b = float(bartlett_factor(f.sum()))
+        for bound in (sv.rci_lower[i], sv.rci_upper[i]):      # where the deviance reaches b_k c_k^2
+            assert ratio_deviance(x, f, g, math.exp(bound)) == pytest.approx(b * sv.boundary_z[i] ** 2, abs=1e-6)
         assert sv.rci_lower[i] < est["log_ratio"].iloc[i] < sv.rci_upper[i]
     assert not np.allclose(sv.rci_lower[has], wald.rci_lower[has])      # not the Wald interval
     for name in ("boundary_z", "efficacy_lower", "efficacy_upper", "futility_lower", "information_fraction"):
         assert np.array_equal(getattr(sv, name), getattr(wald, name), equal_nan=True)   # only the intervals change
-    assert "repeated interval" not in sv.note
+    assert "does not close" not in sv.note
 
 
 def test_an_interval_the_profile_likelihood_does_not_close_is_null_with_a_note():

@@ -10,7 +10,7 @@ import scipy
 
 from analyses.life_effect import common_shape_fit, life_effect, ratio_deviance
 from analyses.life_effect_lognormal import lognormal_effect_fit, lognormal_ratio_deviance
-from analyses.look_fits import look_fits, profile_rci
+from analyses.look_fits import BARTLETT, bartlett_factor, look_fits, profile_rci
 
 
 def looks_of(seed, n=20, ratio=1.5, shape=2.0, first=6):
@@ -128,3 +128,19 @@ def test_later_looks_with_more_hoses_move_no_earlier_interval():
     assert np.array_equal(lo2[:looks.size], lo) and np.array_equal(hi2[:looks.size], hi)
     for a, b in zip(look_fits(life, failed, group, look, looks), look_fits(*wide, np.r_[looks, later])):
         assert (a.shape, a.loglik, a.log_ratio, a.se_log_ratio) == (b.shape, b.loglik, b.log_ratio, b.se_log_ratio)
+
+
+def test_the_bartlett_factor_is_one_plus_its_coefficient_over_the_failures_and_nan_without_any():
+    b = bartlett_factor([0, 10, 38.0])
+    assert np.isnan(b[0]) and b[1] == pytest.approx(1.0 + BARTLETT / 10) and b[2] == pytest.approx(1.0 + BARTLETT / 38)
+
+
+def test_the_bartlett_factor_is_the_mean_deviance_at_the_truth_of_complete_samples():
+    """600 complete samples of 8 + 8 Weibull lives (shape 2.5, true ratio 1.3): the deviance at the true
+    ratio averages 1 + BARTLETT / 16 (about 1.24), not chi-square's 1, within 3 Monte Carlo SE."""
+    rng = np.random.default_rng(11)
+    g, f = np.r_[np.zeros(8, int), np.ones(8, int)], np.ones(16, bool)
+    d = np.array([ratio_deviance(rng.weibull(2.5, 16) * np.where(g == 1, 1.3, 1.0), f, g, 1.3) for _ in range(600)])
+    se = d.std() / math.sqrt(d.size)
+    assert abs(d.mean() - float(bartlett_factor(16))) <= 3 * se
+    assert d.mean() > 1.0 + 2 * se

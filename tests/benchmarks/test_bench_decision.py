@@ -195,3 +195,26 @@ def test_the_wald_ends_are_the_estimate_times_exp_of_the_boundary_times_its_se_a
     assert w[["wald_lower", "wald_upper"]].iloc[[0, 3]].isna().all().all()
     c = bd.rci_coverage(w, _verdicts(), TYPES, ("wald_lower", "wald_upper"))
     assert c["designed"] == [1, 1] and c["none"] == 1      # A: 1.0 in both looks' intervals; B: none
+
+
+def test_pointwise_counts_each_designed_looks_own_miss_against_its_nominal_rate_by_information_fraction():
+    """A (max 20): looks at 10 and 20 failures (fractions 0.5, 1) cover, the 3rd (21) is past max_failures;
+    B (max 30): its looks at 10 and 11 failures (0.33, 0.37), the 2nd misses the true 1.5; C has separate
+    shapes: not counted."""
+    from scipy import stats
+
+    from analyses.look_fits import bartlett_factor
+    looks = pd.DataFrame({"hose_type": ["A", "A", "A", "B", "B", "C"], "failures": [10, 20, 21, 10, 11, 10],
+                          "boundary_z": [3.0, 2.0, 2.0, 3.0, 2.9, 3.0],
+                          "rci_lower": [0.5, 0.8, 1.1, 1.0, 1.6, 1.2], "rci_upper": [2.0, 1.2, 1.3, 2.0, 2.0, 1.9]})
+    pw = bd.pointwise(looks, _verdicts(), TYPES)
+    assert pw["looks"].tolist() == [2, 1, 0, 0, 1] and pw["misses"].tolist() == [1, 0, 0, 0, 0]
+    z = np.array([3.0, 3.0, 2.9, 2.0]) * np.sqrt(bartlett_factor([10, 10, 11, 20]))
+    assert pw["expected"].sum() == pytest.approx(2 * stats.norm.sf(z).sum())
+
+
+def test_the_bartlett_table_compares_the_factor_with_simulated_means():
+    rows = bd.bartlett_table(20, 3)
+    assert len(rows) == 10 and rows[0][:2] == (5, 5)
+    for rd, rf, mean, se, b in rows:
+        assert mean > 0 and se > 0 and b == pytest.approx(1 + 3.8 / (rd + rf))
