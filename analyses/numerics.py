@@ -282,3 +282,171 @@ def _sosfilt2(s: np.ndarray, x: np.ndarray, zi: np.ndarray) -> np.ndarray:
         z1 = b2 * xc - a2 * xn
         append(xn)
     return np.asarray(out, dtype=np.float64)
+
+
+def fminbound(f, lo: float, hi: float, xatol: float = 1e-5, maxiter: int = 500) -> float:
+    """The minimiser of ``f`` on ``[lo, hi]`` by Brent's bounded golden-section / parabolic search
+    (Brent 1973, ch. 5): the steps of ``scipy.optimize.minimize_scalar(f, bounds=(lo, hi),
+    method="bounded", options={"xatol": xatol})`` (its Python code, the same bits) without importing
+    ``scipy.optimize``.
+
+    Parameters
+    ----------
+    f : callable
+        ``f(x) -> float``.
+    lo, hi : float
+        The bounds, finite, ``lo <= hi``. [unit of x]
+    xatol : float, optional
+        Absolute tolerance of the minimiser. [unit of x]
+    maxiter : int, optional
+        Evaluations at most (scipy's ``maxiter``).
+
+    Returns
+    -------
+    float
+        The minimiser found. [unit of x]
+    """
+    if not (np.isfinite(lo) and np.isfinite(hi)) or lo > hi:
+        raise ValueError(f"bounds ({lo!r}, {hi!r}) are not finite and ordered")
+    sqrt_eps, golden_mean = np.sqrt(2.2e-16), 0.5 * (3.0 - np.sqrt(5.0))  # numpy scalars, as scipy's: f sees its types
+    a, b = lo, hi
+    fulc = a + golden_mean * (b - a)
+    nfc = xf = fulc
+    rat = e = 0.0
+    fx = f(xf)
+    num = 1
+    ffulc = fnfc = fx
+    xm = 0.5 * (a + b)
+    tol1 = sqrt_eps * np.abs(xf) + xatol / 3.0
+    tol2 = 2.0 * tol1
+    while np.abs(xf - xm) > (tol2 - 0.5 * (b - a)):
+        rat, e = _bounded_step(a, b, xf, nfc, fulc, fx, fnfc, ffulc, xm, tol1, tol2, rat, e)
+        x = xf + (np.sign(rat) + (rat == 0)) * np.maximum(np.abs(rat), tol1)
+        fu = f(x)
+        num += 1
+        if fu <= fx:
+            if x >= xf:
+                a = xf
+            else:
+                b = xf
+            fulc, ffulc, nfc, fnfc, xf, fx = nfc, fnfc, xf, fx, x, fu
+        else:
+            if x < xf:
+                a = x
+            else:
+                b = x
+            if (fu <= fnfc) or (nfc == xf):
+                fulc, ffulc, nfc, fnfc = nfc, fnfc, x, fu
+            elif (fu <= ffulc) or (fulc == xf) or (fulc == nfc):
+                fulc, ffulc = x, fu
+        xm = 0.5 * (a + b)
+        tol1 = sqrt_eps * np.abs(xf) + xatol / 3.0
+        tol2 = 2.0 * tol1
+        if num >= maxiter:
+            break
+    return xf
+
+
+def _bounded_step(a, b, xf, nfc, fulc, fx, fnfc, ffulc, xm, tol1, tol2, rat, e) -> tuple:
+    """The next ``(rat, e)`` of :func:`fminbound`: a parabolic step when it is acceptable, else golden."""
+    if np.abs(e) > tol1:
+        r = (xf - nfc) * (fx - ffulc)
+        q = (xf - fulc) * (fx - fnfc)
+        p = (xf - fulc) * q - (xf - nfc) * r
+        q = 2.0 * (q - r)
+        if q > 0.0:
+            p = -p
+        q = np.abs(q)
+        r, e = e, rat
+        if (np.abs(p) < np.abs(0.5 * q * r)) and (p > q * (a - xf)) and (p < q * (b - xf)):
+            rat = (p + 0.0) / q
+            x = xf + rat
+            if ((x - a) < tol2) or ((b - x) < tol2):
+                rat = tol1 * (np.sign(xm - xf) + ((xm - xf) == 0))
+            return rat, e
+    e = (a - xf) if xf >= xm else (b - xf)
+    return 0.5 * (3.0 - np.sqrt(5.0)) * e, e
+
+
+def student_t_ppf(q: float, df: float) -> float:
+    """``scipy.stats.t.ppf(q, df)`` (the same ``scipy.special.stdtrit``, the same bits) without
+    importing ``scipy.stats`` (about a second of CPU, issue 26).
+
+    Parameters
+    ----------
+    q : float
+        Probability. [-]
+    df : float
+        Degrees of freedom, > 0 (inf allowed). [-]
+
+    Returns
+    -------
+    float
+        The quantile; NaN for ``df`` not positive or ``q`` outside [0, 1]. [-]
+    """
+    from scipy.special import stdtrit
+
+    if not df > 0 or not 0 <= q <= 1:
+        return float("nan")
+    if q == 0 or q == 1:
+        return -math.inf if q == 0 else math.inf
+    return float(stdtrit(df, q) * 1 + 0)
+
+
+def student_t_sf(x: float, df: float) -> float:
+    """``scipy.stats.t.sf(x, df)`` (``scipy.special.stdtr(df, -x)``, the same bits) without importing
+    ``scipy.stats``.
+
+    Parameters
+    ----------
+    x : float
+        The statistic. [-]
+    df : float
+        Degrees of freedom, > 0 (inf allowed). [-]
+
+    Returns
+    -------
+    float
+        P(T > x); NaN for ``df`` not positive or ``x`` NaN. [-]
+    """
+    from scipy.special import stdtr
+
+    if not df > 0 or math.isnan(x):
+        return float("nan")
+    if math.isinf(x):
+        return 0.0 if x > 0 else 1.0
+    return float(stdtr(df, -x))
+
+
+def welch_t_test_p(a, b) -> float:
+    """Two-sided p-value of Welch's t-test of equal means (unequal variances): the bits of
+    ``scipy.stats.ttest_ind(a, b, equal_var=False).pvalue`` (its variance as the mean squared
+    deviation times ``n / (n - 1)``, its Welch-Satterthwaite degrees of freedom, ``stdtr``)
+    without importing ``scipy.stats``.
+
+    Parameters
+    ----------
+    a, b : array_like
+        The two samples, 1-D. [any unit, the same]
+
+    Returns
+    -------
+    float
+        The p-value; NaN when a sample is empty. [-]
+    """
+    from scipy.special import stdtr
+
+    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    if a.size == 0 or b.size == 0:
+        return float("nan")
+    with np.errstate(divide="ignore", invalid="ignore"):
+        vn = []
+        for x in (a, b):
+            n = np.asarray(x.size, dtype=x.dtype)
+            v = np.mean((x - np.mean(x, axis=0, keepdims=True)) ** 2, axis=0)
+            v *= n / (n - 1)
+            vn.append(v / x.size)
+        df = (vn[0] + vn[1]) ** 2 / (vn[0] ** 2 / (a.size - 1) + vn[1] ** 2 / (b.size - 1))
+        df = np.where(np.isnan(df), 1.0, df)
+        t = np.divide(np.mean(a, axis=0) - np.mean(b, axis=0), np.sqrt(vn[0] + vn[1]))
+    return float((2 * stdtr(np.asarray(df, dtype=t.dtype), -np.abs(t)))[()])
