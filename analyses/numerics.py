@@ -1,15 +1,19 @@
 """Numerical kernels the analyses need without importing ``scipy.signal`` or ``scipy.optimize``.
 
-A rebuild after one changed spring test runs one Savitzky-Golay derivative and a few Brent roots;
-importing the scipy subpackages for them cost about a second of CPU per rebuild (issue 26, the cost
-of a change). These are scipy's own algorithms, step for step, and the tests hold them to scipy's
+A rebuild after one changed spring test runs one Savitzky-Golay derivative and a few Brent roots,
+one after a changed step run a second-order Butterworth zero-phase filter, one after a changed
+breakaway run a bounded scalar minimisation, Student t quantiles and Welch's test; importing the
+scipy subpackages for them cost about a second of CPU per rebuild (issue 26, the cost of a change). These are scipy's own algorithms, step for step, and the tests hold them to scipy's
 bits (``tests/analyses/test_numerics.py``); where a fit may import scipy anyway, it still may.
 
 References
 ----------
 Savitzky, A. & Golay, M. J. E. (1964). Smoothing and differentiation of data by simplified least
 squares procedures. Analytical Chemistry 36(8), 1627-1639.
-Brent, R. P. (1973). Algorithms for Minimization without Derivatives, ch. 4. Prentice-Hall.
+Brent, R. P. (1973). Algorithms for Minimization without Derivatives, ch. 4 and 5. Prentice-Hall.
+Butterworth, S. (1930). On the theory of filter amplifiers. Experimental Wireless 7, 536-541.
+Welch, B. L. (1947). The generalization of "Student's" problem when several different population
+variances are involved. Biometrika 34(1-2), 28-35.
 """
 from __future__ import annotations
 
