@@ -40,8 +40,8 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
-import scipy  # its submodules load on first use: a rebuild that reuses every stage never pays for them
 
+from analyses.numerics import fminbound, student_t_ppf, student_t_sf, welch_t_test_p
 from analyses.quality import Gate, Sensor, describe_sensor, linear_lstsq
 
 #: Gross motion on a noisy (analog) position: a departure of more than this many noise sigmas. [-]
@@ -271,8 +271,7 @@ def ramp_rate(t_s, f_n, t_end: float) -> dict:
     hinge = _Hinge(t, f)
     k = int(np.argmin(hinge.rss(grid)))
     lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, grid.size - 1)]
-    tr = float(scipy.optimize.minimize_scalar(lambda z: float(hinge.rss(z)[0]), bounds=(lo, hi), method="bounded",
-                                              options={"xatol": 1e-3 * float(hi - lo) + 1e-12}).x)
+    tr = float(fminbound(lambda z: float(hinge.rss(z)[0]), lo, hi, xatol=1e-3 * float(hi - lo) + 1e-12))
     if float(hinge.rss(grid[k])[0]) < float(hinge.rss(tr)[0]):
         tr = float(grid[k])
     fit = linear_lstsq(np.column_stack([np.ones_like(t), np.clip(t - tr, 0.0, None)]), f)
@@ -398,10 +397,10 @@ def backpressure_ratio(breakaway: pd.DataFrame, direction: str | None = None, co
     v1 = hi.var(ddof=1) / (hi.size * m1**2)
     se = np.sqrt(v0 + v1)
     dof = (v0 + v1) ** 2 / (v0**2 / (lo.size - 1) + v1**2 / (hi.size - 1)) if se > 0 else np.inf
-    q = scipy.stats.t.ppf(0.5 + confidence / 2, dof)
+    q = student_t_ppf(0.5 + confidence / 2, dof)
     r = m0 / m1
     out.update({"estimate": float(r), "ci_low": float(r * np.exp(-q * se)), "ci_high": float(r * np.exp(q * se)),
-                "p_value": float(scipy.stats.ttest_ind(lo, hi, equal_var=False).pvalue)})
+                "p_value": welch_t_test_p(lo, hi)})
     return out
 
 
@@ -444,8 +443,8 @@ def force_rate_slope(breakaway: pd.DataFrame, direction: str | None = None, conf
     cov = s2 * np.linalg.pinv(X.T @ X)
     se = float(np.sqrt(cov[ng, ng]))
     b = float(beta[ng])
-    q = scipy.stats.t.ppf(0.5 + confidence / 2, dof)
-    p = float(2 * scipy.stats.t.sf(abs(b) / se, dof)) if se > 0 else (0.0 if b != 0 else 1.0)
+    q = student_t_ppf(0.5 + confidence / 2, dof)
+    p = float(2 * student_t_sf(abs(b) / se, dof)) if se > 0 else (0.0 if b != 0 else 1.0)
     out.update({"estimate": b, "ci_low": b - q * se, "ci_high": b + q * se, "p_value": p})
     return out
 

@@ -1,15 +1,19 @@
 """Numerical kernels the analyses need without importing ``scipy.signal`` or ``scipy.optimize``.
 
-A rebuild after one changed spring test runs one Savitzky-Golay derivative and a few Brent roots;
-importing the scipy subpackages for them cost about a second of CPU per rebuild (issue 26, the cost
-of a change). These are scipy's own algorithms, step for step, and the tests hold them to scipy's
+A rebuild after one changed spring test runs one Savitzky-Golay derivative and a few Brent roots,
+one after a changed step run a second-order Butterworth zero-phase filter, one after a changed
+breakaway run a bounded scalar minimisation, Student t quantiles and Welch's test; importing the
+scipy subpackages for them cost about a second of CPU per rebuild (issue 26, the cost of a change). These are scipy's own algorithms, step for step, and the tests hold them to scipy's
 bits (``tests/analyses/test_numerics.py``); where a fit may import scipy anyway, it still may.
 
 References
 ----------
 Savitzky, A. & Golay, M. J. E. (1964). Smoothing and differentiation of data by simplified least
 squares procedures. Analytical Chemistry 36(8), 1627-1639.
-Brent, R. P. (1973). Algorithms for Minimization without Derivatives, ch. 4. Prentice-Hall.
+Brent, R. P. (1973). Algorithms for Minimization without Derivatives, ch. 4 and 5. Prentice-Hall.
+Butterworth, S. (1930). On the theory of filter amplifiers. Experimental Wireless 7, 536-541.
+Welch, B. L. (1947). The generalization of "Student's" problem when several different population
+variances are involved. Biometrika 34(1-2), 28-35.
 """
 from __future__ import annotations
 
@@ -176,3 +180,277 @@ def _brent_step(xpre, xcur, xblk, fpre, fcur, fblk, spre, scur, sbis, delta) -> 
         if 2 * abs(stry) < min(abs(spre), 3 * abs(sbis) - delta):
             return scur, stry
     return sbis, sbis
+
+
+def butter2_lowpass_sos(cutoff_hz: float, fs_hz: float) -> np.ndarray:
+    """The second-order Butterworth low-pass section (Butterworth 1930) of
+    ``scipy.signal.butter(2, cutoff_hz, fs=fs_hz, output="sos")``, step for step (the analog
+    prototype's poles, the pre-warped bilinear transform, ``zpk2sos``'s pairing and polynomial
+    products with the same numpy calls: the same bits) without importing ``scipy.signal`` (about a
+    second of CPU for a rebuild that changes one step run, issue 26).
+
+    Parameters
+    ----------
+    cutoff_hz : float
+        -3 dB frequency, ``0 < cutoff_hz < fs_hz / 2``. [Hz]
+    fs_hz : float
+        Sampling frequency. [Hz]
+
+    Returns
+    -------
+    ndarray
+        Shape (1, 6): ``b0, b1, b2, 1, a1, a2``. [-]
+    """
+    wn = np.asarray(cutoff_hz, dtype=np.float64) / (float(fs_hz) / 2)
+    if not 0 < wn < 1:
+        raise ValueError(f"cutoff {cutoff_hz!r} Hz is not inside (0, fs/2) for fs = {fs_hz!r} Hz")
+    warped = float(2 * 2.0 * np.tan(np.pi * wn / 2.0))
+    p = -np.exp(1j * np.pi * np.arange(-1, 2, 2, dtype=np.float64) / (2 * 2))  # buttap(2)
+    p = warped * p  # lp2lp_zpk; the prototype has no zeros, its gain 1 * warped ** 2
+    k = 1.0 * warped ** 2
+    k = k * np.real(np.prod(4.0 - np.asarray([], dtype=np.float64)) / np.prod(4.0 - p))  # bilinear_zpk, fs = 2
+    p = (4.0 + p) / (4.0 - p)
+    p = p[np.lexsort((abs(p.imag), p.real))]  # _cplxreal: the conjugate pair averaged
+    p1 = ((p[p.imag > 0] + p[p.imag < 0].conj()) / 2)[0]
+    sos = np.zeros(6)
+    sos[0:3] = np.multiply(np.asarray(1.0), _poly(np.asarray([-1.0, -1.0])))
+    sos[3:6] = _poly(np.asarray([p1, p1.conj()]))
+    sos[:3] *= np.asarray(k).real
+    return sos.reshape(1, 6)
+
+
+def _poly(roots: np.ndarray) -> np.ndarray:
+    """The polynomial with these roots, as ``scipy.signal``'s ``poly`` forms it (real when the
+    roots are conjugate pairs)."""
+    a = np.ones((1,), dtype=roots.dtype)
+    one = np.ones_like(roots[0])
+    for zero in roots:
+        a = np.convolve(a, np.stack((one, -zero)), mode="full")
+    if np.iscomplexobj(a):
+        a = np.asarray(np.real(a), copy=True)
+    return a
+
+
+def sosfiltfilt2(sos: np.ndarray, x, padtype: str, padlen: int) -> np.ndarray:
+    """Zero-phase filtering by one second-order section, forward then backward: the bits of
+    ``scipy.signal.sosfiltfilt(sos, x, padtype=padtype, padlen=padlen)`` (its odd or constant
+    extension, ``sosfilt_zi``'s steady state by the same linear solve, the C recursion of
+    ``sosfilt`` in the same order of operations) without importing ``scipy.signal``.
+
+    Parameters
+    ----------
+    sos : ndarray
+        Shape (1, 6), ``a0 = 1`` (:func:`butter2_lowpass_sos`). [-]
+    x : array_like
+        Evenly sampled signal, longer than ``padlen``. [any unit]
+    padtype : {"odd", "constant"}
+        How the ends are extended.
+    padlen : int
+        Samples added at each end. [samples]
+
+    Returns
+    -------
+    ndarray
+        The filtered signal, as long as ``x``. [unit of x]
+    """
+    x = np.asarray(x, dtype=np.float64)
+    if len(x) <= padlen:
+        raise ValueError(f"the signal ({len(x)} samples) must be longer than padlen ({padlen})")
+    ext = x
+    if padlen > 0:
+        if padtype == "odd":
+            ext = np.concatenate((2 * x[:1] - x[padlen:0:-1], x, 2 * x[-1:] - x[-2:-(padlen + 2):-1]))
+        elif padtype == "constant":
+            ones = np.ones(padlen, dtype=x.dtype)
+            ext = np.concatenate((ones * x[:1], x, ones * x[-1:]))
+        else:
+            raise ValueError(f"padtype {padtype!r} is not 'odd' or 'constant'")
+    b, a = sos[0, :3], sos[0, 3:]
+    companion_t = np.array([[-a[1] / (1.0 * a[0]), 1.0], [-a[2] / (1.0 * a[0]), 0.0]])
+    zi = 1.0 * np.linalg.solve(np.eye(2) - companion_t, b[1:] - a[1:] * b[0])
+    y = _sosfilt2(sos[0], ext, zi * ext[0])
+    y = _sosfilt2(sos[0], y[::-1], zi * y[-1])[::-1]
+    return y[padlen:-padlen] if padlen > 0 else y
+
+
+def _sosfilt2(s: np.ndarray, x: np.ndarray, zi: np.ndarray) -> np.ndarray:
+    """One second-order section over ``x`` from the state ``zi``: ``scipy.signal``'s C loop
+    (``_sosfilt``), its operations in its order."""
+    b0, b1, b2, _, a1, a2 = (float(v) for v in s)
+    z0, z1 = float(zi[0]), float(zi[1])
+    out = []
+    append = out.append
+    for xc in x.tolist():
+        xn = b0 * xc + z0
+        z0 = b1 * xc - a1 * xn + z1
+        z1 = b2 * xc - a2 * xn
+        append(xn)
+    return np.asarray(out, dtype=np.float64)
+
+
+def fminbound(f, lo: float, hi: float, xatol: float = 1e-5, maxiter: int = 500) -> float:
+    """The minimiser of ``f`` on ``[lo, hi]`` by Brent's bounded golden-section / parabolic search
+    (Brent 1973, ch. 5): the steps of ``scipy.optimize.minimize_scalar(f, bounds=(lo, hi),
+    method="bounded", options={"xatol": xatol})`` (its Python code, the same bits) without importing
+    ``scipy.optimize``.
+
+    Parameters
+    ----------
+    f : callable
+        ``f(x) -> float``.
+    lo, hi : float
+        The bounds, finite, ``lo <= hi``. [unit of x]
+    xatol : float, optional
+        Absolute tolerance of the minimiser. [unit of x]
+    maxiter : int, optional
+        Evaluations at most (scipy's ``maxiter``).
+
+    Returns
+    -------
+    float
+        The minimiser found. [unit of x]
+    """
+    if not (np.isfinite(lo) and np.isfinite(hi)) or lo > hi:
+        raise ValueError(f"bounds ({lo!r}, {hi!r}) are not finite and ordered")
+    sqrt_eps, golden_mean = np.sqrt(2.2e-16), 0.5 * (3.0 - np.sqrt(5.0))  # numpy scalars, as scipy's: f sees its types
+    a, b = lo, hi
+    fulc = a + golden_mean * (b - a)
+    nfc = xf = fulc
+    rat = e = 0.0
+    fx = f(xf)
+    num = 1
+    ffulc = fnfc = fx
+    xm = 0.5 * (a + b)
+    tol1 = sqrt_eps * np.abs(xf) + xatol / 3.0
+    tol2 = 2.0 * tol1
+    while np.abs(xf - xm) > (tol2 - 0.5 * (b - a)):
+        rat, e = _bounded_step(a, b, xf, nfc, fulc, fx, fnfc, ffulc, xm, tol1, tol2, rat, e)
+        x = xf + (np.sign(rat) + (rat == 0)) * np.maximum(np.abs(rat), tol1)
+        fu = f(x)
+        num += 1
+        if fu <= fx:
+            if x >= xf:
+                a = xf
+            else:
+                b = xf
+            fulc, ffulc, nfc, fnfc, xf, fx = nfc, fnfc, xf, fx, x, fu
+        else:
+            if x < xf:
+                a = x
+            else:
+                b = x
+            if (fu <= fnfc) or (nfc == xf):
+                fulc, ffulc, nfc, fnfc = nfc, fnfc, x, fu
+            elif (fu <= ffulc) or (fulc == xf) or (fulc == nfc):
+                fulc, ffulc = x, fu
+        xm = 0.5 * (a + b)
+        tol1 = sqrt_eps * np.abs(xf) + xatol / 3.0
+        tol2 = 2.0 * tol1
+        if num >= maxiter:
+            break
+    return xf
+
+
+def _bounded_step(a, b, xf, nfc, fulc, fx, fnfc, ffulc, xm, tol1, tol2, rat, e) -> tuple:
+    """The next ``(rat, e)`` of :func:`fminbound`: a parabolic step when it is acceptable, else golden."""
+    if np.abs(e) > tol1:
+        r = (xf - nfc) * (fx - ffulc)
+        q = (xf - fulc) * (fx - fnfc)
+        p = (xf - fulc) * q - (xf - nfc) * r
+        q = 2.0 * (q - r)
+        if q > 0.0:
+            p = -p
+        q = np.abs(q)
+        r, e = e, rat
+        if (np.abs(p) < np.abs(0.5 * q * r)) and (p > q * (a - xf)) and (p < q * (b - xf)):
+            rat = (p + 0.0) / q
+            x = xf + rat
+            if ((x - a) < tol2) or ((b - x) < tol2):
+                rat = tol1 * (np.sign(xm - xf) + ((xm - xf) == 0))
+            return rat, e
+    e = (a - xf) if xf >= xm else (b - xf)
+    return 0.5 * (3.0 - np.sqrt(5.0)) * e, e
+
+
+def student_t_ppf(q: float, df: float) -> float:
+    """``scipy.stats.t.ppf(q, df)`` (the same ``scipy.special.stdtrit``, the same bits) without
+    importing ``scipy.stats`` (about a second of CPU, issue 26).
+
+    Parameters
+    ----------
+    q : float
+        Probability. [-]
+    df : float
+        Degrees of freedom, > 0 (inf allowed). [-]
+
+    Returns
+    -------
+    float
+        The quantile; NaN for ``df`` not positive or ``q`` outside [0, 1]. [-]
+    """
+    from scipy.special import stdtrit
+
+    if not df > 0 or not 0 <= q <= 1:
+        return float("nan")
+    if q == 0 or q == 1:
+        return -math.inf if q == 0 else math.inf
+    return float(stdtrit(df, q) * 1 + 0)
+
+
+def student_t_sf(x: float, df: float) -> float:
+    """``scipy.stats.t.sf(x, df)`` (``scipy.special.stdtr(df, -x)``, the same bits) without importing
+    ``scipy.stats``.
+
+    Parameters
+    ----------
+    x : float
+        The statistic. [-]
+    df : float
+        Degrees of freedom, > 0 (inf allowed). [-]
+
+    Returns
+    -------
+    float
+        P(T > x); NaN for ``df`` not positive or ``x`` NaN. [-]
+    """
+    from scipy.special import stdtr
+
+    if not df > 0 or math.isnan(x):
+        return float("nan")
+    if math.isinf(x):
+        return 0.0 if x > 0 else 1.0
+    return float(stdtr(df, -x))
+
+
+def welch_t_test_p(a, b) -> float:
+    """Two-sided p-value of Welch's t-test of equal means (unequal variances): the bits of
+    ``scipy.stats.ttest_ind(a, b, equal_var=False).pvalue`` (its variance as the mean squared
+    deviation times ``n / (n - 1)``, its Welch-Satterthwaite degrees of freedom, ``stdtr``)
+    without importing ``scipy.stats``.
+
+    Parameters
+    ----------
+    a, b : array_like
+        The two samples, 1-D. [any unit, the same]
+
+    Returns
+    -------
+    float
+        The p-value; NaN when a sample is empty. [-]
+    """
+    from scipy.special import stdtr
+
+    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    if a.size == 0 or b.size == 0:
+        return float("nan")
+    with np.errstate(divide="ignore", invalid="ignore"):
+        vn = []
+        for x in (a, b):
+            n = np.asarray(x.size, dtype=x.dtype)
+            v = np.mean((x - np.mean(x, axis=0, keepdims=True)) ** 2, axis=0)
+            v *= n / (n - 1)
+            vn.append(v / x.size)
+        df = (vn[0] + vn[1]) ** 2 / (vn[0] ** 2 / (a.size - 1) + vn[1] ** 2 / (b.size - 1))
+        df = np.where(np.isnan(df), 1.0, df)
+        t = np.divide(np.mean(a, axis=0) - np.mean(b, axis=0), np.sqrt(vn[0] + vn[1]))
+    return float((2 * stdtr(np.asarray(df, dtype=t.dtype), -np.abs(t)))[()])

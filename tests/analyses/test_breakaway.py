@@ -250,3 +250,24 @@ def test_no_motion_the_sensor_can_tell_gives_a_note():
     res = breakaway_force(t, x, p, np.zeros_like(t), 4.9e-4, "P", Sensor(0.0, 20e-6, "metadata"))
     assert res["breakaway_force_n"] is None                # ... not for a sensor with 20 um of noise
     assert "no motion the position sensor can tell" in res["note"] and "noise 2e-05" in res["note"]
+
+
+def test_ramp_rate_and_findings_import_neither_scipy_optimize_nor_stats():
+    """The bounded minimiser, the t quantiles and Welch's test are scipy's, ported bit for bit
+    (analyses.numerics): a rebuild that re-analyses one breakaway run pays for neither import."""
+    import subprocess
+    import sys
+
+    code = ("import sys, numpy as np, pandas as pd\n"
+            "from analyses.breakaway import breakaway_findings, ramp_rate\n"
+            "t = np.arange(0, 10, 0.01)\n"
+            "r = ramp_rate(t, 1.0 + 0.25 * np.clip(t - 2.0, 0, None), 9.0)\n"
+            "rng = np.random.default_rng(1)\n"
+            "ev = pd.DataFrame({'direction': ['P', 'N'] * 20, 'backpressure_bar': [0.0] * 20 + [2.0] * 20,\n"
+            "                   'force_rate_n_s': np.tile([1.0, 1.0, 4.0, 4.0], 10),\n"
+            "                   'breakaway_force_n': 10 + rng.normal(0, 0.5, 40) + np.repeat([0.0, 3.0], 20)})\n"
+            "f = breakaway_findings(ev)\n"
+            "print(round(r['rate_n_s'], 6), len(f) > 0,\n"
+            "      sorted({m.split('.')[1] for m in sys.modules if m.startswith('scipy.')} & {'optimize', 'stats', 'signal'}))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert out == ["0.25", "True", "[]"]

@@ -1,10 +1,12 @@
-"""Tests of analyses.numerics: scipy's Savitzky-Golay derivative and Brent root, bit for bit."""
+"""Tests of analyses.numerics: scipy's Savitzky-Golay derivative, Brent root and second-order
+Butterworth zero-phase filter, bounded scalar minimiser, Student t and Welch test, bit for bit."""
 import math
 
 import numpy as np
 import pytest
 
-from analyses.numerics import brentq, savgol_derivative
+from analyses.numerics import (brentq, butter2_lowpass_sos, fminbound, savgol_derivative, sosfiltfilt2, student_t_ppf,
+                               student_t_sf, welch_t_test_p)
 
 
 @pytest.mark.parametrize("n, window, dt", [(4000, 21, 1e-3), (700, 5, 1.0), (3001, 101, 2.5e-4), (12, 11, 1e-3)])
@@ -35,3 +37,87 @@ def test_brentq_takes_scipys_steps(f, a, b):
         brentq(lambda x: x * x + 1, -1, 1)
     with pytest.raises(RuntimeError):
         brentq(lambda x: math.tanh(50 * (x - 0.7)), 0, 1, xtol=1e-300, rtol=0.0, maxiter=3)
+
+
+def test_butter2_lowpass_sos_gives_scipys_bits():
+    import scipy.signal
+
+    rng = np.random.default_rng(26)
+    for fs in (100.0, 1000.0, 2000.0, 512.3, 1e4, 3.7):
+        for cutoff in np.concatenate([[1e-5 * fs, 0.1 * fs, 0.25 * fs, 0.4999 * fs], rng.uniform(1e-4, 0.4999, 60) * fs]):
+            assert np.array_equal(butter2_lowpass_sos(cutoff, fs),
+                                  scipy.signal.butter(2, cutoff, fs=fs, output="sos")), (cutoff, fs)
+    # a low-pass: unit gain at DC, a double zero at Nyquist (b = b0 [1, 2, 1])
+    sos = butter2_lowpass_sos(10.0, 1000.0)[0]
+    assert sos[:3].sum() / sos[3:].sum() == pytest.approx(1.0, rel=1e-12)
+    np.testing.assert_allclose(sos[:3] / sos[0], [1.0, 2.0, 1.0], rtol=1e-15)
+    for bad in (0.0, 500.0, -1.0, 600.0):
+        with pytest.raises(ValueError):
+            butter2_lowpass_sos(bad, 1000.0)
+
+
+@pytest.mark.parametrize("n", [17, 29, 30, 31, 400, 21000])
+def test_sosfiltfilt2_gives_scipys_bits(n):
+    import scipy.signal
+
+    rng = np.random.default_rng(n)
+    x = np.cumsum(rng.standard_normal(n)) + (np.arange(n) > n // 2)
+    for cutoff in (1.0, 37.3, 120.0, 399.0):
+        sos = butter2_lowpass_sos(cutoff, 1000.0)
+        for padtype in ("odd", "constant"):
+            for padlen in {0, 1, min(n - 1, 3 * int(1000.0 / cutoff))}:
+                expected = scipy.signal.sosfiltfilt(sos, x, padtype=padtype, padlen=padlen)
+                assert np.array_equal(sosfiltfilt2(sos, x, padtype, padlen), expected), (cutoff, padtype, padlen)
+    # a constant passes unchanged (the steady state from sosfilt_zi: no start-up transient)
+    np.testing.assert_allclose(sosfiltfilt2(butter2_lowpass_sos(5.0, 1000.0), np.full(n, 3.25), "odd", min(n - 1, 50)),
+                               3.25, rtol=1e-12)
+    with pytest.raises(ValueError):
+        sosfiltfilt2(butter2_lowpass_sos(5.0, 1000.0), x, "odd", n)
+    with pytest.raises(ValueError):
+        sosfiltfilt2(butter2_lowpass_sos(5.0, 1000.0), x, "even", 3)
+
+
+def test_fminbound_takes_scipys_steps():
+    import scipy.optimize
+
+    rng = np.random.default_rng(274)
+    for i in range(300):
+        c, w = rng.uniform(-5, 5), rng.uniform(0.1, 3)
+        lo, hi = c - w * rng.uniform(0.1, 2), c + w * rng.uniform(0.1, 2)
+        k = int(rng.integers(2, 5)) if i % 2 else rng.integers(2, 5)  # a numpy exponent: f sees scipy's types
+
+        def f(z, c=c, k=k):
+            return float(abs(z - c) ** k + 0.1 * math.sin(5 * z))
+        xatol = 1e-3 * (hi - lo) + 1e-12 if i % 3 else 1e-9
+        expected = scipy.optimize.minimize_scalar(f, bounds=(lo, hi), method="bounded", options={"xatol": xatol}).x
+        assert fminbound(f, lo, hi, xatol) == expected
+    # a parabola's minimum, and a minimum at a bound
+    assert fminbound(lambda z: (z - 1.25) ** 2, -3.0, 4.0, 1e-10) == pytest.approx(1.25, abs=1e-8)
+    assert fminbound(lambda z: z, 0.0, 1.0, 1e-9) == pytest.approx(0.0, abs=1e-6)
+    with pytest.raises(ValueError):
+        fminbound(lambda z: z, 1.0, 0.0)
+
+
+def test_student_t_and_welch_give_scipys_bits():
+    import warnings
+
+    import scipy.stats
+
+    rng = np.random.default_rng(401)
+    for i in range(300):
+        q, x = rng.uniform(0.5, 0.9999), rng.normal() * 3
+        df = [rng.uniform(0.5, 100), np.inf, 3, 1][i % 4]
+        assert student_t_ppf(q, df) == scipy.stats.t.ppf(q, df)
+        assert student_t_sf(x, df) == scipy.stats.t.sf(x, df)
+        a = rng.normal(10, rng.uniform(0.01, 3), rng.integers(2, 30))
+        b = rng.normal(10.5, rng.uniform(0.01, 3), rng.integers(2, 30)) if i % 7 else np.full(3, 4.0)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            assert welch_t_test_p(a, b) == scipy.stats.ttest_ind(a, b, equal_var=False).pvalue
+    # hand-checked: t(1) is Cauchy, t(inf) normal; equal samples' means differ by nothing
+    assert student_t_ppf(0.75, 1) == pytest.approx(1.0, rel=1e-12)
+    assert student_t_sf(0.0, 7) == 0.5 and student_t_sf(math.inf, 3) == 0.0 and student_t_sf(-math.inf, 3) == 1.0
+    assert student_t_ppf(0.975, np.inf) == pytest.approx(1.959963984540054, rel=1e-12)
+    assert math.isnan(student_t_ppf(0.9, 0.0)) and math.isnan(student_t_sf(math.nan, 3))
+    assert welch_t_test_p([1.0, 2.0, 3.0], [1.0, 2.0, 3.0]) == 1.0
+    assert math.isnan(welch_t_test_p([], [1.0, 2.0]))

@@ -163,3 +163,21 @@ def test_ramped_reference_is_one_step_and_a_staircase_two():
                                                                                          (2001, 0.21, 0.2)]
     stairs = np.round(np.where(t < 1, 0.2, np.where(t < 2, 0.205, 0.21)) / 1e-6) * 1e-6
     assert [s[0] for s in find_steps(t, stairs, sensor=Sensor(1e-6, 0.0))] == [1000, 2000]
+
+
+def test_a_step_run_is_analysed_without_importing_scipy_signal(sim_step, tmp_path):
+    """The zero-phase smoothing is scipy's Butterworth filter ported bit for bit (analyses.numerics):
+    a rebuild that re-analyses one step run imports no scipy.signal (nor scipy.stats, which it imports)."""
+    import subprocess
+    import sys
+
+    d = sim_step.data  # simulated here: the simulator itself may import scipy
+    np.save(tmp_path / "run.npy", np.stack([np.asarray(d[c], float) for c in ("t_s", "x_m", "x_ref_m")]))
+    code = ("import sys, numpy as np\n"
+            "from analyses.step_response import step_response_metrics\n"
+            f"t, x, r = np.load({str(tmp_path / 'run.npy')!r})\n"
+            "m = step_response_metrics(t, x, r)\n"
+            "print(len(m), sorted({m.split('.')[1] for m in sys.modules if m.startswith('scipy.')} & {'signal', 'stats', 'optimize'}))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert out == ["2", "[]"]
+    assert step_response_metrics(d["t_s"], d["x_m"], d["x_ref_m"]).notna().sum().sum() > 0
