@@ -101,8 +101,8 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy  # its submodules load on first use
 
+from analyses.numerics import brentq, chi2_ppf, chi2_sf, fminbound
 from analyses.service_life import (SHAPE_BOUNDS, WeibullFit, lr_bound, newton_root, weibull_quantile_profile,
                                    weibull_scale_given_shape)
 
@@ -296,7 +296,7 @@ def _shape_mle(groups, start: float = 0.0) -> tuple[float, bool]:
         return SHAPE_BOUNDS[0], True
     if _shape_score(hi, groups) >= 0:
         return SHAPE_BOUNDS[1], True
-    return math.exp(scipy.optimize.brentq(_shape_score, lo, hi, args=(groups,), xtol=1e-13, rtol=1e-13)), False
+    return math.exp(brentq(lambda t: _shape_score(t, groups), lo, hi, xtol=1e-13, rtol=1e-13)), False
 
 
 def _loglik_at_shape(k: float, groups) -> float:
@@ -408,7 +408,7 @@ def _shape_bounds(groups, crit: float) -> tuple[float, float]:
     logs = _logs(groups)
     centre = newton_root(lambda t: _score_slope(t, logs, len(groups)), lo, hi, 0.0)
     if centre is None:
-        centre = scipy.optimize.brentq(score, lo, hi, xtol=1e-13, rtol=1e-13)
+        centre = brentq(score, lo, hi, xtol=1e-13, rtol=1e-13)
     top = adjusted(centre)
     k_lo, k_hi = (lr_bound(lambda t: 2.0 * (top - adjusted(t)) - crit, centre, edge) for edge in (lo, hi))
     return math.exp(k_lo), math.exp(k_hi)
@@ -424,7 +424,7 @@ def _profile_bounds(fit: CommonShapeFit, groups, crit: float) -> dict:
     lr = max(0.0, 2.0 * (ll - _ratio_profile(0.0, groups, start)))
     return {"shape": k, "shape_lower": k_lo, "shape_upper": k_hi,
             "life_ratio": math.exp(theta), "life_ratio_lower": math.exp(r_lo), "life_ratio_upper": math.exp(r_hi),
-            "p_value": float(scipy.stats.chi2.sf(lr, 1))}
+            "p_value": chi2_sf(lr, 1)}
 
 
 # -- separate shapes: the B10 ratio --------------------------------------------------------------
@@ -451,9 +451,7 @@ def _separate_profile(log_rho: float, groups, fits) -> float:
                  + weibull_quantile_profile(log_b + log_rho, P_B10, xf, ff, starts[1]))
 
     # each term peaks at its own B10, so their sum peaks between the two
-    res = scipy.optimize.minimize_scalar(neg, bounds=(ends[0] - 0.1, ends[1] + 0.1), method="bounded",
-                                         options={"xatol": 1e-9})
-    return -float(res.fun)
+    return -float(neg(fminbound(neg, ends[0] - 0.1, ends[1] + 0.1, xatol=1e-9)))
 
 
 def _separate_shapes(groups, fits, crit: float) -> dict:
@@ -464,7 +462,7 @@ def _separate_shapes(groups, fits, crit: float) -> dict:
                        log_rho, log_rho + side * math.log(RATIO_SEARCH)) for side in (-1.0, 1.0))
     lr = max(0.0, 2.0 * (ll - _separate_profile(0.0, groups, fits)))
     return {"life_ratio": math.exp(log_rho), "life_ratio_lower": math.exp(lo), "life_ratio_upper": math.exp(hi),
-            "p_value": float(scipy.stats.chi2.sf(lr, 1))}
+            "p_value": chi2_sf(lr, 1)}
 
 
 def _separate_or_common(common: dict, separate: dict) -> dict:
@@ -512,7 +510,7 @@ def b10_ratio_separate_shapes(life, failed, group, confidence: float = 0.90) -> 
     bad = [f"the {name} fit: {ft.note}" for name, ft in zip(("distance", "force"), fits) if not ft.ok]
     if bad:
         return {**nan, "note": "; ".join(bad)}
-    return {**_separate_shapes(groups, fits, float(scipy.stats.chi2.ppf(confidence, 1))), "note": None}
+    return {**_separate_shapes(groups, fits, chi2_ppf(confidence, 1)), "note": None}
 
 
 def ratio_deviance(life, failed, group, ratio: float, model: str = COMMON) -> float:
@@ -586,14 +584,14 @@ def life_effect(life, failed, group, confidence: float = 0.90, alpha: float = 0.
     fit = _fit_groups(groups)
     if fit.note:
         return LifeEffect(**counts, note=fit.note)
-    crit = float(scipy.stats.chi2.ppf(confidence, 1))
+    crit = chi2_ppf(confidence, 1)
     values = {**_profile_bounds(fit, groups, crit), "model": COMMON, "log_ratio": fit.log_ratio,
               "se_log_ratio": fit.se_log_ratio}
     fits = [_own_fit(x, f) for x, f in groups]
     notes = [f"no shape test, the {name} fit: {ft.note}" for name, ft in zip(("distance", "force"), fits) if not ft.ok]
     if not notes:
         lr = max(0.0, 2.0 * (fits[0].loglik + fits[1].loglik - fit.loglik))
-        values["shape_test_p"] = float(scipy.stats.chi2.sf(lr, 1))
+        values["shape_test_p"] = chi2_sf(lr, 1)
         if values["shape_test_p"] < alpha:
             values.update(_separate_or_common(values, _separate_shapes(groups, fits, crit)), model=SEPARATE)
     notes.append(_missing_bounds(values))

@@ -85,6 +85,7 @@ import numpy as np
 import pandas as pd
 import scipy  # its submodules load on first use: a rebuild that reuses every stage never pays for them
 
+from analyses.numerics import brentq
 from analyses.quality import at_bound
 
 _NAN = float("nan")
@@ -177,7 +178,7 @@ def _profile_mle(x: np.ndarray, f: np.ndarray) -> tuple[float, float]:
         side = "lower" if score(lo) > 0 else "upper"
         raise ValueError(f"the Weibull shape MLE is at the search's {side} bound "
                          f"({SHAPE_BOUNDS[0 if side == 'lower' else 1]:g}): the lives cannot tell a shape")
-    k = math.exp(scipy.optimize.brentq(score, lo, hi, xtol=1e-14, rtol=1e-14))
+    k = math.exp(brentq(score, lo, hi, xtol=1e-14, rtol=1e-14))
     return k, weibull_scale_given_shape(k, x, f)
 
 
@@ -370,7 +371,7 @@ def weibull_quantile_profile(log_q: float, p: float, life, failed, start: float 
         if score(lo) <= 0 or score(hi) >= 0:
             logk = lo if score(lo) <= 0 else hi
         else:
-            logk = scipy.optimize.brentq(score, lo, hi, xtol=1e-12)
+            logk = brentq(score, lo, hi, xtol=1e-12)
     k, log_c = math.exp(logk), math.log(c)
     # weibull_loglik at scale exp(log_q) / c^(1/k), written in u: log(life / scale) = u + log(c) / k
     with np.errstate(over="ignore"):
@@ -443,7 +444,7 @@ def lr_bound(excess, centre: float, edge: float) -> float:
         b = centre + sign * min(step, span)
         if excess(b) > 0:
             lo, hi = sorted((a, b))
-            return float(scipy.optimize.brentq(excess, lo, hi, xtol=1e-12))
+            return float(brentq(excess, lo, hi, xtol=1e-12))
         if step >= span:
             return _NAN
         a, step = b, step * 2.0

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from analyses.numerics import (brentq, butter2_lowpass_sos, fminbound, savgol_derivative, sosfiltfilt2, student_t_ppf,
+from analyses.numerics import (brentq, butter2_lowpass_sos, chi2_ppf, chi2_sf, fminbound, savgol_derivative, sosfiltfilt2, student_t_ppf,
                                student_t_sf, welch_t_test_p)
 
 
@@ -121,3 +121,34 @@ def test_student_t_and_welch_give_scipys_bits():
     assert math.isnan(student_t_ppf(0.9, 0.0)) and math.isnan(student_t_sf(math.nan, 3))
     assert welch_t_test_p([1.0, 2.0, 3.0], [1.0, 2.0, 3.0]) == 1.0
     assert math.isnan(welch_t_test_p([], [1.0, 2.0]))
+
+
+def test_chi2_sf_and_ppf_give_scipys_bits():
+    import scipy.stats
+
+    rng = np.random.default_rng(402)
+    for i in range(400):
+        df = [1, 2, rng.uniform(0.5, 30)][i % 3]
+        x, q = rng.exponential(4.0), rng.uniform(1e-6, 1 - 1e-6)
+        assert chi2_sf(x, df) == scipy.stats.chi2.sf(x, df)
+        assert chi2_ppf(q, df) == scipy.stats.chi2.ppf(q, df)
+    assert chi2_sf(0.0, 1) == scipy.stats.chi2.sf(0.0, 1) == 1.0
+    assert chi2_ppf(0.0, 1) == 0.0 and chi2_ppf(1.0, 1) == np.inf
+    assert np.isnan(chi2_sf(np.nan, 1)) and np.isnan(chi2_ppf(1.5, 1)) and np.isnan(chi2_sf(1.0, 0))
+
+
+def test_a_life_effect_is_computed_without_importing_scipy_stats_or_optimize():
+    """life_effect (common or separate shapes) reaches scipy only through scipy.special: a rebuild whose
+    decision or remaining-life stage re-runs does not pay scipy.stats' import for it (issue 26)."""
+    import subprocess
+    import sys
+
+    code = ("import sys, numpy as np\n"
+            "from analyses.life_effect import life_effect\n"
+            "rng = np.random.default_rng(3)\n"
+            "x = np.concatenate([1000 * rng.weibull(1.2, 15), 1500 * rng.weibull(3.5, 15)])\n"
+            "e = life_effect(np.minimum(x, 2500), x <= 2500, np.repeat([0, 1], 15))\n"
+            "print(e.model.replace(' ', '_'), np.isfinite(e.life_ratio_lower), "
+            "sorted({m.split('.')[1] for m in sys.modules if m.startswith('scipy.')} & {'stats', 'optimize'}))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert out == ["separate_shapes", "True", "[]"]
