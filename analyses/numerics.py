@@ -505,3 +505,61 @@ def chi2_ppf(q: float, df: float) -> float:
     if q == 0 or q == 1:
         return 0.0 if q == 0 else math.inf
     return float(2 * gammaincinv(df / 2, q) * 1 + 0)
+
+
+def norm_sf(x):
+    """``scipy.stats.norm.sf(x)``: ``ndtr(-x)``, the same bits, without importing ``scipy.stats``.
+
+    Parameters
+    ----------
+    x : float or array_like
+        Standard normal deviate. [-]
+
+    Returns
+    -------
+    numpy.float64 or numpy.ndarray
+        P(Z > x). [-]
+    """
+    from scipy.special import ndtr
+
+    return ndtr(-np.asarray(x, dtype=float))[()]
+
+
+def norm_isf(q):
+    """``scipy.stats.norm.isf(q)``: ``-ndtri(q)``, the same bits (inf at 0, -inf at 1, NaN outside
+    [0, 1]), without importing ``scipy.stats``.
+
+    Parameters
+    ----------
+    q : float or array_like
+        Upper-tail probability. [-]
+
+    Returns
+    -------
+    numpy.float64 or numpy.ndarray
+        The deviate with P(Z > x) = q. [-]
+    """
+    from scipy.special import ndtri
+
+    return (-ndtri(np.asarray(q, dtype=float)))[()]
+
+
+def norm_pdf(x):
+    """``scipy.stats.norm.pdf(x)``: ``exp(-x**2 / 2) / sqrt(2 pi)`` in scipy's order, the same bits.
+
+    Parameters
+    ----------
+    x : float or array_like
+        Standard normal deviate. [-]
+
+    Returns
+    -------
+    numpy.float64 or numpy.ndarray
+        The density. [-]
+    """
+    x = np.asarray(x, dtype=float)
+    return (np.exp(-x ** 2 / 2.0) / _NORM_PDF_C)[()]
+
+
+#: scipy.stats' constant of the normal density, sqrt(2 pi), computed as scipy computes it.
+_NORM_PDF_C = np.sqrt(2 * np.pi)

@@ -124,6 +124,7 @@ import numpy as np
 import pandas as pd
 import scipy
 
+from analyses.numerics import fminbound
 from analyses.quality import Gate, Sensor, at_bound, linear_lstsq
 from analyses.service_life import (WeibullFit, lognormal_fit, lognormal_loglik_many, weibull_fit, weibull_loglik_many,
                                    weibull_shape_bounds)
@@ -755,8 +756,7 @@ def _random_intercepts(a: np.ndarray, s2: np.ndarray) -> tuple[float, float, flo
         return 0.5 * float(np.sum(np.log(v) + (a - mu) ** 2 / v))
 
     lo, hi = (math.log(b) for b in TAU2_BOUNDS)
-    res = scipy.optimize.minimize_scalar(neg, bounds=(lo, hi), method="bounded", options={"xatol": 1e-8})
-    t2 = math.exp(float(res.x))
+    t2 = math.exp(float(fminbound(neg, lo, hi, xatol=1e-8)))
     w = 1.0 / (t2 + s2)
     return float(np.sum(w * a) / np.sum(w)), float(1.0 / math.sqrt(np.sum(w))), t2, at_bound(t2, *TAU2_BOUNDS)
 

@@ -96,6 +96,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy  # its submodules load on first use: a rebuild whose decision stage has no hoses never pays for them
 
+from analyses.numerics import brentq, norm_isf, norm_pdf, norm_sf
 from analyses.service_life import newton_root
 
 SPENDING = ("obrien-fleming", "pocock")
@@ -137,7 +138,7 @@ def alpha_spent(t, alpha: float = 0.05, spending: str = "obrien-fleming") -> np.
     t = np.clip(np.asarray(t, float), 0.0, 1.0)
     if spending == "obrien-fleming":
         with np.errstate(divide="ignore"):
-            out = 2.0 * scipy.stats.norm.sf(scipy.stats.norm.isf(alpha / 2.0) / np.sqrt(t))
+            out = 2.0 * norm_sf(norm_isf(alpha / 2.0) / np.sqrt(t))
     elif spending == "pocock":
         out = alpha * np.log1p((math.e - 1.0) * t)
     else:
@@ -175,7 +176,7 @@ class _Recursion:
         t, k, d = self.t, self.k, self.drift
         if k == 0:
             m = d * math.sqrt(t[0])
-            return float(scipy.stats.norm.sf(c - m)), float(scipy.stats.norm.cdf(-c - m))
+            return float(norm_sf(c - m)), float(scipy.special.ndtr(-c - m))
         inc = t[k] - t[k - 1]
         mean = self.z * math.sqrt(t[k - 1]) + d * inc
         s = math.sqrt(inc)
@@ -191,7 +192,7 @@ class _Recursion:
         ``brentq`` when it does not settle inside ``(1e-6, _NO_BOUNDARY)``)."""
         t, k = self.t, self.k
         if k == 0:   # the first look: the normal quantile itself
-            return float(scipy.stats.norm.isf(spend / 2.0))
+            return float(norm_isf(spend / 2.0))
         score, wg, s, rt = self.z * math.sqrt(t[k - 1]), self.w * self.g, math.sqrt(t[k] - t[k - 1]), math.sqrt(t[k])
 
         def value_slope(c):
@@ -200,7 +201,7 @@ class _Recursion:
                     -float(wg @ (np.exp(-0.5 * a * a) + np.exp(-0.5 * b * b))) * rt / (s * math.sqrt(2 * math.pi)))
         c = newton_root(value_slope, 1e-6, _NO_BOUNDARY, start, xtol=1e-18)
         if c is None:
-            c = scipy.optimize.brentq(lambda c: value_slope(c)[0], 1e-6, _NO_BOUNDARY, xtol=1e-10, rtol=1e-12)
+            c = brentq(lambda c: value_slope(c)[0], 1e-6, _NO_BOUNDARY, xtol=1e-10, rtol=1e-12)
         return c
 
     def exit_terms(self) -> tuple[np.ndarray, np.ndarray]:
@@ -217,7 +218,7 @@ class _Recursion:
             lo, hi = m - 1e-9, m + 1e-9
         z, w = _simpson(lo, hi, self.h[k])
         if k == 0:
-            g = scipy.stats.norm.pdf(z - m)
+            g = norm_pdf(z - m)
         else:
             inc = t[k] - t[k - 1]
             s = math.sqrt(inc)
@@ -325,7 +326,7 @@ class _Design:
             far = (flat[4] - flat[0]) / np.sqrt(flat[3]) > 13.0 + _MAX_DRIFT * np.sqrt(flat[3])
             self._flat, self.terms = flat[:, ~far], []
         score, mass, t_prev, inc, bound = self._flat
-        first = float(scipy.stats.norm.sf(self.c[0] - drift * math.sqrt(self.t[0])))
+        first = float(norm_sf(self.c[0] - drift * math.sqrt(self.t[0])))
         ratio = np.exp(drift * score - 0.5 * drift * drift * t_prev)
         return first + float(mass @ (ratio * scipy.special.ndtr((score + drift * inc - bound) / np.sqrt(inc))))
 
@@ -448,7 +449,7 @@ def inflation_factor(looks: int, alpha: float = 0.05, power: float = 0.8,
     whatever their margin, shape and hoses on test.
     """
     design = _design_of(int(looks), alpha, spending, record=True)
-    fixed = scipy.stats.norm.isf(alpha / 2) + scipy.stats.norm.ppf(power)
+    fixed = norm_isf(alpha / 2) + scipy.special.ndtri(power)
 
     def excess(d):
         return design.upper_power(d) - power
@@ -456,7 +457,7 @@ def inflation_factor(looks: int, alpha: float = 0.05, power: float = 0.8,
     lo, hi = 0.995 * fixed, 1.3 * fixed
     if excess(hi) < 0:
         lo, hi = hi, 3.0 * fixed
-    drift = scipy.optimize.brentq(excess, lo, hi, xtol=1e-7)
+    drift = brentq(excess, lo, hi, xtol=1e-7)
     return (drift / fixed) ** 2, drift
 
 
@@ -593,7 +594,7 @@ def _bench_figure(margin: float, shape: float, failures: float, n: float) -> tup
     # (<= 1.2 scales at shape >= 0.5)
     top = 1.5 * scale_f * (failures / n + 3.0) * max(1.0, math.gamma(1.0 + 1.0 / shape))
     if failures < 1.9 * n:
-        top = 1.001 * scipy.optimize.brentq(lambda x: -n * (math.expm1(-x ** shape) + math.expm1(-(x / scale_f) ** shape))
+        top = 1.001 * brentq(lambda x: -n * (math.expm1(-x ** shape) + math.expm1(-(x / scale_f) ** shape))
                                       - failures, 0.0, top)
     t = np.linspace(0.0, top, int(min(4001, max(401, 20.0 * top))))
     m_d, m_f = _renewal_function(t, 1.0, shape), _renewal_function(t, scale_f, shape)
@@ -724,7 +725,7 @@ def max_information(margin: float, alpha: float = 0.05, power: float = 0.8,
     margin = max(margin, 1.0 / margin)
     if not margin > 1.0 or not shape > 0:
         raise ValueError("margin must differ from 1 and shape be positive")
-    i_fix = ((scipy.stats.norm.isf(alpha / 2) + scipy.stats.norm.ppf(power)) / math.log(margin)) ** 2
+    i_fix = ((norm_isf(alpha / 2) + scipy.special.ndtri(power)) / math.log(margin)) ** 2
 
     def per_failure(d):
         return information_per_failure(margin, shape, d, hoses_per_adjustment)[0]

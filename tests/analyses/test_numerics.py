@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from analyses.numerics import (brentq, butter2_lowpass_sos, chi2_ppf, chi2_sf, fminbound, savgol_derivative, sosfiltfilt2, student_t_ppf,
+from analyses.numerics import (brentq, butter2_lowpass_sos, chi2_ppf, chi2_sf, fminbound, norm_isf, norm_pdf, norm_sf, savgol_derivative, sosfiltfilt2, student_t_ppf,
                                student_t_sf, welch_t_test_p)
 
 
@@ -152,3 +152,34 @@ def test_a_life_effect_is_computed_without_importing_scipy_stats_or_optimize():
             "sorted({m.split('.')[1] for m in sys.modules if m.startswith('scipy.')} & {'stats', 'optimize'}))\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
     assert out == ["separate_shapes", "True", "[]"]
+
+
+def test_the_normal_helpers_give_scipy_stats_bits():
+    import scipy.stats
+
+    rng = np.random.default_rng(403)
+    x = np.concatenate([rng.normal(0, 4, 500), [0.0, -0.0, np.inf, -np.inf, np.nan, 38.0, -38.0]])
+    q = np.concatenate([rng.uniform(0, 1, 500), [0.0, 1.0, 1e-300, 0.5, np.nan, 1.5, -0.1]])
+    np.testing.assert_array_equal(norm_sf(x), scipy.stats.norm.sf(x))
+    np.testing.assert_array_equal(norm_pdf(x), scipy.stats.norm.pdf(x))
+    np.testing.assert_array_equal(norm_isf(q), scipy.stats.norm.isf(q))
+    for v, p in zip(x[:50], q[:50]):  # scalars come back as numpy scalars, as scipy's do
+        assert norm_sf(v) == scipy.stats.norm.sf(v) and type(norm_sf(v)) is type(scipy.stats.norm.sf(v))
+        assert norm_isf(p) == scipy.stats.norm.isf(p) and norm_pdf(v) == scipy.stats.norm.pdf(v)
+
+
+def test_a_sequential_design_is_computed_without_importing_scipy_stats_or_optimize():
+    """The spending functions and the designs (analyses.sequential) reach scipy through scipy.special
+    only: the remaining-life stage's sensitivity verdict, re-run on a leakage change, pays no scipy.stats."""
+    import subprocess
+    import sys
+
+    code = ("import sys\n"
+            "from analyses.sequential import efficacy_boundaries, max_information\n"
+            "import numpy as np\n"
+            "c = efficacy_boundaries(np.arange(1, 21) / 20, 0.05, 'obrien-fleming')\n"
+            "m = max_information(1.5, 0.05, 0.8, 'pocock', 2.0)\n"
+            "print(round(float(c[-1]), 3), m.failures > 0, "
+            "sorted({m.split('.')[1] for m in sys.modules if m.startswith('scipy.')} & {'stats', 'optimize'}))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert out[1:] == ["True", "[]"] and 2.0 < float(out[0]) < 2.3  # the last O'Brien-Fleming-type boundary: a little above 1.96
