@@ -430,6 +430,7 @@ def _publish(run: RebuildRun, plan: _Plan, tables: dict[str, pd.DataFrame], keep
     """Write the database (the figures drawn beside it put in place), swap it and its report in,
     and collect what neither warehouse uses nor keeps, before and after."""
     warehouse, progress, prev = run.warehouse, run.progress, plan.prev
+    progress.message(f"warehouse: writing {len(tables)} tables")
     # the live database copied and only the tables whose rows changed written again, else built whole
     live = None if run.options.full else warehouse / DB_NAME
 
