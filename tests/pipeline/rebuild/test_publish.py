@@ -63,6 +63,8 @@ def test_kill_9_leaves_a_complete_warehouse_and_the_next_rebuild_completes(raw, 
     step(raw, "c/c.csv", n=5)
     res = cli_rebuild(raw.root, warehouse, env={"PNEUBENCH_CRASH_AT": point})
     assert res.returncode == -signal.SIGKILL, res.stderr
+    if point in ("before_swap", "after_swap"):  # the new database was written into a copy of the live one
+        assert "warehouse: the live database copied" in res.stdout + res.stderr
     after = state(warehouse)
     if point == "after_swap":
         assert after == (("c/a", "c/b", "c/c"), 15)  # the new warehouse was already complete
