@@ -353,9 +353,24 @@ def database_version() -> str:
     return f"{duckdb.__version__}-{hash_sources([f for f in files if f.is_file()])}"
 
 
+def _table_sums(con: duckdb.DuckDBPyConnection, names) -> dict[str, str]:
+    """``<rows>-<sum of the rows' hashes>`` of each table of ``names`` in the database, as DuckDB
+    stores it (one query, ~35 ms at 1,000 runs): a table changed in the live database by anything but
+    the rebuild does not match its stored key and is written again."""
+    present = {r[0] for r in con.execute("SELECT table_name FROM duckdb_tables()").fetchall()}
+    names = sorted(n for n in names if n in present)
+    if not names:
+        return {}
+    sql = " UNION ALL ".join(f'SELECT {_sql_str(n)}, count(*), coalesce(sum(hash(t)), 0)::VARCHAR FROM "{n}" AS t'
+                             for n in names)
+    return {n: f"{c}-{h}" for n, c, h in con.execute(sql).fetchall()}
+
+
 def _write_keys(con: duckdb.DuckDBPyConnection, keys: dict[str, str]) -> None:
-    """``table_keys``: every table's content key and the row ``*`` of :func:`database_version`."""
-    rows = sorted(keys.items()) + [("*", database_version())]
+    """``table_keys``: every table's content key (its frame's :func:`frame_key` and its
+    :func:`_table_sums` as written) and the row ``*`` of :func:`database_version`."""
+    sums = _table_sums(con, keys)
+    rows = sorted((t, f"{k}:{sums.get(t, 'absent')}") for t, k in keys.items()) + [("*", database_version())]
     con.execute(f"DELETE FROM {KEYS_TABLE}")
     con.execute(f"INSERT INTO {KEYS_TABLE} SELECT unnest($1), unnest($2)",
                 [[r[0] for r in rows], [r[1] for r in rows]])
@@ -415,7 +430,8 @@ def _update_tables(con: duckdb.DuckDBPyConnection, warehouse: Path, tables: dict
                                      "WHERE database_name = current_database()").fetchone()
     if total and free > MAX_FREE_SHARE * total and free * block >= MIN_FREE_BYTES:
         return f"the copy is {free / total:.0%} free blocks: compacted by a whole build"
-    changed = sorted(t for t in tables if keys[t] != old.get(t))
+    stored = _table_sums(con, tables)
+    changed = sorted(t for t in tables if f"{keys[t]}:{stored.get(t, 'absent')}" != old.get(t))
     gone = sorted(t for t in old if t != "*" and t not in tables)
     con.execute("SET TimeZone = 'UTC'")
     con.execute("BEGIN TRANSACTION")

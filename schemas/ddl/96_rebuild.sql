@@ -78,5 +78,5 @@ CREATE TABLE figures (
 -- rebuild copies this database and writes again only the tables whose key changed.
 CREATE TABLE table_keys (
     table_name      VARCHAR NOT NULL,     -- table written by the rebuild; '*' is the row of the build's version
-    content_key     VARCHAR NOT NULL      -- hash of the rows, columns and types written ('*': of the DDL, the assembly code and the DuckDB version)
+    content_key     VARCHAR NOT NULL      -- hash of the frame written (rows, columns, types), then ':' and the table's row count and sum of row hashes as stored ('*': version of the DDL, the assembly code and DuckDB)
 );

@@ -350,6 +350,14 @@ def test_a_live_database_that_cannot_be_updated_is_rebuilt_whole_and_says_why(ra
     assert copied == "warehouse: the live database copied, 0 of 3 tables written again"
     assert assert_same_database(new, live, wh) > 40
     new.unlink()
+    con = duckdb.connect(str(live))  # the live database edited by something other than the rebuild
+    con.execute("UPDATE notes SET note = 'edited'")
+    con.close()
+    assert write_database(new, wh, tables, tables["runs"], live).endswith("1 of 3 tables written again (notes)")
+    con = duckdb.connect(str(new), read_only=True)
+    assert con.execute("SELECT note FROM notes").fetchall() == [("a",)]
+    con.close()
+    new.unlink()
     real = asm.database_version
     monkeypatch.setattr(asm, "database_version", lambda: real() + "-edited")
     assert "(the live database is of another DDL/code version)" in write_database(new, wh, tables, tables["runs"], live)
