@@ -63,9 +63,13 @@ CONTRACT_ROWS = {
 #: Start of the comment of an internal table.
 INTERNAL_PREFIX = "(internal: the rebuild's own bookkeeping) "
 
+#: Table of the content key of every table the last rebuild wrote, and of the build's version (row ``*``):
+#: the next rebuild writes only the tables whose key changed into a copy of the live database.
+KEYS_TABLE = "table_keys"
+
 #: Tables that describe the rebuild itself, not the lab's data (``pneubench tables`` marks them).
 INTERNAL_TABLES = ("rebuild_log", "rebuild_inputs", "rebuild_changes", "ingest_state", "stage_cache", "figures",
-                   FILES_TABLE)
+                   FILES_TABLE, KEYS_TABLE)
 
 _CREATE = re.compile(r"^\s*CREATE\s+(?:OR\s+REPLACE\s+)?(TABLE|VIEW)\s+(?:IF\s+NOT\s+EXISTS\s+)?\"?(\w+)\"?",
                      re.IGNORECASE)

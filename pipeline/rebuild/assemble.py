@@ -7,13 +7,15 @@ complete warehouse or the new complete one, never a mix.
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import os
+import shutil
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from pipeline.warehouse import (CONTRACT_ROWS, FILES_TABLE, INTERNAL_PREFIX, INTERNAL_TABLES, ROOT_RAW_SQL, ROOT_SQL,
-                                ROOT_VARIABLE, ddl_comments, glob_escape)
+from pipeline.warehouse import (CONTRACT_ROWS, FILES_TABLE, INTERNAL_PREFIX, INTERNAL_TABLES, KEYS_TABLE, ROOT_RAW_SQL,
+                                ROOT_SQL, ROOT_VARIABLE, ddl_comments, glob_escape)
 from schemas import ddl_statements
 
 # pandas and pyarrow (through schemas.channels and schemas.kinds) cost ~0.5 s each to import: the
@@ -188,13 +190,15 @@ SAMPLES_MACRO = (
 
 
 def build_database(path: Path, warehouse: Path, tables: dict[str, pd.DataFrame], runs: pd.DataFrame,
-                   extra_sql: list[str] | None = None) -> None:
-    """Create a complete database at ``path`` (which must not exist)."""
+                   keys: dict[str, str] | None = None) -> None:
+    """Create a complete database at ``path`` (which must not exist); ``keys``: the tables' content
+    keys (:func:`frame_key`) for the ``table_keys`` table (computed here when not given)."""
     import duckdb
 
     path = Path(path)
     if path.exists():
         path.unlink()
+    keys = keys if keys is not None else {t: frame_key(df) for t, df in tables.items()}
     con = duckdb.connect(str(path))
     try:
         con.execute("SET TimeZone = 'UTC'")
@@ -205,8 +209,7 @@ def build_database(path: Path, warehouse: Path, tables: dict[str, pd.DataFrame],
             con.execute(sql)
         _write_tables(con, tables)
         create_samples_views(con, warehouse, runs)
-        for sql in extra_sql or []:
-            con.execute(sql)
+        _write_keys(con, keys)
         comments = comment_statements(con)
         if comments:  # parsed and run as one script: ~300 round trips from Python cost ~0.1 s
             con.execute(";\n".join(comments))
@@ -261,8 +264,9 @@ def swap_in(tmp: Path, final: Path) -> None:
         pass
 
 
-def comment_statements(con: duckdb.DuckDBPyConnection) -> list[str]:
-    """``COMMENT ON`` statements for every table, view and column the DDL or the channels describe."""
+def comment_statements(con: duckdb.DuckDBPyConnection, only: set[str] | None = None) -> list[str]:
+    """``COMMENT ON`` statements for every table, view and column the DDL or the channels describe
+    (``only``: of these tables and views alone)."""
     from schemas.channels import CHANNELS
     from schemas.kinds import KINDS
 
@@ -276,6 +280,8 @@ def comment_statements(con: duckdb.DuckDBPyConnection) -> list[str]:
     described = ddl_comments()
     mixed = _mixed_columns(con)
     for table, kind in sorted(present.items()):
+        if only is not None and table not in only:
+            continue
         info = described.get(table, {"comment": None, "columns": {}})
         comment = info["comment"] or (f"One row per {CONTRACT_ROWS[table]}." if table in CONTRACT_ROWS else None)
         colcomments = dict(info["columns"])
@@ -296,3 +302,181 @@ def comment_statements(con: duckdb.DuckDBPyConnection) -> list[str]:
             if text and (table, col) in columns:
                 out.append(f"COMMENT ON COLUMN \"{table}\".\"{col}\" IS {_sql_str(text)}")
     return out
+
+
+# -- the database written incrementally (issue 26) -------------------------------------------------
+#: A copy of the live database whose file is more than this share free blocks (DuckDB reuses the
+#: blocks a dropped table frees, but never shrinks its file; its docs: "compact a database by
+#: copying") is not updated: the database is built whole, at its fresh size again.
+MAX_FREE_SHARE = 1 / 3  # the file at most 1.5x the blocks in use ...
+#: ... once the free blocks are this many bytes (a small database's few blocks are not worth a whole build)
+MIN_FREE_BYTES = 4 << 20
+
+#: Tables ``samples_<kind>`` views are made from: when neither changed, the views, the
+#: ``samples_files`` table and the ``samples()`` macro are kept as they are.
+VIEW_SOURCES = ("runs", "channels")
+
+
+def frame_key(df: pd.DataFrame | None) -> str:
+    """Content key of a frame as the database takes it [32 hex digits]: its Arrow form (column names,
+    types, values; DuckDB reads a frame through Arrow) serialised as an IPC stream and hashed, the
+    frame's dtypes with it (``string`` and ``str``, ``Int64`` and ``int64``, are written alike but
+    kept apart); a frame Arrow cannot take (mixed Python types in a column) by its exact JSON.
+    ``"none"`` for a frame that is not written (None, or without columns)."""
+    import pyarrow as pa
+
+    if df is None or len(df.columns) == 0:
+        return "none"
+    h = hashlib.sha256(json.dumps([len(df)] + [[str(c), str(t)] for c, t in df.dtypes.items()]).encode())
+    try:
+        table = pa.Table.from_pandas(df, preserve_index=False)
+        sink = pa.BufferOutputStream()
+        with pa.ipc.new_stream(sink, table.schema.remove_metadata()) as writer:
+            writer.write_table(table.replace_schema_metadata(None))
+        h.update(sink.getvalue())
+    except (pa.ArrowException, TypeError, ValueError):
+        for col in df.columns:
+            h.update(json.dumps([repr(v) for v in df[col].tolist()]).encode())
+    return h.hexdigest()[:32]
+
+
+def database_version() -> str:
+    """Version of how a database is laid out: the DDL, the schemas (channels and kinds: views and
+    comments), this module, the warehouse's names and DuckDB's version. A live database of another
+    version is never updated in place: the new one is built whole."""
+    import duckdb
+
+    from pipeline.versions import ROOT, hash_sources
+
+    files = [*ROOT.glob("schemas/ddl/*.sql"), *ROOT.glob("schemas/*.py"), ROOT / "pipeline" / "rebuild" / "assemble.py",
+             ROOT / "pipeline" / "warehouse.py"]
+    return f"{duckdb.__version__}-{hash_sources([f for f in files if f.is_file()])}"
+
+
+def _table_sums(con: duckdb.DuckDBPyConnection, names) -> dict[str, str]:
+    """``<rows>-<sum of the rows' hashes>`` of each table of ``names`` in the database, as DuckDB
+    stores it (one query, ~35 ms at 1,000 runs): a table changed in the live database by anything but
+    the rebuild does not match its stored key and is written again."""
+    present = {r[0] for r in con.execute("SELECT table_name FROM duckdb_tables()").fetchall()}
+    names = sorted(n for n in names if n in present)
+    if not names:
+        return {}
+    sql = " UNION ALL ".join(f'SELECT {_sql_str(n)}, count(*), coalesce(sum(hash(t)), 0)::VARCHAR FROM "{n}" AS t'
+                             for n in names)
+    return {n: f"{c}-{h}" for n, c, h in con.execute(sql).fetchall()}
+
+
+def _write_keys(con: duckdb.DuckDBPyConnection, keys: dict[str, str]) -> None:
+    """``table_keys``: every table's content key (its frame's :func:`frame_key` and its
+    :func:`_table_sums` as written) and the row ``*`` of :func:`database_version`."""
+    sums = _table_sums(con, keys)
+    rows = sorted((t, f"{k}:{sums.get(t, 'absent')}") for t, k in keys.items()) + [("*", database_version())]
+    con.execute(f"DELETE FROM {KEYS_TABLE}")
+    con.execute(f"INSERT INTO {KEYS_TABLE} SELECT unnest($1), unnest($2)",
+                [[r[0] for r in rows], [r[1] for r in rows]])
+
+
+def write_database(path: Path, warehouse: Path, tables: dict[str, pd.DataFrame], runs: pd.DataFrame,
+                   live: Path | None) -> str:
+    """Write the new database at ``path``: a copy of ``live`` with only the tables whose content
+    key changed written again (:func:`update_copy`), or, when that cannot be (no live database,
+    ``--full``, another version, a grown or unreadable copy), built whole (:func:`build_database`).
+    Returns one line for the log saying which, and why."""
+    keys = {t: frame_key(df) for t, df in tables.items()}
+    why = "no live database" if live is None or not Path(live).is_file() else None
+    if why is None:
+        done = update_copy(Path(path), Path(live), warehouse, tables, runs, keys)
+        if isinstance(done, list):
+            return (f"warehouse: the live database copied, {len(done)} of {len(tables)} tables written again"
+                    + (f" ({', '.join(done)})" if done else ""))
+        why = done
+    build_database(path, warehouse, tables, runs, keys)
+    return f"warehouse: built whole ({why}), {len(tables)} tables"
+
+
+def update_copy(path: Path, live: Path, warehouse: Path, tables: dict[str, pd.DataFrame], runs: pd.DataFrame,
+                keys: dict[str, str]) -> list[str] | str:
+    """Copy ``live`` to ``path`` and, in one transaction, drop, re-create and fill the tables whose
+    content key (``keys``) differs from the one the copy stores, drop those no longer written,
+    re-create the ``samples_<kind>`` views only when their sources (:data:`VIEW_SOURCES`) changed,
+    and comment only what was re-created. Returns the tables written, or why the copy could not
+    be used (``path`` removed: the caller builds the database whole)."""
+    import duckdb
+
+    shutil.copyfile(live, path)
+    try:
+        con = duckdb.connect(str(path))
+        try:
+            done = _update_tables(con, warehouse, tables, runs, keys)
+        finally:
+            con.close()
+    except duckdb.Error as exc:
+        done = f"its copy could not be updated: {type(exc).__name__}: {' '.join(str(exc).split())[:200]}"
+    if isinstance(done, str):
+        path.unlink(missing_ok=True)
+        Path(f"{path}.wal").unlink(missing_ok=True)
+    return done
+
+
+def _update_tables(con: duckdb.DuckDBPyConnection, warehouse: Path, tables: dict[str, pd.DataFrame],
+                   runs: pd.DataFrame, keys: dict[str, str]) -> list[str] | str:
+    """The body of :func:`update_copy` on the open copy."""
+    present = {r[0] for r in con.execute("SELECT table_name FROM duckdb_tables()").fetchall()}
+    old = dict(con.execute(f"SELECT table_name, content_key FROM {KEYS_TABLE}").fetchall()) \
+        if KEYS_TABLE in present else {}
+    if old.get("*") != database_version():
+        return "the live database has no table keys" if not old else "the live database is of another DDL/code version"
+    total, free, block = con.execute("SELECT total_blocks, free_blocks, block_size FROM pragma_database_size() "
+                                     "WHERE database_name = current_database()").fetchone()
+    if total and free > MAX_FREE_SHARE * total and free * block >= MIN_FREE_BYTES:
+        return f"the copy is {free / total:.0%} free blocks: compacted by a whole build"
+    stored = _table_sums(con, tables)
+    changed = sorted(t for t in tables if f"{keys[t]}:{stored.get(t, 'absent')}" != old.get(t))
+    gone = sorted(t for t in old if t != "*" and t not in tables)
+    con.execute("SET TimeZone = 'UTC'")
+    con.execute("BEGIN TRANSACTION")
+    ddl = _ddl_tables() if changed or gone else {}
+    for t in changed + gone:
+        if t in present:
+            con.execute(f'DROP TABLE "{t}"')
+        if t in ddl:
+            con.execute(ddl[t])
+    _write_tables(con, {t: tables[t] for t in changed})
+    redone = set(changed + gone) | {KEYS_TABLE}
+    if set(VIEW_SOURCES) & redone:
+        redone |= _recreate_views(con, warehouse, runs)
+    _write_keys(con, keys)
+    comments = comment_statements(con, redone)
+    if comments:
+        con.execute(";\n".join(comments))
+    con.execute("COMMIT")
+    con.execute("CHECKPOINT")
+    return changed + gone
+
+
+def _ddl_tables() -> dict[str, str]:
+    """The ``CREATE TABLE`` statement of every DDL table as the whole DDL leaves it (its later
+    ``ALTER TABLE`` applied), read from an in-memory database built from the DDL."""
+    import duckdb
+
+    con = duckdb.connect(":memory:")
+    try:
+        for _name, sql in ddl_statements():
+            con.execute(sql)
+        return dict(con.execute("SELECT table_name, sql FROM duckdb_tables()").fetchall())
+    finally:
+        con.close()
+
+
+def _recreate_views(con: duckdb.DuckDBPyConnection, warehouse: Path, runs: pd.DataFrame) -> set[str]:
+    """Drop and re-create the ``samples_<kind>`` views, the ``samples_files`` table and the
+    ``samples()`` macro (:func:`create_samples_views`); returns their names."""
+    from schemas.kinds import KINDS
+
+    views = {f"samples_{kind}" for kind in KINDS}
+    for v in sorted(views):
+        con.execute(f'DROP VIEW IF EXISTS "{v}"')
+    con.execute("DROP MACRO TABLE IF EXISTS samples")
+    con.execute(f"DROP TABLE IF EXISTS {FILES_TABLE}")
+    create_samples_views(con, warehouse, runs)
+    return views | {FILES_TABLE}

@@ -40,7 +40,7 @@ from pipeline.readers import READERS
 from pipeline.rebuild.executors import Executor, make_executor
 from pipeline.rebuild.garbage import clean_debris, collect_garbage, split_kept
 from pipeline.rebuild.history import append_log, compare_findings
-from pipeline.rebuild.assemble import build_database, runs_frame
+from pipeline.rebuild.assemble import runs_frame, write_database
 from pipeline.rebuild.ingest_tasks import deduplicate, ingest_incremental
 from pipeline.rebuild.noop import InputsKey, confirm_same_bytes, nothing_changed, planned_records, rebuild_noop
 from pipeline.rebuild.options import (EXIT_USAGE, RebuildError, RebuildOptions, RebuildRun, RebuildSummary,
@@ -53,6 +53,7 @@ from pipeline.rebuild.state import (FilePlan, FileRecord, PreviousState, load_pr
                                     side_records, superseded_files)
 from pipeline.serve.report.publish import settle_report
 from pipeline.versions import ingest_code_version
+from pipeline.warehouse import DB_NAME
 
 log = logging.getLogger("pneubench")
 
@@ -430,9 +431,11 @@ def _publish(run: RebuildRun, plan: _Plan, tables: dict[str, pd.DataFrame], keep
     and collect what neither warehouse uses nor keeps, before and after."""
     warehouse, progress, prev = run.warehouse, run.progress, plan.prev
     progress.message(f"warehouse: writing {len(tables)} tables")
+    # the live database copied and only the tables whose rows changed written again, else built whole
+    live = None if run.options.full else warehouse / DB_NAME
 
     def write(tmp_db):
-        build_database(tmp_db, warehouse, tables, tables["runs"])
+        progress.message(write_database(tmp_db, warehouse, tables, tables["runs"], live))
         waited = time.monotonic()
         n_aside = drawer.finish()  # the figures drawn beside the database, their stage folders put in place
         if n_aside:

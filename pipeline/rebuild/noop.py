@@ -38,7 +38,7 @@ from pipeline.rebuild.publish import swap_in_new_database
 from pipeline.rebuild.stage_store import own_stage_folder
 from pipeline.rebuild.state import RACY_S, FilePlan, FileRecord, PreviousState, superseded_files
 from pipeline.versions import project_code_version
-from pipeline.warehouse import DB_NAME
+from pipeline.warehouse import DB_NAME, KEYS_TABLE
 
 if TYPE_CHECKING:  # imported where the database is carried over: a fresh rebuild imports it while files are read
     import duckdb
@@ -200,6 +200,7 @@ def rebuild_noop(run: RebuildRun, prev: PreviousState, plans: list[FilePlan], ke
         try:
             _bring_up_to_date(con, run, plans, key, expired)
             _record_stats(con, restated(prev, plans, list(side)))
+            forget_keys(con, NOOP_WRITES)
         finally:
             con.close()
 
@@ -215,6 +216,17 @@ def rebuild_noop(run: RebuildRun, prev: PreviousState, plans: list[FilePlan], ke
                          f"unchanged: a no-op), {len(summary.quarantine)} quarantined, stages run: none, "
                          f"{summary.seconds:.1f} s")
     return summary
+
+
+#: Tables the no-op updates in its copy: their content keys (``table_keys``) no longer describe
+#: them, so the next rebuild writes them again.
+NOOP_WRITES = ("rebuild_log", "rebuild_inputs", "findings", "superseded_files", "ingest_state")
+
+
+def forget_keys(con: duckdb.DuckDBPyConnection, tables: tuple[str, ...]) -> None:
+    """Remove the content keys of ``tables`` from ``table_keys`` (a database from before it: nothing to do)."""
+    if con.execute(f"SELECT count(*) FROM duckdb_tables() WHERE table_name = '{KEYS_TABLE}'").fetchone()[0]:
+        con.execute(f"DELETE FROM {KEYS_TABLE} WHERE list_contains($1, table_name)", [list(tables)])
 
 
 def _bring_up_to_date(con: duckdb.DuckDBPyConnection, run: RebuildRun, plans: list[FilePlan], key: str,

@@ -73,3 +73,10 @@ CREATE TABLE figures (
     path            VARCHAR,              -- PNG file, relative to the warehouse (stages/<stage>/<key>/figures/)
     caption         VARCHAR               -- what the figure shows, as the report captions it
 );
+
+-- The content key of every table the last rebuild wrote (pipeline/rebuild/assemble.py): the next
+-- rebuild copies this database and writes again only the tables whose key changed.
+CREATE TABLE table_keys (
+    table_name      VARCHAR NOT NULL,     -- table written by the rebuild; '*' is the row of the build's version
+    content_key     VARCHAR NOT NULL      -- hash of the frame written (rows, columns, types), then ':' and the table's row count and sum of row hashes as stored ('*': version of the DDL, the assembly code and DuckDB)
+);

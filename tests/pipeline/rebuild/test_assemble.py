@@ -2,6 +2,8 @@
 the right runs, whatever the names (issue 21), opening one file for a one-run query."""
 from __future__ import annotations
 
+import os
+import re
 from pathlib import Path
 
 import duckdb
@@ -210,3 +212,185 @@ def test_a_channel_numeric_in_one_run_and_text_in_another_is_text_in_the_view(tm
     res = CliRunner().invoke(main, ["query", "--warehouse", str(wh), "--format", "csv",
                                     "SELECT run_id, note FROM samples_step ORDER BY run_id, t_s"])
     assert res.exit_code == 0 and res.output.splitlines()[1:4] == ["c/a,1.5", "c/a,2.0", "c/a,3.0"], res.output
+
+
+# -- issue 26: the database written into a copy of the live one -----------------------------------
+def _objects(con: duckdb.DuckDBPyConnection, db: str) -> dict[str, tuple]:
+    """name -> (TABLE/VIEW, comment, [(column, type, comment)]) of every table and view of ``db``;
+    the macros as ``macro <name>`` -> their definition."""
+    out = {}
+    for name, what, comment in con.execute(
+            "SELECT table_name, 'TABLE', comment FROM duckdb_tables() WHERE database_name = $1 UNION ALL "
+            "SELECT view_name, 'VIEW', comment FROM duckdb_views() WHERE database_name = $1 AND NOT internal",
+            [db]).fetchall():
+        cols = con.execute("SELECT column_name, data_type, comment FROM duckdb_columns() WHERE database_name = $1 "
+                           "AND table_name = $2 ORDER BY column_index", [db, name]).fetchall()
+        out[name] = (what, comment, cols)
+    for name, definition in con.execute("SELECT function_name, macro_definition FROM duckdb_functions() "
+                                        "WHERE database_name = $1 AND function_type = 'table_macro'", [db]).fetchall():
+        # DuckDB prints an EXCLUDE list in no fixed order (a set): compared as a set
+        out[f"macro {name}"] = re.sub(r"EXCLUDE \(([^)]*)\)",
+                                      lambda m: "EXCLUDE (" + ", ".join(sorted(m.group(1).split(", "))) + ")", definition)
+    return out
+
+
+def assert_same_database(a: Path, b: Path, warehouse: Path, skip_rows: set[str] = frozenset()) -> int:
+    """Databases ``a`` and ``b`` hold the same tables, views and macros, with the same column
+    names, types and comments, and (but for ``skip_rows``) the same rows: ``EXCEPT ALL`` both
+    ways on every table and view. Returns how many tables and views were compared row by row."""
+    con = duckdb.connect()
+    try:
+        con.execute(f"ATTACH '{a}' AS a (READ_ONLY)")
+        con.execute(f"ATTACH '{b}' AS b (READ_ONLY)")
+        con.execute("SET VARIABLE pneubench_warehouse = ?", [str(warehouse.resolve())])
+        oa, ob = _objects(con, "a"), _objects(con, "b")
+        assert sorted(oa) == sorted(ob)
+        for name in oa:
+            assert oa[name] == ob[name], name
+        compared = 0
+        for name in sorted(n for n in oa if not n.startswith("macro ") and n not in skip_rows):
+            for x, y in (("a", "b"), ("b", "a")):
+                extra = con.execute(f'SELECT count(*) FROM (FROM {x}.main."{name}" EXCEPT ALL '
+                                    f'FROM {y}.main."{name}")').fetchone()[0]
+                assert extra == 0, (name, f"{extra} rows of {x} not in {y}")
+            compared += 1
+        return compared
+    finally:
+        con.close()
+
+
+def _bump(path: Path) -> None:
+    """One value of a run file changed: its last digit + 1 (mod 10)."""
+    data = bytearray(path.read_bytes())
+    i = max(i for i, b in enumerate(data) if 48 <= b <= 57)
+    data[i] = 48 + (data[i] - 47) % 10
+    path.write_bytes(bytes(data))
+
+
+@pytest.fixture
+def checked_writes(monkeypatch, tmp_path):
+    """Every database a rebuild writes is also built whole from the same tables beside it and
+    compared with it (:func:`assert_same_database`, every row of every table); yields the log
+    lines that say how each was written."""
+    import pipeline.rebuild.flow as rb
+    from pipeline.rebuild.assemble import build_database, write_database
+
+    lines = []
+
+    def checked(path, warehouse, tables, runs, live):
+        line = write_database(path, warehouse, tables, runs, live)
+        whole = tmp_path / f"whole-{len(lines)}.duckdb"
+        build_database(whole, warehouse, tables, runs)
+        assert assert_same_database(path, whole, warehouse) > 40
+        lines.append(line)
+        return line
+
+    monkeypatch.setattr(rb, "write_database", checked)
+    return lines
+
+
+def test_the_database_written_into_a_copy_equals_one_built_whole_after_changes_of_every_sort(raw, tmp_path,
+                                                                                           checked_writes):
+    """Changes of several kinds (a step and a breakaway run at once), a run deleted, a plan.toml
+    change, a no-op between them: each database written into a copy of the live one holds exactly
+    what one built whole from the same tables holds (rows, types, comments), only the tables whose
+    rows changed are written again, and the last equals a ``--full`` rebuild's table by table."""
+    from tests.pipeline.rebuild.test_memo import breakaway, campaign
+    from tests.pipeline.rebuild.test_state import REBUILD_ONLY, age
+
+    wh = tmp_path / "wh"
+    campaign(raw)
+    raw.write("plan.toml", "[defaults]\nmargin = 1.5\n")
+    age(raw.root)
+    rebuild(raw.root, wh, jobs=1, report=False)
+    assert checked_writes[-1].startswith("warehouse: built whole (no live database), ")
+    _bump(raw.root / "c/s1.csv")
+    breakaway(raw, "c/b2.csv", scale=9.0)
+    age(raw.root)
+    for change in ("two kinds", "no-op", "deleted", "plan"):
+        if change == "deleted":
+            (raw.root / "c/s3.csv").unlink()
+        elif change == "plan":
+            raw.write("plan.toml", "[defaults]\nmargin = 1.3\n")
+            age(raw.root)
+        s = rebuild(raw.root, wh, jobs=1, report=False)
+        assert s.mode == ("no-op" if change == "no-op" else "incremental"), change
+        if change != "no-op":
+            line = checked_writes[-1]
+            assert line.startswith("warehouse: the live database copied"), (change, line)
+            written = int(line.split("copied, ")[1].split(" of ")[0])
+            assert 0 < written < 30, (change, line)
+    deleted = checked_writes[-2].split("(")[1]  # the run deleted: its rows gone, the other kind's kept
+    assert {"runs", "channels", "step_response"} <= set(deleted.rstrip(")").split(", ")) and "breakaway" not in deleted
+    full = tmp_path / "full"
+    rebuild(raw.root, full, jobs=1, report=False, full=True)
+    assert "built whole (no live database)" in checked_writes[-1]
+    skip = REBUILD_ONLY | {"figures", "rebuild_changes"}  # the rebuild's own records: its time, mode, folders
+    assert assert_same_database(wh / DB_NAME, full / DB_NAME, wh, skip_rows=skip) > 30
+
+
+def test_a_live_database_that_cannot_be_updated_is_rebuilt_whole_and_says_why(raw, tmp_path, monkeypatch):
+    """No live database, another DDL/code version, a live file that is not a database, and a copy
+    grown past 1.5x the blocks it uses (by more than MIN_FREE_BYTES): the database is built whole,
+    one line saying why."""
+    import pipeline.rebuild.assemble as asm
+    from pipeline.rebuild.assemble import build_database, runs_frame, write_database
+
+    import numpy as np
+    import pandas as pd
+
+    wh = tmp_path / "wh"
+    wh.mkdir()
+    tables = {"runs": runs_frame([]), "channels": pd.DataFrame(), "notes": pd.DataFrame({"note": ["a"]})}
+    live, new = wh / DB_NAME, wh / "new.duckdb"
+    assert write_database(new, wh, tables, tables["runs"], live) == \
+        "warehouse: built whole (no live database), 3 tables"
+    os.replace(new, live)
+    copied = write_database(new, wh, tables, tables["runs"], live)
+    assert copied == "warehouse: the live database copied, 0 of 3 tables written again"
+    assert assert_same_database(new, live, wh) > 40
+    new.unlink()
+    con = duckdb.connect(str(live))  # the live database edited by something other than the rebuild
+    con.execute("UPDATE notes SET note = 'edited'")
+    con.close()
+    assert write_database(new, wh, tables, tables["runs"], live).endswith("1 of 3 tables written again (notes)")
+    con = duckdb.connect(str(new), read_only=True)
+    assert con.execute("SELECT note FROM notes").fetchall() == [("a",)]
+    con.close()
+    new.unlink()
+    real = asm.database_version
+    monkeypatch.setattr(asm, "database_version", lambda: real() + "-edited")
+    assert "(the live database is of another DDL/code version)" in write_database(new, wh, tables, tables["runs"], live)
+    monkeypatch.setattr(asm, "database_version", real)
+    new.unlink()
+    live.write_bytes(b"not a database" * 1000)
+    line = write_database(new, wh, tables, tables["runs"], live)
+    assert line.startswith("warehouse: built whole (its copy could not be updated: ") and new.is_file()
+    assert not list(wh.glob("*.wal"))
+    # grown: a big table dropped leaves free blocks DuckDB keeps in the file
+    big = {**tables, "notes": pd.DataFrame({"note": np.random.default_rng(1).random(1_000_000)})}
+    build_database(live, wh, big, big["runs"])
+    shrunk = {**tables, "notes": pd.DataFrame({"note": ["b"]})}
+    new.unlink()
+    assert write_database(new, wh, shrunk, shrunk["runs"], live).startswith("warehouse: the live database copied")
+    os.replace(new, live)
+    line = write_database(new, wh, shrunk, shrunk["runs"], live)
+    assert line.startswith("warehouse: built whole (the copy is ") and "free blocks" in line
+    assert new.stat().st_size < 0.5 * live.stat().st_size
+
+
+def test_frame_keys_tell_apart_what_the_database_would_store_apart():
+    import numpy as np
+    import pandas as pd
+
+    from pipeline.rebuild.assemble import frame_key
+
+    a = pd.DataFrame({"x": [1.0, 2.0], "s": ["a", "b"], "l": [[1.0], [2.0]]})
+    assert frame_key(a) == frame_key(a.copy()) and len(frame_key(a)) == 32
+    assert frame_key(a) != frame_key(a.assign(x=[1.0, 2.0 + 1e-12]))
+    assert frame_key(a) != frame_key(a.assign(l=[[1.0], [2.0 + 1e-12]]))
+    assert frame_key(a) != frame_key(a.rename(columns={"x": "y"}))
+    assert frame_key(a) != frame_key(a.assign(x=np.array([1, 2], dtype="float32")))
+    assert frame_key(pd.DataFrame({"v": [1, "1"]})) != frame_key(pd.DataFrame({"v": ["1", "1"]}))
+    assert frame_key(pd.DataFrame({"v": [1, 2]})) != frame_key(pd.DataFrame({"v": [1, 2]}, dtype="Int64"))
+    assert frame_key(None) == frame_key(pd.DataFrame()) == "none"

@@ -21,7 +21,7 @@ def boom(x):
 
 #: Tables that describe the rebuild itself (times, generation, executor), not its results.
 REBUILD_ONLY = {"rebuild_log", "rebuild_inputs", "rebuild_changes", "ingest_state", "stage_cache", "figures",
-                "superseded_files"}
+                "superseded_files", "table_keys"}
 
 
 def dump(warehouse):

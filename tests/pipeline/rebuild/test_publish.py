@@ -63,6 +63,8 @@ def test_kill_9_leaves_a_complete_warehouse_and_the_next_rebuild_completes(raw, 
     step(raw, "c/c.csv", n=5)
     res = cli_rebuild(raw.root, warehouse, env={"PNEUBENCH_CRASH_AT": point})
     assert res.returncode == -signal.SIGKILL, res.stderr
+    if point in ("before_swap", "after_swap"):  # the new database was written into a copy of the live one
+        assert "warehouse: the live database copied" in res.stdout + res.stderr
     after = state(warehouse)
     if point == "after_swap":
         assert after == (("c/a", "c/b", "c/c"), 15)  # the new warehouse was already complete
@@ -394,7 +396,7 @@ def test_a_full_disk_while_the_database_is_written_leaves_nothing_and_the_next_n
     rebuild(raw.root, warehouse, jobs=2)
     before, listed = state(warehouse), _listing(warehouse)
     step(raw, "c/b.csv", n=6)
-    real_build, real_swap = rb.build_database, publish.swap_in
+    real_build, real_swap = rb.write_database, publish.swap_in
 
     def full_disk_build(path, *args, **kwargs):
         real_build(path, *args, **kwargs) if where == "swap" else path.write_bytes(b"\0" * 4096)
@@ -403,16 +405,16 @@ def test_a_full_disk_while_the_database_is_written_leaves_nothing_and_the_next_n
     def full_disk_swap(tmp, final):
         raise OSError(errno.ENOSPC, "No space left on device", str(tmp))
 
-    monkeypatch.setattr(rb, "build_database", full_disk_build)
+    monkeypatch.setattr(rb, "write_database", full_disk_build)
     if where == "swap":
-        monkeypatch.setattr(rb, "build_database", real_build)
+        monkeypatch.setattr(rb, "write_database", real_build)
         monkeypatch.setattr(publish, "swap_in", full_disk_swap)
     with pytest.raises(RebuildError, match="No space left on device") as err:
         rebuild(raw.root, warehouse, jobs=2)
     assert err.value.exit_code == 3
     assert state(warehouse) == before
     assert _listing(warehouse) == listed  # nothing the failed night wrote is left (samples, stages, memo, temp)
-    monkeypatch.setattr(rb, "build_database", real_build)
+    monkeypatch.setattr(rb, "write_database", real_build)
     monkeypatch.setattr(publish, "swap_in", real_swap)
     s = rebuild(raw.root, warehouse, jobs=2, **next_night)  # the next night recovers by itself
     assert s.exit_code == 0
@@ -533,14 +535,14 @@ def test_files_past_their_retention_are_collected_before_the_database_is_written
     assert all(p.exists() for p in old_b)
     if not noop:
         step(raw, "c/c.csv", n=5)
-    real_build, real_copy = rb.build_database, noop_mod.shutil.copyfile
+    real_build, real_copy = rb.write_database, noop_mod.shutil.copyfile
 
     def needs_room(*args, **kwargs):
         if any(p.exists() for p in old_b):
             raise OSError(errno.ENOSPC, "No space left on device")
         return (real_copy if len(args) == 2 and not kwargs else real_build)(*args, **kwargs)
 
-    monkeypatch.setattr(rb, "build_database", needs_room)
+    monkeypatch.setattr(rb, "write_database", needs_room)
     monkeypatch.setattr(noop_mod.shutil, "copyfile", needs_room)
     s = rebuild(raw.root, warehouse, jobs=1, keep_superseded_h=0)
     assert s.exit_code == 0 and s.mode == ("no-op" if noop else "incremental")

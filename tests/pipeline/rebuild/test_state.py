@@ -13,7 +13,7 @@ from pipeline.serve.door import connect_readonly
 from tests.conftest import STEP_META, query
 
 T = [0.0, 0.1, 0.2, 0.3]
-REBUILD_ONLY = {"rebuild_log", "rebuild_inputs", "ingest_state", "stage_cache", "superseded_files"}
+REBUILD_ONLY = {"rebuild_log", "rebuild_inputs", "ingest_state", "stage_cache", "superseded_files", "table_keys"}
 BREAK = {"kind": "breakaway", "started_at": "2026-01-02T03:04:05", "rig": "plpa-1", "direction": "P",
          "backpressure_bar": 0, "force_rate_n_s": 1, "hose_area_m2": 4.9e-4}
 
