@@ -2,7 +2,9 @@
 
 A rebuild after one changed spring test runs one Savitzky-Golay derivative and a few Brent roots,
 one after a changed step run a second-order Butterworth zero-phase filter, one after a changed
-breakaway run a bounded scalar minimisation, Student t quantiles and Welch's test; importing the
+breakaway run a bounded scalar minimisation, Student t quantiles and Welch's test, one that re-runs
+the decision or remaining-life stage the normal's and chi-square's tails and quantiles (``norm_sf``,
+``norm_isf``, ``norm_pdf``, ``chi2_sf``, ``chi2_ppf``: the ``scipy.special`` calls scipy.stats makes); importing the
 scipy subpackages for them cost about a second of CPU per rebuild (issue 26, the cost of a change). These are scipy's own algorithms, step for step, and the tests hold them to scipy's
 bits (``tests/analyses/test_numerics.py``); where a fit may import scipy anyway, it still may.
 
