@@ -452,29 +452,9 @@ pickle.dump(tables, open(out, "wb"))
 def same_as(ref: str, types: int, seed: int) -> bool:
     """Whether this checkout's decision and test_plan stages give the same tables as ``ref``'s on the
     designed case's campaign of ``types`` hose types, bit for bit; prints one line per table."""
-    import pickle
-    import subprocess
+    from benchmarks.same_behaviour import stage_tables_same
 
-    from benchmarks.same_behaviour import ROOT, export
-
-    with tempfile.TemporaryDirectory(prefix="pneubench-decision-same-") as tmp:
-        got = {}
-        for name, tree in (("this checkout", ROOT), (ref, export(ref, Path(tmp) / "ref"))):
-            out = Path(tmp) / f"{len(got)}.pkl"
-            subprocess.run([sys.executable, "-c", _STAGE_TABLES, str(types), str(seed), str(out)], cwd=tree,
-                           check=True, env=dict(os.environ, PYTHONPATH=str(tree)), stdin=subprocess.DEVNULL)
-            with open(out, "rb") as fh:
-                got[name] = pickle.load(fh)
-    mine, theirs = got.values()
-    ok = True
-    for table in sorted(set(mine) | set(theirs)):
-        try:
-            pd.testing.assert_frame_equal(mine[table], theirs[table], check_exact=True)
-            print(f"  {table}: same ({len(mine[table])} rows, every value bit for bit)")
-        except (AssertionError, KeyError) as exc:
-            ok = False
-            print(f"  {table}: DIFFERS from {ref}: {str(exc).splitlines()[0] if str(exc) else 'missing'}")
-    return ok
+    return stage_tables_same(ref, _STAGE_TABLES, [str(types), str(seed)], "pneubench-decision-same-")
 
 
 def main(argv=None) -> int:

@@ -127,32 +127,9 @@ pickle.dump(dict(res.tables), open(out, "wb"))
 def same_as(ref: str, source: str, limit: float) -> bool:
     """Whether this checkout's stage gives the same tables as ``ref``'s on ``source`` (a warehouse, or
     ``synthetic:N``), bit for bit; prints one line per table."""
-    import pickle
-    import subprocess
-    import tempfile
-    from pathlib import Path
+    from benchmarks.same_behaviour import stage_tables_same
 
-    from benchmarks.same_behaviour import ROOT, export
-
-    with tempfile.TemporaryDirectory(prefix="pneubench-rul-same-") as tmp:
-        trees = {"this checkout": ROOT, ref: export(ref, Path(tmp) / "ref")}
-        got = {}
-        for name, tree in trees.items():
-            out = Path(tmp) / f"{len(got)}.pkl"
-            subprocess.run([sys.executable, "-c", _STAGE_TABLES, source, repr(limit), str(out)], cwd=tree, check=True,
-                           env=dict(os.environ, PYTHONPATH=str(tree)), stdin=subprocess.DEVNULL)
-            with open(out, "rb") as fh:
-                got[name] = pickle.load(fh)
-    mine, theirs = got.values()
-    ok = True
-    for table in sorted(set(mine) | set(theirs)):
-        try:
-            pd.testing.assert_frame_equal(mine[table], theirs[table], check_exact=True)
-            print(f"  {table}: same ({len(mine[table])} rows, every value bit for bit)")
-        except (AssertionError, KeyError) as exc:
-            ok = False
-            print(f"  {table}: DIFFERS from {ref}: {str(exc).splitlines()[0] if str(exc) else 'missing'}")
-    return ok
+    return stage_tables_same(ref, _STAGE_TABLES, [source, repr(limit)], "pneubench-rul-same-")
 
 
 def on_demo(repeat: int) -> bool:

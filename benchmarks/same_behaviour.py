@@ -99,6 +99,34 @@ def pneubench(tree: Path, *args: str) -> subprocess.CompletedProcess:
                           cwd=tree, env=env, capture_output=True, text=True, stdin=subprocess.DEVNULL)
 
 
+
+def stage_tables_same(ref: str, script: str, args: list[str], prefix: str) -> bool:
+    """Whether ``script`` (Python that pickles a dict of DataFrames to the path given as its last
+    argument) gives the same tables run in this checkout and in ``ref``'s exported tree, bit for bit;
+    prints one line per table."""
+    import pickle
+
+    import pandas as pd
+
+    with tempfile.TemporaryDirectory(prefix=prefix) as tmp:
+        got = {}
+        for tree in (ROOT, export(ref, Path(tmp) / "ref")):
+            out = Path(tmp) / f"{len(got)}.pkl"
+            subprocess.run([sys.executable, "-c", script, *args, str(out)], cwd=tree, check=True,
+                           env=dict(os.environ, PYTHONPATH=str(tree)), stdin=subprocess.DEVNULL)
+            with open(out, "rb") as fh:
+                got[len(got)] = pickle.load(fh)
+    mine, theirs = got.values()
+    ok = True
+    for table in sorted(set(mine) | set(theirs)):
+        try:
+            pd.testing.assert_frame_equal(mine[table], theirs[table], check_exact=True)
+            print(f"  {table}: same ({len(mine[table])} rows, every value bit for bit)")
+        except (AssertionError, KeyError) as exc:
+            ok = False
+            print(f"  {table}: DIFFERS from {ref}: {str(exc).splitlines()[0] if str(exc) else 'missing'}")
+    return ok
+
 def _digest_tree(folder: Path) -> dict[str, str]:
     out = {}
     for path in sorted(folder.rglob("*")):
