@@ -16,7 +16,7 @@ def test_tables_lists_science_first_and_marks_internal_ones(built):
     names = [x.split()[0] for x in lines]
     internal = [n for n, x in zip(names, lines) if "[internal]" in x]
     assert set(internal) == {"rebuild_log", "rebuild_inputs", "rebuild_changes", "ingest_state", "stage_cache", "samples_files",
-                             "figures"}
+                             "figures", "table_keys"}
     assert names.index("runs") < min(names.index(n) for n in internal)
     assert names.index("service_life") < names.index("samples_step") < min(names.index(n) for n in internal)
     runs_line = lines[names.index("runs")]
