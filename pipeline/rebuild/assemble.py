@@ -381,9 +381,9 @@ def write_database(path: Path, warehouse: Path, tables: dict[str, pd.DataFrame],
     """Write the new database at ``path``: a copy of ``live`` with only the tables whose content
     key changed written again (:func:`update_copy`), or, when that cannot be (no live database,
     ``--full``, another version, a grown or unreadable copy), built whole (:func:`build_database`).
-    Returns one line for the log saying which, and why."""
+    Returns one line for the log saying which, and why; ``live`` None: ``--full`` asked for a whole build."""
     keys = {t: frame_key(df) for t, df in tables.items()}
-    why = "no live database" if live is None or not Path(live).is_file() else None
+    why = "--full" if live is None else None if Path(live).is_file() else "no live database"
     if why is None:
         done = update_copy(Path(path), Path(live), warehouse, tables, runs, keys)
         if isinstance(done, list):

@@ -324,9 +324,11 @@ def test_the_database_written_into_a_copy_equals_one_built_whole_after_changes_o
     assert {"runs", "channels", "step_response"} <= set(deleted.rstrip(")").split(", ")) and "breakaway" not in deleted
     full = tmp_path / "full"
     rebuild(raw.root, full, jobs=1, report=False, full=True)
-    assert "built whole (no live database)" in checked_writes[-1]
+    assert "built whole (--full)" in checked_writes[-1]
     skip = REBUILD_ONLY | {"figures", "rebuild_changes"}  # the rebuild's own records: its time, mode, folders
     assert assert_same_database(wh / DB_NAME, full / DB_NAME, wh, skip_rows=skip) > 30
+    rebuild(raw.root, wh, jobs=1, report=False, full=True)  # a live database, and --full: built whole, saying why
+    assert "built whole (--full)" in checked_writes[-1]
 
 
 def test_a_live_database_that_cannot_be_updated_is_rebuilt_whole_and_says_why(raw, tmp_path, monkeypatch):
