@@ -46,6 +46,7 @@ import numpy as np
 import scipy  # its submodules load on first use
 
 from analyses.life_effect import RATIO_SEARCH, LifeEffect, split_groups
+from analyses.numerics import chi2_ppf, chi2_sf
 from analyses.service_life import SIGMA_BOUNDS, lognormal_loglik_many, lr_bound
 
 _NAN = float("nan")
@@ -231,14 +232,14 @@ def lognormal_life_effect(life, failed, group, confidence: float = 0.90) -> Life
     fit, p = _fit(groups)
     if fit.note:
         return LifeEffect(**counts, note=fit.note)
-    stacked, crit, theta = _stack(groups), float(scipy.stats.chi2.ppf(confidence, 1)), fit.log_ratio
+    stacked, crit, theta = _stack(groups), chi2_ppf(confidence, 1), fit.log_ratio
     dev = lambda t: 2.0 * (fit.loglik - _maximise(groups, stacked, p, t)[0])  # noqa: E731
     lo, hi = (lr_bound(lambda t: dev(t) - crit, theta, theta + side * math.log(RATIO_SEARCH)) for side in (-1.0, 1.0))
     missing = [n for n, b in (("life_ratio_lower", lo), ("life_ratio_upper", hi)) if math.isnan(b)]
     note = f"{', '.join(missing)} not reached within the search edge: the data do not bound it" if missing else None
     return LifeEffect(**counts, life_ratio=math.exp(theta), life_ratio_lower=math.exp(lo),
                       life_ratio_upper=math.exp(hi),
-                      p_value=float(scipy.stats.chi2.sf(max(0.0, dev(0.0)), 1)), model=LOGNORMAL, note=note,
+                      p_value=chi2_sf(max(0.0, dev(0.0)), 1), model=LOGNORMAL, note=note,
                       log_ratio=theta, se_log_ratio=fit.se_log_ratio)
 
 

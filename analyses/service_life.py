@@ -85,7 +85,7 @@ import numpy as np
 import pandas as pd
 import scipy  # its submodules load on first use: a rebuild that reuses every stage never pays for them
 
-from analyses.numerics import brentq
+from analyses.numerics import brentq, chi2_ppf, chi2_sf
 from analyses.quality import at_bound
 
 _NAN = float("nan")
@@ -403,7 +403,7 @@ def weibull_quantile_bounds(fit: WeibullFit, life, failed, p: float = 0.10,
         return _NAN, _NAN, _NAN
     x, f = _as_arrays(life, failed)
     est = fit.quantile(p)
-    crit = float(scipy.stats.chi2.ppf(confidence, 1))
+    crit = chi2_ppf(confidence, 1)
 
     def g(logb):
         return 2.0 * (fit.loglik - weibull_quantile_profile(logb, p, x, f, start=math.log(fit.shape))) - crit
@@ -590,7 +590,7 @@ def weibull_shape_bounds(fit: WeibullFit, life, failed, confidence: float = 0.90
     if not fit.ok:
         return _NAN, _NAN
     x, f = _as_arrays(life, failed)
-    crit = float(scipy.stats.chi2.ppf(confidence, 1))
+    crit = chi2_ppf(confidence, 1)
 
     def excess(logk):
         k = math.exp(logk)
@@ -635,7 +635,7 @@ def weibull_reliability_bounds(fit: WeibullFit, life, failed, mission: float,
     if not (fit.ok and mission > 0 and math.isfinite(mission)):
         return _NAN, _NAN, _NAN
     x, f = _as_arrays(life, failed)
-    crit = float(scipy.stats.chi2.ppf(confidence, 1))
+    crit = chi2_ppf(confidence, 1)
     log_t, start = math.log(mission), math.log(fit.shape)
     u_hat = fit.shape * (log_t - math.log(fit.scale))
     top = math.log(-math.log(1e-12))
@@ -726,7 +726,7 @@ def weibull_lr_test(groups: dict) -> dict:
         return out
     sep = sum(ft.loglik for ft in fits)
     lr = max(0.0, 2.0 * (sep - pooled.loglik))
-    out.update(lr=lr, p_value=float(scipy.stats.chi2.sf(lr, out["df"])), loglik_pooled=pooled.loglik,
+    out.update(lr=lr, p_value=chi2_sf(lr, out["df"]), loglik_pooled=pooled.loglik,
                loglik_separate=sep)
     return out
 

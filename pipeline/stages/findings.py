@@ -26,6 +26,7 @@ from analyses import breakaway as bk
 from analyses import service_life as sl
 from analyses import viscous_friction as vfr
 from analyses.leakage import LEAK_THRESHOLD_L_MIN, characterisation_rows
+from analyses.numerics import chi2_sf
 from schemas.papers import (PLA_CITATION, PLA_NRMSE_LIMIT_PCT, PLPA_BREAKAWAY_RATIO_BAND, PLPA_CITATION,
                             PLPA_SPRING_FORCE_MAX_N)
 from pipeline.stages import Reads, StageContext, StageOutput, UndeclaredRead
@@ -214,7 +215,7 @@ def viscous_backpressure(ctx: StageContext) -> dict:
     if not spreads:
         return _row(claim, "viscous_fits", n=len(sel), detail="no data: one backpressure per direction")
     i = int(np.argmax(spreads))
-    p = float(scipy.special.chdtrc(dof, chi2)) if has_se and dof > 0 else None   # chi2.sf, as _std_from_ci
+    p = chi2_sf(chi2, dof) if has_se and dof > 0 else None
     holds = (p is not None and p >= ALPHA) or spreads[i] < 100 * NEGLIGIBLE
     return _row(claim, "viscous_fits", spreads[i], uncs[i], holds, int(sel["n_points"].sum()) if "n_points" in sel else len(sel),
                 p, "largest spread (max - min) / mean of the viscous coefficient across 1-3 bar, per direction; "
