@@ -226,7 +226,7 @@ def look_hoses(hoses: pd.DataFrame, runs: pd.DataFrame, events: pd.DataFrame) ->
                          "failed": failed[hose_ix, look_ix], "distance_from": text["distance_from"]})
 
 
-def look_estimates(in_looks: pd.DataFrame, events: pd.DataFrame) -> pd.DataFrame:
+def look_estimates(in_looks: pd.DataFrame, events: pd.DataFrame, fits: list | None = None) -> pd.DataFrame:
     """The estimate at each look: the common-shape life ratio and its standard error.
 
     Parameters
@@ -235,6 +235,9 @@ def look_estimates(in_looks: pd.DataFrame, events: pd.DataFrame) -> pd.DataFrame
         :func:`look_hoses`.
     events : DataFrame
         :func:`failure_events`.
+    fits : list of CommonShapeFit, optional
+        :func:`analyses.look_fits.look_fits` of ``in_looks`` at every look of ``events`` (in that order) when
+        the caller has them already (:func:`look_fits_of`): not solved again.
 
     Returns
     -------
@@ -250,7 +253,8 @@ def look_estimates(in_looks: pd.DataFrame, events: pd.DataFrame) -> pd.DataFrame
     g = (in_looks["adjustment"] == "force").to_numpy(int)
     odo = (in_looks["distance_from"] == FROM_ODOMETER).to_numpy() & ~f
     numbers = events["look"].to_numpy(np.int64)
-    fits = look_fits(x, f, g, look, numbers)           # every look's fit in one solve
+    if fits is None:
+        fits = look_fits(x, f, g, look, numbers)       # every look's fit in one solve
     order = np.argsort(look, kind="stable")             # in_looks is by look already: then the identity
     sorted_look = look[order]
     starts, ends = np.searchsorted(sorted_look, numbers, "left"), np.searchsorted(sorted_look, numbers, "right")
@@ -269,6 +273,29 @@ def look_estimates(in_looks: pd.DataFrame, events: pd.DataFrame) -> pd.DataFrame
                      "log_ratio": fit.log_ratio if ok else math.nan, "se_log_ratio": fit.se_log_ratio if ok else math.nan,
                      "note": "; ".join(notes) or None})
     return pd.DataFrame(rows, columns=LOOK_COLUMNS)
+
+
+def look_fits_of(in_looks: pd.DataFrame, events: pd.DataFrame) -> list:
+    """:func:`analyses.look_fits.look_fits` of every look of ``events`` (in that order) on :func:`look_hoses`
+    ``in_looks``: each look is solved alone (its own score equation, whatever the other looks), so these are
+    the fits :func:`look_estimates`, :func:`freeze_look` and :func:`profile_intervals` would solve again,
+    bit for bit; a caller needing more than one of them solves them once and passes them on.
+
+    Parameters
+    ----------
+    in_looks : DataFrame
+        :func:`look_hoses`.
+    events : DataFrame
+        :func:`failure_events`.
+
+    Returns
+    -------
+    list of CommonShapeFit
+        One per look of ``events``.
+    """
+    return look_fits(in_looks["distance_km"].to_numpy(float), in_looks["failed"].to_numpy(bool),
+                     (in_looks["adjustment"] == "force").to_numpy(int), in_looks["look"].to_numpy(np.int64),
+                     events["look"].to_numpy(np.int64))
 
 
 def likelihood_check(in_looks: pd.DataFrame, estimates: pd.DataFrame, margin: float, information_fraction,
@@ -339,7 +366,8 @@ def crossing_holds(deviance, crossed: str, boundary_z: float, margin: float) -> 
     return all(deviance(r) > boundary_z ** 2 for r in trials)
 
 
-def freeze_look(hoses: pd.DataFrame, runs: pd.DataFrame, events: pd.DataFrame, in_looks: pd.DataFrame | None = None):
+def freeze_look(hoses: pd.DataFrame, runs: pd.DataFrame, events: pd.DataFrame, in_looks: pd.DataFrame | None = None,
+                fits: list | None = None):
     """The look at which a ``max_failures`` the plan leaves unset is frozen, and that look's fit.
 
     The first look at which each adjustment has at least ``FEW_FAILURES / 2`` failures
@@ -357,6 +385,9 @@ def freeze_look(hoses: pd.DataFrame, runs: pd.DataFrame, events: pd.DataFrame, i
         :func:`look_hoses` of all of ``events`` when the caller has it: its rows up to a look are
         those of the looks up to it computed alone (each look's column is computed by itself), so
         they are read instead of computed again.
+    fits : list of CommonShapeFit, optional
+        :func:`look_fits_of` ``in_looks`` and ``events`` when the caller has them: each look's fit is its
+        own (the same as fitted on the looks up to it), read instead of solved again.
 
     Returns
     -------
@@ -380,14 +411,17 @@ def freeze_look(hoses: pd.DataFrame, runs: pd.DataFrame, events: pd.DataFrame, i
         if not upto.size:
             break
         last = int(events["look"].iloc[int(upto[-1])])
-        if in_looks is None:
+        if fits is not None:
+            upto_fits = [fits[i] for i in upto.tolist()]
+        elif in_looks is None:
             upto_looks = look_hoses(hoses, runs, events.iloc[:int(upto[-1]) + 1])
         else:
             upto_looks = in_looks[in_looks["look"].to_numpy(np.int64) <= last]
-        fits = look_fits(upto_looks["distance_km"].to_numpy(float), upto_looks["failed"].to_numpy(bool),
-                         (upto_looks["adjustment"] == "force").to_numpy(int), upto_looks["look"].to_numpy(np.int64),
-                         events["look"].to_numpy(np.int64)[upto])
-        for i, fit in zip(upto.tolist(), fits):
+        if fits is None:
+            upto_fits = look_fits(upto_looks["distance_km"].to_numpy(float), upto_looks["failed"].to_numpy(bool),
+                                  (upto_looks["adjustment"] == "force").to_numpy(int),
+                                  upto_looks["look"].to_numpy(np.int64), events["look"].to_numpy(np.int64)[upto])
+        for i, fit in zip(upto.tolist(), upto_fits):
             if fit.note is None and math.isfinite(fit.shape):
                 failures = [int(c) for c in counts[:, i]]
                 return int(events["look"].iloc[i]), replace(fit, shape=reduced_bias_shape(fit.shape, sum(failures))), \
@@ -406,7 +440,7 @@ def _no_maximum(n: int) -> SequentialVerdict:
 
 def decide(estimates: pd.DataFrame, max_failures: int | None, margin: float, alpha: float,
            spending: str, in_looks: pd.DataFrame | None = None, first_look: int = 1,
-           deviance=ratio_deviance) -> SequentialVerdict | None:
+           deviance=ratio_deviance, fits: list | None = None) -> SequentialVerdict | None:
     """The sequential verdict over every look (None without looks).
 
     Parameters
@@ -435,6 +469,9 @@ def decide(estimates: pd.DataFrame, max_failures: int | None, margin: float, alp
         it are read as looks without an estimate, their alpha spent unused (conservative).
     deviance : callable, optional
         The likelihood check's profile deviance (:func:`likelihood_check`): the model of ``estimates``.
+    fits : list of CommonShapeFit, optional
+        :func:`look_fits_of` ``in_looks`` at every look of ``estimates`` when the caller has them: the
+        profile intervals read them instead of solving the looks again (:func:`profile_intervals`).
 
     Returns
     -------
@@ -454,10 +491,11 @@ def decide(estimates: pd.DataFrame, max_failures: int | None, margin: float, alp
         est, se = np.where(early, math.nan, est), np.where(early, math.nan, se)
     verdict = sequential_verdict(est, se, t, margin, alpha, spending, confirm=confirm)
     return verdict if in_looks is None or deviance is not ratio_deviance else profile_intervals(verdict, in_looks,
-                                                                                              estimates)
+                                                                                              estimates, fits)
 
 
-def profile_intervals(verdict: SequentialVerdict, in_looks: pd.DataFrame, estimates: pd.DataFrame) -> SequentialVerdict:
+def profile_intervals(verdict: SequentialVerdict, in_looks: pd.DataFrame, estimates: pd.DataFrame,
+                      fits: list | None = None) -> SequentialVerdict:
     """``verdict`` with its repeated confidence intervals taken from the profile likelihood.
 
     At each look that has a Wald interval ``log_ratio -/+ c_k se`` (an estimate and a boundary), the
@@ -479,6 +517,8 @@ def profile_intervals(verdict: SequentialVerdict, in_looks: pd.DataFrame, estima
     in_looks, estimates : DataFrame
         :func:`look_hoses` and :func:`look_estimates` (``estimates`` one row a look of ``verdict``; the
         common-shape Weibull's estimates).
+    fits : list of CommonShapeFit, optional
+        :func:`look_fits_of` at every look of ``estimates`` (read, not solved again).
 
     Returns
     -------
@@ -493,7 +533,8 @@ def profile_intervals(verdict: SequentialVerdict, in_looks: pd.DataFrame, estima
         failures = np.array([failed[look == n].sum() for n in numbers.tolist()])
         lo[need], hi[need] = profile_rci(in_looks["distance_km"].to_numpy(float), failed,
                                          (in_looks["adjustment"] == "force").to_numpy(int), look, numbers,
-                                         verdict.boundary_z[need] * np.sqrt(bartlett_factor(failures)))
+                                         verdict.boundary_z[need] * np.sqrt(bartlett_factor(failures)),
+                                         fits=None if fits is None else [fits[i] for i in need.tolist()])
     open_ = int((~(np.isfinite(lo[need]) & np.isfinite(hi[need]))).sum())
     note = verdict.note
     if verdict.decided_at is not None and not _interval_says(verdict.verdict, lo[verdict.decided_at],

@@ -300,7 +300,7 @@ def _newton_ends(mats, fits: list[CommonShapeFit], z: np.ndarray) -> np.ndarray:
     return ends.reshape(2, n)
 
 
-def profile_rci(life, failed, group, look, looks, z, centre=None, deviance=ratio_deviance):
+def profile_rci(life, failed, group, look, looks, z, centre=None, deviance=ratio_deviance, fits=None):
     """Each look's repeated confidence interval of the log life ratio by the profile likelihood.
 
     ``{theta : D(theta) <= z_k^2}``, ``D`` the look's profile deviance of ``theta = log(force life /
@@ -323,6 +323,10 @@ def profile_rci(life, failed, group, look, looks, z, centre=None, deviance=ratio
         (:func:`analyses.life_effect.ratio_deviance`, the common-shape Weibull's, by default and
         fast; any other, e.g. :func:`analyses.life_effect_lognormal.lognormal_ratio_deviance`, is
         searched look by look with :func:`analyses.service_life.lr_bound`).
+    fits : list of CommonShapeFit, optional
+        Per wanted look its :func:`look_fits` when the caller has them (the same fits: each look is
+        solved alone, whatever the other looks), so that they are not solved again; read only with
+        the common-shape Weibull's ``deviance``.
 
     Returns
     -------
@@ -337,7 +341,7 @@ def profile_rci(life, failed, group, look, looks, z, centre=None, deviance=ratio
     ends = np.full((2, wanted.size), math.nan)
     mid = np.full(wanted.size, math.nan) if centre is None else np.asarray(centre, np.float64).copy()
     if deviance is ratio_deviance and wanted.size:
-        fits = look_fits(x, f, g, lk, wanted)
+        fits = look_fits(x, f, g, lk, wanted) if fits is None else list(fits)
         good = np.array([ft.note is None and math.isfinite(ft.loglik) for ft in fits]) & np.isfinite(z) & (z > 0)
         mid = np.array([ft.log_ratio if ok else math.nan for ft, ok in zip(fits, good)])
         if good.any():

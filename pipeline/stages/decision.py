@@ -47,7 +47,7 @@ import math
 import numpy as np
 import pandas as pd
 
-from analyses.decision import (GROUP, decide, failure_events, freeze_look, look_estimates, look_hoses,
+from analyses.decision import (GROUP, decide, failure_events, freeze_look, look_estimates, look_fits_of, look_hoses,
                                usable_hoses)
 from analyses.hose_life import match_runs
 from analyses.life_effect import life_effect
@@ -172,21 +172,22 @@ def freeze_of(item: dict) -> dict:
     return _frozen(hoses, _frame(item["runs"], RUN_SPEC), failure_events(hoses))
 
 
-def _frozen(hoses: pd.DataFrame, runs: pd.DataFrame, events: pd.DataFrame, in_looks: pd.DataFrame | None = None) -> dict:
-    """:func:`freeze_of` from the item's frames (``in_looks``: their :func:`analyses.decision.look_hoses`, when
-    computed already)."""
-    look, fit, failures = freeze_look(hoses, runs, events, in_looks)
+def _frozen(hoses: pd.DataFrame, runs: pd.DataFrame, events: pd.DataFrame, in_looks: pd.DataFrame | None = None,
+            fits: list | None = None) -> dict:
+    """:func:`freeze_of` from the item's frames (``in_looks``: their :func:`analyses.decision.look_hoses`, and
+    ``fits`` their :func:`analyses.decision.look_fits_of`, when computed already)."""
+    look, fit, failures = freeze_look(hoses, runs, events, in_looks, fits)
     at = None if look is None else _ns_list(events["event_at"].iloc[look - 1:look])[0]
     return {"look": look, "event_at": at, "shape": None if fit is None else float(fit.shape), "failures": failures}
 
 
 def _design_here(item: dict, hoses: pd.DataFrame, runs: pd.DataFrame, events: pd.DataFrame,
-                 in_looks: pd.DataFrame) -> list:
+                 in_looks: pd.DataFrame, fits: list | None = None) -> list:
     """The item's :func:`design_of` computed inside its own ``ctx.map`` task (in the worker pool): the frozen
     look read from the looks already placed (:func:`_frozen`), its design by :func:`design_failures`
     (cached per process by :func:`analyses.sequential.design_for`: hose types of one grid shape and hoses
     on test share it in a worker)."""
-    frozen = _frozen(hoses, runs, events, in_looks) if item["plan"]["max_failures"] is None else None
+    frozen = _frozen(hoses, runs, events, in_looks, fits) if item["plan"]["max_failures"] is None else None
     ask = design_item(item["plan"], frozen, item["hoses"])
     designed = {} if ask is None else {json.dumps(ask, sort_keys=True): design_failures(ask)}
     return design_of(item, frozen, designed, ask)
@@ -322,9 +323,10 @@ def decide_hose_type(item: dict) -> dict:
     hoses = usable_hoses(life)
     events = failure_events(hoses)
     in_looks = look_hoses(hoses, runs, events)
-    design = tuple(item["design"] if "design" in item else _design_here(item, hoses, runs, events, in_looks))
-    est = look_estimates(in_looks, events)
-    sv = decide(est, design[0], plan["margin"], plan["alpha"], plan["spending"], in_looks, design[3] or 1)
+    fits = look_fits_of(in_looks, events)     # every look solved once: the frozen look, the estimates, the intervals
+    design = tuple(item["design"] if "design" in item else _design_here(item, hoses, runs, events, in_looks, fits))
+    est = look_estimates(in_looks, events, fits)
+    sv = decide(est, design[0], plan["margin"], plan["alpha"], plan["spending"], in_looks, design[3] or 1, fits=fits)
     looks = _looks_rows(hose_type, est, sv, plan["present"]) if sv is not None else []
     for row in looks[:design[3] - 1] if design[0] is not None else []:
         row["note"] = "; ".join(n for n in (row["note"], f"before look {design[3]}, where max_failures was frozen: "
