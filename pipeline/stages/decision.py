@@ -155,11 +155,19 @@ def effect_of(item: dict) -> dict:
     dict
         The row; ``shape`` is the common Weibull shape [-] the design reads (NaN when NULL).
     """
-    life = pd.DataFrame({c: item["hoses"][c] for c in ("adjustment", "distance_km", "status")})
-    use = life[life["distance_km"] > 0]
-    le = life_effect(use["distance_km"].to_numpy(float), (use["status"] == "failed").to_numpy(),
-                     use["adjustment"].map(GROUP).to_numpy(int), confidence=item["plan"]["confidence"],
-                     alpha=item["plan"]["alpha"])
+    hoses = item["hoses"]
+    km = np.array(hoses["distance_km"], dtype=np.float64)
+    use = np.flatnonzero(km > 0)
+    adjustment = [hoses["adjustment"][i] for i in use.tolist()]
+    if all(a in GROUP for a in adjustment):   # the lists read directly (no frame: a third of the item's time)
+        life, failed = km[use], np.array([hoses["status"][i] == "failed" for i in use.tolist()], dtype=bool)
+        group = np.array([GROUP[a] for a in adjustment], dtype=int)
+    else:   # an adjustment the fit does not know: as before (split_groups says so)
+        life = pd.DataFrame({c: hoses[c] for c in ("adjustment", "distance_km", "status")})
+        life = life[life["distance_km"] > 0]
+        life, failed, group = (life["distance_km"].to_numpy(float), (life["status"] == "failed").to_numpy(),
+                               life["adjustment"].map(GROUP).to_numpy(int))
+    le = life_effect(life, failed, group, confidence=item["plan"]["confidence"], alpha=item["plan"]["alpha"])
     row = {c: getattr(le, c) for c in EFFECT_COLUMNS if hasattr(le, c)}
     return {**row, "hose_type": item["hose_type"], "confidence": item["plan"]["confidence"]}
 
