@@ -128,16 +128,29 @@ def _batch_score(t: np.ndarray, logs) -> tuple[np.ndarray, np.ndarray]:
     return value, slope
 
 
+def _rows(logs, i):
+    """``logs`` (per adjustment a tuple of per-look arrays) at the rows ``i`` (None: all of them)."""
+    return logs if i is None else [tuple(a[i] for a in lg) for lg in logs]
+
+
 def _batch_newton(value_slope, start: np.ndarray, xtol: float = 1e-13) -> np.ndarray:
     """:func:`analyses.service_life.newton_root` over :data:`~analyses.service_life.SHAPE_BOUNDS` (log shapes) for
-    many roots at once, step for step; NaN where it does not settle strictly inside (solved alone then)."""
+    many roots at once, step for step; NaN where it does not settle strictly inside (solved alone then).
+
+    ``value_slope(t, rows)``: the function and its slope at ``t`` of the roots ``rows`` (None: every root), so that
+    only the roots still unsettled are evaluated (each row's value is its own: the same bits in any batch)."""
     lo, hi = math.log(SHAPE_BOUNDS[0]), math.log(SHAPE_BOUNDS[1])
     a, b = np.full(start.size, lo), np.full(start.size, hi)
     t, root, todo = np.clip(start, lo, hi), np.full(start.size, math.nan), np.ones(start.size, bool)
     for _ in range(100):
         if not todo.any():
             break
-        v, d = value_slope(t)
+        if todo.all():
+            v, d = value_slope(t, None)
+        else:
+            i = np.flatnonzero(todo)
+            v, d = np.full(t.size, math.nan), np.full(t.size, math.nan)
+            v[i], d[i] = value_slope(t[i], i)
         todo &= np.isfinite(v)
         hit = todo & (v == 0.0)
         root[hit], todo = np.where((lo < t) & (t < hi), t, math.nan)[hit], todo & ~hit
@@ -233,7 +246,7 @@ def look_fits(life, failed, group, look, looks) -> list[CommonShapeFit]:
     root = np.full(wanted.size, math.nan)
     if batch.any():
         sub = [(y[batch], m[batch], r[batch], syf[batch]) for y, m, r, syf, _ in logs]
-        root[batch] = _batch_newton(lambda t: _batch_score(t, sub), np.zeros(int(batch.sum())))
+        root[batch] = _batch_newton(lambda t, i: _batch_score(t, _rows(sub, i)), np.zeros(int(batch.sum())))
     fits: list = [None] * wanted.size
     ok = np.flatnonzero(np.isfinite(root))
     if ok.size:
@@ -256,7 +269,7 @@ def _signed_root(t: np.ndarray, pooled, ll: np.ndarray, centre: np.ndarray, logk
     y = np.where(mm, big - ymax[:, None], 0.0)
     r, rf = _row_sums(ff.astype(np.float64)), _row_sums((ff & fm).astype(np.float64))
     syf = _row_sums(np.where(ff, y, 0.0))
-    logk = _batch_newton(lambda u: _batch_score(u, [(y, mm, r, syf)]), logk)
+    logk = _batch_newton(lambda u, i: _batch_score(u, _rows([(y, mm, r, syf)], i)), logk)
     k = np.exp(logk)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         e = np.where(mm, np.exp(k[:, None] * y), 0.0)
