@@ -93,16 +93,6 @@ def _ns(values) -> np.ndarray:
     return s.to_numpy("datetime64[ns]").astype(np.int64)
 
 
-def _reading_end(life: pd.DataFrame) -> pd.Series:
-    """The end of an odometer hose's interpolation: its end event, or while it runs the time of
-    its odometer reading (``odometer_at``; after it the hose is held at that reading, the last
-    distance known: a suspension there)."""
-    ended = life["ended_at"]
-    if "odometer_at" not in life:
-        return ended
-    return ended.where(ended.notna(), life["odometer_at"])
-
-
 def usable_hoses(life: pd.DataFrame) -> pd.DataFrame:
     """The hoses of ``life`` that can be placed in the looks.
 
@@ -121,7 +111,11 @@ def usable_hoses(life: pd.DataFrame) -> pd.DataFrame:
     d = pd.to_numeric(life["distance_km"], errors="coerce").to_numpy(float)
     adjustment = life["adjustment"].to_numpy(object)
     ok = ~np.isnan(d) & (d >= 0) & np.isin(adjustment, list(GROUP))
-    read_at = _reading_end(life).isna().to_numpy()
+    # an odometer hose's interpolation ends at its end event, or while it runs at its reading's time (odometer_at;
+    # held at that reading after it, the last distance known: a suspension there): without either, no span
+    read_at = life["ended_at"].isna().to_numpy()
+    if "odometer_at" in life:
+        read_at = read_at & life["odometer_at"].isna().to_numpy()
     ok &= life["installed_at"].notna().to_numpy() & ~((life["distance_source"].to_numpy(object) == "odometer")
                                                       & read_at)
     kept = np.flatnonzero(ok)
@@ -200,7 +194,9 @@ def look_hoses(hoses: pd.DataFrame, runs: pd.DataFrame, events: pd.DataFrame) ->
     t = _ns(events["event_at"])
     ids = hoses["hose_id"].to_numpy(object)
     km = pd.to_numeric(hoses["distance_km"]).to_numpy(float)
-    installed, ended = _ns(hoses["installed_at"]), _ns(_reading_end(hoses))
+    installed, ended = _ns(hoses["installed_at"]), _ns(hoses["ended_at"])
+    if "odometer_at" in hoses:                  # a running hose's reading time (usable_hoses); NaT is int64's least
+        ended = np.where(ended != np.iinfo(np.int64).min, ended, _ns(hoses["odometer_at"]))
     odometer = (hoses["distance_source"] == "odometer").to_numpy()
     dist = np.zeros((len(ids), t.size))
     index = {h: i for i, h in enumerate(ids)}
