@@ -416,6 +416,8 @@ def design_asks(ctx: StageContext, items: list[dict]) -> tuple[list, list]:
 def run(ctx: StageContext) -> StageOutput:
     out = StageOutput()
     items = hose_type_items(ctx)
+    if items:   # loaded once here: the two pools' workers are forked from this process (else each loads it)
+        import scipy.special  # noqa: F401
     effects = ctx.map(effect_of, items, label="decision: life effect")
     # the frozen look and its design are computed in each hose type's own task (_design_here)
     results = ctx.map(decide_hose_type, items, label="decision: looks")
