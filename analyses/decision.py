@@ -93,16 +93,6 @@ def _ns(values) -> np.ndarray:
     return s.to_numpy("datetime64[ns]").astype(np.int64)
 
 
-def _reading_end(life: pd.DataFrame) -> pd.Series:
-    """The end of an odometer hose's interpolation: its end event, or while it runs the time of
-    its odometer reading (``odometer_at``; after it the hose is held at that reading, the last
-    distance known: a suspension there)."""
-    ended = life["ended_at"]
-    if "odometer_at" not in life:
-        return ended
-    return ended.where(ended.notna(), life["odometer_at"])
-
-
 def usable_hoses(life: pd.DataFrame) -> pd.DataFrame:
     """The hoses of ``life`` that can be placed in the looks.
 
@@ -121,7 +111,11 @@ def usable_hoses(life: pd.DataFrame) -> pd.DataFrame:
     d = pd.to_numeric(life["distance_km"], errors="coerce").to_numpy(float)
     adjustment = life["adjustment"].to_numpy(object)
     ok = ~np.isnan(d) & (d >= 0) & np.isin(adjustment, list(GROUP))
-    read_at = _reading_end(life).isna().to_numpy()
+    # an odometer hose's interpolation ends at its end event, or while it runs at its reading's time (odometer_at;
+    # held at that reading after it, the last distance known: a suspension there): without either, no span
+    read_at = life["ended_at"].isna().to_numpy()
+    if "odometer_at" in life:
+        read_at = read_at & life["odometer_at"].isna().to_numpy()
     ok &= life["installed_at"].notna().to_numpy() & ~((life["distance_source"].to_numpy(object) == "odometer")
                                                       & read_at)
     kept = np.flatnonzero(ok)
@@ -200,7 +194,9 @@ def look_hoses(hoses: pd.DataFrame, runs: pd.DataFrame, events: pd.DataFrame) ->
     t = _ns(events["event_at"])
     ids = hoses["hose_id"].to_numpy(object)
     km = pd.to_numeric(hoses["distance_km"]).to_numpy(float)
-    installed, ended = _ns(hoses["installed_at"]), _ns(_reading_end(hoses))
+    installed, ended = _ns(hoses["installed_at"]), _ns(hoses["ended_at"])
+    if "odometer_at" in hoses:                  # a running hose's reading time (usable_hoses); NaT is int64's least
+        ended = np.where(ended != np.iinfo(np.int64).min, ended, _ns(hoses["odometer_at"]))
     odometer = (hoses["distance_source"] == "odometer").to_numpy()
     dist = np.zeros((len(ids), t.size))
     index = {h: i for i, h in enumerate(ids)}
@@ -226,7 +222,7 @@ def look_hoses(hoses: pd.DataFrame, runs: pd.DataFrame, events: pd.DataFrame) ->
                          "failed": failed[hose_ix, look_ix], "distance_from": text["distance_from"]})
 
 
-def look_estimates(in_looks: pd.DataFrame, events: pd.DataFrame) -> pd.DataFrame:
+def look_estimates(in_looks: pd.DataFrame, events: pd.DataFrame, fits: list | None = None) -> pd.DataFrame:
     """The estimate at each look: the common-shape life ratio and its standard error.
 
     Parameters
@@ -235,6 +231,9 @@ def look_estimates(in_looks: pd.DataFrame, events: pd.DataFrame) -> pd.DataFrame
         :func:`look_hoses`.
     events : DataFrame
         :func:`failure_events`.
+    fits : list of CommonShapeFit, optional
+        :func:`analyses.look_fits.look_fits` of ``in_looks`` at every look of ``events`` (in that order) when
+        the caller has them already (:func:`look_fits_of`): not solved again.
 
     Returns
     -------
@@ -250,13 +249,13 @@ def look_estimates(in_looks: pd.DataFrame, events: pd.DataFrame) -> pd.DataFrame
     g = (in_looks["adjustment"] == "force").to_numpy(int)
     odo = (in_looks["distance_from"] == FROM_ODOMETER).to_numpy() & ~f
     numbers = events["look"].to_numpy(np.int64)
-    fits = look_fits(x, f, g, look, numbers)           # every look's fit in one solve
+    if fits is None:
+        fits = look_fits(x, f, g, look, numbers)       # every look's fit in one solve
     order = np.argsort(look, kind="stable")             # in_looks is by look already: then the identity
     sorted_look = look[order]
     starts, ends = np.searchsorted(sorted_look, numbers, "left"), np.searchsorted(sorted_look, numbers, "right")
-    rows = []
-    for number, event_at, hose_id, fit, a, b in zip(numbers.tolist(), events["event_at"], events["hose_id"].tolist(),
-                                                    fits, starts.tolist(), ends.tolist()):
+    cols = {c: [] for c in ("failures", "n_hoses", "total_km", "log_ratio", "se_log_ratio", "note")}
+    for fit, a, b in zip(fits, starts.tolist(), ends.tolist()):
         m = order[a:b]
         ok = fit.note is None and math.isfinite(fit.se_log_ratio) and fit.se_log_ratio > 0
         notes = [fit.note] if fit.note else ([] if ok else ["the fit's information is not positive definite"])
@@ -264,11 +263,39 @@ def look_estimates(in_looks: pd.DataFrame, events: pd.DataFrame) -> pd.DataFrame
         if by_odo:
             notes.append(f"{by_odo} censored hose(s) known only by their odometer: distance linear in time "
                          "between installation and end event")
-        rows.append({"look": number, "event_at": event_at, "hose_id": hose_id,
-                     "failures": int(f[m].sum()), "n_hoses": int(b - a), "total_km": float(x[m].sum()),
-                     "log_ratio": fit.log_ratio if ok else math.nan, "se_log_ratio": fit.se_log_ratio if ok else math.nan,
-                     "note": "; ".join(notes) or None})
-    return pd.DataFrame(rows, columns=LOOK_COLUMNS)
+        for c, v in (("failures", int(f[m].sum())), ("n_hoses", int(b - a)), ("total_km", float(x[m].sum())),
+                     ("log_ratio", fit.log_ratio if ok else math.nan),
+                     ("se_log_ratio", fit.se_log_ratio if ok else math.nan), ("note", "; ".join(notes) or None)):
+            cols[c].append(v)
+    # the frame built from its columns, each typed as a frame of rows would type it (a row at a time: 2x the time)
+    if not numbers.size:
+        return pd.DataFrame([], columns=LOOK_COLUMNS)
+    out = pd.DataFrame({"look": numbers.tolist(), "event_at": list(events["event_at"]),
+                        "hose_id": events["hose_id"].tolist(), **cols}, columns=LOOK_COLUMNS)
+    return out
+
+
+def look_fits_of(in_looks: pd.DataFrame, events: pd.DataFrame) -> list:
+    """:func:`analyses.look_fits.look_fits` of every look of ``events`` (in that order) on :func:`look_hoses`
+    ``in_looks``: each look is solved alone (its own score equation, whatever the other looks), so these are
+    the fits :func:`look_estimates`, :func:`freeze_look` and :func:`profile_intervals` would solve again,
+    bit for bit; a caller needing more than one of them solves them once and passes them on.
+
+    Parameters
+    ----------
+    in_looks : DataFrame
+        :func:`look_hoses`.
+    events : DataFrame
+        :func:`failure_events`.
+
+    Returns
+    -------
+    list of CommonShapeFit
+        One per look of ``events``.
+    """
+    return look_fits(in_looks["distance_km"].to_numpy(float), in_looks["failed"].to_numpy(bool),
+                     (in_looks["adjustment"] == "force").to_numpy(int), in_looks["look"].to_numpy(np.int64),
+                     events["look"].to_numpy(np.int64))
 
 
 def likelihood_check(in_looks: pd.DataFrame, estimates: pd.DataFrame, margin: float, information_fraction,
@@ -339,7 +366,8 @@ def crossing_holds(deviance, crossed: str, boundary_z: float, margin: float) -> 
     return all(deviance(r) > boundary_z ** 2 for r in trials)
 
 
-def freeze_look(hoses: pd.DataFrame, runs: pd.DataFrame, events: pd.DataFrame, in_looks: pd.DataFrame | None = None):
+def freeze_look(hoses: pd.DataFrame, runs: pd.DataFrame, events: pd.DataFrame, in_looks: pd.DataFrame | None = None,
+                fits: list | None = None):
     """The look at which a ``max_failures`` the plan leaves unset is frozen, and that look's fit.
 
     The first look at which each adjustment has at least ``FEW_FAILURES / 2`` failures
@@ -357,6 +385,9 @@ def freeze_look(hoses: pd.DataFrame, runs: pd.DataFrame, events: pd.DataFrame, i
         :func:`look_hoses` of all of ``events`` when the caller has it: its rows up to a look are
         those of the looks up to it computed alone (each look's column is computed by itself), so
         they are read instead of computed again.
+    fits : list of CommonShapeFit, optional
+        :func:`look_fits_of` ``in_looks`` and ``events`` when the caller has them: each look's fit is its
+        own (the same as fitted on the looks up to it), read instead of solved again.
 
     Returns
     -------
@@ -380,14 +411,17 @@ def freeze_look(hoses: pd.DataFrame, runs: pd.DataFrame, events: pd.DataFrame, i
         if not upto.size:
             break
         last = int(events["look"].iloc[int(upto[-1])])
-        if in_looks is None:
+        if fits is not None:
+            upto_fits = [fits[i] for i in upto.tolist()]
+        elif in_looks is None:
             upto_looks = look_hoses(hoses, runs, events.iloc[:int(upto[-1]) + 1])
         else:
             upto_looks = in_looks[in_looks["look"].to_numpy(np.int64) <= last]
-        fits = look_fits(upto_looks["distance_km"].to_numpy(float), upto_looks["failed"].to_numpy(bool),
-                         (upto_looks["adjustment"] == "force").to_numpy(int), upto_looks["look"].to_numpy(np.int64),
-                         events["look"].to_numpy(np.int64)[upto])
-        for i, fit in zip(upto.tolist(), fits):
+        if fits is None:
+            upto_fits = look_fits(upto_looks["distance_km"].to_numpy(float), upto_looks["failed"].to_numpy(bool),
+                                  (upto_looks["adjustment"] == "force").to_numpy(int),
+                                  upto_looks["look"].to_numpy(np.int64), events["look"].to_numpy(np.int64)[upto])
+        for i, fit in zip(upto.tolist(), upto_fits):
             if fit.note is None and math.isfinite(fit.shape):
                 failures = [int(c) for c in counts[:, i]]
                 return int(events["look"].iloc[i]), replace(fit, shape=reduced_bias_shape(fit.shape, sum(failures))), \
@@ -406,7 +440,7 @@ def _no_maximum(n: int) -> SequentialVerdict:
 
 def decide(estimates: pd.DataFrame, max_failures: int | None, margin: float, alpha: float,
            spending: str, in_looks: pd.DataFrame | None = None, first_look: int = 1,
-           deviance=ratio_deviance) -> SequentialVerdict | None:
+           deviance=ratio_deviance, fits: list | None = None) -> SequentialVerdict | None:
     """The sequential verdict over every look (None without looks).
 
     Parameters
@@ -435,6 +469,9 @@ def decide(estimates: pd.DataFrame, max_failures: int | None, margin: float, alp
         it are read as looks without an estimate, their alpha spent unused (conservative).
     deviance : callable, optional
         The likelihood check's profile deviance (:func:`likelihood_check`): the model of ``estimates``.
+    fits : list of CommonShapeFit, optional
+        :func:`look_fits_of` ``in_looks`` at every look of ``estimates`` when the caller has them: the
+        profile intervals read them instead of solving the looks again (:func:`profile_intervals`).
 
     Returns
     -------
@@ -454,10 +491,11 @@ def decide(estimates: pd.DataFrame, max_failures: int | None, margin: float, alp
         est, se = np.where(early, math.nan, est), np.where(early, math.nan, se)
     verdict = sequential_verdict(est, se, t, margin, alpha, spending, confirm=confirm)
     return verdict if in_looks is None or deviance is not ratio_deviance else profile_intervals(verdict, in_looks,
-                                                                                              estimates)
+                                                                                              estimates, fits)
 
 
-def profile_intervals(verdict: SequentialVerdict, in_looks: pd.DataFrame, estimates: pd.DataFrame) -> SequentialVerdict:
+def profile_intervals(verdict: SequentialVerdict, in_looks: pd.DataFrame, estimates: pd.DataFrame,
+                      fits: list | None = None) -> SequentialVerdict:
     """``verdict`` with its repeated confidence intervals taken from the profile likelihood.
 
     At each look that has a Wald interval ``log_ratio -/+ c_k se`` (an estimate and a boundary), the
@@ -479,6 +517,8 @@ def profile_intervals(verdict: SequentialVerdict, in_looks: pd.DataFrame, estima
     in_looks, estimates : DataFrame
         :func:`look_hoses` and :func:`look_estimates` (``estimates`` one row a look of ``verdict``; the
         common-shape Weibull's estimates).
+    fits : list of CommonShapeFit, optional
+        :func:`look_fits_of` at every look of ``estimates`` (read, not solved again).
 
     Returns
     -------
@@ -493,7 +533,8 @@ def profile_intervals(verdict: SequentialVerdict, in_looks: pd.DataFrame, estima
         failures = np.array([failed[look == n].sum() for n in numbers.tolist()])
         lo[need], hi[need] = profile_rci(in_looks["distance_km"].to_numpy(float), failed,
                                          (in_looks["adjustment"] == "force").to_numpy(int), look, numbers,
-                                         verdict.boundary_z[need] * np.sqrt(bartlett_factor(failures)))
+                                         verdict.boundary_z[need] * np.sqrt(bartlett_factor(failures)),
+                                         fits=None if fits is None else [fits[i] for i in need.tolist()])
     open_ = int((~(np.isfinite(lo[need]) & np.isfinite(hi[need]))).sum())
     note = verdict.note
     if verdict.decided_at is not None and not _interval_says(verdict.verdict, lo[verdict.decided_at],

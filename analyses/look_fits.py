@@ -44,7 +44,7 @@ import math
 
 import numpy as np
 
-from analyses.life_effect import RATIO_SEARCH, CommonShapeFit, common_shape_fit, ratio_deviance
+from analyses.life_effect import RATIO_SEARCH, CommonShapeFit, common_shape_fit, ratio_deviance, remembered
 from analyses.service_life import SHAPE_BOUNDS, lr_bound
 
 #: Newton steps on the signed root deviance before an end is searched alone (``lr_bound``). [-]
@@ -128,16 +128,29 @@ def _batch_score(t: np.ndarray, logs) -> tuple[np.ndarray, np.ndarray]:
     return value, slope
 
 
+def _rows(logs, i):
+    """``logs`` (per adjustment a tuple of per-look arrays) at the rows ``i`` (None: all of them)."""
+    return logs if i is None else [tuple(a[i] for a in lg) for lg in logs]
+
+
 def _batch_newton(value_slope, start: np.ndarray, xtol: float = 1e-13) -> np.ndarray:
     """:func:`analyses.service_life.newton_root` over :data:`~analyses.service_life.SHAPE_BOUNDS` (log shapes) for
-    many roots at once, step for step; NaN where it does not settle strictly inside (solved alone then)."""
+    many roots at once, step for step; NaN where it does not settle strictly inside (solved alone then).
+
+    ``value_slope(t, rows)``: the function and its slope at ``t`` of the roots ``rows`` (None: every root), so that
+    only the roots still unsettled are evaluated (each row's value is its own: the same bits in any batch)."""
     lo, hi = math.log(SHAPE_BOUNDS[0]), math.log(SHAPE_BOUNDS[1])
     a, b = np.full(start.size, lo), np.full(start.size, hi)
     t, root, todo = np.clip(start, lo, hi), np.full(start.size, math.nan), np.ones(start.size, bool)
     for _ in range(100):
         if not todo.any():
             break
-        v, d = value_slope(t)
+        if todo.all():
+            v, d = value_slope(t, None)
+        else:
+            i = np.flatnonzero(todo)
+            v, d = np.full(t.size, math.nan), np.full(t.size, math.nan)
+            v[i], d[i] = value_slope(t[i], i)
         todo &= np.isfinite(v)
         hit = todo & (v == 0.0)
         root[hit], todo = np.where((lo < t) & (t < hi), t, math.nan)[hit], todo & ~hit
@@ -233,7 +246,7 @@ def look_fits(life, failed, group, look, looks) -> list[CommonShapeFit]:
     root = np.full(wanted.size, math.nan)
     if batch.any():
         sub = [(y[batch], m[batch], r[batch], syf[batch]) for y, m, r, syf, _ in logs]
-        root[batch] = _batch_newton(lambda t: _batch_score(t, sub), np.zeros(int(batch.sum())))
+        root[batch] = _batch_newton(lambda t, i: _batch_score(t, _rows(sub, i)), np.zeros(int(batch.sum())))
     fits: list = [None] * wanted.size
     ok = np.flatnonzero(np.isfinite(root))
     if ok.size:
@@ -256,7 +269,7 @@ def _signed_root(t: np.ndarray, pooled, ll: np.ndarray, centre: np.ndarray, logk
     y = np.where(mm, big - ymax[:, None], 0.0)
     r, rf = _row_sums(ff.astype(np.float64)), _row_sums((ff & fm).astype(np.float64))
     syf = _row_sums(np.where(ff, y, 0.0))
-    logk = _batch_newton(lambda u: _batch_score(u, [(y, mm, r, syf)]), logk)
+    logk = _batch_newton(lambda u, i: _batch_score(u, _rows([(y, mm, r, syf)], i)), logk)
     k = np.exp(logk)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         e = np.where(mm, np.exp(k[:, None] * y), 0.0)
@@ -300,7 +313,7 @@ def _newton_ends(mats, fits: list[CommonShapeFit], z: np.ndarray) -> np.ndarray:
     return ends.reshape(2, n)
 
 
-def profile_rci(life, failed, group, look, looks, z, centre=None, deviance=ratio_deviance):
+def profile_rci(life, failed, group, look, looks, z, centre=None, deviance=ratio_deviance, fits=None):
     """Each look's repeated confidence interval of the log life ratio by the profile likelihood.
 
     ``{theta : D(theta) <= z_k^2}``, ``D`` the look's profile deviance of ``theta = log(force life /
@@ -323,6 +336,10 @@ def profile_rci(life, failed, group, look, looks, z, centre=None, deviance=ratio
         (:func:`analyses.life_effect.ratio_deviance`, the common-shape Weibull's, by default and
         fast; any other, e.g. :func:`analyses.life_effect_lognormal.lognormal_ratio_deviance`, is
         searched look by look with :func:`analyses.service_life.lr_bound`).
+    fits : list of CommonShapeFit, optional
+        Per wanted look its :func:`look_fits` when the caller has them (the same fits: each look is
+        solved alone, whatever the other looks), so that they are not solved again; read only with
+        the common-shape Weibull's ``deviance``.
 
     Returns
     -------
@@ -337,7 +354,7 @@ def profile_rci(life, failed, group, look, looks, z, centre=None, deviance=ratio
     ends = np.full((2, wanted.size), math.nan)
     mid = np.full(wanted.size, math.nan) if centre is None else np.asarray(centre, np.float64).copy()
     if deviance is ratio_deviance and wanted.size:
-        fits = look_fits(x, f, g, lk, wanted)
+        fits = look_fits(x, f, g, lk, wanted) if fits is None else list(fits)
         good = np.array([ft.note is None and math.isfinite(ft.loglik) for ft in fits]) & np.isfinite(z) & (z > 0)
         mid = np.array([ft.log_ratio if ok else math.nan for ft, ok in zip(fits, good)])
         if good.any():
@@ -346,6 +363,6 @@ def profile_rci(life, failed, group, look, looks, z, centre=None, deviance=ratio
     edge = math.log(RATIO_SEARCH)
     for side, j in np.argwhere(np.isnan(ends) & np.isfinite(mid) & np.isfinite(z) & (z > 0)).tolist():
         m, crit = lk == wanted[j], float(z[j]) ** 2
-        ends[side, j] = lr_bound(lambda t: deviance(x[m], f[m], g[m], math.exp(t)) - crit, float(mid[j]),
+        ends[side, j] = lr_bound(remembered(lambda t: deviance(x[m], f[m], g[m], math.exp(t)) - crit), float(mid[j]),
                                  float(mid[j]) + (2 * side - 1) * edge)
     return ends[0], ends[1]

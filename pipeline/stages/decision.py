@@ -47,7 +47,7 @@ import math
 import numpy as np
 import pandas as pd
 
-from analyses.decision import (GROUP, decide, failure_events, freeze_look, look_estimates, look_hoses,
+from analyses.decision import (GROUP, decide, failure_events, freeze_look, look_estimates, look_fits_of, look_hoses,
                                usable_hoses)
 from analyses.hose_life import match_runs
 from analyses.life_effect import life_effect
@@ -155,11 +155,19 @@ def effect_of(item: dict) -> dict:
     dict
         The row; ``shape`` is the common Weibull shape [-] the design reads (NaN when NULL).
     """
-    life = pd.DataFrame({c: item["hoses"][c] for c in ("adjustment", "distance_km", "status")})
-    use = life[life["distance_km"] > 0]
-    le = life_effect(use["distance_km"].to_numpy(float), (use["status"] == "failed").to_numpy(),
-                     use["adjustment"].map(GROUP).to_numpy(int), confidence=item["plan"]["confidence"],
-                     alpha=item["plan"]["alpha"])
+    hoses = item["hoses"]
+    km = np.array(hoses["distance_km"], dtype=np.float64)
+    use = np.flatnonzero(km > 0)
+    adjustment = [hoses["adjustment"][i] for i in use.tolist()]
+    if all(a in GROUP for a in adjustment):   # the lists read directly (no frame: a third of the item's time)
+        life, failed = km[use], np.array([hoses["status"][i] == "failed" for i in use.tolist()], dtype=bool)
+        group = np.array([GROUP[a] for a in adjustment], dtype=int)
+    else:   # an adjustment the fit does not know: as before (split_groups says so)
+        life = pd.DataFrame({c: hoses[c] for c in ("adjustment", "distance_km", "status")})
+        life = life[life["distance_km"] > 0]
+        life, failed, group = (life["distance_km"].to_numpy(float), (life["status"] == "failed").to_numpy(),
+                               life["adjustment"].map(GROUP).to_numpy(int))
+    le = life_effect(life, failed, group, confidence=item["plan"]["confidence"], alpha=item["plan"]["alpha"])
     row = {c: getattr(le, c) for c in EFFECT_COLUMNS if hasattr(le, c)}
     return {**row, "hose_type": item["hose_type"], "confidence": item["plan"]["confidence"]}
 
@@ -172,21 +180,22 @@ def freeze_of(item: dict) -> dict:
     return _frozen(hoses, _frame(item["runs"], RUN_SPEC), failure_events(hoses))
 
 
-def _frozen(hoses: pd.DataFrame, runs: pd.DataFrame, events: pd.DataFrame, in_looks: pd.DataFrame | None = None) -> dict:
-    """:func:`freeze_of` from the item's frames (``in_looks``: their :func:`analyses.decision.look_hoses`, when
-    computed already)."""
-    look, fit, failures = freeze_look(hoses, runs, events, in_looks)
+def _frozen(hoses: pd.DataFrame, runs: pd.DataFrame, events: pd.DataFrame, in_looks: pd.DataFrame | None = None,
+            fits: list | None = None) -> dict:
+    """:func:`freeze_of` from the item's frames (``in_looks``: their :func:`analyses.decision.look_hoses`, and
+    ``fits`` their :func:`analyses.decision.look_fits_of`, when computed already)."""
+    look, fit, failures = freeze_look(hoses, runs, events, in_looks, fits)
     at = None if look is None else _ns_list(events["event_at"].iloc[look - 1:look])[0]
     return {"look": look, "event_at": at, "shape": None if fit is None else float(fit.shape), "failures": failures}
 
 
 def _design_here(item: dict, hoses: pd.DataFrame, runs: pd.DataFrame, events: pd.DataFrame,
-                 in_looks: pd.DataFrame) -> list:
+                 in_looks: pd.DataFrame, fits: list | None = None) -> list:
     """The item's :func:`design_of` computed inside its own ``ctx.map`` task (in the worker pool): the frozen
     look read from the looks already placed (:func:`_frozen`), its design by :func:`design_failures`
     (cached per process by :func:`analyses.sequential.design_for`: hose types of one grid shape and hoses
     on test share it in a worker)."""
-    frozen = _frozen(hoses, runs, events, in_looks) if item["plan"]["max_failures"] is None else None
+    frozen = _frozen(hoses, runs, events, in_looks, fits) if item["plan"]["max_failures"] is None else None
     ask = design_item(item["plan"], frozen, item["hoses"])
     designed = {} if ask is None else {json.dumps(ask, sort_keys=True): design_failures(ask)}
     return design_of(item, frozen, designed, ask)
@@ -322,9 +331,10 @@ def decide_hose_type(item: dict) -> dict:
     hoses = usable_hoses(life)
     events = failure_events(hoses)
     in_looks = look_hoses(hoses, runs, events)
-    design = tuple(item["design"] if "design" in item else _design_here(item, hoses, runs, events, in_looks))
-    est = look_estimates(in_looks, events)
-    sv = decide(est, design[0], plan["margin"], plan["alpha"], plan["spending"], in_looks, design[3] or 1)
+    fits = look_fits_of(in_looks, events)     # every look solved once: the frozen look, the estimates, the intervals
+    design = tuple(item["design"] if "design" in item else _design_here(item, hoses, runs, events, in_looks, fits))
+    est = look_estimates(in_looks, events, fits)
+    sv = decide(est, design[0], plan["margin"], plan["alpha"], plan["spending"], in_looks, design[3] or 1, fits=fits)
     looks = _looks_rows(hose_type, est, sv, plan["present"]) if sv is not None else []
     for row in looks[:design[3] - 1] if design[0] is not None else []:
         row["note"] = "; ".join(n for n in (row["note"], f"before look {design[3]}, where max_failures was frozen: "
@@ -406,6 +416,8 @@ def design_asks(ctx: StageContext, items: list[dict]) -> tuple[list, list]:
 def run(ctx: StageContext) -> StageOutput:
     out = StageOutput()
     items = hose_type_items(ctx)
+    if items:   # loaded once here: the two pools' workers are forked from this process (else each loads it)
+        import scipy.special  # noqa: F401
     effects = ctx.map(effect_of, items, label="decision: life effect")
     # the frozen look and its design are computed in each hose type's own task (_design_here)
     results = ctx.map(decide_hose_type, items, label="decision: looks")

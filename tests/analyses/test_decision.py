@@ -294,3 +294,43 @@ def test_an_interval_the_profile_likelihood_does_not_close_is_null_with_a_note()
     assert "1 look(s) whose repeated interval the profile likelihood does not close" in wide.note
     narrow = profile_intervals(replace(sv, boundary_z=np.array([1.0])), in_looks, est)
     assert narrow.rci_lower[0] < fit.log_ratio < narrow.rci_upper[0] and "repeated interval" not in narrow.note
+
+
+def test_the_looks_fits_solved_once_are_those_each_reader_solves_bit_for_bit():
+    """look_fits_of's fits, passed to freeze_look, look_estimates and decide (the profile intervals), give
+    exactly what each solves on its own: each look's fit is its own, whatever the other looks."""
+    from analyses.decision import freeze_look, look_fits_of
+
+    runs = pd.DataFrame(columns=["hose_id", "started_at", "duration_h", "distance_km"])
+    hoses = _staggered(n_distance=10, n_force=10)
+    events = failure_events(hoses)
+    in_looks = look_hoses(hoses, runs, events)
+    fits = look_fits_of(in_looks, events)
+    assert len(fits) == len(events) and fits[0].note and fits[-1].note is None   # the first looks: too few
+    alone = freeze_look(hoses, runs, events, in_looks)
+    shared = freeze_look(hoses, runs, events, in_looks, fits)
+    assert alone[0] == shared[0] == 15 and alone[2] == shared[2] == [10, 5]
+    assert alone[1].shape == shared[1].shape and alone[1].log_ratio == shared[1].log_ratio
+    est = look_estimates(in_looks, events)
+    pd.testing.assert_frame_equal(look_estimates(in_looks, events, fits), est, check_exact=True)
+    a = decide(est, 30, 1.25, 0.05, "obrien-fleming", in_looks, first_look=13)
+    b = decide(est, 30, 1.25, 0.05, "obrien-fleming", in_looks, first_look=13, fits=fits)
+    assert np.isfinite(a.rci_lower).sum() >= 3
+    for name in ("rci_lower", "rci_upper", "boundary_z"):
+        assert np.array_equal(getattr(a, name), getattr(b, name), equal_nan=True)
+    assert a.note == b.note and a.verdict == b.verdict
+
+
+def test_look_estimates_without_looks_and_of_a_look_without_event_keep_their_types():
+    """The frame built from columns types them as the rows did: no look -> no rows, every column untyped;
+    a look given without its event (the remaining-life stage's) -> event_at and hose_id untyped."""
+    from analyses.decision import LOOK_COLUMNS
+
+    runs = pd.DataFrame(columns=["hose_id", "started_at", "duration_h", "distance_km"])
+    hoses = _staggered()
+    in_looks = look_hoses(hoses, runs, failure_events(hoses))
+    none = look_estimates(in_looks.iloc[0:0], failure_events(hoses).iloc[0:0])
+    assert list(none.columns) == LOOK_COLUMNS and none.empty and set(none.dtypes) == {np.dtype(object)}
+    one = look_estimates(in_looks, pd.DataFrame({"look": [13], "event_at": [None], "hose_id": [None]}))
+    assert one["event_at"].dtype == object and one["hose_id"].dtype == object and one["look"].dtype == np.int64
+    assert one["failures"].tolist() == [13] and math.isfinite(one["log_ratio"].iloc[0])

@@ -446,3 +446,25 @@ def test_the_tables_of_a_designed_fleet_do_not_depend_on_what_the_process_comput
                                                                      "decided_at_look"), times=("decided_at",))
     pd.testing.assert_frame_equal(shared.tables["life_verdict"], one_by_one, check_exact=True)
     sequential.clear_caches()
+
+
+def test_effect_of_reads_the_item_lists_as_life_effect_of_the_positive_lives():
+    """effect_of takes the item's lists directly: the row is life_effect's of the hoses with a positive
+    distance (NaN and 0 left out, a status other than 'failed' a suspension); an adjustment the fit does not
+    know is refused as before."""
+    from analyses.life_effect import life_effect
+
+    rng = np.random.default_rng(1)
+    n = 12
+    hoses = {"adjustment": ["distance"] * n + ["force"] * n, "distance_km": list(100.0 * rng.weibull(2.0, 2 * n)),
+             "status": ["failed", "running"] * n}
+    hoses["distance_km"][3], hoses["distance_km"][4], hoses["status"][5] = math.nan, 0.0, None
+    row = stage.effect_of({"hose_type": "T", "hoses": hoses, "plan": {"confidence": 0.9, "alpha": 0.05}})
+    keep = [i for i, d in enumerate(hoses["distance_km"]) if d > 0]
+    ref = life_effect(np.array(hoses["distance_km"])[keep], np.array([hoses["status"][i] == "failed" for i in keep]),
+                      np.array([int(hoses["adjustment"][i] == "force") for i in keep]), confidence=0.9, alpha=0.05)
+    assert row["n_distance"] == 10 and row["n_failed_distance"] == 5 and row["hose_type"] == "T"
+    assert all(row[k] == getattr(ref, k) for k in ("shape", "life_ratio", "life_ratio_lower", "p_value", "model"))
+    hoses["adjustment"][7] = None
+    with pytest.raises(ValueError, match="group must be 0"):
+        stage.effect_of({"hose_type": "T", "hoses": hoses, "plan": {"confidence": 0.9, "alpha": 0.05}})
