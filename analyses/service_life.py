@@ -7,7 +7,8 @@ exact lives; removed and still-running hoses are right-censored (suspensions).
 Weibull fit
 -----------
 Two-parameter Weibull, ``F(x) = 1 - exp(-(x / scale)^shape)``, fitted by maximum likelihood
-with ``scipy.stats.weibull_min.fit`` on a ``scipy.stats.CensoredData`` (location fixed at 0).
+with ``scipy.stats.weibull_min.fit`` on a ``scipy.stats.CensoredData`` (location fixed at 0; its
+bits without importing ``scipy.stats``: ``analyses.numerics_fmin.weibull_polish``).
 The optimiser is started from the exact profile-likelihood solution (for a given shape the
 scale MLE is closed form, and the shape solves a monotone score equation, found with
 ``brentq``); whichever of the two has the higher likelihood is kept, so the estimate does not
@@ -86,6 +87,7 @@ import pandas as pd
 import scipy  # its submodules load on first use: a rebuild that reuses every stage never pays for them
 
 from analyses.numerics import brentq, chi2_ppf, chi2_sf
+from analyses.numerics_fmin import weibull_polish
 from analyses.quality import at_bound
 
 _NAN = float("nan")
@@ -202,7 +204,7 @@ def weibull_scale_given_shape(shape: float, life, failed) -> float:
 
 
 def weibull_fit(life, failed) -> WeibullFit:
-    """Two-parameter Weibull MLE with right-censoring (``scipy.stats.CensoredData``).
+    """Two-parameter Weibull MLE with right-censoring (``scipy.stats.weibull_min.fit`` on ``CensoredData``, ported).
 
     Parameters
     ----------
@@ -226,10 +228,9 @@ def weibull_fit(life, failed) -> WeibullFit:
     except (ValueError, FloatingPointError) as exc:
         return WeibullFit(_NAN, _NAN, _NAN, n, r, note=str(exc).splitlines()[0])
     best = (k0, s0, weibull_loglik(k0, s0, x, f))
-    data = scipy.stats.CensoredData.right_censored(x, ~f)
     try:
         with np.errstate(all="ignore"):
-            k1, _, s1 = scipy.stats.weibull_min.fit(data, k0, floc=0, scale=s0)
+            k1, s1 = weibull_polish(x, f, k0, s0)   # weibull_min.fit's bits, without importing scipy.stats
         ll1 = weibull_loglik(k1, s1, x, f)
         if math.isfinite(ll1) and ll1 > best[2]:
             best = (float(k1), float(s1), ll1)

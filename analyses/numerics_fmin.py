@@ -1,0 +1,205 @@
+"""The Weibull fit's polish without ``scipy.stats`` or ``scipy.optimize``: scipy's Nelder-Mead and
+``weibull_min``'s censored negative log-likelihood, bit for bit.
+
+:func:`analyses.service_life.weibull_fit` polishes its exact profile solution with
+``scipy.stats.weibull_min.fit(CensoredData.right_censored(x, ~f), k0, floc=0, scale=s0)``, which,
+with censored lives, is ``scipy.optimize.fmin`` (Nelder & Mead 1965, Gao & Han 2012's parameters
+off) on ``rv_continuous._penalized_nnlf`` over (shape, scale). Importing ``scipy.stats`` for it
+cost about 0.6 CPU-s of a rebuild after one changed leakage check (the remaining-life stage's life
+models refit lives the change does not touch; issue 26, the cost of a change). :func:`weibull_polish`
+is that call, step for step: the same simplex, the same arithmetic in the same order, the same
+evaluation budget and the same failures (non-finite scaled lives raise, as ``CensoredData`` does).
+``tests/analyses/test_numerics_fmin.py`` holds it to scipy's bits (scipy 1.17).
+
+References
+----------
+Nelder, J. A. & Mead, R. (1965). A simplex method for function minimization. The Computer
+Journal 7(4), 308-313.
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy  # scipy.special (xlogy) loads on first use
+
+#: ``scipy.stats``' penalty per observation outside the support: ``log(finfo(float).max)`` [-].
+_LOGXMAX = np.log(np.finfo(float).max)
+
+
+class _TooManyCalls(Exception):
+    """``scipy.optimize``'s ``_MaxFuncCallError``: the evaluation budget is spent."""
+
+
+def weibull_censored_nll(theta, uncensored: np.ndarray, right: np.ndarray | None):
+    """``weibull_min._penalized_nnlf([shape, 0, scale], data)``: ``data`` the ``CensoredData`` of
+    ``uncensored`` and ``right``, or, ``right`` None, the plain array ``uncensored`` (scipy's fit of
+    censored data without a censored value).
+
+    Parameters
+    ----------
+    theta : numpy.ndarray
+        ``[shape, scale]`` [-, unit of the lives].
+    uncensored : numpy.ndarray
+        Failure lives [any unit, > 0], float64.
+    right : numpy.ndarray or None
+        Right-censored lives [any unit, > 0], float64.
+
+    Returns
+    -------
+    float
+        The penalised negative log-likelihood [-] (``inf`` outside the parameter space).
+
+    Raises
+    ------
+    ValueError
+        A scaled life of ``CensoredData`` not finite (its constructor refuses it).
+    """
+    c, scale = theta[0], theta[1]
+    if not np.asarray(c) > 0 or scale <= 0:
+        return np.inf
+    u = (uncensored - 0) / scale
+    n_log_scale = len(u) * np.log(scale)   # (len(x) - x.num_censored()) * log(scale)
+    if right is None:                      # an array: rv_continuous._support_mask, closed
+        keep = (0.0 <= u) & (u <= np.inf)
+        us, rs = (u[keep] if not keep.all() else u), None
+    else:                                  # CensoredData._supported, open
+        r = (right - 0) / scale
+        if not (np.isfinite(u).all() and np.isfinite(r).all()):
+            raise ValueError("scaled lives must be finite")
+        us, rs = u[(0.0 < u) & (u < np.inf)], r[r < np.inf]
+    empty = np.empty(0)
+    terms = [np.log(c) + scipy.special.xlogy(c - 1, us) - pow(us, c)]
+    if rs is not None:
+        terms += [empty, -pow(rs, c), empty]   # logpdf, logcdf (left), logsf (right), interval
+    totals, bad = [], len(u) + (0 if rs is None else len(r)) - len(us) - (0 if rs is None else len(rs))
+    for term in terms:
+        finite = np.isfinite(term)
+        totals.append(np.sum(term[finite]))
+        bad += finite.size - np.count_nonzero(finite)
+    return -sum(totals) + bad * _LOGXMAX * 100 + n_log_scale
+
+
+def nelder_mead(func, x0, args=(), xatol: float = 1e-4, fatol: float = 1e-4) -> np.ndarray:
+    """``scipy.optimize.fmin(func, x0, args, xatol, fatol, disp=0)``: the downhill simplex with
+    scipy's coefficients (reflection 1, expansion 2, contraction 0.5, shrink 0.5), its initial
+    simplex (each coordinate times 1.05, or 0.00025 where it is 0) and budget (200 evaluations
+    and 200 iterations per coordinate).
+
+    Parameters
+    ----------
+    func : callable
+        ``func(x, *args) -> float``.
+    x0 : array_like
+        The start [unit of each coordinate].
+    xatol, fatol : float
+        Stop when the simplex spans at most ``xatol`` in every coordinate and its values at most
+        ``fatol``.
+
+    Returns
+    -------
+    numpy.ndarray
+        The best vertex.
+    """
+    x0 = np.atleast_1d(x0).flatten()
+    x0 = np.asarray(x0, dtype=x0.dtype if np.issubdtype(x0.dtype, np.inexact) else np.float64)
+    n = len(x0)
+    sim = np.empty((n + 1, n), dtype=x0.dtype)
+    sim[0] = x0
+    for k in range(n):
+        y = np.array(x0, copy=True)
+        y[k] = (1 + 0.05) * y[k] if y[k] != 0 else 0.00025
+        sim[k + 1] = y
+    maxfun = maxiter = n * 200
+    calls = [0]
+
+    def f(x):
+        if calls[0] >= maxfun:
+            raise _TooManyCalls
+        calls[0] += 1
+        fx = func(np.copy(x), *args)
+        return fx if np.isscalar(fx) else np.asarray(fx).item()
+
+    fsim = np.full((n + 1,), np.inf, dtype=float)
+    try:
+        for k in range(n + 1):
+            fsim[k] = f(sim[k])
+    except _TooManyCalls:
+        pass
+    for _ in range(2):
+        ind = np.argsort(fsim)
+        sim, fsim = np.take(sim, ind, 0), np.take(fsim, ind, 0)
+    iterations = 1
+    while calls[0] < maxfun and iterations < maxiter:
+        try:
+            if (np.max(np.ravel(np.abs(sim[1:] - sim[0]))) <= xatol
+                    and np.max(np.abs(fsim[0] - fsim[1:])) <= fatol):
+                break
+            _step(f, sim, fsim, np.add.reduce(sim[:-1], 0) / n)
+            iterations += 1
+        except _TooManyCalls:
+            pass
+        ind = np.argsort(fsim)
+        sim, fsim = np.take(sim, ind, 0), np.take(fsim, ind, 0)
+    return sim[0]
+
+
+def _step(f, sim: np.ndarray, fsim: np.ndarray, xbar: np.ndarray) -> None:
+    """One Nelder-Mead step in place (``_minimize_neldermead``'s, ``rho, chi, psi, sigma = 1, 2, 0.5, 0.5``)."""
+    rho, chi, psi, sigma = 1, 2, 0.5, 0.5
+    xr = (1 + rho) * xbar - rho * sim[-1]
+    fxr = f(xr)
+    if fxr < fsim[0]:
+        xe = (1 + rho * chi) * xbar - rho * chi * sim[-1]
+        fxe = f(xe)
+        sim[-1], fsim[-1] = (xe, fxe) if fxe < fxr else (xr, fxr)
+        return
+    if fxr < fsim[-2]:
+        sim[-1], fsim[-1] = xr, fxr
+        return
+    if fxr < fsim[-1]:
+        xc = (1 + psi * rho) * xbar - psi * rho * sim[-1]
+        fxc = f(xc)
+        if fxc <= fxr:
+            sim[-1], fsim[-1] = xc, fxc
+            return
+    else:
+        xcc = (1 - psi) * xbar + psi * sim[-1]
+        fxcc = f(xcc)
+        if fxcc < fsim[-1]:
+            sim[-1], fsim[-1] = xcc, fxcc
+            return
+    for j in range(1, len(sim)):
+        sim[j] = sim[0] + sigma * (sim[j] - sim[0])
+        fsim[j] = f(sim[j])
+
+
+def weibull_polish(x: np.ndarray, f: np.ndarray, shape: float, scale: float) -> tuple[float, float]:
+    """``weibull_min.fit(CensoredData.right_censored(x, ~f), shape, floc=0, scale=scale)``'s shape
+    and scale (without a censored life scipy fits the plain lives: the same minimisation of the
+    lives' own likelihood, its penalty counting lives outside the closed support).
+
+    Parameters
+    ----------
+    x : numpy.ndarray
+        Lives [any unit, > 0, finite], float64.
+    f : numpy.ndarray of bool
+        True for a failure.
+    shape, scale : float
+        The start [-, unit of ``x``].
+
+    Returns
+    -------
+    (shape, scale) : (numpy.float64, numpy.float64)
+
+    Raises
+    ------
+    ValueError
+        Where scipy raises: a non-finite scaled censored life, an end outside the parameter space.
+    """
+    data = (x, None) if f.all() else (x[f], x[~f])
+    k, s = nelder_mead(weibull_censored_nll, [shape, scale], args=data)
+    if not (k > 0 and s > 0):
+        raise ValueError("Optimization converged to parameters outside the range allowed by the distribution.")
+    return k, s
+
+
+__all__ = ["nelder_mead", "weibull_censored_nll", "weibull_polish"]
