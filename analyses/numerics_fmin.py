@@ -172,6 +172,152 @@ def _step(f, sim: np.ndarray, fsim: np.ndarray, xbar: np.ndarray) -> None:
         fsim[j] = f(sim[j])
 
 
+class _BracketError(RuntimeError):
+    """``scipy.optimize``'s ``BracketError``, with the last three points and values."""
+
+
+def _bracket(func, xa: float, xb: float, grow_limit: float = 110.0, maxiter: int = 1000) -> tuple:
+    """``scipy.optimize.bracket(func, xa, xb)``: three points downhill-bracketing a minimum and their
+    values, and the evaluations made."""
+    _gold, _verysmall_num = 1.618034, 1e-21
+    xa, xb = np.asarray([xa, xb])
+    fa, fb = func(xa), func(xb)
+    if fa < fb:
+        xa, xb, fa, fb = xb, xa, fb, fa
+    xc = xb + _gold * (xb - xa)
+    fc = func(xc)
+    funcalls, it = 3, 0
+    while fc < fb:
+        tmp1, tmp2 = (xb - xa) * (fb - fc), (xb - xc) * (fb - fa)
+        val = tmp2 - tmp1
+        denom = 2.0 * _verysmall_num if np.abs(val) < _verysmall_num else 2.0 * val
+        w = xb - ((xb - xc) * tmp2 - (xb - xa) * tmp1) / denom
+        wlim = xb + grow_limit * (xc - xb)
+        if it > maxiter:
+            raise RuntimeError("No valid bracket was found before the iteration limit was reached.")
+        it += 1
+        if (w - xc) * (xb - w) > 0.0:
+            fw = func(w)
+            funcalls += 1
+            if fw < fc:
+                xa, xb, fa, fb = xb, w, fb, fw
+                break
+            if fw > fb:
+                xc, fc = w, fw
+                break
+            w = xc + _gold * (xc - xb)
+            fw = func(w)
+            funcalls += 1
+        elif (w - wlim) * (wlim - xc) >= 0.0:
+            w = wlim
+            fw = func(w)
+            funcalls += 1
+        elif (w - wlim) * (xc - w) > 0.0:
+            fw = func(w)
+            funcalls += 1
+            if fw < fc:
+                xb, xc = xc, w
+                w = xc + _gold * (xc - xb)
+                fb, fc = fc, fw
+                fw = func(w)
+                funcalls += 1
+        else:
+            w = xc + _gold * (xc - xb)
+            fw = func(w)
+            funcalls += 1
+        xa, xb, xc, fa, fb, fc = xb, xc, w, fb, fc, fw
+    ok = ((fb < fc and fb <= fa) or (fb < fa and fb <= fc)) and (xa < xb < xc or xc < xb < xa) \
+        and np.isfinite(xa) and np.isfinite(xb) and np.isfinite(xc)
+    if not ok:
+        raise _BracketError(xa, xb, xc, fa, fb, fc)
+    return xa, xb, xc, fa, fb, fc
+
+
+def brent_minimize(func, xa: float, xb: float, tol: float = 1.48e-8, maxiter: int = 500) -> tuple[float, float]:
+    """``scipy.optimize.minimize_scalar(func, bracket=(xa, xb))``'s ``(x, fun)``: Brent's
+    minimiser (Brent 1973, ch. 5) from :func:`_bracket`'s bracket, scipy's steps; without a valid
+    bracket the best of its last three points (NaN when one is NaN), as scipy returns it.
+
+    Parameters
+    ----------
+    func : callable
+        ``func(x) -> float``.
+    xa, xb : float
+        The two starting points of the bracket search [unit of x].
+    tol : float
+        Relative tolerance in x (scipy's ``xtol``). [-]
+    maxiter : int
+        Iterations at most.
+
+    Returns
+    -------
+    (x, fun) : (float, float)
+        The minimiser and its value (numpy floats).
+    """
+    try:
+        xa, xb, xc, fa, fb, fc = _bracket(func, xa, xb)
+    except _BracketError as e:
+        xs, fs = list(e.args[:3]), list(e.args[3:])
+        if np.any(np.isnan([xs, fs])):
+            return np.nan, np.nan
+        i = np.argmin(fs)
+        return np.asarray(xs[i])[()], np.asarray(fs[i])[()]
+    x = w = v = xb
+    fw = fv = fx = fb
+    a, b = (xa, xc) if xa < xc else (xc, xa)
+    deltax, it, rat = 0.0, 0, 0.0
+    while it < maxiter:
+        tol1 = tol * np.abs(x) + 1.0e-11
+        tol2 = 2.0 * tol1
+        xmid = 0.5 * (a + b)
+        if np.abs(x - xmid) < (tol2 - 0.5 * (b - a)):
+            break
+        deltax, rat = _brent_step(x, w, v, fx, fw, fv, a, b, xmid, tol1, tol2, deltax, rat)
+        u = (x + tol1 if rat >= 0 else x - tol1) if np.abs(rat) < tol1 else x + rat
+        fu = func(u)
+        if fu > fx:
+            if u < x:
+                a = u
+            else:
+                b = u
+            if (fu <= fw) or (w == x):
+                v, w, fv, fw = w, u, fw, fu
+            elif (fu <= fv) or (v == x) or (v == w):
+                v, fv = u, fu
+        else:
+            if u >= x:
+                a = x
+            else:
+                b = x
+            v, w, x, fv, fw, fx = w, x, u, fw, fx, fu
+        it += 1
+    return np.asarray(x)[()], np.asarray(fx)[()]
+
+
+def _brent_step(x, w, v, fx, fw, fv, a, b, xmid, tol1, tol2, deltax, rat) -> tuple:
+    """``Brent.optimize``'s choice of step: parabolic when useful, else golden section; ``(deltax, rat)``."""
+    _cg = 0.3819660
+    if np.abs(deltax) <= tol1:
+        deltax = a - x if x >= xmid else b - x
+        return deltax, _cg * deltax
+    tmp1 = (x - w) * (fx - fv)
+    tmp2 = (x - v) * (fx - fw)
+    p = (x - v) * tmp2 - (x - w) * tmp1
+    tmp2 = 2.0 * (tmp2 - tmp1)
+    if tmp2 > 0.0:
+        p = -p
+    tmp2 = np.abs(tmp2)
+    dx_temp, deltax = deltax, rat
+    if (p > tmp2 * (a - x)) and (p < tmp2 * (b - x)) and (np.abs(p) < np.abs(0.5 * tmp2 * dx_temp)):
+        rat = p * 1.0 / tmp2
+        u = x + rat
+        if (u - a) < tol2 or (b - u) < tol2:
+            rat = tol1 if xmid - x >= 0 else -tol1
+        return deltax, rat
+    deltax = a - x if x >= xmid else b - x
+    return deltax, _cg * deltax
+
+
 def weibull_polish(x: np.ndarray, f: np.ndarray, shape: float, scale: float) -> tuple[float, float]:
     """``weibull_min.fit(CensoredData.right_censored(x, ~f), shape, floc=0, scale=scale)``'s shape
     and scale (without a censored life scipy fits the plain lives: the same minimisation of the
@@ -202,4 +348,4 @@ def weibull_polish(x: np.ndarray, f: np.ndarray, shape: float, scale: float) -> 
     return k, s
 
 
-__all__ = ["nelder_mead", "weibull_censored_nll", "weibull_polish"]
+__all__ = ["brent_minimize", "nelder_mead", "weibull_censored_nll", "weibull_polish"]

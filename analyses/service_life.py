@@ -86,8 +86,8 @@ import numpy as np
 import pandas as pd
 import scipy  # its submodules load on first use: a rebuild that reuses every stage never pays for them
 
-from analyses.numerics import brentq, chi2_ppf, chi2_sf
-from analyses.numerics_fmin import weibull_polish
+from analyses.numerics import brentq, chi2_ppf, chi2_sf, fminbound
+from analyses.numerics_fmin import brent_minimize, weibull_polish
 from analyses.quality import at_bound
 
 _NAN = float("nan")
@@ -1132,17 +1132,15 @@ def lognormal_fit(life, failed) -> LognormalFit:
         return LognormalFit(_NAN, _NAN, _NAN, n, r, note=f"too few failures: {r} < 2")
     lx = np.log(x)
 
-    def neg(log_s):
-        res = scipy.optimize.minimize_scalar(lambda m: -float(lognormal_loglik_many(math.exp(log_s), math.exp(m),
-                                                                                    x, f)),
-                                             bracket=(lx.min(), lx.max() + 1.0))
-        return float(res.fun), float(res.x)
+    def neg(log_s):   # scipy.optimize.minimize_scalar(..., bracket=...)'s bits
+        mu, fun = brent_minimize(lambda m: -float(lognormal_loglik_many(math.exp(log_s), math.exp(m), x, f)),
+                                 lx.min(), lx.max() + 1.0)
+        return float(fun), float(mu)
 
     lo, hi = (math.log(b) for b in SIGMA_BOUNDS)
-    res = scipy.optimize.minimize_scalar(lambda v: neg(v)[0], bounds=(lo, hi), method="bounded",
-                                         options={"xatol": 1e-10})
-    sigma = math.exp(float(res.x))
-    ll, mu = neg(float(res.x))
+    best = float(fminbound(lambda v: neg(v)[0], lo, hi, xatol=1e-10))   # minimize_scalar(method="bounded")'s bits
+    sigma = math.exp(best)
+    ll, mu = neg(best)
     if at_bound(sigma, *SIGMA_BOUNDS):
         return LognormalFit(_NAN, _NAN, _NAN, n, r, note=f"the lognormal sigma MLE ({sigma:.3g}) is at the search "
                                                          "bound: the lives cannot tell a spread")

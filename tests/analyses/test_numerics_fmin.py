@@ -1,11 +1,12 @@
-"""Tests of analyses.numerics_fmin: scipy's Nelder-Mead and weibull_min's censored fit, bit for bit."""
+"""Tests of analyses.numerics_fmin: scipy's Nelder-Mead, weibull_min's censored fit and Brent's
+minimiser from a bracket search, bit for bit."""
 import subprocess
 import sys
 
 import numpy as np
 import pytest
 
-from analyses.numerics_fmin import nelder_mead, weibull_censored_nll, weibull_polish
+from analyses.numerics_fmin import brent_minimize, nelder_mead, weibull_censored_nll, weibull_polish
 
 
 def _scipy_fit(x, f, k0, s0):
@@ -67,7 +68,7 @@ def test_weibull_polish_fails_where_scipy_fails():
     """Lives that overflow when scaled, a zero start shape, a scale start below the lives' range."""
     rng = np.random.default_rng(7)
     outcomes = set()
-    for i in range(60):
+    for i in range(30):
         x = rng.weibull(2.0, 12) * 10 ** rng.uniform(-300, 300)
         f = rng.random(12) < (1.0 if i % 3 == 0 else 0.5)
         k0, s0 = 10 ** rng.uniform(-3, 3), x.max() * 10 ** rng.uniform(-5, 5)
@@ -94,6 +95,31 @@ def test_nelder_mead_takes_fmins_steps(x0):
              lambda p: float("nan") if p[0] > 1.0 else float(np.sum((p - 0.5) ** 2))]
     for func in funcs:
         assert np.array_equal(nelder_mead(func, x0), scipy.optimize.fmin(func, x0, disp=0), equal_nan=True)
+
+
+@pytest.mark.parametrize("func, xa, xb", [(lambda m: (m - 1.3) ** 2, 0.0, 1.0), (lambda m: (m - 1.3) ** 2, 5.0, 6.0),
+                                         (lambda m: float(np.cosh(3 * (m + 20.0))), -1.0, 2.0),
+                                         (lambda m: abs(m - 0.25) ** 0.5, 0.0, 1.0),
+                                         (lambda m: -m, 0.0, 1.0),                  # no bracket: scipy's best point
+                                         (lambda m: float("nan"), 0.0, 1.0),
+                                         (lambda m: float(np.sin(7 * m) + 0.1 * m * m), 2.0, 2.5)])
+def test_brent_minimize_gives_minimize_scalars_bits(func, xa, xb):
+    import scipy.optimize
+
+    res = scipy.optimize.minimize_scalar(func, bracket=(xa, xb))
+    x, fun = brent_minimize(func, xa, xb)
+    np.testing.assert_array_equal([x, fun], [res.x, res.fun])
+
+
+def test_lognormal_fits_import_no_scipy_optimize():
+    """lognormal_fit's two searches are scipy's, ported: the remaining-life stage's life models
+    import no scipy.optimize (issue 26)."""
+    code = ("import sys\n"
+            "from analyses.service_life import lognormal_fit\n"
+            "w = lognormal_fit([10.0, 20.0, 30.0, 40.0, 50.0, 60.0], [True, True, False, True, False, True])\n"
+            "print(w.note is None, 'scipy.optimize' in sys.modules, 'scipy.stats' in sys.modules)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert out == ["True", "False", "False"]
 
 
 def test_weibull_censored_nll_is_the_censored_likelihood():
