@@ -1,20 +1,23 @@
-"""The Weibull fit's polish without ``scipy.stats`` or ``scipy.optimize``: scipy's Nelder-Mead and
-``weibull_min``'s censored negative log-likelihood, bit for bit.
+"""The life fits' minimisers without ``scipy.stats`` or ``scipy.optimize``: scipy's Nelder-Mead,
+``weibull_min``'s censored negative log-likelihood and Brent's bracketed minimiser, bit for bit.
 
 :func:`analyses.service_life.weibull_fit` polishes its exact profile solution with
 ``scipy.stats.weibull_min.fit(CensoredData.right_censored(x, ~f), k0, floc=0, scale=s0)``, which,
-with censored lives, is ``scipy.optimize.fmin`` (Nelder & Mead 1965, Gao & Han 2012's parameters
-off) on ``rv_continuous._penalized_nnlf`` over (shape, scale). Importing ``scipy.stats`` for it
+with censored lives, is ``scipy.optimize.fmin`` (Nelder & Mead 1965, scipy's non-adaptive
+coefficients) on ``rv_continuous._penalized_nnlf`` over (shape, scale). Importing ``scipy.stats`` for it
 cost about 0.6 CPU-s of a rebuild after one changed leakage check (the remaining-life stage's life
 models refit lives the change does not touch; issue 26, the cost of a change). :func:`weibull_polish`
 is that call, step for step: the same simplex, the same arithmetic in the same order, the same
 evaluation budget and the same failures (non-finite scaled lives raise, as ``CensoredData`` does).
-``tests/analyses/test_numerics_fmin.py`` holds it to scipy's bits (scipy 1.17).
+:func:`brent_minimize` is ``scipy.optimize.minimize_scalar(f, bracket=(a, b))`` (the bracket search and
+Brent's minimiser), which :func:`analyses.service_life.lognormal_fit` needs for the life model's other
+family. ``tests/analyses/test_numerics_fmin.py`` holds them to scipy's bits (scipy 1.17).
 
 References
 ----------
 Nelder, J. A. & Mead, R. (1965). A simplex method for function minimization. The Computer
 Journal 7(4), 308-313.
+Brent, R. P. (1973). Algorithms for Minimization without Derivatives, ch. 5. Prentice-Hall.
 """
 from __future__ import annotations
 
