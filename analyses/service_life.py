@@ -7,7 +7,8 @@ exact lives; removed and still-running hoses are right-censored (suspensions).
 Weibull fit
 -----------
 Two-parameter Weibull, ``F(x) = 1 - exp(-(x / scale)^shape)``, fitted by maximum likelihood
-with ``scipy.stats.weibull_min.fit`` on a ``scipy.stats.CensoredData`` (location fixed at 0).
+with ``scipy.stats.weibull_min.fit`` on a ``scipy.stats.CensoredData`` (location fixed at 0; its
+bits without importing ``scipy.stats``: ``analyses.numerics_fmin.weibull_polish``).
 The optimiser is started from the exact profile-likelihood solution (for a given shape the
 scale MLE is closed form, and the shape solves a monotone score equation, found with
 ``brentq``); whichever of the two has the higher likelihood is kept, so the estimate does not
@@ -85,7 +86,8 @@ import numpy as np
 import pandas as pd
 import scipy  # its submodules load on first use: a rebuild that reuses every stage never pays for them
 
-from analyses.numerics import brentq, chi2_ppf, chi2_sf
+from analyses.numerics import brentq, chi2_ppf, chi2_sf, fminbound
+from analyses.numerics_fmin import brent_minimize, weibull_polish
 from analyses.quality import at_bound
 
 _NAN = float("nan")
@@ -202,7 +204,7 @@ def weibull_scale_given_shape(shape: float, life, failed) -> float:
 
 
 def weibull_fit(life, failed) -> WeibullFit:
-    """Two-parameter Weibull MLE with right-censoring (``scipy.stats.CensoredData``).
+    """Two-parameter Weibull MLE with right-censoring (``scipy.stats.weibull_min.fit`` on ``CensoredData``, ported).
 
     Parameters
     ----------
@@ -226,10 +228,9 @@ def weibull_fit(life, failed) -> WeibullFit:
     except (ValueError, FloatingPointError) as exc:
         return WeibullFit(_NAN, _NAN, _NAN, n, r, note=str(exc).splitlines()[0])
     best = (k0, s0, weibull_loglik(k0, s0, x, f))
-    data = scipy.stats.CensoredData.right_censored(x, ~f)
     try:
         with np.errstate(all="ignore"):
-            k1, _, s1 = scipy.stats.weibull_min.fit(data, k0, floc=0, scale=s0)
+            k1, s1 = weibull_polish(x, f, k0, s0)   # weibull_min.fit's bits, without importing scipy.stats
         ll1 = weibull_loglik(k1, s1, x, f)
         if math.isfinite(ll1) and ll1 > best[2]:
             best = (float(k1), float(s1), ll1)
@@ -1131,17 +1132,15 @@ def lognormal_fit(life, failed) -> LognormalFit:
         return LognormalFit(_NAN, _NAN, _NAN, n, r, note=f"too few failures: {r} < 2")
     lx = np.log(x)
 
-    def neg(log_s):
-        res = scipy.optimize.minimize_scalar(lambda m: -float(lognormal_loglik_many(math.exp(log_s), math.exp(m),
-                                                                                    x, f)),
-                                             bracket=(lx.min(), lx.max() + 1.0))
-        return float(res.fun), float(res.x)
+    def neg(log_s):   # scipy.optimize.minimize_scalar(..., bracket=...)'s bits
+        mu, fun = brent_minimize(lambda m: -float(lognormal_loglik_many(math.exp(log_s), math.exp(m), x, f)),
+                                 lx.min(), lx.max() + 1.0)
+        return float(fun), float(mu)
 
     lo, hi = (math.log(b) for b in SIGMA_BOUNDS)
-    res = scipy.optimize.minimize_scalar(lambda v: neg(v)[0], bounds=(lo, hi), method="bounded",
-                                         options={"xatol": 1e-10})
-    sigma = math.exp(float(res.x))
-    ll, mu = neg(float(res.x))
+    best = float(fminbound(lambda v: neg(v)[0], lo, hi, xatol=1e-10))   # minimize_scalar(method="bounded")'s bits
+    sigma = math.exp(best)
+    ll, mu = neg(best)
     if at_bound(sigma, *SIGMA_BOUNDS):
         return LognormalFit(_NAN, _NAN, _NAN, n, r, note=f"the lognormal sigma MLE ({sigma:.3g}) is at the search "
                                                          "bound: the lives cannot tell a spread")
