@@ -260,14 +260,18 @@ def decides(logx, failed, on, group, c, margin: float, shape_start=1.0) -> tuple
     return out, fit
 
 
-def _look(fut: Future, rows, at):
+def _look(fut: Future, rows, at, first_start=None):
     """(log x, failed, on, columns) of the future's hoses for the replicates ``rows`` at ``at`` [km of testing
     from now]: the hoses on test then, in the columns (of ``fut``) of the hoses on test in at least one of the
-    rows; the other columns would add nothing to any sum (a hose not yet on a bench is in no row's data)."""
+    rows; the other columns would add nothing to any sum (a hose not yet on a bench is in no row's data).
+    ``first_start``: each column's earliest start over the replicates [km], to compare only the columns that
+    may be on test (a bench's later hoses are most of the columns and on test in no row for most looks)."""
+    may = np.arange(fut.start.shape[1]) if first_start is None else np.flatnonzero(first_start < at.max())
     at = at[:, None]
-    on = fut.start[rows] < at
-    cols = np.flatnonzero(on.any(axis=0))
-    on, start, end = on[:, cols], fut.start[np.ix_(rows, cols)], fut.end[np.ix_(rows, cols)]
+    on = fut.start[np.ix_(rows, may)] < at
+    keep = on.any(axis=0)
+    on, cols = on[:, keep], may[keep]
+    start, end = fut.start[np.ix_(rows, cols)], fut.end[np.ix_(rows, cols)]
     x = fut.base[cols] + np.minimum(end, at) - start
     return np.log(np.where(on, x, 1.0)), on & (end <= at), on, cols
 
@@ -292,8 +296,9 @@ def first_decision(past: Past, fut: Future, times, c, margin: float, shape: floa
         The simulated future.
     times : numpy.ndarray, shape (n, looks)
         Each replicate's looks: the failures' times on the future's clock [km], sorted.
-    c : array_like, shape (looks,)
-        The design's boundary of each look [-].
+    c : array_like, shape (looks,) or (n, looks)
+        The design's boundary of each look [-], or each replicate's (the replicates of designs with fewer
+        looks padded with ``inf``: their looks end there, so that several designs share one pass).
     margin : float
         The design's margin [-].
     shape : float
@@ -307,6 +312,10 @@ def first_decision(past: Past, fut: Future, times, c, margin: float, shape: floa
     numpy.ndarray of int, shape (n,)
     """
     n, looks = times.shape
+    c = np.asarray(c, float)
+    c = np.broadcast_to(c, (n, looks)) if c.ndim == 1 else c
+    last = np.isfinite(c).sum(axis=1)     # each replicate's looks
+    first_start = fut.start.min(axis=0) if n else None
     lm = math.log(max(margin, 1.0 / margin))
     past_sum = [float(np.exp(shape * past.logx[past.group == g]).sum()) for g in (0, 1)]
     past_d = [int((past.failed & (past.group == g)).sum()) for g in (0, 1)]
@@ -314,10 +323,10 @@ def first_decision(past: Past, fut: Future, times, c, margin: float, shape: floa
     offset, ratio, start = np.zeros(n), np.ones(n), np.full(n, float(shape))    # from each replicate's last refit
     refitted = np.zeros(n, bool)
     for j in range(looks):
-        rows = np.flatnonzero(first < 0)
+        rows = np.flatnonzero((first < 0) & (last > j))
         if rows.size == 0:
             break
-        logx, failed, on, cols = _look(fut, rows, times[rows, j])
+        logx, failed, on, cols = _look(fut, rows, times[rows, j], first_start)
         group = fut.group[cols]
         powered = np.where(on, np.exp(shape * logx), 0.0)
         d = [past_d[g] + failed[:, group == g].sum(axis=1) for g in (0, 1)]
@@ -325,14 +334,14 @@ def first_decision(past: Past, fut: Future, times, c, margin: float, shape: floa
         with np.errstate(divide="ignore", invalid="ignore"):
             se = np.sqrt(1.0 / d[0] + 1.0 / d[1]) / shape
             est = (np.log(s[1] / d[1]) - np.log(s[0] / d[0])) / shape + offset[rows]
-            half = np.where(refitted[rows], screen[1], screen[0]) * c[j] * se * ratio[rows]
+            half = np.where(refitted[rows], screen[1], screen[0]) * c[rows, j] * se * ratio[rows]
             maybe = (d[0] >= 2) & (d[1] >= 2) & ((np.abs(est) > half) | (np.abs(est) + half < lm))
         idx = np.flatnonzero(maybe)
         if idx.size:
             mine = np.flatnonzero(on[idx].any(axis=0))     # the hoses on test in the rows refitted
             keep = np.ix_(idx, mine)
             yes, fit = decides(*_with_past(past, logx[keep], failed[keep], on[keep]),
-                               np.concatenate([past.group, group[mine]]), c[j], margin, start[rows[idx]])
+                               np.concatenate([past.group, group[mine]]), c[rows[idx], j], margin, start[rows[idx]])
             first[rows[idx[yes]]] = j
             ok, at = fit.ok, rows[idx]
             offset[at[ok]] += fit.log_ratio[ok] - est[idx[ok]]
