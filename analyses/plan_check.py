@@ -215,16 +215,19 @@ def batch_fit(logx, failed, on, group, shape_start: float = 1.0) -> BatchFit:
     return BatchFit(k, ll, log_scale[1] - log_scale[0], se, ok)
 
 
-def batch_deviance(logx, failed, on, group, fit: BatchFit, ratio: float) -> np.ndarray:
-    """:func:`analyses.life_effect.ratio_deviance` (common shape) of every row at the trial ``ratio`` [-].
+def batch_deviance(logx, failed, on, group, fit: BatchFit, ratio) -> np.ndarray:
+    """:func:`analyses.life_effect.ratio_deviance` (common shape) of every row at the trial ``ratio`` [-]
+    (one, or one per row).
 
     The force-set lives divided by ``ratio`` and pooled into one Weibull (the profile over the shape and
-    the distance-set scale at that ratio), minus the force-set failures times ``log ratio``; NaN where
-    ``fit`` is not ok.
+    the distance-set scale at that ratio; Newton's steps from each row's fitted shape), minus the force-set
+    failures times ``log ratio``; NaN where ``fit`` is not ok.
     """
-    theta = math.log(ratio)
-    pooled = [_prep(logx - theta * (group == 1), failed, on)]
-    t, inside = _shape_mle(pooled, float(np.nanmedian(np.log(fit.shape))) if fit.shape.size else 0.0)
+    theta = np.broadcast_to(np.log(np.asarray(ratio, float)), fit.ok.shape)
+    pooled = [_prep(logx - theta[:, None] * (group == 1), failed, on)]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        start = np.where(np.isfinite(fit.shape) & (fit.shape > 0), np.log(fit.shape), 0.0)
+    t, inside = _shape_mle(pooled, start)
     with np.errstate(divide="ignore", invalid="ignore"):
         profile = _loglik(np.exp(t), pooled) - (failed & on & (group == 1)).sum(axis=1) * theta
     return np.where(fit.ok & inside, np.maximum(0.0, 2.0 * (fit.loglik - profile)), np.nan)
@@ -232,7 +235,8 @@ def batch_deviance(logx, failed, on, group, fit: BatchFit, ratio: float) -> np.n
 
 def decides(logx, failed, on, group, c, margin: float, shape_start=1.0) -> tuple[np.ndarray, BatchFit]:
     """Whether each row's look decides as the decision stage declares it: the refitted Wald crossing at
-    the boundary ``c`` (per row [-]) confirmed by the profile likelihood (module docstring).
+    the boundary ``c`` (per row [-]) confirmed by the profile likelihood (module docstring); the deviances
+    of every crossing row and trial ratio in one batch.
 
     Returns
     -------
@@ -249,14 +253,15 @@ def decides(logx, failed, on, group, c, margin: float, shape_start=1.0) -> tuple
         longer = fit.ok & (np.abs(fit.log_ratio) > half)
         npd = fit.ok & ~longer & (np.abs(fit.log_ratio) + half < lm)
     out = np.zeros(fit.ok.shape, bool)
-    for rows, trials in ((np.flatnonzero(longer), (1.0,)), (np.flatnonzero(npd), (margin, 1.0 / margin))):
-        if rows.size == 0:
-            continue
-        sub = BatchFit(*(getattr(fit, f)[rows] for f in ("shape", "loglik", "log_ratio", "se", "ok")))
-        holds = np.ones(rows.size, bool)
-        for r in trials:
-            holds &= batch_deviance(logx[rows], failed[rows], on[rows], group, sub, r) > c[rows] ** 2
-        out[rows] = holds
+    one, both = np.flatnonzero(longer), np.flatnonzero(npd)
+    rows = np.concatenate([one, both, both])
+    if rows.size == 0:
+        return out, fit
+    ratio = np.concatenate([np.ones(one.size), np.full(both.size, margin), np.full(both.size, 1.0 / margin)])
+    sub = BatchFit(*(getattr(fit, f)[rows] for f in ("shape", "loglik", "log_ratio", "se", "ok")))
+    holds = batch_deviance(logx[rows], failed[rows], on[rows], group, sub, ratio) > c[rows] ** 2
+    out[one] = holds[:one.size]
+    out[both] = holds[one.size:one.size + both.size] & holds[one.size + both.size:]
     return out, fit
 
 
