@@ -20,7 +20,9 @@ cheaper per look in a batch of hundreds.
 :func:`first_decision` reads a simulated future look by look: a cheap screen (the shape-known estimate at
 the current fitted shape, a closed form in the failures and the sums of ``x^k``) picks the replicates
 whose look may cross (once a replicate was refitted, the screen is corrected by that refit), and only
-those are refitted and checked; a replicate stops at its first confirmed look. The screen's slack
+those are refitted and checked; a replicate stops at its first confirmed look. Looks are screened in blocks
+of :data:`LOOK_BLOCK` whose refits are one batch (session 22: a batch's fixed cost is most of a look's). The
+screen's slack
 (:data:`SCREEN`, :data:`SCREEN_REFITTED`) is measured: ``benchmarks/bench_test_plan_forward.py`` (d)
 counts the replicates whose first deciding look differs from reading every look in full.
 
@@ -48,6 +50,11 @@ SCREEN = 0.75
 #: refit's estimate minus the screen's, the ratio of their standard errors), which one more failure
 #: changes little, so a tighter factor finds the same looks with fewer refits (measured as SCREEN).
 SCREEN_REFITTED = 0.85
+
+#: Looks screened together [-]: their refits are one batch (one call of :func:`decides` for ``block`` looks:
+#: the calls' fixed cost is most of a look's), each look screened with the corrections of the refits before
+#: the block; a replicate that decides at a look of the block is refitted at its later looks too (unused).
+LOOK_BLOCK = 4
 
 _LO, _HI = math.log(SHAPE_BOUNDS[0]), math.log(SHAPE_BOUNDS[1])
 
@@ -290,7 +297,7 @@ def _with_past(past: Past, logx, failed, on):
 
 
 def first_decision(past: Past, fut: Future, times, c, margin: float, shape: float,
-                   screen: tuple[float, float] = (SCREEN, SCREEN_REFITTED)) -> np.ndarray:
+                   screen: tuple[float, float] = (SCREEN, SCREEN_REFITTED), block: int = LOOK_BLOCK) -> np.ndarray:
     """The first simulated look that the decision stage would declare, per replicate (-1: none).
 
     Parameters
@@ -311,6 +318,9 @@ def first_decision(past: Past, fut: Future, times, c, margin: float, shape: floa
     screen : (float, float)
         Slack of the screen before a replicate's first refit and after it (:data:`SCREEN`,
         :data:`SCREEN_REFITTED`; ``(0, 0)`` reads every look in full).
+    block : int
+        Looks screened and refitted together (:data:`LOOK_BLOCK`; 1: look by look, each screen corrected by
+        the refit just before) [-].
 
     Returns
     -------
@@ -327,32 +337,48 @@ def first_decision(past: Past, fut: Future, times, c, margin: float, shape: floa
     first = np.full(n, -1)
     offset, ratio, start = np.zeros(n), np.ones(n), np.full(n, float(shape))    # from each replicate's last refit
     refitted = np.zeros(n, bool)
-    for j in range(looks):
-        rows = np.flatnonzero((first < 0) & (last > j))
-        if rows.size == 0:
+    for j0 in range(0, looks, block):
+        if not ((first < 0) & (last > j0)).any():
             break
-        logx, failed, on, cols = _look(fut, rows, times[rows, j], first_start)
-        group = fut.group[cols]
-        powered = np.where(on, np.exp(shape * logx), 0.0)
-        d = [past_d[g] + failed[:, group == g].sum(axis=1) for g in (0, 1)]
-        s = [past_sum[g] + powered[:, group == g].sum(axis=1) for g in (0, 1)]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            se = np.sqrt(1.0 / d[0] + 1.0 / d[1]) / shape
-            est = (np.log(s[1] / d[1]) - np.log(s[0] / d[0])) / shape + offset[rows]
-            half = np.where(refitted[rows], screen[1], screen[0]) * c[rows, j] * se * ratio[rows]
-            maybe = (d[0] >= 2) & (d[1] >= 2) & ((np.abs(est) > half) | (np.abs(est) + half < lm))
-        idx = np.flatnonzero(maybe)
-        if idx.size:
-            mine = np.flatnonzero(on[idx].any(axis=0))     # the hoses on test in the rows refitted
-            keep = np.ix_(idx, mine)
-            yes, fit = decides(*_with_past(past, logx[keep], failed[keep], on[keep]),
-                               np.concatenate([past.group, group[mine]]), c[rows[idx], j], margin, start[rows[idx]])
-            first[rows[idx[yes]]] = j
-            ok, at = fit.ok, rows[idx]
-            offset[at[ok]] += fit.log_ratio[ok] - est[idx[ok]]
-            ratio[at[ok]] = fit.se[ok] / se[idx[ok]]
-            start[at[ok]], refitted[at[ok]] = fit.shape[ok], True
+        screened = []           # per look of the block: (look, its rows refitted, their screen's raw estimate, se)
+        for j in range(j0, min(j0 + block, looks)):
+            rows = np.flatnonzero((first < 0) & (last > j))
+            if rows.size == 0:
+                break
+            logx, failed, on, cols = _look(fut, rows, times[rows, j], first_start)
+            group = fut.group[cols]
+            powered = np.where(on, np.exp(shape * logx), 0.0)
+            d = [past_d[g] + failed[:, group == g].sum(axis=1) for g in (0, 1)]
+            s = [past_sum[g] + powered[:, group == g].sum(axis=1) for g in (0, 1)]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                se = np.sqrt(1.0 / d[0] + 1.0 / d[1]) / shape
+                raw = (np.log(s[1] / d[1]) - np.log(s[0] / d[0])) / shape
+                est = raw + offset[rows]
+                half = np.where(refitted[rows], screen[1], screen[0]) * c[rows, j] * se * ratio[rows]
+                maybe = (d[0] >= 2) & (d[1] >= 2) & ((np.abs(est) > half) | (np.abs(est) + half < lm))
+            idx = np.flatnonzero(maybe)
+            if idx.size:
+                screened.append((j, rows[idx], raw[idx], se[idx], cols[on[idx].any(axis=0)]))
+        if not screened:
+            continue
+        mine = np.unique(np.concatenate([x[4] for x in screened]))     # the hoses on test in the rows refitted
+        at_rows = np.concatenate([x[1] for x in screened])
+        at = np.concatenate([times[x[1], x[0]] for x in screened])[:, None]
+        start_, end_ = fut.start[np.ix_(at_rows, mine)], fut.end[np.ix_(at_rows, mine)]
+        on = start_ < at
+        logx = np.log(np.where(on, fut.base[mine] + np.minimum(end_, at) - start_, 1.0))
+        yes, fit = decides(*_with_past(past, logx, on & (end_ <= at), on), np.concatenate([past.group, fut.group[mine]]),
+                           np.concatenate([c[x[1], x[0]] for x in screened]), margin, start[at_rows])
+        k = 0
+        for j, r, raw, se, _ in screened:         # in look order: a replicate's first deciding look is kept,
+            y, f = yes[k:k + r.size], slice(k, k + r.size)      # its latest refit corrects its screen
+            first[r[y & (first[r] < 0)]] = j
+            ok = fit.ok[f]
+            offset[r[ok]] = fit.log_ratio[f][ok] - raw[ok]
+            ratio[r[ok]] = fit.se[f][ok] / se[ok]
+            start[r[ok]], refitted[r[ok]] = fit.shape[f][ok], True
+            k += r.size
     return first
 
 
-__all__ = ["SCREEN", "SCREEN_REFITTED", "Future", "Past", "BatchFit", "batch_fit", "batch_deviance", "decides", "first_decision"]
+__all__ = ["SCREEN", "SCREEN_REFITTED", "LOOK_BLOCK", "Future", "Past", "BatchFit", "batch_fit", "batch_deviance", "decides", "first_decision"]

@@ -26,7 +26,10 @@ Seeds: no stage is handed a digest of its inputs, so each hose type's simulation
 a sha256 of its own ``hose_life`` rows (id, adjustment, status, distance), its plan settings and
 its ``life_effect`` shape: a hose type whose data did not change keeps its figures, whatever
 else changed. Each hose type is one item of ``ctx.map`` (the stage's worker pool, memoised per
-item across rebuilds).
+item across rebuilds). Since session 22 the replicates come in batches until the figure's Monte Carlo
+error is small enough (``power_now``: mc_se <= 0.01, ``n_simulations`` what was drawn; the date: its
+median's error <= 5 %), and a hose type's rows read one set of the benches' replicates, each at its own
+design's boundaries (:func:`analyses.bench_schedule.bench_schedules`).
 """
 from __future__ import annotations
 
