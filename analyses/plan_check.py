@@ -20,7 +20,9 @@ cheaper per look in a batch of hundreds.
 :func:`first_decision` reads a simulated future look by look: a cheap screen (the shape-known estimate at
 the current fitted shape, a closed form in the failures and the sums of ``x^k``) picks the replicates
 whose look may cross (once a replicate was refitted, the screen is corrected by that refit), and only
-those are refitted and checked; a replicate stops at its first confirmed look. The screen's slack
+those are refitted and checked; a replicate stops at its first confirmed look. Looks are screened in blocks
+of :data:`LOOK_BLOCK` whose refits are one batch (session 22: a batch's fixed cost is most of a look's). The
+screen's slack
 (:data:`SCREEN`, :data:`SCREEN_REFITTED`) is measured: ``benchmarks/bench_test_plan_forward.py`` (d)
 counts the replicates whose first deciding look differs from reading every look in full.
 
@@ -48,6 +50,11 @@ SCREEN = 0.75
 #: refit's estimate minus the screen's, the ratio of their standard errors), which one more failure
 #: changes little, so a tighter factor finds the same looks with fewer refits (measured as SCREEN).
 SCREEN_REFITTED = 0.85
+
+#: Looks screened together [-]: their refits are one batch (one call of :func:`decides` for ``block`` looks:
+#: the calls' fixed cost is most of a look's), each look screened with the corrections of the refits before
+#: the block; a replicate that decides at a look of the block is refitted at its later looks too (unused).
+LOOK_BLOCK = 4
 
 _LO, _HI = math.log(SHAPE_BOUNDS[0]), math.log(SHAPE_BOUNDS[1])
 
@@ -215,16 +222,19 @@ def batch_fit(logx, failed, on, group, shape_start: float = 1.0) -> BatchFit:
     return BatchFit(k, ll, log_scale[1] - log_scale[0], se, ok)
 
 
-def batch_deviance(logx, failed, on, group, fit: BatchFit, ratio: float) -> np.ndarray:
-    """:func:`analyses.life_effect.ratio_deviance` (common shape) of every row at the trial ``ratio`` [-].
+def batch_deviance(logx, failed, on, group, fit: BatchFit, ratio) -> np.ndarray:
+    """:func:`analyses.life_effect.ratio_deviance` (common shape) of every row at the trial ``ratio`` [-]
+    (one, or one per row).
 
     The force-set lives divided by ``ratio`` and pooled into one Weibull (the profile over the shape and
-    the distance-set scale at that ratio), minus the force-set failures times ``log ratio``; NaN where
-    ``fit`` is not ok.
+    the distance-set scale at that ratio; Newton's steps from each row's fitted shape), minus the force-set
+    failures times ``log ratio``; NaN where ``fit`` is not ok.
     """
-    theta = math.log(ratio)
-    pooled = [_prep(logx - theta * (group == 1), failed, on)]
-    t, inside = _shape_mle(pooled, float(np.nanmedian(np.log(fit.shape))) if fit.shape.size else 0.0)
+    theta = np.broadcast_to(np.log(np.asarray(ratio, float)), fit.ok.shape)
+    pooled = [_prep(logx - theta[:, None] * (group == 1), failed, on)]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        start = np.where(np.isfinite(fit.shape) & (fit.shape > 0), np.log(fit.shape), 0.0)
+    t, inside = _shape_mle(pooled, start)
     with np.errstate(divide="ignore", invalid="ignore"):
         profile = _loglik(np.exp(t), pooled) - (failed & on & (group == 1)).sum(axis=1) * theta
     return np.where(fit.ok & inside, np.maximum(0.0, 2.0 * (fit.loglik - profile)), np.nan)
@@ -232,7 +242,8 @@ def batch_deviance(logx, failed, on, group, fit: BatchFit, ratio: float) -> np.n
 
 def decides(logx, failed, on, group, c, margin: float, shape_start=1.0) -> tuple[np.ndarray, BatchFit]:
     """Whether each row's look decides as the decision stage declares it: the refitted Wald crossing at
-    the boundary ``c`` (per row [-]) confirmed by the profile likelihood (module docstring).
+    the boundary ``c`` (per row [-]) confirmed by the profile likelihood (module docstring); the deviances
+    of every crossing row and trial ratio in one batch.
 
     Returns
     -------
@@ -249,25 +260,30 @@ def decides(logx, failed, on, group, c, margin: float, shape_start=1.0) -> tuple
         longer = fit.ok & (np.abs(fit.log_ratio) > half)
         npd = fit.ok & ~longer & (np.abs(fit.log_ratio) + half < lm)
     out = np.zeros(fit.ok.shape, bool)
-    for rows, trials in ((np.flatnonzero(longer), (1.0,)), (np.flatnonzero(npd), (margin, 1.0 / margin))):
-        if rows.size == 0:
-            continue
-        sub = BatchFit(*(getattr(fit, f)[rows] for f in ("shape", "loglik", "log_ratio", "se", "ok")))
-        holds = np.ones(rows.size, bool)
-        for r in trials:
-            holds &= batch_deviance(logx[rows], failed[rows], on[rows], group, sub, r) > c[rows] ** 2
-        out[rows] = holds
+    one, both = np.flatnonzero(longer), np.flatnonzero(npd)
+    rows = np.concatenate([one, both, both])
+    if rows.size == 0:
+        return out, fit
+    ratio = np.concatenate([np.ones(one.size), np.full(both.size, margin), np.full(both.size, 1.0 / margin)])
+    sub = BatchFit(*(getattr(fit, f)[rows] for f in ("shape", "loglik", "log_ratio", "se", "ok")))
+    holds = batch_deviance(logx[rows], failed[rows], on[rows], group, sub, ratio) > c[rows] ** 2
+    out[one] = holds[:one.size]
+    out[both] = holds[one.size:one.size + both.size] & holds[one.size + both.size:]
     return out, fit
 
 
-def _look(fut: Future, rows, at):
+def _look(fut: Future, rows, at, first_start=None):
     """(log x, failed, on, columns) of the future's hoses for the replicates ``rows`` at ``at`` [km of testing
     from now]: the hoses on test then, in the columns (of ``fut``) of the hoses on test in at least one of the
-    rows; the other columns would add nothing to any sum (a hose not yet on a bench is in no row's data)."""
+    rows; the other columns would add nothing to any sum (a hose not yet on a bench is in no row's data).
+    ``first_start``: each column's earliest start over the replicates [km], to compare only the columns that
+    may be on test (a bench's later hoses are most of the columns and on test in no row for most looks)."""
+    may = np.arange(fut.start.shape[1]) if first_start is None else np.flatnonzero(first_start < at.max())
     at = at[:, None]
-    on = fut.start[rows] < at
-    cols = np.flatnonzero(on.any(axis=0))
-    on, start, end = on[:, cols], fut.start[np.ix_(rows, cols)], fut.end[np.ix_(rows, cols)]
+    on = fut.start[np.ix_(rows, may)] < at
+    keep = on.any(axis=0)
+    on, cols = on[:, keep], may[keep]
+    start, end = fut.start[np.ix_(rows, cols)], fut.end[np.ix_(rows, cols)]
     x = fut.base[cols] + np.minimum(end, at) - start
     return np.log(np.where(on, x, 1.0)), on & (end <= at), on, cols
 
@@ -281,7 +297,7 @@ def _with_past(past: Past, logx, failed, on):
 
 
 def first_decision(past: Past, fut: Future, times, c, margin: float, shape: float,
-                   screen: tuple[float, float] = (SCREEN, SCREEN_REFITTED)) -> np.ndarray:
+                   screen: tuple[float, float] = (SCREEN, SCREEN_REFITTED), block: int = LOOK_BLOCK) -> np.ndarray:
     """The first simulated look that the decision stage would declare, per replicate (-1: none).
 
     Parameters
@@ -292,8 +308,9 @@ def first_decision(past: Past, fut: Future, times, c, margin: float, shape: floa
         The simulated future.
     times : numpy.ndarray, shape (n, looks)
         Each replicate's looks: the failures' times on the future's clock [km], sorted.
-    c : array_like, shape (looks,)
-        The design's boundary of each look [-].
+    c : array_like, shape (looks,) or (n, looks)
+        The design's boundary of each look [-], or each replicate's (the replicates of designs with fewer
+        looks padded with ``inf``: their looks end there, so that several designs share one pass).
     margin : float
         The design's margin [-].
     shape : float
@@ -301,44 +318,67 @@ def first_decision(past: Past, fut: Future, times, c, margin: float, shape: floa
     screen : (float, float)
         Slack of the screen before a replicate's first refit and after it (:data:`SCREEN`,
         :data:`SCREEN_REFITTED`; ``(0, 0)`` reads every look in full).
+    block : int
+        Looks screened and refitted together (:data:`LOOK_BLOCK`; 1: look by look, each screen corrected by
+        the refit just before) [-].
 
     Returns
     -------
     numpy.ndarray of int, shape (n,)
     """
     n, looks = times.shape
+    c = np.asarray(c, float)
+    c = np.broadcast_to(c, (n, looks)) if c.ndim == 1 else c
+    last = np.isfinite(c).sum(axis=1)     # each replicate's looks
+    first_start = fut.start.min(axis=0) if n else None
     lm = math.log(max(margin, 1.0 / margin))
     past_sum = [float(np.exp(shape * past.logx[past.group == g]).sum()) for g in (0, 1)]
     past_d = [int((past.failed & (past.group == g)).sum()) for g in (0, 1)]
     first = np.full(n, -1)
     offset, ratio, start = np.zeros(n), np.ones(n), np.full(n, float(shape))    # from each replicate's last refit
     refitted = np.zeros(n, bool)
-    for j in range(looks):
-        rows = np.flatnonzero(first < 0)
-        if rows.size == 0:
+    for j0 in range(0, looks, block):
+        if not ((first < 0) & (last > j0)).any():
             break
-        logx, failed, on, cols = _look(fut, rows, times[rows, j])
-        group = fut.group[cols]
-        powered = np.where(on, np.exp(shape * logx), 0.0)
-        d = [past_d[g] + failed[:, group == g].sum(axis=1) for g in (0, 1)]
-        s = [past_sum[g] + powered[:, group == g].sum(axis=1) for g in (0, 1)]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            se = np.sqrt(1.0 / d[0] + 1.0 / d[1]) / shape
-            est = (np.log(s[1] / d[1]) - np.log(s[0] / d[0])) / shape + offset[rows]
-            half = np.where(refitted[rows], screen[1], screen[0]) * c[j] * se * ratio[rows]
-            maybe = (d[0] >= 2) & (d[1] >= 2) & ((np.abs(est) > half) | (np.abs(est) + half < lm))
-        idx = np.flatnonzero(maybe)
-        if idx.size:
-            mine = np.flatnonzero(on[idx].any(axis=0))     # the hoses on test in the rows refitted
-            keep = np.ix_(idx, mine)
-            yes, fit = decides(*_with_past(past, logx[keep], failed[keep], on[keep]),
-                               np.concatenate([past.group, group[mine]]), c[j], margin, start[rows[idx]])
-            first[rows[idx[yes]]] = j
-            ok, at = fit.ok, rows[idx]
-            offset[at[ok]] += fit.log_ratio[ok] - est[idx[ok]]
-            ratio[at[ok]] = fit.se[ok] / se[idx[ok]]
-            start[at[ok]], refitted[at[ok]] = fit.shape[ok], True
+        screened = []           # per look of the block: (look, its rows refitted, their screen's raw estimate, se)
+        for j in range(j0, min(j0 + block, looks)):
+            rows = np.flatnonzero((first < 0) & (last > j))
+            if rows.size == 0:
+                break
+            logx, failed, on, cols = _look(fut, rows, times[rows, j], first_start)
+            group = fut.group[cols]
+            powered = np.where(on, np.exp(shape * logx), 0.0)
+            d = [past_d[g] + failed[:, group == g].sum(axis=1) for g in (0, 1)]
+            s = [past_sum[g] + powered[:, group == g].sum(axis=1) for g in (0, 1)]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                se = np.sqrt(1.0 / d[0] + 1.0 / d[1]) / shape
+                raw = (np.log(s[1] / d[1]) - np.log(s[0] / d[0])) / shape
+                est = raw + offset[rows]
+                half = np.where(refitted[rows], screen[1], screen[0]) * c[rows, j] * se * ratio[rows]
+                maybe = (d[0] >= 2) & (d[1] >= 2) & ((np.abs(est) > half) | (np.abs(est) + half < lm))
+            idx = np.flatnonzero(maybe)
+            if idx.size:
+                screened.append((j, rows[idx], raw[idx], se[idx], cols[on[idx].any(axis=0)]))
+        if not screened:
+            continue
+        mine = np.unique(np.concatenate([x[4] for x in screened]))     # the hoses on test in the rows refitted
+        at_rows = np.concatenate([x[1] for x in screened])
+        at = np.concatenate([times[x[1], x[0]] for x in screened])[:, None]
+        start_, end_ = fut.start[np.ix_(at_rows, mine)], fut.end[np.ix_(at_rows, mine)]
+        on = start_ < at
+        logx = np.log(np.where(on, fut.base[mine] + np.minimum(end_, at) - start_, 1.0))
+        yes, fit = decides(*_with_past(past, logx, on & (end_ <= at), on), np.concatenate([past.group, fut.group[mine]]),
+                           np.concatenate([c[x[1], x[0]] for x in screened]), margin, start[at_rows])
+        k = 0
+        for j, r, raw, se, _ in screened:         # in look order: a replicate's first deciding look is kept,
+            y, f = yes[k:k + r.size], slice(k, k + r.size)      # its latest refit corrects its screen
+            first[r[y & (first[r] < 0)]] = j
+            ok = fit.ok[f]
+            offset[r[ok]] = fit.log_ratio[f][ok] - raw[ok]
+            ratio[r[ok]] = fit.se[f][ok] / se[ok]
+            start[r[ok]], refitted[r[ok]] = fit.shape[f][ok], True
+            k += r.size
     return first
 
 
-__all__ = ["SCREEN", "SCREEN_REFITTED", "Future", "Past", "BatchFit", "batch_fit", "batch_deviance", "decides", "first_decision"]
+__all__ = ["SCREEN", "SCREEN_REFITTED", "LOOK_BLOCK", "Future", "Past", "BatchFit", "batch_fit", "batch_deviance", "decides", "first_decision"]

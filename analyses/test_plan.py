@@ -30,7 +30,7 @@ their current distance, removed hoses) and the fitted common-shape Weibull
   adding more shortens the kilometres of elapsed testing but costs hoses; the table gives the
   fewest and the km it takes. The sequential test may stop earlier (that is its point): these
   are the km to the maximum.
-* ``expected_decision_date`` (:func:`bench_schedule`, :func:`decision_date`): the lab's benches as
+* ``expected_decision_date`` (:func:`analyses.bench_schedule.bench_schedule`, :func:`decision_date`): the lab's benches as
   they run (running hoses continuing, a failed hose replaced at once by a new one of its adjustment),
   the same looks as ``power_now``, the median over the replicates of the hose-km until the test
   decides or reaches its maximum, at the bench capacity (the plan's, or measured from the durability
@@ -53,7 +53,10 @@ the Wald scale of the canonical score process (Jennison & Turnbull 2000, section
 the check, and ``power_now`` was optimistic by 0.07 against the stage (docs/decision.md).
 
 Replicates are seeded by the caller (the stage derives the seed from a hash of the data and the
-plan): the same data give the same figures. ``mc_se = sqrt(p (1 - p) / n)``.
+plan): the same data give the same figures. ``mc_se = sqrt(p (1 - p) / n)``. Since session 22 ``power_now``
+draws them in batches (:data:`POWER_BATCH`, each its own generator: :func:`batch_rng`) until ``mc_se`` is at
+most :data:`POWER_SE_TARGET` (0.01) or ``n_simulations`` are drawn: ``n_simulations`` in its result is what
+was drawn (docs/decision.md, "Session 22: test_plan at 200 hose types").
 
 References
 ----------
@@ -81,13 +84,16 @@ from analyses.sequential import FEW_FAILURES
 #: The second target power of the test plan (the plan's own power is the first) [-].
 TARGET_POWER = 0.9
 
-#: Replicates of each Monte Carlo figure: mc_se of a power at most 0.008 [-].
+#: Replicates of each Monte Carlo figure: ``more_km``'s, and the most ``power_now`` draws (mc_se at most 0.008) [-].
 N_SIMULATIONS = 4000
 
-#: Replicates of the benches' schedule (:func:`bench_schedule`): the median's Monte Carlo error about
-#: 3 % of it [-] (each replicate's looks are read by the decision stage's rule, refits at the crossings:
-#: the schedule costs most of the stage, docs/decision.md "power_now with the likelihood check").
-SCHEDULE_SIMULATIONS = 500
+#: ``power_now`` draws its replicates in batches of this many [-] and stops after the first batch at which
+#: its Monte Carlo standard error is at most :data:`POWER_SE_TARGET` (or at ``n_simulations``).
+POWER_BATCH = 1000
+
+#: The Monte Carlo standard error ``power_now`` stops at [-] (session 22: a power of 0.5 takes 2,500
+#: replicates, one of 0 or 1 the first batch; the forward calibration's bins are 0.1-0.2 wide).
+POWER_SE_TARGET = 0.01
 
 #: Days of durability runs the bench capacity is measured from, before the latest event [d].
 CAPACITY_DAYS = 30
@@ -250,6 +256,12 @@ def remaining_km(rng: np.random.Generator, distance, group, fit: CommonShapeFit 
     return scale * ((c / scale) ** fit.shape + e) ** (1.0 / fit.shape) - c
 
 
+def batch_rng(seed: int, batch: int) -> np.random.Generator:
+    """The generator of one batch of replicates: batch 0 is ``seed``'s own, batch ``b`` that of ``(seed, b)``:
+    each batch's draws are fixed by the seed whatever number of batches is drawn (the same data, the same figures)."""
+    return np.random.default_rng(seed if batch == 0 else (seed, batch))
+
+
 def _decides(est, info, c, log_margin: float):
     """Whether a look crosses on the Wald scale: efficacy ``|Z| >= c`` or the RCI inside ``(-ln m, ln m)``."""
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -287,7 +299,7 @@ class PowerNow:
     mc_se : float
         Its Monte Carlo standard error [-] (0 when no simulation was needed).
     n_simulations : int
-        Replicates [-].
+        Replicates drawn [-] (batches of :data:`POWER_BATCH` until ``mc_se`` reaches its target).
     note : str or None
         One line on what was assumed or why ``power`` is NaN.
     """
@@ -299,7 +311,7 @@ class PowerNow:
 
 
 def power_now(state: HoseState, fit: CommonShapeFit, boundaries, margin: float, n_simulations: int = N_SIMULATIONS,
-              seed: int = 0) -> PowerNow:
+              seed: int = 0, target_se: float = POWER_SE_TARGET) -> PowerNow:
     """Probability that the test decides if no hose is added and it runs to ``max_failures``.
 
     Parameters
@@ -315,9 +327,14 @@ def power_now(state: HoseState, fit: CommonShapeFit, boundaries, margin: float, 
     margin : float
         The design's margin (life ratio, > 1) [-].
     n_simulations : int
-        Replicates [-].
+        The most replicates [-].
     seed : int
-        Seed of the replicates (derive it from the data for determinism).
+        Seed of the replicates (derive it from the data for determinism): batch ``b`` is drawn by
+        :func:`batch_rng`.
+    target_se : float
+        Stop after the first batch (of :data:`POWER_BATCH`) whose running estimate has a Monte Carlo standard
+        error at most this [-] (the error taken at ``(decided + 1) / (n + 2)``, so that none or all decided in
+        a batch is not an error of 0); 0 draws all ``n_simulations``.
 
     Returns
     -------
@@ -341,14 +358,21 @@ def power_now(state: HoseState, fit: CommonShapeFit, boundaries, margin: float, 
         return PowerNow(math.nan, math.nan, 0, f"not told with fewer than {FEW_FAILURES // 2} failures in an adjustment "
                         "(the shape from so few is biased high and power_now with it, by 0.2 measured; the design's "
                         "max_failures waits for as many: docs/decision.md, the plan's forward figures)")
-    rng = np.random.default_rng(seed)
-    left = remaining_km(rng, state.distance[run], state.group[run], predictive_draws(rng, fit, n_simulations), n_simulations)
-    fut = Future(state.distance[run], np.zeros_like(left), left, state.group[run])
-    first = first_decision(_past(state), fut, np.sort(left, axis=1)[:, :looks], c[d0:d0 + looks], margin, fit.shape)
-    p = float((first >= 0).mean())
+    decided = n = 0
+    while n < n_simulations:
+        m = min(POWER_BATCH, n_simulations - n)
+        rng = batch_rng(seed, n // POWER_BATCH)
+        left = remaining_km(rng, state.distance[run], state.group[run], predictive_draws(rng, fit, m), m)
+        fut = Future(state.distance[run], np.zeros_like(left), left, state.group[run])
+        first = first_decision(_past(state), fut, np.sort(left, axis=1)[:, :looks], c[d0:d0 + looks], margin, fit.shape)
+        decided, n = decided + int((first >= 0).sum()), n + m
+        q = (decided + 1.0) / (n + 2.0)
+        if math.sqrt(q * (1.0 - q) / n) <= target_se:
+            break
+    p = decided / n
     notes = [] if looks == max_failures - d0 else [
         f"only {run.size} running hose(s): the test can reach {d0 + run.size} of {max_failures} failures"]
-    return PowerNow(p, math.sqrt(p * (1.0 - p) / n_simulations), n_simulations, "; ".join(notes) or None)
+    return PowerNow(p, math.sqrt(p * (1.0 - p) / n), n, "; ".join(notes) or None)
 
 
 @dataclass(frozen=True)
@@ -411,116 +435,6 @@ def more_testing(state: HoseState, fit: CommonShapeFit, failures_needed: int,
     return MoreTesting(add, float(km.mean()))
 
 
-@dataclass(frozen=True)
-class BenchSchedule:
-    """When the lab's benches reach the decision (:func:`bench_schedule`).
-
-    Attributes
-    ----------
-    hose_km : float
-        Median over the replicates of the hose-kilometres the benches run from now until the test
-        decides or reaches its maximum [km] (every hose on the benches accumulates km; at ``benches``
-        benches of ``km_per_day``, ``hose_km / (benches km_per_day)`` days: :func:`decision_date`);
-        NaN when it cannot be told.
-    note : str or None
-        One line on what was assumed or why it is NaN.
-    """
-
-    hose_km: float
-    note: str | None = None
-
-
-def _bench_slots(state: HoseState, benches: int) -> tuple[np.ndarray, np.ndarray]:
-    """The benches' hoses now: (distance [km], group) of the running hoses, and new hoses (0 km) on the
-    benches they leave free, each to the adjustment with fewer hoses on the benches."""
-    run = np.flatnonzero(state.running)
-    group = list(state.group[run])
-    for _ in range(max(0, benches - run.size)):
-        group.append(int(group.count(1) < group.count(0)))
-    distance = np.concatenate([state.distance[run], np.zeros(len(group) - run.size)])
-    return distance, np.asarray(group, int)
-
-
-def _bench_future(rng: np.random.Generator, distance, group, fit: CommonShapeFit, n: int, left: int,
-                  per_bench: int) -> tuple[Future, np.ndarray, np.ndarray]:
-    """The benches' next ``per_bench`` hoses each, per replicate (a renewal process per bench from its hose at
-    ``distance``): (the :class:`~analyses.plan_check.Future` on the bench-km clock, the next ``left``
-    failures' bench-km (sorted), whether a bench's last drawn failure comes before the ``left``-th: then
-    it could run short of hoses and the replicate is drawn again with ``per_bench = left``). Predictive: one
-    model per replicate (:func:`predictive_draws`) for all of its benches' hoses."""
-    model = predictive_draws(rng, fit, n)
-    first = remaining_km(rng, distance, group, model, n)
-    later = remaining_km(rng, np.zeros(group.size * (per_bench - 1)), np.tile(group, per_bench - 1), model, n)
-    life = np.concatenate([first, later], axis=1).reshape(n, per_bench, group.size)
-    end = np.cumsum(life, axis=1)
-    start = np.concatenate([np.zeros((n, 1, group.size)), end[:, :-1]], axis=1)
-    flat = end.reshape(n, -1)
-    times = np.sort(np.partition(flat, left - 1, axis=1)[:, :left], axis=1)
-    short = (end[:, -1, :] < times[:, -1:]).any(axis=1) if per_bench < left else np.zeros(n, bool)
-    base = np.concatenate([distance, np.zeros(group.size * (per_bench - 1))])
-    return Future(base, start.reshape(n, -1), flat, np.tile(group, per_bench)), times, short
-
-
-def _bench_km(rng: np.random.Generator, state: HoseState, slots, fit: CommonShapeFit, n: int, c,
-              margin: float, per_bench: int) -> np.ndarray:
-    """Bench-km of each replicate's deciding look, or of its maximum's failure (:func:`bench_schedule`):
-    each bench draws its next ``per_bench`` lives (1.5 times its share of the coming failures, plus 2);
-    the replicates where that is short are drawn again in full."""
-    distance, group = slots
-    left = len(c)
-    fut, times, short = _bench_future(rng, distance, group, fit, n, left, per_bench)
-    keep = np.flatnonzero(~short)
-    sub = Future(fut.base, fut.start[keep], fut.end[keep], fut.group)
-    stop = first_decision(_past(state), sub, times[keep], c, margin, fit.shape)
-    km = times[keep, np.where(stop >= 0, stop, left - 1)]
-    if short.any():
-        km = np.concatenate([km, _bench_km(rng, state, slots, fit, int(short.sum()), c, margin, left)])
-    return km
-
-
-def bench_schedule(state: HoseState, fit: CommonShapeFit, boundaries, margin: float, benches: int,
-                   n_simulations: int = SCHEDULE_SIMULATIONS, seed: int = 0) -> BenchSchedule:
-    """The hose-km the lab's benches run until the test decides or reaches its maximum.
-
-    The lab's schedule, which the design's information per failure assumes too
-    (:func:`analyses.sequential.information_per_failure`): ``benches`` benches run at one rate, the
-    running hoses continue from their distance (a free bench takes a new hose, to the adjustment with
-    fewer), and each failed hose is replaced at once by a new one of its adjustment (a renewal
-    process per bench; lives from the fitted model, :func:`remaining_km`). The failures are read in
-    bench-km order as :func:`power_now` reads its looks, at the design's ``boundaries``; a
-    replicate stops at its first deciding look (:func:`analyses.plan_check.first_decision`), else at the
-    maximum (the last boundary's failure).
-
-    Parameters
-    ----------
-    state, fit, boundaries, margin, n_simulations, seed
-        As :func:`power_now` (``boundaries``: one per failure up to the maximum the schedule runs to).
-    benches : int
-        Benches testing the hose type, both adjustments [-]. With more running hoses than benches the
-        running hoses share them (each advances at the same rate; the hose-km are the same).
-
-    Returns
-    -------
-    BenchSchedule
-        The median hose-km [km] (0 when the current look decides or the maximum is reached); each
-        simulated look read as the decision stage reads it, as in :func:`power_now`.
-    """
-    if fit.note or not np.isfinite(fit.se_log_ratio):
-        return BenchSchedule(math.nan, f"no fitted model: {fit.note or 'no standard error'}")
-    c = np.asarray(boundaries, float)
-    d0 = sum(state.failures)
-    left = c.size - d0
-    if left <= 0 or (d0 >= 1 and _current_look_decides(state, fit, float(c[d0 - 1]), margin)):
-        return BenchSchedule(0.0, "the maximum is reached" if left <= 0 else "the current look decides")
-    distance, group = _bench_slots(state, int(benches))
-    if group.size == 0:
-        return BenchSchedule(math.nan, "no bench and no running hose")
-    rng = np.random.default_rng(seed)
-    per_bench = min(left, math.ceil(1.5 * left / group.size) + 2)
-    km = _bench_km(rng, state, (distance, group), fit, n_simulations, c[d0:], margin, per_bench)
-    return BenchSchedule(group.size * float(np.median(km)))
-
-
 def measured_capacity(runs: pd.DataFrame, today: pd.Timestamp,
                       days: int = CAPACITY_DAYS) -> tuple[int | None, float | None, str | None]:
     """Bench capacity measured from the durability runs of the last ``days`` days.
@@ -566,7 +480,7 @@ def decision_date(today: pd.Timestamp, more_km: float, benches, km_per_day):
     today : pandas.Timestamp
         The latest event in the data.
     more_km : float
-        Hose-kilometres still to run [km] (the stage: :func:`bench_schedule`'s ``hose_km``).
+        Hose-kilometres still to run [km] (the stage: :func:`analyses.bench_schedule.bench_schedule`'s ``hose_km``).
     benches : int or None
         Benches running at once [-].
     km_per_day : float or None
@@ -582,6 +496,6 @@ def decision_date(today: pd.Timestamp, more_km: float, benches, km_per_day):
     return (today + pd.Timedelta(days=more_km / (benches * km_per_day))).date()
 
 
-__all__ = ["TARGET_POWER", "N_SIMULATIONS", "SCHEDULE_SIMULATIONS", "CAPACITY_DAYS", "HoseState", "ModelDraws", "PowerNow", "MoreTesting", "BenchSchedule",
-           "target_powers", "predictive_draws", "remaining_km", "power_now", "more_testing", "bench_schedule",
-           "measured_capacity", "decision_date"]
+__all__ = ["TARGET_POWER", "N_SIMULATIONS", "POWER_BATCH", "POWER_SE_TARGET", "CAPACITY_DAYS", "HoseState", "ModelDraws",
+           "PowerNow", "MoreTesting", "target_powers", "batch_rng", "predictive_draws", "remaining_km", "power_now",
+           "more_testing", "measured_capacity", "decision_date"]

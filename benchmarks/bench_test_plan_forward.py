@@ -11,7 +11,7 @@ state and the fitted common-shape Weibull (:mod:`analyses.test_plan`): ``power_n
 the test decides if no hose is added and it runs to ``max_failures``), ``more_km`` (the expected
 hose-kilometres still to run to the ``failures_needed``-th failure, ``more_hoses_per_adjustment``
 new hoses added) and ``expected_decision_date`` (today + the median hose-km the lab's benches run to
-the decision or the maximum, :func:`analyses.test_plan.bench_schedule`, over ``benches km_per_day``;
+the decision or the maximum, :func:`analyses.bench_schedule.bench_schedule`, over ``benches km_per_day``;
 until this branch it was today + ``more_km / (benches km_per_day)``, printed as "before"). Each
 is a prediction about the future of ONE test; here they are checked against that future, drawn from
 the known truth, many times (the lab's rule: calibration measured by simulation from known truth).
@@ -51,7 +51,7 @@ b. ``more_km``'s own future: the running hoses and ``more_hoses_per_adjustment``
    within +/- 25 %, the ratio of the means.
 c. ``expected_decision_date`` against the day the lab's future reaches the ``failures_needed``-th
    failure and the decision (bench-km / :data:`KM_PER_DAY`), the same way; the date before (from
-   ``more_km``) and now (from :func:`analyses.test_plan.bench_schedule`). PASS: the date now within
+   ``more_km``) and now (from :func:`analyses.bench_schedule.bench_schedule`). PASS: the date now within
    10 % (median) of the realised decision day.
 
 Seeded: state ``i`` of cell ``j`` uses ``numpy.random.default_rng(4100 + 1000 j + i)`` (and the
@@ -79,8 +79,8 @@ from analyses.life_effect import CommonShapeFit, common_shape_fit, ratio_devianc
 from analyses.sequential import FEW_FAILURES, design_for, efficacy_boundaries, sequential_verdict
 from analyses import plan_check
 from analyses.plan_check import SCREEN, SCREEN_REFITTED, first_decision
-from analyses.test_plan import (HoseState, bench_schedule, decision_date, more_testing, power_now, predictive_draws,
-                                remaining_km)
+from analyses.bench_schedule import bench_schedule
+from analyses.test_plan import HoseState, decision_date, more_testing, power_now, predictive_draws, remaining_km
 from benchmarks.bench_test_plan import bench_lives
 
 #: The plan: margin, alpha, power, spending.

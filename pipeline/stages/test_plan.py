@@ -17,7 +17,7 @@ target power (the plan's, and 0.9; one row when they are equal), from :mod:`anal
   :func:`analyses.test_plan.more_testing`), and ``expected_decision_date`` = the latest event in
   the data (not the wall clock: the same raw/ gives the same table) plus the days the lab's
   ``benches`` (failed hoses replaced) take to decide or reach ``failures_needed``
-  (:func:`analyses.test_plan.bench_schedule`'s median hose-km over ``benches * km_per_day``), the
+  (:func:`analyses.bench_schedule.bench_schedule`'s median hose-km over ``benches * km_per_day``), the
   capacity from the plan or measured from the hose type's own durability runs of the last 30 days
   (``capacity_from``; known before the simulations, which need the benches; until session 20 it was
   measured from every hose type's runs together, the lab's benches given to each type).
@@ -26,10 +26,14 @@ Seeds: no stage is handed a digest of its inputs, so each hose type's simulation
 a sha256 of its own ``hose_life`` rows (id, adjustment, status, distance), its plan settings and
 its ``life_effect`` shape: a hose type whose data did not change keeps its figures, whatever
 else changed. Each hose type is one item of ``ctx.map`` (the stage's worker pool, memoised per
-item across rebuilds).
+item across rebuilds). Since session 22 the replicates come in batches until the figure's Monte Carlo
+error is small enough (``power_now``: mc_se <= 0.01, ``n_simulations`` what was drawn; the date: its
+median's error <= 5 %), and a hose type's rows read one set of the benches' replicates, each at its own
+design's boundaries (:func:`analyses.bench_schedule.bench_schedules`).
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import math
@@ -39,9 +43,9 @@ import pandas as pd
 
 from analyses.life_effect import SEPARATE, common_shape_fit
 from analyses.sequential import NoDesign, design_for, design_shape, efficacy_boundaries
-from analyses.test_plan import (CAPACITY_DAYS, N_SIMULATIONS, SCHEDULE_SIMULATIONS, BenchSchedule, HoseState,
-                                MoreTesting, PowerNow, bench_schedule, decision_date, hoses_on_test, measured_capacity,
-                                more_testing, power_now, target_powers)
+from analyses.bench_schedule import SCHEDULE_SIMULATIONS, BenchSchedule, bench_schedules
+from analyses.test_plan import (CAPACITY_DAYS, N_SIMULATIONS, HoseState, MoreTesting, PowerNow, decision_date,
+                                hoses_on_test, measured_capacity, more_testing, power_now, target_powers)
 from pipeline.stages import Reads, StageContext, StageOutput
 
 NAME = "test_plan"
@@ -156,10 +160,10 @@ def plan_hose_type(item: dict) -> list[dict]:
     if now.note:
         notes.append(f"power_now: {now.note}")
     rows = []
-    for p, needed, short in d["failures_needed"]:
+    schedules = _schedules(item, state, fit, [needed for _, needed, _ in d["failures_needed"]])
+    for (p, needed, short), sched in zip(d["failures_needed"], schedules):
         more = more_testing(state, fit, needed, item["n_simulations"], item["seed"]) if needed is not None \
             else MoreTesting(None, math.nan, None)
-        sched = _schedule(item, state, fit, needed)
         rows.append({"hose_type": item["hose_type"], "target_power": p, "failures_needed": needed,
                      "failures": sum(state.failures), "power_now": now.power,
                      "more_hoses_per_adjustment": more.hoses_per_adjustment, "more_km": more.km,
@@ -170,15 +174,29 @@ def plan_hose_type(item: dict) -> list[dict]:
     return rows
 
 
-def _schedule(item: dict, state: HoseState, fit, needed: int | None) -> BenchSchedule:
-    """The lab's benches (``item["benches"]``) run to a decision or ``needed`` failures, read at the
-    boundaries of the design whose maximum is ``needed`` (the test's own when it is life_verdict's)."""
-    if needed is None or not item.get("benches"):
-        return BenchSchedule(math.nan, None)
+@functools.lru_cache(maxsize=1024)
+def _boundaries(looks: int, alpha: float, spending: str) -> np.ndarray:
+    """:func:`analyses.sequential.efficacy_boundaries` of ``looks`` equally spaced looks [-], once per process
+    (hose types whose second target power needs the same maximum share it); read-only."""
+    c = efficacy_boundaries(np.arange(1, looks + 1) / looks, alpha, spending)
+    c.setflags(write=False)
+    return c
+
+
+def _schedules(item: dict, state: HoseState, fit, needed: list) -> list[BenchSchedule]:
+    """The lab's benches (``item["benches"]``) run to a decision or ``needed`` failures, one schedule per row,
+    each read at the boundaries of the design whose maximum is its ``needed`` (the test's own when it is
+    life_verdict's); the rows' schedules share their replicates (:func:`analyses.bench_schedule.bench_schedules`)."""
+    out = [BenchSchedule(math.nan, None)] * len(needed)
+    todo = [i for i, m in enumerate(needed) if m is not None and item.get("benches")]
+    if not todo:
+        return out
     s, c = item["settings"], item["design"]["boundaries"]
-    if len(c) != needed:
-        c = efficacy_boundaries(np.arange(1, needed + 1) / needed, s["alpha"], s["spending"])
-    return bench_schedule(state, fit, c, s["margin"], item["benches"], SCHEDULE_SIMULATIONS, item["seed"])
+    bounds = [c if len(c) == needed[i] else _boundaries(needed[i], s["alpha"], s["spending"]) for i in todo]
+    for i, sched in zip(todo, bench_schedules(state, fit, bounds, s["margin"], item["benches"], SCHEDULE_SIMULATIONS,
+                                              item["seed"])):
+        out[i] = sched
+    return out
 
 
 def latest_event(life: pd.DataFrame, runs: pd.DataFrame):

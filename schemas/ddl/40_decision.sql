@@ -163,8 +163,10 @@ CREATE TABLE test_plan (
                                            -- replaced at once, each look read as the decision stage reads it
                                            -- (refit, Wald crossing, likelihood check) at the design's boundaries
                                            -- for failures_needed; NULL without capacity or fitted model
-    n_simulations     BIGINT,              -- Monte Carlo replicates behind power_now and more_km (0: power_now
-                                           -- not simulated, decided or NULL); expected_decision_date uses 500 [-]
+    n_simulations     BIGINT,              -- Monte Carlo replicates behind power_now (0: not simulated, decided
+                                           -- or NULL): batches of 1,000 until mc_se <= 0.01, at most 4,000;
+                                           -- more_km uses 4,000, expected_decision_date 200-500 (until its
+                                           -- median's Monte Carlo error is <= 5 % of it) [-]
     mc_se             DOUBLE,              -- Monte Carlo standard error of power_now [-]
     note              VARCHAR              -- NULL when sound, else why values are NULL
 );

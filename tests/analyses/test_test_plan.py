@@ -11,8 +11,9 @@ from scipy import stats
 
 from analyses.decision import crossing_holds
 from analyses.life_effect import CommonShapeFit, common_shape_fit, ratio_deviance
-from analyses.test_plan import (HoseState, bench_schedule, decision_date, hoses_on_test, measured_capacity,
-                                more_testing, power_now, predictive_draws, remaining_km, target_powers)
+from analyses.test_plan import (N_SIMULATIONS, POWER_BATCH, POWER_SE_TARGET, HoseState, decision_date, hoses_on_test,
+                                measured_capacity, more_testing, power_now, predictive_draws, remaining_km,
+                                target_powers)
 
 
 def model(shape=1.5, scale_distance=1000.0, scale_force=1000.0, log_ratio=0.0, se=0.5):
@@ -135,7 +136,23 @@ def test_power_now_rises_with_the_fitted_effect_and_is_deterministic():
     assert strong.power > 0.8 and weak.power < strong.power - 0.2
     again = power_now(strong_st, strong_fit, bounds, 1.25, 1000, seed=7)
     assert again == strong
-    assert strong.mc_se == pytest.approx(math.sqrt(strong.power * (1 - strong.power) / 1000))
+    assert strong.mc_se == pytest.approx(math.sqrt(strong.power * (1 - strong.power) / strong.n_simulations))
+
+
+def test_power_now_draws_batches_until_its_mc_se_is_small_enough():
+    """Batches of POWER_BATCH (each with its own fixed generator) until mc_se <= target_se: target 0 draws all
+    n_simulations, a loose one stops after the first batch (the first batch's figure, whatever the maximum),
+    the default stops where mc_se first reaches 0.01, at a whole number of batches."""
+    st, fit = drawn_state(1.5)
+    bounds = np.full(60, 2.2)
+    every = power_now(st, fit, bounds, 1.25, 3 * POWER_BATCH, seed=2, target_se=0.0)
+    first = power_now(st, fit, bounds, 1.25, 3 * POWER_BATCH, seed=2, target_se=0.5)
+    assert (every.n_simulations, first.n_simulations) == (3 * POWER_BATCH, POWER_BATCH)
+    assert first == power_now(st, fit, bounds, 1.25, POWER_BATCH, seed=2, target_se=0.0)
+    told = power_now(st, fit, bounds, 1.25, N_SIMULATIONS, seed=2)
+    assert told.n_simulations % POWER_BATCH == 0 and 0.0 < told.power < 1.0
+    assert told.mc_se <= POWER_SE_TARGET + 0.001 or told.n_simulations == N_SIMULATIONS
+    assert abs(told.power - every.power) <= 3 * math.hypot(told.mc_se, every.mc_se)
 
 
 def clear_state():
@@ -196,34 +213,6 @@ def test_more_testing_counts_hoses_and_the_exponential_km():
     assert more.hoses_per_adjustment == 5               # 20 - 4 failures - 6 running = 10, 5 per adjustment
     assert more_testing(state(2, 3), fit, 4).km == 0.0
     assert math.isnan(more_testing(st, CommonShapeFit(note="too few"), 8).km)
-
-
-def test_bench_schedule_to_the_maximum_is_the_exponentials_gamma():
-    """Shape 1, equal scales s, boundaries no look can cross: every bench is a Poisson process of rate
-    1 / s per bench-km whatever its hose's age (memoryless, a failed hose replaced), so B benches reach
-    the r-th failure at Gamma(r, s / B) bench-km, and the hose-km (B x that) is Gamma(r, s): the median
-    by hand, for 6 running hoses on 6 benches and for 2 running hoses on 6 (4 new hoses loaded). More
-    running hoses than benches share them: the same hose-km."""
-    fit = replace(model(shape=1.0, log_ratio=0.0), cov=np.diag([0.0, 0.25, 0.0]))   # singular: the draws plug it in
-    r = 12                                                  # failures still to come: maximum 16, 4 so far
-    for running, benches in ((3, 6), (1, 6), (5, 4)):
-        got = bench_schedule(state(2, running, 300.0), fit, [40.0] * 16, 1.25, benches, 20_000, seed=4)
-        assert got.hose_km == pytest.approx(stats.gamma.median(r, scale=1000.0), rel=0.02)
-        assert got.note is None
-
-
-def test_bench_schedule_stops_at_the_decision():
-    """A strong fitted effect decides long before the maximum: the benches' km shrink; the current look
-    deciding or the maximum reached is 0 km; no fitted model is NaN. Deterministic per seed."""
-    bounds = np.full(100, 2.0)
-    (weak_st, weak_fit), (st, fit) = drawn_state(1.0), drawn_state(4.0)
-    weak, strong = (bench_schedule(s, f, bounds, 1.25, 20, 300, seed=1) for s, f in ((weak_st, weak_fit), (st, fit)))
-    assert 0.0 < strong.hose_km < 0.5 * weak.hose_km
-    assert bench_schedule(st, fit, bounds, 1.25, 20, 300, seed=1) == strong
-    decided = bench_schedule(clear_state(), model(log_ratio=2.0, se=0.5), [2.0] * 40, 1.25, 20, 100)
-    assert (decided.hose_km, decided.note) == (0.0, "the current look decides")
-    assert bench_schedule(st, model(), [40.0] * 10, 1.25, 20).hose_km == 0.0
-    assert math.isnan(bench_schedule(st, CommonShapeFit(note="too few"), bounds, 1.25, 20).hose_km)
 
 
 #: `reliability` 0.9.0, ``Reliability_testing.reliability_test_planner(MTBF=1000.0,

@@ -12,7 +12,8 @@ import pytest
 
 from analyses.life_effect import common_shape_fit
 from analyses.sequential import design_shape, efficacy_boundaries, max_information
-from analyses.test_plan import SCHEDULE_SIMULATIONS, HoseState, bench_schedule
+from analyses.bench_schedule import SCHEDULE_SIMULATIONS, bench_schedule
+from analyses.test_plan import HoseState
 from pipeline.raw.plan import Plan
 from pipeline.stages import DeclaredContext, StageContext
 from pipeline.stages import test_plan as stage
