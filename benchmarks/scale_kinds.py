@@ -178,22 +178,29 @@ def plot(sizes: dict[int, dict], path: Path) -> dict:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import matplotlib.ticker  # noqa: F401 (matplotlib.ticker.NullFormatter)
 
     c = curve(sizes)
     fig, ax = plt.subplots(figsize=(7.5, 4.6))
+    labels = []  # (runs, share) of each other kind's last point, named beside it
     for kind, ys in c["shares"].items():
         have = [(n, y) for n, y in zip(c["runs"], ys) if y is not None]
         if kind == c["worst_kind"] or not have:
             continue
         ax.plot(*zip(*have), ".-", color="0.7", lw=0.8)
-        ax.annotate(_name(kind), have[-1], xytext=(4, 0), textcoords="offset points", fontsize=6.5, color="0.45",
-                    va="center")
+        labels.append((have[-1], _name(kind)))
+    placed: dict[int, float] = {}  # per size, the log10 height of the last label: labels kept apart
+    for (n, y), name in sorted(labels, key=lambda t: (t[0][0], t[0][1])):
+        at = max(math.log10(y), placed.get(n, -9.0) + 0.035)
+        placed[n] = at
+        ax.annotate(name, (n, y), xytext=(n * 1.06, 10 ** at), fontsize=6.5, color="0.4", va="center")
     if c["worst_kind"]:
         have = [(n, y) for n, y in zip(c["runs"], c["shares"][c["worst_kind"]]) if y is not None]
         ax.plot(*zip(*have), "o-", color="tab:red", lw=2.2,
                 label=f"one change of the worst kind ({_name(c['worst_kind'])}), CPU share of full")
         for n, y in have:
-            ax.annotate(f"{y:.3f}", (n, y), xytext=(5, 6), textcoords="offset points", fontsize=8, color="tab:red")
+            ax.annotate(f"{_name(c['worst_kind'])} {y:.3f}", (n, y), xytext=(-6, 7), textcoords="offset points",
+                        fontsize=8, color="tab:red", ha="right")
     worst_pts = [(n, y) for n, y in zip(c["runs"], c["worst_share"]) if y is not None]
     if worst_pts and [y for _, y in worst_pts] != [y for _, y in zip(c["runs"], c["shares"].get(c["worst_kind"], []))]:
         ax.plot(*zip(*worst_pts), "x--", color="tab:orange", label="each size's worst kind")
@@ -201,8 +208,16 @@ def plot(sizes: dict[int, dict], path: Path) -> dict:
     bk = max((k for k in ISSUE_BEFORE if k != "no-op"), key=ISSUE_BEFORE.get)
     ax.plot([ISSUE_BEFORE_RUNS], [ISSUE_BEFORE[bk]], "s", color="tab:blue", mfc="none", ms=8,
             label=f"before (issue 26, wall share): {_name(bk)} {ISSUE_BEFORE[bk]:.2f}")
+    for n in (1000, 10000):
+        ax.annotate(f"{kind_target(n):.0%}", (n, kind_target(n)), xytext=(0, -11), textcoords="offset points",
+                    fontsize=7.5, ha="center")
     ax.set_xscale("log")
     ax.set_yscale("log")
+    ticks = [0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0]
+    ax.set_yticks(ticks, [f"{t:.1%}" if t < 0.01 else f"{t:.0%}" for t in ticks])
+    ax.yaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+    ys = [y for v in c["shares"].values() for y in v if y is not None] + [ISSUE_BEFORE[bk], 0.02]
+    ax.set_ylim(min(ys) / 1.5, max(ys) * 1.5)
     ax.set_xlim(c["target_runs"][0] * 0.8, c["target_runs"][-1] * 1.6)
     ax.set_xlabel("runs in raw/")
     ax.set_ylabel("one changed file: share of a full rebuild (CPU)")
