@@ -134,7 +134,7 @@ def issue_table(sizes: dict[int, dict]) -> tuple[list[str], list[tuple[str, floa
                 continue
             cpu, share = s["kinds"][kind]
             ok = share < kind_target(runs)
-            cells.append(f"{share:.3f} ({cpu:.1f}) {'PASS' if ok else 'MISS'}")
+            cells.append(f"{share:.4f} ({cpu:.1f}) {'PASS' if ok else 'MISS'}")
         before = f"{ISSUE_BEFORE[kind]:.3f}" if kind in ISSUE_BEFORE else "-"
         lines.append(f"| {_name(kind)} | {before} | " + " | ".join(cells) + " |")
     checks, worst_cells = [], []
@@ -144,7 +144,7 @@ def issue_table(sizes: dict[int, dict]) -> tuple[list[str], list[tuple[str, floa
             worst_cells.append("-")
             continue
         ok = w[1] < kind_target(runs)
-        worst_cells.append(f"**{_name(w[0])} {w[1]:.3f} {'PASS' if ok else 'MISS'}**")
+        worst_cells.append(f"**{_name(w[0])} {w[1]:.4f} {'PASS' if ok else 'MISS'}**")
         checks.append((f"worst kind ({_name(w[0])}) under {kind_target(runs):.0%} of a full rebuild at {runs:,} runs "
                        f"(CPU; {len([k for k in s['kinds'] if k != 'no-op'])} kinds measured)", w[1], ok))
     before_worst = max((k for k in ISSUE_BEFORE if k != "no-op"), key=ISSUE_BEFORE.get)

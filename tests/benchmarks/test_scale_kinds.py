@@ -50,12 +50,12 @@ def test_the_issue_table_has_the_issues_before_and_each_sizes_share_with_pass_or
     assert lines[0] == ("| change | before: issue 26, 1,000 runs (wall share) | after, 1,000 runs: CPU share (CPU s), "
                         "target 5% | after, 10,000 runs: CPU share (CPU s), target 2% |")
     assert "| full rebuild, CPU s | (52-56 s wall) | 60.0 | 800.0 |" in lines
-    assert "| spring | 0.280 | 0.108 (6.5) MISS | 0.030 (24.0) MISS |" in lines
-    assert "| leakage | 0.130 | 0.120 (7.2) MISS | 0.015 (12.0) PASS |" in lines
-    assert "| durability | 0.120 | not measured | 0.010 (8.0) PASS |" in lines
-    assert "| plan.toml | - | 0.040 (2.4) PASS | not measured |" in lines
+    assert "| spring | 0.280 | 0.1083 (6.5) MISS | 0.0300 (24.0) MISS |" in lines
+    assert "| leakage | 0.130 | 0.1200 (7.2) MISS | 0.0150 (12.0) PASS |" in lines
+    assert "| durability | 0.120 | not measured | 0.0100 (8.0) PASS |" in lines
+    assert "| plan.toml | - | 0.0400 (2.4) PASS | not measured |" in lines
     assert "| pressure step | 0.250 | not measured | not measured |" in lines  # the issue's name, not the key
-    assert lines[-1] == "| **worst kind** | **spring 0.280** | **leakage 0.120 MISS** | **spring 0.030 MISS** |"
+    assert lines[-1] == "| **worst kind** | **spring 0.280** | **leakage 0.1200 MISS** | **spring 0.0300 MISS** |"
     assert [(round(v, 3), ok) for _, v, ok in checks] == [(0.12, False), (0.03, False)]
     assert checks[1][0] == "worst kind (spring) under 2% of a full rebuild at 10,000 runs (CPU; 3 kinds measured)"
 
@@ -64,7 +64,7 @@ def test_every_kind_under_its_target_passes_and_the_no_op_is_never_the_worst_kin
     quiet = _per_kind(10000, 1000.0, {"spring": [[5.0, 19.0]], "no-op": [[30.0, 25.0]]})
     sizes = sk.sizes_from([("q", quiet)])
     lines, checks = sk.issue_table(sizes)
-    assert "| spring | 0.280 | 0.019 (19.0) PASS |" in lines and "| no-op | 0.009 | 0.025 (25.0) MISS |" in lines
+    assert "| spring | 0.280 | 0.0190 (19.0) PASS |" in lines and "| no-op | 0.009 | 0.0250 (25.0) MISS |" in lines
     assert [ok for _, _, ok in checks] == [True] and sk.worst(sizes[10000]) == ("spring", 0.019)
 
 
@@ -87,7 +87,7 @@ def test_render_prints_the_table_and_checks_and_draws_the_png_through_bench_scal
     png = tmp_path / "scale.png"
     assert bs.main([*files, "--plot", str(png)]) == 1  # the worst kinds MISS
     out = capsys.readouterr().out
-    assert "| **worst kind** | **spring 0.280** | **leakage 0.120 MISS** | **spring 0.030 MISS** |" in out
+    assert "| **worst kind** | **spring 0.280** | **leakage 0.1200 MISS** | **spring 0.0300 MISS** |" in out
     assert "1,000 runs: load average 5.0-6.0" in out
     assert "MISS  worst kind (spring) under 2% of a full rebuild at 10,000 runs (CPU; 3 kinds measured): 0.030" in out
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
