@@ -58,6 +58,8 @@ class TrackedDB:
     ----------
     db : ReportDB
         The report's database (its answers are returned unchanged).
+    views : dict of str to str, optional
+        The SQL of the database's views: a view read stands for the tables it reads.
 
     Attributes
     ----------
@@ -68,8 +70,9 @@ class TrackedDB:
         another method of the connection): it cannot be kept.
     """
 
-    def __init__(self, db: ReportDB):
+    def __init__(self, db: ReportDB, views: dict[str, str] | None = None):
         self.db = db
+        self.views = views or {}
         self.read: set[str] = set()
         self.everything = False
         self.con = _TrackedCon(self)
@@ -77,7 +80,11 @@ class TrackedDB:
     def saw_sql(self, sql: str) -> None:
         """Record the tables of the database named in ``sql`` (every identifier that is one), and
         :data:`CATALOGUE` when it reads the catalogue."""
-        self.read.update(w for w in _WORD.findall(sql) if w in self.db.tables)
+        for w in _WORD.findall(sql):
+            if w in self.db.tables and w not in self.read:
+                self.read.add(w)
+                if w in self.views:  # a view: the tables its SQL reads (its own text is the DDL's: code)
+                    self.saw_sql(self.views[w])
         if _CATALOGUE.search(sql):
             self.read.add(CATALOGUE)
 
@@ -99,7 +106,7 @@ class TrackedDB:
         return self.db.rows(sql, params)
 
     def columns(self, table: str) -> list[str]:
-        self.read.add(table)
+        self.read.add(CATALOGUE)  # a table's columns (none when it is absent): in the catalogue's key
         return self.db.columns(table)
 
     def count(self, table: str) -> int:
@@ -146,6 +153,16 @@ def table_keys(db: ReportDB) -> dict[str, str]:
     return {t: stored[t] for t in names if stored[t].rsplit(":", 1)[1] == sums.get(t)}
 
 
+def _view_sql(db: ReportDB) -> dict[str, str]:
+    """The SQL of every view of the database (none when it cannot be read)."""
+    try:
+        return {n: q or "" for n, q in db.con.execute(
+            "SELECT view_name, sql FROM duckdb_views() WHERE NOT internal "
+            "AND database_name = current_database()").fetchall()}
+    except Exception:
+        return {}
+
+
 def _sql_str(text: str) -> str:
     """``text`` as an SQL string literal."""
     return "'" + str(text).replace("'", "''") + "'"
@@ -175,6 +192,7 @@ class KeyedParts:
         self.db = db
         self.code = code
         self.keys = table_keys(db)
+        self.views = _view_sql(db) if self.keys else {}
         self.old = old if isinstance(old, dict) and self.keys else {}
         self.kept: dict[str, dict] = {}
         self.taken = self.rendered = 0
@@ -193,6 +211,8 @@ class KeyedParts:
         """The content key of ``table`` now (:data:`ABSENT` when the database lacks it; None: it has no key)."""
         if table == CATALOGUE:
             return self._catalogue_key()
+        if table in self.views:  # what it reads is among the dependencies; its text is code
+            return "view"
         if table in self.keys:
             return self.keys[table]
         return None if self.db.has(table) else ABSENT
@@ -215,7 +235,7 @@ class KeyedParts:
     def render(self, name: str, render: Callable[[Any], Any], extra: Any = None) -> Any:
         """``render(db)`` through a :class:`TrackedDB`, kept under ``name`` with the keys of the
         tables it read (unless it read one without a key, or there are no keys)."""
-        tracked = TrackedDB(self.db)
+        tracked = TrackedDB(self.db, self.views)
         value = render(tracked)
         self.rendered += 1
         deps = {t: self._dep_key(t) for t in sorted(tracked.read)}
