@@ -46,7 +46,8 @@ from __future__ import annotations
 import math
 import os
 import re
-from dataclasses import dataclass, field
+from contextlib import contextmanager
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -70,10 +71,33 @@ HOSE_COLUMNS = ["hose_id", "hose_type", "adjustment", "z_rollers_mm", "spring_fo
                 "n_installations", "campaigns", "intervals", "warnings", "odometer_at"]
 
 
+#: Raw trees a rebuild has walked, while its stages run (:func:`walked`): real path -> (the walk's
+#: logbooks, :func:`read_logbooks`' result once read).
+_WALKED: dict[str, list] = {}
+
+
+@contextmanager
+def walked(raw: Path, side: list[Path]):
+    """Within it, :func:`find_logbooks` of ``raw`` gives the logbooks among ``side`` (the side files
+    of the walk the rebuild already made of ``raw``: :meth:`pipeline.raw.tree.RawTree.listing`)
+    instead of walking raw/ again, and :func:`read_logbooks` reads them once for every stage that
+    asks (issue 26: the durability and decision stages each walked raw/ and parsed the logbooks)."""
+    key = os.path.realpath(raw)
+    _WALKED[key] = [[p for p in side if p.name.lower() == LOGBOOK_NAME], None]
+    try:
+        yield
+    finally:
+        _WALKED.pop(key, None)
+
+
 def find_logbooks(raw: Path) -> list[Path]:
     """Every readable ``hoses.csv`` under ``raw`` (dotted folders skipped, no folder symlink
     followed, a symlink from outside raw/ not read: :func:`pipeline.raw.walk.walk_raw`, whose
-    quarantine rows the rebuild reports), sorted by relative path."""
+    quarantine rows the rebuild reports), sorted by relative path (the rebuild's own walk of it
+    within :func:`walked`)."""
+    known = _WALKED.get(os.path.realpath(raw))
+    if known is not None:
+        return list(known[0])
     return [p for p in walk_raw(Path(raw)).side if p.name.lower() == LOGBOOK_NAME]
 
 
@@ -208,8 +232,18 @@ def _numbers(row: dict, rec: dict, hose: str) -> str | None:
 
 
 def read_logbooks(raw: Path) -> tuple[pd.DataFrame, list[Problem]]:
-    """Every logbook under ``raw``, concatenated (sorted path order), and their problems."""
-    raw = Path(raw)
+    """Every logbook under ``raw``, concatenated (sorted path order), and their problems (read
+    once within :func:`walked`; each caller gets its own copy)."""
+    known = _WALKED.get(os.path.realpath(raw))
+    if known is not None:
+        if known[1] is None:
+            known[1] = _read_logbooks(Path(raw))
+        events, problems = known[1]
+        return events.copy(), [replace(p) for p in problems]
+    return _read_logbooks(Path(raw))
+
+
+def _read_logbooks(raw: Path) -> tuple[pd.DataFrame, list[Problem]]:
     frames, problems = [], []
     for p in find_logbooks(raw):
         rel = display_name(os.path.relpath(p, os.path.realpath(raw)).replace(os.sep, "/"))

@@ -302,7 +302,10 @@ def _stages(run: RebuildRun, plan: _Plan, ingested: _Ingested, ex: Executor, dra
                          previous=plan.prev, logbooks=logbook_hash(plan.side), full=run.options.full,
                          generation=run.generation, jobs=run.options.jobs, mapper=ex.mapper(run.progress),
                          plan=lab_plan)
-    staged = run_stages_cached(inputs, run.progress, drawer)
+    from pipeline.raw.logbook import walked  # (pandas: the incremental path has it imported by now)
+
+    with walked(plan.tree.root, plan.tree.listing().side):  # the stages' logbooks: this walk's, read once
+        staged = run_stages_cached(inputs, run.progress, drawer)
     staged.problems += lab_plan.problems  # given to the stages: its lines are ours to report
     return staged
 

@@ -96,6 +96,9 @@ class StageResults:
     reused: list[str] = field(default_factory=list)
     #: per stage that ran: its per-item memo (hits, computed items)
     memos: dict[str, Memo] = field(default_factory=dict)
+    #: :func:`frame_hash` of each table of ``tables`` as it is now (a table read by several stages
+    #: is hashed once; dropped when a later stage adds rows to it)
+    hashes: dict[str, str] = field(default_factory=dict)
 
 
 def duration_text(s: float) -> str:
@@ -143,13 +146,14 @@ def run_stages_cached(inputs: StageInputs, progress: Progress, drawer: FigureDra
             t0 = time.monotonic()
             reads = stages.reads_of(mod)
             key = _input_key(mod.NAME, codes[mod.NAME], reads, inputs)
-            record = _reusable(mod.NAME, key, _tables_read(reads, res), inputs)
+            read = _tables_read(reads, res)
+            record = _reusable(mod.NAME, key, read, inputs)
             if record is not None:
                 loaded = load_stage_folder(inputs.warehouse, record.folder, mod.NAME)
                 res.reused.append(mod.NAME)
                 how = "reused"
             else:
-                record, loaded = _run_stage(mod, reads, key, inputs, res, drawer, progress)
+                record, loaded = _run_stage(mod, (reads, read), key, inputs, res, drawer, progress)
                 res.ran.append(mod.NAME)
                 how = "ran"
             res.records.append(record)
@@ -170,8 +174,14 @@ def _input_key(name: str, code: str, reads: Reads, inputs: StageInputs) -> str:
 
 
 def _tables_read(reads: Reads, res: StageResults) -> dict[str, str]:
-    """Content hash of each earlier table a stage reads (``"absent"`` for one no stage wrote)."""
-    return {t: frame_hash(res.tables.get(t)) for t in sorted(reads.tables)}
+    """Content hash of each earlier table a stage reads (``"absent"`` for one no stage wrote); each
+    table is hashed once however many stages read it (``res.hashes``)."""
+    out = {}
+    for t in sorted(reads.tables):
+        if t not in res.hashes:
+            res.hashes[t] = frame_hash(res.tables.get(t))
+        out[t] = res.hashes[t]
+    return out
 
 
 def _reusable(name: str, key: str, tables_read: dict[str, str], inputs: StageInputs) -> StageRecord | None:
@@ -185,11 +195,13 @@ def _reusable(name: str, key: str, tables_read: dict[str, str], inputs: StageInp
     return None
 
 
-def _run_stage(mod, reads: Reads, key: str, inputs: StageInputs, res: StageResults, drawer: FigureDrawer,
-               progress: Progress) -> tuple[StageRecord, tuple]:
-    """Run a stage on what it declared, store its outputs; its record and its outputs as stored."""
+def _run_stage(mod, reads_read: tuple[Reads, dict[str, str]], key: str, inputs: StageInputs, res: StageResults,
+               drawer: FigureDrawer, progress: Progress) -> tuple[StageRecord, tuple]:
+    """Run a stage on what it declared (``reads_read``: its declaration and the hashes of the tables
+    it reads, :func:`_tables_read`), store its outputs; its record and its outputs as stored."""
     from pipeline import stages
 
+    reads, read = reads_read
     name = mod.NAME
     old = inputs.previous.stages.get(name)
     # the previous folder (its figures and pooled tables, by key): only one of this warehouse's own
@@ -206,7 +218,6 @@ def _run_stage(mod, reads: Reads, key: str, inputs: StageInputs, res: StageResul
     except Exception as exc:  # a bug in an analysis: fail, keep the previous warehouse
         raise RebuildError(f"stage {name} failed: {type(exc).__name__}: {exc}") from exc
     memo.save()
-    read = _tables_read(reads, res)
     # --full writes a fresh folder (never trusts an existing one); incremental runs reuse a folder
     # with the same inputs (stages are deterministic)
     salt = inputs.generation if inputs.full else ""
@@ -228,6 +239,7 @@ def _collect(res: StageResults, loaded: tuple, runs_frame: pd.DataFrame) -> dict
     tables = stages.add_run_columns(tables, runs_frame)  # campaign, hose_id, campaigns
     for t, df in tables.items():
         res.tables[t] = df if t not in res.tables else pd.concat([res.tables[t], df], ignore_index=True)
+        res.hashes.pop(t, None)  # hashed anew when a later stage reads it
     res.figures += figures
     res.problems += problems
     for rid, ws in warnings.items():

@@ -49,9 +49,21 @@ def cached_parts(db: ReportDB, warehouse: Path, code: str | None = None) -> tupl
         return None  # none yet, or damaged: rendered anew
 
 
+def live_keyed(warehouse: Path) -> dict:
+    """The parts the live report kept by the keys of the tables they read
+    (:class:`~pipeline.serve.report.keyed.KeyedParts`; {} when there are none or the file is damaged)."""
+    try:
+        data = json.loads((Path(warehouse) / REPORT_DIR / PARTS_CACHE).read_text(encoding="utf-8"))
+        keyed = data.get("keyed") if isinstance(data, dict) else None
+        return keyed if isinstance(keyed, dict) else {}
+    except (OSError, ValueError):
+        return {}
+
+
 def cache_parts(db: ReportDB, folder: Path, results: str, toc: list, runs_index: str, decision: str,
-                code: str | None = None) -> None:
-    """Keep the parts in the new report ``folder`` under :func:`parts_key` of ``code`` (none without one)."""
+                code: str | None = None, keyed: dict | None = None) -> None:
+    """Keep the parts in the new report ``folder`` under :func:`parts_key` of ``code`` (none without one),
+    and ``keyed``: the parts kept by the keys of the tables they read (``KeyedParts.kept``)."""
     key = parts_key(db, code)
     if key is None:
         return
@@ -59,7 +71,7 @@ def cache_parts(db: ReportDB, folder: Path, results: str, toc: list, runs_index:
     try:
         folder.mkdir(parents=True, exist_ok=True)
         tmp.write_text(json.dumps({"key": key, "results": results, "toc": toc, "runs_index": runs_index,
-                                   "decision": decision}),
+                                   "decision": decision, "keyed": keyed or {}}),
                        encoding="utf-8")
         os.replace(tmp, folder / PARTS_CACHE)
     except OSError:

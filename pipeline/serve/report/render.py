@@ -12,10 +12,11 @@ import os
 from datetime import datetime, timezone
 from pathlib import Path
 
-from pipeline.serve.report.cache import cache_parts, cached_parts
+from pipeline.serve.report.cache import REPORT_CODE, cache_parts, cached_parts, live_keyed
 from pipeline.serve.report.db import ReportDB
 from pipeline.serve.report.decision import decision_section
-from pipeline.serve.report.figures import Figures
+from pipeline.serve.report.figures import Figures, code_key
+from pipeline.serve.report.keyed import KeyedParts
 from pipeline.serve.report.folders import GENERATION_FILE, REPORT_DIR
 from pipeline.serve.report.markup import CSS, esc, one_line_error
 from pipeline.serve.report.pages import BandsAhead, carry_pages, run_pages_present, runs_index, write_run_pages
@@ -23,6 +24,13 @@ from pipeline.serve.report.publish import live_generation, publish_report, settl
 from pipeline.serve.report.results import results_sections
 from pipeline.serve.report.sections import findings_section, rebuild_line, rebuild_section, toc
 from pipeline.serve.door import connect_readonly
+
+
+#: Libraries whose versions key the parts kept by their tables' keys (they read and draw them).
+KEYED_LIBRARIES = ("numpy", "pandas", "pyarrow", "duckdb", "matplotlib")
+#: The run pages as one kept part: what they read (runs, channels, every result table with a
+#: ``run_id``) unchanged, the live report's pages are this report's (each page's own key matches).
+RUN_PAGES = "run-pages"
 
 
 class ReportError(Exception):
@@ -68,13 +76,16 @@ def render_report(warehouse: str | Path, now: datetime | None = None, database: 
         generation = db.generation()
         cached = None if run_pages == "all" else cached_parts(db, warehouse, code)
         if cached is not None:  # the same inputs and code as the last report: the same results
-            parts = cached
-        else:
-            results, entries = results_sections(db, warehouse)
+            parts, keyed = cached, live_keyed(warehouse)
+        else:  # each part the live report's when the tables it reads are unchanged (issue 26)
+            keyed = KeyedParts(db, f"{code or code_key(REPORT_CODE)}-{code_key((), KEYED_LIBRARIES)}",
+                               {} if run_pages == "all" else live_keyed(warehouse))
+            results, entries = results_sections(db, warehouse, keyed)
             live = () if run_pages == "all" else (warehouse / REPORT_DIR / "index.html",)
-            parts = (results, entries, runs_index(db), decision_section(db, Figures(live)))
+            parts = (results, entries, keyed.get("runs-index", runs_index),
+                     keyed.get("decision", lambda d: decision_section(d, Figures(live))))
         if folder is not None:
-            _fill_folder(db, warehouse, Path(folder), generation, run_pages, (parts, code), ahead)
+            _fill_folder(db, warehouse, Path(folder), generation, run_pages, (parts, code, keyed), ahead)
         return _index(db, warehouse, generation, (alert, findings), parts)
     finally:
         con.close()
@@ -82,16 +93,23 @@ def render_report(warehouse: str | Path, now: datetime | None = None, database: 
 
 def _fill_folder(db: ReportDB, warehouse: Path, folder: Path, generation: str, run_pages: str,
                  parts_code: tuple, ahead: BandsAhead | None = None) -> None:
-    """The new report ``folder``'s generation, parts cache (``parts_code``: the parts and the code's
-    version) and run pages (see :func:`render_report`)."""
-    parts, code = parts_code
+    """The new report ``folder``'s generation, parts cache (``parts_code``: the parts, the code's
+    version and the :class:`KeyedParts`, or the live report's kept parts when the parts were taken
+    whole) and run pages (see :func:`render_report`)."""
+    parts, code, keyed = parts_code
     live = warehouse / REPORT_DIR
     (folder / GENERATION_FILE).write_text(generation or "", encoding="utf-8")
-    cache_parts(db, folder, *parts, code=code)
     if run_pages == "missing" and run_pages_present(db, warehouse):
         carry_pages(live / "runs", folder / "runs")
+    elif isinstance(keyed, KeyedParts) and run_pages == "update" and keyed.taken_from_live(RUN_PAGES) and \
+            run_pages_present(db, warehouse):  # the tables every run page reads unchanged: the live pages
+        carry_pages(live / "runs", folder / "runs")
+    elif isinstance(keyed, KeyedParts):
+        keyed.render(RUN_PAGES, lambda d: write_run_pages(d, warehouse, folder / "runs", previous=live / "runs",
+                                                          full=run_pages == "all", ahead=ahead))
     else:
         write_run_pages(db, warehouse, folder / "runs", previous=live / "runs", full=run_pages == "all", ahead=ahead)
+    cache_parts(db, folder, *parts, code=code, keyed=keyed.kept if isinstance(keyed, KeyedParts) else keyed)
 
 
 def _index(db: ReportDB, warehouse: Path, generation: str, findings: tuple[str, str], parts: tuple) -> str:

@@ -10,6 +10,7 @@ from pathlib import Path
 
 from pipeline.serve.formats import neutralise_cell
 from pipeline.serve.report.db import ReportDB
+from pipeline.serve.report.keyed import KeyedParts
 from pipeline.serve.report.markup import esc
 from pipeline.serve.report.summaries import (summary_breakaway, summary_hoses, summary_identification,
                                              summary_leakage, summary_pressure, summary_service_life,
@@ -121,20 +122,31 @@ def _figure(warehouse: Path, name: str, path: str, caption) -> str:
             f'{": " + esc(caption) if caption else ""}</figcaption></figure>')
 
 
-def results_sections(db: ReportDB, warehouse: Path) -> tuple[str, list]:
-    """(HTML of the papers' sections and the other figures, table-of-contents entries)."""
+def results_sections(db: ReportDB, warehouse: Path, keyed: KeyedParts | None = None) -> tuple[str, list]:
+    """(HTML of the papers' sections and the other figures, table-of-contents entries). ``keyed``:
+    each topic, and the other figures, taken from the live report when the tables it read and its
+    figures are unchanged (:class:`~pipeline.serve.report.keyed.KeyedParts`); None renders all."""
     figs = db.rows("SELECT stage, name, path, caption FROM figures ORDER BY stage, name")[1] \
         if db.has("figures") else []
-    html_out, toc, used = _paper_sections(db, warehouse, figs)
+    html_out, toc, used = _paper_sections(db, warehouse, figs, keyed)
     rest = [f for f in figs if f[1] not in used]
     if not rest:  # every figure is shown with its paper above (or there is none): no empty section
         return "".join(html_out), toc
-    html_out.append(_other_figures(db, warehouse, rest))
+    html_out.append(_part(keyed, "other-figures", lambda d: _other_figures(d, warehouse, rest), rest, db))
     toc.append(("analyses", "Other figures", []))
     return "".join(html_out), toc
 
 
-def _paper_sections(db: ReportDB, warehouse: Path, figs: list[tuple]) -> tuple[list[str], list, set[str]]:
+def _part(keyed: KeyedParts | None, name: str, render, figures: list[tuple], db: ReportDB) -> str:
+    """``render(db)``, or the live report's part ``name`` of the same tables and ``figures`` (rows
+    of ``figures``: a figure's file is named by its stage folder's key, so its path names its bytes)."""
+    if keyed is None:
+        return render(db)
+    return keyed.get(name, render, extra=[[str(v) if v is not None else None for v in f] for f in figures])
+
+
+def _paper_sections(db: ReportDB, warehouse: Path, figs: list[tuple],
+                    keyed: KeyedParts | None = None) -> tuple[list[str], list, set[str]]:
     """(HTML per paper of :data:`LAYOUT`, its table-of-contents entries, the figures shown)."""
     used: set[str] = set()
     html_out, toc = [], []
@@ -143,19 +155,30 @@ def _paper_sections(db: ReportDB, warehouse: Path, figs: list[tuple]) -> tuple[l
         for tid, ttitle, patterns, summary, tables in topics:
             mine = sorted((f for f in figs if _matches(f[1], patterns)),
                           key=lambda f: (next(k for k, p in enumerate(patterns) if _matches(f[1], [p])), f[1]))
-            body = summary(db)
-            raws = "".join(_raw_rows(db, t) for t in tables)
-            if not mine and not body and not raws:
+            section = _part(keyed, f"topic-{tid}", lambda d: _topic(d, warehouse, (tid, ttitle, summary, tables), mine),
+                            mine, db)
+            if not section:
                 continue
             used.update(f[1] for f in mine)
-            figs_html = "".join(_figure(warehouse, n, p, c) for _s, n, p, c in mine)  # one per row, full width
-            parts.append(f'<section id="{tid}"><h3>{esc(ttitle)}</h3>{body}{figs_html}'
-                         f'{"<p class=meta>Rows behind it:</p>" + raws if raws else ""}</section>')
+            parts.append(section)
             sub.append((tid, ttitle))
         if parts:
             html_out.append(f'<section id="{pid}"><h2>{esc(ptitle)}</h2>{"".join(parts)}</section>')
             toc.append((pid, ptitle, sub))
     return html_out, toc, used
+
+
+def _topic(db: ReportDB, warehouse: Path, topic: tuple, mine: list[tuple]) -> str:
+    """One topic's section: its summary, its figures (``mine``, one per row, full width) and the rows
+    behind them; "" when it has none of these."""
+    tid, ttitle, summary, tables = topic
+    body = summary(db)
+    raws = "".join(_raw_rows(db, t) for t in tables)
+    if not mine and not body and not raws:
+        return ""
+    figs_html = "".join(_figure(warehouse, n, p, c) for _s, n, p, c in mine)
+    return (f'<section id="{tid}"><h3>{esc(ttitle)}</h3>{body}{figs_html}'
+            f'{"<p class=meta>Rows behind it:</p>" + raws if raws else ""}</section>')
 
 
 def _other_figures(db: ReportDB, warehouse: Path, rest: list[tuple]) -> str:

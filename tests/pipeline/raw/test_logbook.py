@@ -184,3 +184,30 @@ def test_a_logbook_that_is_not_csv_text_is_quarantined_whole_with_its_line(raw, 
     assert events.empty  # no silently swallowed or mangled events
     assert [(p.source_path, p.line) for p in problems] == [("c/hoses.csv", line)]
     assert problems[0].error.startswith(error) and problems[0].error.endswith("no row of it is read")
+
+
+def test_within_the_rebuilds_walk_logbooks_are_found_without_walking_and_read_once(raw, monkeypatch):
+    """``walked``: the logbooks of the walk the rebuild made (raw/ not walked again) and one read of
+    them for every stage that asks, each caller getting its own copy of what was read."""
+    from pipeline.raw import logbook
+    from pipeline.raw.walk import walk_raw
+
+    raw.write("c1/hoses.csv", HEADER + "H1,installed,2026-01-01T08:00,FLEXIGOM AIR,force,,866,,,,\n"
+              "H1,exploded,2026-01-02T08:00,,,,,,,,\n")
+    raw.write("c2/hoses.csv", HEADER + "H2,installed,2026-01-05T00:00,FLEXIGOM AIR,distance,4.5,,,,,\n")
+    alone_events, alone_problems = read_logbooks(raw.root)
+    side = walk_raw(raw.root).side
+    reads = []
+    real = logbook.read_logbook
+    monkeypatch.setattr(logbook, "read_logbook", lambda p, *a, **k: reads.append(p) or real(p, *a, **k))
+    monkeypatch.setattr(logbook, "walk_raw", lambda *a, **k: pytest.fail("raw/ walked again"))
+    with logbook.walked(raw.root, side):
+        assert find_logbooks(raw.root) == [p for p in side if p.name == "hoses.csv"]
+        first, first_problems = read_logbooks(raw.root)
+        first.loc[0, "hose_id"] = "changed by a stage"
+        second, second_problems = read_logbooks(raw.root)
+    assert len(reads) == 2  # each logbook once for both stages
+    pd.testing.assert_frame_equal(second, alone_events)
+    assert second_problems == alone_problems and second_problems is not first_problems
+    monkeypatch.setattr(logbook, "walk_raw", walk_raw)
+    assert len(find_logbooks(raw.root)) == 2  # outside it: walked as before
