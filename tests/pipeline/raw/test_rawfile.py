@@ -136,7 +136,7 @@ def test_side_files_swapped_for_links_out_of_raw_after_the_walk_are_not_read(raw
     def walk_then_swap(module, names):
         real = module.walk_raw
 
-        def walk(root):  # the rebuild's walk (manifest, rig.toml), the logbook stage's (hoses.csv)
+        def walk(root):  # the rebuild's walk (manifest, rig.toml, hoses.csv)
             listing = real(root)
             for rel in names:
                 target = tmp_path / rel.replace("/", "-")
@@ -149,8 +149,8 @@ def test_side_files_swapped_for_links_out_of_raw_after_the_walk_are_not_read(raw
 
         monkeypatch.setattr(module, "walk_raw", walk)
 
-    walk_then_swap(raw_tree, ["c1/manifest.csv", "c2/rig.toml"])
-    walk_then_swap(logbook, ["c3/hoses.csv"])
+    # the rebuild's walk is the only one: the stages read the logbooks it listed (logbook.walked)
+    walk_then_swap(raw_tree, ["c1/manifest.csv", "c2/rig.toml", "c3/hoses.csv"])
     assert rebuild(raw.root, warehouse, jobs=1).exit_code == EXIT_QUARANTINED
     q = dict(query(warehouse, "SELECT source_path, error FROM quarantine WHERE source_path NOT LIKE '%/a.csv'"))
     assert q == {rel: ("cannot read logbook: " if rel.endswith("hoses.csv") else "cannot read: ")
@@ -158,6 +158,29 @@ def test_side_files_swapped_for_links_out_of_raw_after_the_walk_are_not_read(raw
     runs = [r for (r,) in query(warehouse, "SELECT run_id FROM runs ORDER BY 1")]
     assert runs == ["c3/a", "c4/a"]  # c1, c2: their metadata cannot be known; the logbook is no run's
     _nowhere(warehouse)
+
+
+@pytest.mark.raw_written("c3/hoses.csv", "c3/.orig-hoses.csv")
+def test_a_logbook_swapped_for_a_link_out_of_raw_after_its_own_walk_is_not_read(raw, tmp_path, monkeypatch):
+    """Outside a rebuild (``pneubench decision``, a notebook) read_logbooks walks raw/ itself: a logbook
+    swapped for a link out of raw/ after that walk is a problem line, its text never read."""
+    raw.write("c3/hoses.csv", "hose_id,event,at\nH1,installed,2026-01-01\n")
+    target = tmp_path / "outside-hoses.csv"
+    target.write_text(f"hose_id,event,at\n{MARKER},installed,2026-01-01\n")
+    real = logbook.walk_raw
+
+    def walk(root):
+        listing = real(root)
+        link = raw.root / "c3/hoses.csv"
+        os.replace(link, link.with_name(".orig-hoses.csv"))
+        os.symlink(target, link)
+        return listing
+
+    monkeypatch.setattr(logbook, "walk_raw", walk)
+    events, problems = logbook.read_logbooks(raw.root)
+    assert [(p.source_path, p.error) for p in problems] == [
+        ("c3/hoses.csv", f"cannot read logbook: symlink to a file outside raw/: {target}")]
+    assert MARKER not in events.to_csv()
 
 
 # -- every reader reads the opened file, whatever its name points at by then ---------------------
