@@ -102,7 +102,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from analyses.numerics import brentq, chi2_ppf, chi2_sf, fminbound
+from analyses.numerics import brentq, chi2_ppf, chi2_sf, fminbound, remembered
 from analyses.service_life import (SHAPE_BOUNDS, WeibullFit, lr_bound, newton_root, weibull_quantile_profile,
                                    weibull_scale_given_shape)
 
@@ -391,18 +391,6 @@ def common_shape_fit(life, failed, group, shape_start: float = 1.0) -> CommonSha
     start = math.log(shape_start) if math.isfinite(shape_start) and shape_start > 0 else 0.0
     return _fit_groups(split_groups(life, failed, group), start)
 
-
-def remembered(excess):
-    """``excess`` (a pure function of ``t`` [-]) with its values kept by ``t``: ``lr_bound``'s ``brentq`` first
-    evaluates again the ends of the step that bracketed the bound (a profile solve each); same values."""
-    seen: dict = {}
-
-    def call(t):
-        v = seen.get(t)
-        if v is None:
-            v = seen[t] = excess(t)
-        return v
-    return call
 
 
 def _shape_bounds(groups, crit: float) -> tuple[float, float]:

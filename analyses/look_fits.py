@@ -44,7 +44,8 @@ import math
 
 import numpy as np
 
-from analyses.life_effect import RATIO_SEARCH, CommonShapeFit, common_shape_fit, ratio_deviance, remembered
+from analyses.life_effect import RATIO_SEARCH, CommonShapeFit, common_shape_fit, ratio_deviance
+from analyses.numerics import remembered
 from analyses.service_life import SHAPE_BOUNDS, lr_bound
 
 #: Newton steps on the signed root deviance before an end is searched alone (``lr_bound``). [-]

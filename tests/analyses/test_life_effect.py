@@ -284,16 +284,3 @@ def test_split_groups_keeps_each_adjustments_lives_and_drops_unusable_ones():
         split_groups([1.0, 2.0], [1], [0, 1])
     with pytest.raises(ValueError, match="0 \\(distance\\) or 1"):
         split_groups([1.0], [1], [2])
-
-
-def test_remembered_computes_each_argument_once_and_gives_the_same_values():
-    from analyses.life_effect import remembered
-
-    calls = []
-
-    def excess(t):
-        calls.append(t)
-        return t * t - 2.0
-
-    f = remembered(excess)
-    assert [f(1.0), f(2.0), f(1.0), f(2.0)] == [-1.0, 2.0, -1.0, 2.0] and calls == [1.0, 2.0]
