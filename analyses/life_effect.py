@@ -102,7 +102,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from analyses.numerics import brentq, chi2_ppf, chi2_sf, fminbound, remembered
+from analyses.numerics import brentq, chi2_ppf, chi2_sf, fminbound
 from analyses.service_life import (SHAPE_BOUNDS, WeibullFit, lr_bound, newton_root, weibull_quantile_profile,
                                    weibull_scale_given_shape)
 
@@ -411,7 +411,7 @@ def _shape_bounds(groups, crit: float) -> tuple[float, float]:
     if centre is None:
         centre = brentq(score, lo, hi, xtol=1e-13, rtol=1e-13)
     top = adjusted(centre)
-    k_lo, k_hi = (lr_bound(remembered(lambda t: 2.0 * (top - adjusted(t)) - crit), centre, edge) for edge in (lo, hi))
+    k_lo, k_hi = (lr_bound(lambda t: 2.0 * (top - adjusted(t)) - crit, centre, edge) for edge in (lo, hi))
     return math.exp(k_lo), math.exp(k_hi)
 
 
@@ -420,7 +420,7 @@ def _profile_bounds(fit: CommonShapeFit, groups, crit: float) -> dict:
     ll, k, theta = fit.loglik, fit.shape, fit.log_ratio
     k_lo, k_hi = _shape_bounds(groups, crit)
     start = math.log(k)
-    r_lo, r_hi = (lr_bound(remembered(lambda t: 2.0 * (ll - _ratio_profile(t, groups, start)) - crit),
+    r_lo, r_hi = (lr_bound(lambda t: 2.0 * (ll - _ratio_profile(t, groups, start)) - crit,
                            theta, theta + side * math.log(RATIO_SEARCH)) for side in (-1.0, 1.0))
     lr = max(0.0, 2.0 * (ll - _ratio_profile(0.0, groups, start)))
     return {"shape": k, "shape_lower": k_lo, "shape_upper": k_hi,
@@ -459,7 +459,7 @@ def _separate_shapes(groups, fits, crit: float) -> dict:
     """B10 ratio of a shape per adjustment with its profile-likelihood bounds and p-value."""
     ll = fits[0].loglik + fits[1].loglik
     log_rho = math.log(fits[1].quantile(P_B10) / fits[0].quantile(P_B10))
-    lo, hi = (lr_bound(remembered(lambda t: 2.0 * (ll - _separate_profile(t, groups, fits)) - crit),
+    lo, hi = (lr_bound(lambda t: 2.0 * (ll - _separate_profile(t, groups, fits)) - crit,
                        log_rho, log_rho + side * math.log(RATIO_SEARCH)) for side in (-1.0, 1.0))
     lr = max(0.0, 2.0 * (ll - _separate_profile(0.0, groups, fits)))
     return {"life_ratio": math.exp(log_rho), "life_ratio_lower": math.exp(lo), "life_ratio_upper": math.exp(hi),

@@ -45,7 +45,6 @@ import math
 import numpy as np
 
 from analyses.life_effect import RATIO_SEARCH, CommonShapeFit, common_shape_fit, ratio_deviance
-from analyses.numerics import remembered
 from analyses.service_life import SHAPE_BOUNDS, lr_bound
 
 #: Newton steps on the signed root deviance before an end is searched alone (``lr_bound``). [-]
@@ -364,6 +363,6 @@ def profile_rci(life, failed, group, look, looks, z, centre=None, deviance=ratio
     edge = math.log(RATIO_SEARCH)
     for side, j in np.argwhere(np.isnan(ends) & np.isfinite(mid) & np.isfinite(z) & (z > 0)).tolist():
         m, crit = lk == wanted[j], float(z[j]) ** 2
-        ends[side, j] = lr_bound(remembered(lambda t: deviance(x[m], f[m], g[m], math.exp(t)) - crit), float(mid[j]),
+        ends[side, j] = lr_bound(lambda t: deviance(x[m], f[m], g[m], math.exp(t)) - crit, float(mid[j]),
                                  float(mid[j]) + (2 * side - 1) * edge)
     return ends[0], ends[1]

@@ -107,18 +107,6 @@ def _correlate_constant(x: np.ndarray, fw: np.ndarray) -> np.ndarray:
     return y
 
 
-def remembered(excess):
-    """``excess`` (a pure function of ``t`` [-]) with its values kept by ``t``: ``lr_bound``'s ``brentq`` first
-    evaluates again the ends of the step that bracketed the bound (a profile solve each); same values."""
-    seen: dict = {}
-
-    def call(t):
-        v = seen.get(t)
-        if v is None:
-            v = seen[t] = excess(t)
-        return v
-    return call
-
 
 def brentq(f, a: float, b: float, xtol: float = 2e-12, rtol: float = 4 * _EPS, maxiter: int = 100) -> float:
     """A root of ``f`` in ``[a, b]`` by Brent's method (Brent 1973, Algorithms for Minimization

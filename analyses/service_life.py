@@ -79,6 +79,7 @@ tied distance failures are taken before suspensions (the usual convention).
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -426,7 +427,9 @@ def lr_bound(excess, centre: float, edge: float) -> float:
     ----------
     excess : callable
         ``excess(t) = 2 * (loglik_max - loglik_profile(t)) - chi2.ppf(confidence, 1)``, negative
-        at ``centre``; ``t`` is the parameter on the scale searched (a log for positive ones).
+        at ``centre``; ``t`` is the parameter on the scale searched (a log for positive ones). A pure
+        function of ``t``: each point is evaluated once (``brentq`` starts from the ends of the step
+        that bracketed the bound, which the search has already evaluated: a profile solve each).
     centre : float
         The estimate.
     edge : float
@@ -438,6 +441,7 @@ def lr_bound(excess, centre: float, edge: float) -> float:
         The bound, NaN when the deviance stays below the critical value up to ``edge`` (the data
         do not bound the parameter on that side).
     """
+    excess = functools.cache(excess)
     sign = 1.0 if edge > centre else -1.0
     span = abs(edge - centre)
     a, step = centre, 0.05

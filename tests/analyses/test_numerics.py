@@ -183,16 +183,3 @@ def test_a_sequential_design_is_computed_without_importing_scipy_stats_or_optimi
             "sorted({m.split('.')[1] for m in sys.modules if m.startswith('scipy.')} & {'stats', 'optimize'}))\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
     assert out[1:] == ["True", "[]"] and 2.0 < float(out[0]) < 2.3  # the last O'Brien-Fleming-type boundary: a little above 1.96
-
-
-def test_remembered_computes_each_argument_once_and_gives_the_same_values():
-    from analyses.numerics import remembered
-
-    calls = []
-
-    def excess(t):
-        calls.append(t)
-        return t * t - 2.0
-
-    f = remembered(excess)
-    assert [f(1.0), f(2.0), f(1.0), f(2.0)] == [-1.0, 2.0, -1.0, 2.0] and calls == [1.0, 2.0]

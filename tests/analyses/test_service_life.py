@@ -543,3 +543,20 @@ def test_lognormal_fit_recovers_its_parameters_and_needs_two_failures():
     assert fit.ok and fit.median == pytest.approx(500.0, rel=0.03) and fit.sigma == pytest.approx(0.4, rel=0.06)
     one = lognormal_fit([10.0, 20.0, 30.0], [True, False, False])
     assert not one.ok and "too few failures" in one.note
+
+
+def test_lr_bound_evaluates_each_point_once_and_finds_the_root():
+    """``brentq`` starts from the bracketing step's ends, which the outward search already evaluated
+    (a profile solve each in the real callers): each point is computed once, the bound is the root."""
+    from analyses.service_life import lr_bound
+
+    calls = []
+
+    def excess(t):
+        calls.append(t)
+        return t * t - 2.0
+
+    assert abs(lr_bound(excess, 0.0, 10.0) - math.sqrt(2.0)) < 1e-10
+    assert abs(lr_bound(excess, 0.0, -10.0) + math.sqrt(2.0)) < 1e-10
+    assert len(calls) == len(set(calls))
+    assert math.isnan(lr_bound(excess, 0.0, 1.0))      # never reaches the critical value up to the edge
