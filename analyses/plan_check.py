@@ -17,12 +17,11 @@ profile deviance at the trial ratios (the pooled one-group fit of the lives with
 divided by the ratio). The same numbers as the scalar functions to ~1e-8 (tested), 30-40 times
 cheaper per look in a batch of hundreds.
 
-:func:`first_decision` reads a simulated future look by look: a cheap screen (the shape-known estimate at
-the current fitted shape, a closed form in the failures and the sums of ``x^k``) picks the replicates
-whose look may cross (once a replicate was refitted, the screen is corrected by that refit), and only
-those are refitted and checked; a replicate stops at its first confirmed look. Looks are screened in blocks
-of :data:`LOOK_BLOCK` whose refits are one batch (session 22: a batch's fixed cost is most of a look's). The
-screen's slack
+:func:`first_decision` reads a simulated future: a cheap screen (the shape-known estimate at the current
+fitted shape, a closed form in the failures and the sums of ``x^k``), computed for every look of every
+replicate at once, picks the looks that may cross (once a replicate was refitted, its screen is corrected by
+that refit), and only those are refitted and checked, the next ones of every replicate in one batch a round
+(session 23: :data:`LOOK_BLOCK`); a replicate stops at its first confirmed look. The screen's slack
 (:data:`SCREEN`, :data:`SCREEN_REFITTED`) is measured: ``benchmarks/bench_test_plan_forward.py`` (d)
 counts the replicates whose first deciding look differs from reading every look in full.
 
@@ -51,10 +50,10 @@ SCREEN = 0.75
 #: changes little, so a tighter factor finds the same looks with fewer refits (measured as SCREEN).
 SCREEN_REFITTED = 0.85
 
-#: Looks screened together [-]: their refits are one batch (one call of :func:`decides` for ``block`` looks:
-#: the calls' fixed cost is most of a look's), each look screened with the corrections of the refits before
-#: the block; a replicate that decides at a look of the block is refitted at its later looks too (unused).
-LOOK_BLOCK = 4
+#: Screened looks a replicate has refitted in the first round [-], doubled each round after (session 23):
+#: every replicate's next screened looks are refitted in one call of :func:`decides` a round (a call's fixed
+#: cost was most of a look's); a refit after the replicate's decision is unused, so the first round takes one.
+LOOK_BLOCK = 1
 
 _LO, _HI = math.log(SHAPE_BOUNDS[0]), math.log(SHAPE_BOUNDS[1])
 
@@ -71,12 +70,17 @@ class Future:
         When it goes on test and when it fails, on the clock of the looks [km of testing from now].
     group : numpy.ndarray of int, shape (H,)
         1 force-set, 0 distance-set.
+    benches : int
+        0: each column is one hose, on test from its ``start`` until its ``end``; ``B`` > 0: the columns are ``B``
+        benches' successive hoses, column ``i B + b`` bench ``b``'s ``(i + 1)``-th (started when the ``i``-th
+        fails; the same group as column ``b``) [-]. Either way at most one hose of a column chain runs at a time.
     """
 
     base: np.ndarray
     start: np.ndarray
     end: np.ndarray
     group: np.ndarray
+    benches: int = 0
 
 
 @dataclass(frozen=True)
@@ -124,7 +128,8 @@ def _value_slope(t, groups):
 def _shape_mle(groups, start: float):
     """(log shape per row, whether it settled strictly inside SHAPE_BOUNDS): bracketed Newton steps
     (:func:`analyses.service_life.newton_root` row by row: a step leaving the bracket is a bisection), each
-    row iterated until its step is below 1e-8 (relative; the error after it is of the order of its square)."""
+    row iterated until its step is below 1e-6 (relative; the step is taken, and the error after it is of the
+    order of its square, 1e-12)."""
     n = groups[0][2].size
     a, b, t = np.full(n, _LO), np.full(n, _HI), np.clip(np.broadcast_to(np.asarray(start, float), n), _LO, _HI)
     live = np.arange(n)
@@ -135,7 +140,7 @@ def _shape_mle(groups, start: float):
         with np.errstate(divide="ignore", invalid="ignore"):
             step = -v / s
         nxt = t[live] + step
-        done = np.isfinite(step) & (np.abs(step) < 1e-8 * (1.0 + np.abs(t[live])))
+        done = np.isfinite(step) & (np.abs(step) < 1e-6 * (1.0 + np.abs(t[live])))
         bad = ~done & (~np.isfinite(nxt) | (nxt <= a[live]) | (nxt >= b[live]))
         t[live] = np.where(bad, 0.5 * (a[live] + b[live]), nxt)
         live = live[~done]
@@ -172,22 +177,41 @@ class BatchFit:
     ok: np.ndarray
 
 
-def _se_log_ratio(logx, d, on, group, k, log_scale):
+def _moments(k, groups) -> list:
+    """Per group, each row's ``(M0, M1, M2)``: the sums of ``exp(k y)``, ``y exp(k y)`` and ``y^2 exp(k y)`` over
+    its hoses on test (``y`` the log lives relative to the row's largest), in one pass."""
+    out = []
+    for y, on, *_ in groups:
+        w = _masked_exp(k, y, on)
+        m0 = w.sum(axis=1)
+        w *= y
+        m1 = w.sum(axis=1)
+        w *= y
+        out.append((m0, m1, w.sum(axis=1)))
+    return out
+
+
+def _se_log_ratio(k, groups, moments):
     """Observed-information standard error of the log ratio (the 3 x 3 Hessian of
-    :func:`analyses.life_effect._covariance`, its (1, 1) cofactor), NaN where not positive definite."""
+    :func:`analyses.life_effect._covariance`, its (1, 1) cofactor), NaN where not positive definite; its sums
+    from each group's moments at the fitted shape (:func:`_moments`): with ``z = k (log x - log scale)`` and
+    ``w = exp(z)`` at the group's scale MLE, ``sum w = r``, ``sum w z = r (k m - L)``,
+    ``sum w z^2 = r (k^2 v + (k m - L)^2)`` (``m``, ``v`` the ``exp(k y)``-weighted mean and variance of ``y``,
+    ``L = log(M0 / r)``) and ``sum_failed z = k sum_failed y - r L``."""
     sums = []
-    for g in (0, 1):
-        m = on[:, group == g]
-        z = np.where(m, k[:, None] * (logx[:, group == g] - log_scale[g][:, None]), 0.0)
-        w = np.where(m, np.exp(z), 0.0)
-        f = (d[:, group == g] & m).astype(float)
-        sums.append(((w).sum(axis=1), (w * z + w - f).sum(axis=1), (w * z * z + 2.0 * w * z - 2.0 * f * z - f).sum(axis=1)))
+    for (_, _, r, syf, _), (m0, m1, m2) in zip(groups, moments):
+        mean = m1 / m0
+        var = np.maximum(m2 / m0 - mean ** 2, 0.0)
+        ell = np.log(m0 / r)
+        wz = r * (k * mean - ell)
+        wzz = r * (k ** 2 * var + (k * mean - ell) ** 2)
+        fz = k * syf - r * ell
+        sums.append((r, wz, wzz + 2.0 * wz - 2.0 * fz - r))
     (w0, a0, b0), (w1, a1, b1) = sums
     m00, m01, m02, m11, m12, m22 = w0 + w1, w1, a0 + a1, w1, a1, b0 + b1
     det = m00 * (m11 * m22 - m12 ** 2) - m01 * (m01 * m22 - m12 * m02) + m02 * (m01 * m12 - m11 * m02)
     pd_ = (m00 > 0) & (m00 * m11 - m01 ** 2 > 0) & (det > 0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        var = (m00 * m22 - m02 ** 2) / det / k ** 2
+    var = (m00 * m22 - m02 ** 2) / det / k ** 2
     return np.where(pd_ & (var > 0), np.sqrt(np.abs(var)), np.nan)
 
 
@@ -213,11 +237,11 @@ def batch_fit(logx, failed, on, group, shape_start: float = 1.0) -> BatchFit:
     t, inside = _shape_mle(groups, np.log(shape_start))
     k = np.exp(t)
     enough = (groups[0][2] >= 2) & (groups[1][2] >= 2)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        sums = _power_sums(k, groups)     # the scales' and the log-likelihood's, computed once
-        log_scale = [ymax + np.log(sw / r) / k for (_, _, r, _, ymax), sw in zip(groups, sums)]
-        se = _se_log_ratio(logx, failed, on, group, k, log_scale)
-        ll = _loglik(k, groups, sums)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        moments = _moments(k, groups)     # the scales', the standard error's and the log-likelihood's, one pass
+        log_scale = [ymax + np.log(m[0] / r) / k for (_, _, r, _, ymax), m in zip(groups, moments)]
+        se = _se_log_ratio(k, groups, moments)
+        ll = _loglik(k, groups, [m[0] for m in moments])
     ok = enough & inside & np.isfinite(se)
     return BatchFit(k, ll, log_scale[1] - log_scale[0], se, ok)
 
@@ -272,33 +296,56 @@ def decides(logx, failed, on, group, c, margin: float, shape_start=1.0) -> tuple
     return out, fit
 
 
-def _look(fut: Future, rows, at, first_start=None):
-    """(log x, failed, on, columns) of the future's hoses for the replicates ``rows`` at ``at`` [km of testing
-    from now]: the hoses on test then, in the columns (of ``fut``) of the hoses on test in at least one of the
-    rows; the other columns would add nothing to any sum (a hose not yet on a bench is in no row's data).
-    ``first_start``: each column's earliest start over the replicates [km], to compare only the columns that
-    may be on test (a bench's later hoses are most of the columns and on test in no row for most looks)."""
-    may = np.arange(fut.start.shape[1]) if first_start is None else np.flatnonzero(first_start < at.max())
-    at = at[:, None]
-    on = fut.start[np.ix_(rows, may)] < at
-    keep = on.any(axis=0)
-    on, cols = on[:, keep], may[keep]
-    start, end = fut.start[np.ix_(rows, cols)], fut.end[np.ix_(rows, cols)]
-    x = fut.base[cols] + np.minimum(end, at) - start
-    return np.log(np.where(on, x, 1.0)), on & (end <= at), on, cols
+def _failures(fut: Future, times: np.ndarray, shape: float):
+    """Each replicate's failures in look order: (column failing at each look, shape (n, looks); its life
+    [km]; its ``life^shape``). ``times`` must be the future's first failures (its ends, sorted)."""
+    n, looks = times.shape
+    end = fut.end
+    if end.shape[1] > 2 * looks:       # only the first ``looks`` ends matter: partition, then sort those
+        part = np.argpartition(end, looks - 1, axis=1)[:, :looks]
+        col = np.take_along_axis(part, np.argsort(np.take_along_axis(end, part, axis=1), axis=1, kind="stable"), axis=1)
+    else:
+        col = np.argsort(end, axis=1, kind="stable")[:, :looks]
+    ends = np.take_along_axis(end, col, axis=1)
+    if not np.array_equal(ends, times):
+        raise ValueError("times must be each replicate's first failures (the future's ends, sorted)")
+    life = fut.base[col] + ends - np.take_along_axis(fut.start, col, axis=1)
+    return col, life, np.exp(shape * np.log(life))
 
 
-def _with_past(past: Past, logx, failed, on):
-    """The rows' look with the past hoses' columns in front."""
-    n = logx.shape[0]
-    return (np.concatenate([np.broadcast_to(past.logx, (n, past.logx.size)), logx], axis=1),
-            np.concatenate([np.broadcast_to(past.failed, (n, past.failed.size)), failed], axis=1),
-            np.concatenate([np.ones((n, past.logx.size), bool), on], axis=1))
+def _running(fut: Future, times: np.ndarray, col: np.ndarray, shape: float):
+    """The hoses on test and not failed at each look, one per bench: (distance [km] (n, looks, benches), on
+    test, its ``distance^shape`` (0 where not on test)). A bench's current hose is its first not failed by
+    the look (:attr:`Future.benches`); it is on test once started (a replacement starts at the failure)."""
+    n, looks = times.shape
+    H = fut.start.shape[1]
+    S = fut.benches or H
+    per = H // S
+    hit = np.zeros((n, looks, S), np.int32)
+    np.put_along_axis(hit, (col % S)[:, :, None], 1, axis=2)
+    done = np.cumsum(hit, axis=1)                      # the bench's failures up to and with the look
+    valid = done < per
+    cur = np.where(valid, done * S + np.arange(S), 0)
+    st = np.take_along_axis(fut.start, cur.reshape(n, looks * S), axis=1).reshape(n, looks, S)
+    on = valid & (st < times[:, :, None])
+    x = np.where(on, fut.base[cur] + times[:, :, None] - st, 1.0)
+    powered = np.exp(shape * np.log(x))
+    powered *= on
+    return x, on, powered, done
 
 
 def first_decision(past: Past, fut: Future, times, c, margin: float, shape: float,
                    screen: tuple[float, float] = (SCREEN, SCREEN_REFITTED), block: int = LOOK_BLOCK) -> np.ndarray:
     """The first simulated look that the decision stage would declare, per replicate (-1: none).
+
+    Every look of every replicate is screened at once (the failures' and the running hoses' sums of
+    ``x^shape``, per adjustment); then, round by round, each replicate's next screened looks (``block`` in the
+    first round, twice as many each round after) are refitted in ONE :func:`decides` call for all replicates,
+    and read in look order: the first refit that decides is the replicate's decision; a refit that does not
+    corrects the replicate's screen of its later looks (the refit's estimate minus the screen's, the ratio of
+    their standard errors), and a replicate whose corrected screen passes a look before its next refitted one
+    goes back to that look in the next round (its later refits of the round unused). So each look is screened
+    with the correction of the latest refit before it, as when the looks are read one by one.
 
     Parameters
     ----------
@@ -307,7 +354,8 @@ def first_decision(past: Past, fut: Future, times, c, margin: float, shape: floa
     fut : Future
         The simulated future.
     times : numpy.ndarray, shape (n, looks)
-        Each replicate's looks: the failures' times on the future's clock [km], sorted.
+        Each replicate's looks: its first ``looks`` failures' times on the future's clock [km], sorted (the
+        future's ends; checked).
     c : array_like, shape (looks,) or (n, looks)
         The design's boundary of each look [-], or each replicate's (the replicates of designs with fewer
         looks padded with ``inf``: their looks end there, so that several designs share one pass).
@@ -319,65 +367,114 @@ def first_decision(past: Past, fut: Future, times, c, margin: float, shape: floa
         Slack of the screen before a replicate's first refit and after it (:data:`SCREEN`,
         :data:`SCREEN_REFITTED`; ``(0, 0)`` reads every look in full).
     block : int
-        Looks screened and refitted together (:data:`LOOK_BLOCK`; 1: look by look, each screen corrected by
-        the refit just before) [-].
+        Screened looks per replicate refitted in the first round (:data:`LOOK_BLOCK`), doubled each round [-].
 
     Returns
     -------
     numpy.ndarray of int, shape (n,)
     """
+    times = np.asarray(times, float)
     n, looks = times.shape
     c = np.asarray(c, float)
     c = np.broadcast_to(c, (n, looks)) if c.ndim == 1 else c
-    last = np.isfinite(c).sum(axis=1)     # each replicate's looks
-    first_start = fut.start.min(axis=0) if n else None
-    lm = math.log(max(margin, 1.0 / margin))
-    past_sum = [float(np.exp(shape * past.logx[past.group == g]).sum()) for g in (0, 1)]
-    past_d = [int((past.failed & (past.group == g)).sum()) for g in (0, 1)]
     first = np.full(n, -1)
+    if n == 0 or looks == 0:
+        return first
+    last = np.isfinite(c).sum(axis=1)     # each replicate's looks
+    lm = math.log(max(margin, 1.0 / margin))
+    col, life, pw_f = _failures(fut, times, shape)
+    x_run, on_run, pw_r, done = _running(fut, times, col, shape)
+    single = fut.benches == 0 or fut.start.shape[1] == fut.benches     # one hose a column: its life or its run
+    if single:
+        life_col = fut.base + fut.end - fut.start
+    g_f = fut.group[col]
+    S = on_run.shape[2]
+    g_run = fut.group[:S]
+    d, s, mine = [], [], []
+    for g in (0, 1):
+        here = g_f == g
+        d.append(int((past.failed & (past.group == g)).sum()) + np.cumsum(here, axis=1))
+        s.append(float(np.exp(shape * past.logx[past.group == g]).sum()) + np.cumsum(np.where(here, pw_f, 0.0), axis=1)
+                 + pw_r[:, :, g_run == g].sum(axis=2))
+        # the group's failed lives in look order, compacted to the left (a refit's columns)
+        order = np.argsort(~here, axis=1, kind="stable")
+        mine.append(np.log(np.take_along_axis(life, order, axis=1)))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        se = np.sqrt(1.0 / d[0] + 1.0 / d[1]) / shape
+        raw = (np.log(s[1] / d[1]) - np.log(s[0] / d[0])) / shape
+    usable = (d[0] >= 2) & (d[1] >= 2) & (np.arange(looks) < last[:, None])
     offset, ratio, start = np.zeros(n), np.ones(n), np.full(n, float(shape))    # from each replicate's last refit
-    refitted = np.zeros(n, bool)
-    for j0 in range(0, looks, block):
-        if not ((first < 0) & (last > j0)).any():
+    slack = np.full(n, float(screen[0]))
+    nxt = np.zeros(n, int)                 # each replicate's first look not read yet
+    alive = nxt < last
+    jj = np.arange(looks)
+    past_d = [int((past.failed & (past.group == g)).sum()) for g in (0, 1)]
+    run_cols = [np.flatnonzero(g_run == g) for g in (0, 1)]
+
+    def passes(rows):
+        est = raw[rows] + offset[rows, None]
+        half = slack[rows, None] * c[rows] * se[rows] * ratio[rows, None]
+        with np.errstate(invalid="ignore"):
+            return usable[rows] & ((np.abs(est) > half) | (np.abs(est) + half < lm))
+
+    k_round = max(1, int(block))
+    while alive.any():
+        rows = np.flatnonzero(alive)
+        m = passes(rows) & (jj >= nxt[rows, None])
+        rank = np.cumsum(m, axis=1)
+        pick = m & (rank <= k_round)
+        none = ~m.any(axis=1)
+        alive[rows[none]] = False
+        pr, pj = np.nonzero(pick)
+        if pr.size == 0:
             break
-        screened = []           # per look of the block: (look, its rows refitted, their screen's raw estimate, se)
-        for j in range(j0, min(j0 + block, looks)):
-            rows = np.flatnonzero((first < 0) & (last > j))
-            if rows.size == 0:
+        kth = rank[pr, pj] - 1
+        pr = rows[pr]
+        # the refits' data: past | per adjustment its failed lives so far, then its benches' running hoses
+        blocks_x, blocks_f, blocks_on, groups = [np.broadcast_to(past.logx, (pr.size, past.logx.size))], \
+            [np.broadcast_to(past.failed, (pr.size, past.logx.size))], [np.ones((pr.size, past.logx.size), bool)], \
+            [past.group]
+        for g in (0, 1):
+            cols = run_cols[g]
+            if single:      # each column failed (its life) or running (its distance at the look)
+                gone = done[pr, pj][:, cols] > 0
+                blocks_x += [np.log(np.where(gone, life_col[pr][:, cols], x_run[pr, pj][:, cols]))]
+                blocks_f += [gone]
+                blocks_on += [gone | on_run[pr, pj][:, cols]]
+                groups += [np.full(cols.size, g)]
+                continue
+            count = d[g][pr, pj] - past_d[g]
+            w = int(count.max()) if count.size else 0
+            on_f = np.arange(w) < count[:, None]
+            blocks_x += [np.where(on_f, mine[g][pr, :w], 0.0), np.log(x_run[pr, pj][:, cols])]
+            blocks_f += [on_f, np.zeros((pr.size, cols.size), bool)]
+            blocks_on += [on_f, on_run[pr, pj][:, cols]]
+            groups += [np.full(w + cols.size, g)]
+        yes, fit = decides(np.concatenate(blocks_x, axis=1), np.concatenate(blocks_f, axis=1),
+                           np.concatenate(blocks_on, axis=1), np.concatenate(groups), c[pr, pj], margin, start[pr])
+        going = np.ones(n, bool)           # still reading this round's refits
+        for k in range(k_round):
+            sel = np.flatnonzero((kth == k) & going[pr])
+            if sel.size == 0:
                 break
-            logx, failed, on, cols = _look(fut, rows, times[rows, j], first_start)
-            group = fut.group[cols]
-            powered = np.where(on, np.exp(shape * logx), 0.0)
-            d = [past_d[g] + failed[:, group == g].sum(axis=1) for g in (0, 1)]
-            s = [past_sum[g] + powered[:, group == g].sum(axis=1) for g in (0, 1)]
-            with np.errstate(divide="ignore", invalid="ignore"):
-                se = np.sqrt(1.0 / d[0] + 1.0 / d[1]) / shape
-                raw = (np.log(s[1] / d[1]) - np.log(s[0] / d[0])) / shape
-                est = raw + offset[rows]
-                half = np.where(refitted[rows], screen[1], screen[0]) * c[rows, j] * se * ratio[rows]
-                maybe = (d[0] >= 2) & (d[1] >= 2) & ((np.abs(est) > half) | (np.abs(est) + half < lm))
-            idx = np.flatnonzero(maybe)
-            if idx.size:
-                screened.append((j, rows[idx], raw[idx], se[idx], cols[on[idx].any(axis=0)]))
-        if not screened:
-            continue
-        mine = np.unique(np.concatenate([x[4] for x in screened]))     # the hoses on test in the rows refitted
-        at_rows = np.concatenate([x[1] for x in screened])
-        at = np.concatenate([times[x[1], x[0]] for x in screened])[:, None]
-        start_, end_ = fut.start[np.ix_(at_rows, mine)], fut.end[np.ix_(at_rows, mine)]
-        on = start_ < at
-        logx = np.log(np.where(on, fut.base[mine] + np.minimum(end_, at) - start_, 1.0))
-        yes, fit = decides(*_with_past(past, logx, on & (end_ <= at), on), np.concatenate([past.group, fut.group[mine]]),
-                           np.concatenate([c[x[1], x[0]] for x in screened]), margin, start[at_rows])
-        k = 0
-        for j, r, raw, se, _ in screened:         # in look order: a replicate's first deciding look is kept,
-            y, f = yes[k:k + r.size], slice(k, k + r.size)      # its latest refit corrects its screen
-            first[r[y & (first[r] < 0)]] = j
-            ok = fit.ok[f]
-            offset[r[ok]] = fit.log_ratio[f][ok] - raw[ok]
-            ratio[r[ok]] = fit.se[f][ok] / se[ok]
-            start[r[ok]], refitted[r[ok]] = fit.shape[f][ok], True
-            k += r.size
+            r, j, y = pr[sel], pj[sel], yes[sel]
+            first[r[y]], alive[r[y]], going[r[y]] = j[y], False, False
+            ok = fit.ok[sel] & ~y
+            ro, so = r[ok], sel[ok]
+            offset[ro] = fit.log_ratio[so] - raw[ro, j[ok]]
+            ratio[ro] = fit.se[so] / se[ro, j[ok]]
+            start[ro], slack[ro] = fit.shape[so], screen[1]
+            r, j = r[~y], j[~y]
+            nxt[r] = j + 1
+            alive[r] &= nxt[r] < last[r]
+            # a look between this refit and the replicate's next refitted one that the corrected screen passes
+            later = np.full(n, looks)
+            nk = (kth == k + 1)
+            later[pr[nk]] = pj[nk]
+            between = passes(r) & (jj > j[:, None]) & (jj < later[r][:, None])
+            going[r[between.any(axis=1)]] = False
+            going[r[later[r] >= looks]] = False
+        k_round *= 2
     return first
 
 

@@ -199,6 +199,13 @@ def _schedules(item: dict, state: HoseState, fit, needed: list) -> list[BenchSch
     return out
 
 
+def _cost(item: dict) -> int:
+    """A hose type's item's work, roughly [-]: its hoses times the most looks its simulations read (the
+    schedules' maxima, the test's own boundaries)."""
+    needed = [n for _, n, _ in item["design"]["failures_needed"] if n is not None]
+    return len(item["distance"]) * max([len(item["design"]["boundaries"]), *needed])
+
+
 def latest_event(life: pd.DataFrame, runs: pd.DataFrame):
     """The latest event in the data (a run's end, a logbook event): the stage's "today", or None."""
     times = []
@@ -262,7 +269,11 @@ def plan_table(ctx: StageContext) -> pd.DataFrame:
     items = [dict(i, design=designs[json.dumps(_design_item(i), sort_keys=True)],
                   benches=_bench_capacity(ctx.plan.for_hose_type(i["hose_type"]), measured[i["hose_type"]])[0])
              for i in items]
-    results = ctx.map(plan_hose_type, items, label="test plan") if items else []
+    # the costliest hose types first: the workers' last chunks are then the cheap ones (session 23)
+    order = sorted(range(len(items)), key=lambda i: -_cost(items[i]))
+    results = [None] * len(items)
+    for i, res in zip(order, ctx.map(plan_hose_type, [items[i] for i in order], label="test plan") if items else []):
+        results[i] = res
     rows = [_capacity(r, ctx.plan.for_hose_type(item["hose_type"]), measured[item["hose_type"]], today)
             for item, res in zip(items, results) for r in res]
     df = pd.DataFrame(rows, columns=COLUMNS)
