@@ -229,7 +229,8 @@ def measured_by_type(life: pd.DataFrame, runs: pd.DataFrame, today, hose_types) 
         return {t: measured_capacity(None, today) for t in hose_types}
     type_of = dict(zip(life["hose_id"].astype(str), life["hose_type"]))
     of_type = runs["hose_id"].astype(str).map(type_of)
-    return {t: measured_capacity(runs[(of_type == t).to_numpy()], today) for t in hose_types}
+    found = {t: g for t, g in runs.groupby(of_type.to_numpy(), sort=False)}    # each type's runs, in their order
+    return {t: measured_capacity(found.get(t, runs.iloc[:0]), today) for t in hose_types}
 
 
 def _bench_capacity(settings, measured: tuple) -> tuple:
