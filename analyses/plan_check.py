@@ -321,14 +321,22 @@ def _running(fut: Future, times: np.ndarray, col: np.ndarray, shape: float):
     H = fut.start.shape[1]
     S = fut.benches or H
     per = H // S
-    hit = np.zeros((n, looks, S), np.int32)
-    np.put_along_axis(hit, (col % S)[:, :, None], 1, axis=2)
-    done = np.cumsum(hit, axis=1)                      # the bench's failures up to and with the look
-    valid = done < per
-    cur = np.where(valid, done * S + np.arange(S), 0)
-    st = np.take_along_axis(fut.start, cur.reshape(n, looks * S), axis=1).reshape(n, looks, S)
-    on = valid & (st < times[:, :, None])
-    x = np.where(on, fut.base[cur] + times[:, :, None] - st, 1.0)
+    if per == 1:        # one hose a column: running until the look it fails at
+        at = np.full((n, S), looks)
+        np.put_along_axis(at, col, np.broadcast_to(np.arange(looks), (n, looks)), axis=1)
+        done = np.arange(looks)[None, :, None] >= at[:, None, :]
+        st = np.broadcast_to(fut.start[:, None, :], (n, looks, S))
+        on = ~done & (st < times[:, :, None])
+        x = np.where(on, fut.base + times[:, :, None] - st, 1.0)
+    else:
+        hit = np.zeros((n, looks, S), np.int32)
+        np.put_along_axis(hit, (col % S)[:, :, None], 1, axis=2)
+        done = np.cumsum(hit, axis=1)                      # the bench's failures up to and with the look
+        valid = done < per
+        cur = np.where(valid, done * S + np.arange(S), 0)
+        st = np.take_along_axis(fut.start, cur.reshape(n, looks * S), axis=1).reshape(n, looks, S)
+        on = valid & (st < times[:, :, None])
+        x = np.where(on, fut.base[cur] + times[:, :, None] - st, 1.0)
     powered = np.exp(shape * np.log(x))
     powered *= on
     return x, on, powered, done
