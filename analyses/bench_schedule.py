@@ -195,9 +195,8 @@ def bench_schedules(state: HoseState, fit: CommonShapeFit, boundaries: list, mar
         c = np.full((k * m, left), np.inf)
         for a, i in enumerate(todo):
             c[a * m:(a + 1) * m, :cs[i].size] = cs[i]
-        fut = Future(base, np.tile(start, (k, 1)), np.tile(end, (k, 1)), np.tile(slots[1], base.size // slots[1].size),
-                     slots[1].size)
-        stop = first_decision(_past(state), fut, np.tile(times, (k, 1)), c, margin, fit.shape).reshape(k, m)
+        fut = Future(base, start, end, np.tile(slots[1], base.size // slots[1].size), slots[1].size)
+        stop = first_decision(_past(state), fut, times, c, margin, fit.shape).reshape(k, m)    # c: k copies
         for a, i in enumerate(list(todo)):
             km[i] = np.concatenate([km[i], times[np.arange(m), np.where(stop[a] >= 0, stop[a], cs[i].size - 1)]])
             if km[i].size >= n_simulations or median_se(km[i]) <= rel_se * float(np.median(km[i])):

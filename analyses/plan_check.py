@@ -264,35 +264,44 @@ def batch_deviance(logx, failed, on, group, fit: BatchFit, ratio) -> np.ndarray:
     return np.where(fit.ok & inside, np.maximum(0.0, 2.0 * (fit.loglik - profile)), np.nan)
 
 
-def decides(logx, failed, on, group, c, margin: float, shape_start=1.0) -> tuple[np.ndarray, BatchFit]:
+def decides(logx, failed, on, group, c, margin: float, shape_start=1.0, rows=None) -> tuple[np.ndarray, BatchFit]:
     """Whether each row's look decides as the decision stage declares it: the refitted Wald crossing at
     the boundary ``c`` (per row [-]) confirmed by the profile likelihood (module docstring); the deviances
     of every crossing row and trial ratio in one batch.
 
+    ``rows`` (optional, int array): the data row of each look to decide, when several looks share their data
+    (the same replicate read at several designs' boundaries, ``c`` one per entry of ``rows``): each data row
+    is refitted once, and its deviance at a trial ratio computed once.
+
     Returns
     -------
-    numpy.ndarray of bool, shape (B,)
+    numpy.ndarray of bool, shape (B,) (or that of ``rows``)
         Whether the row's look decides.
     BatchFit
-        The rows' refits (:func:`batch_fit`).
+        The data rows' refits (:func:`batch_fit`).
     """
     fit = batch_fit(logx, failed, on, group, shape_start)
-    c = np.broadcast_to(np.asarray(c, float), fit.ok.shape)
+    rows = np.arange(fit.ok.size) if rows is None else np.asarray(rows, int)
+    c = np.broadcast_to(np.asarray(c, float), rows.shape)
     lm = math.log(max(margin, 1.0 / margin))
-    half = c * fit.se
+    lr, ok = fit.log_ratio[rows], fit.ok[rows]
+    half = c * fit.se[rows]
     with np.errstate(invalid="ignore"):
-        longer = fit.ok & (np.abs(fit.log_ratio) > half)
-        npd = fit.ok & ~longer & (np.abs(fit.log_ratio) + half < lm)
-    out = np.zeros(fit.ok.shape, bool)
-    one, both = np.flatnonzero(longer), np.flatnonzero(npd)
-    rows = np.concatenate([one, both, both])
-    if rows.size == 0:
+        longer = ok & (np.abs(lr) > half)
+        npd = ok & ~longer & (np.abs(lr) + half < lm)
+    out = np.zeros(rows.shape, bool)
+    one, both = np.unique(rows[longer]), np.unique(rows[npd])
+    idx = np.concatenate([one, both, both])
+    if idx.size == 0:
         return out, fit
     ratio = np.concatenate([np.ones(one.size), np.full(both.size, margin), np.full(both.size, 1.0 / margin)])
-    sub = BatchFit(*(getattr(fit, f)[rows] for f in ("shape", "loglik", "log_ratio", "se", "ok")))
-    holds = batch_deviance(logx[rows], failed[rows], on[rows], group, sub, ratio) > c[rows] ** 2
-    out[one] = holds[:one.size]
-    out[both] = holds[one.size:one.size + both.size] & holds[one.size + both.size:]
+    sub = BatchFit(*(getattr(fit, f)[idx] for f in ("shape", "loglik", "log_ratio", "se", "ok")))
+    dev = batch_deviance(logx[idx], failed[idx], on[idx], group, sub, ratio)
+    at_one, at_hi, at_lo = (np.full(fit.ok.size, np.nan) for _ in range(3))
+    at_one[one], at_hi[both], at_lo[both] = dev[:one.size], dev[one.size:one.size + both.size], dev[one.size + both.size:]
+    with np.errstate(invalid="ignore"):
+        out[longer] = at_one[rows[longer]] > c[longer] ** 2
+        out[npd] = (at_hi[rows[npd]] > c[npd] ** 2) & (at_lo[rows[npd]] > c[npd] ** 2)
     return out, fit
 
 
@@ -364,9 +373,11 @@ def first_decision(past: Past, fut: Future, times, c, margin: float, shape: floa
     times : numpy.ndarray, shape (n, looks)
         Each replicate's looks: its first ``looks`` failures' times on the future's clock [km], sorted (the
         future's ends; checked).
-    c : array_like, shape (looks,) or (n, looks)
-        The design's boundary of each look [-], or each replicate's (the replicates of designs with fewer
-        looks padded with ``inf``: their looks end there, so that several designs share one pass).
+    c : array_like, shape (looks,), (n, looks) or (copies n, looks)
+        The design's boundary of each look [-], or each replicate's, or each replicate's in each of ``copies``
+        designs read on the same replicates (rows ``a n + i``: replicate ``i`` at design ``a``; the designs
+        with fewer looks padded with ``inf``: their looks end there); a (replicate, look) read by several
+        copies is refitted once.
     margin : float
         The design's margin [-].
     shape : float
@@ -379,14 +390,17 @@ def first_decision(past: Past, fut: Future, times, c, margin: float, shape: floa
 
     Returns
     -------
-    numpy.ndarray of int, shape (n,)
+    numpy.ndarray of int, shape (n,) or (copies n,)
     """
     times = np.asarray(times, float)
-    n, looks = times.shape
+    n0, looks = times.shape
     c = np.asarray(c, float)
-    c = np.broadcast_to(c, (n, looks)) if c.ndim == 1 else c
+    c = np.broadcast_to(c, (n0, looks)) if c.ndim == 1 else c
+    n = c.shape[0]                         # copies of the replicates, each read at its own boundaries
+    if n0 == 0 or n % n0:
+        raise ValueError("c must have one row per replicate, or per replicate of each copy")
     first = np.full(n, -1)
-    if n == 0 or looks == 0:
+    if looks == 0:
         return first
     last = np.isfinite(c).sum(axis=1)     # each replicate's looks
     lm = math.log(max(margin, 1.0 / margin))
@@ -410,7 +424,7 @@ def first_decision(past: Past, fut: Future, times, c, margin: float, shape: floa
     with np.errstate(divide="ignore", invalid="ignore"):
         se = np.sqrt(1.0 / d[0] + 1.0 / d[1]) / shape
         raw = (np.log(s[1] / d[1]) - np.log(s[0] / d[0])) / shape
-    usable = (d[0] >= 2) & (d[1] >= 2) & (np.arange(looks) < last[:, None])
+    enough = (d[0] >= 2) & (d[1] >= 2)
     offset, ratio, start = np.zeros(n), np.ones(n), np.full(n, float(shape))    # from each replicate's last refit
     slack = np.full(n, float(screen[0]))
     nxt = np.zeros(n, int)                 # each replicate's first look not read yet
@@ -420,10 +434,11 @@ def first_decision(past: Past, fut: Future, times, c, margin: float, shape: floa
     run_cols = [np.flatnonzero(g_run == g) for g in (0, 1)]
 
     def passes(rows):
-        est = raw[rows] + offset[rows, None]
-        half = slack[rows, None] * c[rows] * se[rows] * ratio[rows, None]
+        b = rows % n0
+        est = raw[b] + offset[rows, None]
+        half = slack[rows, None] * c[rows] * se[b] * ratio[rows, None]
         with np.errstate(invalid="ignore"):
-            return usable[rows] & ((np.abs(est) > half) | (np.abs(est) + half < lm))
+            return enough[b] & (jj < last[rows, None]) & ((np.abs(est) > half) | (np.abs(est) + half < lm))
 
     k_round = max(1, int(block))
     while alive.any():
@@ -438,28 +453,33 @@ def first_decision(past: Past, fut: Future, times, c, margin: float, shape: floa
             break
         kth = rank[pr, pj] - 1
         pr = rows[pr]
+        # each (replicate, look) refitted once, whatever copies read it
+        key, once, inv = np.unique((pr % n0) * looks + pj, return_index=True, return_inverse=True)
+        ur, uj = key // looks, key % looks
         # the refits' data: past | per adjustment its failed lives so far, then its benches' running hoses
-        blocks_x, blocks_f, blocks_on, groups = [np.broadcast_to(past.logx, (pr.size, past.logx.size))], \
-            [np.broadcast_to(past.failed, (pr.size, past.logx.size))], [np.ones((pr.size, past.logx.size), bool)], \
+        blocks_x, blocks_f, blocks_on, groups = [np.broadcast_to(past.logx, (ur.size, past.logx.size))], \
+            [np.broadcast_to(past.failed, (ur.size, past.logx.size))], [np.ones((ur.size, past.logx.size), bool)], \
             [past.group]
         for g in (0, 1):
             cols = run_cols[g]
             if single:      # each column failed (its life) or running (its distance at the look)
-                gone = done[pr, pj][:, cols] > 0
-                blocks_x += [np.log(np.where(gone, life_col[pr][:, cols], x_run[pr, pj][:, cols]))]
+                gone = done[ur, uj][:, cols] > 0
+                blocks_x += [np.log(np.where(gone, life_col[ur][:, cols], x_run[ur, uj][:, cols]))]
                 blocks_f += [gone]
-                blocks_on += [gone | on_run[pr, pj][:, cols]]
+                blocks_on += [gone | on_run[ur, uj][:, cols]]
                 groups += [np.full(cols.size, g)]
                 continue
-            count = d[g][pr, pj] - past_d[g]
+            count = d[g][ur, uj] - past_d[g]
             w = int(count.max()) if count.size else 0
             on_f = np.arange(w) < count[:, None]
-            blocks_x += [np.where(on_f, mine[g][pr, :w], 0.0), np.log(x_run[pr, pj][:, cols])]
-            blocks_f += [on_f, np.zeros((pr.size, cols.size), bool)]
-            blocks_on += [on_f, on_run[pr, pj][:, cols]]
+            blocks_x += [np.where(on_f, mine[g][ur, :w], 0.0), np.log(x_run[ur, uj][:, cols])]
+            blocks_f += [on_f, np.zeros((ur.size, cols.size), bool)]
+            blocks_on += [on_f, on_run[ur, uj][:, cols]]
             groups += [np.full(w + cols.size, g)]
         yes, fit = decides(np.concatenate(blocks_x, axis=1), np.concatenate(blocks_f, axis=1),
-                           np.concatenate(blocks_on, axis=1), np.concatenate(groups), c[pr, pj], margin, start[pr])
+                           np.concatenate(blocks_on, axis=1), np.concatenate(groups), c[pr, pj], margin,
+                           start[pr[once]], rows=inv)
+        fit = BatchFit(*(getattr(fit, f)[inv] for f in ("shape", "loglik", "log_ratio", "se", "ok")))
         going = np.ones(n, bool)           # still reading this round's refits
         for k in range(k_round):
             sel = np.flatnonzero((kth == k) & going[pr])
@@ -469,8 +489,8 @@ def first_decision(past: Past, fut: Future, times, c, margin: float, shape: floa
             first[r[y]], alive[r[y]], going[r[y]] = j[y], False, False
             ok = fit.ok[sel] & ~y
             ro, so = r[ok], sel[ok]
-            offset[ro] = fit.log_ratio[so] - raw[ro, j[ok]]
-            ratio[ro] = fit.se[so] / se[ro, j[ok]]
+            offset[ro] = fit.log_ratio[so] - raw[ro % n0, j[ok]]
+            ratio[ro] = fit.se[so] / se[ro % n0, j[ok]]
             start[ro], slack[ro] = fit.shape[so], screen[1]
             r, j = r[~y], j[~y]
             nxt[r] = j + 1
