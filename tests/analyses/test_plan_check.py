@@ -117,3 +117,53 @@ def test_hoses_not_yet_on_test_change_nothing():
     assert first_decision(past, extra, times, c, 1.5, 2.0).tolist() == first.tolist()
     early = Future(extra.base, np.c_[np.zeros((n, 12)), np.zeros((n, 8))], np.c_[left, np.full((n, 8), 1e6)], extra.group)
     assert first_decision(past, early, times, c, 1.5, 2.0).tolist() != first.tolist()
+
+
+def renewal(rng, n=80, benches=6, per=8):
+    """Benches' successive hoses (column ``i benches + b``: bench ``b``'s ``(i + 1)``-th, started when the
+    ``i``-th fails), the first running from a distance, and their first 14 failures' times."""
+    group = np.tile(np.repeat([0, 1], benches // 2), per)
+    life = rng.weibull(2.0, (n, per, benches)) * 700.0 * np.where(group[:benches] == 1, 1.6, 1.0)
+    end = np.cumsum(life, axis=1)
+    start = np.concatenate([np.zeros((n, 1, benches)), end[:, :-1]], axis=1).reshape(n, -1)
+    end = end.reshape(n, -1)
+    base = np.r_[rng.uniform(100.0, 300.0, benches), np.zeros(benches * (per - 1))]
+    return base, start, end, group, np.sort(end, axis=1)[:, :14]
+
+
+def test_a_bench_chain_is_read_as_its_hoses():
+    """A renewal future read as benches (Future.benches: one running hose per bench at a look) gives the same
+    first deciding looks as the same columns read one by one (each hose on test from its start to its end),
+    screened and in full; and times that are not the future's failures are refused."""
+    rng = np.random.default_rng(5)
+    base, start, end, group, times = renewal(rng)
+    past = Past(np.log(rng.uniform(200.0, 900.0, 8)), np.ones(8, bool), np.repeat([0, 1], 4))
+    c = np.linspace(2.8, 2.0, 14)
+    chain = first_decision(past, Future(base, start, end, group, 6), times, c, 1.5, 2.0)
+    assert 0 < (chain >= 0).sum() < len(chain)
+    assert chain.tolist() == first_decision(past, Future(base, start, end, group), times, c, 1.5, 2.0).tolist()
+    full = first_decision(past, Future(base, start, end, group), times, c, 1.5, 2.0, screen=(0.0, 0.0))
+    assert full.tolist() == first_decision(past, Future(base, start, end, group, 6), times, c, 1.5, 2.0,
+                                           screen=(0.0, 0.0)).tolist()
+    with pytest.raises(ValueError):
+        first_decision(past, Future(base, start, end, group, 6), times * 1.01, c, 1.5, 2.0)
+
+
+def test_two_designs_on_one_set_of_replicates_are_each_read_alone():
+    """Boundaries of two designs for the same replicates (c with 2 n rows, the shorter design padded with inf)
+    give each design's first deciding looks as reading it alone; decides with rows gives each entry its data
+    row's verdict at its own boundary."""
+    rng = np.random.default_rng(6)
+    base, start, end, group, times = renewal(rng)
+    past = Past(np.log(rng.uniform(200.0, 900.0, 8)), np.ones(8, bool), np.repeat([0, 1], 4))
+    fut = Future(base, start, end, group, 6)
+    a, b = np.linspace(2.8, 2.0, 14), np.r_[np.linspace(2.6, 1.9, 10), np.full(4, np.inf)]
+    both = first_decision(past, fut, times, np.r_[np.tile(a, (80, 1)), np.tile(b, (80, 1))], 1.5, 2.0)
+    assert both[:80].tolist() == first_decision(past, fut, times, a, 1.5, 2.0).tolist()
+    assert both[80:].tolist() == first_decision(past, fut, times, np.tile(b, (80, 1)), 1.5, 2.0).tolist()
+    logx, failed, on, grp = censored(np.random.default_rng(7), rows=40, ratio=1.6)
+    rows = np.r_[np.arange(40), np.arange(40)[::-1]]
+    c = np.r_[np.full(40, 2.0), np.full(40, 1.5)]
+    got, fit = decides(logx, failed, on, grp, c, 1.25, 2.0, rows=rows)
+    want = np.r_[decides(logx, failed, on, grp, 2.0, 1.25, 2.0)[0], decides(logx, failed, on, grp, 1.5, 1.25, 2.0)[0][::-1]]
+    assert fit.ok.shape == (40,) and got.tolist() == want.tolist() and got.any() and not got.all()
