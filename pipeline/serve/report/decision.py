@@ -250,7 +250,7 @@ def _draw_looks(ax, d: HoseDecision, ratio: list[float]) -> None:
     ax.set_xlim(0, max([*x, float(top) if isinstance(top, (int, float)) else 0.0]) * 1.02 + 0.5)
     ax.set_xlabel("failures (both adjustments)")
     ax.set_ylabel("life ratio force / distance")
-    ax.set_title(f"{d.hose_type}: {v.get('verdict') or 'no verdict'}", fontsize=10)
+    ax.set_title(f"{d.hose_type}: {v.get('verdict') or 'no verdict'}", fontsize=10, y=1.0)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=5, frameon=False)
 
