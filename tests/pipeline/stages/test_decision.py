@@ -557,3 +557,15 @@ def test_a_rebuild_keeps_the_designs_in_the_warehouse_and_reading_them_gives_the
     assert "decision" in rebuild(raw, warehouse, jobs=1, report=False, full=True).stages_run
     assert not read and {t: query(warehouse, f"SELECT * FROM {t} ORDER BY ALL") for t in tables} == first
     sequential.clear_caches()
+
+
+def test_the_life_effect_item_is_what_effect_of_reads_and_a_power_change_leaves_it_alone():
+    """effect_of on effect_item's few columns is its row on the whole item; a plan change of a key it does not
+    read (power, margin, max_failures) gives the same item (the same memo key), confidence or alpha another."""
+    item = odometer_item()
+    small = stage.effect_item(item)
+    assert stage.effect_of(small) == stage.effect_of(item)
+    assert set(small["hoses"]) == {"adjustment", "distance_km", "status"}
+    other = {**item, "plan": {**item["plan"], "power": 0.81, "margin": 2.0, "max_failures": None}}
+    assert stage.effect_item(other) == small
+    assert stage.effect_item({**item, "plan": {**item["plan"], "confidence": 0.95}}) != small
