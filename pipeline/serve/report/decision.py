@@ -161,16 +161,18 @@ def _looks_figures(decisions: list[HoseDecision], figures: Figures) -> str:
 def _draw_elsewhere(todo: list[tuple[HoseDecision, str]]) -> dict[str, str]:
     """The figures of ``todo`` ((decision, key) pairs) drawn in processes forked from this one, one per core
     (:func:`_looks_img` there: the same bytes as here), by key; empty (each then drawn here) when there are
-    fewer than :data:`PARALLEL_FROM`, one core, no ``fork``, or the processes fail."""
+    fewer than :data:`PARALLEL_FROM`, one core, no ``fork``, or the processes fail. The processes are the
+    rebuild's kind (:func:`pipeline.rebuild.executors.forked_pool`): they exit within 0.2 s of this
+    process's death, so a killed rebuild's lock, which they share while they draw, is not held on."""
     workers = min(len(todo), os.cpu_count() or 1)
     if len(todo) < PARALLEL_FROM or workers < 2 or "fork" not in multiprocessing.get_all_start_methods():
         return {}
-    from concurrent.futures import ProcessPoolExecutor
-
     from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: F401  loaded once, before the fork
     from matplotlib.figure import Figure  # noqa: F401
+
+    from pipeline.rebuild.executors import forked_pool   # workers that exit when this process dies (kill -9)
     try:
-        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) as pool:
+        with forked_pool(workers) as pool:
             imgs = list(pool.map(_looks_img, [d for d, _key in todo]))
     except Exception:   # a process that could not start or died: drawn here instead
         return {}
