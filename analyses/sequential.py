@@ -291,15 +291,6 @@ class _Design:
         self.terms = [] if record else None
         self._flat = None
 
-    @classmethod
-    def from_table(cls, t: np.ndarray, alpha: float, spending: str, c: np.ndarray, flat: np.ndarray) -> _Design:
-        """The design whose every boundary ``c`` and flattened grids ``flat`` are known already
-        (:func:`analyses.sequential_table.adopt_table`): no recursion left to run."""
-        design = cls.__new__(cls)
-        design.t, design.spend = t, np.diff(np.concatenate([[0.0], alpha_spent(t, alpha, spending)]))
-        design.rec, design.c, design.terms, design._flat = None, c.tolist(), [], flat
-        return design
-
     def boundaries(self, looks: int) -> list:
         """The first ``looks`` boundaries ``c_k`` [-] (:func:`efficacy_boundaries`)."""
         while len(self.c) < looks:

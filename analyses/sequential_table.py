@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from analyses.sequential import _DESIGNS, _NO_BOUNDARY, DESIGN_LOOKS, SPENDING, _Design, _design_of
+from analyses.sequential import _DESIGNS, _NO_BOUNDARY, DESIGN_LOOKS, SPENDING, _Design, _design_of, alpha_spent
 
 #: The smallest maximum a design visits (:func:`analyses.sequential._smallest_rare_maximum` starts at 4).
 FIRST_MAXIMUM = 4
@@ -100,9 +100,17 @@ def adopt_table(table, alpha: float, spending: str) -> bool:
         held = _DESIGNS.get(key)
         if held is not None and held.terms is not None:
             continue   # computed here already: the same values
-        _DESIGNS[key] = _Design.from_table(np.arange(1, m + 1) / m, alpha, spending, table[f"c_{m}"],
-                                           table[f"flat_{m}"])
+        _DESIGNS[key] = _from_table(np.arange(1, m + 1) / m, alpha, spending, table[f"c_{m}"], table[f"flat_{m}"])
     return True
+
+
+def _from_table(t: np.ndarray, alpha: float, spending: str, c: np.ndarray, flat: np.ndarray) -> _Design:
+    """The :class:`analyses.sequential._Design` of looks ``t`` whose every boundary ``c`` and flattened grids
+    ``flat`` are known already: no recursion left to run (``boundaries`` reads ``c``, ``upper_power`` the grids)."""
+    design = _Design.__new__(_Design)
+    design.t, design.spend = t, np.diff(np.concatenate([[0.0], alpha_spent(t, alpha, spending)]))
+    design.rec, design.c, design.terms, design._flat = None, c.tolist(), [], flat
+    return design
 
 
 def holds_table(alpha: float, spending: str) -> bool:
