@@ -478,7 +478,8 @@ def keep_designs(warehouse: Path, items: list[dict]) -> dict:
     the workers that read them are forked (a worker forked earlier reads the file: :func:`_design_here`).
     Other ``designs-*.npz`` files in the folder (of other settings, code or libraries) are deleted when one
     is written; a folder that cannot be written leaves the designs computed, never a failure."""
-    pairs = sorted({(it["plan"]["alpha"], it["plan"]["spending"]) for it in items if it["plan"]["max_failures"] is None})
+    pairs = sorted({(it["plan"]["alpha"], it["plan"]["spending"]) for it in items
+                    if it["plan"]["max_failures"] is None})
     paths = {pair: designs_path(warehouse, *pair) for pair in pairs}
     for (alpha, spending), path in paths.items():
         if use_designs(path, alpha, spending):
