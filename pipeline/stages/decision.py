@@ -444,9 +444,11 @@ def designs_path(warehouse: Path, alpha: float, spending: str) -> Path:
 
 
 def _read_designs(path: Path) -> dict | None:
-    """The arrays of a designs file, or None: missing, not a regular file (a symlink is not followed),
+    """The arrays of a designs file, or None: missing, not a regular file in a real folder (no symlink is followed),
     larger than :data:`DESIGNS_MAX_BYTES`, or not an ``.npz`` of plain arrays (no pickle is loaded)."""
     try:
+        if not stat.S_ISDIR(os.lstat(path.parent).st_mode):   # a symlinked folder is not followed either
+            return None
         fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0))
     except OSError:
         return None

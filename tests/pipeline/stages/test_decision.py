@@ -569,3 +569,21 @@ def test_the_life_effect_item_is_what_effect_of_reads_and_a_power_change_leaves_
     other = {**item, "plan": {**item["plan"], "power": 0.81, "margin": 2.0, "max_failures": None}}
     assert stage.effect_item(other) == small
     assert stage.effect_item({**item, "plan": {**item["plan"], "confidence": 0.95}}) != small
+
+
+def test_a_designs_folder_that_is_a_symlink_is_neither_read_nor_written(tmp_path, designs_table, monkeypatch):
+    from analyses import sequential
+
+    computed = []
+    monkeypatch.setattr(stage, "design_table", lambda a, s: computed.append((a, s)) or designs_table)
+    items = [{"plan": {"alpha": 0.05, "spending": "obrien-fleming", "max_failures": None}}]
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    sequential.clear_caches()
+    path = Path(stage.keep_designs(elsewhere, items)[(0.05, "obrien-fleming")])      # a valid file there
+    (tmp_path / "wh").mkdir()
+    (tmp_path / "wh" / stage.DESIGNS_DIR).symlink_to(elsewhere / stage.DESIGNS_DIR)
+    sequential.clear_caches()
+    stage.keep_designs(tmp_path / "wh", items)
+    assert len(computed) == 2 and [p.name for p in (elsewhere / stage.DESIGNS_DIR).iterdir()] == [path.name]
+    sequential.clear_caches()
