@@ -38,6 +38,10 @@ Decisions
   the worker pool beside the other hose types' looks, and with them read from the memo on later
   nights (``benchmarks/bench_decision_stage.py`` measures a cold rebuild as a process;
   docs/decision.md, "The decision stage as a process").
+* In the rebuild the even designs' boundaries, which every design reads and which depend on alpha and
+  the spending only, are kept in ``warehouse/cache/designs-<key>.npz`` (:func:`keep_designs`): computed
+  once, then read by the rebuild and each worker instead of each recomputing them (~1 CPU-s a process);
+  a file of other code, libraries or form is never used (docs/decision.md, "Session 23").
 """
 from __future__ import annotations
 
