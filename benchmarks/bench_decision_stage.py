@@ -15,8 +15,11 @@ report written), timed by :func:`benchmarks.proc.measure`: wall seconds and the 
 process tree (the rebuild and every worker it started). From one warm warehouse (a first rebuild,
 not timed) and a copy of it settled by one untimed rebuild, both rebuilt in place (:func:`added_by`),
 the plan's ``power`` goes from 0.8 to 0.81 and back, round by round, which only the decision and
-test_plan stages read among the stages compared: every hose type's items are new, so the stages
-re-run cold (no memo entry, no design in any process). The same rebuild is run with every stage and
+test_plan stages read among the stages compared: every hose type's looks and plan rows are new, so the
+stages re-run cold (no memo entry, no design in any process); since session 23 the ``life_effect``
+items carry only what they read (not the power: taken from the memo) and the even designs' boundaries are
+read from the warehouse's ``cache/designs-<key>.npz`` (written by the first rebuild), as in a lab's rebuild
+after a plan change. The in-process designed case (``--detail``) stays cold: no memo, no designs file. The same rebuild is run with every stage and
 with the two stages absent (``pneubench`` with them left out of the stage registry: the baseline a
 lab without them would run), alternately, and a no-op rebuild beside; the difference is what the
 decision stages add (their tables assembled and their report section included). The

@@ -38,11 +38,21 @@ Decisions
   the worker pool beside the other hose types' looks, and with them read from the memo on later
   nights (``benchmarks/bench_decision_stage.py`` measures a cold rebuild as a process;
   docs/decision.md, "The decision stage as a process").
+* In the rebuild the even designs' boundaries, which every design reads and which depend on alpha and
+  the spending only, are kept in ``warehouse/cache/designs-<key>.npz`` (:func:`keep_designs`): computed
+  once, then read by the rebuild and each worker instead of each recomputing them (~1 CPU-s a process);
+  a file of other code, libraries or form is never used (docs/decision.md, "Session 23").
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import math
+import os
+import re
+import stat
+import sys
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -52,9 +62,11 @@ from analyses.decision import (GROUP, decide, failure_events, freeze_look, look_
 from analyses.hose_life import match_runs
 from analyses.life_effect import life_effect
 from analyses.sequential import FEW_FAILURES, NoDesign, design_for, design_shape
+from analyses.sequential_table import adopt_table, design_table, holds_table
 from analyses.test_plan import hoses_on_test
 from pipeline.raw.logbook import merge_logbooks, read_logbooks
 from pipeline.stages import Reads, StageContext, StageOutput
+from pipeline.versions import hash_sources, project_imports
 
 NAME = "decision"
 READS = Reads(tables=("hose_life", "durability_runs"), logbooks=True, plan=True)
@@ -197,6 +209,8 @@ def _design_here(item: dict, hoses: pd.DataFrame, runs: pd.DataFrame, events: pd
     on test share it in a worker)."""
     frozen = _frozen(hoses, runs, events, in_looks, fits) if item["plan"]["max_failures"] is None else None
     ask = design_item(item["plan"], frozen, item["hoses"])
+    if ask is not None:   # the even designs' boundaries from the warehouse's file, once a process (keep_designs)
+        use_designs(item.get("designs"), ask["alpha"], ask["spending"])
     designed = {} if ask is None else {json.dumps(ask, sort_keys=True): design_failures(ask)}
     return design_of(item, frozen, designed, ask)
 
@@ -413,12 +427,107 @@ def design_asks(ctx: StageContext, items: list[dict]) -> tuple[list, list]:
     return frozen, [design_item(it["plan"], fr, it["hoses"]) for it, fr in zip(items, frozen)]
 
 
+#: Folder of the warehouse holding the even designs' boundaries between rebuilds (:func:`keep_designs`).
+DESIGNS_DIR = "cache"
+#: A designs file: ``designs-<key>.npz``, the key a hash of alpha, spending, the code and the libraries.
+DESIGNS_FILE = re.compile(r"designs-[0-9a-f]{32}\.npz")
+#: The largest designs file read [bytes] (one of alpha 0.05 holds ~13 MB).
+DESIGNS_MAX_BYTES = 64 << 20
+
+
+def designs_path(warehouse: Path, alpha: float, spending: str) -> Path:
+    """The file of the even designs of ``alpha`` and ``spending`` under ``warehouse``: its name hashes them,
+    the code that computes them (:mod:`analyses.sequential_table` and the project modules it imports) and
+    Python's and numpy's and scipy's versions, so a file of other code or libraries is another file."""
+    import scipy
+
+    code = hash_sources(sorted(project_imports(Path(sys.modules["analyses.sequential_table"].__file__))))
+    key = json.dumps({"format": 1, "alpha": repr(float(alpha)), "spending": spending, "code": code,
+                      "env": [sys.version, np.__version__, scipy.__version__]}, sort_keys=True)
+    return Path(warehouse) / DESIGNS_DIR / f"designs-{hashlib.sha256(key.encode()).hexdigest()[:32]}.npz"
+
+
+def _read_designs(path: Path) -> dict | None:
+    """The arrays of a designs file, or None: missing, not a regular file in a real folder (no symlink is followed),
+    larger than :data:`DESIGNS_MAX_BYTES`, or not an ``.npz`` of plain arrays (no pickle is loaded)."""
+    try:
+        if not stat.S_ISDIR(os.lstat(path.parent).st_mode):   # a symlinked folder is not followed either
+            return None
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0))
+    except OSError:
+        return None
+    try:
+        with os.fdopen(fd, "rb") as fh:
+            st = os.fstat(fh.fileno())
+            if not stat.S_ISREG(st.st_mode) or st.st_size > DESIGNS_MAX_BYTES:
+                return None
+            with np.load(fh, allow_pickle=False) as npz:
+                return {name: npz[name] for name in npz.files}
+    except Exception:   # damaged, truncated, another format: computed again
+        return None
+
+
+def use_designs(path: str | Path | None, alpha: float, spending: str) -> bool:
+    """Adopt the designs file ``path`` in this process (once; :func:`analyses.sequential_table.adopt_table`
+    checks every array); False when there is none to adopt (the designs are then computed as needed)."""
+    if path is None:
+        return False
+    if holds_table(alpha, spending):   # this process has them (a worker forked from one that had): none read
+        return True
+    table = _read_designs(Path(path))
+    return table is not None and adopt_table(table, alpha, spending)
+
+
+def keep_designs(warehouse: Path, items: list[dict]) -> dict:
+    """The designs files of the items whose plan leaves ``max_failures`` to the design, by (alpha, spending):
+    each read and adopted here, or else computed here and written (atomically) for the next rebuild, before
+    the workers that read them are forked (a worker forked earlier reads the file: :func:`_design_here`).
+    Other ``designs-*.npz`` files in the folder (of other settings, code or libraries) are deleted when one
+    is written; a folder that cannot be written leaves the designs computed, never a failure."""
+    pairs = sorted({(it["plan"]["alpha"], it["plan"]["spending"]) for it in items
+                    if it["plan"]["max_failures"] is None})
+    paths = {pair: designs_path(warehouse, *pair) for pair in pairs}
+    for (alpha, spending), path in paths.items():
+        if use_designs(path, alpha, spending):
+            continue
+        table = design_table(alpha, spending)
+        try:
+            folder = path.parent
+            folder.mkdir(exist_ok=True)
+            if not stat.S_ISDIR(os.lstat(folder).st_mode):
+                continue
+            for old in folder.iterdir():
+                if DESIGNS_FILE.fullmatch(old.name) and old not in paths.values() and not old.is_symlink():
+                    old.unlink(missing_ok=True)
+            tmp = folder / f".{path.name}.tmp-{os.getpid()}"
+            tmp.unlink(missing_ok=True)
+            with os.fdopen(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o666),
+                           "wb") as fh:
+                np.savez(fh, **table)
+            os.replace(tmp, path)
+        except OSError:
+            continue
+    return {pair: str(path) for pair, path in paths.items()}
+
+
+def effect_item(item: dict) -> dict:
+    """What :func:`effect_of` reads of a :func:`hose_type_item`: the hoses' adjustment, distance and status, the
+    plan's confidence and alpha (so that a plan change of another key, e.g. the power, keeps its memo)."""
+    hoses = item["hoses"]
+    return {"hose_type": item["hose_type"], "hoses": {c: hoses[c] for c in ("adjustment", "distance_km", "status")},
+            "plan": {k: item["plan"][k] for k in ("confidence", "alpha")}}
+
+
 def run(ctx: StageContext) -> StageOutput:
     out = StageOutput()
     items = hose_type_items(ctx)
     if items:   # loaded once here: the two pools' workers are forked from this process (else each loads it)
         import scipy.special  # noqa: F401
-    effects = ctx.map(effect_of, items, label="decision: life effect")
+    if ctx.memo is not None:   # the rebuild: the designs' boundaries kept in the warehouse between rebuilds
+        designs = keep_designs(ctx.warehouse, items)
+        items = [it | {"designs": designs[it["plan"]["alpha"], it["plan"]["spending"]]}
+                 if it["plan"]["max_failures"] is None else it for it in items]
+    effects = ctx.map(effect_of, [effect_item(it) for it in items], label="decision: life effect")
     # the frozen look and its design are computed in each hose type's own task (_design_here)
     results = ctx.map(decide_hose_type, items, label="decision: looks")
     rows = {t: [r for res in results for r in res[t]] for t in ("life_verdict", "decision_looks")}

@@ -16,6 +16,8 @@ from __future__ import annotations
 import base64
 import io
 import math
+import multiprocessing
+import os
 
 from pipeline.serve.decision import (DECIDED, HoseDecision, information_words, missing_line, plan_words,
                                      read_decisions, verdict_words)
@@ -27,6 +29,9 @@ from pipeline.serve.report.running_hoses import running_section
 
 #: Hose types whose looks are drawn (one figure each); the others are listed by name.
 MAX_LOOK_PLOTS = 20
+#: Looks figures to draw from which they are drawn in forked processes, one per core (a plan change redraws
+#: all :data:`MAX_LOOK_PLOTS`, ~0.1 CPU-s each: on two cores half the wall); fewer are drawn here.
+PARALLEL_FROM = 4
 #: Colours of the figure: estimate, repeated interval, efficacy, futility, margin.
 COLOURS = {"estimate": "#1f3f8f", "rci": "#9db4e8", "efficacy": "#c62828", "futility": "#2e7d32",
            "margin": "#6b7280", "decides": "#e08a00", "crossed": "#8e24aa"}
@@ -134,10 +139,10 @@ def _looks_figures(decisions: list[HoseDecision], figures: Figures) -> str:
     """The looks of each hose type as a figure (the first :data:`MAX_LOOK_PLOTS` with looks), from
     ``figures`` when its key is there."""
     out = []
-    for k, d in enumerate(decisions[:MAX_LOOK_PLOTS]):
-        if not _drawable(d):
-            continue
-        img = figures.figure(looks_key(d), lambda d=d: _looks_img(d))
+    shown = [(k, d, looks_key(d)) for k, d in enumerate(decisions[:MAX_LOOK_PLOTS]) if _drawable(d)]
+    drawn = _draw_elsewhere([(d, key) for _k, d, key in shown if key not in figures.held])
+    for k, d, key in shown:
+        img = figures.figure(key, lambda d=d, key=key: drawn[key] if key in drawn else _looks_img(d))
         out.append(f'<figure id="{_anchor(k)}">{img}'
                    f"<figcaption><b>{esc(d.hose_type)}</b>: the estimate of the life ratio force / distance at each "
                    "look (failure) with its repeated confidence interval, the efficacy boundaries (crossing one "
@@ -151,6 +156,27 @@ def _looks_figures(decisions: list[HoseDecision], figures: Figures) -> str:
         out.append(f'<p class="meta">Looks not drawn for {len(rest)} more hose types ({esc(", ".join(rest))}): '
                    "<code>pneubench decision --hose-type T</code> lists them.</p>")
     return "".join(out)
+
+
+def _draw_elsewhere(todo: list[tuple[HoseDecision, str]]) -> dict[str, str]:
+    """The figures of ``todo`` ((decision, key) pairs) drawn in processes forked from this one, one per core
+    (:func:`_looks_img` there: the same bytes as here), by key; empty (each then drawn here) when there are
+    fewer than :data:`PARALLEL_FROM`, one core, no ``fork``, or the processes fail. The processes are the
+    rebuild's kind (:func:`pipeline.rebuild.executors.forked_pool`): they exit within 0.2 s of this
+    process's death, so a killed rebuild's lock, which they share while they draw, is not held on."""
+    workers = min(len(todo), os.cpu_count() or 1)
+    if len(todo) < PARALLEL_FROM or workers < 2 or "fork" not in multiprocessing.get_all_start_methods():
+        return {}
+    from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: F401  loaded once, before the fork
+    from matplotlib.figure import Figure  # noqa: F401
+
+    from pipeline.rebuild.executors import forked_pool   # workers that exit when this process dies (kill -9)
+    try:
+        with forked_pool(workers) as pool:
+            imgs = list(pool.map(_looks_img, [d for d, _key in todo]))
+    except Exception:   # a process that could not start or died: drawn here instead
+        return {}
+    return {key: img for (_d, key), img in zip(todo, imgs)}
 
 
 def _looks_img(d: HoseDecision) -> str:
@@ -250,7 +276,7 @@ def _draw_looks(ax, d: HoseDecision, ratio: list[float]) -> None:
     ax.set_xlim(0, max([*x, float(top) if isinstance(top, (int, float)) else 0.0]) * 1.02 + 0.5)
     ax.set_xlabel("failures (both adjustments)")
     ax.set_ylabel("life ratio force / distance")
-    ax.set_title(f"{d.hose_type}: {v.get('verdict') or 'no verdict'}", fontsize=10)
+    ax.set_title(f"{d.hose_type}: {v.get('verdict') or 'no verdict'}", fontsize=10, y=1.0)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=5, frameon=False)
 

@@ -3,6 +3,7 @@ max_failures or the design's; the sticky verdict at its deciding look; re-run on
 and the plan; --full equal to incremental; the demo rebuild carries the tables."""
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -468,3 +469,121 @@ def test_effect_of_reads_the_item_lists_as_life_effect_of_the_positive_lives():
     hoses["adjustment"][7] = None
     with pytest.raises(ValueError, match="group must be 0"):
         stage.effect_of({"hose_type": "T", "hoses": hoses, "plan": {"confidence": 0.9, "alpha": 0.05}})
+
+
+@pytest.fixture(scope="module")
+def designs_table():
+    from analyses import sequential
+    from analyses.sequential_table import design_table
+
+    sequential.clear_caches()
+    out = design_table(0.05, "obrien-fleming")
+    sequential.clear_caches()
+    return out
+
+
+def test_the_designs_file_is_written_once_then_read_and_a_damaged_stale_or_hostile_one_is_ignored(
+        tmp_path, designs_table, monkeypatch):
+    """keep_designs: the even designs computed once and written under the warehouse, read (not computed) by a
+    cold process after; a file that is not the arrays of that form (garbage, truncated, a NaN boundary, a
+    pickle, a symlink) is never used: they are computed again and the file rewritten; another designs file
+    (other settings, code or libraries: another name) is deleted, anything else in the folder kept."""
+    from analyses import sequential
+    from analyses.sequential_table import holds_table
+
+    computed = []
+    monkeypatch.setattr(stage, "design_table", lambda a, s: computed.append((a, s)) or designs_table)
+    items = [{"plan": {"alpha": 0.05, "spending": "obrien-fleming", "max_failures": None}},
+             {"plan": {"alpha": 0.01, "spending": "pocock", "max_failures": 20}}]     # the plan's: no design
+    stale = tmp_path / stage.DESIGNS_DIR / ("designs-" + "0" * 32 + ".npz")
+    stale.parent.mkdir()
+    stale.write_bytes(b"old")
+    (tmp_path / stage.DESIGNS_DIR / "notes.txt").write_text("mine")
+    sequential.clear_caches()
+    path = Path(stage.keep_designs(tmp_path, items)[(0.05, "obrien-fleming")])
+    assert computed == [(0.05, "obrien-fleming")] and path.is_file() and path.parent == stale.parent
+    assert not stale.exists() and (tmp_path / stage.DESIGNS_DIR / "notes.txt").read_text() == "mine"
+    assert path == stage.designs_path(tmp_path, 0.05, "obrien-fleming") != stage.designs_path(tmp_path, 0.05, "pocock")
+    good = path.read_bytes()
+    sequential.clear_caches()
+    assert stage.keep_designs(tmp_path, items) and len(computed) == 1 and holds_table(0.05, "obrien-fleming")
+
+    nan = dict(designs_table)
+    nan["c_30"] = np.where(np.arange(30) == 29, np.nan, designs_table["c_30"])
+    hostile = {"garbage": b"not an npz", "truncated": good[: len(good) // 2], "nan": nan,
+               "pickle": {**designs_table, "c_30": np.array([object()] * 30, dtype=object)}}
+    for name, content in hostile.items():
+        if isinstance(content, bytes):
+            path.write_bytes(content)
+        else:
+            with open(path, "wb") as fh:
+                np.savez(fh, **content)
+        sequential.clear_caches()
+        assert not stage.use_designs(path, 0.05, "obrien-fleming"), name
+        stage.keep_designs(tmp_path, items)
+        assert computed[-1] == (0.05, "obrien-fleming") and path.read_bytes() == good, name
+    elsewhere = tmp_path / "elsewhere.npz"
+    elsewhere.write_bytes(good)
+    path.unlink()
+    path.symlink_to(elsewhere)
+    sequential.clear_caches()
+    assert not stage.use_designs(path, 0.05, "obrien-fleming")          # a symlink is not followed
+    stage.keep_designs(tmp_path, items)
+    assert len(computed) == 2 + len(hostile) and not path.is_symlink() and path.read_bytes() == good
+    sequential.clear_caches()
+
+
+def test_a_rebuild_keeps_the_designs_in_the_warehouse_and_reading_them_gives_the_same_tables(tmp_path, monkeypatch):
+    """The first rebuild of a designed fleet computes the even designs and writes them under the warehouse;
+    a cold process that reads them (a full rebuild after the caches are cleared) gives the same tables."""
+    from analyses import sequential
+    from pipeline import stages as registry
+    from pipeline.rebuild.flow import rebuild
+
+    monkeypatch.setattr(registry, "discover", lambda: [durability, stage])
+    raw = _designed_fleet(tmp_path, types=3)[0]
+    (raw / "plan.toml").write_text(PLAN)
+    warehouse = tmp_path / "wh"
+    tables = ("life_effect", "life_verdict", "decision_looks", "decision_look_hoses")
+    sequential.clear_caches()
+    assert "decision" in rebuild(raw, warehouse, jobs=1, report=False).stages_run
+    files = list((warehouse / stage.DESIGNS_DIR).iterdir())
+    assert [f.name for f in files] == [stage.designs_path(warehouse, 0.05, "obrien-fleming").name]
+    first = {t: query(warehouse, f"SELECT * FROM {t} ORDER BY ALL") for t in tables}
+    assert any(r is not None for r in query(warehouse, "SELECT max_failures FROM life_verdict"))
+    sequential.clear_caches()
+    read = []
+    monkeypatch.setattr(stage, "design_table", lambda *a: read.append(a) or {})   # computed again: nothing written
+    assert "decision" in rebuild(raw, warehouse, jobs=1, report=False, full=True).stages_run
+    assert not read and {t: query(warehouse, f"SELECT * FROM {t} ORDER BY ALL") for t in tables} == first
+    sequential.clear_caches()
+
+
+def test_the_life_effect_item_is_what_effect_of_reads_and_a_power_change_leaves_it_alone():
+    """effect_of on effect_item's few columns is its row on the whole item; a plan change of a key it does not
+    read (power, margin, max_failures) gives the same item (the same memo key), confidence or alpha another."""
+    item = odometer_item()
+    small = stage.effect_item(item)
+    assert stage.effect_of(small) == stage.effect_of(item)
+    assert set(small["hoses"]) == {"adjustment", "distance_km", "status"}
+    other = {**item, "plan": {**item["plan"], "power": 0.81, "margin": 2.0, "max_failures": None}}
+    assert stage.effect_item(other) == small
+    assert stage.effect_item({**item, "plan": {**item["plan"], "confidence": 0.95}}) != small
+
+
+def test_a_designs_folder_that_is_a_symlink_is_neither_read_nor_written(tmp_path, designs_table, monkeypatch):
+    from analyses import sequential
+
+    computed = []
+    monkeypatch.setattr(stage, "design_table", lambda a, s: computed.append((a, s)) or designs_table)
+    items = [{"plan": {"alpha": 0.05, "spending": "obrien-fleming", "max_failures": None}}]
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    sequential.clear_caches()
+    path = Path(stage.keep_designs(elsewhere, items)[(0.05, "obrien-fleming")])      # a valid file there
+    (tmp_path / "wh").mkdir()
+    (tmp_path / "wh" / stage.DESIGNS_DIR).symlink_to(elsewhere / stage.DESIGNS_DIR)
+    sequential.clear_caches()
+    stage.keep_designs(tmp_path / "wh", items)
+    assert len(computed) == 2 and [p.name for p in (elsewhere / stage.DESIGNS_DIR).iterdir()] == [path.name]
+    sequential.clear_caches()

@@ -185,3 +185,21 @@ def test_the_decision_in_headless_chromium(wh, tmp_path):
     blue = (abs(rgb - [0x2a / 255, 0x4d / 255, 0x8f / 255]) < 0.04).all(axis=-1)
     assert green.sum() > 500 and blue.sum() > 300
     assert console == []
+
+
+def test_figures_drawn_in_forked_processes_are_the_bytes_drawn_here(wh, monkeypatch):
+    """From PARALLEL_FROM figures to draw (a plan change redraws all), they are drawn in processes forked one
+    per core: the same bytes and the same section as drawn one by one here."""
+    serial = _section(render_report(wh, run_pages="all"))            # 3 figures: fewer than PARALLEL_FROM
+    con = connect_readonly(wh)
+    try:
+        decisions = [d for d in read_decisions(con) if rd._drawable(d)]
+    finally:
+        con.close()
+    todo = [(d, rd.looks_key(d)) for d in decisions]
+    assert rd._draw_elsewhere(todo) == {}
+    monkeypatch.setattr(rd, "PARALLEL_FROM", 2)
+    monkeypatch.setattr(rd.os, "cpu_count", lambda: 2)
+    drawn = rd._draw_elsewhere(todo)
+    assert len(todo) == 3 and drawn == {key: rd._looks_img(d) for d, key in todo}
+    assert _section(render_report(wh, run_pages="all")) == serial
