@@ -54,16 +54,19 @@ def _sql_str(text: str) -> str:
     return "'" + str(text).replace("'", "''") + "'"
 
 
-def _columns_by_run(con: duckdb.DuckDBPyConnection) -> dict[str, frozenset[tuple[str, str]]]:
+def _columns_by_run(con: duckdb.DuckDBPyConnection,
+                    run_ids: list[str] | None = None) -> dict[str, frozenset[tuple[str, str]]]:
     """(column, type) of each run's samples file, from the ``channels`` table (``run_id`` + one
-    row per column; type ``""`` where the table does not say it)."""
+    row per column; type ``""`` where the table does not say it); ``run_ids``: of these runs only."""
     if "channels" not in {r[0] for r in con.execute("SELECT table_name FROM duckdb_tables()").fetchall()}:
         return {}
     have = set(table_columns(con, "channels"))
     if not {"run_id", "column"} <= have:
         return {}
     typ = "coalesce(type, '')" if "type" in have else "''"
-    rows = con.execute(f'SELECT run_id, list(DISTINCT ("column", {typ})) FROM channels GROUP BY run_id').fetchall()
+    where, params = ("", []) if run_ids is None else ("WHERE run_id IN (SELECT unnest($1)) ", [list(run_ids)])
+    rows = con.execute(f'SELECT run_id, list(DISTINCT ("column", {typ})) FROM channels {where}GROUP BY run_id',
+                       params).fetchall()
     return {rid: frozenset(tuple(c) for c in cols) | {("run_id", "")} for rid, cols in rows}
 
 
@@ -131,9 +134,14 @@ def _samples_files(runs: pd.DataFrame, kinds: dict) -> list[tuple[str, str, str 
     return files
 
 
-def _write_files_table(con: duckdb.DuckDBPyConnection, files: list[tuple[str, str, str | None, str]]) -> None:
-    """The ``samples_files`` table (:data:`~pipeline.warehouse.FILES_TABLE`), rows sorted by path."""
-    con.execute(f"CREATE TABLE {FILES_TABLE} (run_id VARCHAR, kind VARCHAR, campaign VARCHAR, path VARCHAR)")
+def _write_files_table(con: duckdb.DuckDBPyConnection, files: list[tuple[str, str, str | None, str]],
+                       create: bool = True) -> None:
+    """The ``samples_files`` table (:data:`~pipeline.warehouse.FILES_TABLE`), rows sorted by path
+    (``create`` False: into the existing table, emptied first)."""
+    if create:
+        con.execute(f"CREATE TABLE {FILES_TABLE} (run_id VARCHAR, kind VARCHAR, campaign VARCHAR, path VARCHAR)")
+    else:
+        con.execute(f"DELETE FROM {FILES_TABLE}")
     if files:  # one statement of four lists: executemany inserts row by row (10,000 runs: ~5 s)
         rows = sorted(files, key=lambda f: f[3])
         con.execute(f"INSERT INTO {FILES_TABLE} SELECT unnest($1), unnest($2), unnest($3), unnest($4)",
@@ -469,6 +477,54 @@ def _ddl_tables() -> dict[str, str]:
 
 
 def _recreate_views(con: duckdb.DuckDBPyConnection, warehouse: Path, runs: pd.DataFrame) -> set[str]:
+    """Bring the copy's ``samples_<kind>`` views, ``samples_files`` table and ``samples()`` macro up
+    to date with ``runs``; returns the names of the views and tables re-created (to be commented).
+
+    Only the views of the kinds whose files changed are re-created (:func:`_changed_kinds`); the
+    ``samples_files`` rows are written again into the same table. A view's SQL is made of its kind's
+    files and of their columns (``channels``), and a samples file's name holds its content's key,
+    so a kind whose files (run, campaign, path) are the same has the same view: one changed
+    durability run re-created the view of 6,500 spring files too (issue 26: ~1 CPU-s at 10,000
+    runs, most of it reading every run's columns back). Anything unexpected in the copy (no
+    ``samples_files``, a view missing): every view is re-created, as a whole build makes them."""
+    from schemas.channels import CHANNELS
+    from schemas.kinds import KINDS
+
+    files = _samples_files(runs, KINDS)
+    kinds = _changed_kinds(con, files, KINDS)
+    if kinds is None:
+        return _recreate_all_views(con, warehouse, runs)
+    _write_files_table(con, files, create=False)
+    if not kinds:
+        return set()
+    con.execute(f"SET VARIABLE {ROOT_VARIABLE} = ?", [Path(warehouse).resolve().as_posix()])
+    columns = _columns_by_run(con, sorted({f[0] for f in files if f[1] in kinds}))
+    for kind in sorted(kinds):
+        con.execute(f'DROP VIEW IF EXISTS "samples_{kind}"')
+        sql = _kind_view_sql(kind, files, columns, [CHANNELS[c].column for c in KINDS[kind].channels])
+        con.execute(f"CREATE VIEW samples_{kind} AS {sql}")
+    return {f"samples_{kind}" for kind in kinds}
+
+
+def _changed_kinds(con: duckdb.DuckDBPyConnection, files: list[tuple[str, str, str | None, str]],
+                   kinds: dict) -> set[str] | None:
+    """Kinds (of ``kinds``) whose ``samples_<kind>`` view changes with ``files``: a file added, gone,
+    or with another run, kind, campaign or path than the copy's ``samples_files`` row; None when the
+    copy lacks that table, one of the views, or the ``samples()`` macro."""
+    views = {r[0] for r in con.execute("SELECT view_name FROM duckdb_views() WHERE NOT internal").fetchall()}
+    tables = {r[0] for r in con.execute("SELECT table_name FROM duckdb_tables()").fetchall()}
+    macros = {r[0] for r in con.execute("SELECT function_name FROM duckdb_functions() "
+                                        "WHERE function_type = 'table_macro' AND NOT internal").fetchall()}
+    if FILES_TABLE not in tables or "samples" not in macros or any(f"samples_{k}" not in views for k in kinds):
+        return None
+    try:
+        old = con.execute(f"SELECT run_id, kind, campaign, path FROM {FILES_TABLE}").fetchall()
+    except Exception:  # a table of another shape: made anew
+        return None
+    return {f[1] for f in set(old) ^ set(files) if f[1] in kinds}
+
+
+def _recreate_all_views(con: duckdb.DuckDBPyConnection, warehouse: Path, runs: pd.DataFrame) -> set[str]:
     """Drop and re-create the ``samples_<kind>`` views, the ``samples_files`` table and the
     ``samples()`` macro (:func:`create_samples_views`); returns their names."""
     from schemas.kinds import KINDS

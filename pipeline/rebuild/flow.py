@@ -336,7 +336,7 @@ def _assemble(run: RebuildRun, plan: _Plan, ingested: _Ingested, staged: StageRe
     in_use = set(runs_df.get("samples_path", [])) | {r.folder for r in staged.records}
     kept, _expired = superseded_files(prev, in_use, run.options.clock(), run.options.keep_superseded_h)
     tables = {
-        "runs": runs_df, "quarantine": _quarantine_frame(problems), "channels": pd.DataFrame(ingested.channels),
+        "runs": runs_df, "quarantine": _quarantine_frame(problems), "channels": _channels_frame(ingested.channels),
         "skipped_files": _skipped_files(plan.tree, plan.ignored),
         "figures": pd.DataFrame(staged.figures, columns=["stage", "name", "path", "caption"]),
         **stage_tables,
@@ -346,6 +346,21 @@ def _assemble(run: RebuildRun, plan: _Plan, ingested: _Ingested, staged: StageRe
         "superseded_files": _superseded_frame(kept),
     }
     return tables, in_use | set(kept)
+
+
+def _channels_frame(channels: list[dict]) -> pd.DataFrame:
+    """``channels`` rows as a frame, its columns in name order whatever the order of the rows' keys.
+
+    A run read tonight has its keys in the ingest's order, a run taken from its state record in
+    JSON's sorted order; the frame took the order of its first row, so its content key
+    (``table_keys``) changed with where that row came from, though its rows did not. Issue 26: the
+    first change after a full build (every row read that night) wrote ``channels`` again and so
+    re-created every ``samples_<kind>`` view and re-drew every run page (~3 CPU-s at 10,000 runs).
+    The database takes the columns by name: the table is the same either way."""
+    import pandas as pd
+
+    df = pd.DataFrame(channels)
+    return df[sorted(df.columns, key=str)] if len(df.columns) else df
 
 
 def _inputs_table(plans: list[FilePlan], side_changes: list[dict], prev: PreviousState, seen: set[str],
@@ -467,11 +482,13 @@ def _new_channels(tables: dict[str, pd.DataFrame], live: set[str]) -> list[tuple
     runs, channels = tables["runs"], tables["channels"]
     if runs.empty:
         return []
+    new = sorted((rid, path, n) for rid, path, n in zip(runs["run_id"], runs["samples_path"], runs["n_samples"])
+                 if isinstance(path, str) and path and path not in live)
     columns: dict[str, list[str]] = {}
-    if not channels.empty:
-        for rid, col in sorted(zip(channels["run_id"], channels["column"])):
+    if new and not channels.empty:  # the new runs' channels only (issue 26: not 40,000 rows sorted for one run)
+        sub = channels[channels["run_id"].isin(sorted({rid for rid, _path, _n in new}))]
+        for rid, col in sorted(zip(sub["run_id"], sub["column"])):
             if col not in ("t_s", "run_id"):
                 columns.setdefault(rid, []).append(col)
     return [(path, columns.get(rid, []), int(n) if n is not None and n == n else 0)  # NaN: NULL, read as 0
-            for rid, path, n in sorted(zip(runs["run_id"], runs["samples_path"], runs["n_samples"]))
-            if isinstance(path, str) and path and path not in live]
+            for rid, path, n in new]

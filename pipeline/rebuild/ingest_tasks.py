@@ -215,10 +215,19 @@ def _ingest_crashed(task: IngestTask, reason: str) -> IngestOutcome:
     return IngestOutcome(None, False, res, retry=True)
 
 
+def _campaign_of(rel: str) -> str | None:
+    """:meth:`RawTree.campaign` from the path as stored (``/``-separated, relative to raw/): its first
+    folder, None at the top; without a ``Path`` made per record (issue 26: 10,000 records a change)."""
+    head, sep, _rest = rel.partition("/")
+    return head if sep and head else None
+
+
 def _result_from_record(rec: FileRecord, tree: RawTree, path: Path) -> IngestResult:
     from pipeline.ingest.result import IngestResult
 
-    res = IngestResult(source_path=rec.source_path, campaign=tree.campaign(path))
+    rel = rec.source_path
+    campaign = _campaign_of(rel) if rel == tree.rel(path) else tree.campaign(path)
+    res = IngestResult(source_path=rec.source_path, campaign=campaign)
     if rec.result is not None and "parts" in rec.result:  # a file of several runs
         res.sha256 = rec.source_sha256
         res.parts = [IngestResult(source_path=rec.source_path, campaign=res.campaign, run=p.get("run"),

@@ -25,7 +25,7 @@ from pipeline.raw.problems import Problem
 from pipeline.rebuild.memo import Memo
 from pipeline.rebuild.stage_store import (FigureDrawer, PooledTables, load_stage_folder, own_stage_folder,
                                            save_stage_folder)
-from pipeline.rebuild.state import PreviousState, StageRecord, frame_hash, stage_input_key
+from pipeline.rebuild.state import PreviousState, StageRecord, encoded_runs, frame_hash, stage_input_key
 from pipeline.versions import stage_code_version
 from pipeline.rebuild.options import RebuildError
 
@@ -141,11 +141,13 @@ def run_stages_cached(inputs: StageInputs, progress: Progress, drawer: FigureDra
     drawer = drawer or FigureDrawer()
     # every stage's code version up front: the project's sources are read and hashed once for all
     codes = {mod.NAME: stage_code_version(getattr(mod, "__file__", None) or mod.NAME) for mod in mods}
+    encoded = encoded_runs(inputs.runs)  # every runs row encoded once for all the stages' keys
+    run_columns = _run_columns_source(inputs.runs_frame)  # and read once for all their tables' run columns
     with progress.task("stages", len(mods)) as task:
         for mod in mods:
             t0 = time.monotonic()
             reads = stages.reads_of(mod)
-            key = _input_key(mod.NAME, codes[mod.NAME], reads, inputs)
+            key = _input_key(mod.NAME, codes[mod.NAME], reads, inputs, encoded)
             read = _tables_read(reads, res)
             record = _reusable(mod.NAME, key, read, inputs)
             if record is not None:
@@ -157,7 +159,7 @@ def run_stages_cached(inputs: StageInputs, progress: Progress, drawer: FigureDra
                 res.ran.append(mod.NAME)
                 how = "ran"
             res.records.append(record)
-            tables = _collect(res, loaded, inputs.runs_frame)
+            tables = _collect(res, loaded, run_columns)
             memo_note = res.memos[mod.NAME].summary() if mod.NAME in res.memos else ""
             progress.message(f"stage {mod.NAME} {how}: " + ", ".join(f"{k} {len(v)} rows" for k, v in tables.items())
                              + f" ({duration_text(time.monotonic() - t0)}{'; ' + memo_note if memo_note else ''})")
@@ -167,10 +169,28 @@ def run_stages_cached(inputs: StageInputs, progress: Progress, drawer: FigureDra
     return res
 
 
-def _input_key(name: str, code: str, reads: Reads, inputs: StageInputs) -> str:
-    """A stage's input key: its code, the runs of the kinds it reads, the logbooks and the plan if it reads them."""
+def _input_key(name: str, code: str, reads: Reads, inputs: StageInputs,
+               encoded: list[tuple[str, bytes]] | None = None) -> str:
+    """A stage's input key: its code, the runs of the kinds it reads, the logbooks and the plan if it
+    reads them (``encoded``: the runs rows as :func:`pipeline.rebuild.state.encoded_runs` gives them)."""
     return stage_input_key(name, code, inputs.runs, set(reads.kinds), inputs.logbooks if reads.logbooks else None,
-                           reads.plan_digest(inputs.plan))
+                           reads.plan_digest(inputs.plan), encoded)
+
+
+def _run_columns_source(runs_frame: pd.DataFrame) -> pd.DataFrame:
+    """What :func:`pipeline.stages.add_run_columns` reads of the runs (``run_id``, ``campaign``,
+    ``params``), their values read out once into object columns.
+
+    The same values as the runs frame's, so the same run columns: ``add_run_columns`` reads the
+    runs cell by cell, and a cell of pandas' Arrow-backed string columns costs ~20x one of an
+    object column; it did so for every stage's tables (issue 26: ~1 CPU-s of every change at
+    10,000 runs). A frame without those columns is given as it is."""
+    import pandas as pd
+
+    cols = ["run_id", "campaign", "params"]
+    if runs_frame is None or not set(cols) <= set(runs_frame.columns):
+        return runs_frame
+    return pd.DataFrame({c: pd.Series(list(runs_frame[c]), index=runs_frame.index, dtype=object) for c in cols})
 
 
 def _tables_read(reads: Reads, res: StageResults) -> dict[str, str]:
@@ -230,7 +250,8 @@ def _run_stage(mod, reads_read: tuple[Reads, dict[str, str]], key: str, inputs: 
 
 
 def _collect(res: StageResults, loaded: tuple, runs_frame: pd.DataFrame) -> dict[str, pd.DataFrame]:
-    """Add a stage's loaded outputs (tables with their run columns, figures, problems, warnings) to ``res``."""
+    """Add a stage's loaded outputs (tables with their run columns, figures, problems, warnings) to
+    ``res`` (``runs_frame``: the runs, or their :func:`_run_columns_source`)."""
     import pandas as pd
 
     from pipeline import stages

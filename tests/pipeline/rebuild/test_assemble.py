@@ -396,3 +396,41 @@ def test_frame_keys_tell_apart_what_the_database_would_store_apart():
     assert frame_key(pd.DataFrame({"v": [1, "1"]})) != frame_key(pd.DataFrame({"v": ["1", "1"]}))
     assert frame_key(pd.DataFrame({"v": [1, 2]})) != frame_key(pd.DataFrame({"v": [1, 2]}, dtype="Int64"))
     assert frame_key(None) == frame_key(pd.DataFrame()) == "none"
+
+
+def test_only_the_views_of_the_kinds_whose_files_changed_are_made_again(raw, tmp_path, checked_writes, monkeypatch):
+    """A changed step run re-creates ``samples_step`` alone (its file list changed); the other kinds'
+    views are kept as the copy has them, and ``samples_files`` is written again in place; the database
+    equals one built whole (``checked_writes``, which builds one: every kind's view once more). A plan
+    change re-creates none."""
+    import pipeline.rebuild.assemble as asm
+    from schemas.kinds import KINDS
+    from tests.pipeline.rebuild.test_memo import campaign
+    from tests.pipeline.rebuild.test_state import age
+
+    made = []
+    kind_view_sql = asm._kind_view_sql
+    monkeypatch.setattr(asm, "_kind_view_sql", lambda kind, *a: made.append(kind) or kind_view_sql(kind, *a))
+    wh = tmp_path / "wh"
+    campaign(raw)
+    raw.write("plan.toml", "[defaults]\nmargin = 1.5\n")
+    age(raw.root)
+    rebuild(raw.root, wh, jobs=1, report=False)
+    assert sorted(made) == sorted(2 * list(KINDS))  # built whole, and the whole build it is compared with
+    made.clear()
+    _bump(raw.root / "c/s1.csv")
+    age(raw.root)
+    rebuild(raw.root, wh, jobs=1, report=False)
+    assert made[:-len(KINDS)] == ["step"] and "runs" in checked_writes[-1]
+    con = connect_readonly(wh)
+    try:
+        n = con.execute("SELECT count(*) FROM samples_step").fetchone()[0]
+        files = con.execute(f"SELECT path FROM {FILES_TABLE}").fetchall()
+    finally:
+        con.close()
+    assert n > 0 and [p for (p,) in files] == sorted(p for (p,) in files)
+    made.clear()
+    raw.write("plan.toml", "[defaults]\nmargin = 1.3\n")
+    age(raw.root)
+    rebuild(raw.root, wh, jobs=1, report=False)
+    assert made[:-len(KINDS)] == []

@@ -329,3 +329,22 @@ def test_the_channels_read_ahead_are_the_new_runs_in_the_run_pages_order_as_thei
                                                       ("s/b.parquet", ["x_m"], 10)]
     assert _new_channels({"runs": runs, "channels": channels.head(0)}, set())[2] == ("s/c.parquet", [], 7)
     assert _new_channels({"runs": runs.head(0), "channels": channels}, set()) == []
+
+
+def test_the_channels_frame_is_the_same_whether_its_rows_were_read_tonight_or_taken_from_records():
+    """Rows read tonight have the ingest's key order, rows from state records JSON's sorted order:
+    the frame (and so its content key, ``table_keys``) is the same, columns in name order (issue 26:
+    the first change after a full build rewrote ``channels`` and re-created every samples view)."""
+    import json
+
+    from pipeline.rebuild.assemble import frame_key
+    from pipeline.rebuild.flow import _channels_frame
+
+    fresh = [{"run_id": f"r{i}", "column": "x_m", "channel": "x", "raw_name": "x", "raw_unit": "mm", "unit": "m",
+              "type": "DOUBLE"} for i in range(3)]
+    stored = [json.loads(json.dumps(r, sort_keys=True)) for r in fresh]
+    a, b = _channels_frame(fresh), _channels_frame(stored)
+    assert list(a.columns) == sorted(fresh[0]) == list(b.columns)
+    assert frame_key(a) == frame_key(b) and a.equals(b)
+    assert frame_key(_channels_frame(stored[:1] + fresh[1:])) == frame_key(a)  # a changed run first: the same
+    assert _channels_frame([]).empty

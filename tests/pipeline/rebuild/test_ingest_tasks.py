@@ -245,3 +245,12 @@ def test_a_small_read_forks_its_readers_after_the_stages_imports_and_a_large_one
     preload, waiting = seen[-1]
     assert preload and waiting is not None  # the readers import while this process does
     assert len(q(warehouse, "SELECT run_id FROM runs")) == len(first) + 1
+
+
+@pytest.mark.parametrize("rel", ["c/a.csv", "camp aign/sub/b.tdms", "top.csv", "m\\xe9sure/x.csv", "a/b/c/d.mat"])
+def test_a_records_campaign_is_the_trees(tmp_path, rel):
+    from pipeline.raw.tree import RawTree
+    from pipeline.rebuild.ingest_tasks import _campaign_of
+
+    tree = RawTree(tmp_path)
+    assert _campaign_of(rel) == tree.campaign(tmp_path / rel)

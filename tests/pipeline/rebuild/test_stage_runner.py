@@ -311,3 +311,33 @@ def test_a_stage_reruns_when_a_table_it_reads_changes_and_only_then(raw, warehou
     assert q(warehouse, "SELECT n FROM zz_breakaways") == [(2,)]
     assert q(warehouse, "SELECT results_read FROM stage_cache WHERE stage = 'zz_table_reader'")[0][0].startswith(
         '{"breakaway": ')
+
+
+def test_the_run_columns_read_from_the_runs_once_are_the_ones_read_from_the_runs_frame():
+    """Every stage's tables get their run columns from the runs read out once into object columns
+    (issue 26): the same columns, types and values as from the runs frame itself (Arrow strings)."""
+    from pipeline.rebuild.stage_runner import _run_columns_source
+    from pipeline.stages import add_run_columns
+
+    runs = pd.DataFrame({"run_id": pd.array(["a", "b", "c", "d"], dtype="str"),
+                         "campaign": pd.array(["c1", None, "c2", "c1"], dtype="str"),
+                         "kind": ["leakage"] * 4,
+                         "params": [{"hose_id": "H1"}, {}, {"hose_id": float("nan")}, {"hose_id": 7}]})
+    tables = {"leakage_map": pd.DataFrame({"run_id": ["a", "b", "d", "x"], "chamber": ["A"] * 4,
+                                           "adjustment": ["force"] * 4, "z_rollers_mm": [1.0] * 4,
+                                           "spring_force_n": [2.0, 2.0, 3.0, 3.0], "runs_used": ["runs"] * 4}),
+              "seal_envelope": pd.DataFrame({"chamber": ["A", "A"], "adjustment": ["force", "force"],
+                                             "z_rollers_mm": [1.0, 1.0], "spring_force_n": [2.0, 3.0],
+                                             "runs_used": ["runs", "hose_checks"]}),
+              "empty": pd.DataFrame({"run_id": pd.array([], dtype="str")}), "no_runs": pd.DataFrame({"v": [1]})}
+    slim = _run_columns_source(runs)
+    assert list(slim.columns) == ["run_id", "campaign", "params"] and (slim.dtypes == object).all()
+    a, b = add_run_columns(tables, runs), add_run_columns(tables, slim)
+    assert list(a) == list(b)
+    for t in a:
+        pd.testing.assert_frame_equal(a[t], b[t], check_exact=True)
+    plain = lambda col: [None if pd.isna(v) else v for v in a["leakage_map"][col]]  # noqa: E731
+    assert plain("hose_id") == ["H1", None, "7", None] and plain("campaign") == ["c1", None, "c1", None]
+    assert list(a["seal_envelope"]["n_runs"]) == [1, 1] and "campaign" in a["empty"]
+    assert _run_columns_source(runs.head(0)).empty
+    assert _run_columns_source(runs[["run_id"]]) is not None and len(_run_columns_source(runs[["run_id"]]).columns) == 1

@@ -277,3 +277,33 @@ def test_result_runs_and_record_result_round_trip_parts():
     assert result_runs(rec) == [{"run_id": "c/b/A"}]
 
 
+
+
+def test_runs_are_encoded_once_for_every_stage_key_with_the_same_fingerprints():
+    from pipeline.rebuild.state import encoded_runs, runs_fingerprint, stage_input_key
+
+    runs = [{"run_id": "b", "kind": "step", "params": {"x": 1.5}}, {"run_id": "a", "kind": "spring", "n": None},
+            {"run_id": "c", "kind": "step", "when": Path("p")}]
+    enc = encoded_runs(runs)
+    assert [k for k, _ in enc] == ["spring", "step", "step"]  # sorted by run_id
+    for kinds in (None, set(), {"step"}, {"spring", "step"}, {"leakage"}):
+        assert runs_fingerprint(runs, kinds, enc) == runs_fingerprint(runs, kinds)
+    assert stage_input_key("s", "c", runs, {"step"}, "lb", "pl", enc) == stage_input_key("s", "c", runs, {"step"}, "lb", "pl")
+    assert runs_fingerprint(runs, {"step"}) != runs_fingerprint(runs, {"spring"})
+
+
+def test_a_stored_records_result_is_written_back_as_the_text_it_was_read_from_unless_replaced():
+    from pipeline.rebuild.state import FileRecord
+
+    result = {"run": {"run_id": "c/a", "x": 0.1, "name": "m\u00e9sure"}, "channels": [{"column": "x_m"}]}
+    text = json.dumps(result, sort_keys=True)
+    row = ("c/a.csv", "run", 10, 5, 7, "sha", "mh", "1-x", text, None, None)
+    rec = FileRecord.stored(row)
+    assert rec.as_row()["result"] == text  # decoded for the row, written back as read
+    assert rec.result == result and rec.result_text() == text
+    rec.result = {"run": {"run_id": "c/a", "x": 0.2}}  # replaced: encoded again
+    assert rec.as_row()["result"] == json.dumps(rec.result, sort_keys=True)
+    for stored in (None, "", "null"):  # no result, whatever the column held
+        assert FileRecord.stored(row[:8] + (stored, None, None)).as_row()["result"] is None
+    fresh = FileRecord("c/b.csv", "run", 1, 2, 3, "s", None, None, result)
+    assert fresh.as_row()["result"] == text
