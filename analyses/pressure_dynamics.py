@@ -82,10 +82,10 @@ def second_order_step(t, p_start, p_ref, wn: float, zeta: float):
     ----------
     t : array_like
         Time since the step (>= 0). [s]
-    p_start : float
-        Pressure at the step, with zero rate of change. [Pa]
-    p_ref : float
-        Set-point after the step. [Pa]
+    p_start : float or ndarray
+        Pressure at the step, with zero rate of change (or one per sample of ``t``). [Pa]
+    p_ref : float or ndarray
+        Set-point after the step (or one per sample of ``t``). [Pa]
     wn : float
         Natural frequency. [rad/s]
     zeta : float
@@ -119,10 +119,10 @@ def first_order_step(t, p_start, p_ref, tau: float):
     ----------
     t : array_like
         Time since the step (>= 0). [s]
-    p_start : float
-        Pressure at the step. [Pa]
-    p_ref : float
-        Set-point after the step. [Pa]
+    p_start : float or ndarray
+        Pressure at the step (or one per sample of ``t``). [Pa]
+    p_ref : float or ndarray
+        Set-point after the step (or one per sample of ``t``). [Pa]
     tau : float
         Time constant (> 0). [s]
 
@@ -287,12 +287,31 @@ class PressureFit:
         return float("nan")
 
 
-def _model(steps, wn, zeta):
-    return np.concatenate([second_order_step(s.t, s.p_start_pa, s.p_ref_pa, wn, zeta) for s in steps])
+@dataclass
+class _Stacked:
+    """The steps of one fit laid end to end: every sample's time since its step [s], and its step's
+    start pressure and set-point [Pa]. A model over all the steps is one call on these arrays: the
+    same operations on the same numbers, element by element, as one call per step (bit for bit),
+    without a Python call per step and evaluation (issue 26: the grid seeds evaluate it ~150 times)."""
+
+    t: np.ndarray
+    p_start: np.ndarray
+    p_ref: np.ndarray
+
+    @classmethod
+    def of(cls, steps) -> "_Stacked":
+        n = [len(s.t) for s in steps]
+        return cls(np.concatenate([np.asarray(s.t, float) for s in steps]),
+                   np.repeat(np.array([s.p_start_pa for s in steps], float), n),
+                   np.repeat(np.array([s.p_ref_pa for s in steps], float), n))
 
 
-def _model1(steps, tau):
-    return np.concatenate([first_order_step(s.t, s.p_start_pa, s.p_ref_pa, tau) for s in steps])
+def _model(steps: _Stacked, wn, zeta):
+    return second_order_step(steps.t, steps.p_start, steps.p_ref, wn, zeta)
+
+
+def _model1(steps: _Stacked, tau):
+    return first_order_step(steps.t, steps.p_start, steps.p_ref, tau)
 
 
 @dataclass
@@ -398,7 +417,8 @@ def fit_pressure_dynamics(steps: list[PressureStep], chamber: str = "", directio
     t_max = max(float(s.t[-1]) + dt for s in used)
     noises = [s.noise_pa for s in used if np.isfinite(s.noise_pa)]
     noise = float(np.median(noises)) if noises else None
-    cands = [_fit_first(used, y, scale, dt, t_max), _fit_second(used, y, scale, dt, t_max)]
+    stacked = _Stacked.of(used)
+    cands = [_fit_first(stacked, y, scale, dt, t_max), _fit_second(stacked, y, scale, dt, t_max)]
     gates = {c.name: _gate(c, y, noise) for c in cands}
     fit = PressureFit(chamber, direction, n_steps=len(used), step_nrmse_pct=nan_steps,
                       bic={c.name: _bic(c.rss, len(y), len(c.x)) for c in cands})

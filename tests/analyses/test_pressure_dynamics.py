@@ -32,6 +32,21 @@ def test_step_response_hand_values():
     assert second_order_step(0.0, 2.0, 5.0, wn, z) == pytest.approx(2.0)
 
 
+
+@pytest.mark.parametrize("zeta", [0.3, 0.69, 1.0, 1.0003, 4.0, 50.0])
+def test_the_steps_laid_end_to_end_give_each_steps_model_bit_for_bit(zeta):
+    # the fits evaluate the model once over all their steps: the same numbers as one call per step
+    from analyses.pressure_dynamics import _model, _model1, _Stacked
+
+    run = simulate_pressure_step("rear", rng=2)
+    d = run.data
+    steps = split_pressure_steps(d["t_s"], d["p_pa"], d["p_ref_pa"], "r", "rear")
+    stacked = _Stacked.of(steps)
+    each = np.concatenate([second_order_step(s.t, s.p_start_pa, s.p_ref_pa, 52.0, zeta) for s in steps])
+    assert np.array_equal(_model(stacked, 52.0, zeta).view(np.int64), each.view(np.int64))
+    each = np.concatenate([first_order_step(s.t, s.p_start_pa, s.p_ref_pa, zeta / 100) for s in steps])
+    assert np.array_equal(_model1(stacked, zeta / 100).view(np.int64), each.view(np.int64))
+
 def test_split_finds_charges_and_discharges():
     run = simulate_pressure_step("rear", rng=0)
     d = run.data
