@@ -423,6 +423,29 @@ class SpringStats:
     def ok(self) -> bool:
         return not self.message
 
+    _SECTIONS = ("fit", "all", "cycle")
+
+    def __getstate__(self) -> dict:
+        """Pickled with its polynomials in one array (the stage's memo keeps one per run: unpickling
+        ~27 small arrays per run cost ~0.1 ms each, 0.8 CPU-s at 10,000 runs); the same numbers."""
+        state = dict(self.__dict__)
+        layout, parts = [], []
+        for sec in self._SECTIONS:
+            for name, c in state.pop(sec).items():
+                layout.append((sec, name, len(c)))
+                parts.append(np.asarray(c, float))
+        state["_packed"] = (layout, np.concatenate(parts) if parts else np.empty(0))
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        layout, flat = state.pop("_packed", ((), None))
+        secs = {sec: state.pop(sec, {}) for sec in self._SECTIONS}
+        at = 0
+        for sec, name, n in layout:
+            secs[sec][name] = flat[at:at + n]
+            at += n
+        self.__dict__.update(state, **secs)
+
 
 def _n_terms(z: float) -> int:
     """Terms of ``exp(x)``'s series in ``x`` (``|x| <= z``) for a truncation under ``_SERIES_TOL``."""

@@ -34,7 +34,7 @@ follows the data (NRMSE within ``NRMSE_LIMIT_PCT`` or residuals within three sig
 pressure noise), and physical values (``tau > 0``, ``wn > 0``, ``xi > 0``). Otherwise NULL
 parameters and a ``note``.
 
-Grouping (issue 25): a fit pools the steps of one group. :func:`group_pressure_steps` makes a
+Grouping (issue 25, :mod:`analyses.pressure_groups`): a fit pools the steps of one group. :func:`group_pressure_steps` makes a
 ``rig`` group per (campaign, rig, chamber, direction) with every step of that rig, and, for runs
 that name the part under test (``valve_id`` or ``hose_id``), a ``part`` group per (campaign, rig,
 chamber, direction, part, age): the same valve new and after 594 h are two groups. The chamber is
@@ -52,6 +52,8 @@ import scipy  # its submodules load on first use: a rebuild that reuses every st
 from analyses.quality import (Gate, Sensor, describe_sensor, jacobian_se, nrmse_pct, setpoint_jumps,
                               setpoint_thresholds, settle_points)
 from schemas.papers import PLA_NRMSE_LIMIT_PCT
+from analyses.pressure_groups import (RunPart, StepGroup, age_changes, group_pressure_steps,  # noqa: F401
+                                       plot_pressure_ageing)  # grouping and ageing: their own module
 
 __all__ = ["second_order_step", "first_order_step", "PressureStep", "step_threshold", "split_pressure_steps",
            "PressureFit", "fit_pressure_dynamics", "plot_pressure_steps", "NRMSE_LIMIT_PCT", "STEP_SNR_MIN",
@@ -82,10 +84,10 @@ def second_order_step(t, p_start, p_ref, wn: float, zeta: float):
     ----------
     t : array_like
         Time since the step (>= 0). [s]
-    p_start : float
-        Pressure at the step, with zero rate of change. [Pa]
-    p_ref : float
-        Set-point after the step. [Pa]
+    p_start : float or ndarray
+        Pressure at the step, with zero rate of change (or one per sample of ``t``). [Pa]
+    p_ref : float or ndarray
+        Set-point after the step (or one per sample of ``t``). [Pa]
     wn : float
         Natural frequency. [rad/s]
     zeta : float
@@ -96,20 +98,28 @@ def second_order_step(t, p_start, p_ref, wn: float, zeta: float):
     ndarray
         Pressure. [Pa]
     """
+    decay, h = _second_order_shape(t, wn, zeta)
+    if decay is None:
+        return p_ref + (p_start - p_ref) * h
+    return p_ref + (p_start - p_ref) * decay * h
+
+
+def _second_order_shape(t, wn: float, zeta: float):
+    """The factors of :func:`second_order_step` that depend on time alone: ``(decay, h)``, the
+    response ``p_ref + (p_start - p_ref) * decay * h`` (under-damped), or ``(None, h)`` and
+    ``p_ref + (p_start - p_ref) * h`` (over-damped, critical). [-]"""
     t = np.maximum(np.asarray(t, float), 0.0)
     a = zeta * wn
     disc = zeta * zeta - 1.0
     wd = wn * np.sqrt(abs(disc))
     x = wd * t
     if disc < 0:       # under-damped: cos(wd t) + a sin(wd t) / wd
-        h = np.cos(x) + a * t * np.sinc(x / np.pi)
-    else:              # over-damped / critical: e^(-a t) (cosh(x) + a t sinh(x) / x), x = wd t
-        up, down = np.exp(x - a * t), np.exp(-x - a * t)   # x <= a t: no overflow
-        small = x < 1e-6
-        shx = np.where(small, np.exp(-a * t), (up - down) / (2 * np.where(small, 1.0, x)))
-        h = 0.5 * (up + down) + a * t * shx
-        return p_ref + (p_start - p_ref) * h
-    return p_ref + (p_start - p_ref) * np.exp(-a * t) * h
+        return np.exp(-a * t), np.cos(x) + a * t * np.sinc(x / np.pi)
+    # over-damped / critical: e^(-a t) (cosh(x) + a t sinh(x) / x), x = wd t
+    up, down = np.exp(x - a * t), np.exp(-x - a * t)   # x <= a t: no overflow
+    small = x < 1e-6
+    shx = np.where(small, np.exp(-a * t), (up - down) / (2 * np.where(small, 1.0, x)))
+    return None, 0.5 * (up + down) + a * t * shx
 
 
 def first_order_step(t, p_start, p_ref, tau: float):
@@ -119,10 +129,10 @@ def first_order_step(t, p_start, p_ref, tau: float):
     ----------
     t : array_like
         Time since the step (>= 0). [s]
-    p_start : float
-        Pressure at the step. [Pa]
-    p_ref : float
-        Set-point after the step. [Pa]
+    p_start : float or ndarray
+        Pressure at the step (or one per sample of ``t``). [Pa]
+    p_ref : float or ndarray
+        Set-point after the step (or one per sample of ``t``). [Pa]
     tau : float
         Time constant (> 0). [s]
 
@@ -287,12 +297,49 @@ class PressureFit:
         return float("nan")
 
 
-def _model(steps, wn, zeta):
-    return np.concatenate([second_order_step(s.t, s.p_start_pa, s.p_ref_pa, wn, zeta) for s in steps])
+@dataclass
+class _Stacked:
+    """The steps of one fit laid end to end, for a model over all of them in one call (issue 26: the
+    grid seeds evaluate it ~150 times). ``times``: each distinct time vector of the steps once, end
+    to end [s] (the steps of a rig share a few: one sample rate, one hold time); ``at``: where each
+    sample's time is in ``times``; ``p_start``, ``p_ref``: each sample's step's start pressure and
+    set-point [Pa]. The factors that depend on time alone are computed once per distinct vector and
+    taken by sample: the same operations on the same numbers, element by element, as one call of
+    :func:`second_order_step` / :func:`first_order_step` per step, so the same bits."""
+
+    times: np.ndarray
+    at: np.ndarray
+    p_start: np.ndarray
+    p_ref: np.ndarray
+
+    @classmethod
+    def of(cls, steps) -> "_Stacked":
+        n = [len(s.t) for s in steps]
+        seen: dict[bytes, int] = {}
+        parts, at, offset = [], [], 0
+        for s in steps:
+            t = np.asarray(s.t, float)
+            start = seen.get(t.tobytes())
+            if start is None:
+                start = seen[t.tobytes()] = offset
+                parts.append(t)
+                offset += len(t)
+            at.append(np.arange(start, start + len(t)))
+        return cls(np.concatenate(parts) if parts else np.empty(0),
+                   np.concatenate(at) if at else np.empty(0, np.intp),
+                   np.repeat(np.array([s.p_start_pa for s in steps], float), n),
+                   np.repeat(np.array([s.p_ref_pa for s in steps], float), n))
 
 
-def _model1(steps, tau):
-    return np.concatenate([first_order_step(s.t, s.p_start_pa, s.p_ref_pa, tau) for s in steps])
+def _model(steps: _Stacked, wn, zeta):
+    decay, h = _second_order_shape(steps.times, wn, zeta)
+    if decay is None:
+        return steps.p_ref + (steps.p_start - steps.p_ref) * h[steps.at]
+    return steps.p_ref + (steps.p_start - steps.p_ref) * decay[steps.at] * h[steps.at]
+
+
+def _model1(steps: _Stacked, tau):
+    return steps.p_ref + (steps.p_start - steps.p_ref) * np.exp(-np.maximum(steps.times, 0.0) / tau)[steps.at]
 
 
 @dataclass
@@ -398,7 +445,8 @@ def fit_pressure_dynamics(steps: list[PressureStep], chamber: str = "", directio
     t_max = max(float(s.t[-1]) + dt for s in used)
     noises = [s.noise_pa for s in used if np.isfinite(s.noise_pa)]
     noise = float(np.median(noises)) if noises else None
-    cands = [_fit_first(used, y, scale, dt, t_max), _fit_second(used, y, scale, dt, t_max)]
+    stacked = _Stacked.of(used)
+    cands = [_fit_first(stacked, y, scale, dt, t_max), _fit_second(stacked, y, scale, dt, t_max)]
     gates = {c.name: _gate(c, y, noise) for c in cands}
     fit = PressureFit(chamber, direction, n_steps=len(used), step_nrmse_pct=nan_steps,
                       bic={c.name: _bic(c.rss, len(y), len(c.x)) for c in cands})
@@ -475,183 +523,5 @@ def plot_pressure_steps(steps: list[PressureStep], fits: dict, window_s: float |
     chamber = steps[0].chamber if steps else ""
     fig.suptitle(title or f"PLA {chamber} chamber: pressure after set-point steps, experiment vs the chosen model "
                           "(first order or Eq. 11)")
-    fig.tight_layout()
-    return fig
-
-
-# -- grouping: per rig, and per part and age --------------------------------------------------------
-
-@dataclass(frozen=True)
-class RunPart:
-    """Where a pressure-step run was recorded and what it tested: campaign, rig and, when the run
-    names one, the part under test (``part_kind`` ``valve`` / ``hose``, ``part_id``) and its age
-    (hours of use ``age_h``, distance run ``distance_km``; None when not stated)."""
-
-    campaign: str = ""
-    rig: str = ""
-    part_kind: str | None = None
-    part_id: str | None = None
-    age_h: float | None = None
-    distance_km: float | None = None
-
-
-@dataclass(frozen=True)
-class StepGroup:
-    """The steps one fit pools. ``level`` ``rig``: every step of (campaign, rig, chamber,
-    direction), part fields None; ``part``: the steps of one part at one age on that rig."""
-
-    level: str
-    campaign: str
-    rig: str
-    chamber: str
-    direction: str
-    part_kind: str | None = None
-    part_id: str | None = None
-    age_h: float | None = None
-    distance_km: float | None = None
-
-    def sort_key(self) -> tuple:
-        """Campaign, rig, chamber, direction; the rig's row first, then parts by id and age."""
-        def num(v):
-            return (v is None, v if v is not None else 0.0)
-        return (self.campaign, self.rig, self.chamber, self.direction, self.level != "rig",
-                self.part_kind or "", self.part_id or "", num(self.age_h), num(self.distance_km))
-
-
-def group_pressure_steps(steps: list[PressureStep], runs: dict) -> dict[StepGroup, list[PressureStep]]:
-    """Group steps for fitting: one ``rig`` group per (campaign, rig, chamber, direction) holding
-    all its steps, and one ``part`` group per (campaign, rig, chamber, direction, part, age) for
-    the steps of runs that name a part.
-
-    Parameters
-    ----------
-    steps : list of PressureStep
-    runs : dict of str to RunPart
-        Per run id; a run missing here is pooled under an empty campaign and rig.
-
-    Returns
-    -------
-    dict of StepGroup to list of PressureStep
-        In :meth:`StepGroup.sort_key` order; steps keep their order within a group.
-    """
-    out: dict[StepGroup, list[PressureStep]] = {}
-    for s in steps:
-        r = runs.get(s.run_id) or RunPart()
-        base = (r.campaign or "", r.rig or "", s.chamber, s.direction)
-        out.setdefault(StepGroup("rig", *base), []).append(s)
-        if r.part_id:
-            out.setdefault(StepGroup("part", *base, r.part_kind, r.part_id, r.age_h, r.distance_km), []).append(s)
-    return {g: out[g] for g in sorted(out, key=StepGroup.sort_key)}
-
-
-def _age_axis(groups) -> str | None:
-    """``age_h`` when every group states hours, else ``distance_km`` when every one states a
-    distance, else None (the ages cannot be ordered)."""
-    for name in ("age_h", "distance_km"):
-        if all(getattr(g, name) is not None for g in groups):
-            return name
-    return None
-
-
-def age_changes(fits: dict) -> dict[StepGroup, dict[str, float]]:
-    """Change of each ``part`` group's parameters from its part's youngest fitted age.
-
-    A part's series is its groups with the same rig, chamber, direction, part kind and id (any
-    campaign: the new valve may have been tested in another campaign than the aged one), ordered
-    by ``age_h`` (or ``distance_km`` when not every age states hours). The reference is the
-    youngest group with a model; a later group's change is ``100 (value / reference - 1)`` for
-    ``wn_rad_s``, ``zeta`` and ``tau_s`` when both have that model's value, NaN otherwise (and for
-    the reference itself, and for parts whose ages cannot be ordered).
-
-    Parameters
-    ----------
-    fits : dict of StepGroup to PressureFit
-
-    Returns
-    -------
-    dict of StepGroup to dict
-        Per ``part`` group: ``wn_change_pct``, ``zeta_change_pct``, ``tau_change_pct``. [%]
-    """
-    keys = ("wn_rad_s", "zeta", "tau_s")
-    nan = {f"{k.split('_')[0]}_change_pct": float("nan") for k in keys}
-    series: dict[tuple, list[StepGroup]] = {}
-    for g in fits:
-        if g.level == "part":
-            series.setdefault((g.rig, g.chamber, g.direction, g.part_kind, g.part_id), []).append(g)
-    out: dict[StepGroup, dict[str, float]] = {}
-    for groups in series.values():
-        axis = _age_axis(groups)
-        for g in groups:
-            out[g] = dict(nan)
-        if axis is None or len(groups) < 2:
-            continue
-        ordered = sorted(groups, key=lambda g: getattr(g, axis))
-        ref = next((g for g in ordered if fits[g].ok), None)
-        if ref is None:
-            continue
-        for g in ordered:
-            if g is ref or getattr(g, axis) == getattr(ref, axis):
-                continue
-            for k in keys:
-                a, b = getattr(fits[ref], k), getattr(fits[g], k)
-                if np.isfinite(a) and np.isfinite(b) and a != 0:
-                    out[g][f"{k.split('_')[0]}_change_pct"] = 100.0 * (b / a - 1.0)
-    return out
-
-
-def plot_pressure_ageing(table, title: str = ""):
-    """``wn``, ``zeta`` and ``tau`` of every part against its age: one line per (rig, part,
-    chamber, direction), the part's ages in order, each later age labelled with its change from
-    the youngest (``*_change_pct``, when the table has it); the x axis in hours of use when every
-    plotted row states them, else in km.
-
-    Parameters
-    ----------
-    table : DataFrame
-        ``pressure_dynamics`` rows (the ``part`` rows are drawn): ``rig``, ``chamber``,
-        ``direction``, ``part_kind``, ``part_id``, ``part_age_h``, ``part_distance_km``,
-        ``wn_rad_s``, ``zeta``, ``tau_s``.
-    title : str
-
-    Returns
-    -------
-    matplotlib.figure.Figure
-    """
-    import pandas as pd
-    from matplotlib.figure import Figure
-
-    rows = table[table["level"] == "part"] if "level" in table.columns else table
-    use_h = bool(rows["part_age_h"].notna().all()) if len(rows) else True
-    xcol = "part_age_h" if use_h else "part_distance_km"
-    rows = rows[rows[xcol].notna()]
-    fig = Figure(figsize=(12, 4))
-    axes = fig.subplots(1, 3)
-    panels = (("wn_rad_s", "natural frequency wn [rad/s]"), ("zeta", "damping ratio zeta [-]"),
-              ("tau_s", "time constant tau [ms]"))
-    keys = ["rig", "part_kind", "part_id", "chamber", "direction"]
-    for ax, (col, label) in zip(axes, panels):
-        scale = 1e3 if col == "tau_s" else 1.0
-        for key, grp in rows.groupby(keys, dropna=False, sort=True):
-            grp = grp.sort_values(xcol)
-            y = pd.to_numeric(grp[col], errors="coerce") * scale
-            if y.notna().any():
-                rig, kind, part, chamber, direction = key
-                line, = ax.plot(grp[xcol].to_numpy(float), y.to_numpy(float), marker="o",
-                                ls="-" if direction == "charge" else "--",
-                                label=f"{kind or 'part'} {part}, {chamber} {direction} ({rig})")
-                change = f"{col.split('_')[0]}_change_pct"
-                for x, v, c in zip(grp[xcol], y, grp[change] if change in grp.columns else [None] * len(grp)):
-                    if c is not None and pd.notna(c) and pd.notna(v):   # the change from the youngest age
-                        ax.annotate(f"{c:+.1f} %", (float(x), float(v)), textcoords="offset points",
-                                    xytext=(-6, 6), ha="right", fontsize=7, color=line.get_color())
-        ax.set_xlabel("age of the part [h]" if use_h else "distance run by the part [km]")
-        ax.set_ylabel(label)
-        ax.grid(alpha=0.3)
-        if ax.lines:
-            ax.legend(fontsize=7)
-        else:
-            ax.text(0.5, 0.5, "no part fitted with this model", ha="center", va="center",
-                    transform=ax.transAxes, color="0.5")
-    fig.suptitle(title or "Pressure dynamics of each part against its age (per chamber and direction)")
     fig.tight_layout()
     return fig

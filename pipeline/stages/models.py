@@ -19,6 +19,7 @@ A run that cannot be analysed gives NULLs and a warning on the run, never an exc
 """
 from __future__ import annotations
 
+import json
 import math
 import re
 
@@ -76,7 +77,8 @@ def analyse_run(item: tuple) -> dict:
     Parameters
     ----------
     item : tuple
-        ``(kind, run_id, samples_path, params)``.
+        ``(kind, run_id, samples_path, params)``, ``params`` a dict or its JSON text
+        (:func:`_params_text`).
 
     Returns
     -------
@@ -85,6 +87,7 @@ def analyse_run(item: tuple) -> dict:
         ``extra`` (figure data, prepared spring run or pressure steps).
     """
     kind, run_id, path, params = item
+    params = run_params(params)
     try:
         fn = {"identification": _identification, "step": _step, "spring": _spring,
               "pressure_step": _pressure_step}[kind]
@@ -206,7 +209,7 @@ def spring_figure_run(item: tuple) -> spring.SpringRun | None:
     :func:`analyse_run`'s)."""
     _, run_id, path, params = item
     try:
-        return _spring_prepared(run_id, path, params)[2]
+        return _spring_prepared(run_id, path, run_params(params))[2]
     except Exception:  # analyse_run said why; the figure goes without the run
         return None
 
@@ -231,6 +234,26 @@ def _pressure_step(run_id, path, params):
 
 # -- per chamber ----------------------------------------------------------------------------
 
+def _memoised_here(ctx, func, items: list, here, label: str = "") -> list:
+    """``[func(item) for item in items]``, each from the stage's memo when it holds it, else
+    ``here(item)``: in this process, from data the stage already holds (the runs' results, from the
+    memo or computed tonight), with the value ``func(item)`` would give from the files (issue 26:
+    a joint fit whose runs did not change is not done again, one that must be does not read its
+    runs again nor start workers that import scipy again)."""
+    memo = getattr(ctx, "memo", None)
+    if memo is None:
+        return [here(item) for item in items]
+    return memo.map(lambda _func, todo, _label: [here(item) for item in todo], func, items, label)
+
+
+def fit_spring_runs(item: tuple) -> spring.SpringFit:
+    """``(chamber, runs)`` -> the chamber's joint fit (:func:`fit_spring_item`) of ``runs`` (items as
+    :func:`analyse_run`'s, in run_id order), read from their samples: the memo key of the fit (its
+    stage computes it from the runs' statistics it already holds)."""
+    chamber, runs = item
+    return fit_spring_item((chamber, [r["extra"] for r in map(analyse_run, runs) if r["extra"] is not None]))
+
+
 def fit_spring_item(item: tuple) -> spring.SpringFit:
     """``(chamber, stats)`` -> :class:`analyses.pla_spring.SpringFit` from the runs' sufficient statistics
     (:class:`analyses.pla_spring.SpringStats`): milliseconds, whatever the runs' lengths."""
@@ -246,14 +269,31 @@ def fit_pressure_item(item: tuple) -> pdyn.PressureFit:
     that direction of ``runs`` (items as :func:`analyse_run`'s, in the group's order; read again here,
     so the item names every input and the memo keeps the fit until one of its runs changes)."""
     chamber, direction, runs = item
+    return _fit_pressure_runs(chamber, direction, runs,
+                              lambda run: _pressure_step(run[1], run[2], run_params(run[3]))[2])
+
+
+def _fit_pressure_runs(chamber: str, direction: str, runs, steps_of) -> pdyn.PressureFit:
+    """The fit of :func:`fit_pressure_item`, the steps of each run given by ``steps_of(run item)``."""
     steps = []
     try:
-        for _, run_id, path, params in runs:
-            steps += [s for s in (_pressure_step(run_id, path, params)[2] or []) if s.direction == direction]
+        for run in runs:
+            steps += [s for s in (steps_of(run) or []) if s.direction == direction]
         return pdyn.fit_pressure_dynamics(steps, chamber, direction)
     except Exception as exc:
         return pdyn.PressureFit(chamber, direction, n_steps=len(steps),
                                 message=f"fit failed: {type(exc).__name__}: {exc}")
+
+
+def _params_text(params: dict) -> str | dict:
+    """A run's params as canonical JSON text (sorted keys: the same dict, the same text), for the
+    items of ``ctx.map``: the memo keys a string at once, where a dict costs it a walk of every value
+    (issue 26: ~1 s of the stage at 10,000 runs, its items keyed twice: by run and in the joint fits).
+    The dict itself when it is not plain JSON."""
+    try:
+        return json.dumps(params, sort_keys=True, separators=(",", ":"))
+    except (TypeError, ValueError):
+        return params
 
 
 def _slug(text: str) -> str:
@@ -276,7 +316,7 @@ def run(ctx: StageContext) -> StageOutput:
     """Identification, step metrics, spring fits and pressure dynamics of every run of the kinds it reads."""
     out = StageOutput()
     runs = ctx.runs_of(*READS.kinds)
-    items = [(r.kind, r.run_id, str(ctx.samples_file(r.run_id)), run_params(r.params))
+    items = [(r.kind, r.run_id, str(ctx.samples_file(r.run_id)), _params_text(run_params(r.params)))
              for r in runs.itertuples(index=False)] if not runs.empty else []
     results = ctx.map(analyse_run, items, label=NAME) if items else []
     by_kind: dict[str, list[dict]] = {k: [] for k in READS.kinds}
@@ -320,7 +360,14 @@ def _spring_outputs(ctx, out, results, items):
     prepared = [r["extra"] for r in results if r["extra"] is not None]
     chambers = sorted({p.chamber for p in prepared})
     groups = [(c, sorted((p for p in prepared if p.chamber == c), key=lambda p: p.run_id)) for c in chambers]
-    fits = {c: fit_spring_item((c, g)) for c, g in groups}
+    # a chamber's fit is kept by its runs (every spring run of the chamber: one whose statistics are
+    # unusable changes nothing, but names its input), done here from the statistics at hand
+    named = {c: tuple(items[rid] for rid in sorted(r["run_id"] for r in results if r["rows"]
+                                                   and r["rows"][0].get("chamber") == c)) for c in chambers}
+    held = {c: g for c, g in groups}
+    fits = dict(zip(chambers, _memoised_here(ctx, fit_spring_runs, [(c, named[c]) for c in chambers],
+                                             lambda item: fit_spring_item((item[0], held[item[0]])),
+                                             label=f"{NAME}: spring fits")))
     fit_rows, energy = [], []
     for chamber, group in groups:
         fit = fits[chamber]
@@ -411,8 +458,11 @@ def _pressure_fits(ctx, results, items) -> tuple[dict, dict]:
     grouped = {g: grouped[g] for g in sorted(grouped, key=pdyn.StepGroup.sort_key)}
     todo = [(g, (g.chamber, g.direction, [items[rid] for rid in dict.fromkeys(s.run_id for s in v)]))
             for g, v in grouped.items() if v]
-    fits = dict(zip((g for g, _ in todo), ctx.map(fit_pressure_item, [i for _, i in todo],
-                                                  label=f"{NAME}: pressure fits"))) if todo else {}
+    steps_of = {r["run_id"]: r["extra"] for r in results}
+    fits = dict(zip((g for g, _ in todo), _memoised_here(
+        ctx, fit_pressure_item, [i for _, i in todo],
+        lambda i: _fit_pressure_runs(i[0], i[1], i[2], lambda run: steps_of.get(run[1])),
+        label=f"{NAME}: pressure fits")))
     for g in grouped:
         fits.setdefault(g, pdyn.PressureFit(g.chamber, g.direction, message="no steps",
                                             note=f"no {g.direction} step in the runs"))

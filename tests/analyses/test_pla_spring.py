@@ -254,6 +254,15 @@ def test_runs_combine_in_run_id_order_bit_for_bit_and_survive_a_pickle():
     assert fit_spring_chamber(runs).params == a.params
     assert all(not k.startswith("_") and isinstance(v, np.ndarray) and v.size < 64
                for s in stats for part in (s.fit, s.all, s.cycle) for k, v in part.items())   # sums, not samples
+    # pickled as one array: the same polynomials, bit for bit, and the same scalars
+    for s in stats:
+        back = pickle.loads(pickle.dumps(s))
+        for part in ("fit", "all", "cycle"):
+            mine, read = getattr(s, part), getattr(back, part)
+            assert list(mine) == list(read)
+            assert all(np.array_equal(mine[k].view(np.int64), read[k].view(np.int64)) for k in mine)
+        assert {k: v for k, v in vars(back).items() if k not in ("fit", "all", "cycle")} == \
+               {k: v for k, v in vars(s).items() if k not in ("fit", "all", "cycle")}
 
 
 def test_a_run_at_the_stroke_end_is_outside_the_model():

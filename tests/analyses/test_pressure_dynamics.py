@@ -7,7 +7,7 @@ import pytest
 from matplotlib.figure import Figure
 from scipy import signal
 
-from analyses.pressure_dynamics import (ZETA_BOUNDS, PressureFit, PressureStep, RunPart, StepGroup, age_changes,
+from analyses.pressure_dynamics import (ZETA_BOUNDS, RunPart, age_changes,
                                         first_order_step, fit_pressure_dynamics, group_pressure_steps,
                                         plot_pressure_ageing, plot_pressure_steps, second_order_step,
                                         split_pressure_steps, step_threshold)
@@ -31,6 +31,21 @@ def test_step_response_hand_values():
     assert second_order_step(tp, 0.0, 1.0, wn, z) == pytest.approx(1 + math.exp(-math.pi * z / math.sqrt(1 - z * z)))
     assert second_order_step(0.0, 2.0, 5.0, wn, z) == pytest.approx(2.0)
 
+
+
+@pytest.mark.parametrize("zeta", [0.3, 0.69, 1.0, 1.0003, 4.0, 50.0])
+def test_the_steps_laid_end_to_end_give_each_steps_model_bit_for_bit(zeta):
+    # the fits evaluate the model once over all their steps: the same numbers as one call per step
+    from analyses.pressure_dynamics import _model, _model1, _Stacked
+
+    run = simulate_pressure_step("rear", rng=2)
+    d = run.data
+    steps = split_pressure_steps(d["t_s"], d["p_pa"], d["p_ref_pa"], "r", "rear")
+    stacked = _Stacked.of(steps)
+    each = np.concatenate([second_order_step(s.t, s.p_start_pa, s.p_ref_pa, 52.0, zeta) for s in steps])
+    assert np.array_equal(_model(stacked, 52.0, zeta).view(np.int64), each.view(np.int64))
+    each = np.concatenate([first_order_step(s.t, s.p_start_pa, s.p_ref_pa, zeta / 100) for s in steps])
+    assert np.array_equal(_model1(stacked, zeta / 100).view(np.int64), each.view(np.int64))
 
 def test_split_finds_charges_and_discharges():
     run = simulate_pressure_step("rear", rng=0)
@@ -187,61 +202,6 @@ def test_noise_spike_on_the_set_point_is_not_a_step():
 def test_first_order_step_hand_values():
     assert first_order_step(0.2, 1e5, 2e5, 0.2) == pytest.approx(2e5 - 1e5 / math.e)
     assert first_order_step(0.0, 1e5, 2e5, 0.2) == pytest.approx(1e5)
-
-
-# -- grouping per (campaign, rig, chamber, direction[, part and its age]) (issue 25 item 3) --------
-def _step(run_id, direction, chamber="patient"):
-    t = np.arange(5) / 100.0
-    return PressureStep(run_id, chamber, direction, 0.0, 0.0, 1.0, 0.0, t, np.zeros(5))
-
-
-def test_grouping_hand_checked():
-    """Four runs: a valve new and aged and a run naming no part on one rig, a second campaign's
-    rig. Each rig pools its own steps (all parts and ages), each (part, age) has its own group."""
-    runs = {"c1/new": RunPart("c1", "vent", "valve", "V1", 0.0, None),
-            "c1/aged": RunPart("c1", "vent", "valve", "V1", 594.0, None),
-            "c1/plain": RunPart("c1", "vent"),
-            "c2/other": RunPart("c2", "lab-b")}
-    steps = [_step(r, d) for r in runs for d in ("charge", "discharge")] + [_step("c1/new", "charge")]
-    groups = group_pressure_steps(steps, runs)
-    by = {(g.level, g.campaign, g.rig, g.direction, g.part_id, g.age_h): sorted(s.run_id for s in v)
-          for g, v in groups.items()}
-    assert by == {
-        ("rig", "c1", "vent", "charge", None, None): ["c1/aged", "c1/new", "c1/new", "c1/plain"],
-        ("rig", "c1", "vent", "discharge", None, None): ["c1/aged", "c1/new", "c1/plain"],
-        ("part", "c1", "vent", "charge", "V1", 0.0): ["c1/new", "c1/new"],
-        ("part", "c1", "vent", "discharge", "V1", 0.0): ["c1/new"],
-        ("part", "c1", "vent", "charge", "V1", 594.0): ["c1/aged"],
-        ("part", "c1", "vent", "discharge", "V1", 594.0): ["c1/aged"],
-        ("rig", "c2", "lab-b", "charge", None, None): ["c2/other"],
-        ("rig", "c2", "lab-b", "discharge", None, None): ["c2/other"]}
-    assert all(g.chamber == "patient" for g in groups)
-    # a run the table does not know is pooled under an unnamed campaign and rig, never dropped
-    (g,) = group_pressure_steps([_step("x/unknown", "charge")], {})
-    assert (g.level, g.campaign, g.rig) == ("rig", "", "")
-
-
-def test_age_changes_hand_checked():
-    """Change from the youngest fitted age of the same part, rig, chamber and direction, in %;
-    NULL (NaN) for the reference and where the models differ."""
-    def g(age, direction="charge", part="V1", rig="vent"):
-        return StepGroup("part", "c1", rig, "patient", direction, "valve", part, age, None)
-
-    fits = {g(0.0): PressureFit("patient", "charge", wn_rad_s=40.0, zeta=0.5, model="second_order"),
-            g(594.0): PressureFit("patient", "charge", wn_rad_s=30.0, zeta=0.6, model="second_order"),
-            g(1000.0): PressureFit("patient", "charge", tau_s=0.1, model="first_order"),
-            g(0.0, part="V2"): PressureFit("patient", "charge", tau_s=0.2, model="first_order"),
-            g(100.0, part="V2"): PressureFit("patient", "charge", tau_s=0.25, model="first_order"),
-            StepGroup("rig", "c1", "vent", "patient", "charge"): PressureFit("patient", "charge", tau_s=1.0,
-                                                                             model="first_order")}
-    ch = age_changes(fits)
-    assert ch[g(594.0)]["wn_change_pct"] == pytest.approx(-25.0)
-    assert ch[g(594.0)]["zeta_change_pct"] == pytest.approx(20.0)
-    assert math.isnan(ch[g(594.0)]["tau_change_pct"])
-    assert all(math.isnan(v) for v in ch[g(0.0)].values())            # the reference
-    assert all(math.isnan(v) for v in ch[g(1000.0)].values())         # first order against second
-    assert ch[g(100.0, part="V2")]["tau_change_pct"] == pytest.approx(25.0)
-    assert StepGroup("rig", "c1", "vent", "patient", "charge") not in ch
 
 
 #: A roller pinch valve on peristaltic tubing, new and after 594 h: softer tubing, lower wn, more damping.

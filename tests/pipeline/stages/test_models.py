@@ -363,13 +363,20 @@ def test_one_changed_spring_run_refits_from_the_memo_and_equals_a_full_rebuild(t
     age(raw)
     rebuild(raw, inc, jobs=2, report=False)
     memo = seen[-1].memos["models"]
-    # computed: the changed run's analysis and the front figure's runs read again (at most the changed
-    # run and one it displaced); the joint spring fits combine the runs' sums (no item), the pressure
-    # fits come from the memo (before: 1 + 2 spring fits + 2 pressure fits computed)
-    assert memo.computed <= 3 and memo.hits >= 9
+    # computed: the changed run's analysis, the front chamber's joint fit (from the runs' sums) and the
+    # front figure's runs read again (at most the changed run and one it displaced); the rear fit and
+    # the pressure fits come from the memo
+    assert memo.computed <= 4 and memo.hits >= 10
     after = q(inc, "SELECT * FROM spring_fits ORDER BY chamber")
     assert after["n_polytropic"].iloc[1] == before["n_polytropic"].iloc[1]            # rear: the same bits
     assert after["n_polytropic"].iloc[0] != before["n_polytropic"].iloc[0]            # front: refitted
+    # a changed pressure-step run: its analysis and its chamber's two fits, done here from its steps;
+    # both spring fits from the memo
+    _write(raw, "pstep", simulate_pressure_step("rear", rng=17))
+    age(raw)
+    rebuild(raw, inc, jobs=2, report=False)
+    memo = seen[-1].memos["models"]
+    assert memo.computed == 3 and memo.hits >= 10
     rebuild(raw, full, jobs=2, full=True, report=False)
     a, b = dump(inc), dump(full)
     for table in ("spring_fits", "spring_tests", "spring_loop_energy", "pressure_dynamics", "pressure_steps"):
