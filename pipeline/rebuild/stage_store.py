@@ -40,7 +40,25 @@ def _save_figure(fig, path: Path) -> None:
     from pipeline import stages as stage_registry
 
     fig = stage_registry.figure_of(fig)
+    _drop_spent_layout(fig)
     fig.savefig(path, dpi=110, metadata={"Software": None})
+
+
+def _drop_spent_layout(fig) -> None:
+    """Take a spent layout engine off ``fig`` before it is saved: the same pixels, one draw fewer.
+
+    ``Figure.tight_layout()`` lays the figure out once and leaves a ``PlaceHolderLayoutEngine``
+    (its ``execute`` does nothing) in place of its engine; ``savefig`` draws a figure that has
+    any layout engine twice, once without rendering "to make sure the layout works", and the
+    placeholder makes that first draw change nothing but the time (20-35 % of saving such a
+    figure; issue 26). The PNG bytes are those of the figure saved with it (tested). A figure
+    with a working engine (constrained layout) keeps it and its two draws."""
+    import matplotlib as mpl
+    from matplotlib.layout_engine import PlaceHolderLayoutEngine
+
+    if isinstance(fig.get_layout_engine(), PlaceHolderLayoutEngine) and \
+            not mpl.rcParams["figure.autolayout"] and not mpl.rcParams["figure.constrained_layout.use"]:
+        fig.set_layout_engine(None)  # (with those rcParams off, None is no engine at all)
 
 
 def _warm_figures() -> None:
