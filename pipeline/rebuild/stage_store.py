@@ -62,9 +62,14 @@ def _drop_spent_layout(fig) -> None:
 
 
 def _warm_figures() -> None:
-    """Import what drawing a figure needs (in the drawing worker, while the stages run)."""
+    """Import what drawing a figure needs (in the rebuild process, just before the drawing worker is
+    forked: ~0.25 CPU-s, paid once and only when a figure is drawn)."""
     import matplotlib.backends.backend_agg  # noqa: F401
     import matplotlib.figure  # noqa: F401
+
+
+def _started() -> None:
+    """The drawing worker's first task when it is started ahead (:meth:`FigureDrawer.warm`): nothing."""
 
 
 class FigureDrawer:
@@ -90,13 +95,17 @@ class FigureDrawer:
         if self.jobs <= 1:
             return None
         if self._pool is None:
+            _warm_figures()  # here, before the fork: the worker starts warm, and the report has them too
             self._pool = forked_pool(1, self.close_fds)
         return self._pool.submit(func, *args)
 
     def warm(self) -> None:
-        """Start the drawing worker and its matplotlib import now (a stage is about to run)."""
+        """Start the drawing worker now (a stage is about to run that draws every figure), matplotlib's
+        figure and Agg canvas imported first in this process (the worker and the report's own figures
+        then use them: imported once). Not called when a figure may be taken from a previous folder:
+        then the first figure to draw starts the worker, and a rebuild drawing none imports none."""
         if self._pool is None:
-            self._submit(_warm_figures)
+            self._submit(_started)
 
     def draw(self, stage: str, name: str, fig, path: Path) -> None:
         from pipeline import stages as stage_registry

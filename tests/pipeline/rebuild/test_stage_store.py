@@ -332,3 +332,31 @@ def test_a_figure_laid_out_by_tight_layout_is_saved_with_one_draw_and_the_same_b
             assert len(draws) == plain_draws == 2 and isinstance(fig.get_layout_engine(), ConstrainedLayoutEngine)
         else:
             assert len(draws) == plain_draws == 1
+
+
+def test_matplotlib_is_imported_here_once_just_before_the_drawing_worker_is_forked(tmp_path, monkeypatch):
+    """The rebuild imports matplotlib's figure and canvas only when a figure is to be drawn (a
+    change drawing none does without them), in this process just before forking the worker (which
+    starts warm); a drawer that draws nothing forks nothing and imports nothing."""
+    import os
+
+    from pipeline.stages import FigureRecipe
+
+    here = []
+    monkeypatch.setattr(store, "_warm_figures", lambda: here.append(os.getpid()))
+    with store.FigureDrawer(2) as idle:
+        pass
+    assert idle._pool is None and here == []
+    pids = tmp_path / "pids.txt"
+    with store.FigureDrawer(2) as drawer:
+        (tmp_path / "figures").mkdir()
+        for n in ("a", "b"):
+            drawer.draw("demo", n, FigureRecipe(tiny_plot, (n, str(pids))), tmp_path / "figures" / f"{n}.png")
+        drawer.finish()
+    assert here == [os.getpid()]  # once, here, before the fork
+    assert os.getpid() not in {int(p) for p in pids.read_text().split()}  # drawn in the worker
+    here.clear()
+    with store.FigureDrawer(2) as drawer:
+        drawer.warm()
+        drawer.warm()
+    assert here == [os.getpid()]
