@@ -91,11 +91,10 @@ def check_folders(raw: str | Path, warehouse: str | Path) -> None:
 def _import_for_stages() -> None:
     """What the stages, the database write and the report need: imported while the readers'
     workers work (they are forked first and import the readers themselves), and in any case
-    before the stages' own pool and the figure worker are forked, so that they start warm:
-    matplotlib's figure and Agg canvas are imported once here, not again in the figure worker
-    and (its ticker) by the report (issue 26)."""
-    import matplotlib.backends.backend_agg  # noqa: F401
-    import matplotlib.figure  # noqa: F401
+    before the stages' own pool is forked, so that it starts warm. matplotlib's figure and Agg
+    canvas are not: the figure drawer imports them here when a figure is to be drawn, just
+    before it forks its worker (:class:`~pipeline.rebuild.stage_store.FigureDrawer`); a change
+    that draws none (a viscous or durability run's) does without them (issue 26)."""
     import pandas  # noqa: F401
     import pyarrow.dataset  # noqa: F401 (what the first pd.read_parquet of a process imports: ~15 ms)
     import pyarrow.pandas_compat  # noqa: F401

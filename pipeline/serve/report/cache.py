@@ -40,12 +40,12 @@ def cached_parts(db: ReportDB, warehouse: Path, code: str | None = None) -> tupl
     if key is None:
         return None
     try:
-        data = json.loads((Path(warehouse) / REPORT_DIR / PARTS_CACHE).read_text(encoding="utf-8"))
+        data = _live_cache(Path(warehouse))
         if data.get("key") != key:
             return None
         toc = [(a, t, [tuple(x) for x in sub]) for a, t, sub in data["toc"]]
         return str(data["results"]), toc, str(data["runs_index"]), str(data["decision"])
-    except (OSError, ValueError, TypeError, KeyError):
+    except (OSError, ValueError, TypeError, KeyError, AttributeError):
         return None  # none yet, or damaged: rendered anew
 
 
@@ -53,11 +53,28 @@ def live_keyed(warehouse: Path) -> dict:
     """The parts the live report kept by the keys of the tables they read
     (:class:`~pipeline.serve.report.keyed.KeyedParts`; {} when there are none or the file is damaged)."""
     try:
-        data = json.loads((Path(warehouse) / REPORT_DIR / PARTS_CACHE).read_text(encoding="utf-8"))
+        data = _live_cache(Path(warehouse))
         keyed = data.get("keyed") if isinstance(data, dict) else None
         return keyed if isinstance(keyed, dict) else {}
     except (OSError, ValueError):
         return {}
+
+
+#: The live report's parts cache as last read: (its file's identity, what it holds).
+_LAST_READ: list = [None, None]
+
+
+def _live_cache(warehouse: Path):
+    """The live report's parts cache, parsed (raises OSError, ValueError). Read once for
+    :func:`cached_parts` and :func:`live_keyed` both (a few MB of JSON: the results are in it twice),
+    again when the file is another (its path, inode, size or time)."""
+    path = warehouse / REPORT_DIR / PARTS_CACHE
+    st = path.stat()
+    ident = (str(path.resolve()), st.st_ino, st.st_size, st.st_mtime_ns)
+    if _LAST_READ[0] != ident:
+        _LAST_READ[:] = [None, None]
+        _LAST_READ[:] = [ident, json.loads(path.read_text(encoding="utf-8"))]
+    return _LAST_READ[1]
 
 
 def cache_parts(db: ReportDB, folder: Path, results: str, toc: list, runs_index: str, decision: str,

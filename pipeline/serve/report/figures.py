@@ -23,8 +23,9 @@ from pathlib import Path
 
 #: The project's root folder (``pipeline/``, ``analyses/``, ``schemas/``).
 ROOT = Path(__file__).resolve().parents[3]
-#: A marked figure in a page: its key and its text.
+#: A marked figure in a page: its key and its text (what :func:`held_figures` finds, as a pattern).
 _MARKED = re.compile(r"<!-- figure: ([0-9a-f]{32}) -->(.*?)<!-- /figure -->", re.DOTALL)
+_OPEN, _CLOSE, _KEY = "<!-- figure: ", "<!-- /figure -->", re.compile(r"[0-9a-f]{32} -->")
 
 
 @lru_cache(maxsize=None)
@@ -39,14 +40,20 @@ def code_key(patterns: tuple[str, ...], libraries: tuple[str, ...] = ()) -> str:
         h.update(p.read_bytes())
         h.update(b"\0")
     for name in libraries:
-        from importlib import metadata  # here: ~0.05 s to import, and the no-op's parts key names no library
-
-        try:
-            version = metadata.version(name)
-        except metadata.PackageNotFoundError:
-            version = "-"
-        h.update(f"{name} {version}\0".encode("utf-8"))
+        h.update(f"{name} {_installed_version(name)}\0".encode("utf-8"))
     return h.hexdigest()[:32]
+
+
+@lru_cache(maxsize=None)
+def _installed_version(name: str) -> str:
+    """The installed version of the distribution ``name`` ("-": none), read once per process (its
+    metadata file parsed: ~5 ms; the report's keys name numpy or matplotlib several times)."""
+    from importlib import metadata  # here: ~0.05 s to import, and the no-op's parts key names no library
+
+    try:
+        return metadata.version(name)
+    except metadata.PackageNotFoundError:
+        return "-"
 
 
 def figure_key(code: str, *inputs) -> str:
@@ -59,6 +66,25 @@ def figure_key(code: str, *inputs) -> str:
 def marked(key: str, text: str) -> str:
     """A figure's ``text`` (an SVG element, an ``<img>``) between the comments naming its ``key``."""
     return f"<!-- figure: {key} -->{text}<!-- /figure -->"
+
+
+def held_figures(text: str) -> list[tuple[str, str]]:
+    """(key, text) of every marked figure of a page, in order: the matches of :data:`_MARKED`, found
+    with ``str.find`` (the pattern's lazy ``.*?`` tried the closing comment at every character of a
+    run page's ~60 kB SVG: ~1 ms a page, a third of redrawing one whose channels are kept; issue 26)."""
+    out, at = [], 0
+    while (i := text.find(_OPEN, at)) >= 0:
+        start = i + len(_OPEN)
+        if _KEY.match(text, start):
+            body = start + 32 + len(" -->")
+            end = text.find(_CLOSE, body)
+            if end < 0:  # unclosed: neither this nor any later opening has a closing comment
+                break
+            out.append((text[start:start + 32], text[body:end]))
+            at = end + len(_CLOSE)
+        else:
+            at = i + 1
+    return out
 
 
 class Figures:
@@ -79,7 +105,7 @@ class Figures:
                 text = Path(page).read_text(encoding="utf-8")
             except (OSError, ValueError):
                 continue
-            self.held.update((m.group(1), m.group(2)) for m in _MARKED.finditer(text))
+            self.held.update(held_figures(text))
 
     def figure(self, key: str, draw) -> str:
         """The figure of ``key``, marked: the previous report's, else ``draw()`` (its text; "" is

@@ -6,6 +6,7 @@ from __future__ import annotations
 import html
 import math
 from datetime import datetime
+from functools import lru_cache
 
 from pipeline.serve.report.folders import page_name
 from schemas.units import column_unit
@@ -65,9 +66,11 @@ def significant(value: float, sig: int = 4) -> str:
     return f"{value:.{sig - 1}e}"
 
 
+@lru_cache(maxsize=4096)
 def split_unit(column: str) -> tuple[str, str]:
     """(name in words, unit) of a warehouse column: ``leak_l_min`` -> (``leak``, ``l/min``); the
-    unit is the short form of :data:`schemas.units.COLUMN_UNITS` (longest suffix)."""
+    unit is the short form of :data:`schemas.units.COLUMN_UNITS` (longest suffix). Kept per column
+    name: every run page's result tables ask again for the same few columns (issue 26)."""
     found = column_unit(column, short=True)
     if found is None:
         return column.replace("_", " "), ""

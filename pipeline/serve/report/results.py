@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import base64
 import csv
+import hashlib
 import io
 from pathlib import Path
 
@@ -132,17 +133,38 @@ def results_sections(db: ReportDB, warehouse: Path, keyed: KeyedParts | None = N
     rest = [f for f in figs if f[1] not in used]
     if not rest:  # every figure is shown with its paper above (or there is none): no empty section
         return "".join(html_out), toc
-    html_out.append(_part(keyed, "other-figures", lambda d: _other_figures(d, warehouse, rest), rest, db))
+    html_out.append(_part(keyed, "other-figures", lambda d: _other_figures(d, warehouse, rest), rest, db, warehouse))
     toc.append(("analyses", "Other figures", []))
     return "".join(html_out), toc
 
 
-def _part(keyed: KeyedParts | None, name: str, render, figures: list[tuple], db: ReportDB) -> str:
+def _part(keyed: KeyedParts | None, name: str, render, figures: list[tuple], db: ReportDB,
+          warehouse: Path | None = None) -> str:
     """``render(db)``, or the live report's part ``name`` of the same tables and ``figures`` (rows
-    of ``figures``: a figure's file is named by its stage folder's key, so its path names its bytes)."""
+    of ``figures``), each figure by what the part shows of it (:func:`_shown`): its stage, name,
+    caption, file name and PNG bytes, not the stage folder it is in (issue 26: a stage that runs
+    again puts its figures, mostly the same files linked, into a new folder; a topic whose
+    tables and figures' bytes are unchanged is taken, not rendered and its PNGs encoded again)."""
     if keyed is None:
         return render(db)
-    return keyed.get(name, render, extra=[[str(v) if v is not None else None for v in f] for f in figures])
+    return keyed.get(name, render, extra=[_shown(warehouse, f) for f in figures])
+
+
+def _shown(warehouse: Path | None, figure: tuple) -> list:
+    """What a part shows of a row of ``figures`` (stage, name, path, caption): stage, name, caption,
+    the file's name (its ``alt``) and the SHA-256 of the PNG :func:`_img` embeds (None where it
+    embeds none); without a warehouse, the row as text."""
+    row = [str(v) if v is not None else None for v in figure]
+    if warehouse is None:
+        return row
+    stage, name, rel, caption = row
+    try:
+        path = (warehouse / rel).resolve()
+        digest = hashlib.sha256(path.read_bytes()).hexdigest() \
+            if warehouse.resolve() in path.parents and path.is_file() else None
+    except (OSError, TypeError):
+        digest = None
+    return [stage, name, caption, Path(rel).stem if rel is not None else None, digest]
 
 
 def _paper_sections(db: ReportDB, warehouse: Path, figs: list[tuple],
@@ -156,7 +178,7 @@ def _paper_sections(db: ReportDB, warehouse: Path, figs: list[tuple],
             mine = sorted((f for f in figs if _matches(f[1], patterns)),
                           key=lambda f: (next(k for k, p in enumerate(patterns) if _matches(f[1], [p])), f[1]))
             section = _part(keyed, f"topic-{tid}", lambda d: _topic(d, warehouse, (tid, ttitle, summary, tables), mine),
-                            mine, db)
+                            mine, db, warehouse)
             if not section:
                 continue
             used.update(f[1] for f in mine)

@@ -284,3 +284,79 @@ def test_a_pooled_table_is_not_taken_from_a_damaged_or_foreign_previous_folder(t
     assert store.PooledTables(folder).take("sums", pooled_sum, ((data,), {"by": "g"})) is None
     (folder / "output.json").write_text("{not json")
     assert store.PooledTables(folder).take("sums", pooled_sum, ((data,), {"by": "g"})) is None
+
+
+def _laid_out_plot(layout: str):
+    """A small figure with text to lay out, laid out by ``fig.tight_layout()`` or constrained layout."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(3, 2), layout="constrained" if layout == "constrained" else None)
+    axes = fig.subplots(1, 2)
+    for i, ax in enumerate(axes):
+        ax.plot([0, 1, 2, 3], [3 * i, 1, 4, 1.5], label=f"curve {i}")
+        ax.set_xlabel("x [mm]")
+        ax.set_ylabel("force [N]")
+        ax.set_title(f"panel {i}")
+        ax.legend(loc="best")
+    fig.suptitle("a figure laid out")
+    if layout == "tight":
+        fig.tight_layout()
+    return fig
+
+
+def test_a_figure_laid_out_by_tight_layout_is_saved_with_one_draw_and_the_same_bytes(tmp_path, monkeypatch):
+    """``tight_layout()`` leaves a placeholder layout engine, for which ``savefig`` drew the figure
+    once more before saving it, changing nothing: the stage figure is saved without it, with the
+    bytes matplotlib's own ``savefig`` gives; a constrained layout keeps its engine and its draws."""
+    from matplotlib.figure import Figure
+    from matplotlib.layout_engine import ConstrainedLayoutEngine, PlaceHolderLayoutEngine
+
+    draws = []
+    real_draw = Figure.draw
+    monkeypatch.setattr(Figure, "draw", lambda self, renderer: draws.append(1) or real_draw(self, renderer))
+    for layout in ("tight", "constrained", "none"):
+        plain, ours = tmp_path / f"{layout}-savefig.png", tmp_path / f"{layout}-stage.png"
+        draws.clear()
+        fig = _laid_out_plot(layout)
+        if layout == "tight":
+            assert isinstance(fig.get_layout_engine(), PlaceHolderLayoutEngine)
+        fig.savefig(plain, dpi=110, metadata={"Software": None})
+        plain_draws = len(draws)
+        draws.clear()
+        fig = _laid_out_plot(layout)
+        store._save_figure(fig, ours)
+        assert ours.read_bytes() == plain.read_bytes(), layout
+        if layout == "tight":
+            assert (plain_draws, len(draws)) == (2, 1) and fig.get_layout_engine() is None
+        elif layout == "constrained":
+            assert len(draws) == plain_draws == 2 and isinstance(fig.get_layout_engine(), ConstrainedLayoutEngine)
+        else:
+            assert len(draws) == plain_draws == 1
+
+
+def test_matplotlib_is_imported_here_once_just_before_the_drawing_worker_is_forked(tmp_path, monkeypatch):
+    """The rebuild imports matplotlib's figure and canvas only when a figure is to be drawn (a
+    change drawing none does without them), in this process just before forking the worker (which
+    starts warm); a drawer that draws nothing forks nothing and imports nothing."""
+    import os
+
+    from pipeline.stages import FigureRecipe
+
+    here = []
+    monkeypatch.setattr(store, "_warm_figures", lambda: here.append(os.getpid()))
+    with store.FigureDrawer(2) as idle:
+        pass
+    assert idle._pool is None and here == []
+    pids = tmp_path / "pids.txt"
+    with store.FigureDrawer(2) as drawer:
+        (tmp_path / "figures").mkdir()
+        for n in ("a", "b"):
+            drawer.draw("demo", n, FigureRecipe(tiny_plot, (n, str(pids))), tmp_path / "figures" / f"{n}.png")
+        drawer.finish()
+    assert here == [os.getpid()]  # once, here, before the fork
+    assert os.getpid() not in {int(p) for p in pids.read_text().split()}  # drawn in the worker
+    here.clear()
+    with store.FigureDrawer(2) as drawer:
+        drawer.warm()
+        drawer.warm()
+    assert here == [os.getpid()]

@@ -36,3 +36,19 @@ def test_a_figure_the_previous_page_holds_is_taken_and_the_others_are_drawn(tmp_
     assert figs.figure(k3, lambda: "<svg>three</svg>") == rf.marked(k3, "<svg>three</svg>") and figs.drawn == 1
     assert figs.figure(rf.figure_key("code", 4), lambda: "") == ""  # nothing drawn: nothing marked
     assert rf.Figures().figure(k1, lambda: "<svg>new</svg>") == rf.marked(k1, "<svg>new</svg>")  # --full
+
+
+def test_the_figures_of_a_page_are_found_as_the_marking_pattern_finds_them():
+    """:func:`held_figures` (``str.find``) gives what the pattern of a marked figure matches, in
+    order, for pages with broken, unclosed, nested and keyless markers too."""
+    import random
+
+    k1, k2 = rf.figure_key("code", 1), rf.figure_key("code", 2)
+    page = ("<p>" + rf.marked(k1, "<svg>\none\n</svg>") + "<!-- figure: nothex -->" + rf.marked(k2, "")
+            + "<!-- figure: " + k1 + " -->unclosed")
+    assert rf.held_figures(page) == [(k1, "<svg>\none\n</svg>"), (k2, "")]
+    rng = random.Random(26)
+    bits = ["<!-- figure: ", "<!-- /figure -->", k1, k2[:31], " -->", "x", "\n", "<svg>", "0" * 32 + " -->"]
+    for _ in range(5000):
+        text = "".join(rng.choice(bits) for _ in range(rng.randint(0, 14)))
+        assert rf.held_figures(text) == [(m.group(1), m.group(2)) for m in rf._MARKED.finditer(text)], text

@@ -42,3 +42,46 @@ def test_demo_report_figures_are_drawn_near_their_full_size(demo, tmp_path):
     assert len(widths) >= 10
     small = [(a, n, w) for a, n, w in widths if int(w) < 0.85 * min(int(n), 1100)]
     assert not small, small
+
+
+def test_a_topic_is_taken_when_its_figures_moved_to_a_new_stage_folder_with_the_same_bytes(tmp_path):
+    """A stage that runs again links its unchanged figures into a new folder: the topic showing them
+    is taken from the live report (keyed by the PNG bytes it embeds, not by the folder); a changed
+    PNG, caption or a missing file renders it again, and what it renders is what it embeds."""
+    import os
+
+    from pipeline.serve.report.db import ReportDB
+    from pipeline.serve.report.keyed import KeyedParts
+    from pipeline.serve.report.results import _img, _part
+    from tests.pipeline.serve.report.test_keyed import _db
+
+    wh = tmp_path / "wh"
+    (wh / "stages/models/k1/figures").mkdir(parents=True)
+    (wh / "stages/models/k2/figures").mkdir(parents=True)
+    old, new = wh / "stages/models/k1/figures/step_a.png", wh / "stages/models/k2/figures/step_a.png"
+    old.write_bytes(b"\x89PNG one")
+    os.link(old, new)
+    calls = []
+
+    def topic(figures):
+        def render(db):
+            calls.append(1)
+            return "".join(_img(wh, rel) for _s, _n, rel, _c in figures) + str(db.rows("SELECT sum(x) FROM a")[1])
+        return render
+
+    row = ("models", "step_a", "stages/models/k1/figures/step_a.png", "caption")
+    first = KeyedParts(ReportDB(_db()), "code")
+    html = _part(first, "topic-step", topic([row]), [row], first.db, wh)
+    moved = (*row[:2], "stages/models/k2/figures/step_a.png", row[3])
+    again = KeyedParts(ReportDB(_db()), "code", first.kept)
+    assert _part(again, "topic-step", topic([moved]), [moved], again.db, wh) == html and len(calls) == 1
+    new.unlink()
+    new.write_bytes(b"\x89PNG two")  # the figure drawn again, other bytes
+    assert _part(KeyedParts(ReportDB(_db()), "code", first.kept), "topic-step", topic([moved]), [moved],
+                 first.db, wh) != html and len(calls) == 2
+    recaptioned = (*row[:3], "another caption")
+    assert _part(KeyedParts(ReportDB(_db()), "code", first.kept), "topic-step", topic([recaptioned]), [recaptioned],
+                 first.db, wh) == html and len(calls) == 3  # rendered again (its caption is shown)
+    gone = (*row[:2], "stages/models/k3/figures/step_a.png", row[3])
+    assert "figure file missing" in _part(KeyedParts(ReportDB(_db()), "code", first.kept), "topic-step",
+                                          topic([gone]), [gone], first.db, wh) and len(calls) == 4
