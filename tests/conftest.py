@@ -210,3 +210,17 @@ def segfault() -> None:
 
     faulthandler.disable()
     os.kill(os.getpid(), signal.SIGSEGV)
+
+
+@pytest.fixture(scope="session")
+def designs_table():
+    """The even designs of alpha 0.05 and O'Brien-Fleming spending as arrays
+    (:func:`analyses.sequential_table.design_table`), computed once for the session with the
+    designs' caches cleared before and after (read-only: copy before changing)."""
+    from analyses import sequential
+    from analyses.sequential_table import design_table
+
+    sequential.clear_caches()
+    out = design_table(0.05, "obrien-fleming")
+    sequential.clear_caches()
+    return out

@@ -4,15 +4,13 @@ import numpy as np
 import pytest
 
 from analyses import sequential
-from analyses.sequential_table import FIRST_MAXIMUM, adopt_table, design_table, holds_table, table_names
+from analyses.sequential_table import FIRST_MAXIMUM, adopt_table, holds_table, table_names
 
 
-@pytest.fixture(scope="module")
-def table():
-    sequential.clear_caches()
-    out = design_table(0.05, "obrien-fleming")
-    sequential.clear_caches()
-    return out
+@pytest.fixture
+def table(designs_table):
+    """The even designs of alpha 0.05 and O'Brien-Fleming (tests/conftest.py, computed once)."""
+    return designs_table
 
 
 CASES = [(1.5, 0.8, shape, hoses) for shape in (1.6, 2.3, 3.1) for hoses in (None, 6, 15)] + [(2.0, 0.9, 2.0, None)]

@@ -471,17 +471,6 @@ def test_effect_of_reads_the_item_lists_as_life_effect_of_the_positive_lives():
         stage.effect_of({"hose_type": "T", "hoses": hoses, "plan": {"confidence": 0.9, "alpha": 0.05}})
 
 
-@pytest.fixture(scope="module")
-def designs_table():
-    from analyses import sequential
-    from analyses.sequential_table import design_table
-
-    sequential.clear_caches()
-    out = design_table(0.05, "obrien-fleming")
-    sequential.clear_caches()
-    return out
-
-
 def test_the_designs_file_is_written_once_then_read_and_a_damaged_stale_or_hostile_one_is_ignored(
         tmp_path, designs_table, monkeypatch):
     """keep_designs: the even designs computed once and written under the warehouse, read (not computed) by a
