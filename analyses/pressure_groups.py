@@ -11,12 +11,11 @@ names these too).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from analyses.pressure_dynamics import PressureFit, PressureStep  # noqa: F401  (annotations only)
+# PressureStep and PressureFit (analyses.pressure_dynamics, which re-exports this module) appear in annotations
+# only, never evaluated (``from __future__ import annotations``): not imported, so the two modules form no circle.
 
 __all__ = ["RunPart", "StepGroup", "group_pressure_steps", "age_changes", "plot_pressure_ageing"]
 

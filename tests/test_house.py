@@ -105,7 +105,7 @@ MAY_IMPORT = {
     "pipeline.readers": {"schemas"},
     "pipeline.raw": {"pipeline.readers", "schemas"},
     "pipeline.ingest": {"pipeline.raw", "pipeline.readers", "pipeline.versions", "schemas"},
-    "pipeline.stages": {"analyses", "pipeline.ingest", "pipeline.raw", "pipeline.progress", "schemas"},
+    "pipeline.stages": {"analyses", "pipeline.ingest", "pipeline.raw", "pipeline.progress", "pipeline.versions", "schemas"},
     "pipeline.serve": {"pipeline.stages", "pipeline.warehouse", "schemas"},
     "pipeline.simulator": {"pipeline.progress", "schemas"},
     "pipeline.schedule": set(),

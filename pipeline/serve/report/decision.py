@@ -18,6 +18,7 @@ import io
 import math
 import multiprocessing
 import os
+from collections.abc import Callable
 
 from pipeline.serve.decision import (DECIDED, HoseDecision, information_words, missing_line, plan_words,
                                      read_decisions, verdict_words)
@@ -53,10 +54,11 @@ def _anchor(k: int) -> str:
     return f"decision-looks-{k + 1}"
 
 
-def decision_section(db: ReportDB, figures: Figures | None = None) -> str:
+def decision_section(db: ReportDB, figures: Figures | None = None, pool: Callable | None = None) -> str:
     """The section ``#decision``: one line when the warehouse has no decision, else the table of
     verdicts and the looks of each hose type (the first :data:`MAX_LOOK_PLOTS`), each taken from
-    ``figures`` (the previous report) when its key is there, else drawn."""
+    ``figures`` (the previous report) when its key is there, else drawn (in ``pool``'s processes when given:
+    :func:`_draw_elsewhere`)."""
     head = '<section id="decision"><h2>The decision</h2>'
     missing = missing_line(db.con)
     if missing:
@@ -135,12 +137,12 @@ def _bar(fraction) -> str:
             f'title="{100 * x:.0f} %"><span style="width:{100 * x:.1f}%"></span></span>')
 
 
-def _looks_figures(decisions: list[HoseDecision], figures: Figures) -> str:
+def _looks_figures(decisions: list[HoseDecision], figures: Figures, pool: Callable | None = None) -> str:
     """The looks of each hose type as a figure (the first :data:`MAX_LOOK_PLOTS` with looks), from
     ``figures`` when its key is there."""
     out = []
     shown = [(k, d, looks_key(d)) for k, d in enumerate(decisions[:MAX_LOOK_PLOTS]) if _drawable(d)]
-    drawn = _draw_elsewhere([(d, key) for _k, d, key in shown if key not in figures.held])
+    drawn = _draw_elsewhere([(d, key) for _k, d, key in shown if key not in figures.held], pool)
     for k, d, key in shown:
         img = figures.figure(key, lambda d=d, key=key: drawn[key] if key in drawn else _looks_img(d))
         out.append(f'<figure id="{_anchor(k)}">{img}'
@@ -158,22 +160,22 @@ def _looks_figures(decisions: list[HoseDecision], figures: Figures) -> str:
     return "".join(out)
 
 
-def _draw_elsewhere(todo: list[tuple[HoseDecision, str]]) -> dict[str, str]:
-    """The figures of ``todo`` ((decision, key) pairs) drawn in processes forked from this one, one per core
-    (:func:`_looks_img` there: the same bytes as here), by key; empty (each then drawn here) when there are
-    fewer than :data:`PARALLEL_FROM`, one core, no ``fork``, or the processes fail. The processes are the
-    rebuild's kind (:func:`pipeline.rebuild.executors.forked_pool`): they exit within 0.2 s of this
-    process's death, so a killed rebuild's lock, which they share while they draw, is not held on."""
+def _draw_elsewhere(todo: list[tuple[HoseDecision, str]], pool: Callable | None = None) -> dict[str, str]:
+    """The figures of ``todo`` ((decision, key) pairs) drawn in ``pool(workers)``'s processes, one per core
+    (:func:`_looks_img` there: the same bytes as here), by key; empty (each then drawn here) without a
+    ``pool``, with fewer than :data:`PARALLEL_FROM`, one core, no ``fork``, or when the processes fail. The
+    rebuild gives its own kind (:func:`pipeline.rebuild.executors.forked_pool`: processes forked from this one
+    that exit within 0.2 s of its death, so a killed rebuild's lock, which they share while they draw, is not
+    held on); the report does not import the rebuild (the house's map: ``serve`` is below ``rebuild``)."""
     workers = min(len(todo), os.cpu_count() or 1)
-    if len(todo) < PARALLEL_FROM or workers < 2 or "fork" not in multiprocessing.get_all_start_methods():
+    if pool is None or len(todo) < PARALLEL_FROM or workers < 2 or "fork" not in multiprocessing.get_all_start_methods():
         return {}
     from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: F401  loaded once, before the fork
     from matplotlib.figure import Figure  # noqa: F401
 
-    from pipeline.rebuild.executors import forked_pool   # workers that exit when this process dies (kill -9)
     try:
-        with forked_pool(workers) as pool:
-            imgs = list(pool.map(_looks_img, [d for d, _key in todo]))
+        with pool(workers) as processes:
+            imgs = list(processes.map(_looks_img, [d for d, _key in todo]))
     except Exception:   # a process that could not start or died: drawn here instead
         return {}
     return {key: img for (_d, key), img in zip(todo, imgs)}

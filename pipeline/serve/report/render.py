@@ -9,6 +9,7 @@ alert box of changed findings, the findings, the results per paper
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -50,7 +51,7 @@ def _now() -> datetime:
 
 def render_report(warehouse: str | Path, now: datetime | None = None, database: str | Path | None = None,
                   run_pages: str = "update", folder: str | Path | None = None, code: str | None = None,
-                  ahead: BandsAhead | None = None) -> str:
+                  ahead: BandsAhead | None = None, pool: Callable | None = None) -> str:
     """The report of the warehouse as one HTML string (``now``: the clock for "last 24 hours").
 
     ``database``: the DuckDB file to read instead of the warehouse's live one (the rebuild
@@ -66,6 +67,8 @@ def render_report(warehouse: str | Path, now: datetime | None = None, database: 
     key, :func:`~pipeline.serve.report.cache.parts_key`); None: the report hashes its code itself.
     ``ahead``: channel bands the rebuild began to read for the run pages
     (:class:`~pipeline.serve.report.pages.BandsAhead`).
+    ``pool``: ``pool(workers)`` gives a process pool (an executor) the decision's looks figures may be drawn in
+    (the rebuild's :func:`~pipeline.rebuild.executors.forked_pool`); None draws every figure here.
     """
     warehouse = Path(warehouse)
     now = now or _now()
@@ -83,7 +86,7 @@ def render_report(warehouse: str | Path, now: datetime | None = None, database: 
             results, entries = results_sections(db, warehouse, keyed)
             live = () if run_pages == "all" else (warehouse / REPORT_DIR / "index.html",)
             parts = (results, entries, keyed.get("runs-index", runs_index),
-                     keyed.get("decision", lambda d: decision_section(d, Figures(live))))
+                     keyed.get("decision", lambda d: decision_section(d, Figures(live), pool)))
         if folder is not None:
             _fill_folder(db, warehouse, Path(folder), generation, run_pages, (parts, code, keyed), ahead)
         return _index(db, warehouse, generation, (alert, findings), parts)
@@ -156,14 +159,15 @@ def failure_page(warehouse: str | Path, generation: str | None, error: str, now:
 
 
 def stage_report(warehouse: str | Path, database: str | Path | None = None, run_pages: str = "update",
-                 now: datetime | None = None, code: str | None = None, ahead: BandsAhead | None = None) -> Path:
+                 now: datetime | None = None, code: str | None = None, ahead: BandsAhead | None = None,
+                 pool: Callable | None = None) -> Path:
     """Render the whole report (index and run pages) into a new folder beside the live one;
     :func:`~pipeline.serve.report.publish.publish_report` swaps it in. Unchanged run pages are
     hard links to the live ones. A failure removes the folder and raises (the live report is
-    untouched). ``code`` and ``ahead`` as for :func:`render_report`."""
+    untouched). ``code``, ``ahead`` and ``pool`` as for :func:`render_report`."""
     return stage_folder(Path(warehouse), lambda folder: render_report(warehouse, now, database=database,
                                                                       run_pages=run_pages, folder=folder, code=code,
-                                                                      ahead=ahead))
+                                                                      ahead=ahead, pool=pool))
 
 
 def write_report(warehouse: str | Path, generation: str | None = None, now: datetime | None = None) -> Path:

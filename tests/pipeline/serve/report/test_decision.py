@@ -200,6 +200,9 @@ def test_figures_drawn_in_forked_processes_are_the_bytes_drawn_here(wh, monkeypa
     assert rd._draw_elsewhere(todo) == {}
     monkeypatch.setattr(rd, "PARALLEL_FROM", 2)
     monkeypatch.setattr(rd.os, "cpu_count", lambda: 2)
-    drawn = rd._draw_elsewhere(todo)
+    assert rd._draw_elsewhere(todo) == {}   # no pool given (the report alone, a notebook): drawn here
+    from pipeline.rebuild.executors import forked_pool   # the rebuild's kind, as pipeline/rebuild/publish gives it
+
+    drawn = rd._draw_elsewhere(todo, forked_pool)
     assert len(todo) == 3 and drawn == {key: rd._looks_img(d) for d, key in todo}
     assert _section(render_report(wh, run_pages="all")) == serial
