@@ -105,14 +105,12 @@ def _pool_columns(name: str, df: pd.DataFrame, src: pd.DataFrame, keys: tuple[st
     run = src["run_id"] if "run_id" in src.columns else pd.Series(None, index=src.index, dtype=object)
     hose_check = (src["hose_id"].map(lambda h: isinstance(h, str) and h != "") if "hose_id" in src.columns
                   else pd.Series(False, index=src.index))
-    if not src.index.is_unique:  # labels that are not one row each: pandas' own lookups below
-        return _pool_columns_by_label(name, df, src, keys, (camp, run, hose_check))
-    groups: dict[tuple, list[int]] = {}
-    for i, k in zip(src.index, zip(*(src[c] for c in keys)) if keys else ((),) * len(src)):
+    groups: dict[tuple, list[int]] = {}   # the source rows of each key, by position (labels may repeat)
+    for i, k in enumerate(zip(*(src[c] for c in keys)) if keys else ((),) * len(src)):
         groups.setdefault(tuple(_key(v) for v in k), []).append(i)
-    # per source row (by its unique label) as plain values: no pandas lookup per pooled row (issue 26:
-    # the rebuild adds these columns to every stage's tables, run or reused, on every change)
-    camp_of, run_of, hose_of = (dict(zip(src.index, s)) for s in (camp, run, hose_check))
+    # per source row as plain values: no pandas lookup per pooled row (issue 26: the rebuild adds these
+    # columns to every stage's tables, run or reused, on every change)
+    camp_of, run_of, hose_of = (s.tolist() for s in (camp, run, hose_check))
     used = df["runs_used"].tolist() if "runs_used" in df.columns else [None] * len(df)
     campaigns, n_runs = [], []
     for k, runs_used in zip(zip(*(df[c].tolist() for c in keys)) if keys else ((),) * len(df), used):
@@ -136,29 +134,3 @@ def _pool_columns(name: str, df: pd.DataFrame, src: pd.DataFrame, keys: tuple[st
 def _missing(value) -> bool:
     """Whether a cell is NULL as ``nunique`` leaves it out (None, NaN, NA, NaT)."""
     return value is None or bool(pd.isna(value)) if not isinstance(value, (list, tuple)) else False
-
-
-def _pool_columns_by_label(name: str, df: pd.DataFrame, src: pd.DataFrame, keys: tuple[str, ...],
-                           per_row: tuple) -> pd.DataFrame:
-    """:func:`_pool_columns` for a source whose index labels repeat (looked up by label)."""
-    camp, run, hose_check = per_row
-    groups: dict[tuple, list[int]] = {}
-    for i, k in zip(src.index, zip(*(src[c] for c in keys)) if keys else ((),) * len(src)):
-        groups.setdefault(tuple(_key(v) for v in k), []).append(i)
-    campaigns, n_runs = [], []
-    for _, row in df.iterrows():
-        idx = groups.get(tuple(_key(row[c]) for c in keys))
-        if idx and name == "seal_envelope":
-            want = row.get("runs_used") == "hose_checks"
-            idx = [i for i in idx if bool(hose_check[i]) == want] or None
-        if not idx:
-            campaigns.append(None)
-            n_runs.append(None)
-            continue
-        campaigns.append(sorted({c for i in idx for c in camp[i]}))
-        n_runs.append(int(run[idx].nunique()) if "run_id" in src.columns else None)
-    df = df.copy()
-    df["campaigns"] = pd.Series(campaigns, index=df.index, dtype=object)
-    if "n_runs" not in df.columns and "run_id" in src.columns:
-        df["n_runs"] = pd.array(n_runs, dtype="Int64")
-    return df

@@ -67,3 +67,15 @@ def test_an_empty_table_gets_the_columns_and_dtypes_a_table_with_rows_gets():
     assert out["leakage_map"].dtypes.to_dict() == full.dtypes.to_dict() and out["leakage_map"].empty
     assert out["breakaway"].dtypes.to_dict() == tables["breakaway"].dtypes.to_dict()
     assert out["breakaway"] is not tables["breakaway"] and "campaign" not in tables["leakage_map"]
+
+
+def test_a_source_whose_index_labels_repeat_pools_each_of_its_rows_once():
+    """The pooled rows are found by position: a source table concatenated without a new index (labels 0, 0, 1)
+    gives the same campaigns and run counts as the same rows indexed 0..n-1."""
+    rows = {"run_id": ["c3/spring-a", "c3/spring-b", "c1/brk"], "chamber": ["front", "front", "rear"]}
+    fits = pd.DataFrame({"chamber": ["front", "rear"]})
+    plain = add_run_columns({"spring_tests": pd.DataFrame(rows), "spring_fits": fits}, RUNS)["spring_fits"]
+    repeated = pd.DataFrame(rows, index=[0, 0, 1])
+    again = add_run_columns({"spring_tests": repeated, "spring_fits": fits}, RUNS)["spring_fits"]
+    assert [list(c) for c in again["campaigns"]] == [["c3"], ["c1"]] and again["n_runs"].tolist() == [2, 1]
+    pd.testing.assert_frame_equal(again, plain)
