@@ -9,7 +9,7 @@ Model (Meeker & Escobar 1998, chapter 17: lognormal regression)
 ``log life`` is normal with mean ``mu_distance + theta * group`` and one ``sigma`` for both
 adjustments (an accelerated-failure-time model): ``theta = mu_force - mu_distance`` is the log of
 the force / distance life ratio, the same for every quantile. The likelihood is the censored
-lognormal one of :func:`analyses.service_life.lognormal_loglik_many` (the distance lives at median
+lognormal one of :func:`analyses.service_life_lognormal.lognormal_loglik_many` (the distance lives at median
 ``exp(mu_distance)``, the force lives at ``exp(mu_distance + theta)``); it is maximised over
 ``(mu_distance, theta, log sigma)`` by BFGS with the analytic score, and the profile at a held
 ``theta`` over the other two the same way.
@@ -47,7 +47,8 @@ import scipy  # its submodules load on first use
 
 from analyses.life_effect import RATIO_SEARCH, LifeEffect, split_groups
 from analyses.numerics import chi2_ppf, chi2_sf
-from analyses.service_life import SIGMA_BOUNDS, lognormal_loglik_many, lr_bound
+from analyses.service_life import lr_bound
+from analyses.service_life_lognormal import SIGMA_BOUNDS, lognormal_loglik_many
 
 _NAN = float("nan")
 
@@ -91,7 +92,7 @@ def _stack(groups):
 
 
 def _loglik(groups, mu: float, theta: float, sigma: float) -> float:
-    """:func:`analyses.service_life.lognormal_loglik_many` of both adjustments."""
+    """:func:`analyses.service_life_lognormal.lognormal_loglik_many` of both adjustments."""
     (xd, fd), (xf, ff) = groups
     return float(lognormal_loglik_many(sigma, math.exp(mu), xd, fd) + lognormal_loglik_many(sigma, math.exp(mu + theta),
                                                                                              xf, ff))

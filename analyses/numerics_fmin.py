@@ -10,7 +10,7 @@ models refit lives the change does not touch; issue 26, the cost of a change). :
 is that call, step for step: the same simplex, the same arithmetic in the same order, the same
 evaluation budget and the same failures (non-finite scaled lives raise, as ``CensoredData`` does).
 :func:`brent_minimize` is ``scipy.optimize.minimize_scalar(f, bracket=(a, b))`` (the bracket search and
-Brent's minimiser), which :func:`analyses.service_life.lognormal_fit` needs for the life model's other
+Brent's minimiser), which :func:`analyses.service_life_lognormal.lognormal_fit` needs for the life model's other
 family. ``tests/analyses/test_numerics_fmin.py`` holds them to scipy's bits (scipy 1.17).
 
 References

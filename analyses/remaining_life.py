@@ -126,8 +126,8 @@ import scipy
 
 from analyses.numerics import fminbound
 from analyses.quality import Gate, Sensor, at_bound, linear_lstsq
-from analyses.service_life import (WeibullFit, lognormal_fit, lognormal_loglik_many, weibull_fit, weibull_loglik_many,
-                                   weibull_shape_bounds)
+from analyses.service_life import WeibullFit, weibull_fit, weibull_loglik_many, weibull_shape_bounds
+from analyses.service_life_lognormal import lognormal_fit, lognormal_loglik_many
 
 _NAN = float("nan")
 #: Leak points a hose needs above the sensor floor for its own prediction: two to draw a path

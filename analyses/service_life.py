@@ -65,12 +65,9 @@ failures.
 
 The lognormal beside it
 -----------------------
-:func:`lognormal_fit` and :func:`lognormal_loglik_many`: the censored lognormal likelihood
-(``log T ~ N(log median, sigma^2)``), the other log-location-scale family of life data (Meeker &
-Escobar 1998, ch. 4 and 8). Weibull and lognormal have two parameters each, so their maximised
-log-likelihoods compare directly (Meeker & Escobar 1998, sections 6.4 and 8.3; Dumonceaux & Antle
-1973, "Discrimination between the log-normal and the Weibull distributions", Technometrics 15):
-:mod:`analyses.remaining_life` weighs the two for its life model.
+The censored lognormal fit is in :mod:`analyses.service_life_lognormal`; the figures of these
+fits (Weibull probability plot, Kaplan-Meier, leak growth, hose distances) in
+:mod:`analyses.service_life_plots`.
 
 Kaplan-Meier
 ------------
@@ -85,10 +82,9 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
-import scipy  # its submodules load on first use: a rebuild that reuses every stage never pays for them
 
-from analyses.numerics import brentq, chi2_ppf, chi2_sf, fminbound
-from analyses.numerics_fmin import brent_minimize, weibull_polish
+from analyses.numerics import brentq, chi2_ppf, chi2_sf
+from analyses.numerics_fmin import weibull_polish
 from analyses.quality import at_bound
 
 _NAN = float("nan")
@@ -168,7 +164,6 @@ def _profile_mle(x: np.ndarray, f: np.ndarray) -> tuple[float, float]:
     s = x.max()
     y = x / s
     ly = np.log(y)
-    r = f.sum()
     mean_lf = ly[f].mean()
 
     def score(logk):
@@ -788,231 +783,10 @@ def weibull_plotting_positions(life, failed) -> pd.DataFrame:
     return pd.DataFrame({"life": km["life"].to_numpy()[keep], "F": F[keep]})
 
 
-# -- figures -----------------------------------------------------------------------------------
-def _figure(size=(7.0, 4.5)):
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=size, layout="constrained")
-    return fig, fig.add_subplot()
-
-
-#: Groups (hose type x adjustment) drawn in one life figure, and hoses in one per-hose figure:
-#: past these a figure is unreadable (and its legend and layout cost grows with the square of the
-#: series: a 100-hose-type campaign spent 518 s drawing them). The first ones by name are drawn,
-#: the title says how many of how many; the tables hold them all.
-MAX_GROUPS_DRAWN = 12
-MAX_HOSES_DRAWN = 80
-
-
-def _drawn(names: list, limit: int, what: str) -> tuple[list, str]:
-    """The first ``limit`` of ``names`` and a title suffix saying so ("" when all are drawn)."""
-    if len(names) <= limit:
-        return list(names), ""
-    return list(names[:limit]), f"\n(first {limit} of {len(names)} {what} by name; all in the tables)"
-
-
-def plot_weibull_probability(groups: dict, unit: str = "km", confidence: float = 0.90):
-    """Weibull probability plot: failures at their plotting positions, suspensions as ticks.
-
-    Suspensions are drawn as ``|`` ticks in a strip below the lowest plotted failure, one row per
-    group (so that equal lives of two groups do not hide each other); fitted lines stop at the
-    strip. The legend is placed below the axes, where it covers no data.
-
-    Parameters
-    ----------
-    groups : dict of str to (life, failed)
-        One series (and its fitted line, when it has one) per group; the first
-        :data:`MAX_GROUPS_DRAWN` by name are drawn.
-    unit : str
-        Unit of the lives, for the axis label.
-    confidence : float
-        Two-sided confidence of the B10 bounds drawn on each fitted line (as :func:`b10`).
-
-    Returns
-    -------
-    matplotlib.figure.Figure
-        B10 (10 % failed) of each fitted group is marked with a diamond on its line, its
-        bounds as a horizontal bar at 10 %.
-    """
-    shown, more = _drawn(sorted(groups), MAX_GROUPS_DRAWN, "groups")
-    groups = {name: groups[name] for name in shown}
-    fig, ax = _figure(size=(7.0, 5.8))
-    ticks = [0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.3, 0.5, 0.632, 0.8, 0.9, 0.95, 0.99]
-    lin = lambda F: np.log(-np.log1p(-np.asarray(F, float)))  # noqa: E731
-    all_x = []
-    lowest = lin(ticks[0])
-    names = [name for name in sorted(groups) if len(_as_arrays(*groups[name])[0])]
-    for name in names:
-        pp = weibull_plotting_positions(*_as_arrays(*groups[name]))
-        if len(pp):
-            lowest = min(lowest, float(lin(pp["F"].min())))
-    strip_top = lowest - 0.3          # separator between the probability scale and the strip
-    with_sus = [name for name in names if (~_as_arrays(*groups[name])[1]).any()]
-    row = {name: strip_top - 0.4 * (j + 1) for j, name in enumerate(with_sus)}
-    strip_bottom = strip_top - 0.4 * (len(with_sus) + 1) if with_sus else strip_top
-    for i, name in enumerate(sorted(groups)):
-        life, failed = _as_arrays(*groups[name])
-        if len(life) == 0:
-            continue
-        all_x.append(life)
-        color = f"C{i}"
-        pp = weibull_plotting_positions(life, failed)
-        fit = weibull_fit(life, failed)
-        label = f"{name}: {int(failed.sum())} failed / {len(life)}"
-        if fit.ok:
-            label += f", shape {fit.shape:.2f}, scale {fit.scale:.3g} {unit}"
-        ax.plot(pp["life"], lin(pp["F"]), "o", color=color, label=label)
-        sus = life[~failed]
-        if len(sus):
-            ax.plot(sus, np.full(len(sus), row[name]), marker="|", ls="none", ms=16, mew=2.5, color=color,
-                    label=f"{name}: suspensions ({len(sus)})", gid="suspensions")
-        if fit.ok:
-            xs = np.geomspace(max(life.min() / 3, 1e-9), life.max() * 3, 100)
-            ys = fit.shape * np.log(xs / fit.scale)
-            ax.plot(xs, np.where(ys >= strip_top, ys, np.nan), "-", color=color, lw=1)
-            r = b10(life, failed, confidence)
-            if r["b10"] is not None and np.isfinite(r["b10"]):
-                lo, hi = r["b10_lower"], r["b10_upper"]
-                ok = lo is not None and hi is not None and np.isfinite(lo) and np.isfinite(hi)
-                text = (f"{name}: B10 {r['b10']:.3g} {unit}"
-                        + (f" [{lo:.3g}–{hi:.3g}] ({100 * confidence:g} %)" if ok else " (no bounds)"))
-                y10 = float(lin(0.10)) + 0.06 * (i - (len(names) - 1) / 2)
-                all_x.append(np.array([lo, hi] if ok else [r["b10"]], float))
-                if ok:  # the bounds: a bar at 10 % with end ticks (collections, not data lines)
-                    ax.hlines(y10, lo, hi, color=color, lw=2.0, zorder=4)
-                    ax.vlines([lo, hi], y10 - 0.12, y10 + 0.12, color=color, lw=2.0, zorder=4)
-                ax.plot([r["b10"]], [y10], "D", color=color, mec="black", ms=7, zorder=5, label=text)
-    if all_x:
-        x = np.concatenate(all_x)
-        ax.set_xlim(x.min() / 2, x.max() * 2)
-    ax.set_xscale("log")
-    ax.axhline(float(lin(0.10)), color="0.5", lw=0.7, ls=":")
-    ax.set_yticks(lin(ticks), [f"{100 * t:g}" for t in ticks])
-    ax.set_ylim(min(strip_bottom, strip_top - 0.2), lin(ticks[-1]) + 0.2)
-    if with_sus:
-        ax.axhline(strip_top, color="grey", lw=0.8)
-        ax.axhspan(strip_bottom, strip_top, color="0.93", zorder=0)
-        ax.text(0.005, strip_top - 0.05, "suspensions", transform=ax.get_yaxis_transform(), ha="left", va="top",
-                fontsize="x-small", color="0.35")
-    ax.set_xlabel(f"life [{unit}]")
-    ax.set_ylabel("fraction failed [%] (Weibull scale)")
-    ax.set_title("Weibull probability plot (| = suspension)" + more)
-    ax.grid(True, which="both", alpha=0.3)
-    if ax.get_legend_handles_labels()[0]:
-        fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", fontsize="small", ncols=1)
-    return fig
-
-
-def plot_kaplan_meier(groups: dict, unit: str = "km"):
-    """Kaplan-Meier survival curves per group (the first :data:`MAX_GROUPS_DRAWN` by name),
-    suspensions marked with ``+``.
-
-    Returns
-    -------
-    matplotlib.figure.Figure
-    """
-    shown, more = _drawn(sorted(groups), MAX_GROUPS_DRAWN, "groups")
-    fig, ax = _figure()
-    for i, name in enumerate(shown):
-        life, failed = _as_arrays(*groups[name])
-        km = kaplan_meier(life, failed)
-        if km.empty:
-            continue
-        xs = np.concatenate([[0.0], km["life"].to_numpy()])
-        ys = np.concatenate([[1.0], km["survival"].to_numpy()])
-        ax.step(xs, ys, where="post", color=f"C{i}", label=f"{name} ({int(failed.sum())}/{len(life)} failed)")
-        cens = km[km["n_censored"] > 0]
-        ax.plot(cens["life"], cens["survival"], "+", color=f"C{i}", ms=9)
-    ax.set_ylim(0, 1.05)
-    ax.set_xlim(left=0)
-    ax.set_xlabel(f"distance [{unit}]")
-    ax.set_ylabel("fraction surviving")
-    ax.set_title("Kaplan-Meier survival (+ = suspension)" + more)
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize="small")
-    return fig
-
-
-def plot_leak_growth(df: pd.DataFrame):
-    """Leak versus hose distance, one line per hose (and chamber / pressure).
-
-    Each hose has its own colour and (hollow) marker shape; lines are dashed for distance-set
-    rollers, slightly transparent and thinner for each further hose, so that a series lying on
-    another stays visible. The legend is outside the axes.
-
-    Parameters
-    ----------
-    df : DataFrame
-        ``hose_id``, ``distance_km``, ``leak_l_min`` and optionally ``adjustment``,
-        ``pressure_bar``: points to draw (e.g. one pressure level per hose); the hoses drawn are
-        the first :data:`MAX_GROUPS_DRAWN` by id.
-
-    Returns
-    -------
-    matplotlib.figure.Figure
-    """
-    fig, ax = _figure(size=(8.0, 4.5))
-    styles = {"force": "-", "distance": "--"}
-    markers = ["o", "s", "^", "D", "v", "P", "X", "<", ">", "*"]
-    shown, more = _drawn(sorted(df["hose_id"].unique()), MAX_GROUPS_DRAWN, "hoses")
-    for i, (hose, g) in enumerate(df[df["hose_id"].isin(shown)].groupby("hose_id", sort=True)):
-        g = g.sort_values("distance_km")
-        adj = g["adjustment"].iloc[0] if "adjustment" in g else None
-        # hollow markers of a shape per hose, translucent lines getting thinner hose by hose: a
-        # series lying on an earlier one still shows as a coloured edge and its own markers
-        ax.plot(g["distance_km"], g["leak_l_min"], marker=markers[i % len(markers)], ms=9 - 0.4 * min(i, 5),
-                mfc="none", mew=1.6, ls=styles.get(adj, "-"), lw=max(0.9, 2.6 - 0.3 * i), alpha=0.75,
-                color=f"C{i % 10}",
-                label=f"{hose}" + (f" ({adj})" if isinstance(adj, str) else ""))
-    ax.set_xlabel("hose distance at the leakage run [km]")
-    ax.set_ylabel("leak [l/min ANR]")
-    title = "Leakage growth per hose"
-    if "pressure_bar" in df and len(df):
-        title += f" at {df['pressure_bar'].max():.1f} bar"
-    ax.set_title(title + " (dashed: distance-set rollers)" + more)
-    ax.grid(True, alpha=0.3)
-    if len(df):
-        fig.legend(*ax.get_legend_handles_labels(), loc="outside right upper", fontsize="small")
-    return fig
-
-
-def plot_hose_distances(hoses: pd.DataFrame):
-    """Distance per hose as bars coloured by status (failed / removed / running).
-
-    Parameters
-    ----------
-    hoses : DataFrame
-        ``hose_id``, ``distance_km``, ``status`` and optionally ``adjustment``; the first
-        :data:`MAX_HOSES_DRAWN` by id are drawn.
-
-    Returns
-    -------
-    matplotlib.figure.Figure
-    """
-    colors = {"failed": "tab:red", "removed": "tab:orange", "running": "tab:green"}
-    shown, more = _drawn(sorted(hoses["hose_id"].astype(str)), MAX_HOSES_DRAWN, "hoses")
-    h = hoses[hoses["hose_id"].astype(str).isin(shown)]
-    h = h.sort_values(["adjustment", "distance_km"] if "adjustment" in h else ["distance_km"])
-    fig, ax = _figure((max(6.0, 0.3 * len(h) + 2), 4.5))
-    pos = np.arange(len(h))
-    ax.bar(pos, h["distance_km"].fillna(0.0), color=[colors.get(s, "grey") for s in h["status"]])
-    labels = [f"{hid}" + (f" ({adj[0]})" if isinstance(adj, str) and adj else "")
-              for hid, adj in zip(h["hose_id"], h["adjustment"] if "adjustment" in h else [None] * len(h))]
-    ax.set_xticks(pos, labels, rotation=90, fontsize="x-small")
-    from matplotlib.patches import Patch
-
-    ax.legend(handles=[Patch(color=c, label=s) for s, c in colors.items()], fontsize="small")
-    ax.set_ylabel("distance [km]")
-    ax.set_title("Distance per hose (f = force-set, d = distance-set rollers)" + more)
-    ax.grid(True, axis="y", alpha=0.3)
-    return fig
-
-
 __all__ = ["SHAPE_BOUNDS", "MRR_MAX_FAILURES", "WeibullFit", "weibull_fit", "median_ranks", "weibull_rank_regression",
            "preferred_method", "reduced_bias_shape", "weibull_shape_bounds", "weibull_reliability_bounds", "service_life_summary", "weibull_loglik", "weibull_scale_given_shape",
            "weibull_quantile_bounds", "weibull_quantile_profile", "lr_bound", "b10", "weibull_lr_test",
-           "kaplan_meier", "weibull_plotting_positions", "plot_weibull_probability", "plot_kaplan_meier",
-           "plot_leak_growth", "plot_hose_distances", "LognormalFit", "lognormal_fit", "lognormal_loglik_many"]
+           "kaplan_meier", "weibull_plotting_positions", "weibull_loglik_many"]
 
 
 def weibull_loglik_many(shape, scale, life, failed) -> np.ndarray:
@@ -1045,107 +819,3 @@ def weibull_loglik_many(shape, scale, life, failed) -> np.ndarray:
         ll = (np.sum(np.where(f, np.log(kk / ss) + (kk - 1.0) * np.log(z), 0.0), axis=-1)
               - np.sum(z ** kk, axis=-1))
     return np.where(good, ll, -np.inf)
-
-
-#: Search range of the lognormal's sigma (the sd of log life); an MLE at either end is not reported. [-]
-SIGMA_BOUNDS = (1e-3, 1e3)
-
-
-@dataclass
-class LognormalFit:
-    """A lognormal fitted to right-censored lives: ``log T ~ N(log median, sigma^2)``.
-
-    Attributes
-    ----------
-    median : float
-        Median life, in the unit of the lives; NaN with fewer than two failures.
-    sigma : float
-        Standard deviation of the log life [-].
-    loglik : float
-        Log-likelihood at the estimate (density for failures, survival for suspensions), on the
-        same scale as :attr:`WeibullFit.loglik` (densities in the unit of the lives).
-    n, n_failed : int
-        Units, failures.
-    note : str or None
-        Why there is no estimate.
-    """
-
-    median: float
-    sigma: float
-    loglik: float
-    n: int
-    n_failed: int
-    note: str | None = None
-
-    @property
-    def ok(self) -> bool:
-        return math.isfinite(self.median) and math.isfinite(self.sigma)
-
-
-def lognormal_loglik_many(sigma, median, life, failed) -> np.ndarray:
-    """Log-likelihood of right-censored lives under lognormals, vectorised over parameter pairs.
-
-    Parameters
-    ----------
-    sigma, median : array_like
-        Standard deviation of the log life [-] and median life (unit of ``life``), broadcast.
-    life : array_like
-        Lives (failure or censoring distance) [any unit, > 0].
-    failed : array_like of bool
-        True for a failure, False for a suspension.
-
-    Returns
-    -------
-    numpy.ndarray
-        Log-likelihood per pair; -inf where a parameter is not positive.
-    """
-    x, f = _as_arrays(life, failed)
-    sg, md = np.broadcast_arrays(np.asarray(sigma, dtype=float), np.asarray(median, dtype=float))
-    good = (sg > 0) & (md > 0)
-    ss, mm = np.where(good, sg, 1.0)[..., None], np.where(good, md, 1.0)[..., None]
-    lx = np.log(x)
-    with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
-        z = (lx - np.log(mm)) / ss
-        dens = -0.5 * z ** 2 - np.log(ss) - lx - 0.5 * math.log(2.0 * math.pi)
-        ll = np.sum(np.where(f, dens, scipy.special.log_ndtr(-z)), axis=-1)
-    return np.where(good, ll, -np.inf)
-
-
-def lognormal_fit(life, failed) -> LognormalFit:
-    """Lognormal MLE with right-censoring.
-
-    Profile likelihood: for each sigma the log median maximises the censored normal
-    log-likelihood, which is concave in it (Brent's search from the range of the log lives); sigma
-    by a bounded search in its log over :data:`SIGMA_BOUNDS`.
-
-    Parameters
-    ----------
-    life : array_like
-        Lives [any unit, > 0]; non-positive or non-finite values are ignored.
-    failed : array_like of bool
-        True for a failure, False for a suspension.
-
-    Returns
-    -------
-    LognormalFit
-        NaN with a ``note`` with fewer than two failures or sigma at :data:`SIGMA_BOUNDS`.
-    """
-    x, f = _as_arrays(life, failed)
-    n, r = int(len(x)), int(f.sum())
-    if r < 2:
-        return LognormalFit(_NAN, _NAN, _NAN, n, r, note=f"too few failures: {r} < 2")
-    lx = np.log(x)
-
-    def neg(log_s):   # scipy.optimize.minimize_scalar(..., bracket=...)'s bits
-        mu, fun = brent_minimize(lambda m: -float(lognormal_loglik_many(math.exp(log_s), math.exp(m), x, f)),
-                                 lx.min(), lx.max() + 1.0)
-        return float(fun), float(mu)
-
-    lo, hi = (math.log(b) for b in SIGMA_BOUNDS)
-    best = float(fminbound(lambda v: neg(v)[0], lo, hi, xatol=1e-10))   # minimize_scalar(method="bounded")'s bits
-    sigma = math.exp(best)
-    ll, mu = neg(best)
-    if at_bound(sigma, *SIGMA_BOUNDS):
-        return LognormalFit(_NAN, _NAN, _NAN, n, r, note=f"the lognormal sigma MLE ({sigma:.3g}) is at the search "
-                                                         "bound: the lives cannot tell a spread")
-    return LognormalFit(math.exp(mu), sigma, -ll, n, r)

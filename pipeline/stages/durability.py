@@ -39,9 +39,10 @@ import pyarrow.parquet as pq
 from analyses.durability import StrokeCounter, stroke_deadband, strokes_note
 from analyses.hose_life import hose_distance_at, hose_life, match_runs
 from analyses.quality import describe_sensor_at_rest
-from analyses.service_life import (kaplan_meier, plot_hose_distances, plot_kaplan_meier, plot_leak_growth,
-                                   plot_weibull_probability, service_life_summary, weibull_fit,
-                                   weibull_lr_test, weibull_quantile_bounds)
+from analyses.service_life import (kaplan_meier, service_life_summary, weibull_fit, weibull_lr_test,
+                                   weibull_quantile_bounds)
+from analyses.service_life_plots import (plot_hose_distances, plot_kaplan_meier, plot_leak_growth,
+                                         plot_weibull_probability)
 from pipeline.raw.logbook import merge_logbooks, read_logbooks
 from pipeline.raw.plan import Plan
 from pipeline.ingest.prefetch import prefetch

@@ -7,7 +7,7 @@ import pytest
 from scipy import stats
 
 from analyses import life_effect_lognormal as ln
-from analyses.service_life import lognormal_fit
+from analyses.service_life_lognormal import lognormal_fit
 
 
 def _complete(seed=1, n=(10, 12), mu=(0.0, 0.3), sigma=0.5):

@@ -115,7 +115,7 @@ def test_lognormal_fits_import_no_scipy_optimize():
     """lognormal_fit's two searches are scipy's, ported: the remaining-life stage's life models
     import no scipy.optimize (issue 26)."""
     code = ("import sys\n"
-            "from analyses.service_life import lognormal_fit\n"
+            "from analyses.service_life_lognormal import lognormal_fit\n"
             "w = lognormal_fit([10.0, 20.0, 30.0, 40.0, 50.0, 60.0], [True, True, False, True, False, True])\n"
             "print(w.note is None, 'scipy.optimize' in sys.modules, 'scipy.stats' in sys.modules)\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()

@@ -11,8 +11,8 @@ from analyses.remaining_life import (MIN_ESS, N_RUPTURE_SHAPES, LifeModel, RulSe
                                      leak_crossing_life,
                                      leak_crossing_lives, life_model, remaining_life, rul_backtest, rul_over_shapes,
                                      rupture_model, rupture_shapes, weibayes_posterior, weibull_posterior, weibull_rul)
-from analyses.service_life import (lognormal_loglik_many, weibull_fit, weibull_loglik, weibull_loglik_many,
-                                   weibull_shape_bounds)
+from analyses.service_life import weibull_fit, weibull_loglik, weibull_loglik_many, weibull_shape_bounds
+from analyses.service_life_lognormal import lognormal_loglik_many
 
 SENSOR = Sensor(resolution=0.001, noise=0.005, source="metadata")   # floor 0.005, points above 0.05 used
 

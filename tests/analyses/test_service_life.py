@@ -2,14 +2,10 @@
 import math
 
 import numpy as np
-import pandas as pd
 import pytest
-from matplotlib.figure import Figure
 from scipy import optimize, stats
 
-from analyses.service_life import (b10, kaplan_meier, lognormal_fit, lognormal_loglik_many, newton_root,
-                                   plot_hose_distances, reduced_bias_shape,
-                                   plot_kaplan_meier, plot_leak_growth, plot_weibull_probability, weibull_fit,
+from analyses.service_life import (b10, kaplan_meier, newton_root, reduced_bias_shape, weibull_fit,
                                    weibull_loglik, weibull_lr_test, weibull_quantile_bounds,
                                    weibull_quantile_profile)
 
@@ -214,76 +210,6 @@ def test_lr_test_tells_different_groups_apart():
     assert math.isnan(one["p_value"])
 
 
-def test_figures_mark_suspensions():
-    life, failed = fans()
-    fig = plot_weibull_probability({"fans": (life, failed)}, unit="1000 h")
-    assert isinstance(fig, Figure)
-    ax = fig.axes[0]
-    labels = [ln.get_label() for ln in ax.get_lines()]
-    assert "fans: suspensions (58)" in labels
-    sus = next(ln for ln in ax.get_lines() if ln.get_label() == "fans: suspensions (58)")
-    assert len(sus.get_xdata()) == 58
-    fig = plot_kaplan_meier({"force": (life, failed), "distance": (life / 2, failed)})
-    assert len(fig.axes[0].get_lines()) == 4            # a step curve and censoring marks per group
-    import pandas as pd
-    fig = plot_hose_distances(pd.DataFrame({"hose_id": ["a", "b"], "distance_km": [1.0, 2.0],
-                                            "status": ["failed", "running"], "adjustment": ["force", "distance"]}))
-    assert [p.get_height() for p in fig.axes[0].patches] == [2.0, 1.0]
-    fig = plot_leak_growth(pd.DataFrame({"hose_id": ["a", "a"], "distance_km": [0.0, 5.0], "leak_l_min": [0.1, 0.9],
-                                         "adjustment": ["distance"] * 2, "pressure_bar": [6.0, 6.0]}))
-    assert fig.axes[0].get_lines()[0].get_ydata().tolist() == [0.1, 0.9]
-
-
-def _drawn(fig):
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-
-    FigureCanvasAgg(fig)
-    fig.canvas.draw()
-    return fig.canvas.get_renderer()
-
-
-def test_weibull_legend_leaves_the_suspensions_and_failures_visible():
-    life, failed = fans()
-    fig = plot_weibull_probability({"force": (life, failed), "distance": (life * 2, failed)}, unit="1000 h")
-    ax = fig.axes[0]
-    renderer = _drawn(fig)
-    legends = fig.legends + ([ax.get_legend()] if ax.get_legend() else [])
-    assert len(legends) == 1
-    box = legends[0].get_window_extent(renderer)
-    sus = [ln for ln in ax.get_lines() if ln.get_label().endswith("suspensions (58)")]
-    assert len(sus) == 2
-    for ln in sus:
-        assert not box.overlaps(ln.get_window_extent(renderer))
-    # every point drawn (failures and suspension ticks) lies inside the axes and outside the legend
-    axes_box = ax.get_window_extent(renderer)
-    for ln in ax.get_lines():
-        if ln.get_marker() in ("o", "|"):
-            for x, y in ax.transData.transform(np.column_stack([ln.get_xdata(), ln.get_ydata()])):
-                assert axes_box.contains(x, y) and not box.contains(x, y)
-    # one row per group: equal lives of two groups do not hide each other
-    assert len({float(ln.get_ydata()[0]) for ln in sus}) == 2
-    assert all(len(set(map(float, ln.get_ydata()))) == 1 for ln in sus)
-
-
-def test_leak_growth_keeps_a_series_lying_on_another_visible():
-    import pandas as pd
-
-    same = {"distance_km": [0.0, 14.0], "leak_l_min": [1.4, 1.55], "adjustment": ["force"] * 2,
-            "pressure_bar": [6.0, 6.0]}
-    df = pd.concat([pd.DataFrame({"hose_id": h, **same}) for h in ("H102", "H106")], ignore_index=True)
-    fig = plot_leak_growth(df)
-    ax = fig.axes[0]
-    first, second = ax.get_lines()
-    assert first.get_marker() != second.get_marker()            # own marker shape per hose
-    assert first.get_markerfacecolor() == "none" == second.get_markerfacecolor()   # hollow: see through
-    assert first.get_linewidth() > second.get_linewidth()       # the earlier line shows as an edge
-    assert second.get_alpha() < 1
-    renderer = _drawn(fig)
-    legend = (fig.legends + [ax.get_legend()])[0]
-    assert [t.get_text() for t in legend.get_texts()] == ["H102 (force)", "H106 (force)"]
-    assert not legend.get_window_extent(renderer).overlaps(ax.get_window_extent(renderer))
-
-
 @pytest.mark.parametrize("life,failed", [([10.0, 10.0, 10.0], [True, True, True]),          # one distance
                                          ([1.0, 2.0, 10.0, 10.0], [False, False, True, True]),
                                          ([10.0, 10.00001, 10.00002], [True, True, True])])
@@ -299,48 +225,6 @@ def test_too_few_failures_and_a_sound_fit_say_so():
     assert weibull_fit([10.0, 20.0, 30.0], [True, False, False]).note == "too few failures: 1 < 2"
     fit = weibull_fit([5.0, 10.0, 20.0, 30.0], [True, True, True, False])
     assert fit.ok and fit.note is None and b10([5.0, 10.0, 20.0, 30.0], [True, True, True, False])["note"] is None
-
-
-def test_weibull_plot_marks_b10_and_its_bounds():
-    from analyses.service_life import b10, plot_weibull_probability
-
-    rng = np.random.default_rng(5)
-    life = 40 * rng.weibull(1.8, 12)
-    failed = np.ones(12, bool)
-    failed[:2] = False
-    fig = plot_weibull_probability({"g": (life, failed)}, confidence=0.9)
-    ax = fig.axes[0]
-    r = b10(life, failed, 0.9)
-    (marker,) = [ln for ln in ax.get_lines() if ln.get_marker() == "D"]
-    assert marker.get_xdata()[0] == pytest.approx(r["b10"])
-    assert "B10" in marker.get_label() and f"{r['b10_lower']:.3g}" in marker.get_label()
-    segs = [s for c in ax.collections for s in c.get_segments() if len(s) == 2 and s[0][1] == s[1][1]]
-    assert any(s[0][0] == pytest.approx(r["b10_lower"]) and s[1][0] == pytest.approx(r["b10_upper"]) for s in segs)
-
-
-def test_life_figures_draw_the_first_groups_and_say_how_many_of_how_many():
-    """Past MAX_GROUPS_DRAWN groups (MAX_HOSES_DRAWN hoses) a figure draws the first ones by name
-    and its title says so; with fewer it is drawn whole and the title is unchanged."""
-    from analyses.service_life import MAX_GROUPS_DRAWN, MAX_HOSES_DRAWN
-    rng = np.random.default_rng(3)
-    groups = {f"T{j:03d} force": (rng.weibull(2.0, 6) * 100, np.array([1, 1, 1, 0, 1, 0], bool))
-              for j in range(MAX_GROUPS_DRAWN + 5)}
-    fig = plot_kaplan_meier(groups)
-    ax = fig.axes[0]
-    assert len([ln for ln in ax.get_lines() if ln.get_label().startswith("T")]) == MAX_GROUPS_DRAWN
-    assert f"first {MAX_GROUPS_DRAWN} of {MAX_GROUPS_DRAWN + 5} groups" in ax.get_title()
-    fig = plot_weibull_probability(groups)
-    labels = fig.axes[0].get_legend_handles_labels()[1]
-    assert {lb.split(":")[0] for lb in labels} == set(sorted(groups)[:MAX_GROUPS_DRAWN])
-    assert f"of {MAX_GROUPS_DRAWN + 5} groups" in fig.axes[0].get_title()
-    hoses = pd.DataFrame({"hose_id": [f"H{i:04d}" for i in range(MAX_HOSES_DRAWN + 20)],
-                          "distance_km": np.arange(MAX_HOSES_DRAWN + 20, dtype=float),
-                          "status": "running", "adjustment": "force"})
-    fig = plot_hose_distances(hoses)
-    assert len(fig.axes[0].patches) == MAX_HOSES_DRAWN
-    assert f"first {MAX_HOSES_DRAWN} of {MAX_HOSES_DRAWN + 20} hoses" in fig.axes[0].get_title()
-    few = plot_kaplan_meier(dict(list(groups.items())[:2]))
-    assert few.axes[0].get_title() == "Kaplan-Meier survival (+ = suspension)"
 
 
 # -- the service-life table a Weibull++ user expects (issue 25, item 17) -----------------------------------
@@ -516,33 +400,6 @@ def test_a_side_the_data_do_not_bound_is_nan_and_named():
     assert s["shape_lower"] < s["shape"] < s["shape_upper"] and s["reliability_lower"] < s["reliability_upper"]
 
 
-# -- the lognormal beside the Weibull ----------------------------------------------------------
-def test_lognormal_loglik_is_the_censored_normal_of_the_log_lives():
-    life, failed = np.array([1.0, 2.0, 3.5, 5.0]), np.array([True, False, True, True])
-    many = lognormal_loglik_many([0.5, 1.2], [2.0, 3.0], life, failed)
-    for got, (sg, md) in zip(many, [(0.5, 2.0), (1.2, 3.0)]):
-        want = (stats.lognorm.logpdf(life[failed], sg, scale=md).sum()
-                + stats.lognorm.logsf(life[~failed], sg, scale=md).sum())
-        assert got == pytest.approx(want)
-    assert lognormal_loglik_many(-1.0, 3.0, life, failed) == -np.inf
-
-
-def test_lognormal_fit_matches_scipys_censored_fit_on_nelsons_fans():
-    life, failed = fans()
-    fit = lognormal_fit(life, failed)
-    s, _, md = stats.lognorm.fit(stats.CensoredData.right_censored(life, ~failed), floc=0)
-    assert (fit.sigma, fit.median) == pytest.approx((s, md), rel=1e-4)
-    assert fit.loglik == pytest.approx(float(lognormal_loglik_many(s, md, life, failed)), abs=1e-6)
-
-
-def test_lognormal_fit_recovers_its_parameters_and_needs_two_failures():
-    rng = np.random.default_rng(11)
-    t = np.exp(math.log(500.0) + 0.4 * rng.standard_normal(2000))
-    end = rng.uniform(300.0, 900.0, t.size)
-    fit = lognormal_fit(np.minimum(t, end), t <= end)
-    assert fit.ok and fit.median == pytest.approx(500.0, rel=0.03) and fit.sigma == pytest.approx(0.4, rel=0.06)
-    one = lognormal_fit([10.0, 20.0, 30.0], [True, False, False])
-    assert not one.ok and "too few failures" in one.note
 
 
 def test_lr_bound_evaluates_each_point_once_and_finds_the_root():
