@@ -100,7 +100,7 @@ def baseline_path(items: list[tuple]):
     import numpy as np
     from scipy import optimize
 
-    from analyses.pla_spring import SpringFit, fit_spring_stats, spring_nrmse, spring_run_stats
+    from analyses.pla_spring_fit import SpringFit, fit_spring_stats, spring_nrmse, spring_run_stats
     from pipeline.stages.models import spring_figure_run
 
     runs = [r for r in map(spring_figure_run, items) if r is not None]

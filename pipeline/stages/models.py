@@ -10,7 +10,7 @@ Tables (``schemas/ddl/20_models.sql``): ``identification``, ``step_response``, `
 
 Per-run work (reading samples, decimation, fits of one run) goes through ``ctx.map`` with the
 module-level :func:`analyse_run`, memoised per run. A spring run's result is its sufficient statistics
-(:class:`analyses.pla_spring.SpringStats`, not its samples): the joint spring fit of a chamber adds
+(:class:`analyses.pla_spring_fit.SpringStats`, not its samples): the joint spring fit of a chamber adds
 them in this process (milliseconds; one changed run costs its own analysis), and only the runs a
 figure draws are read again (:func:`spring_figure_run`, memoised). The pressure fits go through
 ``ctx.map`` with items naming the runs they read (:func:`fit_pressure_item`): memoised until one of
@@ -28,6 +28,8 @@ import pandas as pd
 
 from analyses import identification as ident
 from analyses import pla_spring as spring
+from analyses import pla_spring_fit as spring_fit
+from analyses import pla_spring_plots as spring_plots
 from analyses import pressure_dynamics as pdyn
 from analyses import step_response as stepr
 from analyses.quality import sensor_from_params
@@ -166,7 +168,7 @@ def _spring(run_id, path, params):
     row, warns, run = _spring_prepared(run_id, path, params)
     if run is None:
         return [row], warns, None
-    stats = spring.spring_run_stats(run)   # what the joint fit needs of the run, not its samples
+    stats = spring_fit.spring_run_stats(run)   # what the joint fit needs of the run, not its samples
     if not stats.ok:
         row["note"] = stats.message
         return [row], [f"{NAME}: spring run: {stats.message}; not fitted"], None
@@ -246,7 +248,7 @@ def _memoised_here(ctx, func, items: list, here, label: str = "") -> list:
     return memo.map(lambda _func, todo, _label: [here(item) for item in todo], func, items, label)
 
 
-def fit_spring_runs(item: tuple) -> spring.SpringFit:
+def fit_spring_runs(item: tuple) -> spring_fit.SpringFit:
     """``(chamber, runs)`` -> the chamber's joint fit (:func:`fit_spring_item`) of ``runs`` (items as
     :func:`analyse_run`'s, in run_id order), read from their samples: the memo key of the fit (its
     stage computes it from the runs' statistics it already holds)."""
@@ -254,14 +256,14 @@ def fit_spring_runs(item: tuple) -> spring.SpringFit:
     return fit_spring_item((chamber, [r["extra"] for r in map(analyse_run, runs) if r["extra"] is not None]))
 
 
-def fit_spring_item(item: tuple) -> spring.SpringFit:
-    """``(chamber, stats)`` -> :class:`analyses.pla_spring.SpringFit` from the runs' sufficient statistics
-    (:class:`analyses.pla_spring.SpringStats`): milliseconds, whatever the runs' lengths."""
+def fit_spring_item(item: tuple) -> spring_fit.SpringFit:
+    """``(chamber, stats)`` -> :class:`analyses.pla_spring_fit.SpringFit` from the runs' sufficient statistics
+    (:class:`analyses.pla_spring_fit.SpringStats`): milliseconds, whatever the runs' lengths."""
     chamber, stats = item
     try:
-        return spring.fit_spring_stats(stats)
+        return spring_fit.fit_spring_stats(stats)
     except Exception as exc:  # never fail the rebuild on a fit
-        return spring.SpringFit(chamber, message=f"fit failed: {type(exc).__name__}: {exc}")
+        return spring_fit.SpringFit(chamber, message=f"fit failed: {type(exc).__name__}: {exc}")
 
 
 def fit_pressure_item(item: tuple) -> pdyn.PressureFit:
@@ -400,14 +402,14 @@ def _spring_outputs(ctx, out, results, items):
     for chamber, group in groups:
         fit = fits[chamber]
         if fit.ok:   # only the runs drawn are read again (their prepared samples memoised)
-            shown = [items[rid] for rid in spring.figure_runs(group)]
+            shown = [items[rid] for rid in spring_plots.figure_runs(group)]
             runs = [r for r in ctx.map(spring_figure_run, shown, label=f"{NAME}: spring figures") if r is not None]
             name = f"spring_loops_{chamber}"
-            out.draw(name, spring.plot_spring_loops, runs, fit)
+            out.draw(name, spring_plots.plot_spring_loops, runs, fit)
             out.captions[name] = (f"PLA {chamber} chamber: force-displacement loops, experimental vs fitted model, "
                                   f"for the tests of {PLA_CITATION}, Figs. 8-13 (closest available runs).")
     if energy:
-        out.draw("spring_loop_energy", spring.plot_loop_energy, out.tables["spring_loop_energy"], fits)
+        out.draw("spring_loop_energy", spring_plots.plot_loop_energy, out.tables["spring_loop_energy"], fits)
         out.captions["spring_loop_energy"] = ("Energy dissipated per cycle (loop area) vs displacement amplitude and "
                                               "vs frequency; lines: structural part pi delta D^2 of the fits.")
 
