@@ -76,9 +76,11 @@ collinear columns inflate each other's errors but do not bias the remaining esti
 from __future__ import annotations
 
 import numpy as np
-import scipy  # submodules load on first use
 
+# scipy.signal's filters and Welch PSD and scipy.interpolate's CubicSpline, without importing either
+# (about 1.3 CPU-s of a rebuild after one changed viscous run; issue 26)
 from analyses.numerics_iir import butter_lowpass_sos, sosfiltfilt, welch_psd
+from analyses.numerics_spline import NotAKnotSpline
 from analyses.quality import COND_MAX, Sensor, describe_sensor, linear_lstsq, nrmse_pct, time_base_gap
 
 #: The motion must stand this far above the position noise floor (power ratio) to be used. [-]
@@ -185,7 +187,7 @@ def _estimate_lag(ff, X, X_all, idx, dt: float, max_shift: float):
     (and ``fit``, ``y`` None) when the record cannot tell a lag from the other columns, ``fit``
     and ``y`` None when the estimate runs past ``max_shift`` [s] (the rows' margin to the edges).
     """
-    spline = scipy.interpolate.CubicSpline(np.arange(ff.size), ff)
+    spline = NotAKnotSpline(np.arange(ff.size), ff)  # scipy.interpolate.CubicSpline's values, to the bit
     tau, step, tau_se = 0.0, np.inf, float("nan")
     for _ in range(LAG_MAX_ITER):
         y = spline(idx + tau / dt)  # F_meas(t + tau): the force as it was when the motion was
