@@ -76,8 +76,11 @@ collinear columns inflate each other's errors but do not bias the remaining esti
 from __future__ import annotations
 
 import numpy as np
-import scipy  # submodules load on first use
 
+# scipy.signal's filters and Welch PSD and scipy.interpolate's CubicSpline, without importing either
+# (about 1.3 CPU-s of a rebuild after one changed viscous run; issue 26)
+from analyses.numerics_iir import butter_lowpass_sos, sosfiltfilt, welch_psd
+from analyses.numerics_spline import NotAKnotSpline
 from analyses.quality import COND_MAX, Sensor, describe_sensor, linear_lstsq, nrmse_pct, time_base_gap
 
 #: The motion must stand this far above the position noise floor (power ratio) to be used. [-]
@@ -162,7 +165,8 @@ def motion_cutoff_hz(x_m, fs_hz: float, sensor: Sensor | None = None, snr_min: f
     if n < 16:
         return None
     nper = int(min(n, 2 ** int(np.ceil(np.log2(max(16, min(n, 16 * fs_hz)))))))
-    f, pxx = scipy.signal.welch(x, fs=fs_hz, nperseg=nper, detrend="linear")
+    # scipy.signal.welch(x, fs=fs_hz, nperseg=nper, detrend="linear") without importing scipy.signal
+    f, pxx = welch_psd(x, fs_hz, nper)
     floor = 2.0 * _sigma_eff(sensor) ** 2 / fs_hz  # one-sided PSD of white noise [m^2/Hz]
     top = fs_hz / 5.0
     above = np.flatnonzero((pxx > snr_min * floor) & (f > 0))
@@ -172,7 +176,7 @@ def motion_cutoff_hz(x_m, fs_hz: float, sensor: Sensor | None = None, snr_min: f
 
 
 def _filt(sos, y):
-    return scipy.signal.sosfiltfilt(sos, y)
+    return sosfiltfilt(sos, y)  # scipy.signal.sosfiltfilt's bits (analyses.numerics_iir)
 
 
 def _estimate_lag(ff, X, X_all, idx, dt: float, max_shift: float):
@@ -183,7 +187,7 @@ def _estimate_lag(ff, X, X_all, idx, dt: float, max_shift: float):
     (and ``fit``, ``y`` None) when the record cannot tell a lag from the other columns, ``fit``
     and ``y`` None when the estimate runs past ``max_shift`` [s] (the rows' margin to the edges).
     """
-    spline = scipy.interpolate.CubicSpline(np.arange(ff.size), ff)
+    spline = NotAKnotSpline(np.arange(ff.size), ff)  # scipy.interpolate.CubicSpline's values, to the bit
     tau, step, tau_se = 0.0, np.inf, float("nan")
     for _ in range(LAG_MAX_ITER):
         y = spline(idx + tau / dt)  # F_meas(t + tau): the force as it was when the motion was
@@ -266,7 +270,7 @@ def friction_dynamic(t_s, x_m, force_n, sensor: Sensor | None = None, force_sens
         # an ideal low-pass, differentiated twice) is under 1 % of its variance: noise in a
         # regressor biases its coefficient toward zero by that fraction (errors in variables)
         for cand in np.geomspace(fc, fc / 30.0, 16):
-            sos = scipy.signal.butter(FILTER_ORDER, cand, fs=fs, output="sos")
+            sos = butter_lowpass_sos(FILTER_ORDER, cand, fs)
             a_c = np.gradient(np.gradient(_filt(sos, x), dt), dt)
             noise_a = (2 * np.pi) ** 4 * sig_x ** 2 * (2 / fs) * cand ** 5 / 5
             if noise_a <= EIV_MAX * float(np.var(a_c)):
@@ -275,7 +279,7 @@ def friction_dynamic(t_s, x_m, force_n, sensor: Sensor | None = None, force_sens
         else:
             a_resolved = False
     out["cutoff_hz"] = float(fc)
-    sos = scipy.signal.butter(FILTER_ORDER, fc, fs=fs, output="sos")
+    sos = butter_lowpass_sos(FILTER_ORDER, fc, fs)
     xf, ff = _filt(sos, x), _filt(sos, f)
     v = np.gradient(xf, dt)
     a = np.gradient(v, dt)
@@ -303,7 +307,7 @@ def friction_dynamic(t_s, x_m, force_n, sensor: Sensor | None = None, force_sens
     # sign from a velocity that keeps the motion's zero crossings (SIGN_CUTOFF_FACTOR)
     fc_sign = min(SIGN_CUTOFF_FACTOR * fc, fs / 4.0)
     if fc_sign > fc:
-        v_s = np.gradient(_filt(scipy.signal.butter(FILTER_ORDER, fc_sign, fs=fs, output="sos"), x), dt)
+        v_s = np.gradient(_filt(butter_lowpass_sos(FILTER_ORDER, fc_sign, fs), x), dt)
         sig_vs = 2 * np.pi * sig_x * np.sqrt(2 * fc_sign ** 3 / (3 * fs))
         vs_min = max(V_MIN_N_SIGMA * sig_vs, V_MIN_REL * float(np.max(np.abs(v_s))), 1e-12)
         col = _filt(sos, np.where(np.abs(v_s) < vs_min, 0.0, np.sign(v_s)))

@@ -37,7 +37,7 @@ import pandas as pd
 import pyarrow.parquet as pq
 
 from analyses.durability import StrokeCounter, stroke_deadband, strokes_note
-from analyses.hose_life import hose_distance_at, hose_life, match_runs
+from analyses.hose_life import hose_life, match_runs
 from analyses.quality import describe_sensor_at_rest
 from analyses.service_life import (kaplan_meier, service_life_summary, weibull_fit, weibull_lr_test,
                                    weibull_quantile_bounds)
@@ -283,7 +283,7 @@ def leak_growth(ctx: StageContext, life: pd.DataFrame, runs_df: pd.DataFrame, ma
         return pd.DataFrame(columns=LEAK_COLUMNS)
     lruns = ctx.runs_of("leakage")
     started = dict(zip(lruns["run_id"], pd.to_datetime(lruns["started_at"], utc=True, format="ISO8601"))) if len(lruns) else {}
-    mine = runs_df.assign(_hose=matched.values) if len(runs_df) else runs_df.assign(_hose=[])
+    runs_of_hose = _runs_by_hose(runs_df, matched)
     status = dict(zip(life["hose_id"], life["status"]))
     adj_of = dict(zip(life["hose_id"], life["adjustment"]))
     rows = []
@@ -292,7 +292,7 @@ def leak_growth(ctx: StageContext, life: pd.DataFrame, runs_df: pd.DataFrame, ma
         when = started.get(r["run_id"])
         if when is None or pd.isna(when):
             continue
-        dist = hose_distance_at(mine[mine["_hose"] == hid], when) if len(mine) else 0.0
+        dist = _distance_at(runs_of_hose.get(hid), when)
         rows.append({"hose_id": hid, "run_id": r["run_id"], "started_at": when, "distance_km": dist,
                      "adjustment": r.get("adjustment") or adj_of.get(hid), "chamber": r.get("chamber"),
                      "pressure_bar": r.get("pressure_bar"), "leak_l_min": r.get("leak_l_min"),
@@ -300,6 +300,31 @@ def leak_growth(ctx: StageContext, life: pd.DataFrame, runs_df: pd.DataFrame, ma
     df = pd.DataFrame(rows, columns=LEAK_COLUMNS)
     df["started_at"] = pd.to_datetime(df["started_at"], utc=True, format="ISO8601")
     return df.sort_values(["hose_id", "distance_km", "run_id", "chamber", "pressure_bar"], ignore_index=True)
+
+
+def _runs_by_hose(runs_df: pd.DataFrame, matched: pd.Series) -> dict:
+    """Per matched hose, its durability runs' start times and distances [km] (NaN -> 0), in the
+    order of ``runs_df``: what :func:`analyses.hose_life.hose_distance_at` reads of them, split
+    once rather than filtered per leakage row (issue 26: a leakage change filtered the runs frame
+    once per plateau of a hose check)."""
+    if not len(runs_df):
+        return {}
+    hoses = pd.Series(matched.values, index=runs_df.index)
+    out = {}
+    for hid, rows in hoses.groupby(hoses, sort=False).groups.items():
+        part = runs_df.loc[rows]
+        out[hid] = (part["started_at"],
+                    pd.to_numeric(part["distance_km"], errors="coerce").fillna(0.0).to_numpy())
+    return out
+
+
+def _distance_at(hose_runs, when) -> float:
+    """Cumulative distance [km] of a hose's runs (:func:`_runs_by_hose`) started before ``when``:
+    :func:`analyses.hose_life.hose_distance_at`, the same sum of the same values in the same order."""
+    if hose_runs is None:
+        return 0.0
+    started, dist = hose_runs
+    return float(dist[(started < when).to_numpy()].sum())
 
 
 def _leak_plot_points(df: pd.DataFrame) -> pd.DataFrame:
