@@ -33,8 +33,8 @@ from pipeline.serve.report.tables import html_table
 #: Bumped when the run pages' layout changes (cached pages are then drawn again).
 RUN_PAGE_VERSION = "4"
 #: What a run's channels are drawn with (part of their key): the drawing module, the units it
-#: shows them in, and the libraries that read and tick them.
-CHANNELS_CODE = (("pipeline/serve/report/channels.py", "schemas/units.py"), ("numpy", "pyarrow", "matplotlib"))
+#: shows them in, and the libraries that read them (its ticks are its own: :func:`~pipeline.serve.report.channels.max_n_ticks`).
+CHANNELS_CODE = (("pipeline/serve/report/channels.py", "schemas/units.py"), ("numpy", "pyarrow"))
 
 
 #: Columns of per-run result tables whose value is computed with a fit pooled over many runs (the
