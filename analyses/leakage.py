@@ -391,6 +391,33 @@ def _setting_label(adjustment: str, value: float, spring_force_max_n: float) -> 
     return f"F = {value:.0f} N ({100 * value / spring_force_max_n:.0f} %)"
 
 
+def leakage_map_plot_rows(leakage_map: pd.DataFrame, adjustment: str) -> pd.DataFrame:
+    """The rows and columns of ``leakage_map`` that :func:`plot_leakage_map` draws for ``adjustment``.
+
+    The rows of the adjustment with a pressure, a leak and a setting, as
+    :func:`characterisation_rows` selects them (a setting's hose checks only when it has no
+    characterisation run), and only the columns the figure reads, on a new index. The figure of
+    these rows is the figure of the whole table; a stage hands the figure these rows, so that its
+    key changes with what it draws (issue 26: a changed hose check redrew both leakage maps).
+
+    Parameters
+    ----------
+    leakage_map : DataFrame
+        Rows of the ``leakage_map`` table.
+    adjustment : {"distance", "force"}
+        Which settings.
+
+    Returns
+    -------
+    DataFrame
+    """
+    setting = "z_rollers_mm" if adjustment == "distance" else "spring_force_n"
+    df = leakage_map[(leakage_map["adjustment"] == adjustment)].dropna(subset=["pressure_bar", "leak_l_min", setting])
+    used = characterisation_rows(df)
+    cols = [c for c in dict.fromkeys((*SETTING_COLUMNS, "pressure_bar", "leak_l_min", "hose_id")) if c in used.columns]
+    return used[cols].reset_index(drop=True)
+
+
 def plot_leakage_map(leakage_map: pd.DataFrame, adjustment: str, threshold_l_min: float | None = LEAK_THRESHOLD_L_MIN,
                      pressure_step_bar: float = 0.1, spring_force_max_n: float = SPRING_FORCE_MAX_N):
     """Leak vs pressure like Figs. 9 (``distance``) and 10 (``force``) of seed 000.
@@ -421,8 +448,7 @@ def plot_leakage_map(leakage_map: pd.DataFrame, adjustment: str, threshold_l_min
     from matplotlib.figure import Figure
 
     setting = "z_rollers_mm" if adjustment == "distance" else "spring_force_n"
-    df = leakage_map[(leakage_map["adjustment"] == adjustment)].dropna(subset=["pressure_bar", "leak_l_min", setting])
-    df = characterisation_rows(df)
+    df = characterisation_rows(leakage_map_plot_rows(leakage_map, adjustment))
     fig = Figure(figsize=(10, 4.2))
     axes = fig.subplots(1, 2, sharey=True)
     values = sorted(df[setting].unique())
@@ -469,5 +495,5 @@ def plot_leakage_map(leakage_map: pd.DataFrame, adjustment: str, threshold_l_min
 
 
 __all__ = ["find_pressure_plateaus", "leakage_plateaus", "leakage_power_law", "is_hose_check",
-           "characterisation_rows", "seal_envelope", "plot_leakage_map", "RUNS_CHARACTERISATION", "RUNS_HOSE_CHECKS",
+           "characterisation_rows", "seal_envelope", "leakage_map_plot_rows", "plot_leakage_map", "RUNS_CHARACTERISATION", "RUNS_HOSE_CHECKS",
            "RUNS_MIXED", "LEAK_THRESHOLD_L_MIN", "SPRING_FORCE_MAX_N", "SETTING_COLUMNS"]

@@ -231,7 +231,8 @@ def run(ctx: StageContext) -> StageOutput:
 
     for adj, name, fig_no in (("distance", "leakage_distance", 9), ("force", "leakage_force", 10)):
         if not leak.empty and (leak["adjustment"] == adj).any():
-            out.draw(name, lk.plot_leakage_map, leak, adj, LEAK_THRESHOLD_L_MIN)
+            # the rows it draws, not the table: its key is of them (a hose check is not drawn)
+            out.draw(name, lk.plot_leakage_map, lk.leakage_map_plot_rows(leak, adj), adj, LEAK_THRESHOLD_L_MIN)
             sub = env[env["adjustment"] == adj]
             fallback = bool((sub["runs_used"] == lk.RUNS_HOSE_CHECKS).any())
             out.captions[name] = (f"Leak vs pressure with {adj} adjustment, one curve per setting from its "

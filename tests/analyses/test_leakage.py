@@ -3,8 +3,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from analyses.leakage import (characterisation_rows, find_pressure_plateaus, is_hose_check, leakage_plateaus,
-                              leakage_power_law, plot_leakage_map, seal_envelope)
+from analyses.leakage import (characterisation_rows, find_pressure_plateaus, is_hose_check, leakage_map_plot_rows,
+                              leakage_plateaus, leakage_power_law, plot_leakage_map, seal_envelope)
 from schemas.units import L_MIN_M3_S, RHO_ANR_KG_M3
 
 KG_S_PER_L_MIN = L_MIN_M3_S * RHO_ANR_KG_M3
@@ -204,6 +204,30 @@ def test_figure_marks_a_setting_with_only_hose_checks():
     assert lb.get_ydata() == pytest.approx([0.1 * p for p in range(7)])
     labels = [t.get_text() for t in fig.legends[0].get_texts()]
     assert labels[:2] == ["z = 5.0 mm", "z = 5.0 mm (hose checks)"]
+
+
+def _png(fig) -> bytes:
+    import io
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=50, metadata={"Software": None})
+    return buf.getvalue()
+
+
+def test_the_figure_is_drawn_from_its_own_rows_and_a_hose_check_of_a_characterised_setting_is_none_of_them():
+    only = [("c", "H7", "B", "distance", 5.0, None, float(p), 0.1 * p) for p in range(7)]  # B: hose checks only
+    force = [("f", None, "A", "force", None, 429.0, float(p), 0.0) for p in range(3)]
+    full = _with_worn_check(only + force)
+    rows = leakage_map_plot_rows(full, "distance")
+    assert sorted(rows["hose_id"].fillna("-").unique()) == ["-", "H7"] and "run_id" not in rows.columns
+    assert list(rows.index) == list(range(len(rows)))
+    assert _png(plot_leakage_map(rows, "distance")) == _png(plot_leakage_map(full, "distance"))
+    worn = full.copy()  # the worn check leaks more: not drawn, the same rows (the figure's key unchanged)
+    worn.loc[worn["hose_id"] == "H104", "leak_l_min"] += 0.5
+    pd.testing.assert_frame_equal(leakage_map_plot_rows(worn, "distance"), rows)
+    moved = full.copy()  # the fallback setting's check is drawn: its rows change
+    moved.loc[moved["hose_id"] == "H7", "leak_l_min"] += 0.5
+    assert not leakage_map_plot_rows(moved, "distance").equals(rows)
 
 
 # -- sensors and the undecided seal level ------------------------------------------------------------

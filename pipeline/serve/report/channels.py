@@ -142,15 +142,88 @@ def number_labels(ticks) -> list[str]:
     return [t.lstrip("-") if float(t) == 0 else t for t in labels]
 
 
-def value_ticks(vmin: float, vmax: float, n: int = 4) -> list[float]:
-    """Round tick values inside [vmin, vmax] (matplotlib's MaxNLocator)."""
-    from matplotlib.ticker import MaxNLocator
+#: The tick steps (multiples of a power of ten) :func:`value_ticks` chooses from.
+TICK_STEPS = (1, 2, 2.5, 5, 10)
 
+
+def value_ticks(vmin: float, vmax: float, n: int = 4) -> list[float]:
+    """Round tick values inside [vmin, vmax]: those of matplotlib's ``MaxNLocator(nbins=n,
+    steps=TICK_STEPS).tick_values`` (with ``axes.autolimit_mode`` "data", the default), computed
+    here (:func:`max_n_ticks`) so that a run page drawn without a stage figure imports no
+    matplotlib (~0.5 CPU-s of a one-file change, issue 26; tested equal to matplotlib's)."""
     if not vmax > vmin:
         return [vmin]
     tol = (vmax - vmin) * 1e-9
-    ticks = MaxNLocator(nbins=n, steps=[1, 2, 2.5, 5, 10]).tick_values(vmin, vmax)
+    ticks = max_n_ticks(vmin, vmax, n, TICK_STEPS)
     return [float(v) for v in ticks if vmin - tol <= v <= vmax + tol]
+
+
+def max_n_ticks(vmin: float, vmax: float, nbins: int, steps=TICK_STEPS):
+    """matplotlib's ``MaxNLocator(nbins, steps=steps).tick_values(vmin, vmax)`` (3.x, ``integer``,
+    ``symmetric`` and ``prune`` off, ``min_n_ticks`` 2, autolimit mode "data"): the same
+    operations on the same numpy types, so the same floats. ``steps`` ascending in [1, 10]."""
+    import numpy as np
+
+    vmin, vmax = _nonsingular(vmin, vmax, expander=1e-13, tiny=1e-14)
+    st = np.asarray(steps)
+    if st[0] != 1:
+        st = np.concatenate([[1], st])
+    if st[-1] != 10:
+        st = np.concatenate([st, [10]])
+    extended = np.concatenate([0.1 * st[:-1], st, [10 * st[1]]])
+    dv = abs(vmax - vmin)  # scale_range
+    meanv = (vmax + vmin) / 2
+    offset = 0 if abs(meanv) / dv < 100 else math.copysign(10 ** (math.log10(abs(meanv)) // 1), meanv)
+    scale = 10 ** (math.log10(dv / nbins) // 1)
+    _vmin, _vmax = vmin - offset, vmax - offset
+    steps_ = extended * scale
+    raw_step = (_vmax - _vmin) / nbins
+    large = steps_ >= raw_step
+    istep = np.nonzero(large)[0][0] if any(large) else len(steps_) - 1
+    ticks = None
+    for step in steps_[:istep + 1][::-1]:
+        best_vmin = (_vmin // step) * step
+        low = _edge(step, offset, _vmin - best_vmin, True)
+        high = _edge(step, offset, _vmax - best_vmin, False)
+        ticks = np.arange(low, high + 1) * step + best_vmin
+        if ((ticks <= _vmax) & (ticks >= _vmin)).sum() >= 2:
+            break
+    return ticks + offset
+
+
+def _edge(step, offset, x, lower: bool):
+    """matplotlib's ``_Edge_integer(step, offset).le(x)`` (``lower``) or ``.ge(x)``."""
+    import numpy as np
+
+    offset = abs(offset)
+    if offset > 0:
+        tol = min(0.4999, max(1e-10, 10 ** (np.log10(offset / step) - 12)))
+    else:
+        tol = 1e-10
+    d, m = divmod(x, step)
+    if lower:
+        return d + 1 if abs(m / step - 1) < tol else d
+    return d if abs(m / step - 0) < tol else d + 1
+
+
+def _nonsingular(vmin: float, vmax: float, expander: float, tiny: float) -> tuple[float, float]:
+    """matplotlib's ``transforms._nonsingular`` (increasing): the endpoints widened when the range
+    is too small to divide."""
+    import numpy as np
+
+    if not np.isfinite(vmin) or not np.isfinite(vmax):
+        return -expander, expander
+    if vmax < vmin:
+        vmin, vmax = vmax, vmin
+    vmin, vmax = float(vmin), float(vmax)
+    maxabs = max(abs(vmin), abs(vmax))
+    if maxabs < (1e6 / tiny) * np.finfo(float).tiny:
+        return -expander, expander
+    if vmax - vmin <= maxabs * tiny:
+        if vmax == 0 and vmin == 0:
+            return -expander, expander
+        return vmin - expander * abs(vmin), vmax + expander * abs(vmax)
+    return vmin, vmax
 
 
 def time_ticks(t0: float, t1: float, n: int = 8) -> tuple[list[float], list[str], str]:

@@ -8,6 +8,12 @@ previous page when their own key is unchanged (:func:`channels_key`: the samples
 channels, the events marked on them and the drawing code; :mod:`~pipeline.serve.report.figures`):
 a new fit of a run's results changes its page, rarely its channels. ``--full`` draws every page
 and figure.
+
+A page shows the rows derived from its run, not the values of a fit pooled over many runs
+(:data:`POOLED_COLUMNS`: a spring test's error against its chamber's model, a pressure step's
+against its group's): those change on every run of the pool whenever any one of its runs changes
+(issue 26: one changed spring test redrew its chamber's 300 pages for a difference in the tenth
+digit), so the page names them and where the report shows them, and its key is of what it shows.
 """
 from __future__ import annotations
 
@@ -25,25 +31,52 @@ from pipeline.serve.report.markup import CSS, esc, fmt, one_line_error, run_href
 from pipeline.serve.report.tables import html_table
 
 #: Bumped when the run pages' layout changes (cached pages are then drawn again).
-RUN_PAGE_VERSION = "3"
+RUN_PAGE_VERSION = "4"
 #: What a run's channels are drawn with (part of their key): the drawing module, the units it
-#: shows them in, and the libraries that read and tick them.
-CHANNELS_CODE = (("pipeline/serve/report/channels.py", "schemas/units.py"), ("numpy", "pyarrow", "matplotlib"))
+#: shows them in, and the libraries that read them (its ticks are its own: :func:`~pipeline.serve.report.channels.max_n_ticks`).
+CHANNELS_CODE = (("pipeline/serve/report/channels.py", "schemas/units.py"), ("numpy", "pyarrow"))
+
+
+#: Columns of per-run result tables whose value is computed with a fit pooled over many runs (the
+#: model of a chamber or of a group of pressure steps applied to this run): table -> (columns, the
+#: report's anchor that shows them). A run page does not show them (see the module's docstring).
+POOLED_COLUMNS = {
+    "spring_tests": (("nrmse_pct",), "raw-spring_tests"),
+    "spring_loop_energy": (("model_loop_energy_j", "structural_energy_j"), "raw-spring_loop_energy"),
+    "pressure_steps": (("nrmse_pct",), "raw-pressure_steps"),
+}
 
 
 def _run_results(db: ReportDB) -> dict[str, list[tuple[str, list[str], list[tuple]]]]:
-    """Per run id: (table, columns, rows) of every result table with a ``run_id`` column."""
+    """Per run id: (table, columns, rows) of every result table with a ``run_id`` column, without
+    the :data:`POOLED_COLUMNS` (what the run page shows)."""
     out: dict[str, list] = {}
     skip = {"runs", "channels", "rebuild_inputs", "ingest_state", "durability_strokes",
             "rebuild_changes"}  # bookkeeping: after a --full rebuild every run is "changed", every page redrawn
     for t in sorted(db.tables):
-        if t in skip or t.startswith("samples_") or "run_id" not in db.columns(t):
+        if t in skip or t.startswith("samples_"):
             continue
-        cols, rows = db.rows(f'SELECT * FROM "{t}" ORDER BY run_id')
+        cols = db.columns(t)
+        if "run_id" not in cols:
+            continue
+        pooled = set(POOLED_COLUMNS.get(t, ((), ""))[0])
+        shown = [c for c in cols if c not in pooled]
+        cols, rows = db.rows("SELECT " + ", ".join(f'"{c}"' for c in shown) + f' FROM "{t}" ORDER BY run_id')
         k = cols.index("run_id")
         for r in rows:
             out.setdefault(r[k], []).append((t, cols, r))
     return out
+
+
+def _pooled_note(results: list) -> str:
+    """The line that names the :data:`POOLED_COLUMNS` of the run's tables and where the report shows them."""
+    have = sorted({t for t, _c, _r in results if t in POOLED_COLUMNS})
+    if not have:
+        return ""
+    named = "; ".join(f'<a href="../index.html#{POOLED_COLUMNS[t][1]}">{esc(t)}</a>: '
+                      + ", ".join(esc(c) for c in POOLED_COLUMNS[t][0]) for t in have)
+    return ('<p class="meta">Not shown here: the values computed with a fit pooled over many runs (they change '
+            f"whenever any run of the pool does), in the morning report's tables: {named}.</p>")
 
 
 def _run_page(run: dict, results: list, svg: str, key: str) -> str:
@@ -64,7 +97,8 @@ def _run_page(run: dict, results: list, svg: str, key: str) -> str:
         "dashed: what the analyses found (their rows are below).</p></section>",
         f'<section id="metadata"><h2>Metadata</h2><div class="wrap"><table>{_metadata(run)}</table></div></section>',
         f'<section id="warnings"><h2>Warnings ({len(warns)})</h2>{warn_html}</section>',
-        f'<section id="results"><h2>Results derived from this run</h2>{_results(results)}</section>',
+        f'<section id="results"><h2>Results derived from this run</h2>{_results(results)}{_pooled_note(results)}'
+        "</section>",
         "</body></html>"])
 
 

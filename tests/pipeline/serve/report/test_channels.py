@@ -116,3 +116,32 @@ def test_infinite_and_missing_samples_are_no_samples_of_their_pixel_column(tmp_p
     assert hi[1] == x[19] and lo[1] == x[11] and np.isnan(lo[2]) and np.isnan(hi[2])
     assert lo[3] == x[30] and hi[3] == x[39]
     assert b["y_m"][0].tolist() == y[::10].tolist() and b["y_m"][1].tolist() == y[9::10].tolist()
+
+
+def test_ticks_are_matplotlibs_maxnlocator_ticks_computed_without_importing_it():
+    """The run pages' ticks are MaxNLocator's, float for float (over awkward ranges: tiny, huge, far
+    from zero, empty, reversed, not finite), and drawing them imports no matplotlib."""
+    import math
+    import random
+    import subprocess
+    import sys
+
+    from matplotlib.ticker import MaxNLocator
+
+    from pipeline.serve.report.channels import TICK_STEPS, max_n_ticks
+
+    rng = random.Random(26)
+    ranges = [(0.0, 1.0), (0.0, 0.0), (5.0, 5.0), (3.0, -2.0), (1e5, 1e5 + 1e-7), (28800.0, 28800.5),
+              (-1e-300, 1e-300), (0.0, math.inf), (math.nan, 1.0), (-0.004, 0.021), (1e12, 1e12 + 3)]
+    for _ in range(3000):
+        e = rng.uniform(-12, 12)
+        a = rng.uniform(-1, 1) * 10 ** e
+        ranges.append((a, a + abs(rng.gauss(0, 1)) * 10 ** (e + rng.uniform(-10, 2))))
+    for a, b in ranges:
+        for n in (4, 8):
+            want = MaxNLocator(nbins=n, steps=list(TICK_STEPS)).tick_values(a, b).tolist()
+            assert max_n_ticks(a, b, n).tolist() == want, (a, b, n)
+    code = ("import sys; from pipeline.serve.report import channels as c; c.time_ticks(0.0, 7.3); "
+            "c.value_ticks(-0.004, 0.021); print('matplotlib' in sys.modules)")
+    assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip() \
+        == "False"

@@ -98,11 +98,22 @@ def test_a_page_drawn_again_takes_its_unchanged_channels_and_is_the_page_a_full_
     read = []
     real = pages.downsample_minmax
     monkeypatch.setattr(pages, "downsample_minmax", lambda path, *a, **k: read.append(path) or real(path, *a, **k))
-    con = duckdb.connect(str(warehouse / DB_NAME))  # a refit: a row of the run changes, not its events
+    now = datetime(2026, 11, 26, 6, 0, tzinfo=timezone.utc)
+    con = duckdb.connect(str(warehouse / DB_NAME))  # the pooled fit moves: its value on every step of the group
     con.execute("UPDATE pressure_steps SET nrmse_pct = coalesce(nrmse_pct, 0) + 1 WHERE run_id = ?", [vent])
+    con.execute("UPDATE rebuild_log SET inputs_key = inputs_key || '-pooled'")
+    con.close()
+    pooled = stage_report(warehouse, now=now)  # not shown on the page: the page is the live one
+    assert (pooled / "runs" / page_name(vent)).stat().st_ino == (live / page_name(vent)).stat().st_ino
+    assert "nrmse" not in before[vent].split('id="results"')[1].split("Not shown here")[0]
+    assert 'href="../index.html#raw-pressure_steps">pressure_steps</a>: nrmse_pct' in before[vent]
+    assert 'id="raw-pressure_steps"' in (pooled / "index.html").read_text(encoding="utf-8")
+    assert _files(pooled) == _files(stage_report(warehouse, now=now, run_pages="all"))
+    read.clear()
+    con = duckdb.connect(str(warehouse / DB_NAME))  # a refit: a row of the run changes, not its events
+    con.execute("UPDATE pressure_steps SET p_start_bar = coalesce(p_start_bar, 0) + 1 WHERE run_id = ?", [vent])
     con.execute("UPDATE rebuild_log SET inputs_key = inputs_key || '-refit'")  # what a rebuild that refits writes
     con.close()
-    now = datetime(2026, 11, 26, 6, 0, tzinfo=timezone.utc)
     incremental = stage_report(warehouse, now=now)
     assert read == []  # neither run's samples read: the vent page's channels taken from its previous page
     page = (incremental / "runs" / page_name(vent)).read_text(encoding="utf-8")
