@@ -63,7 +63,7 @@ from analyses.hose_life import match_runs
 from analyses.life_effect import life_effect
 from analyses.sequential import FEW_FAILURES, NoDesign, design_for, design_shape
 from analyses.sequential_table import adopt_table, design_table, holds_table
-from analyses.test_plan import hoses_on_test
+from analyses.test_plan import hoses_on_test_s
 from pipeline.raw.logbook import merge_logbooks, read_logbooks
 from pipeline.stages import Reads, StageContext, StageOutput
 from pipeline.versions import hash_sources, project_imports
@@ -215,6 +215,12 @@ def _design_here(item: dict, hoses: pd.DataFrame, runs: pd.DataFrame, events: pd
     return design_of(item, frozen, designed, ask)
 
 
+def _ns_floats(values: list) -> np.ndarray:
+    """An item's int nanoseconds as floats for :func:`analyses.test_plan.hoses_on_test_s` (NaN: None or NaT's int):
+    the order of the times kept, without pandas per hose type (session 24) [ns]."""
+    return np.array([np.nan if v is None or v == _NAT else v for v in values], dtype=np.float64)
+
+
 def design_item(plan: dict, frozen: dict | None, hoses: dict) -> dict | None:
     """What :func:`design_failures` needs when the plan leaves ``max_failures`` unset and a look froze
     it (:func:`freeze_of`), else None; ``hoses``: the item's hose columns, whose installations and ends up
@@ -224,8 +230,8 @@ def design_item(plan: dict, frozen: dict | None, hoses: dict) -> dict | None:
     by = frozen["event_at"]
     ended = [e if e is not None and e <= by else None for e in hoses["ended_at"]]
     mine = [i for i, t in enumerate(hoses["installed_at"]) if t is None or t <= by]
-    on_test = hoses_on_test([hoses["installed_at"][i] for i in mine], [ended[i] for i in mine],
-                            [GROUP.get(hoses["adjustment"][i], -1) for i in mine])
+    on_test = hoses_on_test_s(_ns_floats([hoses["installed_at"][i] for i in mine]), _ns_floats([ended[i] for i in mine]),
+                              np.array([GROUP.get(hoses["adjustment"][i], -1) for i in mine], dtype=int))
     # on the design grid: hose types whose shapes round alike share one item (one computation)
     return {k: plan[k] for k in ("margin", "alpha", "power", "spending")} | {"shape": design_shape(frozen["shape"]),
                                                                            "hoses": on_test}
