@@ -44,7 +44,7 @@ import pandas as pd
 from analyses.life_effect import SEPARATE, common_shape_fit
 from analyses.sequential import NoDesign, design_for, design_shape, efficacy_boundaries
 from analyses.bench_schedule import SCHEDULE_SIMULATIONS, BenchSchedule, bench_schedules
-from analyses.test_plan import (CAPACITY_DAYS, N_SIMULATIONS, HoseState, MoreTesting, PowerNow, decision_date,
+from analyses.test_plan import (CAPACITY_DAYS, N_SIMULATIONS, HoseState, MoreTesting, decision_date,
                                 epoch_seconds, hoses_on_test_s, measured_capacity, more_testing, power_now,
                                 target_powers)
 from pipeline.stages import Reads, StageContext, StageOutput
@@ -162,54 +162,78 @@ def _needed_items(item: dict) -> list[dict]:
             for p in target_powers(d["power"])]
 
 
-#: What :func:`plan_hose_type` reads of a :func:`hose_items` item (with ``needed``, ``maximum``, ``benches``): not
-#: the plan's power, nor the target powers, which the stage puts on the rows (session 24).
-_PLAN_KEYS = ("hose_type", "distance", "failed", "running", "group", "shape", "model", "n_simulations", "seed")
+#: What :func:`plan_hose_type` reads of a :func:`hose_items` item (with ``needed`` and ``benches``): not the plan's
+#: power, nor the target powers, which the stage puts on the rows (session 24).
+_PLAN_KEYS = ("hose_type", "distance", "failed", "running", "group", "n_simulations", "seed")
 
 
 def plan_work(item: dict, needed: list, benches) -> dict:
-    """The :func:`plan_hose_type` item of a hose type: its hoses, shape and seed, the plan's margin, alpha and
-    spending, whether ``max_failures`` is frozen, ``needed`` (``[failures_needed or None, note]`` per target power,
-    in :func:`analyses.test_plan.target_powers`' order), ``maximum`` (the looks ``power_now`` runs to: the frozen
-    ``max_failures``, else the first target's ``failures_needed``) and ``benches``."""
+    """The :func:`plan_hose_type` item of a hose type: its hoses and seed, the plan's margin, alpha and spending,
+    ``needed`` (``[failures_needed or None, note]`` per target power, in :func:`analyses.test_plan.target_powers`'
+    order) and ``benches``."""
     s = item["settings"]
-    return {k: item[k] for k in _PLAN_KEYS} | {
-        "settings": {k: s[k] for k in ("margin", "alpha", "spending", "max_failures")},
-        "needed": needed, "maximum": s["max_failures"] or needed[0][0], "benches": benches}
+    return {k: item[k] for k in _PLAN_KEYS} | {"settings": {k: s[k] for k in ("margin", "alpha", "spending")},
+                                               "needed": needed, "benches": benches}
 
 
-def plan_hose_type(item: dict) -> list[dict]:
-    """The ``test_plan`` rows of one hose type (without the bench capacity and the target power: one row per
-    entry of ``needed``, in its order); module level for ``ctx.map``.
-
-    ``item``: :func:`plan_work` (the hose type's hoses, what the plan's designs give, its benches).
-    """
+def power_work(item: dict, needed: list) -> dict:
+    """The :func:`power_of` item of a hose type: its hoses and seed, the plan's margin, alpha and spending and
+    ``maximum``, the looks ``power_now`` runs to (the frozen ``max_failures``, else ``failures_needed`` at the
+    plan's power, ``needed[0]``): a power change that leaves the maximum keeps its memo (session 24)."""
     s = item["settings"]
-    boundaries = _boundaries(item["maximum"], s["alpha"], s["spending"]) if item["maximum"] else []
-    state = HoseState(np.array(item["distance"], float), np.array(item["failed"], bool),
-                      np.array(item["running"], bool), np.array(item["group"], int))
+    return {k: item[k] for k in ("hose_type", "distance", "failed", "running", "group", "n_simulations", "seed")} | {
+        "settings": {k: s[k] for k in ("margin", "alpha", "spending")}, "maximum": s["max_failures"] or needed[0][0]}
+
+
+def _state(item: dict) -> HoseState:
+    return HoseState(np.array(item["distance"], float), np.array(item["failed"], bool),
+                     np.array(item["running"], bool), np.array(item["group"], int))
+
+
+def power_of(item: dict) -> list:
+    """``[power_now, mc_se, n_simulations, note]`` of one hose type (module level for ``ctx.map``, memoised):
+    :func:`analyses.test_plan.power_now` run to the item's ``maximum`` (:func:`power_work`)."""
+    s = item["settings"]
+    state = _state(item)
+    if not item["maximum"]:
+        return [math.nan, math.nan, 0, "no maximum: the design does not exist (failures_needed)"]
+    fit = common_shape_fit(state.distance, state.failed, state.group)
+    now = power_now(state, fit, _boundaries(item["maximum"], s["alpha"], s["spending"]), s["margin"],
+                    item["n_simulations"], item["seed"])
+    return [now.power, now.mc_se, now.n_simulations, now.note]
+
+
+def head_notes(item: dict, now_note: str | None) -> list[str]:
+    """The notes every row of a :func:`hose_items` item opens with (the shape, the maximum, the model, then
+    ``power_now``'s)."""
     notes = [] if item["shape"] is not None else ["failures_needed at shape 1.0: life_effect has no common shape"]
-    if s["max_failures"] is None:
+    if item["settings"]["max_failures"] is None:
         notes.append("power_now runs to failures_needed at the plan's power: no max_failures frozen yet (life_verdict)")
     if item["model"] == SEPARATE:
         notes.append("the simulations assume a common shape; life_effect finds the shapes differ")
+    return notes + ([f"power_now: {now_note}"] if now_note else [])
+
+
+def plan_hose_type(item: dict) -> list[dict]:
+    """The ``test_plan`` rows of one hose type without ``power_now`` (:func:`power_of`), the bench capacity and the
+    target power: one row per entry of ``needed``, in its order, its ``note`` the list of the row's own notes (the
+    stage opens it with :func:`head_notes`); module level for ``ctx.map``.
+
+    ``item``: :func:`plan_work` (the hose type's hoses, what the plan's designs give, its benches).
+    """
+    state = _state(item)
     fit = common_shape_fit(state.distance, state.failed, state.group)
-    now = power_now(state, fit, boundaries, s["margin"], item["n_simulations"], item["seed"]) \
-        if len(boundaries) else PowerNow(math.nan, math.nan, 0, "no maximum: the design does not exist (failures_needed)")
-    if now.note:
-        notes.append(f"power_now: {now.note}")
     rows = []
     schedules = _schedules(item, state, fit, [needed for needed, _ in item["needed"]])
     for (needed, short), sched in zip(item["needed"], schedules):
         more = more_testing(state, fit, needed, item["n_simulations"], item["seed"]) if needed is not None \
             else MoreTesting(None, math.nan, None)
-        rows.append({"hose_type": item["hose_type"], "failures_needed": needed,
-                     "failures": sum(state.failures), "power_now": now.power,
+        rows.append({"hose_type": item["hose_type"], "failures_needed": needed, "failures": sum(state.failures),
                      "more_hoses_per_adjustment": more.hoses_per_adjustment, "more_km": more.km,
-                     "n_simulations": now.n_simulations, "mc_se": now.mc_se, "decision_km": sched.hose_km,
-                     "note": "; ".join(notes + [f"failures_needed: {short}"] * bool(short)
-                                       + ([f"more_km: {more.note}"] if more.note else [])
-                                       + ([f"expected_decision_date: {sched.note}"] if sched.note else [])) or None})
+                     "decision_km": sched.hose_km,
+                     "note": [f"failures_needed: {short}"] * bool(short)
+                     + ([f"more_km: {more.note}"] if more.note else [])
+                     + ([f"expected_decision_date: {sched.note}"] if sched.note else [])})
     return rows
 
 
@@ -242,7 +266,7 @@ def _cost(item: dict) -> int:
     """A hose type's item's work, roughly [-]: its hoses times the most looks its simulations read (the
     schedules' maxima, the test's own boundaries)."""
     needed = [n for n, _ in item["needed"] if n is not None]
-    return len(item["distance"]) * max([item["maximum"] or 0, *needed])
+    return len(item["distance"]) * max([item.get("maximum") or 0, *needed])
 
 
 def latest_event(life: pd.DataFrame, runs: pd.DataFrame):
@@ -308,16 +332,27 @@ def plan_table(ctx: StageContext) -> pd.DataFrame:
     keys = sorted({k for ks in asks for k in ks})   # one per (design, target power): the 0.9 ones outlive a power change
     needed = dict(zip(keys, ctx.map(needed_of, [json.loads(k) for k in keys], label="test plan designs")))
     powers = [target_powers(i["settings"]["power"]) for i in items]
-    items = [plan_work(i, [needed[k] for k in ks],
-                       _bench_capacity(ctx.plan.for_hose_type(i["hose_type"]), measured[i["hose_type"]])[0])
-             for i, ks in zip(items, asks)]
+    need = [[needed[k] for k in ks] for ks in asks]
+    work = [plan_work(i, n, _bench_capacity(ctx.plan.for_hose_type(i["hose_type"]), measured[i["hose_type"]])[0])
+            for i, n in zip(items, need)]
+    # power_now and the schedules are memoised apart: a power change moves the maximum of some hose types and the
+    # failures_needed of others (session 24)
     # the costliest hose types first: the workers' last chunks are then the cheap ones (session 23)
-    order = sorted(range(len(items)), key=lambda i: -_cost(items[i]))
-    results = [None] * len(items)
-    for i, res in zip(order, ctx.map(plan_hose_type, [items[i] for i in order], label="test plan") if items else []):
+    order = sorted(range(len(work)), key=lambda i: -_cost(work[i]))
+    now = [None] * len(work)
+    for i, res in zip(order, ctx.map(power_of, [power_work(items[i], need[i]) for i in order],
+                                     label="test plan: power_now") if work else []):
+        now[i] = res
+    results = [None] * len(work)
+    for i, res in zip(order, ctx.map(plan_hose_type, [work[i] for i in order], label="test plan") if work else []):
         results[i] = res
-    rows = [_capacity(dict(r, target_power=p), ctx.plan.for_hose_type(item["hose_type"]), measured[item["hose_type"]],
-                      today) for item, res, ps in zip(items, results, powers) for r, p in zip(res, ps)]
+    rows = []
+    for item, res, ps, pn in zip(items, results, powers, now):
+        head = head_notes(item, pn[3])
+        for r, p in zip(res, ps):
+            r = dict(r, target_power=p, power_now=pn[0], mc_se=pn[1], n_simulations=pn[2],
+                     note="; ".join(head + r["note"]) or None)
+            rows.append(_capacity(r, ctx.plan.for_hose_type(item["hose_type"]), measured[item["hose_type"]], today))
     df = pd.DataFrame(rows, columns=COLUMNS)
     for c in ("failures_needed", "failures", "more_hoses_per_adjustment", "benches", "n_simulations"):
         df[c] = df[c].astype("Int64")

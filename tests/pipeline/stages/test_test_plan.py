@@ -169,7 +169,7 @@ def test_runs_in_the_worker_pool_on_what_it_declares(df):
     ctx = DeclaredContext(stage.NAME, stage.READS, runs=pd.DataFrame(), results=frames(), raw=None, warehouse=None,
                           plan=PLAN, mapper=mapper)
     out = stage.run(ctx)
-    assert calls == ["needed_of", "plan_hose_type"]
+    assert calls == ["needed_of", "power_of", "plan_hose_type"]
     pd.testing.assert_frame_equal(out.tables["test_plan"], df)
     assert stage.WRITES == ("test_plan",)
 
@@ -241,9 +241,12 @@ def test_a_power_change_recomputes_only_what_reads_the_power():
     t81, b = items_of(0.801)      # a change too small to move a design here
     assert [i for i in a["needed_of"] if i["power"] == 0.9] == [i for i in b["needed_of"] if i["power"] == 0.9]
     assert [i["seed"] for i in a["plan_hose_type"]] == [i["seed"] for i in b["plan_hose_type"]]
-    assert not any("power" in i["settings"] for i in a["plan_hose_type"])
+    assert not any("power" in i["settings"] for i in a["plan_hose_type"] + a["power_of"])
+    assert [i["seed"] for i in a["power_of"]] == [i["seed"] for i in b["power_of"]]
+    for x, y in zip(a["power_of"], b["power_of"]):          # power_now's item: the same unless its maximum moved
+        assert (x == y) == (x["maximum"] == y["maximum"])
     for x, y in zip(a["plan_hose_type"], b["plan_hose_type"]):
-        same = x["needed"] == y["needed"] and x["maximum"] == y["maximum"]
+        same = x["needed"] == y["needed"]
         assert (x == y) == same
         if same:      # the same simulations: the rows differ by their target power only
             r80, r81 = (t[t["hose_type"] == x["hose_type"]].reset_index(drop=True) for t in (t80, t81))
