@@ -102,9 +102,10 @@ def hose_items(life: pd.DataFrame, effect: pd.DataFrame | None, plan, verdict: p
                 "settings": {k: getattr(s, k) for k in _SETTINGS} | {"max_failures": frozen.get(htype, s.max_failures)},
                 "n_simulations": N_SIMULATIONS,
                 "hoses_on_test": _on_test(g)}
-        # the seed: everything but the power, which only the designs read (session 24: a power change that leaves a
-        # hose type's failures_needed and maximum as they were leaves its simulations as they were, memo included)
-        unpowered = dict(item, settings={k: v for k, v in item["settings"].items() if k != "power"})
+        # the seed: everything but the power and the maximum, which reach the simulations through the designs only
+        # (session 24: a power change that leaves a hose type's failures_needed, or its maximum, as they were leaves
+        # its schedules, or its power_now, as they were, memo included)
+        unpowered = dict(item, settings={k: v for k, v in item["settings"].items() if k not in ("power", "max_failures")})
         item["seed"] = int(hashlib.sha256(json.dumps(unpowered, sort_keys=True).encode()).hexdigest()[:16], 16)
         items.append(item)
     return items
