@@ -23,10 +23,14 @@ target power (the plan's, and 0.9; one row when they are equal), from :mod:`anal
   measured from every hose type's runs together, the lab's benches given to each type).
 
 Seeds: no stage is handed a digest of its inputs, so each hose type's simulations are seeded from
-a sha256 of its own ``hose_life`` rows (id, adjustment, status, distance), its plan settings and
+a sha256 of its own ``hose_life`` rows (id, adjustment, status, distance), its plan settings but the
+power and ``max_failures`` (since session 24: they reach the simulations through the designs only) and
 its ``life_effect`` shape: a hose type whose data did not change keeps its figures, whatever
-else changed. Each hose type is one item of ``ctx.map`` (the stage's worker pool, memoised per
-item across rebuilds). Since session 22 the replicates come in batches until the figure's Monte Carlo
+else changed. Each hose type is an item of three maps of ``ctx.map`` (the stage's worker pool, memoised per
+item across rebuilds): its designs (one per target power: :func:`needed_of`), its ``power_now``
+(:func:`power_of`, keyed by the maximum it runs to) and its schedules and ``more_testing``
+(:func:`plan_hose_type`, keyed by the ``failures_needed`` they run to), so that a plan change of the power
+re-runs only what it moved. Since session 22 the replicates come in batches until the figure's Monte Carlo
 error is small enough (``power_now``: mc_se <= 0.01, ``n_simulations`` what was drawn; the date: its
 median's error <= 5 %), and a hose type's rows read one set of the benches' replicates, each at its own
 design's boundaries (:func:`analyses.bench_schedule.bench_schedules`).
