@@ -123,8 +123,20 @@ def hoses_on_test(installed, ended, group) -> int | None:
     int or None
         None when no hose has an installation time.
     """
-    start, stop = (((pd.to_datetime(pd.Series(x), utc=True) - pd.Timestamp(0, tz="UTC")).dt.total_seconds()
-                    .to_numpy(float)) for x in (installed, ended))     # [s]; NaN where unknown
+    start, stop = (epoch_seconds(x) for x in (installed, ended))     # [s]; NaN where unknown
+    return hoses_on_test_s(start, stop, group)
+
+
+def epoch_seconds(times) -> np.ndarray:
+    """Times (datetime64, timestamps, ISO text; NaT/None where unknown) as seconds since the epoch, UTC [s]; NaN
+    where unknown."""
+    return (pd.to_datetime(pd.Series(times), utc=True) - pd.Timestamp(0, tz="UTC")).dt.total_seconds().to_numpy(float)
+
+
+def hoses_on_test_s(start, stop, group) -> int | None:
+    """:func:`hoses_on_test` from the times already in seconds (:func:`epoch_seconds`: the stage converts every
+    hose type's once) [s]; the same number."""
+    start, stop = np.asarray(start, float), np.asarray(stop, float)
     group = np.asarray(group, int)
     best = 0
     for g in (0, 1):
@@ -498,4 +510,4 @@ def decision_date(today: pd.Timestamp, more_km: float, benches, km_per_day):
 
 __all__ = ["TARGET_POWER", "N_SIMULATIONS", "POWER_BATCH", "POWER_SE_TARGET", "CAPACITY_DAYS", "HoseState", "ModelDraws",
            "PowerNow", "MoreTesting", "target_powers", "batch_rng", "predictive_draws", "remaining_km", "power_now",
-           "more_testing", "measured_capacity", "decision_date"]
+           "more_testing", "measured_capacity", "decision_date", "hoses_on_test", "epoch_seconds", "hoses_on_test_s"]

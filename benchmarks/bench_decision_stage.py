@@ -19,7 +19,9 @@ test_plan stages read among the stages compared: every hose type's looks and pla
 stages re-run cold (no memo entry, no design in any process); since session 23 the ``life_effect``
 items carry only what they read (not the power: taken from the memo) and the even designs' boundaries are
 read from the warehouse's ``cache/designs-<key>.npz`` (written by the first rebuild), as in a lab's rebuild
-after a plan change. The in-process designed case (``--detail``) stays cold: no memo, no designs file. The same rebuild is run with every stage and
+after a plan change; since session 24 only what reads the power re-runs: the designs at the new power, and the
+looks and simulations of the hose types whose ``max_failures`` or ``failures_needed`` it moved (the others,
+the frozen looks and the designs at 0.9 come from the memo). The in-process designed case (``--detail``) stays cold: no memo, no designs file. The same rebuild is run with every stage and
 with the two stages absent (``pneubench`` with them left out of the stage registry: the baseline a
 lab without them would run), alternately, and a no-op rebuild beside; the difference is what the
 decision stages add (their tables assembled and their report section included). The
@@ -379,7 +381,7 @@ def on_demo(tmp: Path, repeat: int) -> bool:
     first_rebuild(raw, wh)
     res = added_by(raw, wh, plan_changer(raw / "plan.toml", "power = 0.8\n", "power = 0.81\n"), DECISION_STAGES,
                    repeat)
-    return report_added("the demo, plan power 0.8 -> 0.81 (the decision stages re-run cold: every item new)", res,
+    return report_added("the demo, plan power 0.8 -> 0.81 (the decision stages re-run what reads the power)", res,
                         2.0, DECISION_STAGES)
 
 
@@ -395,7 +397,7 @@ def on_synthetic(tmp: Path, types: int, seed: int, repeat: int) -> bool:
     first_rebuild(raw, wh)
     res = added_by(raw, wh, plan_changer(raw / "plan.toml", "power = 0.8\n", "power = 0.81\n"), DECISION_STAGES,
                    repeat)
-    return report_added(f"{types} hose types, plan power 0.8 -> 0.81 (cold: every item and design new)", res,
+    return report_added(f"{types} hose types, plan power 0.8 -> 0.81 (what reads the power re-runs)", res,
                         10.0 * types / 200, DECISION_STAGES)
 
 

@@ -63,7 +63,7 @@ from analyses.hose_life import match_runs
 from analyses.life_effect import life_effect
 from analyses.sequential import FEW_FAILURES, NoDesign, design_for, design_shape
 from analyses.sequential_table import adopt_table, design_table, holds_table
-from analyses.test_plan import hoses_on_test
+from analyses.test_plan import hoses_on_test_s
 from pipeline.raw.logbook import merge_logbooks, read_logbooks
 from pipeline.stages import Reads, StageContext, StageOutput
 from pipeline.versions import hash_sources, project_imports
@@ -215,6 +215,12 @@ def _design_here(item: dict, hoses: pd.DataFrame, runs: pd.DataFrame, events: pd
     return design_of(item, frozen, designed, ask)
 
 
+def _ns_floats(values: list) -> np.ndarray:
+    """An item's int nanoseconds as floats for :func:`analyses.test_plan.hoses_on_test_s` (NaN: None or NaT's int):
+    the order of the times kept, without pandas per hose type (session 24) [ns]."""
+    return np.array([np.nan if v is None or v == _NAT else v for v in values], dtype=np.float64)
+
+
 def design_item(plan: dict, frozen: dict | None, hoses: dict) -> dict | None:
     """What :func:`design_failures` needs when the plan leaves ``max_failures`` unset and a look froze
     it (:func:`freeze_of`), else None; ``hoses``: the item's hose columns, whose installations and ends up
@@ -224,8 +230,8 @@ def design_item(plan: dict, frozen: dict | None, hoses: dict) -> dict | None:
     by = frozen["event_at"]
     ended = [e if e is not None and e <= by else None for e in hoses["ended_at"]]
     mine = [i for i, t in enumerate(hoses["installed_at"]) if t is None or t <= by]
-    on_test = hoses_on_test([hoses["installed_at"][i] for i in mine], [ended[i] for i in mine],
-                            [GROUP.get(hoses["adjustment"][i], -1) for i in mine])
+    on_test = hoses_on_test_s(_ns_floats([hoses["installed_at"][i] for i in mine]), _ns_floats([ended[i] for i in mine]),
+                              np.array([GROUP.get(hoses["adjustment"][i], -1) for i in mine], dtype=int))
     # on the design grid: hose types whose shapes round alike share one item (one computation)
     return {k: plan[k] for k in ("margin", "alpha", "power", "spending")} | {"shape": design_shape(frozen["shape"]),
                                                                            "hoses": on_test}
@@ -295,8 +301,8 @@ def _looks_rows(hose_type: str, est: pd.DataFrame, sv, present: bool) -> list[di
 def _verdict_row(item: dict, looks: list[dict], sv, design: tuple) -> dict:
     """``life_verdict``'s row: the settings, the last look, the deciding look and the note."""
     plan = item["plan"]
-    row = {"hose_type": item["hose_type"], **{k: plan[k] for k in ("margin", "alpha", "power", "confidence",
-                                                                  "spending", "plan_from")},
+    row = {"hose_type": item["hose_type"], **{k: plan.get(k) for k in ("margin", "alpha", "power", "confidence",
+                                                                      "spending", "plan_from")},
            "max_failures": design[0], "max_failures_from": design[1], "looks": len(looks), "failures": 0,
            "information_fraction": 0.0}
     notes = [design[2]]
@@ -422,7 +428,7 @@ def design_asks(ctx: StageContext, items: list[dict]) -> tuple[list, list]:
     :func:`design_item` (None when none is needed)."""
     unset = [it for it in items if it["plan"]["max_failures"] is None]
     found = dict(zip([it["hose_type"] for it in unset],
-                     ctx.map(freeze_of, unset, label="decision: freeze") if unset else []))
+                     ctx.map(freeze_of, [freeze_item(it) for it in unset], label="decision: freeze") if unset else []))
     frozen = [found.get(it["hose_type"]) for it in items]
     return frozen, [design_item(it["plan"], fr, it["hoses"]) for it, fr in zip(items, frozen)]
 
@@ -510,6 +516,29 @@ def keep_designs(warehouse: Path, items: list[dict]) -> dict:
     return {pair: str(path) for pair, path in paths.items()}
 
 
+def freeze_item(item: dict) -> dict:
+    """What :func:`freeze_of` reads of a :func:`hose_type_item`: its hoses and runs (no plan: the frozen look is the
+    data's, so a plan change keeps its memo)."""
+    return {"hose_type": item["hose_type"], "hoses": item["hoses"], "runs": item["runs"]}
+
+
+def designed_in_worker(item: dict) -> list:
+    """:func:`design_failures` of a :func:`design_item` in a worker (module level for ``ctx.map``, memoised by
+    the design's settings): the even designs' file ``item["designs"]`` (:func:`keep_designs`) adopted first."""
+    ask = {k: v for k, v in item.items() if k != "designs"}
+    use_designs(item.get("designs"), ask["alpha"], ask["spending"])
+    return design_failures(ask)
+
+
+def looks_item(item: dict, design: list) -> dict:
+    """The :func:`decide_hose_type` item of a hose type whose ``design`` (:func:`design_of`) is known: its hoses, runs
+    and plan without the power (which only the design reads: a power change that leaves ``max_failures`` as it
+    was leaves the looks' item, and so their memo, as it was; session 24). ``life_verdict``'s ``power`` is put
+    on its row by :func:`run`."""
+    return {"hose_type": item["hose_type"], "hoses": item["hoses"], "runs": item["runs"],
+            "plan": {k: v for k, v in item["plan"].items() if k != "power"}, "design": design}
+
+
 def effect_item(item: dict) -> dict:
     """What :func:`effect_of` reads of a :func:`hose_type_item`: the hoses' adjustment, distance and status, the
     plan's confidence and alpha (so that a plan change of another key, e.g. the power, keeps its memo)."""
@@ -528,8 +557,18 @@ def run(ctx: StageContext) -> StageOutput:
         items = [it | {"designs": designs[it["plan"]["alpha"], it["plan"]["spending"]]}
                  if it["plan"]["max_failures"] is None else it for it in items]
     effects = ctx.map(effect_of, [effect_item(it) for it in items], label="decision: life effect")
-    # the frozen look and its design are computed in each hose type's own task (_design_here)
-    results = ctx.map(decide_hose_type, items, label="decision: looks")
+    # session 24: the frozen look (the data's, memoised whatever the plan), then the designs (what reads the power),
+    # then the looks at the design (memoised when their maximum did not move)
+    frozen, asks = design_asks(ctx, items)
+    keys = sorted({json.dumps(a, sort_keys=True) for a in asks if a is not None})
+    paths = {json.dumps(a, sort_keys=True): it.get("designs") for it, a in zip(items, asks) if a is not None}
+    designed = dict(zip(keys, ctx.map(designed_in_worker, [json.loads(k) | {"designs": paths[k]} for k in keys],
+                                      label="decision: designs") if keys else []))
+    results = ctx.map(decide_hose_type, [looks_item(it, design_of(it, fr, designed, a))
+                                         for it, fr, a in zip(items, frozen, asks)], label="decision: looks")
+    for it, res in zip(items, results):
+        for row in res["life_verdict"]:
+            row["power"] = it["plan"]["power"]
     rows = {t: [r for res in results for r in res[t]] for t in ("life_verdict", "decision_looks")}
     rows["life_effect"] = effects
     hoses = [res["decision_look_hoses"] for res in results if len(res["decision_look_hoses"])]

@@ -23,10 +23,14 @@ target power (the plan's, and 0.9; one row when they are equal), from :mod:`anal
   measured from every hose type's runs together, the lab's benches given to each type).
 
 Seeds: no stage is handed a digest of its inputs, so each hose type's simulations are seeded from
-a sha256 of its own ``hose_life`` rows (id, adjustment, status, distance), its plan settings and
+a sha256 of its own ``hose_life`` rows (id, adjustment, status, distance), its plan settings but the
+power and ``max_failures`` (since session 24: they reach the simulations through the designs only) and
 its ``life_effect`` shape: a hose type whose data did not change keeps its figures, whatever
-else changed. Each hose type is one item of ``ctx.map`` (the stage's worker pool, memoised per
-item across rebuilds). Since session 22 the replicates come in batches until the figure's Monte Carlo
+else changed. Each hose type is an item of three maps of ``ctx.map`` (the stage's worker pool, memoised per
+item across rebuilds): its designs (one per target power: :func:`needed_of`), its ``power_now``
+(:func:`power_of`, keyed by the maximum it runs to) and its schedules and ``more_testing``
+(:func:`plan_hose_type`, keyed by the ``failures_needed`` they run to), so that a plan change of the power
+re-runs only what it moved. Since session 22 the replicates come in batches until the figure's Monte Carlo
 error is small enough (``power_now``: mc_se <= 0.01, ``n_simulations`` what was drawn; the date: its
 median's error <= 5 %), and a hose type's rows read one set of the benches' replicates, each at its own
 design's boundaries (:func:`analyses.bench_schedule.bench_schedules`).
@@ -44,8 +48,9 @@ import pandas as pd
 from analyses.life_effect import SEPARATE, common_shape_fit
 from analyses.sequential import NoDesign, design_for, design_shape, efficacy_boundaries
 from analyses.bench_schedule import SCHEDULE_SIMULATIONS, BenchSchedule, bench_schedules
-from analyses.test_plan import (CAPACITY_DAYS, N_SIMULATIONS, HoseState, MoreTesting, PowerNow, decision_date,
-                                hoses_on_test, measured_capacity, more_testing, power_now, target_powers)
+from analyses.test_plan import (CAPACITY_DAYS, N_SIMULATIONS, HoseState, MoreTesting, decision_date,
+                                epoch_seconds, hoses_on_test_s, measured_capacity, more_testing, power_now,
+                                target_powers)
 from pipeline.stages import Reads, StageContext, StageOutput
 
 NAME = "test_plan"
@@ -82,6 +87,8 @@ def hose_items(life: pd.DataFrame, effect: pd.DataFrame | None, plan, verdict: p
     frozen = {}
     if verdict is not None and len(verdict):
         frozen = {t: None if pd.isna(m) else int(m) for t, m in zip(verdict["hose_type"], verdict["max_failures"])}
+    secs = {c: epoch_seconds(life[c]) for c in ("installed_at", "ended_at") if c in life}
+    life = life.assign(**{f"_{c}_s": v for c, v in secs.items()})   # every hose's times converted once
     items = []
     for htype, g in life.groupby("hose_type", sort=True):
         if set(g["adjustment"]) != {"force", "distance"}:
@@ -99,17 +106,35 @@ def hose_items(life: pd.DataFrame, effect: pd.DataFrame | None, plan, verdict: p
                 "settings": {k: getattr(s, k) for k in _SETTINGS} | {"max_failures": frozen.get(htype, s.max_failures)},
                 "n_simulations": N_SIMULATIONS,
                 "hoses_on_test": _on_test(g)}
-        item["seed"] = int(hashlib.sha256(json.dumps(item, sort_keys=True).encode()).hexdigest()[:16], 16)
+        # the seed: everything but the power and the maximum, which reach the simulations through the designs only
+        # (session 24: a power change that leaves a hose type's failures_needed, or its maximum, as they were leaves
+        # its schedules, or its power_now, as they were, memo included)
+        unpowered = dict(item, settings={k: v for k, v in item["settings"].items() if k not in ("power", "max_failures")})
+        item["seed"] = int(hashlib.sha256(json.dumps(unpowered, sort_keys=True).encode()).hexdigest()[:16], 16)
         items.append(item)
     return items
 
 
 def _on_test(g: pd.DataFrame) -> int | None:
     """The hose type's hoses on test per adjustment (:func:`analyses.test_plan.hoses_on_test`), from all
-    its hoses (also those whose life is unknown: they held a bench)."""
-    if "installed_at" not in g or "ended_at" not in g:
+    its hoses (also those whose life is unknown: they held a bench); their times in seconds as
+    :func:`hose_items` converted them (columns ``_installed_at_s``, ``_ended_at_s``)."""
+    if "_installed_at_s" not in g or "_ended_at_s" not in g:
         return None
-    return hoses_on_test(g["installed_at"], g["ended_at"], (g["adjustment"] == "force").astype(int))
+    return hoses_on_test_s(g["_installed_at_s"].to_numpy(float), g["_ended_at_s"].to_numpy(float),
+                           (g["adjustment"] == "force").to_numpy(int))
+
+
+def needed_of(item: dict) -> list:
+    """``[failures_needed or None, note]`` of one design (module level for ``ctx.map``, memoised): ``item``:
+    ``margin``, ``alpha``, ``power`` (ONE target power), ``spending``, ``shape`` [-], ``hoses`` (as :func:`design`).
+    One item per target power, so that a change of the plan's power leaves the designs at
+    :data:`analyses.test_plan.TARGET_POWER` in the memo (session 24)."""
+    try:
+        d = design_for(item["margin"], item["alpha"], item["power"], item["spending"], item["shape"], item["hoses"])
+        return [int(d.failures), d.note]
+    except NoDesign as exc:   # NULL with the reason, never a number the design does not give
+        return [None, str(exc)]
 
 
 def design(item: dict) -> dict:
@@ -121,13 +146,7 @@ def design(item: dict) -> dict:
     Hose types that share a design share its cost (the boundaries of up to hundreds of looks, computed
     once per number of looks, alpha and spending in a process: :mod:`analyses.sequential`).
     """
-    needed = {}
-    for p in target_powers(item["power"]):
-        try:
-            d = design_for(item["margin"], item["alpha"], p, item["spending"], item["shape"], item["hoses"])
-            needed[p] = [int(d.failures), d.note]
-        except NoDesign as exc:   # NULL with the reason, never a number the design does not give
-            needed[p] = [None, str(exc)]
+    needed = {p: needed_of(dict(item, power=p)) for p in target_powers(item["power"])}
     m = item["max_failures"] or needed[item["power"]][0]
     c = efficacy_boundaries(np.arange(1, m + 1) / m, item["alpha"], item["spending"]) if m else []
     return {"failures_needed": [[p, *v] for p, v in needed.items()], "boundaries": [float(x) for x in c]}
@@ -141,36 +160,85 @@ def _design_item(item: dict) -> dict:
             "shape": 1.0 if item["shape"] is None else design_shape(item["shape"]), "hoses": item["hoses_on_test"]}
 
 
-def plan_hose_type(item: dict) -> list[dict]:
-    """The ``test_plan`` rows of one hose type (without the bench capacity); module level for ``ctx.map``.
+def _needed_items(item: dict) -> list[dict]:
+    """The :func:`needed_of` items of a hose type, one per target power (:func:`analyses.test_plan.target_powers`)."""
+    d = _design_item(item)
+    return [{k: d[k] for k in ("margin", "alpha", "spending", "shape", "hoses")} | {"power": p}
+            for p in target_powers(d["power"])]
 
-    ``item``: the hose type's hoses and plan (:func:`hose_items`) and its ``design`` (:func:`design`).
-    """
-    s, d = item["settings"], item["design"]
-    state = HoseState(np.array(item["distance"], float), np.array(item["failed"], bool),
-                      np.array(item["running"], bool), np.array(item["group"], int))
+
+#: What :func:`plan_hose_type` reads of a :func:`hose_items` item (with ``needed`` and ``benches``): not the plan's
+#: power, nor the target powers, which the stage puts on the rows (session 24).
+_PLAN_KEYS = ("hose_type", "distance", "failed", "running", "group", "n_simulations", "seed")
+
+
+def plan_work(item: dict, needed: list, benches) -> dict:
+    """The :func:`plan_hose_type` item of a hose type: its hoses and seed, the plan's margin, alpha and spending,
+    ``needed`` (``[failures_needed or None, note]`` per target power, in :func:`analyses.test_plan.target_powers`'
+    order) and ``benches``."""
+    s = item["settings"]
+    return {k: item[k] for k in _PLAN_KEYS} | {"settings": {k: s[k] for k in ("margin", "alpha", "spending")},
+                                               "needed": needed, "benches": benches}
+
+
+def power_work(item: dict, needed: list) -> dict:
+    """The :func:`power_of` item of a hose type: its hoses and seed, the plan's margin, alpha and spending and
+    ``maximum``, the looks ``power_now`` runs to (the frozen ``max_failures``, else ``failures_needed`` at the
+    plan's power, ``needed[0]``): a power change that leaves the maximum keeps its memo (session 24)."""
+    s = item["settings"]
+    return {k: item[k] for k in ("hose_type", "distance", "failed", "running", "group", "n_simulations", "seed")} | {
+        "settings": {k: s[k] for k in ("margin", "alpha", "spending")}, "maximum": s["max_failures"] or needed[0][0]}
+
+
+def _state(item: dict) -> HoseState:
+    return HoseState(np.array(item["distance"], float), np.array(item["failed"], bool),
+                     np.array(item["running"], bool), np.array(item["group"], int))
+
+
+def power_of(item: dict) -> list:
+    """``[power_now, mc_se, n_simulations, note]`` of one hose type (module level for ``ctx.map``, memoised):
+    :func:`analyses.test_plan.power_now` run to the item's ``maximum`` (:func:`power_work`)."""
+    s = item["settings"]
+    state = _state(item)
+    if not item["maximum"]:
+        return [math.nan, math.nan, 0, "no maximum: the design does not exist (failures_needed)"]
+    fit = common_shape_fit(state.distance, state.failed, state.group)
+    now = power_now(state, fit, _boundaries(item["maximum"], s["alpha"], s["spending"]), s["margin"],
+                    item["n_simulations"], item["seed"])
+    return [now.power, now.mc_se, now.n_simulations, now.note]
+
+
+def head_notes(item: dict, now_note: str | None) -> list[str]:
+    """The notes every row of a :func:`hose_items` item opens with (the shape, the maximum, the model, then
+    ``power_now``'s)."""
     notes = [] if item["shape"] is not None else ["failures_needed at shape 1.0: life_effect has no common shape"]
-    if s["max_failures"] is None:
+    if item["settings"]["max_failures"] is None:
         notes.append("power_now runs to failures_needed at the plan's power: no max_failures frozen yet (life_verdict)")
     if item["model"] == SEPARATE:
         notes.append("the simulations assume a common shape; life_effect finds the shapes differ")
+    return notes + ([f"power_now: {now_note}"] if now_note else [])
+
+
+def plan_hose_type(item: dict) -> list[dict]:
+    """The ``test_plan`` rows of one hose type without ``power_now`` (:func:`power_of`), the bench capacity and the
+    target power: one row per entry of ``needed``, in its order, its ``note`` the list of the row's own notes (the
+    stage opens it with :func:`head_notes`); module level for ``ctx.map``.
+
+    ``item``: :func:`plan_work` (the hose type's hoses, what the plan's designs give, its benches).
+    """
+    state = _state(item)
     fit = common_shape_fit(state.distance, state.failed, state.group)
-    now = power_now(state, fit, d["boundaries"], s["margin"], item["n_simulations"], item["seed"]) \
-        if d["boundaries"] else PowerNow(math.nan, math.nan, 0, "no maximum: the design does not exist (failures_needed)")
-    if now.note:
-        notes.append(f"power_now: {now.note}")
     rows = []
-    schedules = _schedules(item, state, fit, [needed for _, needed, _ in d["failures_needed"]])
-    for (p, needed, short), sched in zip(d["failures_needed"], schedules):
+    schedules = _schedules(item, state, fit, [needed for needed, _ in item["needed"]])
+    for (needed, short), sched in zip(item["needed"], schedules):
         more = more_testing(state, fit, needed, item["n_simulations"], item["seed"]) if needed is not None \
             else MoreTesting(None, math.nan, None)
-        rows.append({"hose_type": item["hose_type"], "target_power": p, "failures_needed": needed,
-                     "failures": sum(state.failures), "power_now": now.power,
+        rows.append({"hose_type": item["hose_type"], "failures_needed": needed, "failures": sum(state.failures),
                      "more_hoses_per_adjustment": more.hoses_per_adjustment, "more_km": more.km,
-                     "n_simulations": now.n_simulations, "mc_se": now.mc_se, "decision_km": sched.hose_km,
-                     "note": "; ".join(notes + [f"failures_needed: {short}"] * bool(short)
-                                       + ([f"more_km: {more.note}"] if more.note else [])
-                                       + ([f"expected_decision_date: {sched.note}"] if sched.note else [])) or None})
+                     "decision_km": sched.hose_km,
+                     "note": [f"failures_needed: {short}"] * bool(short)
+                     + ([f"more_km: {more.note}"] if more.note else [])
+                     + ([f"expected_decision_date: {sched.note}"] if sched.note else [])})
     return rows
 
 
@@ -191,8 +259,8 @@ def _schedules(item: dict, state: HoseState, fit, needed: list) -> list[BenchSch
     todo = [i for i, m in enumerate(needed) if m is not None and item.get("benches")]
     if not todo:
         return out
-    s, c = item["settings"], item["design"]["boundaries"]
-    bounds = [c if len(c) == needed[i] else _boundaries(needed[i], s["alpha"], s["spending"]) for i in todo]
+    s = item["settings"]
+    bounds = [_boundaries(needed[i], s["alpha"], s["spending"]) for i in todo]
     for i, sched in zip(todo, bench_schedules(state, fit, bounds, s["margin"], item["benches"], SCHEDULE_SIMULATIONS,
                                               item["seed"])):
         out[i] = sched
@@ -202,8 +270,8 @@ def _schedules(item: dict, state: HoseState, fit, needed: list) -> list[BenchSch
 def _cost(item: dict) -> int:
     """A hose type's item's work, roughly [-]: its hoses times the most looks its simulations read (the
     schedules' maxima, the test's own boundaries)."""
-    needed = [n for _, n, _ in item["design"]["failures_needed"] if n is not None]
-    return len(item["distance"]) * max([len(item["design"]["boundaries"]), *needed])
+    needed = [n for n, _ in item["needed"] if n is not None]
+    return len(item["distance"]) * max([item.get("maximum") or 0, *needed])
 
 
 def latest_event(life: pd.DataFrame, runs: pd.DataFrame):
@@ -265,18 +333,31 @@ def plan_table(ctx: StageContext) -> pd.DataFrame:
     today = latest_event(life, runs)
     items = hose_items(life, ctx.results.get("life_effect"), ctx.plan, ctx.results.get("life_verdict"))
     measured = measured_by_type(life, runs, today, [i["hose_type"] for i in items])
-    keys = sorted({json.dumps(_design_item(i), sort_keys=True) for i in items})
-    designs = dict(zip(keys, ctx.map(design, [json.loads(k) for k in keys], label="test plan designs")))
-    items = [dict(i, design=designs[json.dumps(_design_item(i), sort_keys=True)],
-                  benches=_bench_capacity(ctx.plan.for_hose_type(i["hose_type"]), measured[i["hose_type"]])[0])
-             for i in items]
+    asks = [[json.dumps(a, sort_keys=True) for a in _needed_items(i)] for i in items]
+    keys = sorted({k for ks in asks for k in ks})   # one per (design, target power): the 0.9 ones outlive a power change
+    needed = dict(zip(keys, ctx.map(needed_of, [json.loads(k) for k in keys], label="test plan designs")))
+    powers = [target_powers(i["settings"]["power"]) for i in items]
+    need = [[needed[k] for k in ks] for ks in asks]
+    work = [plan_work(i, n, _bench_capacity(ctx.plan.for_hose_type(i["hose_type"]), measured[i["hose_type"]])[0])
+            for i, n in zip(items, need)]
+    # power_now and the schedules are memoised apart: a power change moves the maximum of some hose types and the
+    # failures_needed of others (session 24)
     # the costliest hose types first: the workers' last chunks are then the cheap ones (session 23)
-    order = sorted(range(len(items)), key=lambda i: -_cost(items[i]))
-    results = [None] * len(items)
-    for i, res in zip(order, ctx.map(plan_hose_type, [items[i] for i in order], label="test plan") if items else []):
+    order = sorted(range(len(work)), key=lambda i: -_cost(work[i]))
+    now = [None] * len(work)
+    for i, res in zip(order, ctx.map(power_of, [power_work(items[i], need[i]) for i in order],
+                                     label="test plan: power_now") if work else []):
+        now[i] = res
+    results = [None] * len(work)
+    for i, res in zip(order, ctx.map(plan_hose_type, [work[i] for i in order], label="test plan") if work else []):
         results[i] = res
-    rows = [_capacity(r, ctx.plan.for_hose_type(item["hose_type"]), measured[item["hose_type"]], today)
-            for item, res in zip(items, results) for r in res]
+    rows = []
+    for item, res, ps, pn in zip(items, results, powers, now):
+        head = head_notes(item, pn[3])
+        for r, p in zip(res, ps):
+            r = dict(r, target_power=p, power_now=pn[0], mc_se=pn[1], n_simulations=pn[2],
+                     note="; ".join(head + r["note"]) or None)
+            rows.append(_capacity(r, ctx.plan.for_hose_type(item["hose_type"]), measured[item["hose_type"]], today))
     df = pd.DataFrame(rows, columns=COLUMNS)
     for c in ("failures_needed", "failures", "more_hoses_per_adjustment", "benches", "n_simulations"):
         df[c] = df[c].astype("Int64")

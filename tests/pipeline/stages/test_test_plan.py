@@ -169,7 +169,7 @@ def test_runs_in_the_worker_pool_on_what_it_declares(df):
     ctx = DeclaredContext(stage.NAME, stage.READS, runs=pd.DataFrame(), results=frames(), raw=None, warehouse=None,
                           plan=PLAN, mapper=mapper)
     out = stage.run(ctx)
-    assert calls == ["design", "plan_hose_type"]
+    assert calls == ["needed_of", "power_of", "plan_hose_type"]
     pd.testing.assert_frame_equal(out.tables["test_plan"], df)
     assert stage.WRITES == ("test_plan",)
 
@@ -219,3 +219,37 @@ def test_failures_needed_is_null_with_the_reason_where_the_design_does_not_exist
     kept = design({"margin": 2.0, "alpha": 0.05, "power": 0.8, "spending": "obrien-fleming", "max_failures": 30,
                    "shape": 14.9, "hoses": 8})   # the plan's (or a frozen) maximum still gives the boundaries
     assert len(kept["boundaries"]) == 30
+
+
+def test_a_power_change_recomputes_only_what_reads_the_power():
+    """Session 24: the seed and the simulations' items do not hold the power; the designs are one item per
+    target power. A power change that leaves a hose type's failures_needed and maximum as they were gives
+    the same items (so the memo's results), and the 0.9 designs are the same items whatever the power."""
+    def items_of(power):
+        seen = {}
+
+        def mapper(func, items, label):
+            seen[func.__name__] = items
+            return [func(i) for i in items]
+
+        plan = Plan(True, {"margin": 2.0, "power": power}, {"A": {"benches": 3, "km_per_day": 100.0}})
+        ctx = DeclaredContext(stage.NAME, stage.READS, runs=pd.DataFrame(), results=frames(), raw=None,
+                              warehouse=None, plan=plan, mapper=mapper)
+        return stage.run(ctx).tables["test_plan"], seen
+
+    t80, a = items_of(0.8)
+    t81, b = items_of(0.801)      # a change too small to move a design here
+    assert [i for i in a["needed_of"] if i["power"] == 0.9] == [i for i in b["needed_of"] if i["power"] == 0.9]
+    assert [i["seed"] for i in a["plan_hose_type"]] == [i["seed"] for i in b["plan_hose_type"]]
+    assert not any("power" in i["settings"] for i in a["plan_hose_type"] + a["power_of"])
+    assert [i["seed"] for i in a["power_of"]] == [i["seed"] for i in b["power_of"]]
+    for x, y in zip(a["power_of"], b["power_of"]):          # power_now's item: the same unless its maximum moved
+        assert (x == y) == (x["maximum"] == y["maximum"])
+    for x, y in zip(a["plan_hose_type"], b["plan_hose_type"]):
+        same = x["needed"] == y["needed"]
+        assert (x == y) == same
+        if same:      # the same simulations: the rows differ by their target power only
+            r80, r81 = (t[t["hose_type"] == x["hose_type"]].reset_index(drop=True) for t in (t80, t81))
+            assert r80["target_power"].tolist() == [0.8, 0.9] and r81["target_power"].tolist() == [0.801, 0.9]
+            pd.testing.assert_frame_equal(r80.drop(columns="target_power"), r81.drop(columns="target_power"))
+    assert any(x == y for x, y in zip(a["plan_hose_type"], b["plan_hose_type"]))
