@@ -518,18 +518,21 @@ def effect_item(item: dict) -> dict:
             "plan": {k: item["plan"][k] for k in ("confidence", "alpha")}}
 
 
+#: Imported before the decision's workers are forked (:meth:`StageContext.map`'s ``warm``).
+WARM = ("scipy.special",)
+
+
 def run(ctx: StageContext) -> StageOutput:
     out = StageOutput()
     items = hose_type_items(ctx)
-    if items:   # loaded once here: the two pools' workers are forked from this process (else each loads it)
-        import scipy.special  # noqa: F401
     if ctx.memo is not None:   # the rebuild: the designs' boundaries kept in the warehouse between rebuilds
         designs = keep_designs(ctx.warehouse, items)
         items = [it | {"designs": designs[it["plan"]["alpha"], it["plan"]["spending"]]}
                  if it["plan"]["max_failures"] is None else it for it in items]
-    effects = ctx.map(effect_of, [effect_item(it) for it in items], label="decision: life effect")
+    # scipy.special loaded once here when a result is computed: the pools' workers are forked from this process
+    effects = ctx.map(effect_of, [effect_item(it) for it in items], label="decision: life effect", warm=WARM)
     # the frozen look and its design are computed in each hose type's own task (_design_here)
-    results = ctx.map(decide_hose_type, items, label="decision: looks")
+    results = ctx.map(decide_hose_type, items, label="decision: looks", warm=WARM)
     rows = {t: [r for res in results for r in res[t]] for t in ("life_verdict", "decision_looks")}
     rows["life_effect"] = effects
     hoses = [res["decision_look_hoses"] for res in results if len(res["decision_look_hoses"])]
