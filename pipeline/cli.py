@@ -122,7 +122,7 @@ def exit_now(code: int) -> None:
     What a normal exit does that matters is done first: the output is flushed, logging shut down
     and the ``atexit`` handlers run (the door's private folder removed, multiprocessing's
     finalizers). Only in a process that runs ``pneubench`` itself (its main module the console
-    script, ``python -m pipeline.cli`` or ``python -c``), with the interpreter's own standard streams
+    script, or ``python -c`` as the benchmarks start it), with the interpreter's own standard streams
     (not click's test runner) and no other thread alive; otherwise it is ``sys.exit``.
 
     Parameters
@@ -133,7 +133,7 @@ def exit_now(code: int) -> None:
     import threading
 
     main_file = getattr(sys.modules.get("__main__"), "__file__", None)
-    ours = main_file is None or Path(main_file).name in ("pneubench", "cli.py")
+    ours = main_file is None or Path(main_file).name == "pneubench"
     if not (ours and sys.stdout is sys.__stdout__ and sys.stderr is sys.__stderr__
             and threading.active_count() == 1):
         sys.exit(code)
