@@ -547,25 +547,29 @@ def effect_item(item: dict) -> dict:
             "plan": {k: item["plan"][k] for k in ("confidence", "alpha")}}
 
 
+#: Imported before the decision's workers are forked (:meth:`StageContext.map`'s ``warm``).
+WARM = ("scipy.special",)
+
+
 def run(ctx: StageContext) -> StageOutput:
     out = StageOutput()
     items = hose_type_items(ctx)
-    if items:   # loaded once here: the two pools' workers are forked from this process (else each loads it)
-        import scipy.special  # noqa: F401
     if ctx.memo is not None:   # the rebuild: the designs' boundaries kept in the warehouse between rebuilds
         designs = keep_designs(ctx.warehouse, items)
         items = [it | {"designs": designs[it["plan"]["alpha"], it["plan"]["spending"]]}
                  if it["plan"]["max_failures"] is None else it for it in items]
-    effects = ctx.map(effect_of, [effect_item(it) for it in items], label="decision: life effect")
-    # session 24: the frozen look (the data's, memoised whatever the plan), then the designs (what reads the power),
+    # scipy.special loaded once here when a result is computed: the pools' workers are forked from this process
+    effects = ctx.map(effect_of, [effect_item(it) for it in items], label="decision: life effect", warm=WARM)
+    # the frozen look (the data's, memoised whatever the plan), then the designs (what reads the power),
     # then the looks at the design (memoised when their maximum did not move)
     frozen, asks = design_asks(ctx, items)
     keys = sorted({json.dumps(a, sort_keys=True) for a in asks if a is not None})
     paths = {json.dumps(a, sort_keys=True): it.get("designs") for it, a in zip(items, asks) if a is not None}
     designed = dict(zip(keys, ctx.map(designed_in_worker, [json.loads(k) | {"designs": paths[k]} for k in keys],
-                                      label="decision: designs") if keys else []))
+                                      label="decision: designs", warm=WARM) if keys else []))
     results = ctx.map(decide_hose_type, [looks_item(it, design_of(it, fr, designed, a))
-                                         for it, fr, a in zip(items, frozen, asks)], label="decision: looks")
+                                         for it, fr, a in zip(items, frozen, asks)], label="decision: looks",
+                      warm=WARM)
     for it, res in zip(items, results):
         for row in res["life_verdict"]:
             row["power"] = it["plan"]["power"]

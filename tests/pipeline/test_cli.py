@@ -1,6 +1,7 @@
 """The command line: exit codes of the spec and read-only queries."""
 import json
 
+import pytest
 from click.testing import CliRunner
 
 from pipeline.cli import main
@@ -115,3 +116,42 @@ def test_query_options_are_the_query_commands_options_after_the_sql_and_the_ware
 
     names = {p.name for p in main.commands["query"].params} - {"sql", "sql_file", "warehouse"}
     assert names == {f.name for f in dataclasses.fields(QueryOptions)}
+
+
+_EXIT_PROBE = """
+import atexit, sys, threading
+from pipeline.cli import exit_now
+
+class Torn:
+    def __del__(self):
+        sys.stdout.write(" torn down")
+
+kept = Torn()
+atexit.register(lambda: sys.stdout.write(" atexit"))
+if sys.argv[1] == "thread":
+    threading.Thread(target=threading.Event().wait, daemon=True).start()
+sys.stdout.write("out")
+exit_now(5)
+"""
+
+
+@pytest.mark.parametrize("other_thread", [False, True])
+def test_exit_now_skips_the_teardown_only_in_a_process_of_its_own(other_thread):
+    """The exit code, the output and the atexit handlers as sys.exit gives them; the objects' teardown
+    is skipped, unless another thread is alive (then it is sys.exit)."""
+    import subprocess
+    import sys
+
+    p = subprocess.run([sys.executable, "-c", _EXIT_PROBE, "thread" if other_thread else "alone"],
+                       capture_output=True, text=True, timeout=60)
+    assert p.returncode == 5, p.stderr
+    assert p.stdout == ("out atexit torn down" if other_thread else "out atexit")
+
+
+def test_exit_now_inside_another_program_is_sys_exit():
+    """Under pytest (or click's test runner) it raises SystemExit: the calling program goes on."""
+    from pipeline.cli import exit_now
+
+    with pytest.raises(SystemExit) as exc:
+        exit_now(3)
+    assert exc.value.code == 3

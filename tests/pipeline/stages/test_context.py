@@ -56,3 +56,29 @@ def test_a_stage_output_collects_warnings_and_figure_recipes():
     out.draw("fig", dict, 1, caption="A figure.", k=2)
     assert out.warnings == {"c/a": ["one", "two"]} and out.captions == {"fig": "A figure."}
     assert out.figures["fig"].args == (1,) and out.figures["fig"].kwargs == {"k": 2}
+
+
+class _AllStored:
+    """A memo holding a result for every item: nothing is computed."""
+
+    def map(self, compute, func, items, label=""):
+        return [f"stored {it}" for it in items]
+
+
+def test_map_warms_its_modules_only_when_it_computes(tmp_path, monkeypatch):
+    """``warm``: imported before the items are computed, not when the memo has every result."""
+    import sys
+
+    (tmp_path / "pneubench_warm_probe.py").write_text("LOADED = True\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.delitem(sys.modules, "pneubench_warm_probe", raising=False)
+    ctx = StageContext(raw=Path("/raw"), warehouse=Path("/wh"), runs=RUNS, results=TABLES, memo=_AllStored())
+    assert ctx.map(str, [1, 2], warm=("pneubench_warm_probe",)) == ["stored 1", "stored 2"]
+    assert "pneubench_warm_probe" not in sys.modules
+    assert StageContext(raw=Path("/raw"), warehouse=Path("/wh"), runs=RUNS, results=TABLES).map(
+        str, [], warm=("pneubench_warm_probe",)) == []
+    assert "pneubench_warm_probe" not in sys.modules
+    ctx.memo = None
+    assert ctx.map(str, [1, 2], warm=("pneubench_warm_probe",)) == ["1", "2"]
+    assert "pneubench_warm_probe" in sys.modules
+    monkeypatch.delitem(sys.modules, "pneubench_warm_probe")

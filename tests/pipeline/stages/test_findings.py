@@ -381,3 +381,26 @@ def test_hose_life_fits_go_through_the_memo_as_plain_lives_with_a_direct_fits_bi
     for (life, failed), (x, f) in zip(items, fs._life_groups(lives).values()):
         a, b = fs.weibull_fit_item((life, failed)), sl.weibull_fit(x, f)
         assert a.ok and (a.shape, a.scale, a.loglik) == (b.shape, b.scale, b.loglik)
+
+
+def test_z_of_confidence_is_ndtri_bit_for_bit():
+    """The constants of the usual confidences are scipy's ``ndtri`` exactly, and any other
+    confidence is computed by it (the findings' uncertainties keep their bits)."""
+    from scipy.special import ndtri
+
+    for conf, z in fs.Z_OF_CONFIDENCE.items():
+        assert z == float(ndtri(0.5 + conf / 2)), conf
+        assert fs.z_of_confidence(conf) == z
+    for conf in (0.5, 0.68, 0.85, 0.9000001, 0.975, 0.999):
+        assert fs.z_of_confidence(conf) == float(ndtri(0.5 + conf / 2))
+
+
+def test_std_from_ci_uses_the_confidence():
+    """Half the interval over z: 95 % by default, the row's confidence otherwise, log scale for ratios."""
+    from scipy.special import ndtri
+
+    r = {"estimate": 2.0, "ci_low": 1.0, "ci_high": 3.0}
+    assert fs._std_from_ci(r) == 2.0 / (2 * float(ndtri(0.975)))
+    assert fs._std_from_ci({**r, "confidence": 0.9}) == 2.0 / (2 * float(ndtri(0.95)))
+    assert fs._std_from_ci({**r, "confidence": 0.9}, log=True) == 2.0 * (np.log(3.0) - np.log(1.0)) / (2 * float(ndtri(0.95)))
+    assert fs._std_from_ci({"estimate": 2.0, "ci_low": None, "ci_high": 3.0}) is None
