@@ -1,8 +1,7 @@
 """Numerical kernels the analyses need without importing ``scipy.signal`` or ``scipy.optimize``.
 
-A rebuild after one changed spring test runs one Savitzky-Golay derivative and a few Brent roots,
-one after a changed step run a second-order Butterworth zero-phase filter, one after a changed
-breakaway run a bounded scalar minimisation, Student t quantiles and Welch's test, one that re-runs
+A rebuild after one changed spring test runs one Savitzky-Golay derivative and a few Brent roots
+(the Butterworth filters are :mod:`analyses.numerics_iir`'s), one after a changed breakaway run a bounded scalar minimisation, Student t quantiles and Welch's test, one that re-runs
 the decision or remaining-life stage the normal's and chi-square's tails and quantiles (``norm_sf``,
 ``norm_isf``, ``norm_pdf``, ``chi2_sf``, ``chi2_ppf``: the ``scipy.special`` calls scipy.stats makes); importing the
 scipy subpackages for them cost about a second of CPU per rebuild (issue 26, the cost of a change). These are scipy's own algorithms, step for step, and the tests hold them to scipy's
@@ -13,7 +12,6 @@ References
 Savitzky, A. & Golay, M. J. E. (1964). Smoothing and differentiation of data by simplified least
 squares procedures. Analytical Chemistry 36(8), 1627-1639.
 Brent, R. P. (1973). Algorithms for Minimization without Derivatives, ch. 4 and 5. Prentice-Hall.
-Butterworth, S. (1930). On the theory of filter amplifiers. Experimental Wireless 7, 536-541.
 Welch, B. L. (1947). The generalization of "Student's" problem when several different population
 variances are involved. Biometrika 34(1-2), 28-35.
 """
@@ -183,112 +181,6 @@ def _brent_step(xpre, xcur, xblk, fpre, fcur, fblk, spre, scur, sbis, delta) -> 
         if 2 * abs(stry) < min(abs(spre), 3 * abs(sbis) - delta):
             return scur, stry
     return sbis, sbis
-
-
-def butter2_lowpass_sos(cutoff_hz: float, fs_hz: float) -> np.ndarray:
-    """The second-order Butterworth low-pass section (Butterworth 1930) of
-    ``scipy.signal.butter(2, cutoff_hz, fs=fs_hz, output="sos")``, step for step (the analog
-    prototype's poles, the pre-warped bilinear transform, ``zpk2sos``'s pairing and polynomial
-    products with the same numpy calls: the same bits) without importing ``scipy.signal`` (about a
-    second of CPU for a rebuild that changes one step run, issue 26).
-
-    Parameters
-    ----------
-    cutoff_hz : float
-        -3 dB frequency, ``0 < cutoff_hz < fs_hz / 2``. [Hz]
-    fs_hz : float
-        Sampling frequency. [Hz]
-
-    Returns
-    -------
-    ndarray
-        Shape (1, 6): ``b0, b1, b2, 1, a1, a2``. [-]
-    """
-    wn = np.asarray(cutoff_hz, dtype=np.float64) / (float(fs_hz) / 2)
-    if not 0 < wn < 1:
-        raise ValueError(f"cutoff {cutoff_hz!r} Hz is not inside (0, fs/2) for fs = {fs_hz!r} Hz")
-    warped = float(2 * 2.0 * np.tan(np.pi * wn / 2.0))
-    p = -np.exp(1j * np.pi * np.arange(-1, 2, 2, dtype=np.float64) / (2 * 2))  # buttap(2)
-    p = warped * p  # lp2lp_zpk; the prototype has no zeros, its gain 1 * warped ** 2
-    k = 1.0 * warped ** 2
-    k = k * np.real(np.prod(4.0 - np.asarray([], dtype=np.float64)) / np.prod(4.0 - p))  # bilinear_zpk, fs = 2
-    p = (4.0 + p) / (4.0 - p)
-    p = p[np.lexsort((abs(p.imag), p.real))]  # _cplxreal: the conjugate pair averaged
-    p1 = ((p[p.imag > 0] + p[p.imag < 0].conj()) / 2)[0]
-    sos = np.zeros(6)
-    sos[0:3] = np.multiply(np.asarray(1.0), _poly(np.asarray([-1.0, -1.0])))
-    sos[3:6] = _poly(np.asarray([p1, p1.conj()]))
-    sos[:3] *= np.asarray(k).real
-    return sos.reshape(1, 6)
-
-
-def _poly(roots: np.ndarray) -> np.ndarray:
-    """The polynomial with these roots, as ``scipy.signal``'s ``poly`` forms it (real when the
-    roots are conjugate pairs)."""
-    a = np.ones((1,), dtype=roots.dtype)
-    one = np.ones_like(roots[0])
-    for zero in roots:
-        a = np.convolve(a, np.stack((one, -zero)), mode="full")
-    if np.iscomplexobj(a):
-        a = np.asarray(np.real(a), copy=True)
-    return a
-
-
-def sosfiltfilt2(sos: np.ndarray, x, padtype: str, padlen: int) -> np.ndarray:
-    """Zero-phase filtering by one second-order section, forward then backward: the bits of
-    ``scipy.signal.sosfiltfilt(sos, x, padtype=padtype, padlen=padlen)`` (its odd or constant
-    extension, ``sosfilt_zi``'s steady state by the same linear solve, the C recursion of
-    ``sosfilt`` in the same order of operations) without importing ``scipy.signal``.
-
-    Parameters
-    ----------
-    sos : ndarray
-        Shape (1, 6), ``a0 = 1`` (:func:`butter2_lowpass_sos`). [-]
-    x : array_like
-        Evenly sampled signal, longer than ``padlen``. [any unit]
-    padtype : {"odd", "constant"}
-        How the ends are extended.
-    padlen : int
-        Samples added at each end. [samples]
-
-    Returns
-    -------
-    ndarray
-        The filtered signal, as long as ``x``. [unit of x]
-    """
-    x = np.asarray(x, dtype=np.float64)
-    if len(x) <= padlen:
-        raise ValueError(f"the signal ({len(x)} samples) must be longer than padlen ({padlen})")
-    ext = x
-    if padlen > 0:
-        if padtype == "odd":
-            ext = np.concatenate((2 * x[:1] - x[padlen:0:-1], x, 2 * x[-1:] - x[-2:-(padlen + 2):-1]))
-        elif padtype == "constant":
-            ones = np.ones(padlen, dtype=x.dtype)
-            ext = np.concatenate((ones * x[:1], x, ones * x[-1:]))
-        else:
-            raise ValueError(f"padtype {padtype!r} is not 'odd' or 'constant'")
-    b, a = sos[0, :3], sos[0, 3:]
-    companion_t = np.array([[-a[1] / (1.0 * a[0]), 1.0], [-a[2] / (1.0 * a[0]), 0.0]])
-    zi = 1.0 * np.linalg.solve(np.eye(2) - companion_t, b[1:] - a[1:] * b[0])
-    y = _sosfilt2(sos[0], ext, zi * ext[0])
-    y = _sosfilt2(sos[0], y[::-1], zi * y[-1])[::-1]
-    return y[padlen:-padlen] if padlen > 0 else y
-
-
-def _sosfilt2(s: np.ndarray, x: np.ndarray, zi: np.ndarray) -> np.ndarray:
-    """One second-order section over ``x`` from the state ``zi``: ``scipy.signal``'s C loop
-    (``_sosfilt``), its operations in its order."""
-    b0, b1, b2, _, a1, a2 = (float(v) for v in s)
-    z0, z1 = float(zi[0]), float(zi[1])
-    out = []
-    append = out.append
-    for xc in x.tolist():
-        xn = b0 * xc + z0
-        z0 = b1 * xc - a1 * xn + z1
-        z1 = b2 * xc - a2 * xn
-        append(xn)
-    return np.asarray(out, dtype=np.float64)
 
 
 def fminbound(f, lo: float, hi: float, xatol: float = 1e-5, maxiter: int = 500) -> float:

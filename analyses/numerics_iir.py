@@ -2,7 +2,9 @@
 
 A rebuild after one changed viscous run analyses that run by inverse dynamics
 (:mod:`analyses.friction_dynamic`): one Welch spectrum for the cut-off, a handful of order-4
-Butterworth filters run forwards and backwards. Importing ``scipy.signal`` for them (it imports
+Butterworth filters run forwards and backwards; one after a changed step run one second-order
+filter (:func:`sosfiltfilt2`, with ``sosfiltfilt``'s constant or odd padding, for
+:mod:`analyses.step_response`). Importing ``scipy.signal`` for them (it imports
 scipy.stats, optimize, interpolate, spatial, ndimage and parses some 800 docstrings) cost about a
 second of CPU of such a rebuild, some twenty times the computation (issue 26, the cost of a
 change). The filter design and the filtering are scipy's own steps (``butter``'s analog
@@ -222,4 +224,61 @@ def welch_psd(x, fs_hz: float, nperseg: int) -> tuple[np.ndarray, np.ndarray]:
     return np.fft.rfftfreq(nperseg, 1 / fs_hz), pxx.mean(axis=0)
 
 
-__all__ = ["butter_lowpass_sos", "sosfiltfilt", "welch_psd"]
+def sosfiltfilt2(sos: np.ndarray, x, padtype: str, padlen: int) -> np.ndarray:
+    """Zero-phase filtering by one second-order section, forward then backward: the bits of
+    ``scipy.signal.sosfiltfilt(sos, x, padtype=padtype, padlen=padlen)`` (its odd or constant
+    extension, ``sosfilt_zi``'s steady state by the same linear solve, the C recursion of
+    ``sosfilt`` in the same order of operations) without importing ``scipy.signal``.
+
+    Parameters
+    ----------
+    sos : ndarray
+        Shape (1, 6), ``a0 = 1`` (:func:`butter_lowpass_sos` of order 2). [-]
+    x : array_like
+        Evenly sampled signal, longer than ``padlen``. [any unit]
+    padtype : {"odd", "constant"}
+        How the ends are extended.
+    padlen : int
+        Samples added at each end. [samples]
+
+    Returns
+    -------
+    ndarray
+        The filtered signal, as long as ``x``. [unit of x]
+    """
+    x = np.asarray(x, dtype=np.float64)
+    if len(x) <= padlen:
+        raise ValueError(f"the signal ({len(x)} samples) must be longer than padlen ({padlen})")
+    ext = x
+    if padlen > 0:
+        if padtype == "odd":
+            ext = np.concatenate((2 * x[:1] - x[padlen:0:-1], x, 2 * x[-1:] - x[-2:-(padlen + 2):-1]))
+        elif padtype == "constant":
+            ones = np.ones(padlen, dtype=x.dtype)
+            ext = np.concatenate((ones * x[:1], x, ones * x[-1:]))
+        else:
+            raise ValueError(f"padtype {padtype!r} is not 'odd' or 'constant'")
+    b, a = sos[0, :3], sos[0, 3:]
+    companion_t = np.array([[-a[1] / (1.0 * a[0]), 1.0], [-a[2] / (1.0 * a[0]), 0.0]])
+    zi = 1.0 * np.linalg.solve(np.eye(2) - companion_t, b[1:] - a[1:] * b[0])
+    y = _sosfilt2(sos[0], ext, zi * ext[0])
+    y = _sosfilt2(sos[0], y[::-1], zi * y[-1])[::-1]
+    return y[padlen:-padlen] if padlen > 0 else y
+
+
+def _sosfilt2(s: np.ndarray, x: np.ndarray, zi: np.ndarray) -> np.ndarray:
+    """One second-order section over ``x`` from the state ``zi``: ``scipy.signal``'s C loop
+    (``_sosfilt``), its operations in its order."""
+    b0, b1, b2, _, a1, a2 = (float(v) for v in s)
+    z0, z1 = float(zi[0]), float(zi[1])
+    out = []
+    append = out.append
+    for xc in x.tolist():
+        xn = b0 * xc + z0
+        z0 = b1 * xc - a1 * xn + z1
+        z1 = b2 * xc - a2 * xn
+        append(xn)
+    return np.asarray(out, dtype=np.float64)
+
+
+__all__ = ["butter_lowpass_sos", "sosfiltfilt", "sosfiltfilt2", "welch_psd"]

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from analyses.numerics import butter2_lowpass_sos, sosfiltfilt2
+from analyses.numerics_iir import butter_lowpass_sos, sosfiltfilt2
 from analyses.quality import Sensor, describe_sensor, setpoint_jumps, setpoint_thresholds, settle_points
 
 __all__ = ["find_steps", "step_metrics", "step_response_metrics", "plot_step_errors", "N_SIGMA"]
@@ -176,8 +176,8 @@ def _smooth(t, x, cutoff_hz):
     fs = 1.0 / float(np.median(np.diff(t)))
     if not np.isfinite(cutoff_hz) or cutoff_hz >= 0.4 * fs or len(x) < 16:
         return x
-    # scipy's butter(2, ...) and sosfiltfilt, ported bit for bit (analyses/numerics.py): no scipy.signal import
-    sos = butter2_lowpass_sos(cutoff_hz, fs)
+    # scipy's butter(2, ...) and sosfiltfilt, ported bit for bit (analyses/numerics_iir.py): no scipy.signal import
+    sos = butter_lowpass_sos(2, cutoff_hz, fs)
     return sosfiltfilt2(sos, x, padtype="constant" if len(x) < 30 else "odd",
                         padlen=min(len(x) - 1, 3 * int(fs / cutoff_hz)))
 

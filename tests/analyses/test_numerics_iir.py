@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import scipy.signal
 
-from analyses.numerics_iir import butter_lowpass_sos, sosfiltfilt, welch_psd
+from analyses.numerics_iir import butter_lowpass_sos, sosfiltfilt, sosfiltfilt2, welch_psd
 
 
 @pytest.mark.parametrize("fs", [100.0, 977.3, 2500.0])
@@ -68,3 +68,41 @@ def test_welch_finds_a_tone_and_the_white_noise_level():
     assert abs(f[np.argmax(p)] - 50.0) <= fs / 1024
     floor = np.median(p[(f > 200) & (f < 450)])
     assert floor == pytest.approx(2 * sigma ** 2 / fs, rel=0.1)  # one-sided density of white noise
+
+
+def test_butter_of_order_2_gives_scipys_bits_and_is_a_low_pass():
+    import scipy.signal
+
+    rng = np.random.default_rng(26)
+    for fs in (100.0, 1000.0, 2000.0, 512.3, 1e4, 3.7):
+        for cutoff in np.concatenate([[1e-5 * fs, 0.1 * fs, 0.25 * fs, 0.4999 * fs], rng.uniform(1e-4, 0.4999, 60) * fs]):
+            assert np.array_equal(butter_lowpass_sos(2, cutoff, fs),
+                                  scipy.signal.butter(2, cutoff, fs=fs, output="sos")), (cutoff, fs)
+    # a low-pass: unit gain at DC, a double zero at Nyquist (b = b0 [1, 2, 1])
+    sos = butter_lowpass_sos(2, 10.0, 1000.0)[0]
+    assert sos[:3].sum() / sos[3:].sum() == pytest.approx(1.0, rel=1e-12)
+    np.testing.assert_allclose(sos[:3] / sos[0], [1.0, 2.0, 1.0], rtol=1e-15)
+    for bad in (0.0, 500.0, -1.0, 600.0):
+        with pytest.raises(ValueError):
+            butter_lowpass_sos(2, bad, 1000.0)
+
+
+@pytest.mark.parametrize("n", [17, 29, 30, 31, 400, 21000])
+def test_sosfiltfilt2_gives_scipys_bits(n):
+    import scipy.signal
+
+    rng = np.random.default_rng(n)
+    x = np.cumsum(rng.standard_normal(n)) + (np.arange(n) > n // 2)
+    for cutoff in (1.0, 37.3, 120.0, 399.0):
+        sos = butter_lowpass_sos(2, cutoff, 1000.0)
+        for padtype in ("odd", "constant"):
+            for padlen in {0, 1, min(n - 1, 3 * int(1000.0 / cutoff))}:
+                expected = scipy.signal.sosfiltfilt(sos, x, padtype=padtype, padlen=padlen)
+                assert np.array_equal(sosfiltfilt2(sos, x, padtype, padlen), expected), (cutoff, padtype, padlen)
+    # a constant passes unchanged (the steady state from sosfilt_zi: no start-up transient)
+    np.testing.assert_allclose(sosfiltfilt2(butter_lowpass_sos(2, 5.0, 1000.0), np.full(n, 3.25), "odd", min(n - 1, 50)),
+                               3.25, rtol=1e-12)
+    with pytest.raises(ValueError):
+        sosfiltfilt2(butter_lowpass_sos(2, 5.0, 1000.0), x, "odd", n)
+    with pytest.raises(ValueError):
+        sosfiltfilt2(butter_lowpass_sos(2, 5.0, 1000.0), x, "even", 3)
