@@ -500,8 +500,9 @@ def test_computed_results_wait_on_disk_until_saved_and_a_saved_memo_holds_nothin
 
 def test_pooled_tables_of_unchanged_rows_are_taken_and_equal_a_full_rebuild(raw, tmp_path, stages_of, monkeypatch):
     """A changed breakaway run re-runs ``plpa_characterisation``: its breakaway findings are computed
-    again, its viscous tables (no viscous rows changed) are taken from the previous folder; the
-    database equals a full rebuild's, which takes none."""
+    again, its viscous tables (no viscous rows changed) and its seal envelope (no leakage rows
+    changed) are taken from the previous folder; the database equals a full rebuild's, which takes
+    none."""
     import pipeline.rebuild.stage_store as store_mod
 
     taken = []
@@ -522,7 +523,8 @@ def test_pooled_tables_of_unchanged_rows_are_taken_and_equal_a_full_rebuild(raw,
     age(raw.root)
     s = rebuild(raw.root, inc, jobs=1)
     assert "plpa_characterisation" in s.stages_run
-    assert dict(taken) == {"breakaway_findings": False, "viscous_fits": True, "viscous_transition": True}
+    assert dict(taken) == {"breakaway_findings": False, "viscous_fits": True, "viscous_transition": True,
+                           "seal_envelope": True}
     taken.clear()
     rebuild(raw.root, full, jobs=1, full=True)
     assert set(dict(taken).values()) == {False} and "viscous_fits" in dict(taken)  # --full takes none
