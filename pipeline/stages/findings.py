@@ -25,7 +25,7 @@ from analyses import breakaway as bk
 from analyses import service_life as sl
 from analyses import viscous_friction as vfr
 from analyses.leakage import LEAK_THRESHOLD_L_MIN, characterisation_rows
-from analyses.numerics import chi2_sf
+from analyses.numerics import chi2_sf, two_sided_z
 from schemas.papers import (PLA_CITATION, PLA_NRMSE_LIMIT_PCT, PLPA_BREAKAWAY_RATIO_BAND, PLPA_CITATION,
                             PLPA_SPRING_FORCE_MAX_N)
 from pipeline.stages import Reads, StageContext, StageOutput, UndeclaredRead
@@ -94,41 +94,11 @@ def _breakaway_stat(ctx: StageContext, finding: str) -> tuple[dict | None, str]:
     return {**r, "confidence": 0.95}, "breakaway"
 
 
-#: ``scipy.special.ndtri(0.5 + c / 2)`` [-] of the usual interval confidences ``c`` (the breakaway
-#: findings' 0.95, the plan's 0.90 by default), bit for bit (``tests/pipeline/stages/test_findings.py``):
-#: a change that runs this stage does not import ``scipy.special`` for them (~0.3 CPU-s, issue 26).
-#: ``statistics.NormalDist().inv_cdf`` is not used: it differs from ``ndtri`` in the last bits.
-Z_OF_CONFIDENCE = {0.8: 1.2815515655446004, 0.9: 1.6448536269514722, 0.95: 1.959963984540054,
-                   0.99: 2.5758293035489004}
-
-
-def z_of_confidence(conf: float) -> float:
-    """The two-sided normal quantile of a confidence, ``ndtri(0.5 + conf / 2)``.
-
-    Parameters
-    ----------
-    conf : float
-        Confidence of the interval [-], 0 < conf < 1.
-
-    Returns
-    -------
-    float
-        z [-] with ``P(|Z| < z) = conf``: :data:`Z_OF_CONFIDENCE` for the usual confidences, else
-        ``scipy.special.ndtri`` (norm.ppf's bits, without importing ``scipy.stats``).
-    """
-    z = Z_OF_CONFIDENCE.get(conf)
-    if z is None:
-        from scipy.special import ndtri
-
-        z = float(ndtri(0.5 + conf / 2))
-    return z
-
-
 def _std_from_ci(r: dict, log: bool = False) -> float | None:
     lo, hi, est, conf = finite_float(r.get("ci_low")), finite_float(r.get("ci_high")), finite_float(r.get("estimate")), finite_float(r.get("confidence"))
     if lo is None or hi is None or est is None:
         return None
-    z = z_of_confidence(conf or 0.95)
+    z = two_sided_z(conf or 0.95)
     if log and lo > 0 and hi > 0:
         return est * (math.log(hi) - math.log(lo)) / (2 * z)
     return (hi - lo) / (2 * z)

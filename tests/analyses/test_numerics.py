@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from analyses.numerics import (brentq, chi2_ppf, chi2_sf, fminbound, norm_isf, norm_pdf, norm_sf, savgol_derivative, student_t_ppf,
+from analyses.numerics import (Z_OF_CONFIDENCE, two_sided_z, brentq, chi2_ppf, chi2_sf, fminbound, norm_isf, norm_pdf, norm_sf, savgol_derivative, student_t_ppf,
                                student_t_sf, welch_t_test_p)
 
 
@@ -145,3 +145,15 @@ def test_a_sequential_design_is_computed_without_importing_scipy_stats_or_optimi
             "sorted({m.split('.')[1] for m in sys.modules if m.startswith('scipy.')} & {'stats', 'optimize'}))\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
     assert out[1:] == ["True", "[]"] and 2.0 < float(out[0]) < 2.3  # the last O'Brien-Fleming-type boundary: a little above 1.96
+
+
+def test_two_sided_z_is_ndtri_bit_for_bit():
+    """The constants of the usual confidences are scipy's ``ndtri`` exactly, and any other
+    confidence is computed by it (the findings' uncertainties keep their bits)."""
+    from scipy.special import ndtri
+
+    for conf, z in Z_OF_CONFIDENCE.items():
+        assert z == float(ndtri(0.5 + conf / 2)), conf
+        assert two_sided_z(conf) == z
+    for conf in (0.5, 0.68, 0.85, 0.9000001, 0.975, 0.999):
+        assert two_sided_z(conf) == float(ndtri(0.5 + conf / 2))

@@ -383,18 +383,6 @@ def test_hose_life_fits_go_through_the_memo_as_plain_lives_with_a_direct_fits_bi
         assert a.ok and (a.shape, a.scale, a.loglik) == (b.shape, b.scale, b.loglik)
 
 
-def test_z_of_confidence_is_ndtri_bit_for_bit():
-    """The constants of the usual confidences are scipy's ``ndtri`` exactly, and any other
-    confidence is computed by it (the findings' uncertainties keep their bits)."""
-    from scipy.special import ndtri
-
-    for conf, z in fs.Z_OF_CONFIDENCE.items():
-        assert z == float(ndtri(0.5 + conf / 2)), conf
-        assert fs.z_of_confidence(conf) == z
-    for conf in (0.5, 0.68, 0.85, 0.9000001, 0.975, 0.999):
-        assert fs.z_of_confidence(conf) == float(ndtri(0.5 + conf / 2))
-
-
 def test_std_from_ci_uses_the_confidence():
     """Half the interval over z: 95 % by default, the row's confidence otherwise, log scale for ratios."""
     from scipy.special import ndtri
