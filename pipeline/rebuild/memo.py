@@ -16,7 +16,7 @@ Storage
     ``memo/<stage>/<xx>.pkl`` in the warehouse, ``xx`` the first two hex digits of the keys it
     holds (at most 256 shards per stage): ``{key: pickled result}`` of the items of the stage's
     last run only. ``map`` reads only the shards of the keys it is asked for. ``save`` keeps
-    exactly the entries this run used: it rewrites (temp file, ``os.replace``) only the shards
+    exactly the entries this run used: it rewrites (temp files fsynced together, then ``os.replace``) only the shards
     whose set of entries changed (new keys, or keys no longer used), leaves the others untouched,
     and deletes the shard files left with no entry, also those no key was asked for (their
     entries are all unused: deleted without being read); so results of runs that are gone
@@ -144,6 +144,17 @@ def shard_of(key: str) -> str:
     return key[:SHARD_CHARS]
 
 
+def _discard(fh, tmp: Path) -> None:
+    """Close ``fh`` (if any) and remove the temporary file ``tmp``; errors ignored."""
+    for step in ((lambda: fh.close()) if fh is not None else None, tmp.unlink):
+        if step is None:
+            continue
+        try:
+            step()
+        except OSError:
+            pass
+
+
 class Memo:
     """The memo of one stage: ``map`` computes the items it has no result for.
 
@@ -182,6 +193,8 @@ class Memo:
         #: items taken from the memo / computed / computed but not memoised
         self.hits = self.computed = self.unkeyed = 0
         self.used = False
+        #: shard files written by :meth:`_write` and not yet committed (:meth:`_commit`): (file, temp, path)
+        self._staged: list | None = None
 
     def shard_path(self, shard: str) -> Path:
         return self.folder / f"{shard}.pkl"
@@ -332,10 +345,12 @@ class Memo:
                 self.shard_path(shard).unlink()
             except OSError:
                 pass
+        self._staged = []
         for shard, entries in sorted(by_shard.items()):
             if shard in on_disk and self._unchanged(shard, entries):
                 continue
             self._write(shard, entries)
+        self._commit()
         if not by_shard:
             try:
                 self.folder.rmdir()
@@ -343,25 +358,62 @@ class Memo:
                 pass  # it holds something the memo did not write
 
     def _write(self, shard: str, entries: dict[str, bytes | tuple[int, int]]) -> None:
+        """Write one shard's entries to its temporary file, left open for :meth:`_commit` (which makes it
+        durable and puts it in the shard's place)."""
         path = self.shard_path(shard)
         if os.path.lexists(path) and not _regular_file(path):
             return  # a symlink or a folder in its place: left alone (the items are misses)
         tmp = self.folder / f".{shard}.pkl.tmp-{os.getpid()}"
+        fh = None
         try:
             entries = {k: self._blob(v) for k, v in entries.items()}
             tmp.unlink(missing_ok=True)
             fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | _NOFOLLOW, 0o666)
-            with os.fdopen(fd, "wb") as fh:
-                pickle.dump({"format": FORMAT, "stage": self.stage, "shard": shard, "entries": entries}, fh,
-                            protocol=pickle.HIGHEST_PROTOCOL)
-                fh.flush()
-                os.fsync(fh.fileno())
-            os.replace(tmp, path)
+            fh = os.fdopen(fd, "wb")
+            pickle.dump({"format": FORMAT, "stage": self.stage, "shard": shard, "entries": entries}, fh,
+                        protocol=pickle.HIGHEST_PROTOCOL)
+            fh.flush()
         except OSError:
+            _discard(fh, tmp)
+            return
+        staged = getattr(self, "_staged", None)
+        if staged is None:          # called on its own: committed at once
+            self._staged = [(fh, tmp, path)]
+            self._commit()
+        else:
+            staged.append((fh, tmp, path))
+
+    def _commit(self) -> None:
+        """Every shard file :meth:`_write` staged: fsynced together (session 25: concurrent fsyncs of one
+        stage's shards share the file system's journal commits, where one after another each waited for its
+        own; ~200 shards a stage after a plan change), then each put in its shard's place (``os.replace``); a
+        file whose fsync failed is removed, its shard left as it was."""
+        staged, self._staged = getattr(self, "_staged", None) or [], None
+        if not staged:
+            return
+
+        def durable(fh) -> bool:
             try:
-                tmp.unlink()
+                os.fsync(fh.fileno())
+                return True
             except OSError:
-                pass
+                return False
+
+        if len(staged) == 1:
+            ok = [durable(staged[0][0])]
+        else:
+            from concurrent.futures import ThreadPoolExecutor
+
+            with ThreadPoolExecutor(min(16, len(staged))) as pool:
+                ok = list(pool.map(durable, [fh for fh, _, _ in staged]))
+        for (fh, tmp, path), good in zip(staged, ok):
+            try:
+                fh.close()
+                if not good:
+                    raise OSError("fsync failed")
+                os.replace(tmp, path)
+            except OSError:
+                _discard(None, tmp)
 
     def summary(self) -> str:
         """``"per-run: N from the memo, M computed"`` (empty when the stage mapped nothing)."""
