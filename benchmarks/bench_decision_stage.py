@@ -9,6 +9,7 @@ One command::
     python -m benchmarks.bench_decision_stage --detail        # also the in-process breakdown below
     python -m benchmarks.bench_decision_stage --warehouse WH  # also the two stages on a built warehouse's tables
     python -m benchmarks.bench_decision_stage --same-as main  # the same tables as main's code? (12 types, bit for bit)
+    python -m benchmarks.bench_decision_stage --no-demo --ref main --repeat 2   # main's code and this, alternately
 
 **What is measured: what a user runs.** Whole ``pneubench rebuild`` processes (all cores, the
 report written), timed by :func:`benchmarks.proc.measure`: wall seconds and the CPU seconds of the
@@ -266,6 +267,15 @@ _WITHOUT = ("import sys; import pipeline.stages as s; d = s.discover; "
             "from pipeline.cli import main; main()")
 
 
+def tree_env(tree: Path | None) -> dict | None:
+    """The environment of a rebuild importing ``tree``'s code (None: this checkout's, the default environment)."""
+    if tree is None:
+        return None
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONDONTWRITEBYTECODE", "PNEUBENCH_RAW",
+                                                              "PNEUBENCH_WAREHOUSE")}
+    return dict(env, PYTHONPATH=str(tree))
+
+
 def rebuild_cmd(raw: Path, wh: Path, without: tuple = ()) -> list[str]:
     """``pneubench rebuild`` of ``raw`` into ``wh`` as a user runs it (all cores), or, with ``without``,
     the same command with those stages absent (their tables absent from the warehouse and the report)."""
@@ -332,6 +342,46 @@ def added_by(raw: Path, warm: Path, change, stages: tuple, repeat: int, common: 
     return {**out, "own": own, "common": common}
 
 
+def added_by_trees(raw: Path, warm: dict, change, stages: tuple, repeat: int, common: tuple = NOT_COMPARED) -> dict:
+    """:func:`added_by` for several versions of the code at once (``--ref``): ``warm`` maps a label to (the
+    tree whose code rebuilds it, or None for this checkout; its warm warehouse, built by that code). Round ``r``
+    applies ``change(r % 2 == 0)`` once, then rebuilds every version's warehouse with every stage and its copy
+    without ``stages``, the versions in turn (their order reversed every round), so that the load of each
+    moment falls on both alike. Returns label -> the :func:`added_by` dict (no no-op runs)."""
+    import shutil
+
+    from benchmarks.proc import Series, measure
+
+    res = {lab: {"with": Series("with"), "without": Series("without"), "no-op": Series("no-op"), "own": {},
+                 "common": common} for lab in warm}
+    other = {}
+    for lab, (tree, wh) in warm.items():
+        other[lab] = wh.parent / f"{wh.name}-without"
+        shutil.rmtree(other[lab], ignore_errors=True)
+        shutil.copytree(wh, other[lab], symlinks=True)
+        m = measure(rebuild_cmd(raw, other[lab], stages + common), cwd=tree, env=tree_env(tree))
+        print(f"  ({lab}: the copy without {'+'.join(stages)} settled: {m.wall_s:.1f} s wall, CPU {m.cpu_s:.1f} s)",
+              flush=True)
+    labels = list(warm)
+    try:
+        for r in range(repeat):
+            change(r % 2 == 0)
+            for lab in labels if r % 2 == 0 else labels[::-1]:
+                tree, wh = warm[lab]
+                for label, target, without in (("with", wh, common), ("without", other[lab], stages + common)):
+                    m = measure(rebuild_cmd(raw, target, without), cwd=tree, env=tree_env(tree))
+                    res[lab][label].runs.append(m)
+                    print(f"  round {r + 1}, {lab:8s} {label:7s}: {m.wall_s:7.1f} s wall, CPU {m.cpu_s:6.1f} s, load "
+                          f"average {os.getloadavg()[0]:.1f}", flush=True)
+                    for n in stage_names() if label == "with" else ():
+                        res[lab]["own"].setdefault(n, []).append(stage_seconds(m.stdout + m.stderr, n))
+    finally:
+        change(False)
+        for o in other.values():
+            shutil.rmtree(o, ignore_errors=True)
+    return res
+
+
 def plan_changer(plan: Path, old: str, new: str):
     """``change(on)``: the plan file with ``old`` replaced by ``new`` (on) or as it was (off)."""
     text = plan.read_text()
@@ -351,7 +401,8 @@ def report_added(name: str, res: dict, target: float, stages: tuple) -> bool:
     but = f" but {'+'.join(res['common'])}" if res["common"] else ""
     print(f"  plan change, every stage{but}: {w.wall_s:7.2f} s wall, CPU {w.cpu_s:7.2f} s (process tree)")
     print(f"  plan change, without {'+'.join(stages)} too: {wo.wall_s:7.2f} s wall, CPU {wo.cpu_s:7.2f} s")
-    print(f"  no-op rebuild (nothing changed)   {noop.wall_s:7.2f} s wall, CPU {noop.cpu_s:7.2f} s")
+    if noop.runs:
+        print(f"  no-op rebuild (nothing changed)   {noop.wall_s:7.2f} s wall, CPU {noop.cpu_s:7.2f} s")
     own = ", ".join(f"{n} {np.median([v for v in vals if v is not None]):.2f} s" for n, vals in res["own"].items()
                     if any(v is not None for v in vals))
     print(f"  stages re-run (wall in the rebuild's log): {own or 'none found'}")
@@ -362,11 +413,12 @@ def report_added(name: str, res: dict, target: float, stages: tuple) -> bool:
     return ok
 
 
-def first_rebuild(raw: Path, wh: Path, common: tuple = NOT_COMPARED) -> None:
-    """The warm warehouse every measured rebuild starts from (not timed; without ``common``)."""
+def first_rebuild(raw: Path, wh: Path, common: tuple = NOT_COMPARED, tree: Path | None = None) -> None:
+    """The warm warehouse every measured rebuild starts from (not timed; without ``common``; ``tree``: the code
+    that builds it, None for this checkout's)."""
     from benchmarks.proc import measure
 
-    m = measure(rebuild_cmd(raw, wh, common))
+    m = measure(rebuild_cmd(raw, wh, common), cwd=tree, env=tree_env(tree))
     print(f"  (first rebuild, not part of the comparison: {m.wall_s:.1f} s wall, CPU {m.cpu_s:.1f} s, exit {m.exit_code})",
           flush=True)
 
@@ -399,6 +451,35 @@ def on_synthetic(tmp: Path, types: int, seed: int, repeat: int) -> bool:
                    repeat)
     return report_added(f"{types} hose types, plan power 0.8 -> 0.81 (what reads the power re-runs)", res,
                         10.0 * types / 200, DECISION_STAGES)
+
+
+def on_synthetic_against(tmp: Path, ref: str, types: int, seed: int, repeat: int) -> bool:
+    """:func:`on_synthetic` for ``ref``'s code (exported with ``git archive``) and this checkout's, alternately
+    (:func:`added_by_trees`): each version's added wall and CPU, and this checkout's against ``ref``'s."""
+    from benchmarks.same_behaviour import export
+
+    tree = export(ref, tmp / "ref-tree")
+    raw = tmp / "synth-raw"
+    raw.mkdir()
+    life, _ = campaign(types, seed, raw, (20, 20), varied=True, odometer_only=True)
+    (raw / "plan.toml").write_text(SYNTH_PLAN.format(power=0.8))
+    print(f"{types} synthetic hose types ({len(life)} hoses), margin {DESIGN_MARGIN}, max_failures designed; "
+          f"{ref} against this checkout, alternately:")
+    warm = {ref: (tree, tmp / "synth-wh-ref"), "this": (None, tmp / "synth-wh-this")}
+    for lab, (t, wh) in warm.items():
+        print(f"  {lab}:", end="", flush=True)
+        first_rebuild(raw, wh, tree=t)
+    res = added_by_trees(raw, warm, plan_changer(raw / "plan.toml", "power = 0.8\n", "power = 0.81\n"),
+                         DECISION_STAGES, repeat)
+    oks = {lab: report_added(f"{lab}: {types} hose types, plan power 0.8 -> 0.81", res[lab], 10.0 * types / 200,
+                             DECISION_STAGES) for lab in warm}
+    a, b = res[ref], res["this"]
+    for what, key in (("wall", "wall_s"), ("CPU", "cpu_s")):
+        ra = [w - o for w, o in zip((getattr(m, key) for m in a["with"].runs), (getattr(m, key) for m in a["without"].runs))]
+        rb = [w - o for w, o in zip((getattr(m, key) for m in b["with"].runs), (getattr(m, key) for m in b["without"].runs))]
+        print(f"  added {what} per round, {ref} / this: " + ", ".join(f"{x:.2f} / {y:.2f}" for x, y in zip(ra, rb))
+              + f"; medians {np.median(ra):.2f} / {np.median(rb):.2f} s")
+    return oks["this"]
 
 
 def in_process(types: int, seed: int, large: bool, warehouse: Path | None, raw: Path | None) -> bool:
@@ -473,6 +554,8 @@ def main(argv=None) -> int:
     ap.add_argument("--large", action="store_true", help="detail: 32 hoses per adjustment, ~60 failures a type")
     ap.add_argument("--warehouse", type=Path, help="detail: also the stages on this warehouse's tables")
     ap.add_argument("--raw", type=Path, help="its raw/ (default: WAREHOUSE/../raw)")
+    ap.add_argument("--ref", metavar="REF", help="also REF's code (git archive), alternately with this checkout's "
+                    "(the synthetic campaign only)")
     ap.add_argument("--same-as", metavar="REF", help="only compare both stages' tables with REF's code (bit for bit)")
     args = ap.parse_args(argv)
     if args.same_as:
@@ -485,7 +568,9 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory(prefix="pneubench-decision-proc-") as tmp:
         if not (args.quick or args.no_demo):
             ok &= on_demo(Path(tmp), args.repeat)
-        if types:   # --types 0: the demo alone
+        if types and args.ref:
+            ok &= on_synthetic_against(Path(tmp), args.ref, types, args.seed, args.repeat)
+        elif types:   # --types 0: the demo alone
             ok &= on_synthetic(Path(tmp), types, args.seed, args.repeat)
     if args.detail or args.warehouse:
         in_process(types, args.seed, args.large, args.warehouse, args.raw)

@@ -245,11 +245,17 @@ def test_a_power_change_recomputes_only_what_reads_the_power():
     assert [i["seed"] for i in a["power_of"]] == [i["seed"] for i in b["power_of"]]
     for x, y in zip(a["power_of"], b["power_of"]):          # power_now's item: the same unless its maximum moved
         assert (x == y) == (x["maximum"] == y["maximum"])
+    # one item per row (session 25): each row's schedule and more_testing, keyed by its own failures_needed
+    assert all(len(i["needed"]) == 1 for i in a["plan_hose_type"] + b["plan_hose_type"])
+    assert len(a["plan_hose_type"]) == len(b["plan_hose_type"]) == 4
     for x, y in zip(a["plan_hose_type"], b["plan_hose_type"]):
         same = x["needed"] == y["needed"]
         assert (x == y) == same
-        if same:      # the same simulations: the rows differ by their target power only
-            r80, r81 = (t[t["hose_type"] == x["hose_type"]].reset_index(drop=True) for t in (t80, t81))
-            assert r80["target_power"].tolist() == [0.8, 0.9] and r81["target_power"].tolist() == [0.801, 0.9]
-            pd.testing.assert_frame_equal(r80.drop(columns="target_power"), r81.drop(columns="target_power"))
+        if same:      # the same simulations: the row's schedule and more_testing the same
+            r80, r81 = (t[(t["hose_type"] == x["hose_type"]) & (t["failures_needed"] == x["needed"][0][0])]
+                        .reset_index(drop=True) for t in (t80, t81))
+            cols = ["failures_needed", "more_hoses_per_adjustment", "more_km", "expected_decision_date"]
+            pd.testing.assert_frame_equal(r80[cols], r81[cols])
     assert any(x == y for x, y in zip(a["plan_hose_type"], b["plan_hose_type"]))
+    b90 = [i for i in b["plan_hose_type"] if i in a["plan_hose_type"]]
+    assert b90, "the 0.9 rows' items outlive the power change"
