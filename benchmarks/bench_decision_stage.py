@@ -458,7 +458,7 @@ def on_synthetic_against(tmp: Path, ref: str, types: int, seed: int, repeat: int
     (:func:`added_by_trees`): each version's added wall and CPU, and this checkout's against ``ref``'s."""
     from benchmarks.same_behaviour import export
 
-    tree = export(ref, tmp / "ref-tree")
+    tree = Path(ref).resolve() if Path(ref).is_dir() else export(ref, tmp / "ref-tree")   # a tree already exported
     raw = tmp / "synth-raw"
     raw.mkdir()
     life, _ = campaign(types, seed, raw, (20, 20), varied=True, odometer_only=True)
@@ -554,8 +554,8 @@ def main(argv=None) -> int:
     ap.add_argument("--large", action="store_true", help="detail: 32 hoses per adjustment, ~60 failures a type")
     ap.add_argument("--warehouse", type=Path, help="detail: also the stages on this warehouse's tables")
     ap.add_argument("--raw", type=Path, help="its raw/ (default: WAREHOUSE/../raw)")
-    ap.add_argument("--ref", metavar="REF", help="also REF's code (git archive), alternately with this checkout's "
-                    "(the synthetic campaign only)")
+    ap.add_argument("--ref", metavar="REF", help="also REF's code (git archive; or a folder holding a tree), "
+                    "alternately with this checkout's (the synthetic campaign only)")
     ap.add_argument("--same-as", metavar="REF", help="only compare both stages' tables with REF's code (bit for bit)")
     args = ap.parse_args(argv)
     if args.same_as:
