@@ -32,3 +32,32 @@ def test_same_as_compares_both_stages_tables_with_another_versions(capsys):
     assert {"life_effect", "life_verdict", "decision_looks", "decision_look_hoses", "test_plan",
             "test_plan decision_km"} <= names
     assert all(": same (" in line for line in lines)
+
+
+def test_ref_mode_rebuilds_each_version_with_its_own_code_alternately(tmp_path, monkeypatch):
+    """--ref: each version's warehouses are rebuilt by its own tree (PYTHONPATH), the plan changed once a round
+    for both, the versions' order reversed every round; with and without the stages per version."""
+    import benchmarks.proc as proc
+
+    calls, changes = [], []
+
+    class M:
+        wall_s, cpu_s, stdout, stderr = 1.0, 1.0, "stage decision ran: x (2.0 s)\n", ""
+
+    def measure(cmd, cwd=None, env=None, **kw):
+        calls.append((None if env is None else env["PYTHONPATH"], cmd[-1]))
+        return M()
+
+    monkeypatch.setattr(proc, "measure", measure)
+    ref = tmp_path / "ref-tree"
+    warm = {"ref": (ref, tmp_path / "a"), "this": (None, tmp_path / "b")}
+    for _, wh in warm.values():
+        wh.mkdir()
+    res = bench.added_by_trees(tmp_path, warm, changes.append, ("decision", "test_plan"), 2)
+    assert changes == [True, False, False]
+    rounds = [(c[0], c[1].rsplit("/", 1)[-1]) for c in calls[2:]]
+    assert rounds == [(str(ref), "a"), (str(ref), "a-without"), (None, "b"), (None, "b-without"),
+                      (None, "b"), (None, "b-without"), (str(ref), "a"), (str(ref), "a-without")]
+    assert all(len(res[k]["with"].runs) == len(res[k]["without"].runs) == 2 for k in warm)
+    assert res["this"]["own"]["decision"] == [2.0, 2.0]
+    assert bench.tree_env(None) is None and bench.tree_env(ref)["PYTHONPATH"] == str(ref)

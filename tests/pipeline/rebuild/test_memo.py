@@ -531,3 +531,52 @@ def test_pooled_tables_of_unchanged_rows_are_taken_and_equal_a_full_rebuild(raw,
     a, b = dump(inc), dump(full)
     for table in a:
         assert a[table] == b[table], table
+
+
+def test_the_shards_of_a_save_are_fsynced_together_before_any_replaces_and_a_failed_fsync_keeps_the_old_file(
+        tmp_path, monkeypatch):
+    """Session 25: ``save`` writes every changed shard to its temporary file, fsyncs them (concurrently), then puts
+    each in place; a shard whose fsync fails keeps its previous file (its items are then misses or old entries,
+    never a torn file) and leaves no temporary file."""
+    first = Memo(tmp_path, "unit")
+    first.map(lambda f, items, label: [f(i) for i in items], _double, list(range(40)))
+    first.save()
+    before = {name: p.read_bytes() for name, p in shard_files(tmp_path, "unit").items()}
+    assert len(before) > 5
+
+    events = []
+    real_fsync, real_replace = os.fsync, os.replace
+    bad = {}
+
+    def fsync(fd):
+        name = os.path.basename(os.readlink(f"/proc/self/fd/{fd}"))
+        events.append(("fsync", name))
+        if name.startswith(".") and name[1:3] == bad.get("shard"):
+            raise OSError("disk full")
+        return real_fsync(fd)
+
+    def replace(src, dst):
+        events.append(("replace", os.path.basename(dst)))
+        return real_replace(src, dst)
+
+    monkeypatch.setattr(memo_mod.os, "fsync", fsync)
+    monkeypatch.setattr(memo_mod.os, "replace", replace)
+    second = Memo(tmp_path, "unit")
+    got = second.map(lambda f, items, label: [f(i) for i in items], _double, list(range(20, 60)))
+    assert got == [2 * i for i in range(20, 60)]
+    keys = {item_key(_double, i, tmp_path) for i in range(40, 60)}      # new items
+    bad["shard"] = sorted({k[:2] for k in keys} & {n[:2] for n in before})[0]
+    second.save()
+    kinds = [k for k, _ in events]
+    assert "fsync" in kinds and kinds.index("replace") > max(i for i, k in enumerate(kinds) if k == "fsync")
+    files = shard_files(tmp_path, "unit")
+    assert files[f"{bad['shard']}.pkl"].read_bytes() == before[f"{bad['shard']}.pkl"]   # the old file, whole
+    assert not list((tmp_path / "memo" / "unit").glob(".*tmp*"))
+    monkeypatch.undo()
+    third = Memo(tmp_path, "unit")
+    calls = []
+    again = third.map(lambda f, items, label: (calls.extend(items), [f(i) for i in items])[1], _double,
+                      list(range(20, 60)))
+    assert again == [2 * i for i in range(20, 60)]
+    # only the new items of the shard whose fsync failed are misses; its old entries still hit
+    assert calls and all(i >= 40 and item_key(_double, i, tmp_path)[:2] == bad["shard"] for i in calls)
