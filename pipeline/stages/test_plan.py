@@ -29,11 +29,13 @@ its ``life_effect`` shape: a hose type whose data did not change keeps its figur
 else changed. Each hose type is an item of three maps of ``ctx.map`` (the stage's worker pool, memoised per
 item across rebuilds): its designs (one per target power: :func:`needed_of`), its ``power_now``
 (:func:`power_of`, keyed by the maximum it runs to) and its schedules and ``more_testing``
-(:func:`plan_hose_type`, keyed by the ``failures_needed`` they run to), so that a plan change of the power
-re-runs only what it moved. Since session 22 the replicates come in batches until the figure's Monte Carlo
+(:func:`plan_hose_type`, one item per row since session 25, keyed by the row's ``failures_needed``), so that a plan
+change of the power re-runs only what it moved (the 0.9 rows' simulations stay in the memo). Since session 22 the replicates come in batches until the figure's Monte Carlo
 error is small enough (``power_now``: mc_se <= 0.01, ``n_simulations`` what was drawn; the date: its
-median's error <= 5 %), and a hose type's rows read one set of the benches' replicates, each at its own
-design's boundaries (:func:`analyses.bench_schedule.bench_schedules`).
+median's error <= 5 %). Sessions 22-24 read a hose type's two rows on one set of the benches' replicates
+(:func:`analyses.bench_schedule.bench_schedules`); since session 25 each row draws its own (to its own
+``failures_needed``), always alone (the same bytes whatever the memo holds), so that the 0.9 row outlives a power
+change.
 """
 from __future__ import annotations
 
