@@ -96,6 +96,8 @@ class StageResults:
     reused: list[str] = field(default_factory=list)
     #: per stage that ran: its per-item memo (hits, computed items)
     memos: dict[str, Memo] = field(default_factory=dict)
+    #: the stages that wrote rows of each table of ``tables``
+    origins: dict[str, set[str]] = field(default_factory=dict)
     #: :func:`frame_hash` of each table of ``tables`` as it is now (a table read by several stages
     #: is hashed once; dropped when a later stage adds rows to it)
     hashes: dict[str, str] = field(default_factory=dict)
@@ -160,6 +162,8 @@ def run_stages_cached(inputs: StageInputs, progress: Progress, drawer: FigureDra
                 how = "ran"
             res.records.append(record)
             tables = _collect(res, loaded, run_columns)
+            for t in tables:
+                res.origins.setdefault(t, set()).add(mod.NAME)
             memo_note = res.memos[mod.NAME].summary() if mod.NAME in res.memos else ""
             progress.message(f"stage {mod.NAME} {how}: " + ", ".join(f"{k} {len(v)} rows" for k, v in tables.items())
                              + f" ({duration_text(time.monotonic() - t0)}{'; ' + memo_note if memo_note else ''})")
@@ -167,6 +171,16 @@ def run_stages_cached(inputs: StageInputs, progress: Progress, drawer: FigureDra
     if own_drawer:
         drawer.finish()
     return res
+
+
+def reused_tables(res: StageResults, previous: PreviousState) -> set[str]:
+    """Tables of ``res`` that are the previous rebuild's frames again when the runs are: every stage that
+    wrote rows of them reused its stored folder (the previous rebuild's own), and the stages are the
+    previous rebuild's (none added or gone, which would add or take rows)."""
+    if not previous.stages or set(previous.stages) != set(res.ran) | set(res.reused):
+        return set()
+    reused = set(res.reused)
+    return {t for t, names in res.origins.items() if names <= reused}
 
 
 def _input_key(name: str, code: str, reads: Reads, inputs: StageInputs,
