@@ -232,6 +232,7 @@ def _write_tables(con: duckdb.DuckDBPyConnection, tables: dict[str, pd.DataFrame
     column name (:func:`insert_frame`); a frame without columns is skipped."""
     existing = {r[0] for r in con.execute("SELECT table_name FROM duckdb_tables()").fetchall()}
     for table, df in tables.items():
+        df = _frame(df)
         if df is None or len(df.columns) == 0:
             continue
         if table not in existing:
@@ -325,6 +326,13 @@ MIN_FREE_BYTES = 4 << 20
 VIEW_SOURCES = ("runs", "channels")
 
 
+def _frame(df):
+    """A table's frame: ``df``, or a reused stage's table read now
+    (:class:`~pipeline.rebuild.stage_store.DeferredTable`, by its ``read_frame``)."""
+    read = getattr(type(df), "read_frame", None)
+    return read(df) if read is not None else df
+
+
 def frame_key(df: pd.DataFrame | None) -> str:
     """Content key of a frame as the database takes it [32 hex digits]: its Arrow form (column names,
     types, values; DuckDB reads a frame through Arrow) serialised as an IPC stream and hashed, the
@@ -333,6 +341,7 @@ def frame_key(df: pd.DataFrame | None) -> str:
     ``"none"`` for a frame that is not written (None, or without columns)."""
     import pyarrow as pa
 
+    df = _frame(df)
     if df is None or len(df.columns) == 0:
         return "none"
     h = hashlib.sha256(json.dumps([len(df)] + [[str(c), str(t)] for c, t in df.dtypes.items()]).encode())
