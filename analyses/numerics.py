@@ -21,6 +21,7 @@ import math
 
 import numpy as np
 
+from analyses.numerics_special import chi2_sf_integer, ndtr, ndtri, ndtri_scalar
 
 _EPS = float(np.finfo(float).eps)
 
@@ -367,12 +368,15 @@ def chi2_sf(x: float, df: float) -> float:
     float
         P(X > x): 1 for ``x <= 0``; NaN for ``df`` not positive or ``x`` NaN. [-]
     """
-    from scipy.special import chdtrc
-
     if not df > 0 or math.isnan(x):
         return float("nan")
     if x <= 0:
         return 1.0
+    p = chi2_sf_integer(x, df)   # integer df 1-40: Cephes' igamc ported (analyses.numerics_special), no scipy import
+    if p is not None:
+        return p
+    from scipy.special import chdtrc
+
     return float(chdtrc(df, x))
 
 
@@ -415,9 +419,7 @@ def norm_sf(x):
     numpy.float64 or numpy.ndarray
         P(Z > x). [-]
     """
-    from scipy.special import ndtr
-
-    return ndtr(-np.asarray(x, dtype=float))[()]
+    return ndtr(-np.asarray(x, dtype=float))   # Cephes' steps (analyses.numerics_special): no scipy.special import
 
 
 def norm_isf(q):
@@ -434,9 +436,7 @@ def norm_isf(q):
     numpy.float64 or numpy.ndarray
         The deviate with P(Z > x) = q. [-]
     """
-    from scipy.special import ndtri
-
-    return (-ndtri(np.asarray(q, dtype=float)))[()]
+    return -ndtri(np.asarray(q, dtype=float))   # Cephes' steps (analyses.numerics_special): no scipy.special import
 
 
 #: ``scipy.special.ndtri(0.5 + c / 2)`` [-] of the usual interval confidences ``c`` (the breakaway
@@ -459,14 +459,10 @@ def two_sided_z(confidence: float) -> float:
     -------
     float
         z [-] with ``P(|Z| < z) = confidence``: :data:`Z_OF_CONFIDENCE` for the usual confidences,
-        else ``scipy.special.ndtri`` (norm.ppf's bits, without importing ``scipy.stats``).
+        else ``ndtri`` (:mod:`analyses.numerics_special`: norm.ppf's bits without importing scipy).
     """
     z = Z_OF_CONFIDENCE.get(confidence)
-    if z is None:
-        from scipy.special import ndtri
-
-        z = float(ndtri(0.5 + confidence / 2))
-    return z
+    return ndtri_scalar(0.5 + confidence / 2) if z is None else z
 
 
 def norm_pdf(x):

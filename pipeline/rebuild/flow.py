@@ -47,7 +47,7 @@ from pipeline.rebuild.options import (EXIT_USAGE, RebuildError, RebuildOptions, 
                                       keep_superseded_h)
 from pipeline.rebuild.publish import (check_mass_delete, clean_after_failure, crash_point, live_database,
                                       swap_in_new_database, warehouse_lock)
-from pipeline.rebuild.stage_runner import StageInputs, StageResults, duration_text, run_stages_cached
+from pipeline.rebuild.stage_runner import StageInputs, StageResults, duration_text, reused_tables, run_stages_cached
 from pipeline.rebuild.stage_store import FigureDrawer
 from pipeline.rebuild.state import (FilePlan, FileRecord, PreviousState, load_previous, logbook_hash, plan_runs,
                                     side_records, superseded_files)
@@ -189,7 +189,9 @@ def _rebuild_locked(run: RebuildRun) -> RebuildSummary:
             staged = _stages(run, plan, ingested, ex, drawer)
         crash_point("after_stages")
         tables, keep = _assemble(run, plan, ingested, staged, ex.name)
-        _publish(run, plan, tables, keep, drawer)
+        # tables written by reused stages only: their keys are the live database's when the runs are (not
+        # findings, which is compared with the previous rebuild's here)
+        _publish(run, plan, tables, keep, drawer, reused_tables(staged, plan.prev) - {"findings"})
     summary.tables = {k: len(v) for k, v in tables.items()}
     if summary.report is not None:
         run.progress.message(f"report: {summary.report}")
@@ -443,16 +445,17 @@ def _superseded_frame(kept: dict[str, float]) -> pd.DataFrame:
 
 # -- publish ---------------------------------------------------------------------------------------
 def _publish(run: RebuildRun, plan: _Plan, tables: dict[str, pd.DataFrame], keep: set[str],
-             drawer: FigureDrawer) -> None:
+             drawer: FigureDrawer, unchanged: set[str] = frozenset()) -> None:
     """Write the database (the figures drawn beside it put in place), swap it and its report in,
-    and collect what neither warehouse uses nor keeps, before and after."""
+    and collect what neither warehouse uses nor keeps, before and after (``unchanged``: as for
+    :func:`~pipeline.rebuild.assemble.write_database`)."""
     warehouse, progress, prev = run.warehouse, run.progress, plan.prev
     progress.message(f"warehouse: writing {len(tables)} tables")
     # the live database copied and only the tables whose rows changed written again, else built whole
     live = None if run.options.full else warehouse / DB_NAME
 
     def write(tmp_db):
-        progress.message(write_database(tmp_db, warehouse, tables, tables["runs"], live))
+        progress.message(write_database(tmp_db, warehouse, tables, tables["runs"], live, unchanged))
         waited = time.monotonic()
         n_aside = drawer.finish()  # the figures drawn beside the database, their stage folders put in place
         if n_aside:

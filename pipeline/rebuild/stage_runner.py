@@ -12,6 +12,7 @@ rebuild, since its key would not cover it.
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import time
@@ -23,7 +24,7 @@ from typing import TYPE_CHECKING
 from pipeline.progress import Progress
 from pipeline.raw.problems import Problem
 from pipeline.rebuild.memo import Memo
-from pipeline.rebuild.stage_store import (FigureDrawer, PooledTables, load_stage_folder, own_stage_folder,
+from pipeline.rebuild.stage_store import (DeferredTable, FigureDrawer, PooledTables, load_stage_folder, own_stage_folder,
                                            save_stage_folder)
 from pipeline.rebuild.state import PreviousState, StageRecord, encoded_runs, frame_hash, stage_input_key
 from pipeline.versions import stage_code_version
@@ -96,6 +97,8 @@ class StageResults:
     reused: list[str] = field(default_factory=list)
     #: per stage that ran: its per-item memo (hits, computed items)
     memos: dict[str, Memo] = field(default_factory=dict)
+    #: the stages that wrote rows of each table of ``tables``
+    origins: dict[str, set[str]] = field(default_factory=dict)
     #: :func:`frame_hash` of each table of ``tables`` as it is now (a table read by several stages
     #: is hashed once; dropped when a later stage adds rows to it)
     hashes: dict[str, str] = field(default_factory=dict)
@@ -142,6 +145,7 @@ def run_stages_cached(inputs: StageInputs, progress: Progress, drawer: FigureDra
     # every stage's code version up front: the project's sources are read and hashed once for all
     codes = {mod.NAME: stage_code_version(getattr(mod, "__file__", None) or mod.NAME) for mod in mods}
     encoded = encoded_runs(inputs.runs)  # every runs row encoded once for all the stages' keys
+    deferrable = _deferrable(mods)  # tables a reused stage need not read: no stage reads them
     run_columns = _run_columns_source(inputs.runs_frame)  # and read once for all their tables' run columns
     with progress.task("stages", len(mods)) as task:
         for mod in mods:
@@ -151,7 +155,7 @@ def run_stages_cached(inputs: StageInputs, progress: Progress, drawer: FigureDra
             read = _tables_read(reads, res)
             record = _reusable(mod.NAME, key, read, inputs)
             if record is not None:
-                loaded = load_stage_folder(inputs.warehouse, record.folder, mod.NAME)
+                loaded = load_stage_folder(inputs.warehouse, record.folder, mod.NAME, defer=deferrable)
                 res.reused.append(mod.NAME)
                 how = "reused"
             else:
@@ -160,6 +164,8 @@ def run_stages_cached(inputs: StageInputs, progress: Progress, drawer: FigureDra
                 how = "ran"
             res.records.append(record)
             tables = _collect(res, loaded, run_columns)
+            for t in tables:
+                res.origins.setdefault(t, set()).add(mod.NAME)
             memo_note = res.memos[mod.NAME].summary() if mod.NAME in res.memos else ""
             progress.message(f"stage {mod.NAME} {how}: " + ", ".join(f"{k} {len(v)} rows" for k, v in tables.items())
                              + f" ({duration_text(time.monotonic() - t0)}{'; ' + memo_note if memo_note else ''})")
@@ -169,12 +175,41 @@ def run_stages_cached(inputs: StageInputs, progress: Progress, drawer: FigureDra
     return res
 
 
+def reused_tables(res: StageResults, previous: PreviousState) -> set[str]:
+    """Tables of ``res`` that are the previous rebuild's frames again when the runs are: every stage that
+    wrote rows of them reused its stored folder (the previous rebuild's own), and the stages are the
+    previous rebuild's (none added or gone, which would add or take rows)."""
+    if not previous.stages or set(previous.stages) != set(res.ran) | set(res.reused):
+        return set()
+    reused = set(res.reused)
+    return {t for t, names in res.origins.items() if names <= reused}
+
+
 def _input_key(name: str, code: str, reads: Reads, inputs: StageInputs,
                encoded: list[tuple[str, bytes]] | None = None) -> str:
     """A stage's input key: its code, the runs of the kinds it reads, the logbooks and the plan if it
     reads them (``encoded``: the runs rows as :func:`pipeline.rebuild.state.encoded_runs` gives them)."""
     return stage_input_key(name, code, inputs.runs, set(reads.kinds), inputs.logbooks if reads.logbooks else None,
                            reads.plan_digest(inputs.plan), encoded)
+
+
+def _deferrable(mods) -> frozenset[str]:
+    """Tables no stage reads (its ``READS``), not pooled with another for their run columns
+    (:data:`pipeline.stages.run_columns.POOLS`), and not ``findings`` (compared with the previous rebuild's
+    by the rebuild): a reused stage's folder gives them as :class:`DeferredTable`."""
+    from pipeline import stages
+    from pipeline.stages.run_columns import POOLS
+
+    read = set().union(*(stages.reads_of(mod).tables for mod in mods)) if mods else set()
+    pooled = set(POOLS) | {source for source, _keys in POOLS.values()}
+    return _NotIn(read | pooled | {"findings"})
+
+
+class _NotIn(frozenset):
+    """Every name but the given ones (``in`` inverted): the tables a stage writes are known when its folder is read."""
+
+    def __contains__(self, name) -> bool:
+        return not frozenset.__contains__(self, name)
 
 
 def _run_columns_source(runs_frame: pd.DataFrame) -> pd.DataFrame:
@@ -249,6 +284,18 @@ def _run_stage(mod, reads_read: tuple[Reads, dict[str, str]], key: str, inputs: 
     return record, load_stage_folder(inputs.warehouse, rel, name, out, now_in)
 
 
+def _own_run_columns(name: str, runs_frame: pd.DataFrame, df: pd.DataFrame) -> pd.DataFrame:
+    """:func:`pipeline.stages.add_run_columns` of one table that pools no other."""
+    from pipeline import stages
+
+    return stages.add_run_columns({name: df}, runs_frame)[name]
+
+
+def _read(df):
+    """A frame of ``res.tables``, a :class:`DeferredTable` read."""
+    return df.read_frame() if isinstance(df, DeferredTable) else df
+
+
 def _collect(res: StageResults, loaded: tuple, runs_frame: pd.DataFrame) -> dict[str, pd.DataFrame]:
     """Add a stage's loaded outputs (tables with their run columns, figures, problems, warnings) to
     ``res`` (``runs_frame``: the runs, or their :func:`_run_columns_source`)."""
@@ -257,9 +304,15 @@ def _collect(res: StageResults, loaded: tuple, runs_frame: pd.DataFrame) -> dict
     from pipeline import stages
 
     tables, figures, problems, warnings = loaded
-    tables = stages.add_run_columns(tables, runs_frame)  # campaign, hose_id, campaigns
+    deferred = {t: df for t, df in tables.items() if isinstance(df, DeferredTable)}
+    tables = stages.add_run_columns({t: df for t, df in tables.items() if t not in deferred}, runs_frame)
+    for t, df in deferred.items():  # their run columns when read (a table of its own: not pooled with another)
+        df.finish = functools.partial(_own_run_columns, t, runs_frame)
+        tables[t] = df
     for t, df in tables.items():
-        res.tables[t] = df if t not in res.tables else pd.concat([res.tables[t], df], ignore_index=True)
+        if t in res.tables:  # rows of a table an earlier stage wrote too: both read now
+            df = pd.concat([_read(res.tables[t]), _read(df)], ignore_index=True)
+        res.tables[t] = df
         res.hashes.pop(t, None)  # hashed anew when a later stage reads it
     res.figures += figures
     res.problems += problems

@@ -382,10 +382,41 @@ def _empty_columns(arrow) -> list | None:
     return columns if same else None  # repr, not ==: a category dtype equals "category" whatever its categories
 
 
+class DeferredTable:
+    """A table of a reused stage's folder that no stage reads, read only when the database needs its rows.
+
+    The database write takes an unchanged table's content key from the live copy and writes only the
+    tables whose rows changed (:func:`pipeline.rebuild.assemble.write_database`); a one-file change
+    reads the rest of the reused stages' Parquet files for nothing (``durability_strokes`` alone is
+    188,000 rows at 1,000 runs; issue 26). :meth:`read_frame` reads the file once, ``finish`` (the
+    run columns) applied, as the folder's eager read would have given it; ``len`` is the file's rows.
+    """
+
+    def __init__(self, path: Path, finish=None):
+        self.path, self.finish, self._frame = Path(path), finish, None
+
+    def read_frame(self) -> pd.DataFrame:
+        """The table's frame (read, and ``finish`` applied, on the first call)."""
+        if self._frame is None:
+            import pandas as pd
+
+            df = pd.read_parquet(self.path)
+            self._frame = self.finish(df) if self.finish is not None else df
+        return self._frame
+
+    def __len__(self) -> int:
+        if self._frame is not None:
+            return len(self._frame)
+        import pyarrow.parquet as pq
+
+        return pq.read_metadata(self.path).num_rows
+
+
 def load_stage_folder(warehouse: Path, rel: str, stage: str, fresh: StageOutput | None = None,
-                       folder: Path | None = None):
+                       folder: Path | None = None, defer: frozenset[str] = frozenset()):
     """(tables, figure rows, problems, warnings) of a stage folder (``rel``; read from ``folder``
-    when it is still under its temporary name)."""
+    when it is still under its temporary name); the tables of ``defer`` stored as Parquet are
+    :class:`DeferredTable` (not read)."""
     import pandas as pd
 
     folder = folder or warehouse / rel
@@ -396,6 +427,8 @@ def load_stage_folder(warehouse: Path, rel: str, stage: str, fresh: StageOutput 
         f = folder / "tables" / f"{t}.parquet"
         if t in empty:  # no rows: its dtypes were checked to come back exactly as from Parquet
             tables[t] = _empty_frame(empty[t])
+        elif t in defer and meta.get("cacheable", True) and f.is_file():
+            tables[t] = DeferredTable(f)
         else:
             tables[t] = pd.read_parquet(f) if f.is_file() and meta.get("cacheable", True) else fresh.tables[t]
     figures = [{"stage": stage, "name": n, "path": f"{rel}/figures/{v['file']}", "caption": v["caption"]}

@@ -277,8 +277,8 @@ def checked_writes(monkeypatch, tmp_path):
 
     lines = []
 
-    def checked(path, warehouse, tables, runs, live):
-        line = write_database(path, warehouse, tables, runs, live)
+    def checked(path, warehouse, tables, runs, live, unchanged=frozenset()):
+        line = write_database(path, warehouse, tables, runs, live, unchanged)
         whole = tmp_path / f"whole-{len(lines)}.duckdb"
         build_database(whole, warehouse, tables, runs)
         assert assert_same_database(path, whole, warehouse) > 40
@@ -434,3 +434,36 @@ def test_only_the_views_of_the_kinds_whose_files_changed_are_made_again(raw, tmp
     age(raw.root)
     rebuild(raw.root, wh, jobs=1, report=False)
     assert made[:-len(KINDS)] == []
+
+
+def test_tables_said_unchanged_take_the_copys_keys_only_while_the_runs_are_the_same(tmp_path, monkeypatch):
+    """``unchanged`` tables are not keyed again when the ``runs`` frame has the copy's key (their keys are
+    the copy's, the database the one built whole); when the runs changed they are keyed and written as any."""
+    import pipeline.rebuild.assemble as asm
+    from pipeline.rebuild.assemble import build_database, runs_frame, write_database
+
+    import pandas as pd
+
+    wh = tmp_path / "wh"
+    wh.mkdir()
+    tables = {"runs": runs_frame([]), "channels": pd.DataFrame(), "notes": pd.DataFrame({"note": ["a", "b"]})}
+    live, new = wh / DB_NAME, wh / "new.duckdb"
+    write_database(new, wh, tables, tables["runs"], live)
+    os.replace(new, live)
+    keyed = []
+    real = asm.frame_key
+    monkeypatch.setattr(asm, "frame_key", lambda df: keyed.append(df) or real(df))
+    line = write_database(new, wh, tables, tables["runs"], live, {"notes"})
+    assert line == "warehouse: the live database copied, 0 of 3 tables written again"
+    assert not any(df is tables["notes"] for df in keyed)   # its key read from the copy, not computed
+    whole = tmp_path / "whole.duckdb"
+    build_database(whole, wh, tables, tables["runs"])
+    assert assert_same_database(new, whole, wh) > 40
+    new.unlink()
+    # the runs changed (or the copy has no key of the table): a table said unchanged is keyed again
+    frames = {"notes": pd.DataFrame({"note": ["a", "c"]})}
+    old = {"runs": "r1:3-5", "notes": "n1:2-7"}
+    assert asm._keys_of(frozenset({"notes"}), old, {"runs": "r1"}, frames) == {"notes": "n1"}
+    assert asm._keys_of(frozenset({"notes"}), old, {"runs": "r2"}, frames) == {"notes": real(frames["notes"])}
+    assert asm._keys_of(frozenset({"notes"}), {"runs": "r1:3-5"}, {"runs": "r1"}, frames) == \
+        {"notes": real(frames["notes"])}

@@ -341,3 +341,15 @@ def test_the_run_columns_read_from_the_runs_once_are_the_ones_read_from_the_runs
     assert list(a["seal_envelope"]["n_runs"]) == [1, 1] and "campaign" in a["empty"]
     assert _run_columns_source(runs.head(0)).empty
     assert _run_columns_source(runs[["run_id"]]) is not None and len(_run_columns_source(runs[["run_id"]]).columns) == 1
+
+
+def test_reused_tables_are_those_only_reused_stages_wrote_while_the_stages_are_the_previous_ones():
+    from pipeline.rebuild.stage_runner import StageResults, reused_tables
+    from pipeline.rebuild.state import PreviousState
+
+    res = StageResults(ran=["b"], reused=["a", "c"],
+                       origins={"t_a": {"a"}, "t_b": {"b"}, "t_ab": {"a", "b"}, "t_ac": {"a", "c"}})
+    prev = PreviousState(stages={"a": None, "b": None, "c": None})
+    assert reused_tables(res, prev) == {"t_a", "t_ac"}
+    assert reused_tables(res, PreviousState(stages={"a": None, "b": None})) == set()   # a stage added
+    assert reused_tables(res, PreviousState()) == set()                                 # no previous rebuild

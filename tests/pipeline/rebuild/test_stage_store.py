@@ -360,3 +360,18 @@ def test_matplotlib_is_imported_here_once_just_before_the_drawing_worker_is_fork
         drawer.warm()
         drawer.warm()
     assert here == [os.getpid()]
+
+
+def test_a_deferred_table_is_read_once_when_asked_with_its_finish_and_counts_its_rows(tmp_path):
+    import pandas as pd
+
+    from pipeline.rebuild.stage_store import DeferredTable
+
+    path = tmp_path / "t.parquet"
+    pd.DataFrame({"run_id": ["a", "b", "c"], "x": [1.0, 2.0, 3.0]}).to_parquet(path)
+    calls = []
+    table = DeferredTable(path, finish=lambda df: calls.append(1) or df.assign(y=df["x"] * 2))
+    assert len(table) == 3 and not calls   # rows from the file's footer, nothing read
+    df = table.read_frame()
+    assert list(df["y"]) == [2.0, 4.0, 6.0] and table.read_frame() is df and calls == [1]
+    pd.testing.assert_frame_equal(df.drop(columns="y"), pd.read_parquet(path))
