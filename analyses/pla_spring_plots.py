@@ -16,6 +16,19 @@ __all__ = ["PAPER_FIGURE_TESTS", "figure_runs", "plot_spring_loops", "plot_loop_
 PAPER_FIGURE_TESTS = ((2, 5, 1), (5, 5, 1), (3, 3, 1), (3, 7, 1), (3, 5, 0.5), (3, 5, 2))
 
 
+#: Where the panels of :func:`plot_spring_loops` sit (figure fractions, as ``Figure.subplots_adjust``
+#: takes them): room for four-digit forces and the axis labels at 12 x 7 in.
+LOOPS_MARGINS = {"left": 0.06, "right": 0.99, "bottom": 0.075, "top": 0.905, "wspace": 0.24, "hspace": 0.3}
+
+
+#: Size of :func:`plot_loop_energy` [in], its legends' font [pt], their distance below the panel
+#: (under the tick labels and the axis label) [pt] and the height of a legend row [pt].
+ENERGY_SIZE_IN = (11, 5.5)
+LEGEND_PT = 7
+LEGEND_GAP_PT = 36
+LEGEND_ROW_PT = 10
+
+
 def _closest(runs, p0_bar, d_mm, f_hz):
     def dist(r):
         return (abs(r.p0_abs / 1e5 - p0_bar) / 1.0 + abs(r.amplitude_m * 1e3 - d_mm) / 2.0
@@ -84,7 +97,10 @@ def plot_spring_loops(runs: list[SpringRun], fit: SpringFit, cases=PAPER_FIGURE_
     fig.suptitle(title or f"PLA {fit.chamber} chamber: force-displacement loops, experiment vs model "
                  f"(n={fit.n_polytropic:.3f}, Ae={fit.ae_m2 * 1e3:.3f}e-3 m2, eps={fit.epsilon_m2 * 1e5:.3f}e-5 m2, "
                  f"delta={fit.delta_n_m / 1e3:.3f}e3 N/m)", fontsize=10)
-    fig.tight_layout()
+    # fixed margins, not ``tight_layout()``: its extra draw measured every text of the six panels to
+    # find about these numbers, ~40 % of the figure's CPU, on every spring change (issue 26); the test
+    # holds every panel's labels inside the figure and off the other panels
+    fig.subplots_adjust(**LOOPS_MARGINS)
     return fig
 
 
@@ -107,7 +123,7 @@ def plot_loop_energy(table, fits: dict | None = None, title: str = ""):
     """
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(11, 5.5), layout="constrained")
+    fig = Figure(figsize=ENERGY_SIZE_IN)
     ax1, ax2 = fig.subplots(1, 2)
     colors = {"rear": "tab:blue", "front": "tab:orange"}
     markers = {3.0: "o", 5.0: "s", 7.0: "^"}
@@ -130,10 +146,19 @@ def plot_loop_energy(table, fits: dict | None = None, title: str = ""):
     ax2.set_ylabel("loop energy per cycle [J], mean over P0")
     ax2.set_title("vs frequency (viscous damping would rise with f)", fontsize=9)
     ax2.set_ylim(bottom=0)
+    rows = 0
     for ax in (ax1, ax2):
         ax.grid(alpha=0.3)
-        if ax.get_legend_handles_labels()[0]:
-            # below the panel (constrained layout makes room): off the curves whatever the data
-            ax.legend(fontsize=7, ncols=2, loc="upper center", bbox_to_anchor=(0.5, -0.13))
+        if n := len(ax.get_legend_handles_labels()[0]):
+            # below the panel, a fixed distance under its axis labels: off the curves whatever the data
+            ax.legend(fontsize=LEGEND_PT, ncols=2, loc="upper center", bbox_to_anchor=(0.5, 0),
+                      borderaxespad=LEGEND_GAP_PT / LEGEND_PT)
+            rows = max(rows, -(-n // 2))
+    # fixed margins, the bottom one from the legends' rows, not constrained layout: its two extra
+    # draws measured every text (~40 % of the figure's CPU, on every spring change; issue 26); the
+    # test holds the legends inside the figure and off the panels
+    height_pt = ENERGY_SIZE_IN[1] * 72
+    bottom = (LEGEND_GAP_PT + rows * LEGEND_ROW_PT + 2 * LEGEND_PT) / height_pt
+    fig.subplots_adjust(left=0.055, right=0.985, top=0.9, bottom=max(0.12, bottom), wspace=0.14)
     fig.suptitle(title or "PLA spring: energy dissipated per cycle (loop area)")
     return fig
