@@ -7,11 +7,11 @@ Three tables, from ``hose_life`` and ``hose_leak_growth`` (the durability stage'
 
 * ``hose_rul``: per running hose and method (``weibull``, ``degradation``) the median and the
   prediction interval at the plan's confidence of the distance it has left
-  (:func:`analyses.remaining_life.remaining_life`; Meeker & Escobar 1998, ch. 12 and 13; Lu &
+  (:func:`analyses.remaining_life_group.remaining_life`; Meeker & Escobar 1998, ch. 12 and 13; Lu &
   Meeker 1993);
 * ``rul_backtest``: per (hose type, adjustment, method) how often the intervals the models would
   have given each failed hose at 50 % and 80 % of its life held its true remaining life
-  (:func:`analyses.remaining_life.rul_backtest`, :func:`analyses.remaining_life.backtest_summary`);
+  (:func:`analyses.remaining_life_group.rul_backtest`, :func:`analyses.remaining_life_group.backtest_summary`);
 * ``decision_sensitivity``: per hose type and failure definition (the logbook's failures; the
   leak path's first crossing of the plan's limit, at 0.5x and 2x that limit,
   :func:`analyses.remaining_life.leak_crossing_lives`) the life ratio with its profile bounds
