@@ -525,5 +525,6 @@ def plot_leakage_map(leakage_map: pd.DataFrame, adjustment: str, threshold_l_min
 
 
 __all__ = ["find_pressure_plateaus", "leakage_plateaus", "leakage_power_law", "is_hose_check",
-           "characterisation_rows", "seal_envelope", "seal_envelope_rows", "leakage_map_plot_rows", "plot_leakage_map", "RUNS_CHARACTERISATION", "RUNS_HOSE_CHECKS",
+           "characterisation_rows", "seal_envelope", "seal_envelope_rows",
+           "leakage_map_plot_rows", "plot_leakage_map", "RUNS_CHARACTERISATION", "RUNS_HOSE_CHECKS",
            "RUNS_MIXED", "LEAK_THRESHOLD_L_MIN", "SPRING_FORCE_MAX_N", "SETTING_COLUMNS"]

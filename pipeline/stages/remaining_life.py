@@ -464,8 +464,8 @@ def run(ctx: StageContext) -> StageOutput:
     rul = [r for w, d in zip(weib, deg) for r in (*_with_leak_columns(w["hose_rul"], d["hose_rul"]), *d["hose_rul"])]
     out.tables["hose_rul"] = _typed(sorted(rul, key=lambda r: (r["hose_type"], r["hose_id"], r["method"])),
                                     RUL_COLUMNS, ints=("n_leak_points",))
-    out.tables["rul_backtest"] = _typed([r for w, d in zip(weib, deg) for r in (*w["rul_backtest"], *d["rul_backtest"])],
-                                        BACKTEST_COLUMNS, ints=("n_predictions",))
+    backtest = [r for w, d in zip(weib, deg) for r in (*w["rul_backtest"], *d["rul_backtest"])]
+    out.tables["rul_backtest"] = _typed(backtest, BACKTEST_COLUMNS, ints=("n_predictions",))
     out.tables["decision_sensitivity"] = _typed([r for rows in sens for r in rows], SENSITIVITY_COLUMNS,
                                                 ints=("n_force", "n_failed_force", "n_distance", "n_failed_distance"))
     return out
