@@ -382,6 +382,36 @@ def seal_envelope(leakage_map: pd.DataFrame, threshold_l_min: float = LEAK_THRES
     return out
 
 
+#: The columns of ``leakage_map`` that :func:`seal_envelope` reads besides its ``by`` columns.
+ENVELOPE_READS = ("run_id", "hose_id", "pressure_bar", "leak_l_min", "leak_se_l_min")
+
+
+def seal_envelope_rows(leakage_map: pd.DataFrame, by=SETTING_COLUMNS) -> pd.DataFrame:
+    """The rows and columns of ``leakage_map`` that :func:`seal_envelope` reads: those with a pressure
+    and a leak, as :func:`characterisation_rows` selects them (a setting's hose checks only when it has
+    no characterisation run), the ``by`` columns and :data:`ENVELOPE_READS`, on a new index.
+
+    ``seal_envelope`` of these rows is ``seal_envelope`` of the whole table (the selection is
+    idempotent); a stage keys the pooled envelope by them, so a changed hose check of a characterised
+    setting leaves the envelope as it was (issue 26).
+
+    Parameters
+    ----------
+    leakage_map : DataFrame
+        Rows of the ``leakage_map`` table.
+    by : sequence of str
+        Columns identifying a setting.
+
+    Returns
+    -------
+    DataFrame
+    """
+    df = leakage_map.dropna(subset=["pressure_bar", "leak_l_min"])
+    used = characterisation_rows(df, by)
+    cols = [c for c in dict.fromkeys((*by, *ENVELOPE_READS)) if c in used.columns]
+    return used[cols].reset_index(drop=True)
+
+
 _MARKERS = ("o", "s", "^", "D", "v", "P", "X", "<", ">")
 
 
@@ -495,5 +525,6 @@ def plot_leakage_map(leakage_map: pd.DataFrame, adjustment: str, threshold_l_min
 
 
 __all__ = ["find_pressure_plateaus", "leakage_plateaus", "leakage_power_law", "is_hose_check",
-           "characterisation_rows", "seal_envelope", "leakage_map_plot_rows", "plot_leakage_map", "RUNS_CHARACTERISATION", "RUNS_HOSE_CHECKS",
+           "characterisation_rows", "seal_envelope", "seal_envelope_rows",
+           "leakage_map_plot_rows", "plot_leakage_map", "RUNS_CHARACTERISATION", "RUNS_HOSE_CHECKS",
            "RUNS_MIXED", "LEAK_THRESHOLD_L_MIN", "SPRING_FORCE_MAX_N", "SETTING_COLUMNS"]

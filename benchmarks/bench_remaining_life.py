@@ -146,7 +146,8 @@ def run(types: int, every_km: float, seed: int, design=None) -> tuple[pd.DataFra
     """Simulate (``design``: :func:`simulate_type` by default) and predict ``types`` hose types;
     (running outcomes, backtest rows, wear-rate estimates)."""
     from analyses.quality import Sensor
-    from analyses.remaining_life import RulSettings, degradation_fit, leak_crossing_lives, remaining_life, rul_backtest
+    from analyses.remaining_life import RulSettings, degradation_fit, leak_crossing_lives
+    from analyses.remaining_life_group import remaining_life, rul_backtest
 
     settings = RulSettings(limit_l_min=LIMIT, sensor=Sensor(*SENSOR, source="metadata"), confidence=CONFIDENCE)
     outcomes, backtests, wear = [], [], []
@@ -238,7 +239,7 @@ def _verdict(ok: bool, quick: bool) -> str:
 
 def report(outcomes: pd.DataFrame, backtests: pd.DataFrame, wear: list, quick: bool, own_wear: bool = True) -> bool:
     """Print the counts and PASS/MISS; True when every target is met."""
-    from analyses.remaining_life import backtest_summary
+    from analyses.remaining_life_group import backtest_summary
 
     all_ok = True
     summary = backtest_summary(backtests).set_index("method")

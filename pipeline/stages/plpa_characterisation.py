@@ -216,8 +216,9 @@ def run(ctx: StageContext) -> StageOutput:
 
     leak = _frame(rows["leakage"], LEAKAGE_COLS)
     # the envelope of unchanged leakage rows is taken from the previous run too (a breakaway or viscous
-    # change: its per-setting groupby was ~0.3 CPU-s of such a rebuild)
-    env = ctx.pooled("seal_envelope", lk.seal_envelope, leak, LEAK_THRESHOLD_L_MIN)
+    # change: its per-setting groupby was ~0.3 CPU-s of such a rebuild), keyed by the rows it reads: a
+    # changed hose check of a characterised setting leaves it as it was (issue 26)
+    env = ctx.pooled("seal_envelope", lk.seal_envelope, lk.seal_envelope_rows(leak), LEAK_THRESHOLD_L_MIN)
     brk = _frame(rows["breakaway"], BREAKAWAY_COLS)
     summ = bk.breakaway_summary(brk)
     # pooled tables of unchanged rows are taken from the previous run (their scipy.stats import too)

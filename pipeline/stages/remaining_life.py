@@ -7,11 +7,11 @@ Three tables, from ``hose_life`` and ``hose_leak_growth`` (the durability stage'
 
 * ``hose_rul``: per running hose and method (``weibull``, ``degradation``) the median and the
   prediction interval at the plan's confidence of the distance it has left
-  (:func:`analyses.remaining_life.remaining_life`; Meeker & Escobar 1998, ch. 12 and 13; Lu &
+  (:func:`analyses.remaining_life_group.remaining_life`; Meeker & Escobar 1998, ch. 12 and 13; Lu &
   Meeker 1993);
 * ``rul_backtest``: per (hose type, adjustment, method) how often the intervals the models would
   have given each failed hose at 50 % and 80 % of its life held its true remaining life
-  (:func:`analyses.remaining_life.rul_backtest`, :func:`analyses.remaining_life.backtest_summary`);
+  (:func:`analyses.remaining_life_group.rul_backtest`, :func:`analyses.remaining_life_group.backtest_summary`);
 * ``decision_sensitivity``: per hose type and failure definition (the logbook's failures; the
   leak path's first crossing of the plan's limit, at 0.5x and 2x that limit,
   :func:`analyses.remaining_life.leak_crossing_lives`) the life ratio with its profile bounds
@@ -29,9 +29,13 @@ Decisions (docs/decision.md, "Remaining life: the stage")
 ---------------------------------------------------------
 * **Grain.** The models are fitted per (hose type, adjustment): force- and distance-set hoses
   wear at different rates (the lab's question), pooling them would mix two wear populations.
-  Each group is one ``ctx.map`` item (plain data naming every input), so groups run in the
-  stage's worker pool and a group whose hoses, leak path, sensor and settings did not change is
-  read from the memo.
+  Each group is two ``ctx.map`` items (plain data naming every input): its ``weibull`` rows
+  (:func:`rul_weibull`: the hoses' lives and the confidence) and its ``degradation`` rows
+  (:func:`rul_group`: the lives, the leak path, the sensor and the settings), so groups run in
+  the stage's worker pool and what did not change is read from the memo: a changed leakage check
+  recomputes its group's ``degradation`` rows only (issue 26: the life model's bisections were
+  most of such a change's work here). The leak columns of a ``weibull`` row (the leak now, the
+  points, the plan's limit and pressure) are the hose's, taken from its ``degradation`` row.
 * **The leak path.** Of each (hose, leakage run), the plateau whose ``pressure_bar`` is nearest
   the plan's ``leak_pressure_bar``, accepted when within half the plateau spacing (the median
   step between a run's successive plateaus, over the hose type's runs): the target is then nearer
@@ -44,7 +48,8 @@ Decisions (docs/decision.md, "Remaining life: the stage")
   ``weibull`` rows as usual, the ``degradation`` rows and the leak definitions NULL with the note
   :data:`NO_LEAK_PLAN`.
 * Seeds: :func:`analyses.remaining_life.data_seed` of each group's inputs, so the same raw/
-  gives the same bytes.
+  gives the same bytes: the lives alone for the ``weibull`` rows, the lives and the leak path for
+  the ``degradation`` rows (:mod:`analyses.remaining_life_group`).
 """
 from __future__ import annotations
 
@@ -58,8 +63,8 @@ from analyses.life_effect import life_effect
 from analyses.life_effect_lognormal import (LOGNORMAL, lognormal_effect_fit, lognormal_life_effect,
                                             lognormal_ratio_deviance)
 from analyses.quality import Sensor
-from analyses.remaining_life import (RulSettings, backtest_summary, group_models, leak_crossing_lives,
-                                     remaining_life, rul_backtest)
+from analyses.remaining_life import RulSettings, leak_crossing_lives
+from analyses.remaining_life_group import backtest_summary, group_models, remaining_life, rul_backtest
 from pipeline.stages import Reads, StageContext, StageOutput
 from schemas.sensors_text import sensor_parts
 from schemas.units import kg_s_to_l_min_anr
@@ -215,10 +220,16 @@ def stage_items(ctx: StageContext) -> tuple[list[dict], list[dict]]:
     return groups, types
 
 
-def _frames(item: dict) -> tuple[pd.DataFrame, pd.DataFrame, str | None]:
-    """A item's hoses and leak points as frames, and why the leak side is NULL (None when it is not)."""
+def _hoses_frame(item: dict) -> pd.DataFrame:
+    """An item's hoses as a frame (:data:`_HOSE_SPEC`, the distance as float64)."""
     hoses = pd.DataFrame(item["hoses"], columns=list(_HOSE_SPEC))
     hoses["distance_km"] = pd.to_numeric(hoses["distance_km"]).astype("float64")
+    return hoses
+
+
+def _frames(item: dict) -> tuple[pd.DataFrame, pd.DataFrame, str | None]:
+    """A item's hoses and leak points as frames, and why the leak side is NULL (None when it is not)."""
+    hoses = _hoses_frame(item)
     points = pd.DataFrame(item["points"], columns=["hose_id", "distance_km", "leak_l_min"])
     points = points.astype({"distance_km": "float64", "leak_l_min": "float64"})
     reason = None
@@ -227,8 +238,60 @@ def _frames(item: dict) -> tuple[pd.DataFrame, pd.DataFrame, str | None]:
     return hoses, (points.iloc[0:0] if reason else points), reason
 
 
+#: The columns of a ``hose_rul`` row that are the hose's leak path and the plan's, the same on both methods' rows.
+LEAK_ROW_COLUMNS = ("leak_now_l_min", "n_leak_points", "leak_limit_l_min", "leak_pressure_bar")
+
+
+def _backtest_rows(tested: pd.DataFrame, base: dict, method: str) -> dict:
+    """One ``rul_backtest`` row of ``method`` from :func:`analyses.remaining_life_group.rul_backtest`'s
+    predictions: both fractions pooled, and each alone."""
+    row = {**base, "method": method}
+    for col, sel in (("", None), ("_at_50", 0.5), ("_at_80", 0.8)):
+        part = tested if sel is None else tested[np.isclose(tested["fraction"].astype(float), sel)]
+        summary = backtest_summary(part).set_index("method").loc[method]
+        row[f"coverage{col}"] = float(summary["coverage"])
+        if sel is None:
+            row.update(n_predictions=int(summary["n_predictions"]), note=summary["note"],
+                       median_abs_error_km=float(summary["median_abs_error_km"]))
+    return row
+
+
+def weibull_items(groups: list[dict]) -> list[dict]:
+    """The :func:`rul_weibull` item of each :func:`stage_items` group: what its ``weibull`` rows read
+    (the hoses' lives and the confidence; not the leak path)."""
+    return [{k: g[k] for k in ("hose_type", "adjustment", "hoses", "confidence")} for g in groups]
+
+
+def rul_weibull(item: dict) -> dict:
+    """``hose_rul`` and ``rul_backtest`` rows of the ``weibull`` method of one (hose type, adjustment)
+    (module level: ``ctx.map``); the leak columns of its ``hose_rul`` rows are the caller's to fill
+    (:data:`LEAK_ROW_COLUMNS`, from the ``degradation`` rows).
+
+    Parameters
+    ----------
+    item : dict
+        From :func:`weibull_items`: ``hose_type``, ``adjustment``, ``hoses`` (hose_life columns),
+        ``confidence``.
+
+    Returns
+    -------
+    dict
+        ``hose_rul`` and ``rul_backtest`` rows (lists of dicts).
+    """
+    hoses = _hoses_frame(item)
+    points = pd.DataFrame({"hose_id": pd.Series([], dtype=object), "distance_km": pd.Series([], dtype="float64"),
+                           "leak_l_min": pd.Series([], dtype="float64")})
+    settings = RulSettings(limit_l_min=_NAN, sensor=Sensor(0.0, 0.0, source="metadata"), confidence=item["confidence"])
+    base = {"hose_type": item["hose_type"], "adjustment": item["adjustment"], "confidence": item["confidence"]}
+    models = group_models(hoses, points, settings, methods=("weibull",))   # seeded by the lives alone
+    rul = remaining_life(hoses, points, settings, models=models).assign(**base, leak_pressure_bar=None)
+    tested = rul_backtest(hoses, points, settings, models=models)
+    return {"hose_rul": rul[RUL_COLUMNS].to_dict("records"), "rul_backtest": [_backtest_rows(tested, base, "weibull")]}
+
+
 def rul_group(item: dict) -> dict:
-    """``hose_rul`` and ``rul_backtest`` rows of one (hose type, adjustment) (module level: ``ctx.map``).
+    """``hose_rul`` and ``rul_backtest`` rows of the ``degradation`` method of one (hose type,
+    adjustment) (module level: ``ctx.map``; the ``weibull`` rows are :func:`rul_weibull`'s).
 
     Parameters
     ----------
@@ -248,32 +311,28 @@ def rul_group(item: dict) -> dict:
     settings = RulSettings(limit_l_min=_NAN if item["limit"] is None else item["limit"], sensor=sensor,
                            confidence=item["confidence"], rupture_shape=item.get("rupture_shape"))
     base = {"hose_type": item["hose_type"], "adjustment": item["adjustment"], "confidence": item["confidence"]}
-    models = group_models(hoses, points, settings)   # fitted once for the predictions and their backtest
+    # fitted once for the predictions and their backtest; seeded by the lives and the leak path
+    models = group_models(hoses, points, settings, methods=("degradation",))
     rul = remaining_life(hoses, points, settings, models=models)
-    deg = (rul["method"] == "degradation").to_numpy()
     if reason:
-        rul.loc[deg, ["rul_median_km", "rul_lower_km", "rul_upper_km"]] = _NAN
-        rul.loc[deg, "note"] = reason
+        rul[["rul_median_km", "rul_lower_km", "rul_upper_km"]] = _NAN
+        rul["note"] = reason
     if item["pressure"] is None or item["limit"] is None:
         rul["n_leak_points"] = None
     rul = rul.assign(**base, leak_pressure_bar=item["pressure"],
                      leak_limit_l_min=item["limit"])
     tested = rul_backtest(hoses, points, settings, models=models)
-    rows = []
-    for m in ("weibull", "degradation"):
-        row = {**base, "method": m}
-        for col, sel in (("", None), ("_at_50", 0.5), ("_at_80", 0.8)):
-            part = tested if sel is None else tested[np.isclose(tested["fraction"].astype(float), sel)]
-            summary = backtest_summary(part).set_index("method").loc[m]
-            row[f"coverage{col}"] = float(summary["coverage"])
-            if sel is None:
-                row.update(n_predictions=int(summary["n_predictions"]), note=summary["note"],
-                           median_abs_error_km=float(summary["median_abs_error_km"]))
-        if m == "degradation" and reason:
-            row.update(n_predictions=0, coverage=_NAN, coverage_at_50=_NAN, coverage_at_80=_NAN,
-                       median_abs_error_km=_NAN, note=reason)
-        rows.append(row)
-    return {"hose_rul": rul[RUL_COLUMNS].to_dict("records"), "rul_backtest": rows}
+    row = _backtest_rows(tested, base, "degradation")
+    if reason:
+        row.update(n_predictions=0, coverage=_NAN, coverage_at_50=_NAN, coverage_at_80=_NAN,
+                   median_abs_error_km=_NAN, note=reason)
+    return {"hose_rul": rul[RUL_COLUMNS].to_dict("records"), "rul_backtest": [row]}
+
+
+def _with_leak_columns(weibull: list[dict], degradation: list[dict]) -> list[dict]:
+    """The ``weibull`` rows with the leak columns (:data:`LEAK_ROW_COLUMNS`) of their hose's ``degradation`` row."""
+    leak = {r["hose_id"]: {c: r[c] for c in LEAK_ROW_COLUMNS} for r in degradation}
+    return [{**r, **leak.get(r["hose_id"], {})} for r in weibull]
 
 
 def definition_lives(hoses: pd.DataFrame, points: pd.DataFrame, limit_l_min: float | None) -> tuple[pd.DataFrame, str | None]:
@@ -400,12 +459,13 @@ def run(ctx: StageContext) -> StageOutput:
     # the sensitivity first: one hose type's runs here and imports scipy's optimisers and distributions,
     # which the workers then forked for the groups inherit instead of each importing them again
     sens = ctx.map(sensitivity_of, types, label="remaining life: sensitivity") if types else []
-    results = ctx.map(rul_group, groups, label="remaining life") if groups else []
-    rul = [r for res in results for r in res["hose_rul"]]
+    weib = ctx.map(rul_weibull, weibull_items(groups), label="remaining life: weibull") if groups else []
+    deg = ctx.map(rul_group, groups, label="remaining life") if groups else []
+    rul = [r for w, d in zip(weib, deg) for r in (*_with_leak_columns(w["hose_rul"], d["hose_rul"]), *d["hose_rul"])]
     out.tables["hose_rul"] = _typed(sorted(rul, key=lambda r: (r["hose_type"], r["hose_id"], r["method"])),
                                     RUL_COLUMNS, ints=("n_leak_points",))
-    out.tables["rul_backtest"] = _typed([r for res in results for r in res["rul_backtest"]], BACKTEST_COLUMNS,
-                                        ints=("n_predictions",))
+    backtest = [r for w, d in zip(weib, deg) for r in (*w["rul_backtest"], *d["rul_backtest"])]
+    out.tables["rul_backtest"] = _typed(backtest, BACKTEST_COLUMNS, ints=("n_predictions",))
     out.tables["decision_sensitivity"] = _typed([r for rows in sens for r in rows], SENSITIVITY_COLUMNS,
                                                 ints=("n_force", "n_failed_force", "n_distance", "n_failed_distance"))
     return out

@@ -4,7 +4,8 @@ import pandas as pd
 import pytest
 
 from analyses.leakage import (characterisation_rows, find_pressure_plateaus, is_hose_check, leakage_map_plot_rows,
-                              leakage_plateaus, leakage_power_law, plot_leakage_map, seal_envelope)
+                              leakage_plateaus, leakage_power_law, plot_leakage_map, seal_envelope,
+                              seal_envelope_rows)
 from schemas.units import L_MIN_M3_S, RHO_ANR_KG_M3
 
 KG_S_PER_L_MIN = L_MIN_M3_S * RHO_ANR_KG_M3
@@ -164,6 +165,17 @@ def test_hose_check_does_not_change_the_setting_envelope():
     per_hose = seal_envelope(both, by=("hose_id", "chamber", "adjustment", "z_rollers_mm"),
                              characterisation_only=False).set_index("hose_id")
     assert per_hose.loc["H104", "sealed_up_to_bar"] == 2.0
+
+
+def test_the_envelope_of_its_rows_is_the_envelope_and_a_check_of_a_characterised_setting_is_none_of_them():
+    only = [("check-H1-00", "H1", "B", "force", None, 429.0, float(p), [0.0, 0.0, 0.3][p]) for p in range(3)]
+    both = _with_worn_check(only)   # a characterised setting with a worn check, a setting of checks only
+    rows = seal_envelope_rows(both)
+    pd.testing.assert_frame_equal(seal_envelope(rows), seal_envelope(both))
+    assert set(rows["hose_id"].dropna()) == {"H1"}   # the fallback's checks are read, H104's is not
+    worse = both.assign(leak_l_min=np.where(both["hose_id"] == "H104", both["leak_l_min"] * 2, both["leak_l_min"]))
+    pd.testing.assert_frame_equal(seal_envelope_rows(worse), rows)
+    assert seal_envelope_rows(both.iloc[0:0]).empty and seal_envelope(seal_envelope_rows(both.iloc[0:0])).empty
 
 
 def test_setting_with_only_hose_checks_falls_back_to_them():

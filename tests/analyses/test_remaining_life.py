@@ -7,10 +7,10 @@ import pytest
 
 from analyses.quality import Sensor
 from analyses.remaining_life import (MIN_ESS, N_RUPTURE_SHAPES, LifeModel, RulSettings, WeibullPosterior,
-                                     backtest_summary, data_seed, degradation_fit, degradation_rul, group_models,
-                                     leak_crossing_life,
-                                     leak_crossing_lives, life_model, remaining_life, rul_backtest, rul_over_shapes,
+                                     data_seed, degradation_fit, degradation_rul, leak_crossing_life,
+                                     leak_crossing_lives, life_model, rul_over_shapes,
                                      rupture_model, rupture_shapes, weibayes_posterior, weibull_posterior, weibull_rul)
+from analyses.remaining_life_group import remaining_life
 from analyses.service_life import weibull_fit, weibull_loglik, weibull_loglik_many, weibull_shape_bounds
 from analyses.service_life_lognormal import lognormal_loglik_many
 
@@ -180,59 +180,6 @@ def hose_type(rng, n=30):
                           "failure_mode": np.where(failed, "leakage", None)})
     pts = pts[pts["distance_km"] <= pts["hose_id"].map(dict(zip(hoses["hose_id"], life)))]
     return hoses, pts.reset_index(drop=True)
-
-
-def test_remaining_life_gives_both_methods_for_every_running_hose_and_is_deterministic():
-    hoses, pts = hose_type(np.random.default_rng(14))
-    s = RulSettings(limit_l_min=2.0, sensor=SENSOR)
-    out = remaining_life(hoses, pts, s)
-    running = set(hoses.loc[hoses["status"] == "running", "hose_id"])
-    assert set(out["hose_id"]) == running and len(out) == 2 * len(running)
-    assert out.groupby("method").size().to_dict() == {"degradation": len(running), "weibull": len(running)}
-    made = out.dropna(subset=["rul_median_km"])
-    assert ((made["rul_lower_km"] < made["rul_median_km"]) & (made["rul_median_km"] < made["rul_upper_km"])).all()
-    assert (out["leak_limit_l_min"] == 2.0).all() and (out["n_leak_points"] >= 0).all()
-    pd.testing.assert_frame_equal(out, remaining_life(hoses, pts, s))
-    assert data_seed(hoses, pts) == data_seed(hoses.copy(), pts.copy())
-
-
-def test_no_failures_of_the_type_gives_weibull_nan_with_a_note():
-    hoses, pts = hose_type(np.random.default_rng(15))
-    hoses = hoses.assign(status="running")
-    out = remaining_life(hoses, pts, RulSettings(limit_l_min=2.0, sensor=SENSOR))
-    wb = out[out["method"] == "weibull"]
-    assert wb["rul_median_km"].isna().all() and wb["note"].str.contains("too few failures").all()
-
-
-def test_backtest_predicts_every_failed_hose_twice_per_method_and_mostly_covers():
-    hoses, pts = hose_type(np.random.default_rng(16))
-    bt = rul_backtest(hoses, pts, RulSettings(limit_l_min=2.0, sensor=SENSOR, n_draws=500), seed=3)
-    n_failed = int((hoses["status"] == "failed").sum())
-    assert len(bt) == 4 * n_failed
-    assert set(bt["fraction"]) == {0.5, 0.8}
-    s = backtest_summary(bt).set_index("method")
-    assert s.loc["weibull", "n_predictions"] == 2 * n_failed
-    assert 0.6 <= s.loc["degradation", "coverage"] <= 1.0 and 0.6 <= s.loc["weibull", "coverage"] <= 1.0
-    assert s.loc["degradation", "median_abs_error_km"] < s.loc["weibull", "median_abs_error_km"]
-
-
-def test_models_fitted_once_give_the_numbers_each_call_fitting_its_own():
-    hoses, pts = hose_type(np.random.default_rng(17), n=12)
-    first = hoses.index[hoses["status"] == "failed"][0]
-    hoses.loc[first, "failure_mode"] = "burst"   # one rupture: the Weibayes grid over shapes, bounded by the logbook
-    s = RulSettings(limit_l_min=2.0, sensor=SENSOR, n_draws=300)
-    models = group_models(hoses, pts, s)
-    assert len(models.rupture[0]) == N_RUPTURE_SHAPES and models.degradation.ok
-    shared = (remaining_life(hoses, pts, s, models=models), rul_backtest(hoses, pts, s, models=models))
-    # the backtest after the predictions used the same models: nothing in them was changed by the use
-    pd.testing.assert_frame_equal(shared[1], rul_backtest(hoses, pts, s))
-    pd.testing.assert_frame_equal(shared[0], remaining_life(hoses, pts, s, models=group_models(hoses, pts, s)))
-    assert shared[0]["rul_median_km"].notna().all()
-
-
-def test_backtest_without_failed_hoses_says_so():
-    s = backtest_summary(pd.DataFrame(columns=["method", "abs_error_km", "covered", "note"]))
-    assert (s["n_predictions"] == 0).all() and (s["note"] == "no failed hose to backtest").all()
 
 
 def test_calibration_benchmark_runs_quick(capsys):
