@@ -89,7 +89,7 @@ class FileRecord:
         # rebuild of 10,000 files never needs it (0.3 s of JSON)
         if name == "result" and "_result_json" in self.__dict__:
             text = self.__dict__.pop("_result_json")
-            self.result = json.loads(text) if text else None
+            self.result = decode_result(text) if text else None
             if self.result is not None:  # as_row writes it back as read (the same text: json.dumps, sorted keys)
                 self.__dict__["_result_text"] = (text, self.result)
             return self.result
@@ -128,6 +128,36 @@ class FileRecord:
         if kept is not None and kept[1] is result:
             return kept[0]
         return json.dumps(result, sort_keys=True) if result is not None else None
+
+
+class StoredRun(dict):
+    """A runs row decoded from its state record, with the JSON text it was stored as (``encoded``,
+    UTF-8): ``json.dumps(row, sort_keys=True)``, the bytes :func:`encoded_runs` would make of it
+    (issue 26: 10,000 rows encoded again on every change, ~0.13 CPU-s). The rebuild reads the rows
+    it takes from records and does not change them before the stages' keys are made."""
+
+    __slots__ = ("encoded",)
+
+
+_DECODER = json.JSONDecoder()
+_HEAD, _RUN = '{"channels": ', ', "run": '
+
+
+def decode_result(text: str) -> dict | None:
+    """A record's stored ``result`` (``json.dumps({"channels": [...], "run": {...}}, sort_keys=True)``,
+    or ``{"parts": ...}``) decoded; the runs row of a one-run result as a :class:`StoredRun` holding
+    its own text. Any other text is decoded as it is (the same values)."""
+    if text.startswith(_HEAD) and text.endswith("}"):
+        try:
+            channels, end = _DECODER.raw_decode(text, len(_HEAD))
+            if text.startswith(_RUN, end) and text.startswith("{", end + len(_RUN)):
+                run_text = text[end + len(_RUN):-1]
+                run = StoredRun(json.loads(run_text))
+                run.encoded = run_text.encode()
+                return {"channels": channels, "run": run}
+        except ValueError:
+            pass
+    return json.loads(text)
 
 
 # ``result`` has a default in __init__ but no class attribute, so that a record made by
@@ -374,8 +404,9 @@ def logbook_hash(records: list[FileRecord]) -> str:
 def encoded_runs(runs: list[dict]) -> list[tuple[str, bytes]]:
     """``(kind, JSON of the row)`` of every runs row, sorted by ``run_id``: what
     :func:`runs_fingerprint` hashes, encoded once for all the stages of a rebuild (issue 26: each
-    stage's key encoded every row of its kinds again, ~0.2 CPU-s at 10,000 runs)."""
-    return [(r["kind"], json.dumps(r, sort_keys=True, default=str).encode())
+    stage's key encoded every row of its kinds again, ~0.2 CPU-s at 10,000 runs); a row taken from
+    its state record (:class:`StoredRun`) is the text it was stored as, not encoded again."""
+    return [(r["kind"], r.encoded if type(r) is StoredRun else json.dumps(r, sort_keys=True, default=str).encode())
             for r in sorted(runs, key=lambda r: r["run_id"])]
 
 

@@ -18,7 +18,8 @@ REPORT_DIR = "report"
 #: The database generation a report folder was rendered from (one line).
 GENERATION_FILE = ".generation"
 #: The report's own files at the top of a report folder (and their temp names).
-OWN_FILE = re.compile(r"index\.html|\.generation|\.parts-cache\.json|\.(index\.html|parts-cache)\.tmp-[0-9]+")
+OWN_FILE = re.compile(r"index\.html|\.generation|\.parts-cache\.json|\.run-keys\.json|"
+                      r"\.(index\.html|parts-cache|run-keys\.json)\.tmp-[0-9]+")
 #: The report's own files in ``runs/``: the run pages of :func:`page_name` (and their temp names).
 OWN_PAGE = re.compile(r"[A-Za-z0-9._-]{1,80}-[0-9a-f]{8}\.html|\.[A-Za-z0-9._-]{1,80}-[0-9a-f]{8}\.html\.tmp-[0-9]+")
 

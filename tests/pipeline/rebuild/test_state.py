@@ -307,3 +307,26 @@ def test_a_stored_records_result_is_written_back_as_the_text_it_was_read_from_un
         assert FileRecord.stored(row[:8] + (stored, None, None)).as_row()["result"] is None
     fresh = FileRecord("c/b.csv", "run", 1, 2, 3, "s", None, None, result)
     assert fresh.as_row()["result"] == text
+
+
+def test_a_stored_runs_row_keeps_its_text_and_encodes_to_the_bytes_a_fresh_row_does():
+    from pipeline.rebuild.state import FileRecord, StoredRun, decode_result, encoded_runs, runs_fingerprint
+
+    run = {"run_id": "c/a", "kind": "step", "x": 0.1, "name": "m\u00e9sure \"run\": ", "params": {"run": {"b": 1}},
+           "warnings": ["w"]}
+    result = {"run": run, "channels": [{"column": "x_m", "raw_name": ", \"run\": {"}]}
+    text = json.dumps(result, sort_keys=True)
+    rec = FileRecord.stored(("c/a.csv", "run", 10, 5, 7, "sha", "mh", "1-x", text, None, None))
+    assert rec.result == result and type(rec.result["run"]) is StoredRun
+    assert rec.result["run"].encoded == json.dumps(run, sort_keys=True, default=str).encode()
+    assert rec.result_text() == text
+    fresh = dict(run, run_id="c/b")
+    assert encoded_runs([rec.result["run"], fresh]) == encoded_runs([dict(run), fresh])
+    assert runs_fingerprint([rec.result["run"]], {"step"}) == runs_fingerprint([dict(run)], {"step"})
+    parts = json.dumps({"parts": [{"run": run, "channels": []}, {"error": "e"}]}, sort_keys=True)
+    others = [parts, '{"channels": [], "run": null}', '{"channels": [], "run": {"a": 1}, "x": 2}', "null",
+              '{"channels": [1, 2]}']
+    for other in others:  # anything else: decoded as it is
+        assert decode_result(other) == json.loads(other)
+    with pytest.raises(ValueError):
+        decode_result('{"channels": [}')

@@ -1,5 +1,6 @@
 """The run pages: raw text escaped, channels, metadata, warnings and results; the events the
 analyses found marked on the channels of foreign rigs."""
+import json
 import re
 
 from pipeline.rebuild.flow import rebuild
@@ -207,3 +208,51 @@ def test_a_new_runs_channels_are_read_once_beside_the_database_and_its_page_is_t
     assert (alone / "runs" / page_name("s0")).read_bytes() == page and len(threads) == 2
     rebuild(raw.root, warehouse, jobs=1, report=False)  # nothing new, no report: nothing read ahead
     assert len(threads) == 2
+
+
+def test_unchanged_pages_are_taken_over_by_their_keys_in_the_index_and_a_page_the_index_gives_another_key_is_drawn(
+        raw, warehouse, monkeypatch):
+    """The run pages' keys are written beside them (``RUN_KEYS``); the next report takes an unchanged
+    page over from the index without opening it, draws a page whose key there differs, and reads the
+    key line of a page the index does not name (a report from before it)."""
+    from pipeline.serve.report import pages
+    from pipeline.serve.report.folders import page_name
+
+    for i in range(3):
+        raw.csv(f"c/s{i}.csv", {**STEP_META, "run_id": f"s{i}"}, {"t[s]": [0, 0.1, 0.2], "x[mm]": [0, 1, 1],
+                                                                 "x_ref[mm]": [1, 1, 1]})
+    rebuild(raw.root, warehouse, jobs=1)
+    report = warehouse / "report"
+    keys = pages.read_run_keys(report)
+    assert set(keys) == {page_name(f"s{i}") for i in range(3)} == {p.name for p in (report / "runs").iterdir()}
+    for name, key in keys.items():
+        assert f"<!-- key: {key} -->" in (report / "runs" / name).read_text().split("\n", 1)[0]
+
+    opened = []
+    real = pages._take_over
+    monkeypatch.setattr(pages, "_take_over", lambda old, *a: opened.append(old.name) or real(old, *a))
+    raw.csv("c/s1.csv", {**STEP_META, "run_id": "s1"}, {"t[s]": [0, 0.1, 0.2], "x[mm]": [0, 2, 2],
+                                                       "x_ref[mm]": [2, 2, 2]})
+    rebuild(raw.root, warehouse, jobs=1)
+    assert opened == []  # every page known by the index: none opened for its key line
+    new = pages.read_run_keys(report)
+    assert new[page_name("s1")] != keys[page_name("s1")]
+    assert {n: k for n, k in new.items() if n != page_name("s1")} == {n: k for n, k in keys.items() if n != page_name("s1")}
+    assert f"<!-- key: {new[page_name('s1')]} -->" in (report / "runs" / page_name("s1")).read_text()
+
+    # an index that names a page with another key: that page is drawn (its inputs unknown to it)
+    lied = dict(new, **{page_name("s0"): "0" * 24})
+    (report / pages.RUN_KEYS).write_text(json.dumps(lied))
+    before = (report / "runs" / page_name("s0")).stat().st_ino
+    raw.csv("c/s2.csv", {**STEP_META, "run_id": "s2"}, {"t[s]": [0, 0.1, 0.2], "x[mm]": [0, 3, 3],
+                                                       "x_ref[mm]": [3, 3, 3]})
+    rebuild(raw.root, warehouse, jobs=1)
+    assert (report / "runs" / page_name("s0")).stat().st_ino != before
+    assert pages.read_run_keys(report)[page_name("s0")] == new[page_name("s0")]
+
+    (report / pages.RUN_KEYS).unlink()  # a report from before the index: pages read for their key lines
+    raw.csv("c/s2.csv", {**STEP_META, "run_id": "s2"}, {"t[s]": [0, 0.1, 0.2], "x[mm]": [0, 4, 4],
+                                                       "x_ref[mm]": [4, 4, 4]})
+    rebuild(raw.root, warehouse, jobs=1)
+    assert sorted(opened) == sorted(page_name(f"s{i}") for i in range(3))
+    assert set(pages.read_run_keys(report)) == {page_name(f"s{i}") for i in range(3)}
