@@ -439,14 +439,6 @@ def norm_isf(q):
     return -ndtri(np.asarray(q, dtype=float))   # Cephes' steps (analyses.numerics_special): no scipy.special import
 
 
-#: ``scipy.special.ndtri(0.5 + c / 2)`` [-] of the usual interval confidences ``c`` (the breakaway
-#: findings' 0.95, the plan's 0.90 by default), bit for bit (``tests/analyses/test_numerics.py``): a
-#: rebuild that needs only these does not import ``scipy.special`` (~0.3 CPU-s, issue 26).
-#: ``statistics.NormalDist().inv_cdf`` is not used: it differs from ``ndtri`` in the last bits.
-Z_OF_CONFIDENCE = {0.8: 1.2815515655446004, 0.9: 1.6448536269514722, 0.95: 1.959963984540054,
-                   0.99: 2.5758293035489004}
-
-
 def two_sided_z(confidence: float) -> float:
     """The two-sided normal quantile of a confidence, ``ndtri(0.5 + confidence / 2)``.
 
@@ -458,11 +450,10 @@ def two_sided_z(confidence: float) -> float:
     Returns
     -------
     float
-        z [-] with ``P(|Z| < z) = confidence``: :data:`Z_OF_CONFIDENCE` for the usual confidences,
-        else ``ndtri`` (:mod:`analyses.numerics_special`: norm.ppf's bits without importing scipy).
+        z [-] with ``P(|Z| < z) = confidence``, by ``ndtri`` (:mod:`analyses.numerics_special`:
+        norm.ppf's bits without importing scipy).
     """
-    z = Z_OF_CONFIDENCE.get(confidence)
-    return ndtri_scalar(0.5 + confidence / 2) if z is None else z
+    return ndtri_scalar(0.5 + confidence / 2)
 
 
 def norm_pdf(x):

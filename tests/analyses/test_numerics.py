@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from analyses.numerics import (Z_OF_CONFIDENCE, two_sided_z, brentq, chi2_ppf, chi2_sf, fminbound, norm_isf, norm_pdf, norm_sf, savgol_derivative, student_t_ppf,
+from analyses.numerics import (two_sided_z, brentq, chi2_ppf, chi2_sf, fminbound, norm_isf, norm_pdf, norm_sf, savgol_derivative, student_t_ppf,
                                student_t_sf, welch_t_test_p)
 
 
@@ -152,7 +152,8 @@ def test_two_sided_z_is_ndtri_bit_for_bit():
     confidence is computed by it (the findings' uncertainties keep their bits)."""
     from scipy.special import ndtri
 
-    for conf, z in Z_OF_CONFIDENCE.items():
+    usual = {0.8: 1.2815515655446004, 0.9: 1.6448536269514722, 0.95: 1.959963984540054, 0.99: 2.5758293035489004}
+    for conf, z in usual.items():
         assert z == float(ndtri(0.5 + conf / 2)), conf
         assert two_sided_z(conf) == z
     for conf in (0.5, 0.68, 0.85, 0.9000001, 0.975, 0.999):
