@@ -276,12 +276,16 @@ def tree_env(tree: Path | None) -> dict | None:
     return dict(env, PYTHONPATH=str(tree))
 
 
-def rebuild_cmd(raw: Path, wh: Path, without: tuple = ()) -> list[str]:
+def rebuild_cmd(raw: Path, wh: Path, without: tuple = (), probe: bool = True) -> list[str]:
     """``pneubench rebuild`` of ``raw`` into ``wh`` as a user runs it (all cores), or, with ``without``,
-    the same command with those stages absent (their tables absent from the warehouse and the report)."""
+    the same command with those stages absent (their tables absent from the warehouse and the report); ``probe``:
+    the rebuild tells its parts at exit (:mod:`benchmarks.decision_probe`, session 26; both sides alike)."""
+    from benchmarks.decision_probe import PROBE
     from benchmarks.proc import pneubench_cmd
 
     cmd = pneubench_cmd() if not without else [sys.executable, "-c", _WITHOUT.format(names=sorted(without))]
+    if probe:
+        cmd = cmd[:2] + [PROBE + "\n" + cmd[2]]
     return cmd + ["rebuild", "--raw", str(raw), "--warehouse", str(wh)]
 
 
@@ -315,6 +319,7 @@ def added_by(raw: Path, warm: Path, change, stages: tuple, repeat: int, common: 
     own seconds in the ``with`` runs (``"own"``: stage -> list)."""
     import shutil
 
+    from benchmarks.decision_probe import lines, parse
     from benchmarks.proc import Series, measure
 
     out = {k: Series(k) for k in ("with", "without", "no-op")}
@@ -334,6 +339,8 @@ def added_by(raw: Path, warm: Path, change, stages: tuple, repeat: int, common: 
                 out[label].runs.append(m)
                 print(f"  round {r + 1}, {label:7s}: {m.wall_s:7.1f} s wall, CPU {m.cpu_s:6.1f} s, load average "
                       f"{os.getloadavg()[0]:.1f}", flush=True)
+                if label == "with":
+                    print("\n".join(f"      {line}" for line in lines(parse(m.stdout + m.stderr))), flush=True)
                 for n in stage_names() if label == "with" else ():
                     own.setdefault(n, []).append(stage_seconds(m.stdout + m.stderr, n))
     finally:
@@ -350,6 +357,7 @@ def added_by_trees(raw: Path, warm: dict, change, stages: tuple, repeat: int, co
     moment falls on both alike. Returns label -> the :func:`added_by` dict (no no-op runs)."""
     import shutil
 
+    from benchmarks.decision_probe import lines, parse
     from benchmarks.proc import Series, measure
 
     res = {lab: {"with": Series("with"), "without": Series("without"), "no-op": Series("no-op"), "own": {},
@@ -373,6 +381,9 @@ def added_by_trees(raw: Path, warm: dict, change, stages: tuple, repeat: int, co
                     res[lab][label].runs.append(m)
                     print(f"  round {r + 1}, {lab:8s} {label:7s}: {m.wall_s:7.1f} s wall, CPU {m.cpu_s:6.1f} s, load "
                           f"average {os.getloadavg()[0]:.1f}", flush=True)
+                    res[lab].setdefault("probe", {}).setdefault(label, []).append(rec := parse(m.stdout + m.stderr))
+                    if label == "with" or rec is None:
+                        print("\n".join(f"      {line}" for line in lines(rec)), flush=True)
                     for n in stage_names() if label == "with" else ():
                         res[lab]["own"].setdefault(n, []).append(stage_seconds(m.stdout + m.stderr, n))
     finally:
