@@ -71,7 +71,7 @@ def decision_section(db: ReportDB, figures: Figures | None = None, pool: Callabl
              "lies within the plan's margin, and it stays; its error rate holds however often it is read "
              "(docs/decision.md). The interval in words is the fit's profile-likelihood interval.</p>")
     return (head + intro + _verdict_table(decisions, read_sensitivity(db.con)) + running_section(db, figures)
-            + _looks_figures(decisions, figures or Figures()) + "</section>")
+            + _looks_figures(decisions, figures or Figures(), pool) + "</section>")
 
 
 def _verdict_table(decisions: list[HoseDecision], sensitivity: dict[str, list[dict]]) -> str:

@@ -206,3 +206,8 @@ def test_figures_drawn_in_forked_processes_are_the_bytes_drawn_here(wh, monkeypa
     drawn = rd._draw_elsewhere(todo, forked_pool)
     assert len(todo) == 3 and drawn == {key: rd._looks_img(d) for d, key in todo}
     assert _section(render_report(wh, run_pages="all")) == serial
+    # the report's pool reaches the looks figures (until session 26 decision_section dropped it: all drawn here)
+    used = []
+    pool = lambda workers: used.append(workers) or forked_pool(workers)   # noqa: E731
+    assert _section(render_report(wh, run_pages="all", pool=pool)) == serial
+    assert used == [2]
