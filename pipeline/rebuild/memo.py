@@ -11,7 +11,8 @@ Key
     apart from lists; strings naming files under the warehouse stored relative to it, so a
     moved warehouse still hits). Samples file names are content-addressed (source bytes,
     metadata, ingest code), so an item names its input completely. An item that cannot be
-    serialised canonically (objects, non-string dict keys) is computed and not memoised.
+    serialised canonically (objects, non-string dict keys) is computed and not memoised. An item
+    with a ``memo_key`` attribute is keyed by it alone (the rest of the item derived from it).
 Storage
     ``memo/<stage>/<xx>.pkl`` in the warehouse, ``xx`` the first two hex digits of the keys it
     holds (at most 256 shards per stage): ``{key: pickled result}`` of the items of the stage's
@@ -108,7 +109,10 @@ def _canonical(value, prefix: str):
 
 
 def item_key(func: Callable, item, warehouse: str | Path) -> str | None:
-    """The memo key of ``func(item)``, or None when it cannot be memoised."""
+    """The memo key of ``func(item)``, or None when it cannot be memoised. An item with a ``memo_key`` attribute
+    is keyed by that alone: what the result depends on, the rest of the item being derived from it (e.g. the
+    decision's looks item carrying its design-free parts, computed by another memoised map; session 26)."""
+    item = getattr(item, "memo_key", item)
     qualname = getattr(func, "__qualname__", "") or ""
     module = getattr(func, "__module__", "") or ""
     if not qualname or not module or "<" in qualname:  # lambdas, local functions

@@ -66,6 +66,8 @@ from analyses.sequential_table import adopt_table, design_table, holds_table
 from analyses.test_plan import hoses_on_test_s
 from pipeline.raw.logbook import merge_logbooks, read_logbooks
 from pipeline.stages import Reads, StageContext, StageOutput
+from pipeline.stages.decision_items import (_NAT, HOSE_SPEC, RUN_SPEC, _columns, _frame, _item, _ns_list, _pick,  # noqa: F401
+                                            hose_type_item)
 from pipeline.versions import hash_sources, project_imports
 
 NAME = "decision"
@@ -90,70 +92,6 @@ NO_PLAN = "no plan"
 #: The note of a look after the verdict that crossed: its ``crossed`` is the Wald crossing, which the likelihood
 #: check (:func:`analyses.decision.likelihood_check`) does not read once the verdict stands.
 AFTER_VERDICT = "after the verdict: crossed on the Wald scale, not checked by the profile likelihood"
-#: NaT as int64 nanoseconds.
-_NAT = np.iinfo(np.int64).min
-
-
-def _ns_list(values) -> list:
-    """UTC times as int nanoseconds since the epoch (None for NaT): plain data for a ``ctx.map`` item."""
-    t = pd.to_datetime(pd.Series(values), utc=True, format="ISO8601")
-    return [None if pd.isna(v) else int(v) for v in t.to_numpy("datetime64[ns]").astype("int64").astype(object)
-            ] if len(t) else []
-
-
-def _floats(values) -> list:
-    return [float(v) for v in pd.to_numeric(pd.Series(values), errors="coerce").to_numpy(float)]
-
-
-def _columns(df: pd.DataFrame, spec: dict) -> dict:
-    """The item's columns of ``df``: name -> list of plain values (``spec``: name -> "text" | "float" | "time")."""
-    conv = {"text": lambda v: [None if x is None or x != x else str(x) for x in v], "float": _floats, "time": _ns_list}
-    return {c: conv[kind](df[c].tolist() if kind == "text" else df[c]) for c, kind in spec.items()}
-
-
-HOSE_SPEC = {"hose_id": "text", "adjustment": "text", "distance_km": "float", "status": "text",
-             "distance_source": "text", "installed_at": "time", "ended_at": "time", "odometer_at": "time"}
-RUN_SPEC = {"hose_id": "text", "started_at": "time", "duration_h": "float", "distance_km": "float"}
-
-
-def hose_type_item(hose_type: str, life: pd.DataFrame, runs: pd.DataFrame, settings) -> dict:
-    """One hose type as plain data (the ``ctx.map`` item): its hoses, their matched runs (``hose_id`` the
-    hose matched), its settings; columns as lists, times as int nanoseconds (UTC)."""
-    if "odometer_at" not in life:   # a hose_life without reading times (written before they were kept)
-        life = life.assign(odometer_at=pd.NaT)
-    return _item(hose_type, _columns(life.sort_values("hose_id"), HOSE_SPEC),
-                 _columns(runs.sort_values("run_id"), RUN_SPEC), settings)
-
-
-def _item(hose_type: str, hoses: dict, runs: dict, settings) -> dict:
-    """:func:`hose_type_item` from its columns already converted (:func:`_columns`)."""
-    plan = {"present": bool(settings.present), "margin": float(settings.margin), "alpha": float(settings.alpha),
-            "power": float(settings.power), "confidence": float(settings.confidence),
-            "max_failures": settings.max_failures, "spending": settings.spending,
-            "plan_from": settings.sources["margin"]}
-    return {"hose_type": hose_type, "hoses": hoses, "runs": runs, "plan": plan}
-
-
-def _pick(columns: dict, rows) -> dict:
-    """The ``rows`` (positions) of converted columns, in that order."""
-    return {c: [v[i] for i in rows] for c, v in columns.items()}
-
-
-def _frame(columns: dict, spec: dict) -> pd.DataFrame:
-    """An item's columns back as a DataFrame (times as UTC timestamps, to the nanosecond: the int
-    nanoseconds are read as int64, never through a float, whose 53-bit mantissa would round
-    today's times by up to 128 ns)."""
-    out = {}
-    for c, kind in spec.items():
-        if kind == "time":
-            ns = np.array([_NAT if v is None else int(v) for v in columns[c]], dtype=np.int64)
-            out[c] = pd.Series(pd.DatetimeIndex(ns.view("datetime64[ns]")).tz_localize("UTC"))   # not .dt: 3x faster
-        else:
-            out[c] = (pd.Series(np.array(columns[c], dtype=object), dtype=object) if kind == "text"   # no str inference
-                      else pd.Series(np.array(columns[c], dtype=np.float64)))
-    return pd.DataFrame(out, columns=list(spec))
-
-
 def effect_of(item: dict) -> dict:
     """``life_effect``'s row of one hose type (module level: picklable for ``ctx.map``).
 
@@ -347,25 +285,53 @@ def decide_hose_type(item: dict) -> dict:
         (a DataFrame).
     """
     plan, hose_type = item["plan"], item["hose_type"]
-    life, runs = _frame(item["hoses"], HOSE_SPEC), _frame(item["runs"], RUN_SPEC)
-    hoses = usable_hoses(life)
-    events = failure_events(hoses)
-    in_looks = look_hoses(hoses, runs, events)
-    fits = look_fits_of(in_looks, events)     # every look solved once: the frozen look, the estimates, the intervals
-    design = tuple(item["design"] if "design" in item else _design_here(item, hoses, runs, events, in_looks, fits))
-    est = look_estimates(in_looks, events, fits)
+    if "parts" in item:   # the design-free parts from their own memoised map (parts_of: session 26)
+        p = item["parts"]
+        in_looks, fits, est, left_out = p["in_looks"], p["fits"], p["est"], p["left_out"]
+        design = tuple(item["design"])
+    else:
+        life, runs = _frame(item["hoses"], HOSE_SPEC), _frame(item["runs"], RUN_SPEC)
+        hoses = usable_hoses(life)
+        events = failure_events(hoses)
+        in_looks = look_hoses(hoses, runs, events)
+        fits = look_fits_of(in_looks, events)   # every look solved once: the frozen look, the estimates, the intervals
+        design = tuple(item["design"] if "design" in item else _design_here(item, hoses, runs, events, in_looks, fits))
+        est, left_out = look_estimates(in_looks, events, fits), len(life) - len(hoses)
     sv = decide(est, design[0], plan["margin"], plan["alpha"], plan["spending"], in_looks, design[3] or 1, fits=fits)
     looks = _looks_rows(hose_type, est, sv, plan["present"]) if sv is not None else []
     for row in looks[:design[3] - 1] if design[0] is not None else []:
         row["note"] = "; ".join(n for n in (row["note"], f"before look {design[3]}, where max_failures was frozen: "
                                             "does not decide") if n)
     verdict = _verdict_row(item, looks, sv, design)
-    left_out = len(life) - len(hoses)
     if left_out:
         verdict["note"] = "; ".join(n for n in (verdict["note"], f"{left_out} hose(s) without a known distance or "
                                                 "time span left out of the looks") if n)
     return {"life_verdict": [verdict], "decision_looks": looks,
-            "decision_look_hoses": in_looks.assign(hose_type=hose_type)}
+            "decision_look_hoses": None if "parts" in item else in_looks.assign(hose_type=hose_type)}
+
+
+def parts_of(item: dict) -> dict:
+    """What a hose type's looks are before any design (module level, memoised by ``ctx.map`` on its
+    :func:`freeze_item`, which no plan change moves): the look an unset ``max_failures`` is frozen at
+    (``frozen``: :func:`freeze_of`'s), the hoses in each look (``in_looks``), their common-shape fits (``fits``),
+    the estimates (``est``) and the hoses left out (``left_out``). A power change that moves the maximum
+    re-runs only :func:`decide_hose_type` on them (session 26)."""
+    life, runs = _frame(item["hoses"], HOSE_SPEC), _frame(item["runs"], RUN_SPEC)
+    hoses = usable_hoses(life)
+    events = failure_events(hoses)
+    in_looks = look_hoses(hoses, runs, events)
+    fits = look_fits_of(in_looks, events)
+    return {"frozen": _frozen(hoses, runs, events, in_looks, fits), "in_looks": in_looks, "fits": fits,
+            "est": look_estimates(in_looks, events, fits), "left_out": len(life) - len(hoses)}
+
+
+class WithParts(dict):
+    """A :func:`decide_hose_type` item (:func:`looks_item`) with its :func:`parts_of` under ``parts``, memoised
+    by the looks item alone (``memo_key``: the parts are its hoses' and runs', computed from them)."""
+
+    def __init__(self, item: dict, parts: dict):
+        super().__init__(item, parts=parts)
+        self.memo_key = item
 
 
 def _typed(rows: list[dict], columns: list[str], ints=(), times=(), bools=()) -> pd.DataFrame:
@@ -562,20 +528,23 @@ def run(ctx: StageContext) -> StageOutput:
     effects = ctx.map(effect_of, [effect_item(it) for it in items], label="decision: life effect", warm=WARM)
     # the frozen look (the data's, memoised whatever the plan), then the designs (what reads the power),
     # then the looks at the design (memoised when their maximum did not move)
-    frozen, asks = design_asks(ctx, items)
+    # the looks' design-free parts and frozen look (the data's, memoised whatever the plan: session 26)
+    parts = ctx.map(parts_of, [freeze_item(it) for it in items], label="decision: parts", warm=WARM) if items else []
+    frozen = [p["frozen"] if it["plan"]["max_failures"] is None else None for it, p in zip(items, parts)]
+    asks = [design_item(it["plan"], fr, it["hoses"]) for it, fr in zip(items, frozen)]
     keys = sorted({json.dumps(a, sort_keys=True) for a in asks if a is not None})
     paths = {json.dumps(a, sort_keys=True): it.get("designs") for it, a in zip(items, asks) if a is not None}
     designed = dict(zip(keys, ctx.map(designed_in_worker, [json.loads(k) | {"designs": paths[k]} for k in keys],
                                       label="decision: designs", warm=WARM) if keys else []))
-    results = ctx.map(decide_hose_type, [looks_item(it, design_of(it, fr, designed, a))
-                                         for it, fr, a in zip(items, frozen, asks)], label="decision: looks",
+    results = ctx.map(decide_hose_type, [WithParts(looks_item(it, design_of(it, fr, designed, a)), p)
+                                         for it, fr, a, p in zip(items, frozen, asks, parts)], label="decision: looks",
                       warm=WARM)
     for it, res in zip(items, results):
         for row in res["life_verdict"]:
             row["power"] = it["plan"]["power"]
     rows = {t: [r for res in results for r in res[t]] for t in ("life_verdict", "decision_looks")}
     rows["life_effect"] = effects
-    hoses = [res["decision_look_hoses"] for res in results if len(res["decision_look_hoses"])]
+    hoses = [p["in_looks"].assign(hose_type=it["hose_type"]) for it, p in zip(items, parts) if len(p["in_looks"])]
     out.tables["life_effect"] = _typed(rows["life_effect"], EFFECT_COLUMNS,
                                        ints=("n_force", "n_failed_force", "n_distance", "n_failed_distance"))
     out.tables["life_verdict"] = _typed(rows["life_verdict"], VERDICT_COLUMNS,
