@@ -116,6 +116,29 @@ def _double(item):
     return item * 2 if isinstance(item, int) else None
 
 
+class _Keyed(dict):
+    def __init__(self, key: dict, payload):
+        super().__init__(key, payload=payload)
+        self.memo_key = key
+
+
+def test_an_item_with_a_memo_key_is_keyed_by_it_alone(tmp_path):
+    """The decision's looks items carry their parts (objects) but are keyed by the looks item (session 26)."""
+    plain = item_key(plpa.analyse_run, {"a": 1}, tmp_path)
+    assert item_key(plpa.analyse_run, _Keyed({"a": 1}, object()), tmp_path) == plain
+    assert item_key(plpa.analyse_run, _Keyed({"a": 2}, object()), tmp_path) != plain
+    ctx = StageContext(raw=tmp_path, warehouse=tmp_path, runs=None, memo=Memo(tmp_path, "s"))
+    assert ctx.map(_payload, [_Keyed({"a": 1}, 5)], "t") == [5]
+    ctx.memo.save()
+    again = Memo(tmp_path, "s")
+    assert StageContext(raw=tmp_path, warehouse=tmp_path, runs=None, memo=again).map(
+        _payload, [_Keyed({"a": 1}, object())], "t") == [5] and again.hits == 1
+
+
+def _payload(item):
+    return item["payload"]
+
+
 def test_the_key_changes_with_the_code_version(tmp_path, monkeypatch):
     item = ("breakaway", "c/b", "samples/x.parquet", {})
     before = item_key(plpa.analyse_run, item, tmp_path)
