@@ -30,11 +30,11 @@ def test_a_probed_rebuild_tells_each_maps_hits_and_each_stages_parts(tmp_path):
     again = _rebuild(raw, wh)                      # nothing changed: neither stage runs, no map
     assert "decision" not in again["stages"] and not [m for m in again["maps"] if m["stage"] == "decision"]
     (raw / "plan.toml").write_text(bench.SYNTH_PLAN.format(power=0.81))
-    moved = _rebuild(raw, wh)                      # a power change: the frozen looks from the memo
+    moved = _rebuild(raw, wh)                      # a power change: the looks' parts from the memo
     maps = {(m["stage"], m["label"]): m for m in moved["maps"]}
-    assert maps["decision", "decision: freeze"]["hits"] == 3
+    assert maps["decision", "decision: parts"]["hits"] == 3
     text = "\n".join(probe.lines(moved))
-    assert "decision: freeze" in text and "3 from the memo" in text and "test_plan: memo save" in text
+    assert "decision: parts" in text and "3 from the memo" in text and "test_plan: memo save" in text
 
 
 def test_parse_reads_the_last_probe_line_and_none_without_one():
