@@ -138,6 +138,7 @@ def child(tree: Path, data: Path) -> dict:
     t0 = time.process_time()
     import pipeline  # noqa: F401 (its imports are the process's too)
     acc["import pipeline"] = [time.process_time() - t0, 1]
+    assert Path(pipeline.__file__).resolve().is_relative_to(tree), pipeline.__file__
     from pipeline.rebuild.flow import rebuild
 
     instrument(acc)
@@ -176,10 +177,9 @@ def main(argv=None) -> int:
     for i in range(args.rounds):
         original = fresh_edit(path, int(time.time() * 7) % 90 if args.fresh is None else args.fresh + i)
         try:
-            p = subprocess.run([sys.executable, "-m", "benchmarks.bench_leak_breakdown", "--child", "--data", str(data),
-                                "--tree", str(tree)], cwd=Path(__file__).resolve().parents[1],
-                               env=dict(_env(tree), PYTHONPATH=f"{tree}{os.pathsep}{Path(__file__).resolve().parents[1]}"),
-                               capture_output=True, text=True)
+            # this file as a script, in the tree: the tree's own pipeline is the one imported
+            p = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--child", "--data", str(data),
+                                "--tree", str(tree)], cwd=tree, env=_env(tree), capture_output=True, text=True)
         finally:
             path.write_bytes(original)
             os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns))

@@ -316,10 +316,11 @@ def test_reruns_only_on_logbooks_leakage_durability_and_plan_and_full_equals_inc
                                                                                          monkeypatch):
     from pipeline import stages as registry
     from pipeline.rebuild.flow import rebuild
-    from pipeline.stages import decision, durability, plpa_characterisation
+    from pipeline.stages import decision, durability, durability_runs, plpa_characterisation
     from tests.pipeline.rebuild.test_state import step
 
-    monkeypatch.setattr(registry, "discover", lambda: [plpa_characterisation, durability, decision, stage])
+    monkeypatch.setattr(registry, "discover",
+                        lambda: [plpa_characterisation, durability_runs, durability, decision, stage])
     raw.write("c/hoses.csv", BOOK)
     _durability_csv(raw, "c/d1.csv", "D1", "2026-01-01T08:00:00")
     _durability_csv(raw, "c/f1.csv", "F1", "2026-01-01T09:00:00")
