@@ -1,20 +1,19 @@
 """Durability and hose service life (issue #6).
 
-Per durability run (streamed from its samples Parquet in batches, bounded memory, in parallel
-through ``ctx.map``): distance, strokes, duration and a per-stroke summary
-(:mod:`analyses.durability`). The hose logbooks (every ``hoses.csv`` under raw/, merged across
-campaigns, :mod:`pipeline.raw.logbook`) joined with those runs give ``hose_life``; per (hose_type,
-adjustment) a censored Weibull with likelihood-ratio bounds of shape, scale, B10, the plan's
-B-life and the reliability at its mission distance, and median-rank regression beside it
-(``service_life``; the plan's ``confidence``, ``b_life``, ``mission_km`` per hose type), Kaplan-
-Meier curves (``hose_survival``) and, per hose type, the likelihood-ratio test of force-set
-against distance-set rollers (``service_life_test``). Leakage runs naming a hose are placed at the
-hose's distance at the time of the run (``hose_leak_growth``), from the ``leakage_map`` rows of
-the PLPA characterisation stage (no plateau detection here; none without that table).
+The durability runs (distance, strokes, a per-stroke summary) are the ``durability_runs`` stage's
+tables (:mod:`pipeline.stages.durability_runs`), read here. The hose logbooks (every ``hoses.csv``
+under raw/, merged across campaigns, :mod:`pipeline.raw.logbook`) joined with those runs give
+``hose_life``; per (hose_type, adjustment) a censored Weibull with likelihood-ratio bounds of shape,
+scale, B10, the plan's B-life and the reliability at its mission distance, and median-rank
+regression beside it (``service_life``; the plan's ``confidence``, ``b_life``, ``mission_km`` per
+hose type), Kaplan-Meier curves (``hose_survival``) and, per hose type, the likelihood-ratio test of
+force-set against distance-set rollers (``service_life_test``). Leakage runs naming a hose are placed
+at the hose's distance at the time of the run (``hose_leak_growth``), from the ``leakage_map`` rows
+of the PLPA characterisation stage (no plateau detection here; none without that table).
 
-Tables: ``durability_runs``, ``durability_strokes``, ``hose_life``, ``service_life``,
-``hose_survival``, ``service_life_test``, ``hose_leak_growth``. Figures: Weibull probability
-plot, Kaplan-Meier curves, leak vs distance, distance per hose.
+Tables: ``hose_life``, ``service_life``, ``hose_survival``, ``service_life_test``,
+``hose_leak_growth``. Figures: Weibull probability plot, Kaplan-Meier curves, leak vs distance,
+distance per hose.
 
 Decisions
 ---------
@@ -23,49 +22,32 @@ Decisions
 * Service life, KM and the LR test use hoses with a known, positive distance: a running hose
   that has not moved yet, or a failed/removed hose without runs or odometer reading (it carries
   a warning in ``hose_life``), is left out; ``n_hoses`` counts the hoses used.
-* A durability run that cannot be read gives a ``durability_runs`` row with NULL distance and
-  strokes and a run warning; its hose's life then lacks that run (warned in ``hose_life``).
-* Samples are read in 131k-row Arrow batches (``pre_buffer=False``): memory stays at about one
-  decoded row group whatever the run's length.
+* A durability run that could not be read (NULL distance in ``durability_runs``): its hose's life
+  lacks that run (warned in ``hose_life``).
+* The stage reads the leakage runs (their start times) and the ``durability_runs`` table, not the
+  durability runs themselves: a durability run re-runs it when its row of that table changes.
 """
 from __future__ import annotations
 
 import math
 
-import numpy as np
 import pandas as pd
-import pyarrow.parquet as pq
 
-from analyses.durability import StrokeCounter, stroke_deadband, strokes_note
 from analyses.hose_life import hose_life, match_runs
-from analyses.quality import describe_sensor_at_rest
 from analyses.service_life import (kaplan_meier, service_life_summary, weibull_fit, weibull_lr_test,
                                    weibull_quantile_bounds)
 from analyses.service_life_plots import (plot_hose_distances, plot_kaplan_meier, plot_leak_growth,
                                          plot_weibull_probability)
 from pipeline.raw.logbook import merge_logbooks, read_logbooks
 from pipeline.raw.plan import Plan
-from pipeline.ingest.prefetch import prefetch
 from pipeline.stages import Reads, StageContext, StageOutput
-from pipeline.stages.values import finite_float
+from pipeline.stages.durability_runs import RUN_COLUMNS, STROKE_COLUMNS, analyse_run  # noqa: F401 (their old home)
 
 NAME = "durability"
-READS = Reads(kinds=("durability", "leakage"), tables=("leakage_map",), logbooks=True,
+READS = Reads(kinds=("leakage",), tables=("durability_runs", "leakage_map"), logbooks=True,
               plan=("confidence", "b_life", "mission_km"))
-WRITES = ("durability_runs", "durability_strokes", "hose_life", "service_life", "hose_survival",
-          "service_life_test", "hose_leak_growth")
+WRITES = ("hose_life", "service_life", "hose_survival", "service_life_test", "hose_leak_growth")
 
-BATCH_ROWS = 1 << 17  # 131k rows: bounded memory (plus one decoded row group), cache friendly
-COLUMNS = ("t_s", "x_m", "p_a_pa", "p_b_pa")
-PA_PER_BAR = 1e5
-
-RUN_COLUMNS = ["run_id", "hose_id", "distance_km", "strokes", "duration_h", "campaign", "started_at", "n_samples",
-               "mean_speed_m_s", "mean_stroke_mm", "dp_friction_bar", "friction_n", "deadband_mm", "note"]
-#: Row groups of x sampled (evenly over the run) to describe the position sensor when run
-#: metadata does not state it: enough rest and motion for the estimate, bounded memory.
-SENSOR_ROW_GROUPS = 5
-STROKE_COLUMNS = ["run_id", "hose_id", "stroke", "direction", "t_start_s", "t_end_s", "length_mm", "mean_speed_m_s",
-                  "dp_mean_bar", "dp_friction_bar", "friction_n", "n_samples"]
 SERVICE_COLUMNS = ["hose_type", "adjustment", "n_hoses", "n_failed", "weibull_shape", "weibull_scale_km", "b10_km",
                    "b10_lower_km", "b10_upper_km", "confidence", "n_suspended", "b10_method", "loglik", "note",
                    "shape_lower", "shape_upper", "scale_lower_km", "scale_upper_km", "b_life_pct", "b_life_km",
@@ -85,118 +67,6 @@ TEST_COLUMNS = ["hose_type", "n_force", "n_failed_force", "n_distance", "n_faile
                 "scale_force_km", "shape_distance", "scale_distance_km", "lr", "df", "p_value"]
 LEAK_COLUMNS = ["hose_id", "run_id", "started_at", "distance_km", "adjustment", "chamber", "pressure_bar",
                 "leak_l_min", "hose_status"]
-
-
-def _x_sample(pf) -> np.ndarray:
-    """``x_m`` of up to :data:`SENSOR_ROW_GROUPS` row groups spread over the file."""
-    n = pf.num_row_groups
-    if n == 0:
-        return np.empty(0)
-    groups = sorted({int(round(i)) for i in np.linspace(0, n - 1, min(n, SENSOR_ROW_GROUPS))})
-    return np.concatenate([pf.read_row_group(g, columns=["x_m"]).column("x_m").to_numpy(zero_copy_only=False)
-                           .astype(float) for g in groups])
-
-
-def analyse_run(item) -> dict:
-    """Stream one durability run's samples file and count its strokes (module level: picklable).
-
-    Parameters
-    ----------
-    item : str or (str, dict)
-        The samples path, or the path and the run's params (``sensor_x_resolution`` /
-        ``sensor_x_noise`` state the encoder; estimated from sampled row groups otherwise).
-
-    Returns a dict with ``distance_m``, ``strokes``, ``duration_s``, ``n_samples``,
-    ``stroke_table``, ``deadband_m`` and ``note`` (strokes not detectable), or ``error`` (one
-    line) when the run cannot be analysed.
-    """
-    path, params = (item, None) if isinstance(item, str) else item
-    try:
-        pf = pq.ParquetFile(path, pre_buffer=False)  # no read-ahead of whole row groups: less memory
-        names = set(pf.schema_arrow.names)
-        if "t_s" not in names or "x_m" not in names:
-            return {"error": "no t_s/x_m columns in the samples"}
-        cols = [c for c in COLUMNS if c in names]
-        have_dp = "p_a_pa" in names and "p_b_pa" in names
-        stated = {k: finite_float(_param(params, f"sensor_x_{k}")) for k in ("resolution", "noise")}
-        stated = {k: v for k, v in stated.items() if v is not None and v >= 0}
-        xs = _x_sample(pf) if len(stated) < 2 else np.empty(0)
-        xs = xs[np.isfinite(xs)]
-        # estimated from the samples at rest: a run logged slowly for its strokes has no other
-        sensor = describe_sensor_at_rest(xs, resolution=stated.get("resolution"), noise=stated.get("noise"))
-        deadband = stroke_deadband(sensor, float(np.max(np.abs(xs))) if xs.size else 1.0)
-        sc = StrokeCounter(deadband)
-        for batch in prefetch(pf.iter_batches(batch_size=BATCH_ROWS, columns=cols)):  # decode beside counting
-            get = lambda c: batch.column(c).to_numpy(zero_copy_only=False)  # noqa: E731
-            dp = get("p_a_pa") - get("p_b_pa") if have_dp else None
-            sc.update(get("t_s"), get("x_m"), dp)
-        s = sc.finish()
-        if s.n_samples < 2:
-            return {"error": "fewer than two usable samples"}
-        return {"distance_m": s.distance_m, "strokes": s.strokes, "duration_s": s.duration_s,
-                "n_samples": s.n_samples, "stroke_table": s.stroke_table, "deadband_m": deadband,
-                "note": strokes_note(s, deadband)}
-    except Exception as exc:  # a run that cannot be analysed gives NULLs and a warning
-        return {"error": f"{type(exc).__name__}: {exc}".splitlines()[0]}
-
-
-def _param(params, key):
-    if isinstance(params, dict):
-        v = params.get(key)
-        return None if v is None or (isinstance(v, float) and math.isnan(v)) else v
-    return None
-
-
-def durability_runs(ctx: StageContext, out: StageOutput) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """``durability_runs`` and ``durability_strokes`` for every durability run."""
-    runs = ctx.runs_of("durability")
-    if runs.empty:
-        return pd.DataFrame(columns=RUN_COLUMNS), pd.DataFrame(columns=STROKE_COLUMNS)
-    items = [(str(ctx.samples_file(rid)), p if isinstance(p, dict) else None)
-             for rid, p in zip(runs["run_id"], runs["params"] if "params" in runs else [None] * len(runs))]
-    results = ctx.map(analyse_run, items, label="durability runs")
-    rows, strokes = [], []
-    for run, res in zip(runs.to_dict("records"), results):
-        rid, params = run["run_id"], run.get("params")
-        hose = _param(params, "hose_id")
-        hose = None if hose is None else str(hose)
-        area = finite_float(_param(params, "hose_area_m2"))
-        row = {"run_id": rid, "hose_id": hose, "campaign": run.get("campaign"), "started_at": run.get("started_at"),
-               "deadband_mm": res["deadband_m"] * 1e3 if "deadband_m" in res else None, "note": None}
-        if "error" in res:
-            out.warn(rid, f"durability: cannot analyse the run ({res['error']}); distance and strokes NULL")
-            rows.append(dict(row, note=f"cannot analyse the run: {res['error']}"))
-            continue
-        if res.get("note"):
-            out.warn(rid, f"durability: {res['note']}; distance and strokes NULL")
-            rows.append(dict(row, note=res["note"], n_samples=int(res["n_samples"]), duration_h=res["duration_s"] / 3600.0))
-            continue
-        st = res["stroke_table"]
-        dist_m, dur_s = res["distance_m"], res["duration_s"]
-        fric_bar = float(np.nanmean(st["dp_friction_pa"])) / PA_PER_BAR if len(st) and st["dp_friction_pa"].notna().any() else None
-        row.update(distance_km=dist_m / 1e3, strokes=int(res["strokes"]), duration_h=dur_s / 3600.0,
-                   n_samples=int(res["n_samples"]), mean_speed_m_s=dist_m / dur_s if dur_s > 0 else None,
-                   mean_stroke_mm=1e3 * dist_m / res["strokes"] if res["strokes"] else None,
-                   dp_friction_bar=fric_bar, friction_n=fric_bar * PA_PER_BAR * area if fric_bar is not None and area else None)
-        if res["strokes"] == 0:
-            out.warn(rid, "durability: the carriage never moved more than the deadband "
-                          f"({res['deadband_m'] * 1e3:.3g} mm); distance 0")
-        rows.append(row)
-        if len(st):
-            strokes.append(pd.DataFrame({
-                "run_id": rid, "hose_id": hose, "stroke": st["stroke"].to_numpy(), "direction": st["direction"].to_numpy(),
-                "t_start_s": st["t_start_s"].to_numpy(), "t_end_s": st["t_end_s"].to_numpy(),
-                "length_mm": st["length_m"].to_numpy() * 1e3, "mean_speed_m_s": st["mean_speed_m_s"].to_numpy(),
-                "dp_mean_bar": st["dp_mean_pa"].to_numpy() / PA_PER_BAR,
-                "dp_friction_bar": st["dp_friction_pa"].to_numpy() / PA_PER_BAR,
-                "friction_n": st["dp_friction_pa"].to_numpy() * area if area else np.nan,
-                "n_samples": st["n_samples"].to_numpy()}))
-    runs_df = pd.DataFrame(rows, columns=RUN_COLUMNS)
-    runs_df["strokes"] = runs_df["strokes"].astype("Int64")
-    runs_df["n_samples"] = runs_df["n_samples"].astype("Int64")
-    runs_df["started_at"] = pd.to_datetime(runs_df["started_at"], utc=True, format="ISO8601")
-    strokes_df = pd.concat(strokes, ignore_index=True) if strokes else pd.DataFrame(columns=STROKE_COLUMNS)
-    return runs_df, strokes_df
 
 
 def _groups(life: pd.DataFrame, keys):
@@ -340,9 +210,18 @@ def _leak_plot_points(df: pd.DataFrame) -> pd.DataFrame:
         pressure_bar=("pressure_bar", "mean"))
 
 
+def durability_runs_of(ctx: StageContext) -> pd.DataFrame:
+    """The ``durability_runs`` table (:mod:`pipeline.stages.durability_runs`), its columns
+    (:data:`RUN_COLUMNS`) in their order; without one (no durability runs), no rows."""
+    runs = ctx.results.get("durability_runs")
+    if runs is None or runs.empty:
+        return pd.DataFrame(columns=RUN_COLUMNS)
+    return runs[RUN_COLUMNS]
+
+
 def run(ctx: StageContext) -> StageOutput:
     out = StageOutput()
-    runs_df, strokes_df = durability_runs(ctx, out)
+    runs_df = durability_runs_of(ctx)
     events, problems = read_logbooks(ctx.raw)
     hoses, merge_problems = merge_logbooks(events)
     out.problems += problems + merge_problems
@@ -351,8 +230,6 @@ def run(ctx: StageContext) -> StageOutput:
         for w in ws:
             out.warn(rid, f"durability: {w}")
     matched, _ = match_runs(hoses, runs_df) if len(runs_df) else (pd.Series([], dtype=object), {})
-    out.tables["durability_runs"] = runs_df
-    out.tables["durability_strokes"] = strokes_df
     out.tables["hose_life"] = life
     # pooled over the hoses' lives only: taken from the previous run when they did not change (a leakage check)
     out.tables["service_life"] = ctx.pooled("service_life", service_life, life, ctx.plan)

@@ -432,9 +432,35 @@ def _sensitivity_row(item: dict, definition: str, factor: float | None, hoses, p
 
 
 def sensitivity_of(item: dict) -> list[dict]:
-    """The ``decision_sensitivity`` rows of one hose type, one per :data:`DEFINITIONS` (module level: ``ctx.map``)."""
+    """The ``decision_sensitivity`` rows of one hose type, one per :data:`DEFINITIONS`: those of
+    :func:`sensitivity_logbook` and :func:`sensitivity_leak`, in the order of :data:`DEFINITIONS`."""
+    rows = {r["definition"]: r for r in (*sensitivity_logbook(logbook_item(item)), *sensitivity_leak(item))}
+    return [rows[name] for name, _factor in DEFINITIONS]
+
+
+#: What the logbook definition's row reads of a sensitivity item: not the leak path (issue 26).
+_LOGBOOK_KEYS = ("hose_type", "hoses", "pressure", "confidence", "plan", "max_failures", "life_verdict")
+
+
+def logbook_item(item: dict) -> dict:
+    """The :func:`sensitivity_logbook` item of a :func:`stage_items` sensitivity item: its hoses, plan
+    and verdict, without the leak path, so that a leakage change takes its row from the memo."""
+    return {k: item[k] for k in _LOGBOOK_KEYS}
+
+
+def sensitivity_logbook(item: dict) -> list[dict]:
+    """The ``decision_sensitivity`` rows of the definitions without a leak limit (the logbook's) of one
+    hose type (module level: ``ctx.map``; ``item`` from :func:`logbook_item`)."""
+    hoses = _hoses_frame(item)
+    return [_sensitivity_row(item, name, None, hoses, None, None) for name, factor in DEFINITIONS if factor is None]
+
+
+def sensitivity_leak(item: dict) -> list[dict]:
+    """The ``decision_sensitivity`` rows of the leak-limit definitions of one hose type (module level:
+    ``ctx.map``; ``item`` from :func:`stage_items`)."""
     hoses, points, reason = _frames(item)
-    return [_sensitivity_row(item, name, factor, hoses, points, reason) for name, factor in DEFINITIONS]
+    return [_sensitivity_row(item, name, factor, hoses, points, reason)
+            for name, factor in DEFINITIONS if factor is not None]
 
 
 def _typed(rows: list[dict], columns: list[str], ints=()) -> pd.DataFrame:
@@ -457,8 +483,13 @@ def run(ctx: StageContext) -> StageOutput:
     out = StageOutput()
     groups, types = stage_items(ctx)
     # the sensitivity first: one hose type's runs here and imports scipy's optimisers and distributions,
-    # which the workers then forked for the groups inherit instead of each importing them again
-    sens = ctx.map(sensitivity_of, types, label="remaining life: sensitivity") if types else []
+    # which the workers then forked for the groups inherit instead of each importing them again; the
+    # logbook's rows apart, keyed by the hoses and the plan alone: a leakage change reads them from the memo
+    logbook = ctx.map(sensitivity_logbook, [logbook_item(t) for t in types],
+                      label="remaining life: sensitivity (logbook)") if types else []
+    leak = ctx.map(sensitivity_leak, types, label="remaining life: sensitivity") if types else []
+    order = {name: i for i, (name, _factor) in enumerate(DEFINITIONS)}
+    sens = [sorted((*a, *b), key=lambda r: order[r["definition"]]) for a, b in zip(logbook, leak)]
     weib = ctx.map(rul_weibull, weibull_items(groups), label="remaining life: weibull") if groups else []
     deg = ctx.map(rul_group, groups, label="remaining life") if groups else []
     rul = [r for w, d in zip(weib, deg) for r in (*_with_leak_columns(w["hose_rul"], d["hose_rul"]), *d["hose_rul"])]

@@ -274,8 +274,8 @@ def test_the_real_stages_run_in_the_order_they_always_had(raw, warehouse):
     the findings after the decision (they read its verdict), remaining life after both (issue 24)."""
     step(raw, "c/a.csv")
     s = rebuild(raw.root, warehouse, jobs=1)
-    assert s.stages_run == ["plpa_characterisation", "models", "durability", "decision", "findings", "remaining_life",
-                            "test_plan"]
+    assert s.stages_run == ["plpa_characterisation", "models", "durability_runs", "durability", "decision", "findings",
+                            "remaining_life", "test_plan"]
 
 
 def test_durations_read_in_ms_below_a_second():

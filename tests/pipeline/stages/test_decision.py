@@ -18,7 +18,7 @@ from pipeline.raw.plan import Plan
 from pipeline.simulator import simulate_durability
 from pipeline.stages import StageContext
 from pipeline.stages import decision as stage
-from pipeline.stages import durability
+from pipeline.stages import durability, durability_runs
 from tests.conftest import query
 
 HEADER = "hose_id,event,at,hose_type,adjustment,z_rollers_mm,spring_force_n,failure_mode,wall_thickness_mm,distance_km,notes\n"
@@ -175,7 +175,7 @@ def test_reruns_only_on_logbooks_durability_runs_and_plan_and_full_equals_increm
     from pipeline import stages as registry
     from pipeline.rebuild.flow import rebuild
 
-    monkeypatch.setattr(registry, "discover", lambda: [durability, stage])
+    monkeypatch.setattr(registry, "discover", lambda: [durability_runs, durability, stage])
     logbook = HEADER + ("D1,installed,2026-01-01,T,distance,4.5,,,,,\nF1,installed,2026-01-01,T,force,,866,,,,\n"
                         "D1,failed,2026-01-03,,,,,rupture,,,\n")
     raw.write("c/hoses.csv", logbook)
@@ -305,7 +305,7 @@ def test_an_unset_max_failures_is_frozen_at_a_look_and_later_failures_move_no_pa
     from pipeline.rebuild.flow import rebuild
     from analyses.sequential import design_for
 
-    monkeypatch.setattr(registry, "discover", lambda: [durability, stage])
+    monkeypatch.setattr(registry, "discover", lambda: [durability_runs, durability, stage])
     raw.write("c/hoses.csv", HEADER + _campaign_lines(1))
     raw.write("plan.toml", PLAN)
     ran = lambda **kw: rebuild(raw.root, warehouse, jobs=1, report=False, **kw)  # noqa: E731
@@ -351,7 +351,7 @@ def test_with_max_failures_in_the_plan_the_tables_are_bit_identical_to_before_th
     from pipeline import stages as registry
     from pipeline.rebuild.flow import rebuild
 
-    monkeypatch.setattr(registry, "discover", lambda: [durability, stage])
+    monkeypatch.setattr(registry, "discover", lambda: [durability_runs, durability, stage])
     raw.write("c/hoses.csv", HEADER + _campaign_lines(1) + _campaign_lines(2))
     raw.write("plan.toml", "[defaults]\nmargin = 2.0\nmax_failures = 20\nspending = \"pocock\"\n")
     rebuild(raw.root, warehouse, jobs=1, report=False)
@@ -529,7 +529,7 @@ def test_a_rebuild_keeps_the_designs_in_the_warehouse_and_reading_them_gives_the
     from pipeline import stages as registry
     from pipeline.rebuild.flow import rebuild
 
-    monkeypatch.setattr(registry, "discover", lambda: [durability, stage])
+    monkeypatch.setattr(registry, "discover", lambda: [durability_runs, durability, stage])
     raw = _designed_fleet(tmp_path, types=3)[0]
     (raw / "plan.toml").write_text(PLAN)
     warehouse = tmp_path / "wh"

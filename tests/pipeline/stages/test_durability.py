@@ -12,6 +12,7 @@ import pytest
 from pipeline.simulator import simulate_durability
 from pipeline.stages import StageContext
 from pipeline.stages import durability as stage
+from pipeline.stages import durability_runs as runs_stage
 
 HEADER = "hose_id,event,at,hose_type,adjustment,z_rollers_mm,spring_force_n,failure_mode,wall_thickness_mm,distance_km,notes\n"
 
@@ -60,6 +61,17 @@ class Bench:
         return StageContext(raw=self.raw, warehouse=self.wh, runs=pd.DataFrame(self.rows), results=results or {})
 
 
+def run_stages(ctx):
+    """The ``durability_runs`` stage, then ``durability`` on its tables, as a rebuild runs them: one output."""
+    first = runs_stage.run(ctx)
+    ctx.results = {**ctx.results, **first.tables}
+    out = stage.run(ctx)
+    out.tables = {**first.tables, **out.tables}
+    out.warnings = {rid: first.warnings.get(rid, []) + out.warnings.get(rid, [])
+                    for rid in {**first.warnings, **out.warnings}}
+    return out
+
+
 @pytest.fixture(scope="module")
 def fleet(tmp_path_factory):
     """Two campaigns: force-set hoses F1 (fails in c2) and F2 (removed); distance-set D1 (removed in c2),
@@ -93,7 +105,7 @@ def fleet(tmp_path_factory):
                          "hose_id": ["D3"] * 4, "chamber": ["A"] * 4, "adjustment": ["distance"] * 4,
                          "z_rollers_mm": [4.5] * 4, "spring_force_n": [None] * 4, "pressure_bar": [5.0, 6.0, 5.0, 6.0],
                          "leak_l_min": [0.0, 0.2, 0.1, 0.5]})
-    out = stage.run(b.ctx({"leakage_map": leak}))
+    out = run_stages(b.ctx({"leakage_map": leak}))
     return b, out
 
 
@@ -177,7 +189,7 @@ def test_without_leakage_map_no_growth_rows_and_broken_run_gives_nulls(tmp_path)
     b.durability("c/ok", "c", "2026-01-02", "H", 10.0, 1)
     b.durability("c/broken", "c", "2026-01-03", "H", 10.0, 2)
     (b.wh / b.rows[-1]["samples_path"]).write_bytes(b"not parquet")
-    out = stage.run(b.ctx())
+    out = run_stages(b.ctx())
     runs = out.tables["durability_runs"].set_index("run_id")
     assert pd.isna(runs.loc["c/broken", "distance_km"]) and pd.isna(runs.loc["c/broken", "strokes"])
     assert "cannot analyse" in out.warnings["c/broken"][0]
@@ -235,7 +247,7 @@ def test_simulated_campaigns_hose_life_matches_truth(tmp_path, monkeypatch):
     raw = tmp_path / "raw"
     simulate_campaign(raw, seed=5, profile="mini")
     truth = json.loads((raw / "truth.json").read_text())
-    monkeypatch.setattr(registry, "discover", lambda: [stage])
+    monkeypatch.setattr(registry, "discover", lambda: [runs_stage, stage])
     summary = rebuild(raw, tmp_path / "wh", jobs=1)
     assert not [p for p in summary.quarantine if p.stage == "logbook"]
     con = duckdb.connect(str(tmp_path / "wh" / "pneubench.duckdb"), read_only=True)
@@ -271,7 +283,7 @@ def test_deadband_from_the_stated_sensor_and_strokes_not_detectable(tmp_path):
     b.durability("c/coarse", "c", "2026-01-02", "H", 10.0, 1, sensor_x_resolution=1e-4, sensor_x_noise=0.0)
     b.durability("c/tiny", "c", "2026-01-03", "H", 0.2, 2, stroke_m=0.003, speed_m_s=0.05, sensor_x_noise=5e-5,
                  sensor_x_resolution=5e-6)
-    out = stage.run(b.ctx())
+    out = run_stages(b.ctx())
     runs = out.tables["durability_runs"].set_index("run_id")
     assert runs.loc["c/coarse", "deadband_mm"] == pytest.approx(2.0)
     assert runs.loc["c/coarse", "distance_km"] == pytest.approx(b.truth["c/coarse"]["distance_km"], rel=0.005)

@@ -15,8 +15,8 @@ def names(stages):
 
 def test_the_real_stages_run_in_the_order_their_old_order_numbers_gave():
     # the decision stages read durability's tables, the findings the decision's verdict, remaining_life both
-    assert names(run_order(discover())) == ["plpa_characterisation", "models", "durability", "decision", "findings",
-                                            "remaining_life", "test_plan"]
+    assert names(run_order(discover())) == ["plpa_characterisation", "models", "durability_runs", "durability",
+                                            "decision", "findings", "remaining_life", "test_plan"]
 
 
 def test_every_stage_declares_what_it_reads_and_writes_and_no_two_write_one_table():

@@ -256,6 +256,22 @@ def test_the_logbook_row_names_life_verdicts_own_verdict_where_it_differs(built)
         "decision_sensitivity"]["note"].iloc[0]
 
 
+def test_the_logbook_row_reads_no_leak_path_and_is_the_same_row_alone(built):
+    _groups, types = stage.stage_items(context(built["life"], built["growth"], built["lmap"]))
+    item = types[0]
+    rows = stage.sensitivity_of(item)
+    assert [r["definition"] for r in rows] == [d for d, _ in stage.DEFINITIONS]
+    assert stage.sensitivity_logbook(stage.logbook_item(item)) == rows[:1]   # the same row, computed alone
+    assert stage.sensitivity_leak(item) == rows[1:]
+    # another leak path: the logbook's item (its memo key) is the same, the leak rows move
+    moved = built["growth"].assign(leak_l_min=built["growth"]["leak_l_min"] * 1.5)
+    _groups, other = stage.stage_items(context(built["life"], moved, built["lmap"]))
+    assert other[0]["points"] != item["points"] and stage.logbook_item(other[0]) == stage.logbook_item(item)
+    assert stage.sensitivity_leak(other[0]) != rows[1:]
+    table = built["out"].tables["decision_sensitivity"]
+    assert table["definition"].tolist() == [d for d, _ in stage.DEFINITIONS]
+
+
 # -- determinism -----------------------------------------------------------------------------------
 def _bytes(out) -> dict:
     blobs = {}
@@ -300,10 +316,11 @@ def test_reruns_only_on_logbooks_leakage_durability_and_plan_and_full_equals_inc
                                                                                          monkeypatch):
     from pipeline import stages as registry
     from pipeline.rebuild.flow import rebuild
-    from pipeline.stages import decision, durability, plpa_characterisation
+    from pipeline.stages import decision, durability, durability_runs, plpa_characterisation
     from tests.pipeline.rebuild.test_state import step
 
-    monkeypatch.setattr(registry, "discover", lambda: [plpa_characterisation, durability, decision, stage])
+    monkeypatch.setattr(registry, "discover",
+                        lambda: [plpa_characterisation, durability_runs, durability, decision, stage])
     raw.write("c/hoses.csv", BOOK)
     _durability_csv(raw, "c/d1.csv", "D1", "2026-01-01T08:00:00")
     _durability_csv(raw, "c/f1.csv", "F1", "2026-01-01T09:00:00")
