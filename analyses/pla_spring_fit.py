@@ -123,6 +123,8 @@ class SpringStats:
         """Pickled with its polynomials in one array (the stage's memo keeps one per run: unpickling
         ~27 small arrays per run cost ~0.1 ms each, 0.8 CPU-s at 10,000 runs); the same numbers."""
         state = dict(self.__dict__)
+        if "_packed" in state:   # read back and never unpacked: as it was read
+            return state
         layout, parts = [], []
         for sec in self._SECTIONS:
             for name, c in state.pop(sec).items():
@@ -132,13 +134,25 @@ class SpringStats:
         return state
 
     def __setstate__(self, state: dict) -> None:
-        layout, flat = state.pop("_packed", ((), None))
-        secs = {sec: state.pop(sec, {}) for sec in self._SECTIONS}
+        """The scalars at once, the polynomials when a section is first read (:meth:`__getattr__`): a
+        stage that refits one chamber reads the other chamber's runs for their scalars only (issue 26)."""
+        self.__dict__.update(state)
+        if "_packed" not in state:
+            for sec in self._SECTIONS:
+                self.__dict__.setdefault(sec, {})
+
+    def __getattr__(self, name: str):
+        d = self.__dict__
+        if name not in self._SECTIONS or "_packed" not in d:
+            raise AttributeError(name)
+        layout, flat = d.pop("_packed")
+        secs = {sec: d.pop(sec, {}) for sec in self._SECTIONS}
         at = 0
-        for sec, name, n in layout:
-            secs[sec][name] = flat[at:at + n]
+        for sec, key, n in layout:
+            secs[sec][key] = flat[at:at + n]
             at += n
-        self.__dict__.update(state, **secs)
+        d.update(secs)
+        return d[name]
 
 
 def _n_terms(z: float) -> int:

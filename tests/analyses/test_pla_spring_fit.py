@@ -127,6 +127,12 @@ def test_runs_combine_in_run_id_order_bit_for_bit_and_survive_a_pickle():
             assert all(np.array_equal(mine[k].view(np.int64), read[k].view(np.int64)) for k in mine)
         assert {k: v for k, v in vars(back).items() if k not in ("fit", "all", "cycle")} == \
                {k: v for k, v in vars(s).items() if k not in ("fit", "all", "cycle")}
+        # unpacked when a section is first read: pickled again before that, the same polynomials
+        again = pickle.loads(pickle.dumps(pickle.loads(pickle.dumps(s))))
+        assert "_packed" in vars(again) and again.p0_abs == s.p0_abs and again.ok == s.ok
+        assert all(np.array_equal(getattr(again, part)[k].view(np.int64), getattr(s, part)[k].view(np.int64))
+                   for part in ("fit", "all", "cycle") for k in getattr(s, part))
+        assert "_packed" not in vars(again)
 
 
 def _bits(x) -> bytes:
