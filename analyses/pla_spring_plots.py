@@ -110,10 +110,11 @@ def plot_loop_energy(table, fits: dict | None = None, title: str = ""):
     Parameters
     ----------
     table : DataFrame
-        Columns ``chamber``, ``p0_bar_abs``, ``amplitude_mm``, ``frequency_hz``, ``loop_energy_j``
-        (and optionally ``model_loop_energy_j``).
+        Columns ``chamber``, ``amplitude_mm`` [mm], ``frequency_hz`` [Hz] and ``loop_energy_j`` [J]
+        (the ones drawn; others are ignored).
     fits : dict of str to SpringFit, optional
-        When given, the structural part ``pi delta D^2`` is drawn.
+        When given, the structural part ``pi delta D^2`` is drawn (of the fits only ``ok`` and
+        ``delta_n_m`` are used).
     title : str
 
     Returns

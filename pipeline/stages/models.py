@@ -19,6 +19,7 @@ A run that cannot be analysed gives NULLs and a warning on the run, never an exc
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import re
@@ -58,6 +59,8 @@ STEP_COLS = ["run_id", "step_mm", "overshoot_pct", "settling_time_s", "rise_time
 FIT_COLS = ["chamber", "n_polytropic", "ae_m2", "epsilon_m2", "delta_n_m", "n_tests", "max_nrmse_pct",
             "seed_n_polytropic", "seed_ae_m2", "seed_epsilon_m2", "seed_delta_n_m", "note"]
 TEST_COLS = ["run_id", "chamber", "p0_bar_abs", "amplitude_mm", "frequency_hz", "nrmse_pct", "note"]
+#: The columns of ``spring_loop_energy`` its figure draws (:func:`analyses.pla_spring_plots.plot_loop_energy`).
+ENERGY_DRAWN = ("chamber", "amplitude_mm", "frequency_hz", "loop_energy_j")
 ENERGY_COLS = ["run_id", "chamber", "p0_bar_abs", "amplitude_mm", "frequency_hz", "n_cycles", "loop_energy_j",
                "model_loop_energy_j", "structural_energy_j"]
 PD_COLS = ["chamber", "direction", "wn_rad_s", "zeta", "nrmse_pct", "n_steps", "tau_s", "model", "note", "level",
@@ -405,13 +408,21 @@ def _spring_outputs(ctx, out, results, items):
             shown = [items[rid] for rid in spring_plots.figure_runs(group)]
             runs = [r for r in ctx.map(spring_figure_run, shown, label=f"{NAME}: spring figures") if r is not None]
             name = f"spring_loops_{chamber}"
-            out.draw(name, spring_plots.plot_spring_loops, runs, fit)
+            out.draw(name, spring_plots.plot_spring_loops, runs, _drawn_fit(fit))
             out.captions[name] = (f"PLA {chamber} chamber: force-displacement loops, experimental vs fitted model, "
                                   f"for the tests of {PLA_CITATION}, Figs. 8-13 (closest available runs).")
     if energy:
-        out.draw("spring_loop_energy", spring_plots.plot_loop_energy, out.tables["spring_loop_energy"], fits)
+        out.draw("spring_loop_energy", spring_plots.plot_loop_energy, out.tables["spring_loop_energy"][list(ENERGY_DRAWN)],
+                 {c: _drawn_fit(f) for c, f in fits.items()})
         out.captions["spring_loop_energy"] = ("Energy dissipated per cycle (loop area) vs displacement amplitude and "
                                               "vs frequency; lines: structural part pi delta D^2 of the fits.")
+
+
+def _drawn_fit(fit: spring_fit.SpringFit) -> spring_fit.SpringFit:
+    """The fit as the spring figures use it (its parameters), without the per-test dicts (NRMSE,
+    model loop energy, notes: thousands of entries at 10,000 runs) that the figure's key would hash
+    (issue 26); the same figure."""
+    return dataclasses.replace(fit, seeds={}, nrmse_pct={}, test_notes={}, se={}, model_loop_energy_j={})
 
 
 def _run_parts(ctx) -> dict:

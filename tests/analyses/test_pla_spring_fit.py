@@ -127,6 +127,49 @@ def test_runs_combine_in_run_id_order_bit_for_bit_and_survive_a_pickle():
             assert all(np.array_equal(mine[k].view(np.int64), read[k].view(np.int64)) for k in mine)
         assert {k: v for k, v in vars(back).items() if k not in ("fit", "all", "cycle")} == \
                {k: v for k, v in vars(s).items() if k not in ("fit", "all", "cycle")}
+        # unpacked when a section is first read: pickled again before that, the same polynomials
+        again = pickle.loads(pickle.dumps(pickle.loads(pickle.dumps(s))))
+        assert "_packed" in vars(again) and again.p0_abs == s.p0_abs and again.ok == s.ok
+        assert all(np.array_equal(getattr(again, part)[k].view(np.int64), getattr(s, part)[k].view(np.int64))
+                   for part in ("fit", "all", "cycle") for k in getattr(s, part))
+        assert "_packed" not in vars(again)
+
+
+def _bits(x) -> bytes:
+    return np.asarray(x, float).tobytes()
+
+
+def test_every_test_at_once_gives_the_bits_of_one_test_at_a_time():
+    """The chamber's sums (added in run_id order) and each test's polynomials at n evaluated for all
+    tests at once: numpy's polyval and an in-order sum, run by run, bit for bit (issue 26)."""
+    from analyses.pla_spring import FORCE_SIGN
+    from analyses.pla_spring_fit import _FIT_SUMS, N_CENTRE, _Sums, _values_each, model_loop_energy
+
+    runs, _ = _prepared("front", SMALL_GRID + [(3.0, 5.0, 2.0), (2.0, 7.0, 0.5)])
+    stats = sorted((spring_run_stats(r) for r in runs), key=lambda s: s.run_id)
+    assert len({len(s.all["pp1"]) for s in stats}) > 1          # polynomials of several lengths: padded
+    joined = _Sums([s.fit for s in stats])
+    for name in stats[0].fit:                                    # the loop the sums were made by
+        acc = np.array(stats[0].fit[name], float)
+        for s in stats[1:]:
+            c = s.fit[name]
+            if len(c) > len(acc):
+                acc = np.concatenate([acc, np.zeros(len(c) - len(acc))])
+            acc[:len(c)] += c
+        assert _bits(joined.poly[name]) == _bits(acc)
+    fit = fit_spring_stats(stats)
+    assert fit.ok
+    for n in (fit.n_polytropic, 0.5, 2.5, 1.0 + 1e-9):
+        each = _values_each([s.all for s in stats], _FIT_SUMS, n)
+        for i, s in enumerate(stats):
+            for name in _FIT_SUMS:
+                one = np.polynomial.polynomial.polyval(n - N_CENTRE, np.array(s.all[name], float))
+                assert _bits(each[name][i]) == _bits(one)
+    th = np.array(fit.params[1:])
+    for s in stats:   # each test's NRMSE and model loop energy as the per-test sums give them
+        rms = float(np.sqrt(_Sums([s.all]).sum_sq(fit.n_polytropic, th, FORCE_SIGN[s.chamber]) / s.n_all))
+        assert fit.nrmse_pct[s.run_id] == 100.0 * rms / s.f_span_n
+        assert _bits(fit.model_loop_energy_j[s.run_id]) == _bits(model_loop_energy(s, fit))
 
 
 def test_a_run_at_the_stroke_end_is_outside_the_model():

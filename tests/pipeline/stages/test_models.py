@@ -381,3 +381,32 @@ def test_one_changed_spring_run_refits_from_the_memo_and_equals_a_full_rebuild(t
     a, b = dump(inc), dump(full)
     for table in ("spring_fits", "spring_tests", "spring_loop_energy", "pressure_dynamics", "pressure_steps"):
         assert a[table] and a[table] == b[table], table
+
+
+def test_the_spring_figures_get_the_fit_they_draw_and_draw_the_same_bytes():
+    """The figures' recipes hold the fit's parameters, not its per-test dicts (their keys hash what is
+    drawn: issue 26), and the loop energy table's drawn columns; the PNG is the same bytes either way."""
+    import io
+
+    from analyses.pla_spring_fit import fit_spring_chamber
+    from analyses.pla_spring_plots import plot_loop_energy, plot_spring_loops
+    from tests.analyses.test_pla_spring import _prepared
+
+    runs, _ = _prepared("front", [(3.0, 5.0, 1.0), (2.0, 3.0, 0.5), (4.0, 7.0, 2.0)])
+    fit = fit_spring_chamber(runs)
+    slim = stage._drawn_fit(fit)
+    assert fit.ok and fit.nrmse_pct and slim.params == fit.params and slim.chamber == fit.chamber
+    assert not (slim.nrmse_pct or slim.model_loop_energy_j or slim.test_notes or slim.se or slim.seeds)
+    table = pd.DataFrame([{"run_id": r.run_id, "chamber": "front", "p0_bar_abs": r.p0_abs / 1e5,
+                           "amplitude_mm": r.amplitude_m * 1e3, "frequency_hz": r.frequency_hz, "n_cycles": r.cycles,
+                           "loop_energy_j": r.loop_energy_j, "model_loop_energy_j": 1.0, "structural_energy_j": 2.0}
+                          for r in runs])
+
+    def png(fig):
+        buf = io.BytesIO()
+        fig.savefig(buf, format="png", dpi=60, metadata={"Software": None})
+        return buf.getvalue()
+
+    assert png(plot_spring_loops(runs, fit)) == png(plot_spring_loops(runs, slim))
+    assert png(plot_loop_energy(table, {"front": fit})) == \
+        png(plot_loop_energy(table[list(stage.ENERGY_DRAWN)], {"front": slim}))
