@@ -51,7 +51,7 @@ def _now() -> datetime:
 
 def render_report(warehouse: str | Path, now: datetime | None = None, database: str | Path | None = None,
                   run_pages: str = "update", folder: str | Path | None = None, code: str | None = None,
-                  ahead: BandsAhead | None = None, pool: Callable | None = None) -> str:
+                  ahead: BandsAhead | None = None, pool: Callable | None = None, keys_checked: bool = False) -> str:
     """The report of the warehouse as one HTML string (``now``: the clock for "last 24 hours").
 
     ``database``: the DuckDB file to read instead of the warehouse's live one (the rebuild
@@ -69,6 +69,9 @@ def render_report(warehouse: str | Path, now: datetime | None = None, database: 
     (:class:`~pipeline.serve.report.pages.BandsAhead`).
     ``pool``: ``pool(workers)`` gives a process pool (an executor) the decision's looks figures may be drawn in
     (the rebuild's :func:`~pipeline.rebuild.executors.forked_pool`); None draws every figure here.
+    ``keys_checked``: every ``table_keys`` row of ``database`` matches its table (the rebuild that just
+    wrote it checked them); else each key's row count and hash sum are checked on its table here
+    (:func:`~pipeline.serve.report.keyed.table_keys`).
     """
     warehouse = Path(warehouse)
     now = now or _now()
@@ -82,7 +85,7 @@ def render_report(warehouse: str | Path, now: datetime | None = None, database: 
             parts, keyed = cached, live_keyed(warehouse)
         else:  # each part the live report's when the tables it reads are unchanged (issue 26)
             keyed = KeyedParts(db, f"{code or code_key(REPORT_CODE)}-{code_key((), KEYED_LIBRARIES)}",
-                               {} if run_pages == "all" else live_keyed(warehouse))
+                               {} if run_pages == "all" else live_keyed(warehouse), checked=keys_checked)
             results, entries = results_sections(db, warehouse, keyed)
             live = () if run_pages == "all" else (warehouse / REPORT_DIR / "index.html",)
             parts = (results, entries, keyed.get("runs-index", runs_index),
@@ -160,14 +163,15 @@ def failure_page(warehouse: str | Path, generation: str | None, error: str, now:
 
 def stage_report(warehouse: str | Path, database: str | Path | None = None, run_pages: str = "update",
                  now: datetime | None = None, code: str | None = None, ahead: BandsAhead | None = None,
-                 pool: Callable | None = None) -> Path:
+                 pool: Callable | None = None, keys_checked: bool = False) -> Path:
     """Render the whole report (index and run pages) into a new folder beside the live one;
     :func:`~pipeline.serve.report.publish.publish_report` swaps it in. Unchanged run pages are
     hard links to the live ones. A failure removes the folder and raises (the live report is
-    untouched). ``code``, ``ahead`` and ``pool`` as for :func:`render_report`."""
+    untouched). ``code``, ``ahead``, ``pool`` and ``keys_checked`` as for :func:`render_report`."""
     return stage_folder(Path(warehouse), lambda folder: render_report(warehouse, now, database=database,
                                                                       run_pages=run_pages, folder=folder, code=code,
-                                                                      ahead=ahead, pool=pool))
+                                                                      ahead=ahead, pool=pool,
+                                                                      keys_checked=keys_checked))
 
 
 def write_report(warehouse: str | Path, generation: str | None = None, now: datetime | None = None) -> Path:
