@@ -31,7 +31,7 @@ TARGETS = [
     "pipeline.rebuild.flow:_import_for_stages", "pipeline.rebuild.flow:_start_executor",
     "pipeline.rebuild.flow:_inputs_table", "pipeline.rebuild.flow:_channels_frame",
     "pipeline.rebuild.flow:_new_channels",
-    "pipeline.rebuild.publish:warehouse_lock", "pipeline.rebuild.publish:swap_in_new_database",
+    "pipeline.rebuild.publish:swap_in_new_database",
     "pipeline.rebuild.garbage:clean_debris", "pipeline.rebuild.garbage:collect_garbage",
     "pipeline.serve.report.publish:settle_report", "pipeline.serve.report.publish:publish_report",
     "pipeline.rebuild.state:load_previous", "pipeline.rebuild.state:plan_runs",
@@ -136,7 +136,7 @@ def child(out_path: str, argv: list[str]) -> None:
             owner, _, attr = name.rpartition(".")
             obj = getattr(module, owner) if owner else module
             func = obj.__dict__.get(attr) if owner else getattr(module, attr, None)
-            if func is None or name in ("warehouse_lock",):
+            if func is None:
                 continue
             label = name.split(".")[-1] if not owner else name
             if isinstance(func, (classmethod, staticmethod)):
