@@ -328,7 +328,8 @@ def main(argv=None) -> int:
                 for n in names:
                     g = res[n][kind][0]
                     if lab in g.get("items less imports", {}):
-                        extra.append(f"{n} {statistics.median(x['items less imports'].get(lab, 0.0) for x in res[n][kind]):.3f}")
+                        less = statistics.median(x["items less imports"].get(lab, 0.0) for x in res[n][kind])
+                        extra.append(f"{n} {less:.3f}")
                 note = f" (less imports: {', '.join(extra)})" if extra else ""
                 ncalls = res[names[0]][kind][0]["calls"].get(lab)
                 note += f" x{ncalls}" if ncalls and ncalls > 1 else ""

@@ -23,11 +23,9 @@ some inputs quarantined; 2 usage error; anything else: failed, the previous ware
 """
 from __future__ import annotations
 
-import gc
 import logging
 import os
 import time
-from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from datetime import datetime, timezone
 from pathlib import Path
@@ -39,7 +37,7 @@ from pipeline.raw.problems import Problem
 from pipeline.raw.tree import RawTree, discover_runs
 from pipeline.raw.walk import skip_reason
 from pipeline.readers import READERS
-from pipeline.rebuild.executors import Executor, make_executor
+from pipeline.rebuild.executors import Executor, fewer_collections, make_executor
 from pipeline.rebuild.garbage import clean_debris, collect_garbage, split_kept
 from pipeline.rebuild.history import append_log, compare_findings
 from pipeline.rebuild.assemble import runs_frame, write_database
@@ -66,14 +64,6 @@ if TYPE_CHECKING:
 
 # pandas, pyarrow, numpy and the analyses are imported by the functions that use them, not here:
 # a no-op rebuild needs none of them (~0.5 s of a 10,000-run no-op's 2 s budget; issue 14).
-
-#: Python's cycle collector during a rebuild: its youngest generation collected after this many new
-#: container objects (Python's default 700), the older ones after this many collections of the one
-#: below (default 10, 10). A rebuild creates millions of objects that live to its end (the modules of
-#: pandas, pyarrow, duckdb and the analyses, the runs rows, the frames): with the defaults a plan.toml
-#: or logbook change at 1,000 runs made ~280 collections, 2 of them of every object (0.13-0.14 CPU-s
-#: of its ~2.8), with these ~17 (0.03-0.05; issue 26). Cyclic garbage is still collected, later.
-GC_THRESHOLD = (10_000, 20, 10)
 
 
 def check_folders(raw: str | Path, warehouse: str | Path) -> None:
@@ -175,19 +165,6 @@ def rebuild(raw: str | Path, warehouse: str | Path, options: RebuildOptions | No
                 raise
             log.exception("rebuild failed")  # anything unexpected: exit 3, never 1 (= "quarantined")
             raise RebuildError(f"rebuild failed: {type(exc).__name__}: {exc}") from exc
-
-
-@contextmanager
-def fewer_collections(threshold: tuple[int, int, int] = GC_THRESHOLD):
-    """Python's cycle collector at ``threshold`` (:data:`GC_THRESHOLD`; each a generation's, never
-    below the one in force) while the block runs, the thresholds in force restored after it."""
-    old = gc.get_threshold()
-    if old[0]:  # (0: collections turned off by the caller, left so)
-        gc.set_threshold(*(max(a, b) for a, b in zip(old, threshold)))
-    try:
-        yield
-    finally:
-        gc.set_threshold(*old)
 
 
 def _generation() -> str:

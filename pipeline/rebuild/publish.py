@@ -139,11 +139,11 @@ def swap_in_new_database(warehouse: Path, write: Callable[[Path], None], report:
         write(tmp_db)
         if report:  # before the swap: a failure keeps the previous warehouse and its report
             try:
-                from pipeline.serve.report.render import stage_report  # (and duckdb): off the start-up
+                from pipeline.serve.report.render import FromRebuild, stage_report  # (and duckdb): off the start-up
 
                 # the rebuild's one hash of the project's code keys the report's parts cache
-                page = stage_report(warehouse, database=tmp_db, run_pages=run_pages, code=project_code_version(),
-                                    ahead=ahead, pool=forked_pool, keys_checked=keys_checked)
+                page = stage_report(warehouse, database=tmp_db, run_pages=run_pages,
+                                    rebuild=FromRebuild(project_code_version(), ahead, forked_pool, keys_checked))
             except Exception as exc:
                 log.exception("report failed")
                 raise RebuildError(f"the morning report could not be written: {type(exc).__name__}: "

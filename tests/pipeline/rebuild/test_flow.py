@@ -350,33 +350,6 @@ def test_the_channels_frame_is_the_same_whether_its_rows_were_read_tonight_or_ta
     assert _channels_frame([]).empty
 
 
-def test_the_rebuild_collects_cycles_less_often_and_gives_the_thresholds_back():
-    """Issue 26: ~280 collections of a one-file change at 1,000 runs, 2 of them of every object, cost
-    0.13 CPU-s; the rebuild raises the thresholds while it runs (never lowers one) and restores them."""
-    import gc
-
-    from pipeline.rebuild.flow import GC_THRESHOLD, fewer_collections
-
-    before = gc.get_threshold()
-    try:
-        gc.set_threshold(700, 10, 10)
-        with fewer_collections():
-            assert gc.get_threshold() == GC_THRESHOLD
-        assert gc.get_threshold() == (700, 10, 10)
-        gc.set_threshold(50_000, 5, 50)
-        with fewer_collections():
-            assert gc.get_threshold() == (50_000, GC_THRESHOLD[1], 50)
-        gc.set_threshold(0)  # collections turned off by the caller: left off
-        with fewer_collections():
-            assert gc.get_threshold()[0] == 0
-        gc.set_threshold(700, 10, 10)
-        with pytest.raises(ValueError), fewer_collections():
-            raise ValueError("a failed rebuild")
-        assert gc.get_threshold() == (700, 10, 10)
-    finally:
-        gc.set_threshold(*before)
-
-
 def test_the_report_of_a_rebuild_takes_the_table_keys_it_wrote_without_summing_the_tables(raw, warehouse):
     """The rebuild's report trusts ``table_keys`` of the database it has just written (``keys_checked``):
     every key matches its table as the report would check it, even after a table of the live database
