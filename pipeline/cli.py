@@ -96,22 +96,26 @@ def rebuild(raw, warehouse, quiet, no_report, **options):
     mass delete refused (--allow-mass-delete); 3 or more: failed (also when the morning report cannot be rendered), previous warehouse and
     report untouched (4: another rebuild is running).
     """
-    # the rebuild is imported by its commands, not here: `pneubench query` starts without it
-    from pipeline.rebuild.flow import rebuild as do_rebuild
-    from pipeline.rebuild.options import RebuildError, RebuildOptions
+    # the rebuild is imported by its commands, not here: `pneubench query` starts without it; Python's
+    # cycle collector runs less often from here on, the rebuild's own imports included (issue 26)
+    from pipeline.rebuild.executors import fewer_collections
 
-    if not raw.is_dir():
-        raise click.UsageError(f"raw folder {raw} does not exist")
-    if options["scheduler"] and options["executor"] != "dask":
-        raise click.UsageError("--scheduler goes with --executor dask")
-    try:
-        with _interruptible("rebuild"):
-            summary = do_rebuild(raw, warehouse, RebuildOptions(report=not no_report, **options),
-                                 progress=for_stream(sys.stderr, quiet))
-    except RebuildError as exc:
-        click.echo(f"pneubench rebuild: {exc}", err=True)
-        sys.exit(exc.exit_code)
-    exit_now(summary.exit_code)
+    with fewer_collections():
+        from pipeline.rebuild.flow import rebuild as do_rebuild
+        from pipeline.rebuild.options import RebuildError, RebuildOptions
+
+        if not raw.is_dir():
+            raise click.UsageError(f"raw folder {raw} does not exist")
+        if options["scheduler"] and options["executor"] != "dask":
+            raise click.UsageError("--scheduler goes with --executor dask")
+        try:
+            with _interruptible("rebuild"):
+                summary = do_rebuild(raw, warehouse, RebuildOptions(report=not no_report, **options),
+                                     progress=for_stream(sys.stderr, quiet))
+        except RebuildError as exc:
+            click.echo(f"pneubench rebuild: {exc}", err=True)
+            sys.exit(exc.exit_code)
+        exit_now(summary.exit_code)
 
 
 def exit_now(code: int) -> None:

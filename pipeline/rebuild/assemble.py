@@ -463,7 +463,7 @@ def _update_tables(con: duckdb.DuckDBPyConnection, warehouse: Path, tables: dict
     gone = sorted(t for t in old if t != "*" and t not in tables)
     con.execute("SET TimeZone = 'UTC'")
     con.execute("BEGIN TRANSACTION")
-    ddl = _ddl_tables() if changed or gone else {}
+    ddl = _ddl_tables(warehouse) if changed or gone else {}
     for t in changed + gone:
         if t in present:
             con.execute(f'DROP TABLE "{t}"')
@@ -497,18 +497,12 @@ def _keys_of(unchanged: frozenset[str], old: dict[str, str], keys: dict[str, str
     return out
 
 
-def _ddl_tables() -> dict[str, str]:
+def _ddl_tables(warehouse: Path | None = None) -> dict[str, str]:
     """The ``CREATE TABLE`` statement of every DDL table as the whole DDL leaves it (its later
-    ``ALTER TABLE`` applied), read from an in-memory database built from the DDL."""
-    import duckdb
+    ``ALTER TABLE`` applied): :func:`pipeline.warehouse.ddl_tables` (kept in ``warehouse``'s cache)."""
+    from pipeline.warehouse import ddl_tables
 
-    con = duckdb.connect(":memory:")
-    try:
-        for _name, sql in ddl_statements():
-            con.execute(sql)
-        return dict(con.execute("SELECT table_name, sql FROM duckdb_tables()").fetchall())
-    finally:
-        con.close()
+    return ddl_tables(warehouse)
 
 
 def _recreate_views(con: duckdb.DuckDBPyConnection, warehouse: Path, runs: pd.DataFrame) -> set[str]:

@@ -35,6 +35,7 @@ from collections.abc import Callable, Iterable
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures import TimeoutError as FuturesTimeout
 from concurrent.futures.process import BrokenProcessPool
+from contextlib import contextmanager
 
 from pipeline.progress import Progress
 
@@ -44,6 +45,29 @@ CRASH_REASON = "the worker process reading it died (a crash in a C library, or k
 #: What ``on_crash`` is told when an item ran past its time limit and its worker was stopped
 #: (the limit in seconds follows).
 STUCK_REASON = "the reader was stopped after"
+
+
+#: Python's cycle collector during a rebuild: its youngest generation collected after this many new
+#: container objects (Python's default 700), the older ones after this many collections of the one
+#: below (default 10, 10). A rebuild creates millions of objects that live to its end (the modules of
+#: pandas, pyarrow, duckdb and the analyses, the runs rows, the frames): with the defaults a plan.toml
+#: or logbook change at 1,000 runs made ~280 collections, 2 of them of every object (0.13-0.14 CPU-s
+#: of its ~2.8), with these ~20, none of every object (0.04-0.07; issue 26). Cyclic garbage is still
+#: collected, later. The rebuild command sets them before it imports the rebuild (``pipeline.cli``).
+GC_THRESHOLD = (10_000, 20, 10)
+
+
+@contextmanager
+def fewer_collections(threshold: tuple[int, int, int] = GC_THRESHOLD):
+    """Python's cycle collector at ``threshold`` (:data:`GC_THRESHOLD`; each a generation's, never
+    below the one in force) while the block runs, the thresholds in force restored after it."""
+    old = gc.get_threshold()
+    if old[0]:  # (0: collections turned off by the caller, left so)
+        gc.set_threshold(*(max(a, b) for a, b in zip(old, threshold)))
+    try:
+        yield
+    finally:
+        gc.set_threshold(*old)
 
 
 def stuck_reason(limit_s: float) -> str:

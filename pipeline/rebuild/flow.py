@@ -37,7 +37,7 @@ from pipeline.raw.problems import Problem
 from pipeline.raw.tree import RawTree, discover_runs
 from pipeline.raw.walk import skip_reason
 from pipeline.readers import READERS
-from pipeline.rebuild.executors import Executor, make_executor
+from pipeline.rebuild.executors import Executor, fewer_collections, make_executor
 from pipeline.rebuild.garbage import clean_debris, collect_garbage, split_kept
 from pipeline.rebuild.history import append_log, compare_findings
 from pipeline.rebuild.assemble import runs_frame, write_database
@@ -154,7 +154,8 @@ def rebuild(raw: str | Path, warehouse: str | Path, options: RebuildOptions | No
         live = live_database(warehouse)
         run = RebuildRun(raw, warehouse, options, progress, generation, started_at, t0, summary, lock.fileno())
         try:
-            return _rebuild_locked(run)
+            with fewer_collections():
+                return _rebuild_locked(run)
         except BaseException as exc:  # failed or interrupted (KeyboardInterrupt: re-raised as it is)
             if not (isinstance(exc, RebuildError) and exc.exit_code == EXIT_USAGE):  # refused: nothing written
                 clean_after_failure(warehouse, live)
@@ -471,7 +472,8 @@ def _publish(run: RebuildRun, plan: _Plan, tables: dict[str, pd.DataFrame], keep
         # their retention, what a killed night left): a nearly full disk gets that room back first
         collect_garbage(warehouse, *split_kept(keep | prev.samples | prev.stage_folders))
         run.summary.report = swap_in_new_database(warehouse, write, run.options.report,  # --full: every figure drawn
-                                                  run_pages="all" if run.options.full else "update", ahead=ahead)
+                                                  run_pages="all" if run.options.full else "update", ahead=ahead,
+                                                  keys_checked=True)  # write_database's table_keys: checked
     # files the new warehouse uses, and those of earlier ones still within their retention
     # (a reader that opened an earlier warehouse keeps reading its samples)
     collect_garbage(warehouse, *split_kept(keep))

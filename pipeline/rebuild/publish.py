@@ -122,14 +122,16 @@ def check_mass_delete(prev: PreviousState, plans: list[FilePlan]) -> None:
 
 
 def swap_in_new_database(warehouse: Path, write: Callable[[Path], None], report: bool,
-                         run_pages: str = "update", ahead=None) -> Path | None:
+                         run_pages: str = "update", ahead=None, keys_checked: bool = False) -> Path | None:
     """Write the new database under a temporary name (``write(tmp_db)``), render the morning
     report from it, swap the database in, then publish the report; returns the report's path.
 
     Any failure before the swap removes the temporary database and staged page and raises
     :class:`RebuildError`: the previous warehouse and its report are kept (the two always agree).
     ``run_pages`` and ``ahead`` (the run pages' channel bands read while ``write`` runs) as for
-    :func:`pipeline.serve.report.render_report`.
+    :func:`pipeline.serve.report.render_report`; ``keys_checked``: ``write`` left every ``table_keys``
+    row matching its table as written (:func:`pipeline.rebuild.assemble.write_database` does), so the
+    report takes them without summing every table again.
     """
     tmp_db = warehouse / f".{DB_NAME}.tmp-{os.getpid()}"
     page = None  # the morning report (index and run pages), a folder beside the live one: from the new database
@@ -137,11 +139,11 @@ def swap_in_new_database(warehouse: Path, write: Callable[[Path], None], report:
         write(tmp_db)
         if report:  # before the swap: a failure keeps the previous warehouse and its report
             try:
-                from pipeline.serve.report.render import stage_report  # (and duckdb): off the start-up
+                from pipeline.serve.report.render import FromRebuild, stage_report  # (and duckdb): off the start-up
 
                 # the rebuild's one hash of the project's code keys the report's parts cache
-                page = stage_report(warehouse, database=tmp_db, run_pages=run_pages, code=project_code_version(),
-                                    ahead=ahead, pool=forked_pool)
+                page = stage_report(warehouse, database=tmp_db, run_pages=run_pages,
+                                    rebuild=FromRebuild(project_code_version(), ahead, forked_pool, keys_checked))
             except Exception as exc:
                 log.exception("report failed")
                 raise RebuildError(f"the morning report could not be written: {type(exc).__name__}: "

@@ -130,3 +130,35 @@ def test_ddl_comments_give_a_tables_block_and_its_columns_lines():
     assert described["runs"]["columns"]["campaign"] == "first folder under raw/"
     assert set(INTERNAL_TABLES) - {"samples_files"} <= set(described)  # every internal table is in the DDL
     assert all(isinstance(v, str) and v for v in CONTRACT_ROWS.values())
+
+
+def test_the_ddls_tables_are_kept_in_the_warehouse_by_the_ddl_and_duckdb_version(tmp_path, monkeypatch):
+    """Issue 26: the in-memory instance built from the DDL (~0.08 CPU-s of every change) is built once
+    per DDL and DuckDB version; a damaged, foreign or symlinked file is built again, never trusted."""
+    import os
+
+    import pipeline.warehouse as wh
+
+    built = wh.ddl_tables()
+    assert "runs" in built and all(v.startswith("CREATE TABLE") for v in built.values())
+    assert wh.ddl_tables(tmp_path) == built
+    (path,) = (tmp_path / wh.CACHE_DIR).iterdir()
+    assert wh.DDL_TABLES_FILE.fullmatch(path.name)
+    calls = []
+    real = wh._ddl_tables_built
+    monkeypatch.setattr(wh, "_ddl_tables_built", lambda st: calls.append(1) or real(st))
+    assert wh.ddl_tables(tmp_path) == built and calls == []  # read, not built
+    for bad in ('{"runs": "DROP TABLE x"}', "not json", "{}", '["CREATE TABLE a (x INTEGER)"]'):
+        path.write_text(bad)
+        assert wh.ddl_tables(tmp_path) == built
+    assert len(calls) == 4 and wh.ddl_tables(tmp_path) == built and len(calls) == 4  # written back whole
+    elsewhere = tmp_path / "elsewhere.json"
+    elsewhere.write_text('{"runs": "CREATE TABLE runs (x INTEGER)"}')
+    path.unlink()
+    os.symlink(elsewhere, path)  # not followed: built again, the link replaced by the file
+    assert wh.ddl_tables(tmp_path) == built and len(calls) == 5 and not path.is_symlink()
+    stale = tmp_path / wh.CACHE_DIR / ("ddl-tables-" + "0" * 32 + ".json")
+    stale.write_text("{}")
+    path.unlink()
+    wh.ddl_tables(tmp_path)
+    assert sorted(p.name for p in (tmp_path / wh.CACHE_DIR).iterdir()) == [path.name]  # another key's: removed

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable
+from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -49,9 +50,36 @@ def _now() -> datetime:
     return datetime.now(timezone.utc)
 
 
+@dataclass(frozen=True)
+class FromRebuild:
+    """What the rebuild gives the report it renders from its new database, before its swap.
+
+    Attributes
+    ----------
+    code : str or None
+        The version of the code rendering it, as the rebuild hashed it (the parts cache's key,
+        :func:`~pipeline.serve.report.cache.parts_key`); None: the report hashes its code itself.
+    ahead : BandsAhead or None
+        Channel bands the rebuild began to read for the run pages
+        (:class:`~pipeline.serve.report.pages.BandsAhead`).
+    pool : callable or None
+        ``pool(workers)`` gives a process pool (an executor) the decision's looks figures may be drawn
+        in (the rebuild's :func:`~pipeline.rebuild.executors.forked_pool`); None draws every figure here.
+    keys_checked : bool
+        Every ``table_keys`` row of the database matches its table (the rebuild that just wrote it
+        checked them); else each key's row count and hash sum are checked on its table here
+        (:func:`~pipeline.serve.report.keyed.table_keys`).
+    """
+
+    code: str | None = None
+    ahead: BandsAhead | None = None
+    pool: Callable | None = None
+    keys_checked: bool = False
+
+
 def render_report(warehouse: str | Path, now: datetime | None = None, database: str | Path | None = None,
-                  run_pages: str = "update", folder: str | Path | None = None, code: str | None = None,
-                  ahead: BandsAhead | None = None, pool: Callable | None = None) -> str:
+                  run_pages: str = "update", folder: str | Path | None = None,
+                  rebuild: FromRebuild | None = None) -> str:
     """The report of the warehouse as one HTML string (``now``: the clock for "last 24 hours").
 
     ``database``: the DuckDB file to read instead of the warehouse's live one (the rebuild
@@ -63,13 +91,11 @@ def render_report(warehouse: str | Path, now: datetime | None = None, database: 
     their results are those of the pages already there); ``"all"`` draws every page and figure
     (``--full``). Otherwise a figure whose key is in the live report is taken from there
     (:mod:`~pipeline.serve.report.figures`).
-    ``code``: the version of the code rendering it, as the rebuild hashed it (the parts cache's
-    key, :func:`~pipeline.serve.report.cache.parts_key`); None: the report hashes its code itself.
-    ``ahead``: channel bands the rebuild began to read for the run pages
-    (:class:`~pipeline.serve.report.pages.BandsAhead`).
-    ``pool``: ``pool(workers)`` gives a process pool (an executor) the decision's looks figures may be drawn in
-    (the rebuild's :func:`~pipeline.rebuild.executors.forked_pool`); None draws every figure here.
+    ``rebuild``: what the rebuild rendering it gives (:class:`FromRebuild`: its hash of the code, the
+    channel bands read ahead, a process pool, whether ``table_keys`` is checked); None: none of it.
     """
+    given = rebuild or FromRebuild()
+    code, ahead, pool, keys_checked = given.code, given.ahead, given.pool, given.keys_checked
     warehouse = Path(warehouse)
     now = now or _now()
     con = connect_readonly(warehouse, database)
@@ -82,7 +108,7 @@ def render_report(warehouse: str | Path, now: datetime | None = None, database: 
             parts, keyed = cached, live_keyed(warehouse)
         else:  # each part the live report's when the tables it reads are unchanged (issue 26)
             keyed = KeyedParts(db, f"{code or code_key(REPORT_CODE)}-{code_key((), KEYED_LIBRARIES)}",
-                               {} if run_pages == "all" else live_keyed(warehouse))
+                               {} if run_pages == "all" else live_keyed(warehouse), checked=keys_checked)
             results, entries = results_sections(db, warehouse, keyed)
             live = () if run_pages == "all" else (warehouse / REPORT_DIR / "index.html",)
             parts = (results, entries, keyed.get("runs-index", runs_index),
@@ -159,15 +185,14 @@ def failure_page(warehouse: str | Path, generation: str | None, error: str, now:
 
 
 def stage_report(warehouse: str | Path, database: str | Path | None = None, run_pages: str = "update",
-                 now: datetime | None = None, code: str | None = None, ahead: BandsAhead | None = None,
-                 pool: Callable | None = None) -> Path:
+                 now: datetime | None = None, rebuild: FromRebuild | None = None) -> Path:
     """Render the whole report (index and run pages) into a new folder beside the live one;
     :func:`~pipeline.serve.report.publish.publish_report` swaps it in. Unchanged run pages are
     hard links to the live ones. A failure removes the folder and raises (the live report is
-    untouched). ``code``, ``ahead`` and ``pool`` as for :func:`render_report`."""
+    untouched). ``rebuild`` as for :func:`render_report`."""
     return stage_folder(Path(warehouse), lambda folder: render_report(warehouse, now, database=database,
-                                                                      run_pages=run_pages, folder=folder, code=code,
-                                                                      ahead=ahead, pool=pool))
+                                                                      run_pages=run_pages, folder=folder,
+                                                                      rebuild=rebuild))
 
 
 def write_report(warehouse: str | Path, generation: str | None = None, now: datetime | None = None) -> Path:

@@ -247,3 +247,31 @@ def test_readers_released_after_the_ingest_are_gone_and_workers_leave_the_parent
             assert all(n > 1000 for _, n in ex.map(frozen_objects, list(range(4))))
     assert gc.get_freeze_count() == 0
     Executor().release_readers()  # an executor without reader processes: nothing to do
+
+
+def test_the_rebuild_collects_cycles_less_often_and_gives_the_thresholds_back():
+    """Issue 26: ~280 collections of a one-file change at 1,000 runs, 2 of them of every object, cost
+    0.13 CPU-s; the rebuild raises the thresholds while it runs (never lowers one) and restores them."""
+    import gc
+
+    from pipeline.rebuild.executors import GC_THRESHOLD, fewer_collections
+
+    before = gc.get_threshold()
+    try:
+        gc.set_threshold(700, 10, 10)
+        with fewer_collections():
+            assert gc.get_threshold() == GC_THRESHOLD
+        assert gc.get_threshold() == (700, 10, 10)
+        gc.set_threshold(50_000, 5, 50)
+        with fewer_collections():
+            assert gc.get_threshold() == (50_000, GC_THRESHOLD[1], 50)
+        gc.set_threshold(0)  # collections turned off by the caller: left off
+        with fewer_collections():
+            assert gc.get_threshold()[0] == 0
+        gc.set_threshold(700, 10, 10)
+        with pytest.raises(ValueError), fewer_collections():
+            raise ValueError("a failed rebuild")
+        assert gc.get_threshold() == (700, 10, 10)
+    finally:
+        gc.set_threshold(*before)
+

@@ -348,3 +348,38 @@ def test_the_channels_frame_is_the_same_whether_its_rows_were_read_tonight_or_ta
     assert frame_key(a) == frame_key(b) and a.equals(b)
     assert frame_key(_channels_frame(stored[:1] + fresh[1:])) == frame_key(a)  # a changed run first: the same
     assert _channels_frame([]).empty
+
+
+def test_the_report_of_a_rebuild_takes_the_table_keys_it_wrote_without_summing_the_tables(raw, warehouse):
+    """The rebuild's report trusts ``table_keys`` of the database it has just written (``keys_checked``):
+    every key matches its table as the report would check it, even after a table of the live database
+    was edited by hand (the update writes that table again), so the report's parts are the same."""
+    import duckdb
+
+    from pipeline.serve.door import connect_readonly
+    from pipeline.serve.report.db import ReportDB
+    from pipeline.serve.report.keyed import table_keys
+
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[mm]": [0, 1, 2, 3], "x_ref[mm]": [3] * 4})
+    raw.csv("c/b.csv", STEP_META, {"t[s]": T, "x[mm]": [0, 1, 1, 3], "x_ref[mm]": [3] * 4})
+    rebuild(raw.root, warehouse, jobs=1)
+    con = duckdb.connect(str(warehouse / "pneubench.duckdb"))
+    con.execute("UPDATE runs SET campaign = 'edited by hand' WHERE run_id = 'c/a'")  # not by the rebuild
+    con.close()
+    with connect_readonly(warehouse) as con:
+        db = ReportDB(con)
+        assert "runs" in table_keys(db, checked=True) and "runs" not in table_keys(db)
+    raw.csv("c/b.csv", STEP_META, {"t[s]": T, "x[mm]": [0, 1, 2, 2], "x_ref[mm]": [3] * 4})
+    seen = []
+    import pipeline.serve.report.keyed as keyed
+
+    real = keyed.table_keys
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(keyed, "table_keys", lambda db, checked=False: seen.append(checked) or real(db, checked))
+        assert rebuild(raw.root, warehouse, jobs=1).n_changed == 1
+    assert seen == [True]
+    with connect_readonly(warehouse) as con:
+        db = ReportDB(con)
+        checked, summed = table_keys(db, checked=True), table_keys(db)
+    assert checked == summed and "runs" in summed and len(summed) > 10
+    assert q(warehouse, "SELECT campaign FROM runs ORDER BY run_id") == [("c",), ("c",)]

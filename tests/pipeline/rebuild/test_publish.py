@@ -371,12 +371,12 @@ def test_pneubench_report_exits_4_while_a_rebuild_runs(raw, warehouse):
 
 def _listing(warehouse):
     """Every path under the warehouse with its bytes' hash; not the lock file (it holds the pid) nor
-    the per-run memo of the live stages (a cache of results by their inputs: a failed night may have
-    added to it, as a killed one does), nor the run pages and their cache, written into the live
-    report before the swap (issue 21.4, not this test's)."""
+    the per-run memo of the live stages and the ``cache`` folder (the DDL's tables, the designs: caches
+    by their inputs, a failed night may have added to them, as a killed one does), nor the run pages and
+    their cache, written into the live report before the swap (issue 21.4, not this test's)."""
     import hashlib
 
-    skip = ("memo/", "report/runs/", "report/.parts-cache.json")
+    skip = ("memo/", "report/runs/", "report/.parts-cache.json", "cache")
     return {str(p.relative_to(warehouse)): hashlib.sha256(p.read_bytes()).hexdigest() if p.is_file() else None
             for p in sorted(warehouse.rglob("*")) if p.name != ".rebuild.lock" and not
             str(p.relative_to(warehouse)).startswith(skip)}
