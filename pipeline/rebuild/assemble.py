@@ -217,7 +217,7 @@ def build_database(path: Path, warehouse: Path, tables: dict[str, pd.DataFrame],
             con.execute(sql)
         _write_tables(con, tables)
         create_samples_views(con, warehouse, runs)
-        _write_keys(con, keys)
+        _write_keys(con, keys, run_columns=run_columns_key(runs))
         comments = comment_statements(con)
         if comments:  # parsed and run as one script: ~300 round trips from Python cost ~0.1 s
             con.execute(";\n".join(comments))
@@ -383,14 +383,32 @@ def _table_sums(con: duckdb.DuckDBPyConnection, names) -> dict[str, str]:
     return {n: f"{c}-{h}" for n, c, h in con.execute(sql).fetchall()}
 
 
-def _write_keys(con: duckdb.DuckDBPyConnection, keys: dict[str, str], known: dict[str, str] | None = None) -> None:
+#: The row of ``table_keys`` (not a table) holding :func:`run_columns_key` of the runs the database was written with.
+RUN_COLUMNS_ROW = "*run_columns"
+
+
+def run_columns_key(runs: pd.DataFrame | None) -> str:
+    """Key [32 hex digits] of what the rebuild joins to every stage table's rows: each run's ``run_id``,
+    ``campaign`` and ``params`` (:func:`pipeline.stages.add_run_columns` reads these alone; ``params``
+    as the runs table holds it, JSON of sorted keys), in the frame's order. A changed run file whose
+    run keeps its campaign and parameters (a new value in its samples: the usual change) leaves it."""
+    cols = [c for c in ("run_id", "campaign", "params") if runs is not None and c in runs.columns]
+    blob = json.dumps([cols] + [runs[c].tolist() for c in cols], default=str)
+    return hashlib.sha256(blob.encode("utf-8", "surrogatepass")).hexdigest()[:32]
+
+
+def _write_keys(con: duckdb.DuckDBPyConnection, keys: dict[str, str], known: dict[str, str] | None = None,
+                run_columns: str | None = None) -> None:
     """``table_keys``: every table's content key (its frame's :func:`frame_key` and its
-    :func:`_table_sums` as written) and the row ``*`` of :func:`database_version`. ``known``: the
+    :func:`_table_sums` as written), the row ``*`` of :func:`database_version` and the row
+    :data:`RUN_COLUMNS_ROW` of ``run_columns`` (:func:`run_columns_key`; none when None). ``known``: the
     sums of tables not written since they were summed (an updated copy's unchanged tables: only the
     tables written are summed again, ~half of the sums' CPU of a one-file change, issue 26)."""
     known = known or {}
     sums = {**{t: known[t] for t in keys if t in known}, **_table_sums(con, [t for t in keys if t not in known])}
     rows = sorted((t, f"{k}:{sums.get(t, 'absent')}") for t, k in keys.items()) + [("*", database_version())]
+    if run_columns is not None:
+        rows.append((RUN_COLUMNS_ROW, run_columns))
     con.execute(f"DELETE FROM {KEYS_TABLE}")
     con.execute(f"INSERT INTO {KEYS_TABLE} SELECT unnest($1), unnest($2)",
                 [[r[0] for r in rows], [r[1] for r in rows]])
@@ -457,10 +475,11 @@ def _update_tables(con: duckdb.DuckDBPyConnection, warehouse: Path, tables: dict
                                      "WHERE database_name = current_database()").fetchone()
     if total and free > MAX_FREE_SHARE * total and free * block >= MIN_FREE_BYTES:
         return f"the copy is {free / total:.0%} free blocks: compacted by a whole build"
-    keys.update(_keys_of(unchanged, old, keys, tables))
+    run_columns = run_columns_key(runs)
+    keys.update(_keys_of(unchanged, old, keys, tables, run_columns))
     stored = _table_sums(con, tables)
     changed = sorted(t for t in tables if f"{keys[t]}:{stored.get(t, 'absent')}" != old.get(t))
-    gone = sorted(t for t in old if t != "*" and t not in tables)
+    gone = sorted(t for t in old if not t.startswith("*") and t not in tables)
     con.execute("SET TimeZone = 'UTC'")
     con.execute("BEGIN TRANSACTION")
     ddl = _ddl_tables(warehouse) if changed or gone else {}
@@ -473,7 +492,7 @@ def _update_tables(con: duckdb.DuckDBPyConnection, warehouse: Path, tables: dict
     redone = set(changed + gone) | {KEYS_TABLE}
     if set(VIEW_SOURCES) & redone:
         redone |= _recreate_views(con, warehouse, runs)
-    _write_keys(con, keys, {t: v for t, v in stored.items() if t not in redone})
+    _write_keys(con, keys, {t: v for t, v in stored.items() if t not in redone}, run_columns)
     comments = comment_statements(con, redone)
     if comments:
         con.execute(";\n".join(comments))
@@ -483,13 +502,17 @@ def _update_tables(con: duckdb.DuckDBPyConnection, warehouse: Path, tables: dict
 
 
 def _keys_of(unchanged: frozenset[str], old: dict[str, str], keys: dict[str, str],
-             tables: dict[str, pd.DataFrame]) -> dict[str, str]:
+             tables: dict[str, pd.DataFrame], run_columns: str | None = None) -> dict[str, str]:
     """The content keys of the ``unchanged`` tables: the copy's stored frame key (``old``, ``table_keys``:
-    ``<frame key>:<sums>``) when the new ``runs`` frame has the copy's key too (the run columns every stage
-    table is given come from it), else :func:`frame_key` of the frame. A stored key taken here is the one
-    :func:`frame_key` would give: the same frame, from the same Parquet files and runs, keyed by the same
-    code (the database version, which names this module, is the copy's)."""
-    same_runs = "runs" in keys and old.get("runs", "").split(":")[0] == keys["runs"]
+    ``<frame key>:<sums>``) when what their run columns are joined from is the copy's: the new ``runs``
+    frame has the copy's key, or ``run_columns`` (:func:`run_columns_key` of the new runs) is the copy's
+    :data:`RUN_COLUMNS_ROW` (a changed run whose campaign and parameters are the same: issue 26, a step
+    change keyed and read every reused table again, ~1 CPU-s at 10,000 runs); else :func:`frame_key` of
+    the frame. A stored key taken here is the one :func:`frame_key` would give: the same frame, from the
+    same Parquet files and run columns, keyed by the same code (the database version, which names this
+    module, is the copy's)."""
+    same_runs = "runs" in keys and (old.get("runs", "").split(":")[0] == keys["runs"]
+                                    or (run_columns is not None and old.get(RUN_COLUMNS_ROW) == run_columns))
     out = {}
     for t in unchanged:
         prior = old.get(t, "").split(":")[0] if same_runs else ""

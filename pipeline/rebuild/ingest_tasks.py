@@ -259,12 +259,14 @@ def ingest_incremental(run: RebuildRun, tree: RawTree, plans: list[FilePlan], ex
     results: dict[str, IngestResult] = {}
     records: dict[str, FileRecord] = {}
     todo = []
+    _freeze(run.generation)
     for p in plans:
         if p.status == "unchanged":
             results[p.rel] = _result_from_record(p.previous, tree, p.path)
             records[p.rel] = p.previous
         else:
             todo.append((p, _task_of(run, tree, p, code_version)))
+    _freeze(run.generation)
     if todo:
         run.progress.message(f"ingest: {len(todo)} of {len(plans)} run files to read")
     # forked local workers inherit the parsed raw tree and the readers of the formats present
@@ -291,6 +293,28 @@ def ingest_incremental(run: RebuildRun, tree: RawTree, plans: list[FilePlan], ex
         records[p.rel] = record_for(p, out.sha, code_version, record_result(res), res.error, now, retry=out.retry)
     order = [p.rel for p in plans]
     return [results[r] for r in order], [records[r] for r in order]
+
+
+#: The rebuild (its generation) that froze objects of this process out of the cyclic garbage collector.
+_FROZEN: list = [None]
+
+
+def _freeze(generation: str) -> None:
+    """Freeze what the process holds out of the cyclic garbage collector (:func:`gc.freeze`): the
+    imports, the previous state and the results of the unchanged files live through the whole
+    rebuild, and each full collection visited them all again (issue 26: ~1 CPU-s of collections in
+    a step change at 10,000 runs, ~0.4 less so). Frozen objects are still freed by their reference
+    counts; cycles among them wait for the next rebuild in the same process (the tests), which thaws
+    and collects them first. Nothing is frozen while the collector is off."""
+    import gc
+
+    if not gc.isenabled():
+        return
+    if _FROZEN[0] not in (None, generation) and gc.get_freeze_count():
+        gc.unfreeze()
+        gc.collect()
+    gc.freeze()
+    _FROZEN[0] = generation
 
 
 def _import_first(readers: list[str], while_waiting: Callable[[], object] | None

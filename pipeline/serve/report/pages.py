@@ -47,25 +47,42 @@ POOLED_COLUMNS = {
 }
 
 
-def _run_results(db: ReportDB) -> dict[str, list[tuple[str, list[str], list[tuple]]]]:
+#: Tables with a ``run_id`` that no run page shows (bookkeeping: after a --full rebuild every run is
+#: "changed", every page redrawn; ``durability_strokes``: a stroke table, not results).
+_NOT_SHOWN = {"runs", "channels", "rebuild_inputs", "ingest_state", "durability_strokes", "rebuild_changes"}
+
+
+def _result_tables(db: ReportDB) -> list[str]:
+    """The result tables a run page shows rows of: every table with a ``run_id`` column but :data:`_NOT_SHOWN`."""
+    return [t for t in sorted(db.tables)
+            if t not in _NOT_SHOWN and not t.startswith("samples_") and "run_id" in db.columns(t)]
+
+
+def _run_results(db: ReportDB, only: list[str] | None = None) -> dict[str, list[tuple[str, list[str], list[tuple]]]]:
     """Per run id: (table, columns, rows) of every result table with a ``run_id`` column, without
-    the :data:`POOLED_COLUMNS` (what the run page shows)."""
+    the :data:`POOLED_COLUMNS` (what the run page shows); ``only``: of these runs alone."""
     out: dict[str, list] = {}
-    skip = {"runs", "channels", "rebuild_inputs", "ingest_state", "durability_strokes",
-            "rebuild_changes"}  # bookkeeping: after a --full rebuild every run is "changed", every page redrawn
-    for t in sorted(db.tables):
-        if t in skip or t.startswith("samples_"):
-            continue
+    where, params = _of_runs(only)
+    for t in _result_tables(db):
         cols = db.columns(t)
-        if "run_id" not in cols:
-            continue
         pooled = set(POOLED_COLUMNS.get(t, ((), ""))[0])
         shown = [c for c in cols if c not in pooled]
-        cols, rows = db.rows("SELECT " + ", ".join(f'"{c}"' for c in shown) + f' FROM "{t}" ORDER BY run_id')
+        cols, rows = db.rows("SELECT " + ", ".join(f'"{c}"' for c in shown) + f' FROM "{t}"{where} ORDER BY run_id',
+                             params)
         k = cols.index("run_id")
         for r in rows:
             out.setdefault(r[k], []).append((t, cols, r))
     return out
+
+
+def _of_runs(only: list[str] | None) -> tuple[str, list | None]:
+    """(``WHERE`` clause, parameters) of the rows of the runs ``only`` (all rows when None): a few runs
+    as a literal list (the scan's own filter: ~1 ms a table less than a join with a list parameter)."""
+    if only is None:
+        return "", None
+    if len(only) <= 64:
+        return " WHERE run_id IN (" + (", ".join(_sql_str(r) for r in only) or "NULL") + ")", None
+    return " WHERE run_id IN (SELECT unnest($1))", [list(only)]
 
 
 def _pooled_note(results: list) -> str:
@@ -136,24 +153,43 @@ def write_run_pages(db: ReportDB, warehouse: Path, folder: Path | None = None, p
     live report's run pages, an unchanged one is linked (or copied) from there into ``folder``.
     ``full``: every page and its channels drawn anew (``--full``). ``ahead``: channel bands the
     rebuild began to read while it wrote the database (:class:`BandsAhead`).
+
+    Pages staged into a folder of their own (the rebuild's way) are keyed only for the runs whose
+    rows may have changed since the live pages were keyed (:func:`_changed_runs`); any other keeps
+    its key in :data:`RUN_KEYS` and its page is linked (issue 26: 10,000 pages keyed, and every
+    result table read, on every run-file change: ~1 CPU-s at 10,000 runs).
     """
     if not db.has("runs"):
         return 0
     folder = folder or (Path(warehouse) / REPORT_DIR / "runs")
     folder.mkdir(parents=True, exist_ok=True)
-    results = _run_results(db)
-    channels = {}
-    if db.has("channels"):
-        for rid, col in db.con.execute('SELECT run_id, "column" FROM channels ORDER BY run_id, "column"').fetchall():
-            channels.setdefault(rid, []).append(col)
-    cols, rows = db.rows("SELECT * FROM runs ORDER BY run_id")
     staged = previous is not None and Path(previous) != folder  # pages written into a folder of their own
     # the previous pages' keys without opening them (:data:`RUN_KEYS`); drawn in place, none is trusted
     known = read_run_keys(Path(previous).parent) if staged and not full else {}
     if not staged:
         (folder.parent / RUN_KEYS).unlink(missing_ok=True)  # pages change in place: the index would lie
+    sums = _table_sums(db.con, ["runs", *(["channels"] if db.has("channels") else []), *_result_tables(db)]) \
+        if staged else {}
+    changed = _changed_runs(db, Path(warehouse), sums, known.get(_DEPS)) if known else None
     keys, drawn = {}, 0
     here, there = os.fspath(folder), os.fspath(previous) if staged else None  # plain strings: 10,000 pages
+    todo = []
+    for (rid,) in db.rows("SELECT run_id FROM runs ORDER BY run_id")[1]:
+        name = page_name(rid)
+        if changed is not None and rid not in changed and name in known and \
+                _link_known(os.path.join(there, name), os.path.join(here, name)):
+            keys[name] = known[name]  # none of its rows changed since its page was keyed: the same key
+        else:
+            todo.append(rid)
+    some = None if changed is None else todo  # every run's rows read, or only those of the runs to key
+    where, params = _of_runs(some)
+    results = _run_results(db, some) if todo else {}
+    channels = {}
+    if db.has("channels") and todo:
+        for rid, col in db.con.execute(f'SELECT run_id, "column" FROM channels{where} ORDER BY run_id, "column"',
+                                       params or []).fetchall():
+            channels.setdefault(rid, []).append(col)
+    cols, rows = db.rows(f"SELECT * FROM runs{where} ORDER BY run_id", params) if todo else ([], [])
     for row in rows:
         run = dict(zip(cols, row))
         rid = run["run_id"]
@@ -174,8 +210,80 @@ def write_run_pages(db: ReportDB, warehouse: Path, folder: Path | None = None, p
     for entry in scandir(folder):
         if entry.name.endswith(".html") and entry.name not in keys:
             Path(entry.path).unlink(missing_ok=True)
-    _write_run_keys(folder.parent, keys)
+    if staged:  # the keys, and what they were made from
+        _write_run_keys(folder.parent, {**keys, _DEPS: json.dumps({"version": _pages_version(), "tables": sums},
+                                                                  sort_keys=True)})
     return drawn
+
+
+#: The entry of :data:`RUN_KEYS` (not a page name) saying what the pages were keyed from (JSON): the
+#: version keying them (:func:`_pages_version`) and each table they read as :func:`_table_sums` gives it.
+_DEPS = "*tables"
+
+
+def _pages_version() -> str:
+    """The version of how a run page is keyed and what it reads: :data:`RUN_PAGE_VERSION` and this module."""
+    return f"{RUN_PAGE_VERSION}-{code_key(('pipeline/serve/report/pages.py',))}"
+
+
+def _sql_str(text: str) -> str:
+    """``text`` as an SQL string literal."""
+    return "'" + str(text).replace("'", "''") + "'"
+
+
+def _table_sums(con, tables: list[str]) -> dict[str, str]:
+    """``<rows>-<sum of the rows' hashes>`` of each of ``tables`` (one query; DuckDB's ``hash`` of each row)."""
+    if not tables:
+        return {}
+    sql = " UNION ALL ".join(f"SELECT {_sql_str(t)}, count(*), coalesce(sum(hash(t)), 0)::VARCHAR FROM \"{t}\" AS t"
+                             for t in tables)
+    return {t: f"{n}-{h}" for t, n, h in con.execute(sql).fetchall()}
+
+
+def _run_sums(con, table: str) -> dict:
+    """Per run id of ``table``: (its rows, the sum of their hashes)."""
+    return {rid: (n, h) for rid, n, h in con.execute(
+        f'SELECT run_id, count(*), coalesce(sum(hash(t)), 0)::VARCHAR FROM "{table}" AS t GROUP BY run_id').fetchall()}
+
+
+def _changed_runs(db: ReportDB, warehouse: Path, sums: dict[str, str], deps: str | None) -> set | None:
+    """Run ids whose rows in the tables a page reads (``sums``, :func:`_table_sums` of each) may differ
+    from those the live pages were keyed from (``deps``: their :data:`_DEPS` entry); None when that
+    cannot be told: no entry (a report from before it), another version or other tables, or a changed
+    table the live database (of ``warehouse``) does not hold as it was when the pages were keyed.
+
+    A table whose sums are those the pages were keyed from has the same rows; of a changed table, the
+    runs whose rows (their count and sum of hashes) differ from the live database's. A page's key is
+    made of its run's rows alone (:func:`_page_key` of its ``runs`` row and :func:`_run_results`): any
+    other run's page has the key :data:`RUN_KEYS` gives it."""
+    try:
+        old = json.loads(deps) if deps else None
+    except ValueError:
+        return None
+    if not isinstance(old, dict) or old.get("version") != _pages_version() or \
+            not isinstance(old.get("tables"), dict) or set(old["tables"]) != set(sums):
+        return None
+    moved = sorted(t for t in sums if old["tables"][t] != sums[t])
+    if not moved:
+        return set()
+    from pipeline.serve.door import connect_readonly
+
+    try:
+        live = connect_readonly(warehouse)
+    except Exception:
+        return None
+    try:
+        if _table_sums(live, moved) != {t: old["tables"][t] for t in moved}:
+            return None  # the live database is not the one the pages were keyed from
+        out: set = set()
+        for t in moved:
+            now, then = _run_sums(db.con, t), _run_sums(live, t)
+            out |= {rid for rid in now.keys() | then.keys() if now.get(rid) != then.get(rid)}
+        return out
+    except Exception:  # a table of another shape: every page keyed
+        return None
+    finally:
+        live.close()
 
 
 #: The run pages' keys in one file at the top of the report folder (``{page name: key}``, JSON),

@@ -467,3 +467,52 @@ def test_tables_said_unchanged_take_the_copys_keys_only_while_the_runs_are_the_s
     assert asm._keys_of(frozenset({"notes"}), old, {"runs": "r2"}, frames) == {"notes": real(frames["notes"])}
     assert asm._keys_of(frozenset({"notes"}), {"runs": "r1:3-5"}, {"runs": "r1"}, frames) == \
         {"notes": real(frames["notes"])}
+
+
+def test_tables_said_unchanged_keep_the_copys_keys_when_a_run_changed_but_not_its_run_columns(tmp_path, monkeypatch):
+    """A changed run whose ``run_id``, ``campaign`` and ``params`` are the same (a new value in its samples:
+    another source hash) leaves :func:`run_columns_key`: the ``unchanged`` tables take the copy's keys though
+    the ``runs`` frame's key changed, and the database is the one built whole; a run's campaign or parameters
+    changed, or a copy without the row (a database from before it), keys them again."""
+    import pandas as pd
+
+    import pipeline.rebuild.assemble as asm
+    from pipeline.rebuild.assemble import build_database, run_columns_key, runs_frame, write_database
+
+    def run(sha: str, campaign: str = "c", hose: str = "H1") -> dict:
+        return {"run_id": "c/s1", "kind": "step", "campaign": campaign, "rig": "r", "started_at": "2025-01-01T00:00:00Z",
+                "source_path": "c/s1.csv", "source_sha256": sha, "n_samples": 3, "sample_rate_hz": 1.0,
+                "params": {"hose_id": hose}, "warnings": [], "format": "csv", "duration_s": 2.0, "samples_path": None}
+
+    before = runs_frame([run("a")])
+    assert run_columns_key(before) == run_columns_key(runs_frame([run("b")]))  # its source hash: not a run column
+    assert run_columns_key(before) != run_columns_key(runs_frame([run("a", campaign="d")]))
+    assert run_columns_key(before) != run_columns_key(runs_frame([run("a", hose="H2")]))
+    wh = tmp_path / "wh"
+    wh.mkdir()
+    notes = pd.DataFrame({"run_id": ["c/s1"], "note": ["a"]})
+    live, new = wh / DB_NAME, wh / "new.duckdb"
+    write_database(new, wh, {"runs": before, "channels": pd.DataFrame(), "notes": notes}, before, live)
+    os.replace(new, live)
+    keyed = []
+    real = asm.frame_key
+    monkeypatch.setattr(asm, "frame_key", lambda df: keyed.append(df) or real(df))
+    after = runs_frame([run("b")])
+    tables = {"runs": after, "channels": pd.DataFrame(), "notes": notes}
+    line = write_database(new, wh, tables, after, live, {"notes"})
+    assert line == "warehouse: the live database copied, 1 of 3 tables written again (runs)"
+    assert not any(df is notes for df in keyed)   # its key read from the copy, not computed
+    whole = tmp_path / "whole.duckdb"
+    build_database(whole, wh, tables, after)
+    assert assert_same_database(new, whole, wh) > 40
+    with duckdb.connect(str(new), read_only=True) as con:  # the row written with the keys, never read as a table
+        assert con.execute("SELECT content_key FROM table_keys WHERE table_name = ?",
+                           [asm.RUN_COLUMNS_ROW]).fetchall() == [(run_columns_key(after),)]
+    old = {"runs": "r1:1-5", "notes": "n1:1-7", asm.RUN_COLUMNS_ROW: run_columns_key(before)}
+    assert asm._keys_of(frozenset({"notes"}), old, {"runs": "r2"}, {"notes": notes}, run_columns_key(after)) == \
+        {"notes": "n1"}
+    moved = run_columns_key(runs_frame([run("b", campaign="d")]))
+    assert asm._keys_of(frozenset({"notes"}), old, {"runs": "r2"}, {"notes": notes}, moved) == {"notes": real(notes)}
+    del old[asm.RUN_COLUMNS_ROW]
+    assert asm._keys_of(frozenset({"notes"}), old, {"runs": "r2"}, {"notes": notes}, run_columns_key(after)) == \
+        {"notes": real(notes)}

@@ -224,8 +224,8 @@ def test_unchanged_pages_are_taken_over_by_their_keys_in_the_index_and_a_page_th
     rebuild(raw.root, warehouse, jobs=1)
     report = warehouse / "report"
     keys = pages.read_run_keys(report)
-    assert set(keys) == {page_name(f"s{i}") for i in range(3)} == {p.name for p in (report / "runs").iterdir()}
-    for name, key in keys.items():
+    assert set(keys) - {pages._DEPS} == {page_name(f"s{i}") for i in range(3)} == {p.name for p in (report / "runs").iterdir()}
+    for name, key in ((n, k) for n, k in keys.items() if n != pages._DEPS):
         assert f"<!-- key: {key} -->" in (report / "runs" / name).read_text().split("\n", 1)[0]
 
     opened = []
@@ -237,11 +237,12 @@ def test_unchanged_pages_are_taken_over_by_their_keys_in_the_index_and_a_page_th
     assert opened == []  # every page known by the index: none opened for its key line
     new = pages.read_run_keys(report)
     assert new[page_name("s1")] != keys[page_name("s1")]
-    assert {n: k for n, k in new.items() if n != page_name("s1")} == {n: k for n, k in keys.items() if n != page_name("s1")}
+    assert {n: k for n, k in new.items() if n not in (page_name("s1"), pages._DEPS)} == \
+        {n: k for n, k in keys.items() if n not in (page_name("s1"), pages._DEPS)}
     assert f"<!-- key: {new[page_name('s1')]} -->" in (report / "runs" / page_name("s1")).read_text()
 
-    # an index that names a page with another key: that page is drawn (its inputs unknown to it)
-    lied = dict(new, **{page_name("s0"): "0" * 24})
+    # an index that names a page with another key, and not what it was keyed from: that page is drawn
+    lied = dict({n: k for n, k in new.items() if n != pages._DEPS}, **{page_name("s0"): "0" * 24})
     (report / pages.RUN_KEYS).write_text(json.dumps(lied))
     before = (report / "runs" / page_name("s0")).stat().st_ino
     raw.csv("c/s2.csv", {**STEP_META, "run_id": "s2"}, {"t[s]": [0, 0.1, 0.2], "x[mm]": [0, 3, 3],
@@ -255,4 +256,58 @@ def test_unchanged_pages_are_taken_over_by_their_keys_in_the_index_and_a_page_th
                                                        "x_ref[mm]": [4, 4, 4]})
     rebuild(raw.root, warehouse, jobs=1)
     assert sorted(opened) == sorted(page_name(f"s{i}") for i in range(3))
-    assert set(pages.read_run_keys(report)) == {page_name(f"s{i}") for i in range(3)}
+    assert set(pages.read_run_keys(report)) == {page_name(f"s{i}") for i in range(3)} | {pages._DEPS}
+
+
+def _key_lines(folder) -> dict[str, str]:
+    """Each page's key line in ``folder``."""
+    return {p.name: p.read_text().split("\n", 1)[0] for p in sorted(folder.iterdir())}
+
+
+def test_only_the_runs_whose_rows_changed_are_keyed_and_their_keys_are_those_a_whole_keying_gives(
+        raw, warehouse, tmp_path, monkeypatch):
+    """A change of one run keys that run's page alone (the others keep their key in ``RUN_KEYS``: none of
+    their rows changed since); every page has the key and bytes of pages drawn anew from the same database.
+    A live report keyed from another database than the live one (a rebuild without the report between)
+    keys every page."""
+    from pipeline.serve.door import connect_readonly
+    from pipeline.serve.report import pages
+    from pipeline.serve.report.db import ReportDB
+    from pipeline.serve.report.folders import page_name
+
+    def step(i: int, x: float) -> None:
+        raw.csv(f"c/s{i}.csv", {**STEP_META, "run_id": f"s{i}"}, {"t[s]": [0, 0.1, 0.2], "x[mm]": [0, x, x],
+                                                                 "x_ref[mm]": [1, 1, 1]})
+
+    for i in range(3):
+        step(i, 1.0)
+    rebuild(raw.root, warehouse, jobs=1)
+    keyed = []
+    real = pages._page_key
+    monkeypatch.setattr(pages, "_page_key", lambda run, res: keyed.append(run["run_id"]) or real(run, res))
+    step(1, 2.0)
+    rebuild(raw.root, warehouse, jobs=1)
+    assert keyed == ["s1"]
+
+    def whole() -> dict[str, bytes]:  # every page drawn in place from the live database (every key computed)
+        folder = tmp_path / f"whole-{len(keyed)}"
+        con = connect_readonly(warehouse)
+        try:
+            pages.write_run_pages(ReportDB(con), warehouse, folder, full=True)
+        finally:
+            con.close()
+        return {p.name: p.read_bytes() for p in sorted(folder.iterdir())}
+
+    runs = warehouse / "report" / "runs"
+    assert {p.name: p.read_bytes() for p in sorted(runs.iterdir())} == whole()
+    keys = pages.read_run_keys(warehouse / "report")
+    assert {n: k for n, k in keys.items() if n != pages._DEPS} == {
+        n: line.split("key: ")[1].split(" ")[0] for n, line in _key_lines(runs).items()}
+    step(2, 3.0)
+    rebuild(raw.root, warehouse, jobs=1, report=False)  # the live report now of an earlier database
+    step(0, 4.0)
+    keyed.clear()
+    rebuild(raw.root, warehouse, jobs=1)
+    assert sorted(keyed) == ["s0", "s1", "s2"]
+    assert {p.name: p.read_bytes() for p in sorted(runs.iterdir())} == whole()
+    assert pages.read_run_keys(warehouse / "report")[page_name("s2")] != keys[page_name("s2")]
