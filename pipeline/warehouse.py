@@ -16,6 +16,7 @@ import stat
 import tempfile
 from pathlib import Path
 
+from pipeline.own_files import read_own_file
 from schemas import ddl_statements
 
 DB_NAME = "pneubench.duckdb"
@@ -182,19 +183,12 @@ def _ddl_tables_built(statements: list[tuple[str, str]]) -> dict[str, str]:
 
 def _read_ddl_tables(path: Path) -> dict[str, str] | None:
     """The statements of a :func:`ddl_tables` file, or None (see there)."""
-    try:
-        if not stat.S_ISDIR(os.lstat(path.parent).st_mode):  # a symlinked folder is not followed
-            return None
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0))
-    except OSError:
+    data = read_own_file(path, DDL_TABLES_MAX_BYTES)
+    if data is None:
         return None
     try:
-        with os.fdopen(fd, "rb") as fh:
-            st = os.fstat(fh.fileno())
-            if not stat.S_ISREG(st.st_mode) or st.st_size > DDL_TABLES_MAX_BYTES:
-                return None
-            got = json.loads(fh.read().decode("utf-8"))
-    except (OSError, ValueError):
+        got = json.loads(data.decode("utf-8"))
+    except ValueError:
         return None
     if not isinstance(got, dict) or not got or not all(
             isinstance(k, str) and isinstance(v, str) and v.lstrip().upper().startswith("CREATE TABLE")

@@ -46,6 +46,7 @@ Decisions
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import math
 import os
@@ -64,6 +65,7 @@ from analyses.life_effect import life_effect
 from analyses.sequential import FEW_FAILURES, NoDesign, design_for, design_shape
 from analyses.sequential_table import adopt_table, design_table, holds_table
 from analyses.test_plan import hoses_on_test_s
+from pipeline.own_files import read_own_file
 from pipeline.raw.logbook import merge_logbooks, read_logbooks
 from pipeline.stages import Reads, StageContext, StageOutput
 from pipeline.stages.decision_items import (_NAT, HOSE_SPEC, RUN_SPEC, _columns, _frame, _item, _ns_list, _pick,  # noqa: F401
@@ -422,19 +424,12 @@ def designs_path(warehouse: Path, alpha: float, spending: str) -> Path:
 def _read_designs(path: Path) -> dict | None:
     """The arrays of a designs file, or None: missing, not a regular file in a real folder (no symlink is followed),
     larger than :data:`DESIGNS_MAX_BYTES`, or not an ``.npz`` of plain arrays (no pickle is loaded)."""
-    try:
-        if not stat.S_ISDIR(os.lstat(path.parent).st_mode):   # a symlinked folder is not followed either
-            return None
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0))
-    except OSError:
+    data = read_own_file(path, DESIGNS_MAX_BYTES)
+    if data is None:
         return None
     try:
-        with os.fdopen(fd, "rb") as fh:
-            st = os.fstat(fh.fileno())
-            if not stat.S_ISREG(st.st_mode) or st.st_size > DESIGNS_MAX_BYTES:
-                return None
-            with np.load(fh, allow_pickle=False) as npz:
-                return {name: npz[name] for name in npz.files}
+        with np.load(io.BytesIO(data), allow_pickle=False) as npz:
+            return {name: npz[name] for name in npz.files}
     except Exception:   # damaged, truncated, another format: computed again
         return None
 
