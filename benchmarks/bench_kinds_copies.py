@@ -43,6 +43,16 @@ def _rebuild(tree: Path, data: Path) -> tuple[float, float, str]:
     return m.wall_s, m.cpu_s, last[0]
 
 
+def parse_copies(specs: list[str]) -> dict[str, tuple[Path, Path]]:
+    """``--copy NAME=TREE:DATA`` options as ``{name: (code tree, data folder)}``, in their order."""
+    copies = {}
+    for spec in specs:
+        name, _, rest = spec.partition("=")
+        tree, _, data = rest.partition(":")
+        copies[name] = (Path(tree).resolve(), Path(data).resolve())
+    return copies
+
+
 def on_copies(copies: dict[str, tuple[Path, Path]], kinds: list[str], rounds: int, noop: int = 0,
               catch_up: bool = True, save=None) -> dict:
     """Per copy ``{name: (code tree, data folder)}``: ``catch-up`` [wall, CPU], per kind the rounds'
@@ -116,11 +126,7 @@ def main(argv=None) -> int:
     ap.add_argument("--full-cpu", type=float, default=FULL_CPU_S, help="the full rebuild's CPU s (shares)")
     ap.add_argument("--json", type=Path)
     args = ap.parse_args(argv)
-    copies = {}
-    for spec in args.copy:
-        name, _, rest = spec.partition("=")
-        tree, _, data = rest.partition(":")
-        copies[name] = (Path(tree).resolve(), Path(data).resolve())
+    copies = parse_copies(args.copy)
     print(f"one change of each kind on built copies; load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}, "
           f"{time.strftime('%H:%M:%S', time.gmtime())} UTC", flush=True)
 

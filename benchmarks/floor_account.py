@@ -276,13 +276,10 @@ def main(argv=None) -> int:
     ap.add_argument("--rounds", type=int, default=2)
     ap.add_argument("--json", type=Path)
     args = ap.parse_args(argv)
+    from benchmarks.bench_kinds_copies import parse_copies
     from benchmarks.bench_scale import change_victims
 
-    copies = {}
-    for spec in args.copy:
-        name, _, rest = spec.partition("=")
-        tree, _, data = rest.partition(":")
-        copies[name] = (Path(tree).resolve(), Path(data).resolve())
+    copies = parse_copies(args.copy)
     names = list(copies)
     first = copies[names[0]][1]
     victims = change_victims(first / "raw", first / "warehouse")
