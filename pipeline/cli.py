@@ -100,7 +100,7 @@ def rebuild(raw, warehouse, quiet, no_report, **options):
     # cycle collector runs less often from here on, the rebuild's own imports included (issue 26)
     from pipeline.rebuild.executors import fewer_collections
 
-    with fewer_collections():
+    with fewer_collections(keep_frozen=True):   # the process ends after it: nothing to thaw
         from pipeline.rebuild.flow import rebuild as do_rebuild
         from pipeline.rebuild.options import RebuildError, RebuildOptions
 

@@ -57,17 +57,31 @@ STUCK_REASON = "the reader was stopped after"
 GC_THRESHOLD = (10_000, 20, 10)
 
 
+#: Open :func:`fewer_collections` blocks that keep what the rebuild froze (the command's: its process ends).
+_KEEP_FROZEN = [0]
+
+
 @contextmanager
-def fewer_collections(threshold: tuple[int, int, int] = GC_THRESHOLD):
+def fewer_collections(threshold: tuple[int, int, int] = GC_THRESHOLD, keep_frozen: bool = False):
     """Python's cycle collector at ``threshold`` (:data:`GC_THRESHOLD`; each a generation's, never
-    below the one in force) while the block runs, the thresholds in force restored after it."""
+    below the one in force) while the block runs, the thresholds in force restored after it.
+
+    What the rebuild froze out of the collector (``ingest_tasks._freeze``: :func:`gc.freeze`) is thawed
+    when the block ends, if nothing was frozen when it began, so that a rebuild called as a library (a
+    notebook, the tests) leaves the process as it found it; ``keep_frozen``: not while this block is
+    open (the ``rebuild`` command, whose process ends after it: its exit's collection skips them)."""
     old = gc.get_threshold()
+    frozen = gc.get_freeze_count()
     if old[0]:  # (0: collections turned off by the caller, left so)
         gc.set_threshold(*(max(a, b) for a, b in zip(old, threshold)))
+    _KEEP_FROZEN[0] += bool(keep_frozen)
     try:
         yield
     finally:
+        _KEEP_FROZEN[0] -= bool(keep_frozen)
         gc.set_threshold(*old)
+        if not (frozen or keep_frozen or _KEEP_FROZEN[0]) and gc.get_freeze_count():
+            gc.unfreeze()
 
 
 def stuck_reason(limit_s: float) -> str:

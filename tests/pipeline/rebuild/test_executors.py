@@ -275,3 +275,30 @@ def test_the_rebuild_collects_cycles_less_often_and_gives_the_thresholds_back():
     finally:
         gc.set_threshold(*before)
 
+
+def test_what_a_rebuild_froze_is_thawed_when_its_block_ends_unless_the_command_keeps_it():
+    """``ingest_tasks._freeze`` freezes the rebuild's long-lived objects (issue 26); a rebuild called as a
+    library leaves the process unfrozen, the ``rebuild`` command's block (its process ends) keeps them."""
+    import gc
+
+    from pipeline.rebuild.executors import fewer_collections
+
+    assert gc.get_freeze_count() == 0
+    try:
+        with fewer_collections():
+            gc.freeze()                                   # as the ingest step does
+            assert gc.get_freeze_count() > 0
+        assert gc.get_freeze_count() == 0                 # thawed
+        with fewer_collections(keep_frozen=True):
+            with fewer_collections():                     # flow.rebuild's block inside the command's
+                gc.freeze()
+            assert gc.get_freeze_count() > 0              # kept: the command's block is open
+        assert gc.get_freeze_count() > 0
+        gc.unfreeze()
+        gc.freeze()                                       # frozen before the block: not the block's to thaw
+        with fewer_collections():
+            pass
+        assert gc.get_freeze_count() > 0
+    finally:
+        gc.unfreeze()
+

@@ -18,7 +18,7 @@ from pipeline.serve.decision import read_decisions  # noqa: E402
 from pipeline.serve.report import decision as rd  # noqa: E402
 from pipeline.stages.decision import AFTER_VERDICT  # noqa: E402
 from pipeline.serve.report.db import ReportDB  # noqa: E402
-from pipeline.serve.report.render import render_report  # noqa: E402
+from pipeline.serve.report.render import FromRebuild, render_report  # noqa: E402
 from tests.pipeline.serve.report.conftest import console_lines, needs_chromium, run_chromium  # noqa: E402
 from tests.pipeline.serve.test_decision import (DECIDED, NO_ESTIMATE, NO_PLAN, OPEN, decision_rows,  # noqa: E402
                                                 make_warehouse)
@@ -209,5 +209,5 @@ def test_figures_drawn_in_forked_processes_are_the_bytes_drawn_here(wh, monkeypa
     # the report's pool reaches the looks figures (until session 26 decision_section dropped it: all drawn here)
     used = []
     pool = lambda workers: used.append(workers) or forked_pool(workers)   # noqa: E731
-    assert _section(render_report(wh, run_pages="all", pool=pool)) == serial
+    assert _section(render_report(wh, run_pages="all", rebuild=FromRebuild(pool=pool))) == serial
     assert used == [2]
