@@ -13,7 +13,9 @@ version (one rebuild, untimed unless ``--time-catch-up``); then for each kind of
 :func:`benchmarks.bench_scale.change_victims` (the victims are taken from the first copy's
 warehouse and applied to every copy by their path under ``raw/``), each round changes the file,
 rebuilds (timed: wall, CPU of the process tree), puts the old bytes and mtime back and rebuilds
-(untimed). ``--noop N``: N alternating no-op rebuilds of each copy. Shares are of ``--full-cpu``
+(untimed). Each round's edit is one no copy has seen (:data:`SEEN_EDITS`, kept in each copy: a copy's
+stage folders outlive its rebuilds, and an edit seen before takes them back); when a kind's edits run
+out (a last digit has nine), the rounds that repeat one are said. ``--noop N``: N alternating no-op rebuilds of each copy. Shares are of ``--full-cpu``
 (default 466.4 CPU-s, session 22's full rebuild of the seed-7 campaign) against 2 %.
 """
 from __future__ import annotations
@@ -25,7 +27,7 @@ import statistics
 import time
 from pathlib import Path
 
-from benchmarks.bench_scale import change_victims
+from benchmarks.bench_scale import bump_last_digit, change_victims
 from benchmarks.bench_versions import _env, command
 from benchmarks.proc import measure, verdict
 
@@ -41,6 +43,42 @@ def _rebuild(tree: Path, data: Path) -> tuple[float, float, str]:
         raise SystemExit(f"{tree} on {data}: rebuild exited {m.exit_code}: {(m.stdout + m.stderr).strip()[-400:]}")
     last = (m.stdout + m.stderr).strip().splitlines()[-1:] or [""]
     return m.wall_s, m.cpu_s, last[0]
+
+
+#: Per copy (in its data folder): the edits it has seen, ``{kind: [by, ...]}``. A copy keeps its stage
+#: folders and memo between rebuilds, so an edit it saw before takes them back: the change reads
+#: cheaper than a lab's new one (session 26: ~1.5 CPU-s of spring figures not drawn).
+SEEN_EDITS = ".bench-kinds-edits.json"
+
+
+def seen_edits(data: Path) -> dict[str, list[int]]:
+    """:data:`SEEN_EDITS` of a copy (``{}`` when absent or damaged)."""
+    try:
+        got = json.loads((data / SEEN_EDITS).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+    return got if isinstance(got, dict) else {}
+
+
+def fresh_edits(datas: list[Path], kind: str, rounds: int, period: int | None) -> tuple[list[int], int]:
+    """``rounds`` edit amounts (``by``) no copy in ``datas`` has seen for ``kind``, smallest first, and how
+    many of them had to be seen ones (none left: ``period`` edits are all there are, e.g. 10 for a last
+    digit, whose ``by`` 10 would change nothing)."""
+    def same(b: int) -> int:
+        return b % period if period else b
+
+    used = {same(int(b)) for d in datas for b in seen_edits(d).get(kind, []) if isinstance(b, int)}
+    limit = (period - 1) if period else rounds + len(used)
+    fresh = [b for b in range(1, limit + 1) if same(b) not in used][:rounds]
+    stale = rounds - len(fresh)
+    seen_before = [b for b in range(1, limit + 1) if same(b) in used]
+    return fresh + [seen_before[i % len(seen_before)] for i in range(stale)], stale
+
+
+def _note_edit(data: Path, kind: str, by: int) -> None:
+    seen = seen_edits(data)
+    seen[kind] = sorted(set(seen.get(kind, [])) | {by})
+    (data / SEEN_EDITS).write_text(json.dumps(seen, sort_keys=True), encoding="utf-8")
 
 
 def parse_copies(specs: list[str]) -> dict[str, tuple[Path, Path]]:
@@ -69,12 +107,18 @@ def on_copies(copies: dict[str, tuple[Path, Path]], kinds: list[str], rounds: in
     for kind in [k for k in kinds if k in victims] if kinds else list(victims):
         path, edit = victims[kind]
         rel = path.relative_to(first / "raw")
+        bys, stale = fresh_edits([d for _t, d in copies.values()], kind, rounds,
+                                 10 if edit is bump_last_digit else None)
+        if stale:
+            print(f"  {kind}: {stale} of {rounds} edits seen before on these copies: their stage folders are "
+                  "taken back, those rounds read cheaper than a new change (use fresh copies)", flush=True)
         for i in range(rounds):
             for name in (names if i % 2 == 0 else list(reversed(names))):
                 tree, data = copies[name]
                 target = data / "raw" / rel
                 st = target.stat()
-                original = edit(target, i + 1)
+                original = edit(target, bys[i])
+                _note_edit(data, kind, bys[i])
                 try:
                     wall, cpu, last = _rebuild(tree, data)
                 finally:
