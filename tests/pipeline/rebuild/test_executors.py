@@ -245,7 +245,7 @@ def test_readers_released_after_the_ingest_are_gone_and_workers_leave_the_parent
         assert again[0][0] not in readers
         if jobs == 2:  # the stages' pool freezes too
             assert all(n > 1000 for _, n in ex.map(frozen_objects, list(range(4))))
-    assert gc.get_freeze_count() == frozen  # this process froze nothing more
+    assert gc.get_freeze_count() <= frozen  # this process froze nothing more (frozen objects freed leave the count)
     Executor().release_readers()  # an executor without reader processes: nothing to do
 
 
