@@ -466,10 +466,9 @@ def _per_test(fit: SpringFit, usable: list[SpringStats]) -> None:
         j = at.get(r.run_id)
         fit.model_loop_energy_j[r.run_id] = (float("nan") if j is None else _loop_energy(
             r.chamber, fit.params, r.cycles, *(float(work[k][j]) for k in ("cp1", "cps", "cq"))))
-        if fit.nrmse_pct[r.run_id] > NRMSE_LIMIT_PCT or not np.isfinite(fit.nrmse_pct[r.run_id]):
-            g = Gate().follows_data(fit.nrmse_pct[r.run_id], NRMSE_LIMIT_PCT, rms=rms, noise=r.f_noise_n)
-            if not g.ok:
-                fit.test_notes[r.run_id] = g.note
+        g = Gate().follows_data(fit.nrmse_pct[r.run_id], NRMSE_LIMIT_PCT, rms=rms, noise=r.f_noise_n)
+        if not g.ok:
+            fit.test_notes[r.run_id] = g.note
 
 
 def fit_spring_chamber(runs: list[SpringRun], max_samples_per_run: int | None = 4000) -> SpringFit:
