@@ -256,3 +256,20 @@ REPORT_TMP = re.compile(r"\.(index\.html|parts-cache)\.tmp-[0-9]+")
 SHARD_FILE = re.compile(r"[0-9a-f]{2}\.pkl")
 #: ... and the shard being written, ``memo/<stage>/.<xx>.pkl.tmp-<pid>``.
 SHARD_TMP = re.compile(r"\.[0-9a-f]{2}\.pkl\.tmp-[0-9]+")
+
+
+def sql_str(text: str) -> str:
+    """``text`` as an SQL string literal (its quotes doubled)."""
+    return "'" + str(text).replace("'", "''") + "'"
+
+
+def table_sums(con, names) -> dict[str, str]:
+    """``<rows>-<sum of the rows' hashes>`` of each table of ``names`` (one query; DuckDB's ``hash`` of
+    each row): the second half of a ``table_keys`` content key, which the rebuild writes, the report
+    checks and the run pages key their tables by. Every name must be a table of ``con``'s database."""
+    names = list(names)
+    if not names:
+        return {}
+    sql = " UNION ALL ".join(f'SELECT {sql_str(n)}, count(*), coalesce(sum(hash(t)), 0)::VARCHAR FROM "{n}" AS t'
+                             for n in names)
+    return {n: f"{c}-{h}" for n, c, h in con.execute(sql).fetchall()}

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from pipeline.warehouse import (CONTRACT_ROWS, FILES_TABLE, INTERNAL_PREFIX, INTERNAL_TABLES, KEYS_TABLE, ROOT_RAW_SQL,
-                                ROOT_SQL, ROOT_VARIABLE, ddl_comments, glob_escape)
+                                ROOT_SQL, ROOT_VARIABLE, ddl_comments, glob_escape, sql_str, table_sums)
 from schemas import ddl_statements
 
 # pandas and pyarrow (through schemas.channels and schemas.kinds) cost ~0.5 s each to import: the
@@ -49,9 +49,6 @@ def insert_frame(con: duckdb.DuckDBPyConnection, table: str, df: pd.DataFrame) -
         con.unregister("_frame")
 
 
-def _sql_str(text: str) -> str:
-    """``text`` as an SQL string literal."""
-    return "'" + str(text).replace("'", "''") + "'"
 
 
 def _columns_by_run(con: duckdb.DuckDBPyConnection,
@@ -168,7 +165,7 @@ def _kind_view_sql(kind: str, files: list[tuple[str, str, str | None, str]],
 def _group_sql(unknown: bool, paths: list[str]) -> str:
     """One group's part of a view: its files (relative to the warehouse variable) joined with
     ``samples_files`` on DuckDB's ``filename``; ``unknown``: the files' columns are not known."""
-    lst = ", ".join(_sql_str(glob_escape(f)) for f in sorted(paths))
+    lst = ", ".join(sql_str(glob_escape(f)) for f in sorted(paths))
     files_sql = f"list_transform([{lst}], lambda f: {ROOT_SQL} || '/' || f)"
     if unknown:  # columns unknown: read every schema (slow to bind, never wrong)
         source = f"read_parquet({files_sql}, union_by_name = true, hive_partitioning = false, filename = true)"
@@ -306,10 +303,10 @@ def comment_statements(con: duckdb.DuckDBPyConnection, only: set[str] | None = N
         if table in INTERNAL_TABLES:
             comment = INTERNAL_PREFIX + (comment or "")
         if comment:
-            out.append(f"COMMENT ON {kind} \"{table}\" IS {_sql_str(comment.strip())}")
+            out.append(f"COMMENT ON {kind} \"{table}\" IS {sql_str(comment.strip())}")
         for col, text in sorted(colcomments.items()):
             if text and (table, col) in columns:
-                out.append(f"COMMENT ON COLUMN \"{table}\".\"{col}\" IS {_sql_str(text)}")
+                out.append(f"COMMENT ON COLUMN \"{table}\".\"{col}\" IS {sql_str(text)}")
     return out
 
 
@@ -375,12 +372,7 @@ def _table_sums(con: duckdb.DuckDBPyConnection, names) -> dict[str, str]:
     stores it (one query, ~35 ms at 1,000 runs): a table changed in the live database by anything but
     the rebuild does not match its stored key and is written again."""
     present = {r[0] for r in con.execute("SELECT table_name FROM duckdb_tables()").fetchall()}
-    names = sorted(n for n in names if n in present)
-    if not names:
-        return {}
-    sql = " UNION ALL ".join(f'SELECT {_sql_str(n)}, count(*), coalesce(sum(hash(t)), 0)::VARCHAR FROM "{n}" AS t'
-                             for n in names)
-    return {n: f"{c}-{h}" for n, c, h in con.execute(sql).fetchall()}
+    return table_sums(con, sorted(n for n in names if n in present))
 
 
 #: The row of ``table_keys`` (not a table) holding :func:`run_columns_key` of the runs the database was written with.

@@ -162,3 +162,27 @@ def test_the_ddls_tables_are_kept_in_the_warehouse_by_the_ddl_and_duckdb_version
     path.unlink()
     wh.ddl_tables(tmp_path)
     assert sorted(p.name for p in (tmp_path / wh.CACHE_DIR).iterdir()) == [path.name]  # another key's: removed
+
+
+def test_table_sums_count_rows_and_follow_their_content():
+    """One ``<rows>-<hash sum>`` per table; equal rows give equal sums, a changed row another; names
+    with quotes are quoted (``sql_str``)."""
+    import duckdb
+
+    from pipeline.warehouse import sql_str, table_sums
+
+    assert sql_str("it's") == "'it''s'"
+    con = duckdb.connect(":memory:")
+    try:
+        con.execute("CREATE TABLE a (x INTEGER, s VARCHAR)")
+        con.execute("INSERT INTO a VALUES (1, 'p'), (2, 'q')")
+        con.execute("CREATE TABLE \"b'c\" (x INTEGER, s VARCHAR)")
+        con.execute("INSERT INTO \"b'c\" VALUES (2, 'q'), (1, 'p')")     # the same rows, another order
+        con.execute("CREATE TABLE e (x INTEGER)")
+        got = table_sums(con, ["a", "b'c", "e"])
+        assert got["a"].startswith("2-") and got["a"] == got["b'c"] and got["e"] == "0-0"
+        con.execute("UPDATE a SET s = 'r' WHERE x = 2")
+        assert table_sums(con, ["a"])["a"] != got["a"]
+        assert table_sums(con, []) == {}
+    finally:
+        con.close()

@@ -23,7 +23,7 @@ import re
 from typing import Any, Callable
 
 from pipeline.serve.report.db import ReportDB
-from pipeline.warehouse import KEYS_TABLE
+from pipeline.warehouse import KEYS_TABLE, table_sums
 
 #: Identifiers in an SQL text (a table name is one of them, quoted or not).
 _WORD = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
@@ -133,7 +133,7 @@ class TrackedDB:
 def table_keys(db: ReportDB, checked: bool = False) -> dict[str, str]:
     """``table_keys`` of the database: table -> content key, for the tables whose rows are still the
     ones the rebuild wrote (the key's second half, the row count and the sum of the rows' hashes
-    as stored, :func:`pipeline.rebuild.assemble._table_sums`, is checked on the table as it is: a
+    as stored, :func:`pipeline.warehouse.table_sums`, is checked on the table as it is: a
     table changed by anything but the rebuild has no key). Empty without ``table_keys``.
 
     ``checked``: the caller knows every row matches its table (the rebuild that has just written the
@@ -151,9 +151,7 @@ def table_keys(db: ReportDB, checked: bool = False) -> dict[str, str]:
             return {}
         if checked:
             return {t: stored[t] for t in names}
-        sql = " UNION ALL ".join(f"SELECT {_sql_str(n)}, count(*), coalesce(sum(hash(t)), 0)::VARCHAR FROM \"{n}\" AS t"
-                                 for n in names)
-        sums = {n: f"{c}-{h}" for n, c, h in db.con.execute(sql).fetchall()}
+        sums = table_sums(db.con, names)
     except Exception:  # a damaged or foreign table_keys: nothing is kept
         return {}
     return {t: stored[t] for t in names if stored[t].rsplit(":", 1)[1] == sums.get(t)}
@@ -168,10 +166,6 @@ def _view_sql(db: ReportDB) -> dict[str, str]:
     except Exception:
         return {}
 
-
-def _sql_str(text: str) -> str:
-    """``text`` as an SQL string literal."""
-    return "'" + str(text).replace("'", "''") + "'"
 
 
 class KeyedParts:

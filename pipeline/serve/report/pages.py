@@ -29,6 +29,7 @@ from pipeline.serve.report.figures import Figures, code_key, figure_key
 from pipeline.serve.report.folders import OWN_PAGE, REPORT_DIR, link_or_copy, page_name, scandir
 from pipeline.serve.report.markup import CSS, esc, fmt, one_line_error, run_href
 from pipeline.serve.report.tables import html_table
+from pipeline.warehouse import sql_str, table_sums
 
 #: Bumped when the run pages' layout changes (cached pages are then drawn again).
 RUN_PAGE_VERSION = "4"
@@ -81,7 +82,7 @@ def _of_runs(only: list[str] | None) -> tuple[str, list | None]:
     if only is None:
         return "", None
     if len(only) <= 64:
-        return " WHERE run_id IN (" + (", ".join(_sql_str(r) for r in only) or "NULL") + ")", None
+        return " WHERE run_id IN (" + (", ".join(sql_str(r) for r in only) or "NULL") + ")", None
     return " WHERE run_id IN (SELECT unnest($1))", [list(only)]
 
 
@@ -168,7 +169,7 @@ def write_run_pages(db: ReportDB, warehouse: Path, folder: Path | None = None, p
     known = read_run_keys(Path(previous).parent) if staged and not full else {}
     if not staged:
         (folder.parent / RUN_KEYS).unlink(missing_ok=True)  # pages change in place: the index would lie
-    sums = _table_sums(db.con, ["runs", *(["channels"] if db.has("channels") else []), *_result_tables(db)]) \
+    sums = table_sums(db.con, ["runs", *(["channels"] if db.has("channels") else []), *_result_tables(db)]) \
         if staged else {}
     changed = _changed_runs(db, Path(warehouse), sums, known.get(_DEPS)) if known else None
     keys, drawn = {}, 0
@@ -217,27 +218,13 @@ def write_run_pages(db: ReportDB, warehouse: Path, folder: Path | None = None, p
 
 
 #: The entry of :data:`RUN_KEYS` (not a page name) saying what the pages were keyed from (JSON): the
-#: version keying them (:func:`_pages_version`) and each table they read as :func:`_table_sums` gives it.
+#: version keying them (:func:`_pages_version`) and each table they read as :func:`~pipeline.warehouse.table_sums` gives it.
 _DEPS = "*tables"
 
 
 def _pages_version() -> str:
     """The version of how a run page is keyed and what it reads: :data:`RUN_PAGE_VERSION` and this module."""
     return f"{RUN_PAGE_VERSION}-{code_key(('pipeline/serve/report/pages.py',))}"
-
-
-def _sql_str(text: str) -> str:
-    """``text`` as an SQL string literal."""
-    return "'" + str(text).replace("'", "''") + "'"
-
-
-def _table_sums(con, tables: list[str]) -> dict[str, str]:
-    """``<rows>-<sum of the rows' hashes>`` of each of ``tables`` (one query; DuckDB's ``hash`` of each row)."""
-    if not tables:
-        return {}
-    sql = " UNION ALL ".join(f"SELECT {_sql_str(t)}, count(*), coalesce(sum(hash(t)), 0)::VARCHAR FROM \"{t}\" AS t"
-                             for t in tables)
-    return {t: f"{n}-{h}" for t, n, h in con.execute(sql).fetchall()}
 
 
 def _run_sums(con, table: str) -> dict:
@@ -247,7 +234,7 @@ def _run_sums(con, table: str) -> dict:
 
 
 def _changed_runs(db: ReportDB, warehouse: Path, sums: dict[str, str], deps: str | None) -> set | None:
-    """Run ids whose rows in the tables a page reads (``sums``, :func:`_table_sums` of each) may differ
+    """Run ids whose rows in the tables a page reads (``sums``, :func:`~pipeline.warehouse.table_sums` of each) may differ
     from those the live pages were keyed from (``deps``: their :data:`_DEPS` entry); None when that
     cannot be told: no entry (a report from before it), another version or other tables, or a changed
     table the live database (of ``warehouse``) does not hold as it was when the pages were keyed.
@@ -273,7 +260,7 @@ def _changed_runs(db: ReportDB, warehouse: Path, sums: dict[str, str], deps: str
     except Exception:
         return None
     try:
-        if _table_sums(live, moved) != {t: old["tables"][t] for t in moved}:
+        if table_sums(live, moved) != {t: old["tables"][t] for t in moved}:
             return None  # the live database is not the one the pages were keyed from
         out: set = set()
         for t in moved:
