@@ -79,6 +79,33 @@ TARGETS = [
     "pipeline.serve.report.db:ReportDB.run_ids", "pipeline.serve.report.db:ReportDB.rows",
     "pipeline.serve.report.decision:decision_section",
 ]
+#: The own work of a breakaway, pressure-step or leakage change (session 27, kinds3): the stages they
+#: re-run and the analyses' functions that import scipy.
+TARGETS += [
+    "pipeline.stages.plpa_characterisation:analyse_run", "pipeline.stages.plpa_characterisation:_frame",
+    "analyses.breakaway:breakaway_findings", "analyses.breakaway:backpressure_ratio",
+    "analyses.breakaway:force_rate_slope", "analyses.breakaway:breakaway_summary",
+    "analyses.numerics:student_t_ppf", "analyses.numerics:student_t_sf", "analyses.numerics:welch_t_test_p",
+    "analyses.leakage:leakage_map", "analyses.leakage:seal_envelope",
+    "analyses.viscous_friction:viscous_transition",
+    "pipeline.rebuild.stage_store:PooledTables.take",
+    "pipeline.stages.models:fit_pressure_item", "pipeline.stages.models:_fit_pressure_runs",
+    "analyses.pressure_dynamics:fit_pressure_dynamics", "analyses.pressure_dynamics:_fit_first",
+    "analyses.pressure_dynamics:_fit_second", "analyses.pressure_groups:age_changes",
+    "pipeline.stages.findings:breakaway_ratio", "pipeline.stages.findings:breakaway_rate",
+    "pipeline.stages.findings:leak_free", "pipeline.stages.findings:life_verdicts",
+    "pipeline.stages.findings:force_outlives_distance",
+    "pipeline.stages.remaining_life:stage_items", "pipeline.stages.remaining_life:rul_weibull",
+    "pipeline.stages.remaining_life:rul_group", "pipeline.stages.remaining_life:sensitivity_leak",
+    "pipeline.stages.remaining_life:sensitivity_logbook", "pipeline.stages.remaining_life:read_once",
+    "analyses.remaining_life:degradation_fit", "analyses.remaining_life:degradation_rul",
+    "analyses.remaining_life_group:group_models", "analyses.remaining_life_group:remaining_life",
+    "analyses.remaining_life_group:rul_backtest",
+    "analyses.decision:decide", "pipeline.stages.remaining_life:sensitivity_of",
+]
+#: The modules whose first import's stack is kept (who pays for it), ``FLOOR_FIRST_IMPORTS``.
+FIRST_IMPORTS = tuple(os.environ.get("FLOOR_FIRST_IMPORTS", "scipy.special,scipy.optimize,scipy.stats,"
+                                     "matplotlib.figure").split(","))
 #: Imports are labelled by this many parts of the name imported (``FLOOR_IMPORT_DEPTH``).
 DEPTH = int(os.environ.get("FLOOR_IMPORT_DEPTH", "1"))
 #: Each stage's ``run`` is timed as ``stage <name>`` (the stages that ran).
@@ -98,6 +125,7 @@ def child(out_path: str, argv: list[str]) -> None:
     clock = time.process_time
     acc: dict[str, float] = {}
     calls: dict[str, int] = {}
+    first: dict[str, list[str]] = {}  # per module of FIRST_IMPORTS: the stack of its first import
     noimp: dict[str, float] = {}  # per item that imported something: its CPU less those imports
     depth: dict[str, int] = {}
     me = os.getpid()
@@ -186,6 +214,11 @@ def child(out_path: str, argv: list[str]) -> None:
     # patch modules as they are imported: a meta path finder whose loader patches after exec
     class Patcher:
         def find_spec(self, fullname, path=None, target=None):
+            if fullname in FIRST_IMPORTS and ("first import " + fullname) not in first:
+                import traceback
+                first["first import " + fullname] = [
+                    f"{f.filename.rsplit('/', 2)[-1]}:{f.lineno} {f.name}" for f in traceback.extract_stack()[:-1]
+                    if "importlib" not in f.filename and "floor_account" not in f.filename][-6:]
             if fullname not in by_module and not fullname.startswith(STAGES_PREFIX):
                 return None
             for finder in sys.meta_path:
@@ -226,7 +259,7 @@ def child(out_path: str, argv: list[str]) -> None:
                 "start-up (before pipeline is imported)": start_cpu, "process at exit": clock(),
                 "children waited": ct.children_user + ct.children_system,
                 "items": acc, "calls": calls,
-                "items less imports": noimp}, indent=1))
+                "items less imports": noimp, "first imports": first}, indent=1))
         return real_exit(code)
 
     os._exit = dump
@@ -276,8 +309,8 @@ def main(argv=None) -> int:
     ap.add_argument("--rounds", type=int, default=2)
     ap.add_argument("--json", type=Path)
     args = ap.parse_args(argv)
-    from benchmarks.bench_kinds_copies import parse_copies
-    from benchmarks.bench_scale import change_victims
+    from benchmarks.bench_kinds_copies import _note_edit, fresh_edits, parse_copies
+    from benchmarks.bench_scale import bump_last_digit, change_victims
 
     copies = parse_copies(args.copy)
     names = list(copies)
@@ -288,12 +321,18 @@ def main(argv=None) -> int:
     for kind in args.kinds.split(","):
         path, edit = victims[kind]
         rel = path.relative_to(first / "raw")
+        # edits no copy has seen (an edit seen before takes its stage folders back: the change reads cheaper)
+        bys, stale = fresh_edits([d for _t, d in copies.values()], kind, args.rounds,
+                                 10 if edit is bump_last_digit else None)
+        if stale:
+            print(f"  {kind}: {stale} of {args.rounds} edits seen before on these copies", flush=True)
         for i in range(args.rounds):
             for name in (names if i % 2 == 0 else names[::-1]):
                 tree, data = copies[name]
                 target = data / "raw" / rel
                 st = target.stat()
-                original = edit(target, i + 1)
+                original = edit(target, bys[i])
+                _note_edit(data, kind, bys[i])
                 try:
                     got = _account(tree, data, tmp)
                 finally:
@@ -306,6 +345,9 @@ def main(argv=None) -> int:
                 if args.json:
                     args.json.write_text(json.dumps(res, indent=1))
     for kind in args.kinds.split(","):
+        for n in names:
+            for lab, where in res[n][kind][0].get("first imports", {}).items():
+                print(f"{n}: {kind}: {lab}: " + " <- ".join(reversed(where)))
         print(f"\n{kind}: CPU s, medians of {args.rounds} (inclusive; nested items counted in their callers too)")
         labels: dict[str, None] = {}
         for n in names:
