@@ -6,7 +6,8 @@ from tests.conftest import PROJECT_ROOT, STEP_META
 T = [0.0, 0.1, 0.2, 0.3]
 
 
-def test_one_change_is_accounted_item_by_item_within_the_process_and_its_tree(raw, tmp_path):
+def test_one_change_is_accounted_item_by_item_within_the_process_and_its_tree(raw, tmp_path, monkeypatch):
+    monkeypatch.setenv("FLOOR_FIRST_IMPORTS", "duckdb,not.a.module")
     raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[mm]": [0, 1, 2, 3], "x_ref[mm]": [3] * 4})
     data = tmp_path / "copy"
     data.mkdir()
@@ -22,3 +23,8 @@ def test_one_change_is_accounted_item_by_item_within_the_process_and_its_tree(ra
     assert got["calls"]["load_stage_folder"] >= 1 or got["calls"].get("_run_stage", 0) >= 1
     assert any(k.startswith("gc (Python's collections, generation ") for k in items)
     assert items["rebuild"] - got["items less imports"]["rebuild"] <= items["imports (all)"] + 1e-6
+    # who imported a module first: the last frames that reached the import (importlib and this module left out)
+    first = got["first imports"]
+    assert set(first) == {"first import duckdb"}
+    assert first["first import duckdb"] and all(":" in f for f in first["first import duckdb"])
+    assert any(f.split(":")[0].endswith(".py") for f in first["first import duckdb"])
