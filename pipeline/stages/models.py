@@ -262,17 +262,13 @@ def fit_spring_runs(item: tuple) -> spring_fit.SpringFit:
 
 
 class _DigestKeyed(tuple):
-    """A :func:`fit_spring_runs` item ``(chamber, runs)`` memoised by ``memo_key``: the chamber and the
-    sha256 of its runs' items as JSON (sample files relative to the warehouse, as the memo's own key
-    names them), which names the same inputs as the item. The memo's canonical walk of ~3,300 items a
-    chamber cost ~0.05 CPU-s per chamber and change at 10,000 runs; this digest ~5 ms (issue 26)."""
-
-    memo_key: tuple
+    """A :func:`fit_spring_runs` item ``(chamber, runs)`` memoised by ``memo_key``: the chamber and the sha256 of its
+    runs' items as JSON (samples relative to the warehouse, as the memo's key names them): the same inputs. The memo's
+    walk of ~3,300 items a chamber cost ~0.05 CPU-s a chamber at 10,000 runs; this digest ~5 ms (issue 26)."""
 
 
 def _fit_item(chamber: str, runs: tuple, warehouse) -> tuple:
-    """``(chamber, runs)`` for :func:`fit_spring_runs`, keyed by its digest (:class:`_DigestKeyed`); the plain
-    tuple (keyed by the memo's walk) when a run's params are not plain JSON."""
+    """:class:`_DigestKeyed` ``(chamber, runs)``; the plain tuple (the memo's walk) if a run's params are not JSON."""
     prefix = os.fspath(warehouse).rstrip(os.sep) + os.sep if warehouse is not None else None
     try:
         text = json.dumps([[kind, rid, path[len(prefix):] if prefix and path.startswith(prefix) else ["abs", path],
