@@ -35,6 +35,7 @@ if TYPE_CHECKING:
 
     from pipeline.raw.plan import Plan
     from pipeline.stages import Reads
+    from pipeline.stages.run_columns import RunLookup
 
 # pandas and the stage framework (which imports pandas and, through the stages, the analyses) are
 # imported by the function that runs the stages: a no-op rebuild imports this module and needs none.
@@ -134,6 +135,7 @@ def run_stages_cached(inputs: StageInputs, progress: Progress, drawer: FigureDra
         other in a circle.
     """
     from pipeline import stages
+    from pipeline.stages.run_columns import run_lookup
 
     try:
         mods = stages.run_order(stages.discover())
@@ -146,7 +148,8 @@ def run_stages_cached(inputs: StageInputs, progress: Progress, drawer: FigureDra
     codes = {mod.NAME: stage_code_version(getattr(mod, "__file__", None) or mod.NAME) for mod in mods}
     encoded = encoded_runs(inputs.runs)  # every runs row encoded once for all the stages' keys
     deferrable = _deferrable(mods)  # tables a reused stage need not read: no stage reads them
-    run_columns = _run_columns_source(inputs.runs_frame)  # and read once for all their tables' run columns
+    # and read once for all their tables' run columns
+    run_columns = run_lookup(_run_columns_source(inputs.runs_frame))
     with progress.task("stages", len(mods)) as task:
         for mod in mods:
             t0 = time.monotonic()
@@ -284,7 +287,7 @@ def _run_stage(mod, reads_read: tuple[Reads, dict[str, str]], key: str, inputs: 
     return record, load_stage_folder(inputs.warehouse, rel, name, out, now_in)
 
 
-def _own_run_columns(name: str, runs_frame: pd.DataFrame, df: pd.DataFrame) -> pd.DataFrame:
+def _own_run_columns(name: str, runs_frame: pd.DataFrame | RunLookup | None, df: pd.DataFrame) -> pd.DataFrame:
     """:func:`pipeline.stages.add_run_columns` of one table that pools no other."""
     from pipeline import stages
 
@@ -296,9 +299,10 @@ def _read(df):
     return df.read_frame() if isinstance(df, DeferredTable) else df
 
 
-def _collect(res: StageResults, loaded: tuple, runs_frame: pd.DataFrame) -> dict[str, pd.DataFrame]:
+def _collect(res: StageResults, loaded: tuple, runs_frame: pd.DataFrame | RunLookup | None) -> dict[str, pd.DataFrame]:
     """Add a stage's loaded outputs (tables with their run columns, figures, problems, warnings) to
-    ``res`` (``runs_frame``: the runs, or their :func:`_run_columns_source`)."""
+    ``res`` (``runs_frame``: the runs, their :func:`_run_columns_source`, or its
+    :func:`pipeline.stages.run_columns.run_lookup`)."""
     import pandas as pd
 
     from pipeline import stages

@@ -118,8 +118,11 @@ def test_runs_combine_in_run_id_order_bit_for_bit_and_survive_a_pickle():
     assert fit_spring_chamber(runs).params == a.params
     assert all(not k.startswith("_") and isinstance(v, np.ndarray) and v.size < 64
                for s in stats for part in (s.fit, s.all, s.cycle) for k, v in part.items())   # sums, not samples
-    # pickled as one array: the same polynomials, bit for bit, and the same scalars
+    # pickled as one block of bytes and a layout string: the same polynomials, bit for bit, and the same scalars
     for s in stats:
+        layout, blob = s.__getstate__()["_packed"]
+        assert isinstance(layout, str) and isinstance(blob, bytes)
+        assert len(blob) == 8 * sum(len(c) for part in (s.fit, s.all, s.cycle) for c in part.values())
         back = pickle.loads(pickle.dumps(s))
         for part in ("fit", "all", "cycle"):
             mine, read = getattr(s, part), getattr(back, part)

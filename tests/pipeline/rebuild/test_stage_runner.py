@@ -330,12 +330,17 @@ def test_the_run_columns_read_from_the_runs_once_are_the_ones_read_from_the_runs
                                              "z_rollers_mm": [1.0, 1.0], "spring_force_n": [2.0, 3.0],
                                              "runs_used": ["runs", "hose_checks"]}),
               "empty": pd.DataFrame({"run_id": pd.array([], dtype="str")}), "no_runs": pd.DataFrame({"v": [1]})}
+    from pipeline.stages.run_columns import run_lookup
+
     slim = _run_columns_source(runs)
     assert list(slim.columns) == ["run_id", "campaign", "params"] and (slim.dtypes == object).all()
-    a, b = add_run_columns(tables, runs), add_run_columns(tables, slim)
-    assert list(a) == list(b)
+    # and read out once into a lookup for every stage (what the rebuild passes): the same columns again
+    a, b, c = add_run_columns(tables, runs), add_run_columns(tables, slim), add_run_columns(tables, run_lookup(slim))
+    assert list(a) == list(b) == list(c)
     for t in a:
         pd.testing.assert_frame_equal(a[t], b[t], check_exact=True)
+        pd.testing.assert_frame_equal(a[t], c[t], check_exact=True)
+    assert run_lookup(slim).hose == {"a": "H1", "d": "7"} and run_lookup(runs.head(0)) is None
     plain = lambda col: [None if pd.isna(v) else v for v in a["leakage_map"][col]]  # noqa: E731
     assert plain("hose_id") == ["H1", None, "7", None] and plain("campaign") == ["c1", None, "c1", None]
     assert list(a["seal_envelope"]["n_runs"]) == [1, 1] and "campaign" in a["empty"]

@@ -383,6 +383,30 @@ def test_one_changed_spring_run_refits_from_the_memo_and_equals_a_full_rebuild(t
         assert a[table] and a[table] == b[table], table
 
 
+def test_a_chambers_fit_is_keyed_by_a_digest_of_its_runs_items(tmp_path):
+    """The joint fit's memo item names its runs by a digest of their items (issue 26: not the memo's walk of
+    ~3,300 items): any run's kind, id, samples file or params changes the key, a moved warehouse does not,
+    and the fit computed from it is the item's."""
+    from pipeline.rebuild.memo import item_key
+    from pipeline.stages.models import _fit_item, fit_spring_runs
+
+    def runs(wh, **change):
+        base = [("spring", f"r{i}", f"{wh}/samples/{i:02d}.parquet", '{"chamber":"front"}') for i in range(3)]
+        return tuple(tuple(change.get(f"{j}{i}", v) for j, v in enumerate(r)) for i, r in enumerate(base))
+
+    a, b = tmp_path / "a", tmp_path / "b"
+    key = lambda wh, r, chamber="front": item_key(fit_spring_runs, _fit_item(chamber, r, wh), wh)  # noqa: E731
+    k = key(a, runs(a))
+    assert k is not None and k == key(b, runs(b))                                    # moved: the same key
+    changed = [runs(a, **{"01": "r9"}), runs(a, **{"21": f"{a}/samples/99.parquet"}), runs(a, **{"32": "{}"}),
+               runs(a, **{"00": "step"}), runs(a)[:2], runs(a)[::-1]]
+    assert len({k, key(a, runs(a), "rear"), *(key(a, r) for r in changed)}) == 2 + len(changed)
+    item = _fit_item("front", runs(a), a)
+    assert tuple(item) == ("front", runs(a)) and item.memo_key[1] == "front"
+    odd = _fit_item("front", (("spring", "r0", f"{a}/s.parquet", {"x": object()}),), a)   # not plain JSON
+    assert type(odd) is tuple and not hasattr(odd, "memo_key")
+
+
 def test_the_spring_figures_get_the_fit_they_draw_and_draw_the_same_bytes():
     """The figures' recipes hold the fit's parameters, not its per-test dicts (their keys hash what is
     drawn: issue 26), and the loop energy table's drawn columns; the PNG is the same bytes either way."""
