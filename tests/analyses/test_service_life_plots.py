@@ -119,3 +119,45 @@ def test_life_figures_draw_the_first_groups_and_say_how_many_of_how_many():
     assert f"first {MAX_HOSES_DRAWN} of {MAX_HOSES_DRAWN + 20} hoses" in fig.axes[0].get_title()
     few = plot_kaplan_meier(dict(list(groups.items())[:2]))
     assert few.axes[0].get_title() == "Kaplan-Meier survival (+ = suspension)"
+
+
+def test_figures_laid_out_once_are_the_pixels_savefig_lays_out():
+    # each life figure is laid out once by its constrained layout (_laid_out) and then drawn once: the
+    # PNG is the one savefig makes of the figure with its constrained layout still working (as before)
+    import io
+
+    from matplotlib.layout_engine import PlaceHolderLayoutEngine
+
+    from analyses import service_life_plots as slp
+
+    life, failed = fans()
+    hoses = pd.DataFrame({"hose_id": ["a", "b", "c"], "distance_km": [1.0, 2.0, 3.5],
+                          "status": ["failed", "running", "removed"], "adjustment": ["force", "distance", "force"]})
+    growth = pd.DataFrame({"hose_id": ["H101", "H101", "H102", "H102"], "distance_km": [0.0, 5.0, 0.0, 7.5],
+                           "leak_l_min": [0.1, 0.9, 0.2, 1.4], "adjustment": ["distance"] * 2 + ["force"] * 2,
+                           "pressure_bar": [6.0] * 4})
+    drawings = [(plot_weibull_probability, {"force": (life, failed), "distance": (life * 2, failed)}),
+                (plot_kaplan_meier, {"force": (life, failed)}), (plot_hose_distances, hoses),
+                (plot_leak_growth, growth)]
+
+    def png(fig, drop=False):
+        if drop:  # as the rebuild saves it (stage_store._drop_spent_layout)
+            fig.set_layout_engine(None)
+        out = io.BytesIO()
+        fig.savefig(out, dpi=slp.SAVE_DPI, metadata={"Software": None})
+        return out.getvalue()
+
+    for plot, arg in drawings:
+        once = plot(arg)
+        assert isinstance(once.get_layout_engine(), PlaceHolderLayoutEngine)
+        laid = slp._laid_out
+        slp._laid_out = lambda fig: fig  # the figure as before: constrained layout run by savefig
+        try:
+            before = plot(arg)
+        finally:
+            slp._laid_out = laid
+        assert before.get_layout_engine() is not None and not isinstance(before.get_layout_engine(),
+                                                                         PlaceHolderLayoutEngine)
+        reference = png(before)
+        assert png(once) == reference, plot.__name__
+        assert png(plot(arg), drop=True) == reference, plot.__name__
