@@ -155,7 +155,8 @@ def time_trees(trees: dict[str, Path], out: Path, rounds: int, only: list[str]) 
                 png.parent.mkdir(parents=True, exist_ok=True)
                 p = subprocess.run([sys.executable, "-m", "benchmarks.bench_figures", "child-time", "--recipe",
                                     str(recipe), "--png", str(png), "--tree", str(trees[name])],
-                                   cwd=Path(__file__).resolve().parent.parent, env=_env(trees[name]), capture_output=True, text=True)
+                                   cwd=Path(__file__).resolve().parent.parent, env=_env(trees[name]),
+                                   capture_output=True, text=True)
                 line = [ln for ln in p.stdout.splitlines() if ln.startswith("RESULT ")]
                 if not line:
                     raise SystemExit(f"{name} {recipe.stem}: {p.stderr[-2000:]}")
