@@ -21,14 +21,6 @@ PAPER_FIGURE_TESTS = ((2, 5, 1), (5, 5, 1), (3, 3, 1), (3, 7, 1), (3, 5, 0.5), (
 LOOPS_MARGINS = {"left": 0.06, "right": 0.99, "bottom": 0.075, "top": 0.905, "wspace": 0.24, "hspace": 0.3}
 
 
-#: Where a loop panel's title sits [axes fraction], given rather than left to matplotlib: a title placed
-#: automatically is measured against the panel's y tick labels at every draw (``_update_title_position``
-#: lays the y axis out once more: ~25 % of :func:`plot_spring_loops`' CPU; issue 26), to lift it over the
-#: axis' offset text ("1e6", "+1.2e3"), which a loop's force axis does not show (the loop's range is of
-#: the order of its forces), and over tick labels on top, which these panels do not have: the same pixels
-#: (tested). (The two-panel energy figure gained nothing.)
-TITLE_Y = 1.0
-
 #: Size of :func:`plot_loop_energy` [in], its legends' font [pt], their distance below the panel
 #: (under the tick labels and the axis label) [pt] and the height of a legend row [pt].
 ENERGY_SIZE_IN = (11, 5.5)
@@ -97,7 +89,7 @@ def plot_spring_loops(runs: list[SpringRun], fit: SpringFit, cases=PAPER_FIGURE_
         else:
             err = ""
         ax.set_title(f"P0={r.p0_abs / 1e5:.2f} bar abs, D={r.amplitude_m * 1e3:.0f} mm, "
-                     f"f={r.frequency_hz:g} Hz{err}", fontsize=8, y=TITLE_Y)
+                     f"f={r.frequency_hz:g} Hz{err}", fontsize=8)
         ax.set_xlabel("displacement [mm]")
         ax.set_ylabel("force [N]")
         ax.grid(alpha=0.3)

@@ -12,33 +12,11 @@ import pandas as pd
 
 from analyses.service_life import _as_arrays, b10, kaplan_meier, weibull_fit, weibull_plotting_positions
 
-#: The resolution the rebuild saves these figures at [dpi] (``pipeline.rebuild.stage_store._save_figure``):
-#: :func:`_laid_out` lays a figure out for it, as ``savefig`` at that resolution would.
-SAVE_DPI = 110
-
-
 def _figure(size=(7.0, 4.5)):
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=size, layout="constrained", dpi=SAVE_DPI)
+    fig = Figure(figsize=size, layout="constrained")
     return fig, fig.add_subplot()
-
-
-def _laid_out(fig):
-    """``fig`` laid out once by its constrained layout, which is then spent (as ``tight_layout()`` leaves it).
-
-    ``savefig`` of a figure with a layout engine runs the engine once, then draws the figure twice, the
-    first time without rendering, then with the engine off; the rebuild takes a spent engine off before
-    saving (``stage_store._drop_spent_layout``), so the figure laid out here is drawn once: the same
-    pixels at :data:`SAVE_DPI` (tested), ~15-30 % of the figure's CPU less (issue 26).
-    """
-    from matplotlib.layout_engine import PlaceHolderLayoutEngine
-
-    engine = fig.get_layout_engine()
-    if engine is not None and not isinstance(engine, PlaceHolderLayoutEngine):
-        engine.execute(fig)
-        fig.set_layout_engine(PlaceHolderLayoutEngine(engine.adjust_compatible, engine.colorbar_gridspec))
-    return fig
 
 
 #: Groups (hose type x adjustment) drawn in one life figure, and hoses in one per-hose figure:
@@ -145,7 +123,7 @@ def plot_weibull_probability(groups: dict, unit: str = "km", confidence: float =
     ax.grid(True, which="both", alpha=0.3)
     if ax.get_legend_handles_labels()[0]:
         fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", fontsize="small", ncols=1)
-    return _laid_out(fig)
+    return fig
 
 
 def plot_kaplan_meier(groups: dict, unit: str = "km"):
@@ -175,7 +153,7 @@ def plot_kaplan_meier(groups: dict, unit: str = "km"):
     ax.set_title("Kaplan-Meier survival (+ = suspension)" + more)
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize="small")
-    return _laid_out(fig)
+    return fig
 
 
 def plot_leak_growth(df: pd.DataFrame):
@@ -218,7 +196,7 @@ def plot_leak_growth(df: pd.DataFrame):
     ax.grid(True, alpha=0.3)
     if len(df):
         fig.legend(*ax.get_legend_handles_labels(), loc="outside right upper", fontsize="small")
-    return _laid_out(fig)
+    return fig
 
 
 def plot_hose_distances(hoses: pd.DataFrame):
@@ -250,7 +228,7 @@ def plot_hose_distances(hoses: pd.DataFrame):
     ax.set_ylabel("distance [km]")
     ax.set_title("Distance per hose (f = force-set, d = distance-set rollers)" + more)
     ax.grid(True, axis="y", alpha=0.3)
-    return _laid_out(fig)
+    return fig
 
 
 __all__ = ["MAX_GROUPS_DRAWN", "MAX_HOSES_DRAWN", "plot_weibull_probability", "plot_kaplan_meier", "plot_leak_growth",

@@ -75,27 +75,3 @@ def test_loop_energy_legends_stay_inside_the_figure_however_many_rows():
             for other in fig.axes:   # nor the panels, nor their tick labels and axis labels
                 assert not box.overlaps(other.get_window_extent(renderer))
                 assert not box.overlaps(other.xaxis.get_tightbbox(renderer))
-
-
-def _png(fig) -> bytes:
-    import io
-
-    out = io.BytesIO()
-    fig.savefig(out, dpi=110, metadata={"Software": None})
-    return out.getvalue()
-
-
-def test_loop_titles_sit_where_matplotlib_would_place_them():
-    # the panels' titles are placed once (TITLE_Y), not measured against the y tick labels at every
-    # draw: the PNG is the one matplotlib's automatic title placement gives, for plain and four-digit forces
-    runs, _ = _prepared("front", [(2.0, 5.0, 1.0), (5.0, 5.0, 1.0), (3.0, 3.0, 1.0), (3.0, 7.0, 1.0),
-                                  (3.0, 5.0, 0.5), (3.0, 5.0, 2.0)])
-    fit = fit_spring_chamber(runs)
-    for scale in (1.0, 10.0):
-        for r in runs:
-            r.f = r.f * scale
-        fixed, auto = plot_spring_loops(runs, fit), plot_spring_loops(runs, fit)
-        for ax in auto.axes:
-            assert ax._autotitlepos is False  # placed once
-            ax._autotitlepos = None           # matplotlib's automatic placement, as before
-        assert _png(fixed) == _png(auto)
