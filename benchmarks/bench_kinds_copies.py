@@ -9,7 +9,7 @@ session. This benchmark takes copies already built (``cp -a`` of ``scale-10000``
 
 ``TREE`` is a source tree of the version (``git archive`` of a ref, or ``.``: this checkout) and
 ``DATA`` a folder holding ``raw/`` and ``warehouse/``. Each copy is first caught up with its
-version (one rebuild, untimed unless ``--time-catch-up``); then for each kind of
+version (one rebuild, its wall and CPU printed; ``--no-catch-up`` skips it); then for each kind of
 :func:`benchmarks.bench_scale.change_victims` (the victims are taken from the first copy's
 warehouse and applied to every copy by their path under ``raw/``), each round changes the file,
 rebuilds (timed: wall, CPU of the process tree), puts the old bytes and mtime back and rebuilds
