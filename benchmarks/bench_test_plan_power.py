@@ -9,12 +9,13 @@ One command::
 The 200 synthetic hose types of ``bench_decision_stage`` (:func:`benchmarks.bench_decision_stage.campaign`, seed 23:
 8-20 hoses per adjustment, shapes 1.5-3.5, odometer only, ``max_failures`` designed, margin 1.5), written once. Each
 version runs in its own process (``--ref``: the tree's code first on ``PYTHONPATH``), alternately, round by round;
-in it, with the stages' memo (:class:`pipeline.rebuild.memo.Memo`) in a fresh warehouse folder: the decision and
-test_plan stages at power 0.8 (cold, the memo filled and saved, as a lab's last rebuild), then at power 0.81 the
+in it, with the stages' memo (:class:`pipeline.rebuild.memo.Memo`) in a warehouse folder of its own: the decision and
+test_plan stages at power 0.8 (cold, the memo filled and saved, as a lab's last rebuild; once per version, untimed),
+then, each round in a new process on a copy of that folder, at power 0.81 the
 decision stage (through the memo) and the **test_plan stage, timed** (``time.process_time`` of this one process:
-every map computed in it, no pool; the CPU a rebuild's two workers share), the designs and boundaries computed at 0.8
-forgotten first (:func:`analyses.sequential.clear_caches`: a rebuild is a new process). Printed per round and version: the
-stage's CPU, each map's items computed / from the memo, and a digest of the table. ``--check`` also builds the
+every map computed in it, no pool; the CPU a rebuild's two workers share), in a new process (nothing computed at 0.8 held:
+designs, boundaries), as a rebuild is. Printed per round and version: the
+stage's CPU, each map's items computed / from the memo, and a digest of the table. ``--check`` also builds (round 1) the
 0.81 table cold (no memo) in the child and says whether it equals the one through the memo, bit for bit.
 The wall of the whole rebuild is ``bench_decision_stage``'s; this resolves the stage's CPU at a load where wall
 does not.
@@ -26,6 +27,7 @@ import hashlib
 import json
 import os
 import pickle
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -42,7 +44,7 @@ from pipeline.rebuild.memo import Memo
 from pipeline.stages.context import StageContext
 from pipeline.stages import decision, test_plan
 
-raw, wh, check = Path(sys.argv[1]), Path(sys.argv[2]), sys.argv[3] == "1"
+raw, wh, check, mode = Path(sys.argv[1]), Path(sys.argv[2]), sys.argv[3] == "1", sys.argv[4]
 plan_text = (raw / "plan.toml.in").read_text()
 life, runs = pickle.loads((raw / "life.pkl").read_bytes())
 counts = {}
@@ -80,11 +82,11 @@ def both(power, timed=False):
 def digest(df):
     return hashlib.sha256(pd.util.hash_pandas_object(df.astype(str), index=True).values.tobytes()).hexdigest()[:16]
 
-both(0.8)
-# a new rebuild process after the plan change: nothing computed in this one is held (designs, boundaries)
-from analyses import sequential
-getattr(sequential, "clear_caches", lambda: None)()
-getattr(getattr(test_plan, "_boundaries", None), "cache_clear", lambda: None)()
+if mode == "fill":
+    both(0.8)
+    print("RESULT {}")
+    sys.exit(0)
+# a new rebuild process after the plan change: nothing computed at 0.8 is held (designs, boundaries)
 tables, df, cpu = both(0.81, timed=True)
 out = {"cpu_s": cpu, "maps": dict(counts), "digest": digest(df), "rows": len(df)}
 if check:
@@ -105,14 +107,19 @@ def write_campaign(root: Path, types: int, seed: int) -> None:
     (root / "life.pkl").write_bytes(pickle.dumps((life, runs)))
 
 
-def run_child(tree: Path | None, raw: Path, check: bool) -> dict:
-    """One version's measurement in its own process (``tree``: that code on ``PYTHONPATH``; None: this checkout)."""
+def run_child(tree: Path | None, raw: Path, wh: Path, mode: str, check: bool = False) -> dict:
+    """One version's child process (``tree``: that code on ``PYTHONPATH``; None: this checkout): ``mode`` "fill" (the
+    stages at 0.8 into ``wh``'s memo, untimed) or "measure" (a copy of ``wh`` taken to 0.81, test_plan timed)."""
     env = dict(os.environ)
     if tree is not None:
         env["PYTHONPATH"] = str(tree)
-    with tempfile.TemporaryDirectory(prefix="tp-power-wh-", dir=raw.parent) as wh:
-        proc = subprocess.run([sys.executable, "-c", CHILD, str(raw), wh, "1" if check else "0"], env=env,
-                              cwd=str(tree) if tree is not None else None, capture_output=True, text=True)
+    with tempfile.TemporaryDirectory(prefix="tp-power-wh-", dir=raw.parent) as tmp:
+        target = wh
+        if mode == "measure":
+            target = Path(tmp) / "wh"
+            shutil.copytree(wh, target)
+        proc = subprocess.run([sys.executable, "-c", CHILD, str(raw), str(target), "1" if check else "0", mode],
+                              env=env, cwd=str(tree) if tree is not None else None, capture_output=True, text=True)
     lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
     if proc.returncode or not lines:
         raise RuntimeError(f"child failed ({proc.returncode}): {proc.stderr[-2000:]}")
@@ -136,10 +143,14 @@ def main(argv=None) -> int:
               flush=True)
         cpus = {lab: [] for lab, _ in versions}
         digests = {}
+        whs = {lab: Path(tmp) / f"wh-{lab}" for lab, _ in versions}
+        for lab, tree in versions:    # each version's memo at 0.8, once (a lab's last rebuild; untimed)
+            whs[lab].mkdir()
+            run_child(tree, raw, whs[lab], "fill")
         for r in range(args.rounds):
             for lab, tree in versions:
                 load = os.getloadavg()[0]
-                res = run_child(tree, raw, args.check)
+                res = run_child(tree, raw, whs[lab], "measure", args.check and r == 0)
                 cpus[lab].append(res["cpu_s"])
                 digests.setdefault(lab, set()).add(res["digest"])
                 maps = "; ".join(f"{k or '?'} {v[0]} computed / {v[1]} memo" for k, v in res["maps"].items())
