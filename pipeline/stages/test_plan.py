@@ -30,7 +30,9 @@ else changed. Each hose type is an item of three maps of ``ctx.map`` (the stage'
 item across rebuilds): its designs (one per target power: :func:`needed_of`), its ``power_now``
 (:func:`power_of`, keyed by the maximum it runs to) and its schedules and ``more_testing``
 (:func:`plan_hose_type`, one item per row since session 25, keyed by the row's ``failures_needed``), so that a plan
-change of the power re-runs only what it moved (the 0.9 rows' simulations stay in the memo). Since session 22 the replicates come in batches until the figure's Monte Carlo
+change of the power re-runs only what it moved (the 0.9 rows' simulations stay in the memo); since session 27 the
+boundaries of every maximum those run to come from a fourth map (:func:`boundaries_of`, once per maximum, memoised),
+carried by the items (:class:`WithBoundaries`), not computed again in each worker. Since session 22 the replicates come in batches until the figure's Monte Carlo
 error is small enough (``power_now``: mc_se <= 0.01, ``n_simulations`` what was drawn; the date: its
 median's error <= 5 %). Sessions 22-24 read a hose type's two rows on one set of the benches' replicates
 (:func:`analyses.bench_schedule.bench_schedules`); since session 25 each row draws its own (to its own
@@ -264,8 +266,8 @@ class WithBoundaries(dict):
     """A :func:`power_of` or :func:`plan_hose_type` item with the boundaries it reads under ``boundaries`` (one list per
     maximum it runs to: ``[maximum]``, or one per entry of ``needed``, None where there is none), memoised by the item
     alone (``memo_key``: the boundaries are its maxima's, :func:`boundaries_of`). Before session 27 each worker
-    computed the boundaries of every maximum its items ran to (~0.8-1.3 CPU-s a worker after a power change at 200
-    hose types: the maxima above the designs file's 100 looks and those its process did not hold)."""
+    computed the boundaries of every maximum its items ran to (up to 1.4-2.1 CPU-s a worker after a power change at
+    200 hose types, mostly the maxima above the designs file's 100 looks; now ~1 CPU-s once, for the new maxima)."""
 
     def __init__(self, item: dict, boundaries: list):
         super().__init__(item, boundaries=boundaries)
