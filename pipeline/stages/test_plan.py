@@ -30,7 +30,9 @@ else changed. Each hose type is an item of three maps of ``ctx.map`` (the stage'
 item across rebuilds): its designs (one per target power: :func:`needed_of`), its ``power_now``
 (:func:`power_of`, keyed by the maximum it runs to) and its schedules and ``more_testing``
 (:func:`plan_hose_type`, one item per row since session 25, keyed by the row's ``failures_needed``), so that a plan
-change of the power re-runs only what it moved (the 0.9 rows' simulations stay in the memo). Since session 22 the replicates come in batches until the figure's Monte Carlo
+change of the power re-runs only what it moved (the 0.9 rows' simulations stay in the memo); since session 27 the
+boundaries of every maximum those run to come from a fourth map (:func:`boundaries_of`, once per maximum, memoised),
+carried by the items (:class:`WithBoundaries`), not computed again in each worker. Since session 22 the replicates come in batches until the figure's Monte Carlo
 error is small enough (``power_now``: mc_se <= 0.01, ``n_simulations`` what was drawn; the date: its
 median's error <= 5 %). Sessions 22-24 read a hose type's two rows on one set of the benches' replicates
 (:func:`analyses.bench_schedule.bench_schedules`); since session 25 each row draws its own (to its own
@@ -199,14 +201,15 @@ def _state(item: dict) -> HoseState:
 
 def power_of(item: dict) -> list:
     """``[power_now, mc_se, n_simulations, note]`` of one hose type (module level for ``ctx.map``, memoised):
-    :func:`analyses.test_plan.power_now` run to the item's ``maximum`` (:func:`power_work`)."""
+    :func:`analyses.test_plan.power_now` run to the item's ``maximum`` (:func:`power_work`), at the boundaries the
+    item carries (``boundaries``: :class:`WithBoundaries`), else computed here."""
     s = item["settings"]
     state = _state(item)
     if not item["maximum"]:
         return [math.nan, math.nan, 0, "no maximum: the design does not exist (failures_needed)"]
     fit = common_shape_fit(state.distance, state.failed, state.group)
-    now = power_now(state, fit, _boundaries(item["maximum"], s["alpha"], s["spending"]), s["margin"],
-                    item["n_simulations"], item["seed"])
+    now = power_now(state, fit, _given_boundaries(item, 0, item["maximum"]), s["margin"], item["n_simulations"],
+                    item["seed"])
     return [now.power, now.mc_se, now.n_simulations, now.note]
 
 
@@ -253,6 +256,42 @@ def _boundaries(looks: int, alpha: float, spending: str) -> np.ndarray:
     return c
 
 
+def boundaries_of(item: dict) -> list[float]:
+    """The efficacy boundaries of ``item["looks"]`` equally spaced looks at ``alpha`` and ``spending`` [-] (module level
+    for ``ctx.map``, memoised: a power change computes only the maxima no hose type had before; session 27)."""
+    return [float(x) for x in _boundaries(item["looks"], item["alpha"], item["spending"])]
+
+
+class WithBoundaries(dict):
+    """A :func:`power_of` or :func:`plan_hose_type` item with the boundaries it reads under ``boundaries`` (one list per
+    maximum it runs to: ``[maximum]``, or one per entry of ``needed``, None where there is none), memoised by the item
+    alone (``memo_key``: the boundaries are its maxima's, :func:`boundaries_of`). Before session 27 each worker
+    computed the boundaries of every maximum its items ran to (up to 1.4-2.1 CPU-s a worker after a power change at
+    200 hose types, mostly the maxima above the designs file's 100 looks; now ~1 CPU-s once, for the new maxima)."""
+
+    def __init__(self, item: dict, boundaries: list):
+        super().__init__(item, boundaries=boundaries)
+        self.memo_key = item
+
+
+def _given_boundaries(item: dict, i: int, looks: int) -> np.ndarray:
+    """The ``i``-th boundaries an item carries (:class:`WithBoundaries`), else :func:`_boundaries` of ``looks`` here
+    (the same floats)."""
+    given = item.get("boundaries")
+    if given is not None and given[i] is not None:
+        return np.asarray(given[i], float)
+    s = item["settings"]
+    return _boundaries(looks, s["alpha"], s["spending"])
+
+
+def _boundary_key(looks, settings: dict) -> str | None:
+    """The :func:`boundaries_of` item of ``looks`` at a work item's alpha and spending, as JSON (None: no maximum)."""
+    if not looks:
+        return None
+    return json.dumps({"looks": int(looks), "alpha": settings["alpha"], "spending": settings["spending"]},
+                      sort_keys=True)
+
+
 def _schedules(item: dict, state: HoseState, fit, needed: list) -> list[BenchSchedule]:
     """The lab's benches (``item["benches"]``) run to a decision or ``needed`` failures, one schedule per row,
     each read at the boundaries of the design whose maximum is its ``needed`` (the test's own when it is
@@ -262,7 +301,7 @@ def _schedules(item: dict, state: HoseState, fit, needed: list) -> list[BenchSch
     if not todo:
         return out
     s = item["settings"]
-    bounds = [_boundaries(needed[i], s["alpha"], s["spending"]) for i in todo]
+    bounds = [_given_boundaries(item, i, needed[i]) for i in todo]
     for i, sched in zip(todo, bench_schedules(state, fit, bounds, s["margin"], item["benches"], SCHEDULE_SIMULATIONS,
                                               item["seed"])):
         out[i] = sched
@@ -346,10 +385,7 @@ def plan_table(ctx: StageContext) -> pd.DataFrame:
     # failures_needed of others (session 24)
     # the costliest hose types first: the workers' last chunks are then the cheap ones (session 23)
     order = sorted(range(len(work)), key=lambda i: -_cost(work[i]))
-    now = [None] * len(work)
-    for i, res in zip(order, ctx.map(power_of, [power_work(items[i], need[i]) for i in order],
-                                     label="test plan: power_now") if work else []):
-        now[i] = res
+    powers_work = {i: power_work(items[i], need[i]) for i in order}
     # one item per row (session 25): a power change that moves the plan's failures_needed re-runs that row's
     # schedule and more_testing only, the 0.9 row's come from the memo; rows with the same item computed once
     rows_of = {}
@@ -357,7 +393,20 @@ def plan_table(ctx: StageContext) -> pd.DataFrame:
         for n in w["needed"]:
             rows_of.setdefault(json.dumps(dict(w, needed=[n]), sort_keys=True), dict(w, needed=[n]))
     keys = sorted(rows_of, key=lambda k: (-_cost(rows_of[k]), k))
-    done = dict(zip(keys, ctx.map(plan_hose_type, [rows_of[k] for k in keys], label="test plan") if keys else []))
+    # every maximum's boundaries once, memoised (session 27): the items carry them (WithBoundaries)
+    asked = {_boundary_key(p["maximum"], p["settings"]) for p in powers_work.values()} | {
+        _boundary_key(r["needed"][0][0], r["settings"]) for r in rows_of.values()}
+    asked = sorted((k for k in asked if k is not None), key=lambda k: (-json.loads(k)["looks"], k))
+    bounds = dict(zip(asked, ctx.map(boundaries_of, [json.loads(k) for k in asked], label="test plan: boundaries")
+                      if asked else []))
+    now = [None] * len(work)
+    for i, res in zip(order, ctx.map(power_of, [WithBoundaries(powers_work[i], [bounds.get(
+            _boundary_key(powers_work[i]["maximum"], powers_work[i]["settings"]))]) for i in order],
+                                     label="test plan: power_now") if work else []):
+        now[i] = res
+    done = dict(zip(keys, ctx.map(plan_hose_type, [WithBoundaries(rows_of[k], [bounds.get(
+        _boundary_key(rows_of[k]["needed"][0][0], rows_of[k]["settings"]))]) for k in keys], label="test plan")
+                    if keys else []))
     results = [[done[json.dumps(dict(w, needed=[n]), sort_keys=True)][0] for n in w["needed"]] for w in work]
     rows = []
     for item, res, ps, pn in zip(items, results, powers, now):

@@ -169,7 +169,7 @@ def test_runs_in_the_worker_pool_on_what_it_declares(df):
     ctx = DeclaredContext(stage.NAME, stage.READS, runs=pd.DataFrame(), results=frames(), raw=None, warehouse=None,
                           plan=PLAN, mapper=mapper)
     out = stage.run(ctx)
-    assert calls == ["needed_of", "power_of", "plan_hose_type"]
+    assert calls == ["needed_of", "boundaries_of", "power_of", "plan_hose_type"]
     pd.testing.assert_frame_equal(out.tables["test_plan"], df)
     assert stage.WRITES == ("test_plan",)
 
@@ -259,3 +259,59 @@ def test_a_power_change_recomputes_only_what_reads_the_power():
     assert any(x == y for x, y in zip(a["plan_hose_type"], b["plan_hose_type"]))
     b90 = [i for i in b["plan_hose_type"] if i in a["plan_hose_type"]]
     assert b90, "the 0.9 rows' items outlive the power change"
+
+
+def test_each_maximums_boundaries_computed_once_and_carried_by_the_items(df):
+    """Session 27: the boundaries of every maximum the simulations run to come from one memoised map
+    (``boundaries_of``: the same floats as efficacy_boundaries), carried by the power_now and row items, which the memo
+    keys by the item alone (the boundaries are its maximum's): the same keys and results as an item without them."""
+    from pipeline.rebuild.memo import item_key
+
+    seen = {}
+
+    def mapper(func, items, label):
+        seen[func.__name__] = items
+        return [func(i) for i in items]
+
+    got = table(mapper=mapper)
+    asked = [(i["looks"], i["alpha"], i["spending"]) for i in seen["boundaries_of"]]
+    assert len(asked) == len(set(asked)) > 0
+    for looks, alpha, spending in asked:
+        assert stage.boundaries_of({"looks": looks, "alpha": alpha, "spending": spending}) == \
+            efficacy_boundaries(np.arange(1, looks + 1) / looks, alpha, spending).tolist()
+    carried = seen["power_of"] + seen["plan_hose_type"]
+    assert all(isinstance(i, stage.WithBoundaries) for i in carried)
+    for item in carried:
+        plain = {k: v for k, v in item.items() if k != "boundaries"}
+        looks = item["maximum"] if "maximum" in item else item["needed"][0][0]
+        if looks:
+            assert item["boundaries"][0] == stage.boundaries_of({"looks": looks, **{k: item["settings"][k] for k in
+                                                                                      ("alpha", "spending")}})
+        assert item_key(stage.power_of if "maximum" in item else stage.plan_hose_type, item, "/wh") == \
+            item_key(stage.power_of if "maximum" in item else stage.plan_hose_type, plain, "/wh")
+    for item in seen["power_of"][:2]:
+        plain = {k: v for k, v in item.items() if k != "boundaries"}
+        a, b = stage.power_of(item), stage.power_of(plain)
+        assert a[1:] == b[1:] and (a[0] == b[0] or (math.isnan(a[0]) and math.isnan(b[0])))
+    pd.testing.assert_frame_equal(got, df, check_exact=True)      # the same table as each item computing its own
+
+
+def test_a_power_change_through_the_memo_equals_a_cold_table(tmp_path):
+    """Determinism (session 27): the table after a power change computed through the memo of the rebuild before it
+    (boundaries, designs, power_now and rows partly from the memo) equals the same plan's table computed cold."""
+    from pipeline.rebuild.memo import Memo
+
+    def at(power, memo):
+        plan = Plan(True, {"margin": 2.0, "power": power}, {"A": {"benches": 3, "km_per_day": 100.0}})
+        out = stage.plan_table(StageContext(raw=None, warehouse=tmp_path, runs=pd.DataFrame(), results=frames(),
+                                            plan=plan, memo=memo,
+                                            mapper=lambda func, items, label: [func(i) for i in items]))
+        if memo is not None:
+            memo.save()
+        return out
+
+    at(0.8, Memo(tmp_path, stage.NAME))
+    memo = Memo(tmp_path, stage.NAME)
+    through = at(0.85, memo)
+    assert memo.hits > 0 and memo.computed > 0
+    pd.testing.assert_frame_equal(through, at(0.85, None), check_exact=True)
