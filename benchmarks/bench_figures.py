@@ -82,7 +82,7 @@ def _timed_warm():
 def capture(tree: Path, data: Path, out: Path, kinds: list[str]) -> dict:
     """Each kind's change on ``data``: the figures it draws (see the module's docstring)."""
     from benchmarks.bench_scale import change_victims
-    from benchmarks.bench_versions import _env, command
+    from benchmarks.bench_versions import child_after_edit
 
     victims = change_victims(data / "raw", data / "warehouse")
     seen_path = data / SEEN
@@ -95,24 +95,13 @@ def capture(tree: Path, data: Path, out: Path, kinds: list[str]) -> dict:
         n = max(seen.get(kind, [-1])) + 1
         seen.setdefault(kind, []).append(n)
         seen_path.write_text(json.dumps(seen))
-        st = path.stat()
-        original = edit(path, n % 9 + 1)  # a last digit has nine other values: a tenth run would repeat one
         kout = out / kind.replace(" ", "_")
         kout.mkdir(parents=True, exist_ok=True)
-        try:
-            p = subprocess.run([sys.executable, "-m", "benchmarks.bench_figures", "child", "--data", str(data),
+        # a last digit has nine other values: a tenth run would repeat one
+        got = child_after_edit(path, lambda p, n=n: edit(p, n % 9 + 1),
+                               [sys.executable, "-m", "benchmarks.bench_figures", "child", "--data", str(data),
                                 "--out", str(kout), "--tree", str(tree)],
-                               cwd=Path(__file__).resolve().parent.parent, env=_env(tree), capture_output=True,
-                               text=True)
-        finally:
-            path.write_bytes(original)
-            os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns))
-        subprocess.run([*command(tree), "rebuild", "--raw", str(data / "raw"), "--warehouse", str(data / "warehouse"),
-                        "-q"], cwd=tree, env=_env(tree), capture_output=True)
-        line = [ln for ln in p.stdout.splitlines() if ln.startswith("RESULT ")]
-        if not line:
-            raise SystemExit(f"{kind}: {p.stderr[-2000:]}")
-        got = json.loads(line[0][7:])
+                               tree=tree, data=data, cwd=Path(__file__).resolve().parent.parent, label=kind)
         got["load"] = os.getloadavg()[0]
         result[kind] = got
         result_path.write_text(json.dumps(result, indent=1))

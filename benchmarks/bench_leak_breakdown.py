@@ -19,7 +19,6 @@ import functools
 import json
 import os
 import resource
-import subprocess
 import sys
 import time
 import types
@@ -169,26 +168,16 @@ def main(argv=None) -> int:
         print("RESULT " + json.dumps(child(tree, data)))
         return 0
     from benchmarks.bench_scale import change_victims
-    from benchmarks.bench_versions import _env, command
+    from benchmarks.bench_versions import child_after_edit
 
     path, _edit = change_victims(data / "raw", data / "warehouse")[args.kind]
-    st = path.stat()
     rounds = []
     for i in range(args.rounds):
-        original = fresh_edit(path, int(time.time() * 7) % 90 if args.fresh is None else args.fresh + i)
-        try:
-            # this file as a script, in the tree: the tree's own pipeline is the one imported
-            p = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--child", "--data", str(data),
-                                "--tree", str(tree)], cwd=tree, env=_env(tree), capture_output=True, text=True)
-        finally:
-            path.write_bytes(original)
-            os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns))
-        subprocess.run([*command(tree), "rebuild", "--raw", str(data / "raw"), "--warehouse", str(data / "warehouse"),
-                        "-q"], cwd=tree, env=_env(tree), capture_output=True)
-        line = [ln for ln in p.stdout.splitlines() if ln.startswith("RESULT ")]
-        if not line:
-            raise SystemExit(f"round {i}: {p.stderr[-2000:]}")
-        rounds.append(json.loads(line[0][7:]))
+        value = int(time.time() * 7) % 90 if args.fresh is None else args.fresh + i
+        # this file as a script, in the tree: the tree's own pipeline is the one imported
+        rounds.append(child_after_edit(path, lambda p, v=value: fresh_edit(p, v),
+                                       [sys.executable, str(Path(__file__).resolve()), "--child", "--data", str(data),
+                                        "--tree", str(tree)], tree=tree, data=data, cwd=tree, label=f"round {i}"))
         print(f"round {i + 1}: load {os.getloadavg()[0]:.1f}, tree {rounds[-1]['tree'][0]:.2f} CPU-s, "
               f"ran {', '.join(rounds[-1]['_ran'])}", flush=True)
     names = sorted({k for r in rounds for k in r if not k.startswith("_m") and k != "_ran"},

@@ -63,6 +63,30 @@ def _env(tree: Path) -> dict:
     return env
 
 
+def child_after_edit(path: Path, edit, argv: list[str], *, tree: Path, data: Path, cwd: Path,
+                     label: str) -> dict:
+    """One edit of a raw file measured by a child process, the copy put back after it.
+
+    ``edit(path)`` changes the file and returns its old bytes; ``argv`` (run in ``cwd`` with the
+    environment of ``tree``'s version) prints one line ``RESULT <json>``. The old bytes and mtime are
+    put back whatever the child did, and the copy ``data`` is rebuilt quietly by ``tree``'s code so
+    that the next edit starts from the same warehouse. Returns the child's JSON; a child that printed
+    none ends the benchmark with its ``label`` and the end of its stderr."""
+    st = path.stat()
+    original = edit(path)
+    try:
+        p = subprocess.run(argv, cwd=cwd, env=_env(tree), capture_output=True, text=True)
+    finally:
+        path.write_bytes(original)
+        os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns))
+    subprocess.run([*command(tree), "rebuild", "--raw", str(data / "raw"), "--warehouse", str(data / "warehouse"),
+                    "-q"], cwd=tree, env=_env(tree), capture_output=True)
+    line = [ln for ln in p.stdout.splitlines() if ln.startswith("RESULT ")]
+    if not line:
+        raise SystemExit(f"{label}: {p.stderr[-2000:]}")
+    return json.loads(line[0][7:])
+
+
 def _timed(tree: Path, *args: str) -> tuple[float, float]:
     """Wall and CPU seconds (the process tree's) of one ``pneubench`` command."""
     m = measure([*command(tree), *args], cwd=tree, env=_env(tree))
