@@ -49,8 +49,6 @@ def insert_frame(con: duckdb.DuckDBPyConnection, table: str, df: pd.DataFrame) -
         con.unregister("_frame")
 
 
-
-
 def _columns_by_run(con: duckdb.DuckDBPyConnection,
                     run_ids: list[str] | None = None) -> dict[str, frozenset[tuple[str, str]]]:
     """(column, type) of each run's samples file, from the ``channels`` table (``run_id`` + one

@@ -167,7 +167,6 @@ def _view_sql(db: ReportDB) -> dict[str, str]:
         return {}
 
 
-
 class KeyedParts:
     """The report's parts, each taken from the live report when what it read is unchanged.
 
