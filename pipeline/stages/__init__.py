@@ -19,10 +19,10 @@ rebuild (the previous warehouse stays). The rebuild then adds the columns of
 
 This module names what other code uses of the stage framework.
 """
-from pipeline.stages.context import (DeclaredContext, FigureRecipe, StageContext, StageOutput, UndeclaredRead,
+from pipeline.stages.context import (Carrying, DeclaredContext, FigureRecipe, StageContext, StageOutput, UndeclaredRead,
                                      figure_of, read_samples)
 from pipeline.stages.registry import Reads, StageCircle, discover, reads_of, run_order, writes_of
 from pipeline.stages.run_columns import add_run_columns
 
-__all__ = ["DeclaredContext", "FigureRecipe", "Reads", "StageCircle", "StageContext", "StageOutput", "UndeclaredRead",
+__all__ = ["Carrying", "DeclaredContext", "FigureRecipe", "Reads", "StageCircle", "StageContext", "StageOutput", "UndeclaredRead",
            "add_run_columns", "discover", "figure_of", "read_samples", "reads_of", "run_order", "writes_of"]

@@ -85,6 +85,17 @@ class StageOutput:
             self.captions[name] = caption
 
 
+class Carrying(dict):
+    """A ``ctx.map`` item (a dict) with what another memoised map derived from it added under its own names,
+    memoised by the item alone (``memo_key``, :func:`pipeline.rebuild.memo.item_key`): what it carries follows
+    from the item, so the key need not hash it again (the decision's looks parts, session 26; the test plan's
+    boundaries, session 27)."""
+
+    def __init__(self, item: dict, **carried):
+        super().__init__(item, **carried)
+        self.memo_key = item
+
+
 @dataclass
 class StageContext:
     """What a stage may use: the ingested runs, their samples, earlier stages' tables.

@@ -67,7 +67,7 @@ from analyses.sequential_table import adopt_table, design_table, holds_table
 from analyses.test_plan import hoses_on_test_s
 from pipeline.own_files import read_own_file
 from pipeline.raw.logbook import merge_logbooks, read_logbooks
-from pipeline.stages import Reads, StageContext, StageOutput
+from pipeline.stages import Carrying, Reads, StageContext, StageOutput
 from pipeline.stages.decision_items import (_NAT, HOSE_SPEC, RUN_SPEC, _columns, _frame, _item, _ns_list, _pick,  # noqa: F401
                                             hose_type_item)
 from pipeline.versions import hash_sources, project_imports
@@ -327,15 +327,6 @@ def parts_of(item: dict) -> dict:
             "est": look_estimates(in_looks, events, fits), "left_out": len(life) - len(hoses)}
 
 
-class WithParts(dict):
-    """A :func:`decide_hose_type` item (:func:`looks_item`) with its :func:`parts_of` under ``parts``, memoised
-    by the looks item alone (``memo_key``: the parts are its hoses' and runs', computed from them)."""
-
-    def __init__(self, item: dict, parts: dict):
-        super().__init__(item, parts=parts)
-        self.memo_key = item
-
-
 def _typed(rows: list[dict], columns: list[str], ints=(), times=(), bools=()) -> pd.DataFrame:
     """A table's frame: its columns in order, BIGINT columns as nullable integers, times in UTC."""
     df = pd.DataFrame(rows, columns=columns)
@@ -531,7 +522,7 @@ def run(ctx: StageContext) -> StageOutput:
     paths = {json.dumps(a, sort_keys=True): it.get("designs") for it, a in zip(items, asks) if a is not None}
     designed = dict(zip(keys, ctx.map(designed_in_worker, [json.loads(k) | {"designs": paths[k]} for k in keys],
                                       label="decision: designs", warm=WARM) if keys else []))
-    results = ctx.map(decide_hose_type, [WithParts(looks_item(it, design_of(it, fr, designed, a)), p)
+    results = ctx.map(decide_hose_type, [Carrying(looks_item(it, design_of(it, fr, designed, a)), parts=p)
                                          for it, fr, a, p in zip(items, frozen, asks, parts)], label="decision: looks",
                       warm=WARM)
     for it, res in zip(items, results):

@@ -32,7 +32,9 @@ item across rebuilds): its designs (one per target power: :func:`needed_of`), it
 (:func:`plan_hose_type`, one item per row since session 25, keyed by the row's ``failures_needed``), so that a plan
 change of the power re-runs only what it moved (the 0.9 rows' simulations stay in the memo); since session 27 the
 boundaries of every maximum those run to come from a fourth map (:func:`boundaries_of`, once per maximum, memoised),
-carried by the items (:class:`WithBoundaries`), not computed again in each worker. Since session 22 the replicates come in batches until the figure's Monte Carlo
+carried by the items (:class:`~pipeline.stages.context.Carrying`, under ``boundaries``: one list per
+maximum an item runs to, None where there is none), not computed again in each worker (up to 1.4-2.1 CPU-s a worker
+after a power change at 200 hose types before; ~1 CPU-s once now, for the new maxima). Since session 22 the replicates come in batches until the figure's Monte Carlo
 error is small enough (``power_now``: mc_se <= 0.01, ``n_simulations`` what was drawn; the date: its
 median's error <= 5 %). Sessions 22-24 read a hose type's two rows on one set of the benches' replicates
 (:func:`analyses.bench_schedule.bench_schedules`); since session 25 each row draws its own (to its own
@@ -55,7 +57,7 @@ from analyses.bench_schedule import SCHEDULE_SIMULATIONS, BenchSchedule, bench_s
 from analyses.test_plan import (CAPACITY_DAYS, N_SIMULATIONS, HoseState, MoreTesting, decision_date,
                                 epoch_seconds, hoses_on_test_s, measured_capacity, more_testing, power_now,
                                 target_powers)
-from pipeline.stages import Reads, StageContext, StageOutput
+from pipeline.stages import Carrying, Reads, StageContext, StageOutput
 
 NAME = "test_plan"
 READS = Reads(kinds=("durability",), tables=("hose_life", "durability_runs", "life_effect", "life_verdict"),
@@ -202,7 +204,7 @@ def _state(item: dict) -> HoseState:
 def power_of(item: dict) -> list:
     """``[power_now, mc_se, n_simulations, note]`` of one hose type (module level for ``ctx.map``, memoised):
     :func:`analyses.test_plan.power_now` run to the item's ``maximum`` (:func:`power_work`), at the boundaries the
-    item carries (``boundaries``: :class:`WithBoundaries`), else computed here."""
+    item carries (``boundaries``: :class:`~pipeline.stages.context.Carrying`), else computed here."""
     s = item["settings"]
     state = _state(item)
     if not item["maximum"]:
@@ -262,20 +264,8 @@ def boundaries_of(item: dict) -> list[float]:
     return [float(x) for x in _boundaries(item["looks"], item["alpha"], item["spending"])]
 
 
-class WithBoundaries(dict):
-    """A :func:`power_of` or :func:`plan_hose_type` item with the boundaries it reads under ``boundaries`` (one list per
-    maximum it runs to: ``[maximum]``, or one per entry of ``needed``, None where there is none), memoised by the item
-    alone (``memo_key``: the boundaries are its maxima's, :func:`boundaries_of`). Before session 27 each worker
-    computed the boundaries of every maximum its items ran to (up to 1.4-2.1 CPU-s a worker after a power change at
-    200 hose types, mostly the maxima above the designs file's 100 looks; now ~1 CPU-s once, for the new maxima)."""
-
-    def __init__(self, item: dict, boundaries: list):
-        super().__init__(item, boundaries=boundaries)
-        self.memo_key = item
-
-
 def _given_boundaries(item: dict, i: int, looks: int) -> np.ndarray:
-    """The ``i``-th boundaries an item carries (:class:`WithBoundaries`), else :func:`_boundaries` of ``looks`` here
+    """The ``i``-th boundaries an item carries (``boundaries``), else :func:`_boundaries` of ``looks`` here
     (the same floats)."""
     given = item.get("boundaries")
     if given is not None and given[i] is not None:
@@ -393,18 +383,18 @@ def plan_table(ctx: StageContext) -> pd.DataFrame:
         for n in w["needed"]:
             rows_of.setdefault(json.dumps(dict(w, needed=[n]), sort_keys=True), dict(w, needed=[n]))
     keys = sorted(rows_of, key=lambda k: (-_cost(rows_of[k]), k))
-    # every maximum's boundaries once, memoised (session 27): the items carry them (WithBoundaries)
+    # every maximum's boundaries once, memoised (session 27): the items carry them (Carrying)
     asked = {_boundary_key(p["maximum"], p["settings"]) for p in powers_work.values()} | {
         _boundary_key(r["needed"][0][0], r["settings"]) for r in rows_of.values()}
     asked = sorted((k for k in asked if k is not None), key=lambda k: (-json.loads(k)["looks"], k))
     bounds = dict(zip(asked, ctx.map(boundaries_of, [json.loads(k) for k in asked], label="test plan: boundaries")
                       if asked else []))
     now = [None] * len(work)
-    for i, res in zip(order, ctx.map(power_of, [WithBoundaries(powers_work[i], [bounds.get(
+    for i, res in zip(order, ctx.map(power_of, [Carrying(powers_work[i], boundaries=[bounds.get(
             _boundary_key(powers_work[i]["maximum"], powers_work[i]["settings"]))]) for i in order],
                                      label="test plan: power_now") if work else []):
         now[i] = res
-    done = dict(zip(keys, ctx.map(plan_hose_type, [WithBoundaries(rows_of[k], [bounds.get(
+    done = dict(zip(keys, ctx.map(plan_hose_type, [Carrying(rows_of[k], boundaries=[bounds.get(
         _boundary_key(rows_of[k]["needed"][0][0], rows_of[k]["settings"]))]) for k in keys], label="test plan")
                     if keys else []))
     results = [[done[json.dumps(dict(w, needed=[n]), sort_keys=True)][0] for n in w["needed"]] for w in work]

@@ -5,7 +5,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from pipeline.stages import DeclaredContext, Reads, StageContext, StageOutput, UndeclaredRead
+from pipeline.stages import Carrying, DeclaredContext, Reads, StageContext, StageOutput, UndeclaredRead
 
 RUNS = pd.DataFrame({"run_id": ["c/b", "c/a", "c/l"], "kind": ["step", "step", "leakage"],
                      "samples_path": ["b.parquet", "a.parquet", "l.parquet"]})
@@ -82,3 +82,23 @@ def test_map_warms_its_modules_only_when_it_computes(tmp_path, monkeypatch):
     assert ctx.map(str, [1, 2], warm=("pneubench_warm_probe",)) == ["1", "2"]
     assert "pneubench_warm_probe" in sys.modules
     monkeypatch.delitem(sys.modules, "pneubench_warm_probe")
+
+
+def test_an_item_carrying_derived_parts_is_memoised_by_the_item_alone():
+    """What an item carries (another memoised map's result) is read by the function, not hashed into its memo key;
+    the carrier survives the trip to a worker (pickle) with its key."""
+    import pickle
+
+    from pipeline.rebuild.memo import item_key
+
+    item = {"hose_type": "A", "looks": 3}
+    carried = Carrying(item, parts=[1.0, 2.0])
+    assert carried["parts"] == [1.0, 2.0] and carried["hose_type"] == "A" and "parts" not in item
+    key = item_key(test_an_item_carrying_derived_parts_is_memoised_by_the_item_alone, carried, "/wh")
+    assert key is not None
+    assert key == item_key(test_an_item_carrying_derived_parts_is_memoised_by_the_item_alone,
+                           Carrying(item, parts=[9.0]), "/wh")
+    assert key != item_key(test_an_item_carrying_derived_parts_is_memoised_by_the_item_alone,
+                           Carrying(dict(item, looks=4), parts=[1.0, 2.0]), "/wh")
+    back = pickle.loads(pickle.dumps(carried))
+    assert back == carried and back.memo_key == item

@@ -15,7 +15,7 @@ from analyses.sequential import design_shape, efficacy_boundaries, max_informati
 from analyses.bench_schedule import SCHEDULE_SIMULATIONS, bench_schedule
 from analyses.test_plan import HoseState
 from pipeline.raw.plan import Plan
-from pipeline.stages import DeclaredContext, StageContext
+from pipeline.stages import Carrying, DeclaredContext, StageContext
 from pipeline.stages import test_plan as stage
 
 T0 = pd.Timestamp("2026-03-01", tz="UTC")
@@ -280,7 +280,8 @@ def test_each_maximums_boundaries_computed_once_and_carried_by_the_items(df):
         assert stage.boundaries_of({"looks": looks, "alpha": alpha, "spending": spending}) == \
             efficacy_boundaries(np.arange(1, looks + 1) / looks, alpha, spending).tolist()
     carried = seen["power_of"] + seen["plan_hose_type"]
-    assert all(isinstance(i, stage.WithBoundaries) for i in carried)
+    assert all(isinstance(i, Carrying) and i.memo_key == {k: v for k, v in i.items() if k != "boundaries"}
+               for i in carried)
     for item in carried:
         plain = {k: v for k, v in item.items() if k != "boundaries"}
         looks = item["maximum"] if "maximum" in item else item["needed"][0][0]
