@@ -11,7 +11,8 @@ text probes any version's tree, ``--ref`` included). It wraps, by attribute and 
   tree CPU;
 * the rebuild's phases (``flow._stages``, ``flow._assemble``, ``flow._publish``), the report
   (``render.stage_report``), its decision section (``render.decision_section``) and its looks figures
-  (``_draw_elsewhere``: how many drawn, whether in the pool's processes).
+  (``_draw_elsewhere`` until session 28: how many drawn, whether in the pool's processes; since then
+  ``looks_svg``: how many drawn, SVG text in the rebuild process).
 
 The CPU of the process tree at a moment: this process's and its reaped children's (``os.times``) plus every
 live descendant's from ``/proc/PID/stat`` (the rebuild's workers live across stages). Work running beside a
@@ -126,7 +127,17 @@ def _bench_probe():
         patch("pipeline.rebuild.flow", ph, phase(ph.strip("_")))
     patch("pipeline.serve.report.render", "stage_report", report_part("stage_report"))
     patch("pipeline.serve.report.render", "decision_section", report_part("decision_section"))
-    patch("pipeline.serve.report.decision", "_draw_elsewhere", draw_elsewhere)
+    def looks_svg(func):
+        def wrapper(lk):
+            got = rec["report"].setdefault("looks drawn", 0)
+            rec["report"]["looks drawn"] = got + 1
+            return func(lk)
+        return wrapper
+
+    if __import__("importlib.util").util.find_spec("pipeline.serve.report.looks_svg") is not None:
+        patch("pipeline.serve.report.decision", "looks_svg", looks_svg)         # session 28 on: SVG, here
+    else:
+        patch("pipeline.serve.report.decision", "_draw_elsewhere", draw_elsewhere)
 
     def dump():
         if os.getpid() == me:
@@ -186,6 +197,8 @@ def lines(rec: dict | None, stages=("decision", "test_plan")) -> list[str]:
         lf = rep["looks figures"]
         out.append(f"report looks figures: {lf['to draw']} to draw, {lf['in processes']} in processes "
                    f"(pool given: {lf['pool']})")
+    if "looks drawn" in rep:
+        out.append(f"report looks figures: {rep['looks drawn']} drawn (SVG, in the rebuild process)")
     ph = rec.get("phases", {})
     if ph:
         out.append("phases: " + ", ".join(f"{k} {w:.2f} s / {c:.2f} CPU-s" for k, (w, c) in ph.items()))

@@ -22,7 +22,6 @@ from contextlib import contextmanager
 from datetime import datetime, timezone
 from pathlib import Path
 
-from pipeline.rebuild.executors import forked_pool
 from pipeline.rebuild.garbage import clean_debris, collect_garbage, split_kept
 from pipeline.rebuild.options import EXIT_LOCKED, EXIT_USAGE, RebuildError
 from pipeline.rebuild.state import FilePlan, PreviousState, load_previous
@@ -143,7 +142,7 @@ def swap_in_new_database(warehouse: Path, write: Callable[[Path], None], report:
 
                 # the rebuild's one hash of the project's code keys the report's parts cache
                 page = stage_report(warehouse, database=tmp_db, run_pages=run_pages,
-                                    rebuild=FromRebuild(project_code_version(), ahead, forked_pool, keys_checked))
+                                    rebuild=FromRebuild(project_code_version(), ahead, keys_checked=keys_checked))
             except Exception as exc:
                 log.exception("report failed")
                 raise RebuildError(f"the morning report could not be written: {type(exc).__name__}: "

@@ -26,6 +26,8 @@ def test_a_probed_rebuild_tells_each_maps_hits_and_each_stages_parts(tmp_path):
     parts = probe.stage_parts(first, "decision")
     assert parts["total"][0] >= parts["run"][0] > 0 and parts["total"][1] >= parts["run"][1] >= 0
     assert {"stages", "assemble", "publish"} <= set(first["phases"])
+    assert 1 <= first["report"]["looks drawn"] <= 3      # the looks figures, SVG drawn in the rebuild (session 28)
+    assert "looks figures: " in "\n".join(probe.lines(first))
     (raw / "plan.toml").write_text(bench.SYNTH_PLAN.format(power=0.8))
     again = _rebuild(raw, wh)                      # nothing changed: neither stage runs, no map
     assert "decision" not in again["stages"] and not [m for m in again["maps"] if m["stage"] == "decision"]

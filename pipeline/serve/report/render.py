@@ -9,7 +9,6 @@ alert box of changed findings, the findings, the results per paper
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
@@ -62,9 +61,6 @@ class FromRebuild:
     ahead : BandsAhead or None
         Channel bands the rebuild began to read for the run pages
         (:class:`~pipeline.serve.report.pages.BandsAhead`).
-    pool : callable or None
-        ``pool(workers)`` gives a process pool (an executor) the decision's looks figures may be drawn
-        in (the rebuild's :func:`~pipeline.rebuild.executors.forked_pool`); None draws every figure here.
     keys_checked : bool
         Every ``table_keys`` row of the database matches its table (the rebuild that just wrote it
         checked them); else each key's row count and hash sum are checked on its table here
@@ -73,7 +69,6 @@ class FromRebuild:
 
     code: str | None = None
     ahead: BandsAhead | None = None
-    pool: Callable | None = None
     keys_checked: bool = False
 
 
@@ -92,10 +87,10 @@ def render_report(warehouse: str | Path, now: datetime | None = None, database: 
     (``--full``). Otherwise a figure whose key is in the live report is taken from there
     (:mod:`~pipeline.serve.report.figures`).
     ``rebuild``: what the rebuild rendering it gives (:class:`FromRebuild`: its hash of the code, the
-    channel bands read ahead, a process pool, whether ``table_keys`` is checked); None: none of it.
+    channel bands read ahead, whether ``table_keys`` is checked); None: none of it.
     """
     given = rebuild or FromRebuild()
-    code, ahead, pool, keys_checked = given.code, given.ahead, given.pool, given.keys_checked
+    code, ahead, keys_checked = given.code, given.ahead, given.keys_checked
     warehouse = Path(warehouse)
     now = now or _now()
     con = connect_readonly(warehouse, database)
@@ -112,7 +107,7 @@ def render_report(warehouse: str | Path, now: datetime | None = None, database: 
             results, entries = results_sections(db, warehouse, keyed)
             live = () if run_pages == "all" else (warehouse / REPORT_DIR / "index.html",)
             parts = (results, entries, keyed.get("runs-index", runs_index),
-                     keyed.get("decision", lambda d: decision_section(d, Figures(live), pool)))
+                     keyed.get("decision", lambda d: decision_section(d, Figures(live))))
         if folder is not None:
             _fill_folder(db, warehouse, Path(folder), generation, run_pages, (parts, code, keyed), ahead)
         return _index(db, warehouse, generation, (alert, findings), parts)

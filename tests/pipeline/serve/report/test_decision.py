@@ -3,9 +3,8 @@ tables (a decided hose type, an undecided one with its plan, one without plan.to
 an estimate), in the page and in headless chromium."""
 from __future__ import annotations
 
-import base64
-import io
 import re
+import xml.etree.ElementTree as ET
 
 import matplotlib
 
@@ -16,12 +15,17 @@ import pytest  # noqa: E402
 from pipeline.serve.door import connect_readonly  # noqa: E402
 from pipeline.serve.decision import read_decisions  # noqa: E402
 from pipeline.serve.report import decision as rd  # noqa: E402
+from pipeline.serve.report.looks_svg import COLOURS  # noqa: E402
 from pipeline.stages.decision import AFTER_VERDICT  # noqa: E402
 from pipeline.serve.report.db import ReportDB  # noqa: E402
-from pipeline.serve.report.render import FromRebuild, render_report  # noqa: E402
+from pipeline.serve.report.render import render_report  # noqa: E402
 from tests.pipeline.serve.report.conftest import console_lines, needs_chromium, run_chromium  # noqa: E402
 from tests.pipeline.serve.test_decision import (DECIDED, NO_ESTIMATE, NO_PLAN, OPEN, decision_rows,  # noqa: E402
                                                 make_warehouse)
+
+
+#: The SVG namespace, as ElementTree names its tags.
+SVG = "{http://www.w3.org/2000/svg}"
 
 
 @pytest.fixture
@@ -32,10 +36,6 @@ def wh(tmp_path):
 def _section(page: str) -> str:
     i = page.index('<section id="decision">')
     return page[i:page.index("</section>", i) + len("</section>")]
-
-
-def _png(src: str):
-    return plt.imread(io.BytesIO(base64.b64decode(src.split(",", 1)[1])), format="png")
 
 
 def test_the_report_opens_with_the_decision(wh):
@@ -59,22 +59,40 @@ def test_the_report_opens_with_the_decision(wh):
     assert 'title="unknown"' not in sec and sec.count('class="infobar"') == 4
 
 
+def _svgs(sec: str) -> list[tuple[str, str, ET.Element]]:
+    """(anchor, hose type as written, parsed SVG) of each looks figure of a section."""
+    found = re.findall(r'<figure id="(decision-looks-\d+)"><!-- figure: [0-9a-f]{32} -->'
+                       r'(<svg [^>]*aria-label="looks of ([^"]*)".*?</svg>)<!-- /figure -->', sec, flags=re.S)
+    return [(anchor, name, ET.fromstring(svg)) for anchor, svg, name in found]
+
+
+def _marks(svg: ET.Element, colour: str, tag: str) -> list[ET.Element]:
+    """The elements ``tag`` of ``svg`` drawn in the figure's ``colour`` (filled or stroked)."""
+    c = COLOURS[colour]
+    return [e for e in svg.iter(f"{SVG}{tag}") if c in (e.get("fill"), e.get("stroke"))]
+
+
 def test_the_looks_are_a_figure_per_hose_type_with_an_estimate(wh):
     sec = _section(render_report(wh))
-    figs = re.findall(r'<figure id="(decision-looks-\d+)"><!-- figure: [0-9a-f]{32} -->'
-                      r'<img alt="looks of ([^"]*)" src="(data:image/png;base64,[^"]+)"', sec)
+    figs = _svgs(sec)
     assert [f[1] for f in figs] == [DECIDED, "NBR &lt;b&gt;10&lt;/b&gt;", OPEN]  # none for the hose type without an estimate
-    for anchor, _name, _src in figs:
+    for anchor, _name, _svg in figs:
         assert f'href="#{anchor}"' in sec
-    img = _png(figs[0][2])[..., :3]
-    assert img.shape[:2] == (400, 900)
-    # the deciding look's orange star, the red efficacy boundaries, the blue estimate, the counted crossings ringed
-    for colour in ("decides", "efficacy", "estimate"):
-        assert _pixels(img, colour) > 150, colour
-    assert _pixels(img, "crossed") > 40           # rings (and the legend's) are thin
-    # the undecided hose type: no deciding look (no star), futility boundaries once its interval is narrow
-    img = _png(figs[2][2])[..., :3]
-    assert _pixels(img, "decides") == 0 and _pixels(img, "futility") > 150
+    for name, (_anchor, _n, svg) in zip((DECIDED, "NBR <b>10</b>", OPEN), figs):
+        d = read_decisions_of(wh, name)
+        assert svg.get("viewBox") == "0 0 900 400" and svg.get("role") == "img"
+        # one blue dot per look with an estimate, each with its look's figures as a tooltip
+        dots = [e for e in _marks(svg, "estimate", "circle") if e.find(f"{SVG}title") is not None]
+        with_estimate = [lk for lk in d.looks if lk["life_ratio"] is not None]
+        assert len(dots) == len(with_estimate) > 3
+        assert dots[0].find(f"{SVG}title").text.startswith(f"look {with_estimate[0]['look']}, ")
+        # the counted crossings ringed, the efficacy boundaries dashed in red
+        assert len(_marks(svg, "crossed", "circle")) == len(rd.counted_crossings(d)) + bool(rd.counted_crossings(d))
+        assert len(_marks(svg, "efficacy", "path")) == 2
+    # the deciding look's orange star and line on the decided hose type only; futility steps on the undecided one
+    decided, _, undecided = (f[2] for f in figs)
+    assert len(_marks(decided, "decides", "polygon")) == 2 and len(_marks(decided, "decides", "line")) == 1
+    assert _marks(undecided, "decides", "polygon") == [] and len(_marks(undecided, "futility", "path")) == 2
 
 
 def test_only_the_crossings_the_verdict_counts_are_ringed(wh):
@@ -90,16 +108,10 @@ def test_only_the_crossings_the_verdict_counts_are_ringed(wh):
     assert rd.looks_key(d) == rd.looks_key(read_decisions_of(wh, DECIDED)) != rd.looks_key(d_late)
 
 
-def _pixels(img, colour: str) -> int:
-    """Pixels of ``img`` near the figure's ``colour``."""
-    rgb = [int(rd.COLOURS[colour][i:i + 2], 16) / 255 for i in (1, 3, 5)]
-    return int((abs(img - rgb) < 0.12).all(axis=-1).sum())
-
-
 def test_the_same_tables_give_the_same_figure_bytes(wh):
     d = read_decisions_of(wh, DECIDED)
-    assert rd.looks_png(d) == rd.looks_png(d)
-    assert rd.looks_png(read_decisions_of(wh, NO_ESTIMATE)) is None
+    assert rd.looks_svg(rd.looks_of(d)) == rd.looks_svg(rd.looks_of(read_decisions_of(wh, DECIDED)))
+    assert rd.looks_svg(rd.looks_of(read_decisions_of(wh, NO_ESTIMATE))) == ""
 
 
 def test_a_looks_figure_whose_key_the_live_report_holds_is_taken_not_drawn(wh, monkeypatch):
@@ -113,8 +125,8 @@ def test_a_looks_figure_whose_key_the_live_report_holds_is_taken_not_drawn(wh, m
     write_report(wh)
     first = _section((wh / "report" / "index.html").read_text(encoding="utf-8"))
     drawn = []
-    real = rd.looks_png
-    monkeypatch.setattr(rd, "looks_png", lambda d: drawn.append(d.hose_type) or real(d))
+    real = rd.looks_svg
+    monkeypatch.setattr(rd, "looks_svg", lambda lk: drawn.append(lk.hose_type) or real(lk))
     assert _section(render_report(wh)) == first and drawn == []
     assert _section(render_report(wh, run_pages="all")) == first and len(drawn) == 3
     drawn.clear()
@@ -168,7 +180,7 @@ def test_the_decision_in_headless_chromium(wh, tmp_path):
     probe = ("<script>addEventListener('load',()=>{document.body.insertAdjacentHTML('beforeend','<pre id=m>'+"
              "[...document.querySelectorAll('.infobar')].map(b=>b.firstChild.getBoundingClientRect().width/"
              "b.getBoundingClientRect().width).map(x=>x.toFixed(2)).join(' ')+'|'+[...document.querySelectorAll("
-             "'#decision figure img')].map(i=>i.naturalWidth+'x'+i.width).join(' ')+'</pre>')})</script>")
+             "'#decision figure > svg')].map(i=>i.getAttribute('width')+'x'+i.getBoundingClientRect().width).join(' ')+'</pre>')})</script>")
     copy = tmp_path / "probe.html"
     copy.write_text(index.read_text(encoding="utf-8").replace("</body>", probe + "</body>"), encoding="utf-8")
     res = run_chromium(copy.as_uri(), "--dump-dom", size=(1280, 1600))
@@ -187,27 +199,22 @@ def test_the_decision_in_headless_chromium(wh, tmp_path):
     assert console == []
 
 
-def test_figures_drawn_in_forked_processes_are_the_bytes_drawn_here(wh, monkeypatch):
-    """From PARALLEL_FROM figures to draw (a plan change redraws all), they are drawn in processes forked one
-    per core: the same bytes and the same section as drawn one by one here."""
-    serial = _section(render_report(wh, run_pages="all"))            # 3 figures: fewer than PARALLEL_FROM
-    con = connect_readonly(wh)
-    try:
-        decisions = [d for d in read_decisions(con) if rd._drawable(d)]
-    finally:
-        con.close()
-    todo = [(d, rd.looks_key(d)) for d in decisions]
-    assert rd._draw_elsewhere(todo) == {}
-    monkeypatch.setattr(rd, "PARALLEL_FROM", 2)
-    monkeypatch.setattr(rd.os, "cpu_count", lambda: 2)
-    assert rd._draw_elsewhere(todo) == {}   # no pool given (the report alone, a notebook): drawn here
-    from pipeline.rebuild.executors import forked_pool   # the rebuild's kind, as pipeline/rebuild/publish gives it
+@needs_chromium
+def test_a_looks_figure_in_headless_chromium(wh, tmp_path):
+    """The decided hose type's figure as chromium draws it: the estimate in blue, the efficacy boundaries in red,
+    the deciding look's star and line in orange, the counted crossings' rings in purple."""
+    svg = rd.looks_svg(rd.looks_of(read_decisions_of(wh, DECIDED)))
+    page = tmp_path / "fig.html"
+    page.write_text(f"<!doctype html><html><body style='margin:0'>{svg}</body></html>", encoding="utf-8")
+    shot = tmp_path / "fig.png"
+    res = run_chromium(page.as_uri(), f"--screenshot={shot}", size=(900, 400))
+    assert console_lines(res) == []
+    rgb = plt.imread(shot)[..., :3]
 
-    drawn = rd._draw_elsewhere(todo, forked_pool)
-    assert len(todo) == 3 and drawn == {key: rd._looks_img(d) for d, key in todo}
-    assert _section(render_report(wh, run_pages="all")) == serial
-    # the report's pool reaches the looks figures (until session 26 decision_section dropped it: all drawn here)
-    used = []
-    pool = lambda workers: used.append(workers) or forked_pool(workers)   # noqa: E731
-    assert _section(render_report(wh, run_pages="all", rebuild=FromRebuild(pool=pool))) == serial
-    assert used == [2]
+    def pixels(colour: str) -> int:
+        want = [int(COLOURS[colour][i:i + 2], 16) / 255 for i in (1, 3, 5)]
+        return int((abs(rgb - want) < 0.12).all(axis=-1).sum())
+
+    for colour in ("decides", "efficacy", "estimate"):
+        assert pixels(colour) > 150, colour
+    assert pixels("crossed") > 40
