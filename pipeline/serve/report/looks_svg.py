@@ -255,7 +255,8 @@ def looks_svg(lk: Looks) -> str:
     top = max([*xs, float(lk.max_failures) if _finite(lk.max_failures) else 0.0]) * 1.02 + 0.5
     margin = _margin(lk.margin)
     ax = _Axes(top, *ratio_window(lk.ratio, margin))
-    pw, ph = RIGHT - LEFT, BOTTOM - TOP
+    deciding = lk.deciding if lk.deciding is not None and 0 <= lk.deciding < len(xs) else None
+    counted = [i for i in lk.counted if 0 <= i < len(xs) and _finite(lk.ratio[i]) and lk.ratio[i] > 0]
     name = html.escape(lk.hose_type)
     out = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{WIDTH}" height="{HEIGHT}" '
            f'viewBox="0 0 {WIDTH} {HEIGHT}" role="img" aria-label="looks of {name}" '
@@ -263,11 +264,26 @@ def looks_svg(lk: Looks) -> str:
            f'<rect width="{WIDTH}" height="{HEIGHT}" fill="#fff"/>',
            f'<text x="{(LEFT + RIGHT) / 2:.1f}" y="{TOP - 10}" font-size="13" text-anchor="middle" fill="{TEXT}">'
            f'{name}: {html.escape(lk.verdict or "no verdict")}</text>']
-    for v in ratio_ticks(ax.y_lo, ax.y_hi):          # the grid and the axes' ticks, outside the viewport
+    out += _axes(ax)
+    out += _plot_area(ax, lk, xs, margin, deciding, counted)
+    out.append(f'<rect x="{LEFT}" y="{TOP}" width="{RIGHT - LEFT}" height="{BOTTOM - TOP}" fill="none" '
+               f'stroke="{TEXT}" stroke-width="0.8"/>')
+    if margin is not None:
+        out.append(f'<text x="{RIGHT + 4}" y="{_num(TOP + ax.y(margin))}" dy="3" font-size="9" '
+                   f'fill="{COLOURS["margin"]}">margin {margin:g}</text>')
+    out += _legend(_entries(lk.verdict, bool(counted), deciding is not None))
+    out.append("</svg>")
+    return "".join(out)
+
+
+def _axes(ax: _Axes) -> list[str]:
+    """The grid, the ticks and the axes' labels (outside the plot area's viewport)."""
+    out = []
+    for v in ratio_ticks(ax.y_lo, ax.y_hi):
         y = _num(TOP + ax.y(v))
         out.append(f'<line x1="{LEFT}" y1="{y}" x2="{RIGHT}" y2="{y}" stroke="{GRID}"/>'
                    f'<text x="{LEFT - 6}" y="{y}" dy="3.5" font-size="10" text-anchor="end" fill="{TEXT}">{v:g}</text>')
-    for v in failure_ticks(top):
+    for v in failure_ticks(ax.x_top):
         x = _num(LEFT + ax.x(v))
         out.append(f'<line x1="{x}" y1="{TOP}" x2="{x}" y2="{BOTTOM}" stroke="{GRID}"/>'
                    f'<text x="{x}" y="{BOTTOM + 15}" font-size="10" text-anchor="middle" fill="{TEXT}">{v}</text>')
@@ -275,8 +291,15 @@ def looks_svg(lk: Looks) -> str:
                f'fill="{TEXT}">failures (both adjustments)</text>'
                f'<text transform="translate(20,{(TOP + BOTTOM) / 2:.1f}) rotate(-90)" font-size="11" '
                f'text-anchor="middle" fill="{TEXT}">life ratio force / distance</text>')
-    # the plot area: a nested viewport clips the boundaries that run off the axis
-    out.append(f'<svg x="{LEFT}" y="{TOP}" width="{pw}" height="{ph}" viewBox="0 0 {pw} {ph}" overflow="hidden">')
+    return out
+
+
+def _plot_area(ax: _Axes, lk: Looks, xs: list[float], margin: float | None, deciding: int | None,
+               counted: list[int]) -> list[str]:
+    """The plot area, a nested viewport that clips the boundaries running off the axis: the interval, the
+    boundaries, the 1-line and the margins, the deciding look's line, the estimate, the rings and the star."""
+    pw, ph = RIGHT - LEFT, BOTTOM - TOP
+    out = [f'<svg x="{LEFT}" y="{TOP}" width="{pw}" height="{ph}" viewBox="0 0 {pw} {ph}" overflow="hidden">']
     band = _band_path(ax, xs, lk.rci_lower, lk.rci_upper)
     if band:
         out.append(f'<path d="{band}" fill="{COLOURS["rci"]}" fill-opacity="0.45" stroke="none"/>')
@@ -288,12 +311,10 @@ def looks_svg(lk: Looks) -> str:
                            f'stroke-dasharray="{dash}"/>')
     y1 = _num(ax.y(1.0))
     out.append(f'<line x1="0" y1="{y1}" x2="{pw}" y2="{y1}" stroke="#000" stroke-width="0.7"/>')
-    if margin is not None:
-        for m in (margin, 1 / margin):
-            y = _num(ax.y(m))
-            out.append(f'<line x1="0" y1="{y}" x2="{pw}" y2="{y}" stroke="{COLOURS["margin"]}" stroke-width="0.8" '
-                       'stroke-dasharray="1.5 2.5"/>')
-    deciding = lk.deciding if lk.deciding is not None and 0 <= lk.deciding < len(xs) else None
+    for m in (margin, 1 / margin) if margin is not None else ():
+        y = _num(ax.y(m))
+        out.append(f'<line x1="0" y1="{y}" x2="{pw}" y2="{y}" stroke="{COLOURS["margin"]}" stroke-width="0.8" '
+                   'stroke-dasharray="1.5 2.5"/>')
     if deciding is not None:
         x = _num(ax.x(xs[deciding]))
         out.append(f'<line x1="{x}" y1="0" x2="{x}" y2="{ph}" stroke="{COLOURS["decides"]}" stroke-width="1.2"/>')
@@ -303,35 +324,30 @@ def looks_svg(lk: Looks) -> str:
         if _finite(r) and r > 0:
             out.append(f'<circle cx="{_num(ax.x(xs[i]))}" cy="{_num(ax.y(r))}" r="2.6" fill="{COLOURS["estimate"]}">'
                        f"<title>{_tooltip(lk, i)}</title></circle>")
-    counted = [i for i in lk.counted if 0 <= i < len(xs) and _finite(lk.ratio[i]) and lk.ratio[i] > 0]
     for i in counted:
         out.append(f'<circle cx="{_num(ax.x(xs[i]))}" cy="{_num(ax.y(lk.ratio[i]))}" r="6.3" fill="none" '
                    f'stroke="{COLOURS["crossed"]}" stroke-width="1.6"/>')
     if deciding is not None and _finite(lk.ratio[deciding]) and lk.ratio[deciding] > 0:
         out.append(f'<polygon points="{_star(ax.x(xs[deciding]), ax.y(lk.ratio[deciding]), 9.0)}" '
                    f'fill="{COLOURS["decides"]}"><title>{_tooltip(lk, deciding)}</title></polygon>')
-    out.append("</svg>")
-    out.append(f'<rect x="{LEFT}" y="{TOP}" width="{pw}" height="{ph}" fill="none" stroke="{TEXT}" stroke-width="0.8"/>')
-    if margin is not None:
-        out.append(f'<text x="{RIGHT + 4}" y="{_num(TOP + ax.y(margin))}" dy="3" font-size="9" '
-                   f'fill="{COLOURS["margin"]}">margin {margin:g}</text>')
+    return out + ["</svg>"]
+
+
+def _entries(verdict: str | None, ringed: bool, decided: bool) -> list[tuple[str, str]]:
+    """The legend's entries: (swatch markup at the origin, text); the rings and the star only when drawn."""
+    line = '<line x1="0" y1="0" x2="20" y2="0" stroke="{}" stroke-width="{}"{}/>'
     entries = [(f'<rect x="0" y="-5" width="20" height="10" fill="{COLOURS["rci"]}" fill-opacity="0.45"/>',
                 "repeated confidence interval"),
-               (f'<line x1="0" y1="0" x2="20" y2="0" stroke="{COLOURS["efficacy"]}" stroke-width="1.3" '
-                'stroke-dasharray="6 3"/>', "efficacy boundary"),
-               (f'<line x1="0" y1="0" x2="20" y2="0" stroke="{COLOURS["futility"]}" stroke-width="1.3" '
-                'stroke-dasharray="7 3 1.5 3"/>', "futility boundary"),
-               (f'<line x1="0" y1="0" x2="20" y2="0" stroke="{COLOURS["estimate"]}" stroke-width="1.4"/>'
-                f'<circle cx="10" cy="0" r="2.6" fill="{COLOURS["estimate"]}"/>', "estimate force / distance")]
-    if counted:
+               (line.format(COLOURS["efficacy"], 1.3, ' stroke-dasharray="6 3"'), "efficacy boundary"),
+               (line.format(COLOURS["futility"], 1.3, ' stroke-dasharray="7 3 1.5 3"'), "futility boundary"),
+               (line.format(COLOURS["estimate"], 1.4, "") + f'<circle cx="10" cy="0" r="2.6" fill="{COLOURS["estimate"]}"/>',
+                "estimate force / distance")]
+    if ringed:
         entries.append((f'<circle cx="10" cy="0" r="6.3" fill="none" stroke="{COLOURS["crossed"]}" '
                         'stroke-width="1.6"/>', "crossed (confirmed)"))
-    if deciding is not None:
-        entries.append((f'<polygon points="{_star(10, 0, 7.0)}" fill="{COLOURS["decides"]}"/>',
-                        f"decided: {lk.verdict}"))
-    out += _legend(entries)
-    out.append("</svg>")
-    return "".join(out)
+    if decided:
+        entries.append((f'<polygon points="{_star(10, 0, 7.0)}" fill="{COLOURS["decides"]}"/>', f"decided: {verdict}"))
+    return entries
 
 
 __all__ = ["Looks", "looks_svg", "ratio_window", "ratio_ticks", "failure_ticks", "COLOURS", "WIDTH", "HEIGHT"]
