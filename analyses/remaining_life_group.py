@@ -1,5 +1,6 @@
 """One hose type's remaining-life predictions and their backtest, from the models of
-:mod:`analyses.remaining_life` (the method, its references and its decisions are described there).
+:mod:`analyses.life_posterior`, :mod:`analyses.leak_degradation` and :mod:`analyses.remaining_life` (the
+methods, their references and their decisions are described there).
 
 :func:`group_models` fits a hose type's models once, :func:`remaining_life` predicts every running
 hose's remaining life by each method asked, :func:`rul_backtest` makes the predictions each method
@@ -20,9 +21,10 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from analyses.remaining_life import (BACKTEST_COLUMNS, BACKTEST_FRACTIONS, RUL_COLUMNS, DegradationFit, LifeModel,
-                                     RulSettings, _leak_failures, _lives, _rupture_posterior, data_seed,
-                                     degradation_fit, degradation_rul, life_model, rupture_model, weibull_rul)
+from analyses.leak_degradation import DegradationFit, degradation_fit, degradation_rul
+from analyses.life_posterior import LifeModel, life_model, weibull_rul
+from analyses.remaining_life import (BACKTEST_COLUMNS, BACKTEST_FRACTIONS, RUL_COLUMNS, RulSettings, _leak_failures,
+                                     _lives, _rupture_posterior, data_seed, rupture_model)
 from analyses.service_life import weibull_fit
 
 _NAN = float("nan")

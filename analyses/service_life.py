@@ -793,7 +793,7 @@ def weibull_loglik_many(shape, scale, life, failed) -> np.ndarray:
     """:func:`weibull_loglik` at many parameter pairs at once (vectorised over the pairs).
 
     Used to weigh thousands of parameter draws against the likelihood (the predictive
-    distributions of :mod:`analyses.remaining_life`), where one call per pair is too slow.
+    distributions of :mod:`analyses.life_posterior`), where one call per pair is too slow.
 
     Parameters
     ----------

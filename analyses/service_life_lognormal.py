@@ -5,7 +5,7 @@
 Escobar 1998, ch. 4 and 8), beside the Weibull of :mod:`analyses.service_life`. Weibull and
 lognormal have two parameters each, so their maximised log-likelihoods compare directly (Meeker &
 Escobar 1998, sections 6.4 and 8.3; Dumonceaux & Antle 1973, "Discrimination between the
-log-normal and the Weibull distributions", Technometrics 15): :mod:`analyses.remaining_life`
+log-normal and the Weibull distributions", Technometrics 15): :mod:`analyses.life_posterior`
 weighs the two for its life model.
 """
 from __future__ import annotations

@@ -35,7 +35,7 @@ prints the same counts.
 design (:func:`simulate_rul_type`) that logged zero or one rupture, whose rupture shape the data cannot
 tell (:func:`analyses.remaining_life.rupture_model`): without ``--rupture-shape`` the union of the
 Weibayes intervals over the shapes from 1 to the logbook Weibull shape's upper bound
-(:func:`analyses.remaining_life.rul_over_shapes`), with it the Weibayes at that shape (the plan's
+(:func:`analyses.life_posterior.rul_over_shapes`), with it the Weibayes at that shape (the plan's
 ``rupture_shape``). Per running hose, the prediction interval of its remaining distance to rupture
 (``weibull_rul`` of those models) against the hose's true rupture distance (latent for most: the leak
 ends them first), under two truths of the rupture life (:data:`RUPTURE_TRUTHS`): the ``rul`` design's
@@ -145,8 +145,9 @@ def _running_outcomes(rul: pd.DataFrame, hoses: pd.DataFrame, truth: dict) -> pd
 def run(types: int, every_km: float, seed: int, design=None) -> tuple[pd.DataFrame, pd.DataFrame, list]:
     """Simulate (``design``: :func:`simulate_type` by default) and predict ``types`` hose types;
     (running outcomes, backtest rows, wear-rate estimates)."""
+    from analyses.leak_degradation import degradation_fit, leak_crossing_lives
     from analyses.quality import Sensor
-    from analyses.remaining_life import RulSettings, degradation_fit, leak_crossing_lives
+    from analyses.remaining_life import RulSettings
     from analyses.remaining_life_group import remaining_life, rul_backtest
 
     settings = RulSettings(limit_l_min=LIMIT, sensor=Sensor(*SENSOR, source="metadata"), confidence=CONFIDENCE)
@@ -170,7 +171,8 @@ def rupture_outcomes(groups: int, every_km: float, seed: int, truth: str,
     remaining distance to rupture (``rul_*_km``), the constant hazard's (``const_lower_km``,
     ``const_upper_km``) and ``rupture_left_km`` (the truth); and how many of the ``groups`` simulated
     logged at most one."""
-    from analyses.remaining_life import rul_over_shapes, rupture_model, weibayes_posterior, weibull_rul
+    from analyses.life_posterior import rul_over_shapes, weibayes_posterior, weibull_rul
+    from analyses.remaining_life import rupture_model
 
     rows, kept = [], 0
     k_truth = list(RUPTURE_TRUTHS).index(truth)

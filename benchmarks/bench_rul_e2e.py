@@ -31,13 +31,13 @@ Counted, at the plan's confidence (90 %):
 
 A hose without a prediction (NULL, with its note) is counted and left out. Seeded (``--seed``).
 
-``--control``: the ``weibull`` method's life model alone (:func:`analyses.remaining_life.life_model`,
+``--control``: the ``weibull`` method's life model alone (:func:`analyses.life_posterior.life_model`,
 no rebuild) on the ``rul`` design in units of the median life (25 hoses a group, the campaign ending
 for each hose at 0.6-1.05: the groups have seen only their early failures) under three life laws:
 Weibull lives (shape 4), lognormal lives (sigma 0.35) and the simulator's competing risks (a
 lognormal leak crossing, sigma 0.35, and a Weibull(2, 3) rupture, the first of the two). Per law and
 per rule: the Weibull alone, the family with the larger maximised log-likelihood, and the
-evidence-weighted mixture the method uses (:class:`analyses.remaining_life.LifeModel`); the running
+evidence-weighted mixture the method uses (:class:`analyses.life_posterior.LifeModel`); the running
 hoses' coverage (target 90 +- 7) and the median width.
 """
 from __future__ import annotations
@@ -90,7 +90,7 @@ def wear_rates(con, plan) -> pd.DataFrame:
     growth exponent, fitted on the points the stage fitted (its own :func:`leak_paths` and
     :func:`leak_sensor`; the tables do not carry the wear-rate distribution)."""
     from analyses.quality import Sensor
-    from analyses.remaining_life import degradation_fit
+    from analyses.leak_degradation import degradation_fit
     from pipeline.stages.remaining_life import leak_paths, leak_sensor
 
     life = con.sql("SELECT hose_id, hose_type, adjustment FROM hose_life ORDER BY hose_id").df()
@@ -152,7 +152,7 @@ CONTROL_LAWS = {
 def control_group(rng: np.random.Generator, law, confidence: float) -> pd.DataFrame:
     """One simulated group of 25 hoses under ``law``: per running hose and rule (``weibull only``,
     ``better fit``, ``mixture``) whether its interval held its true remaining life, and its width."""
-    from analyses.remaining_life import life_model, weibull_rul
+    from analyses.life_posterior import life_model, weibull_rul
 
     n = 25
     truth, end = law(rng, n), rng.uniform(0.6, 1.05, n)

@@ -98,7 +98,7 @@ TARGETS += [
     "pipeline.stages.remaining_life:stage_items", "pipeline.stages.remaining_life:rul_weibull",
     "pipeline.stages.remaining_life:rul_group", "pipeline.stages.remaining_life:sensitivity_leak",
     "pipeline.stages.remaining_life:sensitivity_logbook", "pipeline.stages.remaining_life:read_once",
-    "analyses.remaining_life:degradation_fit", "analyses.remaining_life:degradation_rul",
+    "analyses.leak_degradation:degradation_fit", "analyses.leak_degradation:degradation_rul",
     "analyses.remaining_life_group:group_models", "analyses.remaining_life_group:remaining_life",
     "analyses.remaining_life_group:rul_backtest",
     "analyses.decision:decide", "pipeline.stages.remaining_life:sensitivity_of",

@@ -63,7 +63,7 @@ class WearPath:
     pressure ``p`` is ``c (p - p_seal(d))^1.5`` above ``p_seal(d)`` (physics.md). At the pressure
     the hose seals when new (``p = p_seal_new``) the leak is ``(w d)^1.5`` with the **wear rate**
     ``w = c^(2/3) k`` [1/km]: a power law through the origin with a lognormal ``w`` across hoses,
-    the family :mod:`analyses.remaining_life` fits. At another pressure the path starts with an
+    the family :mod:`analyses.leak_degradation` fits. At another pressure the path starts with an
     offset (a leak at ``d = 0`` above the seal pressure, none until ``k d = p_seal_new - p`` below it).
 
     Attributes

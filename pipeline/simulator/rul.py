@@ -7,7 +7,7 @@ hose-to-hose coefficient of variation of the wear (``wear_cv``) and a Weibull ru
 (shape ``rupture_shape``, scale ``rupture_scale`` median crossings). Every hose is a
 :class:`~pipeline.simulator.durability.WearPath` set to seal the plan's ``leak_pressure_bar``
 when new, so its leak there is ``(w d)^1.5`` with a lognormal wear rate ``w`` (the family of
-:mod:`analyses.remaining_life`), read by a leakage check (three plateaus up to that pressure, a
+:mod:`analyses.leak_degradation`), read by a leakage check (three plateaus up to that pressure, a
 low-range flow meter stated in ``rig.toml``) after every durability run of ``check_every``
 median crossings, with the seating scatter of physics.md. A hose fails at the first of its leak
 crossing ``leak_limit_l_min`` (the rig's leak monitor stops the run there; a last check reads the

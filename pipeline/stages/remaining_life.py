@@ -14,7 +14,7 @@ Three tables, from ``hose_life`` and ``hose_leak_growth`` (the durability stage'
   (:func:`analyses.remaining_life_group.rul_backtest`, :func:`analyses.remaining_life_group.backtest_summary`);
 * ``decision_sensitivity``: per hose type and failure definition (the logbook's failures; the
   leak path's first crossing of the plan's limit, at 0.5x and 2x that limit,
-  :func:`analyses.remaining_life.leak_crossing_lives`) the life ratio with its profile bounds
+  :func:`analyses.leak_degradation.leak_crossing_lives`) the life ratio with its profile bounds
   (:func:`analyses.life_effect.life_effect`) and the verdict the decision's rule reads on all of
   that definition's data now (:func:`analyses.decision.decide`: the sequential boundary at the
   definition's information fraction in the plan's design with a look at every failure, the
@@ -63,7 +63,8 @@ from analyses.life_effect import life_effect
 from analyses.life_effect_lognormal import (LOGNORMAL, lognormal_effect_fit, lognormal_life_effect,
                                             lognormal_ratio_deviance)
 from analyses.quality import Sensor
-from analyses.remaining_life import RulSettings, leak_crossing_lives
+from analyses.leak_degradation import leak_crossing_lives
+from analyses.remaining_life import RulSettings
 from analyses.remaining_life_group import backtest_summary, group_models, remaining_life, rul_backtest
 from pipeline.stages import Reads, StageContext, StageOutput
 from schemas.sensors_text import sensor_parts

@@ -4,7 +4,7 @@ import math
 
 import numpy as np
 
-from analyses.remaining_life import weibayes_posterior, weibull_rul
+from analyses.life_posterior import weibayes_posterior, weibull_rul
 from benchmarks import bench_remaining_life as bench
 
 
