@@ -64,7 +64,7 @@ def test_two_sided_z_of_any_confidence_is_ndtri():
 
 def test_the_normal_and_chi2_helpers_import_no_scipy_special():
     code = ("import sys, numpy as np; from analyses.numerics import norm_sf, norm_isf, chi2_sf, two_sided_z; "
-            "from analyses.sequential import alpha_spent; "
+            "from analyses.sequential_boundaries import alpha_spent; "
             "norm_sf(np.ones(3)); norm_isf(0.05); chi2_sf(3.1, 4); two_sided_z(0.93); alpha_spent(np.ones(3) / 2); "
             "print('scipy.special' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
