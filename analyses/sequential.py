@@ -29,11 +29,11 @@ futility rule), so the efficacy error stays at most ``alpha``. Looks with no new
 
 Maximum information
 -------------------
-For a margin ``m``, ``alpha`` and ``power``, the fixed-sample design needs information ``I_fix =
-((z_{1-alpha/2} + z_power) / ln m)^2``; the sequential design needs ``R * I_fix`` where the inflation
-factor ``R`` is found exactly: the drift at which the design's probability of crossing the upper boundary
-equals ``power`` (J&T section 2.5, Tables 2.4 and 2.6). Information is converted to failures with the
-expected information of the common-shape Weibull regression, the shape estimated
+For a margin ``m``, ``alpha`` and ``power``, the fixed-sample design needs information
+``I_fix = ((z_{1-alpha/2} + z_power) / ln m)^2``; the sequential design needs ``R * I_fix`` where the
+inflation factor ``R`` is found exactly: the drift at which the design's probability of crossing the
+upper boundary equals ``power`` (J&T section 2.5, Tables 2.4 and 2.6). Information is converted to
+failures with the expected information of the common-shape Weibull regression, the shape estimated
 (:func:`information_per_failure`). The canonical process is not the refitted Wald z at the margin: its SE
 grows with the estimate, so its spread is below 1, and at a look of ``d`` failures it cannot exceed about
 ``sqrt(d)``. With failures rare and at most :data:`DESIGN_LOOKS` failures, ``max_failures`` is therefore

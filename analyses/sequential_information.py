@@ -8,17 +8,17 @@ distribution, which the canonical process is not at the margin). :func:`informat
 process (``lru_cache``; cleared by :func:`analyses.sequential.clear_caches`).
 
 When failures are rare among the hoses at risk (the default) a fraction ``p = 1 / (1 + margin^shape)`` of
-them are force-set hoses' at the margin (the hazard ratio's share), the log hazard ratio ``beta = shape
-ln margin`` has information ``p (1 - p)`` per failure (Schoenfeld 1983; 1/4 only when the failures split
-evenly), the log life ratio is ``beta / shape`` and the estimated shape adds its own variance (``shape^2
-/ D``, orthogonal to the log hazard scales at a common censoring distance): per failure ``I / D = shape^2
-p (1 - p) / (1 + beta^2 p (1 - p))``. With ``n`` hoses on test at once per adjustment, a failed hose
-replaced by a new one (benches that keep running; what the stages pass,
+them are force-set hoses' at the margin (the hazard ratio's share), the log hazard ratio
+``beta = shape ln margin`` has information ``p (1 - p)`` per failure (Schoenfeld 1983; 1/4 only when the
+failures split evenly), the log life ratio is ``beta / shape`` and the estimated shape adds its own
+variance (``shape^2 / D``, orthogonal to the log hazard scales at a common censoring distance): per
+failure ``I / D = shape^2 p (1 - p) / (1 + beta^2 p (1 - p))``. With ``n`` hoses on test at once per
+adjustment, a failed hose replaced by a new one (benches that keep running; what the stages pass,
 :func:`analyses.test_plan.hoses_on_test`), the full 3x3 expected information (Escobar & Meeker 1994, in
 the counting-process form with the renewal function's hoses at risk) at the bench distance where ``D``
 failures are expected is inverted instead: many hoses per failure give the rare limit, few hoses run to
-many failures nearly complete samples, ``p`` towards ``1 / (1 + margin)`` and ``I / D`` towards ``shape^2
-p (1 - p)`` (1.5 instead of 1.03 per failure at margin 1.5, shape 2.5, 4 hoses each).
+many failures nearly complete samples, ``p`` towards ``1 / (1 + margin)`` and ``I / D`` towards
+``shape^2 p (1 - p)`` (1.5 instead of 1.03 per failure at margin 1.5, shape 2.5, 4 hoses each).
 
 References: Schoenfeld, D. A. (1983). Sample-size formula for the proportional-hazards
 regression model. Biometrics 39, 499-503. Escobar, L. A. & Meeker, W. Q. (1994). Fisher
