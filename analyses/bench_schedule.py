@@ -211,7 +211,7 @@ def bench_schedule(state: HoseState, fit: CommonShapeFit, boundaries, margin: fl
     """The hose-km the lab's benches run until the test decides or reaches its maximum.
 
     The lab's schedule, which the design's information per failure assumes too
-    (:func:`analyses.sequential.information_per_failure`): ``benches`` benches run at one rate, the
+    (:func:`analyses.sequential_information.information_per_failure`): ``benches`` benches run at one rate, the
     running hoses continue from their distance (a free bench takes a new hose, to the adjustment with
     fewer), and each failed hose is replaced at once by a new one of its adjustment (a renewal
     process per bench; lives from the fitted model, :func:`analyses.test_plan.remaining_km`). The failures

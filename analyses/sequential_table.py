@@ -1,10 +1,11 @@
 """The even designs' boundaries as plain arrays: computed once, kept between processes (issue 23).
 
 Every sequential design of the stages (:func:`analyses.sequential.design_for`) visits the even designs
-``k / M`` of ``M`` from :data:`FIRST_MAXIMUM` to :data:`~analyses.sequential.DESIGN_LOOKS` looks: the
-rare-failure bisection reads their boundaries (:func:`analyses.sequential.rare_failure_power`) and the
-inflation factor their power at any drift (:meth:`analyses.sequential._Design.upper_power`, from the
-continuation grids the recursion leaves). Those depend on ``alpha`` and the spending function only, not
+``k / M`` of ``M`` from :data:`FIRST_MAXIMUM` to :data:`~analyses.sequential_boundaries.DESIGN_LOOKS`
+looks: the rare-failure bisection reads their boundaries
+(:func:`analyses.sequential_information.rare_failure_power`) and the inflation factor their power at any
+drift (:meth:`analyses.sequential_boundaries._Design.upper_power`, from the continuation grids the
+recursion leaves). Those depend on ``alpha`` and the spending function only, not
 on the margin, shape, hoses or power, and their recursion costs about 1 CPU-s a process (every worker of
 a rebuild's pool paid it). :func:`design_table` gives them as arrays (computed here when this process has
 not got them); :func:`adopt_table` takes such arrays back, after checking them, so that a process that
@@ -15,12 +16,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from analyses.sequential import _DESIGNS, _NO_BOUNDARY, DESIGN_LOOKS, SPENDING, _Design, _design_of, alpha_spent
+from analyses.sequential_boundaries import (_DESIGNS, _NO_BOUNDARY, DESIGN_LOOKS, SPENDING, _Design, _design_of,
+                                           alpha_spent)
 
 #: The smallest maximum a design visits (:func:`analyses.sequential._smallest_rare_maximum` starts at 4).
 FIRST_MAXIMUM = 4
-#: Rows of a design's flattened grids (:meth:`analyses.sequential._Design.upper_power`): score, mass,
-#: previous fraction, increment, boundary times sqrt(t).
+#: Rows of a design's flattened grids (:meth:`analyses.sequential_boundaries._Design.upper_power`): score,
+#: mass, previous fraction, increment, boundary times sqrt(t).
 _FLAT_ROWS = 5
 #: The most grid points one design may hold in a table (a design of 100 looks holds ~25,000).
 _MAX_POINTS = 1_000_000
@@ -45,8 +47,8 @@ def design_table(alpha: float, spending: str) -> dict[str, np.ndarray]:
     -------
     dict
         ``c_M``: float64 ``(M,)`` boundaries on the z scale [-]; ``flat_M``: float64 ``(5, n)``, the
-        continuation grids :meth:`~analyses.sequential._Design.upper_power` reads [-]. Computed in this
-        process where it has not got them (and kept there, as any design is).
+        continuation grids :meth:`~analyses.sequential_boundaries._Design.upper_power` reads [-]. Computed in
+        this process where it has not got them (and kept there, as any design is).
     """
     out = {}
     for m in range(FIRST_MAXIMUM, DESIGN_LOOKS + 1):
@@ -105,8 +107,9 @@ def adopt_table(table, alpha: float, spending: str) -> bool:
 
 
 def _from_table(t: np.ndarray, alpha: float, spending: str, c: np.ndarray, flat: np.ndarray) -> _Design:
-    """The :class:`analyses.sequential._Design` of looks ``t`` whose every boundary ``c`` and flattened grids
-    ``flat`` are known already: no recursion left to run (``boundaries`` reads ``c``, ``upper_power`` the grids)."""
+    """The :class:`analyses.sequential_boundaries._Design` of looks ``t`` whose every boundary ``c`` and flattened
+    grids ``flat`` are known already: no recursion left to run (``boundaries`` reads ``c``, ``upper_power`` the
+    grids)."""
     design = _Design.__new__(_Design)
     design.t, design.spend = t, np.diff(np.concatenate([[0.0], alpha_spent(t, alpha, spending)]))
     design.rec, design.c, design.terms, design._flat = None, c.tolist(), [], flat

@@ -103,7 +103,7 @@ def hoses_on_test(installed, ended, group) -> int | None:
     """The most hoses of one adjustment on test at the same time: the design's hoses on test [-].
 
     The sequential design converts information to failures from the follow-up
-    (:func:`analyses.sequential.information_per_failure`): ``n`` hoses on test per adjustment, a
+    (:func:`analyses.sequential_information.information_per_failure`): ``n`` hoses on test per adjustment, a
     failed one replaced (the benches keep running). That ``n`` is the benches' load, read from the
     logbook: per adjustment the largest number of hoses installed and not yet ended at one moment
     (an end before an installation at the same moment), the larger of the two adjustments (more
@@ -334,7 +334,7 @@ def power_now(state: HoseState, fit: CommonShapeFit, boundaries, margin: float, 
         The common-shape Weibull fitted to ``state`` (NaN: no power, noted).
     boundaries : array_like
         The design's efficacy boundaries on the z scale [-], one per failure up to the test's
-        ``max_failures`` (its length): :func:`analyses.sequential.efficacy_boundaries` at
+        ``max_failures`` (its length): :func:`analyses.sequential_boundaries.efficacy_boundaries` at
         ``t = (1..max_failures) / max_failures``.
     margin : float
         The design's margin (life ratio, > 1) [-].

@@ -475,7 +475,8 @@ def _common(s: Scenario) -> pd.DataFrame:
 
 def report_verdicts(by_name: dict, settings: dict, naive_types: int) -> bool:
     """The verdict's error rates and decision rate against the targets, the misses' anatomy; True when all PASS."""
-    from analyses.sequential import NoDesign, design_for
+    from analyses.sequential import design_for
+    from analyses.sequential_information import NoDesign
 
     alpha, power = settings["alpha"], settings["power"]
 

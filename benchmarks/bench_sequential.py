@@ -22,9 +22,9 @@ a failure. Counted, per scenario:
 * true ratio = margin^1.5: ``force longer`` declared (target >= power - 5 points).
 
 Before the trials, the design's exact arithmetic: the power of the inflation factor's looks at its
-drift, which :func:`analyses.sequential.inflation_factor` finds from the null recursion by a change
+drift, which :func:`analyses.sequential_boundaries.inflation_factor` finds from the null recursion by a change
 of measure, recomputed by the recursion run under that drift
-(:func:`analyses.sequential.crossing_probabilities`): equal to the target power within 1e-6.
+(:func:`analyses.sequential_boundaries.crossing_probabilities`): equal to the target power within 1e-6.
 
 Seeded (``numpy.random.default_rng(2023 + scenario)``): the same numbers every run.
 """
@@ -37,8 +37,8 @@ import time
 
 import numpy as np
 
-from analyses.sequential import (DESIGN_LOOKS, crossing_probabilities, efficacy_boundaries, inflation_factor,
-                                 max_information, sequential_verdict)
+from analyses.sequential import max_information, sequential_verdict
+from analyses.sequential_boundaries import DESIGN_LOOKS, crossing_probabilities, efficacy_boundaries, inflation_factor
 
 SHAPE = 2.0
 

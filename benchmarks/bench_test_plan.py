@@ -45,7 +45,9 @@ import numpy as np
 
 from analyses.decision import crossing_holds
 from analyses.life_effect import common_shape_fit, ratio_deviance
-from analyses.sequential import efficacy_boundaries, information_per_failure, max_information, sequential_verdict
+from analyses.sequential import max_information, sequential_verdict
+from analyses.sequential_boundaries import efficacy_boundaries
+from analyses.sequential_information import information_per_failure
 from analyses.test_plan import HoseState, power_now, predictive_draws, remaining_km
 
 #: (margin, shape, alpha, power, spending, hoses on test per adjustment): None = failures rare

@@ -76,7 +76,8 @@ import pandas as pd
 
 from analyses.decision import crossing_holds
 from analyses.life_effect import CommonShapeFit, common_shape_fit, ratio_deviance
-from analyses.sequential import FEW_FAILURES, design_for, efficacy_boundaries, sequential_verdict
+from analyses.sequential import FEW_FAILURES, design_for, sequential_verdict
+from analyses.sequential_boundaries import efficacy_boundaries
 from analyses import plan_check
 from analyses.plan_check import SCREEN, SCREEN_REFITTED, first_decision
 from analyses.bench_schedule import bench_schedule

@@ -62,7 +62,8 @@ from analyses.decision import (GROUP, decide, failure_events, freeze_look, look_
                                usable_hoses)
 from analyses.hose_life import match_runs
 from analyses.life_effect import life_effect
-from analyses.sequential import FEW_FAILURES, NoDesign, design_for, design_shape
+from analyses.sequential import FEW_FAILURES, design_for, design_shape
+from analyses.sequential_information import NoDesign
 from analyses.sequential_table import adopt_table, design_table, holds_table
 from analyses.test_plan import hoses_on_test_s
 from pipeline.own_files import read_own_file

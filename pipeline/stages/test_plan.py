@@ -52,7 +52,9 @@ import numpy as np
 import pandas as pd
 
 from analyses.life_effect import SEPARATE, common_shape_fit
-from analyses.sequential import NoDesign, design_for, design_shape, efficacy_boundaries
+from analyses.sequential import design_for, design_shape
+from analyses.sequential_boundaries import efficacy_boundaries
+from analyses.sequential_information import NoDesign
 from analyses.bench_schedule import SCHEDULE_SIMULATIONS, BenchSchedule, bench_schedules
 from analyses.test_plan import (CAPACITY_DAYS, N_SIMULATIONS, HoseState, MoreTesting, decision_date,
                                 epoch_seconds, hoses_on_test_s, measured_capacity, more_testing, power_now,
@@ -251,7 +253,7 @@ def plan_hose_type(item: dict) -> list[dict]:
 
 @functools.lru_cache(maxsize=1024)
 def _boundaries(looks: int, alpha: float, spending: str) -> np.ndarray:
-    """:func:`analyses.sequential.efficacy_boundaries` of ``looks`` equally spaced looks [-], once per process
+    """:func:`analyses.sequential_boundaries.efficacy_boundaries` of ``looks`` equally spaced looks [-], once per process
     (hose types whose second target power needs the same maximum share it); read-only."""
     c = efficacy_boundaries(np.arange(1, looks + 1) / looks, alpha, spending)
     c.setflags(write=False)

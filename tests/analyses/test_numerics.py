@@ -131,13 +131,14 @@ def test_the_normal_helpers_give_scipy_stats_bits():
 
 
 def test_a_sequential_design_is_computed_without_importing_scipy_stats_or_optimize():
-    """The spending functions and the designs (analyses.sequential) reach scipy through scipy.special
+    """The spending functions and the designs (analyses.sequential*) reach scipy through scipy.special
     only: the remaining-life stage's sensitivity verdict, re-run on a leakage change, pays no scipy.stats."""
     import subprocess
     import sys
 
     code = ("import sys\n"
-            "from analyses.sequential import efficacy_boundaries, max_information\n"
+            "from analyses.sequential import max_information\n"
+            "from analyses.sequential_boundaries import efficacy_boundaries\n"
             "import numpy as np\n"
             "c = efficacy_boundaries(np.arange(1, 21) / 20, 0.05, 'obrien-fleming')\n"
             "m = max_information(1.5, 0.05, 0.8, 'pocock', 2.0)\n"

@@ -63,6 +63,6 @@ def test_two_sided_z_of_any_confidence_is_ndtri():
 
 def test_the_normal_and_chi2_helpers_import_no_scipy_special():
     code = ("import numpy as np; from analyses.numerics import norm_sf, norm_isf, chi2_sf, two_sided_z; "
-            "from analyses.sequential import alpha_spent; "
+            "from analyses.sequential_boundaries import alpha_spent; "
             "norm_sf(np.ones(3)); norm_isf(0.05); chi2_sf(3.1, 4); two_sided_z(0.93); alpha_spent(np.ones(3) / 2)")
     assert loaded_after(code, ("scipy.special",)) == []

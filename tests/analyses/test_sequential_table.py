@@ -3,7 +3,7 @@ another form is refused whole."""
 import numpy as np
 import pytest
 
-from analyses import sequential
+from analyses import sequential, sequential_boundaries
 from analyses.sequential_table import FIRST_MAXIMUM, adopt_table, holds_table, table_names
 
 
@@ -23,7 +23,7 @@ def _designs():
 def test_adopted_designs_are_the_computed_ones_bit_for_bit_and_run_no_recursion(table, monkeypatch):
     sequential.clear_caches()
     computed = _designs()
-    boundaries = [sequential.efficacy_boundaries(np.arange(1, m + 1) / m) for m in (4, 37, 100)]
+    boundaries = [sequential_boundaries.efficacy_boundaries(np.arange(1, m + 1) / m) for m in (4, 37, 100)]
     sequential.clear_caches()
     assert set(table) == set(table_names()) and table["c_4"].shape == (4,) and table["flat_100"].shape[0] == 5
     assert adopt_table(table, 0.05, "obrien-fleming") and holds_table(0.05, "obrien-fleming")
@@ -31,11 +31,11 @@ def test_adopted_designs_are_the_computed_ones_bit_for_bit_and_run_no_recursion(
 
     def no_recursion(*_a, **_k):
         raise AssertionError("a recursion ran")
-    monkeypatch.setattr(sequential._Recursion, "advance", no_recursion)
-    monkeypatch.setattr(sequential._Recursion, "null_boundary", no_recursion)
+    monkeypatch.setattr(sequential_boundaries._Recursion, "advance", no_recursion)
+    monkeypatch.setattr(sequential_boundaries._Recursion, "null_boundary", no_recursion)
     assert _designs() == computed      # every field, exactly
     for m, ref in zip((4, 37, 100), boundaries):
-        assert np.array_equal(sequential.efficacy_boundaries(np.arange(1, m + 1) / m), ref)
+        assert np.array_equal(sequential_boundaries.efficacy_boundaries(np.arange(1, m + 1) / m), ref)
     sequential.clear_caches()
 
 
@@ -63,7 +63,7 @@ def test_a_table_of_another_form_is_refused_whole(table, bad):
               "not a mapping": [table[k] for k in table_names()]}
     sequential.clear_caches()
     assert not adopt_table(tables[bad], 0.05, "obrien-fleming")
-    assert not sequential._DESIGNS                     # nothing kept, not even the valid part
+    assert not sequential_boundaries._DESIGNS          # nothing kept, not even the valid part
     assert not adopt_table(table, 0.05, "neither")     # an unknown spending function
-    assert adopt_table(table, 0.05, "obrien-fleming") and len(sequential._DESIGNS) == 101 - FIRST_MAXIMUM
+    assert adopt_table(table, 0.05, "obrien-fleming") and len(sequential_boundaries._DESIGNS) == 101 - FIRST_MAXIMUM
     sequential.clear_caches()

@@ -59,7 +59,8 @@ def test_truth_power_plugs_the_true_model_into_power_nows_simulation():
     running hoses' lives from the TRUE model: a true effect far past the margin decides often, the same
     state's no-effect truth hardly ever."""
     from analyses.life_effect import CommonShapeFit
-    from analyses.sequential import design_for, efficacy_boundaries
+    from analyses.sequential import design_for
+    from analyses.sequential_boundaries import efficacy_boundaries
     from analyses.test_plan import PowerNow
     m = design_for(*bf.PLAN[:4], 2.0, 4).failures
     bounds = efficacy_boundaries(np.arange(1, m + 1) / m, bf.PLAN[1], bf.PLAN[3])

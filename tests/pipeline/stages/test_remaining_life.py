@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 
 from analyses.life_effect_lognormal import lognormal_effect_fit
-from analyses.sequential import efficacy_boundaries
+from analyses.sequential_boundaries import efficacy_boundaries
 from pipeline.raw.plan import Plan
 from pipeline.stages import StageContext
 from pipeline.stages import remaining_life as stage

@@ -11,7 +11,8 @@ import pandas as pd
 import pytest
 
 from analyses.life_effect import common_shape_fit
-from analyses.sequential import design_shape, efficacy_boundaries, max_information
+from analyses.sequential import design_shape, max_information
+from analyses.sequential_boundaries import efficacy_boundaries
 from analyses.bench_schedule import SCHEDULE_SIMULATIONS, bench_schedule
 from analyses.test_plan import HoseState
 from pipeline.raw.plan import Plan
