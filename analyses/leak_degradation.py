@@ -54,8 +54,8 @@ import numpy as np
 import pandas as pd
 import scipy
 
-from analyses.life_posterior import (MIN_ESS, N_DRAWS, WeibullPosterior, mixture_quantiles, probs, rul_over_shapes,
-                                     weibull_survival_at)
+from analyses.life_posterior import (MIN_ESS, N_DRAWS, WeibullPosterior, interval_probs, mixture_quantiles,
+                                     rul_over_shapes, weibull_survival_at)
 from analyses.numerics import fminbound
 from analyses.quality import Gate, Sensor, at_bound, linear_lstsq
 
@@ -332,7 +332,7 @@ def degradation_rul(fit: DegradationFit, hose_id, distance_km: float, limit_l_mi
             pick = np.random.default_rng(seed + 1).choice(len(w_r), size=n_draws, p=w_r)
             rupture_survival = weibull_survival_at(post.shape[pick], post.scale[pick], distance_km)
             total = lambda r: survival(r) * rupture_survival(r)  # noqa: E731
-        q = mixture_quantiles(total, weights, probs(confidence), guess)
+        q = mixture_quantiles(total, weights, interval_probs(confidence), guess)
         return q, (None if np.isfinite(q).all() else "the prediction interval is open: the data do not bound it")
 
     return rul_over_shapes(joint, posts) if posts else joint(None)

@@ -433,7 +433,9 @@ def mixture_quantiles(survival, weights, probs, guess: float) -> np.ndarray:
     return np.where(f_hi >= probs, q, _NAN)
 
 
-def probs(confidence: float) -> np.ndarray:
+def interval_probs(confidence: float) -> np.ndarray:
+    """The probabilities a prediction is read at: its median, then the lower and upper ends of its two-sided
+    interval at ``confidence`` [-]."""
     return np.array([0.5, (1.0 - confidence) / 2.0, (1.0 + confidence) / 2.0])
 
 
@@ -465,10 +467,10 @@ def weibull_rul(post: "WeibullPosterior | LifeModel", distance_km: float,
         return np.full(3, _NAN), "no distance now"
     fits = first.weibayes if len(model.families) == 1 else ()
     if len(fits) == 1:
-        return _weibayes_quantiles(fits[0], distance_km, probs(confidence)), None
+        return _weibayes_quantiles(fits[0], distance_km, interval_probs(confidence)), None
     if fits:   # an equal mixture of Weibayes: bisection on their exact survivals
         q = mixture_quantiles(lambda r: _weibayes_survival(fits, distance_km, r), np.full(len(fits), 1.0 / len(fits)),
-                              probs(confidence), float(np.median([f.scale for f in fits])))
+                              interval_probs(confidence), float(np.median([f.scale for f in fits])))
         return q, (None if np.isfinite(q).all() else "the prediction interval is open: the data do not bound it")
     ok, prob = model.usable()
     if not ok:
@@ -478,7 +480,7 @@ def weibull_rul(post: "WeibullPosterior | LifeModel", distance_km: float,
     guess = float(ok[int(np.argmax(prob))].fit.scale)
     survivals = [_survival_at(p, distance_km) for p in ok]
     q = mixture_quantiles(lambda r: np.vstack([survival(r) for survival in survivals]),
-                          weights, probs(confidence), guess)
+                          weights, interval_probs(confidence), guess)
     if not np.isfinite(q).all():
         return q, "the prediction interval is open: the data do not bound it"
     return q, model.family_note()
@@ -557,4 +559,4 @@ def _equal_mixture(posts: list) -> WeibullPosterior:
 
 
 __all__ = ["LIFE_FAMILIES", "LifeModel", "MIN_ESS", "N_DRAWS", "WeibullPosterior", "life_model", "mixture_quantiles",
-           "probs", "rul_over_shapes", "weibayes_posterior", "weibull_posterior", "weibull_rul", "weibull_survival_at"]
+           "interval_probs", "rul_over_shapes", "weibayes_posterior", "weibull_posterior", "weibull_rul", "weibull_survival_at"]
