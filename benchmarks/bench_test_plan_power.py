@@ -21,7 +21,7 @@ stage's CPU, each map's items computed / from the memo, and a digest of the tabl
 ``--shared`` (session 28) also times every item computed (in this one process, as the stages ran) and prints, per
 round, how many of test_plan's computed designs the decision stage computed in the same rebuild (the same item, the
 same result bit for bit) and their CPU here, and of test_plan's computed boundaries how many maxima are also a maximum of
-the decision's looks computed, how many lie above the designs file's looks (:data:`analyses.sequential.DESIGN_LOOKS`;
+the decision's looks computed, how many lie above the designs file's looks (:data:`analyses.sequential_boundaries.DESIGN_LOOKS`;
 those at or below it come whole from the file) and how many of their looks the decision read (its first looks only).
 The wall of the whole rebuild is ``bench_decision_stage``'s; this resolves the stage's CPU at a load where wall
 does not.
@@ -114,7 +114,7 @@ if check:
     cold = test_plan.plan_table(ctx)
     out["cold_equal"] = bool(df.equals(cold)) and digest(cold) == out["digest"]
 if shared:   # what test_plan computed that the decision stage computed in the same rebuild (session 28)
-    from analyses.sequential import DESIGN_LOOKS
+    from analyses.sequential_boundaries import DESIGN_LOOKS
     dec = {json.dumps({k: v for k, v in key.items() if k != "designs"}, sort_keys=True): r
            for key, r, _ in done.get("decision: designs", [])}
     tp = [(json.dumps(key, sort_keys=True), r, c) for key, r, c in done.get("test plan designs", [])]

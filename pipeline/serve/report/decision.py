@@ -172,7 +172,7 @@ def counted_crossings(d: HoseDecision) -> list[int]:
 
 
 def looks_key(d: HoseDecision) -> str:
-    """A key of the looks figure of ``d``: a hash of what :func:`looks_png` reads and of the code and libraries
+    """A key of the looks figure of ``d``: a hash of what :func:`looks_of` reads and of the code and libraries
     that draw it (:data:`LOOKS_CODE`; equal keys, equal bytes) [32 hex digits]."""
     looks = [[lk.get(c) for c in LOOK_FIELDS] for lk in d.looks]
     verdict = [d.verdict.get(c) for c in ("verdict", "margin", "max_failures")]

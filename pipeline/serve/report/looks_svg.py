@@ -9,16 +9,18 @@ as a tooltip (``<title>``), so a reader can point at a look instead of reading t
 Drawn as SVG text, as the run pages' channels are (:mod:`~pipeline.serve.report.channels`), not
 with matplotlib: a plan change redraws up to 20 of these figures in every rebuild, and matplotlib
 spent ~0.15 CPU-s on each plus ~0.5 to import (issue 23: the decision stages' share of a rebuild at
-200 hose types); this module spends about a millisecond a figure and imports nothing beyond the
-standard library. The early looks' boundaries (a hundredfold ratio is usual) run off the axis: the
-plot area is a nested ``<svg>`` viewport, which clips what it draws. The same looks give the same
+200 hose types); this module spends about a millisecond a figure and imports no numeric or plotting
+library (the standard library and the report's own escaping, :func:`~pipeline.serve.report.markup.esc`).
+The early looks' boundaries (a hundredfold ratio is usual) run off the axis: the plot area is a nested
+``<svg>`` viewport, which clips what it draws. The same looks give the same
 bytes (fixed number formats, no date).
 """
 from __future__ import annotations
 
-import html
 import math
 from dataclasses import dataclass
+
+from pipeline.serve.report.markup import esc
 
 #: Size of a figure [px] (the matplotlib figure it replaces was 9 x 4 in at 100 dpi).
 WIDTH, HEIGHT = 900, 400
@@ -220,7 +222,7 @@ def _tooltip(lk: Looks, i: int) -> str:
     """The figures of look ``i`` in words."""
     n = lk.looks[i] if lk.looks[i] is not None else i + 1
     r = lk.ratio[i]
-    return html.escape(f"look {n}, {lk.failures[i]:g} failures: estimate {r:.3g} "
+    return esc(f"look {n}, {lk.failures[i]:g} failures: estimate {r:.3g} "
                        f"(repeated interval {_pair(lk.rci_lower[i], lk.rci_upper[i], ' to ')}); "
                        f"efficacy boundaries {_pair(lk.efficacy_lower[i], lk.efficacy_upper[i], ' and ')}; "
                        f"futility boundaries {_pair(lk.futility_lower[i], lk.futility_upper[i], ' and ')}")
@@ -232,7 +234,7 @@ def _legend(entries: list[tuple[str, str]]) -> list[str]:
     for k, (swatch, text) in enumerate(entries):
         x, y = 60 + (k % 5) * 162, 362 + (k // 5) * 18
         out.append(f'<g transform="translate({x},{y})">{swatch}<text x="26" y="4" font-size="10" fill="{TEXT}">'
-                   f"{html.escape(text)}</text></g>")
+                   f"{esc(text)}</text></g>")
     return out
 
 
@@ -257,13 +259,13 @@ def looks_svg(lk: Looks) -> str:
     ax = _Axes(top, *ratio_window(lk.ratio, margin))
     deciding = lk.deciding if lk.deciding is not None and 0 <= lk.deciding < len(xs) else None
     counted = [i for i in lk.counted if 0 <= i < len(xs) and _finite(lk.ratio[i]) and lk.ratio[i] > 0]
-    name = html.escape(lk.hose_type)
+    name = esc(lk.hose_type)
     out = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{WIDTH}" height="{HEIGHT}" '
            f'viewBox="0 0 {WIDTH} {HEIGHT}" role="img" aria-label="looks of {name}" '
            'style="max-width:100%;height:auto" font-family="sans-serif">',
            f'<rect width="{WIDTH}" height="{HEIGHT}" fill="#fff"/>',
            f'<text x="{(LEFT + RIGHT) / 2:.1f}" y="{TOP - 10}" font-size="13" text-anchor="middle" fill="{TEXT}">'
-           f'{name}: {html.escape(lk.verdict or "no verdict")}</text>']
+           f'{name}: {esc(lk.verdict or "no verdict")}</text>']
     out += _axes(ax)
     out += _plot_area(ax, lk, xs, margin, deciding, counted)
     out.append(f'<rect x="{LEFT}" y="{TOP}" width="{RIGHT - LEFT}" height="{BOTTOM - TOP}" fill="none" '

@@ -1,5 +1,5 @@
 """The looks figure as SVG, on hand-made looks: scales, ticks, steps and gaps checked by hand, text escaped,
-nothing but the standard library imported."""
+no numeric or plotting library imported."""
 from __future__ import annotations
 
 import math
@@ -120,7 +120,7 @@ def test_nothing_to_draw_and_the_same_bytes():
     assert ls.looks_svg(_looks()) != ls.looks_svg(_looks(ratio=[1.0, 1.2, NAN, 2.01]))
 
 
-def test_drawing_imports_nothing_beyond_the_standard_library():
+def test_drawing_imports_no_numeric_or_plotting_library():
     code = ("import math; from pipeline.serve.report.looks_svg import Looks, looks_svg; "
             "s = looks_svg(Looks('t', None, [1.0, 2.0], [1.0, 2.0], *[[math.nan] * 2] * 6, [], None, 1.5, 4.0, [1, 2])); "
             "assert s.startswith('<svg')")
