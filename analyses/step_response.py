@@ -10,6 +10,10 @@ starts a step that lasts until the next jump (or the end of the run). Per step:
 * rise time: from the first crossing of 10 % of the step to the first crossing of 90 %;
 * steady-state error: new reference minus the mean position over the last 10 % of the step,
   signed in the direction of the step (positive: short of the reference, negative: beyond it).
+  Averaging does not take a quantised sensor's resolution out of it: a loop closed on an encoder
+  holds the carriage anywhere within the count it reads, so each step also reports the position
+  record's resolution (``position_resolution_mm``), which a reader of a mean over steps adds to its
+  spread as a Type B standard uncertainty (resolution / sqrt(12), GUM F.2.2.1).
 
 Crossing instants are interpolated linearly between samples. The position is first smoothed by
 a zero-phase low-pass filter well above the loop's bandwidth, so that sensor noise does not move
@@ -205,14 +209,16 @@ def step_response_metrics(t, x, x_ref, smooth: bool = True, min_step: float | No
     -------
     DataFrame
         One row per step: ``t_step_s``, ``step_mm``, ``overshoot_pct``, ``settling_time_s``,
-        ``rise_time_s``, ``steady_state_error_mm``, ``settled``, ``note``, ``i_start``,
-        ``i_end``. Metrics the position sensor cannot resolve are NaN with a ``note``. Empty
-        when the reference never jumps.
+        ``rise_time_s``, ``steady_state_error_mm``, ``position_resolution_mm`` (the quantisation
+        step of ``x`` the metrics were measured with, metadata or estimated; 0 for a record
+        that is not visibly quantised) [mm], ``settled``, ``note``, ``i_start``, ``i_end``.
+        Metrics the position sensor cannot resolve are NaN with a ``note``. Empty when the
+        reference never jumps.
     """
     t = np.asarray(t, float)
     x = np.asarray(x, float)
     cols = ["t_step_s", "step_mm", "overshoot_pct", "settling_time_s", "rise_time_s",
-            "steady_state_error_mm", "settled", "note", "i_start", "i_end"]
+            "steady_state_error_mm", "position_resolution_mm", "settled", "note", "i_start", "i_end"]
     if x_sensor is None:
         x_sensor = describe_sensor(x)
     floor = x_sensor.floor()
@@ -238,7 +244,7 @@ def step_response_metrics(t, x, x_ref, smooth: bool = True, min_step: float | No
                       f"({floor:.3g} m): no overshoot or settling time")
         elif not m.settled:
             m.note = "did not settle in the 2 % band within the record: no settling time"
-        rows.append({**m.__dict__, "i_start": i0, "i_end": i1})
+        rows.append({**m.__dict__, "position_resolution_mm": x_sensor.resolution * 1e3, "i_start": i0, "i_end": i1})
     return pd.DataFrame(rows, columns=cols)
 
 

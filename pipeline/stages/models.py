@@ -57,7 +57,7 @@ MAX_STEP_CURVES = 12
 ID_COLS = ["run_id", "wn_rad_s", "zeta", "k_lin_m_v_s", "fit_pct", "kp_v_m", "id_sample_rate_hz", "n_samples_id",
            "note"]
 STEP_COLS = ["run_id", "step_mm", "overshoot_pct", "settling_time_s", "rise_time_s", "steady_state_error_mm",
-             "t_step_s", "settled", "note"]
+             "position_resolution_mm", "t_step_s", "settled", "note"]
 FIT_COLS = ["chamber", "n_polytropic", "ae_m2", "epsilon_m2", "delta_n_m", "n_tests", "max_nrmse_pct",
             "seed_n_polytropic", "seed_ae_m2", "seed_epsilon_m2", "seed_delta_n_m", "note"]
 TEST_COLS = ["run_id", "chamber", "p0_bar_abs", "amplitude_mm", "frequency_hz", "nrmse_pct", "note"]
@@ -154,7 +154,8 @@ def _step(run_id, path, params):
     for s in m.itertuples(index=False):
         rows.append({"run_id": run_id, "step_mm": s.step_mm, "overshoot_pct": finite_float(s.overshoot_pct),
                      "settling_time_s": finite_float(s.settling_time_s), "rise_time_s": finite_float(s.rise_time_s),
-                     "steady_state_error_mm": finite_float(s.steady_state_error_mm), "t_step_s": s.t_step_s,
+                     "steady_state_error_mm": finite_float(s.steady_state_error_mm),
+                     "position_resolution_mm": finite_float(s.position_resolution_mm), "t_step_s": s.t_step_s,
                      "settled": bool(s.settled), "note": s.note})
         if s.note:
             warns.append(f"{NAME}: step at t={s.t_step_s:g} s: {s.note}")

@@ -22,6 +22,10 @@ CREATE TABLE step_response (
     settling_time_s        DOUBLE,         -- 2 % band
     rise_time_s            DOUBLE,         -- 10-90 %
     steady_state_error_mm  DOUBLE,         -- signed in the step direction (+: short of the reference)
+    position_resolution_mm DOUBLE,         -- quantisation step of the position record the step was measured
+                                           -- with (metadata, else estimated; 0: not visibly quantised); a mean
+                                           -- of steady_state_error_mm over steps is uncertain by at least
+                                           -- resolution / sqrt(12) however many steps it averages
     t_step_s               DOUBLE,         -- time of the reference jump in the run
     settled                BOOLEAN,        -- inside the 2 % band over the last 10 % of the step
     note                   VARCHAR         -- NULL when sound, else why metrics are NULL (step under the

@@ -75,6 +75,15 @@ def test_metrics_equal_the_simulators_noise_free_truth(sim_step):
         assert g.steady_state_error_mm == pytest.approx(tr["steady_state_error_mm"], abs=0.05)
 
 
+def test_each_step_reports_the_position_resolution_it_was_measured_with(sim_step):
+    """The bench's 5 um encoder, found in the record (no metadata), and a sensor given by metadata."""
+    d = sim_step.data
+    found = step_response_metrics(d["t_s"], d["x_m"], d["x_ref_m"])
+    assert list(found["position_resolution_mm"]) == pytest.approx([0.005, 0.005])
+    given = step_response_metrics(d["t_s"], d["x_m"], d["x_ref_m"], x_sensor=Sensor(1e-6, 0.0, "metadata"))
+    assert list(given["position_resolution_mm"]) == pytest.approx([0.001, 0.001])
+
+
 def test_metrics_survive_extra_position_noise(sim_step):
     run = sim_step
     d = run.data

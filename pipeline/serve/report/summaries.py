@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 
 from pipeline.serve.report.db import ReportDB
-from pipeline.serve.report.markup import esc, fmt
+from pipeline.serve.report.markup import esc, fmt, significant
 from pipeline.serve.report.tables import FLOOR_COLUMN, flow_floor_l_min, html_table
 from schemas.papers import (PLA_NRMSE_LIMIT_PCT, PLA_TABLE1, PLA_TABLE2, PLA_TABLE3_NRMSE_MAX_PCT,
                             PLA_TABLE3_NRMSE_MIN_PCT, PLPA_FIG12, PLPA_FIG15, PLPA_TABLE2)
@@ -113,8 +113,16 @@ def summary_breakaway(db: ReportDB) -> str:
 
 
 def summary_step(db: ReportDB) -> str:
-    """PLPA Fig. 15: the closed-loop step, paper vs lab."""
-    rows = _q(db, "SELECT overshoot_pct, settling_time_s, steady_state_error_mm FROM step_response", "step_response")
+    """PLPA Fig. 15: the closed-loop step, paper vs lab.
+
+    The steady-state error's uncertainty is the steps' standard error combined with the position
+    record's resolution as a Type B standard uncertainty (``resolution / sqrt(12)``, GUM F.2.2.1;
+    the largest resolution of the steps averaged): repeating a step does not average out the
+    count an encoder-closed loop settles within, so six identical steps do not make a 5 um
+    encoder tell a micrometre."""
+    res = "position_resolution_mm" if "position_resolution_mm" in db.columns("step_response") else "NULL::DOUBLE"
+    rows = _q(db, f"SELECT overshoot_pct, settling_time_s, steady_state_error_mm, {res} FROM step_response",
+              "step_response")
     if not rows:
         return ""
     out = []
@@ -122,9 +130,26 @@ def summary_step(db: ReportDB) -> str:
                                            ("settling_time_s", "settling time (2 % band)", "s"),
                                            ("steady_state_error_mm", "steady-state error", "mm"))):
         m, se, n = _mean_se([r[k] for r in rows])
-        out.append(_cmp_row(label, unit, PLPA_FIG15[col], m, se, f"mean of {n} steps ± s.e."))
+        source = f"mean of {n} steps ± s.e."
+        if col == "steady_state_error_mm" and m is not None:
+            se, source = _with_resolution(se, [r[3] for r in rows if r[k] is not None], n)
+        out.append(_cmp_row(label, unit, PLPA_FIG15[col], m, se, source))
     return _cmp_table("PLPA Fig. 15: closed-loop 20 mm step under PID, paper vs lab "
                       "(paper: about 1.2 % overshoot, about 4 s to the 2 % band, zero steady-state error)", out)
+
+
+def _with_resolution(se: float | None, resolutions, n: int) -> tuple[float | None, str]:
+    """The standard uncertainty of a mean of ``n`` steps' steady-state errors [mm] and its caption:
+    the steps' standard error ``se`` [mm] and the largest position resolution of the steps
+    [mm] as ``resolution / sqrt(12)``, combined in quadrature. No resolution known (an older
+    warehouse): the standard error alone, said so."""
+    known = [float(r) for r in resolutions if r is not None and math.isfinite(float(r))]
+    if not known:
+        return se, f"mean of {n} steps ± s.e. (the position sensor's resolution not known: not included)"
+    u_b = max(known) / math.sqrt(12.0)
+    u = math.sqrt((se or 0.0) ** 2 + u_b ** 2)
+    return u, (f"mean of {n} steps; ± s.e. and the position resolution {significant(max(known) * 1e3, 3)} µm "
+               f"as resolution/√12 (GUM)")
 
 
 def summary_leakage(db: ReportDB) -> str:

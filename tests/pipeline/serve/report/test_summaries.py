@@ -109,3 +109,33 @@ def test_a_warehouse_from_before_the_plans_b_life_shows_its_b10_table():
 
     html = summary_service_life(ReportDB(_service_life_db([c for c in SERVICE_LIFE_BEFORE if c != "campaigns"])))
     assert html.count("<table>") == 1 and "Weibull life and B10" in html and "b10 lower" in html
+
+
+def test_the_steady_state_error_is_uncertain_by_the_position_resolution_however_many_steps():
+    """Six identical steps have no spread; their mean is still uncertain by the encoder's count
+    (resolution / sqrt(12), GUM F.2.2.1), combined in quadrature with the steps' standard error."""
+    import math
+
+    import duckdb
+
+    from pipeline.serve.report.db import ReportDB
+    from pipeline.serve.report.summaries import summary_step
+
+    con = duckdb.connect()
+    con.execute("CREATE TABLE step_response (overshoot_pct DOUBLE, settling_time_s DOUBLE, "
+                "steady_state_error_mm DOUBLE, position_resolution_mm DOUBLE)")
+    con.execute("INSERT INTO step_response VALUES (1.0, 4.0, -0.005, 0.005), (1.0, 4.0, -0.005, 0.005), "
+                "(1.2, 4.2, -0.004, 0.005), (1.2, 4.2, -0.004, 0.005)")
+    rows = {r[0]: r for r in table_cells(summary_step(ReportDB(con)))}
+    sse = rows["steady-state error"]
+    se = math.sqrt(sum((x + 0.0045) ** 2 for x in (-0.005, -0.005, -0.004, -0.004)) / 3) / 2  # 0.00029 mm
+    u = math.sqrt(se ** 2 + 0.005 ** 2 / 12)                  # 0.00150 mm: the count dominates the spread
+    assert sse[3] == f"-0.0045 ± {float(f'{u:.2g}'):g}" == "-0.0045 ± 0.0015"
+    assert "resolution 5 µm as resolution/√12" in sse[5]
+    # the other rows keep the steps' standard error alone
+    assert rows["overshoot"][3] == "1.1 ± 0.058"
+    # a warehouse from before the column: the standard error alone, and the caption says so
+    con.execute("ALTER TABLE step_response DROP COLUMN position_resolution_mm")
+    rows = {r[0]: r for r in table_cells(summary_step(ReportDB(con)))}
+    assert rows["steady-state error"][3] == "-0.0045 ± 2.9e-04"
+    assert "resolution not known: not included" in rows["steady-state error"][5]
