@@ -3,18 +3,26 @@
 -- "What changed in the last rebuild" lives with the rebuild tables (96_rebuild.sql).
 
 -- The most recent run of every kind (by started_at, then run_id), with its headline result in
--- words: what did the bench last do, and what came out of it?
+-- words: what did the bench last do, and what came out of it? Leakage: the largest plateau leak,
+-- the pressure of that plateau (on equal leaks the lowest such pressure) and the plateau count.
+-- Breakaway: the forces in onset order. Step: the step count and the largest overshoot and
+-- settling time over all steps ("up to": they may be of different steps). Pressure_step: the step
+-- count, the set-point range, how many steps were fitted and their largest NRMSE. The result is
+-- NULL for timeseries runs (catalogued, never analysed: no stage table has rows for them) and for
+-- a run its stage wrote no row for.
 CREATE VIEW latest_results AS
 WITH latest AS (
     SELECT * FROM runs
     QUALIFY row_number() OVER (PARTITION BY kind ORDER BY started_at DESC NULLS LAST, run_id DESC) = 1
 ),
 results AS (
-    SELECT run_id, 'max leak ' || round(max(leak_l_min), 3) || ' l/min at ' || round(max(pressure_bar), 2)
+    SELECT run_id, 'max leak ' || round(max(leak_l_min), 3) || ' l/min at '
+           || round(first(pressure_bar ORDER BY leak_l_min DESC NULLS LAST, pressure_bar NULLS LAST), 2)
            || ' bar, ' || count(*) || ' plateaus' AS result
     FROM leakage_map GROUP BY run_id
     UNION ALL
-    SELECT run_id, 'breakaway ' || coalesce(string_agg(round(breakaway_force_n, 2)::VARCHAR, ', '), 'none') || ' N'
+    SELECT run_id, 'breakaway ' || coalesce(string_agg(round(breakaway_force_n, 2)::VARCHAR, ', '
+                                                       ORDER BY onset_t_s NULLS LAST), 'none') || ' N'
     FROM breakaway GROUP BY run_id
     UNION ALL
     SELECT run_id, count(*) || ' constant-velocity passes, |v| up to ' || round(max(abs(velocity_m_s)), 3) || ' m/s'
@@ -24,9 +32,14 @@ results AS (
            || ', k ' || round(any_value(k_lin_m_v_s), 3) || ' m/(V s), fit ' || round(any_value(fit_pct), 1) || ' %'
     FROM identification GROUP BY run_id
     UNION ALL
-    SELECT run_id, count(*) || ' steps, overshoot ' || round(max(overshoot_pct), 2) || ' %, settling '
+    SELECT run_id, count(*) || ' steps, overshoot up to ' || round(max(overshoot_pct), 2) || ' %, settling up to '
            || round(max(settling_time_s), 2) || ' s'
     FROM step_response GROUP BY run_id
+    UNION ALL
+    SELECT run_id, count(*) || ' steps between ' || round(least(min(p_from_bar), min(p_to_bar)), 2) || ' and '
+           || round(greatest(max(p_from_bar), max(p_to_bar)), 2) || ' bar gauge, ' || count(nrmse_pct) || ' fitted'
+           || coalesce(', NRMSE up to ' || round(max(nrmse_pct), 2) || ' %', '')
+    FROM pressure_steps GROUP BY run_id
     UNION ALL
     SELECT run_id, 'NRMSE ' || round(any_value(nrmse_pct), 2) || ' %' FROM spring_tests GROUP BY run_id
     UNION ALL
