@@ -115,13 +115,13 @@ def summary_breakaway(db: ReportDB) -> str:
 def summary_step(db: ReportDB) -> str:
     """PLPA Fig. 15: the closed-loop step, paper vs lab.
 
-    The steady-state error's uncertainty is the steps' standard error combined with the position
-    record's resolution as a Type B standard uncertainty (``resolution / sqrt(12)``, GUM F.2.2.1;
-    the largest resolution of the steps averaged): repeating a step does not average out the
-    count an encoder-closed loop settles within, so six identical steps do not make a 5 um
-    encoder tell a micrometre."""
+    The overshoot's and the steady-state error's uncertainties are the steps' standard error
+    combined with the position record's resolution as a Type B standard uncertainty
+    (``resolution / sqrt(12)``, GUM F.2.2.1; the largest of the steps averaged, in % of the step
+    for the overshoot): repeating a step does not average out the count an encoder-closed loop
+    settles within, so six identical steps do not make a 5 um encoder tell a micrometre."""
     res = "position_resolution_mm" if "position_resolution_mm" in db.columns("step_response") else "NULL::DOUBLE"
-    rows = _q(db, f"SELECT overshoot_pct, settling_time_s, steady_state_error_mm, {res} FROM step_response",
+    rows = _q(db, f"SELECT overshoot_pct, settling_time_s, steady_state_error_mm, {res}, step_mm FROM step_response",
               "step_response")
     if not rows:
         return ""
@@ -131,24 +131,30 @@ def summary_step(db: ReportDB) -> str:
                                            ("steady_state_error_mm", "steady-state error", "mm"))):
         m, se, n = _mean_se([r[k] for r in rows])
         source = f"mean of {n} steps ± s.e."
-        if col == "steady_state_error_mm" and m is not None:
-            se, source = _with_resolution(se, [r[3] for r in rows if r[k] is not None], n)
+        if col != "settling_time_s" and m is not None:
+            used = [r for r in rows if r[k] is not None and not math.isnan(r[k])]
+            if col == "overshoot_pct":  # the resolution in % of each step
+                res_in_unit = [100.0 * r[3] / abs(r[4]) if r[3] is not None and r[4] else None for r in used]
+            else:
+                res_in_unit = [r[3] for r in used]
+            se, source = _with_resolution(se, res_in_unit, [r[3] for r in used], n)
         out.append(_cmp_row(label, unit, PLPA_FIG15[col], m, se, source))
     return _cmp_table("PLPA Fig. 15: closed-loop 20 mm step under PID, paper vs lab "
                       "(paper: about 1.2 % overshoot, about 4 s to the 2 % band, zero steady-state error)", out)
 
 
-def _with_resolution(se: float | None, resolutions, n: int) -> tuple[float | None, str]:
-    """The standard uncertainty of a mean of ``n`` steps' steady-state errors [mm] and its caption:
-    the steps' standard error ``se`` [mm] and the largest position resolution of the steps
-    [mm] as ``resolution / sqrt(12)``, combined in quadrature. No resolution known (an older
-    warehouse): the standard error alone, said so."""
-    known = [float(r) for r in resolutions if r is not None and math.isfinite(float(r))]
+def _with_resolution(se: float | None, res_in_unit, res_mm, n: int) -> tuple[float | None, str]:
+    """The standard uncertainty of a mean of ``n`` steps' values and its caption: the steps' standard
+    error ``se`` and the largest of the steps' position resolutions expressed in the value's unit
+    (``res_in_unit``) as ``resolution / sqrt(12)``, combined in quadrature; ``res_mm``: the same
+    resolutions [mm], for the caption. No resolution known (an older warehouse): the standard error
+    alone, said so."""
+    known = [float(r) for r in res_in_unit if r is not None and math.isfinite(float(r))]
     if not known:
         return se, f"mean of {n} steps ± s.e. (the position sensor's resolution not known: not included)"
-    u_b = max(known) / math.sqrt(12.0)
-    u = math.sqrt((se or 0.0) ** 2 + u_b ** 2)
-    return u, (f"mean of {n} steps; ± s.e. and the position resolution {significant(max(known) * 1e3, 3)} µm "
+    u = math.sqrt((se or 0.0) ** 2 + (max(known) / math.sqrt(12.0)) ** 2)
+    mm = max(float(r) for r in res_mm if r is not None and math.isfinite(float(r)))
+    return u, (f"mean of {n} steps; ± s.e. and the position resolution {significant(mm * 1e3, 3)} µm "
                f"as resolution/√12 (GUM)")
 
 

@@ -123,19 +123,22 @@ def test_the_steady_state_error_is_uncertain_by_the_position_resolution_however_
 
     con = duckdb.connect()
     con.execute("CREATE TABLE step_response (overshoot_pct DOUBLE, settling_time_s DOUBLE, "
-                "steady_state_error_mm DOUBLE, position_resolution_mm DOUBLE)")
-    con.execute("INSERT INTO step_response VALUES (1.0, 4.0, -0.005, 0.005), (1.0, 4.0, -0.005, 0.005), "
-                "(1.2, 4.2, -0.004, 0.005), (1.2, 4.2, -0.004, 0.005)")
+                "steady_state_error_mm DOUBLE, position_resolution_mm DOUBLE, step_mm DOUBLE)")
+    con.execute("INSERT INTO step_response VALUES (1.0, 4.0, -0.005, 0.005, 20), (1.0, 4.0, -0.005, 0.005, -20), "
+                "(1.2, 4.2, -0.004, 0.005, 20), (1.2, 4.2, -0.004, 0.005, -5)")
     rows = {r[0]: r for r in table_cells(summary_step(ReportDB(con)))}
     sse = rows["steady-state error"]
     se = math.sqrt(sum((x + 0.0045) ** 2 for x in (-0.005, -0.005, -0.004, -0.004)) / 3) / 2  # 0.00029 mm
     u = math.sqrt(se ** 2 + 0.005 ** 2 / 12)                  # 0.00150 mm: the count dominates the spread
     assert sse[3] == f"-0.0045 ± {float(f'{u:.2g}'):g}" == "-0.0045 ± 0.0015"
     assert "resolution 5 µm as resolution/√12" in sse[5]
-    # the other rows keep the steps' standard error alone
-    assert rows["overshoot"][3] == "1.1 ± 0.058"
+    # the overshoot: the resolution in % of the smallest step (5 um of 5 mm: 0.1 %), the settling time: the s.e.
+    u_os = math.sqrt((0.2 / math.sqrt(3) / 2) ** 2 + (0.1 / math.sqrt(12)) ** 2)  # 0.0645 %
+    assert rows["overshoot"][3] == f"1.1 ± {float(f'{u_os:.2g}'):g}" == "1.1 ± 0.065"
+    assert "resolution 5 µm" in rows["overshoot"][5]
+    assert rows["settling time (2 % band)"][3] == "4.1 ± 0.058" and rows["settling time (2 % band)"][5] == "mean of 4 steps ± s.e."
     # a warehouse from before the column: the standard error alone, and the caption says so
     con.execute("ALTER TABLE step_response DROP COLUMN position_resolution_mm")
     rows = {r[0]: r for r in table_cells(summary_step(ReportDB(con)))}
-    assert rows["steady-state error"][3] == "-0.0045 ± 2.9e-04"
+    assert rows["steady-state error"][3] == "-0.0045 ± 2.9e-04" and rows["overshoot"][3] == "1.1 ± 0.058"
     assert "resolution not known: not included" in rows["steady-state error"][5]
