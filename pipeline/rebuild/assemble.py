@@ -14,7 +14,7 @@ import shutil
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from pipeline.warehouse import (CONTRACT_ROWS, FILES_TABLE, INTERNAL_PREFIX, INTERNAL_TABLES, KEYS_TABLE, ROOT_RAW_SQL,
+from pipeline.warehouse import (FILES_TABLE, INTERNAL_PREFIX, INTERNAL_TABLES, KEYS_TABLE, ROOT_RAW_SQL,
                                 ROOT_SQL, ROOT_VARIABLE, ddl_comments, glob_escape, sql_str, table_sums)
 from schemas import ddl_statements
 
@@ -270,40 +270,42 @@ def swap_in(tmp: Path, final: Path) -> None:
 
 def comment_statements(con: duckdb.DuckDBPyConnection, only: set[str] | None = None) -> list[str]:
     """``COMMENT ON`` statements for every table, view and column the DDL or the channels describe
-    (``only``: of these tables and views alone)."""
-    from schemas.channels import CHANNELS
+    (``only``: of these tables and views alone). The texts are the ones ``docs/warehouse.md`` gives:
+    :func:`pipeline.serve.reference.table_comment` and :func:`~pipeline.serve.reference.column_meanings`
+    (the DDL's comment, else the shared glossary, else what the name derives from)."""
+    from pipeline.serve.reference import column_meanings, samples_meanings, table_comment
     from schemas.kinds import KINDS
 
     present = {r[0]: r[1] for r in con.execute(
         "SELECT table_name, 'TABLE' FROM duckdb_tables() WHERE database_name = current_database() "
         "UNION ALL SELECT view_name, 'VIEW' FROM duckdb_views() WHERE NOT internal "
         "AND database_name = current_database()").fetchall()}
-    columns = {(r[0], r[1]) for r in con.execute(
-        "SELECT table_name, column_name FROM duckdb_columns() WHERE database_name = current_database()").fetchall()}
+    columns: dict[str, list[str]] = {}
+    for table, column in con.execute("SELECT table_name, column_name FROM duckdb_columns() "
+                                     "WHERE database_name = current_database()").fetchall():
+        columns.setdefault(table, []).append(column)
     out = []
     described = ddl_comments()
     mixed = _mixed_columns(con)
     for table, kind in sorted(present.items()):
         if only is not None and table not in only:
             continue
-        info = described.get(table, {"comment": None, "columns": {}})
-        comment = info["comment"] or (f"One row per {CONTRACT_ROWS[table]}." if table in CONTRACT_ROWS else None)
-        colcomments = dict(info["columns"])
+        comment = table_comment(table, described)
         if table.startswith("samples_") and table[8:] in KINDS:
             comment = f"One row per sample of a run of kind {table[8:]}, channels in SI units (column suffix = unit)."
-            colcomments.update({ch.column: ch.description for ch in CHANNELS.values()})
-            colcomments.update(run_id="Run identifier (runs.run_id).", kind="Test kind of the run.",
-                               campaign="Campaign of the run (first folder under raw/).")
+            colcomments = samples_meanings()
             colcomments.update({col: "Non-canonical channel, text in some runs of this kind and numbers in others: "
                                      "VARCHAR in this view, the numbers written as text ('1.5'; TRY_CAST(... AS "
                                      "DOUBLE) gives them back); channels.type says which runs have text."
                                 for k, col in mixed if k == table[8:]})
+        else:
+            colcomments = column_meanings(table, columns.get(table, []), described)
         if table in INTERNAL_TABLES:
             comment = INTERNAL_PREFIX + (comment or "")
         if comment:
             out.append(f"COMMENT ON {kind} \"{table}\" IS {sql_str(comment.strip())}")
         for col, text in sorted(colcomments.items()):
-            if text and (table, col) in columns:
+            if text and col in columns.get(table, ()):
                 out.append(f"COMMENT ON COLUMN \"{table}\".\"{col}\" IS {sql_str(text)}")
     return out
 
@@ -354,14 +356,15 @@ def frame_key(df: pd.DataFrame | None) -> str:
 
 def database_version() -> str:
     """Version of how a database is laid out: the DDL, the schemas (channels and kinds: views and
-    comments), this module, the warehouse's names and DuckDB's version. A live database of another
+    comments), this module, the warehouse's names, the columns' meanings (``pipeline/serve/reference.py``:
+    the comments) and DuckDB's version. A live database of another
     version is never updated in place: the new one is built whole."""
     import duckdb
 
     from pipeline.versions import ROOT, hash_sources
 
     files = [*ROOT.glob("schemas/ddl/*.sql"), *ROOT.glob("schemas/*.py"), ROOT / "pipeline" / "rebuild" / "assemble.py",
-             ROOT / "pipeline" / "warehouse.py"]
+             ROOT / "pipeline" / "warehouse.py", ROOT / "pipeline" / "serve" / "reference.py"]
     return f"{duckdb.__version__}-{hash_sources([f for f in files if f.is_file()])}"
 
 

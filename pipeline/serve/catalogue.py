@@ -12,11 +12,19 @@ from pipeline.warehouse import INTERNAL_TABLES
 from schemas.units import column_unit
 
 
+#: Units of the warehouse columns whose name does not end in their unit (a column's name is part of
+#: the contract: never renamed to add one): column -> unit, as ``describe`` and docs/warehouse.md show it.
+NAMED_UNITS = {"hose_km_before": "km", "km_per_day": "km/day"}
+
+
 def unit_of(column: str) -> str | None:
     """Unit a warehouse column name ends in (``leak_l_min`` -> ``l/min (ANR)``), else None.
 
-    The long form of the one unit table, :data:`schemas.units.COLUMN_UNITS` (longest suffix wins).
+    The long form of the one unit table, :data:`schemas.units.COLUMN_UNITS` (longest suffix wins);
+    a column of :data:`NAMED_UNITS` has the unit given there.
     """
+    if column in NAMED_UNITS:
+        return NAMED_UNITS[column]
     found = column_unit(column)
     return found[1] if found else None
 

@@ -84,6 +84,52 @@ def column_meaning(column: str, described: dict[str, str]) -> str | None:
     return None
 
 
+def table_comment(table: str, described: dict[str, dict]) -> str | None:
+    """A table's or view's description: the comment above its ``CREATE`` in the DDL, else its grain
+    from :data:`pipeline.warehouse.CONTRACT_ROWS`, else None.
+
+    Parameters
+    ----------
+    table : str
+        Table or view name.
+    described : dict
+        :func:`pipeline.warehouse.ddl_comments`.
+    """
+    info = described.get(table) or {}
+    return info.get("comment") or (f"One row per {CONTRACT_ROWS[table]}." if table in CONTRACT_ROWS else None)
+
+
+def column_meanings(table: str, columns, described: dict[str, dict]) -> dict[str, str]:
+    """``{column: meaning}`` of those of ``columns`` of ``table`` that have one (:func:`column_meaning`).
+
+    The one rule for both the generated reference of ``docs/warehouse.md`` and the ``COMMENT ON``
+    statements of the rebuild (which ``pneubench describe`` and any DuckDB client read).
+
+    Parameters
+    ----------
+    table : str
+        Table or view name.
+    columns : iterable of str
+        Its columns.
+    described : dict
+        :func:`pipeline.warehouse.ddl_comments`.
+    """
+    own = (described.get(table) or {}).get("columns") or {}
+    return {col: text for col in columns if (text := column_meaning(col, own))}
+
+
+#: Columns of every ``samples_<kind>`` view besides the channels (their meanings: :data:`COMMON_COLUMNS`).
+SAMPLES_RUN_COLUMNS = ("run_id", "kind", "campaign")
+
+
+def samples_meanings() -> dict[str, str]:
+    """``{column: meaning}`` of the columns a ``samples_<kind>`` view can have: the run's columns
+    (:data:`SAMPLES_RUN_COLUMNS`) and every canonical channel. Non-canonical channels have none."""
+    out = {col: COMMON_COLUMNS[col] for col in SAMPLES_RUN_COLUMNS}
+    out.update({ch.column: ch.description for ch in CHANNELS.values()})
+    return out
+
+
 DOC = Path(__file__).resolve().parents[2] / "docs" / "warehouse.md"
 
 
@@ -119,29 +165,31 @@ def _cell(text: str | None) -> str:
 
 
 def _table_section(table: str, columns: list[tuple[str, str]], described: dict) -> list[str]:
-    info = described.get(table, {"comment": None, "columns": {}})
-    grain = info["comment"] or (f"One row per {CONTRACT_ROWS[table]}." if table in CONTRACT_ROWS else "")
+    grain = table_comment(table, described)
+    meanings = column_meanings(table, [col for col, _dtype in columns], described)
     lines = [f"### `{table}`", ""]
     if grain:
         lines += [_cell(grain), ""]
     lines += ["| column | type | unit | meaning |", "|---|---|---|---|"]
-    lines += [f"| `{col}` | {dtype} | {unit_of(col) or ''} | "
-              f"{_cell(column_meaning(col, info['columns']))} |" for col, dtype in columns]
+    lines += [f"| `{col}` | {dtype} | {unit_of(col) or ''} | {_cell(meanings.get(col))} |" for col, dtype in columns]
     return lines + [""]
 
 
 def samples_section() -> list[str]:
     """The ``samples_<kind>`` views: one per test kind, with the canonical channels."""
+    meanings = samples_meanings()
+    channels = [ch.column for ch in CHANNELS.values()]
     lines = ["### `samples_<kind>` (one view per test kind)", "",
              "One row per sample of a run of that kind, channels in SI units (the column suffix is the "
-             "unit). Runs with different channels unify by name; a channel a run lacks is NULL there. "
+             "unit). Columns in order: `run_id`, `t_s`, the run's other channels (as its samples file has "
+             "them), then `kind` and `campaign`. Runs with different channels unify by name; a channel a "
+             "run lacks is NULL there, and a channel not every run of the kind has can come after "
+             "`campaign` (`DESCRIBE samples_<kind>` gives a view's order). "
              "Non-canonical channels appear under their sanitised names (see docs/inputs.md). "
              "`samples('<run_id>')` returns one run's samples whatever its kind.", "",
-             "| column | meaning |", "|---|---|",
-             "| `run_id` | run identifier (`runs.run_id`) |",
-             "| `kind` | test kind of the run |",
-             "| `campaign` | campaign of the run (first folder under raw/) |"]
-    lines += [f"| `{ch.column}` | {_cell(ch.description)} |" for ch in CHANNELS.values()]
+             "| column | meaning |", "|---|---|"]
+    order = ["run_id", *channels, *(c for c in SAMPLES_RUN_COLUMNS if c != "run_id")]
+    lines += [f"| `{col}` | {_cell(meanings[col])} |" for col in order]
     return lines + [""]
 
 

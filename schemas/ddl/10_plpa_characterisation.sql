@@ -120,8 +120,8 @@ CREATE TABLE viscous_transition (
     coulomb_n                 DOUBLE,
     viscous_n_s_m             DOUBLE,
     transition_velocity_mm_s  DOUBLE,
-    transition_ci_low_mm_s    DOUBLE,
-    transition_ci_high_mm_s   DOUBLE,
+    transition_ci_low_mm_s    DOUBLE,               -- lower confidence bound of `transition_velocity_mm_s`
+    transition_ci_high_mm_s   DOUBLE,               -- upper confidence bound of `transition_velocity_mm_s`
     nrmse_pct                 DOUBLE,
     n_points                  BIGINT,
     stribeck_amplitude_n      DOUBLE,

@@ -80,9 +80,9 @@ CREATE TABLE spring_loop_energy (
 -- ages pooled (one such row per rig: a campaign without part ids has only these, the table it
 -- always had); 'part' = the steps of one part under test (the run's valve_id or hose_id) at one
 -- age (the run's age_h / distance_km) on that rig. `chamber` is any name the rig gives it.
--- `SELECT * FROM pressure_dynamics WHERE chamber = 'A' AND direction = 'charge'` finds one 'rig'
--- row per (campaign, rig) followed by that rig's 'part' rows; add `AND level = 'rig'` for the
--- pooled rows only. `campaigns` (the row's campaign) and `n_runs` (runs whose steps it pools) are
+-- On the demo's PLA (chambers front / rear), `SELECT * FROM pressure_dynamics WHERE chamber =
+-- 'front' AND direction = 'charge'` finds one 'rig' row per (campaign, rig) and that rig's 'part'
+-- rows (none when the runs name no part); add `AND level = 'rig'` for the pooled rows only. `campaigns` (the row's campaign) and `n_runs` (runs whose steps it pools) are
 -- added by 35_run_columns.sql and filled by the stage.
 CREATE TABLE pressure_dynamics (
     chamber           VARCHAR,             -- any name (A / B, front / rear, patient, tube ...)

@@ -24,11 +24,11 @@ CREATE TABLE rebuild_log (
     seq             BIGINT                -- number of the rebuild, 1, 2, ...: one more than the previous row's; generations are ordered by it, never by wall time (a clock set back)
 );
 
--- One row per input of the last rebuild (run files, manifests, rig.toml, hose logbooks),
+-- One row per input of the last rebuild (run files, manifests, rig.toml, hose logbooks, plan.toml),
 -- including the inputs that were deleted since the previous rebuild.
 CREATE TABLE rebuild_inputs (
     source_path     VARCHAR NOT NULL,     -- relative to raw/
-    role            VARCHAR,              -- run / manifest / rig / logbook
+    role            VARCHAR,              -- run / manifest / rig / logbook / plan (plan.toml)
     status          VARCHAR NOT NULL,     -- new / changed / deleted / unchanged
     reason          VARCHAR,              -- changed because of: content / metadata / code / full
     quarantined     BOOLEAN,
@@ -44,7 +44,7 @@ CREATE VIEW rebuild_changes AS
 -- Incremental state: one record per raw input (pipeline/rebuild/state.py).
 CREATE TABLE ingest_state (
     source_path     VARCHAR NOT NULL,
-    role            VARCHAR,
+    role            VARCHAR,              -- run / manifest / rig / logbook / plan (plan.toml)
     size_bytes      BIGINT,
     mtime_ns        BIGINT,               -- -1: modified during the rebuild, hash it next time
     inode           BIGINT,

@@ -45,3 +45,14 @@ def test_descriptions_are_in_the_database_for_any_client(built):
         assert got.startswith("(internal")
     finally:
         con.close()
+
+
+def test_a_column_whose_name_does_not_end_in_its_unit_has_its_unit_from_the_named_table(built):
+    from pipeline.serve.catalogue import describe_table, unit_of
+
+    assert unit_of("km_per_day") == "km/day" and unit_of("hose_km_before") == "km"
+    assert unit_of("distance_km") == "km" and unit_of("hose_id") is None
+    units = {c["column"]: c["unit"] for c in describe_table(built, "test_plan")[1]}
+    assert units["km_per_day"] == "km/day"
+    comments = {c["column"]: c["comment"] for c in describe_table(built, "breakaway_summary")[1]}
+    assert all(comments.values()), comments  # the glossary's meanings reach the database, not only the page

@@ -41,6 +41,64 @@ def test_every_table_and_column_of_a_built_warehouse_is_documented(demo):
     assert not missing, f"not in docs/warehouse.md: {sorted(set(missing))}"
 
 
+def _documented(section: str) -> dict[str, tuple[str, str]]:
+    """``{column: (unit, meaning)}`` of one section's Markdown table (the samples one has no unit)."""
+    out = {}
+    for line in section.splitlines():
+        m = re.match(r"^\| `([^`]+)` \|(.*)\|$", line)
+        if m:
+            cells = [c.strip() for c in re.split(r"(?<!\\)\|", m.group(2))]
+            out[m.group(1)] = (cells[1], cells[2]) if len(cells) == 3 else ("", cells[0])
+    return out
+
+
+def test_every_meaning_and_unit_the_page_gives_is_the_databases_comment_and_describes(demo):
+    from pipeline.serve.catalogue import describe_table
+
+    sections = _sections(reference.DOC.read_text(encoding="utf-8"))
+    con = connect_readonly(demo["warehouse"])
+    try:
+        comments = {(t, c): x for t, c, x in con.execute(
+            "SELECT table_name, column_name, comment FROM duckdb_columns() "
+            "WHERE database_name = current_database()").fetchall()}
+    finally:
+        con.close()
+    tables = sorted({t for t, _ in comments})
+    wrong, checked = [], 0
+    for table in tables:
+        key = "samples_<kind>" if table.startswith("samples_") and table != "samples_files" else table
+        documented = _documented(sections.get(key, ""))
+        _grain, described = describe_table(demo["warehouse"], table)
+        for col in described:
+            unit, meaning = documented.get(col["column"], (None, None))
+            if not meaning:
+                continue
+            checked += 1
+            got = reference._cell(comments[(table, col["column"])])
+            if got != meaning or reference._cell(col["comment"]) != meaning:
+                wrong.append(f"{table}.{col['column']}: page {meaning!r}, database {got!r}")
+            if key != "samples_<kind>" and (col["unit"] or "") != unit:
+                wrong.append(f"{table}.{col['column']}: page unit {unit!r}, describe {col['unit']!r}")
+    assert checked > 500 and not wrong, "\n".join(wrong)
+    # the reviewers' cases: a view's columns, a pooled table's, runs' own, units not in the name
+    for table, column in (("breakaway_summary", "mean_force_n"), ("runs", "rig"), ("runs", "source_sha256"),
+                          ("hose_runs", "hose_id"), ("latest_results", "rig"), ("runs_per_hose", "n_runs")):
+        assert comments[(table, column)], f"{table}.{column} has no comment"
+    _grain, cols = describe_table(demo["warehouse"], "hose_runs")
+    assert {c["column"]: c["unit"] for c in cols}["hose_km_before"] == "km"
+
+
+def test_column_meanings_are_one_rule_for_the_page_and_the_comments():
+    from pipeline.warehouse import ddl_comments
+
+    described = ddl_comments()
+    got = reference.column_meanings("viscous_transition", ["transition_ci_low_mm_s", "n_runs", "no_such"], described)
+    assert got == {"transition_ci_low_mm_s": "lower confidence bound of `transition_velocity_mm_s`",
+                   "n_runs": reference.COMMON_COLUMNS["n_runs"]}
+    assert reference.table_comment("no_such_table", described) is None
+    assert reference.samples_meanings()["campaign"] == reference.COMMON_COLUMNS["campaign"]
+
+
 def test_a_table_missing_from_the_page_is_caught(tmp_path, monkeypatch):
     page = tmp_path / "warehouse.md"
     text = reference.DOC.read_text(encoding="utf-8")
