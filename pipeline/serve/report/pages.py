@@ -28,11 +28,11 @@ from pipeline.serve.report.db import ReportDB
 from pipeline.serve.report.figures import Figures, code_key, figure_key
 from pipeline.serve.report.folders import OWN_PAGE, REPORT_DIR, link_or_copy, page_name, scandir
 from pipeline.serve.report.markup import CSS, esc, fmt, one_line_error, run_href
-from pipeline.serve.report.tables import html_table
+from pipeline.serve.report.tables import coarsest_floor_l_min, html_table
 from pipeline.warehouse import sql_str, table_sums
 
 #: Bumped when the run pages' layout changes (cached pages are then drawn again).
-RUN_PAGE_VERSION = "4"
+RUN_PAGE_VERSION = "5"
 #: What a run's channels are drawn with (part of their key): the drawing module, the units it
 #: shows them in, and the libraries that read them (its ticks are its own: :func:`~pipeline.serve.report.channels.max_n_ticks`).
 CHANNELS_CODE = (("pipeline/serve/report/channels.py", "schemas/units.py"), ("numpy", "pyarrow"))
@@ -135,11 +135,14 @@ def _metadata(run: dict) -> str:
 
 
 def _results(results: list) -> str:
-    """A run's result rows, a table per result table."""
+    """A run's result rows, a table per result table; a leak under the floor of the run's flow
+    sensor (the coarsest its rows' ``sensors`` state) reads "< floor" also in a table without them."""
     by_table: dict[str, tuple[list[str], list[tuple]]] = {}
     for t, cols, r in results:
         by_table.setdefault(t, (cols, []))[1].append(r)
-    return "".join(f"<h3>{esc(t)} ({len(rows)} rows)</h3>" + html_table(cols, rows, 50, links=False)
+    floor = coarsest_floor_l_min([r[c.index("sensors")] for _t, c, r in results if "sensors" in c])
+    return "".join(f"<h3>{esc(t)} ({len(rows)} rows)</h3>" + html_table(cols, rows, 50, links=False,
+                                                                        floors=[floor] * len(rows))
                    for t, (cols, rows) in sorted(by_table.items())) or '<p class="meta">no result rows</p>'
 
 

@@ -16,7 +16,7 @@ from pipeline.serve.report.markup import esc
 from pipeline.serve.report.summaries import (summary_breakaway, summary_hoses, summary_identification,
                                              summary_leakage, summary_pressure, summary_service_life,
                                              summary_spring, summary_step, summary_viscous)
-from pipeline.serve.report.tables import MAX_ROWS, html_table
+from pipeline.serve.report.tables import MAX_ROWS, html_table, leak_floors
 from schemas.papers import PLA_CITATION, PLPA_CITATION
 
 # -- raw rows: folded, with the whole table as a CSV download ------------------------------------------
@@ -37,7 +37,8 @@ def _csv_uri(columns: list[str], rows: list[tuple]) -> str:
 
 
 def _raw_rows(db: ReportDB, table: str, what: str = "") -> str:
-    """A table's rows behind ``<details>`` (first :data:`MAX_ROWS`), with a CSV of all of them."""
+    """A table's rows behind ``<details>`` (first :data:`MAX_ROWS`), with a CSV of all of them (its
+    stored values: a leak under the floor reads "< floor" in the table alone, :func:`leak_floors`)."""
     if not db.has(table):
         return ""
     n = db.count(table)
@@ -49,7 +50,8 @@ def _raw_rows(db: ReportDB, table: str, what: str = "") -> str:
         cols, rows = db.rows(f'SELECT * FROM "{table}" LIMIT {MAX_ROWS}')
         dl = f' · {n} rows: <code>pneubench query "SELECT * FROM {esc(table)}"</code>'
     return (f'<details class="raw" id="raw-{esc(table)}"><summary><b>{esc(table)}</b> ({n} rows){esc(what)}{dl}'
-            f"</summary>{html_table(cols, rows, MAX_ROWS, n)}</details>")
+            f"</summary>{html_table(cols, rows, MAX_ROWS, n, floors=leak_floors(db, table, cols, rows[:MAX_ROWS]))}"
+            "</details>")
 
 
 def _img(warehouse: Path, rel: str) -> str:

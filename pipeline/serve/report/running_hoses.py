@@ -2,8 +2,10 @@
 hoses, nearest their end first, with the distance now, the remaining kilometres per method
 (median and prediction interval at the plan's confidence), the backtest's coverage under each
 method's column so that a reader knows how far to trust it, the leak now against the plan's limit,
-the notes of what could not be predicted, and a small plot of the hose's leak path against the
-limit (the first :data:`MAX_LEAK_PLOTS` hoses nearest their end; the others are counted).
+the notes of what could not be predicted (a leak now under the flow sensor's floor reads
+"< floor", :func:`~pipeline.serve.report.tables.floor_text`), and a small plot of the hose's leak
+path against the limit (the first :data:`MAX_LEAK_PLOTS` hoses nearest their end; the others are
+counted).
 
 The reading and the words are :mod:`pipeline.serve.remaining_life`'s (``pneubench decision``
 prints the same); the models behind the numbers: Meeker & Escobar 1998, ch. 12-13; Lu & Meeker
@@ -24,6 +26,7 @@ from pipeline.serve.remaining_life import (METHODS, RunningHose, coverage_text, 
 from pipeline.serve.report.db import ReportDB
 from pipeline.serve.report.figures import Figures, code_key, figure_key
 from pipeline.serve.report.markup import esc
+from pipeline.serve.report.tables import coarsest_floor_l_min, floor_text
 
 #: Running hoses whose leak path is drawn, nearest their end first (a plot each; the rest are counted).
 MAX_LEAK_PLOTS = 40
@@ -69,7 +72,8 @@ def running_section(db: ReportDB, figures: Figures | None = None) -> str:
     groups: dict[tuple, list[RunningHose]] = {}
     for h in hoses:
         groups.setdefault((h.hose_type, h.adjustment), []).append(h)
-    tables = "".join(_group_table(t, a, groups[(t, a)], backtest, plots) for t, a in sorted(groups))
+    floors = _hose_floors(db, hoses)
+    tables = "".join(_group_table(t, a, groups[(t, a)], backtest, plots, floors) for t, a in sorted(groups))
     rest = len(hoses) - len(drawn)
     capped = (f'<p class="meta">Leak paths drawn for the {len(drawn)} hoses nearest their end; {rest} more '
               "listed without one (<code>pneubench query</code> on <code>hose_leak_growth</code> has them all).</p>"
@@ -77,15 +81,29 @@ def running_section(db: ReportDB, figures: Figures | None = None) -> str:
     return head + intro + tables + capped
 
 
-def _group_table(hose_type: str, adjustment: str, hoses: list[RunningHose], backtest: dict, plots: dict) -> str:
-    """One hose type and adjustment: a row per running hose, the backtest under each method's name."""
+def _hose_floors(db: ReportDB, hoses: list[RunningHose]) -> dict[str, float]:
+    """Per running hose, the floor of the coarsest flow sensor of its leakage runs (the
+    ``leakage_map.sensors`` of the rows naming it, :func:`~pipeline.serve.report.tables.coarsest_floor_l_min`)
+    [l/min ANR]; a hose without one is left out."""
+    if not db.has("leakage_map") or not {"hose_id", "sensors"} <= set(db.columns("leakage_map")):
+        return {}
+    found = db.con.execute("SELECT hose_id, list(DISTINCT sensors) FROM leakage_map "
+                           "WHERE hose_id IN (SELECT unnest(?)) GROUP BY hose_id",
+                           [sorted({str(h.hose_id) for h in hoses})]).fetchall()
+    return {hid: f for hid, texts in found if (f := coarsest_floor_l_min(texts)) is not None}
+
+
+def _group_table(hose_type: str, adjustment: str, hoses: list[RunningHose], backtest: dict, plots: dict,
+                 floors: dict | None = None) -> str:
+    """One hose type and adjustment: a row per running hose, the backtest under each method's name;
+    ``floors``: per hose, its flow sensor's floor [l/min ANR] (:func:`_hose_floors`)."""
     heads = "".join(f'<th>{m}<br><small>remaining km</small><br><span class="meta" style="font-weight:400">'
                     f"{esc(coverage_text(backtest.get((hose_type, adjustment, m))))}</span></th>" for m in METHODS)
     rows = []
     for h in hoses:
         cells = "".join(f'<td class="num">{esc(rul_text(h.rows.get(m)))}</td>' for m in METHODS)
         rows.append(f"<tr><td>{esc(h.hose_id)}</td><td class=\"num\">{esc(km_text(h.distance_km))}</td>{cells}"
-                    f"<td>{_leak_cell(h)}</td><td>{_plot_cell(h, plots)}</td>"
+                    f"<td>{_leak_cell(h, (floors or {}).get(str(h.hose_id)))}</td><td>{_plot_cell(h, plots)}</td>"
                     f'<td class="meta">{esc(h.notes())}</td></tr>')
     return (f"<h4>{esc(hose_type)}, {esc(adjustment or 'unknown')}-set: {len(hoses)} running</h4>"
             '<div class="wrap"><table class="running"><thead><tr><th>hose</th><th>now<br><small>km</small></th>'
@@ -93,8 +111,9 @@ def _group_table(hose_type: str, adjustment: str, hoses: list[RunningHose], back
             + "".join(rows) + "</tbody></table></div>")
 
 
-def _leak_cell(h: RunningHose) -> str:
-    """``0.41 / 2 l/min`` over ``at 6 bar, 9 points`` (HTML); ``no limit in plan.toml`` without one."""
+def _leak_cell(h: RunningHose, floor: float | None = None) -> str:
+    """``0.41 / 2 l/min`` over ``at 6 bar, 9 points`` (HTML), the leak now ``< floor`` under the flow
+    sensor's ``floor`` [l/min ANR]; ``no limit in plan.toml`` without one."""
     r = h.row("leak_limit_l_min")
     if not r:
         return "no limit in plan.toml"
@@ -103,7 +122,8 @@ def _leak_cell(h: RunningHose) -> str:
     n = h.row("n_leak_points").get("n_leak_points")
     under = ", ".join(([f"at {p:.3g} bar"] if p is not None else [])
                       + ([f"{int(n)} point{'s' if n != 1 else ''}"] if n is not None else []))
-    return (f'<span style="white-space:nowrap">{"—" if now is None else f"{now:.3g}"} / '
+    shown = "—" if now is None else esc(floor_text(now, floor) or f"{now:.3g}")
+    return (f'<span style="white-space:nowrap">{shown} / '
             f'{num(r["leak_limit_l_min"]):.3g} l/min</span>'
             + (f'<br><span class="meta">{under}</span>' if under else ""))
 

@@ -9,7 +9,7 @@ import math
 
 from pipeline.serve.report.db import ReportDB
 from pipeline.serve.report.markup import esc, fmt, significant
-from pipeline.serve.report.tables import FLOOR_COLUMN, flow_floor_l_min, html_table
+from pipeline.serve.report.tables import FLOOR_COLUMN, coarsest_floor_l_min, html_table
 from schemas.papers import (PLA_NRMSE_LIMIT_PCT, PLA_TABLE1, PLA_TABLE2, PLA_TABLE3_NRMSE_MAX_PCT,
                             PLA_TABLE3_NRMSE_MIN_PCT, PLPA_FIG12, PLPA_FIG15, PLPA_TABLE2)
 
@@ -188,8 +188,7 @@ def summary_leakage(db: ReportDB) -> str:
         return ""
     # the floor of a mean over runs: the coarsest flow sensor among them (leak cells under it read "< floor")
     j = cols.index(FLOOR_COLUMN)
-    rows = [(*r[:j], max((f for t in (r[j] or []) if (f := flow_floor_l_min(t)) is not None), default=None), *r[j + 1:])
-            for r in rows]
+    rows = [(*r[:j], coarsest_floor_l_min(r[j]), *r[j + 1:]) for r in rows]
     return ("<h4>Seal and leak per roller setting (characterisation runs only; worn-hose checks left out)</h4>"
             + html_table(cols, rows, 60))
 

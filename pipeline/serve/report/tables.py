@@ -1,7 +1,8 @@
 """Rows as an HTML table, the way every table of the report shows them: the unit of a column's
 suffix in its header, one number format per column chosen from its range (:func:`column_format`),
 a leak under its flow sensor's floor as "< floor" (:data:`FLOORED_COLUMNS`; the stored value
-stays), a ``sensors`` text in display units and run ids linked to their pages."""
+stays; :func:`leak_floors` gives the floor of rows that copy leakage plateaus without their
+sensors), a ``sensors`` text in display units and run ids linked to their pages."""
 from __future__ import annotations
 
 import math
@@ -33,9 +34,10 @@ def _cell(column: str, value, links, number=None) -> str:
 
 #: Leak columns that read "< floor" where their value is under the flow sensor's floor (the stored
 #: value stays as it is): a mean leak that small, or negative, is the sensor's own scatter.
-FLOORED_COLUMNS = ("leak_l_min", "leak_at_5_bar_l_min", "leak_at_6_bar_l_min")
+FLOORED_COLUMNS = ("leak_l_min", "leak_at_5_bar_l_min", "leak_at_6_bar_l_min", "max_leak_l_min")
 #: A row's floor of :data:`FLOORED_COLUMNS`: this column when the row has it, else the flow sensor
-#: stated in its ``sensors`` text (``leakage_map``).
+#: stated in its ``sensors`` text (``leakage_map``), else the floor the caller gives
+#: (:func:`leak_floors`: ``hose_leak_growth``, ``seal_envelope``).
 FLOOR_COLUMN = "leak_floor_l_min"
 
 
@@ -46,6 +48,44 @@ def flow_floor_l_min(sensors) -> float | None:
     res, noise, _, unit = sensor_parts(sensors).get("q_leak", (math.nan, math.nan, "", "kg/s"))
     floor = max(res, noise) if unit == "kg/s" else math.nan
     return float(kg_s_to_l_min_anr(floor)) if math.isfinite(floor) and floor > 0 else None
+
+
+def coarsest_floor_l_min(sensors_texts) -> float | None:
+    """Floor of the coarsest flow sensor among ``sensors_texts`` (:func:`flow_floor_l_min` of each)
+    [l/min ANR]: the floor of a value from several runs (a mean, a leak copied from a run with
+    several plateaus); None when none states one."""
+    return max((f for t in (sensors_texts or ()) if (f := flow_floor_l_min(t)) is not None), default=None)
+
+
+def leak_floors(db, table: str, columns: list[str], rows: list[tuple]) -> list | None:
+    """The flow sensor's floor [l/min ANR] of each of ``rows`` (of ``table``, with ``columns``) whose
+    leak comes from ``leakage_map`` plateaus without the ``sensors`` they were measured with, read
+    from ``leakage_map.sensors`` of ``db``: a row naming a ``run_id`` (``hose_leak_growth``, a
+    plateau copied), the coarsest sensor of that run's plateaus; a ``seal_envelope`` row, the
+    coarsest of its roller setting's runs that it used (``runs_used``: characterisation runs, or
+    hose checks). None for a row without one, and in place of the list when the rows state their
+    own floor, have no leak column or the database no ``leakage_map.sensors``."""
+    if not rows or not any(c in FLOORED_COLUMNS for c in columns) or FLOOR_COLUMN in columns or \
+            "sensors" in columns or not db.has("leakage_map") or "sensors" not in db.columns("leakage_map"):
+        return None
+    setting = ("chamber", "adjustment", "z_rollers_mm", "spring_force_n")
+    if "run_id" in columns:
+        k = columns.index("run_id")
+        found = db.con.execute("SELECT run_id, list(DISTINCT sensors) FROM leakage_map "
+                               "WHERE run_id IN (SELECT unnest(?)) GROUP BY run_id",
+                               [sorted({r[k] for r in rows if isinstance(r[k], str)})]).fetchall()
+        of = {rid: coarsest_floor_l_min(texts) for rid, texts in found}
+        return [of.get(r[k]) for r in rows]
+    if table == "seal_envelope" and {*setting, "runs_used"} <= set(columns) and \
+            set(setting) <= set(db.columns("leakage_map")):
+        hose = "coalesce(hose_id, '') <> ''" if "hose_id" in db.columns("leakage_map") else "false"
+        found = db.con.execute(f"SELECT {', '.join(setting)}, CASE WHEN {hose} THEN 'hose_checks' "
+                               "ELSE 'characterisation' END, list(DISTINCT sensors) FROM leakage_map GROUP BY ALL"
+                               ).fetchall()
+        of = {tuple(r[:5]): coarsest_floor_l_min(r[5]) for r in found}
+        at = [columns.index(c) for c in (*setting, "runs_used")]
+        return [of.get(tuple(r[j] for j in at)) for r in rows]
+    return None
 
 
 #: A column shows at most this many decimals more than its largest value needs for its digits.
@@ -84,18 +124,27 @@ def column_format(values, sig: int = 4):
     return number
 
 
-def _row_floor(columns: list[str], row: tuple) -> float | None:
-    """The flow sensor's floor of a row [l/min ANR] (None when it states none)."""
+def _row_floor(columns: list[str], row: tuple, given: float | None = None) -> float | None:
+    """The flow sensor's floor of a row [l/min ANR]: its own (:data:`FLOOR_COLUMN`, ``sensors``),
+    else ``given``; None when neither states one."""
     if FLOOR_COLUMN in columns:
         v = row[columns.index(FLOOR_COLUMN)]
         return float(v) if isinstance(v, (int, float)) and math.isfinite(v) and v > 0 else None
-    return flow_floor_l_min(row[columns.index("sensors")]) if "sensors" in columns else None
+    if "sensors" in columns:
+        return flow_floor_l_min(row[columns.index("sensors")])
+    return float(given) if isinstance(given, (int, float)) and math.isfinite(given) and given > 0 else None
 
 
 def _under_floor(value, floor) -> bool:
     """Whether ``value`` is a finite number under ``floor``."""
     return floor is not None and isinstance(value, (int, float)) and not isinstance(value, bool) \
         and math.isfinite(value) and abs(value) < floor
+
+
+def floor_text(value, floor: float | None, number=None) -> str | None:
+    """``< floor`` for a leak ``value`` under ``floor`` [l/min ANR] (rounded up to ``number``'s
+    decimals, a :func:`column_format`; one significant digit without it); None for a value to show."""
+    return _floor_text(floor, number) if _under_floor(value, floor) else None
 
 
 def _floor_text(floor: float, number) -> str:
@@ -108,14 +157,18 @@ def _floor_text(floor: float, number) -> str:
 
 
 def html_table(columns: list[str], rows: list[tuple], max_rows: int = MAX_ROWS, total: int | None = None,
-               links: bool | set = True) -> str:
+               links: bool | set = True, floors: list | None = None) -> str:
     """Rows as a table: units from the column names in the headers, run ids linked to run pages
-    (``links``: True for every run id, or the set of ids that have a page)."""
+    (``links``: True for every run id, or the set of ids that have a page); ``floors``: per row,
+    the flow sensor's floor [l/min ANR] of a row that states none of its own (:func:`leak_floors`)."""
     if not rows:
         return '<p class="more">no rows</p>'
     head = "".join(_th(c) for c in columns)
     shown = rows[:max_rows]
-    floors = [_row_floor(columns, r) for r in shown] if any(c in FLOORED_COLUMNS for c in columns) else [None] * len(shown)
+    given = list(floors or [])[:len(shown)]
+    given += [None] * (len(shown) - len(given))
+    floors = [_row_floor(columns, r, g) for r, g in zip(shown, given)] if any(c in FLOORED_COLUMNS for c in columns) \
+        else [None] * len(shown)
     numbers = []  # one format per column, from the values it shows as numbers
     for j, c in enumerate(columns):
         values = [r[j] for r, f in zip(shown, floors) if not (c in FLOORED_COLUMNS and _under_floor(r[j], f))]

@@ -311,3 +311,31 @@ def test_only_the_runs_whose_rows_changed_are_keyed_and_their_keys_are_those_a_w
     assert sorted(keyed) == ["s0", "s1", "s2"]
     assert {p.name: p.read_bytes() for p in sorted(runs.iterdir())} == whole()
     assert pages.read_run_keys(warehouse / "report")[page_name("s2")] != keys[page_name("s2")]
+
+
+def test_a_run_pages_leak_growth_rows_read_under_the_floor_of_the_runs_flow_sensor_as_its_leakage_rows_do(tmp_path):
+    """hose_leak_growth copies a hose check's plateaus without the sensors: on the run's page its
+    rows read "< floor" where the run's leakage_map rows do (the floor of the run's sensors); a
+    run whose rows state no sensor shows its values."""
+    from pipeline.serve.report.db import ReportDB
+    from pipeline.serve.report.folders import page_name
+    from pipeline.serve.report.pages import write_run_pages
+    from tests.pipeline.serve.report.conftest import table_cells
+    from tests.pipeline.serve.report.test_tables import leak_floor_db
+
+    con = leak_floor_db()
+    con.execute("CREATE TABLE runs (run_id VARCHAR, kind VARCHAR, samples_path VARCHAR, warnings VARCHAR[], "
+                "params VARCHAR)")
+    con.execute("INSERT INTO runs VALUES ('c/check-H1', 'leakage', NULL, NULL, NULL), "
+                "('c/char', 'leakage', NULL, NULL, NULL), ('c/elsewhere', 'leakage', NULL, NULL, NULL)")
+    assert write_run_pages(ReportDB(con), tmp_path) == 3
+
+    def leaks(run_id: str, table: str) -> list[str]:
+        page = (tmp_path / "report" / "runs" / page_name(run_id)).read_text()
+        part = page[page.index(f"<h3>{table} ("):]
+        part = part[:part.index("</table>")]
+        head = [re.sub(r"<[^>]+>", " ", h).split()[0] for h in re.findall(r"<th>(.*?)</th>", part, flags=re.S)]
+        return [r[head.index("leak")] for r in table_cells(part)]
+
+    assert leaks("c/check-H1", "hose_leak_growth") == leaks("c/check-H1", "leakage_map") == ["&lt; 0.020", "0.667"]
+    assert leaks("c/elsewhere", "hose_leak_growth") == ["-0.0044"]

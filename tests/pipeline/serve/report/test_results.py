@@ -85,3 +85,28 @@ def test_a_topic_is_taken_when_its_figures_moved_to_a_new_stage_folder_with_the_
     gone = (*row[:2], "stages/models/k3/figures/step_a.png", row[3])
     assert "figure file missing" in _part(KeyedParts(ReportDB(_db()), "code", first.kept), "topic-step",
                                           topic([gone]), [gone], first.db, wh) and len(calls) == 4
+
+
+def test_the_hoses_topics_leak_growth_rows_read_under_the_floor_of_their_runs_sensor_and_the_csv_keeps_the_values(
+        tmp_path):
+    """hose_leak_growth's rows behind "Hoses and durability runs" (plateaus copied from leakage_map
+    without the sensors) read "< floor" where leakage_map's rows of the same plateaus do; the
+    seal_envelope's max leak too; the CSV download has the stored numbers."""
+    import base64
+
+    from pipeline.serve.report.db import ReportDB
+    from pipeline.serve.report.results import results_sections
+    from tests.pipeline.serve.report.conftest import table_cells
+    from tests.pipeline.serve.report.test_tables import leak_floor_db
+
+    html, _toc = results_sections(ReportDB(leak_floor_db()), tmp_path)
+    hoses = html[html.index('<section id="hoses">'):]
+    part = hoses[hoses.index('id="raw-hose_leak_growth"'):]
+    part = part[:part.index("</details>")]
+    assert [r[-1] for r in table_cells(part)] == ["&lt; 0.0199", "0.6670", "-0.0044"]  # the last run states no sensor
+    csv_text = base64.b64decode(re.search(r'base64,([^"]+)"', part).group(1)).decode()
+    assert "-0.0044" in csv_text and "&lt;" not in csv_text and "< " not in csv_text
+    leak = html[html.index('id="raw-leakage_map"'):]
+    assert table_cells(leak[:leak.index("</details>")])[0][7] == "&lt; 0.020"
+    seal = html[html.index('id="raw-seal_envelope"'):]
+    assert [r[6] for r in table_cells(seal[:seal.index("</details>")])] == ["&lt; 0.040", "0.030", "0.001"]

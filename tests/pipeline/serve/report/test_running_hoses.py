@@ -188,3 +188,28 @@ def test_running_hoses_in_headless_chromium(wh, tmp_path):
     assert flipped == "rgb(255, 233, 179)"
     res = run_chromium(index.as_uri(), "--dump-dom", size=(1280, 1600))
     assert console_lines(res) == []
+
+
+def test_a_leak_now_under_the_flow_sensors_floor_reads_under_it_as_the_leak_tables_do(wh):
+    """F2's leak now (0.05 l/min) is under the floor of the flow sensor of its leakage runs
+    (leakage_map.sensors, 0.06 l/min here): it reads "< 0.06", by the tables' own rule; F1 (0.8
+    l/min, the same sensor) and D1 (no leakage_map rows) show their values."""
+    import duckdb
+
+    from pipeline.serve.report.tables import flow_floor_l_min
+    from pipeline.warehouse import DB_NAME
+
+    coarse = "q_leak: resolution 1.98e-08, noise 1.2e-06 (estimated) kg/s"
+    assert 0.05 < flow_floor_l_min(coarse) < 0.8
+    con = duckdb.connect(str(wh / DB_NAME))
+    con.execute("CREATE TABLE leakage_map (run_id VARCHAR, hose_id VARCHAR, chamber VARCHAR, adjustment VARCHAR, "
+                "z_rollers_mm DOUBLE, spring_force_n DOUBLE, pressure_bar DOUBLE, leak_l_min DOUBLE, sensors VARCHAR)")
+    con.execute("INSERT INTO leakage_map VALUES ('F2-L0', 'F2', 'A', 'force', NULL, 858, 6, 0.05, ?), "
+                "('F1-L0', 'F1', 'A', 'force', NULL, 858, 6, 0.8, ?)", [coarse, coarse])
+    con.close()
+    tables = _tables(_part(render_report(wh)))
+    f1, f2 = (_cells(r) for r in tables[f"{DECIDED}, force-set: 2 running"])
+    assert f2[4] == "&lt; 0.06 / 2 l/min" + "at 6 bar, 2 points"
+    assert f1[4].startswith("0.8 / 2 l/min")
+    d1 = _cells(tables[f"{DECIDED}, distance-set: 2 running"][0])
+    assert d1[4] == "1.1 / 2 l/min" + "at 6 bar, 5 points"

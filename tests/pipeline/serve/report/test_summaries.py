@@ -31,6 +31,12 @@ def test_demo_report_columns_floors_figures_and_citations(demo):
     cells = [r[j] for r in table_cells(t) for j in leak_cols]
     assert leak_cols and not any(c.startswith("-") for c in cells), cells
     assert any(c.startswith("&lt; ") for c in cells) and not any("e-" in c for c in cells), cells
+    # the hose checks' plateaus copied into hose_leak_growth (no sensors there) read by their run's floor too
+    growth = html[html.index('id="raw-hose_leak_growth"'):]
+    t = growth[growth.index("<table>"):growth.index("</table>")]
+    heads = [re.sub(r"<[^>]+>", " ", h).split()[0] for h in re.findall(r"<th>(.*?)</th>", t, flags=re.S)]
+    cells = [r[heads.index("leak")] for r in table_cells(t)]
+    assert not any(c.startswith("-") for c in cells) and any(c.startswith("&lt; ") for c in cells), cells
     # figures one per row, no empty "Other figures", the papers cited by name (from one place in the code)
     assert 'class="pair"' not in html and "Other figures" not in html
     assert "seed 00" not in html

@@ -48,3 +48,66 @@ def test_the_sensors_column_is_shown_in_bar_and_l_min_but_stored_in_si():
     cell = html_table(["run_id", "sensors"], [("r", stored)])
     assert "p_supply: resolution 0.001 bar, noise 0.0004 bar (metadata); q_leak: resolution 0.01 l/min" in cell
     assert " Pa" not in cell and "kg/s" not in cell
+
+
+#: A coarser flow sensor (twice the noise: a floor near 0.04 l/min).
+Q_COARSE = Q_SENSORS.replace("3.93e-07", "7.86e-07")
+
+
+def leak_floor_db():
+    """An in-memory warehouse with a hose check ``c/check-H1`` (its plateaus in ``leakage_map`` with
+    their sensors, copied without them into ``hose_leak_growth``, one under the floor), a
+    characterisation run of the same setting on a coarser sensor, and their ``seal_envelope``."""
+    import duckdb
+
+    con = duckdb.connect()
+    con.execute("CREATE TABLE leakage_map (run_id VARCHAR, hose_id VARCHAR, chamber VARCHAR, adjustment VARCHAR, "
+                "z_rollers_mm DOUBLE, spring_force_n DOUBLE, pressure_bar DOUBLE, leak_l_min DOUBLE, sensors VARCHAR)")
+    con.execute("INSERT INTO leakage_map VALUES "
+                "('c/check-H1', 'H1', 'A', 'distance', 4.0, NULL, 3.9969, -0.0044, ?), "
+                "('c/check-H1', 'H1', 'A', 'distance', 4.0, NULL, 5.995, 0.6670, ?), "
+                "('c/char', NULL, 'A', 'distance', 4.0, NULL, 6.0, 0.03, ?)", [Q_SENSORS, Q_SENSORS, Q_COARSE])
+    con.execute("CREATE TABLE hose_leak_growth AS SELECT hose_id, run_id, 0.0 AS distance_km, chamber, pressure_bar, "
+                "leak_l_min FROM leakage_map WHERE hose_id IS NOT NULL ORDER BY pressure_bar")
+    con.execute("INSERT INTO hose_leak_growth VALUES ('H1', 'c/elsewhere', 1.0, 'A', 4.0, -0.0044)")  # no sensors
+    con.execute("CREATE TABLE seal_envelope (chamber VARCHAR, adjustment VARCHAR, z_rollers_mm DOUBLE, "
+                "spring_force_n DOUBLE, sealed_up_to_bar DOUBLE, first_leak_bar DOUBLE, max_leak_l_min DOUBLE, "
+                "runs_used VARCHAR)")
+    con.execute("INSERT INTO seal_envelope VALUES ('A', 'distance', 4.0, NULL, 6, NULL, 0.03, 'characterisation'), "
+                "('A', 'distance', 4.0, NULL, 6, NULL, 0.03, 'hose_checks'), "
+                "('B', 'distance', 4.0, NULL, 6, NULL, 0.001, 'characterisation')")
+    return con
+
+
+def test_rows_that_copy_leakage_plateaus_without_their_sensors_read_under_the_floor_of_the_run_they_came_from():
+    """hose_leak_growth copies leakage_map's plateaus without the sensors: its leaks take the floor
+    of their run (the same rule as leakage_map's rows: -0.0044 reads "< 0.0199" in both), a
+    seal_envelope row the coarsest of the runs it used; the stored values are not changed."""
+    from pipeline.serve.report.db import ReportDB
+    from pipeline.serve.report.tables import coarsest_floor_l_min, flow_floor_l_min, html_table, leak_floors
+
+    db = ReportDB(leak_floor_db())
+    fine, coarse = flow_floor_l_min(Q_SENSORS), flow_floor_l_min(Q_COARSE)
+    assert coarse == pytest.approx(2 * fine) and coarsest_floor_l_min([Q_SENSORS, None, Q_COARSE]) == coarse
+    assert coarsest_floor_l_min([None, ""]) is None and coarsest_floor_l_min(None) is None
+    cols, rows = db.rows("SELECT * FROM hose_leak_growth")
+    floors = leak_floors(db, "hose_leak_growth", cols, rows)
+    assert floors == [pytest.approx(fine), pytest.approx(fine), None]  # a run with no sensors stated: none
+    cells = table_cells(html_table(cols, rows, floors=floors))
+    assert [r[-1] for r in cells] == ["&lt; 0.0199", "0.6670", "-0.0044"]  # the floor at the column's decimals
+    assert db.rows("SELECT leak_l_min FROM hose_leak_growth")[1][0] == (-0.0044,)  # stored as it was
+    # the run's plateaus read as leakage_map's own rows (with their sensors) read them
+    lcols, lrows = db.rows("SELECT run_id, pressure_bar, leak_l_min, sensors FROM leakage_map WHERE hose_id = 'H1'")
+    assert [r[2] for r in table_cells(html_table(lcols, lrows))] == \
+        [r[-1] for r in table_cells(html_table(cols, rows[:2], floors=floors[:2]))] == ["&lt; 0.020", "0.667"]
+    # seal_envelope: the floor of the runs it used (characterisation: the coarse sensor; hose checks: the fine one)
+    cols, rows = db.rows("SELECT * FROM seal_envelope")
+    assert leak_floors(db, "seal_envelope", cols, rows) == [pytest.approx(coarse), pytest.approx(fine), None]
+    cells = table_cells(html_table(cols, rows, floors=leak_floors(db, "seal_envelope", cols, rows)))
+    assert [r[6] for r in cells] == ["&lt; 0.040", "0.030", "0.001"]
+    # rows that state their own floor, tables without a leak column, a database without leakage_map: no list
+    assert leak_floors(db, "leakage_map", lcols, lrows) is None
+    assert leak_floors(db, "x", ["run_id", "pressure_bar"], [("c/check-H1", 4.0)]) is None
+    import duckdb
+    empty = ReportDB(duckdb.connect())
+    assert leak_floors(empty, "hose_leak_growth", ["run_id", "leak_l_min"], [("c/check-H1", -0.0044)]) is None
