@@ -430,7 +430,7 @@ def report(warehouse, wait_s):
 
 @main.command()
 @click.argument("out_dir", type=click.Path(file_okay=False, path_type=Path))
-@click.option("--seed", type=int, default=1, show_default=True, help="Same seed, same bytes.")
+@click.option("--seed", type=click.IntRange(min=0), default=1, show_default=True, help="Same seed, same bytes.")
 @click.option("--profile", type=click.Choice(["demo", "full", "mini", "foreign", "decision", "rul"]), default="demo",
               show_default=True,
               help="demo: small files, about a minute with rebuild; full: realistic sizes (GB); mini: for tests; "
@@ -445,10 +445,19 @@ def report(warehouse, wait_s):
 def simulate(out_dir, seed, profile, runs, jobs, quiet):
     """Write a synthetic campaign (every kind, every format, hoses.csv, truth.json) into OUT_DIR.
 
-    OUT_DIR holds campaign folders: ingest it with `pneubench rebuild --raw OUT_DIR`.
+    OUT_DIR holds campaign folders: ingest it with `pneubench rebuild --raw OUT_DIR`. It is
+    created; one that exists must be empty (hidden files aside): anything else in it is refused
+    (exit 2), never overwritten.
     """
-    from pipeline.simulator.campaign import simulate_campaign
+    from pipeline.simulator.campaign import DemoError, refuse_occupied, simulate_campaign
 
+    try:  # before anything is written: the simulator replaces files of the same names
+        refuse_occupied(out_dir, "simulate writes only into a new or empty folder (give another one)")
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except DemoError as exc:
+        raise click.UsageError(str(exc)) from None
+    except OSError as exc:  # a file where a folder should be, no permission
+        raise click.UsageError(f"cannot create {out_dir} ({exc.strerror or exc})") from None
     s = simulate_campaign(out_dir, seed=seed, profile=profile, runs=runs, jobs=jobs,
                           progress=for_stream(sys.stderr, quiet))
     kinds = ", ".join(f"{k} {n}" for k, n in sorted(s.by_kind.items()))

@@ -6,6 +6,7 @@ from __future__ import annotations
 import difflib
 import html
 import io
+import os
 import re
 import shutil
 from pathlib import Path
@@ -125,7 +126,12 @@ def run_result_rows(warehouse: str | Path, run_id: str) -> list[tuple[str, list[
 
 def plot_run(warehouse: str | Path, run_id: str, out: str | Path, channels: list[str] | None = None,
              width_px: int = 1200) -> Path:
-    """Plot one run's channels against time, one panel per channel, to ``.png``, ``.svg`` or ``.html``."""
+    """Plot one run's channels against time, one panel per channel, to ``.png``, ``.svg`` or ``.html``.
+
+    ``out`` is written whole through a temporary file beside it (a symlink already there is
+    replaced, never what it points at); its folder is created. Raises :class:`QueryError` (one
+    line) for an unknown run or channel, another suffix, or an ``out`` that cannot be written.
+    """
     out = Path(out)
     suffix = out.suffix.lower()
     if suffix not in (".png", ".svg", ".html"):
@@ -150,9 +156,9 @@ def plot_run(warehouse: str | Path, run_id: str, out: str | Path, channels: list
         axes[0, 0].legend(seen.values(), seen.keys(), fontsize=7, loc="upper right", framealpha=0.8)
     fig.suptitle(f"{run_id} ({kind})", fontsize=10)
     fig.tight_layout()
-    out.parent.mkdir(parents=True, exist_ok=True)
+    _make_folder(out.parent, out)
     try:
-        _save(fig, out, suffix, run_id)
+        _write_replacing(out, lambda fh: _save(fig, fh, suffix, run_id))
     finally:
         plt.close(fig)
     return out
@@ -186,21 +192,62 @@ def _time_axis(ax, traces: dict[str, tuple[list[float], list[float]]]) -> None:
     ax.set_xlabel(f"t [{tunit}]")
 
 
-def _save(fig, out: Path, suffix: str, run_id: str) -> None:
-    """Write the figure: PNG or SVG without a date or software stamp, HTML as a page around the SVG."""
+def _save(fig, fh, suffix: str, run_id: str) -> None:
+    """Write the figure to the binary file ``fh``: PNG or SVG without a date or software stamp,
+    HTML as a page around the SVG."""
     if suffix == ".html":
         buf = io.StringIO()
         fig.savefig(buf, format="svg", metadata={"Date": None})
-        out.write_text(f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>{html.escape(run_id)}'
-                       f"</title></head><body>\n{buf.getvalue()}\n</body></html>\n", encoding="utf-8")
+        fh.write(f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>{html.escape(run_id)}'
+                 f"</title></head><body>\n{buf.getvalue()}\n</body></html>\n".encode("utf-8"))
     else:
-        fig.savefig(out, metadata={"Software": None} if suffix == ".png" else {"Date": None})
+        fig.savefig(fh, format=suffix[1:], metadata={"Software": None} if suffix == ".png" else {"Date": None})
+
+
+def _make_folder(folder: Path, out: Path) -> None:
+    """Create ``folder`` (and its parents) for ``out``, or refuse in one line (:class:`QueryError`)
+    naming ``out`` and what is in the way: a file where a folder should be, or the system's reason."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        blocking = next((p for p in (folder, *folder.parents) if os.path.lexists(p)), None)
+        if blocking is not None and os.path.islink(blocking) and not os.path.exists(blocking):
+            why = f"{blocking} is a symlink loop or a symlink to nothing"
+        elif blocking is not None and not blocking.is_dir():
+            why = f"{blocking} is not a folder"
+        else:
+            why = f"cannot create {folder} ({exc.strerror or exc})"
+        raise QueryError(f"cannot write {out}: {why}") from None
+
+
+def _write_replacing(target: Path, write) -> None:
+    """Write ``target`` whole: ``write(fh)`` fills a temporary file beside it (opened without
+    following a symlink), which is then renamed onto ``target`` (``os.replace``), as the report and
+    the stage folders are written. A symlink already at ``target`` is replaced, never what it
+    points at; an interrupted write leaves no half file. An error of the file system is one line
+    (:class:`QueryError`) naming ``target``; the temporary file is removed."""
+    tmp = target.with_name(f".{target.name}.tmp-{os.getpid()}")
+    try:
+        try:
+            tmp.unlink(missing_ok=True)
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o666)
+            with os.fdopen(fd, "wb") as fh:
+                write(fh)
+            os.replace(tmp, target)
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
+    except OSError as exc:
+        raise QueryError(f"cannot write {target}: {exc.strerror or exc}") from None
 
 
 def copy_figures(warehouse: str | Path, dest: str | Path) -> list[tuple[Path, str]]:
     """Copy the current figures (table ``figures``) out of their content-hashed stage folders.
 
-    Files are named ``<stage>-<name><ext>`` in ``dest``. Returns ``(file, caption)`` per figure.
+    Files are named ``<stage>-<name><ext>`` in ``dest`` and written whole through a temporary file
+    (a symlink already at a name is replaced, never what it points at). Returns ``(file, caption)``
+    per figure. Raises :class:`QueryError` (one line) for a figure outside the warehouse and for
+    a ``dest`` that cannot be written (a file in the way).
     """
     warehouse = Path(warehouse).resolve()
     dest = Path(dest)
@@ -212,13 +259,14 @@ def copy_figures(warehouse: str | Path, dest: str | Path) -> list[tuple[Path, st
             if has else []
     finally:
         con.close()
-    dest.mkdir(parents=True, exist_ok=True)
+    _make_folder(dest, dest)
     out = []
     for stage, name, rel, caption in rows:
         src = (warehouse / rel).resolve()
         if not src.is_relative_to(warehouse) or not src.is_file():
             raise QueryError(f"figure {stage}/{name}: {rel} is not a file of the warehouse")
         target = dest / (re.sub(r"[^A-Za-z0-9._-]+", "_", f"{stage}-{name}") + src.suffix)
-        shutil.copyfile(src, target)
+        with open(src, "rb") as fh_src:
+            _write_replacing(target, lambda fh: shutil.copyfileobj(fh_src, fh))
         out.append((target, caption or ""))
     return out

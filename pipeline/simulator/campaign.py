@@ -143,7 +143,8 @@ def simulate_campaign(out_dir, seed: int = 1, profile: str = "demo", runs: int |
     Parameters
     ----------
     out_dir : path-like
-        Folder to write (created). Existing files of the same names are overwritten.
+        Folder to write (created). Existing files of the same names are overwritten
+        (``pneubench simulate`` first refuses a folder that is not empty: :func:`refuse_occupied`).
     seed : int
         Same seed, same bytes.
     profile : {"demo", "full", "mini", "foreign", "decision", "rul"}, DecisionProfile or RulProfile
@@ -307,7 +308,33 @@ PLAN_FILE = "plan.toml"
 
 
 class DemoError(Exception):
-    """The demo cannot write its campaigns into the raw tree given (one line, names the folder)."""
+    """The simulator cannot write into the folder given: it holds other files, or it is not a
+    folder (one line, names the folder; ``pneubench demo`` and ``simulate`` refuse it)."""
+
+
+def refuse_occupied(folder, why: str, allowed: tuple = ()) -> None:
+    """Raise :class:`DemoError` when ``folder`` exists and holds anything but hidden entries (a
+    name starting with ".") and the names ``allowed``: what the simulator writes would replace or
+    mix with them. A folder that does not exist yet, or is empty, passes.
+
+    Parameters
+    ----------
+    folder : path-like
+        The folder the simulator is to write into.
+    why : str
+        The end of the line: what the caller writes only into an empty folder, and what to do.
+    allowed : tuple of str
+        Names the caller accepts in ``folder`` (the demo's own campaigns and the lab's plan.toml).
+    """
+    folder = Path(folder)
+    try:
+        if not os.path.lexists(folder):
+            return
+        other = sorted(p.name for p in folder.iterdir() if not p.name.startswith(".") and p.name not in allowed)
+    except OSError as exc:
+        raise DemoError(f"{folder} cannot be listed ({exc.strerror or exc}): {why}") from None
+    if other:
+        raise DemoError(f"{folder} already holds {', '.join(other[:3])}{', ...' if len(other) > 3 else ''}: {why}")
 
 
 def simulate_demo(raw, seed: int = 1, jobs: int | None = None, progress=None, profile: str = "demo") -> bool:
@@ -326,12 +353,9 @@ def simulate_demo(raw, seed: int = 1, jobs: int | None = None, progress=None, pr
     raw = Path(raw)
     if (raw / "truth.json").is_file():
         return False
+    refuse_occupied(raw, "the demo writes its campaigns only into an empty raw folder (give another one with --raw)",
+                    allowed=(*DEMO_CAMPAIGNS, PLAN_FILE))
     raw.mkdir(parents=True, exist_ok=True)
-    other = sorted(p.name for p in raw.iterdir()
-                   if not p.name.startswith(".") and p.name not in (*DEMO_CAMPAIGNS, PLAN_FILE))
-    if other:
-        raise DemoError(f"{raw} already holds {', '.join(other[:3])}{', ...' if len(other) > 3 else ''}: the demo "
-                        "writes its campaigns only into an empty raw folder (give another one with --raw)")
     tmp = raw / f".demo-{os.getpid()}.partial"
     if tmp.exists():
         shutil.rmtree(tmp)

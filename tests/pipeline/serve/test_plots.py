@@ -104,3 +104,47 @@ def test_plot_shows_mm_and_h_mm_ss_past_an_hour(hour_run, long_run, tmp_path):
     assert res.exit_code == 0, res.output
     texts = _svg_text(out)
     assert "t [s]" in texts and "[mm]" in texts and "40" in texts and not any(":" in t for t in texts[1:])
+
+
+# -- session 29 (clifix): outputs are written through a temporary file, bad paths are one line ------------
+def test_figures_replace_a_symlink_at_a_name_never_what_it_points_at(tmp_path):
+    rows = [("durability", "kaplan_meier", "stages/durability/0a1b2c/figures/kaplan_meier.png", "KM curve")]
+    wh = _figures_warehouse(tmp_path, rows)
+    (tmp_path / "precious.txt").write_text("precious\n")
+    out = tmp_path / "figs"
+    out.mkdir()
+    (out / "durability-kaplan_meier.png").symlink_to(tmp_path / "precious.txt")
+    res = CliRunner().invoke(main, ["figures", "--warehouse", str(wh), "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    assert (tmp_path / "precious.txt").read_text() == "precious\n"
+    target = out / "durability-kaplan_meier.png"
+    assert not target.is_symlink() and target.read_bytes() == (wh / rows[0][2]).read_bytes()
+    assert sorted(p.name for p in out.iterdir()) == ["durability-kaplan_meier.png"]  # no temporary file left
+
+
+def test_plot_replaces_a_symlink_at_its_output_never_what_it_points_at(long_run, tmp_path):
+    (tmp_path / "precious.txt").write_text("precious\n")
+    out = tmp_path / "p.png"
+    out.symlink_to(tmp_path / "precious.txt")
+    res = CliRunner().invoke(main, ["plot", "c/long", "--warehouse", str(long_run), "-c", "x_m", "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    assert (tmp_path / "precious.txt").read_text() == "precious\n"
+    assert not out.is_symlink() and out.read_bytes()[:4] == b"\x89PNG"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.png", "precious.txt"]
+
+
+def test_a_file_where_the_output_folder_should_be_is_one_line(long_run, tmp_path):
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    res = CliRunner().invoke(main, ["plot", "c/long", "--warehouse", str(long_run), "-c", "x_m",
+                                    "-o", str(afile / "x.png")])
+    assert res.exit_code == 2, res.output
+    assert res.stderr == f"pneubench plot: cannot write {afile / 'x.png'}: {afile} is not a folder\n"
+    wh = _figures_warehouse(tmp_path, [("x", "f", "stages/x/0a/figures/f.png", "")])
+    res = CliRunner().invoke(main, ["figures", "--warehouse", str(wh), "-o", str(afile / "sub")])
+    assert res.exit_code == 2, res.output
+    assert res.stderr == f"pneubench figures: cannot write {afile / 'sub'}: {afile} is not a folder\n"
+    (tmp_path / "loopA").symlink_to(tmp_path / "loopB")
+    (tmp_path / "loopB").symlink_to(tmp_path / "loopA")
+    res = CliRunner().invoke(main, ["figures", "--warehouse", str(wh), "-o", str(tmp_path / "loopA")])
+    assert res.exit_code == 2 and "loopA is a symlink loop" in res.stderr

@@ -16,7 +16,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from pipeline.simulator.base import SimRun
-from pipeline.simulator.campaign import plan_campaign, simulate_campaign
+from pipeline.simulator.campaign import DemoError, plan_campaign, refuse_occupied, simulate_campaign
 from pipeline.simulator.runs import channels_of, simulate_plan
 from pipeline.simulator.variants import VARIANTS
 from pipeline.serve.door import connect_readonly
@@ -211,3 +211,23 @@ def test_timeseries_logger_keeps_non_canonical_channels_with_their_units(built):
         if "p_supply_pa" in t["channels"]:
             p = table.column("p_supply_pa").to_numpy() / 1e5
             assert t["supply_low_bar"] - 0.05 < p.min() and p.max() < t["supply_high_bar"] + 0.05
+
+
+def test_refuse_occupied_passes_a_new_or_empty_folder_and_names_what_is_in_the_way(tmp_path):
+    """One rule for `demo` and `simulate`: hidden entries and the caller's own names aside, nothing."""
+    refuse_occupied(tmp_path / "new", "why")
+    folder = tmp_path / "f"
+    folder.mkdir()
+    (folder / ".hidden").write_text("")
+    (folder / "plan.toml").write_text("")
+    refuse_occupied(folder, "why", allowed=("plan.toml",))
+    with pytest.raises(DemoError, match=r"f already holds plan.toml: why$"):
+        refuse_occupied(folder, "why")
+    for name in "abcd":
+        (folder / name).write_text("")
+    with pytest.raises(DemoError, match=r"already holds a, b, c, \.\.\.: why$"):
+        refuse_occupied(folder, "why", allowed=("plan.toml",))
+    (tmp_path / "loopA").symlink_to(tmp_path / "loopB")
+    (tmp_path / "loopB").symlink_to(tmp_path / "loopA")
+    with pytest.raises(DemoError, match="loopA cannot be listed"):
+        refuse_occupied(tmp_path / "loopA", "why")
