@@ -7,7 +7,8 @@
 -- the pressure of that plateau (on equal leaks the lowest such pressure) and the plateau count.
 -- Breakaway: the forces in onset order. Step: the step count and the largest overshoot and
 -- settling time over all steps ("up to": they may be of different steps). Pressure_step: the step
--- count, the set-point range, how many steps were fitted and their largest NRMSE. The result is
+-- count, the set-point range and how many steps were fitted (not their NRMSE: it is the pooled
+-- fit's, so it would move with every run of the group; pressure_dynamics has it). The result is
 -- NULL for timeseries runs (catalogued, never analysed: no stage table has rows for them) and for
 -- a run its stage wrote no row for.
 CREATE VIEW latest_results AS
@@ -38,7 +39,6 @@ results AS (
     UNION ALL
     SELECT run_id, count(*) || ' steps between ' || round(least(min(p_from_bar), min(p_to_bar)), 2) || ' and '
            || round(greatest(max(p_from_bar), max(p_to_bar)), 2) || ' bar gauge, ' || count(nrmse_pct) || ' fitted'
-           || coalesce(', NRMSE up to ' || round(max(nrmse_pct), 2) || ' %', '')
     FROM pressure_steps GROUP BY run_id
     UNION ALL
     SELECT run_id, 'NRMSE ' || round(any_value(nrmse_pct), 2) || ' %' FROM spring_tests GROUP BY run_id
