@@ -58,7 +58,60 @@ def _interruptible(command: str):
         signal.signal(signal.SIGTERM, previous)
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+#: Commands whose exit status reports their work (1: inputs quarantined): a closed stdout does not end them at 0.
+_EXIT_REPORTS_WORK = {"rebuild", "demo"}
+
+
+class _Pneubench(click.Group):
+    """The ``pneubench`` group; what ends every command the same way:
+
+    * stdout's reader gone (``pneubench query ... | head -1``): not an error, the command ends
+      quietly with exit 0 (no traceback, no "Exception ignored"); not for :data:`_EXIT_REPORTS_WORK`.
+    * a warehouse database DuckDB cannot open (:class:`pipeline.serve.door.UnreadableDatabase`):
+      one line naming the file, exit 3, from every reader of the warehouse.
+    """
+
+    def invoke(self, ctx):
+        try:
+            return super().invoke(ctx)
+        except BrokenPipeError:
+            if ctx.invoked_subcommand in _EXIT_REPORTS_WORK:
+                raise
+            _stdout_to_devnull()
+            sys.exit(0)
+        except RuntimeError as exc:
+            door = sys.modules.get("pipeline.serve.door")  # loaded if it raised: `--help` does without it
+            if door is None or not isinstance(exc, door.UnreadableDatabase):
+                raise
+            click.echo(f"pneubench {ctx.invoked_subcommand}: {exc}", err=True)
+            sys.exit(3)
+
+
+def _stdout_to_devnull() -> None:
+    """Point stdout's file descriptor at /dev/null: what is still buffered, flushed at exit, goes nowhere."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError):  # no file descriptor (click's test runner)
+        pass
+
+
+def _door_ready(command: str, overridden: tuple[str, ...] = ()) -> None:
+    """Refuse a bad ``$PNEUBENCH_QUERY_*`` variable before any work: one line naming it, exit 2.
+
+    Every command that reads the warehouse (and ``rebuild``, whose report reads it) calls it first.
+    """
+    from pipeline.serve.door import DoorSettingError, check_environment
+
+    try:
+        check_environment(overridden)
+    except DoorSettingError as exc:
+        click.echo(f"pneubench {command}: {exc}", err=True)
+        sys.exit(2)
+
+
+@click.group(cls=_Pneubench, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="pneubench")
 def main():
     """pneubench: bench exports in, DuckDB warehouse and durability analytics out."""
@@ -100,6 +153,7 @@ def rebuild(raw, warehouse, quiet, no_report, **options):
     # cycle collector runs less often from here on, the rebuild's own imports included (issue 26)
     from pipeline.rebuild.executors import fewer_collections
 
+    _door_ready("rebuild")  # the report reads the new warehouse through the door: refuse a bad limit now
     with fewer_collections(keep_frozen=True):   # the process ends after it: nothing to thaw
         from pipeline.rebuild.flow import rebuild as do_rebuild
         from pipeline.rebuild.options import RebuildError, RebuildOptions
@@ -214,6 +268,9 @@ def query(sql, sql_file, warehouse, **options):
     from pipeline.serve.query import QueryError, QueryLimitError, read_sql
 
     opts = QueryOptions(**options)
+    _door_ready("query", tuple(env for env, given in (("PNEUBENCH_QUERY_MEMORY_LIMIT", opts.memory_limit),
+                                                      ("PNEUBENCH_QUERY_TEMP_LIMIT", opts.temp_limit),
+                                                      ("PNEUBENCH_QUERY_TIMEOUT", opts.timeout_s)) if given is not None))
     if sql is not None and sql_file is not None:
         raise click.UsageError("give the SQL as an argument or with -f, not both")
     if opts.csv_safe and opts.fmt != "csv":
@@ -261,6 +318,7 @@ def _write_query(warehouse: Path, sql: str, opts: QueryOptions) -> None:
 @warehouse_option
 def tables(warehouse):
     """List the warehouse's tables and views: science first, internal (rebuild) ones last."""
+    _door_ready("tables")
     from pipeline.serve.catalogue import list_tables
     from pipeline.serve.formats import terminal_width
     from pipeline.warehouse import INTERNAL_PREFIX
@@ -289,6 +347,7 @@ def tables(warehouse):
               help="Widest a column gets before its cells wrap (default: fit the terminal; 0: never wrap).")
 def describe(table, warehouse, max_width):
     """Columns of TABLE with their types, units and meaning."""
+    _door_ready("describe")
     from pipeline.serve.catalogue import describe_table
     from pipeline.serve.formats import format_table, terminal_width
     from pipeline.serve.query import QueryError
@@ -315,6 +374,7 @@ def describe(table, warehouse, max_width):
               help="Output .png, .svg or .html (default: plot-<run>.png).")
 def plot(run_id, warehouse, channels, output):
     """Plot one run's channels against time (long runs: min/max per pixel column)."""
+    _door_ready("plot")
     from pipeline.serve.plots import plot_run
     from pipeline.serve.query import QueryError
 
@@ -340,6 +400,7 @@ def decision(warehouse, hose_type):
 
     Exit 0; 2 for a hose type the warehouse has no decision for (the line names the known ones).
     """
+    _door_ready("decision")
     from pipeline.serve.decision import decision_text
     from pipeline.serve.formats import terminal_width
     from pipeline.serve.query import QueryError
@@ -358,6 +419,7 @@ def decision(warehouse, hose_type):
               help="Folder to copy the figures into.")
 def figures(warehouse, output):
     """Copy the current figures out of their stage folders into OUTPUT (<stage>-<name>.png)."""
+    _door_ready("figures")
     from pipeline.serve.plots import copy_figures
     from pipeline.serve.query import QueryError
 
@@ -407,6 +469,7 @@ def report(warehouse, wait_s):
     Holds the rebuild lock while it renders (a rebuild cannot swap its database in between);
     exit 4 when a rebuild is running: it writes the report itself when it finishes.
     """
+    _door_ready("report")
     from pipeline.rebuild.options import RebuildError
     from pipeline.rebuild.publish import warehouse_lock
     from pipeline.serve.report.render import ReportError, write_report
@@ -489,6 +552,7 @@ def demo(ctx, raw, warehouse, jobs, quiet):
     from pipeline.rebuild.options import RebuildError
     from pipeline.simulator.campaign import DemoError, simulate_demo
 
+    _door_ready("demo")  # its rebuild writes the report through the door
     try:  # before anything is simulated into raw/
         check_folders(raw, warehouse)
     except RebuildError as exc:

@@ -29,6 +29,66 @@ MEMORY_LIMIT = "2GB"
 TEMP_LIMIT = "10GB"
 MEMORY_LIMIT_ENV = "PNEUBENCH_QUERY_MEMORY_LIMIT"
 TEMP_LIMIT_ENV = "PNEUBENCH_QUERY_TEMP_LIMIT"
+#: ``pneubench query``'s statement timeout [s] (:data:`pipeline.serve.query.TIMEOUT_S`).
+TIMEOUT_ENV = "PNEUBENCH_QUERY_TIMEOUT"
+
+
+class DoorSettingError(ValueError):
+    """A ``$PNEUBENCH_QUERY_*`` variable whose value the door cannot use (one line naming it and its value)."""
+
+
+class UnreadableDatabase(RuntimeError):
+    """The warehouse's database file is there but DuckDB cannot open it (empty, damaged, foreign):
+    one line naming the file. ``path``: that file."""
+
+    def __init__(self, message: str, path: Path):
+        super().__init__(message)
+        self.path = path
+
+
+def check_environment(overridden: tuple[str, ...] = ()) -> None:
+    """Refuse a bad ``$PNEUBENCH_QUERY_MEMORY_LIMIT``, ``$PNEUBENCH_QUERY_TEMP_LIMIT`` or
+    ``$PNEUBENCH_QUERY_TIMEOUT`` before any work, rather than at the first connection.
+
+    An unset or empty variable is the default. The sizes are checked by DuckDB itself (duckdb
+    is imported only when one of them is set).
+
+    Parameters
+    ----------
+    overridden : tuple of str
+        Variables an option replaces in this call (``pneubench query --memory-limit``): not checked.
+
+    Raises
+    ------
+    DoorSettingError
+        Naming the first bad variable and its value.
+    """
+    text = (os.environ.get(TIMEOUT_ENV) or "").strip()
+    if text and TIMEOUT_ENV not in overridden:
+        try:
+            seconds = float(text)
+        except ValueError:
+            seconds = float("nan")
+        if not 0 <= seconds < float("inf"):
+            raise DoorSettingError(f"${TIMEOUT_ENV} = {text!r}: not a number of seconds >= 0 (0: no timeout)")
+    sizes = [(env, setting) for env, setting in ((MEMORY_LIMIT_ENV, "memory_limit"),
+                                                  (TEMP_LIMIT_ENV, "max_temp_directory_size"))
+             if os.environ.get(env) and env not in overridden]
+    if not sizes:
+        return
+    import duckdb
+
+    con = duckdb.connect(":memory:")
+    try:
+        for env, setting in sizes:
+            value = os.environ[env]
+            try:
+                con.execute(f"SET {setting} = ?", [value])
+            except duckdb.Error as exc:
+                raise DoorSettingError(f"${env} = {value!r}: not a size DuckDB understands such as 2GB or "
+                                       f"500MB ({str(exc).splitlines()[0]})") from None
+    finally:
+        con.close()
 
 _private: tuple[int, Path] | None = None  # (pid, folder) of this process's private folder
 _door_ids = itertools.count()
@@ -62,6 +122,8 @@ def _attach_unnamed(con: duckdb.DuckDBPyConnection, db: Path, private: Path, n: 
     file system, another owner) in the private folder, and the link is removed at once: the
     path DuckDB allows then names nothing, and the warehouse's own file is not allowed.
     """
+    import duckdb
+
     alias = private / f"db-{n}.duckdb"
     try:
         os.link(db, alias)
@@ -69,6 +131,10 @@ def _attach_unnamed(con: duckdb.DuckDBPyConnection, db: Path, private: Path, n: 
         shutil.copyfile(db, alias)
     try:
         con.execute("ATTACH ? AS pneubench (READ_ONLY)", [str(alias)])
+    except duckdb.Error as exc:  # empty, damaged, another program's: named by its own path, not the link's
+        why = str(exc).splitlines()[0].replace(str(alias), str(db))
+        raise UnreadableDatabase(f"{db} is not a readable DuckDB database ({why}); `pneubench rebuild` builds "
+                                 "it again", db) from None
     finally:
         alias.unlink(missing_ok=True)
 
@@ -77,11 +143,13 @@ def _limit(con: duckdb.DuckDBPyConnection, setting: str, value: str | None, env:
     """Set a size ``setting``: ``value``, else ``$env``, else ``default``; ValueError when DuckDB refuses it."""
     import duckdb
 
+    source = setting if value is not None else f"${env} ="
     value = value if value is not None else (os.environ.get(env) or default)
     try:
         con.execute(f"SET {setting} = ?", [str(value)])
     except duckdb.Error as exc:
-        raise ValueError(f"{setting} {value!r} (from the option or ${env}): {str(exc).splitlines()[0]}") from None
+        raise ValueError(f"{source} {value!r}: not a size DuckDB understands such as 2GB or 500MB "
+                         f"({str(exc).splitlines()[0]})") from None
 
 
 def connect_readonly(warehouse: Path, database: Path | None = None, memory_limit: str | None = None,
@@ -111,6 +179,8 @@ def connect_readonly(warehouse: Path, database: Path | None = None, memory_limit
     ------
     FileNotFoundError
         When there is no database yet.
+    UnreadableDatabase
+        When the database file is not one DuckDB can open (empty, damaged).
     ValueError
         When a limit is not a size DuckDB understands.
     """

@@ -17,7 +17,7 @@ from typing import IO, TYPE_CHECKING, Iterator
 
 import duckdb
 
-from pipeline.serve.door import MEMORY_LIMIT_ENV, TEMP_LIMIT_ENV, connect_readonly
+from pipeline.serve.door import MEMORY_LIMIT_ENV, TEMP_LIMIT_ENV, TIMEOUT_ENV, connect_readonly
 
 if TYPE_CHECKING:
     import pyarrow as pa
@@ -36,7 +36,6 @@ class QueryLimitError(RuntimeError):
 #: overrides it, ``--timeout`` both; 0: none. Wall-clock time from the start of the statement
 #: to its last row written.
 TIMEOUT_S = 600.0
-TIMEOUT_ENV = "PNEUBENCH_QUERY_TIMEOUT"
 
 
 def _timeout_s(value: float | None) -> float:

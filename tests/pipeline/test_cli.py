@@ -155,3 +155,81 @@ def test_exit_now_inside_another_program_is_sys_exit():
     with pytest.raises(SystemExit) as exc:
         exit_now(3)
     assert exc.value.code == 3
+
+
+# The door's environment, a damaged database and a closed stdout, for every command that reads the warehouse.
+READERS = [["tables"], ["describe", "runs"], ["plot", "c/a"], ["figures", "-o", "FIGS"], ["decision"], ["report"],
+           ["query", "SELECT 1"]]
+
+
+def _reader_args(args, tmp_path, warehouse):
+    return [str(tmp_path / "figs") if a == "FIGS" else a for a in args] + ["--warehouse", str(warehouse)]
+
+
+@pytest.mark.parametrize("env, value", [("PNEUBENCH_QUERY_MEMORY_LIMIT", "abc"), ("PNEUBENCH_QUERY_TEMP_LIMIT", "abc"),
+                                        ("PNEUBENCH_QUERY_TIMEOUT", "abc")])
+def test_a_bad_door_variable_is_one_line_exit_2_before_any_work(raw, warehouse, tmp_path, env, value):
+    runner = CliRunner()
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    res = runner.invoke(main, ["rebuild", "--raw", str(raw.root), "--warehouse", str(warehouse), "--jobs", "1"],
+                        env={env: value})
+    assert res.exit_code == 2, res.output
+    assert len(res.stderr.splitlines()) == 1 and res.stderr.startswith(f"pneubench rebuild: ${env} = {value!r}: ")
+    assert not warehouse.exists()  # refused before it started (was: the whole rebuild, then its report failed)
+    assert runner.invoke(main, ["rebuild", "--raw", str(raw.root), "--warehouse", str(warehouse), "--jobs", "1"]
+                         ).exit_code == 0
+    for args in READERS:
+        res = runner.invoke(main, _reader_args(args, tmp_path, warehouse), env={env: value})
+        assert res.exit_code == 2, (args, res.output)
+        assert len(res.stderr.splitlines()) == 1 and res.stderr.startswith(f"pneubench {args[0]}: ${env} = 'abc': ")
+        assert res.exception is None or isinstance(res.exception, SystemExit)
+
+
+@pytest.mark.parametrize("content", [b"", b"\x00garbage" * 4096], ids=["empty", "garbage"])
+def test_a_damaged_database_is_one_line_exit_3_naming_it_for_every_reader(raw, warehouse, tmp_path, content):
+    warehouse.mkdir()
+    db = warehouse / "pneubench.duckdb"
+    db.write_bytes(content)
+    runner = CliRunner()
+    for args in READERS:
+        res = runner.invoke(main, _reader_args(args, tmp_path, warehouse))
+        assert res.exit_code == 3, (args, res.output)
+        assert res.stderr.splitlines() == [
+            f"pneubench {args[0]}: {db.resolve()} is not a readable DuckDB database "
+            f"(IO Error: The file \"{db.resolve()}\" exists, but it is not a valid DuckDB database file!); "
+            "`pneubench rebuild` builds it again"], args
+    assert not (tmp_path / "figs").exists() and not (warehouse / "report").exists()
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})  # a rebuild replaces it
+    res = runner.invoke(main, ["rebuild", "--raw", str(raw.root), "--warehouse", str(warehouse), "--jobs", "1"])
+    assert res.exit_code == 0, res.output
+    assert runner.invoke(main, ["tables", "--warehouse", str(warehouse)]).exit_code == 0
+
+
+def _closed_stdout(*args):
+    """``pneubench ARGS`` in a child process whose stdout's reader is gone (``| head -0``): (exit, stderr)."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    read, write = os.pipe()
+    os.close(read)
+    try:
+        code = "import sys; sys.argv[0] = 'pneubench'; from pipeline.cli import main; main()"
+        done = subprocess.run([sys.executable, "-c", code, *map(str, args)], stdout=write, stderr=subprocess.PIPE,
+                              text=True, timeout=300,
+                              env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])})
+    finally:
+        os.close(write)
+    return done.returncode, done.stderr
+
+
+def test_a_closed_stdout_ends_a_reader_quietly_with_exit_0(raw, warehouse):
+    raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    assert CliRunner().invoke(main, ["rebuild", "--raw", str(raw.root), "--warehouse", str(warehouse),
+                                     "--jobs", "1", "--no-report"]).exit_code == 0
+    wh = ["--warehouse", warehouse]
+    for args in [["query", "SELECT * FROM range(200000)", "--format", "csv", *wh], ["query", "SELECT 1", *wh],
+                 ["query", "SELECT * FROM runs", "--format", "line", *wh], ["tables", *wh], ["describe", "runs", *wh],
+                 ["decision", *wh], ["schedule"]]:
+        assert _closed_stdout(*args) == (0, ""), args  # was exit 1 (click's), or a traceback

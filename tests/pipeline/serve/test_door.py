@@ -14,7 +14,7 @@ import pytest
 from click.testing import CliRunner
 
 from pipeline.cli import main
-from pipeline.serve.door import connect_readonly
+from pipeline.serve.door import DoorSettingError, UnreadableDatabase, check_environment, connect_readonly
 from pipeline.serve.query import QueryError, run_query
 from pipeline.warehouse import DB_NAME
 from tests.conftest import PROJECT_ROOT
@@ -207,3 +207,31 @@ def test_memory_limit_default_option_and_environment(built):
         {"m": "286.1 MiB", "t": "953.6 MiB"}
     res = _cli(built, "SELECT 1", "--memory-limit", "lots")
     assert res.exit_code == 2 and "memory_limit 'lots'" in res.stderr
+
+
+@pytest.mark.parametrize("env, value", [("PNEUBENCH_QUERY_MEMORY_LIMIT", "abc"), ("PNEUBENCH_QUERY_TEMP_LIMIT", "lots"),
+                                        ("PNEUBENCH_QUERY_TIMEOUT", "soon"), ("PNEUBENCH_QUERY_TIMEOUT", "-1"),
+                                        ("PNEUBENCH_QUERY_TIMEOUT", "nan")])
+def test_check_environment_refuses_a_bad_variable_naming_it_and_its_value(monkeypatch, env, value):
+    monkeypatch.setenv(env, value)
+    with pytest.raises(DoorSettingError, match=rf"^\${env} = '{value}': not a "):
+        check_environment()
+    check_environment(overridden=(env,))  # an option replaces it: not read, not checked
+
+
+def test_check_environment_takes_good_unset_and_empty_variables(monkeypatch):
+    monkeypatch.setenv("PNEUBENCH_QUERY_MEMORY_LIMIT", "300MB")
+    monkeypatch.setenv("PNEUBENCH_QUERY_TEMP_LIMIT", "")
+    monkeypatch.setenv("PNEUBENCH_QUERY_TIMEOUT", "0")
+    check_environment()
+
+
+@pytest.mark.parametrize("content", [b"", os.urandom(40_000)], ids=["empty", "random"])
+def test_a_damaged_database_is_named_by_its_own_path(tmp_path, content):
+    (tmp_path / DB_NAME).write_bytes(content)
+    with pytest.raises(UnreadableDatabase) as err:
+        connect_readonly(tmp_path)
+    text = str(err.value)
+    assert err.value.path == tmp_path / DB_NAME and "\n" not in text
+    assert text.startswith(f"{tmp_path / DB_NAME} is not a readable DuckDB database (") and "pneubench rebuild" in text
+    assert "pneubench-door-" not in text  # not the door's private link (was /tmp/pneubench-door-*/db-0.duckdb)

@@ -162,6 +162,17 @@ def test_a_result_that_fits_stays_a_table_and_the_format_can_be_forced(built):
     assert "RECORD" not in res.stdout and len(res.stdout.splitlines()) == 5
 
 
+def test_auto_with_no_rows_follows_the_same_rule_as_with_rows(built):
+    # the headers alone of a wide result would wrap at 80 columns (to 6 characters): one record per
+    # block, as with rows (was a table of wrapped headers ~200 characters wide)
+    res = _cli(built, "SELECT * FROM runs WHERE false", env={"COLUMNS": "80"})
+    assert res.exit_code == 0, res.stderr
+    assert res.stdout.splitlines() == ["(0 rows)"]
+    # headers that fit stay a table
+    res = _cli(built, "SELECT run_id, kind FROM runs WHERE false", env={"COLUMNS": "80"})
+    assert res.stdout.splitlines() == ["run_id  kind", "------  ----", "(0 rows)"]
+
+
 def test_line_format_counts_the_rows_it_does_not_show_and_wraps_long_values(built):
     res = _cli(built, "SELECT run_id FROM runs ORDER BY run_id", "--format", "line", "--max-rows", "1")
     assert res.exit_code == 0
