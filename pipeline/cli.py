@@ -155,11 +155,11 @@ def rebuild(raw, warehouse, quiet, no_report, **options):
 
     _door_ready("rebuild")  # the report reads the new warehouse through the door: refuse a bad limit now
     with fewer_collections(keep_frozen=True):   # the process ends after it: nothing to thaw
-        from pipeline.rebuild.flow import rebuild as do_rebuild
+        from pipeline.rebuild.flow import raw_folder_error, rebuild as do_rebuild
         from pipeline.rebuild.options import RebuildError, RebuildOptions
 
-        if not raw.is_dir():
-            raise click.UsageError(f"raw folder {raw} does not exist")
+        if (why := raw_folder_error(raw)) is not None:
+            raise click.UsageError(why)
         if options["scheduler"] and options["executor"] != "dask":
             raise click.UsageError("--scheduler goes with --executor dask")
         try:

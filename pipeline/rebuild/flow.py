@@ -23,6 +23,7 @@ some inputs quarantined; 2 usage error; anything else: failed, the previous ware
 """
 from __future__ import annotations
 
+import errno
 import logging
 import os
 import time
@@ -106,6 +107,28 @@ def _import_for_stages() -> None:
 
 
 # -- the rebuild: plan -> ingest -> stages -> assemble -> publish -----------------------------------
+
+def raw_folder_error(raw: Path) -> str | None:
+    """Why ``raw`` is not a folder a rebuild can read, in one line; None when it is one.
+
+    A symlink whose target is missing or loops back says so: "does not exist" sent a user looking
+    for a folder that was there (a reviewer's `--raw loopA`, session 29)."""
+    raw = Path(raw)
+    if raw.is_dir():
+        return None
+    if raw.is_symlink():
+        try:
+            raw.resolve(strict=True)
+        except RuntimeError:
+            return f"raw folder {raw} is a symlink loop"
+        except OSError as exc:
+            return (f"raw folder {raw} is a symlink loop" if exc.errno == errno.ELOOP
+                    else f"raw folder {raw} is a symlink to {os.readlink(raw)}, which does not exist")
+        return f"raw folder {raw} is a symlink to something that is not a folder"
+    if raw.exists():
+        return f"raw folder {raw} is not a folder"
+    return f"raw folder {raw} does not exist"
+
 def rebuild(raw: str | Path, warehouse: str | Path, options: RebuildOptions | None = None,
             progress: Progress | None = None, **overrides) -> RebuildSummary:
     """Ingest ``raw``, run the analyses and swap in a new warehouse (incrementally).
@@ -138,8 +161,8 @@ def rebuild(raw: str | Path, warehouse: str | Path, options: RebuildOptions | No
     started_at = datetime.now(timezone.utc)
     progress = progress or Progress()
     raw, warehouse = Path(raw), Path(warehouse)
-    if not raw.is_dir():
-        raise RebuildError(f"raw folder {raw} does not exist", EXIT_USAGE)
+    if (why := raw_folder_error(raw)) is not None:
+        raise RebuildError(why, EXIT_USAGE)
     check_folders(raw, warehouse)
     options = replace(options, keep_superseded_h=keep_superseded_h(options.keep_superseded_h),
                       jobs=options.jobs or os.cpu_count() or 1, clock=options.clock or time.time)

@@ -383,3 +383,21 @@ def test_the_report_of_a_rebuild_takes_the_table_keys_it_wrote_without_summing_t
         checked, summed = table_keys(db, checked=True), table_keys(db)
     assert checked == summed and "runs" in summed and len(summed) > 10
     assert q(warehouse, "SELECT campaign FROM runs ORDER BY run_id") == [("c",), ("c",)]
+
+
+def test_a_raw_folder_that_is_not_one_says_why_in_one_line(tmp_path):
+    """A symlink loop or a dangling link is named as such, not as a folder that "does not exist"."""
+    from pipeline.rebuild.flow import raw_folder_error
+
+    (tmp_path / "raw").mkdir()
+    (tmp_path / "a").symlink_to("b")
+    (tmp_path / "b").symlink_to("a")
+    (tmp_path / "dangling").symlink_to("missing")
+    (tmp_path / "afile").write_text("x")
+    (tmp_path / "tofile").symlink_to("afile")
+    assert raw_folder_error(tmp_path / "raw") is None
+    assert raw_folder_error(tmp_path / "a") == f"raw folder {tmp_path / 'a'} is a symlink loop"
+    assert raw_folder_error(tmp_path / "dangling") == f"raw folder {tmp_path / 'dangling'} is a symlink to missing, which does not exist"
+    assert raw_folder_error(tmp_path / "afile") == f"raw folder {tmp_path / 'afile'} is not a folder"
+    assert raw_folder_error(tmp_path / "tofile").endswith("is a symlink to something that is not a folder")
+    assert raw_folder_error(tmp_path / "nothere") == f"raw folder {tmp_path / 'nothere'} does not exist"
