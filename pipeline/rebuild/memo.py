@@ -51,6 +51,7 @@ from collections.abc import Callable
 from functools import lru_cache
 from pathlib import Path
 
+from pipeline.stages.warehouse_paths import under_warehouse, warehouse_prefix
 from pipeline.versions import function_code_version
 from pipeline.warehouse import SHARD_FILE, STAGE_NAME
 
@@ -90,7 +91,8 @@ def _canonical(value, prefix: str):
     if value is None or isinstance(value, bool):
         return value
     if isinstance(value, str):
-        return {"wh": value[len(prefix):]} if value.startswith(prefix) else value
+        rel = under_warehouse(value, prefix)
+        return {"wh": rel} if rel is not None else value
     if isinstance(value, int):
         return value
     if isinstance(value, float):
@@ -120,7 +122,7 @@ def item_key(func: Callable, item, warehouse: str | Path) -> str | None:
     version = function_code_version(func)
     if version is None:
         return None
-    prefix = os.fspath(warehouse).rstrip(os.sep) + os.sep
+    prefix = warehouse_prefix(warehouse)
     try:
         blob = json.dumps({"format": FORMAT, "func": f"{module}:{qualname}", "code": version, "env": environment(),
                            "item": _canonical(item, prefix)}, sort_keys=True, separators=(",", ":"))
