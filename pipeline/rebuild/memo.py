@@ -51,7 +51,6 @@ from collections.abc import Callable
 from functools import lru_cache
 from pathlib import Path
 
-from pipeline.stages.warehouse_paths import under_warehouse, warehouse_prefix
 from pipeline.versions import function_code_version
 from pipeline.warehouse import SHARD_FILE, STAGE_NAME
 
@@ -91,8 +90,7 @@ def _canonical(value, prefix: str):
     if value is None or isinstance(value, bool):
         return value
     if isinstance(value, str):
-        rel = under_warehouse(value, prefix)
-        return {"wh": rel} if rel is not None else value
+        return {"wh": value[len(prefix):]} if value.startswith(prefix) else value
     if isinstance(value, int):
         return value
     if isinstance(value, float):
@@ -122,7 +120,7 @@ def item_key(func: Callable, item, warehouse: str | Path) -> str | None:
     version = function_code_version(func)
     if version is None:
         return None
-    prefix = warehouse_prefix(warehouse)
+    prefix = os.fspath(warehouse).rstrip(os.sep) + os.sep
     try:
         blob = json.dumps({"format": FORMAT, "func": f"{module}:{qualname}", "code": version, "env": environment(),
                            "item": _canonical(item, prefix)}, sort_keys=True, separators=(",", ":"))

@@ -23,6 +23,7 @@ import dataclasses
 import hashlib
 import json
 import math
+import os
 import re
 
 import numpy as np
@@ -38,7 +39,6 @@ from analyses.quality import sensor_from_params
 from schemas.papers import PLA_CITATION, PLPA_CITATION
 from pipeline.stages import Reads, StageContext, StageOutput, read_samples
 from pipeline.stages.values import finite_float, run_params
-from pipeline.stages.warehouse_paths import under_warehouse, warehouse_prefix
 
 NAME = "models"
 READS = Reads(kinds=("identification", "step", "spring", "pressure_step"))
@@ -270,9 +270,9 @@ class _DigestKeyed(tuple):
 
 def _fit_item(chamber: str, runs: tuple, warehouse) -> tuple:
     """:class:`_DigestKeyed` ``(chamber, runs)``; the plain tuple (the memo's walk) if a run's params are not JSON."""
-    prefix = warehouse_prefix(warehouse) if warehouse is not None else None
+    prefix = os.fspath(warehouse).rstrip(os.sep) + os.sep if warehouse is not None else None
     try:
-        text = json.dumps([[kind, rid, rel if (rel := under_warehouse(path, prefix)) is not None else ["abs", path],
+        text = json.dumps([[kind, rid, path[len(prefix):] if prefix and path.startswith(prefix) else ["abs", path],
                             params] for kind, rid, path, params in runs],
                           sort_keys=True, separators=(",", ":"), allow_nan=False)
     except (TypeError, ValueError, AttributeError):
