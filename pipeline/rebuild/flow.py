@@ -42,7 +42,7 @@ from pipeline.rebuild.executors import Executor, fewer_collections, make_executo
 from pipeline.rebuild.garbage import clean_debris, collect_garbage, split_kept
 from pipeline.rebuild.history import append_log, compare_findings
 from pipeline.rebuild.assemble import runs_frame, write_database
-from pipeline.rebuild.ingest_tasks import deduplicate, ingest_incremental
+from pipeline.rebuild.ingest_tasks import deduplicate, held_in, ingest_incremental
 from pipeline.rebuild.noop import InputsKey, confirm_same_bytes, nothing_changed, planned_records, rebuild_noop
 from pipeline.rebuild.options import (EXIT_USAGE, RebuildError, RebuildOptions, RebuildRun, RebuildSummary,
                                       keep_superseded_h)
@@ -313,7 +313,7 @@ def _ingest(run: RebuildRun, plan: _Plan, ex: Executor) -> _Ingested:
     results, records = ingest_incremental(run, plan.tree, plan.plans, ex, plan.code, while_waiting=_import_for_stages)
     ex.release_readers()  # their memory is not held through the stages and the database write
     crash_point("after_ingest")
-    runs, channels, problems = deduplicate(results)
+    runs, channels, problems = deduplicate(results, held_in(plan.prev))
     return _Ingested(results, records, runs, channels, plan.tree.problems + problems, runs_frame(runs))
 
 

@@ -330,20 +330,49 @@ def _import_first(readers: list[str], while_waiting: Callable[[], object] | None
     return [], None
 
 
-def deduplicate(results: list[IngestResult]) -> tuple[list[dict], list[dict], list[Problem]]:
-    """Runs, channel rows and quarantine rows; a repeated run_id is quarantined (first path wins)."""
+def deduplicate(results: list[IngestResult], held_before=None) -> tuple[list[dict], list[dict], list[Problem]]:
+    """Runs, channel rows and quarantine rows; a run_id claimed by more than one file is kept by one
+    of them and the others are quarantined.
+
+    The file that holds the run in the live warehouse keeps it (``held_before(source_path, run_id)``:
+    True for that file): a copy put anywhere in raw/, a cut-short backup in ``archive/`` say, must not
+    take a good run's place because its path sorts first (a reviewer's finding, session 29: it had).
+    Between files of which none held it, the first path in sorted order keeps it, as before."""
     runs, channels, problems = [], [], []
-    owner: dict[str, str] = {}
     flat = [p for r in results for p in (r.parts if r.parts is not None else [r])]  # a file of several runs
-    for r in sorted(flat, key=lambda r: r.source_path):
+    flat.sort(key=lambda r: r.source_path)
+    claims: dict[str, list[IngestResult]] = {}
+    for r in flat:
+        if r.error is None:
+            claims.setdefault(r.run["run_id"], []).append(r)
+    owner: dict[str, str] = {}
+    for rid, rs in claims.items():
+        incumbents = [r for r in rs if held_before is not None and len(rs) > 1 and held_before(r.source_path, rid)]
+        owner[rid] = (incumbents[0] if len(incumbents) == 1 else rs[0]).source_path
+    for r in flat:
         if r.error is not None:
             problems.append(Problem(r.source_path, r.error))
             continue
         rid = r.run["run_id"]
-        if rid in owner:
+        if owner[rid] != r.source_path:
             problems.append(Problem(r.source_path, f"duplicate run_id `{rid}`, already used by `{owner[rid]}`"))
             continue
-        owner[rid] = r.source_path
         runs.append(r.run)
         channels += r.channels
     return runs, channels, problems
+
+
+def held_in(previous) -> Callable[[str, str], bool]:
+    """``held(source_path, run_id)``: whether the live warehouse (``previous``, a
+    :class:`pipeline.rebuild.state.PreviousState`) has ``run_id`` from that file in its ``runs``: the
+    file's record names the run, and the run's samples file is one ``runs`` publishes (a copy that
+    was read but lost the run_id to another file has a record naming it too). Only the contested
+    files' records are decoded."""
+    def held(source_path: str, run_id: str) -> bool:
+        record = previous.files.get(source_path)
+        if record is None or record.error is not None or not record.result:
+            return False
+        parts = record.result.get("parts") or [record.result]
+        return any((run := part.get("run") or {}).get("run_id") == run_id and run.get("samples_path") in previous.samples
+                   for part in parts)
+    return held

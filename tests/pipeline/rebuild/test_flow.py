@@ -36,6 +36,19 @@ def test_duplicate_run_id_is_quarantined_first_path_wins(raw, warehouse):
     assert [p.error for p in summary.quarantine] == ["duplicate run_id `r7`, already used by `c/a.csv`"]
 
 
+def test_a_copy_put_beside_a_run_does_not_take_its_place_whatever_its_path(raw, warehouse):
+    """The file that holds a run in the live warehouse keeps it: a cut-short copy in ``archive/``
+    (its path sorts first) is the one quarantined, by an incremental and by a --full rebuild."""
+    raw.csv("c/runs/b.csv", {**STEP_META, "run_id": "r7"}, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
+    rebuild(raw.root, warehouse, jobs=1)
+    raw.csv("c/archive/b.csv", {**STEP_META, "run_id": "r7"}, {"t[s]": T[:3], "x[m]": T[:3], "x_ref[m]": T[:3]})
+    for full in (False, True):
+        summary = rebuild(raw.root, warehouse, jobs=1, full=full)
+        assert [(p.source_path, p.error) for p in summary.quarantine] == [
+            ("c/archive/b.csv", "duplicate run_id `r7`, already used by `c/runs/b.csv`")]
+        assert q(warehouse, "SELECT source_path, n_samples FROM runs") == [("c/runs/b.csv", 4)]
+
+
 def test_manifest_entries_outside_raw_or_missing_are_quarantined(raw, warehouse):
     raw.csv("c/a.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": T})
     raw.write("c/manifest.csv", "file,notes\na.csv,fine\n../../etc/passwd,evil\nnope.csv,gone\n")
