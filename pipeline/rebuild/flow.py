@@ -213,6 +213,7 @@ def _rebuild_locked(run: RebuildRun) -> RebuildSummary:
             staged = _stages(run, plan, ingested, ex, drawer)
         crash_point("after_stages")
         tables, keep = _assemble(run, plan, ingested, staged, ex.name)
+        check_raw_still_there(run, plan, ingested)
         # tables written by reused stages only: their keys are the live database's when the runs are (not
         # findings, which is compared with the previous rebuild's here)
         _publish(run, plan, tables, keep, drawer, reused_tables(staged, plan.prev) - {"findings"})
@@ -243,6 +244,7 @@ class _Plan:
     side_changes: list[dict]   # their rows of rebuild_inputs
     key: str                   # :meth:`pipeline.rebuild.noop.InputsKey.key` of what the plan knows
     keyer: InputsKey           # the key's parts other than the files (taken when raw/ was walked)
+    raw_id: tuple | None = None  # raw/'s (device, inode) when it was walked (:func:`_raw_identity`)
 
 
 def _plan(run: RebuildRun) -> _Plan:
@@ -252,6 +254,7 @@ def _plan(run: RebuildRun) -> _Plan:
     clean_debris(warehouse)
     settle_report(warehouse)  # a report staged by a rebuild killed after its database swap goes in
     prev = load_previous(warehouse)
+    raw_id = _raw_identity(run.raw)
     tree = RawTree(run.raw)
     tree.scan_rigs()
     tree.scan_manifests()
@@ -273,7 +276,36 @@ def _plan(run: RebuildRun) -> _Plan:
         confirm_same_bytes(tree, plans, run.options.jobs)
     keyer = InputsKey.of_tree(tree, code, ignored)
     return _Plan(prev, tree, files, ignored, code, plans, side, side_changes, keyer.key(planned_records(plans), side),
-                 keyer)
+                 keyer, raw_id)
+
+
+def _raw_identity(raw: Path) -> tuple | None:
+    """raw/'s (device, inode), its symlink followed; None when it cannot be read."""
+    try:
+        st = os.stat(raw)
+    except OSError:
+        return None
+    return (st.st_dev, st.st_ino)
+
+
+def check_raw_still_there(run: RebuildRun, plan: _Plan, ingested: _Ingested) -> None:
+    """Refuse (exit 2) to publish what was read from a raw/ that went away while the rebuild ran.
+
+    The mass-delete guard (:func:`~pipeline.rebuild.publish.check_mass_delete`) looks at raw/ when it
+    is walked. A share unmounted, or a folder moved, after that turned every file still to be read,
+    and the logbooks, into quarantine lines, and a gutted warehouse was published with exit 1 (a
+    reviewer's night, session 29: 56 of 307 runs, the hoses' lives without their failures). So,
+    before anything is written: raw/ must be the folder that was walked (the same device and inode:
+    an unmount or a move changes them), and the files that could not be read for a reason that may
+    pass (:attr:`IngestResult.transient`) are counted as gone by the same guard."""
+    if _raw_identity(run.raw) != plan.raw_id:
+        raise RebuildError(f"raw folder {run.raw} went away or was replaced while the rebuild read it (unmounted or "
+                           "moved?): nothing is published, the previous warehouse and report are kept", EXIT_USAGE)
+    if run.options.allow_mass_delete:
+        return
+    unread = {r.source_path for r in ingested.results if r.error is not None and r.transient}
+    if unread:
+        check_mass_delete(plan.prev, [p for p in plan.plans if p.rel not in unread])
 
 
 # -- ingest ----------------------------------------------------------------------------------------
