@@ -120,7 +120,7 @@ def _identification(run_id, path, params):
     if kp is None or kp <= 0:
         row["note"] = "no positive kp_v_m"
         return [row], [f"{NAME}: identification run without a positive kp_v_m; not identified"], None
-    df = df.dropna()
+    df = df[np.isfinite(df.to_numpy(float)).all(axis=1)]  # no NaN, no +-inf (a logger's overflow; dropna keeps it)
     x, ud = df["x_m"].to_numpy(), df["u_d_v"].to_numpy()
     res = ident.identify_third_order(df["t_s"].to_numpy(), x, ud, df["x_ref_m"].to_numpy(), kp, rate,
                                      x_sensor=sensor_from_params(params, "x", x),
@@ -141,7 +141,7 @@ def _step(run_id, path, params):
     miss = _missing(df, ["t_s", "x_m", "x_ref_m"])
     if miss:
         return [dict(null, note=f"lacks {', '.join(miss)}")], [f"{NAME}: step run lacks {', '.join(miss)}; no step metrics"], None
-    df = df.dropna()
+    df = df[np.isfinite(df.to_numpy(float)).all(axis=1)]  # no NaN, no +-inf (a logger's overflow; dropna keeps it)
     if len(df) < 10:
         return [dict(null, note="too short")], [f"{NAME}: step run too short ({len(df)} samples); no step metrics"], None
     t, x, r = (df[c].to_numpy() for c in ("t_s", "x_m", "x_ref_m"))
@@ -228,7 +228,7 @@ def _pressure_step(run_id, path, params):
     miss = _missing(df, ["t_s", "p_pa", "p_ref_pa"])
     if miss:
         return [], [f"{NAME}: pressure_step run lacks {', '.join(miss)}; no steps"], None
-    df = df.dropna()
+    df = df[np.isfinite(df.to_numpy(float)).all(axis=1)]  # no NaN, no +-inf (a logger's overflow; dropna keeps it)
     p, p_ref = df["p_pa"].to_numpy(), df["p_ref_pa"].to_numpy()
     steps = pdyn.split_pressure_steps(df["t_s"].to_numpy(), p, p_ref, run_id, chamber or "",
                                       ref_sensor=sensor_from_params(params, "p_ref", p_ref),

@@ -205,6 +205,28 @@ def test_unreadable_or_incomplete_runs_warn_instead_of_raising(tmp_path):
     assert out["rows"][0]["wn_rad_s"] is None and "lacks u_d_v, x_ref_m" in out["warnings"][0]
 
 
+def test_an_infinite_sample_is_left_out_like_a_missing_one(tmp_path):
+    """A logger's overflow written as ``inf`` (pandas reads it as a number, ``dropna`` keeps it) gave a
+    step run overshoot 0, settling 0 and no note, silently (a reviewer's finding). It is left out, as
+    a NaN sample is: the metrics are those of the run without it."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    d = simulate_step(0).data
+    out = {}
+    for bad in (None, float("inf"), float("nan"), -float("inf")):
+        x = np.array(d["x_m"], float)
+        if bad is not None:
+            x[50] = bad
+        path = tmp_path / f"step-{bad}.parquet"
+        pq.write_table(pa.table({"t_s": d["t_s"], "x_m": x, "x_ref_m": d["x_ref_m"]}), path)
+        rows = stage.analyse_run(("step", "x/s", str(path), {}))["rows"]
+        out[str(bad)] = [(r["overshoot_pct"], r["settling_time_s"], r["steady_state_error_mm"]) for r in rows]
+    assert out["inf"] == out["nan"] == out["-inf"]
+    flat = [v for row in out["inf"] for v in row]
+    assert flat == pytest.approx([v for row in out["None"] for v in row], rel=1e-3) and all(o > 0.5 for o, _, _ in out["inf"])
+
+
 #: A closed-loop set-point sweep of 5 and 10 kPa steps (the real rigs' pressure steps). [bar gauge]
 SWEEP = (1.0, 1.05, 1.15, 1.10, 1.0, 1.10, 1.15, 1.05, 1.0, 1.1, 1.2, 1.15, 1.05)
 
