@@ -44,7 +44,7 @@ from pipeline.rebuild.history import append_log, compare_findings
 from pipeline.rebuild.assemble import runs_frame, write_database
 from pipeline.rebuild.ingest_tasks import deduplicate, held_in, ingest_incremental
 from pipeline.rebuild.noop import InputsKey, confirm_same_bytes, nothing_changed, planned_records, rebuild_noop
-from pipeline.rebuild.options import (EXIT_USAGE, RebuildError, RebuildOptions, RebuildRun, RebuildSummary,
+from pipeline.rebuild.options import (EXIT_FAILED, EXIT_USAGE, RebuildError, RebuildOptions, RebuildRun, RebuildSummary,
                                       keep_superseded_h)
 from pipeline.rebuild.publish import (check_mass_delete, clean_after_failure, crash_point, live_database,
                                       swap_in_new_database, warehouse_lock)
@@ -289,7 +289,9 @@ def _raw_identity(raw: Path) -> tuple | None:
 
 
 def check_raw_still_there(run: RebuildRun, plan: _Plan, ingested: _Ingested) -> None:
-    """Refuse (exit 2) to publish what was read from a raw/ that went away while the rebuild ran.
+    """Fail (exit 3: the spec's "failed, previous warehouse untouched", not a usage error; what the
+    rebuild wrote so far is cleaned up) rather than publish what was read from a raw/ that went away
+    while the rebuild ran.
 
     The mass-delete guard (:func:`~pipeline.rebuild.publish.check_mass_delete`) looks at raw/ when it
     is walked. A share unmounted, or a folder moved, after that turned every file still to be read,
@@ -300,12 +302,15 @@ def check_raw_still_there(run: RebuildRun, plan: _Plan, ingested: _Ingested) -> 
     pass (:attr:`IngestResult.transient`) are counted as gone by the same guard."""
     if _raw_identity(run.raw) != plan.raw_id:
         raise RebuildError(f"raw folder {run.raw} went away or was replaced while the rebuild read it (unmounted or "
-                           "moved?): nothing is published, the previous warehouse and report are kept", EXIT_USAGE)
+                           "moved?): nothing is published, the previous warehouse and report are kept", EXIT_FAILED)
     if run.options.allow_mass_delete:
         return
     unread = {r.source_path for r in ingested.results if r.error is not None and r.transient}
-    if unread:
-        check_mass_delete(plan.prev, [p for p in plan.plans if p.rel not in unread])
+    try:
+        if unread:
+            check_mass_delete(plan.prev, [p for p in plan.plans if p.rel not in unread])
+    except RebuildError as exc:  # the guard's words; a failure now, not a refusal before anything was written
+        raise RebuildError(str(exc), EXIT_FAILED) from None
 
 
 # -- ingest ----------------------------------------------------------------------------------------

@@ -63,16 +63,10 @@ def check_environment(overridden: tuple[str, ...] = ()) -> None:
     DoorSettingError
         Naming the first bad variable and its value.
     """
-    text = (os.environ.get(TIMEOUT_ENV) or "").strip()
-    if text and TIMEOUT_ENV not in overridden:
-        try:
-            seconds = float(text)
-        except ValueError:
-            seconds = float("nan")
-        if not 0 <= seconds < float("inf"):
-            raise DoorSettingError(f"${TIMEOUT_ENV} = {text!r}: not a number of seconds >= 0 (0: no timeout)")
-    sizes = [(env, setting) for env, setting in ((MEMORY_LIMIT_ENV, "memory_limit"),
-                                                  (TEMP_LIMIT_ENV, "max_temp_directory_size"))
+    if TIMEOUT_ENV not in overridden:
+        timeout_from_env()
+    sizes = [(env, setting, default) for env, setting, default in ((MEMORY_LIMIT_ENV, "memory_limit", MEMORY_LIMIT),
+                                                                   (TEMP_LIMIT_ENV, "max_temp_directory_size", TEMP_LIMIT))
              if os.environ.get(env) and env not in overridden]
     if not sizes:
         return
@@ -80,15 +74,33 @@ def check_environment(overridden: tuple[str, ...] = ()) -> None:
 
     con = duckdb.connect(":memory:")
     try:
-        for env, setting in sizes:
-            value = os.environ[env]
+        for env, setting, default in sizes:
             try:
-                con.execute(f"SET {setting} = ?", [value])
-            except duckdb.Error as exc:
-                raise DoorSettingError(f"${env} = {value!r}: not a size DuckDB understands such as 2GB or "
-                                       f"500MB ({str(exc).splitlines()[0]})") from None
+                _limit(con, setting, None, env, default)  # the connection's own rule and words
+            except ValueError as exc:
+                raise DoorSettingError(str(exc)) from None
     finally:
         con.close()
+
+
+def timeout_from_env() -> float | None:
+    """``$PNEUBENCH_QUERY_TIMEOUT`` in seconds; None when it is unset or empty.
+
+    Raises
+    ------
+    DoorSettingError
+        When it is not a finite number of seconds >= 0 (0: no timeout).
+    """
+    text = (os.environ.get(TIMEOUT_ENV) or "").strip()
+    if not text:
+        return None
+    try:
+        seconds = float(text)
+    except ValueError:
+        seconds = float("nan")
+    if not 0 <= seconds < float("inf"):
+        raise DoorSettingError(f"${TIMEOUT_ENV} = {text!r}: not a number of seconds >= 0 (0: no timeout)")
+    return seconds
 
 _private: tuple[int, Path] | None = None  # (pid, folder) of this process's private folder
 _door_ids = itertools.count()

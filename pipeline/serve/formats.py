@@ -333,6 +333,7 @@ def _table_or_records(result: Result, shown: list[tuple], n: int, width: int | N
 
 def table_squashed(columns: list[str], rows: list[tuple], width: int | None, max_width: int | None = None) -> bool:
     """Whether :func:`format_table` fitting ``rows`` into ``width`` wraps a column narrower than
+    its header or than :data:`NARROWEST` characters (or than its natural width, when that is
     less). Never when nothing limits the width or ``max_width`` is 0 (never wrap); with no rows,
     when the headers alone would wrap."""
     if width is None or max_width == 0 or not columns:

@@ -17,7 +17,8 @@ from typing import IO, TYPE_CHECKING, Iterator
 
 import duckdb
 
-from pipeline.serve.door import MEMORY_LIMIT_ENV, TEMP_LIMIT_ENV, TIMEOUT_ENV, connect_readonly
+from pipeline.serve.door import (MEMORY_LIMIT_ENV, TEMP_LIMIT_ENV, TIMEOUT_ENV, DoorSettingError, connect_readonly,
+                                 timeout_from_env)
 
 if TYPE_CHECKING:
     import pyarrow as pa
@@ -41,11 +42,11 @@ TIMEOUT_S = 600.0
 def _timeout_s(value: float | None) -> float:
     """The statement timeout [s]: ``value``, else ``$PNEUBENCH_QUERY_TIMEOUT``, else :data:`TIMEOUT_S`."""
     if value is None:
-        text = os.environ.get(TIMEOUT_ENV, "").strip()
         try:
-            value = float(text) if text else TIMEOUT_S
-        except ValueError:
-            raise QueryError(f"${TIMEOUT_ENV} = {text!r}: a number of seconds (0: no timeout)") from None
+            value = timeout_from_env()
+        except DoorSettingError as exc:
+            raise QueryError(str(exc)) from None
+        value = TIMEOUT_S if value is None else value
     if not value >= 0:
         raise QueryError(f"timeout {value!r}: a number of seconds >= 0 (0: no timeout)")
     return float(value)

@@ -26,7 +26,7 @@ from pipeline.serve.remaining_life import (METHODS, RunningHose, coverage_text, 
 from pipeline.serve.report.db import ReportDB
 from pipeline.serve.report.figures import Figures, code_key, figure_key
 from pipeline.serve.report.markup import esc
-from pipeline.serve.report.tables import coarsest_floor_l_min, floor_text
+from pipeline.serve.report.tables import floor_text, floors_by
 
 #: Running hoses whose leak path is drawn, nearest their end first (a plot each; the rest are counted).
 MAX_LEAK_PLOTS = 40
@@ -82,15 +82,9 @@ def running_section(db: ReportDB, figures: Figures | None = None) -> str:
 
 
 def _hose_floors(db: ReportDB, hoses: list[RunningHose]) -> dict[str, float]:
-    """Per running hose, the floor of the coarsest flow sensor of its leakage runs (the
-    ``leakage_map.sensors`` of the rows naming it, :func:`~pipeline.serve.report.tables.coarsest_floor_l_min`)
-    [l/min ANR]; a hose without one is left out."""
-    if not db.has("leakage_map") or not {"hose_id", "sensors"} <= set(db.columns("leakage_map")):
-        return {}
-    found = db.con.execute("SELECT hose_id, list(DISTINCT sensors) FROM leakage_map "
-                           "WHERE hose_id IN (SELECT unnest(?)) GROUP BY hose_id",
-                           [sorted({str(h.hose_id) for h in hoses})]).fetchall()
-    return {hid: f for hid, texts in found if (f := coarsest_floor_l_min(texts)) is not None}
+    """Per running hose, the floor of the coarsest flow sensor of its leakage runs
+    (:func:`~pipeline.serve.report.tables.floors_by` ``hose_id``) [l/min ANR]; a hose without one is left out."""
+    return floors_by(db, "hose_id", [h.hose_id for h in hoses])
 
 
 def _group_table(hose_type: str, adjustment: str, hoses: list[RunningHose], backtest: dict, plots: dict,

@@ -71,10 +71,7 @@ def leak_floors(db, table: str, columns: list[str], rows: list[tuple]) -> list |
     setting = ("chamber", "adjustment", "z_rollers_mm", "spring_force_n")
     if "run_id" in columns:
         k = columns.index("run_id")
-        found = db.con.execute("SELECT run_id, list(DISTINCT sensors) FROM leakage_map "
-                               "WHERE run_id IN (SELECT unnest(?)) GROUP BY run_id",
-                               [sorted({r[k] for r in rows if isinstance(r[k], str)})]).fetchall()
-        of = {rid: coarsest_floor_l_min(texts) for rid, texts in found}
+        of = floors_by(db, "run_id", [r[k] for r in rows])
         return [of.get(r[k]) for r in rows]
     if table == "seal_envelope" and {*setting, "runs_used"} <= set(columns) and \
             set(setting) <= set(db.columns("leakage_map")):
@@ -86,6 +83,17 @@ def leak_floors(db, table: str, columns: list[str], rows: list[tuple]) -> list |
         at = [columns.index(c) for c in (*setting, "runs_used")]
         return [of.get(tuple(r[j] for j in at)) for r in rows]
     return None
+
+
+def floors_by(db, key: str, ids) -> dict:
+    """``{id: floor}``: per ``run_id`` or ``hose_id`` (``key``) of ``ids``, the floor of the coarsest
+    flow sensor of its ``leakage_map`` rows (:func:`coarsest_floor_l_min`) [l/min ANR]; an id without
+    one, or a database without ``leakage_map``'s ``key`` and ``sensors``, is left out."""
+    if not db.has("leakage_map") or not {key, "sensors"} <= set(db.columns("leakage_map")):
+        return {}
+    found = db.con.execute(f"SELECT {key}, list(DISTINCT sensors) FROM leakage_map WHERE {key} IN (SELECT unnest(?)) "
+                           f"GROUP BY {key}", [sorted({str(i) for i in ids if i is not None})]).fetchall()
+    return {k: f for k, texts in found if (f := coarsest_floor_l_min(texts)) is not None}
 
 
 #: A column shows at most this many decimals more than its largest value needs for its digits.

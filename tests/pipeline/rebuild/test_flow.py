@@ -419,9 +419,10 @@ def test_a_raw_folder_that_is_not_one_says_why_in_one_line(tmp_path):
 def test_a_raw_folder_that_goes_away_during_the_rebuild_publishes_nothing(raw, warehouse, monkeypatch):
     """raw/ unmounted or moved after it was walked: the files still to be read and the logbooks
     would have been quarantine lines and the warehouse published gutted (a reviewer's night). The
-    rebuild refuses before anything is written (exit 2); the night after, raw/ back, recovers."""
+    rebuild fails before the database is written (exit 3: failed, the previous warehouse untouched);
+    the night after, raw/ back, recovers."""
     from pipeline.rebuild import flow
-    from pipeline.rebuild.options import EXIT_USAGE
+    from pipeline.rebuild.options import EXIT_FAILED
 
     for i in range(3):
         raw.csv(f"c/r{i}.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": [0.3] * 4})
@@ -438,7 +439,7 @@ def test_a_raw_folder_that_goes_away_during_the_rebuild_publishes_nothing(raw, w
     unguarded = getattr(rebuild, "__wrapped_rebuild__", rebuild)  # the test moves raw/ itself (the guard's job)
     with pytest.raises(RebuildError, match="went away or was replaced while the rebuild read it") as caught:
         unguarded(raw.root, warehouse, jobs=1, full=True)
-    assert caught.value.exit_code == EXIT_USAGE
+    assert caught.value.exit_code == EXIT_FAILED
     assert q(warehouse, "SELECT run_id, source_path FROM runs ORDER BY 1") == before
     monkeypatch.setattr(flow, "_assemble", real)
     raw.root.with_name("raw.gone").rename(raw.root)
@@ -447,10 +448,10 @@ def test_a_raw_folder_that_goes_away_during_the_rebuild_publishes_nothing(raw, w
 
 def test_files_that_could_not_be_read_for_a_passing_reason_count_as_gone_for_the_mass_delete_guard(
         raw, warehouse, monkeypatch):
-    """A share that stalls (every read an I/O error, raw/ itself still there) is refused like one
-    that is not mounted, unless --allow-mass-delete."""
+    """A share that stalls (every read an I/O error, raw/ itself still there) fails (exit 3) with the
+    guard's words, like one that is not mounted, unless --allow-mass-delete."""
     from pipeline.rebuild import flow
-    from pipeline.rebuild.options import EXIT_USAGE
+    from pipeline.rebuild.options import EXIT_FAILED
 
     for i in range(3):
         raw.csv(f"c/r{i}.csv", STEP_META, {"t[s]": T, "x[m]": T, "x_ref[m]": [0.3] * 4})
@@ -466,7 +467,7 @@ def test_files_that_could_not_be_read_for_a_passing_reason_count_as_gone_for_the
     monkeypatch.setattr(flow, "ingest_incremental", stalled)
     with pytest.raises(RebuildError, match="refusing to delete 3 of the warehouse's 3 runs") as caught:
         rebuild(raw.root, warehouse, jobs=1, full=True)
-    assert caught.value.exit_code == EXIT_USAGE
+    assert caught.value.exit_code == EXIT_FAILED
     assert q(warehouse, "SELECT count(*) FROM runs") == [(3,)]
     assert rebuild(raw.root, warehouse, jobs=1, full=True, allow_mass_delete=True).exit_code == EXIT_QUARANTINED
     assert q(warehouse, "SELECT count(*) FROM runs") == [(0,)]
